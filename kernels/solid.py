@@ -12,8 +12,9 @@ Everything here is integer bookkeeping over the surface's faces, count -> scan -
   flags them per face and counts them per thread, :func:`emit_boundary` writes them in face and corner order.
 * fins (two walls back to back on the same four vertices): :func:`wall_quads` sorts each wall pair's four vertices,
   a CSR keyed by each quad's smallest vertex groups the candidates, :func:`find_fins` flags the repeated quads.
-* the base: :func:`emit_base_vertices` writes each column's base vertex, :func:`count_base_faces` and
-  :func:`emit_base_faces` the terraces flattened and reversed, without those a column collapses to zero area.
+* the closed mesh: :func:`emit_vertices` copies the surface's vertices and writes each column's base vertex,
+  :func:`count_base_faces` and :func:`emit_faces` copy the faces and write the terraces flattened and reversed, but
+  for those a column collapses to zero area (the skirts between them are few: numpy writes them).
 
 Kernels take ``thread_offset, count, chunk`` first (``stepterrain._device.launch_chunked``). Faces are flat int32
 arrays (3 per face); indices fit int32 (``close_solid`` checks).
@@ -254,7 +255,7 @@ def find_fins(
 
 
 @wp.kernel
-def emit_base_vertices(
+def emit_vertices(
     thread_offset: wp.int32,
     count: wp.int32,
     chunk: wp.int32,
@@ -262,18 +263,24 @@ def emit_base_vertices(
     column: wp.array[wp.int32],
     floor: wp.float64,
     # outputs
-    base_out: wp.array[wp.float64],
+    vertices_out: wp.array[wp.float64],
 ):
-    """One element per surface vertex: its column's base vertex (its x, y at ``floor``; flat, 3 per vertex). The
-    vertices of a column share their x and y bit for bit, so its writers write the same values."""
+    """One element per surface vertex (flat, 3 per vertex): itself, and its column's base vertex after the ``count``
+    surface vertices (its x, y at ``floor``). The vertices of a column share their x and y bit for bit, so its
+    writers write the same values."""
     first = (wp.tid() + thread_offset) * chunk
     i = first
     last = wp.min(first + chunk, count)
     while i < last:
-        o = 3 * load(column, i)
-        base_out[o] = load(vertices, 3 * i)
-        base_out[o + 1] = load(vertices, 3 * i + 1)
-        base_out[o + 2] = floor
+        x = load(vertices, 3 * i)
+        y = load(vertices, 3 * i + 1)
+        vertices_out[3 * i] = x
+        vertices_out[3 * i + 1] = y
+        vertices_out[3 * i + 2] = load(vertices, 3 * i + 2)
+        o = 3 * (count + load(column, i))
+        vertices_out[o] = x
+        vertices_out[o + 1] = y
+        vertices_out[o + 2] = floor
         i += 1
 
 
@@ -313,7 +320,7 @@ def count_base_faces(
 
 
 @wp.kernel
-def emit_base_faces(
+def emit_faces(
     thread_offset: wp.int32,
     count: wp.int32,
     chunk: wp.int32,
@@ -321,20 +328,28 @@ def emit_base_faces(
     terrace: wp.array[wp.uint8],
     column: wp.array[wp.int32],
     offsets: wp.array[wp.int32],
-    first_base: wp.int64,
+    first_base_vertex: wp.int64,
+    first_base_face: wp.int32,
     # outputs
     faces_out: wp.array[wp.int64],
 ):
-    """One element per face: a terrace's base face, its columns' base vertices (``first_base`` + column) in reverse
-    order, from the thread's offset on (flat, 3 per face)."""
+    """One element per face (flat, 3 per face): the face itself, and a terrace's base face from the thread's offset
+    on after ``first_base_face`` faces: its columns' base vertices (``first_base_vertex`` + column) in reverse
+    order."""
     first = (wp.tid() + thread_offset) * chunk
     f = first
     last = wp.min(first + chunk, count)
-    o = load(offsets, wp.tid() + thread_offset)
+    o = first_base_face + load(offsets, wp.tid() + thread_offset)
     while f < last:
+        a = load(faces, 3 * f)
+        b = load(faces, 3 * f + 1)
+        c = load(faces, 3 * f + 2)
+        faces_out[3 * f] = wp.int64(a)
+        faces_out[3 * f + 1] = wp.int64(b)
+        faces_out[3 * f + 2] = wp.int64(c)
         if base_face_ok(faces, terrace, column, f):
-            faces_out[3 * o] = first_base + wp.int64(load(column, load(faces, 3 * f + 2)))
-            faces_out[3 * o + 1] = first_base + wp.int64(load(column, load(faces, 3 * f + 1)))
-            faces_out[3 * o + 2] = first_base + wp.int64(load(column, load(faces, 3 * f)))
+            faces_out[3 * o] = first_base_vertex + wp.int64(load(column, c))
+            faces_out[3 * o + 1] = first_base_vertex + wp.int64(load(column, b))
+            faces_out[3 * o + 2] = first_base_vertex + wp.int64(load(column, a))
             o += 1
         f += 1

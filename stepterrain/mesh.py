@@ -94,6 +94,14 @@ def _empty(n: int, np_dtype: Any, dtype: Any, device: wp.Device, *, zero: bool =
     return wp.zeros(n, dtype=dtype, device=device) if zero else wp.empty(n, dtype=dtype, device=device)
 
 
+def _output(host: NDArray[Any], dtype: Any, device: wp.Device) -> wp.array:
+    """Where a kernel writes the output ``host`` (flat): ``host`` itself on the CPU, a device array on CUDA (copied
+    into it after)."""
+    if device.is_cpu:
+        return wp.array(host.reshape(-1), dtype=dtype, device=device, copy=False)
+    return wp.empty(host.size, dtype=dtype, device=device)
+
+
 def _scan(counts: wp.array) -> tuple[wp.array, int]:
     """The exclusive prefix sum of ``counts`` (n + 1, the last 0) and its total (the pass's one host sync)."""
     offsets = _empty(counts.shape[0], np.int32, wp.int32, counts.device)
@@ -274,19 +282,18 @@ def close_solid(
     column = _dense_rank(keys)
     del keys, xy, pair
     n_columns = int(column.max()) + 1
+    if 3 * (n + n_columns) > MAX_INT32 or 3 * (2 * len(faces) + 3 * len(edges)) > MAX_INT32:
+        raise OutputTooLargeError(f"the solid of {len(faces):,} faces and {n:,} vertices would have more faces or "
+                                  f"vertices than the kernels index with int32 (3 per face or vertex)")
     column32 = to_device(column, wp.int32, device)
 
     out_vertices = np.empty((n + n_columns, 3), np.float64)
-    out_vertices[:n] = vertices
-    if device.is_cpu:
-        base = wp.array(out_vertices[n:].reshape(-1), dtype=wp.float64, device=device, copy=False)
-    else:
-        base = wp.empty(3 * n_columns, dtype=wp.float64, device=device)
-    launch_chunked(kernels.emit_base_vertices, n, [to_device(vertices.reshape(-1), wp.float64, device), column32,
-                                                   float(floor)], [base], device)
+    written = _output(out_vertices, wp.float64, device)
+    launch_chunked(kernels.emit_vertices, n, [to_device(vertices.reshape(-1), wp.float64, device), column32,
+                                              float(floor)], [written], device)
     if not device.is_cpu:
-        out_vertices[n:] = base.numpy().reshape(-1, 3)
-    del base
+        out_vertices[:] = written.numpy().reshape(-1, 3)
+    del written
 
     terrace = to_device(terrace_mask.view(np.uint8), wp.uint8, device)
     count = len(faces)
@@ -311,21 +318,18 @@ def close_solid(
     h = m - p
     n_skirts = m + p + 2 * h
     out_faces = np.empty((len(faces) + n_skirts + n_base, 3), np.int64)
-    out_faces[:len(faces)] = faces
+    written = _output(out_faces, wp.int64, device)
+    launch_chunked(kernels.emit_faces, count, [flat, terrace, column32, starts, n, len(faces) + n_skirts], [written],
+                   device)
+    if not device.is_cpu:
+        out_faces[:] = written.numpy().reshape(-1, 3)
+    del written
     # skirts: every [b, A, B], then [b, a, A] where no vertical edge arrives at a, else [b, a, x] and [b, x, A]
     skirts = out_faces[len(faces):len(faces) + n_skirts]
     skirts[:m] = np.stack([b, A, B], axis=1)
     skirts[m:m + p] = np.stack([b[plain], a[plain], A[plain]], axis=1)
     skirts[m + p:m + p + h] = np.stack([b[has_x], a[has_x], x[has_x]], axis=1)
     skirts[m + p + h:] = np.stack([b[has_x], x[has_x], A[has_x]], axis=1)
-    base_faces = out_faces[len(faces) + n_skirts:].reshape(-1)
-    if device.is_cpu:
-        emitted = wp.array(base_faces, dtype=wp.int64, device=device, copy=False)
-    else:
-        emitted = wp.empty(3 * n_base, dtype=wp.int64, device=device)
-    launch_chunked(kernels.emit_base_faces, count, [flat, terrace, column32, starts, n], [emitted], device)
-    if not device.is_cpu:
-        base_faces[:] = emitted.numpy()
     return out_vertices, out_faces, kept, n_skirts + n_base, source
 
 
