@@ -353,3 +353,117 @@ def emit_faces(
             faces_out[3 * o + 2] = first_base_vertex + wp.int64(load(column, a))
             o += 1
         f += 1
+
+
+@wp.kernel
+def last_wall_writes(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    faces: wp.array[wp.int32],
+    first_walls: wp.array[wp.int32],
+    second_walls: wp.array[wp.int32],
+    # outputs
+    winner_out: wp.array[wp.int32],
+):
+    """One element per wall pair p of ``count``: the vertical edges (v_top, v_bottom) of its first face and
+    (u_top, u_bottom) of its second are written to their ends, tops first, in the order top p, top count + p,
+    bottom 2 count + p, bottom 3 count + p; ``winner_out`` (-1 first) keeps each vertex's last write (the one a
+    sequential ``pair[tops] = low; pair[bottoms] = low`` keeps)."""
+    first = (wp.tid() + thread_offset) * chunk
+    p = first
+    last = wp.min(first + chunk, count)
+    while p < last:
+        f = load(first_walls, p)
+        g = load(second_walls, p)
+        wp.atomic_max(winner_out, load(faces, 3 * f + 1), p)
+        wp.atomic_max(winner_out, load(faces, 3 * g), count + p)
+        wp.atomic_max(winner_out, load(faces, 3 * f + 2), 2 * count + p)
+        wp.atomic_max(winner_out, load(faces, 3 * g + 2), 3 * count + p)
+        p += 1
+
+
+@wp.kernel
+def wall_pairs(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    faces: wp.array[wp.int32],
+    first_walls: wp.array[wp.int32],
+    second_walls: wp.array[wp.int32],
+    winner: wp.array[wp.int32],
+    pairs: wp.int32,
+    # outputs
+    pair_out: wp.array[wp.int64],
+):
+    """One element per vertex: the lower end of the vertical wall edge last written to it (:func:`last_wall_writes`
+    over ``pairs`` wall pairs), else itself."""
+    first = (wp.tid() + thread_offset) * chunk
+    v = first
+    last = wp.min(first + chunk, count)
+    while v < last:
+        w = load(winner, v)
+        low = v
+        if w >= 0:
+            k = w % (2 * pairs)
+            if k < pairs:
+                f = load(first_walls, k)
+                low = wp.min(load(faces, 3 * f + 1), load(faces, 3 * f + 2))
+            else:
+                g = load(second_walls, k - pairs)
+                low = wp.min(load(faces, 3 * g), load(faces, 3 * g + 2))
+        pair_out[v] = wp.int64(low)
+        v += 1
+
+
+@wp.kernel
+def column_starts(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    order: wp.array[wp.int64],
+    bits: wp.array[wp.int64],
+    fan: wp.array[wp.int64],
+    pair: wp.array[wp.int64],
+    # outputs
+    starts_out: wp.array[wp.int32],
+):
+    """One element per sorted vertex i (``order``: the vertices sorted by x, y, fan and pair): 1 where that key
+    differs from the vertex before's (a new column; the first is one), else 0. ``bits``: the vertices' float64 bit
+    patterns (3 per vertex; x and y are compared bit for bit); ``fan``: likewise, or empty (no pinch was split)."""
+    first = (wp.tid() + thread_offset) * chunk
+    i = first
+    last = wp.min(first + chunk, count)
+    fans = fan.shape[0] > 0
+    while i < last:
+        new = wp.int32(1)
+        if i > 0:
+            r = wp.int32(order[i])
+            q = wp.int32(order[i - 1])
+            if bits[3 * r] == bits[3 * q] and bits[3 * r + 1] == bits[3 * q + 1] and pair[r] == pair[q]:
+                new = 0
+                if fans:
+                    if fan[r] != fan[q]:
+                        new = 1
+        starts_out[i] = new
+        i += 1
+
+
+@wp.kernel
+def scatter_ranks(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    order: wp.array[wp.int64],
+    ranks: wp.array[wp.int32],
+    # outputs
+    ids_out: wp.array[wp.int64],
+):
+    """One element per sorted vertex i: its column, the number of columns up to it less one (``ranks``: the inclusive
+    scan of :func:`column_starts`)."""
+    first = (wp.tid() + thread_offset) * chunk
+    i = first
+    last = wp.min(first + chunk, count)
+    while i < last:
+        ids_out[order[i]] = wp.int64(load(ranks, i) - 1)
+        i += 1

@@ -189,6 +189,52 @@ def _fins(faces: wp.array, walls: NDArray[np.int64], n: int, device: wp.Device) 
     return fins.numpy().view(np.bool_)
 
 
+def _pairs(faces: wp.array, terrace_mask: NDArray[np.bool_], n: int, device: wp.Device) -> wp.array:
+    """Per vertex, the lower index of the wall bottom and top it pairs with through a vertical wall edge (itself when
+    no wall's side joins it to another vertex), int64 on ``device``. Walls come as consecutive pairs (u_top, v_top,
+    v_bottom), (u_top, v_bottom, u_bottom): their vertical edges are (v_top, v_bottom) and (u_top, u_bottom); a vertex
+    lies on one such edge at most (a crossing's bottom or top, a node over its twin). Should one lie on several
+    (any other mesh), the last in the order tops of the first faces, of the second faces, then bottoms likewise wins
+    (kernels/solid.py: last_wall_writes, wall_pairs)."""
+    walls = np.flatnonzero(~terrace_mask)
+    if len(walls) == 0 or len(walls) % 2:
+        walls = walls[:0]
+    first = to_device(walls[0::2], wp.int32, device)
+    second = to_device(walls[1::2], wp.int32, device)
+    count = first.shape[0]
+    winner = _empty(n, np.int32, wp.int32, device)
+    winner.fill_(-1)
+    launch_chunked(kernels.last_wall_writes, count, [faces, first, second], [winner], device)
+    pair = _empty(n, np.int64, wp.int64, device)
+    launch_chunked(kernels.wall_pairs, n, [faces, first, second, winner, count], [pair], device)
+    return pair
+
+
+def _columns(vertices: NDArray[np.float64], fan: NDArray[np.float64] | None, pair: wp.array,
+             device: wp.Device) -> NDArray[np.int64]:
+    """Per vertex its column: the dense rank of (x, y, [fan], pair) compared bit for bit (one ``lexsort``, then
+    kernels/solid.py's column_starts, a scan and scatter_ranks)."""
+    n = len(vertices)
+    if n == 0:
+        return np.zeros(0, np.int64)
+    xy = np.ascontiguousarray(vertices[:, :2]).view(np.uint64)
+    pair_host = pair.numpy()
+    keys = [xy[:, 0], xy[:, 1]] + ([fan.view(np.uint64)] if fan is not None else []) + [pair_host]
+    order = np.lexsort(keys[::-1])
+    del keys, xy
+    order_w = to_device(order, wp.int64, device)
+    del order
+    bits = to_device(np.ascontiguousarray(vertices).view(np.int64).reshape(-1), wp.int64, device)
+    fans = to_device(fan.view(np.int64) if fan is not None else np.zeros(0, np.int64), wp.int64, device)
+    starts = _empty(n, np.int32, wp.int32, device)
+    launch_chunked(kernels.column_starts, n, [order_w, bits, fans, pair], [starts], device)
+    del bits, fans
+    wp.utils.array_scan(starts, starts, inclusive=True)
+    ids = _empty(n, np.int64, wp.int64, device)
+    launch_chunked(kernels.scatter_ranks, n, [order_w, starts], [ids], device)
+    return ids.numpy()
+
+
 def close_solid(
     vertices: NDArray[np.float64],
     faces: NDArray[np.int64],
@@ -276,11 +322,8 @@ def close_solid(
     # base under them folded onto a base edge used four times: a solid that leaked, without a warning. So the key is
     # (x, y, [fan], pair): the vertices of one xy share a column when they share their wall pair (a wall's bottom
     # and top, or one vertex). Where each xy has one pair this numbers the columns as the xy alone would.
-    pair = _wall_pairs(faces, terrace_mask, n)
-    xy = np.ascontiguousarray(vertices[:, :2]).view(np.uint64)
-    keys = [xy[:, 0], xy[:, 1]] + ([fan.view(np.uint64)] if split else []) + [pair]
-    column = _dense_rank(keys)
-    del keys, xy, pair
+    pair = _pairs(flat, terrace_mask, n, device)
+    column = _columns(vertices, fan if split else None, pair, device)
     n_columns = int(column.max()) + 1
     if 3 * (n + n_columns) > MAX_INT32 or 3 * (2 * len(faces) + 3 * len(edges)) > MAX_INT32:
         raise OutputTooLargeError(f"the solid of {len(faces):,} faces and {n:,} vertices would have more faces or "
@@ -331,24 +374,6 @@ def close_solid(
     skirts[m + p:m + p + h] = np.stack([b[has_x], a[has_x], x[has_x]], axis=1)
     skirts[m + p + h:] = np.stack([b[has_x], x[has_x], A[has_x]], axis=1)
     return out_vertices, out_faces, kept, n_skirts + n_base, source
-
-
-def _wall_pairs(faces: NDArray[np.int64], terrace_mask: NDArray[np.bool_], n: int) -> NDArray[np.int64]:
-    """Per vertex, the lower index of the wall bottom and top it pairs with through a vertical wall edge (itself when
-    no wall's side joins it to another vertex). Walls come as consecutive pairs (u_top, v_top, v_bottom),
-    (u_top, v_bottom, u_bottom): their vertical edges are (v_top, v_bottom) and (u_top, u_bottom); a vertex lies on
-    one such edge at most (a crossing's bottom or top, a node over its twin)."""
-    pair = np.arange(n, dtype=np.int64)
-    walls = np.flatnonzero(~np.asarray(terrace_mask))
-    if len(walls) == 0 or len(walls) % 2:
-        return pair
-    first, second = walls[0::2], walls[1::2]
-    tops = np.concatenate([faces[first, 1], faces[second, 0]])
-    bottoms = np.concatenate([faces[first, 2], faces[second, 2]])
-    low = np.minimum(tops, bottoms)
-    pair[tops] = low
-    pair[bottoms] = low
-    return pair
 
 
 def _split_pinches(
