@@ -467,3 +467,31 @@ def scatter_ranks(
     while i < last:
         ids_out[order[i]] = wp.int64(load(ranks, i) - 1)
         i += 1
+
+
+@wp.kernel
+def narrow_faces(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    faces: wp.array[wp.int64],
+    # outputs
+    faces_out: wp.array[wp.int32],
+    low_out: wp.array[wp.int64],
+    high_out: wp.array[wp.int64],
+):
+    """One element per index of the flat int64 ``faces``: it as int32 (wrapped where it does not fit: the caller
+    refuses those from the thread's smallest and largest index, ``low_out`` and ``high_out``)."""
+    first = (wp.tid() + thread_offset) * chunk
+    t = first
+    last = wp.min(first + chunk, count)
+    low = faces[first]
+    high = low
+    while t < last:
+        v = faces[t]
+        low = wp.min(low, v)
+        high = wp.max(high, v)
+        faces_out[t] = wp.int32(v)
+        t += 1
+    low_out[wp.tid() + thread_offset] = low
+    high_out[wp.tid() + thread_offset] = high

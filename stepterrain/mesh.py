@@ -130,6 +130,23 @@ def _flat_faces(faces: NDArray[np.int64], device: wp.Device) -> wp.array:
     return to_device(faces.reshape(-1), wp.int32, device)
 
 
+def _narrow_faces(faces: NDArray[np.int64], device: wp.Device) -> tuple[wp.array, int, int]:
+    """:func:`_flat_faces` of int64 ``faces`` and their smallest and largest index, in one pass
+    (kernels/solid.py: narrow_faces); (0, 0) where there is no face."""
+    if 3 * len(faces) > MAX_INT32:
+        _flat_faces(faces, device)  # refused
+    count = 3 * len(faces)
+    flat = _empty(count, np.int32, wp.int32, device)
+    if count == 0:
+        return flat, 0, 0
+    threads = chunked_threads(count, device)
+    low = _empty(threads, np.int64, wp.int64, device)
+    high = _empty(threads, np.int64, wp.int64, device)
+    launch_chunked(kernels.narrow_faces, count, [to_device(faces.reshape(-1), wp.int64, device)], [flat, low, high],
+                   device)
+    return flat, int(low.numpy().min()), int(high.numpy().max())
+
+
 def _boundary(faces: wp.array, n: int, device: wp.Device) -> NDArray[np.int64]:
     """The boundary edges of the flat int32 ``faces`` (indices in [0, n)), as :func:`boundary_edges` gives them."""
     count = faces.shape[0] // 3
@@ -271,17 +288,17 @@ def close_solid(
     faces = np.asarray(faces, dtype=np.int64)
     if faces.ndim != 2 or faces.shape[1] != 3:
         raise InvalidInputError(f"faces must be an (F, 3) array of vertex indices; got shape {faces.shape}")
-    if len(faces) and (faces.min() < 0 or faces.max() >= len(vertices)):
-        raise InvalidInputError(f"faces must index the {len(vertices)} vertices (0 .. {len(vertices) - 1}); got "
-                                f"indices {int(faces.min())} .. {int(faces.max())}")
     if len(vertices) > MAX_INT32:
         raise OutputTooLargeError(f"vertices: the kernels index at most {MAX_INT32:,} vertices with int32; got "
                                   f"{len(vertices):,}")
     device = _device_of(device)
+    flat, low, high = _narrow_faces(faces, device)
+    if low < 0 or high >= len(vertices):
+        raise InvalidInputError(f"faces must index the {len(vertices)} vertices (0 .. {len(vertices) - 1}); got "
+                                f"indices {low} .. {high}")
     terrace_mask = np.asarray(terrace_mask)
     kept = np.ones(len(faces), bool)
     source = np.arange(len(vertices))
-    flat = _flat_faces(faces, device)
     walls = np.flatnonzero(~terrace_mask)
     if len(walls) >= 4 and len(walls) % 2 == 0:
         # walls are emitted as consecutive pairs (u_top, v_top, v_bottom), (u_top, v_bottom, u_bottom)
