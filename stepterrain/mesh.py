@@ -293,7 +293,7 @@ def close_solid(
                                   f"{len(vertices):,}")
     device = _device_of(device)
     flat, low, high = _narrow_faces(faces, device)
-    if low < 0 or high >= len(vertices):
+    if len(faces) and (low < 0 or high >= len(vertices)):
         raise InvalidInputError(f"faces must index the {len(vertices)} vertices (0 .. {len(vertices) - 1}); got "
                                 f"indices {low} .. {high}")
     terrace_mask = np.asarray(terrace_mask)
