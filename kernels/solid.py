@@ -1,5 +1,6 @@
-"""Warp kernels that close a stepped surface into a watertight solid (``stepterrain.mesh.close_solid``; paper 000
-§4 prints the stepped terrain as a solid: side skirts from the boundary down to a flat base).
+"""Warp kernels that close a stepped surface into a watertight solid (``stepterrain.mesh.close_solid``, behind
+``stepped(..., solid=True)``: side skirts from the boundary down to a flat base). Paper 000 (Glander, Trapp &
+Döllner 2010) steps the surface only and has no section on solids; this is stepterrain's own addition, for printing.
 
 Everything here is integer bookkeeping over the surface's faces, count -> scan -> emit as elsewhere:
 
