@@ -297,6 +297,9 @@ def close_solid(
         raise InvalidInputError(f"faces must index the {len(vertices)} vertices (0 .. {len(vertices) - 1}); got "
                                 f"indices {low} .. {high}")
     terrace_mask = np.asarray(terrace_mask)
+    if terrace_mask.dtype != np.bool_ or terrace_mask.shape != (len(faces),):  # the kernels read one byte a face
+        raise InvalidInputError(f"terrace_mask must be a bool array of one flag per face ({len(faces)}); got "
+                                f"{terrace_mask.dtype} of shape {terrace_mask.shape}")
     kept = np.ones(len(faces), bool)
     source = np.arange(len(vertices))
     walls = np.flatnonzero(~terrace_mask)

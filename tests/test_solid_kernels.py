@@ -143,6 +143,14 @@ def test_faces_out_of_range_are_refused():
         mesh_module.close_solid(np.zeros((3, 3)), np.array([[0, 1, 3]]), np.ones(1, bool), -1.0)
 
 
+def test_a_terrace_mask_of_another_length_or_dtype_is_refused():
+    """The kernels read the mask as one byte a face: a mask of ints or of another length read past it or misread."""
+    vertices, faces = np.zeros((3, 3)), np.array([[0, 1, 2], [0, 2, 1]])
+    for mask in (np.ones(1, bool), np.ones(3, bool), np.ones(2, np.int64)):
+        with pytest.raises(st.InvalidInputError, match=r"terrace_mask must be a bool array of one flag per face \(2\)"):
+            mesh_module.close_solid(vertices, faces, mask, -1.0)
+
+
 @settings(max_examples=30, deadline=None)
 @given(
     rows=hs.integers(2, 9),
