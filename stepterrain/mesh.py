@@ -18,7 +18,7 @@ import warp as wp
 from numpy.typing import NDArray
 
 from ._compaction import MAX_INT32
-from ._device import chunked_threads, init_warp, launch_chunked, read_int32, to_device
+from ._device import chunked_threads, init_warp, launch_chunked, read_int32, resolve_device, to_device
 from .errors import InvalidInputError, OutputTooLargeError
 from .kernels import solid as kernels
 from .terrain import FLOAT32_MAX
@@ -81,8 +81,9 @@ def _dense_rank(columns: list[NDArray[Any]]) -> NDArray[np.int64]:
 
 
 def _device_of(device: wp.DeviceLike) -> wp.Device:
+    """Where the kernels run: ``device`` (a DeviceError naming the devices there are otherwise), the CPU for None."""
     init_warp()
-    return wp.get_device("cpu" if device is None else device)
+    return wp.get_device("cpu") if device is None else resolve_device(device)
 
 
 def _empty(n: int, np_dtype: Any, dtype: Any, device: wp.Device, *, zero: bool = False) -> wp.array:

@@ -137,6 +137,15 @@ def test_empty_inputs_behave_as_the_reference():
     _assert_same(np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 2.0]]), none, np.zeros(0, bool), -1.0)
 
 
+def test_the_device_is_checked_and_the_cpu_is_the_default():
+    vertices, faces, terrace, floor = _surface(np.arange(20.0).reshape(4, 5), interval=2.0)
+    default = mesh_module.close_solid(vertices, faces, terrace, floor)
+    named = mesh_module.close_solid(vertices, faces, terrace, floor, "cpu")
+    assert all(np.array_equal(a, b) for a, b in zip(default, named, strict=True))
+    with pytest.raises(st.DeviceError, match="device must be one of"):
+        mesh_module.close_solid(vertices, faces, terrace, floor, "tpu:7")
+
+
 def test_faces_out_of_range_are_refused():
     message = r"faces must index the 3 vertices \(0 \.\. 2\); got indices 0 \.\. 3"
     with pytest.raises(st.InvalidInputError, match=message):
