@@ -13,6 +13,10 @@ Everything here is integer bookkeeping over the surface's faces, count -> scan -
   flags them per face and counts them per thread, :func:`emit_boundary` writes them in face and corner order.
 * fins (two walls back to back on the same four vertices): :func:`wall_quads` sorts each wall pair's four vertices,
   a CSR keyed by each quad's smallest vertex groups the candidates, :func:`find_fins` flags the repeated quads.
+* columns (one base vertex each): :func:`last_wall_writes` and :func:`wall_pairs` join each wall's bottom and top
+  through its vertical edges; the host sorts the vertices by (x, y, [fan], pair) with one ``lexsort``, and
+  :func:`column_starts`, a scan and :func:`scatter_ranks` number the distinct keys in that order (a dense rank).
+  :func:`narrow_faces` turns the int64 faces into the kernels' int32 and finds their index range in the same pass.
 * the closed mesh: :func:`emit_vertices` copies the surface's vertices and writes each column's base vertex,
   :func:`count_base_faces` and :func:`emit_faces` copy the faces and write the terraces flattened and reversed, but
   for those a column collapses to zero area (the skirts between them are few: numpy writes them).
