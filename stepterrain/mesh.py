@@ -2,7 +2,8 @@
 
 ``close_solid`` turns a stepped (or any height-function) surface into a watertight solid; ``exact_keys``
 groups bit-identical rows (vertices sharing an xy); ``boundary_edges`` lists the edges used by one face only.
-All vectorised numpy: no Python loop over faces or vertices.
+No Python loop over faces or vertices: the per-face work (the boundary, the fins, the base) runs in the Warp kernels
+of ``kernels/solid.py`` (count -> scan -> emit, on the CPU or CUDA), the rest is vectorised numpy.
 
     vertices, faces, kept, added, source = close_solid(mesh.vertices, mesh.faces, terrace_mask, floor=0.0)
 """
@@ -13,9 +14,13 @@ from typing import Any
 
 import numpy as np
 import trimesh
+import warp as wp
 from numpy.typing import NDArray
 
-from .errors import InvalidInputError
+from ._compaction import MAX_INT32
+from ._device import chunked_threads, init_warp, launch_chunked, read_int32, resolve_device, to_device
+from .errors import InvalidInputError, OutputTooLargeError
+from .kernels import solid as kernels
 from .terrain import FLOAT32_MAX
 
 __all__ = ["close_solid", "boundary_edges", "exact_keys", "mesh_argument"]
@@ -54,46 +59,198 @@ def exact_keys(xy: NDArray[np.float64]) -> NDArray[np.int64]:
     if len(rows) == 0:
         return np.zeros(0, np.int64)
     bits = rows.view(np.dtype(f"u{rows.dtype.itemsize}")).reshape(len(rows), -1)
-    order = np.lexsort(bits.T[::-1])
-    ordered = bits[order]
-    new = np.ones(len(rows), bool)
-    new[1:] = np.any(ordered[1:] != ordered[:-1], axis=1)
-    ids = np.empty(len(rows), np.int64)
+    return _dense_rank([bits[:, k] for k in range(bits.shape[1])])
+
+
+def _dense_rank(columns: list[NDArray[Any]]) -> NDArray[np.int64]:
+    """Per row, the rank of its tuple of ``columns`` (most significant first, compared as their integer values)
+    among the distinct tuples: one ``lexsort``, then a gather per column to find where the tuple changes."""
+    n = len(columns[0])
+    if n == 0:
+        return np.zeros(0, np.int64)
+    order = np.lexsort(columns[::-1])
+    new = np.zeros(n, bool)
+    new[0] = True
+    for column in columns:
+        ordered = column[order]
+        new[1:] |= ordered[1:] != ordered[:-1]
+        del ordered
+    ids = np.empty(n, np.int64)
     ids[order] = np.cumsum(new) - 1
     return ids
 
 
-def boundary_edges(faces: NDArray[np.int64]) -> NDArray[np.int64]:
+def _device_of(device: wp.DeviceLike) -> wp.Device:
+    """Where the kernels run: ``device`` (a DeviceError naming the devices there are otherwise), the CPU for None."""
+    init_warp()
+    return wp.get_device("cpu") if device is None else resolve_device(device)
+
+
+def _empty(n: int, np_dtype: Any, dtype: Any, device: wp.Device, *, zero: bool = False) -> wp.array:
+    """A work array of ``n`` elements: on the CPU a numpy buffer wrapped without a copy (so that tracemalloc, which
+    tests/test_solid_budget.py measures the peak with, sees it), on CUDA Warp's."""
+    if device.is_cpu:
+        host = np.zeros(n, np_dtype) if zero else np.empty(n, np_dtype)
+        return wp.array(host, dtype=dtype, device=device, copy=False)
+    return wp.zeros(n, dtype=dtype, device=device) if zero else wp.empty(n, dtype=dtype, device=device)
+
+
+def _output(host: NDArray[Any], dtype: Any, device: wp.Device) -> wp.array:
+    """Where a kernel writes the output ``host`` (flat): ``host`` itself on the CPU, a device array on CUDA (copied
+    into it after)."""
+    if device.is_cpu:
+        return wp.array(host.reshape(-1), dtype=dtype, device=device, copy=False)
+    return wp.empty(host.size, dtype=dtype, device=device)
+
+
+def _scan(counts: wp.array) -> tuple[wp.array, int]:
+    """The exclusive prefix sum of ``counts`` (n + 1, the last 0) and its total (the pass's one host sync)."""
+    offsets = _empty(counts.shape[0], np.int32, wp.int32, counts.device)
+    wp.utils.array_scan(counts, offsets, inclusive=False)
+    return offsets, read_int32(offsets, counts.shape[0] - 1)
+
+
+def _buckets(keys: wp.array, n: int, device: wp.Device) -> tuple[wp.array, wp.array]:
+    """The items of ``keys`` (ints in [0, n)) grouped by key, without a sort (kernels/solid.py: count_keys,
+    fill_buckets): the bucket of key k is ``items[offsets[k]:offsets[k + 1]]``, in no particular order."""
+    counts = _empty(n + 1, np.int32, wp.int32, device, zero=True)
+    launch_chunked(kernels.count_keys, keys.shape[0], [keys], [counts], device)
+    offsets, total = _scan(counts)
+    del counts
+    cursor = _empty(n, np.int32, wp.int32, device, zero=True)
+    items = _empty(total, np.int32, wp.int32, device)
+    launch_chunked(kernels.fill_buckets, keys.shape[0], [keys, offsets], [cursor, items], device)
+    return offsets, items
+
+
+def _flat_faces(faces: NDArray[np.int64], device: wp.Device) -> wp.array:
+    """``faces`` as the kernels read them: a flat int32 array on ``device``."""
+    if 3 * len(faces) > MAX_INT32:
+        raise OutputTooLargeError(f"faces: the kernels index at most {MAX_INT32 // 3:,} faces with int32; got "
+                                  f"{len(faces):,}")
+    return to_device(faces.reshape(-1), wp.int32, device)
+
+
+def _narrow_faces(faces: NDArray[np.int64], device: wp.Device) -> tuple[wp.array, int, int]:
+    """:func:`_flat_faces` of int64 ``faces`` and their smallest and largest index, in one pass
+    (kernels/solid.py: narrow_faces); (0, 0) where there is no face."""
+    if 3 * len(faces) > MAX_INT32:
+        _flat_faces(faces, device)  # refused
+    count = 3 * len(faces)
+    flat = _empty(count, np.int32, wp.int32, device)
+    if count == 0:
+        return flat, 0, 0
+    threads = chunked_threads(count, device)
+    low = _empty(threads, np.int64, wp.int64, device)
+    high = _empty(threads, np.int64, wp.int64, device)
+    launch_chunked(kernels.narrow_faces, count, [to_device(faces.reshape(-1), wp.int64, device)], [flat, low, high],
+                   device)
+    return flat, int(low.numpy().min()), int(high.numpy().max())
+
+
+def _boundary(faces: wp.array, n: int, device: wp.Device) -> NDArray[np.int64]:
+    """The boundary edges of the flat int32 ``faces`` (indices in [0, n)), as :func:`boundary_edges` gives them."""
+    count = faces.shape[0] // 3
+    if count == 0:
+        return np.zeros((0, 2), np.int64)
+    counts = _empty(n + 1, np.int32, wp.int32, device, zero=True)
+    launch_chunked(kernels.count_keys, faces.shape[0], [faces], [counts], device)
+    offsets, total = _scan(counts)
+    cursor = _empty(n, np.int32, wp.int32, device, zero=True)
+    if device.is_cpu:
+        corners = wp.array(np.empty((total, 2), np.int32), dtype=wp.vec2i, device=device, copy=False)
+    else:
+        corners = wp.empty(total, dtype=wp.vec2i, device=device)
+    launch_chunked(kernels.fill_corners, count, [faces, offsets], [cursor, corners], device)
+    del cursor
+    threads = chunked_threads(count, device)
+    counts = _empty(threads + 1, np.int32, wp.int32, device, zero=True)
+    flags = _empty(count, np.int32, wp.int32, device)
+    launch_chunked(kernels.count_boundary, count, [faces, offsets, corners], [flags, counts], device)
+    del offsets, corners
+    starts, total = _scan(counts)
+    edges = _empty(2 * total, np.int64, wp.int64, device)
+    launch_chunked(kernels.emit_boundary, count, [faces, flags, starts], [edges], device)
+    return edges.numpy().reshape(total, 2)
+
+
+def boundary_edges(faces: NDArray[np.int64], device: wp.DeviceLike = None) -> NDArray[np.int64]:
     """Directed edges (a, b), as wound in their face, that no other face uses: (B, 2), in face order.
 
-    One sort of the undirected edge keys finds the keys that occur once (few: the boundary); the edges with
-    one of those keys are then found through a bit table of their low bits and a binary search among the few
-    candidates, so the sort needs no inverse (argsort) and no second pass over every key."""
+    An edge is on the boundary when exactly one half-edge of the mesh has its undirected key; the kernels count
+    those among the corners at one of its ends (kernels/solid.py: a vertex -> corner table built without a sort,
+    then count -> scan -> emit over the faces). ``device``: where the kernels run (the CPU by default)."""
     faces = np.asarray(faces, dtype=np.int64)
     if len(faces) == 0:
         return np.zeros((0, 2), np.int64)
-    a, b, c = faces[:, 0], faces[:, 1], faces[:, 2]
-    n = int(faces.max()) + 1
-    # corner-major: key k * F + f is the edge leaving corner k of face f
-    key = np.concatenate([np.minimum(u, v) * n + np.maximum(u, v) for u, v in ((a, b), (b, c), (c, a))])
-    ordered = np.sort(key)
-    once = np.ones(len(ordered), bool)
-    repeated = ordered[1:] == ordered[:-1]
-    once[1:] &= ~repeated
-    once[:-1] &= ~repeated
-    single = ordered[once]
-    if len(single) == 0:
-        return np.zeros((0, 2), np.int64)
-    low = (1 << 22) - 1
-    table = np.zeros(low + 1, bool)
-    table[single & low] = True
-    candidates = np.flatnonzero(table[key & low])
-    at = np.minimum(np.searchsorted(single, key[candidates]), len(single) - 1)
-    hit = candidates[single[at] == key[candidates]]
-    corner, face = np.divmod(hit, len(faces))
-    order = np.argsort(face * 3 + corner)  # face order, as the faces list their edges
-    face, corner = face[order], corner[order]
-    return np.column_stack([faces[face, corner], faces[face, (corner + 1) % 3]])
+    if faces.min() < 0:
+        raise InvalidInputError(f"faces must hold vertex indices >= 0; got {int(faces.min())}")
+    device = _device_of(device)
+    return _boundary(_flat_faces(faces, device), int(faces.max()) + 1, device)
+
+
+def _fins(faces: wp.array, walls: NDArray[np.int64], n: int, device: wp.Device) -> NDArray[np.bool_]:
+    """Per wall pair (``walls``' faces in consecutive pairs), whether another pair stands on the same four vertices
+    (kernels/solid.py: wall_quads, a table of the pairs by their smallest vertex, find_fins)."""
+    first = to_device(walls[0::2], wp.int32, device)
+    second = to_device(walls[1::2], wp.int32, device)
+    count = first.shape[0]
+    if device.is_cpu:
+        quads = wp.array(np.empty((count, 4), np.int32), dtype=wp.vec4i, device=device, copy=False)
+    else:
+        quads = wp.empty(count, dtype=wp.vec4i, device=device)
+    keys = _empty(count, np.int32, wp.int32, device)
+    launch_chunked(kernels.wall_quads, count, [faces, first, second], [quads, keys], device)
+    offsets, pairs = _buckets(keys, n, device)
+    fins = _empty(count, np.uint8, wp.uint8, device)
+    launch_chunked(kernels.find_fins, count, [quads, offsets, pairs], [fins], device)
+    return fins.numpy().view(np.bool_)
+
+
+def _pairs(faces: wp.array, terrace_mask: NDArray[np.bool_], n: int, device: wp.Device) -> wp.array:
+    """Per vertex, the lower index of the wall bottom and top it pairs with through a vertical wall edge (itself when
+    no wall's side joins it to another vertex), int64 on ``device``. Walls come as consecutive pairs (u_top, v_top,
+    v_bottom), (u_top, v_bottom, u_bottom): their vertical edges are (v_top, v_bottom) and (u_top, u_bottom); a vertex
+    lies on one such edge at most (a crossing's bottom or top, a node over its twin). Should one lie on several
+    (any other mesh), the last in the order tops of the first faces, of the second faces, then bottoms likewise wins
+    (kernels/solid.py: last_wall_writes, wall_pairs)."""
+    walls = np.flatnonzero(~terrace_mask)
+    if len(walls) == 0 or len(walls) % 2:
+        walls = walls[:0]
+    first = to_device(walls[0::2], wp.int32, device)
+    second = to_device(walls[1::2], wp.int32, device)
+    count = first.shape[0]
+    winner = _empty(n, np.int32, wp.int32, device)
+    winner.fill_(-1)
+    launch_chunked(kernels.last_wall_writes, count, [faces, first, second], [winner], device)
+    pair = _empty(n, np.int64, wp.int64, device)
+    launch_chunked(kernels.wall_pairs, n, [faces, first, second, winner, count], [pair], device)
+    return pair
+
+
+def _columns(vertices: NDArray[np.float64], fan: NDArray[np.float64] | None, pair: wp.array,
+             device: wp.Device) -> NDArray[np.int64]:
+    """Per vertex its column: the dense rank of (x, y, [fan], pair) compared bit for bit (one ``lexsort``, then
+    kernels/solid.py's column_starts, a scan and scatter_ranks)."""
+    n = len(vertices)
+    if n == 0:
+        return np.zeros(0, np.int64)
+    xy = np.ascontiguousarray(vertices[:, :2]).view(np.uint64)
+    pair_host = pair.numpy()
+    keys = [xy[:, 0], xy[:, 1]] + ([fan.view(np.uint64)] if fan is not None else []) + [pair_host]
+    order = np.lexsort(keys[::-1])
+    del keys, xy
+    order_w = to_device(order, wp.int64, device)
+    del order
+    bits = to_device(np.ascontiguousarray(vertices).view(np.int64).reshape(-1), wp.int64, device)
+    fans = to_device(fan.view(np.int64) if fan is not None else np.zeros(0, np.int64), wp.int64, device)
+    starts = _empty(n, np.int32, wp.int32, device)
+    launch_chunked(kernels.column_starts, n, [order_w, bits, fans, pair], [starts], device)
+    del bits, fans
+    wp.utils.array_scan(starts, starts, inclusive=True)
+    ids = _empty(n, np.int64, wp.int64, device)
+    launch_chunked(kernels.scatter_ranks, n, [order_w, starts], [ids], device)
+    return ids.numpy()
 
 
 def close_solid(
@@ -101,6 +258,7 @@ def close_solid(
     faces: NDArray[np.int64],
     terrace_mask: NDArray[np.bool_],
     floor: float,
+    device: wp.DeviceLike = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.bool_], int, NDArray[np.int64]]:
     """Close a height-function surface into a watertight solid with side skirts and a flat base at ``floor``.
 
@@ -120,25 +278,42 @@ def close_solid(
     uses any more. (:func:`~stepterrain.stepped.stepped` steps a solid from heights moved off the thresholds, so
     its surfaces have no such fin, and no twin vertex whose vertical edge four walls share at a saddle.)
 
+    The boundary, the fins and the base run in the kernels of ``kernels/solid.py`` on ``device`` (the CPU by
+    default; :func:`~stepterrain.stepped.stepped` passes its own); the result is the same on every device.
+
     Returns the new vertices (the surface's first, then the base), the faces (kept input faces first, then the
     added ones), the mask of input faces kept, the number of faces added, and per surface vertex the input vertex
     it is or copies (``len(source)`` surface vertices: per-vertex data such as colours follows them through it).
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
+    if faces.ndim != 2 or faces.shape[1] != 3:
+        raise InvalidInputError(f"faces must be an (F, 3) array of vertex indices; got shape {faces.shape}")
+    if len(vertices) > MAX_INT32:
+        raise OutputTooLargeError(f"vertices: the kernels index at most {MAX_INT32:,} vertices with int32; got "
+                                  f"{len(vertices):,}")
+    device = _device_of(device)
+    flat, low, high = _narrow_faces(faces, device)
+    if len(faces) and (low < 0 or high >= len(vertices)):
+        raise InvalidInputError(f"faces must index the {len(vertices)} vertices (0 .. {len(vertices) - 1}); got "
+                                f"indices {low} .. {high}")
+    terrace_mask = np.asarray(terrace_mask)
+    if terrace_mask.dtype != np.bool_ or terrace_mask.shape != (len(faces),):  # the kernels read one byte a face
+        raise InvalidInputError(f"terrace_mask must be a bool array of one flag per face ({len(faces)}); got "
+                                f"{terrace_mask.dtype} of shape {terrace_mask.shape}")
     kept = np.ones(len(faces), bool)
     source = np.arange(len(vertices))
-    walls = np.flatnonzero(~np.asarray(terrace_mask))
+    walls = np.flatnonzero(~terrace_mask)
     if len(walls) >= 4 and len(walls) % 2 == 0:
         # walls are emitted as consecutive pairs (u_top, v_top, v_bottom), (u_top, v_bottom, u_bottom)
-        first, second = walls[0::2], walls[1::2]
-        quads = np.sort(np.column_stack([faces[first], faces[second][:, 2]]), axis=1)
-        fin = _repeated_rows(quads)
-        kept[first[fin]] = False
-        kept[second[fin]] = False
+        fin = _fins(flat, walls, len(vertices), device)
+        if fin.any():  # rare: stepped() steps solids off the thresholds
+            kept[walls[0::2][fin]] = False
+            kept[walls[1::2][fin]] = False
+    del walls
     if not kept.all():
         faces = faces[kept]
-        terrace_mask = np.asarray(terrace_mask)[kept]
+        terrace_mask = terrace_mask[kept]
         used = np.zeros(len(vertices), bool)
         used[faces.reshape(-1)] = True
         if not used.all():
@@ -146,6 +321,7 @@ def close_solid(
             faces = remap[faces]
             vertices = vertices[used]
             source = source[used]
+        flat = _flat_faces(faces, device)
     if not np.isfinite(floor):
         raise InvalidInputError(f"floor must be finite; got {floor}")
     if abs(floor) > FLOAT32_MAX:  # the mesh's float32 vertices (GPU, GLB) would hold -inf and NaN
@@ -153,38 +329,43 @@ def close_solid(
     zmin = float(vertices[:, 2].min()) if len(vertices) else 0.0
     if floor >= zmin:
         raise InvalidInputError(f"floor must lie below the lowest surface height {zmin}; got {floor}")
-    edges = boundary_edges(faces)
+    edges = _boundary(flat, len(vertices), device)
     vertices, faces, fan, copied = _split_pinches(vertices, faces, edges)
     split = len(copied) > 0
     if split:
-        edges = boundary_edges(faces)
+        flat = _flat_faces(faces, device)
+        edges = _boundary(flat, len(vertices), device)
         source = np.concatenate([source, source[copied]])
     n = len(vertices)
     # a column (one base vertex) is a vertex, or the wall bottom and top that a vertical wall edge joins; a pinch's
     # copies keep their own. Keyed by xy alone, two vertices on one xy that no wall joins (a TIN's cliff: two points
     # on one xy, or a crossing on a zero-area face where another edge's crossing lies) shared a base vertex, and the
-    # base under them folded onto a base edge used four times: a solid that leaked, without a warning
-    keys = np.column_stack([vertices[:, :2], fan]) if split else vertices[:, :2]
-    column = exact_keys(keys)
-    pair = _wall_pairs(faces, terrace_mask, n)
-    held = np.empty(int(column.max(initial=-1)) + 1, np.int64)
-    held[column] = pair
-    if (held[column] != pair).any():  # rare (a TIN's zero-area faces): the key sorts as before, only longer
-        column = exact_keys(np.column_stack([keys, pair.astype(np.float64)]))
+    # base under them folded onto a base edge used four times: a solid that leaked, without a warning. So the key is
+    # (x, y, [fan], pair): the vertices of one xy share a column when they share their wall pair (a wall's bottom
+    # and top, or one vertex). Where each xy has one pair this numbers the columns as the xy alone would.
+    pair = _pairs(flat, terrace_mask, n, device)
+    column = _columns(vertices, fan if split else None, pair, device)
     n_columns = int(column.max()) + 1
-    base_xy = np.empty((n_columns, 2), dtype=np.float64)
-    base_xy[column] = vertices[:, :2]
-    base_vertices = np.column_stack([base_xy, np.full(n_columns, floor)])
-    base_index = n + column  # output index of each surface vertex's base copy
+    if 3 * (n + n_columns) > MAX_INT32 or 3 * (2 * len(faces) + 3 * len(edges)) > MAX_INT32:
+        raise OutputTooLargeError(f"the solid of {len(faces):,} faces and {n:,} vertices would have more faces or "
+                                  f"vertices than the kernels index with int32 (3 per face or vertex)")
+    column32 = to_device(column, wp.int32, device)
 
-    terraces = faces[terrace_mask]
-    base_faces = base_index[terraces][:, ::-1]
-    ok = (
-        (base_faces[:, 0] != base_faces[:, 1])
-        & (base_faces[:, 1] != base_faces[:, 2])
-        & (base_faces[:, 0] != base_faces[:, 2])
-    )
-    base_faces = base_faces[ok]
+    out_vertices = np.empty((n + n_columns, 3), np.float64)
+    written = _output(out_vertices, wp.float64, device)
+    launch_chunked(kernels.emit_vertices, n, [to_device(vertices.reshape(-1), wp.float64, device), column32,
+                                              float(floor)], [written], device)
+    if not device.is_cpu:
+        out_vertices[:] = written.numpy().reshape(-1, 3)
+    del written
+
+    terrace = to_device(terrace_mask.view(np.uint8), wp.uint8, device)
+    count = len(faces)
+    threads = chunked_threads(count, device)
+    counts = _empty(threads + 1, np.int32, wp.int32, device, zero=True)
+    launch_chunked(kernels.count_base_faces, count, [flat, terrace, column32], [counts], device)
+    starts, n_base = _scan(counts)
+    del counts
 
     a, b = edges[:, 0], edges[:, 1]
     vertical = column[a] == column[b]
@@ -193,39 +374,27 @@ def close_solid(
     pred[b[vertical]] = a[vertical]
     a, b = a[~vertical], b[~vertical]
     x = pred[a]
+    del pred
     has_x = x >= 0
-    A, B = base_index[a], base_index[b]
-    skirts = [np.stack([b, A, B], axis=1)]
+    A, B = n + column[a], n + column[b]  # the base vertices under a and b
     plain = ~has_x
-    skirts.append(np.stack([b[plain], a[plain], A[plain]], axis=1))
-    skirts.append(np.stack([b[has_x], a[has_x], x[has_x]], axis=1))
-    skirts.append(np.stack([b[has_x], x[has_x], A[has_x]], axis=1))
-    added = np.concatenate(skirts + [base_faces], axis=0)
-    return np.concatenate([vertices, base_vertices]), np.concatenate([faces, added]), kept, len(added), source
-
-
-def _wall_pairs(faces: NDArray[np.int64], terrace_mask: NDArray[np.bool_], n: int) -> NDArray[np.int64]:
-    """Per vertex, the lower index of the wall bottom and top it pairs with through a vertical wall edge (itself when
-    no wall's side joins it to another vertex). Walls come as consecutive pairs (u_top, v_top, v_bottom),
-    (u_top, v_bottom, u_bottom): their vertical edges are (v_top, v_bottom) and (u_top, u_bottom); a vertex lies on
-    one such edge at most (a crossing's bottom or top, a node over its twin)."""
-    pair = np.arange(n, dtype=np.int64)
-    walls = np.flatnonzero(~np.asarray(terrace_mask))
-    if len(walls) == 0 or len(walls) % 2:
-        return pair
-    first, second = walls[0::2], walls[1::2]
-    tops = np.concatenate([faces[first, 1], faces[second, 0]])
-    bottoms = np.concatenate([faces[first, 2], faces[second, 2]])
-    low = np.minimum(tops, bottoms)
-    pair[tops] = low
-    pair[bottoms] = low
-    return pair
-
-
-def _repeated_rows(rows: NDArray[np.int64]) -> NDArray[np.bool_]:
-    """Which rows of a (R, C) int array occur more than once (rows grouped by :func:`exact_keys`)."""
-    ids = exact_keys(rows)
-    return np.bincount(ids)[ids] > 1
+    m, p = len(a), int(plain.sum())
+    h = m - p
+    n_skirts = m + p + 2 * h
+    out_faces = np.empty((len(faces) + n_skirts + n_base, 3), np.int64)
+    written = _output(out_faces, wp.int64, device)
+    launch_chunked(kernels.emit_faces, count, [flat, terrace, column32, starts, n, len(faces) + n_skirts], [written],
+                   device)
+    if not device.is_cpu:
+        out_faces[:] = written.numpy().reshape(-1, 3)
+    del written
+    # skirts: every [b, A, B], then [b, a, A] where no vertical edge arrives at a, else [b, a, x] and [b, x, A]
+    skirts = out_faces[len(faces):len(faces) + n_skirts]
+    skirts[:m] = np.stack([b, A, B], axis=1)
+    skirts[m:m + p] = np.stack([b[plain], a[plain], A[plain]], axis=1)
+    skirts[m + p:m + p + h] = np.stack([b[has_x], a[has_x], x[has_x]], axis=1)
+    skirts[m + p + h:] = np.stack([b[has_x], x[has_x], A[has_x]], axis=1)
+    return out_vertices, out_faces, kept, n_skirts + n_base, source
 
 
 def _split_pinches(

@@ -84,13 +84,15 @@ _FACE_SOURCE_BYTES = 8 + 4
 #: (RGBA, or a UV in float64); per face of it: the face, level and wall as ``_FACE_BYTES`` and a face colour.
 _SOLID_VERTEX_BYTES = 24 + 16
 _SOLID_FACE_BYTES = _FACE_BYTES + 4
-#: close_solid's work arrays per surface face and vertex at their peak (boundary_edges' int64 edge keys, three a face,
-#: with their sorted copy and masked temporary; exact_keys' copies and sort of the xy; the terraces and their base
-#: copies), and a fixed part where there is a face: boundary_edges' 4 MiB bit table and small arrays. tracemalloc
-#: peaks stay below these (tests/test_solid_budget.py).
-_SOLID_WORK_FACE_BYTES = 80
-_SOLID_WORK_VERTEX_BYTES = 64
-_SOLID_WORK_FIXED = 5 << 20
+#: close_solid's work arrays per surface face and vertex beside the closed mesh at its peak (the faces as the kernels'
+#: flat int32, the terrace mask, each vertex's column in int64 and int32, and the base faces' offsets; before the mesh
+#: exists, the boundary pass's vertex -> corner table, 24 bytes a face, and the int32 faces weigh less than it), and a
+#: fixed part where there is a face (small arrays). tracemalloc peaks stay below these (tests/test_solid_budget.py;
+#: close_solid alone on the sample DEM at 50 m: 72 MB of work arrays for 3.2 M faces and 1.6 M vertices, 22 bytes a
+#: face, where the NumPy sorts took 315 MB, 98 bytes a face).
+_SOLID_WORK_FACE_BYTES = 24
+_SOLID_WORK_VERTEX_BYTES = 16
+_SOLID_WORK_FIXED = 64 << 10
 #: Nodes of a grid with nodata that :func:`solid_boundary_edges` reads at a time (its masks and the candidate cells'
 #: temporaries stay a few MiB, whatever the grid's size).
 _SOLID_BOUNDARY_BLOCK = 1 << 18
@@ -1183,7 +1185,8 @@ def stepped(
     arrays, vertices = _stepped_arrays(t, values, gamma, colors, dev, memory_budget, solid)
     # a TIN's CRS and source: Terrain.from_mesh reads them from its metadata, _assemble records them
     return _assemble(
-        t, arrays, vertices, values, gamma=gamma, colors=colors, solid=solid, floor=floor, interval=interval
+        t, arrays, vertices, values, gamma=gamma, colors=colors, solid=solid, floor=floor, interval=interval,
+        device=dev,
     )
 
 
@@ -1312,6 +1315,7 @@ def _assemble(
     solid: bool,
     floor: float | None,
     interval: float | None,
+    device: wp.Device | None = None,
 ) -> trimesh.Trimesh:
     faces = arrays.faces
     face_levels = arrays.face_levels
@@ -1347,7 +1351,7 @@ def _assemble(
                        else as_number(floor))
         except (TypeError, ValueError, OverflowError):
             raise InvalidInputError(f"floor must be a number (the base height of the solid); got {floor!r}") from None
-        vertices, faces, kept, extra, source = close_solid(vertices, faces, ~face_walls, floor_z)
+        vertices, faces, kept, extra, source = close_solid(vertices, faces, ~face_walls, floor_z, device)
         face_levels = np.concatenate([face_levels[kept], np.full(extra, -1, np.int32)])
         face_walls = np.concatenate([face_walls[kept], np.zeros(extra, bool)])
         if vertex_colors is not None:  # a surface vertex (or its copy at a pinch) keeps its colour; the base is grey

@@ -13,7 +13,7 @@ import importlib
 import pytest
 import warp as wp
 
-MODULES = ["stepped", "closeup", "texture", "cubesphere", "bounds", "compaction", "memory"]
+MODULES = ["stepped", "closeup", "texture", "cubesphere", "bounds", "compaction", "memory", "solid"]
 
 
 def _nvrtc_archs() -> set[int]:

@@ -7,7 +7,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as hst
 from hypothesis.extra.numpy import arrays
 
-from stepterrain.mesh import _repeated_rows, boundary_edges, exact_keys
+from stepterrain.mesh import boundary_edges, exact_keys
+from tests.reference_solid import _repeated_rows  # close_solid finds fins with kernels now (test_solid_kernels)
 
 
 def boundary_reference(faces):

@@ -1,0 +1,107 @@
+"""Side-by-side benchmark of closing a stepped surface into a solid: ``stepterrain.mesh.close_solid`` (the Warp
+kernels of ``kernels/solid.py``) against the NumPy implementation it replaced (``tests/reference_solid.py``, what a
+user would otherwise have), on the same surface.
+
+Cases: the embedded sample DEM at a 50 m interval, and a 2049² grid tiled from it with a 300 x 600 nodata hole at a
+20 m interval. Per case: the surface (``stepped`` without ``solid``: the kernels' own share), both ``close_solid``
+implementations on that surface (median and best of ``--repeat`` runs, warmed up; the outputs checked equal bit for
+bit once), and ``stepped(..., solid=True)`` end to end.
+
+    python benchmarks/run_solid.py --repeat 5
+    python benchmarks/run_solid.py --cases sample --repeat 3 --device cpu
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+_HERE = Path(__file__).resolve().parent
+if str(_HERE.parent) not in sys.path:
+    sys.path.insert(0, str(_HERE.parent))
+
+import warp as wp  # noqa: E402
+
+import stepterrain as st  # noqa: E402
+from stepterrain import stepped as stepped_module  # noqa: E402
+from stepterrain.mesh import close_solid  # noqa: E402
+from stepterrain.terrain import as_terrain  # noqa: E402
+from tests.reference_solid import close_solid as close_solid_numpy  # noqa: E402
+
+CASES = ("sample", "holes2048")
+
+
+def _case(name: str) -> tuple[Any, float]:
+    dem = st.sample_dem()
+    if name == "sample":
+        return dem, 50.0
+    big = np.tile(np.asarray(dem.heights), (3, 2))[:2049, :2049].copy()
+    big[100:400, 300:900] = np.nan
+    return big, 20.0
+
+
+def _surface(heights: Any, interval: float, device: wp.Device) -> tuple[Any, ...]:
+    """The surface stepped() closes for a solid (heights moved off the thresholds) and its default floor."""
+    t = as_terrain(heights)
+    values = st.isovalues(t.height_range, interval=interval)
+    t = stepped_module._off_thresholds(t, values)
+    arrays, vertices = stepped_module._stepped_arrays(t, values, 1.0, None, device)
+    floor = stepped_module.default_floor(values, float(vertices[:, 2].min()), interval)
+    return vertices, arrays.faces, ~arrays.face_walls, floor
+
+
+def _times(fn: Callable[[], Any], repeat: int) -> list[float]:
+    fn()  # warm: kernels loaded, caches
+    times = []
+    for _ in range(repeat):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return times
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--cases", nargs="+", choices=CASES, default=list(CASES))
+    parser.add_argument("--repeat", type=int, default=5, help="timed runs per contender (default 5)")
+    parser.add_argument("--device", default="cpu", help="Warp device of the kernels (default cpu)")
+    args = parser.parse_args(argv)
+    device = wp.get_device(args.device)
+    print(f"device {device}, repeat {args.repeat}, {st.get_cpu_threads()} CPU threads")
+    print("| case | faces | contender | median s | best s | NumPy / Warp (median) |")
+    print("|---|---:|---|---:|---:|---:|")
+    for name in args.cases:
+        heights, interval = _case(name)
+        vertices, faces, terrace, floor = _surface(heights, interval, device)
+        got = close_solid(vertices, faces, terrace, floor, device)
+        want = close_solid_numpy(vertices, faces, terrace, floor)
+        same = all(np.array_equal(g, w) and np.asarray(g).dtype == np.asarray(w).dtype
+                   for g, w in zip(got, want, strict=True))
+        if not same:
+            raise SystemExit(f"{name}: close_solid differs from the NumPy reference")
+        del got, want
+        surface = (vertices, faces, terrace, floor)
+        rows = {
+            "surface (stepped)": _times(partial(st.stepped, heights, interval=interval, device=device), args.repeat),
+            "close_solid, Warp": _times(partial(close_solid, *surface, device), args.repeat),
+            "close_solid, NumPy": _times(partial(close_solid_numpy, *surface), args.repeat),
+            "solid (stepped)": _times(partial(st.stepped, heights, interval=interval, solid=True, device=device),
+                                      args.repeat),
+        }
+        warp_median = statistics.median(rows["close_solid, Warp"])
+        for contender, times in rows.items():
+            median = statistics.median(times)
+            ratio = f"{median / warp_median:.1f}x" if contender == "close_solid, NumPy" else ""
+            print(f"| {name} | {len(faces):,} | {contender} | {median:.3f} | {min(times):.3f} | {ratio} |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,502 @@
+"""Warp kernels that close a stepped surface into a watertight solid (``stepterrain.mesh.close_solid``, behind
+``stepped(..., solid=True)``: side skirts from the boundary down to a flat base). Paper 000 (Glander, Trapp &
+Döllner 2010) steps the surface only and has no section on solids; this is stepterrain's own addition, for printing.
+
+Everything here is integer bookkeeping over the surface's faces, count -> scan -> emit as elsewhere:
+
+* a vertex -> corner table (CSR) without a sort: :func:`count_keys` counts the corners at each vertex (atomic adds),
+  an exclusive scan gives each vertex its bucket, :func:`fill_corners` drops each corner, as its face's next and
+  previous vertex, into its vertex's bucket through an atomic cursor (the order inside a bucket may differ between
+  runs; only counts are read from it). :func:`fill_buckets` does the same for any int keys.
+* boundary edges: a half-edge (a, b) is on the boundary iff exactly one half-edge of the mesh has the undirected key
+  {a, b}; :func:`is_boundary` counts them among the corners of a or b, whichever has fewer. :func:`count_boundary`
+  flags them per face and counts them per thread, :func:`emit_boundary` writes them in face and corner order.
+* fins (two walls back to back on the same four vertices): :func:`wall_quads` sorts each wall pair's four vertices,
+  a CSR keyed by each quad's smallest vertex groups the candidates, :func:`find_fins` flags the repeated quads.
+* columns (one base vertex each): :func:`last_wall_writes` and :func:`wall_pairs` join each wall's bottom and top
+  through its vertical edges; the host sorts the vertices by (x, y, [fan], pair) with one ``lexsort``, and
+  :func:`column_starts`, a scan and :func:`scatter_ranks` number the distinct keys in that order (a dense rank).
+  :func:`narrow_faces` turns the int64 faces into the kernels' int32 and finds their index range in the same pass.
+* the closed mesh: :func:`emit_vertices` copies the surface's vertices and writes each column's base vertex,
+  :func:`count_base_faces` and :func:`emit_faces` copy the faces and write the terraces flattened and reversed, but
+  for those a column collapses to zero area (the skirts between them are few: numpy writes them).
+
+Kernels take ``thread_offset, count, chunk`` first (``stepterrain._device.launch_chunked``). Faces are flat int32
+arrays (3 per face); indices fit int32 (``close_solid`` checks).
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from .memory import load
+
+wp.set_module_options({"enable_backward": False})  # integer work only: no adjoints, nothing to contract
+
+
+@wp.kernel
+def count_keys(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    keys: wp.array[wp.int32],
+    # outputs
+    counts_out: wp.array[wp.int32],
+):
+    """One element per item: add one to its key's count (``counts_out`` zeroed first)."""
+    first = (wp.tid() + thread_offset) * chunk
+    t = first
+    last = wp.min(first + chunk, count)
+    while t < last:
+        wp.atomic_add(counts_out, load(keys, t), 1)
+        t += 1
+
+
+@wp.kernel
+def fill_buckets(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    keys: wp.array[wp.int32],
+    offsets: wp.array[wp.int32],
+    # outputs
+    cursor_out: wp.array[wp.int32],
+    items_out: wp.array[wp.int32],
+):
+    """One element per item: write its index into its key's bucket (``offsets``: the exclusive scan of the key
+    counts; ``cursor_out`` zeroed first)."""
+    first = (wp.tid() + thread_offset) * chunk
+    t = first
+    last = wp.min(first + chunk, count)
+    while t < last:
+        k = load(keys, t)
+        slot = wp.atomic_add(cursor_out, k, 1)
+        items_out[load(offsets, k) + slot] = t
+        t += 1
+
+
+@wp.kernel
+def fill_corners(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    faces: wp.array[wp.int32],
+    offsets: wp.array[wp.int32],
+    # outputs
+    cursor_out: wp.array[wp.int32],
+    items_out: wp.array[wp.vec2i],
+):
+    """One element per face: drop each corner into its vertex's bucket as (next vertex, previous vertex) of the
+    face (``offsets``: the exclusive scan of the corner counts per vertex; ``cursor_out`` zeroed first)."""
+    first = (wp.tid() + thread_offset) * chunk
+    f = first
+    last = wp.min(first + chunk, count)
+    while f < last:
+        a = load(faces, 3 * f)
+        b = load(faces, 3 * f + 1)
+        c = load(faces, 3 * f + 2)
+        items_out[load(offsets, a) + wp.atomic_add(cursor_out, a, 1)] = wp.vec2i(b, c)
+        items_out[load(offsets, b) + wp.atomic_add(cursor_out, b, 1)] = wp.vec2i(c, a)
+        items_out[load(offsets, c) + wp.atomic_add(cursor_out, c, 1)] = wp.vec2i(a, b)
+        f += 1
+
+
+@wp.func
+def is_boundary(offsets: wp.array[wp.int32], corners: wp.array[wp.vec2i], a: wp.int32, b: wp.int32) -> wp.bool:
+    """Whether exactly one half-edge of the mesh has the undirected key {a, b}, counted among the corners of a or b
+    (whichever has fewer; stops at the second): a corner at u whose next vertex is w starts (u, w), one whose
+    previous vertex is w ends (w, u); a degenerate (a, a) is counted once, by its start."""
+    u = a
+    w = b
+    if load(offsets, b + 1) - load(offsets, b) < load(offsets, a + 1) - load(offsets, a):
+        u = b
+        w = a
+    n = wp.int32(0)
+    s = load(offsets, u)
+    end = load(offsets, u + 1)
+    while s < end and n < 2:
+        c = load(corners, s)
+        if c[0] == w:
+            n += 1
+        if u != w and c[1] == w:
+            n += 1
+        s += 1
+    return n == 1
+
+
+@wp.kernel
+def count_boundary(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    faces: wp.array[wp.int32],
+    offsets: wp.array[wp.int32],
+    corners: wp.array[wp.vec2i],
+    # outputs
+    flags_out: wp.array[wp.int32],
+    counts_out: wp.array[wp.int32],
+):
+    """One element per face: ``flags_out[f]`` has bit j set where the half-edge leaving corner j is a boundary edge
+    (its undirected key used once); ``counts_out[thread]`` counts them over the thread's chunk."""
+    first = (wp.tid() + thread_offset) * chunk
+    f = first
+    last = wp.min(first + chunk, count)
+    total = wp.int32(0)
+    while f < last:
+        bits = wp.int32(0)
+        for j in range(3):
+            a = load(faces, 3 * f + j)
+            b = load(faces, 3 * f + (j + 1) % 3)
+            if is_boundary(offsets, corners, a, b):
+                bits = bits | (1 << j)
+                total += 1
+        flags_out[f] = bits
+        f += 1
+    counts_out[wp.tid() + thread_offset] = total
+
+
+@wp.kernel
+def emit_boundary(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    faces: wp.array[wp.int32],
+    flags: wp.array[wp.int32],
+    offsets: wp.array[wp.int32],
+    # outputs
+    edges_out: wp.array[wp.int64],
+):
+    """One element per face: its boundary edges (a, b), as wound, from the thread's offset on (flat: 2 per edge)."""
+    first = (wp.tid() + thread_offset) * chunk
+    f = first
+    last = wp.min(first + chunk, count)
+    o = load(offsets, wp.tid() + thread_offset)
+    while f < last:
+        bits = load(flags, f)
+        for j in range(3):
+            if bits & (1 << j):
+                edges_out[2 * o] = wp.int64(load(faces, 3 * f + j))
+                edges_out[2 * o + 1] = wp.int64(load(faces, 3 * f + (j + 1) % 3))
+                o += 1
+        f += 1
+
+
+@wp.kernel
+def wall_quads(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    faces: wp.array[wp.int32],
+    first_walls: wp.array[wp.int32],
+    second_walls: wp.array[wp.int32],
+    # outputs
+    quads_out: wp.array[wp.vec4i],
+    keys_out: wp.array[wp.int32],
+):
+    """One element per wall pair (u_top, v_top, v_bottom), (u_top, v_bottom, u_bottom): its four vertices (the
+    first face's and the second's last) sorted, and the smallest as its key."""
+    first = (wp.tid() + thread_offset) * chunk
+    p = first
+    last = wp.min(first + chunk, count)
+    while p < last:
+        f = load(first_walls, p)
+        g = load(second_walls, p)
+        a = load(faces, 3 * f)
+        b = load(faces, 3 * f + 1)
+        c = load(faces, 3 * f + 2)
+        d = load(faces, 3 * g + 2)
+        # a sorting network of four
+        lo = wp.min(a, b)
+        b = wp.max(a, b)
+        a = lo
+        lo = wp.min(c, d)
+        d = wp.max(c, d)
+        c = lo
+        lo = wp.min(a, c)
+        c = wp.max(a, c)
+        a = lo
+        lo = wp.min(b, d)
+        d = wp.max(b, d)
+        b = lo
+        lo = wp.min(b, c)
+        c = wp.max(b, c)
+        b = lo
+        q = wp.vec4i(a, b, c, d)
+        quads_out[p] = q
+        keys_out[p] = q[0]
+        p += 1
+
+
+@wp.kernel
+def find_fins(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    quads: wp.array[wp.vec4i],
+    offsets: wp.array[wp.int32],
+    pairs: wp.array[wp.int32],
+    # outputs
+    fins_out: wp.array[wp.uint8],
+):
+    """One element per wall pair: 1 where another pair has the same sorted quad (found in the bucket of the quad's
+    smallest vertex), else 0."""
+    first = (wp.tid() + thread_offset) * chunk
+    p = first
+    last = wp.min(first + chunk, count)
+    while p < last:
+        q = quads[p]
+        hit = wp.uint8(0)
+        s = load(offsets, q[0])
+        end = load(offsets, q[0] + 1)
+        while s < end:
+            r = load(pairs, s)
+            if r != p:
+                o = quads[r]
+                if o[1] == q[1] and o[2] == q[2] and o[3] == q[3]:
+                    hit = wp.uint8(1)
+            s += 1
+        fins_out[p] = hit
+        p += 1
+
+
+@wp.kernel
+def emit_vertices(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    vertices: wp.array[wp.float64],
+    column: wp.array[wp.int32],
+    floor: wp.float64,
+    # outputs
+    vertices_out: wp.array[wp.float64],
+):
+    """One element per surface vertex (flat, 3 per vertex): itself, and its column's base vertex after the ``count``
+    surface vertices (its x, y at ``floor``). The vertices of a column share their x and y bit for bit, so its
+    writers write the same values."""
+    first = (wp.tid() + thread_offset) * chunk
+    i = first
+    last = wp.min(first + chunk, count)
+    while i < last:
+        x = load(vertices, 3 * i)
+        y = load(vertices, 3 * i + 1)
+        vertices_out[3 * i] = x
+        vertices_out[3 * i + 1] = y
+        vertices_out[3 * i + 2] = load(vertices, 3 * i + 2)
+        o = 3 * (count + load(column, i))
+        vertices_out[o] = x
+        vertices_out[o + 1] = y
+        vertices_out[o + 2] = floor
+        i += 1
+
+
+@wp.func
+def base_face_ok(faces: wp.array[wp.int32], terrace: wp.array[wp.uint8], column: wp.array[wp.int32],
+                 f: wp.int32) -> wp.bool:
+    """Whether face f is a terrace whose three columns differ (its base face has an area)."""
+    if terrace[f] == wp.uint8(0):
+        return False
+    a = load(column, load(faces, 3 * f))
+    b = load(column, load(faces, 3 * f + 1))
+    c = load(column, load(faces, 3 * f + 2))
+    return a != b and b != c and a != c
+
+
+@wp.kernel
+def count_base_faces(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    faces: wp.array[wp.int32],
+    terrace: wp.array[wp.uint8],
+    column: wp.array[wp.int32],
+    # outputs
+    counts_out: wp.array[wp.int32],
+):
+    """One element per face: ``counts_out[thread]`` counts the base faces of the thread's chunk."""
+    first = (wp.tid() + thread_offset) * chunk
+    f = first
+    last = wp.min(first + chunk, count)
+    total = wp.int32(0)
+    while f < last:
+        if base_face_ok(faces, terrace, column, f):
+            total += 1
+        f += 1
+    counts_out[wp.tid() + thread_offset] = total
+
+
+@wp.kernel
+def emit_faces(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    faces: wp.array[wp.int32],
+    terrace: wp.array[wp.uint8],
+    column: wp.array[wp.int32],
+    offsets: wp.array[wp.int32],
+    first_base_vertex: wp.int64,
+    first_base_face: wp.int32,
+    # outputs
+    faces_out: wp.array[wp.int64],
+):
+    """One element per face (flat, 3 per face): the face itself, and a terrace's base face from the thread's offset
+    on after ``first_base_face`` faces: its columns' base vertices (``first_base_vertex`` + column) in reverse
+    order."""
+    first = (wp.tid() + thread_offset) * chunk
+    f = first
+    last = wp.min(first + chunk, count)
+    o = first_base_face + load(offsets, wp.tid() + thread_offset)
+    while f < last:
+        a = load(faces, 3 * f)
+        b = load(faces, 3 * f + 1)
+        c = load(faces, 3 * f + 2)
+        faces_out[3 * f] = wp.int64(a)
+        faces_out[3 * f + 1] = wp.int64(b)
+        faces_out[3 * f + 2] = wp.int64(c)
+        if base_face_ok(faces, terrace, column, f):
+            faces_out[3 * o] = first_base_vertex + wp.int64(load(column, c))
+            faces_out[3 * o + 1] = first_base_vertex + wp.int64(load(column, b))
+            faces_out[3 * o + 2] = first_base_vertex + wp.int64(load(column, a))
+            o += 1
+        f += 1
+
+
+@wp.kernel
+def last_wall_writes(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    faces: wp.array[wp.int32],
+    first_walls: wp.array[wp.int32],
+    second_walls: wp.array[wp.int32],
+    # outputs
+    winner_out: wp.array[wp.int32],
+):
+    """One element per wall pair p of ``count``: the vertical edges (v_top, v_bottom) of its first face and
+    (u_top, u_bottom) of its second are written to their ends, tops first, in the order top p, top count + p,
+    bottom 2 count + p, bottom 3 count + p; ``winner_out`` (-1 first) keeps each vertex's last write (the one a
+    sequential ``pair[tops] = low; pair[bottoms] = low`` keeps)."""
+    first = (wp.tid() + thread_offset) * chunk
+    p = first
+    last = wp.min(first + chunk, count)
+    while p < last:
+        f = load(first_walls, p)
+        g = load(second_walls, p)
+        wp.atomic_max(winner_out, load(faces, 3 * f + 1), p)
+        wp.atomic_max(winner_out, load(faces, 3 * g), count + p)
+        wp.atomic_max(winner_out, load(faces, 3 * f + 2), 2 * count + p)
+        wp.atomic_max(winner_out, load(faces, 3 * g + 2), 3 * count + p)
+        p += 1
+
+
+@wp.kernel
+def wall_pairs(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    faces: wp.array[wp.int32],
+    first_walls: wp.array[wp.int32],
+    second_walls: wp.array[wp.int32],
+    winner: wp.array[wp.int32],
+    pairs: wp.int32,
+    # outputs
+    pair_out: wp.array[wp.int64],
+):
+    """One element per vertex: the lower end of the vertical wall edge last written to it (:func:`last_wall_writes`
+    over ``pairs`` wall pairs), else itself."""
+    first = (wp.tid() + thread_offset) * chunk
+    v = first
+    last = wp.min(first + chunk, count)
+    while v < last:
+        w = load(winner, v)
+        low = v
+        if w >= 0:
+            k = w % (2 * pairs)
+            if k < pairs:
+                f = load(first_walls, k)
+                low = wp.min(load(faces, 3 * f + 1), load(faces, 3 * f + 2))
+            else:
+                g = load(second_walls, k - pairs)
+                low = wp.min(load(faces, 3 * g), load(faces, 3 * g + 2))
+        pair_out[v] = wp.int64(low)
+        v += 1
+
+
+@wp.kernel
+def column_starts(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    order: wp.array[wp.int64],
+    bits: wp.array[wp.int64],
+    fan: wp.array[wp.int64],
+    pair: wp.array[wp.int64],
+    # outputs
+    starts_out: wp.array[wp.int32],
+):
+    """One element per sorted vertex i (``order``: the vertices sorted by x, y, fan and pair): 1 where that key
+    differs from the vertex before's (a new column; the first is one), else 0. ``bits``: the vertices' float64 bit
+    patterns (3 per vertex; x and y are compared bit for bit); ``fan``: likewise, or empty (no pinch was split)."""
+    first = (wp.tid() + thread_offset) * chunk
+    i = first
+    last = wp.min(first + chunk, count)
+    fans = fan.shape[0] > 0
+    while i < last:
+        new = wp.int32(1)
+        if i > 0:
+            r = wp.int32(order[i])
+            q = wp.int32(order[i - 1])
+            if bits[3 * r] == bits[3 * q] and bits[3 * r + 1] == bits[3 * q + 1] and pair[r] == pair[q]:
+                new = 0
+                if fans:
+                    if fan[r] != fan[q]:
+                        new = 1
+        starts_out[i] = new
+        i += 1
+
+
+@wp.kernel
+def scatter_ranks(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    order: wp.array[wp.int64],
+    ranks: wp.array[wp.int32],
+    # outputs
+    ids_out: wp.array[wp.int64],
+):
+    """One element per sorted vertex i: its column, the number of columns up to it less one (``ranks``: the inclusive
+    scan of :func:`column_starts`)."""
+    first = (wp.tid() + thread_offset) * chunk
+    i = first
+    last = wp.min(first + chunk, count)
+    while i < last:
+        ids_out[order[i]] = wp.int64(load(ranks, i) - 1)
+        i += 1
+
+
+@wp.kernel
+def narrow_faces(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    faces: wp.array[wp.int64],
+    # outputs
+    faces_out: wp.array[wp.int32],
+    low_out: wp.array[wp.int64],
+    high_out: wp.array[wp.int64],
+):
+    """One element per index of the flat int64 ``faces``: it as int32 (wrapped where it does not fit: the caller
+    refuses those from the thread's smallest and largest index, ``low_out`` and ``high_out``)."""
+    first = (wp.tid() + thread_offset) * chunk
+    t = first
+    last = wp.min(first + chunk, count)
+    low = faces[first]
+    high = low
+    while t < last:
+        v = faces[t]
+        low = wp.min(low, v)
+        high = wp.max(high, v)
+        faces_out[t] = wp.int32(v)
+        t += 1
+    low_out[wp.tid() + thread_offset] = low
+    high_out[wp.tid() + thread_offset] = high

@@ -1,0 +1,202 @@
+"""close_solid on the Warp kernels of kernels/solid.py against its NumPy reference (tests/reference_solid.py).
+
+close_solid's boundary edges, fins and base moved from NumPy sorts to count -> scan -> emit kernels, and its
+columns to one dense rank of (x, y, [fan], wall pair). Its result must stay the same bit for bit: the vertices,
+faces, kept mask, number of faces added and source vertices of every surface, and the same errors. The surfaces
+are the stepper's own (the sample DEM at several intervals, gammas and levels; grids with nodata holes and pinches;
+integer heights on thresholds, stepped as is, so fins appear; TINs with cliffs and zero-area faces) and random ones.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+import warp as wp
+from hypothesis import given, settings
+from hypothesis import strategies as hs
+
+import stepterrain as st
+from stepterrain import mesh as mesh_module
+from stepterrain import stepped as stepped_module
+from stepterrain.terrain import Terrain, as_terrain
+from tests import reference_solid
+
+CPU = wp.get_device("cpu")
+
+
+def _surface(terrain, interval=None, levels=None, gamma=1.0, nudged=True):
+    """The stepped surface close_solid gets: vertices, faces, terrace mask and the default floor (``nudged``: the
+    heights moved off the thresholds, as stepped() steps a solid; else as given, so fins can appear)."""
+    t = as_terrain(terrain)
+    values = (np.asarray(levels, np.float32) if levels is not None
+              else st.isovalues(t.height_range, interval=interval))
+    if nudged:
+        t = stepped_module._off_thresholds(t, values)
+    arrays, vertices = stepped_module._stepped_arrays(t, values, gamma, None, CPU)
+    floor = stepped_module.default_floor(values, float(vertices[:, 2].min()), interval) if len(vertices) else -1.0
+    return vertices, arrays.faces, ~arrays.face_walls, floor
+
+
+def _assert_same(vertices, faces, terrace, floor):
+    """close_solid and the reference give the same arrays (values and dtypes) or the same error; returns the result."""
+    try:
+        want = reference_solid.close_solid(vertices, faces, terrace, floor)
+    except Exception as exc:  # the same type and message
+        with pytest.raises(type(exc)) as got:
+            mesh_module.close_solid(vertices, faces, terrace, floor)
+        assert str(got.value) == str(exc)
+        return None
+    got = mesh_module.close_solid(vertices, faces, terrace, floor)
+    assert type(got[3]) is type(want[3]) and got[3] == want[3]
+    for g, w in zip(got[:3] + got[4:], want[:3] + want[4:], strict=True):
+        assert g.dtype == w.dtype and g.shape == w.shape
+        assert np.array_equal(g, w)
+    return got
+
+
+@pytest.mark.parametrize("options", [
+    {"interval": 50.0}, {"interval": 100.0}, {"interval": 250.0}, {"interval": 100.0, "gamma": 0.5},
+    {"levels": [500, 700, 1000, 1500, 2000]},
+])
+def test_the_sample_dems_solids_equal_the_reference(options):
+    dem = st.sample_dem()
+    _assert_same(*_surface(dem, **options))
+
+
+def test_a_crop_of_the_sample_dem_with_holes_and_pinches_equals_the_reference():
+    """Nodata holes, two of them meeting at one node (a pinch the kernels' boundary must find, split by
+    _split_pinches, and a second boundary pass after it)."""
+    h = np.asarray(st.sample_dem().heights[:60, :70], np.float32).copy()
+    h[10:20, 10:25] = np.nan
+    h[30, 30] = h[31, 31] = np.nan  # meet at a node diagonally
+    h[40, 40] = h[40, 42] = np.nan  # meet at node (40, 41)? no: at the cell corners between them
+    vertices, faces, terrace, floor = _surface(h, interval=10.0)
+    got = _assert_same(vertices, faces, terrace, floor)
+    assert len(got[4]) > len(vertices)  # a pinch was split: its copies follow the surface's vertices
+
+
+def test_a_pinch_of_two_holes_equals_the_reference():
+    heights = np.arange(36.0).reshape(6, 6) * 0.25 + 0.125
+    heights[1, 1] = heights[1, 3] = np.nan  # their holes meet at node (1, 2) only
+    vertices, faces, terrace, floor = _surface(heights, interval=1.0)
+    got = _assert_same(vertices, faces, terrace, -2.0)
+    assert len(got[4]) > len(vertices)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_integer_heights_on_thresholds_stepped_as_is_equal_the_reference(seed):
+    """Heights on the thresholds, stepped without stepped()'s nudge: fins (walls back to back) are removed, and
+    vertices no face uses any more with them."""
+    rng = np.random.default_rng(seed)
+    h = np.round(rng.normal(0.0, 2.0, size=(30, 40)).cumsum(0).cumsum(1)).astype(np.float32)
+    vertices, faces, terrace, floor = _surface(h, interval=2.0, nudged=False)
+    got = _assert_same(vertices, faces, terrace, floor)
+    assert got is not None
+    if seed == 0:
+        assert not got[2].all()  # fins were found and removed
+
+
+def test_fins_are_found():
+    """A ridge on a threshold stands two walls back to back: both go (the kept mask), found by the kernels."""
+    h = np.zeros((5, 7), np.float32)
+    h[:, 3] = 1.0  # a ridge line at height 1.0, on the threshold between 0 and 2 (interval 2: levels 0, 2)
+    vertices, faces, terrace, floor = _surface(h, levels=[0.0, 2.0], nudged=False)
+    got = _assert_same(vertices, faces, terrace, -1.0)
+    assert not got[2].all()
+
+
+def _tin_with_cliff():
+    """A TIN with a cliff (two points on one xy at different heights) and a zero-area face."""
+    pts = np.array([[0, 0, 0.3], [4, 0, 1.7], [8, 0, 2.2], [0, 4, 3.1], [4, 4, 0.6], [8, 4, 5.3], [4, 4, 4.4],
+                    [0, 8, 1.1], [4, 8, 2.9], [8, 8, 0.2], [2, 0, 1.0]], float)
+    faces = np.array([[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 6], [3, 4, 8], [3, 8, 7], [6, 5, 9], [6, 9, 8],
+                      [0, 10, 1]])
+    return trimesh.Trimesh(pts, faces, process=False)
+
+
+@pytest.mark.parametrize("nudged", [True, False])
+def test_a_tin_with_a_cliff_and_a_zero_area_face_equals_the_reference(nudged):
+    tin = _tin_with_cliff()
+    t = Terrain.from_mesh(tin)
+    vertices, faces, terrace, floor = _surface(t, interval=1.0, nudged=nudged)
+    _assert_same(vertices, faces, terrace, floor)
+    # the TIN itself, closed as a surface (every face a terrace)
+    _assert_same(np.asarray(tin.vertices), np.asarray(tin.faces), np.ones(len(tin.faces), bool), -1.0)
+
+
+@pytest.mark.parametrize("floor", [np.nan, np.inf, 1e39, 0.5, 100.0])
+def test_the_floor_errors_are_the_references(floor):
+    vertices, faces, terrace, _ = _surface(np.arange(12.0).reshape(3, 4), interval=1.0)
+    assert _assert_same(vertices, faces, terrace, floor) is None
+
+
+def test_empty_inputs_behave_as_the_reference():
+    none = np.zeros((0, 3), np.int64)
+    _assert_same(np.zeros((0, 3)), none, np.zeros(0, bool), -1.0)  # the reference's own ValueError
+    _assert_same(np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 2.0]]), none, np.zeros(0, bool), -1.0)
+
+
+def test_the_device_is_checked_and_the_cpu_is_the_default():
+    vertices, faces, terrace, floor = _surface(np.arange(20.0).reshape(4, 5), interval=2.0)
+    default = mesh_module.close_solid(vertices, faces, terrace, floor)
+    named = mesh_module.close_solid(vertices, faces, terrace, floor, "cpu")
+    assert all(np.array_equal(a, b) for a, b in zip(default, named, strict=True))
+    with pytest.raises(st.DeviceError, match="device must be one of"):
+        mesh_module.close_solid(vertices, faces, terrace, floor, "tpu:7")
+
+
+def test_faces_out_of_range_are_refused():
+    message = r"faces must index the 3 vertices \(0 \.\. 2\); got indices 0 \.\. 3"
+    with pytest.raises(st.InvalidInputError, match=message):
+        mesh_module.close_solid(np.zeros((3, 3)), np.array([[0, 1, 3]]), np.ones(1, bool), -1.0)
+
+
+def test_a_terrace_mask_of_another_length_or_dtype_is_refused():
+    """The kernels read the mask as one byte a face: a mask of ints or of another length read past it or misread."""
+    vertices, faces = np.zeros((3, 3)), np.array([[0, 1, 2], [0, 2, 1]])
+    for mask in (np.ones(1, bool), np.ones(3, bool), np.ones(2, np.int64)):
+        with pytest.raises(st.InvalidInputError, match=r"terrace_mask must be a bool array of one flag per face \(2\)"):
+            mesh_module.close_solid(vertices, faces, mask, -1.0)
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    rows=hs.integers(2, 9),
+    cols=hs.integers(2, 9),
+    seed=hs.integers(0, 2**31 - 1),
+    interval=hs.sampled_from([0.5, 1.0, 2.0, 3.0]),
+    holes=hs.integers(0, 6),
+    integers=hs.booleans(),
+    nudged=hs.booleans(),
+)
+def test_random_grids_equal_the_reference(rows, cols, seed, interval, holes, integers, nudged):
+    rng = np.random.default_rng(seed)
+    h = rng.normal(0.0, 3.0, size=(rows, cols)).cumsum(0).cumsum(1).astype(np.float32)
+    if integers:
+        h = np.round(h)
+    h.reshape(-1)[rng.integers(0, rows * cols, size=holes)] = np.nan
+    if not np.isfinite(h).any():
+        return
+    vertices, faces, terrace, floor = _surface(h, interval=interval, nudged=nudged)
+    _assert_same(vertices, faces, terrace, floor)
+
+
+@settings(max_examples=40, deadline=None)
+@given(faces=hs.lists(hs.tuples(*[hs.integers(0, 12)] * 3), max_size=40))
+def test_boundary_edges_equal_the_reference(faces):
+    """Any faces, degenerate ones (an edge (a, a)) included."""
+    faces = np.array(faces, np.int64).reshape(-1, 3)
+    np.testing.assert_array_equal(mesh_module.boundary_edges(faces), reference_solid.boundary_edges(faces))
+
+
+@settings(max_examples=30, deadline=None)
+@given(faces=hs.lists(hs.tuples(*[hs.integers(0, 9)] * 3), min_size=4, max_size=30), seed=hs.integers(0, 2**31 - 1))
+def test_random_meshes_close_as_the_reference(faces, seed):
+    """Random faces (repeated, degenerate) with random wall pairs and heights: the fins, the columns (pairs within
+    one xy) and the skirts as the reference has them."""
+    rng = np.random.default_rng(seed)
+    faces = np.array(faces, np.int64)
+    vertices = np.column_stack([rng.integers(0, 3, size=(10, 2)), rng.integers(0, 3, size=10)]).astype(float)
+    terrace = rng.random(len(faces)) < 0.5
+    _assert_same(vertices, faces, terrace, -1.0)
