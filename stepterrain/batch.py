@@ -1088,8 +1088,8 @@ def _write_manifest(output_dir: Path, entries: Mapping[str, Any], ranges: Mappin
 def _read_ranges(output_dir: Path) -> dict[str, Any]:
     """The height ranges of a folder's files the manifest in ``output_dir`` records (:func:`_files_range`), by
     :func:`_range_key`: ``[min, max]`` or None (no surface). Empty when there is none, or it cannot be read (the
-    manifest's own reading says why); an entry of another form is left out. Read before the folder is locked:
-    an entry is keyed by the file's identity, so one another run wrote is still that file's range."""
+    manifest's own reading says why); an entry of another form is left out. Read with the folder locked, as the
+    manifest's items are."""
     try:
         data = json.loads((output_dir / MANIFEST_NAME).read_text(encoding="utf-8"))
     except (OSError, ValueError):
@@ -1896,15 +1896,23 @@ def batch(
     if overview_size is not None:  # before any item runs (once refused only after every item was written)
         _check_overview(items, src, overview_size)
     _check_scheduler(scheduler)
-    ranges = None  # the files' height ranges to record in the manifest (None: none read, the recorded ones kept)
-    if src is None and items:  # a folder's or list's files: one height range, so one set of levels and one floor
-        # (after the cheap checks: every file is read, and a bad scheduler address was refused only after that)
-        recorded_ranges = _read_ranges(as_path(output_dir, "output_dir"))  # each unchanged file's, not read again
-        options, ranges = _files_levels(items, options, None if interval is None else float(interval), levels, base,
-                                        retries, bool(progress), recorded_ranges)  # fmt: skip
     folder, made = _check_output_dir(output_dir)
     lock = _FolderLock(folder)  # before anything is read or removed there: another run may be writing it
     try:
+        ranges = None  # the files' height ranges to record in the manifest (None: none, or a tiles or series run)
+        if src is None and items:  # a folder's or list's files: one height range, so one set of levels and one floor
+            # (after the cheap checks and the output folder's, locked: every file is read, and a bad scheduler
+            # address, an output_dir that is a file or one another run was writing was refused only after that)
+            recorded = _read_ranges(folder)  # each unchanged file's, not read again
+            try:
+                options, ranges = _files_levels(items, options, None if interval is None else float(interval),
+                                                levels, base, retries, bool(progress), recorded)  # fmt: skip
+            except BaseException:
+                lock.release()
+                _remove_empty(made)  # nothing was written: leave no empty output folder behind
+                raise
+            if ranges is None and recorded:  # no file read (no colours, no solid): the recorded ranges stay, for
+                ranges = (recorded, False)  # the next run that needs them (they were dropped with the manifest)
         run = dict(scheduler=scheduler, workers=workers, retries=retries, resume=resume, timeout=timeout)
         return _run_locked(items, src, options, folder, made, lock, progress=progress, start=start, ranges=ranges,
                            **run)

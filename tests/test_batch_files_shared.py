@@ -365,3 +365,46 @@ def test_a_bad_output_dir_is_refused_before_any_file_is_read(tmp_path, monkeypat
     with pytest.raises(InvalidInputError, match="output_dir must be a str or os.PathLike; got int"):
         batch(tmp_path / "tiles", 123, interval=100.0, colors="terrain", scheduler="serial")
     assert calls == []
+
+
+def test_an_output_dir_in_use_or_not_a_folder_is_refused_before_any_file_is_read(tmp_path, monkeypatch):
+    # the range pass ran before the output folder was checked and locked: every file was read (minutes for a large
+    # folder), then the run refused as writing into a file, or into a folder another run was writing
+    from stepterrain.batch import _FolderLock
+    from stepterrain.errors import DataFileError
+
+    strips(tmp_path / "tiles", 2, step=4)
+    calls = _count_reads(monkeypatch)
+    kwargs = {"interval": 100.0, "colors": "terrain", "scheduler": "serial"}
+    (tmp_path / "file").write_text("not a folder")
+    with pytest.raises(DataFileError, match="exists and is not a folder"):
+        batch(tmp_path / "tiles", tmp_path / "file", **kwargs)
+    assert calls == []
+    (tmp_path / "busy").mkdir()
+    other = _FolderLock(tmp_path / "busy")  # another run writing there
+    try:
+        with pytest.raises(DataFileError, match="in use by another stepterrain batch run"):
+            batch(tmp_path / "tiles", tmp_path / "busy", **kwargs)
+        assert calls == []
+    finally:
+        other.release()
+    # a floor refused after the range pass leaves no output folder made for it, nor its lock
+    with pytest.raises(InvalidInputError, match="floor"):
+        batch(tmp_path / "tiles", tmp_path / "new" / "out", solid=True, floor=1e6, **kwargs)
+    assert len(calls) == 2 and not (tmp_path / "new").exists()
+
+
+def test_the_recorded_ranges_outlast_a_run_that_reads_no_file(tmp_path, monkeypatch):
+    # a run that needs no range (no colours, no solid, an interval) rewrote the manifest without the recorded ranges:
+    # the next coloured run, every item complete, read every file again
+    _, files = strips(tmp_path / "tiles", 2, step=4)
+    out = tmp_path / "out"
+    coloured = {"interval": 100.0, "colors": "terrain", "format": ".ply", "scheduler": "serial"}
+    assert batch(tmp_path / "tiles", out, **coloured).ok
+    calls = _count_reads(monkeypatch)
+    plain = batch(tmp_path / "tiles", out, interval=100.0, format=".glb", scheduler="serial")
+    assert len(plain.done) == 2 and sorted(calls) == sorted(f.name for f in files)  # the items alone
+    assert len(json.loads((out / MANIFEST_NAME).read_text())["ranges"]) == 2
+    calls.clear()
+    again = batch(tmp_path / "tiles", out, **coloured)
+    assert len(again.skipped) == 2 and calls == []
