@@ -1641,7 +1641,8 @@ def batch(
     progress : bool or callable
         A tqdm progress bar on stderr, which writes each failed item's line (the one of
         :meth:`BatchReport.summary`) as the item fails; a callable ``line -> str`` draws the bar and rewords those
-        lines (the command line prefixes them and spells library arguments as its options).
+        lines (the command line prefixes them and spells library arguments as its options). A folder's files read
+        for their shared height range (more than one) get a bar of their own first.
     metadata : mapping, optional
         Added to every output's glTF ``extras``: JSON values (str, number, bool, None, lists and dicts of those
         with string keys), numpy scalars and arrays included, as in :func:`~stepterrain.export.save_mesh`;
