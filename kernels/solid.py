@@ -14,8 +14,11 @@ Everything here is integer bookkeeping over the surface's faces, count -> scan -
 * fins (two walls back to back on the same four vertices): :func:`wall_quads` sorts each wall pair's four vertices,
   a CSR keyed by each quad's smallest vertex groups the candidates, :func:`find_fins` flags the repeated quads.
 * columns (one base vertex each): :func:`last_wall_writes` and :func:`wall_pairs` join each wall's bottom and top
-  through its vertical edges; the host sorts the vertices by (x, y, [fan], pair) with one ``lexsort``, and
-  :func:`column_starts`, a scan and :func:`scatter_ranks` number the distinct keys in that order (a dense rank).
+  through its vertical edges (a pair group: the vertices sharing a pair value). A column is the vertices of one pair
+  group with the same (x, y, [fan]) bit for bit, so no sort is needed: the pair groups as buckets
+  (:func:`count_keys`, :func:`fill_buckets`), :func:`column_leaders` finds each vertex's smallest fellow in its
+  bucket, and a scan of the leaders and :func:`number_columns` number the columns in the order of their smallest
+  vertex (the base vertices follow the surface's order).
   :func:`narrow_faces` turns the int64 faces into the kernels' int32 and finds their index range in the same pass.
 * the closed mesh: :func:`emit_vertices` copies the surface's vertices and writes each column's base vertex,
   :func:`count_base_faces` and :func:`emit_faces` copy the faces and write the terraces flattened and reversed, but
@@ -399,7 +402,7 @@ def wall_pairs(
     winner: wp.array[wp.int32],
     pairs: wp.int32,
     # outputs
-    pair_out: wp.array[wp.int64],
+    pair_out: wp.array[wp.int32],
 ):
     """One element per vertex: the lower end of the vertical wall edge last written to it (:func:`last_wall_writes`
     over ``pairs`` wall pairs), else itself."""
@@ -417,61 +420,75 @@ def wall_pairs(
             else:
                 g = load(second_walls, k - pairs)
                 low = wp.min(load(faces, 3 * g), load(faces, 3 * g + 2))
-        pair_out[v] = wp.int64(low)
+        pair_out[v] = low
         v += 1
 
 
 @wp.kernel
-def column_starts(
+def column_leaders(
     thread_offset: wp.int32,
     count: wp.int32,
     chunk: wp.int32,
-    order: wp.array[wp.int64],
     bits: wp.array[wp.int64],
     fan: wp.array[wp.int64],
-    pair: wp.array[wp.int64],
+    pair: wp.array[wp.int32],
+    offsets: wp.array[wp.int32],
+    members: wp.array[wp.int32],
     # outputs
+    leader_out: wp.array[wp.int32],
     starts_out: wp.array[wp.int32],
 ):
-    """One element per sorted vertex i (``order``: the vertices sorted by x, y, fan and pair): 1 where that key
-    differs from the vertex before's (a new column; the first is one), else 0. ``bits``: the vertices' float64 bit
-    patterns (3 per vertex; x and y are compared bit for bit); ``fan``: likewise, or empty (no pinch was split)."""
+    """One element per vertex v: ``leader_out[v]``, the smallest vertex of its column, and ``starts_out[v]``, 1 where
+    that is v itself, else 0. A column is the vertices of one pair group (``members[offsets[k]:offsets[k + 1]]``, the
+    vertices whose ``pair`` is k) with the same x, y and fan bit for bit: no sort, a scan of v's own group (two
+    vertices, a wall's bottom and top, where the step kernels made it). ``bits``: the vertices' float64 bit patterns
+    (3 per vertex); ``fan``: likewise, or empty (no pinch was split)."""
     first = (wp.tid() + thread_offset) * chunk
-    i = first
+    v = first
     last = wp.min(first + chunk, count)
     fans = fan.shape[0] > 0
-    while i < last:
-        new = wp.int32(1)
-        if i > 0:
-            r = wp.int32(order[i])
-            q = wp.int32(order[i - 1])
-            if bits[3 * r] == bits[3 * q] and bits[3 * r + 1] == bits[3 * q + 1] and pair[r] == pair[q]:
-                new = 0
-                if fans:
-                    if fan[r] != fan[q]:
-                        new = 1
-        starts_out[i] = new
-        i += 1
+    while v < last:
+        k = load(pair, v)
+        x = bits[3 * v]
+        y = bits[3 * v + 1]
+        best = v
+        s = load(offsets, k)
+        end = load(offsets, k + 1)
+        while s < end:
+            u = load(members, s)
+            if u < best and bits[3 * u] == x and bits[3 * u + 1] == y:
+                if not fans:
+                    best = u
+                elif fan[u] == fan[v]:
+                    best = u
+            s += 1
+        leader_out[v] = best
+        starts_out[v] = wp.where(best == v, 1, 0)
+        v += 1
 
 
 @wp.kernel
-def scatter_ranks(
+def number_columns(
     thread_offset: wp.int32,
     count: wp.int32,
     chunk: wp.int32,
-    order: wp.array[wp.int64],
+    leader: wp.array[wp.int32],
     ranks: wp.array[wp.int32],
     # outputs
     ids_out: wp.array[wp.int64],
+    ids32_out: wp.array[wp.int32],
 ):
-    """One element per sorted vertex i: its column, the number of columns up to it less one (``ranks``: the inclusive
-    scan of :func:`column_starts`)."""
+    """One element per vertex: its column, the number of leaders (:func:`column_leaders`) up to its own less one
+    (``ranks``: the inclusive scan of their starts), so the columns are numbered in the order of their smallest
+    vertex; in int64 and in int32."""
     first = (wp.tid() + thread_offset) * chunk
-    i = first
+    v = first
     last = wp.min(first + chunk, count)
-    while i < last:
-        ids_out[order[i]] = wp.int64(load(ranks, i) - 1)
-        i += 1
+    while v < last:
+        c = load(ranks, load(leader, v)) - 1
+        ids_out[v] = wp.int64(c)
+        ids32_out[v] = c
+        v += 1
 
 
 @wp.kernel

@@ -209,7 +209,7 @@ def _fins(faces: wp.array, walls: NDArray[np.int64], n: int, device: wp.Device) 
 
 def _pairs(faces: wp.array, terrace_mask: NDArray[np.bool_], n: int, device: wp.Device) -> wp.array:
     """Per vertex, the lower index of the wall bottom and top it pairs with through a vertical wall edge (itself when
-    no wall's side joins it to another vertex), int64 on ``device``. Walls come as consecutive pairs (u_top, v_top,
+    no wall's side joins it to another vertex), int32 on ``device``. Walls come as consecutive pairs (u_top, v_top,
     v_bottom), (u_top, v_bottom, u_bottom): their vertical edges are (v_top, v_bottom) and (u_top, u_bottom); a vertex
     lies on one such edge at most (a crossing's bottom or top, a node over its twin). Should one lie on several
     (any other mesh), the last in the order tops of the first faces, of the second faces, then bottoms likewise wins
@@ -223,34 +223,32 @@ def _pairs(faces: wp.array, terrace_mask: NDArray[np.bool_], n: int, device: wp.
     winner = _empty(n, np.int32, wp.int32, device)
     winner.fill_(-1)
     launch_chunked(kernels.last_wall_writes, count, [faces, first, second], [winner], device)
-    pair = _empty(n, np.int64, wp.int64, device)
+    pair = _empty(n, np.int32, wp.int32, device)
     launch_chunked(kernels.wall_pairs, n, [faces, first, second, winner, count], [pair], device)
     return pair
 
 
 def _columns(vertices: NDArray[np.float64], fan: NDArray[np.float64] | None, pair: wp.array,
-             device: wp.Device) -> NDArray[np.int64]:
-    """Per vertex its column: the dense rank of (x, y, [fan], pair) compared bit for bit (one ``lexsort``, then
-    kernels/solid.py's column_starts, a scan and scatter_ranks)."""
+             device: wp.Device) -> tuple[NDArray[np.int64], wp.array]:
+    """Per vertex its column, in int64 on the host and int32 on ``device``: the vertices with the same (x, y, [fan],
+    pair) compared bit for bit share one. No sort: the pair groups as buckets (a column lies in one), the smallest
+    vertex of each column found in its bucket (kernels/solid.py: column_leaders), and the columns numbered in the order
+    of their smallest vertex (a scan of the leaders, number_columns)."""
     n = len(vertices)
     if n == 0:
-        return np.zeros(0, np.int64)
-    xy = np.ascontiguousarray(vertices[:, :2]).view(np.uint64)
-    pair_host = pair.numpy()
-    keys = [xy[:, 0], xy[:, 1]] + ([fan.view(np.uint64)] if fan is not None else []) + [pair_host]
-    order = np.lexsort(keys[::-1])
-    del keys, xy
-    order_w = to_device(order, wp.int64, device)
-    del order
+        return np.zeros(0, np.int64), _empty(0, np.int32, wp.int32, device)
+    offsets, members = _buckets(pair, n, device)
     bits = to_device(np.ascontiguousarray(vertices).view(np.int64).reshape(-1), wp.int64, device)
     fans = to_device(fan.view(np.int64) if fan is not None else np.zeros(0, np.int64), wp.int64, device)
+    leader = _empty(n, np.int32, wp.int32, device)
     starts = _empty(n, np.int32, wp.int32, device)
-    launch_chunked(kernels.column_starts, n, [order_w, bits, fans, pair], [starts], device)
-    del bits, fans
+    launch_chunked(kernels.column_leaders, n, [bits, fans, pair, offsets, members], [leader, starts], device)
+    del offsets, members, bits, fans
     wp.utils.array_scan(starts, starts, inclusive=True)
     ids = _empty(n, np.int64, wp.int64, device)
-    launch_chunked(kernels.scatter_ranks, n, [order_w, starts], [ids], device)
-    return ids.numpy()
+    ids32 = _empty(n, np.int32, wp.int32, device)
+    launch_chunked(kernels.number_columns, n, [leader, starts], [ids, ids32], device)
+    return ids.numpy(), ids32
 
 
 def close_solid(
@@ -284,6 +282,8 @@ def close_solid(
     Returns the new vertices (the surface's first, then the base), the faces (kept input faces first, then the
     added ones), the mask of input faces kept, the number of faces added, and per surface vertex the input vertex
     it is or copies (``len(source)`` surface vertices: per-vertex data such as colours follows them through it).
+    The base vertices follow the surface's order: one per column (the surface vertices that share it), in the order
+    of each column's smallest surface vertex.
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
@@ -342,14 +342,15 @@ def close_solid(
     # on one xy, or a crossing on a zero-area face where another edge's crossing lies) shared a base vertex, and the
     # base under them folded onto a base edge used four times: a solid that leaked, without a warning. So the key is
     # (x, y, [fan], pair): the vertices of one xy share a column when they share their wall pair (a wall's bottom
-    # and top, or one vertex). Where each xy has one pair this numbers the columns as the xy alone would.
+    # and top, or one vertex). A column lies in one pair group, so the pair groups as buckets find them without a
+    # sort; they are numbered in the order of their smallest vertex (the base follows the surface's order).
     pair = _pairs(flat, terrace_mask, n, device)
-    column = _columns(vertices, fan if split else None, pair, device)
+    column, column32 = _columns(vertices, fan if split else None, pair, device)
+    del pair
     n_columns = int(column.max()) + 1
     if 3 * (n + n_columns) > MAX_INT32 or 3 * (2 * len(faces) + 3 * len(edges)) > MAX_INT32:
         raise OutputTooLargeError(f"the solid of {len(faces):,} faces and {n:,} vertices would have more faces or "
                                   f"vertices than the kernels index with int32 (3 per face or vertex)")
-    column32 = to_device(column, wp.int32, device)
 
     out_vertices = np.empty((n + n_columns, 3), np.float64)
     written = _output(out_vertices, wp.float64, device)

@@ -1,8 +1,11 @@
 """close_solid on the Warp kernels of kernels/solid.py against its NumPy reference (tests/reference_solid.py).
 
 close_solid's boundary edges, fins and base moved from NumPy sorts to count -> scan -> emit kernels, and its
-columns to one dense rank of (x, y, [fan], wall pair). Its result must stay the same bit for bit: the vertices,
-faces, kept mask, number of faces added and source vertices of every surface, and the same errors. The surfaces
+columns (the vertices of one (x, y, [fan], wall pair), one base vertex each) to buckets of the wall pairs without a
+sort, numbered in the order of their smallest vertex where the reference numbers them in the key's lexical order.
+Its result must stay the same up to that order of the base vertices: the surface vertices bit for bit, the kept mask,
+number of faces added and source vertices, the faces and base vertices through one permutation of the base, and
+the same errors. The surfaces
 are the stepper's own (the sample DEM at several intervals, gammas and levels; grids with nodata holes and pinches;
 integer heights on thresholds, stepped as is, so fins appear; TINs with cliffs and zero-area faces) and random ones.
 """
@@ -38,8 +41,38 @@ def _surface(terrain, interval=None, levels=None, gamma=1.0, nudged=True):
     return vertices, arrays.faces, ~arrays.face_walls, floor
 
 
+def _bits(a):
+    """The float64 array ``a``'s bit patterns (0.0 and -0.0 differ, a NaN equals itself)."""
+    return np.ascontiguousarray(a, np.float64).view(np.uint64)
+
+
+def _close_recording_columns(vertices, faces, terrace, floor):
+    """close_solid, and what its _columns got and gave: (vertices, fan, pair) and the columns (None if not called)."""
+    seen = {}
+    columns = mesh_module._columns
+
+    def recording(v, fan, pair, device):
+        got = columns(v, fan, pair, device)
+        seen["call"] = (np.array(v), None if fan is None else np.array(fan), pair.numpy().copy(), got[0].copy())
+        return got
+
+    mesh_module._columns = recording
+    try:
+        result = mesh_module.close_solid(vertices, faces, terrace, floor)
+    finally:
+        mesh_module._columns = columns
+    return result, seen.get("call")
+
+
 def _assert_same(vertices, faces, terrace, floor):
-    """close_solid and the reference give the same arrays (values and dtypes) or the same error; returns the result."""
+    """close_solid and the reference give the same solid up to the order of the base vertices, or the same error;
+    returns the result.
+
+    Same dtypes and shapes; the surface vertices (the first ``len(source)`` rows) bit for bit, ``kept``, ``added`` and
+    ``source`` equal. The columns (one base vertex each) are checked against their definition: the vertices with the
+    same (x, y, [fan], pair) bit for bit, numbered in the order of their smallest vertex. The reference numbers the same
+    columns in the lexicographic order of that key: the permutation between the two must be one bijection, the faces
+    the reference's with their base indices sent through it, the base rows the reference's permuted bit for bit."""
     try:
         want = reference_solid.close_solid(vertices, faces, terrace, floor)
     except Exception as exc:  # the same type and message
@@ -47,11 +80,37 @@ def _assert_same(vertices, faces, terrace, floor):
             mesh_module.close_solid(vertices, faces, terrace, floor)
         assert str(got.value) == str(exc)
         return None
-    got = mesh_module.close_solid(vertices, faces, terrace, floor)
-    assert type(got[3]) is type(want[3]) and got[3] == want[3]
-    for g, w in zip(got[:3] + got[4:], want[:3] + want[4:], strict=True):
+    got, call = _close_recording_columns(vertices, faces, terrace, floor)
+    gv, gf, gk, ga, gs = got
+    wv, wf, wk, wa, ws = want
+    assert type(ga) is type(wa) and ga == wa
+    for g, w in ((gv, wv), (gf, wf), (gk, wk), (gs, ws)):
         assert g.dtype == w.dtype and g.shape == w.shape
-        assert np.array_equal(g, w)
+    assert np.array_equal(gk, wk) and np.array_equal(gs, ws)
+    n = len(ws)
+    assert np.array_equal(_bits(gv[:n]), _bits(wv[:n]))
+    if n == 0:
+        assert len(gv) == 0 and len(gf) == 0
+        return got
+    # the columns close_solid used, against their definition
+    v, fan, pair, column = call
+    assert np.array_equal(_bits(v), _bits(gv[:n]))
+    key = [_bits(v[:, 0]), _bits(v[:, 1])] + ([_bits(fan)] if fan is not None else []) + [pair.astype(np.uint64)]
+    _, old = np.unique(np.column_stack(key), axis=0, return_inverse=True)  # the reference's: the key's lexical rank
+    old = old.reshape(-1)
+    count = int(old.max()) + 1
+    assert column.min() == 0 and column.max() == count - 1
+    perm = np.full(count, -1, np.int64)
+    perm[old] = column
+    assert np.array_equal(perm[old], column)  # one column per key (no key split)
+    assert len(np.unique(perm)) == count  # one key per column (no two merged)
+    smallest = np.full(count, n, np.int64)
+    np.minimum.at(smallest, column, np.arange(n))
+    assert (np.diff(smallest) > 0).all()  # numbered in the order of their smallest vertex
+    # the solid: the reference's with the base vertices permuted
+    assert len(gv) == n + count
+    assert np.array_equal(_bits(gv[n + perm]), _bits(wv[n:]))
+    assert np.array_equal(gf, np.where(wf < n, wf, n + perm[np.maximum(wf - n, 0)]))
     return got
 
 
@@ -200,3 +259,14 @@ def test_random_meshes_close_as_the_reference(faces, seed):
     vertices = np.column_stack([rng.integers(0, 3, size=(10, 2)), rng.integers(0, 3, size=10)]).astype(float)
     terrace = rng.random(len(faces)) < 0.5
     _assert_same(vertices, faces, terrace, -1.0)
+
+
+def test_a_pinch_copy_on_a_walls_vertical_edge_keeps_its_own_column():
+    """A pinch vertex P whose second fan (a wall pair) gets the copy: the copy pairs with the wall's top T on the same
+    xy through the wall's vertical edge, and only its fan keeps their columns apart (as the reference's key does)."""
+    vertices = np.array([[0, 0, 0], [-1, -1, 0], [-1, 1, 0], [1, 0, 1], [0, 0, 1], [1, 0, 0]], float)
+    p, q1, q2, u_top, t, u_bottom = range(6)
+    faces = np.array([[p, q1, q2],  # fan A: first, keeps P
+                      [u_top, t, p], [u_top, p, u_bottom]])  # fan B: a wall pair (u_top, v_top, v_bottom), ...
+    got = _assert_same(vertices, faces, np.array([True, False, False]), -1.0)
+    assert len(got[4]) == 7  # P was split
