@@ -571,15 +571,20 @@ def chunked_threads(n: int, device: wp.Device) -> int:
 
 
 def launch_chunked(kernel: Any, n: int, inputs: list, outputs: list, device: wp.Device, *,
-                   min_elements: int = MIN_THREAD_ELEMENTS, fence: bool = False) -> None:
+                   min_elements: int = MIN_THREAD_ELEMENTS, fence: bool = False, atomics: bool = False) -> None:
     """:func:`launch` of a chunked kernel over ``n`` elements.
 
     A chunked kernel takes ``thread_offset, count, chunk`` first; thread t handles the elements
     [(t + thread_offset)·chunk, … + chunk) ∩ [0, count). chunk is :data:`CPU_CHUNK` on the CPU, 1 on CUDA. On the
     CPU a range gets at least ``min_elements`` elements: lower it for kernels that spend long on each element
     (a split costs a Python launch, about 0.1 ms), so that their mid-sized passes use every core too.
+    ``atomics``: the kernel updates shared elements with Warp's atomics (``wp.atomic_add``, ``atomic_max``), which
+    are atomic on CUDA but plain read-modify-writes on the CPU: there it runs as one range (ranges launched at
+    once on several threads lost updates: counts too small, and the slots scanned from them written past their end).
     """
     chunk = _chunk(device)
+    if atomics and device.is_cpu:
+        min_elements = max(min_elements, n + chunk)
     launch(kernel, chunked_threads(n, device), [n, chunk, *inputs], outputs, device,
            min_dim=max(1, min_elements // chunk), fence=fence)
 

@@ -114,12 +114,12 @@ def _buckets(keys: wp.array, n: int, device: wp.Device) -> tuple[wp.array, wp.ar
     """The items of ``keys`` (ints in [0, n)) grouped by key, without a sort (kernels/solid.py: count_keys,
     fill_buckets): the bucket of key k is ``items[offsets[k]:offsets[k + 1]]``, in no particular order."""
     counts = _empty(n + 1, np.int32, wp.int32, device, zero=True)
-    launch_chunked(kernels.count_keys, keys.shape[0], [keys], [counts], device)
+    launch_chunked(kernels.count_keys, keys.shape[0], [keys], [counts], device, atomics=True)
     offsets, total = _scan(counts)
     del counts
     cursor = _empty(n, np.int32, wp.int32, device, zero=True)
     items = _empty(total, np.int32, wp.int32, device)
-    launch_chunked(kernels.fill_buckets, keys.shape[0], [keys, offsets], [cursor, items], device)
+    launch_chunked(kernels.fill_buckets, keys.shape[0], [keys, offsets], [cursor, items], device, atomics=True)
     return offsets, items
 
 
@@ -154,14 +154,14 @@ def _boundary(faces: wp.array, n: int, device: wp.Device) -> NDArray[np.int64]:
     if count == 0:
         return np.zeros((0, 2), np.int64)
     counts = _empty(n + 1, np.int32, wp.int32, device, zero=True)
-    launch_chunked(kernels.count_keys, faces.shape[0], [faces], [counts], device)
+    launch_chunked(kernels.count_keys, faces.shape[0], [faces], [counts], device, atomics=True)
     offsets, total = _scan(counts)
     cursor = _empty(n, np.int32, wp.int32, device, zero=True)
     if device.is_cpu:
         corners = wp.array(np.empty((total, 2), np.int32), dtype=wp.vec2i, device=device, copy=False)
     else:
         corners = wp.empty(total, dtype=wp.vec2i, device=device)
-    launch_chunked(kernels.fill_corners, count, [faces, offsets], [cursor, corners], device)
+    launch_chunked(kernels.fill_corners, count, [faces, offsets], [cursor, corners], device, atomics=True)
     del cursor
     threads = chunked_threads(count, device)
     counts = _empty(threads + 1, np.int32, wp.int32, device, zero=True)
@@ -169,6 +169,9 @@ def _boundary(faces: wp.array, n: int, device: wp.Device) -> NDArray[np.int64]:
     launch_chunked(kernels.count_boundary, count, [faces, offsets, corners], [flags, counts], device)
     del offsets, corners
     starts, total = _scan(counts)
+    if 2 * total > MAX_INT32:  # emit_boundary writes edge o at 2·o in int32
+        raise OutputTooLargeError(f"faces: the kernels index at most {MAX_INT32 // 2:,} boundary edges with int32; got "
+                                  f"{total:,}")
     edges = _empty(2 * total, np.int64, wp.int64, device)
     launch_chunked(kernels.emit_boundary, count, [faces, flags, starts], [edges], device)
     return edges.numpy().reshape(total, 2)
@@ -181,6 +184,8 @@ def boundary_edges(faces: NDArray[np.int64], device: wp.DeviceLike = None) -> ND
     those among the corners at one of its ends (kernels/solid.py: a vertex -> corner table built without a sort,
     then count -> scan -> emit over the faces). ``device``: where the kernels run (the CPU by default)."""
     faces = np.asarray(faces, dtype=np.int64)
+    if faces.ndim != 2 or faces.shape[1] != 3:  # the kernels read the faces as flat rows of three
+        raise InvalidInputError(f"faces must be an (F, 3) array of vertex indices; got shape {faces.shape}")
     if len(faces) == 0:
         return np.zeros((0, 2), np.int64)
     if faces.min() < 0:
@@ -222,7 +227,7 @@ def _pairs(faces: wp.array, terrace_mask: NDArray[np.bool_], n: int, device: wp.
     count = first.shape[0]
     winner = _empty(n, np.int32, wp.int32, device)
     winner.fill_(-1)
-    launch_chunked(kernels.last_wall_writes, count, [faces, first, second], [winner], device)
+    launch_chunked(kernels.last_wall_writes, count, [faces, first, second], [winner], device, atomics=True)
     pair = _empty(n, np.int32, wp.int32, device)
     launch_chunked(kernels.wall_pairs, n, [faces, first, second, winner, count], [pair], device)
     return pair
@@ -289,8 +294,12 @@ def close_solid(
     faces = np.asarray(faces, dtype=np.int64)
     if faces.ndim != 2 or faces.shape[1] != 3:
         raise InvalidInputError(f"faces must be an (F, 3) array of vertex indices; got shape {faces.shape}")
-    if len(vertices) > MAX_INT32:
-        raise OutputTooLargeError(f"vertices: the kernels index at most {MAX_INT32:,} vertices with int32; got "
+    if vertices.ndim != 2 or vertices.shape[1] != 3:  # the kernels read them as flat rows of three
+        raise InvalidInputError(f"vertices must be an (N, 3) array of x, y, z; got shape {vertices.shape}")
+    if len(vertices) == 0:
+        raise InvalidInputError("vertices: close_solid needs a surface to close; got no vertex")
+    if 3 * len(vertices) > MAX_INT32:  # their coordinates, flat, at 3·i in int32 (and pinch copies are checked later)
+        raise OutputTooLargeError(f"vertices: the kernels index at most {MAX_INT32 // 3:,} vertices with int32; got "
                                   f"{len(vertices):,}")
     device = _device_of(device)
     flat, low, high = _narrow_faces(faces, device)
@@ -344,6 +353,9 @@ def close_solid(
     # (x, y, [fan], pair): the vertices of one xy share a column when they share their wall pair (a wall's bottom
     # and top, or one vertex). A column lies in one pair group, so the pair groups as buckets find them without a
     # sort; they are numbered in the order of their smallest vertex (the base follows the surface's order).
+    if 3 * n > MAX_INT32:  # the pinches' copies added vertices: _columns reads each one's coordinates at 3·i
+        raise OutputTooLargeError(f"vertices: the kernels index at most {MAX_INT32 // 3:,} vertices with int32; got "
+                                  f"{n:,} with the copies of the surface's pinch vertices")
     pair = _pairs(flat, terrace_mask, n, device)
     column, column32 = _columns(vertices, fan if split else None, pair, device)
     del pair
