@@ -12,7 +12,8 @@ Everything here is integer bookkeeping over the surface's faces, count -> scan -
   {a, b}; :func:`is_boundary` counts them among the corners of a or b, whichever has fewer. :func:`count_boundary`
   flags them per face and counts them per thread, :func:`emit_boundary` writes them in face and corner order.
 * fins (two walls back to back on the same four vertices): :func:`wall_quads` sorts each wall pair's four vertices,
-  a CSR keyed by each quad's smallest vertex groups the candidates, :func:`find_fins` flags the repeated quads.
+  a CSR keyed by a hash of each quad (:func:`quad_bucket`) groups the candidates, :func:`find_fins` flags the
+  repeated quads.
 * columns (one base vertex each): :func:`last_wall_writes` and :func:`wall_pairs` join each wall's bottom and top
   through its vertical edges (a pair group: the vertices sharing a pair value). A column is the vertices of one pair
   group with the same (x, y, [fan]) bit for bit, so no sort is needed: the pair groups as buckets
@@ -35,6 +36,11 @@ import warp as wp
 from .memory import load
 
 wp.set_module_options({"enable_backward": False})  # integer work only: no adjoints, nothing to contract
+
+# the hash's constants, as uint32 (a plain literal above 2**31 - 1 would be an int32 in the generated code)
+GOLDEN = wp.constant(wp.uint32(0x9E3779B9))  # 2**32 / the golden ratio (boost's hash_combine)
+FMIX1 = wp.constant(wp.uint32(0x85EBCA6B))  # MurmurHash3's fmix32
+FMIX2 = wp.constant(wp.uint32(0xC2B2AE35))
 
 
 @wp.kernel
@@ -184,6 +190,27 @@ def emit_boundary(
         f += 1
 
 
+@wp.func
+def mix32(h: wp.uint32) -> wp.uint32:
+    """MurmurHash3's 32-bit finaliser (fmix32): every input bit flips about half the output bits."""
+    h = h ^ (h >> wp.uint32(16))
+    h = h * FMIX1
+    h = h ^ (h >> wp.uint32(13))
+    h = h * FMIX2
+    return h ^ (h >> wp.uint32(16))
+
+
+@wp.func
+def quad_bucket(q: wp.vec4i, buckets: wp.int32) -> wp.int32:
+    """The bucket in [0, ``buckets``) of a sorted quad: a hash of its four ints (each folded in and mixed, uint32
+    arithmetic wrapping alike on the CPU and CUDA) modulo ``buckets``, so equal quads share a bucket and unrelated ones
+    rarely do (a fan's quads, which all share their smallest vertex, spread over the buckets)."""
+    h = GOLDEN
+    for i in range(4):
+        h = mix32(h ^ (wp.uint32(q[i]) + GOLDEN + (h << wp.uint32(6)) + (h >> wp.uint32(2))))
+    return wp.int32(h % wp.uint32(buckets))
+
+
 @wp.kernel
 def wall_quads(
     thread_offset: wp.int32,
@@ -197,7 +224,7 @@ def wall_quads(
     keys_out: wp.array[wp.int32],
 ):
     """One element per wall pair (u_top, v_top, v_bottom), (u_top, v_bottom, u_bottom): its four vertices (the
-    first face's and the second's last) sorted, and the smallest as its key."""
+    first face's and the second's last) sorted, and their :func:`quad_bucket` among ``count`` buckets as its key."""
     first = (wp.tid() + thread_offset) * chunk
     p = first
     last = wp.min(first + chunk, count)
@@ -226,7 +253,7 @@ def wall_quads(
         b = lo
         q = wp.vec4i(a, b, c, d)
         quads_out[p] = q
-        keys_out[p] = q[0]
+        keys_out[p] = quad_bucket(q, count)
         p += 1
 
 
@@ -241,21 +268,22 @@ def find_fins(
     # outputs
     fins_out: wp.array[wp.uint8],
 ):
-    """One element per wall pair: 1 where another pair has the same sorted quad (found in the bucket of the quad's
-    smallest vertex), else 0."""
+    """One element per wall pair: 1 where another pair has the same sorted quad (found in the quad's bucket,
+    ``pairs[offsets[k]:offsets[k + 1]]`` for k its :func:`quad_bucket`; the scan stops at the first), else 0."""
     first = (wp.tid() + thread_offset) * chunk
     p = first
     last = wp.min(first + chunk, count)
     while p < last:
         q = quads[p]
         hit = wp.uint8(0)
-        s = load(offsets, q[0])
-        end = load(offsets, q[0] + 1)
-        while s < end:
+        k = quad_bucket(q, count)
+        s = load(offsets, k)
+        end = load(offsets, k + 1)
+        while s < end and hit == wp.uint8(0):
             r = load(pairs, s)
             if r != p:
                 o = quads[r]
-                if o[1] == q[1] and o[2] == q[2] and o[3] == q[3]:
+                if o[0] == q[0] and o[1] == q[1] and o[2] == q[2] and o[3] == q[3]:
                     hit = wp.uint8(1)
             s += 1
         fins_out[p] = hit

@@ -194,9 +194,9 @@ def boundary_edges(faces: NDArray[np.int64], device: wp.DeviceLike = None) -> ND
     return _boundary(_flat_faces(faces, device), int(faces.max()) + 1, device)
 
 
-def _fins(faces: wp.array, walls: NDArray[np.int64], n: int, device: wp.Device) -> NDArray[np.bool_]:
+def _fins(faces: wp.array, walls: NDArray[np.int64], device: wp.Device) -> NDArray[np.bool_]:
     """Per wall pair (``walls``' faces in consecutive pairs), whether another pair stands on the same four vertices
-    (kernels/solid.py: wall_quads, a table of the pairs by their smallest vertex, find_fins)."""
+    (kernels/solid.py: wall_quads, a table of the pairs by a hash of their sorted quad, find_fins)."""
     first = to_device(walls[0::2], wp.int32, device)
     second = to_device(walls[1::2], wp.int32, device)
     count = first.shape[0]
@@ -206,7 +206,7 @@ def _fins(faces: wp.array, walls: NDArray[np.int64], n: int, device: wp.Device) 
         quads = wp.empty(count, dtype=wp.vec4i, device=device)
     keys = _empty(count, np.int32, wp.int32, device)
     launch_chunked(kernels.wall_quads, count, [faces, first, second], [quads, keys], device)
-    offsets, pairs = _buckets(keys, n, device)
+    offsets, pairs = _buckets(keys, count, device)
     fins = _empty(count, np.uint8, wp.uint8, device)
     launch_chunked(kernels.find_fins, count, [quads, offsets, pairs], [fins], device)
     return fins.numpy().view(np.bool_)
@@ -315,7 +315,7 @@ def close_solid(
     walls = np.flatnonzero(~terrace_mask)
     if len(walls) >= 4 and len(walls) % 2 == 0:
         # walls are emitted as consecutive pairs (u_top, v_top, v_bottom), (u_top, v_bottom, u_bottom)
-        fin = _fins(flat, walls, len(vertices), device)
+        fin = _fins(flat, walls, device)
         if fin.any():  # rare: stepped() steps solids off the thresholds
             kept[walls[0::2][fin]] = False
             kept[walls[1::2][fin]] = False
