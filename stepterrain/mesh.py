@@ -97,10 +97,16 @@ def _empty(n: int, np_dtype: Any, dtype: Any, device: wp.Device, *, zero: bool =
 
 def _output(host: NDArray[Any], dtype: Any, device: wp.Device) -> wp.array:
     """Where a kernel writes the output ``host`` (flat): ``host`` itself on the CPU, a device array on CUDA (copied
-    into it after)."""
+    into it after, :func:`_copy_into`)."""
     if device.is_cpu:
         return wp.array(host.reshape(-1), dtype=dtype, device=device, copy=False)
     return wp.empty(host.size, dtype=dtype, device=device)
+
+
+def _copy_into(host: NDArray[Any], written: wp.array) -> None:
+    """Copy ``written`` (what :func:`_output` gave for ``host`` on CUDA) straight into ``host``, with no second host
+    copy (``.numpy()`` and an assignment held the output twice); any device (the tests copy CPU arrays)."""
+    wp.copy(wp.array(host.reshape(-1), dtype=written.dtype, device="cpu", copy=False), written)
 
 
 def _scan(counts: wp.array) -> tuple[wp.array, int]:
@@ -369,7 +375,7 @@ def close_solid(
     launch_chunked(kernels.emit_vertices, n, [to_device(vertices.reshape(-1), wp.float64, device), column32,
                                               float(floor)], [written], device)
     if not device.is_cpu:
-        out_vertices[:] = written.numpy().reshape(-1, 3)
+        _copy_into(out_vertices, written)
     del written
 
     terrace = to_device(terrace_mask.view(np.uint8), wp.uint8, device)
@@ -399,7 +405,7 @@ def close_solid(
     launch_chunked(kernels.emit_faces, count, [flat, terrace, column32, starts, n, len(faces) + n_skirts], [written],
                    device)
     if not device.is_cpu:
-        out_faces[:] = written.numpy().reshape(-1, 3)
+        _copy_into(out_faces, written)
     del written
     # skirts: every [b, A, B], then [b, a, A] where no vertical edge arrives at a, else [b, a, x] and [b, x, A]
     skirts = out_faces[len(faces):len(faces) + n_skirts]
