@@ -16,10 +16,10 @@ Everything here is integer bookkeeping over the surface's faces, count -> scan -
   repeated quads.
 * columns (one base vertex each): :func:`last_wall_writes` and :func:`wall_pairs` join each wall's bottom and top
   through its vertical edges (a pair group: the vertices sharing a pair value). A column is the vertices of one pair
-  group with the same (x, y, [fan]) bit for bit, so no sort is needed: the pair groups as buckets
-  (:func:`count_keys`, :func:`fill_buckets`), :func:`column_leaders` finds each vertex's smallest fellow in its
-  bucket, and a scan of the leaders and :func:`number_columns` number the columns in the order of their smallest
-  vertex (the base vertices follow the surface's order).
+  group with the same (x, y, [fan]) bit for bit, so no sort is needed: buckets by a hash of that key
+  (:func:`column_keys`, :func:`count_keys`, :func:`fill_buckets`), :func:`column_leaders` finds each vertex's
+  smallest fellow in its bucket, and a scan of the leaders and :func:`number_columns` number the columns in the
+  order of their smallest vertex (the base vertices follow the surface's order).
   :func:`narrow_faces` turns the int64 faces into the kernels' int32 and finds their index range in the same pass.
 * the closed mesh: :func:`emit_vertices` copies the surface's vertices and writes each column's base vertex,
   :func:`count_base_faces` and :func:`emit_faces` copy the faces and write the terraces flattened and reversed, but
@@ -201,13 +201,28 @@ def mix32(h: wp.uint32) -> wp.uint32:
 
 
 @wp.func
+def mix_in(h: wp.uint32, x: wp.uint32) -> wp.uint32:
+    """The hash ``h`` with ``x`` folded in (boost's hash_combine, then :func:`mix32`); uint32 arithmetic wraps alike
+    on the CPU and CUDA, so every device gets the same hashes."""
+    return mix32(h ^ (x + GOLDEN + (h << wp.uint32(6)) + (h >> wp.uint32(2))))
+
+
+@wp.func
+def mix_in64(h: wp.uint32, x: wp.int64) -> wp.uint32:
+    """The hash ``h`` with the 64 bits of ``x`` folded in (low half, then high half)."""
+    u = wp.uint64(x)
+    h = mix_in(h, wp.uint32(u))  # the low half (the conversion wraps)
+    return mix_in(h, wp.uint32(u >> wp.uint64(32)))
+
+
+@wp.func
 def quad_bucket(q: wp.vec4i, buckets: wp.int32) -> wp.int32:
-    """The bucket in [0, ``buckets``) of a sorted quad: a hash of its four ints (each folded in and mixed, uint32
-    arithmetic wrapping alike on the CPU and CUDA) modulo ``buckets``, so equal quads share a bucket and unrelated ones
-    rarely do (a fan's quads, which all share their smallest vertex, spread over the buckets)."""
+    """The bucket in [0, ``buckets``) of a sorted quad: a hash of its four ints (:func:`mix_in`) modulo ``buckets``,
+    so equal quads share a bucket and unrelated ones rarely do (a fan's quads, which all share their smallest vertex,
+    spread over the buckets)."""
     h = GOLDEN
     for i in range(4):
-        h = mix32(h ^ (wp.uint32(q[i]) + GOLDEN + (h << wp.uint32(6)) + (h >> wp.uint32(2))))
+        h = mix_in(h, wp.uint32(q[i]))
     return wp.int32(h % wp.uint32(buckets))
 
 
@@ -452,6 +467,39 @@ def wall_pairs(
         v += 1
 
 
+@wp.func
+def column_key(bits: wp.array[wp.int64], fan: wp.array[wp.int64], pair: wp.array[wp.int32], v: wp.int32,
+               buckets: wp.int32) -> wp.int32:
+    """The bucket in [0, ``buckets``) of vertex v's column key (x, y, [fan], pair), bit for bit: a hash of them
+    (:func:`mix_in`, :func:`mix_in64`) modulo ``buckets``, so a column's vertices share a bucket."""
+    h = mix_in(GOLDEN, wp.uint32(load(pair, v)))
+    h = mix_in64(h, bits[3 * v])
+    h = mix_in64(h, bits[3 * v + 1])
+    if fan.shape[0] > 0:
+        h = mix_in64(h, fan[v])
+    return wp.int32(h % wp.uint32(buckets))
+
+
+@wp.kernel
+def column_keys(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    bits: wp.array[wp.int64],
+    fan: wp.array[wp.int64],
+    pair: wp.array[wp.int32],
+    # outputs
+    keys_out: wp.array[wp.int32],
+):
+    """One element per vertex: its :func:`column_key` among ``count`` buckets."""
+    first = (wp.tid() + thread_offset) * chunk
+    v = first
+    last = wp.min(first + chunk, count)
+    while v < last:
+        keys_out[v] = column_key(bits, fan, pair, v, count)
+        v += 1
+
+
 @wp.kernel
 def column_leaders(
     thread_offset: wp.int32,
@@ -467,24 +515,25 @@ def column_leaders(
     starts_out: wp.array[wp.int32],
 ):
     """One element per vertex v: ``leader_out[v]``, the smallest vertex of its column, and ``starts_out[v]``, 1 where
-    that is v itself, else 0. A column is the vertices of one pair group (``members[offsets[k]:offsets[k + 1]]``, the
-    vertices whose ``pair`` is k) with the same x, y and fan bit for bit: no sort, a scan of v's own group (two
-    vertices, a wall's bottom and top, where the step kernels made it). ``bits``: the vertices' float64 bit patterns
+    that is v itself, else 0. A column is the vertices with the same pair, x, y and fan bit for bit: no sort, a scan of
+    v's bucket (``members[offsets[k]:offsets[k + 1]]``, the vertices whose :func:`column_key` is k: a few, however
+    large a pair group, e.g. a fan's hub joined to each of its spokes). ``bits``: the vertices' float64 bit patterns
     (3 per vertex); ``fan``: likewise, or empty (no pinch was split)."""
     first = (wp.tid() + thread_offset) * chunk
     v = first
     last = wp.min(first + chunk, count)
     fans = fan.shape[0] > 0
     while v < last:
-        k = load(pair, v)
+        g = load(pair, v)
         x = bits[3 * v]
         y = bits[3 * v + 1]
         best = v
+        k = column_key(bits, fan, pair, v, count)
         s = load(offsets, k)
         end = load(offsets, k + 1)
         while s < end:
             u = load(members, s)
-            if u < best and bits[3 * u] == x and bits[3 * u + 1] == y:
+            if u < best and load(pair, u) == g and bits[3 * u] == x and bits[3 * u + 1] == y:
                 if not fans:
                     best = u
                 elif fan[u] == fan[v]:

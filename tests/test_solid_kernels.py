@@ -323,3 +323,20 @@ def test_the_fin_buckets_of_a_fan_are_small_and_equal_quads_share_one():
     twins = np.arange(len(faces) // 2 - len(copied), len(faces) // 2)
     np.testing.assert_array_equal(quads.numpy()[twins], quads.numpy()[copied])
     np.testing.assert_array_equal(keys[twins], keys[copied])
+
+
+def test_the_column_buckets_of_a_fan_are_small():
+    """The fan's hub is joined through wall edges to most of its spokes (one pair group of about 40k vertices, once
+    one bucket that column_leaders scanned for each of them: 2.4 s for 60k pairs); column_keys buckets the vertices
+    by a hash of their (x, y, pair) among as many buckets as vertices: none near that size."""
+    vertices, faces, terrace, _ = _fan(20_000, fins_every=10**9)
+    n = len(vertices)
+    flat = wp.array(faces.astype(np.int32).reshape(-1), dtype=wp.int32, device=CPU)
+    pair = mesh_module._pairs(flat, terrace, n, CPU)
+    assert np.bincount(pair.numpy()).max() > n // 4
+    bits = wp.array(vertices.view(np.int64).reshape(-1), dtype=wp.int64, device=CPU)
+    keys = wp.empty(n, dtype=wp.int32, device=CPU)
+    launch_chunked(kernels.column_keys, n, [bits, wp.zeros(0, dtype=wp.int64, device=CPU), pair], [keys], CPU)
+    keys = keys.numpy()
+    assert keys.min() >= 0 and keys.max() < n
+    assert np.bincount(keys).max() <= 32
