@@ -12,14 +12,13 @@ Everything here is integer bookkeeping over the surface's faces, count -> scan -
   {a, b}; :func:`is_boundary` counts them among the corners of a or b, whichever has fewer. :func:`count_boundary`
   flags them per face and counts them per thread, :func:`emit_boundary` writes them in face and corner order.
 * fins (two walls back to back on the same four vertices): :func:`wall_quads` sorts each wall pair's four vertices,
-  a CSR keyed by a hash of each quad (:func:`quad_bucket`) groups the candidates, :func:`find_fins` flags the
-  repeated quads.
+  a CSR keyed by each quad's smallest vertex groups the candidates, :func:`find_fins` flags the repeated quads.
 * columns (one base vertex each): :func:`last_wall_writes` and :func:`wall_pairs` join each wall's bottom and top
   through its vertical edges (a pair group: the vertices sharing a pair value). A column is the vertices of one pair
-  group with the same (x, y, [fan]) bit for bit, so no sort is needed: buckets by a hash of that key
-  (:func:`column_keys`, :func:`count_keys`, :func:`fill_buckets`), :func:`column_leaders` finds each vertex's
-  smallest fellow in its bucket, and a scan of the leaders and :func:`number_columns` number the columns in the
-  order of their smallest vertex (the base vertices follow the surface's order).
+  group with the same (x, y, [fan]) bit for bit, so no sort is needed: the pair groups as buckets
+  (:func:`count_keys`, :func:`fill_buckets`), :func:`column_leaders` finds each vertex's smallest fellow in its
+  bucket, and a scan of the leaders and :func:`number_columns` number the columns in the order of their smallest
+  vertex (the base vertices follow the surface's order).
   :func:`narrow_faces` turns the int64 faces into the kernels' int32 and finds their index range in the same pass.
 * the closed mesh: :func:`emit_vertices` copies the surface's vertices and writes each column's base vertex,
   :func:`count_base_faces` and :func:`emit_faces` copy the faces and write the terraces flattened and reversed, but
@@ -36,11 +35,6 @@ import warp as wp
 from .memory import load
 
 wp.set_module_options({"enable_backward": False})  # integer work only: no adjoints, nothing to contract
-
-# the hash's constants, as uint32 (a plain literal above 2**31 - 1 would be an int32 in the generated code)
-GOLDEN = wp.constant(wp.uint32(0x9E3779B9))  # 2**32 / the golden ratio (boost's hash_combine)
-FMIX1 = wp.constant(wp.uint32(0x85EBCA6B))  # MurmurHash3's fmix32
-FMIX2 = wp.constant(wp.uint32(0xC2B2AE35))
 
 
 @wp.kernel
@@ -190,42 +184,6 @@ def emit_boundary(
         f += 1
 
 
-@wp.func
-def mix32(h: wp.uint32) -> wp.uint32:
-    """MurmurHash3's 32-bit finaliser (fmix32): every input bit flips about half the output bits."""
-    h = h ^ (h >> wp.uint32(16))
-    h = h * FMIX1
-    h = h ^ (h >> wp.uint32(13))
-    h = h * FMIX2
-    return h ^ (h >> wp.uint32(16))
-
-
-@wp.func
-def mix_in(h: wp.uint32, x: wp.uint32) -> wp.uint32:
-    """The hash ``h`` with ``x`` folded in (boost's hash_combine, then :func:`mix32`); uint32 arithmetic wraps alike
-    on the CPU and CUDA, so every device gets the same hashes."""
-    return mix32(h ^ (x + GOLDEN + (h << wp.uint32(6)) + (h >> wp.uint32(2))))
-
-
-@wp.func
-def mix_in64(h: wp.uint32, x: wp.int64) -> wp.uint32:
-    """The hash ``h`` with the 64 bits of ``x`` folded in (low half, then high half)."""
-    u = wp.uint64(x)
-    h = mix_in(h, wp.uint32(u))  # the low half (the conversion wraps)
-    return mix_in(h, wp.uint32(u >> wp.uint64(32)))
-
-
-@wp.func
-def quad_bucket(q: wp.vec4i, buckets: wp.int32) -> wp.int32:
-    """The bucket in [0, ``buckets``) of a sorted quad: a hash of its four ints (:func:`mix_in`) modulo ``buckets``,
-    so equal quads share a bucket and unrelated ones rarely do (a fan's quads, which all share their smallest vertex,
-    spread over the buckets)."""
-    h = GOLDEN
-    for i in range(4):
-        h = mix_in(h, wp.uint32(q[i]))
-    return wp.int32(h % wp.uint32(buckets))
-
-
 @wp.kernel
 def wall_quads(
     thread_offset: wp.int32,
@@ -239,7 +197,7 @@ def wall_quads(
     keys_out: wp.array[wp.int32],
 ):
     """One element per wall pair (u_top, v_top, v_bottom), (u_top, v_bottom, u_bottom): its four vertices (the
-    first face's and the second's last) sorted, and their :func:`quad_bucket` among ``count`` buckets as its key."""
+    first face's and the second's last) sorted, and the smallest as its key."""
     first = (wp.tid() + thread_offset) * chunk
     p = first
     last = wp.min(first + chunk, count)
@@ -268,7 +226,7 @@ def wall_quads(
         b = lo
         q = wp.vec4i(a, b, c, d)
         quads_out[p] = q
-        keys_out[p] = quad_bucket(q, count)
+        keys_out[p] = q[0]
         p += 1
 
 
@@ -283,22 +241,21 @@ def find_fins(
     # outputs
     fins_out: wp.array[wp.uint8],
 ):
-    """One element per wall pair: 1 where another pair has the same sorted quad (found in the quad's bucket,
-    ``pairs[offsets[k]:offsets[k + 1]]`` for k its :func:`quad_bucket`; the scan stops at the first), else 0."""
+    """One element per wall pair: 1 where another pair has the same sorted quad (found in the bucket of the quad's
+    smallest vertex), else 0."""
     first = (wp.tid() + thread_offset) * chunk
     p = first
     last = wp.min(first + chunk, count)
     while p < last:
         q = quads[p]
         hit = wp.uint8(0)
-        k = quad_bucket(q, count)
-        s = load(offsets, k)
-        end = load(offsets, k + 1)
-        while s < end and hit == wp.uint8(0):
+        s = load(offsets, q[0])
+        end = load(offsets, q[0] + 1)
+        while s < end:
             r = load(pairs, s)
             if r != p:
                 o = quads[r]
-                if o[0] == q[0] and o[1] == q[1] and o[2] == q[2] and o[3] == q[3]:
+                if o[1] == q[1] and o[2] == q[2] and o[3] == q[3]:
                     hit = wp.uint8(1)
             s += 1
         fins_out[p] = hit
@@ -467,39 +424,6 @@ def wall_pairs(
         v += 1
 
 
-@wp.func
-def column_key(bits: wp.array[wp.int64], fan: wp.array[wp.int64], pair: wp.array[wp.int32], v: wp.int32,
-               buckets: wp.int32) -> wp.int32:
-    """The bucket in [0, ``buckets``) of vertex v's column key (x, y, [fan], pair), bit for bit: a hash of them
-    (:func:`mix_in`, :func:`mix_in64`) modulo ``buckets``, so a column's vertices share a bucket."""
-    h = mix_in(GOLDEN, wp.uint32(load(pair, v)))
-    h = mix_in64(h, bits[3 * v])
-    h = mix_in64(h, bits[3 * v + 1])
-    if fan.shape[0] > 0:
-        h = mix_in64(h, fan[v])
-    return wp.int32(h % wp.uint32(buckets))
-
-
-@wp.kernel
-def column_keys(
-    thread_offset: wp.int32,
-    count: wp.int32,
-    chunk: wp.int32,
-    bits: wp.array[wp.int64],
-    fan: wp.array[wp.int64],
-    pair: wp.array[wp.int32],
-    # outputs
-    keys_out: wp.array[wp.int32],
-):
-    """One element per vertex: its :func:`column_key` among ``count`` buckets."""
-    first = (wp.tid() + thread_offset) * chunk
-    v = first
-    last = wp.min(first + chunk, count)
-    while v < last:
-        keys_out[v] = column_key(bits, fan, pair, v, count)
-        v += 1
-
-
 @wp.kernel
 def column_leaders(
     thread_offset: wp.int32,
@@ -515,25 +439,24 @@ def column_leaders(
     starts_out: wp.array[wp.int32],
 ):
     """One element per vertex v: ``leader_out[v]``, the smallest vertex of its column, and ``starts_out[v]``, 1 where
-    that is v itself, else 0. A column is the vertices with the same pair, x, y and fan bit for bit: no sort, a scan of
-    v's bucket (``members[offsets[k]:offsets[k + 1]]``, the vertices whose :func:`column_key` is k: a few, however
-    large a pair group, e.g. a fan's hub joined to each of its spokes). ``bits``: the vertices' float64 bit patterns
+    that is v itself, else 0. A column is the vertices of one pair group (``members[offsets[k]:offsets[k + 1]]``, the
+    vertices whose ``pair`` is k) with the same x, y and fan bit for bit: no sort, a scan of v's own group (two
+    vertices, a wall's bottom and top, where the step kernels made it). ``bits``: the vertices' float64 bit patterns
     (3 per vertex); ``fan``: likewise, or empty (no pinch was split)."""
     first = (wp.tid() + thread_offset) * chunk
     v = first
     last = wp.min(first + chunk, count)
     fans = fan.shape[0] > 0
     while v < last:
-        g = load(pair, v)
+        k = load(pair, v)
         x = bits[3 * v]
         y = bits[3 * v + 1]
         best = v
-        k = column_key(bits, fan, pair, v, count)
         s = load(offsets, k)
         end = load(offsets, k + 1)
         while s < end:
             u = load(members, s)
-            if u < best and load(pair, u) == g and bits[3 * u] == x and bits[3 * u + 1] == y:
+            if u < best and bits[3 * u] == x and bits[3 * u + 1] == y:
                 if not fans:
                     best = u
                 elif fan[u] == fan[v]:

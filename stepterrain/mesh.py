@@ -200,9 +200,9 @@ def boundary_edges(faces: NDArray[np.int64], device: wp.DeviceLike = None) -> ND
     return _boundary(_flat_faces(faces, device), int(faces.max()) + 1, device)
 
 
-def _fins(faces: wp.array, walls: NDArray[np.int64], device: wp.Device) -> NDArray[np.bool_]:
+def _fins(faces: wp.array, walls: NDArray[np.int64], n: int, device: wp.Device) -> NDArray[np.bool_]:
     """Per wall pair (``walls``' faces in consecutive pairs), whether another pair stands on the same four vertices
-    (kernels/solid.py: wall_quads, a table of the pairs by a hash of their sorted quad, find_fins)."""
+    (kernels/solid.py: wall_quads, a table of the pairs by their smallest vertex, find_fins)."""
     first = to_device(walls[0::2], wp.int32, device)
     second = to_device(walls[1::2], wp.int32, device)
     count = first.shape[0]
@@ -212,7 +212,7 @@ def _fins(faces: wp.array, walls: NDArray[np.int64], device: wp.Device) -> NDArr
         quads = wp.empty(count, dtype=wp.vec4i, device=device)
     keys = _empty(count, np.int32, wp.int32, device)
     launch_chunked(kernels.wall_quads, count, [faces, first, second], [quads, keys], device)
-    offsets, pairs = _buckets(keys, count, device)
+    offsets, pairs = _buckets(keys, n, device)
     fins = _empty(count, np.uint8, wp.uint8, device)
     launch_chunked(kernels.find_fins, count, [quads, offsets, pairs], [fins], device)
     return fins.numpy().view(np.bool_)
@@ -242,18 +242,15 @@ def _pairs(faces: wp.array, terrace_mask: NDArray[np.bool_], n: int, device: wp.
 def _columns(vertices: NDArray[np.float64], fan: NDArray[np.float64] | None, pair: wp.array,
              device: wp.Device) -> tuple[NDArray[np.int64], wp.array]:
     """Per vertex its column, in int64 on the host and int32 on ``device``: the vertices with the same (x, y, [fan],
-    pair) compared bit for bit share one. No sort: the vertices in buckets by a hash of that key (a column lies in one;
-    kernels/solid.py: column_keys), the smallest vertex of each column found in its bucket (column_leaders), and the
-    columns numbered in the order of their smallest vertex (a scan of the leaders, number_columns)."""
+    pair) compared bit for bit share one. No sort: the pair groups as buckets (a column lies in one), the smallest
+    vertex of each column found in its bucket (kernels/solid.py: column_leaders), and the columns numbered in the order
+    of their smallest vertex (a scan of the leaders, number_columns)."""
     n = len(vertices)
     if n == 0:
         return np.zeros(0, np.int64), _empty(0, np.int32, wp.int32, device)
+    offsets, members = _buckets(pair, n, device)
     bits = to_device(np.ascontiguousarray(vertices).view(np.int64).reshape(-1), wp.int64, device)
     fans = to_device(fan.view(np.int64) if fan is not None else np.zeros(0, np.int64), wp.int64, device)
-    keys = _empty(n, np.int32, wp.int32, device)
-    launch_chunked(kernels.column_keys, n, [bits, fans, pair], [keys], device)
-    offsets, members = _buckets(keys, n, device)
-    del keys
     leader = _empty(n, np.int32, wp.int32, device)
     starts = _empty(n, np.int32, wp.int32, device)
     launch_chunked(kernels.column_leaders, n, [bits, fans, pair, offsets, members], [leader, starts], device)
@@ -324,7 +321,7 @@ def close_solid(
     walls = np.flatnonzero(~terrace_mask)
     if len(walls) >= 4 and len(walls) % 2 == 0:
         # walls are emitted as consecutive pairs (u_top, v_top, v_bottom), (u_top, v_bottom, u_bottom)
-        fin = _fins(flat, walls, device)
+        fin = _fins(flat, walls, len(vertices), device)
         if fin.any():  # rare: stepped() steps solids off the thresholds
             kept[walls[0::2][fin]] = False
             kept[walls[1::2][fin]] = False
@@ -360,9 +357,8 @@ def close_solid(
     # on one xy, or a crossing on a zero-area face where another edge's crossing lies) shared a base vertex, and the
     # base under them folded onto a base edge used four times: a solid that leaked, without a warning. So the key is
     # (x, y, [fan], pair): the vertices of one xy share a column when they share their wall pair (a wall's bottom
-    # and top, or one vertex). Buckets by a hash of that key find them without a sort (a pair group can be large: a
-    # fan's hub joined to every spoke); they are numbered in the order of their smallest vertex (the base follows the
-    # surface's order).
+    # and top, or one vertex). A column lies in one pair group, so the pair groups as buckets find them without a
+    # sort; they are numbered in the order of their smallest vertex (the base follows the surface's order).
     if 3 * n > MAX_INT32:  # the pinches' copies added vertices: _columns reads each one's coordinates at 3·i
         raise OutputTooLargeError(f"vertices: the kernels index at most {MAX_INT32 // 3:,} vertices with int32; got "
                                   f"{n:,} with the copies of the surface's pinch vertices")

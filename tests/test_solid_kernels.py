@@ -18,12 +18,10 @@ import trimesh
 import warp as wp
 from hypothesis import given, settings
 from hypothesis import strategies as hs
-from stepterrain.kernels import solid as kernels
 
 import stepterrain as st
 from stepterrain import mesh as mesh_module
 from stepterrain import stepped as stepped_module
-from stepterrain._device import launch_chunked
 from stepterrain.terrain import Terrain, as_terrain
 from tests import reference_solid
 
@@ -273,70 +271,3 @@ def test_a_pinch_copy_on_a_walls_vertical_edge_keeps_its_own_column():
                       [u_top, t, p], [u_top, p, u_bottom]])  # fan B: a wall pair (u_top, v_top, v_bottom), ...
     got = _assert_same(vertices, faces, np.array([True, False, False]), -1.0)
     assert len(got[4]) == 7  # P was split
-
-
-def _fan(pairs, fins_every=1000):
-    """A fan of ``2·pairs`` faces around vertex 0, all walls: the wall pairs (0, 2k+1, 2k+2), (0, 2k+2, 2k+3) all
-    share their smallest vertex 0; every ``fins_every``-th pair also stands back to back with a copy on the same four
-    vertices (a fin). Returns vertices, faces, the terrace mask (all False) and the indices of the copied pairs."""
-    m = 2 * pairs + 1
-    t = np.linspace(0.0, 2.0 * np.pi, m + 1)[:-1]
-    vertices = np.vstack([[0.0, 0.0, 1.0], np.column_stack([np.cos(t), np.sin(t), 0.5 + 0.1 * np.sin(3.0 * t)])])
-    ring = np.arange(1, 2 * pairs + 1)
-    faces = np.column_stack([np.zeros(2 * pairs, np.int64), ring, ring + 1])
-    copied = np.arange(0, pairs, fins_every)
-    twins = np.empty((2 * len(copied), 3), np.int64)
-    twins[0::2] = np.column_stack([np.zeros(len(copied), np.int64), 2 * copied + 3, 2 * copied + 2])
-    twins[1::2] = np.column_stack([np.zeros(len(copied), np.int64), 2 * copied + 2, 2 * copied + 1])
-    faces = np.vstack([faces, twins])
-    return vertices, faces, np.zeros(len(faces), bool), copied
-
-
-def test_a_fan_of_wall_pairs_on_one_vertex_equals_the_reference():
-    """60k wall pairs sharing their smallest vertex (a direct call, not a stepped surface), some with a fin: the fins
-    and the solid as the reference's (the pairs were once bucketed by their smallest vertex, one bucket scanned by
-    every pair: quadratic, 3 s here)."""
-    vertices, faces, terrace, copied = _fan(60_000)
-    got = _assert_same(vertices, faces, terrace, 0.0)
-    kept = got[2]
-    assert not kept[2 * copied].any() and not kept[-2 * len(copied):].any()
-    assert kept.sum() == len(faces) - 4 * len(copied)
-
-
-def test_the_fin_buckets_of_a_fan_are_small_and_equal_quads_share_one():
-    """wall_quads keys each pair by a hash of its sorted quad among as many buckets as pairs: the quads of a fan, all
-    with the same smallest vertex, spread over the buckets (no bucket near the fan's size), and a fin's two pairs
-    (the same quad) get the same key."""
-    vertices, faces, terrace, copied = _fan(20_000, fins_every=100)
-    flat = wp.array(faces.astype(np.int32).reshape(-1), dtype=wp.int32, device=CPU)
-    walls = np.flatnonzero(~terrace)
-    first = wp.array(walls[0::2].astype(np.int32), dtype=wp.int32, device=CPU)
-    second = wp.array(walls[1::2].astype(np.int32), dtype=wp.int32, device=CPU)
-    count = first.shape[0]
-    quads = wp.empty(count, dtype=wp.vec4i, device=CPU)
-    keys = wp.empty(count, dtype=wp.int32, device=CPU)
-    launch_chunked(kernels.wall_quads, count, [flat, first, second], [quads, keys], CPU)
-    keys = keys.numpy()
-    assert keys.min() >= 0 and keys.max() < count
-    assert np.bincount(keys).max() <= 32
-    np.testing.assert_array_equal(np.sort(quads.numpy(), axis=1), quads.numpy())
-    twins = np.arange(len(faces) // 2 - len(copied), len(faces) // 2)
-    np.testing.assert_array_equal(quads.numpy()[twins], quads.numpy()[copied])
-    np.testing.assert_array_equal(keys[twins], keys[copied])
-
-
-def test_the_column_buckets_of_a_fan_are_small():
-    """The fan's hub is joined through wall edges to most of its spokes (one pair group of about 40k vertices, once
-    one bucket that column_leaders scanned for each of them: 2.4 s for 60k pairs); column_keys buckets the vertices
-    by a hash of their (x, y, pair) among as many buckets as vertices: none near that size."""
-    vertices, faces, terrace, _ = _fan(20_000, fins_every=10**9)
-    n = len(vertices)
-    flat = wp.array(faces.astype(np.int32).reshape(-1), dtype=wp.int32, device=CPU)
-    pair = mesh_module._pairs(flat, terrace, n, CPU)
-    assert np.bincount(pair.numpy()).max() > n // 4
-    bits = wp.array(vertices.view(np.int64).reshape(-1), dtype=wp.int64, device=CPU)
-    keys = wp.empty(n, dtype=wp.int32, device=CPU)
-    launch_chunked(kernels.column_keys, n, [bits, wp.zeros(0, dtype=wp.int64, device=CPU), pair], [keys], CPU)
-    keys = keys.numpy()
-    assert keys.min() >= 0 and keys.max() < n
-    assert np.bincount(keys).max() <= 32
