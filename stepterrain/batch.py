@@ -2141,41 +2141,45 @@ def _files_range(
     try:
         for item, key in zip(items, keys, strict=True):
             if key in cached:  # recorded by an earlier run: the same file, read alike
-                ranges[key] = cached[key]
-                if ranges[key] is not None:
-                    a, b = ranges[key]
-                    if a < lo:
-                        lo, lowest = a, str(item.path)
-                    hi = max(hi, b)
-                continue
-            for attempt in range(retries + 1):
-                try:
-                    terrain = _item_terrain(item, None, options.height_unit, options.file_spacing, options.coarsen,
-                                            options.band)  # fmt: skip
-                except StepTerrainError as exc:  # its item fails with it (an unreadable file), as it fails there
-                    if _transient(exc) and attempt < retries:
-                        continue
-                    if _transient(exc):
-                        raise DataFileError(
-                            f"cannot read {item.path!r} for the height range every file's levels come from "
-                            f"({type(exc).__name__}: {exc}); run again when it can be read") from exc
-                    terrain = None
-                break
-            if terrain is not None and _has_surface(terrain):  # an empty item (nodata only) moves no level
-                a, b = (float(v) for v in terrain.height_range)
-                ranges[key] = [a, b]
+                found = cached[key]
+            else:
+                found = _file_range(item, options, retries)
+                if bar is not None:
+                    bar.update(1)
+                if found is ...:  # unreadable: its item fails with the reason; no range recorded
+                    continue
+            ranges[key] = found
+            if found is not None:  # an empty item (nodata only) moves no level
+                a, b = found
                 if a < lo:
                     lo, lowest = a, str(item.path)
                 hi = max(hi, b)
-            elif terrain is not None:
-                ranges[key] = None
-            del terrain
-            if bar is not None:
-                bar.update(1)
     finally:
         if bar is not None:
             bar.close()
     return (None if lowest == "" else ((lo, hi), lowest)), ranges
+
+
+def _file_range(item: BatchItem, options: _Options, retries: int) -> Any:
+    """:func:`_files_range`'s read of one file: ``[min, max]`` of its heights a triangle uses, None for no surface,
+    ``...`` for a file that cannot be read (its item fails with the reason); a transient OSError retried ``retries``
+    times, then raised."""
+    for attempt in range(retries + 1):
+        try:
+            terrain = _item_terrain(item, None, options.height_unit, options.file_spacing, options.coarsen,
+                                    options.band)  # fmt: skip
+        except StepTerrainError as exc:  # its item fails with it (an unreadable file), as it fails there
+            if _transient(exc) and attempt < retries:
+                continue
+            if _transient(exc):
+                raise DataFileError(
+                    f"cannot read {item.path!r} for the height range every file's levels come from "
+                    f"({type(exc).__name__}: {exc}); run again when it can be read") from exc
+            return ...
+        if not _has_surface(terrain):
+            return None
+        return [float(v) for v in terrain.height_range]
+    raise AssertionError("unreachable")  # the last attempt returns or raises
 
 
 def _files_levels(
