@@ -45,7 +45,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._callable_module import make_module_callable
 from ._compaction import BUDGET_HINT, budget_hint, get_memory_budget
-from ._files import GdalPath, as_path
+from ._files import GdalPath, as_path, gdal_path, local_archive
 from ._signals import signals_held, terminal_signals_blocked_for_children
 from .errors import (
     DataFileError,
@@ -245,8 +245,6 @@ def _virtual_from(path: str, cwd: str) -> str | None:
     """The GDAL virtual path or URL ``path`` as read from the folder ``cwd``: the relative local archive of
     ``/vsizip/t.zip/a.tif`` (``/vsigzip/``, ``/vsitar/`` ...) made absolute, ``/vsizip//cwd/t.zip/a.tif``; an absolute
     or remote one (a URL, ``/vsicurl/...``) as given. None for a local path."""
-    from ._files import gdal_path, local_archive
-
     virtual = gdal_path(path)
     if virtual is None:
         return None
@@ -536,7 +534,6 @@ def _virtual_source(source: str | os.PathLike[str]) -> Path | None:
     """The file a source names through GDAL (:func:`~stepterrain.io.dem_path`): a ``/vsizip/...`` path or a URL, or
     a local ``.zip`` of one raster (one of several is refused, naming them: a zip is no folder of tiles here); None
     for a local file or folder."""
-    from ._files import gdal_path
     from .io import dem_path
 
     text = os.fspath(source)
@@ -1013,8 +1010,6 @@ def _file_identity(path: str, listings: dict[str, dict[str, list[str]] | None]) 
         except OSError:
             return f"{file}|unreadable"
         return f"{file}|{st.st_size}|{st.st_mtime_ns}|{st.st_ctime_ns}|{st.st_ino}"
-
-    from ._files import gdal_path, local_archive
 
     virtual = gdal_path(path)
     if virtual is not None:  # the local archive it lies in (a zip's, a gzip's), else its path alone (a URL)
