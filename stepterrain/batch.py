@@ -2195,8 +2195,7 @@ def _files_levels(
     if not (options.solid or (options.colors is not None and levels is None) or (interval is None and levels is None)):
         return options, None  # explicit levels without a solid: every file has them already; no colours: none to match
     found, ranges = _files_range(items, options, retries, progress, cached)
-    changed = cached is None or any(cached.get(key, ...) != value for key, value in ranges.items()) or (
-        set(cached) != set(ranges))  # fmt: skip
+    changed = cached is None or dict(cached) != ranges  # a range added, dropped or changed
     if found is None:
         return options, (ranges, changed)
     (lo, hi), lowest = found
