@@ -59,23 +59,15 @@ def exact_keys(xy: NDArray[np.float64]) -> NDArray[np.int64]:
     if len(rows) == 0:
         return np.zeros(0, np.int64)
     bits = rows.view(np.dtype(f"u{rows.dtype.itemsize}")).reshape(len(rows), -1)
-    return _dense_rank([bits[:, k] for k in range(bits.shape[1])])
-
-
-def _dense_rank(columns: list[NDArray[Any]]) -> NDArray[np.int64]:
-    """Per row, the rank of its tuple of ``columns`` (most significant first, compared as their integer values)
-    among the distinct tuples: one ``lexsort``, then a gather per column to find where the tuple changes."""
-    n = len(columns[0])
-    if n == 0:
-        return np.zeros(0, np.int64)
+    columns = [bits[:, k] for k in range(bits.shape[1])]
     order = np.lexsort(columns[::-1])
-    new = np.zeros(n, bool)
+    new = np.zeros(len(rows), bool)  # where the sorted row changes: a gather per column, not of the whole rows
     new[0] = True
     for column in columns:
         ordered = column[order]
         new[1:] |= ordered[1:] != ordered[:-1]
         del ordered
-    ids = np.empty(n, np.int64)
+    ids = np.empty(len(rows), np.int64)
     ids[order] = np.cumsum(new) - 1
     return ids
 
@@ -88,7 +80,8 @@ def _device_of(device: wp.DeviceLike) -> wp.Device:
 
 def _empty(n: int, np_dtype: Any, dtype: Any, device: wp.Device, *, zero: bool = False) -> wp.array:
     """A work array of ``n`` elements: on the CPU a numpy buffer wrapped without a copy (so that tracemalloc, which
-    tests/test_solid_budget.py measures the peak with, sees it), on CUDA Warp's."""
+    tests/test_solid_budget.py measures the peak with, sees it), on CUDA Warp's. A vector ``dtype`` takes a numpy
+    sub-array dtype, e.g. ``(np.int32, 4)`` for ``wp.vec4i``."""
     if device.is_cpu:
         host = np.zeros(n, np_dtype) if zero else np.empty(n, np_dtype)
         return wp.array(host, dtype=dtype, device=device, copy=False)
@@ -129,19 +122,23 @@ def _buckets(keys: wp.array, n: int, device: wp.Device) -> tuple[wp.array, wp.ar
     return offsets, items
 
 
-def _flat_faces(faces: NDArray[np.int64], device: wp.Device) -> wp.array:
-    """``faces`` as the kernels read them: a flat int32 array on ``device``."""
+def _check_face_count(faces: NDArray[np.int64]) -> None:
+    """An OutputTooLargeError where the kernels cannot index ``faces``' 3 corners a face with int32."""
     if 3 * len(faces) > MAX_INT32:
         raise OutputTooLargeError(f"faces: the kernels index at most {MAX_INT32 // 3:,} faces with int32; got "
                                   f"{len(faces):,}")
+
+
+def _flat_faces(faces: NDArray[np.int64], device: wp.Device) -> wp.array:
+    """``faces`` as the kernels read them: a flat int32 array on ``device``."""
+    _check_face_count(faces)
     return to_device(faces.reshape(-1), wp.int32, device)
 
 
 def _narrow_faces(faces: NDArray[np.int64], device: wp.Device) -> tuple[wp.array, int, int]:
     """:func:`_flat_faces` of int64 ``faces`` and their smallest and largest index, in one pass
     (kernels/solid.py: narrow_faces); (0, 0) where there is no face."""
-    if 3 * len(faces) > MAX_INT32:
-        _flat_faces(faces, device)  # refused
+    _check_face_count(faces)
     count = 3 * len(faces)
     flat = _empty(count, np.int32, wp.int32, device)
     if count == 0:
@@ -163,10 +160,7 @@ def _boundary(faces: wp.array, n: int, device: wp.Device) -> NDArray[np.int64]:
     launch_chunked(kernels.count_keys, faces.shape[0], [faces], [counts], device, atomics=True)
     offsets, total = _scan(counts)
     cursor = _empty(n, np.int32, wp.int32, device, zero=True)
-    if device.is_cpu:
-        corners = wp.array(np.empty((total, 2), np.int32), dtype=wp.vec2i, device=device, copy=False)
-    else:
-        corners = wp.empty(total, dtype=wp.vec2i, device=device)
+    corners = _empty(total, (np.int32, 2), wp.vec2i, device)
     launch_chunked(kernels.fill_corners, count, [faces, offsets], [cursor, corners], device, atomics=True)
     del cursor
     threads = chunked_threads(count, device)
@@ -206,10 +200,7 @@ def _fins(faces: wp.array, walls: NDArray[np.int64], n: int, device: wp.Device) 
     first = to_device(walls[0::2], wp.int32, device)
     second = to_device(walls[1::2], wp.int32, device)
     count = first.shape[0]
-    if device.is_cpu:
-        quads = wp.array(np.empty((count, 4), np.int32), dtype=wp.vec4i, device=device, copy=False)
-    else:
-        quads = wp.empty(count, dtype=wp.vec4i, device=device)
+    quads = _empty(count, (np.int32, 4), wp.vec4i, device)
     keys = _empty(count, np.int32, wp.int32, device)
     launch_chunked(kernels.wall_quads, count, [faces, first, second], [quads, keys], device)
     offsets, pairs = _buckets(keys, n, device)
