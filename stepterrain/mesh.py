@@ -18,7 +18,16 @@ import warp as wp
 from numpy.typing import NDArray
 
 from ._compaction import MAX_INT32
-from ._device import chunked_threads, init_warp, launch_chunked, read_int32, resolve_device, to_device
+from ._device import (
+    chunked_threads,
+    empty_shared,
+    init_warp,
+    launch_chunked,
+    read_int32,
+    resolve_device,
+    to_device,
+    to_numpy,
+)
 from .errors import InvalidInputError, OutputTooLargeError
 from .kernels import solid as kernels
 from .terrain import FLOAT32_MAX
@@ -86,20 +95,6 @@ def _empty(n: int, np_dtype: Any, dtype: Any, device: wp.Device, *, zero: bool =
         host = np.zeros(n, np_dtype) if zero else np.empty(n, np_dtype)
         return wp.array(host, dtype=dtype, device=device, copy=False)
     return wp.zeros(n, dtype=dtype, device=device) if zero else wp.empty(n, dtype=dtype, device=device)
-
-
-def _output(host: NDArray[Any], dtype: Any, device: wp.Device) -> wp.array:
-    """Where a kernel writes the output ``host`` (flat): ``host`` itself on the CPU, a device array on CUDA (copied
-    into it after, :func:`_copy_into`)."""
-    if device.is_cpu:
-        return wp.array(host.reshape(-1), dtype=dtype, device=device, copy=False)
-    return wp.empty(host.size, dtype=dtype, device=device)
-
-
-def _copy_into(host: NDArray[Any], written: wp.array) -> None:
-    """Copy ``written`` (what :func:`_output` gave for ``host`` on CUDA) straight into ``host``, with no second host
-    copy (``.numpy()`` and an assignment held the output twice); any device (the tests copy CPU arrays)."""
-    wp.copy(wp.array(host.reshape(-1), dtype=written.dtype, device="cpu", copy=False), written)
 
 
 def _scan(counts: wp.array) -> tuple[wp.array, int]:
@@ -361,13 +356,12 @@ def close_solid(
         raise OutputTooLargeError(f"the solid of {len(faces):,} faces and {n:,} vertices would have more faces or "
                                   f"vertices than the kernels index with int32 (3 per face or vertex)")
 
-    out_vertices = np.empty((n + n_columns, 3), np.float64)
-    written = _output(out_vertices, wp.float64, device)
+    # the outputs as stepped()'s: written in place on the CPU, one host copy from CUDA (_device.empty_shared)
+    host, written = empty_shared((3 * (n + n_columns),), np.float64, wp.float64, device)
     launch_chunked(kernels.emit_vertices, n, [to_device(vertices.reshape(-1), wp.float64, device), column32,
                                               float(floor)], [written], device)
-    if not device.is_cpu:
-        _copy_into(out_vertices, written)
-    del written
+    out_vertices = to_numpy(host, written, written.shape).reshape(-1, 3)
+    del host, written
 
     terrace = to_device(terrace_mask.view(np.uint8), wp.uint8, device)
     count = len(faces)
@@ -391,13 +385,11 @@ def close_solid(
     m, p = len(a), int(plain.sum())
     h = m - p
     n_skirts = m + p + 2 * h
-    out_faces = np.empty((len(faces) + n_skirts + n_base, 3), np.int64)
-    written = _output(out_faces, wp.int64, device)
+    host, written = empty_shared((3 * (len(faces) + n_skirts + n_base),), np.int64, wp.int64, device)
     launch_chunked(kernels.emit_faces, count, [flat, terrace, column32, starts, n, len(faces) + n_skirts], [written],
                    device)
-    if not device.is_cpu:
-        _copy_into(out_faces, written)
-    del written
+    out_faces = to_numpy(host, written, written.shape).reshape(-1, 3)
+    del host, written
     # skirts: every [b, A, B], then [b, a, A] where no vertical edge arrives at a, else [b, a, x] and [b, x, A]
     skirts = out_faces[len(faces):len(faces) + n_skirts]
     skirts[:m] = np.stack([b, A, B], axis=1)
