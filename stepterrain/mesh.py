@@ -18,7 +18,16 @@ import warp as wp
 from numpy.typing import NDArray
 
 from ._compaction import MAX_INT32
-from ._device import chunked_threads, init_warp, launch_chunked, read_int32, resolve_device, to_device
+from ._device import (
+    chunked_threads,
+    empty_shared,
+    init_warp,
+    launch_chunked,
+    read_int32,
+    resolve_device,
+    to_device,
+    to_numpy,
+)
 from .errors import InvalidInputError, OutputTooLargeError
 from .kernels import solid as kernels
 from .terrain import FLOAT32_MAX
@@ -59,23 +68,15 @@ def exact_keys(xy: NDArray[np.float64]) -> NDArray[np.int64]:
     if len(rows) == 0:
         return np.zeros(0, np.int64)
     bits = rows.view(np.dtype(f"u{rows.dtype.itemsize}")).reshape(len(rows), -1)
-    return _dense_rank([bits[:, k] for k in range(bits.shape[1])])
-
-
-def _dense_rank(columns: list[NDArray[Any]]) -> NDArray[np.int64]:
-    """Per row, the rank of its tuple of ``columns`` (most significant first, compared as their integer values)
-    among the distinct tuples: one ``lexsort``, then a gather per column to find where the tuple changes."""
-    n = len(columns[0])
-    if n == 0:
-        return np.zeros(0, np.int64)
+    columns = [bits[:, k] for k in range(bits.shape[1])]
     order = np.lexsort(columns[::-1])
-    new = np.zeros(n, bool)
+    new = np.zeros(len(rows), bool)  # where the sorted row changes: a gather per column, not of the whole rows
     new[0] = True
     for column in columns:
         ordered = column[order]
         new[1:] |= ordered[1:] != ordered[:-1]
         del ordered
-    ids = np.empty(n, np.int64)
+    ids = np.empty(len(rows), np.int64)
     ids[order] = np.cumsum(new) - 1
     return ids
 
@@ -88,25 +89,12 @@ def _device_of(device: wp.DeviceLike) -> wp.Device:
 
 def _empty(n: int, np_dtype: Any, dtype: Any, device: wp.Device, *, zero: bool = False) -> wp.array:
     """A work array of ``n`` elements: on the CPU a numpy buffer wrapped without a copy (so that tracemalloc, which
-    tests/test_solid_budget.py measures the peak with, sees it), on CUDA Warp's."""
+    tests/test_solid_budget.py measures the peak with, sees it), on CUDA Warp's. A vector ``dtype`` takes a numpy
+    sub-array dtype, e.g. ``(np.int32, 4)`` for ``wp.vec4i``."""
     if device.is_cpu:
         host = np.zeros(n, np_dtype) if zero else np.empty(n, np_dtype)
         return wp.array(host, dtype=dtype, device=device, copy=False)
     return wp.zeros(n, dtype=dtype, device=device) if zero else wp.empty(n, dtype=dtype, device=device)
-
-
-def _output(host: NDArray[Any], dtype: Any, device: wp.Device) -> wp.array:
-    """Where a kernel writes the output ``host`` (flat): ``host`` itself on the CPU, a device array on CUDA (copied
-    into it after, :func:`_copy_into`)."""
-    if device.is_cpu:
-        return wp.array(host.reshape(-1), dtype=dtype, device=device, copy=False)
-    return wp.empty(host.size, dtype=dtype, device=device)
-
-
-def _copy_into(host: NDArray[Any], written: wp.array) -> None:
-    """Copy ``written`` (what :func:`_output` gave for ``host`` on CUDA) straight into ``host``, with no second host
-    copy (``.numpy()`` and an assignment held the output twice); any device (the tests copy CPU arrays)."""
-    wp.copy(wp.array(host.reshape(-1), dtype=written.dtype, device="cpu", copy=False), written)
 
 
 def _scan(counts: wp.array) -> tuple[wp.array, int]:
@@ -129,19 +117,23 @@ def _buckets(keys: wp.array, n: int, device: wp.Device) -> tuple[wp.array, wp.ar
     return offsets, items
 
 
-def _flat_faces(faces: NDArray[np.int64], device: wp.Device) -> wp.array:
-    """``faces`` as the kernels read them: a flat int32 array on ``device``."""
+def _check_face_count(faces: NDArray[np.int64]) -> None:
+    """An OutputTooLargeError where the kernels cannot index ``faces``' 3 corners a face with int32."""
     if 3 * len(faces) > MAX_INT32:
         raise OutputTooLargeError(f"faces: the kernels index at most {MAX_INT32 // 3:,} faces with int32; got "
                                   f"{len(faces):,}")
+
+
+def _flat_faces(faces: NDArray[np.int64], device: wp.Device) -> wp.array:
+    """``faces`` as the kernels read them: a flat int32 array on ``device``."""
+    _check_face_count(faces)
     return to_device(faces.reshape(-1), wp.int32, device)
 
 
 def _narrow_faces(faces: NDArray[np.int64], device: wp.Device) -> tuple[wp.array, int, int]:
     """:func:`_flat_faces` of int64 ``faces`` and their smallest and largest index, in one pass
     (kernels/solid.py: narrow_faces); (0, 0) where there is no face."""
-    if 3 * len(faces) > MAX_INT32:
-        _flat_faces(faces, device)  # refused
+    _check_face_count(faces)
     count = 3 * len(faces)
     flat = _empty(count, np.int32, wp.int32, device)
     if count == 0:
@@ -163,10 +155,7 @@ def _boundary(faces: wp.array, n: int, device: wp.Device) -> NDArray[np.int64]:
     launch_chunked(kernels.count_keys, faces.shape[0], [faces], [counts], device, atomics=True)
     offsets, total = _scan(counts)
     cursor = _empty(n, np.int32, wp.int32, device, zero=True)
-    if device.is_cpu:
-        corners = wp.array(np.empty((total, 2), np.int32), dtype=wp.vec2i, device=device, copy=False)
-    else:
-        corners = wp.empty(total, dtype=wp.vec2i, device=device)
+    corners = _empty(total, (np.int32, 2), wp.vec2i, device)
     launch_chunked(kernels.fill_corners, count, [faces, offsets], [cursor, corners], device, atomics=True)
     del cursor
     threads = chunked_threads(count, device)
@@ -206,10 +195,7 @@ def _fins(faces: wp.array, walls: NDArray[np.int64], n: int, device: wp.Device) 
     first = to_device(walls[0::2], wp.int32, device)
     second = to_device(walls[1::2], wp.int32, device)
     count = first.shape[0]
-    if device.is_cpu:
-        quads = wp.array(np.empty((count, 4), np.int32), dtype=wp.vec4i, device=device, copy=False)
-    else:
-        quads = wp.empty(count, dtype=wp.vec4i, device=device)
+    quads = _empty(count, (np.int32, 4), wp.vec4i, device)
     keys = _empty(count, np.int32, wp.int32, device)
     launch_chunked(kernels.wall_quads, count, [faces, first, second], [quads, keys], device)
     offsets, pairs = _buckets(keys, n, device)
@@ -370,13 +356,12 @@ def close_solid(
         raise OutputTooLargeError(f"the solid of {len(faces):,} faces and {n:,} vertices would have more faces or "
                                   f"vertices than the kernels index with int32 (3 per face or vertex)")
 
-    out_vertices = np.empty((n + n_columns, 3), np.float64)
-    written = _output(out_vertices, wp.float64, device)
+    # the outputs as stepped()'s: written in place on the CPU, one host copy from CUDA (_device.empty_shared)
+    host, written = empty_shared((3 * (n + n_columns),), np.float64, wp.float64, device)
     launch_chunked(kernels.emit_vertices, n, [to_device(vertices.reshape(-1), wp.float64, device), column32,
                                               float(floor)], [written], device)
-    if not device.is_cpu:
-        _copy_into(out_vertices, written)
-    del written
+    out_vertices = to_numpy(host, written, written.shape).reshape(-1, 3)
+    del host, written
 
     terrace = to_device(terrace_mask.view(np.uint8), wp.uint8, device)
     count = len(faces)
@@ -400,13 +385,11 @@ def close_solid(
     m, p = len(a), int(plain.sum())
     h = m - p
     n_skirts = m + p + 2 * h
-    out_faces = np.empty((len(faces) + n_skirts + n_base, 3), np.int64)
-    written = _output(out_faces, wp.int64, device)
+    host, written = empty_shared((3 * (len(faces) + n_skirts + n_base),), np.int64, wp.int64, device)
     launch_chunked(kernels.emit_faces, count, [flat, terrace, column32, starts, n, len(faces) + n_skirts], [written],
                    device)
-    if not device.is_cpu:
-        _copy_into(out_faces, written)
-    del written
+    out_faces = to_numpy(host, written, written.shape).reshape(-1, 3)
+    del host, written
     # skirts: every [b, A, B], then [b, a, A] where no vertical edge arrives at a, else [b, a, x] and [b, x, A]
     skirts = out_faces[len(faces):len(faces) + n_skirts]
     skirts[:m] = np.stack([b, A, B], axis=1)

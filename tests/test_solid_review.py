@@ -17,7 +17,6 @@ import pytest
 import warp as wp
 
 from stepterrain import _device
-from stepterrain import mesh as mesh_module
 from stepterrain.errors import InvalidInputError
 from stepterrain.mesh import boundary_edges, close_solid
 from tests import reference_solid
@@ -97,17 +96,3 @@ def test_counts_of_one_key_over_several_cpu_threads_are_exact():
             assert counts.numpy()[0] == 4_000_000
     finally:
         _device.set_cpu_threads(old)
-
-
-@pytest.mark.parametrize(("np_dtype", "dtype"), [(np.float64, wp.float64), (np.int64, wp.int64)])
-def test_outputs_are_copied_straight_into_their_host_arrays(np_dtype, dtype):
-    """On CUDA close_solid copies its vertices and faces from the device straight into the (N, 3) arrays it returns
-    (once held twice: ``.numpy()``, then an assignment). The copy itself, run here between two CPU arrays: every row
-    arrives in place, in the host array the caller gets (no GPU here; tests/test_cuda_codegen.py compiles only)."""
-    values = np.arange(3 * 1001, dtype=np_dtype)[::-1].copy() - 7
-    written = wp.array(values, dtype=dtype, device="cpu")  # a copy: another buffer, as a device array is
-    host = np.full((1001, 3), -1, np_dtype)
-    address = host.ctypes.data
-    mesh_module._copy_into(host, written)
-    assert host.ctypes.data == address
-    np.testing.assert_array_equal(host, values.reshape(-1, 3))
