@@ -17,7 +17,7 @@ Conventions (shared with ``stepterrain.texture`` and ``tests/reference_texture.p
 * Images are (H, W) or (H, W, 4) float32 RGBA in [0, 1], pixel (i, j) = grid node (i, j).
 * A sweep line is a digital line: along its major axis it visits every index once; its minor index is
   ``c + minor_offsets[major]`` with ``minor_offsets[k] = round(slope * (k - (n_major - 1) / 2))``, halves towards
-  0 (``stepterrain.texture.minor_offsets``), so lines with consecutive integer ``c`` partition the grid. The ray of
+  0 (``stepterrain.texture._digital_lines``), so lines with consecutive integer ``c`` partition the grid. The ray of
   a node towards the light visits the nodes of its own line. Distances along the light are measured from the
   grid's centre: with the lines' symmetric rounding, a layout with its rows or columns reversed (dy or dx
   negated) sweeps the same nodes with the same float32 values.

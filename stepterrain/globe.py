@@ -1665,22 +1665,22 @@ def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint
     x1 = (x0 + 1) % w
     ty = (fy - y0)[:, None]
     tx = (fx - np.floor(fx))[:, None]
-    p = pixels[..., :3].astype(np.float64)
-    top = (1 - tx) * p[y0, x0] + tx * p[y0, x1]
-    bottom = (1 - tx) * p[y0 + 1, x0] + tx * p[y0 + 1, x1]
+    # the four texels of each vertex, gathered once and only they made float64 (the whole image was: 5.6 GB of float64
+    # for a 21600 x 10800 RGB, and as much again for its alpha)
+    texels = [pixels[y, x].astype(np.float64) for y, x in ((y0, x0), (y0, x1), (y0 + 1, x0), (y0 + 1, x1))]
+    top = (1 - tx) * texels[0][:, :3] + tx * texels[1][:, :3]
+    bottom = (1 - tx) * texels[2][:, :3] + tx * texels[3][:, :3]
     rgb = (1 - ty) * top + ty * bottom
-    if pixels.shape[2] == 3 or (pixels[..., 3] == 255).all():  # opaque: alpha 255
+    if pixels.shape[2] == 3 or pixels[..., 3].min() == 255:  # opaque: alpha 255
         return np.column_stack([np.round(rgb).astype(np.uint8), np.full(len(v), 255, np.uint8)])
     # the texture's alpha, bilinear, and its colour weighted by alpha (premultiplied): a transparent texel's colour
     # (the black of nodata) does not bleed into its opaque neighbours'; a vertex among transparent texels only keeps
     # their plain bilinear colour. The alpha was dropped: transparent texels came out opaque in whatever RGB they hold
-    a = pixels[..., 3].astype(np.float64)
-    corners = [(y0, x0, (1 - ty) * (1 - tx)), (y0, x1, (1 - ty) * tx), (y0 + 1, x0, ty * (1 - tx)),
-               (y0 + 1, x1, ty * tx)]
-    weights = [(y, x, w * a[y, x][:, None]) for y, x, w in corners]
-    alpha = sum(w for _, _, w in weights)
+    corners = ((1 - ty) * (1 - tx), (1 - ty) * tx, ty * (1 - tx), ty * tx)
+    weights = [w * texel[:, 3:] for w, texel in zip(corners, texels, strict=True)]
+    alpha = sum(weights)
     covered = alpha[:, 0] > 0
-    weighted = sum(w * p[y, x] for y, x, w in weights)
+    weighted = sum(w * texel[:, :3] for w, texel in zip(weights, texels, strict=True))
     rgb[covered] = weighted[covered] / alpha[covered]
     return np.column_stack([np.round(rgb).astype(np.uint8), np.round(alpha[:, 0]).astype(np.uint8)])
 

@@ -486,23 +486,19 @@ def compass(k: int, n: int) -> tuple[float, float]:
     return ((s, c), (c, -s), (-s, -c), (-c, s))[quadrant]
 
 
-def minor_offsets(n_major: int, slope: float) -> NDArray[np.int32]:
-    """Minor index of a digital line at each major index k: slope · (k − (n_major − 1)/2) rounded to the nearest
-    integer, halves towards 0, in float64 (slope ±1: ±k exactly).
+def _digital_lines(n_major: int, slope: float) -> tuple[NDArray[np.int32], NDArray[np.float32]]:
+    """The minor offsets of a digital line at each major index k (``Sweep.minor_offsets``): slope · (k − (n_major −
+    1)/2) rounded to the nearest integer, halves towards 0, in float64 (slope ±1: ±k exactly); and how far they lie
+    beyond that exact offset (``Sweep.minor_error``, in [-1/2, 1/2]; 0 on exact diagonals, which run through nodes,
+    and below :data:`_NEGLIGIBLE_SIDESTEP`).
 
     The lines are anchored at the middle of the major axis and rounded symmetrically, so the same terrain laid out
     with its rows or columns reversed (dy or dx negated, a north-up raster against a south-up one) sweeps the same
     nodes: reversing the major axis maps k − (n − 1)/2 to its negative as the slope changes sign, reversing the
     minor axis negates the slope, and the rounding is odd. Anchored at k = 0 with ``floor(x + 0.5)`` the lines of
-    the two layouts differed by the fraction of slope · (n − 1), and the shadows and occlusion with them."""
-    return _digital_lines(n_major, slope)[0]
-
-
-def _digital_lines(n_major: int, slope: float) -> tuple[NDArray[np.int32], NDArray[np.float32]]:
-    """:func:`minor_offsets` and, at each major index, how far they lie beyond the straight line's exact offset
-    slope · (k − (n_major − 1)/2) (``Sweep.minor_error``, in [-1/2, 1/2]; 0 on exact diagonals, which run through
-    nodes, and below :data:`_NEGLIGIBLE_SIDESTEP`). The rounding is odd, so the sidesteps are too: the layouts with
-    reversed rows or columns take their nodes the same way onto the same straight lines."""
+    the two layouts differed by the fraction of slope · (n − 1), and the shadows and occlusion with them. The
+    sidesteps are odd too: the layouts with reversed rows or columns take their nodes the same way onto the same
+    straight lines."""
     k = np.arange(n_major, dtype=np.float64)
     if abs(slope) == 1.0:  # exact diagonals: every line through nodes
         return (slope * k).astype(np.int32), np.zeros(n_major, np.float32)
@@ -622,7 +618,7 @@ def ambient_occlusion(
     (``_compaction.exclusive_offsets``). Cost: O(directions · pixels). A CUDA thread walks one line; a CPU thread
     a bundle of adjacent lines in lockstep (neighbouring nodes one after another; the same values): 2048², 16
     directions, 0.81-0.86 s on one core, 1.85 s one line at a time. The lines are anchored at the grid's middle
-    and rounded symmetrically (:func:`minor_offsets`), so one terrain gives the same occlusion laid out north-up
+    and rounded symmetrically (:func:`_digital_lines`), so one terrain gives the same occlusion laid out north-up
     (dy < 0) or south-up, with its columns either way; a mirrored terrain gives the mirror image where the
     directions are symmetric under that mirror (rows reversed, dy kept: an even count; transposed: a multiple of 4;
     :func:`compass` makes their vectors exact mirror images).
