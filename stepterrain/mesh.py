@@ -314,6 +314,9 @@ def close_solid(
     del walls
     if not kept.all():
         faces = faces[kept]
+        if len(faces) == 0:  # fins only: nothing left to close (numpy's ValueError on an empty column.max())
+            raise InvalidInputError("faces: close_solid needs a surface to close; every face was a zero-volume fin "
+                                    "(two walls back to back on the same vertices)")
         terrace_mask = terrace_mask[kept]
         used = np.zeros(len(vertices), bool)
         used[faces.reshape(-1)] = True

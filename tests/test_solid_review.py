@@ -96,3 +96,12 @@ def test_counts_of_one_key_over_several_cpu_threads_are_exact():
             assert counts.numpy()[0] == 4_000_000
     finally:
         _device.set_cpu_threads(old)
+
+
+def test_a_mesh_of_fins_only_is_refused_not_a_numpy_error():
+    """Two walls back to back on the same four vertices and nothing else: both go as a fin, and close_solid failed
+    on numpy's max of an empty array (found in the final read; the NumPy reference fails the same way)."""
+    vertices = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    faces = np.array([[0, 1, 2], [0, 2, 3], [1, 0, 3], [1, 3, 2]])
+    with pytest.raises(InvalidInputError, match="every face was a zero-volume fin"):
+        close_solid(vertices, faces, np.zeros(4, bool), -1.0)
