@@ -335,14 +335,18 @@ def _colors_rgb(mesh: trimesh.Trimesh, kind: Literal["vertex", "face"]) -> NDArr
     return None
 
 
+_TRIMESH_GRAY = np.asarray(trimesh.visual.color.DEFAULT_COLOR[:3], dtype=np.uint8)  # SimpleMaterial's diffuse=None
+
+
 def _material_rgb(mesh: trimesh.Trimesh) -> NDArray[np.uint8] | None:
     """Per vertex, the colour of a mesh's material without a texture, (N, 3) uint8 or (N, 4) where it blends, as a
     glTF or OBJ viewer shows it; None when the visual has no such material. A PBR material's baseColorFactor is
     linear (glTF §3.9.2): shown sRGB-encoded, its alpha used as the material's alphaMode says (as
     :func:`_base_color_factor` and :func:`_texture_alpha` treat a texture's); a plain material's (an OBJ's ``Kd``)
-    diffuse colour as it is. A GLB of one plain-coloured mesh (trimesh reads it as TextureVisuals without UVs) and
-    an OBJ with a ``.mtl`` rendered in the uniform tan instead. An opaque white factor is no colour (None): the
-    material :func:`~stepterrain.export.save_mesh` writes for a mesh without colours, which
+    diffuse colour as it is (a ``.mtl`` that names no ``Kd``, which trimesh fills with its grey, is no colour). A GLB
+    of one plain-coloured mesh (trimesh reads it as TextureVisuals without UVs) and an OBJ with a ``.mtl`` rendered
+    in the uniform tan instead. An opaque white factor is no colour (None): the material
+    :func:`~stepterrain.export.save_mesh` writes for a mesh without colours, which
     :func:`~stepterrain.export.read_mesh` reads back as plain, renders in the tan as the mesh did."""
     visual = mesh.visual
     material = getattr(visual, "material", None)
@@ -356,6 +360,8 @@ def _material_rgb(mesh: trimesh.Trimesh) -> NDArray[np.uint8] | None:
         color = _texture_alpha(_base_color_factor(white, material), material).reshape(-1)
     elif isinstance(material, trimesh.visual.material.SimpleMaterial) and material.diffuse is not None:
         color = np.asarray(material.diffuse, dtype=np.uint8).reshape(-1)[:3]
+        if "kd" not in (getattr(material, "kwargs", None) or {}) and (color == _TRIMESH_GRAY).all():
+            return None  # an .mtl without Kd (or a material built without a diffuse): trimesh's filler, no colour
     else:
         return None
     return np.ascontiguousarray(np.broadcast_to(color, (len(mesh.vertices), len(color))))

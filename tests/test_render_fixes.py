@@ -1240,3 +1240,25 @@ def test_a_white_material_renders_in_the_tan_as_read_mesh_reads_it(tmp_path):
     tan = render.render_mesh(box, window_size=(64, 64), camera="top")
     for mesh in (loaded, white):
         np.testing.assert_array_equal(render.render_mesh(mesh, window_size=(64, 64), camera="top"), tan)
+
+
+@needs_render
+def test_an_obj_material_without_kd_renders_in_the_tan_and_kd_grey_in_its_grey(tmp_path):
+    """trimesh fills an .mtl material that names no Kd with its grey (0.4), which rendered as if the file asked for it;
+    a material without a diffuse colour is no colour, as a mesh without a material: the tan. Kd 0.4 stays grey."""
+    def obj(name, mtl_lines):
+        (tmp_path / f"{name}.mtl").write_text("newmtl a\n" + mtl_lines)
+        box = trimesh.creation.box(extents=(4.0, 4.0, 1.0))
+        lines = [f"mtllib {name}.mtl"] + [f"v {x} {y} {z}" for x, y, z in box.vertices] + ["usemtl a"]
+        lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in box.faces]
+        (tmp_path / f"{name}.obj").write_text("\n".join(lines) + "\n")
+        return trimesh.load(tmp_path / f"{name}.obj", force="mesh")
+
+    no_kd, kd = obj("nokd", "Ka 1 1 1\nKs 0.5 0.5 0.5\n"), obj("kd", "Kd 0.4 0.4 0.4\n")
+    assert isinstance(no_kd.visual, trimesh.visual.TextureVisuals)
+    np.testing.assert_array_equal(no_kd.visual.material.diffuse, kd.visual.material.diffuse)  # the same grey
+    tan = render.render_mesh(trimesh.creation.box(extents=(4.0, 4.0, 1.0)), window_size=(64, 64), camera="top")
+    np.testing.assert_array_equal(render.render_mesh(no_kd, window_size=(64, 64), camera="top"), tan)
+    grey = render.render_mesh(kd, window_size=(64, 64), camera="top")[28:36, 28:36].reshape(-1, 3).astype(float)
+    lit_tan = tan[28:36, 28:36].reshape(-1, 3).mean(axis=0)
+    assert np.ptp(grey.mean(axis=0)) < 3 and np.abs(grey.mean(axis=0) - lit_tan).max() > 20
