@@ -135,7 +135,10 @@ def load_dem(
         ``.npy`` (one (H, W) array), ``.npz`` (heights under the first 2-D key of ``heights``, ``elevation``
         and ``z``, or the archive's one 2-D array besides ``mask``/``valid``; a ``transform`` beside them
         georeferences them, as in the layout of ``shared/data``: ``elevation``, ``transform``, ``crs``, optional
-        ``dx_m``/``dy_m`` and ``units`` (the heights' unit); without a ``transform``, 1-D ``lat`` and ``lon`` axes
+        ``dx_m``/``dy_m``, ``units`` (the heights' unit) and ``units_xy`` (the transform's unit where the CRS is
+        not geographic: degrees, "deg", make it geographic; a length unit as for the heights is read where no CRS
+        states a unit, none or one PROJ cannot read, else must name the CRS's own unit, any foot for one in
+        feet); without a ``transform``, 1-D ``lat`` and ``lon`` axes
         of evenly spaced node degrees (to 0.1 % of the step, or to the rounding of a float32 axis), one per row and
         column, georeference them as geographic, the layout of the global relief grids (``lon`` may cross the
         antimeridian, [179.5, -179.5, ...]: a step of 1 degree, read as [179.5, 180.5, ...]); a ``nodata`` number,
@@ -212,7 +215,9 @@ def load_dem(
         (EPSG:2229 counts US survey feet), or a local engineering CRS (a site grid, LOCAL_CS) in one, has
         ``spacing`` and ``origin`` converted to metres, ``crs`` the same projection (or site grid) in metres
         ("EPSG:26945") and ``source`` names the unit; looking an EPSG code's unit up needs
-        rasterio (without it an .npz keeps its CRS's units). Heights are taken as stored unless their unit is
+        rasterio (without it an .npz keeps its CRS's units, unless ``units_xy`` names them). An .npz's
+        ``units_xy`` in a unit other than the metre converts its coordinates so too when no CRS states their unit,
+        ``crs`` kept as given and ``source`` naming ``units_xy``. Heights are taken as stored unless their unit is
         named (``height_unit``, else a GeoTIFF band's unit, an .npz ``units``, or the vertical unit of a compound
         CRS: EPSG:26911+6360 is NAVD88 height in US survey feet, and ``crs`` is then the horizontal part), in
         which case they become metres: metre, kilometre, decimetre, centimetre, millimetre (m, km, dm, cm, mm),
@@ -266,7 +271,9 @@ def load_dem(
         unevenly spaced,
         an .npz with keys that would georeference it (``crs``, ``dx``/``dy``, ``spacing``/``origin``, ``x``/``y``,
         one of ``lat`` and ``lon``, ...) but neither a ``transform`` nor both ``lat`` and ``lon``, an .npz
-        ``nodata`` that is not one real number, an .npz in degrees with one of ``dx_m``/``dy_m`` or either not
+        ``nodata`` that is not one real number, an .npz ``units_xy`` that names no length unit nor degrees
+        ("furlong") or a unit other than its CRS's (feet for EPSG:32611), an .npz in degrees with one of
+        ``dx_m``/``dy_m`` or either not
         finite, non-zero metres, an .npz ``scale``/``offset`` (``scale_factor``/``add_offset``) of its
         heights other than 1/0 (not read: the heights are taken as stored), a ``mask`` or ``valid`` that is not a
         boolean array of the heights' shape, a .prj beside a GeoTIFF georeferenced without a CRS that is no CRS,
@@ -710,6 +717,7 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
     if key is not None and ("transform" in arrays or latlon):
         heights = _elevation(arrays[key], file, repr(key), nodata, npz_missing(arrays, key, file))
         crs = _npz_text(arrays, "crs", file)
+        xy_unit = None
         if latlon:  # degree axes of the nodes (the layout of the global relief grids): geographic by definition
             transform = _latlon_geotransform(arrays["lat"], arrays["lon"], heights.shape, file)
             geographic = True
@@ -735,7 +743,9 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
                     f"(x0, dx, 0, y0, 0, -dy); got {raw.tolist()}"
                 )
             units_xy = _npz_text(arrays, "units_xy", file) or ""
-            geographic = _is_geographic(crs) or "degree" in units_xy.lower()
+            geographic = _is_geographic(crs) or _degree_unit(units_xy)
+            # the transform's unit when the CRS does not state one: units_xy="ft" was read as metres
+            xy_unit = None if geographic else _npz_xy_unit(units_xy, crs, file)
         metres = None
         if geographic and ("dx_m" in arrays) != ("dy_m" in arrays):  # one was ignored: metres from R and the degrees
             given, missing = ("dx_m", "dy_m") if "dx_m" in arrays else ("dy_m", "dx_m")
@@ -760,7 +770,8 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
         unit, crs, factor = _vertical_unit(height_unit or _npz_text(arrays, "units", file), crs)
         heights, height_unit = _heights_in_metres(heights, unit, file, named_by, factor)
         return _georeferenced(
-            file, heights, transform, crs, geographic=geographic, metres=metres, height_unit=height_unit
+            file, heights, transform, crs, geographic=geographic, metres=metres, height_unit=height_unit,
+            xy_unit=xy_unit,
         )
 
     unused = npz_georeference_keys(arrays)
@@ -784,6 +795,67 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
         f"cannot read {str(file)!r}: expected an .npz with a key {'/'.join(_GENERIC_KEYS)} (georeferenced by a "
         f"'transform' beside it), or exactly one 2-D array; got {described}"
     )
+
+
+#: Metres per unit within which an .npz's ``units_xy`` names its CRS's own unit (any foot for one in US survey feet,
+#: 2 ppm apart): the CRS's exact unit then applies.
+_SAME_UNIT_TOLERANCE = 1e-5
+
+
+def _degree_unit(unit: str) -> bool:
+    """Whether an .npz's ``units_xy`` names degrees ("degrees", "decimal degrees (EPSG:4326)", "deg", "°"): its
+    transform is then geographic."""
+    word = unit.strip(" \t.").lower()
+    return "degree" in word or word in ("deg", "degs", "°")
+
+
+def _npz_xy_unit(units_xy: str, crs: str | None, file: Path) -> tuple[str, float] | None:
+    """(unit, metres per unit) of a projected .npz's transform as its ``units_xy`` names it (a length unit of
+    :data:`_HEIGHT_UNITS`) when its coordinates are to be converted by it: no CRS, or one whose unit cannot be looked
+    up (PROJ cannot read it, no rasterio); None when it is blank, the metre, or the unit of the CRS, which then
+    converts them (:func:`_placement`). A unit that is none (nor degrees: :func:`_degree_unit`), or that its CRS
+    contradicts (feet named for EPSG:32611's metres), is a DataFileError naming ``units_xy`` and its value: read
+    as metres, a grid in feet was 3.28 times too wide."""
+    if not units_xy.strip():
+        return None
+    factor = _unit_factor(units_xy)
+    if factor is None:
+        raise DataFileError(
+            f"cannot read {str(file)!r}: 'units_xy' must name the unit of the 'transform' (a length unit: "
+            f"{_KNOWN_UNITS}; or degrees); got {units_xy!r}"
+        )
+    stated = _crs_linear_unit(crs)
+    if stated is None:
+        return (units_xy, factor) if factor != 1.0 else None
+    name, crs_factor = stated
+    if abs(factor / crs_factor - 1.0) > _SAME_UNIT_TOLERANCE:
+        raise DataFileError(
+            f"cannot read {str(file)!r}: 'units_xy' is {units_xy!r} ({factor:.10g} m), but its CRS {crs} counts "
+            f"{name} ({crs_factor:.10g} m): save the 'transform' in the CRS's unit and units_xy={name!r} (or "
+            "neither), or the CRS the coordinates are in"
+        )
+    return None
+
+
+def _crs_linear_unit(crs: str | None) -> tuple[str, float] | None:
+    """(unit, metres per unit) of a projected or local engineering CRS, ("metre", 1.0) for one in metres; None for
+    none, a geographic or other CRS, one PROJ cannot read, or without rasterio to look it up."""
+    crs_obj = _crs_object(crs) if crs else None
+    if crs_obj is None or crs_obj.is_geographic:
+        return None
+    projected = _projected_units(crs)
+    if projected is not None:
+        return projected[0], projected[1]
+    if crs_obj.is_projected:
+        return "metre", 1.0
+    wkt = crs_obj.to_wkt()
+    if wkt.lstrip().startswith(("LOCAL_CS[", "ENGCRS[", "ENGINEERINGCRS[")):
+        try:
+            unit, factor = crs_obj.units_factor
+        except Exception:  # no linear unit to read
+            return None
+        return (str(unit), float(factor)) if factor == 1.0 else None
+    return None
 
 
 def npz_georeference_keys(arrays: Mapping[str, Any]) -> list[str]:
@@ -1561,12 +1633,14 @@ def _georeferenced(
     geographic: bool,
     metres: tuple[float, float] | None,
     height_unit: str | None,
+    xy_unit: tuple[str, float] | None = None,
 ) -> Terrain:
     """Grid from a GDAL geotransform of the cell corners: node (0, 0) is the centre of the top-left cell.
-    A projected CRS in feet (or any unit but the metre) is converted to metres; ``height_unit`` is the
+    A projected CRS in feet (or any unit but the metre) is converted to metres, and so is a geotransform in the
+    ``xy_unit`` (unit, metres per unit) an .npz names (:func:`_npz_xy_unit`); ``height_unit`` is the
     heights' unit when the file names a known one (they are then metres already), else None."""
     place = _placement(file, heights.shape, geotransform, crs, geographic=geographic, metres=metres,
-                       height_unit=height_unit)
+                       height_unit=height_unit, xy_unit=xy_unit)
     terrain = _grid(file, heights, spacing=place.spacing, origin=place.origin, crs=place.crs, source=place.source,
                     height_unit=height_unit)
     _check_placed(file, place, terrain)
@@ -1614,11 +1688,14 @@ def _placement(
     metres: tuple[float, float] | None,
     height_unit: str | None,
     name: str | None = None,
+    xy_unit: tuple[str, float] | None = None,
 ) -> _Placement:
     """The placement of a grid of ``shape`` by :func:`_georeferenced`, from its geotransform, CRS and shape alone
     (no heights), its refusals and warnings but those of :func:`_check_placed` given: :func:`load_dem` places a
     GeoTIFF's whole grid so before it reads a window of it (``crop=``). ``name`` what the warnings and ``source`` call
-    the grid (default the file's name); a geographic grid's nodes that are no degrees are a :class:`_NotDegrees`."""
+    the grid (default the file's name); a geographic grid's nodes that are no degrees are a :class:`_NotDegrees`.
+    ``xy_unit``: (unit, metres per unit) of a projected geotransform whose CRS states no unit (an .npz's
+    ``units_xy``), converted as a CRS in that unit is."""
     name = file.name if name is None else name
     x0, dx, row_x, y0, col_y, dy = (float(v) for v in geotransform)
     if not _negligible_rotation(row_x, col_y, dx, dy, shape):
@@ -1633,17 +1710,22 @@ def _placement(
     node_x, node_y = x0 + 0.5 * dx, y0 + 0.5 * dy
     if not geographic:  # metres as stored; another unit (feet, ...) converted, as the CRS's metre twin
         projected = _projected_units(crs)
-        factor, metre_crs, source = 1.0, crs, None
+        factor, metre_crs, source, unit, what, converted = 1.0, crs, None, "metre", "", ""
         if projected is not None:
             unit, factor, metre_crs = projected
+            what, converted = f"{crs} is in {unit} units", f"{crs} {unit}"
+        elif xy_unit is not None:  # a unit no CRS states (none, or one PROJ cannot read): the CRS kept as given
+            unit, factor = xy_unit
+            what, converted = f"its 'units_xy' is {unit!r}", f"units_xy {unit!r}"
+        if factor != 1.0:
             if height_unit is None:
                 warnings.warn(
-                    f"{name}: {crs} is in {unit} units, so spacing and origin were converted to metres; the "
+                    f"{name}: {what}, so spacing and origin were converted to metres; the "
                     f"heights are kept as stored (the file does not name their unit): if they are in {unit} too, "
                     f"pass height_unit={unit!r} (metres per unit: {factor:.10g})",
                     stacklevel=caller_stacklevel(),
                 )
-            source = f"{name} ({crs} {unit} as metres: x {factor:.10g})"
+            source = f"{name} ({converted} as metres: x {factor:.10g})"
         return _Placement((dx * factor, dy * factor), (node_x * factor, node_y * factor), metre_crs,
                           source or name, (crs, (node_x, node_y), (dx, dy), tuple(shape), factor))
 
@@ -1735,6 +1817,35 @@ def degrees_as_local_metres(
         ) from exc
     assert place.source is not None
     return place.spacing, place.origin, place.crs, place.source
+
+
+def units_as_metres(
+    spacing: tuple[float, float], origin: tuple[float, float], crs: str | None, source: str | None,
+    height_unit: str | None,
+) -> tuple[tuple[float, float], tuple[float, float], str | None, str] | None:
+    """For :meth:`Terrain.from_heights` (and a grid Terrain built directly) whose ``crs`` is projected (or a local
+    engineering CRS) in a unit other than the metre (EPSG:2229 counts US survey feet): its ``spacing`` and ``origin``
+    (node (0, 0)) in that unit made metres, as :func:`load_dem` makes a file's (:func:`_placement`: the CRS its metre
+    twin, EPSG:26945, the unit named in the source) as (spacing, origin, crs, source); None for a CRS in metres, a
+    geographic or unknown one, none, or without rasterio to look it up. Kept as given, a grid in feet was 3.28
+    times wider than load_dem's of the same raster, its heights in metres standing on feet (slopes 3.28 times too
+    steep). Without ``height_unit`` it warns, at the caller's line, that the heights are taken as given (metres):
+    from_heights converts no heights, so heights in that unit too are the caller's to convert."""
+    projected = _projected_units(crs) if crs else None
+    if projected is None:
+        return None
+    unit, factor, metre_crs = projected
+    name = source or _GIVEN_GRID
+    if height_unit is None:
+        warnings.warn(
+            f"{name}: {crs} is in {unit} units, so spacing and origin were converted to metres; the heights are "
+            f"taken as given, as metres (height_unit is not named): if they are in {unit} too, convert them "
+            f"(heights * {factor:.10g}) and pass height_unit={unit!r}, or height_unit='m' if they are metres",
+            stacklevel=caller_stacklevel(),
+        )
+    (dx, dy), (x0, y0) = spacing, origin
+    return ((dx * factor, dy * factor), (x0 * factor, y0 * factor), metre_crs,
+            f"{name} ({crs} {unit} as metres: x {factor:.10g})")
 
 
 def _check_degrees_without_crs(file: Path, terrain: Terrain, crs: str | None = None) -> None:

@@ -462,20 +462,25 @@ def _heights_array(
 
 
 def _in_metres(shape: tuple[int, ...], spacing: tuple[float, float], origin: tuple[float, float], crs: str | None,
-               source: str | None) -> tuple[tuple[float, float], tuple[float, float], str | None, str | None]:
+               source: str | None, height_unit: str | None = None,
+               ) -> tuple[tuple[float, float], tuple[float, float], str | None, str | None]:
     """(spacing, origin, crs, source) of a grid as the Terrain keeps them: a geographic ``crs``'s degrees made local
-    metres as load_dem makes a file's (:func:`stepterrain.io.degrees_as_local_metres`), anything else as given."""
+    metres as load_dem makes a file's (:func:`stepterrain.io.degrees_as_local_metres`), a projected one's feet (or
+    another unit) made metres as load_dem makes them (:func:`stepterrain.io.units_as_metres`, which warns when
+    ``height_unit`` is None), anything else as given."""
     if not crs:
         return spacing, origin, crs, source
-    from .io import degrees_as_local_metres  # io imports this module
+    from .io import degrees_as_local_metres, units_as_metres  # io imports this module
 
     placed = degrees_as_local_metres((int(shape[0]), int(shape[1])), spacing, origin, crs, source)
+    if placed is None:
+        placed = units_as_metres(spacing, origin, crs, source, height_unit)
     return (spacing, origin, crs, source) if placed is None else placed
 
 
 def _grid_fields(
     heights: ArrayLike, spacing: Any, origin: Any, crs: str | None, source: str | None, *, borrow: bool = False,
-    placed: bool = False,
+    placed: bool = False, height_unit: str | None = None,
 ) -> tuple[NDArray[np.float32], tuple[float, float], tuple[float, float], str | None, str | None, dict[str, Any]]:
     """A grid Terrain's (heights, spacing, origin, crs, source) checked as :meth:`Terrain.from_heights` and a grid
     built directly keep them (:func:`_heights_array`, :func:`grid_geometry`, :func:`_in_metres`), and its first
@@ -485,7 +490,7 @@ def _grid_fields(
     array, lo, hi = _heights_array(heights, borrow=borrow)
     spacing, origin = grid_geometry(spacing, origin, array.shape)
     if not placed:
-        spacing, origin, crs, source = _in_metres(array.shape, spacing, origin, crs, source)
+        spacing, origin, crs, source = _in_metres(array.shape, spacing, origin, crs, source, height_unit)
     cache: dict[str, Any] = {"has_nodata": math.isnan(lo)}
     if not math.isnan(lo):
         cache["height_range"] = (lo, hi)
@@ -589,7 +594,8 @@ class Terrain:
                 raise InvalidInputError(f"a Terrain of kind 'grid' takes heights, spacing and origin; got "
                                         f"{', '.join(extra)} too (a TIN's fields: use kind='tin' or Terrain.from_mesh)")
             array, spacing, origin, crs, source, cache = _grid_fields(self.heights, self.spacing, self.origin,
-                                                                      self.crs, self.source)
+                                                                      self.crs, self.source,
+                                                                      height_unit=self.height_unit)
             set_field(self, "heights", array)  # a copy: unshared with the array given
             set_field(self, "spacing", spacing)
             set_field(self, "origin", origin)
@@ -642,13 +648,21 @@ class Terrain:
         (EPSG:4326, ...) makes ``spacing`` and ``origin`` degrees, read into local metres as
         :func:`~stepterrain.io.load_dem` reads a file in degrees (origin (0, 0) at node (0, 0), a spherical
         ``+proj=eqc`` crs, the degrees in ``source``): the same Terrain as load_dem of the grid saved as a GeoTIFF.
+        So does a projected (or local engineering) ``crs`` in a unit other than the metre (EPSG:2229, US survey
+        feet): ``spacing`` and ``origin`` are in that unit, as the CRS's coordinates are, and become metres, ``crs``
+        the same projection in metres (EPSG:26945) and ``source`` names the unit, as load_dem reads such a file
+        (with rasterio to look the unit up; without it they are kept as given). The heights are not converted:
+        they are metres whatever ``height_unit`` names (unlike ``load_dem(height_unit=...)``, which converts a
+        file's); without ``height_unit`` a grid so converted warns that its heights are taken as given, as
+        load_dem warns of a file's (heights in feet are the caller's to convert: ``heights * 1200 / 3937``,
+        ``height_unit="US survey foot"``).
         (``_borrow`` is internal: see :func:`as_terrain`; so is ``_placed``: ``crs``, ``spacing`` and ``origin`` of a
         grid placed already, a Terrain's own or :func:`~stepterrain.io.load_dem`'s, not looked up again.)"""
         crs = optional_text(crs, "crs", "e.g. 'EPSG:32611'")
         source = optional_text(source, "source", "where the heights come from, e.g. a file name")
         height_unit = optional_text(height_unit, "height_unit", "the unit the heights were read in, e.g. 'ft'")
         array, spacing, origin, crs, source, cache = _grid_fields(heights, spacing, origin, crs, source, borrow=_borrow,
-                                                                  placed=_placed)
+                                                                  placed=_placed, height_unit=height_unit)
         terrain = cls(
             kind="grid",
             heights=array,

@@ -1773,3 +1773,52 @@ def test_an_npz_member_cut_short_is_called_unreadable_not_python_objects(tmp_pat
     np.savez(tmp_path / "objects.npz", elevation=np.array([[1, "a"], [2, None]], dtype=object))
     with pytest.raises(DataFileError, match=r"objects\.npz': member 'elevation' holds Python objects"):
         load_dem(tmp_path / "objects.npz")
+
+
+@pytest.mark.parametrize("unit, factor", [("ft", 0.3048), ("US survey foot", 1200 / 3937), ("km", 1000.0),
+                                          ("Feet", 0.3048)])
+def test_an_npz_s_units_xy_in_another_length_unit_is_converted_to_metres(tmp_path, unit, factor):
+    """An .npz whose 'units_xy' named the transform's unit (np.savez(..., transform=t_ft, units_xy="ft")) was read
+    as metres whatever it said: a grid in feet 3.28 times too wide under its heights in metres. Its coordinates are
+    converted to metres now (the mesh of the same grid saved in metres, to float tolerance), the unit named in the
+    source; units_xy is read only without a CRS that states its own unit."""
+    import stepterrain as st
+
+    sample = np.load(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.npz")
+    heights, transform = sample["elevation"][:120, :180], sample["transform"]
+    np.savez(tmp_path / "m.npz", elevation=heights, transform=transform, units="m", units_xy="m")
+    np.savez(tmp_path / "u.npz", elevation=heights, transform=transform / factor, units="m", units_xy=unit)
+    metres, other = load_dem(tmp_path / "m.npz"), load_dem(tmp_path / "u.npz")
+    assert other.spacing == pytest.approx(metres.spacing, rel=1e-12) == (30.0, -30.0)
+    assert other.origin == pytest.approx(metres.origin, rel=1e-12)
+    np.testing.assert_allclose(other.mesh().vertices, metres.mesh().vertices, rtol=1e-12, atol=1e-6)
+    steps = [st.stepped(t, interval=100.0) for t in (metres, other)]
+    np.testing.assert_allclose(steps[1].vertices, steps[0].vertices, rtol=1e-9, atol=1e-5)
+    assert other.crs is None and other.source == f"u.npz (units_xy {unit!r} as metres: x {factor:.10g})"
+
+
+def test_an_npz_s_units_xy_unknown_or_against_its_crs_is_refused(tmp_path):
+    """'units_xy' that names no length unit (nor degrees), or one its CRS contradicts (metres of EPSG:32611 named
+    feet), is refused naming the key and the value; one that names the CRS's own unit (feet of EPSG:2229, in any
+    foot) converts once, by the CRS; degrees spelled "deg" read the grid as geographic."""
+    pytest.importorskip("rasterio")
+    z = np.arange(12, dtype=np.float32).reshape(3, 4)
+    feet = np.array([6500000.0, 10.0, 0.0, 1900000.0, 0.0, -20.0])
+    np.savez(tmp_path / "f.npz", elevation=z, transform=feet, units="m", units_xy="furlong")
+    with pytest.raises(DataFileError, match=r"f\.npz': 'units_xy' must name the unit of the 'transform' \(a length "
+                                            r"unit: m, km, .*US survey foot; or degrees\); got 'furlong'$"):
+        load_dem(tmp_path / "f.npz")
+    np.savez(tmp_path / "utm.npz", elevation=z, transform=feet, crs="EPSG:32611", units="m", units_xy="ft")
+    with pytest.raises(DataFileError, match=r"utm\.npz': 'units_xy' is 'ft' \(0\.3048 m\), but its CRS EPSG:32611 "
+                                            r"counts metre \(1 m\)"):
+        load_dem(tmp_path / "utm.npz")
+    np.savez(tmp_path / "m.npz", elevation=z, transform=feet, crs="EPSG:2229", units="m", units_xy="m")
+    with pytest.raises(DataFileError, match=r"'units_xy' is 'm' \(1 m\), but its CRS EPSG:2229 counts US survey foot"):
+        load_dem(tmp_path / "m.npz")
+    np.savez(tmp_path / "ft.npz", elevation=z, transform=feet, crs="EPSG:2229", units="m", units_xy="ft")
+    t = load_dem(tmp_path / "ft.npz")
+    assert t.spacing == pytest.approx((10.0 * 1200 / 3937, -20.0 * 1200 / 3937), rel=1e-12) and t.crs == "EPSG:26945"
+    degrees = np.array([-105.8, 0.001, 0.0, 40.4, 0.0, -0.001])
+    np.savez(tmp_path / "deg.npz", elevation=z, transform=degrees, units="m", units_xy="deg")
+    t = load_dem(tmp_path / "deg.npz")
+    assert t.crs.startswith("+proj=eqc") and 80.0 < t.spacing[0] < 90.0

@@ -1040,3 +1040,53 @@ def test_a_placed_grid_s_crs_is_not_looked_up_again_by_load_dem_or_its_crops(mon
     assert part.spacing == geo.spacing and part.heights.shape == (21, 21)
     with pytest.raises(InvalidInputError, match=r"^crs 'EPSG:4326' is geographic, .* latitudes run "):
         st.Terrain.from_heights(heights, spacing=(30.0, -30.0), origin=(480000.0, 4440000.0), crs="EPSG:4326")
+
+
+def test_a_grid_built_in_a_crs_in_feet_is_read_into_metres_as_load_dem_reads_the_same_geotiff(tmp_path):
+    """Terrain.from_heights(h, spacing=(100, -100), origin=(x, y), crs="EPSG:2229") kept its US survey feet as
+    metres while load_dem of the same grid written as a GeoTIFF converts them (the CRS its metre twin EPSG:26945):
+    the same DEM was 3.28 times wider one way than the other, and its heights in metres stood on feet (slopes 3.28
+    times too steep). from_heights now gives load_dem's Terrain, with its warning that the heights are taken as
+    given; naming height_unit silences it, and international feet (+units=ft) convert by 0.3048."""
+    rasterio = pytest.importorskip("rasterio")
+    import warnings
+
+    from rasterio.transform import Affine
+
+    heights = np.ascontiguousarray(st.sample_dem().heights[:160, :240])
+    step, x0, y0 = 100.0, 6_450_000.0, 1_950_000.0  # 100 ft cells, node (0, 0) in California zone 5 (ftUS)
+    path = tmp_path / "dem_ft.tif"
+    with rasterio.open(path, "w", driver="GTiff", height=160, width=240, count=1, dtype="float32", crs="EPSG:2229",
+                       transform=Affine(step, 0.0, x0 - 0.5 * step, 0.0, -step, y0 + 0.5 * step)) as dst:
+        dst.write(heights, 1)
+    with pytest.warns(UserWarning, match="EPSG:2229 is in US survey foot units"):
+        read = st.load_dem(path)
+    with pytest.warns(UserWarning, match=r"^dem_ft\.tif: EPSG:2229 is in US survey foot units, so spacing and origin "
+                                         r"were converted to metres; the heights are taken as given") as told:
+        built = st.Terrain.from_heights(heights, spacing=(step, -step), origin=(x0, y0), crs="EPSG:2229",
+                                        source="dem_ft.tif")
+    assert told[0].filename == __file__  # at the caller's line
+    assert built.crs == read.crs == "EPSG:26945" and built.source == read.source
+    assert built.spacing == pytest.approx(read.spacing, rel=1e-12)
+    assert built.spacing == pytest.approx((step * 1200 / 3937, -step * 1200 / 3937), rel=1e-12)
+    assert built.origin == pytest.approx(read.origin, rel=1e-12)
+    np.testing.assert_array_equal(built.heights, read.heights)
+    np.testing.assert_allclose(built.mesh().vertices, read.mesh().vertices, rtol=1e-12, atol=1e-6)
+    assert built.mesh().area == pytest.approx(read.mesh().area, rel=1e-9)
+
+    with warnings.catch_warnings():  # the heights' unit named: nothing to warn of; built directly: the same
+        warnings.simplefilter("error")
+        named = st.Terrain.from_heights(heights, spacing=(step, -step), origin=(x0, y0), crs="EPSG:2229",
+                                        height_unit="m")
+        direct = st.Terrain(kind="grid", heights=heights, spacing=(step, -step), origin=(x0, y0), crs="EPSG:2229",
+                            height_unit="m")
+    for t in (named, direct):
+        assert (t.spacing, t.origin, t.crs) == (built.spacing, built.origin, built.crs)
+        assert t.source.startswith("the heights (EPSG:2229 US survey foot as metres")
+    intl = st.Terrain.from_heights(heights, spacing=(step, -step), origin=(x0, y0), height_unit="m",
+                                   crs="+proj=tmerc +lat_0=0 +lon_0=-117 +k=0.9996 +x_0=500000 +y_0=0 +ellps=GRS80 "
+                                       "+units=ft +no_defs")
+    assert intl.spacing == pytest.approx((step * 0.3048, -step * 0.3048), rel=1e-12)
+    assert intl.origin == pytest.approx((x0 * 0.3048, y0 * 0.3048), rel=1e-12)
+    again = st.Terrain.from_heights(heights, spacing=built.spacing, origin=built.origin, crs=built.crs)
+    assert (again.spacing, again.origin) == (built.spacing, built.origin)  # the metre twin stays as given
