@@ -107,6 +107,10 @@ LOCK_NAME = ".stepterrain-batch.lock"
 #: 2: entries keyed by output file name (``tile_r0_c0.glb``), so outputs of one item in several formats are each
 #: recorded; 1 (read too): keyed by item, one format per folder
 _MANIFEST_VERSION = 2
+#: How the manifest's height ranges of a folder's files (key ``"ranges"``, :func:`_files_range`) are found; recorded
+#: beside them as ``"ranges_version"``. Ranges of another version (or of none) are read again, not trusted: raise it
+#: whenever what a file's range is, or how its :func:`_range_key` is made, changes
+_RANGES_VERSION = 1
 _SCHEDULER_RE = re.compile(r"^(tcp|tls|inproc|ucx|ws|wss)://[^\s/:]+(:\d{1,5})?/?$")
 #: The DEM files a folder source is read for: all but a .vrt, which in a folder of tiles is the mosaic of them
 #: (gdalbuildvrt's), so its heights would be meshed twice (a .vrt named as a file, or in a glob, is read)
@@ -866,7 +870,7 @@ _RECORDING = threading.Lock()
 
 def run_item(
     item: BatchItem, source: _Source | None, options: _Options, output_dir: str, cpu_threads: int | None = None,
-    memory_budget: int | None = None, record_warnings: bool = False,
+    memory_budget: int | None = None, record_warnings: bool = False, terrain: Terrain | None = None,
 ) -> ItemResult:
     """Step one item and write its mesh (atomically); the task each dask worker runs.
 
@@ -876,7 +880,8 @@ def run_item(
     ``cpu_threads`` is set only in the LocalCluster's workers of one thread each (and not restored).
     ``record_warnings``: the item's warnings go into its result's ``warnings`` instead of the worker's stderr (for
     single-threaded worker processes and the serial run: Python records a process's warnings, so items recorded in
-    several threads of one process, serial runs in threads, run one at a time).
+    several threads of one process, serial runs in threads, run one at a time). ``terrain``: the item's heights
+    read already in this process (a file's, by the serial run's height-range pass), not read again.
 
     Bad input data (:class:`~stepterrain.errors.StepTerrainError`) gives a ``failed`` result at once, unless
     a transient OSError lies under it (EIO, ENOSPC, ETIMEDOUT, ...: a disk or network hiccup while reading or
@@ -889,18 +894,19 @@ def run_item(
     if cpu_threads is not None:
         set_cpu_threads(cpu_threads)
     # the caller's budget for this item only: a remote worker kept it for other clients' tasks afterwards
+    read = {} if terrain is None else {"terrain": terrain}
     with nullcontext() if memory_budget is None else _BUDGET_LEASE.hold(budget_value(memory_budget)):
         if record_warnings:  # a worker process printed them as "<dask's file>:768: UserWarning: ..." + a source line
             with _RECORDING, warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("default")
-                result = _run_item(item, source, options, output_dir, start, cpu_start)
+                result = _run_item(item, source, options, output_dir, start, cpu_start, **read)
             said = tuple(dict.fromkeys(str(w.message) for w in caught))
             return dataclasses.replace(result, warnings=said) if said else result
-        return _run_item(item, source, options, output_dir, start, cpu_start)
+        return _run_item(item, source, options, output_dir, start, cpu_start, **read)
 
 
 def _run_item(item: BatchItem, source: _Source | None, options: _Options, output_dir: str, start: float,
-              cpu_start: float) -> ItemResult:
+              cpu_start: float, *, terrain: Terrain | None = None) -> ItemResult:
     import trimesh
 
     from .stepped import stepped
@@ -910,8 +916,9 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
     written = Path(_on_worker(output_dir, options.cwd)) / target.name
     read = item if item.path is None else dataclasses.replace(item, path=_on_worker(item.path, options.cwd))
     try:
-        terrain = _item_terrain(read, source, options.height_unit, options.file_spacing, options.coarsen,
-                                options.band)
+        if terrain is None:
+            terrain = _item_terrain(read, source, options.height_unit, options.file_spacing, options.coarsen,
+                                    options.band)  # fmt: skip
         metadata = {"generator": "stepterrain.batch", **dict(options.metadata), **_item_metadata(item)}
         if not _has_surface(terrain):
             # an item with no triangle of three finite heights (sea off a coast, a gap in a series, a tile file of
@@ -946,11 +953,13 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
 
 
 # ---------------------------------------------------------------------------------------------- resume
-def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _Options) -> dict[str, str]:
+def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _Options,
+                  identities: Mapping[str, str] | None = None) -> dict[str, str]:
     """Per item: a hash of its input (file identity or the sliced heights) and the shared options.
 
     The device is left out: every device gives the same bits (kernels/__init__), so a run resumed on another
-    machine or device keeps what is done."""
+    machine or device keeps what is done. ``identities``: the file items' :func:`_file_identities` when the caller
+    has them already (a folder's run, which keys the files' height ranges by them too), else found here."""
     shared = repr(dataclasses.replace(options, device=None))
     if options.height_unit is not None:
         shared += f"|height_unit={options.height_unit!r}"
@@ -958,7 +967,8 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
         shared += f"|band={options.band!r}"
     head = json.dumps([shared, _source_identity(source)], sort_keys=True).encode()
     out = {}
-    listings: dict[str, dict[str, list[str]] | None] = {}  # folder -> lower-case name -> names: one listing per folder
+    if identities is None:
+        identities = _file_identities(items)
     for item in items:  # per item, not per cell: hashing is vectorised over each item's bytes
         h = hashlib.blake2b(head, digest_size=16)
         # a file by its absolute path, as _file_identity names it: the same folder given as "tiles" and then as
@@ -966,7 +976,7 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
         h.update(repr(item if item.path is None else dataclasses.replace(item, path=_absolute(item.path)))
                  .encode())  # fmt: skip
         if item.kind == "file":
-            h.update(_file_identity(item.path, listings).encode())  # type: ignore[arg-type]
+            h.update(identities[item.key].encode())
         elif source is not None:
             block = source.heights[item.index] if item.kind == "frame" else source.heights[
                 item.rows[0]:item.rows[1], item.cols[0]:item.cols[1]]  # fmt: skip
@@ -995,10 +1005,20 @@ _GEOTIFF_SIDECARS: tuple[str, ...] = (
 )
 
 
-def _file_identity(path: str, listings: dict[str, dict[str, list[str]] | None]) -> str:
-    """A file item's input as the fingerprint sees it: path, size, mtime, ctime and inode of the file, and of the
-    sidecar files GDAL reads with a GeoTIFF or another GDAL raster (:data:`_GEOTIFF_SIDECARS`; not the files a
-    .vrt names as its sources).
+def _file_identities(items: Sequence[BatchItem]) -> dict[str, str]:
+    """:func:`_file_identity` of each file item, by its key: once per run, for its fingerprint and its key in the
+    manifest's height ranges alike."""
+    listings: dict[str, dict[str, list[str]] | None] = {}  # folder -> lower-case name -> names: one listing per folder
+    return {item.key: _file_identity(item.path, listings) for item in items  # type: ignore[arg-type]
+            if item.kind == "file"}
+
+
+def _file_identity(path: str, listings: dict[str, dict[str, list[str]] | None],
+                   seen: frozenset[str] = frozenset()) -> str:
+    """A file item's input as the fingerprint sees it: path, size, mtime, ctime and inode of the file, of the
+    sidecar files GDAL reads with a GeoTIFF or another GDAL raster (:data:`_GEOTIFF_SIDECARS`), and of the files
+    a .vrt reads its heights from (:func:`_vrt_sources`, with their sidecars: a source tile rewritten under an
+    unchanged .vrt redoes its item).
 
     ctime and inode catch a file rewritten with its size and mtime kept (``cp -p``, ``os.utime``, ``touch -r``):
     every write or metadata change sets ctime on Linux and macOS (on Windows ``st_ctime`` is the creation time,
@@ -1034,7 +1054,27 @@ def _file_identity(path: str, listings: dict[str, dict[str, list[str]] | None]) 
         for pattern in _GEOTIFF_SIDECARS if found is not None else ():
             for side in sorted(found.get(pattern.format(name=name, stem=stem).lower(), ())):
                 parts.append(identity(os.path.join(folder, side)))
+    if ext.lower() == ".vrt" and file not in seen:  # GDAL refuses a .vrt that names itself; not followed round
+        sources = _vrt_sources(file)
+        if sources is None:
+            parts.append("sources unlisted")
+        for source in sources or ():
+            parts.append(f"<{_file_identity(source, listings, seen | {file})}>")
     return "|".join(parts)
+
+
+def _vrt_sources(file: str) -> list[str] | None:
+    """The files GDAL reads for the .vrt ``file`` but itself (rasterio's ``dataset.files``: its sources' rasters,
+    made absolute as GDAL finds them), sorted; None when GDAL cannot open it (its item fails with the reason)."""
+    try:
+        from .io import open_raster
+
+        with open_raster(file) as dataset:
+            files = dataset.files
+    except Exception:  # noqa: BLE001 - no rasterio, or a .vrt GDAL refuses: the item's read says why
+        return None
+    here = os.path.abspath(file)
+    return sorted({os.path.abspath(f) if gdal_path(f) is None else f for f in files} - {here})
 
 
 def _source_identity(source: _Source | None) -> Any:
@@ -1045,9 +1085,11 @@ def _source_identity(source: _Source | None) -> Any:
     return [list(source.heights.shape), list(source.spacing), list(source.origin), source.crs, source.bounds]
 
 
-def _read_manifest(output_dir: Path) -> tuple[dict[str, Any], str | None]:
-    """The manifest's entries by output file name, and why it could not be used (None when it could, or when there
-    is none): a manifest that is cut short, edited into something else or of an unknown version is replaced."""
+def _read_manifest(output_dir: Path) -> tuple[dict[str, Any], dict[str, Any], str | None]:
+    """The manifest's entries by output file name, the height ranges of a folder's files it records
+    (:func:`_read_ranges`), and why it could not be used (None when it could, or when there is none): a manifest
+    that is cut short, edited into something else or of an unknown version is replaced. Read once per run, with the
+    folder locked."""
     path = output_dir / MANIFEST_NAME
     replaced = "; it is written afresh, recording this run's outputs only"
     if path.is_dir():  # it could not be written at the end either: refused before any item runs
@@ -1055,41 +1097,42 @@ def _read_manifest(output_dir: Path) -> tuple[dict[str, Any], str | None]:
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        return {}, None
+        return {}, {}, None
     except OSError as exc:
-        return {}, f"the manifest {MANIFEST_NAME} could not be read ({exc.strerror or exc}){replaced}"
+        return {}, {}, f"the manifest {MANIFEST_NAME} could not be read ({exc.strerror or exc}){replaced}"
     except ValueError as exc:  # also UnicodeDecodeError
-        return {}, f"the manifest {MANIFEST_NAME} is not valid JSON (cut short or edited: {exc}){replaced}"
+        return {}, {}, f"the manifest {MANIFEST_NAME} is not valid JSON (cut short or edited: {exc}){replaced}"
+    ranges = _read_ranges(data)
     version = data.get("version") if isinstance(data, dict) else None
     items = data.get("items") if isinstance(data, dict) else None
     if version not in (1, _MANIFEST_VERSION) or not isinstance(items, dict):
         got = f"version {version!r}" if isinstance(data, dict) else f"a JSON {type(data).__name__}"
-        return {}, (f"the manifest {MANIFEST_NAME} is not one this stepterrain reads (expected an object with version "
-                    f"1 or {_MANIFEST_VERSION} and its items; got {got}){replaced}")  # fmt: skip
+        return {}, ranges, (f"the manifest {MANIFEST_NAME} is not one this stepterrain reads (expected an object with "
+                            f"version 1 or {_MANIFEST_VERSION} and its items; got {got}){replaced}")  # fmt: skip
     if version == 1:  # keyed by item: key its entries by the file each names
         items = {e["file"]: e for e in items.values() if isinstance(e, dict) and isinstance(e.get("file"), str)}
-    return items, None
+    return items, ranges, None
 
 
 def _write_manifest(output_dir: Path, entries: Mapping[str, Any], ranges: Mapping[str, Any] | None = None) -> None:
-    """The manifest: its items, and the height ranges of a folder's files (:func:`_files_range`) when given."""
+    """The manifest: its items, and the height ranges of a folder's files (:func:`_files_range`) when given, with
+    the :data:`_RANGES_VERSION` they were found by."""
     data: dict[str, Any] = {"version": _MANIFEST_VERSION, "items": entries}
     if ranges is not None:
+        data["ranges_version"] = _RANGES_VERSION
         data["ranges"] = ranges
     with atomic_path(output_dir / MANIFEST_NAME) as tmp:
         tmp.write_text(json.dumps(data, indent=1), encoding="utf-8")
 
 
-def _read_ranges(output_dir: Path) -> dict[str, Any]:
-    """The height ranges of a folder's files the manifest in ``output_dir`` records (:func:`_files_range`), by
-    :func:`_range_key`: ``[min, max]`` or None (no surface). Empty when there is none, or it cannot be read (the
-    manifest's own reading says why); an entry of another form is left out. Read with the folder locked, as the
-    manifest's items are."""
-    try:
-        data = json.loads((output_dir / MANIFEST_NAME).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+def _read_ranges(data: Any) -> dict[str, Any]:
+    """The height ranges of a folder's files a manifest's JSON ``data`` records (:func:`_files_range`), by
+    :func:`_range_key`: ``[min, max]`` or None (no surface). Empty when there are none, or when they were recorded
+    under another :data:`_RANGES_VERSION` (or none: a manifest written before it existed), found otherwise than
+    this stepterrain finds them, so read again rather than trusted; an entry of another form is left out."""
+    if not isinstance(data, dict) or data.get("ranges_version") != _RANGES_VERSION:
         return {}
-    found = data.get("ranges") if isinstance(data, dict) else None
+    found = data.get("ranges")
     if not isinstance(found, dict):
         return {}
     out: dict[str, Any] = {}
@@ -1103,13 +1146,13 @@ def _read_ranges(output_dir: Path) -> dict[str, Any]:
     return out
 
 
-def _range_key(item: BatchItem, options: _Options, listings: dict[str, dict[str, list[str]] | None]) -> str:
-    """A file's key in the manifest's height ranges: its identity as the fingerprint sees it (:func:`_file_identity`:
-    path, size, mtime, ctime and inode, and its GDAL sidecars') and the options its heights are read with."""
+def _range_key(identity: str, options: _Options) -> str:
+    """A file's key in the manifest's height ranges: its ``identity`` as the fingerprint sees it
+    (:func:`_file_identity`: path, size, mtime, ctime and inode, and its GDAL sidecars' and a .vrt's sources') and
+    the options its heights are read with."""
     read = [options.height_unit, options.band, options.coarsen,
             None if options.file_spacing is None else list(options.file_spacing)]  # fmt: skip
-    ident = _file_identity(item.path, listings)  # type: ignore[arg-type]
-    return hashlib.blake2b(json.dumps([ident, read]).encode(), digest_size=16).hexdigest()
+    return hashlib.blake2b(json.dumps([identity, read]).encode(), digest_size=16).hexdigest()
 
 
 def _is_complete(entry: Any, fingerprint: str, output_dir: Path, name: str) -> bool:
@@ -1587,11 +1630,12 @@ def batch(
         or neither ``interval`` nor ``levels``, every file is read once before the items run (one at a time, as its
         item reads it: ``height_unit``, ``band``, ``spacing``, ``coarsen``; a file of nodata only, or one that
         cannot be read, left out; a file whose range the folder's manifest records, unchanged since, not read
-        again) for the height range of all of them, the isovalues of ``interval`` (without ``interval`` and
-        ``levels``: :func:`~stepterrain.stepped.nice_interval` of that range, as :func:`~stepterrain.stepped` picks
-        it for one raster, recorded as ``interval`` and ``base`` in every output's metadata) over it given
-        to every file, so that a height has one colour in every file (a file stepped alone spread the colormap over
-        its own levels: colour seams between neighbouring tiles), the geometry unchanged. A solid tile, frame or
+        again; one file run serially stepped from that read, not read twice) for the height range of all of them,
+        the isovalues of ``interval`` (without ``interval`` and ``levels``: :func:`~stepterrain.stepped.nice_interval`
+        of that range, as :func:`~stepterrain.stepped` picks it for one raster, recorded as ``interval`` and ``base``
+        in every output's metadata) over it given to every file, so that a height has one colour in every file (a
+        file stepped alone spread the colormap over its own levels: colour seams between neighbouring tiles), the
+        geometry unchanged. A solid tile, frame or
         file is closed on its own (skirts along its edges and a flat base), without ``floor`` at the one the whole
         source's solid has in :func:`~stepterrain.stepped` (the whole raster, the series as one raster, or all the
         files: one interval under the lowest isovalue of all), so every item stands on the same base. For each
@@ -1637,7 +1681,9 @@ def batch(
         A tqdm progress bar on stderr, which writes each failed item's line (the one of
         :meth:`BatchReport.summary`) as the item fails; a callable ``line -> str`` draws the bar and rewords those
         lines (the command line prefixes them and spells library arguments as its options). A folder's files read
-        for their shared height range (more than one) get a bar of their own first.
+        for their shared height range (more than one) get a bar of their own first. Without ``interval`` and
+        ``levels``, the interval chosen is said once on stderr (a line of its own, reworded alike) before the items
+        run.
     metadata : mapping, optional
         Added to every output's glTF ``extras``: JSON values (str, number, bool, None, lists and dicts of those
         with string keys), numpy scalars and arrays included, as in :func:`~stepterrain.export.save_mesh`;
@@ -1697,12 +1743,14 @@ def batch(
     -----
     An item is complete when the manifest records its output file with the same fingerprint (its input: the file's
     absolute path, size, mtime, ctime and inode, and those of the sidecar files GDAL reads with a GeoTIFF or another
-    GDAL raster: world file, ``.aux.xml``, ``.msk``, ``.tab``, RPCs, ``.prj``, a ``.bil``'s ``.hdr``; or a hash of its
+    GDAL raster: world file, ``.aux.xml``, ``.msk``, ``.tab``, RPCs, ``.prj``, a ``.bil``'s ``.hdr``, and a ``.vrt``'s
+    source rasters (GDAL's file list of it); or a hash of its
     heights; and the options but the device, which does not change a bit of the output; the isovalues and floor a
     folder's files share among them, so that a file whose heights reach a new level redoes every file, and a file
     rewritten within the levels only its own item) and that file exists with the recorded size. The manifest also
     records the height range of each file of a folder, by the file's identity as the fingerprint sees it and the
-    options it is read with, so that a rerun reads only the files changed since for the shared range. The ctime
+    options it is read with, so that a rerun reads only the files changed since for the shared range (ranges
+    recorded under another ``ranges_version``, found otherwise, are read again). The ctime
     catches a file rewritten with its size and mtime kept (``cp -p``) on Linux and macOS, not on Windows, where it is
     the creation time; a file renamed, moved or restored from a backup (and every file item of a run made before
     stepterrain recorded ctime and inode) is redone once. The manifest records each file, so an item's outputs in two
@@ -1859,6 +1907,7 @@ def batch(
                                 "names")
     # with the shared levels' default interval, before the floor: without it a solid's default floor was a tenth of
     # the levels' span down, not one interval (952.5 m for tiles where stepped() puts the whole at 975 m)
+    chosen = interval is None and levels is None  # the default interval, said once before the items run
     level_values, z_range, interval = _levels_and_range(src, interval, levels, base)
     if src is not None and items and items[0].kind == "tile" and z_range is not None:
         src = dataclasses.replace(src, bounds=_raster_bounds(src, z_range))
@@ -1895,25 +1944,51 @@ def batch(
     folder, made = _check_output_dir(output_dir)
     lock = _FolderLock(folder)  # before anything is read or removed there: another run may be writing it
     try:
+        manifest = _read_manifest(folder)  # once: its items and the files' recorded ranges (a folder's refused here)
         ranges = None  # the files' height ranges to record in the manifest (None: none, or a tiles or series run)
+        identities = None
+        kept: dict[str, Terrain] | None = None
         if src is None and items:  # a folder's or list's files: one height range, so one set of levels and one floor
             # (after the cheap checks and the output folder's, locked: every file is read, and a bad scheduler
             # address, an output_dir that is a file or one another run was writing was refused only after that)
-            recorded = _read_ranges(folder)  # each unchanged file's, not read again
+            recorded = manifest[1]  # each unchanged file's, not read again
+            identities = _file_identities(items)  # stat'd once: for the ranges' keys and the fingerprints
+            # one file stepped in this process: its range pass's read is its item's (not two reads of one file);
+            # several are read one at a time, not all held until their items run
+            serial = isinstance(scheduler, str) and scheduler == "serial"
+            kept = {} if serial and len(items) == 1 else None
             try:
-                options, ranges = _files_levels(items, options, None if interval is None else float(interval),
-                                                levels, base, retries, bool(progress), recorded)  # fmt: skip
+                options, ranges, z_range = _files_levels(
+                    items, options, None if interval is None else float(interval), levels, base, retries,
+                    bool(progress), recorded, identities, kept)  # fmt: skip
             except BaseException:
                 lock.release()
                 _remove_empty(made)  # nothing was written: leave no empty output folder behind
                 raise
             if ranges is None and recorded:  # no file read (no colours, no solid): the recorded ranges stay, for
                 ranges = (recorded, False)  # the next run that needs them (they were dropped with the manifest)
+            if chosen and z_range is not None:
+                interval = dict(options.metadata)["interval"]
+                level_values = options.levels
+        if chosen and z_range is not None and progress:  # as `stepterrain steps` says it, once
+            _say_interval(progress, float(interval), len(level_values or ()), z_range)  # type: ignore[arg-type]
         run = dict(scheduler=scheduler, workers=workers, retries=retries, resume=resume, timeout=timeout)
         return _run_locked(items, src, options, folder, made, lock, progress=progress, start=start, ranges=ranges,
-                           **run)
+                           read=manifest, identities=identities, kept=kept, **run)
     finally:
         lock.release()
+
+
+def _say_interval(progress: bool | Callable[[str], str], interval: float, n_levels: int,
+                  z_range: tuple[float, float]) -> None:
+    """Say on stderr the default interval :func:`batch` chose (neither ``interval`` nor ``levels`` given), as
+    ``stepterrain steps`` says its own: through ``progress`` when it rewords lines (the CLI's options)."""
+    from .stepped import TARGET_STEPS
+
+    lo, hi = z_range
+    line = (f"no interval= or levels= given: using interval={interval:g}, a round interval giving "
+            f"{counted(n_levels, 'level')} over heights {lo:g} to {hi:g} (aim ~{TARGET_STEPS} steps)")
+    print(progress(line) if callable(progress) else f"stepterrain batch: {line}", file=sys.stderr, flush=True)
 
 
 def _run_locked(
@@ -1932,16 +2007,22 @@ def _run_locked(
     progress: bool | Callable[[str], str],
     start: float,
     ranges: tuple[dict[str, Any], bool] | None = None,
+    read: tuple[dict[str, Any], dict[str, Any], str | None] | None = None,
+    identities: Mapping[str, str] | None = None,
+    kept: dict[str, Terrain] | None = None,
 ) -> BatchReport:
     """:func:`batch` once the arguments are checked and the output folder is locked; ``ranges``: the files' height
-    ranges to record in the manifest (:func:`_files_range`) and whether they differ from those it records."""
+    ranges to record in the manifest (:func:`_files_range`) and whether they differ from those it records;
+    ``read``: :func:`_read_manifest` of the folder (read here when not given); ``identities``: the file items'
+    :func:`_file_identities` (found here when not given); ``kept``: terrains the range pass read, by item key, for
+    the serial run's items."""
     ext = options.ext
     outputs = [f"{item.key}{ext}" for item in items]
     _remove_partial(folder, outputs + [MANIFEST_NAME])
 
-    fingerprints = _fingerprints(items, src, options)
+    fingerprints = _fingerprints(items, src, options, identities)
     # read without resume too: the entries of other items and other formats stay recorded
-    manifest, manifest_note = _read_manifest(folder)
+    manifest, _, manifest_note = _read_manifest(folder) if read is None else read
     notes = [note for note in (lock.note, manifest_note) if note is not None]
     results: dict[str, ItemResult] = {}
     todo = []
@@ -1991,7 +2072,7 @@ def _run_locked(
     salvage: list[ItemResult] = []  # results that had reached this process when the run was interrupted
     try:
         if connection is None:
-            stream = _run_serial(todo, src, options, folder, retries)
+            stream = _run_serial(todo, src, options, folder, retries, kept)
         else:
             stream = _run_dask(todo, src, options, folder, connection, retries, timeout, salvage)
         hint = budget_hint()
@@ -2109,7 +2190,8 @@ def _levels_and_range(
 
 def _files_range(
     items: Sequence[BatchItem], options: _Options, retries: int, progress: bool,
-    cached: Mapping[str, Any] | None = None,
+    cached: Mapping[str, Any] | None = None, identities: Mapping[str, str] | None = None,
+    kept: dict[str, Terrain] | None = None,
 ) -> tuple[tuple[tuple[float, float], str] | None, dict[str, Any]]:
     """The (min, max) of the heights a triangle uses over every file of a folder or list (each file's
     :attr:`~stepterrain.terrain.Terrain.height_range`, read as its item reads it: ``height_unit``, ``band``,
@@ -2121,10 +2203,13 @@ def _files_range(
     :class:`~stepterrain.errors.StepTerrainError`, which fails its item without retries) is left out, its item
     failing with the reason; a transient OSError under the read (EIO, ETIMEDOUT, ...: a disk or network
     hiccup) is retried ``retries`` times, then raised: levels from the other files alone would differ from those of
-    a run that read it."""
+    a run that read it. ``identities``: the files' :func:`_file_identities`, found here when not given. ``kept``:
+    where the terrains read go, by item key, for items that run in this process after (:func:`_run_serial`), so
+    that a file is read once (the caller asks for it for one file only: not every file of a folder in memory)."""
     cached = {} if cached is None else cached
-    listings: dict[str, dict[str, list[str]] | None] = {}
-    keys = [_range_key(item, options, listings) for item in items]
+    if identities is None:
+        identities = _file_identities(items)
+    keys = [_range_key(identities[item.key], options) for item in items]
     bar = None
     unread = sum(key not in cached for key in keys)
     if progress and unread > 1:
@@ -2138,7 +2223,7 @@ def _files_range(
             if key in cached:  # recorded by an earlier run: the same file, read alike
                 found = cached[key]
             else:
-                found = _file_range(item, options, retries)
+                found = _file_range(item, options, retries, kept)
                 if bar is not None:
                     bar.update(1)
                 if found is ...:  # unreadable: its item fails with the reason; no range recorded
@@ -2155,10 +2240,11 @@ def _files_range(
     return (None if lowest == "" else ((lo, hi), lowest)), ranges
 
 
-def _file_range(item: BatchItem, options: _Options, retries: int) -> Any:
+def _file_range(item: BatchItem, options: _Options, retries: int, kept: dict[str, Terrain] | None = None) -> Any:
     """:func:`_files_range`'s read of one file: ``[min, max]`` of its heights a triangle uses, None for no surface,
     ``...`` for a file that cannot be read (its item fails with the reason); a transient OSError retried ``retries``
-    times, then raised."""
+    times, then raised. The terrain read goes into ``kept`` (by the item's key) when given: it is the item's, read as
+    the item reads it."""
     for attempt in range(retries + 1):
         try:
             terrain = _item_terrain(item, None, options.height_unit, options.file_spacing, options.coarsen,
@@ -2171,6 +2257,8 @@ def _file_range(item: BatchItem, options: _Options, retries: int) -> Any:
                     f"cannot read {item.path!r} for the height range every file's levels come from "
                     f"({type(exc).__name__}: {exc}); run again when it can be read") from exc
             return ...
+        if kept is not None:
+            kept[item.key] = terrain
         if not _has_surface(terrain):
             return None
         return [float(v) for v in terrain.height_range]
@@ -2180,7 +2268,8 @@ def _file_range(item: BatchItem, options: _Options, retries: int) -> Any:
 def _files_levels(
     items: Sequence[BatchItem], options: _Options, interval: float | None, levels: ArrayLike | None, base: float,
     retries: int, progress: bool, cached: Mapping[str, Any] | None = None,
-) -> tuple[_Options, tuple[dict[str, Any], bool] | None]:
+    identities: Mapping[str, str] | None = None, kept: dict[str, Terrain] | None = None,
+) -> tuple[_Options, tuple[dict[str, Any], bool] | None, tuple[float, float] | None]:
     """``options`` with the levels and floor every file of a folder or list shares, as tiles of one raster share
     them (:func:`_levels_and_range`, :func:`_shared_floor`): the isovalues of ``interval`` over the height range of
     all files (:func:`_files_range`; explicit ``levels`` as given), so that a height gets one colour in every file,
@@ -2191,13 +2280,15 @@ def _files_levels(
     in the metadata as tiles of one raster record theirs. The files are read only when that matters: a colormap over
     ``interval`` levels, a solid, or no interval yet; a file whose range the manifest records (``cached``, by
     :func:`_range_key`) is not read again. ``options`` as they are when no file has a surface (every item is
-    empty). Also the files' ranges for the manifest and whether they differ from ``cached`` (None: none read)."""
+    empty). Also the files' ranges for the manifest and whether they differ from ``cached`` (None: none read), and
+    the height range of all files (None: none read, or no surface). ``identities``, ``kept``: :func:`_files_range`'s.
+    """
     if not (options.solid or (options.colors is not None and levels is None) or (interval is None and levels is None)):
-        return options, None  # explicit levels without a solid: every file has them already; no colours: none to match
-    found, ranges = _files_range(items, options, retries, progress, cached)
+        return options, None, None  # explicit levels without a solid: every file has them already; no colours: none
+    found, ranges = _files_range(items, options, retries, progress, cached, identities, kept)
     changed = cached is None or dict(cached) != ranges  # a range added, dropped or changed
     if found is None:
-        return options, (ranges, changed)
+        return options, (ranges, changed), None
     (lo, hi), lowest = found
     from .stepped import isovalues, nice_interval
 
@@ -2215,7 +2306,7 @@ def _files_levels(
                           values, options.gamma, options.floor)  # fmt: skip
     elif options.solid:
         options = dataclasses.replace(options, floor=_floor_under(lo, values, options.gamma, interval))
-    return options, (ranges, changed)
+    return options, (ranges, changed), (lo, hi)
 
 
 def _shared_floor(src: _Source, values: tuple[float, ...], gamma: float, interval: float | None) -> float | None:
@@ -2344,10 +2435,15 @@ def _failure_line(result: ItemResult) -> str:
 
 
 def _run_serial(
-    todo: Iterable[BatchItem], src: _Source | None, options: _Options, folder: Path, retries: int
+    todo: Iterable[BatchItem], src: _Source | None, options: _Options, folder: Path, retries: int,
+    kept: dict[str, Terrain] | None = None,
 ) -> Iterable[ItemResult]:
+    """The items one after the other in this process; ``kept``: terrains read already (:func:`_files_range`), by
+    item key, each taken out as its item runs (so that it is freed after)."""
     for item in todo:  # its warnings recorded, said by the caller as a worker process's are (STL's rounding once)
-        yield _run_retried(item, src, options, str(folder), retries, record_warnings=True)
+        terrain = None if not kept else kept.pop(item.key, None)
+        yield _run_retried(item, src, options, str(folder), retries, record_warnings=True, terrain=terrain)
+        del terrain
 
 
 def _run_retried(item: BatchItem, source: _Source | None, options: _Options, output_dir: str, retries: int,
