@@ -136,9 +136,9 @@ def load_dem(
         and ``z``, or the archive's one 2-D array besides ``mask``/``valid``; a ``transform`` beside them
         georeferences them, as in the layout of ``shared/data``: ``elevation``, ``transform``, ``crs``, optional
         ``dx_m``/``dy_m``, ``units`` (the heights' unit) and ``units_xy`` (the transform's unit where the CRS is
-        not geographic: degrees, "deg", make it geographic; a length unit as for the heights is read where no CRS
-        states a unit, none or one PROJ cannot read, else must name the CRS's own unit, any foot for one in
-        feet); without a ``transform``, 1-D ``lat`` and ``lon`` axes
+        not geographic: degrees, "deg", make it geographic; a length unit as for the heights, a note after it
+        allowed ("metres (EPSG:32611)"), is read where no CRS states a unit, none or one PROJ cannot read, else
+        must name the CRS's own unit, any foot for one in feet); without a ``transform``, 1-D ``lat`` and ``lon`` axes
         of evenly spaced node degrees (to 0.1 % of the step, or to the rounding of a float32 axis), one per row and
         column, georeference them as geographic, the layout of the global relief grids (``lon`` may cross the
         antimeridian, [179.5, -179.5, ...]: a step of 1 degree, read as [179.5, 180.5, ...]); a ``nodata`` number,
@@ -811,14 +811,17 @@ def _degree_unit(unit: str) -> bool:
 
 def _npz_xy_unit(units_xy: str, crs: str | None, file: Path) -> tuple[str, float] | None:
     """(unit, metres per unit) of a projected .npz's transform as its ``units_xy`` names it (a length unit of
-    :data:`_HEIGHT_UNITS`) when its coordinates are to be converted by it: no CRS, or one whose unit cannot be looked
+    :data:`_HEIGHT_UNITS`, or one followed by a note: "metres (EPSG:32611)") when its coordinates are to be converted
+    by it: no CRS, or one whose unit cannot be looked
     up (PROJ cannot read it, no rasterio); None when it is blank, the metre, or the unit of the CRS, which then
     converts them (:func:`_placement`). A unit that is none (nor degrees: :func:`_degree_unit`), or that its CRS
     contradicts (feet named for EPSG:32611's metres), is a DataFileError naming ``units_xy`` and its value: read
     as metres, a grid in feet was 3.28 times too wide."""
     if not units_xy.strip():
         return None
-    factor = _unit_factor(units_xy)
+    # the unit named first, a note after it ("metres (EPSG:32611)", "ft; State Plane"), as _degree_unit reads
+    # "decimal degrees (EPSG:4326)": such a file in metres was read until units_xy was parsed, then refused
+    factor = _unit_factor(units_xy) or _unit_factor(re.split(r"[(;,]", units_xy, maxsplit=1)[0])
     if factor is None:
         raise DataFileError(
             f"cannot read {str(file)!r}: 'units_xy' must name the unit of the 'transform' (a length unit: "

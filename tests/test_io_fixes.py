@@ -1822,3 +1822,19 @@ def test_an_npz_s_units_xy_unknown_or_against_its_crs_is_refused(tmp_path):
     np.savez(tmp_path / "deg.npz", elevation=z, transform=degrees, units="m", units_xy="deg")
     t = load_dem(tmp_path / "deg.npz")
     assert t.crs.startswith("+proj=eqc") and 80.0 < t.spacing[0] < 90.0
+
+
+@pytest.mark.parametrize("units_xy, crs, factor", [("metres (EPSG:32611)", "EPSG:32611", 1.0),
+                                                    ("m (UTM zone 11N)", None, 1.0), ("ft; State Plane", None, 0.3048)])
+def test_an_npz_s_units_xy_naming_its_unit_then_a_note_is_read_by_that_unit(tmp_path, units_xy, crs, factor):
+    """'units_xy' in the descriptive layout of shared/data ("degrees (EPSG:4326); see dx_m/dy_m for metres"), spelled
+    for metres ("metres (EPSG:32611)"), was read as metres until units_xy was parsed, then refused as no unit:
+    the unit it names first is read, the note after it ignored, as degrees are read in "decimal degrees (...)"."""
+    z = np.arange(12, dtype=np.float32).reshape(3, 4)
+    transform = np.array([400000.0, 30.0, 0.0, 3800000.0, 0.0, -30.0])
+    extra = {} if crs is None else {"crs": crs}
+    np.savez(tmp_path / "d.npz", elevation=z, transform=transform, units="m", units_xy=units_xy, **extra)
+    t = load_dem(tmp_path / "d.npz")
+    assert t.spacing == pytest.approx((30.0 * factor, -30.0 * factor), rel=1e-12)
+    assert t.origin == pytest.approx((400015.0 * factor, 3799985.0 * factor), rel=1e-12)
+    assert t.crs == crs
