@@ -111,6 +111,9 @@ _MANIFEST_VERSION = 2
 #: beside them as ``"ranges_version"``. Ranges of another version (or of none) are read again, not trusted: raise it
 #: whenever what a file's range is, or how its :func:`_range_key` is made, changes
 _RANGES_VERSION = 1
+#: Terrains a serial run's height-range pass read (:func:`_file_range`), by item key, each with the warnings its read
+#: gave: its item is stepped from that read (:func:`_run_serial`), its result holding those warnings
+_Kept = dict[str, tuple[Terrain, tuple[str, ...]]]
 _SCHEDULER_RE = re.compile(r"^(tcp|tls|inproc|ucx|ws|wss)://[^\s/:]+(:\d{1,5})?/?$")
 #: The DEM files a folder source is read for: all but a .vrt, which in a folder of tiles is the mosaic of them
 #: (gdalbuildvrt's), so its heights would be meshed twice (a .vrt named as a file, or in a glob, is read)
@@ -1947,7 +1950,7 @@ def batch(
         manifest = _read_manifest(folder)  # once: its items and the files' recorded ranges (a folder's refused here)
         ranges = None  # the files' height ranges to record in the manifest (None: none, or a tiles or series run)
         identities = None
-        kept: dict[str, Terrain] | None = None
+        kept: _Kept | None = None
         if src is None and items:  # a folder's or list's files: one height range, so one set of levels and one floor
             # (after the cheap checks and the output folder's, locked: every file is read, and a bad scheduler
             # address, an output_dir that is a file or one another run was writing was refused only after that)
@@ -2009,7 +2012,7 @@ def _run_locked(
     ranges: tuple[dict[str, Any], bool] | None = None,
     read: tuple[dict[str, Any], dict[str, Any], str | None] | None = None,
     identities: Mapping[str, str] | None = None,
-    kept: dict[str, Terrain] | None = None,
+    kept: _Kept | None = None,
 ) -> BatchReport:
     """:func:`batch` once the arguments are checked and the output folder is locked; ``ranges``: the files' height
     ranges to record in the manifest (:func:`_files_range`) and whether they differ from those it records;
@@ -2191,7 +2194,7 @@ def _levels_and_range(
 def _files_range(
     items: Sequence[BatchItem], options: _Options, retries: int, progress: bool,
     cached: Mapping[str, Any] | None = None, identities: Mapping[str, str] | None = None,
-    kept: dict[str, Terrain] | None = None,
+    kept: _Kept | None = None,
 ) -> tuple[tuple[tuple[float, float], str] | None, dict[str, Any]]:
     """The (min, max) of the heights a triangle uses over every file of a folder or list (each file's
     :attr:`~stepterrain.terrain.Terrain.height_range`, read as its item reads it: ``height_unit``, ``band``,
@@ -2240,15 +2243,23 @@ def _files_range(
     return (None if lowest == "" else ((lo, hi), lowest)), ranges
 
 
-def _file_range(item: BatchItem, options: _Options, retries: int, kept: dict[str, Terrain] | None = None) -> Any:
+def _file_range(item: BatchItem, options: _Options, retries: int, kept: _Kept | None = None) -> Any:
     """:func:`_files_range`'s read of one file: ``[min, max]`` of its heights a triangle uses, None for no surface,
     ``...`` for a file that cannot be read (its item fails with the reason); a transient OSError retried ``retries``
-    times, then raised. The terrain read goes into ``kept`` (by the item's key) when given: it is the item's, read as
-    the item reads it."""
+    times, then raised. The terrain read goes into ``kept`` (by the item's key) when given, with its read's warnings:
+    it is the item's, read as the item reads it."""
     for attempt in range(retries + 1):
         try:
-            terrain = _item_terrain(item, None, options.height_unit, options.file_spacing, options.coarsen,
-                                    options.band)  # fmt: skip
+            if kept is None:
+                terrain = _item_terrain(item, None, options.height_unit, options.file_spacing, options.coarsen,
+                                        options.band)  # fmt: skip
+            else:  # the item's read: its warnings recorded for its result too, as run_item records its own read's
+                with _RECORDING, warnings.catch_warnings(record=True) as caught:
+                    warnings.simplefilter("default")
+                    terrain = _item_terrain(item, None, options.height_unit, options.file_spacing, options.coarsen,
+                                            options.band)  # fmt: skip
+                for w in caught:  # said here too, as a file read for the range alone says them
+                    warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         except StepTerrainError as exc:  # its item fails with it (an unreadable file), as it fails there
             if _transient(exc) and attempt < retries:
                 continue
@@ -2258,7 +2269,7 @@ def _file_range(item: BatchItem, options: _Options, retries: int, kept: dict[str
                     f"({type(exc).__name__}: {exc}); run again when it can be read") from exc
             return ...
         if kept is not None:
-            kept[item.key] = terrain
+            kept[item.key] = (terrain, tuple(dict.fromkeys(str(w.message) for w in caught)))
         if not _has_surface(terrain):
             return None
         return [float(v) for v in terrain.height_range]
@@ -2268,7 +2279,7 @@ def _file_range(item: BatchItem, options: _Options, retries: int, kept: dict[str
 def _files_levels(
     items: Sequence[BatchItem], options: _Options, interval: float | None, levels: ArrayLike | None, base: float,
     retries: int, progress: bool, cached: Mapping[str, Any] | None = None,
-    identities: Mapping[str, str] | None = None, kept: dict[str, Terrain] | None = None,
+    identities: Mapping[str, str] | None = None, kept: _Kept | None = None,
 ) -> tuple[_Options, tuple[dict[str, Any], bool] | None, tuple[float, float] | None]:
     """``options`` with the levels and floor every file of a folder or list shares, as tiles of one raster share
     them (:func:`_levels_and_range`, :func:`_shared_floor`): the isovalues of ``interval`` over the height range of
@@ -2436,14 +2447,18 @@ def _failure_line(result: ItemResult) -> str:
 
 def _run_serial(
     todo: Iterable[BatchItem], src: _Source | None, options: _Options, folder: Path, retries: int,
-    kept: dict[str, Terrain] | None = None,
+    kept: _Kept | None = None,
 ) -> Iterable[ItemResult]:
     """The items one after the other in this process; ``kept``: terrains read already (:func:`_files_range`), by
-    item key, each taken out as its item runs (so that it is freed after)."""
+    item key, with their read's warnings (in the item's result, as its own read's would be), each taken out as its
+    item runs (so that it is freed after)."""
     for item in todo:  # its warnings recorded, said by the caller as a worker process's are (STL's rounding once)
-        terrain = None if not kept else kept.pop(item.key, None)
-        yield _run_retried(item, src, options, str(folder), retries, record_warnings=True, terrain=terrain)
+        terrain, read = (None, ()) if not kept else kept.pop(item.key, (None, ()))
+        result = _run_retried(item, src, options, str(folder), retries, record_warnings=True, terrain=terrain)
         del terrain
+        if read:
+            result = dataclasses.replace(result, warnings=tuple(dict.fromkeys(read + result.warnings)))
+        yield result
 
 
 def _run_retried(item: BatchItem, source: _Source | None, options: _Options, output_dir: str, retries: int,

@@ -163,3 +163,20 @@ def test_a_vrt_whose_source_tile_changed_is_redone(colors, tmp_path):
     assert Path(again.done[0].path).read_bytes() == Path(fresh.done[0].path).read_bytes()
     assert Path(again.done[0].path).read_bytes() != before  # the new heights stepped
     assert len(batch([vrt], out, **kwargs).skipped) == 1
+
+
+def test_a_single_file_read_once_keeps_its_read_s_warnings_in_its_result(tmp_path):
+    # a GeoTIFF in US survey feet warns, as it is read, that its heights are kept as stored: an item reading its file
+    # records that in its result's warnings, but the one file of a serial run, stepped from the range pass's read,
+    # had none (a 2-file run's items, or the same item rerun from its recorded range, had it)
+    z = st.sample_dem().heights[::4, ::4]
+    dem = tmp_path / "feet.tif"
+    _write_tif(dem, z, 6_450_000.0, 1_950_000.0, 100.0, -100.0, "EPSG:2229")
+    kwargs = {"interval": 100.0, "colors": "terrain", "format": ".ply", "scheduler": "serial"}
+    with pytest.warns(UserWarning, match="EPSG:2229 is in US survey foot units"):
+        first = batch([dem], tmp_path / "out", **kwargs)
+    with pytest.warns(UserWarning, match="EPSG:2229 is in US survey foot units"):
+        again = batch([dem], tmp_path / "out", resume=False, **kwargs)  # its range recorded: the item reads it
+    assert first.ok and again.ok and len(first.done) == len(again.done) == 1
+    said = [w for w in again.done[0].warnings if "US survey foot units" in w]
+    assert said and first.done[0].warnings == again.done[0].warnings
