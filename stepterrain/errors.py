@@ -55,8 +55,13 @@ def caller_stacklevel() -> int:
     the stepterrain package: the user's call, however deep the warning sits (a fixed level pointed into the library
     when a public function was reached through another, e.g. load_dem through batch or the CLI)."""
     package = os.path.dirname(os.path.abspath(__file__)) + os.sep  # its subpackage stepterrain.kernels included
+    top = __name__.partition(".")[0]
     frame, level = sys._getframe(1), 1
-    while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(package):
+    while frame is not None and (os.path.abspath(frame.f_code.co_filename).startswith(package) or (
+            # code the package made at run time ("<string>": a dataclass's __init__, Terrain(kind="grid", ...)),
+            # in a module of the package: its warnings pointed at "<string>", not at the line that built it
+            frame.f_code.co_filename.startswith("<") and str(frame.f_globals.get("__name__", "")).partition(".")[0]
+            == top)):
         frame, level = frame.f_back, level + 1
     return level
 

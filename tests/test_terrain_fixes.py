@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import numpy as np
 import pytest
@@ -1090,3 +1091,17 @@ def test_a_grid_built_in_a_crs_in_feet_is_read_into_metres_as_load_dem_reads_the
     assert intl.origin == pytest.approx((x0 * 0.3048, y0 * 0.3048), rel=1e-12)
     again = st.Terrain.from_heights(heights, spacing=built.spacing, origin=built.origin, crs=built.crs)
     assert (again.spacing, again.origin) == (built.spacing, built.origin)  # the metre twin stays as given
+
+
+@pytest.mark.parametrize("crs, spacing, origin, match", [
+    ("EPSG:2229", (100.0, -100.0), (6_450_000.0, 1_950_000.0), "EPSG:2229 is in US survey foot units"),
+    ("EPSG:4326", (0.01, -0.01), (-105.0, 61.0), "EPSG:4326 degrees read as local metres"),
+])
+def test_a_terrain_built_directly_warns_at_the_caller_s_line(crs, spacing, origin, match):
+    """Terrain(kind="grid", ..., crs=...) converting feet or degrees warned at '<string>' (the dataclass's generated
+    __init__, the first frame outside the package's files), not at the line that built it, as from_heights does."""
+    pytest.importorskip("rasterio")
+    heights = np.zeros((200, 3), np.float32)
+    with pytest.warns(UserWarning, match=match) as told:
+        st.Terrain(kind="grid", heights=heights, spacing=spacing, origin=origin, crs=crs)
+    assert {w.filename for w in told if re.search(match, str(w.message))} == {__file__}
