@@ -2254,12 +2254,15 @@ def _file_range(item: BatchItem, options: _Options, retries: int, kept: _Kept | 
                 terrain = _item_terrain(item, None, options.height_unit, options.file_spacing, options.coarsen,
                                         options.band)  # fmt: skip
             else:  # the item's read: its warnings recorded for its result too, as run_item records its own read's
-                with _RECORDING, warnings.catch_warnings(record=True) as caught:
-                    warnings.simplefilter("default")
-                    terrain = _item_terrain(item, None, options.height_unit, options.file_spacing, options.coarsen,
-                                            options.band)  # fmt: skip
-                for w in caught:  # said here too, as a file read for the range alone says them
-                    warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+                caught: list[warnings.WarningMessage] = []
+                try:
+                    with _RECORDING, warnings.catch_warnings(record=True) as caught:
+                        warnings.simplefilter("default")
+                        terrain = _item_terrain(item, None, options.height_unit, options.file_spacing,
+                                                options.coarsen, options.band)  # fmt: skip
+                finally:  # said here too (a read that failed included), as a file read for the range alone says them
+                    for w in caught:
+                        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         except StepTerrainError as exc:  # its item fails with it (an unreadable file), as it fails there
             if _transient(exc) and attempt < retries:
                 continue
