@@ -820,8 +820,11 @@ def _npz_xy_unit(units_xy: str, crs: str | None, file: Path) -> tuple[str, float
     if not units_xy.strip():
         return None
     # the unit named first, a note after it ("metres (EPSG:32611)", "ft; State Plane"), as _degree_unit reads
-    # "decimal degrees (EPSG:4326)": such a file in metres was read until units_xy was parsed, then refused
-    factor = _unit_factor(units_xy) or _unit_factor(re.split(r"[(;,]", units_xy, maxsplit=1)[0])
+    # "decimal degrees (EPSG:4326)": such a file in metres was read until units_xy was parsed, then refused. A note
+    # naming the survey foot ("ft (US survey)") is no note: "ft" alone, the international foot, is 2 ppm off it
+    head = re.split(r"[(;,]", units_xy, maxsplit=1)[0]
+    note = units_xy[len(head):]
+    factor = _unit_factor(units_xy) or (None if "survey" in note.lower() else _unit_factor(head))
     if factor is None:
         raise DataFileError(
             f"cannot read {str(file)!r}: 'units_xy' must name the unit of the 'transform' (a length unit: "

@@ -1825,7 +1825,8 @@ def test_an_npz_s_units_xy_unknown_or_against_its_crs_is_refused(tmp_path):
 
 
 @pytest.mark.parametrize("units_xy, crs, factor", [("metres (EPSG:32611)", "EPSG:32611", 1.0),
-                                                    ("m (UTM zone 11N)", None, 1.0), ("ft; State Plane", None, 0.3048)])
+                                                    ("m (UTM zone 11N)", None, 1.0), ("ft; State Plane", None, 0.3048),
+                                                    ("US survey feet (CA zone 5)", None, 1200 / 3937)])
 def test_an_npz_s_units_xy_naming_its_unit_then_a_note_is_read_by_that_unit(tmp_path, units_xy, crs, factor):
     """'units_xy' in the descriptive layout of shared/data ("degrees (EPSG:4326); see dx_m/dy_m for metres"), spelled
     for metres ("metres (EPSG:32611)"), was read as metres until units_xy was parsed, then refused as no unit:
@@ -1838,3 +1839,8 @@ def test_an_npz_s_units_xy_naming_its_unit_then_a_note_is_read_by_that_unit(tmp_
     assert t.spacing == pytest.approx((30.0 * factor, -30.0 * factor), rel=1e-12)
     assert t.origin == pytest.approx((400015.0 * factor, 3799985.0 * factor), rel=1e-12)
     assert t.crs == crs
+
+    # "ft" with a note naming the survey foot is not read as the international foot (2 ppm off): refused
+    np.savez(tmp_path / "s.npz", elevation=z, transform=transform, units="m", units_xy="ft (US survey)")
+    with pytest.raises(DataFileError, match=r"'units_xy' must name the unit .*; got 'ft \(US survey\)'$"):
+        load_dem(tmp_path / "s.npz")
