@@ -13,12 +13,19 @@ Everything here is integer bookkeeping over the surface's faces, count -> scan -
   flags them per face and counts them per thread, :func:`emit_boundary` writes them in face and corner order.
 * fins (two walls back to back on the same four vertices): :func:`wall_quads` sorts each wall pair's four vertices,
   a CSR keyed by each quad's smallest vertex groups the candidates, :func:`find_fins` flags the repeated quads.
+  A bucket of more than ``limit`` pairs (a fan of walls on one vertex: a scan of it per pair would be quadratic)
+  is deferred: its pairs are bucketed again by a hash of the whole quad (:func:`hash_fin_keys`, MurmurHash3's mix;
+  every other pair keeps a bucket of its own, so a stepped surface's pass is left as it was, its reads in the
+  surface's order) and :func:`find_fins_hashed` scans those buckets, stopping at the first twin.
 * columns (one base vertex each): :func:`last_wall_writes` and :func:`wall_pairs` join each wall's bottom and top
   through its vertical edges (a pair group: the vertices sharing a pair value). A column is the vertices of one pair
   group with the same (x, y, [fan]) bit for bit, so no sort is needed: the pair groups as buckets
   (:func:`count_keys`, :func:`fill_buckets`), :func:`column_leaders` finds each vertex's smallest fellow in its
   bucket, and a scan of the leaders and :func:`number_columns` number the columns in the order of their smallest
-  vertex (the base vertices follow the surface's order).
+  vertex (the base vertices follow the surface's order). A pair group of more than ``limit`` vertices is deferred
+  likewise: bucketed by a hash of (x, y, [fan], pair) (:func:`hash_column_keys`), each vertex's first fellow in its
+  bucket is its column's representative (:func:`column_reps`, the same for the whole column however big) and an
+  atomic min there its leader (:func:`deferred_leaders`): linear where a scan per vertex was quadratic.
   :func:`narrow_faces` turns the int64 faces into the kernels' int32 and finds their index range in the same pass.
 * the closed mesh: :func:`emit_vertices` copies the surface's vertices and writes each column's base vertex,
   :func:`count_base_faces` and :func:`emit_faces` copy the faces and write the terraces flattened and reversed, but

@@ -438,13 +438,12 @@ def _split_pinches(
     """Give each fan of faces around a pinch vertex (one the boundary passes through more than once) its own copy.
 
     The corners at a pinch vertex v are joined into fans through the interior edges (v, w) they share: the
-    connected components of the graph of corners and edges (scipy's ``connected_components``, linear; label
-    propagation took one round per face around v, quadratic in a big fan), each labelled by its smallest corner.
-    The fan with the smallest corner keeps v; the others get
-    new vertices at the same position, appended. Returns the vertices, the faces and, per vertex, the fan
-    ordinal (0 for every vertex that is not such a copy), to keep the copies apart where rows are keyed by xy,
-    and the vertex each appended copy copies (empty when none was split). ``edges`` are the surface's boundary
-    edges (:func:`boundary_edges`).
+    connected components of the graph of corners and edges (scipy's ``connected_components``, linear; the label
+    propagation before took one round per face around v, quadratic in a big fan), each labelled by its smallest
+    corner. The fan with the smallest corner keeps v; the others get new vertices at the same position, appended.
+    Returns the vertices, the faces and, per vertex, the fan ordinal (0 for every vertex that is not such a copy),
+    to keep the copies apart where rows are keyed by xy, and the vertex each appended copy copies (empty when none
+    was split). ``edges`` are the surface's boundary edges (:func:`boundary_edges`).
     """
     n = len(vertices)
     fan = np.zeros(n, np.float64)
@@ -468,9 +467,11 @@ def _split_pinches(
     smallest = np.full(int(component.max()) + 1, len(v))
     np.minimum.at(smallest, component, np.arange(len(v)))
     label = smallest[component]
-    fans = np.unique(np.column_stack([v, label]), axis=0)
+    # the fans (v, label) in lexical order, as one int64 key each (label < len(v)): unique's axis=0 sorted them as
+    # void rows, about 10 times slower
+    fan_keys, which = np.unique(v * len(v) + label, return_inverse=True)
+    fans = np.column_stack(np.divmod(fan_keys, len(v)))
     rank = np.arange(len(fans)) - np.searchsorted(fans[:, 0], fans[:, 0])  # 0 for each vertex's first fan
-    which = np.searchsorted(fans[:, 0] * len(v) + fans[:, 1], v * len(v) + label)
     copies = np.flatnonzero(rank > 0)
     new_index = np.full(len(fans), -1, np.int64)
     new_index[copies] = n + np.arange(len(copies))
