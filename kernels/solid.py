@@ -13,12 +13,19 @@ Everything here is integer bookkeeping over the surface's faces, count -> scan -
   flags them per face and counts them per thread, :func:`emit_boundary` writes them in face and corner order.
 * fins (two walls back to back on the same four vertices): :func:`wall_quads` sorts each wall pair's four vertices,
   a CSR keyed by each quad's smallest vertex groups the candidates, :func:`find_fins` flags the repeated quads.
+  A bucket of more than ``limit`` pairs (a fan of walls on one vertex: a scan of it per pair would be quadratic)
+  is deferred: its pairs are bucketed again by a hash of the whole quad (:func:`hash_fin_keys`, MurmurHash3's mix;
+  every other pair keeps a bucket of its own, so a stepped surface's pass is left as it was, its reads in the
+  surface's order) and :func:`find_fins_hashed` scans those buckets, stopping at the first twin.
 * columns (one base vertex each): :func:`last_wall_writes` and :func:`wall_pairs` join each wall's bottom and top
   through its vertical edges (a pair group: the vertices sharing a pair value). A column is the vertices of one pair
   group with the same (x, y, [fan]) bit for bit, so no sort is needed: the pair groups as buckets
   (:func:`count_keys`, :func:`fill_buckets`), :func:`column_leaders` finds each vertex's smallest fellow in its
   bucket, and a scan of the leaders and :func:`number_columns` number the columns in the order of their smallest
-  vertex (the base vertices follow the surface's order).
+  vertex (the base vertices follow the surface's order). A pair group of more than ``limit`` vertices is deferred
+  likewise: bucketed by a hash of (x, y, [fan], pair) (:func:`hash_column_keys`), each vertex's first fellow in its
+  bucket is its column's representative (:func:`column_reps`, the same for the whole column however big) and an
+  atomic min there its leader (:func:`deferred_leaders`): linear where a scan per vertex was quadratic.
   :func:`narrow_faces` turns the int64 faces into the kernels' int32 and finds their index range in the same pass.
 * the closed mesh: :func:`emit_vertices` copies the surface's vertices and writes each column's base vertex,
   :func:`count_base_faces` and :func:`emit_faces` copy the faces and write the terraces flattened and reversed, but
@@ -35,6 +42,13 @@ import warp as wp
 from .memory import load
 
 wp.set_module_options({"enable_backward": False})  # integer work only: no adjoints, nothing to contract
+
+# MurmurHash3's 32-bit constants (as wp.uint32 constants: a literal above 2^31 would go through int32)
+MURMUR_C1 = wp.constant(wp.uint32(0xCC9E2D51))
+MURMUR_C2 = wp.constant(wp.uint32(0x1B873593))
+MURMUR_N = wp.constant(wp.uint32(0xE6546B64))
+MURMUR_F1 = wp.constant(wp.uint32(0x85EBCA6B))
+MURMUR_F2 = wp.constant(wp.uint32(0xC2B2AE35))
 
 
 @wp.kernel
@@ -238,11 +252,14 @@ def find_fins(
     quads: wp.array[wp.vec4i],
     offsets: wp.array[wp.int32],
     pairs: wp.array[wp.int32],
+    limit: wp.int32,
     # outputs
     fins_out: wp.array[wp.uint8],
+    deferred_out: wp.array[wp.int32],
 ):
     """One element per wall pair: 1 where another pair has the same sorted quad (found in the bucket of the quad's
-    smallest vertex), else 0."""
+    smallest vertex), else 0; 2 (deferred to :func:`find_fins_hashed`) where that bucket holds more than ``limit``
+    pairs, and then ``deferred_out[0]`` = 1 (every writer writes the same value: no atomic needed)."""
     first = (wp.tid() + thread_offset) * chunk
     p = first
     last = wp.min(first + chunk, count)
@@ -251,14 +268,111 @@ def find_fins(
         hit = wp.uint8(0)
         s = load(offsets, q[0])
         end = load(offsets, q[0] + 1)
+        if end - s > limit:
+            hit = wp.uint8(2)
+            deferred_out[0] = 1
+            s = end
         while s < end:
             r = load(pairs, s)
             if r != p:
                 o = quads[r]
                 if o[1] == q[1] and o[2] == q[2] and o[3] == q[3]:
                     hit = wp.uint8(1)
+                    s = end
             s += 1
         fins_out[p] = hit
+        p += 1
+
+
+@wp.func
+def mix(h: wp.uint32, k: wp.uint32) -> wp.uint32:
+    """One step of MurmurHash3's 32-bit block mix: ``k`` folded into ``h``."""
+    k = k * MURMUR_C1
+    k = (k << wp.uint32(15)) | (k >> wp.uint32(17))
+    k = k * MURMUR_C2
+    h = h ^ k
+    h = (h << wp.uint32(13)) | (h >> wp.uint32(19))
+    return h * wp.uint32(5) + MURMUR_N
+
+
+@wp.func
+def mix64(h: wp.uint32, k: wp.int64) -> wp.uint32:
+    """:func:`mix` of both halves of ``k``."""
+    h = mix(h, wp.uint32(k & wp.int64(0xFFFFFFFF)))
+    return mix(h, wp.uint32((k >> wp.int64(32)) & wp.int64(0xFFFFFFFF)))
+
+
+@wp.func
+def finish(h: wp.uint32, size: wp.int32) -> wp.int32:
+    """MurmurHash3's final avalanche of ``h``, reduced to [0, size)."""
+    h = h ^ (h >> wp.uint32(16))
+    h = h * MURMUR_F1
+    h = h ^ (h >> wp.uint32(13))
+    h = h * MURMUR_F2
+    h = h ^ (h >> wp.uint32(16))
+    return wp.int32(h % wp.uint32(size))
+
+
+@wp.kernel
+def hash_fin_keys(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    quads: wp.array[wp.vec4i],
+    fins: wp.array[wp.uint8],
+    # outputs
+    keys_out: wp.array[wp.int32],
+):
+    """One element per wall pair: the bucket :func:`find_fins_hashed` looks in, of the ``2 count`` buckets: a pair that
+    :func:`find_fins` deferred gets count + a hash of its whole sorted quad (equal quads share it), any other one its
+    own bucket p."""
+    first = (wp.tid() + thread_offset) * chunk
+    p = first
+    last = wp.min(first + chunk, count)
+    while p < last:
+        k = p
+        if fins[p] == wp.uint8(2):
+            q = quads[p]
+            h = mix(mix(mix(mix(wp.uint32(0), wp.uint32(q[0])), wp.uint32(q[1])), wp.uint32(q[2])), wp.uint32(q[3]))
+            k = count + finish(h, count)
+        keys_out[p] = k
+        p += 1
+
+
+@wp.kernel
+def find_fins_hashed(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    quads: wp.array[wp.vec4i],
+    keys: wp.array[wp.int32],
+    offsets: wp.array[wp.int32],
+    pairs: wp.array[wp.int32],
+    # outputs
+    fins_out: wp.array[wp.uint8],
+):
+    """One element per wall pair: where :func:`find_fins` deferred it (2), 1 where another pair in its hashed bucket
+    (:func:`hash_fin_keys`) has the same sorted quad, else 0; stops at the first (a repeated quad finds its twin at
+    once, however often it repeats)."""
+    first = (wp.tid() + thread_offset) * chunk
+    p = first
+    last = wp.min(first + chunk, count)
+    while p < last:
+        if fins_out[p] == wp.uint8(2):
+            q = quads[p]
+            hit = wp.uint8(0)
+            k = load(keys, p)
+            s = load(offsets, k)
+            end = load(offsets, k + 1)
+            while s < end:
+                r = load(pairs, s)
+                if r != p:
+                    o = quads[r]
+                    if o[0] == q[0] and o[1] == q[1] and o[2] == q[2] and o[3] == q[3]:
+                        hit = wp.uint8(1)
+                        s = end
+                s += 1
+            fins_out[p] = hit
         p += 1
 
 
@@ -434,15 +548,19 @@ def column_leaders(
     pair: wp.array[wp.int32],
     offsets: wp.array[wp.int32],
     members: wp.array[wp.int32],
+    limit: wp.int32,
     # outputs
     leader_out: wp.array[wp.int32],
     starts_out: wp.array[wp.int32],
+    deferred_out: wp.array[wp.int32],
 ):
     """One element per vertex v: ``leader_out[v]``, the smallest vertex of its column, and ``starts_out[v]``, 1 where
     that is v itself, else 0. A column is the vertices of one pair group (``members[offsets[k]:offsets[k + 1]]``, the
     vertices whose ``pair`` is k) with the same x, y and fan bit for bit: no sort, a scan of v's own group (two
-    vertices, a wall's bottom and top, where the step kernels made it). ``bits``: the vertices' float64 bit patterns
-    (3 per vertex); ``fan``: likewise, or empty (no pinch was split)."""
+    vertices, a wall's bottom and top, where the step kernels made it). A group of more than ``limit`` vertices is
+    deferred to :func:`column_reps` (a scan per member would be quadratic in it): ``leader_out[v]`` = -1 and
+    ``deferred_out[0]`` = 1 (every writer writes the same value: no atomic needed). ``bits``: the vertices' float64
+    bit patterns (3 per vertex); ``fan``: likewise, or empty (no pinch was split)."""
     first = (wp.tid() + thread_offset) * chunk
     v = first
     last = wp.min(first + chunk, count)
@@ -454,6 +572,10 @@ def column_leaders(
         best = v
         s = load(offsets, k)
         end = load(offsets, k + 1)
+        if end - s > limit:
+            best = -1
+            deferred_out[0] = 1
+            s = end
         while s < end:
             u = load(members, s)
             if u < best and bits[3 * u] == x and bits[3 * u + 1] == y:
@@ -464,6 +586,111 @@ def column_leaders(
             s += 1
         leader_out[v] = best
         starts_out[v] = wp.where(best == v, 1, 0)
+        v += 1
+
+
+@wp.func
+def same_column(bits: wp.array[wp.int64], fan: wp.array[wp.int64], pair: wp.array[wp.int32], u: wp.int32,
+                v: wp.int32) -> wp.bool:
+    """Whether vertices u and v have the same (x, y, [fan], pair) bit for bit."""
+    if load(pair, u) != load(pair, v) or bits[3 * u] != bits[3 * v] or bits[3 * u + 1] != bits[3 * v + 1]:
+        return False
+    if fan.shape[0] > 0:
+        return fan[u] == fan[v]
+    return True
+
+
+@wp.kernel
+def hash_column_keys(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    bits: wp.array[wp.int64],
+    fan: wp.array[wp.int64],
+    pair: wp.array[wp.int32],
+    leader: wp.array[wp.int32],
+    # outputs
+    keys_out: wp.array[wp.int32],
+):
+    """One element per vertex v: the bucket :func:`column_reps` looks in, of the ``2 count`` buckets: a vertex that
+    :func:`column_leaders` deferred gets count + a hash of its (x, y, [fan], pair) (a column shares it), any other one
+    its own bucket v."""
+    first = (wp.tid() + thread_offset) * chunk
+    v = first
+    last = wp.min(first + chunk, count)
+    fans = fan.shape[0] > 0
+    while v < last:
+        k = v
+        if load(leader, v) < 0:
+            h = mix64(mix64(mix(wp.uint32(0), wp.uint32(load(pair, v))), bits[3 * v]), bits[3 * v + 1])
+            if fans:
+                h = mix64(h, fan[v])
+            k = count + finish(h, count)
+        keys_out[v] = k
+        v += 1
+
+
+@wp.kernel
+def column_reps(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    bits: wp.array[wp.int64],
+    fan: wp.array[wp.int64],
+    pair: wp.array[wp.int32],
+    leader: wp.array[wp.int32],
+    keys: wp.array[wp.int32],
+    offsets: wp.array[wp.int32],
+    members: wp.array[wp.int32],
+    # outputs
+    rep_out: wp.array[wp.int32],
+    low_out: wp.array[wp.int32],
+):
+    """One element per vertex v that :func:`column_leaders` deferred: ``rep_out[v]``, the first vertex of its column
+    in its hashed bucket (:func:`hash_column_keys`; the same for the whole column, found at once however big the
+    column), and the smallest vertex of each column kept at its representative (``low_out``, ``count`` first; an
+    atomic min)."""
+    first = (wp.tid() + thread_offset) * chunk
+    v = first
+    last = wp.min(first + chunk, count)
+    while v < last:
+        if load(leader, v) < 0:
+            k = load(keys, v)
+            s = load(offsets, k)
+            end = load(offsets, k + 1)
+            rep = v
+            while s < end:
+                u = load(members, s)
+                if same_column(bits, fan, pair, u, v):
+                    rep = u
+                    s = end
+                s += 1
+            rep_out[v] = rep
+            wp.atomic_min(low_out, rep, v)
+        v += 1
+
+
+@wp.kernel
+def deferred_leaders(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    rep: wp.array[wp.int32],
+    low: wp.array[wp.int32],
+    # outputs
+    leader_out: wp.array[wp.int32],
+    starts_out: wp.array[wp.int32],
+):
+    """One element per vertex v that :func:`column_leaders` deferred (``leader_out[v]`` = -1): its leader, the
+    smallest vertex of its column (:func:`column_reps`), and ``starts_out[v]`` as column_leaders gives it."""
+    first = (wp.tid() + thread_offset) * chunk
+    v = first
+    last = wp.min(first + chunk, count)
+    while v < last:
+        if load(leader_out, v) < 0:
+            best = load(low, load(rep, v))
+            leader_out[v] = best
+            starts_out[v] = wp.where(best == v, 1, 0)
         v += 1
 
 

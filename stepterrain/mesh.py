@@ -16,6 +16,8 @@ import numpy as np
 import trimesh
 import warp as wp
 from numpy.typing import NDArray
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from ._compaction import MAX_INT32
 from ._device import (
@@ -117,6 +119,13 @@ def _buckets(keys: wp.array, n: int, device: wp.Device) -> tuple[wp.array, wp.ar
     return offsets, items
 
 
+#: Buckets (the wall pairs of one smallest vertex, the vertices of one pair group) of more than this many items are
+#: searched through a hash of the items' whole key instead (kernels/solid.py: hash_fin_keys, hash_column_keys): a
+#: scan of its bucket per item is quadratic in it. A stepped surface's buckets hold one or two; a fan of walls on one
+#: vertex (a direct call) as many as it has walls.
+LARGE_BUCKET = 32
+
+
 def _check_face_count(faces: NDArray[np.int64]) -> None:
     """An OutputTooLargeError where the kernels cannot index ``faces``' 3 corners a face with int32."""
     if 3 * len(faces) > MAX_INT32:
@@ -200,7 +209,13 @@ def _fins(faces: wp.array, walls: NDArray[np.int64], n: int, device: wp.Device) 
     launch_chunked(kernels.wall_quads, count, [faces, first, second], [quads, keys], device)
     offsets, pairs = _buckets(keys, n, device)
     fins = _empty(count, np.uint8, wp.uint8, device)
-    launch_chunked(kernels.find_fins, count, [quads, offsets, pairs], [fins], device)
+    deferred = _empty(1, np.int32, wp.int32, device, zero=True)
+    launch_chunked(kernels.find_fins, count, [quads, offsets, pairs, LARGE_BUCKET], [fins, deferred], device)
+    del offsets, pairs
+    if read_int32(deferred, 0):  # a vertex in more than LARGE_BUCKET quads: those pairs by a hash of the whole quad
+        launch_chunked(kernels.hash_fin_keys, count, [quads, fins], [keys], device)
+        offsets, pairs = _buckets(keys, 2 * count, device)
+        launch_chunked(kernels.find_fins_hashed, count, [quads, keys, offsets, pairs], [fins], device)
     return fins.numpy().view(np.bool_)
 
 
@@ -239,8 +254,23 @@ def _columns(vertices: NDArray[np.float64], fan: NDArray[np.float64] | None, pai
     fans = to_device(fan.view(np.int64) if fan is not None else np.zeros(0, np.int64), wp.int64, device)
     leader = _empty(n, np.int32, wp.int32, device)
     starts = _empty(n, np.int32, wp.int32, device)
-    launch_chunked(kernels.column_leaders, n, [bits, fans, pair, offsets, members], [leader, starts], device)
-    del offsets, members, bits, fans
+    deferred = _empty(1, np.int32, wp.int32, device, zero=True)
+    launch_chunked(kernels.column_leaders, n, [bits, fans, pair, offsets, members, LARGE_BUCKET],
+                   [leader, starts, deferred], device)
+    del offsets, members
+    if read_int32(deferred, 0):  # a pair group of more than LARGE_BUCKET vertices: those by a hash of their key
+        keys = _empty(n, np.int32, wp.int32, device)
+        launch_chunked(kernels.hash_column_keys, n, [bits, fans, pair, leader], [keys], device)
+        offsets, members = _buckets(keys, 2 * n, device)
+        rep = _empty(n, np.int32, wp.int32, device)
+        low = _empty(n, np.int32, wp.int32, device)
+        low.fill_(n)
+        launch_chunked(kernels.column_reps, n, [bits, fans, pair, leader, keys, offsets, members], [rep, low], device,
+                       atomics=True)
+        del keys, offsets, members
+        launch_chunked(kernels.deferred_leaders, n, [rep, low], [leader, starts], device)
+        del rep, low
+    del bits, fans
     wp.utils.array_scan(starts, starts, inclusive=True)
     ids = _empty(n, np.int64, wp.int64, device)
     ids32 = _empty(n, np.int32, wp.int32, device)
@@ -407,12 +437,13 @@ def _split_pinches(
 ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64], NDArray[np.int64]]:
     """Give each fan of faces around a pinch vertex (one the boundary passes through more than once) its own copy.
 
-    The corners at a pinch vertex v are joined into fans through the interior edges (v, w) they share (label
-    propagation: at most one round per face around v). The fan with the smallest corner keeps v; the others get
-    new vertices at the same position, appended. Returns the vertices, the faces and, per vertex, the fan
-    ordinal (0 for every vertex that is not such a copy), to keep the copies apart where rows are keyed by xy,
-    and the vertex each appended copy copies (empty when none was split). ``edges`` are the surface's boundary
-    edges (:func:`boundary_edges`).
+    The corners at a pinch vertex v are joined into fans through the interior edges (v, w) they share: the
+    connected components of the graph of corners and edges (scipy's ``connected_components``, linear; the label
+    propagation before took one round per face around v, quadratic in a big fan), each labelled by its smallest
+    corner. The fan with the smallest corner keeps v; the others get new vertices at the same position, appended.
+    Returns the vertices, the faces and, per vertex, the fan ordinal (0 for every vertex that is not such a copy),
+    to keep the copies apart where rows are keyed by xy, and the vertex each appended copy copies (empty when none
+    was split). ``edges`` are the surface's boundary edges (:func:`boundary_edges`).
     """
     n = len(vertices)
     fan = np.zeros(n, np.float64)
@@ -426,19 +457,21 @@ def _split_pinches(
     v = faces[fi, ji]
     keys = np.concatenate([v * n + faces[fi, (ji + 1) % 3], v * n + faces[fi, (ji + 2) % 3]])
     _, edge_id = np.unique(keys, return_inverse=True)
-    e1, e2 = np.split(edge_id.reshape(-1), 2)
-    label = np.arange(len(v))
-    while True:
-        low = np.full(int(edge_id.max()) + 1, len(v))
-        np.minimum.at(low, e1, label)
-        np.minimum.at(low, e2, label)
-        new = np.minimum(low[e1], low[e2])
-        if np.array_equal(new, label):
-            break
-        label = new
-    fans = np.unique(np.column_stack([v, label]), axis=0)
+    edge_id = edge_id.reshape(-1)
+    corners = np.tile(np.arange(len(v)), 2)
+    # nodes: the corners, then the edges (v, w) after them; each corner joins its face's two edges at v
+    graph = coo_matrix((np.ones(len(corners), np.int8), (corners, len(v) + edge_id)),
+                       shape=(len(v) + int(edge_id.max()) + 1,) * 2)
+    _, component = connected_components(graph, directed=False)
+    component = component[:len(v)]
+    smallest = np.full(int(component.max()) + 1, len(v))
+    np.minimum.at(smallest, component, np.arange(len(v)))
+    label = smallest[component]
+    # the fans (v, label) in lexical order, as one int64 key each (label < len(v)): unique's axis=0 sorted them as
+    # void rows, about 10 times slower
+    fan_keys, which = np.unique(v * len(v) + label, return_inverse=True)
+    fans = np.column_stack(np.divmod(fan_keys, len(v)))
     rank = np.arange(len(fans)) - np.searchsorted(fans[:, 0], fans[:, 0])  # 0 for each vertex's first fan
-    which = np.searchsorted(fans[:, 0] * len(v) + fans[:, 1], v * len(v) + label)
     copies = np.flatnonzero(rank > 0)
     new_index = np.full(len(fans), -1, np.int64)
     new_index[copies] = n + np.arange(len(copies))

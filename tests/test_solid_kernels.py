@@ -271,3 +271,94 @@ def test_a_pinch_copy_on_a_walls_vertical_edge_keeps_its_own_column():
                       [u_top, t, p], [u_top, p, u_bottom]])  # fan B: a wall pair (u_top, v_top, v_bottom), ...
     got = _assert_same(vertices, faces, np.array([True, False, False]), -1.0)
     assert len(got[4]) == 7  # P was split
+
+
+def _wall_fan(m, seed=0, ring=True, pinch=False, fins=0.05):
+    """``m`` wall pairs (u_top, v_top, v_bottom), (u_top, v_bottom, u_bottom) whose u_bottom is the hub vertex 0: every
+    pair's quad holds the hub (one fin bucket of m pairs), and every u_top pairs with it (one pair group of m + 1
+    vertices, half of them over the hub: one column, the other half one each). ``ring``: terraces (0, u_top_i,
+    v_bottom_i+1) join the walls' faces around the hub into one fan; ``pinch``: that fan left open and one more
+    triangle on the hub, so the hub is a pinch whose big fan _split_pinches finds; ``fins``: the share of pairs
+    repeated (fins in the big bucket)."""
+    rng = np.random.default_rng(seed)
+    angle = rng.random(m) * 2 * np.pi
+    over = rng.random(m) < 0.5
+    tops = np.column_stack([np.where(over, 0.0, np.cos(angle) / 2), np.where(over, 0.0, np.sin(angle) / 2),
+                            1.0 + rng.random(m)])
+    v_tops = np.column_stack([np.cos(angle), np.sin(angle), 2.0 + rng.random(m)])
+    v_bottoms = np.column_stack([np.cos(angle), np.sin(angle), 0.5 + rng.random(m)])
+    vertices = np.concatenate([[[0.0, 0.0, 0.0]], tops, v_tops, v_bottoms])
+    t, a, b = 1 + np.arange(m), 1 + m + np.arange(m), 1 + 2 * m + np.arange(m)
+    first, second = np.column_stack([t, a, b]), np.column_stack([t, b, np.zeros(m, np.int64)])
+    faces = [np.stack([first, second], 1).reshape(-1, 3)]
+    if ring:
+        k = np.arange(m - 1 if pinch else m)
+        faces.append(np.column_stack([np.zeros(len(k), np.int64), t[k], b[(k + 1) % m]]))
+    if pinch:
+        vertices = np.concatenate([vertices, [[-3.0, -3.0, 1.0], [-3.0, -2.0, 1.0]]])
+        faces.append(np.array([[0, len(vertices) - 2, len(vertices) - 1]]))
+    terrace = np.ones(sum(len(f) for f in faces), bool)
+    terrace[:2 * m] = False
+    repeated = rng.random(m) < fins
+    faces.append(np.stack([first[repeated], second[repeated]], 1).reshape(-1, 3))
+    terrace = np.concatenate([terrace, np.zeros(2 * repeated.sum(), bool)])
+    return vertices, np.concatenate(faces), terrace
+
+
+@pytest.mark.parametrize("ring, pinch, fins", [(False, False, 0.05), (True, False, 0.0), (True, True, 0.0),
+                                               (True, True, 0.05)])
+def test_a_fan_of_walls_on_one_vertex_equals_the_reference(ring, pinch, fins):
+    """A fin bucket and a pair group far above LARGE_BUCKET (searched through hashes of the whole key: a scan per item
+    took 3-5 s at 60 k walls) and a pinch with a fan of thousands of faces (_split_pinches' label propagation took a
+    round per face: a minute at 20 k walls)."""
+    vertices, faces, terrace = _wall_fan(3000, ring=ring, pinch=pinch, fins=fins)
+    if ring and not fins:  # the hub's pair group stays whole (fins break the ring into fans, each with its copy)
+        assert np.bincount(reference_solid._wall_pairs(faces, terrace, len(vertices))).max() > 3000
+    got = _assert_same(vertices, faces, terrace, -1.0)
+    assert got[2].all() == (fins == 0)
+    assert (len(got[4]) > len(vertices)) == (pinch or fins > 0)
+
+
+@settings(max_examples=30, deadline=None)
+@given(faces=hs.lists(hs.tuples(*[hs.integers(0, 9)] * 3), min_size=4, max_size=30), seed=hs.integers(0, 2**31 - 1),
+       limit=hs.sampled_from([0, 1, 2]))
+def test_random_meshes_close_as_the_reference_through_the_hashed_buckets(faces, seed, limit):
+    """As test_random_meshes_close_as_the_reference with LARGE_BUCKET at 0 to 2: the fins and the columns of every
+    bucket (or of most) found through the hashes of their whole key."""
+    rng = np.random.default_rng(seed)
+    faces = np.array(faces, np.int64)
+    vertices = np.column_stack([rng.integers(0, 3, size=(10, 2)), rng.integers(0, 3, size=10)]).astype(float)
+    terrace = rng.random(len(faces)) < 0.5
+    old = mesh_module.LARGE_BUCKET
+    mesh_module.LARGE_BUCKET = limit
+    try:
+        _assert_same(vertices, faces, terrace, -1.0)
+    finally:
+        mesh_module.LARGE_BUCKET = old
+
+
+@pytest.mark.parametrize("limit", [0, 1])
+def test_the_sample_dem_with_holes_through_the_hashed_buckets_equals_the_reference(limit):
+    h = np.asarray(st.sample_dem().heights[:60, :70], np.float32).copy()
+    h[10:20, 10:25] = np.nan
+    h[30, 30] = h[31, 31] = np.nan
+    old = mesh_module.LARGE_BUCKET
+    mesh_module.LARGE_BUCKET = limit
+    try:
+        got = _assert_same(*_surface(h, interval=10.0))
+    finally:
+        mesh_module.LARGE_BUCKET = old
+    assert got is not None
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_fins_through_the_hashed_buckets_equal_the_reference(seed):
+    rng = np.random.default_rng(seed)
+    h = np.round(rng.normal(0.0, 2.0, size=(30, 40)).cumsum(0).cumsum(1)).astype(np.float32)
+    old = mesh_module.LARGE_BUCKET
+    mesh_module.LARGE_BUCKET = 0
+    try:
+        got = _assert_same(*_surface(h, interval=2.0, nudged=False))
+    finally:
+        mesh_module.LARGE_BUCKET = old
+    assert got is not None and not got[2].all()
