@@ -16,8 +16,6 @@ import numpy as np
 import trimesh
 import warp as wp
 from numpy.typing import NDArray
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from ._compaction import MAX_INT32
 from ._device import (
@@ -445,6 +443,9 @@ def _split_pinches(
     to keep the copies apart where rows are keyed by xy, and the vertex each appended copy copies (empty when none
     was split). ``edges`` are the surface's boundary edges (:func:`boundary_edges`).
     """
+    from scipy.sparse import coo_matrix  # a dependency; imported here, not with the package (~0.1 s)
+    from scipy.sparse.csgraph import connected_components
+
     n = len(vertices)
     fan = np.zeros(n, np.float64)
     none = np.zeros(0, np.int64)
