@@ -1754,3 +1754,31 @@ async def _sleep_briefly() -> None:
     import asyncio
 
     await asyncio.sleep(0.01)
+
+
+@pytest.mark.parametrize("height_range", [(1e7, 1e7 + 3.0), (-2e7 - 3.0, -2e7), (3e6, 3e6 + 0.25), (0.0, 11.4),
+                                          (315.0, 2295.0)])
+def test_default_interval_is_one_float32_holds(height_range):
+    """The default interval (``nice_interval``, steps' and batch's when neither --interval nor --levels is given)
+    aimed at ~15 steps whatever float32 holds: heights 1e7 to 1e7 + 3 (float32 steps of 1 there) got 0.2, which
+    ``isovalues`` refused as too small, so ``stepterrain steps dem.npy`` failed naming an --interval nobody gave."""
+    interval = st.stepped.nice_interval(height_range)
+    values = st.isovalues(height_range, interval=interval)  # raised InvalidInputError
+    assert values[0] <= np.float32(height_range[0]) and values[-1] >= np.float32(height_range[1])
+    mantissa = interval / 10.0 ** math.floor(math.log10(interval))
+    assert any(math.isclose(mantissa, m) for m in (1.0, 2.0, 2.5, 5.0))
+    if height_range == (315.0, 2295.0):
+        assert interval == 100.0  # ranges float32 resolves as they are keep their interval
+
+
+def test_steps_default_interval_on_heights_far_from_zero(tmp_path, capsys):
+    """``stepterrain steps`` without --interval on a DEM of heights 1e7 to 1e7 + 3 (a survey's offset heights in mm,
+    say) stepped instead of refusing the interval it picked itself; every vertex on an isovalue (γ = 1)."""
+    heights = (1e7 + np.random.default_rng(0).random((12, 14)) * 3.0).astype(np.float32)
+    np.save(tmp_path / "offset.npy", heights)
+    code, _, err = run(capsys, "steps", tmp_path / "offset.npy", "-o", tmp_path / "offset.ply")
+    assert code == 0, err
+    assert "using --interval" in err
+    mesh = st.export.read_mesh(tmp_path / "offset.ply")
+    levels = np.asarray(mesh.metadata["isovalues"], dtype=np.float32)
+    assert len(mesh.faces) > 0 and np.isin(mesh.vertices[:, 2].astype(np.float32), levels).all()
