@@ -1782,3 +1782,23 @@ def test_steps_default_interval_on_heights_far_from_zero(tmp_path, capsys):
     mesh = st.export.read_mesh(tmp_path / "offset.ply")
     levels = np.asarray(mesh.metadata["isovalues"], dtype=np.float32)
     assert len(mesh.faces) > 0 and np.isin(mesh.vertices[:, 2].astype(np.float32), levels).all()
+
+
+def test_floor_help_tells_the_default_with_levels(tmp_path, capsys):
+    """``steps --help`` said --floor defaults to "one step below"; with --levels 1000,1200 (a step of 200) the solid
+    was closed 20 below (a tenth of the levels' span), and with one level 0.1 below: a slab, not a step. The help
+    now says so, and the floors are what it says."""
+    code, out, _ = run(capsys, "steps", "--help")
+    assert code == 0
+    text = " ".join(out.split())
+    assert "--levels a tenth of their span, at least 0.1" in text
+    heights = np.array([[1050.0, 1100.0, 1150.0], [1120.0, 1190.0, 1210.0]], dtype=np.float32)
+    np.save(tmp_path / "hill.npy", heights)
+    for levels, floor in (("1000,1200", 980.0), ("1100", 1099.9)):
+        out = tmp_path / f"solid{len(levels)}.ply"
+        code, _, err = run(capsys, "steps", tmp_path / "hill.npy", "--levels", levels, "--solid", "-o", out)
+        assert code == 0, err
+        assert st.export.read_mesh(out).vertices[:, 2].min() == pytest.approx(floor)
+    code, _, err = run(capsys, "steps", tmp_path / "hill.npy", "--interval", "200", "--solid", "-o", tmp_path / "i.ply")
+    assert code == 0, err
+    assert st.export.read_mesh(tmp_path / "i.ply").vertices[:, 2].min() == 800.0  # the lowest isovalue 1000, less 200
