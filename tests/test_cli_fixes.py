@@ -1802,3 +1802,22 @@ def test_floor_help_tells_the_default_with_levels(tmp_path, capsys):
     code, _, err = run(capsys, "steps", tmp_path / "hill.npy", "--interval", "200", "--solid", "-o", tmp_path / "i.ply")
     assert code == 0, err
     assert st.export.read_mesh(tmp_path / "i.ply").vertices[:, 2].min() == 800.0  # the lowest isovalue 1000, less 200
+
+
+def test_closeup_help_names_what_obj_keeps_of_the_anchors(tmp_path, capsys):
+    """``closeup -o`` said every mesh format but .stl holds the scene's vertex colours; an .obj's ``v x y z r g b``
+    lines drop the alpha, so its anchors (transparent by their transfer function in .glb, .ply, .3mf) come out
+    opaque. The help now says so, and the file is as it says."""
+    code, out, _ = run(capsys, "closeup", "--help")
+    assert code == 0
+    assert ".obj holds RGB only, the anchors opaque" in " ".join(out.split())
+    heights = np.add.outer(np.linspace(0.0, 40.0, 24), np.linspace(0.0, 30.0, 28)).astype(np.float32)
+    np.save(tmp_path / "hill.npy", heights)
+    alphas = {}
+    for ext in (".ply", ".obj"):
+        out_path = tmp_path / f"scene{ext}"
+        code, _, err = run(capsys, "closeup", tmp_path / "hill.npy", "--roi-relative", "0.5,0.5,0.25",
+                           "--anchor", "linear", "-o", out_path)
+        assert code == 0, err
+        alphas[ext] = st.export.read_mesh(out_path).visual.vertex_colors[:, 3]
+    assert (alphas[".ply"] < 255).any() and (alphas[".obj"] == 255).all()
