@@ -133,8 +133,8 @@ def add_parser(commands: Any) -> None:
                         "once more first, for their common height range, recorded for reruns)")
     p.add_argument("--solid", action="store_true", help="watertight solids (for .stl/.3mf printing)")
     p.add_argument("--floor", type=float, metavar="Z",
-                   help="base height of --solid (default: one step under the whole raster, series or folder, "
-                        "shared by every item)")
+                   help="base height of --solid (default: one --interval under the whole raster, series or "
+                        "folder, with --levels a tenth of their span (at least 0.1), shared by every item)")
     p.add_argument("--scheduler", metavar="ADDR",
                    help="an existing dask scheduler, e.g. tcp://host:8786; 'serial' runs in this process "
                         "(default: a LocalCluster of --workers processes)")

@@ -88,7 +88,8 @@ def add_parser(commands: Any) -> None:
     _add_device(p)
     p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
                    help="the rendered image (.png), or the scene as a mesh by extension: " + " ".join(MESH_EXTENSIONS)
-                   + " (overview, close-ups and anchors with vertex colors; .stl holds no colors)")
+                   + " (overview, close-ups and anchors with vertex colors, the anchors' transparency in their "
+                     "alpha; .obj holds RGB only, the anchors opaque; .stl holds no colors)")
     p.add_argument("--png", type=_path, metavar="OUT.png", help="also write the render here (with a mesh --output)")
     p.add_argument("--size", type=_window, default=None, metavar="WxH",
                    help="image size of the render and the animation (default 1280x720)")

@@ -502,7 +502,9 @@ def _add_steps(commands: Any) -> None:
     p.add_argument("--lens-edge", type=float, metavar="W", help="width of the lens' soft edge (default r/4)")
     p.add_argument("--solid", action="store_true",
                    help="close into a watertight solid (side skirts and a base)")
-    p.add_argument("--floor", type=float, metavar="Z", help="base height of --solid (default one step below)")
+    p.add_argument("--floor", type=float, metavar="Z",
+                   help="base height of --solid (default one --interval below the lowest isovalue or surface "
+                        "point, whichever is lower; with --levels a tenth of their span, at least 0.1, below it)")
     p.add_argument("--colormap", default=None, metavar="NAME",
                    help="matplotlib colormap for the level colors, or 'none' (default terrain, land part)")
     _add_device(p)

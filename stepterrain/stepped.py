@@ -248,12 +248,17 @@ TARGET_STEPS = 15
 
 
 def nice_interval(height_range: tuple[float, float], target: int = TARGET_STEPS) -> float:
-    """A round interval (1, 2, 2.5 or 5 times a power of ten) giving about ``target`` steps over the range.
+    """A round interval (1, 2, 2.5 or 5 times a power of ten) giving about ``target`` steps over the range, and
+    no finer than float32 resolves at the heights: at least 8 float32 steps of the larger |height| (the kernels'
+    isovalues are float32, and :func:`isovalues` refuses levels too close to be told apart), so heights from 1e7 to
+    1e7 + 3 get 10, where ~15 steps (0.2) would be refused.
 
     >>> nice_interval((315.0, 2295.0))
     100.0
     >>> nice_interval((0.0, 1.0))
     0.05
+    >>> nice_interval((1e7, 1e7 + 3.0))
+    10.0
     """
     lo, hi = height_range
     span = hi - lo
@@ -262,6 +267,12 @@ def nice_interval(height_range: tuple[float, float], target: int = TARGET_STEPS)
     exponent = math.floor(math.log10(span / target))
     candidates = [m * 10.0**e for e in (exponent - 1, exponent, exponent + 1) for m in (1.0, 2.0, 2.5, 5.0)]
     best = min(candidates, key=lambda c: abs(math.log(span / c / target)))
+    # 8 float32 steps: one more binade above the heights (the top isovalue) doubles the step, and rounding
+    # base + k * interval to float32 takes one more, leaving the levels at least 2 steps apart (_unseparated)
+    finest = 8.0 * float(np.spacing(np.float32(max(abs(lo), abs(hi)))))
+    if best < finest:
+        low = math.floor(math.log10(finest))
+        best = min(c for c in (m * 10.0**e for e in (low, low + 1) for m in (1.0, 2.0, 2.5, 5.0)) if c >= finest)
     return float(f"{best:.6g}")
 
 

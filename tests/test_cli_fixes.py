@@ -1754,3 +1754,70 @@ async def _sleep_briefly() -> None:
     import asyncio
 
     await asyncio.sleep(0.01)
+
+
+@pytest.mark.parametrize("height_range", [(1e7, 1e7 + 3.0), (-2e7 - 3.0, -2e7), (3e6, 3e6 + 0.25), (0.0, 11.4),
+                                          (315.0, 2295.0)])
+def test_default_interval_is_one_float32_holds(height_range):
+    """The default interval (``nice_interval``, steps' and batch's when neither --interval nor --levels is given)
+    aimed at ~15 steps whatever float32 holds: heights 1e7 to 1e7 + 3 (float32 steps of 1 there) got 0.2, which
+    ``isovalues`` refused as too small, so ``stepterrain steps dem.npy`` failed naming an --interval nobody gave."""
+    interval = st.stepped.nice_interval(height_range)
+    values = st.isovalues(height_range, interval=interval)  # raised InvalidInputError
+    assert values[0] <= np.float32(height_range[0]) and values[-1] >= np.float32(height_range[1])
+    mantissa = interval / 10.0 ** math.floor(math.log10(interval))
+    assert any(math.isclose(mantissa, m) for m in (1.0, 2.0, 2.5, 5.0))
+    if height_range == (315.0, 2295.0):
+        assert interval == 100.0  # ranges float32 resolves as they are keep their interval
+
+
+def test_steps_default_interval_on_heights_far_from_zero(tmp_path, capsys):
+    """``stepterrain steps`` without --interval on a DEM of heights 1e7 to 1e7 + 3 (a survey's offset heights in mm,
+    say) stepped instead of refusing the interval it picked itself; every vertex on an isovalue (γ = 1)."""
+    heights = (1e7 + np.random.default_rng(0).random((12, 14)) * 3.0).astype(np.float32)
+    np.save(tmp_path / "offset.npy", heights)
+    code, _, err = run(capsys, "steps", tmp_path / "offset.npy", "-o", tmp_path / "offset.ply")
+    assert code == 0, err
+    assert "using --interval" in err
+    mesh = st.export.read_mesh(tmp_path / "offset.ply")
+    levels = np.asarray(mesh.metadata["isovalues"], dtype=np.float32)
+    assert len(mesh.faces) > 0 and np.isin(mesh.vertices[:, 2].astype(np.float32), levels).all()
+
+
+def test_floor_help_tells_the_default_with_levels(tmp_path, capsys):
+    """``steps --help`` said --floor defaults to "one step below"; with --levels 1000,1200 (a step of 200) the solid
+    was closed 20 below (a tenth of the levels' span), and with one level 0.1 below: a slab, not a step. The help
+    now says so, and the floors are what it says."""
+    code, out, _ = run(capsys, "steps", "--help")
+    assert code == 0
+    text = " ".join(out.split())
+    assert "--levels a tenth of their span, at least 0.1" in text
+    heights = np.array([[1050.0, 1100.0, 1150.0], [1120.0, 1190.0, 1210.0]], dtype=np.float32)
+    np.save(tmp_path / "hill.npy", heights)
+    for levels, floor in (("1000,1200", 980.0), ("1100", 1099.9)):
+        out = tmp_path / f"solid{len(levels)}.ply"
+        code, _, err = run(capsys, "steps", tmp_path / "hill.npy", "--levels", levels, "--solid", "-o", out)
+        assert code == 0, err
+        assert st.export.read_mesh(out).vertices[:, 2].min() == pytest.approx(floor)
+    code, _, err = run(capsys, "steps", tmp_path / "hill.npy", "--interval", "200", "--solid", "-o", tmp_path / "i.ply")
+    assert code == 0, err
+    assert st.export.read_mesh(tmp_path / "i.ply").vertices[:, 2].min() == 800.0  # the lowest isovalue 1000, less 200
+
+
+def test_closeup_help_names_what_obj_keeps_of_the_anchors(tmp_path, capsys):
+    """``closeup -o`` said every mesh format but .stl holds the scene's vertex colours; an .obj's ``v x y z r g b``
+    lines drop the alpha, so its anchors (transparent by their transfer function in .glb, .ply, .3mf) come out
+    opaque. The help now says so, and the file is as it says."""
+    code, out, _ = run(capsys, "closeup", "--help")
+    assert code == 0
+    assert ".obj holds RGB only, the anchors opaque" in " ".join(out.split())
+    heights = np.add.outer(np.linspace(0.0, 40.0, 24), np.linspace(0.0, 30.0, 28)).astype(np.float32)
+    np.save(tmp_path / "hill.npy", heights)
+    alphas = {}
+    for ext in (".ply", ".obj"):
+        out_path = tmp_path / f"scene{ext}"
+        code, _, err = run(capsys, "closeup", tmp_path / "hill.npy", "--roi-relative", "0.5,0.5,0.25",
+                           "--anchor", "linear", "-o", out_path)
+        assert code == 0, err
+        alphas[ext] = st.export.read_mesh(out_path).visual.vertex_colors[:, 3]
+    assert (alphas[".ply"] < 255).any() and (alphas[".obj"] == 255).all()
