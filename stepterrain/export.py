@@ -1801,7 +1801,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         counts, an ASCII one's ``solid`` ... ``endsolid``), and an ``.obj`` that trimesh reads as no vertices an empty
         one (OBJ statements and comments only), and a ``.ply`` must hold the rows its header declares: an STL or
         ASCII PLY cut short, or a file of another format under the extension, is refused, and so is a face naming a
-        vertex the file does not have (a PLY's or glTF's index as stored).
+        vertex the file does not have (a PLY's or glTF's index as stored), and so are a ``.glb`` that is empty, not a
+        GLB or shorter than its header counts, and a glTF without a scene, each said so.
     """
     file = _target(path)
     require_regular_file(file, "mesh file", "mesh file")
@@ -2023,7 +2024,15 @@ def _check_dense_gltf(file: Path) -> dict[str, Any] | None:
             if file.suffix.lower() == ".gltf" and head[:4] == b"glTF":
                 raise ValueError("a GLB (binary glTF: it starts with b'glTF') under the extension .gltf, which names "
                                  "the JSON form: rename it .glb")
-            if head[:4] == b"glTF" and len(head) == 20:
+            if file.suffix.lower() == ".glb" and head[:4] != b"glTF":  # trimesh's reader: IndexError, "header"
+                raise ValueError("not a GLB: an empty file" if not head else
+                                 f"not a GLB: a binary glTF starts with b'glTF'; this file with {head[:4]!r}")
+            if head[:4] == b"glTF":  # glTF 2.0 §4.4.2: the header's third uint32 counts the whole file's bytes
+                declared = struct.unpack_from("<I", head, 8)[0] if len(head) >= 12 else None
+                size = file.stat().st_size
+                if len(head) < 20 or (declared is not None and size < declared):
+                    counts = "" if declared is None else f"its header counts {declared:,} bytes, "
+                    raise ValueError(f"a GLB cut short: {counts}the file has {size:,}")
                 tree = _glb_json(stream, head)
             elif file.suffix.lower() == ".gltf":
                 text = head + stream.read()
@@ -2034,6 +2043,9 @@ def _check_dense_gltf(file: Path) -> dict[str, Any] | None:
                     raise ValueError(f"not a glTF file: its JSON does not parse ({why})") from None
             else:
                 return None  # not a GLB: trimesh's reader says so
+        if isinstance(tree, dict) and not tree.get("scenes"):  # trimesh's reader: KeyError 'world'
+            raise ValueError("the glTF holds no scene ('scenes' missing or empty; glTF 2.0 §3.5): no node places a "
+                             "mesh in its world")
         required = set(tree.get("extensionsRequired") or [])
         if "KHR_draco_mesh_compression" in required and importlib.util.find_spec("DracoPy") is None:
             raise ValueError("the glTF's meshes are Draco-compressed (KHR_draco_mesh_compression), which trimesh's "

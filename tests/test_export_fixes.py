@@ -465,7 +465,7 @@ def test_metadata_that_holds_itself_is_refused_or_written_as_text(tmp_path):
     [
         ("face.obj", b"v 1 2\nf 1 2 3\n", "IndexError"),
         ("columns.ply", b"ply\nformat ascii 1.0\nelement vertex 99999999999\nend_header\n", "KeyError"),
-        ("empty.glb", b"", "IndexError"),
+        ("empty.glb", b"", "ValueError: not a GLB: an empty file$"),
         ("notes.txt", b"hello", "NotImplementedError"),
         ("broken.3mf", b"PK\x03\x04garbage", "BadZipFile"),
     ],
@@ -478,6 +478,30 @@ def test_read_mesh_words_a_file_it_cannot_read_as_a_data_file_error(tmp_path, na
     path.write_bytes(content)
     with pytest.raises(DataFileError, match=rf"^cannot read '.*{name}' as a mesh: {kind}"):
         read_mesh(path)
+
+
+def test_read_mesh_says_a_glb_is_cut_short_or_not_one_and_a_gltf_holds_no_scene(tmp_path):
+    """A GLB cut short said json's "Unterminated string" (or "Expecting value"), an empty one trimesh's IndexError, a
+    glTF of meshes without a scene trimesh's KeyError 'world': now what is wrong with the file."""
+    from stepterrain.export import read_mesh
+
+    whole = save_mesh(trimesh.creation.box(), tmp_path / "box.glb").read_bytes()
+    for keep in (len(whole) // 2, 40, 16):
+        cut = tmp_path / f"cut{keep}.glb"
+        cut.write_bytes(whole[:keep])
+        counts = "" if keep < 12 else f"its header counts {len(whole):,} bytes, "
+        said = rf"as a mesh: ValueError: a GLB cut short: {counts}the file has {keep}$"
+        with pytest.raises(DataFileError, match=said):
+            read_mesh(cut)
+    assert len(read_mesh(tmp_path / "box.glb").faces) == 12
+    tree = json.loads(save_mesh(trimesh.creation.box(), tmp_path / "box.gltf").read_text())
+    for drop in (("scene", "scenes"), ("scene", "scenes", "nodes")):
+        (tmp_path / "bare.gltf").write_text(json.dumps({k: v for k, v in tree.items() if k not in drop}))
+        with pytest.raises(DataFileError, match=r"as a mesh: ValueError: the glTF holds no scene \('scenes' missing"):
+            read_mesh(tmp_path / "bare.gltf")
+    (tmp_path / "json.glb").write_text(json.dumps(tree))
+    with pytest.raises(DataFileError, match=r"not a GLB: a binary glTF starts with b'glTF'; this file with b'\{"):
+        read_mesh(tmp_path / "json.glb")
 
 
 def test_read_mesh_checks_its_path(tmp_path):
