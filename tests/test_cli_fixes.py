@@ -1754,3 +1754,33 @@ async def _sleep_briefly() -> None:
     import asyncio
 
     await asyncio.sleep(0.01)
+
+
+def test_closeup_color_takes_r_g_b_as_its_message_says(tmp_path, capsys):
+    """``closeup --color`` refused ``1,0,0`` with "--color must be a matplotlib color (name, '#rrggbb' or RGB in
+    [0, 1])": the message offered RGB, which no command line could give (matplotlib reads the string "1,0,0" as no
+    color). ``r,g,b`` in [0, 1] is now that color: the scene is the one ``--color red`` gives, and one out of [0, 1]
+    is refused naming the option."""
+    base = ["-q", "closeup", "--coarsen", "8", "--roi-relative", "0.5,0.5,0.15", "--device", "cpu"]
+    code, _, err = run(capsys, *base, "--color", "1,0,0", "-o", tmp_path / "rgb.ply")
+    assert code == 0, err
+    assert run(capsys, *base, "--color", "red", "-o", tmp_path / "named.ply")[0] == 0
+    rgb, named = (st.export.read_mesh(tmp_path / f"{name}.ply") for name in ("rgb", "named"))
+    assert np.array_equal(rgb.visual.vertex_colors, named.visual.vertex_colors)
+    anchor = (rgb.visual.vertex_colors[:, :3] == (255, 0, 0)).all(axis=1)
+    assert anchor.any()
+    for bad in ("1,2,0", "nan,0,0"):  # NaN: matplotlib took it, a colour cast from NaN with a warning, exit 0
+        code, _, err = run(capsys, *base, "--color", bad, "-o", tmp_path / "bad.ply")
+        assert code == 2
+        assert one_error_line(err, "closeup").startswith("stepterrain closeup: error: --color must be a matplotlib "
+                                                         "color")
+        assert not (tmp_path / "bad.ply").exists()
+
+
+def test_a_closeup_color_of_nan_is_refused():
+    """matplotlib's to_rgb passes NaN in a tuple through: CloseUp(color=(nan, 0, 0)) was accepted, and its anchor's
+    colour cast from NaN ('invalid value encountered in cast') at the render or the scene."""
+    from stepterrain.closeup import ROI, CloseUp
+
+    with pytest.raises(st.errors.InvalidInputError, match=r"close-up color must be a matplotlib color .*nan"):
+        CloseUp(ROI.circle((0.0, 0.0), 1.0), color=(math.nan, 0.0, 0.0))
