@@ -1784,3 +1784,34 @@ def test_a_closeup_color_of_nan_is_refused():
 
     with pytest.raises(st.errors.InvalidInputError, match=r"close-up color must be a matplotlib color .*nan"):
         CloseUp(ROI.circle((0.0, 0.0), 1.0), color=(math.nan, 0.0, 0.0))
+
+
+@pytest.mark.parametrize("command", ["texture", "globe"])
+@pytest.mark.parametrize("side", ["image", "mtl"])
+def test_a_textured_obj_whose_side_file_is_a_folder_is_refused_before_any_work(capsys, tmp_path, command, side):
+    """A folder where a textured OBJ writes its .mtl or texture image (``t_terrain_texture.png``, the globe's
+    ``t_material_0.png``) failed "cannot write ...: it is a folder" only after all the work: ``texture -o t.png
+    --mesh t.obj`` had written t.png already, and the globe's --png render. Refused before any work now, as a folder
+    at an output's own name is, naming the option and the side file."""
+    from PIL import Image
+
+    obj = tmp_path / "t.obj"
+    if command == "texture":
+        dem = tmp_path / "dem.npy"
+        np.save(dem, np.random.default_rng(0).random((12, 14)) * 100)
+        args = ["texture", dem, "-o", tmp_path / "t.png", "--mesh", obj]
+        option, image = "--mesh", "t_terrain_texture.png"
+    else:
+        picture = tmp_path / "earth.png"
+        Image.fromarray(np.full((32, 64, 3), (200, 30, 30), np.uint8)).save(picture)
+        args = ["globe", "--face-size", "9", "--texture", picture, "-o", obj, "--png", tmp_path / "r.png",
+                "--size", "64x48"]
+        option, image = "--output", "t_material_0.png"
+    name = image if side == "image" else "t.mtl"
+    (tmp_path / name).mkdir()
+    before = sorted(p.name for p in tmp_path.iterdir())
+    code, _, err = run(capsys, "-q", *args, "--device", "cpu")
+    assert code == 2, err
+    line = one_error_line(err, command)
+    assert f"{option} {str(obj)!r} writes {name!r} beside it" in line and "a folder" in line, line
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # nothing written
