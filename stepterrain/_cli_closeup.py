@@ -44,6 +44,18 @@ class _RoiAction(argparse.Action):
         namespace.rois = [*(getattr(namespace, "rois", None) or []), (self.dest, values)]
 
 
+def _color_option(text: str) -> str | tuple[float, ...]:
+    """--color: ``r,g,b`` (numbers, in [0, 1] as CloseUp checks) as that RGB tuple, any other text as matplotlib reads
+    it (a name, '#rrggbb'); matplotlib reads no "1,0,0", which the refusal's "RGB in [0, 1]" offered."""
+    parts = text.split(",")
+    if len(parts) == 3:
+        try:
+            return tuple(float(part) for part in parts)
+        except ValueError:
+            pass
+    return text
+
+
 def add_parser(commands: Any) -> None:
     """Add the ``closeup`` subcommand to the ``stepterrain`` parser."""
     from .cli import _add_device, _add_input_options, _floats, _path, _window
@@ -71,7 +83,8 @@ def add_parser(commands: Any) -> None:
                    help="close-up displacement in world units (default: lifted by a fifth of the extent)")
     p.add_argument("--rotation", type=_floats(2, "alpha,beta (degrees)"), action="append", metavar="a,b",
                    help="tilt about x and turn about the vertical, degrees (default 0,0; whole turns are taken off)")
-    p.add_argument("--color", action="append", metavar="COLOR", help="close-up color (default: a palette)")
+    p.add_argument("--color", type=_color_option, action="append", metavar="COLOR",
+                   help="close-up color: a matplotlib name, #rrggbb or r,g,b in [0, 1] (default: a palette)")
     p.add_argument("--stepped", type=float, action="append", metavar="INTERVAL",
                    help="the close-up shows the stepped terrain at this interval (a mapping of its own: multi-pass "
                         "forward rendering, MPFR); 0: continuous")

@@ -612,12 +612,16 @@ def _name_max(folder: Path) -> int:
 def _check_side_files(option: str, path: Path, sides: list[Path], inputs: dict[str, str | None],
                       outputs: dict[str, Path | None]) -> None:
     """Refuse, before any work, a side file ``sides`` of the output ``option`` ``path`` (a textured OBJ's .mtl and
-    texture image, :func:`~stepterrain.export._side_files`) that is an input file (``inputs``: name -> path) or
-    another output (``outputs``: option -> path). ``texture --image terrain_texture.png --mesh terrain.obj`` replaced
+    texture image, :func:`~stepterrain.export._side_files`) that is an input file (``inputs``: name -> path),
+    another output (``outputs``: option -> path), or a folder, named pipe or device (the write refused it after all the
+    work, the other outputs written). ``texture --image terrain_texture.png --mesh terrain.obj`` replaced
     the orthophoto given with the OBJ's texture image of the same name, without a word; ``-o terrain_texture.png
     --mesh terrain.obj`` wrote the texture and then refused the mesh. A side file's name longer than its folder
     allows (``PC_NAME_MAX``, else 255 bytes: ``<stem>_terrain_texture.png`` of a long stem) is refused too: it failed
     only after all the work, and after the other outputs were written."""
+    from .errors import DataFileError
+    from .export import _special_file_kind
+
     for side in sides:
         key = Path(os.path.abspath(side))
         limit = _name_max(key.parent)
@@ -626,6 +630,12 @@ def _check_side_files(option: str, path: Path, sides: list[Path], inputs: dict[s
                 f"{option} {str(path)!r} writes {key.name!r} beside it (its "
                 f"{'material' if key.suffix.lower() == '.mtl' else 'texture image'}), a name of "
                 f"{len(os.fsencode(key.name))} bytes, over the {limit} its folder allows; give {option} a shorter name")
+        kind = _special_file_kind(key, folders=True)
+        if kind is not None:  # refused by the write, but only after all the work and the other outputs written
+            raise DataFileError(
+                f"{option} {str(path)!r} writes {key.name!r} beside it (its "
+                f"{'material' if key.suffix.lower() == '.mtl' else 'texture image'}), which is a {kind}, not a "
+                f"regular file; remove it or give {option} another name")
         for name, given in [*inputs.items(), *outputs.items()]:
             if not given:
                 continue

@@ -665,10 +665,14 @@ def _color(value: Any, name: str) -> tuple[float, float, float]:
     import matplotlib.colors
 
     try:
-        return tuple(float(c) for c in matplotlib.colors.to_rgb(value))  # type: ignore[return-value]
+        rgb = tuple(float(c) for c in matplotlib.colors.to_rgb(value))
     except (ValueError, TypeError) as exc:
         raise InvalidInputError(f"{name} must be a matplotlib color (name, '#rrggbb' or RGB in [0, 1]); "
                                 f"got {value!r}") from exc
+    if not all(0.0 <= c <= 1.0 for c in rgb):  # matplotlib takes NaN in a tuple: a colour cast from NaN, with a warning
+        raise InvalidInputError(f"{name} must be a matplotlib color (name, '#rrggbb' or RGB in [0, 1]); "
+                                f"got {value!r}")
+    return rgb  # type: ignore[return-value]
 
 
 @dataclass(frozen=True, eq=False)

@@ -1548,11 +1548,12 @@ def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trim
     Each vertex gets u = (λ + 180°) / 360°, v = (φ + 90°) / 180° from its direction (row 0 of the image at
     90° N, column 0 at 180° W; v up, as trimesh stores UVs). A face across the antimeridian gets copies of
     its western corners at u + 1 (glTF's default REPEAT wrap), so no face spans the whole image; a corner
-    at a pole gets a copy per face with the mean u of the face's other corners. The copies sit exactly on
-    the original positions, so the surface stays crack-free; faces, their order and ``face_attributes`` are
-    unchanged. The material's ``wrap`` is ("REPEAT", "CLAMP_TO_EDGE"): GLB/glTF exports give the texture a sampler
-    that repeats the image in u (longitude) and clamps it in v, and renders sample it so, so that no pole's colour
-    blends with the other pole's in the mipmaps.
+    at a pole gets a copy per face with the mean u of the face's other corners (the pole vertex itself serves the
+    first such face, as does any vertex whose every face takes a copy: every vertex is a face's corner). The copies
+    sit exactly on the original positions, so the surface stays crack-free; the mesh's vertices keep their indices,
+    and faces, their order and ``face_attributes`` are unchanged. The material's ``wrap`` is ("REPEAT",
+    "CLAMP_TO_EDGE"): GLB/glTF exports give the texture a sampler that repeats the image in u (longitude) and clamps
+    it in v, and renders sample it so, so that no pole's colour blends with the other pole's in the mipmaps.
 
     Raises
     ------
@@ -1609,6 +1610,26 @@ def _drape_texture(mesh: trimesh.Trimesh, pixels: NDArray[np.uint8], picture: An
     new_faces[pole_rows, pole_cols] = len(vertices) + len(shifted) + np.arange(len(pole_rows))
     sources = np.concatenate([np.arange(len(vertices)), shifted, faces[pole_rows, pole_cols]])
     uv = np.column_stack([np.concatenate([u, u[shifted] + 1.0, corner_u[pole_rows, pole_cols]]), v[sources]])
+    # a vertex every face of which now uses a copy (a pole vertex, always) takes the place of its first copy: no face
+    # used it, yet the GLB kept it (stepterrain info counted it) and trimesh's OBJ reader dropped it (the two read
+    # back with other counts); the input's vertices keep their indices
+    n = len(vertices)
+    used = np.zeros(len(sources), dtype=bool)
+    used[new_faces.reshape(-1)] = True
+    unused = np.zeros(n, dtype=bool)
+    unused[faces.reshape(-1)] = True
+    unused &= ~used[:n]
+    if unused.any():
+        orphans = np.flatnonzero(unused)
+        copied, first = np.unique(sources[n:], return_index=True)  # each original's first copy
+        taken = n + first[np.searchsorted(copied, orphans)]
+        uv[orphans] = uv[taken]
+        kept = np.ones(len(sources), dtype=bool)
+        kept[taken] = False
+        index = np.cumsum(kept) - 1
+        index[taken] = orphans
+        new_faces = index[new_faces]
+        sources, uv = sources[kept], uv[kept]
     out = trimesh.Trimesh(vertices[sources], new_faces, process=False, metadata=dict(mesh.metadata),
                           face_attributes={k: np.asarray(a) for k, a in mesh.face_attributes.items()})  # fmt: skip
     out.metadata.pop("node_entry", None)  # vertex -> node entry does not hold for the copies

@@ -1821,3 +1821,64 @@ def test_closeup_help_names_what_obj_keeps_of_the_anchors(tmp_path, capsys):
         assert code == 0, err
         alphas[ext] = st.export.read_mesh(out_path).visual.vertex_colors[:, 3]
     assert (alphas[".ply"] < 255).any() and (alphas[".obj"] == 255).all()
+
+
+def test_closeup_color_takes_r_g_b_as_its_message_says(tmp_path, capsys):
+    """``closeup --color`` refused ``1,0,0`` with "--color must be a matplotlib color (name, '#rrggbb' or RGB in
+    [0, 1])": the message offered RGB, which no command line could give (matplotlib reads the string "1,0,0" as no
+    color). ``r,g,b`` in [0, 1] is now that color: the scene is the one ``--color red`` gives, and one out of [0, 1]
+    is refused naming the option."""
+    base = ["-q", "closeup", "--coarsen", "8", "--roi-relative", "0.5,0.5,0.15", "--device", "cpu"]
+    code, _, err = run(capsys, *base, "--color", "1,0,0", "-o", tmp_path / "rgb.ply")
+    assert code == 0, err
+    assert run(capsys, *base, "--color", "red", "-o", tmp_path / "named.ply")[0] == 0
+    rgb, named = (st.export.read_mesh(tmp_path / f"{name}.ply") for name in ("rgb", "named"))
+    assert np.array_equal(rgb.visual.vertex_colors, named.visual.vertex_colors)
+    anchor = (rgb.visual.vertex_colors[:, :3] == (255, 0, 0)).all(axis=1)
+    assert anchor.any()
+    for bad in ("1,2,0", "nan,0,0"):  # NaN: matplotlib took it, a colour cast from NaN with a warning, exit 0
+        code, _, err = run(capsys, *base, "--color", bad, "-o", tmp_path / "bad.ply")
+        assert code == 2
+        assert one_error_line(err, "closeup").startswith("stepterrain closeup: error: --color must be a matplotlib "
+                                                         "color")
+        assert not (tmp_path / "bad.ply").exists()
+
+
+def test_a_closeup_color_of_nan_is_refused():
+    """matplotlib's to_rgb passes NaN in a tuple through: CloseUp(color=(nan, 0, 0)) was accepted, and its anchor's
+    colour cast from NaN ('invalid value encountered in cast') at the render or the scene."""
+    from stepterrain.closeup import ROI, CloseUp
+
+    with pytest.raises(st.errors.InvalidInputError, match=r"close-up color must be a matplotlib color .*nan"):
+        CloseUp(ROI.circle((0.0, 0.0), 1.0), color=(math.nan, 0.0, 0.0))
+
+
+@pytest.mark.parametrize("command", ["texture", "globe"])
+@pytest.mark.parametrize("side", ["image", "mtl"])
+def test_a_textured_obj_whose_side_file_is_a_folder_is_refused_before_any_work(capsys, tmp_path, command, side):
+    """A folder where a textured OBJ writes its .mtl or texture image (``t_terrain_texture.png``, the globe's
+    ``t_material_0.png``) failed "cannot write ...: it is a folder" only after all the work: ``texture -o t.png
+    --mesh t.obj`` had written t.png already, and the globe's --png render. Refused before any work now, as a folder
+    at an output's own name is, naming the option and the side file."""
+    from PIL import Image
+
+    obj = tmp_path / "t.obj"
+    if command == "texture":
+        dem = tmp_path / "dem.npy"
+        np.save(dem, np.random.default_rng(0).random((12, 14)) * 100)
+        args = ["texture", dem, "-o", tmp_path / "t.png", "--mesh", obj]
+        option, image = "--mesh", "t_terrain_texture.png"
+    else:
+        picture = tmp_path / "earth.png"
+        Image.fromarray(np.full((32, 64, 3), (200, 30, 30), np.uint8)).save(picture)
+        args = ["globe", "--face-size", "9", "--texture", picture, "-o", obj, "--png", tmp_path / "r.png",
+                "--size", "64x48"]
+        option, image = "--output", "t_material_0.png"
+    name = image if side == "image" else "t.mtl"
+    (tmp_path / name).mkdir()
+    before = sorted(p.name for p in tmp_path.iterdir())
+    code, _, err = run(capsys, "-q", *args, "--device", "cpu")
+    assert code == 2, err
+    line = one_error_line(err, command)
+    assert f"{option} {str(obj)!r} writes {name!r} beside it" in line and "a folder" in line, line
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # nothing written

@@ -1505,3 +1505,26 @@ def test_a_close_view_saved_by_the_library_is_stored_relative_to_its_eye(tmp_pat
     save_mesh(km, tmp_path / "km.glb")
     scale = np.abs(km.vertices).max()
     assert np.abs(read_mesh(tmp_path / "km.glb").vertices - km.vertices).max() <= 2.0**-23 * scale
+
+
+def test_a_globe_drape_leaves_no_vertex_unused_and_reads_back_with_its_counts(tmp_path):
+    """drape_texture gives each pole corner a copy of its own (one per face) but kept the pole vertex itself, which no
+    face used any more: two stray vertices in every drape of a whole globe, written into the GLB (``stepterrain info``
+    counted them) and dropped by trimesh's OBJ reader, so the GLB read back with two vertices more than the OBJ of
+    the same mesh. The pole vertex now serves its first face (every vertex a face's corner), and GLB, glTF and OBJ
+    read back with the mesh's counts; the surface is the same, the mesh's vertices at their indices."""
+    from stepterrain.export import read_mesh, save_mesh
+    from stepterrain.globe import drape_texture
+
+    mesh = Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=9, device="cpu").mesh()
+    textured = drape_texture(mesh, _two_pole_texture())
+    used = np.zeros(len(textured.vertices), dtype=bool)
+    used[textured.faces] = True
+    assert used.all(), f"{(~used).sum()} vertices no face uses"
+    assert np.array_equal(textured.vertices[textured.faces], mesh.vertices[mesh.faces])  # the same faces, in order
+    assert np.array_equal(textured.vertices[: len(mesh.vertices)], mesh.vertices)  # the mesh's vertices kept in place
+    uv = textured.visual.uv[textured.faces]
+    assert ((uv >= 0) & (uv[..., 1] <= 1)[..., None]).all() and (uv[..., 0] <= 2).all()
+    for suffix in (".glb", ".gltf", ".obj"):
+        back = read_mesh(save_mesh(textured, tmp_path / f"globe{suffix}"))
+        assert (len(back.vertices), len(back.faces)) == (len(textured.vertices), len(textured.faces)), suffix
