@@ -535,8 +535,8 @@ class Terrain:
     without points (N, 3) and faces (F, 3), whose edge tables are then rebuilt and whose ``heights`` must be None or
     its points' z) and takes a float32 copy of the arrays given, so that the caller's later changes to them cannot
     reach the cached uploads, nodata flag and height range; :meth:`from_heights` and :meth:`from_mesh` copy once
-    while checking. ``height_unit`` is the length unit a grid's heights were read in, as its source named it
-    (:func:`~stepterrain.io.load_dem`: ``height_unit=`` or the file's own; "ft", "m"), the heights being metres
+    while checking. ``height_unit`` is the length unit a grid's (or TIN's) heights were read in, as its source
+    named it (:func:`~stepterrain.io.load_dem`: ``height_unit=`` or the file's own; "ft", "m"), the heights being metres
     since; None when no unit was named: the heights are as stored. ``face_index``: a TIN's faces' rows in the mesh
     given (faces with nodata left out), kept where its visual holds face colours, which the steps carry (else None).
     """
@@ -659,7 +659,9 @@ class Terrain:
         they are metres whatever ``height_unit`` names (unlike ``load_dem(height_unit=...)``, which converts a
         file's); without ``height_unit`` a grid so converted warns that its heights are taken as given, as
         load_dem warns of a file's (heights in feet are the caller's to convert: ``heights * 1200 / 3937``,
-        ``height_unit="US survey foot"``).
+        ``height_unit="US survey foot"``). A projected ``crs`` whose map scale over the grid is more than 1 % off
+        the ground somewhere (Web Mercator far from the equator) warns, at the caller's line, as load_dem warns of
+        such a file.
         (``_borrow`` is internal: see :func:`as_terrain`; so is ``_placed``: ``crs``, ``spacing`` and ``origin`` of a
         grid placed already, a Terrain's own or :func:`~stepterrain.io.load_dem`'s, not looked up again.)"""
         crs = optional_text(crs, "crs", "e.g. 'EPSG:32611'")
