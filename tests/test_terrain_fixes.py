@@ -1084,9 +1084,11 @@ def test_a_grid_built_in_a_crs_in_feet_is_read_into_metres_as_load_dem_reads_the
     for t in (named, direct):
         assert (t.spacing, t.origin, t.crs) == (built.spacing, built.origin, built.crs)
         assert t.source.startswith("the heights (EPSG:2229 US survey foot as metres")
-    intl = st.Terrain.from_heights(heights, spacing=(step, -step), origin=(x0, y0), height_unit="m",
-                                   crs="+proj=tmerc +lat_0=0 +lon_0=-117 +k=0.9996 +x_0=500000 +y_0=0 +ellps=GRS80 "
-                                       "+units=ft +no_defs")
+    # x0 feet taken as international feet lie 1500 km east of that central meridian: its map scale warned of
+    with pytest.warns(UserWarning, match="is a projection whose metres are ground metres only near its standard"):
+        intl = st.Terrain.from_heights(heights, spacing=(step, -step), origin=(x0, y0), height_unit="m",
+                                       crs="+proj=tmerc +lat_0=0 +lon_0=-117 +k=0.9996 +x_0=500000 +y_0=0 "
+                                           "+ellps=GRS80 +units=ft +no_defs")
     assert intl.spacing == pytest.approx((step * 0.3048, -step * 0.3048), rel=1e-12)
     assert intl.origin == pytest.approx((x0 * 0.3048, y0 * 0.3048), rel=1e-12)
     again = st.Terrain.from_heights(heights, spacing=built.spacing, origin=built.origin, crs=built.crs)
@@ -1181,6 +1183,10 @@ def test_a_tin_in_degrees_is_read_into_local_metres_as_a_grid_in_degrees_is():
     with pytest.raises(InvalidInputError, match=r"^crs 'EPSG:4326' is geographic, so the mesh's x and y are read as "
                                                 r"degrees .* latitudes run from 4440000 to 4442670"):
         st.Terrain.from_mesh(_tin_of(heights, (30.0, -30.0), (480000.0, 4442670.0), "EPSG:4326"))
+    tall = _tin_of(np.zeros((200, 3), np.float32), (0.01, -0.01), (-105.0, 61.0), "EPSG:4326")  # 2 degrees at 60 N
+    with pytest.warns(UserWarning, match=r"^the mesh: EPSG:4326 degrees read as local metres with one spacing") as told:
+        st.Terrain.from_mesh(tall)  # the grid's warning of one spacing's drift, at the caller's line
+    assert told[0].filename == __file__
 
 
 def test_a_grid_from_heights_in_web_mercator_far_from_the_equator_warns_as_load_dem_does(tmp_path):
