@@ -1827,7 +1827,7 @@ def degrees_as_local_metres(
 
 def units_as_metres(
     spacing: tuple[float, float], origin: tuple[float, float], crs: str | None, source: str | None,
-    height_unit: str | None,
+    height_unit: str | None, *, what: str = "spacing and origin",
 ) -> tuple[tuple[float, float], tuple[float, float], str | None, str] | None:
     """For :meth:`Terrain.from_heights` (and a grid Terrain built directly) whose ``crs`` is projected (or a local
     engineering CRS) in a unit other than the metre (EPSG:2229 counts US survey feet): its ``spacing`` and ``origin``
@@ -1836,7 +1836,8 @@ def units_as_metres(
     geographic or unknown one, none, or without rasterio to look it up. Kept as given, a grid in feet was 3.28
     times wider than load_dem's of the same raster, its heights in metres standing on feet (slopes 3.28 times too
     steep). Without ``height_unit`` it warns, at the caller's line, that the heights are taken as given (metres):
-    from_heights converts no heights, so heights in that unit too are the caller's to convert."""
+    from_heights converts no heights, so heights in that unit too are the caller's to convert. ``what`` the warning
+    says was converted (a TIN's "x and y of its points": :func:`points_as_metres`)."""
     projected = _projected_units(crs) if crs else None
     if projected is None:
         return None
@@ -1844,7 +1845,7 @@ def units_as_metres(
     name = source or _GIVEN_GRID
     if height_unit is None:
         warnings.warn(
-            f"{name}: {crs} is in {unit} units, so spacing and origin were converted to metres; the heights are "
+            f"{name}: {crs} is in {unit} units, so {what} were converted to metres; the heights are "
             f"taken as given, as metres (height_unit is not named): if they are in {unit} too, convert them "
             f"(heights * {factor:.10g}) and pass height_unit={unit!r}, or height_unit='m' if they are metres",
             stacklevel=caller_stacklevel(),
@@ -1852,6 +1853,80 @@ def units_as_metres(
     (dx, dy), (x0, y0) = spacing, origin
     return ((dx * factor, dy * factor), (x0 * factor, y0 * factor), metre_crs,
             f"{name} ({crs} {unit} as metres: x {factor:.10g})")
+
+
+def check_projected_scale(
+    shape: tuple[int, int], spacing: tuple[float, float], origin: tuple[float, float], crs: str | None,
+    source: str | None,
+) -> None:
+    """For :meth:`Terrain.from_heights` (and a grid Terrain built directly) whose ``crs`` is projected: load_dem's
+    warning, at the caller's line, when the projection's map scale over the grid is far from 1
+    (:func:`_check_projected_metres`: Web Mercator at 60° N meshes the ground twice too large), ``spacing`` and
+    ``origin`` (node (0, 0)) in the CRS's own unit, as given. from_heights ran no such check, so the same grid
+    warned when load_dem read it as a GeoTIFF and not when built from its heights. Nothing for a geographic CRS
+    (:func:`degrees_as_local_metres` checks its degrees), none, or one PROJ cannot read."""
+    if not crs or _is_geographic(crs):
+        return
+    projected = _projected_units(crs)
+    _check_projected_metres(Path(_GIVEN_GRID), crs, origin, spacing, shape, 1.0 if projected is None else projected[1],
+                            name=source or _GIVEN_GRID)
+
+
+def points_as_metres(
+    xy: NDArray[np.float64], used: NDArray[np.bool_], crs: str | None, source: str | None, height_unit: str | None,
+) -> tuple[NDArray[np.float64], str | None, str] | None:
+    """For :meth:`Terrain.from_mesh` (and a TIN Terrain built directly) whose ``crs`` is geographic or projected in a
+    unit other than the metre: its points' ``xy`` (N, 2) made metres as a grid's spacing and origin are
+    (:func:`degrees_as_local_metres`, :func:`units_as_metres`, load_dem's placement) as (xy, crs, source); None for a
+    CRS in metres (its map scale over the points' extent checked as a grid's: :func:`check_projected_scale`), a local
+    ``+proj=eqc`` one (degrees placed already), an unknown one or none. ``used``: the points on the TIN's kept faces,
+    whose extent is the TIN's. Degrees become local metres of a spherical ``+proj=eqc`` CRS true at the points' middle
+    latitude, (0, 0) at their lowest longitude and latitude (load_dem's sphere and warnings; an InvalidInputError
+    when they are no degrees); another unit becomes metres, the CRS its metre twin, warning, at the caller's line,
+    when ``height_unit`` is None that the heights are taken as given. A TIN kept its degrees or feet under heights in
+    metres (slopes 10^5 or 3.28 times too steep) while the same surface as a grid was made metres."""
+    if not crs or crs.lstrip().lower().startswith("+proj=eqc"):
+        return None
+    name = source or "the mesh"
+    inside = xy[used]
+    low, high = inside.min(axis=0), inside.max(axis=0)
+    if _is_geographic(crs):
+        body = _geographic_body(crs)
+        lon = body.meridian + body.east * xy[:, 0] * body.degrees
+        lat = xy[:, 1] * body.degrees
+        lons, lats = lon[used], lat[used]
+        lon_0, lon_1, lat_0, lat_1 = float(lons.min()), float(lons.max()), float(lats.min()), float(lats.max())
+        reason = None
+        if not (-90.0 - 1e-9 <= lat_0 and lat_1 <= 90.0 + 1e-9):
+            reason = f"its points' latitudes run from {lat_0:.9g} to {lat_1:.9g}; expected them within [-90, 90]"
+        elif lon_1 - lon_0 > 360.0 + 1e-9:
+            reason = f"its points' longitudes span {lon_1 - lon_0:.9g} degrees; expected at most 360"
+        if reason is not None:
+            raise InvalidInputError(
+                f"crs {crs!r} is geographic, so the mesh's x and y are read as degrees (and made local metres, as "
+                f"load_dem makes a file in degrees), but {reason}; if they are metres, give the mesh the projected "
+                "CRS they are in (metadata['crs']), or none"
+            )
+        lat_ts = 0.5 * (lat_0 + lat_1)
+        radius = float(f"{body.radius:.10g}")  # as the CRS writes it (see _placement)
+        per_degree = (radius * math.cos(math.radians(lat_ts)) * math.pi / 180.0, radius * math.pi / 180.0)
+        _check_local_metres(Path(_GIVEN_GRID), crs, (lon_0, lon_1), np.linspace(lat_0, lat_1, 257), per_degree, body,
+                            name=name)
+        metres = np.column_stack([(lon - lon_0) * per_degree[0], (lat - lat_0) * per_degree[1]])
+        local_crs = (f"+proj=eqc +lat_ts={lat_ts:.9f} +lat_0={lat_0:.9f} +lon_0={lon_0:.9f} "
+                     f"+x_0=0 +y_0=0 +R={radius:.10g} +units=m +no_defs")
+        return metres, local_crs, (f"{name} ({crs} degrees as local metres: (0, 0) at lon {lon_0:.9f}, lat "
+                                   f"{lat_0:.9f}; dx at lat {lat_ts:.6f}, R = {radius:.10g} m)")
+    # the points' extent as a grid of _SCALE_SAMPLES x _SCALE_SAMPLES nodes: its map scale checked as a grid's
+    samples = _SCALE_SAMPLES
+    check_projected_scale((samples, samples), (float(high[0] - low[0]) / (samples - 1),
+                                               float(high[1] - low[1]) / (samples - 1)),
+                          (float(low[0]), float(low[1])), crs, name)
+    placed = units_as_metres((1.0, 1.0), (0.0, 0.0), crs, name, height_unit, what="x and y of its points")
+    if placed is None:
+        return None
+    factor = placed[0][0]
+    return xy * factor, placed[2], placed[3]
 
 
 def _check_degrees_without_crs(file: Path, terrain: Terrain, crs: str | None = None) -> None:
@@ -2016,7 +2091,7 @@ def _check_local_metres(
 
 def _check_projected_metres(
     file: Path, crs: str | None, node: tuple[float, float], spacing: tuple[float, float], shape: tuple[int, ...],
-    factor: float,
+    factor: float, *, name: str | None = None,
 ) -> None:
     """Warn, at the caller of :func:`load_dem`, when a grid in a projected CRS, whose metres are read as ground
     metres, errs by more than :data:`_LOCAL_METRES_TOLERANCE` against WGS 84 ground distances or cell areas
@@ -2031,7 +2106,8 @@ def _check_projected_metres(
     differences) go to WGS 84 degrees and their WGS 84 ground chords (earth-centred coordinates) are compared with
     the mesh's lengths along x and y and with its cell area (the chords' cross product, so a sheared projection's
     area too). A UTM grid of a zone's extent (0.9996-1.001) and a small local grid stay within 1 %. Without
-    rasterio, for a CRS on another body or one PROJ cannot invert, nothing is said."""
+    rasterio, for a CRS on another body or one PROJ cannot invert, nothing is said. ``name`` what the warning calls
+    the grid (default the file's name)."""
     crs_obj = _crs_object(crs) if crs else None
     if crs_obj is None:
         return
@@ -2081,7 +2157,8 @@ def _check_projected_metres(
         else "is a projection whose metres are ground metres only near its standard point or lines"
     )
     warnings.warn(
-        f"{file.name}: {crs} {what}: its grid, read as stored, errs against WGS 84 ground distances and cell areas by "
+        f"{file.name if name is None else name}: {crs} {what}: its grid, read as stored, errs against WGS 84 ground "
+        f"distances and cell areas by "
         f"up to {100 * error:.3g} % over its node latitudes {low:.6g} to {high:.6g} (x {float(kx[at]):.4g} east-west "
         f"and x {float(ky[at]):.4g} north-south along the grid's x and y, x {float(karea[at]):.4g} in cell area, at "
         f"latitude {float(node_lats[at]):.6g}, longitude {float(node_lons[at]):.6g}: the mesh is that much larger "

@@ -1135,7 +1135,8 @@ def stepped(
         index (a wall's lower level; -1 on a solid's skirts and base, which ``wall`` does not mark) and
         ``face_attributes["wall"]`` marks walls. ``metadata`` records the isovalues, γ, source and CRS (a
         ``trimesh.Trimesh`` TIN's: its own ``metadata["crs"]`` and ``["source"]``, as a file read back by
-        :func:`~stepterrain.export.read_mesh` names them, which :meth:`Terrain.from_mesh` carries).
+        :func:`~stepterrain.export.read_mesh` names them, which :meth:`Terrain.from_mesh` carries; a CRS in degrees
+        or feet as the local metres' or metre twin it places the points in).
 
     Raises
     ------

@@ -467,14 +467,17 @@ def _in_metres(shape: tuple[int, ...], spacing: tuple[float, float], origin: tup
     """(spacing, origin, crs, source) of a grid as the Terrain keeps them: a geographic ``crs``'s degrees made local
     metres as load_dem makes a file's (:func:`stepterrain.io.degrees_as_local_metres`), a projected one's feet (or
     another unit) made metres as load_dem makes them (:func:`stepterrain.io.units_as_metres`, which warns when
-    ``height_unit`` is None), anything else as given."""
+    ``height_unit`` is None), anything else as given; a projected one's map scale over the grid checked as load_dem
+    checks a file's (:func:`stepterrain.io.check_projected_scale`)."""
     if not crs:
         return spacing, origin, crs, source
-    from .io import degrees_as_local_metres, units_as_metres  # io imports this module
+    from .io import check_projected_scale, degrees_as_local_metres, units_as_metres  # io imports this module
 
-    placed = degrees_as_local_metres((int(shape[0]), int(shape[1])), spacing, origin, crs, source)
+    size = (int(shape[0]), int(shape[1]))
+    placed = degrees_as_local_metres(size, spacing, origin, crs, source)
     if placed is None:
         placed = units_as_metres(spacing, origin, crs, source, height_unit)
+        check_projected_scale(size, spacing, origin, crs, source)  # in the CRS's unit, as given: after, as load_dem
     return (spacing, origin, crs, source) if placed is None else placed
 
 
@@ -532,8 +535,8 @@ class Terrain:
     without points (N, 3) and faces (F, 3), whose edge tables are then rebuilt and whose ``heights`` must be None or
     its points' z) and takes a float32 copy of the arrays given, so that the caller's later changes to them cannot
     reach the cached uploads, nodata flag and height range; :meth:`from_heights` and :meth:`from_mesh` copy once
-    while checking. ``height_unit`` is the length unit a grid's heights were read in, as its source named it
-    (:func:`~stepterrain.io.load_dem`: ``height_unit=`` or the file's own; "ft", "m"), the heights being metres
+    while checking. ``height_unit`` is the length unit a grid's (or TIN's) heights were read in, as its source
+    named it (:func:`~stepterrain.io.load_dem`: ``height_unit=`` or the file's own; "ft", "m"), the heights being metres
     since; None when no unit was named: the heights are as stored. ``face_index``: a TIN's faces' rows in the mesh
     given (faces with nodata left out), kept where its visual holds face colours, which the steps carry (else None).
     """
@@ -621,8 +624,9 @@ class Terrain:
                 raise InvalidInputError(f"heights of a Terrain of kind 'tin' are its points' z (None to take them); "
                                         f"got {_described(self.heights)} that differs from points[:, 2]")
         built = Terrain._build_tin(trimesh.Trimesh(points, faces, process=False), self.visual, self.source,
-                                   self.crs)
-        for name in ("heights", "points", "faces", "edges", "face_edges", "point_used"):  # rebuilt
+                                   self.crs, self.height_unit)
+        # rebuilt; crs and source as from_mesh makes them (degrees or feet made metres)
+        for name in ("heights", "points", "faces", "edges", "face_edges", "point_used", "crs", "source"):
             set_field(self, name, getattr(built, name))
         set_field(self, "face_index", None if built.face_index is None else
                   _given_face_index(self.face_index, len(faces), self.visual)[built.face_index])
@@ -655,7 +659,9 @@ class Terrain:
         they are metres whatever ``height_unit`` names (unlike ``load_dem(height_unit=...)``, which converts a
         file's); without ``height_unit`` a grid so converted warns that its heights are taken as given, as
         load_dem warns of a file's (heights in feet are the caller's to convert: ``heights * 1200 / 3937``,
-        ``height_unit="US survey foot"``).
+        ``height_unit="US survey foot"``). A projected ``crs`` whose map scale over the grid is more than 1 % off
+        the ground somewhere (Web Mercator far from the equator) warns, at the caller's line, as load_dem warns of
+        such a file.
         (``_borrow`` is internal: see :func:`as_terrain`; so is ``_placed``: ``crs``, ``spacing`` and ``origin`` of a
         grid placed already, a Terrain's own or :func:`~stepterrain.io.load_dem`'s, not looked up again.)"""
         crs = optional_text(crs, "crs", "e.g. 'EPSG:32611'")
@@ -677,7 +683,8 @@ class Terrain:
         return terrain
 
     @classmethod
-    def from_mesh(cls, mesh: trimesh.Trimesh, *, source: str | None = None) -> Terrain:
+    def from_mesh(cls, mesh: trimesh.Trimesh, *, source: str | None = None, height_unit: str | None = None
+                  ) -> Terrain:
         """A TIN from a ``trimesh.Trimesh`` whose faces project one-to-one onto the xy plane.
 
         Faces touching a non-finite height are dropped (nodata); faces wound clockwise seen from above (the whole
@@ -695,25 +702,36 @@ class Terrain:
         The mesh's ``metadata["crs"]`` and ``["source"]`` (a file read back with
         :func:`~stepterrain.export.read_mesh`, a :meth:`mesh` or stepped mesh: text, not blank) become the TIN's
         ``crs`` and ``source`` (``source`` given here wins), so every mesh made of it (:func:`~stepterrain.stepped`,
-        close-ups, drapes) names them as a grid's do.
+        close-ups, drapes) names them as a grid's do. A geographic CRS (EPSG:4326, ...) makes the points' x and y
+        degrees, read into local metres as :meth:`from_heights` reads a grid's (a spherical ``+proj=eqc`` crs true at
+        their middle latitude, (0, 0) at their lowest longitude and latitude, the degrees in ``source``; the same
+        warnings, and a refusal of x and y that are no degrees); a projected (or local engineering) CRS in a unit
+        other than the metre (EPSG:2229, US survey feet) makes them metres, ``crs`` its metre twin (EPSG:26945),
+        as a grid's spacing and origin in it become (with rasterio to look the unit up). The heights (z) are not
+        converted: without ``height_unit`` (the unit they were read in, as :meth:`from_heights` takes it) a TIN so
+        converted warns that they are taken as given, as metres. A projected CRS's map scale over the points is
+        checked as load_dem checks a grid's (a warning when it is far from 1: Web Mercator far from the equator).
         """
         if not isinstance(mesh, trimesh.Trimesh):
             raise InvalidInputError(f"terrain mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
         source = optional_text(source, "source", "where the mesh comes from, e.g. a file name")
+        height_unit = optional_text(height_unit, "height_unit", "the unit the heights were read in, e.g. 'ft'")
         crs, named = (_metadata_text(mesh, key) for key in ("crs", "source"))
         source = named if source is None else source
         visual = mesh.visual if mesh.visual.defined else None
         key = hash(mesh)
         cached = getattr(mesh, "_stepterrain_terrain", None)
-        if (cached is not None and cached[0] == key and cached[1].visual is visual and cached[1].source == source
-                and cached[1].crs == crs):
+        # the CRS and source as given, not the TIN's (degrees or feet made metres name the metres' CRS)
+        given = (visual, source, crs, height_unit)
+        if (cached is not None and cached[0] == key and cached[2][0] is visual and cached[2][1:] == given[1:]):
             return cached[1]
-        terrain = cls._build_tin(mesh, visual, source, crs)
-        mesh._stepterrain_terrain = (key, terrain)
+        terrain = cls._build_tin(mesh, visual, source, crs, height_unit)
+        mesh._stepterrain_terrain = (key, terrain, given)
         return terrain
 
     @classmethod
-    def _build_tin(cls, mesh: trimesh.Trimesh, visual: Any, source: str | None, crs: str | None) -> Terrain:
+    def _build_tin(cls, mesh: trimesh.Trimesh, visual: Any, source: str | None, crs: str | None,
+                   height_unit: str | None = None) -> Terrain:
         points = np.array(mesh.vertices, dtype=np.float64)
         faces = np.array(mesh.faces, dtype=np.int64).reshape(-1, 3)
         if len(faces) == 0:
@@ -751,6 +769,14 @@ class Terrain:
         faces = faces[valid]
         if len(faces) == 0:
             raise InvalidInputError("terrain mesh has no face with three finite heights")
+        if crs:  # degrees or feet made metres, as a grid's (before any check of the points' extent or areas)
+            from .io import points_as_metres  # io imports this module
+
+            used = np.zeros(len(points), dtype=bool)
+            used[faces.reshape(-1)] = True
+            placed = points_as_metres(points[:, :2], used, crs, source, height_unit)
+            if placed is not None:
+                points[:, :2], crs, source = placed
         xy = points[:, :2]
         point_used = np.zeros(len(points), dtype=np.int32)
         point_used[faces.reshape(-1)] = 1
@@ -844,6 +870,7 @@ class Terrain:
             crs=crs,
             source=source,
             visual=visual,
+            height_unit=height_unit,
             # which input face each kept face is, for the face colours the steps carry (stepped._carry_visual)
             face_index=np.flatnonzero(valid) if _face_coloured(visual) else None,
             _owned=True,

@@ -1084,9 +1084,11 @@ def test_a_grid_built_in_a_crs_in_feet_is_read_into_metres_as_load_dem_reads_the
     for t in (named, direct):
         assert (t.spacing, t.origin, t.crs) == (built.spacing, built.origin, built.crs)
         assert t.source.startswith("the heights (EPSG:2229 US survey foot as metres")
-    intl = st.Terrain.from_heights(heights, spacing=(step, -step), origin=(x0, y0), height_unit="m",
-                                   crs="+proj=tmerc +lat_0=0 +lon_0=-117 +k=0.9996 +x_0=500000 +y_0=0 +ellps=GRS80 "
-                                       "+units=ft +no_defs")
+    # x0 feet taken as international feet lie 1500 km east of that central meridian: its map scale warned of
+    with pytest.warns(UserWarning, match="is a projection whose metres are ground metres only near its standard"):
+        intl = st.Terrain.from_heights(heights, spacing=(step, -step), origin=(x0, y0), height_unit="m",
+                                       crs="+proj=tmerc +lat_0=0 +lon_0=-117 +k=0.9996 +x_0=500000 +y_0=0 "
+                                           "+ellps=GRS80 +units=ft +no_defs")
     assert intl.spacing == pytest.approx((step * 0.3048, -step * 0.3048), rel=1e-12)
     assert intl.origin == pytest.approx((x0 * 0.3048, y0 * 0.3048), rel=1e-12)
     again = st.Terrain.from_heights(heights, spacing=built.spacing, origin=built.origin, crs=built.crs)
@@ -1105,3 +1107,118 @@ def test_a_terrain_built_directly_warns_at_the_caller_s_line(crs, spacing, origi
     with pytest.warns(UserWarning, match=match) as told:
         st.Terrain(kind="grid", heights=heights, spacing=spacing, origin=origin, crs=crs)
     assert {w.filename for w in told if re.search(match, str(w.message))} == {__file__}
+
+
+def _tin_of(heights: np.ndarray, spacing: tuple[float, float], origin: tuple[float, float], crs: str,
+            ) -> trimesh.Trimesh:
+    """The grid's surface as a TIN in the grid's own units (feet, degrees), its CRS in the metadata as a mesh file
+    read back with read_mesh names it."""
+    mesh = st.Terrain.from_heights(heights, spacing=spacing, origin=origin).mesh()
+    mesh.metadata.clear()
+    mesh.metadata["crs"] = crs
+    return mesh
+
+
+def test_a_tin_in_a_crs_in_feet_is_read_into_metres_as_load_dem_reads_the_grid(tmp_path):
+    """Terrain.from_mesh of a mesh whose CRS is EPSG:2229 (US survey feet) kept its points' x and y in feet under
+    heights taken as metres, while load_dem (and from_heights) of the same surface as a grid makes them metres in
+    EPSG:26945: the TIN was 3.28 times wider, its slopes 3.28 times flatter. It now gives the grid's points, with
+    the warning that the heights are taken as given (at the caller's line; height_unit silences it); built directly
+    the same, and a mesh of the TIN (its metre twin CRS) is not converted again."""
+    rasterio = pytest.importorskip("rasterio")
+    import warnings
+
+    from rasterio.transform import Affine
+
+    heights = np.ascontiguousarray(st.sample_dem().heights[:120, :160])
+    step, x0, y0 = 100.0, 6_450_000.0, 1_950_000.0
+    path = tmp_path / "dem_ft.tif"
+    with rasterio.open(path, "w", driver="GTiff", height=120, width=160, count=1, dtype="float32", crs="EPSG:2229",
+                       transform=Affine(step, 0.0, x0 - 0.5 * step, 0.0, -step, y0 + 0.5 * step)) as dst:
+        dst.write(heights, 1)
+    with pytest.warns(UserWarning, match="EPSG:2229 is in US survey foot units"):
+        grid = st.load_dem(path)
+    mesh = _tin_of(heights, (step, -step), (x0, y0), "EPSG:2229")
+    with pytest.warns(UserWarning, match=r"^the mesh: EPSG:2229 is in US survey foot units, so x and y of its points "
+                                         r"were converted to metres; the heights are taken as given") as told:
+        tin = st.Terrain.from_mesh(mesh)
+    assert told[0].filename == __file__
+    assert tin.crs == grid.crs == "EPSG:26945" and tin.source.startswith("the mesh (EPSG:2229 US survey foot as metres")
+    expected = grid.mesh().vertices
+    np.testing.assert_allclose(tin.points, expected, rtol=1e-12, atol=1e-6)
+    np.testing.assert_array_equal(tin.heights, mesh.vertices[:, 2].astype(np.float32))  # heights untouched
+    assert tin.mesh().area == pytest.approx(grid.mesh().area, rel=1e-9)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        named = st.Terrain.from_mesh(mesh, height_unit="m")
+        direct = st.Terrain(kind="tin", heights=None, points=mesh.vertices, faces=mesh.faces, crs="EPSG:2229",
+                             height_unit="m")
+        again = st.Terrain.from_mesh(tin.mesh())  # its metadata names EPSG:26945: metres already
+    for t in (named, direct, again):
+        assert t.crs == "EPSG:26945"
+        np.testing.assert_allclose(t.points, expected, rtol=1e-12, atol=1e-6)
+    assert named.height_unit == direct.height_unit == "m"
+    assert st.Terrain.from_mesh(mesh, height_unit="m") is named  # cached per CRS and height unit as given
+
+
+def test_a_tin_in_degrees_is_read_into_local_metres_as_a_grid_in_degrees_is():
+    """Terrain.from_mesh of a mesh in EPSG:4326 kept its degrees as x and y under heights in metres (slopes 10^5 too
+    steep) while from_heights and load_dem make a grid in degrees local metres. It now makes them local metres of a
+    spherical +proj=eqc CRS true at the points' middle latitude, as the grid's: the same cell sizes, extent and area;
+    x and y that are no degrees are refused as a grid's are, and the TIN's own mesh is not converted again."""
+    pytest.importorskip("rasterio")
+    heights = np.ascontiguousarray(st.sample_dem().heights[:90, :120])
+    spacing, origin = (0.0003, -0.0003), (-117.3, 34.1)
+    grid = st.Terrain.from_heights(heights, spacing=spacing, origin=origin, crs="EPSG:4326")
+    tin = st.Terrain.from_mesh(_tin_of(heights, spacing, origin, "EPSG:4326"))
+    assert tin.crs.startswith("+proj=eqc +lat_ts=34.086650000 +lat_0=34.073300000 +lon_0=-117.300000000 ")
+    assert tin.source.startswith("the mesh (EPSG:4326 degrees as local metres")
+    vertices = grid.mesh().vertices
+    np.testing.assert_allclose(np.ptp(tin.points[:, :2], axis=0), np.ptp(vertices[:, :2], axis=0), rtol=1e-12)
+    # the same points, the grid's (0, 0) at node (0, 0) (the top-left), the TIN's at the lowest lon and lat
+    np.testing.assert_allclose(tin.points[:, :2] - tin.points[:, :2].min(axis=0),
+                               vertices[:, :2] - vertices[:, :2].min(axis=0), rtol=1e-12, atol=1e-6)
+    assert tin.mesh().area == pytest.approx(grid.mesh().area, rel=1e-9)
+    assert st.Terrain.from_mesh(tin.mesh()).points.tolist() == tin.points.tolist()
+    with pytest.raises(InvalidInputError, match=r"^crs 'EPSG:4326' is geographic, so the mesh's x and y are read as "
+                                                r"degrees .* latitudes run from 4440000 to 4442670"):
+        st.Terrain.from_mesh(_tin_of(heights, (30.0, -30.0), (480000.0, 4442670.0), "EPSG:4326"))
+    tall = _tin_of(np.zeros((200, 3), np.float32), (0.01, -0.01), (-105.0, 61.0), "EPSG:4326")  # 2 degrees at 60 N
+    with pytest.warns(UserWarning, match=r"^the mesh: EPSG:4326 degrees read as local metres with one spacing") as told:
+        st.Terrain.from_mesh(tall)  # the grid's warning of one spacing's drift, at the caller's line
+    assert told[0].filename == __file__
+
+
+def test_a_grid_from_heights_in_web_mercator_far_from_the_equator_warns_as_load_dem_does(tmp_path):
+    """load_dem warns when a projected grid's map scale is far from 1 (_check_projected_metres: Web Mercator at 60 N
+    meshes the ground twice too large), but from_heights of the same grid, 'the same Terrain as load_dem of the grid
+    saved as a GeoTIFF', said nothing. It now warns the same, at the caller's line; so does a TIN in that CRS. A UTM
+    grid of its zone (the sample DEM's placement) stays silent."""
+    rasterio = pytest.importorskip("rasterio")
+    import warnings
+
+    from rasterio.transform import Affine
+
+    heights = np.ascontiguousarray(st.sample_dem().heights[:100, :100])
+    step, x0, y0 = 30.0, 1_000_000.0, 8_500_000.0  # about 60.4 N, 9 E
+    path = tmp_path / "merc.tif"
+    with rasterio.open(path, "w", driver="GTiff", height=100, width=100, count=1, dtype="float32", crs="EPSG:3857",
+                       transform=Affine(step, 0.0, x0 - 0.5 * step, 0.0, -step, y0 + 0.5 * step)) as dst:
+        dst.write(heights, 1)
+    match = r"EPSG:3857 is a Mercator projection, whose metres are not ground metres away from the equator"
+    with pytest.warns(UserWarning, match=match) as read:
+        st.load_dem(path)
+    with pytest.warns(UserWarning, match=match) as told:
+        st.Terrain.from_heights(heights, spacing=(step, -step), origin=(x0, y0), crs="EPSG:3857")
+    (said,) = [w for w in told if re.search(match, str(w.message))]
+    assert said.filename == __file__ and str(said.message).startswith("the heights: EPSG:3857")
+    # the same measure as load_dem's (up to ... % over its node latitudes ...)
+    assert str(said.message).split(": ", 1)[1].split("; for true")[0] == \
+        str(read[-1].message).split(": ", 1)[1].split("; for true")[0]
+    with pytest.warns(UserWarning, match=match):
+        st.Terrain.from_mesh(_tin_of(heights, (step, -step), (x0, y0), "EPSG:3857"))
+    dem = st.sample_dem()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        st.Terrain.from_heights(dem.heights, spacing=dem.spacing, origin=dem.origin, crs=dem.crs)
+        st.Terrain.from_mesh(_tin_of(dem.heights[:50, :50], dem.spacing, dem.origin, dem.crs))
