@@ -1802,7 +1802,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         one (OBJ statements and comments only), and a ``.ply`` must hold the rows its header declares: an STL or
         ASCII PLY cut short, or a file of another format under the extension, is refused, and so is a face naming a
         vertex the file does not have (a PLY's or glTF's index as stored), and so are a ``.glb`` that is empty, not a
-        GLB or shorter than its header counts, and a glTF without a scene, each said so.
+        GLB or shorter than its header counts, and a glTF without a scene, whose scene holds no node or whose
+        ``scene`` names none, each said so.
     """
     file = _target(path)
     require_regular_file(file, "mesh file", "mesh file")
@@ -2046,6 +2047,15 @@ def _check_dense_gltf(file: Path) -> dict[str, Any] | None:
         if isinstance(tree, dict) and not tree.get("scenes"):  # trimesh's reader: KeyError 'world'
             raise ValueError("the glTF holds no scene ('scenes' missing or empty; glTF 2.0 §3.5): no node places a "
                              "mesh in its world")
+        if isinstance(tree, dict) and isinstance(tree["scenes"], list):  # trimesh: IndexError, KeyError 'world'
+            index = tree.get("scene", 0)
+            if type(index) is int and index >= len(tree["scenes"]):
+                raise ValueError(f"the glTF's 'scene' is {index}, but it holds {len(tree['scenes'])} scene(s) (glTF "
+                                 "2.0 §3.5)")
+            scene = tree["scenes"][index] if type(index) is int else None
+            if isinstance(scene, dict) and not scene.get("nodes"):
+                raise ValueError(f"the glTF's scene {index} holds no node (glTF 2.0 §3.5: 'nodes' missing or empty): "
+                                 "no node places a mesh in its world")
         required = set(tree.get("extensionsRequired") or [])
         if "KHR_draco_mesh_compression" in required and importlib.util.find_spec("DracoPy") is None:
             raise ValueError("the glTF's meshes are Draco-compressed (KHR_draco_mesh_compression), which trimesh's "

@@ -1010,10 +1010,12 @@ class Terrain:
         from ``stepterrain info``'s 2 decimals.
 
         The nodes keep their positions and heights: ``origin`` becomes the first kept node's position, ``spacing``,
-        ``crs``, ``source`` and ``height_unit`` stay, so a cropped mesh lies on the uncropped one: its nodes exactly,
-        its wall crossings to float32 rounding (computed about another local origin: about a millimetre at UTM
-        coordinates). A grid too big to step or mesh whole (an :class:`~stepterrain.errors.OutputTooLargeError`) can
-        be cropped to the part that matters, here or with ``--crop`` on the command line.
+        ``crs``, ``source`` and ``height_unit`` stay, so a cropped mesh lies on the uncropped one: its nodes exactly
+        where the spacing adds up exactly (a whole-metre one, as a UTM DEM's), its wall crossings, and the nodes of a
+        spacing such as 0.3 m or a geographic DEM's metres, to float32 rounding (coordinates about another local
+        origin: some 6e-8 of the grid's extent, half a millimetre over 10 km). A grid too big to step or mesh whole
+        (an :class:`~stepterrain.errors.OutputTooLargeError`) can be cropped to the part that matters, here or with
+        ``--crop`` on the command line.
 
         Raises
         ------

@@ -504,6 +504,31 @@ def test_read_mesh_says_a_glb_is_cut_short_or_not_one_and_a_gltf_holds_no_scene(
         read_mesh(tmp_path / "json.glb")
 
 
+def test_read_mesh_says_a_gltf_scene_holds_no_node_or_is_not_there(tmp_path):
+    """A scene without nodes (an empty scene as Blender writes it, or meshes no node places) still said trimesh's
+    KeyError 'world', and a 'scene' index past the scenes its IndexError: what is wrong with the file now. The files
+    trimesh's and save_mesh's writers give (an empty mesh's scene holds a node) and a GLB with bytes after the length
+    its header counts still read."""
+    from stepterrain.export import read_mesh
+
+    box = trimesh.creation.box()
+    tree = json.loads(save_mesh(box, tmp_path / "box.gltf").read_text())
+    cases = {"empty.gltf": {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"name": "Scene"}]},
+             "unplaced.gltf": {**tree, "scenes": [{"nodes": []}]},
+             "past.gltf": {**tree, "scene": 1}}
+    said = {"empty.gltf": r"scene 0 holds no node", "unplaced.gltf": r"scene 0 holds no node",
+            "past.gltf": r"'scene' is 1, but it holds 1 scene\(s\)"}
+    for name, bad in cases.items():
+        (tmp_path / name).write_text(json.dumps(bad))
+        with pytest.raises(DataFileError, match=rf"as a mesh: ValueError: the glTF's {said[name]}"):
+            read_mesh(tmp_path / name)
+    (tmp_path / "trimesh.glb").write_bytes(box.export(file_type="glb") + bytes(16))  # trailing bytes: still a GLB
+    empty = trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
+    for path in (tmp_path / "box.gltf", tmp_path / "trimesh.glb", save_mesh(empty, tmp_path / "e.glb"),
+                 save_mesh(empty, tmp_path / "e.gltf")):
+        assert len(read_mesh(path).faces) == (0 if path.stem == "e" else 12), path.name
+
+
 def test_read_mesh_checks_its_path(tmp_path):
     # None raised pathlib's TypeError, a missing file trimesh's ValueError "string is not a file"
     from stepterrain.export import read_mesh

@@ -432,3 +432,27 @@ def test_steps_crop_of_a_geotiff_over_the_memory_budget_reads_only_its_window(tm
     assert cli.main(["-q", "steps", str(degrees), "--crop", "-105.5,-105.4,39.9,40.0", "-o", str(out),
                      "--memory-budget", "1000"]) == 2
     assert "--crop=-105.5,-105.4,39.9,40 looks like degrees" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("name", "exact"), [("big_tujunga_srtm_30m_utm11n.tif", True),
+                                             ("front_range_srtmgl3_3arcsec.tif", False)])
+def test_a_cropped_stepped_mesh_lies_on_the_whole_one_as_crop_says(name, exact):
+    """Terrain.crop's docstring: a cropped mesh's nodes lie exactly on the whole one's where the spacing adds up
+    exactly (a UTM DEM's 30 m), else (a geographic DEM's metres, 70.8 x 92.7 m here), as its wall crossings, within
+    float32 rounding of coordinates about another local origin; it said "its nodes exactly" of every DEM."""
+    from scipy.spatial import cKDTree
+
+    dem = st.load_dem(SHARED_DATA / name)
+    xmin, _, ymin, _ = dem.extent
+    dx, dy = (abs(s) for s in dem.spacing)
+    whole = dem.crop((xmin, xmin + 60 * dx, ymin, ymin + 60 * dy))
+    part = whole.crop((xmin + 20 * dx, xmin + 60 * dx, ymin + 25 * dy, ymin + 60 * dy))
+    a, b = (np.asarray(st.stepped(t, interval=20.0, device="cpu").vertices) for t in (whole, part))
+    distance = cKDTree(a).query(b)[0]
+    (ox, oy), (sx, sy) = whole.origin, whole.spacing
+    near = [np.abs((b[:, k] - o) / s % 1 - 0.5) > 0.5 - 1e-5 for k, o, s in ((0, ox, sx), (1, oy, sy))]
+    at_node = near[0] & near[1]
+    assert at_node.sum() > 500
+    rounding = 2.0**-23 * 60 * max(dx, dy)  # float32 about each grid's local origin, both
+    assert distance.max() <= rounding
+    assert (distance[at_node] == 0).all() == exact
