@@ -1114,7 +1114,7 @@ def stepped(
         Close the surface with side skirts and a flat base at ``floor`` (default: one interval below the
         lowest isovalue or the lower surface that γ < 1 gives under explicit ``levels``; with ``levels``, a
         tenth of their span, at least 0.1): a watertight, consistently wound volume for 3D printing, also where
-        heights sit on a threshold (they are stepped from one float32 step above it: see Notes). A ``floor``
+        heights sit on a threshold (they are stepped from a little above it: see Notes). A ``floor``
         not below the surface's lowest point is refused; where the heights tell that point (a TIN, a grid without
         nodata: the lowest height blended with its isovalue), before stepping.
     spacing, origin : (dx, dy), (x0, y0)
@@ -1148,20 +1148,22 @@ def stepped(
 
     Notes
     -----
-    Every node snaps to its nearest isovalue; a height exactly on a threshold t_i = (α_i + α_i+1) / 2
-    belongs to the upper level (real DEMs with integer heights hit thresholds often; the rule is applied
-    identically in every pass). Where such heights line a ridge, the upper level's terrace has zero width
-    and two walls stand back to back (edge-manifold holds wherever no height sits on a threshold). A solid is
-    watertight and consistently wound whatever the heights: it is stepped from the heights with those on a
-    threshold moved up by one float32 step (``np.nextafter``; the same level, so at γ = 1 every node keeps its
-    isovalue bit for bit, and only the walls' crossings next to such a node move, within float32 rounding), so its
-    top is the stepped surface of the heights so nudged and the surface without ``solid`` is unchanged (only levels
-    a few float32 steps apart, where the next float32 value up is itself a threshold, leave such a height as it is,
-    with a warning that the solid may leak there); where two nodata holes meet at a single node, that node gets
-    one copy per side, so the solid stays watertight there. Each edge crossing a threshold owns a wall bottom and top
-    vertex, shared by both triangles of the edge, so the mesh is crack-free: its boundary lies on the input's boundary,
-    terraces face +z and walls face the lower terrace. Cost: O(nodes + edges + output) on the device,
-    two host syncs.
+    Every node snaps to its nearest isovalue; a height exactly on a threshold t_i = (α_i + α_i+1) / 2 belongs to the
+    upper level (real DEMs with integer heights hit thresholds often; the rule is applied identically in every pass).
+    Where such heights line a ridge, the upper level's terrace has zero width and two walls stand back to back
+    (edge-manifold holds wherever no height sits on a threshold). A solid is watertight and consistently wound whatever
+    the heights: it is stepped from the heights with those on a threshold moved up by τ (the same level, so at γ = 1
+    every node keeps its isovalue bit for bit, and only the walls' crossings next to such a node move; at γ < 1 the node
+    by (1 - γ) τ), so its top is the stepped surface of the heights so nudged and the surface without ``solid`` is
+    unchanged. τ is the least that keeps those crossings 4 float32 steps of the coordinates from the node in x or y (at
+    most a quarter of the gap to the next threshold; see ``_off_thresholds``: a few cm in local coordinates, up to
+    metres in UTM ones), so that an ``.stl`` (float32 world coordinates) read back with its corners merged by position
+    is watertight too; where τ does not fit, one float32 step (``np.nextafter``), and only levels a few float32 steps
+    apart, where the next float32 value up is itself a threshold, leave such a height as it is, with a warning that the
+    solid may leak there; where two nodata holes meet at a single node, that node gets one copy per side, so the solid
+    stays watertight there. Each edge crossing a threshold owns a wall bottom and top vertex, shared by both triangles
+    of the edge, so the mesh is crack-free: its boundary lies on the input's boundary, terraces face +z and walls face
+    the lower terrace. Cost: O(nodes + edges + output) on the device, two host syncs.
 
     A ``trimesh.Trimesh`` refers to itself, so a mesh you drop is freed only when Python's cyclic garbage
     collector runs, often late: re-stepping a 512² terrain 60 times in a loop held about 1 GB. In long loops,
@@ -1279,18 +1281,32 @@ def _refuse_floor_above_surface(t: Terrain, values: NDArray[np.float32], gamma: 
         f"{float(np.float32(h)):g} and its isovalue {alpha:g}, γ varying in [0, 1]); got {floor_z:.9g}")
 
 
+#: How many float32 steps of the output's coordinates (:func:`_off_thresholds`) a wall crossing next to a node moved off
+#: a threshold keeps from that node and from the edge's other end, in x or y: apart still once ``.stl`` (float32,
+#: world coordinates) and the readers and slicers that merge its corners by position have rounded them.
+OFF_THRESHOLD_STEPS = 4.0
+
+
 def _off_thresholds(t: Terrain, values: NDArray[np.float32]) -> Terrain:
     """The terrain a solid is stepped from: ``t`` itself, or, where a height the surface uses sits exactly on a
-    threshold t_i = (α_i + α_i+1) / 2, a copy with such heights moved up by one float32 step (``np.nextafter``).
+    threshold t_i = (α_i + α_i+1) / 2, a copy with such heights moved up by τ, the least that puts every wall
+    crossing on the node's edges :data:`OFF_THRESHOLD_STEPS` float32 steps of the coordinates (world or local,
+    whichever is coarser) from the node and from the edge's other end, in x or y: τ ≥ k u |Δh| / (L - k u) over the
+    node's edges to a lower neighbour (u the float32 step, L the edge's larger xy extent), at least one float32 step
+    (``np.nextafter``) and at most a quarter of the gap to the next threshold.
 
-    A height on a threshold belongs to the upper level, and so does the next float32 value up: every node keeps its
-    level (at γ = 1 its isovalue, bit for bit); only the walls' crossings on its edges move, by about one float32 step
-    of the height over the edge's rise (at γ < 1 the node by (1 - γ) of one step). The surface then has no twin
-    vertex and no zero-width terrace: two walls back to back on a ridge of such heights, or four meeting on one node's
-    vertical edge at a saddle, left solids that were not watertight (about a third of small random integer grids
-    stepped with interval 2, and the embedded DEM at intervals 20, 50 and 100 with base 0). Where the next float32
-    value is itself a threshold (levels a few float32 steps apart), the height stays, with a warning that the solid
-    may leak there."""
+    A height on a threshold belongs to the upper level, and so does t_i + τ: every node keeps its level (at γ = 1 its
+    isovalue, bit for bit); only the walls' crossings on its edges move, by τ / |Δh| of the edge (at γ < 1 the node by
+    (1 - γ) τ). The surface then has no twin vertex and no zero-width terrace: two walls back to back on a ridge of
+    such heights, or four meeting on one node's vertical edge at a saddle, left solids that were not watertight (about
+    a third of small random integer grids stepped with interval 2, and the embedded DEM at intervals 20, 50 and 100
+    with base 0). One float32 step kept the indexed solid watertight, but a wall's top vertex then lay within float32
+    rounding of the node, at the same height at γ = 1: an ``.stl`` (no indices; float32 world coordinates) read back
+    with its corners merged by position had degenerate faces and open edges (a 167² crop of the embedded DEM at
+    interval 100: 2128 such pairs). Where τ cannot keep those distances below a quarter of the gap (levels
+    close together, coordinates too coarse for the edges), the height moves by one float32 step (the indexed solid is
+    watertight; its ``.stl`` may merge there); where that next float32 value is itself a threshold (levels a few
+    float32 steps apart), the height stays, with a warning that the solid may leak there."""
     thresholds = thresholds_of(values)
     # only the heights the surface uses: a TIN's unused points and a grid's nodes isolated by nodata are in no mesh
     # (they warned that the solid may leak where it has no vertex)
@@ -1307,6 +1323,8 @@ def _off_thresholds(t: Terrain, values: NDArray[np.float32]) -> Terrain:
             stacklevel=caller_stacklevel(),
         )
         on, up = on[~stays], up[~stays]
+    if on.size:
+        up = _off_threshold_heights(t, thresholds, on, up)
     nudged = heights.copy()
     nudged.reshape(-1)[on] = up
     if t.kind == "grid":  # a fresh cache: the uploads, nodata flag and ranges belong to the heights
@@ -1314,6 +1332,73 @@ def _off_thresholds(t: Terrain, values: NDArray[np.float32]) -> Terrain:
     points = t.points.copy()  # a TIN's heights are its points' z as float32
     points[on, 2] = up
     return replace(t, heights=nudged, points=points, _device_cache={}, _owned=True)
+
+
+def _off_threshold_heights(
+    t: Terrain, thresholds: NDArray[np.float32], on: NDArray[np.intp], up: NDArray[np.float32],
+) -> NDArray[np.float32]:
+    """The heights t_i + τ the nodes ``on`` (flat indices, each exactly on a threshold) are stepped from, in place of
+    their next float32 values ``up`` where τ fits (see :func:`_off_thresholds`)."""
+    flat = t.heights.reshape(-1)
+    h_a = flat[on].astype(np.float64)
+    x0, x1, y0, y1 = t.extent
+    ox, oy = t.local_origin
+    # the coarser float32 step of the world coordinates (.stl) and of the local ones the kernels compute in
+    magnitude = max(abs(x0), abs(x1), abs(y0), abs(y1), abs(x1 - ox), abs(x0 - ox), abs(y1 - oy), abs(y0 - oy))
+    ku = OFF_THRESHOLD_STEPS * float(np.spacing(np.float32(magnitude)))
+    # each node's edges (a grid's 8 neighbours: either diagonal), as (node index in on, other end, L)
+    if t.kind == "grid":
+        rows, cols = t.heights.shape
+        r, c = np.divmod(on, cols)
+        dx, dy = abs(float(t.spacing[0])), abs(float(t.spacing[1]))
+        idx, other, length = [], [], []
+        for dr in (-1, 0, 1):
+            for dc in (-1, 0, 1):
+                if dr == dc == 0:
+                    continue
+                inside = (r + dr >= 0) & (r + dr < rows) & (c + dc >= 0) & (c + dc < cols)
+                k = np.flatnonzero(inside)
+                idx.append(k)
+                other.append((r[k] + dr) * cols + c[k] + dc)
+                length.append(np.full(k.size, max(dx * abs(dc), dy * abs(dr))))
+        a, b, lengths = np.concatenate(idx), np.concatenate(other), np.concatenate(length)
+    else:
+        position = np.full(len(flat), -1, np.int64)
+        position[on] = np.arange(on.size)
+        edges = t.edges.astype(np.int64)
+        pairs = np.concatenate([edges, edges[:, ::-1]])
+        pairs = pairs[position[pairs[:, 0]] >= 0]
+        a, b = position[pairs[:, 0]], pairs[:, 1]
+        delta = np.abs(t.points[pairs[:, 0], :2] - t.points[b, :2])
+        lengths = delta.max(axis=1)
+    h_b = flat[b].astype(np.float64)
+    crossing = np.isfinite(h_b) & (h_b < h_a[a])  # a wall stands on the edge: its other end lies below t_i
+    a, h_b, lengths = a[crossing], h_b[crossing], lengths[crossing]
+    # the other end moved up too where it sits on a lower threshold (at most a quarter of its gap)
+    gaps = np.diff(thresholds.astype(np.float64))
+    quarter = np.append(gaps, np.inf) / 4.0  # a quarter of the gap up to the next threshold (the last one: none)
+    slot = np.searchsorted(thresholds, h_b.astype(np.float32))
+    found = slot < len(thresholds)
+    on_b = np.zeros(h_b.size, bool)
+    on_b[found] = thresholds[slot[found]] == h_b[found].astype(np.float32)
+    rise_b = np.where(on_b, quarter[np.minimum(slot, len(quarter) - 1)], 0.0)
+    drop = h_a[a] - h_b  # t_i - h_b, before any move
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # from the node: τ L >= k u (τ + drop); from the other end: (drop - rise_b) L >= k u (τ + drop)
+        need = np.where(lengths > ku, ku * drop / (lengths - ku), np.inf)
+        room = np.where(lengths > ku, (drop - rise_b) * lengths / ku - drop, -np.inf)
+    lower = np.zeros(on.size)
+    np.maximum.at(lower, a, need)
+    upper = np.full(on.size, np.inf)
+    np.minimum.at(upper, a, room)
+    level = np.searchsorted(thresholds, flat[on])  # each node's own threshold
+    upper = np.minimum(upper, quarter[level])
+    fits = np.isfinite(lower) & (lower <= upper)
+    moved = (h_a + lower).astype(np.float32)
+    moved = np.where(moved.astype(np.float64) < h_a + lower, np.nextafter(moved, np.float32(np.inf)), moved)
+    moved = np.maximum(moved, up)  # at least one float32 step
+    fits &= np.isfinite(moved) & (moved.astype(np.float64) - h_a <= upper + np.spacing(moved))
+    return np.where(fits, moved, up).astype(np.float32)
 
 
 def _assemble(
