@@ -414,3 +414,34 @@ def test_hashed_buckets_that_all_collide_equal_the_reference(case, monkeypatch):
     got = _assert_same(vertices, faces, terrace, floor)
     assert got is not None and len(collided) == 2
     assert got[2].all() == (case in ("smallest", "hub"))  # no fin where the quads differ in one vertex
+
+
+@pytest.mark.parametrize("case", ["hub", "fan", "sample"])
+def test_buckets_in_reverse_order_equal_the_reference(case, monkeypatch):
+    """On the CPU a bucket fills in item order (fill_buckets runs as one range), so a column's first member in its
+    hashed bucket (column_reps' representative) was always its smallest vertex, its leader, and the atomic min that
+    finds the leader on CUDA (whose atomic cursors fill a bucket in any order) went untested: taking the
+    representative as the leader passed every test. Every bucket reversed here, as CUDA may leave it."""
+    buckets = mesh_module._buckets
+
+    def reversed_buckets(keys, n, device):
+        offsets, items = buckets(keys, n, device)
+        starts, flat = offsets.numpy(), items.numpy()  # the CPU arrays' own buffers
+        sizes = np.diff(starts)
+        bucket = np.repeat(np.arange(len(sizes)), sizes)
+        flat[:] = flat[starts[bucket] + starts[bucket + 1] - 1 - np.arange(len(flat))]
+        return offsets, items
+
+    monkeypatch.setattr(mesh_module, "_buckets", reversed_buckets)
+    monkeypatch.setattr(mesh_module, "LARGE_BUCKET", 0)
+    if case == "hub":
+        vertices, faces, terrace = _walls_on_three_vertices(40, hub_first=True)
+        floor = -1.0
+    elif case == "fan":
+        vertices, faces, terrace = _wall_fan(120, ring=True, pinch=True, fins=0.2, seed=3)
+        floor = -1.0
+    else:
+        h = np.round(np.random.default_rng(0).normal(0.0, 2.0, size=(20, 24)).cumsum(0).cumsum(1))
+        h[5:9, 5:11] = np.nan
+        vertices, faces, terrace, floor = _surface(h.astype(np.float32), interval=2.0, nudged=False)
+    assert _assert_same(vertices, faces, terrace, floor) is not None
