@@ -416,12 +416,14 @@ def test_hashed_buckets_that_all_collide_equal_the_reference(case, monkeypatch):
     assert got[2].all() == (case in ("smallest", "hub"))  # no fin where the quads differ in one vertex
 
 
+@pytest.mark.parametrize("limit", [0, mesh_module.LARGE_BUCKET])
 @pytest.mark.parametrize("case", ["hub", "fan", "sample"])
-def test_buckets_in_reverse_order_equal_the_reference(case, monkeypatch):
+def test_buckets_in_reverse_order_equal_the_reference(case, limit, monkeypatch):
     """On the CPU a bucket fills in item order (fill_buckets runs as one range), so a column's first member in its
     hashed bucket (column_reps' representative) was always its smallest vertex, its leader, and the atomic min that
     finds the leader on CUDA (whose atomic cursors fill a bucket in any order) went untested: taking the
-    representative as the leader passed every test. Every bucket reversed here, as CUDA may leave it."""
+    representative as the leader passed every test (as did column_leaders taking the first smaller fellow in its
+    bucket for the smallest). Every bucket reversed here, as CUDA may leave it."""
     buckets = mesh_module._buckets
 
     def reversed_buckets(keys, n, device):
@@ -433,7 +435,7 @@ def test_buckets_in_reverse_order_equal_the_reference(case, monkeypatch):
         return offsets, items
 
     monkeypatch.setattr(mesh_module, "_buckets", reversed_buckets)
-    monkeypatch.setattr(mesh_module, "LARGE_BUCKET", 0)
+    monkeypatch.setattr(mesh_module, "LARGE_BUCKET", limit)  # 0: every bucket hashed; else the small ones scanned
     if case == "hub":
         vertices, faces, terrace = _walls_on_three_vertices(40, hub_first=True)
         floor = -1.0
