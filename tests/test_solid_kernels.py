@@ -362,3 +362,88 @@ def test_fins_through_the_hashed_buckets_equal_the_reference(seed):
     finally:
         mesh_module.LARGE_BUCKET = old
     assert got is not None and not got[2].all()
+
+
+def _walls_on_three_vertices(m, hub_first):
+    """``m`` wall pairs (u_top, v_top, v_bottom), (u_top, v_bottom, u_bottom) on one v_top, v_bottom and u_bottom
+    (the hub) and their own u_top: sorted quads alike but for one vertex, none repeated (no fin). ``hub_first``: the
+    hub is vertex 0 (the quads differ in their second vertex; every u_top's vertical edge ends at the hub, its lower
+    end: one pair group of m + 1 vertices, three columns, over the hub and 0.5 off it in x or in y, keys alike but
+    for x or for y); else the u_tops are vertices 0 .. m - 1 (the quads differ in their smallest vertex)."""
+    i = np.arange(m)
+    tops = np.column_stack([np.where(i % 3 == 1, 0.5, 0.0), np.where(i % 3 == 2, 0.5, 0.0), 2.0 + i])
+    hub, others = [[0.0, 0.0, 1.0]], [[1.0, 0.0, 3.0], [1.0, 0.0, 1.0]]
+    if hub_first:
+        vertices, t, a, b, u = np.concatenate([hub, tops, others]), 1 + i, m + 1, m + 2, 0
+    else:
+        vertices, t, a, b, u = np.concatenate([tops, others, hub]), i, m, m + 1, m + 2
+    first = np.column_stack([t, np.full(m, a), np.full(m, b)])
+    second = np.column_stack([t, np.full(m, b), np.full(m, u)])
+    faces = np.stack([first, second], 1).reshape(-1, 3)
+    return vertices, faces, np.zeros(len(faces), bool)
+
+
+@pytest.mark.parametrize("case", ["smallest", "hub", "fan", "sample"])
+def test_hashed_buckets_that_all_collide_equal_the_reference(case, monkeypatch):
+    """The hashes only bucket the keys: every deferred key sent to one bucket (hash_fin_keys' and hash_column_keys'
+    keys all made ``count``, as if every hash collided), find_fins_hashed and column_reps still tell the quads and
+    the columns apart by the whole key (sorted quad; x, y, fan and pair), and find each column's first member the
+    same for the whole column. A compare of part of the key went unnoticed where the real hashes rarely collide."""
+    collided = []
+    launch = mesh_module.launch_chunked
+
+    def colliding(kernel, n, inputs, outputs, device, **options):
+        launch(kernel, n, inputs, outputs, device, **options)
+        if kernel in (mesh_module.kernels.hash_fin_keys, mesh_module.kernels.hash_column_keys):
+            keys = outputs[0].numpy()  # the CPU array's own buffer: the kernels after read these keys
+            keys[keys >= n] = n
+            collided.append(kernel.key)
+
+    monkeypatch.setattr(mesh_module, "launch_chunked", colliding)
+    monkeypatch.setattr(mesh_module, "LARGE_BUCKET", 0)
+    if case in ("smallest", "hub"):
+        vertices, faces, terrace = _walls_on_three_vertices(40, hub_first=case == "hub")
+        floor = -1.0
+    elif case == "fan":  # pinch copies: a column's keys alike but for the fan
+        vertices, faces, terrace = _wall_fan(120, ring=True, pinch=True, fins=0.2, seed=3)
+        floor = -1.0
+    else:
+        h = np.round(np.random.default_rng(0).normal(0.0, 2.0, size=(20, 24)).cumsum(0).cumsum(1))
+        h[5:9, 5:11] = np.nan
+        vertices, faces, terrace, floor = _surface(h.astype(np.float32), interval=2.0, nudged=False)
+    got = _assert_same(vertices, faces, terrace, floor)
+    assert got is not None and len(collided) == 2
+    assert got[2].all() == (case in ("smallest", "hub"))  # no fin where the quads differ in one vertex
+
+
+@pytest.mark.parametrize("limit", [0, mesh_module.LARGE_BUCKET])
+@pytest.mark.parametrize("case", ["hub", "fan", "sample"])
+def test_buckets_in_reverse_order_equal_the_reference(case, limit, monkeypatch):
+    """On the CPU a bucket fills in item order (fill_buckets runs as one range), so a column's first member in its
+    hashed bucket (column_reps' representative) was always its smallest vertex, its leader, and the atomic min that
+    finds the leader on CUDA (whose atomic cursors fill a bucket in any order) went untested: taking the
+    representative as the leader passed every test (as did column_leaders taking the first smaller fellow in its
+    bucket for the smallest). Every bucket reversed here, as CUDA may leave it."""
+    buckets = mesh_module._buckets
+
+    def reversed_buckets(keys, n, device):
+        offsets, items = buckets(keys, n, device)
+        starts, flat = offsets.numpy(), items.numpy()  # the CPU arrays' own buffers
+        sizes = np.diff(starts)
+        bucket = np.repeat(np.arange(len(sizes)), sizes)
+        flat[:] = flat[starts[bucket] + starts[bucket + 1] - 1 - np.arange(len(flat))]
+        return offsets, items
+
+    monkeypatch.setattr(mesh_module, "_buckets", reversed_buckets)
+    monkeypatch.setattr(mesh_module, "LARGE_BUCKET", limit)  # 0: every bucket hashed; else the small ones scanned
+    if case == "hub":
+        vertices, faces, terrace = _walls_on_three_vertices(40, hub_first=True)
+        floor = -1.0
+    elif case == "fan":
+        vertices, faces, terrace = _wall_fan(120, ring=True, pinch=True, fins=0.2, seed=3)
+        floor = -1.0
+    else:
+        h = np.round(np.random.default_rng(0).normal(0.0, 2.0, size=(20, 24)).cumsum(0).cumsum(1))
+        h[5:9, 5:11] = np.nan
+        vertices, faces, terrace, floor = _surface(h.astype(np.float32), interval=2.0, nudged=False)
+    assert _assert_same(vertices, faces, terrace, floor) is not None
