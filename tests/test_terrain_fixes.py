@@ -1273,3 +1273,25 @@ def test_dataclasses_replace_warns_at_the_caller_s_line():
     with pytest.warns(UserWarning, match="EPSG:3857 is a Mercator projection") as told:
         dataclasses.replace(grid, origin=(1_000_000.0, 8_500_000.0))
     assert {w.filename for w in told} == {__file__}
+
+
+@pytest.mark.parametrize("wrap", [180.0, 360.0])
+def test_a_tin_in_degrees_across_the_antimeridian_is_the_grid_s_surface(wrap):
+    """Terrain.from_mesh of a TIN in EPSG:4326 whose points cross the antimeridian (longitudes wrapped to [-180, 180),
+    or to [0, 360) at Greenwich) took them as given: the faces across the line each spanned the globe and the TIN
+    was about 40,000 km wide (or refused as folded). Its longitudes are unwrapped now: the same points, extent and
+    area as the grid of the same heights, whose longitudes run on past the line."""
+    pytest.importorskip("rasterio")
+    heights = np.ascontiguousarray(st.sample_dem().heights[:60, :80])
+    spacing, origin = (0.001, -0.001), (179.96 if wrap == 180.0 else -0.04, -16.8)  # Fiji; Greenwich
+    grid = st.Terrain.from_heights(heights, spacing=spacing, origin=origin, crs="EPSG:4326")
+    mesh = _tin_of(heights, spacing, origin, "EPSG:4326")
+    lon = mesh.vertices[:, 0]
+    wrapped = np.where(lon >= 180.0, lon - 360.0, lon) if wrap == 180.0 else np.where(lon < 0.0, lon + 360.0, lon)
+    assert (wrapped != lon).any() and (wrapped == lon).any()  # both sides of the line
+    mesh.vertices[:, 0] = wrapped
+    tin = st.Terrain.from_mesh(mesh)
+    vertices = grid.mesh().vertices
+    np.testing.assert_allclose(tin.points[:, :2] - tin.points[:, :2].min(axis=0),
+                               vertices[:, :2] - vertices[:, :2].min(axis=0), rtol=1e-9, atol=1e-6)
+    assert tin.mesh().area == pytest.approx(grid.mesh().area, rel=1e-9)
