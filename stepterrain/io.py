@@ -1864,10 +1864,10 @@ def check_projected_scale(
     (:func:`_check_projected_metres`: Web Mercator at 60° N meshes the ground twice too large), ``spacing`` and
     ``origin`` (node (0, 0)) in the CRS's own unit, as given. from_heights ran no such check, so the same grid
     warned when load_dem read it as a GeoTIFF and not when built from its heights. Nothing for a geographic CRS
-    (:func:`degrees_as_local_metres` checks its degrees), a local ``+proj=eqc`` one (degrees placed already, their
-    drift warned of then: a grid rebuilt from a placed one's fields, a batch's tiles of it, warned again, of the
-    sphere's eqc as a projection), none, or one PROJ cannot read."""
-    if not crs or crs.lstrip().lower().startswith("+proj=eqc") or _is_geographic(crs):
+    (:func:`degrees_as_local_metres` checks its degrees), the local metres of one (a spherical ``+proj=eqc ...
+    +R=``: :func:`_spherical_eqc`; degrees placed already, their drift warned of then: a grid rebuilt from a placed
+    one's fields, or replaced, warned again, of the sphere's eqc as a projection), none, or one PROJ cannot read."""
+    if not crs or _spherical_eqc(crs) is not None or _is_geographic(crs):
         return
     projected = _projected_units(crs)
     _check_projected_metres(Path(_GIVEN_GRID), crs, origin, spacing, shape, 1.0 if projected is None else projected[1],
