@@ -668,6 +668,7 @@ def _item_terrain(item: BatchItem, source: _Source | None, height_unit: str | No
         origin=(source.origin[0] + c0 * dx, source.origin[1] + r0 * dy),
         crs=source.crs,
         source=f"{source.name}[{r0}:{r1}, {c0}:{c1}]",
+        _placed=True,  # the source Terrain's placement, cut: its CRS not looked up (nor its map scale warned) again
     )
 
 

@@ -61,7 +61,10 @@ def caller_stacklevel() -> int:
             # code the package made at run time ("<string>": a dataclass's __init__, Terrain(kind="grid", ...)),
             # in a module of the package: its warnings pointed at "<string>", not at the line that built it
             frame.f_code.co_filename.startswith("<") and str(frame.f_globals.get("__name__", "")).partition(".")[0]
-            == top)):
+            == top) or (
+            # dataclasses.replace(terrain, ...) calling that __init__: its warnings pointed into dataclasses.py
+            frame.f_code.co_name in ("replace", "_replace")
+            and frame.f_globals.get("__name__") == "dataclasses")):
         frame, level = frame.f_back, level + 1
     return level
 

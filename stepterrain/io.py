@@ -1864,8 +1864,10 @@ def check_projected_scale(
     (:func:`_check_projected_metres`: Web Mercator at 60° N meshes the ground twice too large), ``spacing`` and
     ``origin`` (node (0, 0)) in the CRS's own unit, as given. from_heights ran no such check, so the same grid
     warned when load_dem read it as a GeoTIFF and not when built from its heights. Nothing for a geographic CRS
-    (:func:`degrees_as_local_metres` checks its degrees), none, or one PROJ cannot read."""
-    if not crs or _is_geographic(crs):
+    (:func:`degrees_as_local_metres` checks its degrees), the local metres of one (a spherical ``+proj=eqc ...
+    +R=``: :func:`_spherical_eqc`; degrees placed already, their drift warned of then: a grid rebuilt from a placed
+    one's fields, or replaced, warned again, of the sphere's eqc as a projection), none, or one PROJ cannot read."""
+    if not crs or _spherical_eqc(crs) is not None or _is_geographic(crs):
         return
     projected = _projected_units(crs)
     _check_projected_metres(Path(_GIVEN_GRID), crs, origin, spacing, shape, 1.0 if projected is None else projected[1],
@@ -1874,6 +1876,7 @@ def check_projected_scale(
 
 def points_as_metres(
     xy: NDArray[np.float64], used: NDArray[np.bool_], crs: str | None, source: str | None, height_unit: str | None,
+    faces: NDArray[np.int64] | None = None,
 ) -> tuple[NDArray[np.float64], str | None, str] | None:
     """For :meth:`Terrain.from_mesh` (and a TIN Terrain built directly) whose ``crs`` is geographic or projected in a
     unit other than the metre: its points' ``xy`` (N, 2) made metres as a grid's spacing and origin are
@@ -1884,7 +1887,10 @@ def points_as_metres(
     latitude, (0, 0) at their lowest longitude and latitude (load_dem's sphere and warnings; an InvalidInputError
     when they are no degrees); another unit becomes metres, the CRS its metre twin, warning, at the caller's line,
     when ``height_unit`` is None that the heights are taken as given. A TIN kept its degrees or feet under heights in
-    metres (slopes 10^5 or 3.28 times too steep) while the same surface as a grid was made metres."""
+    metres (slopes 10^5 or 3.28 times too steep) while the same surface as a grid was made metres. ``faces`` (the
+    kept faces): where one spans more than 180° of longitude the points cross the antimeridian ([179.99, -179.99],
+    or [359.99, 0.01]), and their longitudes are unwrapped first (cut at their widest gap round the circle): taken
+    as given, each such face spanned the globe, the TIN 40,000 km wide."""
     if not crs or crs.lstrip().lower().startswith("+proj=eqc"):
         return None
     name = source or "the mesh"
@@ -1907,6 +1913,14 @@ def points_as_metres(
                 f"load_dem makes a file in degrees), but {reason}; if they are metres, give the mesh the projected "
                 "CRS they are in (metadata['crs']), or none"
             )
+        if faces is not None and len(faces) and (np.ptp(lon[faces], axis=1) > 180.0).any():
+            circle = np.unique(np.mod(lons, 360.0))  # sorted; the widest gap round the circle is where none lie
+            gaps = np.diff(np.append(circle, circle[0] + 360.0))
+            start = float(circle[(int(np.argmax(gaps)) + 1) % len(circle)])
+            start = start - 360.0 if start >= 180.0 else start
+            lon = start + np.mod(lon - start, 360.0)
+            lons = lon[used]
+            lon_0, lon_1 = float(lons.min()), float(lons.max())
         lat_ts = 0.5 * (lat_0 + lat_1)
         radius = float(f"{body.radius:.10g}")  # as the CRS writes it (see _placement)
         per_degree = (radius * math.cos(math.radians(lat_ts)) * math.pi / 180.0, radius * math.pi / 180.0)

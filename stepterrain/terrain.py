@@ -704,13 +704,14 @@ class Terrain:
         ``crs`` and ``source`` (``source`` given here wins), so every mesh made of it (:func:`~stepterrain.stepped`,
         close-ups, drapes) names them as a grid's do. A geographic CRS (EPSG:4326, ...) makes the points' x and y
         degrees, read into local metres as :meth:`from_heights` reads a grid's (a spherical ``+proj=eqc`` crs true at
-        their middle latitude, (0, 0) at their lowest longitude and latitude, the degrees in ``source``; the same
-        warnings, and a refusal of x and y that are no degrees); a projected (or local engineering) CRS in a unit
-        other than the metre (EPSG:2229, US survey feet) makes them metres, ``crs`` its metre twin (EPSG:26945),
-        as a grid's spacing and origin in it become (with rasterio to look the unit up). The heights (z) are not
-        converted: without ``height_unit`` (the unit they were read in, as :meth:`from_heights` takes it) a TIN so
-        converted warns that they are taken as given, as metres. A projected CRS's map scale over the points is
-        checked as load_dem checks a grid's (a warning when it is far from 1: Web Mercator far from the equator).
+        their middle latitude, (0, 0) at their lowest longitude and latitude, the degrees in ``source``; longitudes
+        across the antimeridian unwrapped; the same warnings, and a refusal of x and y that are no degrees); a
+        projected (or local engineering) CRS in a unit other than the metre (EPSG:2229, US survey feet) makes them
+        metres, ``crs`` its metre twin (EPSG:26945), as a grid's spacing and origin in it become (with rasterio to
+        look the unit up). The heights (z) are not converted: without ``height_unit`` (the unit they were read in,
+        as :meth:`from_heights` takes it) a TIN so converted warns that they are taken as given, as metres. A
+        projected CRS's map scale over the points is checked as load_dem checks a grid's (a warning when it is far
+        from 1: Web Mercator far from the equator).
         """
         if not isinstance(mesh, trimesh.Trimesh):
             raise InvalidInputError(f"terrain mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
@@ -774,7 +775,7 @@ class Terrain:
 
             used = np.zeros(len(points), dtype=bool)
             used[faces.reshape(-1)] = True
-            placed = points_as_metres(points[:, :2], used, crs, source, height_unit)
+            placed = points_as_metres(points[:, :2], used, crs, source, height_unit, faces)
             if placed is not None:
                 points[:, :2], crs, source = placed
         xy = points[:, :2]

@@ -1222,3 +1222,76 @@ def test_a_grid_from_heights_in_web_mercator_far_from_the_equator_warns_as_load_
         warnings.simplefilter("error")
         st.Terrain.from_heights(dem.heights, spacing=dem.spacing, origin=dem.origin, crs=dem.crs)
         st.Terrain.from_mesh(_tin_of(dem.heights[:50, :50], dem.spacing, dem.origin, dem.crs))
+
+
+def test_a_grid_placed_from_degrees_rebuilt_from_its_fields_or_tiled_warns_no_map_scale(tmp_path):
+    """check_projected_scale (from_heights' new map-scale check) read a grid placed from degrees, whose CRS is the
+    library's local spherical +proj=eqc, as a projection far from its standard line: from_heights of the placed
+    grid's own fields, dataclasses.replace of it and every tile of a batch of it warned "is a projection whose
+    metres are ground metres only near its standard point or lines", after the degrees' drift was warned of once
+    (at placing). Only the placing warns now."""
+    import warnings
+
+    heights = np.ascontiguousarray(st.sample_dem().heights[:200, :40])
+    with pytest.warns(UserWarning, match="degrees read as local metres with one spacing"):
+        placed = st.Terrain.from_heights(heights, spacing=(0.01, -0.01), origin=(-105.0, 61.0), crs="EPSG:4326")
+    assert placed.crs.startswith("+proj=eqc ")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        again = st.Terrain.from_heights(placed.heights, spacing=placed.spacing, origin=placed.origin, crs=placed.crs)
+        dataclasses.replace(placed, heights=placed.heights + np.float32(1.0))
+        report = st.batch(placed, tmp_path / "tiles", tile_size=50, interval=100.0, scheduler="serial",
+                          format=".ply")
+    assert (again.spacing, again.origin, again.crs) == (placed.spacing, placed.origin, placed.crs)
+    assert [r.status for r in report.results] == ["done"] * 4
+    assert all(r.warnings == () for r in report.results)
+
+
+def test_a_batch_of_a_placed_web_mercator_grid_warns_its_map_scale_once_not_per_tile(tmp_path):
+    """A batch's tiles of a Terrain are its placed grid cut (_item_terrain), but were rebuilt by from_heights with the
+    source's CRS looked up again: with the new map-scale check every tile of a Web Mercator grid far north (warned
+    of when the grid was built) warned again, one message per tile. The tiles are the source's placement now."""
+    import warnings
+
+    heights = np.ascontiguousarray(st.sample_dem().heights[:101, :101])
+    with pytest.warns(UserWarning, match="EPSG:3857 is a Mercator projection"):
+        merc = st.Terrain.from_heights(heights, spacing=(30.0, -30.0), origin=(1_000_000.0, 8_500_000.0),
+                                       crs="EPSG:3857")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        report = st.batch(merc, tmp_path / "tiles", tile_size=50, interval=100.0, scheduler="serial", format=".ply")
+    assert [r.status for r in report.results] == ["done"] * 4
+    assert all(r.warnings == () for r in report.results)
+
+
+def test_dataclasses_replace_warns_at_the_caller_s_line():
+    """dataclasses.replace of a grid Terrain is checked as from_heights (the docstring's "built directly, or by
+    dataclasses.replace"), its warnings (a Web Mercator grid's map scale, a CRS in feet) pointed into the standard
+    library's dataclasses.py (the frame of replace), not at the caller's line."""
+    heights = np.ascontiguousarray(st.sample_dem().heights[:100, :100])
+    grid = st.Terrain.from_heights(heights, spacing=(30.0, -30.0), origin=(1_000_000.0, 100_000.0), crs="EPSG:3857")
+    with pytest.warns(UserWarning, match="EPSG:3857 is a Mercator projection") as told:
+        dataclasses.replace(grid, origin=(1_000_000.0, 8_500_000.0))
+    assert {w.filename for w in told} == {__file__}
+
+
+@pytest.mark.parametrize("wrap", [180.0, 360.0])
+def test_a_tin_in_degrees_across_the_antimeridian_is_the_grid_s_surface(wrap):
+    """Terrain.from_mesh of a TIN in EPSG:4326 whose points cross the antimeridian (longitudes wrapped to [-180, 180),
+    or to [0, 360) at Greenwich) took them as given: the faces across the line each spanned the globe and the TIN
+    was about 40,000 km wide (or refused as folded). Its longitudes are unwrapped now: the same points, extent and
+    area as the grid of the same heights, whose longitudes run on past the line."""
+    pytest.importorskip("rasterio")
+    heights = np.ascontiguousarray(st.sample_dem().heights[:60, :80])
+    spacing, origin = (0.001, -0.001), (179.96 if wrap == 180.0 else -0.04, -16.8)  # Fiji; Greenwich
+    grid = st.Terrain.from_heights(heights, spacing=spacing, origin=origin, crs="EPSG:4326")
+    mesh = _tin_of(heights, spacing, origin, "EPSG:4326")
+    lon = mesh.vertices[:, 0]
+    wrapped = np.where(lon >= 180.0, lon - 360.0, lon) if wrap == 180.0 else np.where(lon < 0.0, lon + 360.0, lon)
+    assert (wrapped != lon).any() and (wrapped == lon).any()  # both sides of the line
+    mesh.vertices[:, 0] = wrapped
+    tin = st.Terrain.from_mesh(mesh)
+    vertices = grid.mesh().vertices
+    np.testing.assert_allclose(tin.points[:, :2] - tin.points[:, :2].min(axis=0),
+                               vertices[:, :2] - vertices[:, :2].min(axis=0), rtol=1e-9, atol=1e-6)
+    assert tin.mesh().area == pytest.approx(grid.mesh().area, rel=1e-9)
