@@ -287,7 +287,10 @@ def _item_source(source: _Source, item: BatchItem) -> _Source:
         return dataclasses.replace(source, heights=source.heights[item.index : item.index + 1],
                                    offset=(item.index, 0, 0))  # fmt: skip
     (r0, r1), (c0, c1) = item.rows, item.cols
-    return dataclasses.replace(source, heights=source.heights[r0:r1, c0:c1], offset=(0, r0, c0))
+    # with a ring of one node around the tile where the raster has one: a solid tile moves its heights on a threshold
+    # by τ, which depends on each node's 8 neighbours (see _tile_off_thresholds)
+    r0, c0 = max(r0 - 1, 0), max(c0 - 1, 0)
+    return dataclasses.replace(source, heights=source.heights[r0 : r1 + 1, c0 : c1 + 1], offset=(0, r0, c0))
 
 
 # ---------------------------------------------------------------------------------------------- planning
@@ -672,6 +675,38 @@ def _item_terrain(item: BatchItem, source: _Source | None, height_unit: str | No
     )
 
 
+def _tile_off_thresholds(item: BatchItem, source: _Source, terrain: Terrain, options: _Options) -> Terrain:
+    """A solid tile's heights moved off the thresholds as the whole raster's solid moves them: τ (see
+    :func:`~stepterrain.stepped._off_thresholds`) depends on each node's 8 neighbours and on the float32 step of the
+    coordinates, so a node on a tile's edge, stepped from the tile alone, got another τ in each of the tiles that
+    share it (their walls along that edge no longer matched; at γ < 1 the node's height neither). Here τ comes from
+    the tile with a ring of one node of the raster around it (``_item_source`` ships it) and from the whole raster's
+    coordinates: the same in every tile, and the whole raster's."""
+    from .stepped import _off_thresholds, isovalues
+
+    if source.bounds is None:
+        return terrain
+    _, row0, col0 = source.offset
+    (r0, r1), (c0, c1) = item.rows, item.cols
+    rows, cols = source.heights.shape[-2:]
+    h0, h1 = max(r0 - 1, row0), min(r1 + 1, row0 + rows)
+    w0, w1 = max(c0 - 1, col0), min(c1 + 1, col0 + cols)
+    (dx, dy), (x0, y0) = source.spacing, source.origin
+    ring = Terrain.from_heights(source.heights[h0 - row0 : h1 - row0, w0 - col0 : w1 - col0], spacing=source.spacing,
+                                origin=(x0 + w0 * dx, y0 + h0 * dy))  # fmt: skip
+    (xmin, ymin, _), (xmax, ymax, _) = source.bounds
+    magnitude = max(abs(xmin), abs(xmax), abs(ymin), abs(ymax), xmax - xmin, ymax - ymin)
+    values = isovalues(terrain.height_range, interval=options.interval, levels=options.levels, base=options.base)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a height left on its threshold: stepped says so for the tile itself
+        moved = _off_thresholds(ring, values, magnitude)
+    if moved is ring:
+        return terrain
+    heights = moved.heights[r0 - h0 : r1 - h0, c0 - w0 : c1 - w0]
+    return Terrain.from_heights(heights, spacing=terrain.spacing, origin=terrain.origin, crs=terrain.crs,
+                                source=terrain.source)  # fmt: skip
+
+
 def _check_unreferenced(crs: str | None, spacing: tuple[float, float], origin: tuple[float, float], name: str) -> None:
     """An InvalidInputError naming ``spacing=`` when a DEM file places its nodes itself (load_dem reads a file
     without georeferencing as 1 m cells at (0, 0), rows north to south: io.own_placement)."""
@@ -931,6 +966,8 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
             mesh = trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64), process=False)
             metadata["empty"] = "no triangle with three finite heights (nodata)"
         else:
+            if options.solid and item.kind == "tile" and source is not None:
+                terrain = _tile_off_thresholds(item, source, terrain, options)
             mesh = stepped(
                 terrain, interval=options.interval, levels=options.levels, base=options.base, gamma=options.gamma,
                 colors=options.colors, solid=options.solid, floor=options.floor, device=options.device,
@@ -982,8 +1019,10 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
         if item.kind == "file":
             h.update(identities[item.key].encode())
         elif source is not None:
+            ring = int(options.solid)  # a solid tile's τ reads the ring of nodes around it (_tile_off_thresholds)
+            (r0, r1), (c0, c1) = (item.rows, item.cols) if item.kind == "tile" else ((0, 0), (0, 0))
             block = source.heights[item.index] if item.kind == "frame" else source.heights[
-                item.rows[0]:item.rows[1], item.cols[0]:item.cols[1]]  # fmt: skip
+                max(r0 - ring, 0):r1 + ring, max(c0 - ring, 0):c1 + ring]  # fmt: skip
             h.update(np.ascontiguousarray(block).tobytes())
         out[item.key] = h.hexdigest()
     return out

@@ -1156,14 +1156,15 @@ def stepped(
     every node keeps its isovalue bit for bit, and only the walls' crossings next to such a node move; at γ < 1 the node
     by (1 - γ) τ), so its top is the stepped surface of the heights so nudged and the surface without ``solid`` is
     unchanged. τ is the least that keeps those crossings 4 float32 steps of the coordinates from the node in x or y (at
-    most a quarter of the gap to the next threshold; see ``_off_thresholds``: a few cm in local coordinates, up to
-    metres in UTM ones), so that an ``.stl`` (float32 world coordinates) read back with its corners merged by position
-    is watertight too; where τ does not fit, one float32 step (``np.nextafter``), and only levels a few float32 steps
-    apart, where the next float32 value up is itself a threshold, leave such a height as it is, with a warning that the
-    solid may leak there; where two nodata holes meet at a single node, that node gets one copy per side, so the solid
-    stays watertight there. Each edge crossing a threshold owns a wall bottom and top vertex, shared by both triangles
-    of the edge, so the mesh is crack-free: its boundary lies on the input's boundary, terraces face +z and walls face
-    the lower terrace. Cost: O(nodes + edges + output) on the device, two host syncs.
+    most a quarter of the gap to the next threshold, above the last half the way to the top isovalue; see
+    ``_off_thresholds``: a few cm in local coordinates, up to metres in UTM ones), so that an ``.stl`` (float32 world
+    coordinates) read back with its corners merged by position is watertight too; where τ does not fit, one float32 step
+    (``np.nextafter``), and only levels a few float32 steps apart, where the next float32 value up is itself a
+    threshold, leave such a height as it is, with a warning that the solid may leak there; where two nodata holes meet
+    at a single node, that node gets one copy per side, so the solid stays watertight there. Each edge crossing a
+    threshold owns a wall bottom and top vertex, shared by both triangles of the edge, so the mesh is crack-free: its
+    boundary lies on the input's boundary, terraces face +z and walls face the lower terrace. Cost: O(nodes + edges +
+    output) on the device, two host syncs.
 
     A ``trimesh.Trimesh`` refers to itself, so a mesh you drop is freed only when Python's cyclic garbage
     collector runs, often late: re-stepping a 512² terrain 60 times in a loop held about 1 GB. In long loops,
@@ -1287,13 +1288,14 @@ def _refuse_floor_above_surface(t: Terrain, values: NDArray[np.float32], gamma: 
 OFF_THRESHOLD_STEPS = 4.0
 
 
-def _off_thresholds(t: Terrain, values: NDArray[np.float32]) -> Terrain:
+def _off_thresholds(t: Terrain, values: NDArray[np.float32], magnitude: float = 0.0) -> Terrain:
     """The terrain a solid is stepped from: ``t`` itself, or, where a height the surface uses sits exactly on a
     threshold t_i = (α_i + α_i+1) / 2, a copy with such heights moved up by τ, the least that puts every wall
     crossing on the node's edges :data:`OFF_THRESHOLD_STEPS` float32 steps of the coordinates (world or local,
     whichever is coarser) from the node and from the edge's other end, in x or y: τ ≥ k u |Δh| / (L - k u) over the
     node's edges to a lower neighbour (u the float32 step, L the edge's larger xy extent), at least one float32 step
-    (``np.nextafter``) and at most a quarter of the gap to the next threshold.
+    (``np.nextafter``) and at most a quarter of the gap to the next threshold (above the last one: half the way to
+    the top isovalue).
 
     A height on a threshold belongs to the upper level, and so does t_i + τ: every node keeps its level (at γ = 1 its
     isovalue, bit for bit); only the walls' crossings on its edges move, by τ / |Δh| of the edge (at γ < 1 the node by
@@ -1306,7 +1308,9 @@ def _off_thresholds(t: Terrain, values: NDArray[np.float32]) -> Terrain:
     interval 100: 2128 such pairs). Where τ cannot keep those distances below a quarter of the gap (levels
     close together, coordinates too coarse for the edges), the height moves by one float32 step (the indexed solid is
     watertight; its ``.stl`` may merge there); where that next float32 value is itself a threshold (levels a few
-    float32 steps apart), the height stays, with a warning that the solid may leak there."""
+    float32 steps apart), the height stays, with a warning that the solid may leak there. ``magnitude``: a least
+    coordinate magnitude for the float32 step (a tile of a raster: the whole raster's, so that the nodes two tiles
+    share get one τ in both, see ``batch``)."""
     thresholds = thresholds_of(values)
     # only the heights the surface uses: a TIN's unused points and a grid's nodes isolated by nodata are in no mesh
     # (they warned that the solid may leak where it has no vertex)
@@ -1324,7 +1328,7 @@ def _off_thresholds(t: Terrain, values: NDArray[np.float32]) -> Terrain:
         )
         on, up = on[~stays], up[~stays]
     if on.size:
-        up = _off_threshold_heights(t, thresholds, on, up)
+        up = _off_threshold_heights(t, thresholds, on, up, magnitude, top=float(values[-1]))
     nudged = heights.copy()
     nudged.reshape(-1)[on] = up
     if t.kind == "grid":  # a fresh cache: the uploads, nodata flag and ranges belong to the heights
@@ -1336,15 +1340,18 @@ def _off_thresholds(t: Terrain, values: NDArray[np.float32]) -> Terrain:
 
 def _off_threshold_heights(
     t: Terrain, thresholds: NDArray[np.float32], on: NDArray[np.intp], up: NDArray[np.float32],
+    magnitude: float = 0.0, *, top: float,
 ) -> NDArray[np.float32]:
     """The heights t_i + τ the nodes ``on`` (flat indices, each exactly on a threshold) are stepped from, in place of
-    their next float32 values ``up`` where τ fits (see :func:`_off_thresholds`)."""
+    their next float32 values ``up`` where τ fits (see :func:`_off_thresholds`). ``top``: the highest isovalue; the
+    last threshold's gap is twice its distance to it (an interval of uniform levels), as if the next one lay there."""
     flat = t.heights.reshape(-1)
     h_a = flat[on].astype(np.float64)
     x0, x1, y0, y1 = t.extent
     ox, oy = t.local_origin
     # the coarser float32 step of the world coordinates (.stl) and of the local ones the kernels compute in
-    magnitude = max(abs(x0), abs(x1), abs(y0), abs(y1), abs(x1 - ox), abs(x0 - ox), abs(y1 - oy), abs(y0 - oy))
+    magnitude = max(magnitude, abs(x0), abs(x1), abs(y0), abs(y1), abs(x1 - ox), abs(x0 - ox), abs(y1 - oy),
+                    abs(y0 - oy))
     ku = OFF_THRESHOLD_STEPS * float(np.spacing(np.float32(magnitude)))
     # each node's edges (a grid's 8 neighbours: either diagonal), as (node index in on, other end, L)
     if t.kind == "grid":
@@ -1376,7 +1383,10 @@ def _off_threshold_heights(
     a, h_b, lengths = a[crossing], h_b[crossing], lengths[crossing]
     # the other end moved up too where it sits on a lower threshold (at most a quarter of its gap)
     gaps = np.diff(thresholds.astype(np.float64))
-    quarter = np.append(gaps, np.inf) / 4.0  # a quarter of the gap up to the next threshold (the last one: none)
+    # a quarter of the gap up to the next threshold; the last one's: half its way to the top isovalue (without a
+    # bound, τ there grew with the drop to the lowest neighbour: 525 m over a 1050 m cliff at levels 0 and 100, the
+    # node at γ = 0.5 262.5 m up)
+    quarter = np.append(gaps, 2.0 * (top - float(thresholds[-1]))) / 4.0
     slot = np.searchsorted(thresholds, h_b.astype(np.float32))
     found = slot < len(thresholds)
     on_b = np.zeros(h_b.size, bool)

@@ -97,3 +97,72 @@ def test_integer_grids_read_back_watertight_from_stl(rows, cols, seed, gamma, fa
     t = st.Terrain.from_heights(heights, spacing=(1.0, 1.0), origin=far)
     mesh = st.stepped(t, interval=2.0, gamma=gamma, solid=True)
     _assert_stl_is_the_solid(mesh, tmp_path_factory.mktemp("stl") / "grid.stl")
+
+
+@pytest.mark.parametrize("gamma", [1.0, 0.5])
+def test_solid_tiles_of_one_raster_share_their_edges_walls(crop, gamma, tmp_path):
+    """τ depends on a node's 8 neighbours and on the coordinates' float32 step: ``batch`` stepped each solid tile alone,
+    so a node on the edge two tiles share got another τ in each (its walls along that edge crossed it elsewhere in the
+    two tiles: 4 to 8 of ~75 top vertices on each shared edge of a 129² crop cut into 64² tiles; at γ < 1 the node's
+    height too). A tile now moves its heights with the ring of raster nodes around it and the raster's coordinates."""
+    from stepterrain.batch import batch
+
+    heights = crop.heights[:129, :129]
+    values = isovalues(crop.height_range, interval=100.0)
+    assert np.isin(heights[:, 64], thresholds_of(values)).any() and np.isin(heights[64], thresholds_of(values)).any()
+    raster = st.Terrain.from_heights(heights, spacing=crop.spacing, origin=crop.origin)
+    batch(raster, tmp_path, tile_size=64, levels=values, gamma=gamma, solid=True, format=".ply", scheduler="serial")
+    tiles = {(r, c): trimesh.load(tmp_path / f"tile_r{r}_c{c}.ply", process=False) for r in (0, 1) for c in (0, 1)}
+    floor = min(float(m.vertices[:, 2].min()) for m in tiles.values())
+
+    def on_edge(mesh: trimesh.Trimesh, axis: int, value: float) -> set[tuple[float, ...]]:
+        v = np.asarray(mesh.vertices)
+        return {tuple(p) for p in v[(v[:, axis] == value) & (v[:, 2] > floor)]}
+
+    x_edge = float(tiles[0, 1].vertices[:, 0].min())
+    y_edge = float(tiles[0, 0].vertices[:, 1].min())
+    for a, b, axis, value in [((0, 0), (0, 1), 0, x_edge), ((1, 0), (1, 1), 0, x_edge),
+                              ((0, 0), (1, 0), 1, y_edge), ((0, 1), (1, 1), 1, y_edge)]:  # fmt: skip
+        shared_a, shared_b = on_edge(tiles[a], axis, value), on_edge(tiles[b], axis, value)
+        assert len(shared_a) > 60 and shared_a == shared_b
+    # and the whole raster's solid has those vertices too
+    whole = st.stepped(raster, levels=values, gamma=gamma, solid=True)
+    assert on_edge(tiles[0, 0], 0, x_edge) <= {tuple(p) for p in np.asarray(whole.vertices)}
+
+
+def test_solid_tile_block_shipped_to_a_worker_carries_the_ring(crop):
+    """A dask task gets only its tile's block (``_item_source``): with the ring of nodes around it, so that its τ is
+    the one the whole source gives (the serial run above reads the whole source)."""
+    from types import SimpleNamespace
+
+    from stepterrain import batch as batch_module
+
+    values = isovalues(crop.height_range, interval=100.0)
+    items, src = batch_module.plan_items(crop, tile_size=64)
+    src = batch_module.dataclasses.replace(src, bounds=batch_module._raster_bounds(src, crop.height_range))
+    options = SimpleNamespace(interval=None, levels=values, base=0.0)
+    moved = 0
+    for item in items:
+        block = batch_module._item_source(src, item)
+        whole = batch_module._tile_off_thresholds(item, src, batch_module._item_terrain(item, src), options)
+        alone = batch_module._tile_off_thresholds(item, block, batch_module._item_terrain(item, block), options)
+        assert np.array_equal(whole.heights, alone.heights, equal_nan=True)
+        moved += int((whole.heights != batch_module._item_terrain(item, src).heights).sum())
+    assert moved > 0
+
+
+@pytest.mark.parametrize("gamma", [1.0, 0.5])
+def test_height_on_the_last_threshold_moves_at_most_half_way_to_the_top_isovalue(gamma):
+    """The last threshold has no next one: its quarter gap was unbounded, so τ grew with the drop to the lowest
+    neighbour (coordinates of 4.5e6, float32 steps of 0.5 m, 6 m cells: τ = drop / 2), 525 m over a cliff 1050 m
+    deep at levels 0 and 100, and the solid's top at γ = 0.5 stood at 337.5 m, its surface at 75 m."""
+    heights = np.full((3, 3), -1000.0, np.float32)
+    heights[1, 1] = 50.0  # the threshold between 0 and 100
+    t = st.Terrain.from_heights(heights, spacing=(6.0, -6.0), origin=(500000.0, 4500000.0))
+    values = np.array([0.0, 100.0], np.float32)
+    moved = float(stepped_module._off_thresholds(t, values).heights[1, 1]) - 50.0
+    assert 0.0 < moved <= (100.0 - 50.0) / 2
+    mesh = st.stepped(t, levels=values, gamma=gamma, solid=True)
+    assert mesh.is_watertight
+    node = (1 - gamma) * 50.0 + gamma * 100.0  # the node's height on the surface without solid
+    assert node <= mesh.vertices[:, 2].max() <= node + (1 - gamma) * moved
