@@ -383,6 +383,19 @@ def _walls_on_three_vertices(m, hub_first):
     return vertices, faces, np.zeros(len(faces), bool)
 
 
+def _bucket_case(case):
+    """(vertices, faces, terrace, floor) of the bucket tests' cases: walls on three vertices that differ in their
+    smallest vertex or (hub) in their second one, a fan of walls with pinch copies (a column's keys alike but for the
+    fan), and a small integer surface with a hole and fins."""
+    if case in ("smallest", "hub"):
+        return (*_walls_on_three_vertices(40, hub_first=case == "hub"), -1.0)
+    if case == "fan":
+        return (*_wall_fan(120, ring=True, pinch=True, fins=0.2, seed=3), -1.0)
+    h = np.round(np.random.default_rng(0).normal(0.0, 2.0, size=(20, 24)).cumsum(0).cumsum(1))
+    h[5:9, 5:11] = np.nan
+    return _surface(h.astype(np.float32), interval=2.0, nudged=False)
+
+
 @pytest.mark.parametrize("case", ["smallest", "hub", "fan", "sample"])
 def test_hashed_buckets_that_all_collide_equal_the_reference(case, monkeypatch):
     """The hashes only bucket the keys: every deferred key sent to one bucket (hash_fin_keys' and hash_column_keys'
@@ -401,17 +414,7 @@ def test_hashed_buckets_that_all_collide_equal_the_reference(case, monkeypatch):
 
     monkeypatch.setattr(mesh_module, "launch_chunked", colliding)
     monkeypatch.setattr(mesh_module, "LARGE_BUCKET", 0)
-    if case in ("smallest", "hub"):
-        vertices, faces, terrace = _walls_on_three_vertices(40, hub_first=case == "hub")
-        floor = -1.0
-    elif case == "fan":  # pinch copies: a column's keys alike but for the fan
-        vertices, faces, terrace = _wall_fan(120, ring=True, pinch=True, fins=0.2, seed=3)
-        floor = -1.0
-    else:
-        h = np.round(np.random.default_rng(0).normal(0.0, 2.0, size=(20, 24)).cumsum(0).cumsum(1))
-        h[5:9, 5:11] = np.nan
-        vertices, faces, terrace, floor = _surface(h.astype(np.float32), interval=2.0, nudged=False)
-    got = _assert_same(vertices, faces, terrace, floor)
+    got = _assert_same(*_bucket_case(case))
     assert got is not None and len(collided) == 2
     assert got[2].all() == (case in ("smallest", "hub"))  # no fin where the quads differ in one vertex
 
@@ -436,14 +439,4 @@ def test_buckets_in_reverse_order_equal_the_reference(case, limit, monkeypatch):
 
     monkeypatch.setattr(mesh_module, "_buckets", reversed_buckets)
     monkeypatch.setattr(mesh_module, "LARGE_BUCKET", limit)  # 0: every bucket hashed; else the small ones scanned
-    if case == "hub":
-        vertices, faces, terrace = _walls_on_three_vertices(40, hub_first=True)
-        floor = -1.0
-    elif case == "fan":
-        vertices, faces, terrace = _wall_fan(120, ring=True, pinch=True, fins=0.2, seed=3)
-        floor = -1.0
-    else:
-        h = np.round(np.random.default_rng(0).normal(0.0, 2.0, size=(20, 24)).cumsum(0).cumsum(1))
-        h[5:9, 5:11] = np.nan
-        vertices, faces, terrace, floor = _surface(h.astype(np.float32), interval=2.0, nudged=False)
-    assert _assert_same(vertices, faces, terrace, floor) is not None
+    assert _assert_same(*_bucket_case(case)) is not None
