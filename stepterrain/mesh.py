@@ -97,22 +97,33 @@ def _empty(n: int, np_dtype: Any, dtype: Any, device: wp.Device, *, zero: bool =
     return wp.zeros(n, dtype=dtype, device=device) if zero else wp.empty(n, dtype=dtype, device=device)
 
 
-def _scan(counts: wp.array) -> tuple[wp.array, int]:
-    """The exclusive prefix sum of ``counts`` (n + 1, the last 0) and its total (the pass's one host sync)."""
+def _offsets(counts: wp.array) -> wp.array:
+    """The exclusive prefix sum of ``counts`` (n + 1, the last 0)."""
     offsets = _empty(counts.shape[0], np.int32, wp.int32, counts.device)
     wp.utils.array_scan(counts, offsets, inclusive=False)
+    return offsets
+
+
+def _scan(counts: wp.array) -> tuple[wp.array, int]:
+    """:func:`_offsets` of ``counts`` and their total (the pass's one host sync)."""
+    offsets = _offsets(counts)
     return offsets, read_int32(offsets, counts.shape[0] - 1)
+
+
+def _key_offsets(keys: wp.array, n: int, device: wp.Device) -> wp.array:
+    """Where the bucket of each key of ``keys`` (ints in [0, n)) starts: the exclusive scan of the key counts
+    (kernels/solid.py: count_keys). Their total is ``len(keys)``: no host sync."""
+    counts = _empty(n + 1, np.int32, wp.int32, device, zero=True)
+    launch_chunked(kernels.count_keys, keys.shape[0], [keys], [counts], device, atomics=True)
+    return _offsets(counts)
 
 
 def _buckets(keys: wp.array, n: int, device: wp.Device) -> tuple[wp.array, wp.array]:
     """The items of ``keys`` (ints in [0, n)) grouped by key, without a sort (kernels/solid.py: count_keys,
     fill_buckets): the bucket of key k is ``items[offsets[k]:offsets[k + 1]]``, in no particular order."""
-    counts = _empty(n + 1, np.int32, wp.int32, device, zero=True)
-    launch_chunked(kernels.count_keys, keys.shape[0], [keys], [counts], device, atomics=True)
-    offsets, total = _scan(counts)
-    del counts
+    offsets = _key_offsets(keys, n, device)
     cursor = _empty(n, np.int32, wp.int32, device, zero=True)
-    items = _empty(total, np.int32, wp.int32, device)
+    items = _empty(keys.shape[0], np.int32, wp.int32, device)
     launch_chunked(kernels.fill_buckets, keys.shape[0], [keys, offsets], [cursor, items], device, atomics=True)
     return offsets, items
 
@@ -158,11 +169,9 @@ def _boundary(faces: wp.array, n: int, device: wp.Device) -> NDArray[np.int64]:
     count = faces.shape[0] // 3
     if count == 0:
         return np.zeros((0, 2), np.int64)
-    counts = _empty(n + 1, np.int32, wp.int32, device, zero=True)
-    launch_chunked(kernels.count_keys, faces.shape[0], [faces], [counts], device, atomics=True)
-    offsets, total = _scan(counts)
+    offsets = _key_offsets(faces, n, device)
     cursor = _empty(n, np.int32, wp.int32, device, zero=True)
-    corners = _empty(total, (np.int32, 2), wp.vec2i, device)
+    corners = _empty(faces.shape[0], (np.int32, 2), wp.vec2i, device)
     launch_chunked(kernels.fill_corners, count, [faces, offsets], [cursor, corners], device, atomics=True)
     del cursor
     threads = chunked_threads(count, device)
