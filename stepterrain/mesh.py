@@ -97,22 +97,33 @@ def _empty(n: int, np_dtype: Any, dtype: Any, device: wp.Device, *, zero: bool =
     return wp.zeros(n, dtype=dtype, device=device) if zero else wp.empty(n, dtype=dtype, device=device)
 
 
-def _scan(counts: wp.array) -> tuple[wp.array, int]:
-    """The exclusive prefix sum of ``counts`` (n + 1, the last 0) and its total (the pass's one host sync)."""
+def _offsets(counts: wp.array) -> wp.array:
+    """The exclusive prefix sum of ``counts`` (n + 1, the last 0)."""
     offsets = _empty(counts.shape[0], np.int32, wp.int32, counts.device)
     wp.utils.array_scan(counts, offsets, inclusive=False)
+    return offsets
+
+
+def _scan(counts: wp.array) -> tuple[wp.array, int]:
+    """:func:`_offsets` of ``counts`` and their total (the pass's one host sync)."""
+    offsets = _offsets(counts)
     return offsets, read_int32(offsets, counts.shape[0] - 1)
+
+
+def _key_offsets(keys: wp.array, n: int, device: wp.Device) -> wp.array:
+    """Where the bucket of each key of ``keys`` (ints in [0, n)) starts: the exclusive scan of the key counts
+    (kernels/solid.py: count_keys). Their total is ``len(keys)``: no host sync."""
+    counts = _empty(n + 1, np.int32, wp.int32, device, zero=True)
+    launch_chunked(kernels.count_keys, keys.shape[0], [keys], [counts], device, atomics=True)
+    return _offsets(counts)
 
 
 def _buckets(keys: wp.array, n: int, device: wp.Device) -> tuple[wp.array, wp.array]:
     """The items of ``keys`` (ints in [0, n)) grouped by key, without a sort (kernels/solid.py: count_keys,
     fill_buckets): the bucket of key k is ``items[offsets[k]:offsets[k + 1]]``, in no particular order."""
-    counts = _empty(n + 1, np.int32, wp.int32, device, zero=True)
-    launch_chunked(kernels.count_keys, keys.shape[0], [keys], [counts], device, atomics=True)
-    offsets, total = _scan(counts)
-    del counts
+    offsets = _key_offsets(keys, n, device)
     cursor = _empty(n, np.int32, wp.int32, device, zero=True)
-    items = _empty(total, np.int32, wp.int32, device)
+    items = _empty(keys.shape[0], np.int32, wp.int32, device)
     launch_chunked(kernels.fill_buckets, keys.shape[0], [keys, offsets], [cursor, items], device, atomics=True)
     return offsets, items
 
@@ -158,11 +169,9 @@ def _boundary(faces: wp.array, n: int, device: wp.Device) -> NDArray[np.int64]:
     count = faces.shape[0] // 3
     if count == 0:
         return np.zeros((0, 2), np.int64)
-    counts = _empty(n + 1, np.int32, wp.int32, device, zero=True)
-    launch_chunked(kernels.count_keys, faces.shape[0], [faces], [counts], device, atomics=True)
-    offsets, total = _scan(counts)
+    offsets = _key_offsets(faces, n, device)
     cursor = _empty(n, np.int32, wp.int32, device, zero=True)
-    corners = _empty(total, (np.int32, 2), wp.vec2i, device)
+    corners = _empty(faces.shape[0], (np.int32, 2), wp.vec2i, device)
     launch_chunked(kernels.fill_corners, count, [faces, offsets], [cursor, corners], device, atomics=True)
     del cursor
     threads = chunked_threads(count, device)
@@ -239,14 +248,14 @@ def _pairs(faces: wp.array, terrace_mask: NDArray[np.bool_], n: int, device: wp.
 
 
 def _columns(vertices: NDArray[np.float64], fan: NDArray[np.float64] | None, pair: wp.array,
-             device: wp.Device) -> tuple[NDArray[np.int64], wp.array]:
-    """Per vertex its column, in int64 on the host and int32 on ``device``: the vertices with the same (x, y, [fan],
-    pair) compared bit for bit share one. No sort: the pair groups as buckets (a column lies in one), the smallest
-    vertex of each column found in its bucket (kernels/solid.py: column_leaders), and the columns numbered in the order
-    of their smallest vertex (a scan of the leaders, number_columns)."""
+             device: wp.Device) -> tuple[NDArray[np.int64], wp.array, int]:
+    """Per vertex its column, in int64 on the host and int32 on ``device``, and the number of columns: the vertices
+    with the same (x, y, [fan], pair) compared bit for bit share one. No sort: the pair groups as buckets (a column
+    lies in one), the smallest vertex of each column found in its bucket (kernels/solid.py: column_leaders), and the
+    columns numbered in the order of their smallest vertex (a scan of the leaders, number_columns)."""
     n = len(vertices)
     if n == 0:
-        return np.zeros(0, np.int64), _empty(0, np.int32, wp.int32, device)
+        return np.zeros(0, np.int64), _empty(0, np.int32, wp.int32, device), 0
     offsets, members = _buckets(pair, n, device)
     bits = to_device(np.ascontiguousarray(vertices).view(np.int64).reshape(-1), wp.int64, device)
     fans = to_device(fan.view(np.int64) if fan is not None else np.zeros(0, np.int64), wp.int64, device)
@@ -273,7 +282,7 @@ def _columns(vertices: NDArray[np.float64], fan: NDArray[np.float64] | None, pai
     ids = _empty(n, np.int64, wp.int64, device)
     ids32 = _empty(n, np.int32, wp.int32, device)
     launch_chunked(kernels.number_columns, n, [leader, starts], [ids, ids32], device)
-    return ids.numpy(), ids32
+    return ids.numpy(), ids32, read_int32(starts, n - 1)  # the leaders' count
 
 
 def close_solid(
@@ -323,7 +332,7 @@ def close_solid(
                                   f"{len(vertices):,}")
     device = _device_of(device)
     flat, low, high = _narrow_faces(faces, device)
-    if len(faces) and (low < 0 or high >= len(vertices)):
+    if low < 0 or high >= len(vertices):  # (0, 0) without faces
         raise InvalidInputError(f"faces must index the {len(vertices)} vertices (0 .. {len(vertices) - 1}); got "
                                 f"indices {low} .. {high}")
     terrace_mask = np.asarray(terrace_mask)
@@ -380,9 +389,8 @@ def close_solid(
         raise OutputTooLargeError(f"vertices: the kernels index at most {MAX_INT32 // 3:,} vertices with int32; got "
                                   f"{n:,} with the copies of the surface's pinch vertices")
     pair = _pairs(flat, terrace_mask, n, device)
-    column, column32 = _columns(vertices, fan if split else None, pair, device)
+    column, column32, n_columns = _columns(vertices, fan if split else None, pair, device)
     del pair
-    n_columns = int(column.max()) + 1
     if 3 * (n + n_columns) > MAX_INT32 or 3 * (2 * len(faces) + 3 * len(edges)) > MAX_INT32:
         raise OutputTooLargeError(f"the solid of {len(faces):,} faces and {n:,} vertices would have more faces or "
                                   f"vertices than the kernels index with int32 (3 per face or vertex)")
