@@ -2049,14 +2049,14 @@ def _run_locked(
     timeout: float,
     progress: bool | Callable[[str], str],
     start: float,
+    read: tuple[dict[str, Any], dict[str, Any], str | None],
     ranges: tuple[dict[str, Any], bool] | None = None,
-    read: tuple[dict[str, Any], dict[str, Any], str | None] | None = None,
     identities: Mapping[str, str] | None = None,
     kept: _Kept | None = None,
 ) -> BatchReport:
     """:func:`batch` once the arguments are checked and the output folder is locked; ``ranges``: the files' height
     ranges to record in the manifest (:func:`_files_range`) and whether they differ from those it records;
-    ``read``: :func:`_read_manifest` of the folder (read here when not given); ``identities``: the file items'
+    ``read``: :func:`_read_manifest` of the folder; ``identities``: the file items'
     :func:`_file_identities` (found here when not given); ``kept``: terrains the range pass read, by item key, for
     the serial run's items."""
     ext = options.ext
@@ -2065,7 +2065,7 @@ def _run_locked(
 
     fingerprints = _fingerprints(items, src, options, identities)
     # read without resume too: the entries of other items and other formats stay recorded
-    manifest, _, manifest_note = _read_manifest(folder) if read is None else read
+    manifest, _, manifest_note = read
     notes = [note for note in (lock.note, manifest_note) if note is not None]
     results: dict[str, ItemResult] = {}
     todo = []
@@ -2233,8 +2233,7 @@ def _levels_and_range(
 
 def _files_range(
     items: Sequence[BatchItem], options: _Options, retries: int, progress: bool,
-    cached: Mapping[str, Any] | None = None, identities: Mapping[str, str] | None = None,
-    kept: _Kept | None = None,
+    cached: Mapping[str, Any], identities: Mapping[str, str], kept: _Kept | None = None,
 ) -> tuple[tuple[tuple[float, float], str] | None, dict[str, Any]]:
     """The (min, max) of the heights a triangle uses over every file of a folder or list (each file's
     :attr:`~stepterrain.terrain.Terrain.height_range`, read as its item reads it: ``height_unit``, ``band``,
@@ -2246,12 +2245,9 @@ def _files_range(
     :class:`~stepterrain.errors.StepTerrainError`, which fails its item without retries) is left out, its item
     failing with the reason; a transient OSError under the read (EIO, ETIMEDOUT, ...: a disk or network
     hiccup) is retried ``retries`` times, then raised: levels from the other files alone would differ from those of
-    a run that read it. ``identities``: the files' :func:`_file_identities`, found here when not given. ``kept``:
+    a run that read it. ``identities``: the files' :func:`_file_identities`. ``kept``:
     where the terrains read go, by item key, for items that run in this process after (:func:`_run_serial`), so
     that a file is read once (the caller asks for it for one file only: not every file of a folder in memory)."""
-    cached = {} if cached is None else cached
-    if identities is None:
-        identities = _file_identities(items)
     keys = [_range_key(identities[item.key], options) for item in items]
     bar = None
     unread = sum(key not in cached for key in keys)
@@ -2321,8 +2317,8 @@ def _file_range(item: BatchItem, options: _Options, retries: int, kept: _Kept | 
 
 def _files_levels(
     items: Sequence[BatchItem], options: _Options, interval: float | None, levels: ArrayLike | None, base: float,
-    retries: int, progress: bool, cached: Mapping[str, Any] | None = None,
-    identities: Mapping[str, str] | None = None, kept: _Kept | None = None,
+    retries: int, progress: bool, cached: Mapping[str, Any], identities: Mapping[str, str],
+    kept: _Kept | None = None,
 ) -> tuple[_Options, tuple[dict[str, Any], bool] | None, tuple[float, float] | None]:
     """``options`` with the levels and floor every file of a folder or list shares, as tiles of one raster share
     them (:func:`_levels_and_range`, :func:`_shared_floor`): the isovalues of ``interval`` over the height range of
@@ -2340,7 +2336,7 @@ def _files_levels(
     if not (options.solid or (options.colors is not None and levels is None) or (interval is None and levels is None)):
         return options, None, None  # explicit levels without a solid: every file has them already; no colours: none
     found, ranges = _files_range(items, options, retries, progress, cached, identities, kept)
-    changed = cached is None or dict(cached) != ranges  # a range added, dropped or changed
+    changed = dict(cached) != ranges  # a range added, dropped or changed
     if found is None:
         return options, (ranges, changed), None
     (lo, hi), lowest = found
