@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from ._files import gdal_path
 from .camera import _MAX_COORDINATE
 from .cli import (
     Progress,
@@ -32,7 +33,17 @@ from .cli import (
 )
 from .errors import DataFileError, InvalidInputError
 from .export import MESH_EXTENSIONS
-from .io import _NPZ_SCALING, GDAL_FORMATS, equals_nodata, npz_missing, npz_nodata, open_npz, refuse_npz_scaling
+from .io import (
+    _NPZ_SCALING,
+    GDAL_FORMATS,
+    _virtual_refusal,
+    dem_path,
+    equals_nodata,
+    npz_missing,
+    npz_nodata,
+    open_npz,
+    refuse_npz_scaling,
+)
 
 _EARTH_RADIUS = 6_371_000.0  # --radius's default (globe.EARTH_RADIUS, not imported before the command runs)
 
@@ -138,9 +149,6 @@ def add_parser(commands: Any) -> None:
 
 
 def _load_grid(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    from ._files import gdal_path
-    from .io import _virtual_refusal, dem_path
-
     virtual = gdal_path(path)  # a /vsizip/... path or a URL: read by GDAL, as load_dem reads it
     if virtual is not None and virtual.suffix.lower() not in GDAL_FORMATS:
         raise InvalidInputError(_virtual_refusal(virtual))

@@ -32,8 +32,8 @@ from typing import Any, TextIO
 import numpy as np
 
 from ._compaction import budget_hint, get_memory_budget, set_memory_budget
-from .errors import InvalidInputError, StepTerrainError, counted
-from .export import MESH_EXTENSIONS
+from .errors import DataFileError, InvalidInputError, StepTerrainError, counted
+from .export import MESH_EXTENSIONS, _special_file_kind, probe_writable
 from .stepped import TARGET_STEPS, colormap, colormap_samples, nice_interval
 
 __all__ = ["main", "build_parser", "nice_interval"]
@@ -565,9 +565,6 @@ def _check_outputs(inputs: dict[str, str | None] | None = None, /, **paths: Path
     replace the input) or a file that cannot be written (the path is a folder, a named pipe or a device, or its
     nearest existing folder is a file or not writable): a command with several outputs would otherwise write the
     first and fail on the next. Creates nothing."""
-    from .errors import DataFileError
-    from .export import _special_file_kind, probe_writable
-
     seen: dict[Path, str] = {}
     for option, path in paths.items():
         if path is None:
@@ -619,22 +616,18 @@ def _check_side_files(option: str, path: Path, sides: list[Path], inputs: dict[s
     --mesh terrain.obj`` wrote the texture and then refused the mesh. A side file's name longer than its folder
     allows (``PC_NAME_MAX``, else 255 bytes: ``<stem>_terrain_texture.png`` of a long stem) is refused too: it failed
     only after all the work, and after the other outputs were written."""
-    from .errors import DataFileError
-    from .export import _special_file_kind
-
     for side in sides:
         key = Path(os.path.abspath(side))
+        role = "material" if key.suffix.lower() == ".mtl" else "texture image"
         limit = _name_max(key.parent)
         if len(os.fsencode(key.name)) > limit:
             raise InvalidInputError(
-                f"{option} {str(path)!r} writes {key.name!r} beside it (its "
-                f"{'material' if key.suffix.lower() == '.mtl' else 'texture image'}), a name of "
+                f"{option} {str(path)!r} writes {key.name!r} beside it (its {role}), a name of "
                 f"{len(os.fsencode(key.name))} bytes, over the {limit} its folder allows; give {option} a shorter name")
         kind = _special_file_kind(key, folders=True)
         if kind is not None:  # refused by the write, but only after all the work and the other outputs written
             raise DataFileError(
-                f"{option} {str(path)!r} writes {key.name!r} beside it (its "
-                f"{'material' if key.suffix.lower() == '.mtl' else 'texture image'}), which is a {kind}, not a "
+                f"{option} {str(path)!r} writes {key.name!r} beside it (its {role}), which is a {kind}, not a "
                 f"regular file; remove it or give {option} another name")
         for name, given in [*inputs.items(), *outputs.items()]:
             if not given:
@@ -648,8 +641,7 @@ def _check_side_files(option: str, path: Path, sides: list[Path], inputs: dict[s
                 continue
             what = (f"the {name} file, which it would replace" if name in inputs
                     else f"what {name} names: one would replace the other")  # fmt: skip
-            raise InvalidInputError(f"{option} {str(path)!r} writes {key.name!r} beside it (its "
-                                    f"{'material' if key.suffix.lower() == '.mtl' else 'texture image'}), which is "
+            raise InvalidInputError(f"{option} {str(path)!r} writes {key.name!r} beside it (its {role}), which is "
                                     f"{what}; give {option} or {name} another name")
 
 

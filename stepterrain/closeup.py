@@ -664,14 +664,13 @@ def _mask_hint(dtype: np.dtype, lo: float, hi: float) -> str:
 def _color(value: Any, name: str) -> tuple[float, float, float]:
     import matplotlib.colors
 
+    refusal = f"{name} must be a matplotlib color (name, '#rrggbb' or RGB in [0, 1]); got {value!r}"
     try:
         rgb = tuple(float(c) for c in matplotlib.colors.to_rgb(value))
     except (ValueError, TypeError) as exc:
-        raise InvalidInputError(f"{name} must be a matplotlib color (name, '#rrggbb' or RGB in [0, 1]); "
-                                f"got {value!r}") from exc
+        raise InvalidInputError(refusal) from exc
     if not all(0.0 <= c <= 1.0 for c in rgb):  # matplotlib takes NaN in a tuple: a colour cast from NaN, with a warning
-        raise InvalidInputError(f"{name} must be a matplotlib color (name, '#rrggbb' or RGB in [0, 1]); "
-                                f"got {value!r}")
+        raise InvalidInputError(refusal)
     return rgb  # type: ignore[return-value]
 
 

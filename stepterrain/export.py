@@ -2044,15 +2044,15 @@ def _check_dense_gltf(file: Path) -> dict[str, Any] | None:
                     raise ValueError(f"not a glTF file: its JSON does not parse ({why})") from None
             else:
                 return None  # not a GLB: trimesh's reader says so
-        if isinstance(tree, dict) and not tree.get("scenes"):  # trimesh's reader: KeyError 'world'
+        scenes = tree.get("scenes") if isinstance(tree, dict) else None
+        if isinstance(tree, dict) and not scenes:  # trimesh's reader: KeyError 'world'
             raise ValueError("the glTF holds no scene ('scenes' missing or empty; glTF 2.0 §3.5): no node places a "
                              "mesh in its world")
-        if isinstance(tree, dict) and isinstance(tree["scenes"], list):  # trimesh: IndexError, KeyError 'world'
+        if isinstance(scenes, list):  # trimesh: IndexError, KeyError 'world'
             index = tree.get("scene", 0)
-            if type(index) is int and index >= len(tree["scenes"]):
-                raise ValueError(f"the glTF's 'scene' is {index}, but it holds {len(tree['scenes'])} scene(s) (glTF "
-                                 "2.0 §3.5)")
-            scene = tree["scenes"][index] if type(index) is int else None
+            if type(index) is int and index >= len(scenes):
+                raise ValueError(f"the glTF's 'scene' is {index}, but it holds {len(scenes)} scene(s) (glTF 2.0 §3.5)")
+            scene = scenes[index] if type(index) is int else None
             if isinstance(scene, dict) and not scene.get("nodes"):
                 raise ValueError(f"the glTF's scene {index} holds no node (glTF 2.0 §3.5: 'nodes' missing or empty): "
                                  "no node places a mesh in its world")
