@@ -1503,15 +1503,9 @@ class AnchorStrip:
 
 def _nearest_vertex_heights(pts: NDArray[np.float64], xy: NDArray[np.float64]) -> NDArray[np.float64]:
     """The z of the point of ``pts`` (P, 3) nearest to each of ``xy`` (N, 2) in projection."""
-    try:
-        from scipy.spatial import cKDTree
-    except ImportError:  # brute force in chunks of at most ~10 M distances
-        chunk = max(1, 10_000_000 // max(len(pts), 1))
-        idx = np.concatenate([np.argmin(((pts[None, :, :2] - xy[i: i + chunk, None, :]) ** 2).sum(-1), axis=1)
-                              for i in range(0, len(xy), chunk)])
-    else:
-        idx = cKDTree(pts[:, :2]).query(xy)[1]
-    return pts[idx, 2]
+    from scipy.spatial import cKDTree  # a dependency, imported where used
+
+    return pts[cKDTree(pts[:, :2]).query(xy)[1], 2]
 
 
 def _tin_heights(terrain: Terrain, xy: NDArray[np.float64]) -> NDArray[np.float64]:
