@@ -844,24 +844,26 @@ def _npz_xy_unit(units_xy: str, crs: str | None, file: Path) -> tuple[str, float
 
 
 def _crs_linear_unit(crs: str | None) -> tuple[str, float] | None:
-    """(unit, metres per unit) of a projected or local engineering CRS, ("metre", 1.0) for one in metres; None for
-    none, a geographic or other CRS, one PROJ cannot read, or without rasterio to look it up."""
+    """(unit, metres per unit) of a projected or local engineering CRS (a site grid: LOCAL_CS, ENGCRS), ("metre", 1.0)
+    for a projected one in metres; None for none, a geographic or other CRS (geocentric, vertical: no horizontal
+    plane in a linear unit), one PROJ cannot read, a site grid without a linear unit, or without rasterio to look it
+    up. The one reading of a CRS's unit: :func:`_projected_units` builds on it."""
     crs_obj = _crs_object(crs) if crs else None
     if crs_obj is None or crs_obj.is_geographic:
         return None
-    projected = _projected_units(crs)
-    if projected is not None:
-        return projected[0], projected[1]
     if crs_obj.is_projected:
-        return "metre", 1.0
-    wkt = crs_obj.to_wkt()
-    if wkt.lstrip().startswith(("LOCAL_CS[", "ENGCRS[", "ENGINEERINGCRS[")):
         try:
-            unit, factor = crs_obj.units_factor
-        except Exception:  # no linear unit to read
-            return None
-        return (str(unit), float(factor)) if factor == 1.0 else None
-    return None
+            unit, factor = crs_obj.linear_units_factor
+        except Exception:  # no linear unit to read: the grid keeps its own units, taken as metres
+            return "metre", 1.0
+        return ("metre", 1.0) if factor == 1.0 else (str(unit), float(factor))
+    if not crs_obj.to_wkt().lstrip().startswith(("LOCAL_CS[", "ENGCRS[", "ENGINEERINGCRS[")):
+        return None
+    try:
+        unit, factor = crs_obj.units_factor
+    except Exception:  # no linear unit to read
+        return None
+    return str(unit), float(factor)
 
 
 def npz_georeference_keys(arrays: Mapping[str, Any]) -> list[str]:
@@ -2268,18 +2270,12 @@ def _projected_units(crs: str | None) -> tuple[str, float, str | None] | None:
     grid: LOCAL_CS, ENGCRS), whose unit is not the metre; None for metres, a geographic or unknown CRS, or without
     rasterio to look the CRS up. (A site grid in feet kept feet as metres while a band's unit "ft" made its heights
     metres: 3.28 times too wide for them.)"""
-    crs_obj = _crs_object(crs) if crs else None
-    if crs_obj is None or crs_obj.is_geographic:
+    linear = _crs_linear_unit(crs)  # a CRS read already (_crs_object keeps it)
+    if linear is None or linear[1] == 1.0:
         return None
+    unit, factor = linear
+    crs_obj = _crs_object(crs)
     wkt = "" if crs_obj.is_projected else crs_obj.to_wkt()
-    if not crs_obj.is_projected and not wkt.lstrip().startswith(("LOCAL_CS[", "ENGCRS[", "ENGINEERINGCRS[")):
-        return None  # geocentric, vertical: no horizontal plane in a linear unit
-    try:
-        unit, factor = crs_obj.linear_units_factor if crs_obj.is_projected else crs_obj.units_factor
-    except Exception:  # no linear unit to read: keep the grid in its own units
-        return None
-    if factor == 1.0:
-        return None
     if wkt:  # the site grid in metres: its one UNIT (no PROJ form to change it in)
         block = _wkt_block(wkt, ("LENGTHUNIT", "UNIT"))
         try:
