@@ -1871,8 +1871,8 @@ def check_projected_scale(
     one's fields, or replaced, warned again, of the sphere's eqc as a projection), none, or one PROJ cannot read."""
     if not crs or _spherical_eqc(crs) is not None or _is_geographic(crs):
         return
-    projected = _projected_units(crs)
-    _check_projected_metres(Path(_GIVEN_GRID), crs, origin, spacing, shape, 1.0 if projected is None else projected[1],
+    linear = _crs_linear_unit(crs)  # its metres per unit only: not the metre twin _projected_units builds
+    _check_projected_metres(Path(_GIVEN_GRID), crs, origin, spacing, shape, 1.0 if linear is None else linear[1],
                             name=source or _GIVEN_GRID)
 
 
