@@ -1896,8 +1896,6 @@ def points_as_metres(
     if not crs or crs.lstrip().lower().startswith("+proj=eqc"):
         return None
     name = source or "the mesh"
-    inside = xy[used]
-    low, high = inside.min(axis=0), inside.max(axis=0)
     if _is_geographic(crs):
         body = _geographic_body(crs)
         lon = body.meridian + body.east * xy[:, 0] * body.degrees
@@ -1934,6 +1932,8 @@ def points_as_metres(
         return metres, local_crs, (f"{name} ({crs} degrees as local metres: (0, 0) at lon {lon_0:.9f}, lat "
                                    f"{lat_0:.9f}; dx at lat {lat_ts:.6f}, R = {radius:.10g} m)")
     # the points' extent as a grid of _SCALE_SAMPLES x _SCALE_SAMPLES nodes: its map scale checked as a grid's
+    inside = xy[used]
+    low, high = inside.min(axis=0), inside.max(axis=0)
     samples = _SCALE_SAMPLES
     check_projected_scale((samples, samples), (float(high[0] - low[0]) / (samples - 1),
                                                float(high[1] - low[1]) / (samples - 1)),
