@@ -405,13 +405,15 @@ def zip_member(file: Path) -> GdalPath:
                and not any(part.startswith(("__MACOSX", "._")) for part in PurePosixPath(n).parts)]
     given = str(file)
     if len(rasters) != 1:
-        found = ("holds no raster GDAL reads; it holds " + (", ".join(repr(n) for n in names[:10])
-                                                             + (f" and {len(names) - 10} more" if len(names) > 10
-                                                                else "") if names else "nothing")
-                 if not rasters else
-                 f"holds {len(rasters)} rasters: " + ", ".join(repr(n) for n in rasters[:10])
-                 + (f" and {len(rasters) - 10} more" if len(rasters) > 10 else "")
-                 + f"; name the one to read, e.g. '/vsizip/{given}/{rasters[0]}'")
+        def listed(members: list[str]) -> str:  # the first 10 named
+            more = f" and {len(members) - 10} more" if len(members) > 10 else ""
+            return ", ".join(repr(n) for n in members[:10]) + more
+
+        if not rasters:
+            found = "holds no raster GDAL reads; it holds " + (listed(names) if names else "nothing")
+        else:
+            found = (f"holds {len(rasters)} rasters: {listed(rasters)}; name the one to read, e.g. "
+                     f"'/vsizip/{given}/{rasters[0]}'")
         raise DataFileError(f"cannot read {given!r}: expected a zip holding one DEM ({', '.join(GDAL_FORMATS)}); it "
                             + found)
     gdal = f"/vsizip/{os.path.abspath(file)}/{rasters[0]}"
