@@ -405,13 +405,15 @@ def zip_member(file: Path) -> GdalPath:
                and not any(part.startswith(("__MACOSX", "._")) for part in PurePosixPath(n).parts)]
     given = str(file)
     if len(rasters) != 1:
-        found = ("holds no raster GDAL reads; it holds " + (", ".join(repr(n) for n in names[:10])
-                                                             + (f" and {len(names) - 10} more" if len(names) > 10
-                                                                else "") if names else "nothing")
-                 if not rasters else
-                 f"holds {len(rasters)} rasters: " + ", ".join(repr(n) for n in rasters[:10])
-                 + (f" and {len(rasters) - 10} more" if len(rasters) > 10 else "")
-                 + f"; name the one to read, e.g. '/vsizip/{given}/{rasters[0]}'")
+        def listed(members: list[str]) -> str:  # the first 10 named
+            more = f" and {len(members) - 10} more" if len(members) > 10 else ""
+            return ", ".join(repr(n) for n in members[:10]) + more
+
+        if not rasters:
+            found = "holds no raster GDAL reads; it holds " + (listed(names) if names else "nothing")
+        else:
+            found = (f"holds {len(rasters)} rasters: {listed(rasters)}; name the one to read, e.g. "
+                     f"'/vsizip/{given}/{rasters[0]}'")
         raise DataFileError(f"cannot read {given!r}: expected a zip holding one DEM ({', '.join(GDAL_FORMATS)}); it "
                             + found)
     gdal = f"/vsizip/{os.path.abspath(file)}/{rasters[0]}"
@@ -844,24 +846,26 @@ def _npz_xy_unit(units_xy: str, crs: str | None, file: Path) -> tuple[str, float
 
 
 def _crs_linear_unit(crs: str | None) -> tuple[str, float] | None:
-    """(unit, metres per unit) of a projected or local engineering CRS, ("metre", 1.0) for one in metres; None for
-    none, a geographic or other CRS, one PROJ cannot read, or without rasterio to look it up."""
+    """(unit, metres per unit) of a projected or local engineering CRS (a site grid: LOCAL_CS, ENGCRS), ("metre", 1.0)
+    for a projected one in metres; None for none, a geographic or other CRS (geocentric, vertical: no horizontal
+    plane in a linear unit), one PROJ cannot read, a site grid without a linear unit, or without rasterio to look it
+    up. The one reading of a CRS's unit: :func:`_projected_units` builds on it."""
     crs_obj = _crs_object(crs) if crs else None
     if crs_obj is None or crs_obj.is_geographic:
         return None
-    projected = _projected_units(crs)
-    if projected is not None:
-        return projected[0], projected[1]
     if crs_obj.is_projected:
-        return "metre", 1.0
-    wkt = crs_obj.to_wkt()
-    if wkt.lstrip().startswith(("LOCAL_CS[", "ENGCRS[", "ENGINEERINGCRS[")):
         try:
-            unit, factor = crs_obj.units_factor
-        except Exception:  # no linear unit to read
-            return None
-        return (str(unit), float(factor)) if factor == 1.0 else None
-    return None
+            unit, factor = crs_obj.linear_units_factor
+        except Exception:  # no linear unit to read: the grid keeps its own units, taken as metres
+            return "metre", 1.0
+        return ("metre", 1.0) if factor == 1.0 else (str(unit), float(factor))
+    if not crs_obj.to_wkt().lstrip().startswith(("LOCAL_CS[", "ENGCRS[", "ENGINEERINGCRS[")):
+        return None
+    try:
+        unit, factor = crs_obj.units_factor
+    except Exception:  # no linear unit to read
+        return None
+    return str(unit), float(factor)
 
 
 def npz_georeference_keys(arrays: Mapping[str, Any]) -> list[str]:
@@ -1869,8 +1873,8 @@ def check_projected_scale(
     one's fields, or replaced, warned again, of the sphere's eqc as a projection), none, or one PROJ cannot read."""
     if not crs or _spherical_eqc(crs) is not None or _is_geographic(crs):
         return
-    projected = _projected_units(crs)
-    _check_projected_metres(Path(_GIVEN_GRID), crs, origin, spacing, shape, 1.0 if projected is None else projected[1],
+    linear = _crs_linear_unit(crs)  # its metres per unit only: not the metre twin _projected_units builds
+    _check_projected_metres(Path(_GIVEN_GRID), crs, origin, spacing, shape, 1.0 if linear is None else linear[1],
                             name=source or _GIVEN_GRID)
 
 
@@ -1894,8 +1898,6 @@ def points_as_metres(
     if not crs or crs.lstrip().lower().startswith("+proj=eqc"):
         return None
     name = source or "the mesh"
-    inside = xy[used]
-    low, high = inside.min(axis=0), inside.max(axis=0)
     if _is_geographic(crs):
         body = _geographic_body(crs)
         lon = body.meridian + body.east * xy[:, 0] * body.degrees
@@ -1932,6 +1934,8 @@ def points_as_metres(
         return metres, local_crs, (f"{name} ({crs} degrees as local metres: (0, 0) at lon {lon_0:.9f}, lat "
                                    f"{lat_0:.9f}; dx at lat {lat_ts:.6f}, R = {radius:.10g} m)")
     # the points' extent as a grid of _SCALE_SAMPLES x _SCALE_SAMPLES nodes: its map scale checked as a grid's
+    inside = xy[used]
+    low, high = inside.min(axis=0), inside.max(axis=0)
     samples = _SCALE_SAMPLES
     check_projected_scale((samples, samples), (float(high[0] - low[0]) / (samples - 1),
                                                float(high[1] - low[1]) / (samples - 1)),
@@ -2268,18 +2272,12 @@ def _projected_units(crs: str | None) -> tuple[str, float, str | None] | None:
     grid: LOCAL_CS, ENGCRS), whose unit is not the metre; None for metres, a geographic or unknown CRS, or without
     rasterio to look the CRS up. (A site grid in feet kept feet as metres while a band's unit "ft" made its heights
     metres: 3.28 times too wide for them.)"""
-    crs_obj = _crs_object(crs) if crs else None
-    if crs_obj is None or crs_obj.is_geographic:
+    linear = _crs_linear_unit(crs)  # a CRS read already (_crs_object keeps it)
+    if linear is None or linear[1] == 1.0:
         return None
+    unit, factor = linear
+    crs_obj = _crs_object(crs)
     wkt = "" if crs_obj.is_projected else crs_obj.to_wkt()
-    if not crs_obj.is_projected and not wkt.lstrip().startswith(("LOCAL_CS[", "ENGCRS[", "ENGINEERINGCRS[")):
-        return None  # geocentric, vertical: no horizontal plane in a linear unit
-    try:
-        unit, factor = crs_obj.linear_units_factor if crs_obj.is_projected else crs_obj.units_factor
-    except Exception:  # no linear unit to read: keep the grid in its own units
-        return None
-    if factor == 1.0:
-        return None
     if wkt:  # the site grid in metres: its one UNIT (no PROJ form to change it in)
         block = _wkt_block(wkt, ("LENGTHUNIT", "UNIT"))
         try:
