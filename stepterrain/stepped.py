@@ -833,16 +833,15 @@ def blend(
     if plain is not None:
         scalar = plain
     elif isinstance(gamma, Lens):
-        xmin, xmax, ymin, ymax = gamma.extent if gamma.extent is not None else terrain.extent
-        ox, oy = terrain.local_origin
+        lower, size = _lens_frame(terrain, gamma)  # within float32 (_check_lens_reach)
         gammas = wp.empty(n, dtype=wp.float32, device=device)
         launch_chunked(
             stepped_kernels.sample_lens,
             n=n,
             inputs=[
                 to_device(gamma.mask, wp.float32, device).reshape(gamma.mask.shape),
-                wp.vec2(xmin - ox, ymin - oy),
-                wp.vec2(max(xmax - xmin, 1e-30), max(ymax - ymin, 1e-30)),
+                wp.vec2(*lower),
+                wp.vec2(*size),
                 arrays.points,
             ],
             outputs=[gammas],
@@ -959,6 +958,8 @@ def _stepped_arrays(t: Terrain, values: NDArray[np.float32], gamma: GammaLike, c
     """The passes of :func:`stepped` and :func:`stepped_series`: the arrays and the blended world vertices (a
     scalar γ blended in the vertex pass, any other by :func:`blend`); the colours, and a ``solid``'s skirt and base,
     counted against the budget."""
+    if isinstance(gamma, Lens):
+        _check_lens_reach(t, gamma)  # before the passes: blend samples it in float32
     arrays = step_arrays(t, values, device=device, want_sources=_needs_sources(t, gamma, colors),
                          memory_budget=memory_budget, extra_vertex_bytes=0 if colors is None else _COLOR_BYTES,
                          want_face_sources=colors is None and t.face_index is not None,
@@ -966,6 +967,29 @@ def _stepped_arrays(t: Terrain, values: NDArray[np.float32], gamma: GammaLike, c
                          **_direct_blend(gamma, colors))  # fmt: skip
     vertices = arrays.vertices if arrays.vertices is not None else blend(t, arrays, gamma, device=device)
     return arrays, vertices
+
+
+def _lens_frame(terrain: Terrain, lens: Lens) -> tuple[tuple[float, float], tuple[float, float]]:
+    """The lower corner of ``lens``'s extent relative to the terrain's local origin and the extent's size, in float64,
+    as :func:`blend` passes them to kernels/stepped.py's sample_lens (a size below 1e-30 raised to it)."""
+    xmin, xmax, ymin, ymax = lens.extent if lens.extent is not None else terrain.extent
+    ox, oy = terrain.local_origin
+    return (xmin - ox, ymin - oy), (max(xmax - xmin, 1e-30), max(ymax - ymin, 1e-30))
+
+
+def _check_lens_reach(terrain: Terrain, lens: Lens) -> None:
+    """Refuse a lens whose extent's size, or lower corner relative to the terrain, float32 cannot hold: sample_lens
+    takes them in float32, and an infinite size put every vertex at the mask's first column or row ((p - lower) /
+    inf = 0; an infinite corner too, inf / inf = NaN), a wrong γ without a word (an extent of ±2e38 read the mask's
+    corner, not its centre over the terrain)."""
+    lower, size = _lens_frame(terrain, lens)
+    if max(abs(v) for v in (*lower, *size)) > FLOAT32_MAX:
+        xmin, xmax, ymin, ymax = lens.extent if lens.extent is not None else terrain.extent
+        raise InvalidInputError(
+            f"gamma: the lens extent (xmin, xmax, ymin, ymax) must lie within float32 of the terrain (its width, its "
+            f"height and its lower corner's offset from the terrain's local origin {terrain.local_origin} below "
+            f"3.4e+38: the lens is sampled in float32); got ({xmin:g}, {xmax:g}, {ymin:g}, {ymax:g}), beyond float32"
+        )
 
 
 def _needs_sources(terrain: Terrain, gamma: GammaLike, colors: Any) -> bool:

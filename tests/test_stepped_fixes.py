@@ -996,3 +996,18 @@ def test_a_fold_is_refused_however_its_points_are_shared(kind, moved):
         mesh = trimesh.Trimesh(soup, np.arange(len(soup)).reshape(-1, 3), vertex_colors=colours, process=False)
     with pytest.raises(st.InvalidInputError, match=r"faces with finite heights fold over \(wound against the rest\)"):
         st.stepped(mesh, interval=0.5)
+
+
+@pytest.mark.parametrize("half", [2e38, 1e39])
+def test_a_lens_extent_wider_than_float32_is_refused_not_sampled_at_its_corner(half):
+    """A lens extent whose span (or whose corner relative to the terrain) is beyond float32 was sampled wrongly,
+    silently: sample_lens takes the extent's lower corner and size in float32, so a span of 4e38 became inf and every
+    vertex read the mask's first column ((p - lower) / inf = 0; at ±1e39 the corner is -inf too, inf / inf = NaN),
+    where the mask's centre lies over the terrain. Found by the fresh-eyes hunt (lenses at huge coordinates)."""
+    heights = np.arange(20.0).reshape(4, 5)
+    mask = np.array([[0.0, 1.0], [1.0, 0.0]], np.float32)  # 0.5 at its centre, over the terrain
+    with pytest.raises(st.InvalidInputError, match=r"^gamma: the lens extent .* beyond float32"):
+        st.stepped(heights, interval=2.0, gamma=st.Lens(mask, (-half, half, -half, half)))
+    # within float32 the same lens reads its centre: γ = 0.5 at every vertex, as the scalar gives it
+    wide = st.stepped(heights, interval=2.0, gamma=st.Lens(mask, (-1e38, 1e38, -1e38, 1e38)))
+    np.testing.assert_array_equal(wide.vertices, st.stepped(heights, interval=2.0, gamma=0.5).vertices)
