@@ -121,6 +121,8 @@ class Lens:
     y of ``extent`` = (xmin, xmax, ymin, ymax) in world units (``None``: the terrain's extent). It is sampled
     bilinearly at every output vertex, so walls stay vertical; beyond ``extent`` a vertex takes the value of the
     nearest mask edge (the sampler clamps), so a mask over part of the terrain holds its border value elsewhere.
+    The sampler works in float32: :func:`stepped` refuses an extent wider or taller than float32 holds (3.4e+38), or
+    whose lower corner lies that far from the terrain.
     """
 
     mask: NDArray[np.float32]
