@@ -121,8 +121,7 @@ class Lens:
     y of ``extent`` = (xmin, xmax, ymin, ymax) in world units (``None``: the terrain's extent). It is sampled
     bilinearly at every output vertex, so walls stay vertical; beyond ``extent`` a vertex takes the value of the
     nearest mask edge (the sampler clamps), so a mask over part of the terrain holds its border value elsewhere.
-    The sampler works in float32: :func:`stepped` refuses an extent wider or taller than float32 holds (3.4e+38), or
-    whose lower corner lies that far from the terrain.
+    The sampler works in float32: :func:`stepped` refuses an extent wider or taller than float32 holds (3.4e+38).
     """
 
     mask: NDArray[np.float32]
@@ -980,17 +979,19 @@ def _lens_frame(terrain: Terrain, lens: Lens) -> tuple[tuple[float, float], tupl
 
 
 def _check_lens_reach(terrain: Terrain, lens: Lens) -> None:
-    """Refuse a lens whose extent's size, or lower corner relative to the terrain, float32 cannot hold: sample_lens
-    takes them in float32, and an infinite size put every vertex at the mask's first column or row ((p - lower) /
-    inf = 0; an infinite corner too, inf / inf = NaN), a wrong γ without a word (an extent of ±2e38 read the mask's
-    corner, not its centre over the terrain)."""
-    lower, size = _lens_frame(terrain, lens)
-    if max(abs(v) for v in (*lower, *size)) > FLOAT32_MAX:
-        xmin, xmax, ymin, ymax = lens.extent if lens.extent is not None else terrain.extent
+    """Refuse a lens whose extent is wider or taller than float32 holds: sample_lens takes its size in float32, and
+    an infinite size put every vertex at the mask's first column or row ((p - lower) / inf = 0; with an infinite
+    corner too, inf / inf = NaN), a wrong γ without a word (an extent of ±2e38 read the mask's corner, not its centre
+    over the terrain). A corner beyond float32 with a size within it is no error: the corner is ±inf in float32,
+    (p - lower) / size = ∓inf, and every vertex takes the mask edge facing the terrain, as it should (the lens lies
+    wholly to one side: the vertices' local x, y are float32)."""
+    _, (width, height) = _lens_frame(terrain, lens)
+    if max(width, height) > FLOAT32_MAX:
+        extent = lens.extent if lens.extent is not None else terrain.extent
         raise InvalidInputError(
-            f"gamma: the lens extent (xmin, xmax, ymin, ymax) must lie within float32 of the terrain (its width, its "
-            f"height and its lower corner's offset from the terrain's local origin {terrain.local_origin} below "
-            f"3.4e+38: the lens is sampled in float32); got ({xmin:g}, {xmax:g}, {ymin:g}, {ymax:g}), beyond float32"
+            f"gamma: the lens extent (xmin, xmax, ymin, ymax) must be at most {FLOAT32_MAX:.8g} wide and tall (the "
+            f"lens is sampled in float32); got {tuple(float(v) for v in extent)!r}, {width:.8g} wide and "
+            f"{height:.8g} tall"
         )
 
 

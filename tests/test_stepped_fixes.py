@@ -1006,8 +1006,29 @@ def test_a_lens_extent_wider_than_float32_is_refused_not_sampled_at_its_corner(h
     where the mask's centre lies over the terrain. Found by the fresh-eyes hunt (lenses at huge coordinates)."""
     heights = np.arange(20.0).reshape(4, 5)
     mask = np.array([[0.0, 1.0], [1.0, 0.0]], np.float32)  # 0.5 at its centre, over the terrain
-    with pytest.raises(st.InvalidInputError, match=r"^gamma: the lens extent .* beyond float32"):
+    refused = r"^gamma: the lens extent .* must be at most 3.4028235e\+38 wide and tall .*got .*e\+3[89] wide"
+    with pytest.raises(st.InvalidInputError, match=refused):
         st.stepped(heights, interval=2.0, gamma=st.Lens(mask, (-half, half, -half, half)))
     # within float32 the same lens reads its centre: γ = 0.5 at every vertex, as the scalar gives it
     wide = st.stepped(heights, interval=2.0, gamma=st.Lens(mask, (-1e38, 1e38, -1e38, 1e38)))
     np.testing.assert_array_equal(wide.vertices, st.stepped(heights, interval=2.0, gamma=0.5).vertices)
+
+
+@pytest.mark.parametrize("corner, edge", [((1e39, 0.0), 0.0), ((-1e39, 0.0), 1.0), ((0.0, 1e39), 0.0),
+                                          ((0.0, -1e39), 1.0)])
+def test_a_lens_far_beyond_float32_but_narrow_is_sampled_at_its_edge_not_refused(corner, edge):
+    """A lens whose corner lies beyond float32 from the terrain, but whose width and height float32 holds, is a valid
+    lens wholly to one side of the terrain: every vertex takes the mask's edge facing it (the sampler clamps). The
+    float32-reach check refused it with the too-wide lenses, though sample_lens gets it right (its corner ±inf in
+    float32, (p - lower) / size = ∓inf, clamped to the facing edge); only the width and height must fit float32."""
+    heights = np.arange(20.0).reshape(4, 5)
+    mask = np.array([[0.0, 1.0], [0.0, 1.0]], np.float32)  # γ 0 on its low-x edge, 1 on its high-x edge
+    x, y = corner
+    if x == 0.0:
+        mask = np.ascontiguousarray(mask.T)  # γ 0 on its low-y edge (row 0), 1 on its high-y edge
+    span = 1e30  # within float32 (and within float64's precision at 1e39)
+    lens = st.Lens(mask, (x, x + span, y, y + span))
+    expected = st.stepped(heights, interval=2.0, gamma=edge).vertices
+    np.testing.assert_array_equal(st.stepped(heights, interval=2.0, gamma=lens).vertices, expected)
+    (frame,) = st.stepped_series(heights[None], interval=2.0, gamma=lens)
+    np.testing.assert_array_equal(frame.vertices, expected)
