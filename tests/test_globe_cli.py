@@ -487,3 +487,30 @@ def test_globe_truncated_npz_leaves_no_file_open(tmp_path, capsys):
         gc.collect()
     assert "cut.npz' as .npz" in capsys.readouterr().err
     assert [str(w.message) for w in caught if issubclass(w.category, ResourceWarning)] == []
+
+
+def test_globe_npz_heights_in_the_unit_it_names_become_metres(tmp_path, capsys):
+    """The globe read its .npz itself and ignored its 'units' (which load_dem reads): heights in feet were meshed as
+    metres, 3.28 times too high. They become metres as load_dem makes them: the globe of 1000 ft is that of
+    304.8 m, and a unit that is no length is refused, naming it."""
+    lat, lon = np.linspace(-85.0, 85.0, 18), np.linspace(-175.0, 175.0, 36)
+    relief = np.add.outer(np.linspace(0.0, 500.0, 18), np.linspace(0.0, 500.0, 36))
+    meshes = {}
+    for name, heights, units in (("ft", relief, "ft"), ("m", relief * 0.3048, "m"), ("bare", relief * 0.3048, None),
+                                 ("numbers", relief, None)):
+        extra = {} if units is None else {"units": np.array(units)}
+        np.savez(tmp_path / f"{name}.npz", elevation=heights, lat=lat, lon=lon, **extra)
+        out = tmp_path / f"{name}.ply"
+        assert main(["-q", "globe", str(tmp_path / f"{name}.npz"), "--no-camera", "--face-size", "9",
+                     "--device", "cpu", "-o", str(out)]) == 0, capsys.readouterr().err
+        meshes[name] = trimesh.load(out, process=False)
+    assert np.array_equal(meshes["ft"].faces, meshes["m"].faces)
+    assert np.allclose(meshes["ft"].vertices, meshes["m"].vertices, rtol=0.0, atol=1e-3)
+    assert np.array_equal(meshes["m"].vertices, meshes["bare"].vertices)
+    lifted = {name: np.linalg.norm(meshes[name].vertices, axis=1) - 6_371_000.0 for name in ("ft", "numbers")}
+    assert lifted["ft"].max() == pytest.approx(0.3048 * lifted["numbers"].max(), rel=1e-4)  # not the feet as metres
+    np.savez(tmp_path / "odd.npz", elevation=relief, lat=lat, lon=lon, units=np.array("parsec"))
+    assert main(["-q", "globe", str(tmp_path / "odd.npz"), "--face-size", "9", "-o", str(tmp_path / "x.ply")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("stepterrain globe: error: cannot read ") and "got 'parsec' (its 'units')" in err, err
+    assert not (tmp_path / "x.ply").exists()
