@@ -1510,7 +1510,10 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
         from PIL import Image
 
         try:
-            picture = Image.open(image)  # type: ignore[arg-type]
+            try:
+                picture = Image.open(image)  # type: ignore[arg-type]
+            except ValueError as exc:  # Pillow's header parsers: a PPM cut short, "Reached EOF while reading header"
+                raise OSError(str(exc)) from exc  # a traceback: worded below as the file's other errors are
             try:
                 from .texture_lod import _tiff_as_stored
 

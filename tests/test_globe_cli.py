@@ -275,11 +275,12 @@ def test_globe_texture_file_with_transparent_nodata_keeps_its_alpha(tmp_path):
     np.testing.assert_array_equal(np.asarray(texture.convert("RGBA")), image)
 
 
-@pytest.mark.parametrize("texture", ["missing.png", "folder", "notes.png", "dot.png"])
+@pytest.mark.parametrize("texture", ["missing.png", "folder", "notes.png", "dot.png", "ppm.png"])
 def test_globe_texture_is_checked_before_the_work(tmp_path, capsys, monkeypatch, texture):
     """--texture was read only after the globe was built and meshed: a missing file, a folder, a text file or an
     image too small to drape failed after that work. It is read first now; the globe is never built. A 1 x 1 RGB
-    image was refused as not "an (H, W, 3|4) image": the message now says it needs 2 x 2 pixels."""
+    image was refused as not "an (H, W, 3|4) image": the message now says it needs 2 x 2 pixels. A file whose header
+    Pillow refuses with a ValueError (a PPM cut short) was a traceback."""
     from PIL import Image
 
     from stepterrain import globe
@@ -287,6 +288,7 @@ def test_globe_texture_is_checked_before_the_work(tmp_path, capsys, monkeypatch,
     (tmp_path / "folder").mkdir()
     (tmp_path / "notes.png").write_text("not an image")
     Image.fromarray(np.zeros((1, 1, 3), np.uint8)).save(tmp_path / "dot.png")
+    (tmp_path / "ppm.png").write_bytes(b"P6\n")  # a PPM header cut short: Pillow's ValueError, a traceback
 
     def built(*args, **kwargs):
         raise AssertionError("the globe was built before --texture was read")
