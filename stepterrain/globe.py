@@ -1514,6 +1514,9 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
                 picture = Image.open(image)  # type: ignore[arg-type]
             except ValueError as exc:  # Pillow's header parsers: a PPM cut short, "Reached EOF while reading header"
                 raise OSError(str(exc)) from exc  # a traceback: worded below as the file's other errors are
+            except Image.DecompressionBombError as exc:  # not an OSError either: the full 21600 x 10800 Blue Marble
+                raise OSError(f"{exc} (Pillow's decompression-bomb limit, PIL.Image.MAX_IMAGE_PIXELS): downsample "
+                              "it, or raise that limit") from exc
             try:
                 from .texture_lod import _tiff_as_stored
 

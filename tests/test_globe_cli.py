@@ -275,12 +275,16 @@ def test_globe_texture_file_with_transparent_nodata_keeps_its_alpha(tmp_path):
     np.testing.assert_array_equal(np.asarray(texture.convert("RGBA")), image)
 
 
-@pytest.mark.parametrize("texture", ["missing.png", "folder", "notes.png", "dot.png", "ppm.png"])
+@pytest.mark.parametrize("texture", ["missing.png", "folder", "notes.png", "dot.png", "ppm.png", "bomb.png"])
 def test_globe_texture_is_checked_before_the_work(tmp_path, capsys, monkeypatch, texture):
     """--texture was read only after the globe was built and meshed: a missing file, a folder, a text file or an
     image too small to drape failed after that work. It is read first now; the globe is never built. A 1 x 1 RGB
     image was refused as not "an (H, W, 3|4) image": the message now says it needs 2 x 2 pixels. A file whose header
-    Pillow refuses with a ValueError (a PPM cut short) was a traceback."""
+    Pillow refuses with a ValueError (a PPM cut short) was a traceback, and so was one past Pillow's decompression-bomb
+    limit (a PNG header of the full 21600 x 10800 Blue Marble): its DecompressionBombError is no OSError either."""
+    import struct
+    import zlib
+
     from PIL import Image
 
     from stepterrain import globe
@@ -289,6 +293,12 @@ def test_globe_texture_is_checked_before_the_work(tmp_path, capsys, monkeypatch,
     (tmp_path / "notes.png").write_text("not an image")
     Image.fromarray(np.zeros((1, 1, 3), np.uint8)).save(tmp_path / "dot.png")
     (tmp_path / "ppm.png").write_bytes(b"P6\n")  # a PPM header cut short: Pillow's ValueError, a traceback
+
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    header = struct.pack(">IIBBBBB", 21600, 10800, 8, 2, 0, 0, 0)  # 233 Mpx of RGB: the header alone
+    (tmp_path / "bomb.png").write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IEND", b""))
 
     def built(*args, **kwargs):
         raise AssertionError("the globe was built before --texture was read")
@@ -300,6 +310,7 @@ def test_globe_texture_is_checked_before_the_work(tmp_path, capsys, monkeypatch,
     expected = ("--texture must be an (H, W, 3|4) image of at least 2 x 2 pixels; got shape (1, 1, 3)"
                 if texture == "dot.png" else f"cannot read texture {str(path)!r}: ")
     assert err.startswith(f"stepterrain globe: error: {expected}") and "\n" not in err
+    assert ("decompression-bomb limit" in err) == (texture == "bomb.png"), err
 
 
 @pytest.mark.parametrize("elevation", [np.float32(1.0), np.zeros(360, np.float32), np.zeros((2, 180, 360))])
