@@ -2036,7 +2036,8 @@ def _check_dense_gltf(file: Path) -> dict[str, Any] | None:
                     counts = "" if declared is None else f"its header counts {declared:,} bytes, "
                     raise ValueError(f"a GLB cut short: {counts}the file has {size:,}")
                 least = 20 + struct.unpack_from("<I", head, 12)[0]  # its header, the JSON chunk's header and data
-                if declared is not None and declared < least:  # trimesh's reader read no buffer: IndexError
+                # 0: trimesh's reader read no buffer (IndexError); 1 to least - 1 it read, from a file that is no GLB
+                if declared is not None and declared < least:
                     raise ValueError(f"not a valid GLB: its header counts {declared:,} bytes for the whole file, fewer "
                                      f"than its headers and JSON chunk take ({least:,}; glTF 2.0 §4.4.2)")
                 tree = _glb_json(stream, head)
