@@ -46,14 +46,24 @@ class _RoiAction(argparse.Action):
 
 def _color_option(text: str) -> str | tuple[float, ...]:
     """--color: ``r,g,b`` (numbers, in [0, 1] as CloseUp checks) as that RGB tuple, any other text as matplotlib reads
-    it (a name, '#rrggbb'); matplotlib reads no "1,0,0", which the refusal's "RGB in [0, 1]" offered."""
+    it (a name, '#rrggbb'); matplotlib reads no "1,0,0", which the refusal's "RGB in [0, 1]" offered. Checked here,
+    before the DEM is read, so that a refusal names what was typed (CloseUp's named the parsed tuple, (1.0, 2.0, 0.0)
+    for ``--color 1,2,0``)."""
+    from .closeup import _color
+
     parts = text.split(",")
+    value: str | tuple[float, ...] = text
     if len(parts) == 3:
         try:
-            return tuple(float(part) for part in parts)
+            value = tuple(float(part) for part in parts)
         except ValueError:
             pass
-    return text
+    try:
+        _color(value, "--color")
+    except InvalidInputError:
+        raise argparse.ArgumentTypeError(f"expected a matplotlib color name, '#rrggbb' or r,g,b with each number in "
+                                         f"[0, 1]; got {text!r}") from None
+    return value
 
 
 def add_parser(commands: Any) -> None:

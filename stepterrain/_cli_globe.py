@@ -36,6 +36,9 @@ from .export import MESH_EXTENSIONS
 from .io import (
     _NPZ_SCALING,
     GDAL_FORMATS,
+    _heights_in_metres,
+    _npz_text,
+    _vertical_unit,
     _virtual_refusal,
     dem_path,
     equals_nodata,
@@ -101,7 +104,8 @@ def add_parser(commands: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
-                   help="global grid .npz (elevation, lat, lon in degrees; cells equal to an optional nodata value, "
+                   help="global grid .npz (elevation, lat, lon in degrees; heights in metres, or in the length unit "
+                        "an optional units names, as load_dem reads it; cells equal to an optional nodata value, "
                         "or marked by a boolean mask or valid, are refused: fill them first), or a raster in degrees "
                         "(a GeoTIFF or any other load_dem reads: .asc .hgt .img .vrt ..., a GDAL virtual path or URL "
                         "to one, /vsizip/srtm.zip/N46E007.hgt, or a .zip of one; EPSG:4326; nodata refused as well); "
@@ -182,6 +186,9 @@ def _load_grid(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             nodata = npz_nodata(data["nodata"] if "nodata" in data.files else None, file)
             # a boolean mask/valid and a scale, as load_dem reads and refuses them (they were ignored here)
             beside = {key: np.asarray(data[key]) for key in ("mask", "valid", *_NPZ_SCALING) if key in data.files}
+            # the heights' unit as load_dem reads it: 'units', else a compound 'crs''s vertical unit (both ignored
+            # here: heights in feet were meshed as metres, 3.28 times too high)
+            texts = {key: np.asarray(data[key]) for key in ("units", "crs") if key in data.files}
         except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
             raise DataFileError(f"cannot read {path!r} as .npz: {exc}") from exc
     if elevation.ndim != 2:  # the progress line reads its shape before Globe.from_latlon checks it
@@ -202,6 +209,10 @@ def _load_grid(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         raise InvalidInputError(f"{path!r}: 'elevation' has {cells} ({', '.join(marked_by)}; first at row {row}, "
                                 f"column {col}); the globe needs a height everywhere: fill "
                                 "them first (e.g. from neighbours)")
+    unit, _, factor = _vertical_unit(_npz_text(texts, "units", file), _npz_text(texts, "crs", file))
+    if unit is not None and elevation.dtype.kind in "iuf":  # (other dtypes: Globe.from_latlon names them)
+        named_by = "its 'units'" if "units" in texts else f"its CRS {_npz_text(texts, 'crs', file)}"
+        elevation, _ = _heights_in_metres(elevation, unit, file, named_by, factor)
     return lat, lon, elevation
 
 

@@ -1802,7 +1802,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         one (OBJ statements and comments only), and a ``.ply`` must hold the rows its header declares: an STL or
         ASCII PLY cut short, or a file of another format under the extension, is refused, and so is a face naming a
         vertex the file does not have (a PLY's or glTF's index as stored), and so are a ``.glb`` that is empty, not a
-        GLB or shorter than its header counts, and a glTF without a scene, whose scene holds no node or whose
+        GLB, shorter than its header counts or whose header counts fewer bytes than its headers and JSON chunk
+        take (a length of 0), and a glTF without a scene, whose scene holds no node or whose
         ``scene`` names none, each said so.
     """
     file = _target(path)
@@ -2034,6 +2035,11 @@ def _check_dense_gltf(file: Path) -> dict[str, Any] | None:
                 if len(head) < 20 or (declared is not None and size < declared):
                     counts = "" if declared is None else f"its header counts {declared:,} bytes, "
                     raise ValueError(f"a GLB cut short: {counts}the file has {size:,}")
+                least = 20 + struct.unpack_from("<I", head, 12)[0]  # its header, the JSON chunk's header and data
+                # 0: trimesh's reader read no buffer (IndexError); 1 to least - 1 it read, from a file that is no GLB
+                if declared is not None and declared < least:
+                    raise ValueError(f"not a valid GLB: its header counts {declared:,} bytes for the whole file, fewer "
+                                     f"than its headers and JSON chunk take ({least:,}; glTF 2.0 §4.4.2)")
                 tree = _glb_json(stream, head)
             elif file.suffix.lower() == ".gltf":
                 text = head + stream.read()

@@ -243,14 +243,21 @@ def _latlon_axes(lat: ArrayLike, lon: ArrayLike, shape: tuple[int, int]) -> tupl
         axes.append(raw.astype(np.float64))
         narrow = raw.dtype.kind == "f" and raw.dtype.itemsize < 8 and raw.size and np.isfinite(raw).all()
         roundings.append(float(np.spacing(np.abs(raw).max())) if narrow else 0.0)
-    lat, lon = axes
-    lon = unwrapped_longitudes(lon) if lon.ndim == 1 and np.isfinite(lon).all() else lon  # [.., 179.5, -179.5, ..]
+    lat, given = axes
+    lon = unwrapped_longitudes(given) if given.ndim == 1 and np.isfinite(given).all() else given  # [.., 179.5, -179.5]
     rows, cols = shape
     if lat.shape != (rows,) or lon.shape != (cols,):
         raise InvalidInputError(f"lat and lon must have lengths ({rows},) and ({cols},) matching elevation "
                                 f"{shape}; got {lat.shape} and {lon.shape}")
     if not (np.isfinite(lat).all() and np.isfinite(lon).all()):
         raise InvalidInputError("lat and lon must be finite")
+    same = np.flatnonzero((np.diff(lon) == 0) & (np.diff(given) != 0))  # 360° apart: unwrapping made them equal
+    if len(same):  # else "repeats at index 1 (-180.0, -180.0)" of lon [-180, 180], values the caller never gave
+        i = int(same[0])
+        raise InvalidInputError(
+            f"lon's neighbouring columns must be different meridians; got lon[{i}] = {given[i]:.9g} and lon[{i + 1}] = "
+            f"{given[i + 1]:.9g}, {abs(given[i + 1] - given[i]):.9g}° apart: the same meridian twice"
+            + (", a grid of no width" if cols == 2 else "; drop one of the two columns"))
     return lat, lon, *roundings
 
 
@@ -1503,7 +1510,13 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
         from PIL import Image
 
         try:
-            picture = Image.open(image)  # type: ignore[arg-type]
+            try:
+                picture = Image.open(image)  # type: ignore[arg-type]
+            except ValueError as exc:  # Pillow's header parsers: a PPM cut short, "Reached EOF while reading header"
+                raise OSError(str(exc)) from exc  # a traceback: worded below as the file's other errors are
+            except Image.DecompressionBombError as exc:  # not an OSError either: the full 21600 x 10800 Blue Marble
+                raise OSError(f"{exc} (Pillow's decompression-bomb limit, PIL.Image.MAX_IMAGE_PIXELS): downsample "
+                              "it, or raise that limit") from exc
             try:
                 from .texture_lod import _tiff_as_stored
 

@@ -914,7 +914,15 @@ def _latlon_geotransform(
                 f"shape {axis.shape}"
             )
         if name == "lon":  # across the antimeridian: [179.5, -179.5, ...] is a step of 1 degree, not of -359
-            values = unwrapped_longitudes(values)
+            given, values = values, unwrapped_longitudes(values)
+            same = np.flatnonzero((np.diff(values) == 0) & (np.diff(given) != 0))  # 360° apart, made equal
+            if len(same):  # "from -180 to -180, no span" of lon [-180, 180]: values the file does not hold
+                i = int(same[0])
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: 'lon' must be a different meridian in each neighbouring column; got "
+                    f"lon[{i}] = {given[i]:.9g} and lon[{i + 1}] = {given[i + 1]:.9g}, "
+                    f"{abs(given[i + 1] - given[i]):.9g}° apart: the same meridian twice"
+                )
         step = (values[-1] - values[0]) / (n - 1)
         worst = float(np.abs(np.diff(values) - step).max())
         if step == 0.0:

@@ -347,7 +347,13 @@ def _material_rgb(mesh: trimesh.Trimesh) -> NDArray[np.uint8] | None:
     of one plain-coloured mesh (trimesh reads it as TextureVisuals without UVs) and an OBJ with a ``.mtl`` rendered
     in the uniform tan instead. An opaque white factor is no colour (None): the material
     :func:`~stepterrain.export.save_mesh` writes for a mesh without colours, which
-    :func:`~stepterrain.export.read_mesh` reads back as plain, renders in the tan as the mesh did."""
+    :func:`~stepterrain.export.read_mesh` reads back as plain, renders in the tan as the mesh did.
+
+    A ``SimpleMaterial`` whose diffuse is trimesh's grey (102, 102, 102) and that holds no ``kd`` is taken for the
+    filler too, so one built as ``SimpleMaterial(diffuse=(102, 102, 102))`` renders in the tan: nothing tells the two
+    apart. trimesh fills an absent diffuse with its ``DEFAULT_COLOR`` array itself, but its OBJ reader and
+    ``mesh.copy()`` copy it, and an ``.mtl`` of a ``newmtl`` line alone gives a material with no kwargs and that grey,
+    the same object as the hand-built one."""
     visual = mesh.visual
     material = getattr(visual, "material", None)
     if not isinstance(visual, trimesh.visual.TextureVisuals) or material is None:
@@ -411,6 +417,9 @@ def render_mesh(
     scalars : None, "level" or "height"
         None: the mesh's texture or vertex colors if it has them, else its face colors, else its material's colour (a
         plain-coloured GLB's baseColorFactor other than opaque white, an OBJ's ``Kd``), else a uniform light tan.
+        A ``SimpleMaterial`` of trimesh's default grey (102, 102, 102) without an OBJ ``Kd`` is taken for no colour
+        (trimesh gives a material without a diffuse that grey, and the two cannot be told apart): give such a grey as
+        vertex colours, or as (102, 102, 103).
         "level": faces colored by ``face_attributes["level"]`` (stepped meshes); "height": vertices colored by z.
         Both use ``cmap``.
     cmap : str

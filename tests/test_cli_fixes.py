@@ -280,7 +280,6 @@ def test_closeup_z_scale_overflowing_float64_is_refused_by_its_option(tmp_path, 
     (["--scale", "1e30"], "--scale must be at most"),  # each was 'close-up scale ...', naming no option
     (["--scale", "-1"], "--scale must be positive"),
     (["--offset", "1e30,0,0"], "--offset must be finite"),
-    (["--color", "notacolor"], "--color must be a matplotlib color"),
     (["--roi", "0,0,1"], "--roi/--roi-relative (close-up 1): ROI box x [-1, 1]"),  # was 'closeups[0]: ROI box'
     (["--roi-relative", "0.5,0.5,0.1", "--roi-relative", "5,5,0.1"], "--roi/--roi-relative (close-up 2): ROI box"),
 ])
@@ -290,6 +289,19 @@ def test_closeup_refusals_from_the_library_name_the_option(tmp_path, capsys, arg
     code, _, err = run(capsys, "-q", "closeup", *argv, "-o", tmp_path / "c.glb")
     assert code == 2
     assert one_error_line(err, "closeup").startswith(f"stepterrain closeup: error: {expected}")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("typed", ["1,2,0", "1,0,nan", "-1,0,0", "0.5,0.5", "notacolor"])
+def test_closeup_color_refusal_names_what_was_typed_before_the_dem_is_read(tmp_path, capsys, typed):
+    """--color 1,2,0 was refused by CloseUp after the DEM was read, naming the parsed tuple, "got (1.0, 2.0, 0.0)":
+    now as a usage error naming the text typed and what is expected, before any work."""
+    code, _, err = run(capsys, "closeup", "--color", typed, "-o", tmp_path / "c.glb")
+    assert code == 2
+    assert one_error_line(err, "closeup") == (
+        "stepterrain closeup: error: argument --color: expected a matplotlib color name, '#rrggbb' or r,g,b with "
+        f"each number in [0, 1]; got {typed!r}")
+    assert "nodes" not in err  # the DEM was not read
     assert list(tmp_path.iterdir()) == []
 
 
@@ -1839,8 +1851,8 @@ def test_closeup_color_takes_r_g_b_as_its_message_says(tmp_path, capsys):
     for bad in ("1,2,0", "nan,0,0"):  # NaN: matplotlib took it, a colour cast from NaN with a warning, exit 0
         code, _, err = run(capsys, *base, "--color", bad, "-o", tmp_path / "bad.ply")
         assert code == 2
-        assert one_error_line(err, "closeup").startswith("stepterrain closeup: error: --color must be a matplotlib "
-                                                         "color")
+        assert one_error_line(err, "closeup").startswith("stepterrain closeup: error: argument --color: expected a "
+                                                         "matplotlib color")
         assert not (tmp_path / "bad.ply").exists()
 
 

@@ -529,6 +529,25 @@ def test_read_mesh_says_a_gltf_scene_holds_no_node_or_is_not_there(tmp_path):
         assert len(read_mesh(path).faces) == (0 if path.stem == "e" else 12), path.name
 
 
+def test_read_mesh_says_a_glb_whose_header_counts_too_few_bytes_is_not_valid(tmp_path):
+    """A GLB whose header's total length is 0 (or fewer bytes than its headers and JSON chunk take) said trimesh's
+    "IndexError: list index out of range" (its reader read no buffer): now what is wrong with the file."""
+    import struct
+
+    whole = bytearray(save_mesh(trimesh.creation.box(), tmp_path / "box.glb").read_bytes())
+    least = 20 + struct.unpack_from("<I", whole, 12)[0]
+    for declared in (0, least - 1):
+        struct.pack_into("<I", whole, 8, declared)
+        (tmp_path / "bad.glb").write_bytes(bytes(whole))
+        with pytest.raises(DataFileError, match=rf"as a mesh: ValueError: not a valid GLB: its header counts "
+                                                rf"{declared:,} bytes for the whole file, fewer than its headers and "
+                                                rf"JSON chunk take \({least:,}; glTF 2.0"):
+            read_mesh(tmp_path / "bad.glb")
+    struct.pack_into("<I", whole, 8, len(whole))
+    (tmp_path / "good.glb").write_bytes(bytes(whole))
+    assert len(read_mesh(tmp_path / "good.glb").faces) == 12
+
+
 def test_read_mesh_checks_its_path(tmp_path):
     # None raised pathlib's TypeError, a missing file trimesh's ValueError "string is not a file"
     from stepterrain.export import read_mesh

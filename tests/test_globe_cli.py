@@ -275,11 +275,16 @@ def test_globe_texture_file_with_transparent_nodata_keeps_its_alpha(tmp_path):
     np.testing.assert_array_equal(np.asarray(texture.convert("RGBA")), image)
 
 
-@pytest.mark.parametrize("texture", ["missing.png", "folder", "notes.png", "dot.png"])
+@pytest.mark.parametrize("texture", ["missing.png", "folder", "notes.png", "dot.png", "ppm.png", "bomb.png"])
 def test_globe_texture_is_checked_before_the_work(tmp_path, capsys, monkeypatch, texture):
     """--texture was read only after the globe was built and meshed: a missing file, a folder, a text file or an
     image too small to drape failed after that work. It is read first now; the globe is never built. A 1 x 1 RGB
-    image was refused as not "an (H, W, 3|4) image": the message now says it needs 2 x 2 pixels."""
+    image was refused as not "an (H, W, 3|4) image": the message now says it needs 2 x 2 pixels. A file whose header
+    Pillow refuses with a ValueError (a PPM cut short) was a traceback, and so was one past Pillow's decompression-bomb
+    limit (a PNG header of the full 21600 x 10800 Blue Marble): its DecompressionBombError is no OSError either."""
+    import struct
+    import zlib
+
     from PIL import Image
 
     from stepterrain import globe
@@ -287,6 +292,13 @@ def test_globe_texture_is_checked_before_the_work(tmp_path, capsys, monkeypatch,
     (tmp_path / "folder").mkdir()
     (tmp_path / "notes.png").write_text("not an image")
     Image.fromarray(np.zeros((1, 1, 3), np.uint8)).save(tmp_path / "dot.png")
+    (tmp_path / "ppm.png").write_bytes(b"P6\n")  # a PPM header cut short: Pillow's ValueError, a traceback
+
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    header = struct.pack(">IIBBBBB", 21600, 10800, 8, 2, 0, 0, 0)  # 233 Mpx of RGB: the header alone
+    (tmp_path / "bomb.png").write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IEND", b""))
 
     def built(*args, **kwargs):
         raise AssertionError("the globe was built before --texture was read")
@@ -298,6 +310,7 @@ def test_globe_texture_is_checked_before_the_work(tmp_path, capsys, monkeypatch,
     expected = ("--texture must be an (H, W, 3|4) image of at least 2 x 2 pixels; got shape (1, 1, 3)"
                 if texture == "dot.png" else f"cannot read texture {str(path)!r}: ")
     assert err.startswith(f"stepterrain globe: error: {expected}") and "\n" not in err
+    assert ("decompression-bomb limit" in err) == (texture == "bomb.png"), err
 
 
 @pytest.mark.parametrize("elevation", [np.float32(1.0), np.zeros(360, np.float32), np.zeros((2, 180, 360))])
@@ -487,3 +500,30 @@ def test_globe_truncated_npz_leaves_no_file_open(tmp_path, capsys):
         gc.collect()
     assert "cut.npz' as .npz" in capsys.readouterr().err
     assert [str(w.message) for w in caught if issubclass(w.category, ResourceWarning)] == []
+
+
+def test_globe_npz_heights_in_the_unit_it_names_become_metres(tmp_path, capsys):
+    """The globe read its .npz itself and ignored its 'units' (which load_dem reads): heights in feet were meshed as
+    metres, 3.28 times too high. They become metres as load_dem makes them: the globe of 1000 ft is that of
+    304.8 m, and a unit that is no length is refused, naming it."""
+    lat, lon = np.linspace(-85.0, 85.0, 18), np.linspace(-175.0, 175.0, 36)
+    relief = np.add.outer(np.linspace(0.0, 500.0, 18), np.linspace(0.0, 500.0, 36))
+    meshes = {}
+    for name, heights, units in (("ft", relief, "ft"), ("m", relief * 0.3048, "m"), ("bare", relief * 0.3048, None),
+                                 ("numbers", relief, None)):
+        extra = {} if units is None else {"units": np.array(units)}
+        np.savez(tmp_path / f"{name}.npz", elevation=heights, lat=lat, lon=lon, **extra)
+        out = tmp_path / f"{name}.ply"
+        assert main(["-q", "globe", str(tmp_path / f"{name}.npz"), "--no-camera", "--face-size", "9",
+                     "--device", "cpu", "-o", str(out)]) == 0, capsys.readouterr().err
+        meshes[name] = trimesh.load(out, process=False)
+    assert np.array_equal(meshes["ft"].faces, meshes["m"].faces)
+    assert np.allclose(meshes["ft"].vertices, meshes["m"].vertices, rtol=0.0, atol=1e-3)
+    assert np.array_equal(meshes["m"].vertices, meshes["bare"].vertices)
+    lifted = {name: np.linalg.norm(meshes[name].vertices, axis=1) - 6_371_000.0 for name in ("ft", "numbers")}
+    assert lifted["ft"].max() == pytest.approx(0.3048 * lifted["numbers"].max(), rel=1e-4)  # not the feet as metres
+    np.savez(tmp_path / "odd.npz", elevation=relief, lat=lat, lon=lon, units=np.array("parsec"))
+    assert main(["-q", "globe", str(tmp_path / "odd.npz"), "--face-size", "9", "-o", str(tmp_path / "x.ply")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("stepterrain globe: error: cannot read ") and "got 'parsec' (its 'units')" in err, err
+    assert not (tmp_path / "x.ply").exists()

@@ -564,6 +564,21 @@ def test_a_longitude_axis_across_the_antimeridian_is_the_same_globe(descending):
                           face_size=9, device="cpu")
 
 
+@pytest.mark.parametrize("lon", [[-180.0, 180.0], [180.0, -180.0], [0.0, 360.0, 1.0]])
+def test_neighbouring_longitudes_360_degrees_apart_are_refused_for_what_they_are(lon):
+    """A 2-column grid at lon -180 and 180 was refused as "lon must be strictly monotone; it repeats or turns at
+    index 1 (-180.0, -180.0)": values the caller never gave (the axis unwrapped across the antimeridian). The message
+    names the columns as given and says they are the same meridian."""
+    z = np.zeros((3, len(lon)))
+    ends = rf"lon\[0\] = {lon[0]:g} and lon\[1\] = {lon[1]:g}, 360° apart: the same meridian twice"
+    ends += ", a grid of no width$" if len(lon) == 2 else "; drop one of the two columns$"
+    said = rf"^lon's neighbouring columns must be different meridians; got {ends}"
+    with pytest.raises(InvalidInputError, match=said):
+        Globe.from_latlon(z, [-10.0, 0.0, 10.0], lon, face_size=5, device="cpu")
+    with pytest.raises(InvalidInputError, match=r"lon must be strictly monotone; it repeats or turns at index 1"):
+        Globe.from_latlon(z, [-10.0, 0.0, 10.0], [0.0, 0.0, 1.0][: len(lon)], face_size=5, device="cpu")
+
+
 def test_an_eye_exactly_on_the_surface_is_refused():
     """An eye exactly at the height of the highest node passed unchecked (|eye| >= R + highest returned early), so
     an eye on the surface of a level globe was meshed, though the contract refuses an eye "at or below the terrain

@@ -1844,3 +1844,19 @@ def test_an_npz_s_units_xy_naming_its_unit_then_a_note_is_read_by_that_unit(tmp_
     np.savez(tmp_path / "s.npz", elevation=z, transform=transform, units="m", units_xy="ft (US survey)")
     with pytest.raises(DataFileError, match=r"'units_xy' must name the unit .*; got 'ft \(US survey\)'$"):
         load_dem(tmp_path / "s.npz")
+
+
+@pytest.mark.parametrize("lon", [[-180.0, 180.0], [180.0, -180.0], [0.0, 360.0, 1.0]])
+def test_an_npz_lon_axis_with_neighbours_360_degrees_apart_is_refused_for_what_it_is(tmp_path, lon):
+    """An .npz whose 'lon' is [-180, 180] was refused as "2 values from -180 to -180, no span" (the axis unwrapped
+    across the antimeridian: values the file does not hold); the message names the two columns as stored and says
+    they are the same meridian. An axis crossing the antimeridian still reads."""
+    np.savez(tmp_path / "same.npz", elevation=np.zeros((3, len(lon))), lat=[-10.0, 0.0, 10.0], lon=lon)
+    said = (rf"^cannot read '.*same\.npz': 'lon' must be a different meridian in each neighbouring column; got "
+            rf"lon\[0\] = {lon[0]:g} and lon\[1\] = {lon[1]:g}, 360° apart: the same meridian twice$")
+    with pytest.raises(DataFileError, match=said):
+        load_dem(tmp_path / "same.npz")
+    np.savez(tmp_path / "across.npz", elevation=np.zeros((3, 3)), lat=[-10.0, 0.0, 10.0], lon=[179.0, 180.0, -179.0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert load_dem(tmp_path / "across.npz").shape == (3, 3)
