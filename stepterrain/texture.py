@@ -1339,8 +1339,22 @@ def _overlaps(layer: TextureLayer, extent: Extent) -> bool:
 
 
 def _is_grid(layer: TextureLayer, extent: Extent, shape: tuple[int, int]) -> bool:
-    """Whether the layer's pixels are the pixel grid (extent, shape) itself (read as they are, not resampled)."""
-    return layer.shape == shape and np.allclose(layer.matrix, _affine(extent, shape), rtol=0, atol=1e-9)
+    """Whether the layer's pixels are the pixel grid (extent, shape) itself (read as they are, not resampled).
+
+    Besides the matrices agreeing to 1e-9, the layer's texel at each corner of the grid must lie within 1e-6 texel of
+    the grid's own: the matrix entries scale as 1 / pixel size, so with pixels 10^9 world units wide a layer of twice
+    (or any multiple of) the grid's extent passed the absolute test and its pixels were read as the grid's, unsampled.
+    """
+    if layer.shape != shape:
+        return False
+    grid = _affine(extent, shape)
+    if not np.allclose(layer.matrix, grid, rtol=0, atol=1e-9):
+        return False
+    rows, cols = shape
+    texels = np.array([[-0.5, -0.5, 1.0], [cols - 0.5, -0.5, 1.0], [-0.5, rows - 0.5, 1.0],
+                       [cols - 0.5, rows - 0.5, 1.0]])
+    world = texels @ np.linalg.inv(grid).T  # the grid's corners; the layer's texels there are the grid's own
+    return bool(np.abs(world @ layer.matrix.T - texels).max() <= 1e-6)
 
 
 def _check_overlaps(layer: TextureLayer, extent: Extent, name: str) -> None:

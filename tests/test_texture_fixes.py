@@ -1050,3 +1050,25 @@ def test_contour_lines_on_a_ramp_follow_the_documented_coverage(width, index_wid
     assert (layer.image[2, 1:-1, 3] > 0).any()
     if width < 1e28 and abs(base) < 1e9:  # (past 2^52 in float64 every height rounds onto a level)
         assert (layer.image[2, 1:-1, 3] == 0).any()  # texels far from any line: the skip ran
+
+
+@pytest.mark.parametrize("combine_with", ["blend", "modulate", "weighted_add"])
+def test_a_layer_over_another_extent_is_resampled_at_any_pixel_size(combine_with):
+    """Whether a layer is already the pixel grid it combines on was an absolute test of the texture matrices (1e-9),
+    whose entries scale as 1 / pixel size: with pixels 10^9 units wide a layer of the same shape over twice the
+    extent passed it and was read pixel for pixel, as if over the grid's extent. Scaling the world changes nothing."""
+    values = np.tile(np.array([0.0, 0.25, 0.5, 1.0], np.float32), (2, 1))
+    outs = []
+    for unit in (1.0e3, 1.0e9):  # the pixel size of the grid
+        a = TextureLayer("thematic", np.full((2, 4, 3), 0.5, np.float32), (0, 4 * unit, 0, 2 * unit))
+        b = TextureLayer("luminance", values, (0, 8 * unit, 0, 4 * unit), border="edge")
+        if combine_with == "blend":
+            out = blend(a, b, np.ones((2, 4), np.float32), device="cpu")
+        elif combine_with == "modulate":
+            out = modulate(a, b, device="cpu")
+        else:
+            out = weighted_add([a, b], [0.0, 1.0], device="cpu")
+        outs.append(out.rgba())
+    np.testing.assert_allclose(outs[1], outs[0], atol=1e-6)
+    assert not np.allclose(outs[0][..., 0], np.broadcast_to(values, (2, 4)) * (0.5 if combine_with == "modulate"
+                                                                               else 1.0))
