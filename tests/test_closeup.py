@@ -914,3 +914,29 @@ def test_closeup_texture_is_a_private_copy():
         assert np.all(cu.texture[..., 0] == 255) and np.all(cu.texture[..., 1] == 0)
         with pytest.raises(ValueError, match="read-only"):
             cu.texture[0, 0, 0] = 1
+
+
+@pytest.mark.parametrize("base, layer, message", [
+    (np.full((2, 2, 3), 300.0), None, r"base must be an \(H, W, 3\) uint8 image; got dtype float64"),
+    (np.full((2, 2, 3), 100, np.int64), None, r"base must be an \(H, W, 3\) uint8 image; got dtype int64"),
+    (None, (np.full((2, 2, 3), 200.0), np.full((2, 2), 2.0), 0.5), r"layer 0 alpha must lie in \[0, 1\]; got values "
+                                                                     "from 2 to 2"),
+    (None, (np.full((2, 2, 3), 200.0), np.full((2, 2), np.nan), 0.5), r"layer 0 alpha must lie in \[0, 1\]; got NaN"),
+    (None, (np.full((2, 2, 3), 300.0), np.ones((2, 2)), 0.5), r"layer 0 color must lie in \[0, 255\]; got values "
+                                                               "from 300 to 300"),
+    (None, (np.full((2, 2, 3), 100.0), np.ones((2, 2)), np.nan), r"layer 0 depth must be real depths .*not NaN"),
+    (None, (np.full((2, 2, 3), 100.0), np.ones((2, 2))), r"layer 0 must be \(color, alpha, depth, depth_test, "
+                                                         r"writes_depth\); got 2 items"),
+])
+def test_composite_refuses_values_outside_their_ranges(base, layer, message):
+    """composite() took any base and layer values: a float base of 300 came out 44 (cast to uint8), an alpha of 2
+    doubled the colour and NaN made it black (clipped, cast), a colour of 300 was clipped, a NaN depth hid the layer,
+    and a layer tuple of the wrong length raised Python's ValueError from its unpacking."""
+    depth = np.ones((2, 2), np.float32)
+    if base is None:
+        base = np.zeros((2, 2, 3), np.uint8)
+    layers = [(np.zeros((2, 2, 3)), np.zeros((2, 2)), depth, True, False)]
+    if layer is not None:
+        layers = [(*layer[:2], np.full((2, 2), layer[2], np.float32), True, False)] if len(layer) == 3 else [layer]
+    with pytest.raises(InvalidInputError, match=message):
+        composite(base, depth, layers)
