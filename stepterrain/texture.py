@@ -1516,7 +1516,8 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
     """Weighted texture layer addition (§3.2.3, §6): ``Σ w_k · layer_k`` per pixel and channel, clamped to [0, 1].
 
     Every channel, alpha too, is added straight (not premultiplied), so the colour of a transparent pixel counts
-    as much as an opaque one's; :meth:`TextureAnimation.frame` interpolates its keys premultiplied instead.
+    as much as an opaque one's; :meth:`TextureAnimation.frame` interpolates its keys premultiplied instead. The
+    weights are any finite numbers within float32's range (the kernel's), one per layer.
 
     Examples
     --------
@@ -1535,7 +1536,9 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
     if len(layers) < 1 or len(layers) != len(values):
         raise InvalidInputError(f"weighted_add needs one weight per layer; got {counted(len(layers), 'layer')} and "
                                 f"{counted(len(values), 'weight')}")
-    checked = [_finite(w, f"weights[{k}]") for k, w in enumerate(values)]
+    # within float32's range, as the kernel takes them: 1e39 became inf there and inf · 0 NaN, clamped to 0 (the sum
+    # 1e39 · 0 + 1 · 0.5 came out 0)
+    checked = [_finite(w, f"weights[{k}]", lo=-FLOAT32_MAX, hi=FLOAT32_MAX) for k, w in enumerate(values)]
     first = _as_layer(layers[0], None, "layers[0]")
     others = [_as_layer(layer, first, f"layers[{k + 1}]") for k, layer in enumerate(layers[1:])]
     dev = resolve_device(device)

@@ -1072,3 +1072,16 @@ def test_a_layer_over_another_extent_is_resampled_at_any_pixel_size(combine_with
     np.testing.assert_allclose(outs[1], outs[0], atol=1e-6)
     assert not np.allclose(outs[0][..., 0], np.broadcast_to(values, (2, 4)) * (0.5 if combine_with == "modulate"
                                                                                else 1.0))
+
+
+@pytest.mark.parametrize("weights", [(1.0e39, 1.0), (1.0, -1.0e39)])
+def test_weights_beyond_float32_are_refused_not_added_as_nan(weights):
+    """weighted_add's weights reach the kernel as float32: 1e39 became inf, and inf times a zero channel NaN, clamped
+    to 0: 1e39 · 0 + 1 · 0.5 came out 0 instead of 0.5, without a word."""
+    black = TextureLayer("thematic", np.zeros((2, 2, 3), np.float32), (0, 2, 0, 2))
+    grey = np.full((2, 2, 3), 0.5, np.float32)
+    with pytest.raises(InvalidInputError, match=r"weights\[\d\] must lie in \[-3\.40282e\+38, 3\.40282e\+38\]; got"):
+        weighted_add([black, grey], weights, device="cpu")
+    # the largest float32 weight still adds as float32 does: 3.4e38 · 0 + 1 · 0.5
+    out = weighted_add([black, grey], (float(np.finfo(np.float32).max), 1.0), device="cpu").rgba()
+    np.testing.assert_allclose(out[..., :3], 0.5)
