@@ -1344,17 +1344,23 @@ def _is_grid(layer: TextureLayer, extent: Extent, shape: tuple[int, int]) -> boo
     Besides the matrices agreeing to 1e-9, the layer's texel at each corner of the grid must lie within 1e-6 texel of
     the grid's own: the matrix entries scale as 1 / pixel size, so with pixels 10^9 world units wide a layer of twice
     (or any multiple of) the grid's extent passed the absolute test and its pixels were read as the grid's, unsampled.
+    That 1e-6 is give or take float64's rounding of the corners (1e-5 texel at 0.1 mm pixels in UTM), and the grid's own
+    matrix is the grid whatever its rounding.
     """
     if layer.shape != shape:
         return False
     grid = _affine(extent, shape)
+    if np.array_equal(layer.matrix, grid):
+        return True
     if not np.allclose(layer.matrix, grid, rtol=0, atol=1e-9):
         return False
     rows, cols = shape
     texels = np.array([[-0.5, -0.5, 1.0], [cols - 0.5, -0.5, 1.0], [-0.5, rows - 0.5, 1.0],
                        [cols - 0.5, rows - 0.5, 1.0]])
     world = texels @ np.linalg.inv(grid).T  # the grid's corners; the layer's texels there are the grid's own
-    return bool(np.abs(world @ layer.matrix.T - texels).max() <= 1e-6)
+    # give or take float64's rounding of the terms summed (xmin / pixel reaches 1e11 at 0.1 mm pixels in UTM)
+    rounding = 16 * np.finfo(np.float64).eps * (np.abs(world) @ np.abs(layer.matrix).T)
+    return bool((np.abs(world @ layer.matrix.T - texels) <= 1e-6 + rounding).all())
 
 
 def _check_overlaps(layer: TextureLayer, extent: Extent, name: str) -> None:

@@ -1085,3 +1085,22 @@ def test_weights_beyond_float32_are_refused_not_added_as_nan(weights):
     # the largest float32 weight still adds as float32 does: 3.4e38 · 0 + 1 · 0.5
     out = weighted_add([black, grey], (float(np.finfo(np.float32).max), 1.0), device="cpu").rgba()
     np.testing.assert_allclose(out[..., :3], 0.5)
+
+
+@pytest.mark.parametrize("pixel, shape, origin, nudged", [
+    (1.0e-3, (1, 16384), (5.0e5, 9.9e6), False),  # the grid's own matrix: its corners round by 1e-6 texel
+    (1.0e-4, (512, 512), (-2.0e7, 1.0e7), True),  # one ulp off in the scale: 2e-5 texel at the corner, float64's grain
+])
+def test_a_layer_on_the_grid_is_read_as_it_is_at_fine_pixels_far_from_the_origin(pixel, shape, origin, nudged):
+    """The corner test of _is_grid (within 1e-6 texel) took float64's rounding of the corners for a mismatch: at mm
+    pixels near a UTM false northing a layer over the grid itself was resampled, its texels off by up to 1e-3."""
+    rows, cols = shape
+    extent = (origin[0], origin[0] + cols * pixel, origin[1], origin[1] + rows * pixel)
+    matrix = TextureLayer("luminance", np.zeros(shape, np.float32), extent).matrix.copy()
+    if nudged:
+        matrix[0, 0] = np.nextafter(matrix[0, 0], np.inf)
+    values = np.random.default_rng(5).uniform(0.0, 1.0, (rows, cols, 3)).astype(np.float32)
+    a = TextureLayer("thematic", np.zeros((rows, cols, 3), np.float32), extent)
+    b = TextureLayer("thematic", values, extent, matrix=matrix)
+    out = weighted_add([a, b], [0.0, 1.0], device="cpu").rgba()
+    np.testing.assert_array_equal(out[..., :3], values)
