@@ -1930,7 +1930,7 @@ def composite(
     base : (H, W, 3) uint8
         The overview pass (background included); ``base_depth`` (H, W) its depth (inf where empty).
     layers : sequence of (color, alpha, depth, depth_test, writes_depth)
-        ``color`` (H, W, 3) uint8 or float in [0, 255], ``alpha`` (H, W) in [0, 1] (0 where the layer is
+        ``color`` (H, W, 3) uint8 or float in [0, 255], ``alpha`` (H, W) in [0, 1] or a bool mask (0 where the layer is
         empty), ``depth`` (H, W). A layer shows where alpha > 0 and, with ``depth_test``, where its depth is
         below the depth so far; ``writes_depth`` layers then replace that depth.
 
@@ -1975,6 +1975,8 @@ def composite(
             raise InvalidInputError(f"layer {i} must be (color, alpha, depth, depth_test, writes_depth); got {got}")
         c, alpha, z, depth_test, writes_depth = layer
         c, alpha, z = np.asarray(c), np.asarray(alpha), np.asarray(z)
+        if alpha.dtype == np.bool_:  # a coverage mask (np.isfinite(depth)): 0 or 1, as it always composited
+            alpha = alpha.astype(np.float32)
         if c.shape != out.shape or alpha.shape != shape or z.shape != shape:
             raise InvalidInputError(f"layer {i} must hold an {out.shape} color, {shape} alpha and depth; got "
                                     f"{c.shape}, {alpha.shape}, {z.shape}")

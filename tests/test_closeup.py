@@ -940,3 +940,18 @@ def test_composite_refuses_values_outside_their_ranges(base, layer, message):
         layers = [(*layer[:2], np.full((2, 2), layer[2], np.float32), True, False)] if len(layer) == 3 else [layer]
     with pytest.raises(InvalidInputError, match=message):
         composite(base, depth, layers)
+
+
+def test_composite_takes_a_bool_coverage_mask_as_alpha():
+    """A bool alpha (a coverage mask such as np.isfinite(depth)) composited as 0 and 1; the range check of alpha
+    refused it as not real numbers. It composites as the same mask in float32 does."""
+    rng = np.random.default_rng(3)
+    base = rng.integers(0, 256, (6, 8, 3), dtype=np.uint8)
+    base_depth = np.full((6, 8), np.inf, np.float32)
+    depth = np.where(rng.uniform(size=(6, 8)) > 0.4, rng.uniform(0, 1, (6, 8)), np.inf).astype(np.float32)
+    color = rng.uniform(0, 255, (6, 8, 3))
+    mask = np.isfinite(depth)
+    got = composite(base, base_depth, [(color, mask, depth, True, True)])
+    np.testing.assert_array_equal(got, composite(base, base_depth, [(color, mask.astype(np.float32), depth, True,
+                                                                     True)]))
+    assert (got[~mask] == base[~mask]).all() and (got[mask] == np.rint(color[mask])).all()
