@@ -1930,7 +1930,7 @@ def composite(
     base : (H, W, 3) uint8
         The overview pass (background included); ``base_depth`` (H, W) its depth (inf where empty).
     layers : sequence of (color, alpha, depth, depth_test, writes_depth)
-        ``color`` (H, W, 3) uint8 or float in [0, 255], ``alpha`` (H, W) in [0, 1] (0 where the layer is
+        ``color`` (H, W, 3) uint8 or float in [0, 255], ``alpha`` (H, W) in [0, 1] or a bool mask (0 where the layer is
         empty), ``depth`` (H, W). A layer shows where alpha > 0 and, with ``depth_test``, where its depth is
         below the depth so far; ``writes_depth`` layers then replace that depth.
 
@@ -1938,6 +1938,12 @@ def composite(
     -------
     (H, W, 3) uint8
         C ← a·c + (1 − a)·C per layer, a = alpha·visible; with no layers exactly ``base``.
+
+    Raises
+    ------
+    InvalidInputError
+        A base that is not (H, W, 3) uint8, a layer not of five items or of other shapes, a colour outside
+        [0, 255], an alpha outside [0, 1] (NaN included), a NaN depth, a depth_test or writes_depth not a bool.
 
     Examples
     --------
@@ -1950,20 +1956,52 @@ def composite(
     out = np.asarray(base)
     if out.ndim != 3 or out.shape[2] != 3:
         raise InvalidInputError(f"base must be an (H, W, 3) image; got shape {out.shape}")
+    if out.dtype != np.uint8:  # cast as it was, 300 came out 44 (and 100.7 100 outside the layers, 101 inside)
+        raise InvalidInputError(f"base must be an (H, W, 3) uint8 image; got dtype {out.dtype}")
+    if isinstance(layers, (str, bytes)) or not isinstance(layers, Sequence):
+        raise InvalidInputError(f"layers must be a sequence of (color, alpha, depth, depth_test, writes_depth); got "
+                                f"{type(layers).__name__}")
     if not layers:
         return out.astype(np.uint8, copy=True)
     shape = out.shape[:2]
     if np.shape(base_depth) != shape:
         raise InvalidInputError(f"base_depth must be {shape}; got {np.shape(base_depth)}")
+    _check_depths(base_depth, "base_depth")
     full = (0, 0, shape[1], shape[0])
     boxed = []
-    for i, (c, alpha, z, depth_test, writes_depth) in enumerate(layers):
+    for i, layer in enumerate(layers):
+        if isinstance(layer, (str, bytes)) or not isinstance(layer, Sequence) or len(layer) != 5:
+            got = f"{len(layer)} items" if isinstance(layer, Sequence) else type(layer).__name__
+            raise InvalidInputError(f"layer {i} must be (color, alpha, depth, depth_test, writes_depth); got {got}")
+        c, alpha, z, depth_test, writes_depth = layer
         c, alpha, z = np.asarray(c), np.asarray(alpha), np.asarray(z)
+        if alpha.dtype == np.bool_:  # a coverage mask (np.isfinite(depth)): 0 or 1, as it always composited
+            alpha = alpha.astype(np.float32)
         if c.shape != out.shape or alpha.shape != shape or z.shape != shape:
             raise InvalidInputError(f"layer {i} must hold an {out.shape} color, {shape} alpha and depth; got "
                                     f"{c.shape}, {alpha.shape}, {z.shape}")
-        boxed.append((c, alpha, z, depth_test, writes_depth, full))
+        # out of their ranges they were clipped or cast silently: alpha 2 doubled the colour, NaN alpha made black
+        _check_range(c, f"layer {i} color", 255.0)
+        _check_range(alpha, f"layer {i} alpha", 1.0)
+        _check_depths(z, f"layer {i} depth")
+        boxed.append((c, alpha, z, check_flag(depth_test, f"layer {i} depth_test"),
+                      check_flag(writes_depth, f"layer {i} writes_depth"), full))
     return _composite_boxed(out, base_depth, boxed)
+
+
+def _check_range(values: NDArray[Any], name: str, top: float) -> None:
+    """An InvalidInputError naming ``name`` unless ``values`` are real numbers in [0, ``top``] (none NaN)."""
+    v = real_numbers(values, name, f"real numbers in [0, {top:g}]")
+    if v.size and not (np.isfinite(v).all() and v.min() >= 0.0 and v.max() <= top):
+        finite = v[np.isfinite(v)]
+        got = "NaN or infinite values" if finite.size < v.size else f"values from {finite.min():g} to {finite.max():g}"
+        raise InvalidInputError(f"{name} must lie in [0, {top:g}]; got {got}")
+
+
+def _check_depths(values: Any, name: str) -> None:
+    """An InvalidInputError naming ``name`` unless ``values`` are real depths, none NaN (inf: empty)."""
+    if np.isnan(real_numbers(values, name, "real depths (inf where empty)")).any():
+        raise InvalidInputError(f"{name} must be real depths (inf where empty), not NaN; got NaN")
 
 
 def _composite_boxed(

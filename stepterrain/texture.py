@@ -1339,8 +1339,28 @@ def _overlaps(layer: TextureLayer, extent: Extent) -> bool:
 
 
 def _is_grid(layer: TextureLayer, extent: Extent, shape: tuple[int, int]) -> bool:
-    """Whether the layer's pixels are the pixel grid (extent, shape) itself (read as they are, not resampled)."""
-    return layer.shape == shape and np.allclose(layer.matrix, _affine(extent, shape), rtol=0, atol=1e-9)
+    """Whether the layer's pixels are the pixel grid (extent, shape) itself (read as they are, not resampled).
+
+    Besides the matrices agreeing to 1e-9, the layer's texel at each corner of the grid must lie within 1e-6 texel of
+    the grid's own: the matrix entries scale as 1 / pixel size, so with pixels 10^9 world units wide a layer of twice
+    (or any multiple of) the grid's extent passed the absolute test and its pixels were read as the grid's, unsampled.
+    That 1e-6 is give or take float64's rounding of the corners (1e-5 texel at 0.1 mm pixels in UTM), and the grid's own
+    matrix is the grid whatever its rounding.
+    """
+    if layer.shape != shape:
+        return False
+    grid = _affine(extent, shape)
+    if np.array_equal(layer.matrix, grid):
+        return True
+    if not np.allclose(layer.matrix, grid, rtol=0, atol=1e-9):
+        return False
+    rows, cols = shape
+    texels = np.array([[-0.5, -0.5, 1.0], [cols - 0.5, -0.5, 1.0], [-0.5, rows - 0.5, 1.0],
+                       [cols - 0.5, rows - 0.5, 1.0]])
+    world = texels @ np.linalg.inv(grid).T  # the grid's corners; the layer's texels there are the grid's own
+    # give or take float64's rounding of the terms summed (xmin / pixel reaches 1e11 at 0.1 mm pixels in UTM)
+    rounding = 16 * np.finfo(np.float64).eps * (np.abs(world) @ np.abs(layer.matrix).T)
+    return bool((np.abs(world @ layer.matrix.T - texels) <= 1e-6 + rounding).all())
 
 
 def _check_overlaps(layer: TextureLayer, extent: Extent, name: str) -> None:
@@ -1502,7 +1522,8 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
     """Weighted texture layer addition (§3.2.3, §6): ``Σ w_k · layer_k`` per pixel and channel, clamped to [0, 1].
 
     Every channel, alpha too, is added straight (not premultiplied), so the colour of a transparent pixel counts
-    as much as an opaque one's; :meth:`TextureAnimation.frame` interpolates its keys premultiplied instead.
+    as much as an opaque one's; :meth:`TextureAnimation.frame` interpolates its keys premultiplied instead. The
+    weights are any finite numbers within float32's range (the kernel's), one per layer.
 
     Examples
     --------
@@ -1521,7 +1542,9 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
     if len(layers) < 1 or len(layers) != len(values):
         raise InvalidInputError(f"weighted_add needs one weight per layer; got {counted(len(layers), 'layer')} and "
                                 f"{counted(len(values), 'weight')}")
-    checked = [_finite(w, f"weights[{k}]") for k, w in enumerate(values)]
+    # within float32's range, as the kernel takes them: 1e39 became inf there and inf · 0 NaN, clamped to 0 (the sum
+    # 1e39 · 0 + 1 · 0.5 came out 0)
+    checked = [_finite(w, f"weights[{k}]", lo=-FLOAT32_MAX, hi=FLOAT32_MAX) for k, w in enumerate(values)]
     first = _as_layer(layers[0], None, "layers[0]")
     others = [_as_layer(layer, first, f"layers[{k + 1}]") for k, layer in enumerate(layers[1:])]
     dev = resolve_device(device)

@@ -914,3 +914,44 @@ def test_closeup_texture_is_a_private_copy():
         assert np.all(cu.texture[..., 0] == 255) and np.all(cu.texture[..., 1] == 0)
         with pytest.raises(ValueError, match="read-only"):
             cu.texture[0, 0, 0] = 1
+
+
+@pytest.mark.parametrize("base, layer, message", [
+    (np.full((2, 2, 3), 300.0), None, r"base must be an \(H, W, 3\) uint8 image; got dtype float64"),
+    (np.full((2, 2, 3), 100, np.int64), None, r"base must be an \(H, W, 3\) uint8 image; got dtype int64"),
+    (None, (np.full((2, 2, 3), 200.0), np.full((2, 2), 2.0), 0.5), r"layer 0 alpha must lie in \[0, 1\]; got values "
+                                                                     "from 2 to 2"),
+    (None, (np.full((2, 2, 3), 200.0), np.full((2, 2), np.nan), 0.5), r"layer 0 alpha must lie in \[0, 1\]; got NaN"),
+    (None, (np.full((2, 2, 3), 300.0), np.ones((2, 2)), 0.5), r"layer 0 color must lie in \[0, 255\]; got values "
+                                                               "from 300 to 300"),
+    (None, (np.full((2, 2, 3), 100.0), np.ones((2, 2)), np.nan), r"layer 0 depth must be real depths .*not NaN"),
+    (None, (np.full((2, 2, 3), 100.0), np.ones((2, 2))), r"layer 0 must be \(color, alpha, depth, depth_test, "
+                                                         r"writes_depth\); got 2 items"),
+])
+def test_composite_refuses_values_outside_their_ranges(base, layer, message):
+    """composite() took any base and layer values: a float base of 300 came out 44 (cast to uint8), an alpha of 2
+    doubled the colour and NaN made it black (clipped, cast), a colour of 300 was clipped, a NaN depth hid the layer,
+    and a layer tuple of the wrong length raised Python's ValueError from its unpacking."""
+    depth = np.ones((2, 2), np.float32)
+    if base is None:
+        base = np.zeros((2, 2, 3), np.uint8)
+    layers = [(np.zeros((2, 2, 3)), np.zeros((2, 2)), depth, True, False)]
+    if layer is not None:
+        layers = [(*layer[:2], np.full((2, 2), layer[2], np.float32), True, False)] if len(layer) == 3 else [layer]
+    with pytest.raises(InvalidInputError, match=message):
+        composite(base, depth, layers)
+
+
+def test_composite_takes_a_bool_coverage_mask_as_alpha():
+    """A bool alpha (a coverage mask such as np.isfinite(depth)) composited as 0 and 1; the range check of alpha
+    refused it as not real numbers. It composites as the same mask in float32 does."""
+    rng = np.random.default_rng(3)
+    base = rng.integers(0, 256, (6, 8, 3), dtype=np.uint8)
+    base_depth = np.full((6, 8), np.inf, np.float32)
+    depth = np.where(rng.uniform(size=(6, 8)) > 0.4, rng.uniform(0, 1, (6, 8)), np.inf).astype(np.float32)
+    color = rng.uniform(0, 255, (6, 8, 3))
+    mask = np.isfinite(depth)
+    got = composite(base, base_depth, [(color, mask, depth, True, True)])
+    np.testing.assert_array_equal(got, composite(base, base_depth, [(color, mask.astype(np.float32), depth, True,
+                                                                     True)]))
+    assert (got[~mask] == base[~mask]).all() and (got[mask] == np.rint(color[mask])).all()

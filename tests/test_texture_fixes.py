@@ -1050,3 +1050,57 @@ def test_contour_lines_on_a_ramp_follow_the_documented_coverage(width, index_wid
     assert (layer.image[2, 1:-1, 3] > 0).any()
     if width < 1e28 and abs(base) < 1e9:  # (past 2^52 in float64 every height rounds onto a level)
         assert (layer.image[2, 1:-1, 3] == 0).any()  # texels far from any line: the skip ran
+
+
+@pytest.mark.parametrize("combine_with", ["blend", "modulate", "weighted_add"])
+def test_a_layer_over_another_extent_is_resampled_at_any_pixel_size(combine_with):
+    """Whether a layer is already the pixel grid it combines on was an absolute test of the texture matrices (1e-9),
+    whose entries scale as 1 / pixel size: with pixels 10^9 units wide a layer of the same shape over twice the
+    extent passed it and was read pixel for pixel, as if over the grid's extent. Scaling the world changes nothing."""
+    values = np.tile(np.array([0.0, 0.25, 0.5, 1.0], np.float32), (2, 1))
+    outs = []
+    for unit in (1.0e3, 1.0e9):  # the pixel size of the grid
+        a = TextureLayer("thematic", np.full((2, 4, 3), 0.5, np.float32), (0, 4 * unit, 0, 2 * unit))
+        b = TextureLayer("luminance", values, (0, 8 * unit, 0, 4 * unit), border="edge")
+        if combine_with == "blend":
+            out = blend(a, b, np.ones((2, 4), np.float32), device="cpu")
+        elif combine_with == "modulate":
+            out = modulate(a, b, device="cpu")
+        else:
+            out = weighted_add([a, b], [0.0, 1.0], device="cpu")
+        outs.append(out.rgba())
+    np.testing.assert_allclose(outs[1], outs[0], atol=1e-6)
+    assert not np.allclose(outs[0][..., 0], np.broadcast_to(values, (2, 4)) * (0.5 if combine_with == "modulate"
+                                                                               else 1.0))
+
+
+@pytest.mark.parametrize("weights", [(1.0e39, 1.0), (1.0, -1.0e39)])
+def test_weights_beyond_float32_are_refused_not_added_as_nan(weights):
+    """weighted_add's weights reach the kernel as float32: 1e39 became inf, and inf times a zero channel NaN, clamped
+    to 0: 1e39 · 0 + 1 · 0.5 came out 0 instead of 0.5, without a word."""
+    black = TextureLayer("thematic", np.zeros((2, 2, 3), np.float32), (0, 2, 0, 2))
+    grey = np.full((2, 2, 3), 0.5, np.float32)
+    with pytest.raises(InvalidInputError, match=r"weights\[\d\] must lie in \[-3\.40282e\+38, 3\.40282e\+38\]; got"):
+        weighted_add([black, grey], weights, device="cpu")
+    # the largest float32 weight still adds as float32 does: 3.4e38 · 0 + 1 · 0.5
+    out = weighted_add([black, grey], (float(np.finfo(np.float32).max), 1.0), device="cpu").rgba()
+    np.testing.assert_allclose(out[..., :3], 0.5)
+
+
+@pytest.mark.parametrize("pixel, shape, origin, nudged", [
+    (1.0e-3, (1, 16384), (5.0e5, 9.9e6), False),  # the grid's own matrix: its corners round by 1e-6 texel
+    (1.0e-4, (512, 512), (-2.0e7, 1.0e7), True),  # one ulp off in the scale: 2e-5 texel at the corner, float64's grain
+])
+def test_a_layer_on_the_grid_is_read_as_it_is_at_fine_pixels_far_from_the_origin(pixel, shape, origin, nudged):
+    """The corner test of _is_grid (within 1e-6 texel) took float64's rounding of the corners for a mismatch: at mm
+    pixels near a UTM false northing a layer over the grid itself was resampled, its texels off by up to 1e-3."""
+    rows, cols = shape
+    extent = (origin[0], origin[0] + cols * pixel, origin[1], origin[1] + rows * pixel)
+    matrix = TextureLayer("luminance", np.zeros(shape, np.float32), extent).matrix.copy()
+    if nudged:
+        matrix[0, 0] = np.nextafter(matrix[0, 0], np.inf)
+    values = np.random.default_rng(5).uniform(0.0, 1.0, (rows, cols, 3)).astype(np.float32)
+    a = TextureLayer("thematic", np.zeros((rows, cols, 3), np.float32), extent)
+    b = TextureLayer("thematic", values, extent, matrix=matrix)
+    out = weighted_add([a, b], [0.0, 1.0], device="cpu").rgba()
+    np.testing.assert_array_equal(out[..., :3], values)
