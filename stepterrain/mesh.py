@@ -205,6 +205,9 @@ def boundary_edges(faces: NDArray[np.int64], device: wp.DeviceLike = None) -> ND
         return np.zeros((0, 2), np.int64)
     if faces.min() < 0:
         raise InvalidInputError(f"faces must hold vertex indices >= 0; got {int(faces.min())}")
+    if faces.max() > MAX_INT32 - 3:  # _boundary's corner table has n + 2 = largest index + 3 entries, an int32 shape
+        raise OutputTooLargeError(f"faces: the kernels index vertices up to {MAX_INT32 - 3:,} with int32; got "
+                                  f"{int(faces.max()):,}")
     device = _device_of(device)
     return _boundary(_flat_faces(faces, device), int(faces.max()) + 1, device)
 
