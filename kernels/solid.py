@@ -6,8 +6,9 @@ Everything here is integer bookkeeping over the surface's faces, count -> scan -
 
 * a vertex -> corner table (CSR) without a sort: :func:`count_keys` counts the corners at each vertex (atomic adds),
   an exclusive scan gives each vertex its bucket, :func:`fill_corners` drops each corner, as its face's next and
-  previous vertex, into its vertex's bucket through an atomic cursor (the order inside a bucket may differ between
-  runs; only counts are read from it). :func:`fill_buckets` does the same for any int keys.
+  previous vertex, into its vertex's bucket by counting the bucket's end down to its start (atomic adds of -1: no
+  cursor array; the order inside a bucket may differ between runs, only counts are read from it).
+  :func:`fill_buckets` does the same for any int keys, through an atomic cursor.
 * boundary edges: a half-edge (a, b) is on the boundary iff exactly one half-edge of the mesh has the undirected key
   {a, b}; :func:`is_boundary` counts them among the corners of a or b, whichever has fewer. :func:`count_boundary`
   flags them per face and counts them per thread, :func:`emit_boundary` writes them in face and corner order.
@@ -39,7 +40,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from .memory import load
+from .memory import load, store
 
 wp.set_module_options({"enable_backward": False})  # integer work only: no adjoints, nothing to contract
 
@@ -98,13 +99,15 @@ def fill_corners(
     count: wp.int32,
     chunk: wp.int32,
     faces: wp.array[wp.int32],
-    offsets: wp.array[wp.int32],
     # outputs
-    cursor_out: wp.array[wp.int32],
+    ends_out: wp.array[wp.int32],
     items_out: wp.array[wp.vec2i],
 ):
     """One element per face: drop each corner into its vertex's bucket as (next vertex, previous vertex) of the
-    face (``offsets``: the exclusive scan of the corner counts per vertex; ``cursor_out`` zeroed first)."""
+    face, from the bucket's end down. ``ends_out`` (n + 2) holds the exclusive scan of the corner counts per vertex
+    (n + 2 of them, the last two 0) one place on: vertex v's bucket ends at ``ends_out[v + 1]``, which counts down
+    to where it starts. After the pass v's bucket is ``items_out[ends_out[v + 1]:ends_out[v + 2]]``: no cursor
+    array, and one read-modify-write a corner."""
     first = (wp.tid() + thread_offset) * chunk
     f = first
     last = wp.min(first + chunk, count)
@@ -112,33 +115,34 @@ def fill_corners(
         a = load(faces, 3 * f)
         b = load(faces, 3 * f + 1)
         c = load(faces, 3 * f + 2)
-        items_out[load(offsets, a) + wp.atomic_add(cursor_out, a, 1)] = wp.vec2i(b, c)
-        items_out[load(offsets, b) + wp.atomic_add(cursor_out, b, 1)] = wp.vec2i(c, a)
-        items_out[load(offsets, c) + wp.atomic_add(cursor_out, c, 1)] = wp.vec2i(a, b)
+        store(items_out, wp.atomic_add(ends_out, a + 1, -1) - 1, wp.vec2i(b, c))
+        store(items_out, wp.atomic_add(ends_out, b + 1, -1) - 1, wp.vec2i(c, a))
+        store(items_out, wp.atomic_add(ends_out, c + 1, -1) - 1, wp.vec2i(a, b))
         f += 1
 
 
 @wp.func
-def is_boundary(offsets: wp.array[wp.int32], corners: wp.array[wp.vec2i], a: wp.int32, b: wp.int32) -> wp.bool:
-    """Whether exactly one half-edge of the mesh has the undirected key {a, b}, counted among the corners of a or b
-    (whichever has fewer; stops at the second): a corner at u whose next vertex is w starts (u, w), one whose
-    previous vertex is w ends (w, u); a degenerate (a, a) is counted once, by its start."""
-    u = a
-    w = b
-    if load(offsets, b + 1) - load(offsets, b) < load(offsets, a + 1) - load(offsets, a):
-        u = b
-        w = a
+def used_once(corners: wp.array[wp.vec2i], s: wp.int32, end: wp.int32, u: wp.int32, w: wp.int32) -> wp.int32:
+    """1 where exactly one half-edge of the mesh has the undirected key {u, w}, counted among u's corners
+    ``corners[s:end]`` (stops at the second), else 0: a corner whose next vertex is w starts (u, w), one whose
+    previous vertex is w ends (w, u); a degenerate (u, u) is counted once, by its start. Branch-free counting."""
+    back = wp.where(u != w, 1, 0)
     n = wp.int32(0)
-    s = load(offsets, u)
-    end = load(offsets, u + 1)
     while s < end and n < 2:
         c = load(corners, s)
-        if c[0] == w:
-            n += 1
-        if u != w and c[1] == w:
-            n += 1
+        n += wp.where(c[0] == w, 1, 0) + wp.where(c[1] == w, back, 0)
         s += 1
-    return n == 1
+    return wp.where(n == 1, 1, 0)
+
+
+@wp.func
+def is_boundary(corners: wp.array[wp.vec2i], a: wp.int32, b: wp.int32, start_a: wp.int32, end_a: wp.int32,
+                start_b: wp.int32, end_b: wp.int32) -> wp.int32:
+    """:func:`used_once` of the half-edge (a, b), counted among the corners of a or b (``corners[start_a:end_a]``,
+    ``corners[start_b:end_b]``), whichever has fewer (a fan's hub is never scanned once per spoke)."""
+    if end_b - start_b < end_a - start_a:
+        return used_once(corners, start_b, end_b, b, a)
+    return used_once(corners, start_a, end_a, a, b)
 
 
 @wp.kernel
@@ -147,27 +151,35 @@ def count_boundary(
     count: wp.int32,
     chunk: wp.int32,
     faces: wp.array[wp.int32],
-    offsets: wp.array[wp.int32],
+    starts: wp.array[wp.int32],
     corners: wp.array[wp.vec2i],
     # outputs
     flags_out: wp.array[wp.int32],
     counts_out: wp.array[wp.int32],
 ):
     """One element per face: ``flags_out[f]`` has bit j set where the half-edge leaving corner j is a boundary edge
-    (its undirected key used once); ``counts_out[thread]`` counts them over the thread's chunk."""
+    (its undirected key used once); ``counts_out[thread]`` counts them over the thread's chunk. Vertex v's corners
+    are ``corners[starts[v + 1]:starts[v + 2]]`` (:func:`fill_corners`' ``ends_out``); each of the face's three
+    vertices' bucket is read once."""
     first = (wp.tid() + thread_offset) * chunk
     f = first
     last = wp.min(first + chunk, count)
     total = wp.int32(0)
     while f < last:
-        bits = wp.int32(0)
-        for j in range(3):
-            a = load(faces, 3 * f + j)
-            b = load(faces, 3 * f + (j + 1) % 3)
-            if is_boundary(offsets, corners, a, b):
-                bits = bits | (1 << j)
-                total += 1
-        flags_out[f] = bits
+        a = load(faces, 3 * f)
+        b = load(faces, 3 * f + 1)
+        c = load(faces, 3 * f + 2)
+        start_a = load(starts, a + 1)
+        end_a = load(starts, a + 2)
+        start_b = load(starts, b + 1)
+        end_b = load(starts, b + 2)
+        start_c = load(starts, c + 1)
+        end_c = load(starts, c + 2)
+        x = is_boundary(corners, a, b, start_a, end_a, start_b, end_b)
+        y = is_boundary(corners, b, c, start_b, end_b, start_c, end_c)
+        z = is_boundary(corners, c, a, start_c, end_c, start_a, end_a)
+        total += x + y + z
+        store(flags_out, f, x | (y << 1) | (z << 2))
         f += 1
     counts_out[wp.tid() + thread_offset] = total
 

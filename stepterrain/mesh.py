@@ -169,16 +169,20 @@ def _boundary(faces: wp.array, n: int, device: wp.Device) -> NDArray[np.int64]:
     count = faces.shape[0] // 3
     if count == 0:
         return np.zeros((0, 2), np.int64)
-    offsets = _key_offsets(faces, n, device)
-    cursor = _empty(n, np.int32, wp.int32, device, zero=True)
+    # the corner counts, two spare zeros after them: their exclusive scan is each bucket's end one place on, which
+    # fill_corners counts down to its start (kernels/solid.py: then vertex v's corners are corners[ends[v + 1]:
+    # ends[v + 2]])
+    counts = _empty(n + 2, np.int32, wp.int32, device, zero=True)
+    launch_chunked(kernels.count_keys, faces.shape[0], [faces], [counts], device, atomics=True)
+    ends = _offsets(counts)
+    del counts
     corners = _empty(faces.shape[0], (np.int32, 2), wp.vec2i, device)
-    launch_chunked(kernels.fill_corners, count, [faces, offsets], [cursor, corners], device, atomics=True)
-    del cursor
+    launch_chunked(kernels.fill_corners, count, [faces], [ends, corners], device, atomics=True)
     threads = chunked_threads(count, device)
     counts = _empty(threads + 1, np.int32, wp.int32, device, zero=True)
     flags = _empty(count, np.int32, wp.int32, device)
-    launch_chunked(kernels.count_boundary, count, [faces, offsets, corners], [flags, counts], device)
-    del offsets, corners
+    launch_chunked(kernels.count_boundary, count, [faces, ends, corners], [flags, counts], device)
+    del ends, corners
     starts, total = _scan(counts)
     if 2 * total > MAX_INT32:  # emit_boundary writes edge o at 2·o in int32
         raise OutputTooLargeError(f"faces: the kernels index at most {MAX_INT32 // 2:,} boundary edges with int32; got "
@@ -201,6 +205,9 @@ def boundary_edges(faces: NDArray[np.int64], device: wp.DeviceLike = None) -> ND
         return np.zeros((0, 2), np.int64)
     if faces.min() < 0:
         raise InvalidInputError(f"faces must hold vertex indices >= 0; got {int(faces.min())}")
+    if faces.max() > MAX_INT32 - 3:  # _boundary's corner table has n + 2 = largest index + 3 entries, an int32 shape
+        raise OutputTooLargeError(f"faces: the kernels index vertices up to {MAX_INT32 - 3:,} with int32; got "
+                                  f"{int(faces.max()):,}")
     device = _device_of(device)
     return _boundary(_flat_faces(faces, device), int(faces.max()) + 1, device)
 

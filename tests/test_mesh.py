@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
+import warp as wp
 from hypothesis import given, settings
 from hypothesis import strategies as hst
 from hypothesis.extra.numpy import arrays
 
+import stepterrain.mesh as mesh_module
+from stepterrain import _device
 from stepterrain.mesh import boundary_edges, exact_keys
 from tests.reference_solid import _repeated_rows  # close_solid finds fins with kernels now (test_solid_kernels)
 
@@ -34,6 +38,53 @@ def test_boundary_edges_of_a_grid_and_of_nothing():
     np.testing.assert_array_equal(edges, boundary_reference(faces))
     assert boundary_edges(np.zeros((0, 3), np.int64)).shape == (0, 2)
     assert boundary_edges(np.concatenate([faces, faces[:, ::-1]])).shape == (0, 2)  # every edge twice
+
+
+def _corners_reference(faces, n):
+    """Per vertex the sorted (next, previous) pairs of its corners: what its bucket of the corner table holds."""
+    pairs = np.stack([faces[:, [1, 2, 0]], faces[:, [2, 0, 1]]], -1).reshape(-1, 2)
+    at = faces.reshape(-1)
+    return [sorted(map(tuple, pairs[at == v].tolist())) for v in range(n)]
+
+
+@settings(max_examples=40, deadline=None)
+@given(faces=arrays(np.int64, hst.tuples(hst.integers(1, 40), hst.just(3)), elements=hst.integers(0, 12)),
+       unused=hst.integers(0, 3), seed=hst.integers(0, 2**32 - 1))
+def test_the_boundary_pass_reads_its_corner_buckets_in_any_order(faces, unused, seed):
+    """The corner table that fill_corners leaves (vertex v's bucket: corners[ends[v + 1]:ends[v + 2]]) holds each
+    vertex's corners, also for the vertices no face uses (``unused`` more after the last one); and count_boundary
+    reads only counts from a bucket, so the boundary is the reference's, in its order, with every bucket shuffled
+    (as CUDA's atomics may leave it; on the CPU one range fills it in reverse face order) and count_boundary and
+    emit_boundary split into ranges of one face over several threads."""
+    n = int(faces.max()) + 1 + unused
+    rng = np.random.default_rng(seed)
+    launch_chunked = mesh_module.launch_chunked
+    filled = []
+
+    def shuffled(kernel, count, inputs, outputs, device, **options):
+        if not options.get("atomics"):
+            options["min_elements"] = 1
+        launch_chunked(kernel, count, inputs, outputs, device, **options)
+        if kernel is mesh_module.kernels.fill_corners:
+            ends, corners = outputs[0].numpy(), outputs[1].numpy()  # the CPU arrays' own buffers
+            assert ends.shape == (n + 2,) and ends[1] == 0 and ends[n + 1] == len(corners)
+            got = [sorted(map(tuple, corners[ends[v + 1]:ends[v + 2]].tolist())) for v in range(n)]
+            assert got == _corners_reference(faces, n)
+            bucket = np.repeat(np.arange(n), np.diff(ends[1:]))
+            corners[:] = corners[np.lexsort((rng.random(len(corners)), bucket))]
+            filled.append(True)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(mesh_module, "launch_chunked", shuffled)
+        patch.setattr(_device, "CPU_CHUNK", 1)
+        old = _device.set_cpu_threads(3)
+        try:
+            cpu = wp.get_device("cpu")
+            got = mesh_module._boundary(mesh_module._flat_faces(faces, cpu), n, cpu)
+        finally:
+            _device.set_cpu_threads(old)
+    assert filled
+    np.testing.assert_array_equal(got, boundary_reference(faces))
 
 
 @settings(max_examples=60, deadline=None)

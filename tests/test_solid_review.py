@@ -17,7 +17,8 @@ import pytest
 import warp as wp
 
 from stepterrain import _device
-from stepterrain.errors import InvalidInputError
+from stepterrain._compaction import MAX_INT32
+from stepterrain.errors import InvalidInputError, OutputTooLargeError
 from stepterrain.mesh import boundary_edges, close_solid
 from tests import reference_solid
 
@@ -66,6 +67,14 @@ def test_boundary_edges_refuses_faces_that_are_not_rows_of_three(faces):
     # (F, 4) gave the edges of the flat indices taken three at a time, among them (3, 3)
     with pytest.raises(InvalidInputError, match="faces"):
         boundary_edges(faces)
+
+
+@pytest.mark.parametrize("index", [MAX_INT32 - 2, MAX_INT32, 1 << 40])
+def test_boundary_edges_refuses_an_index_its_int32_corner_table_cannot_hold(index):
+    # the corner table has n + 2 entries (n: the largest index + 1), a Warp shape of int32: past it Warp's ValueError
+    # or numpy's MemoryError for an 8 GiB - 4 TiB table (the index wrapped in int32 beyond), not a stepterrain error
+    with pytest.raises(OutputTooLargeError, match="faces"):
+        boundary_edges(np.array([[0, 1, index]]))
 
 
 def test_an_empty_mesh_gives_an_empty_solid_or_a_stepterrain_error():
