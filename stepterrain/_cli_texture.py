@@ -63,7 +63,7 @@ examples:
       a PNG without georeferencing, its outer pixel edges at x 0..1500, y 0..1200 in the DEM's coordinates
   stepterrain texture dem.tif --image ortho.tif --hillshade none -o ortho.png --mesh out/ortho.glb
       the orthophoto as it is (its own light), no hillshade over it
-  stepterrain texture dem.tif --image ortho.tif --texel-size 0.5 -o ortho.tif --mesh out/ortho.glb
+  stepterrain texture dem.tif --image ortho.tif --texel-size 0.5 -o out/ortho_05m.tif --mesh out/ortho.glb
       a texture of 0.5 m texels over the (say 30 m) DEM: the orthophoto's detail kept in the GeoTIFF (on that finer
       grid, exactly over the DEM) and the GLB, the hillshade interpolated onto it; for a DEM up to 8 km across (a
       --mesh takes 16384 texels a side at most): --crop a larger one, or give a larger --texel-size

@@ -139,6 +139,26 @@ def test_help_examples_parse():
     assert checked >= 20
 
 
+def test_help_examples_write_no_file_they_read():
+    """No example line of `--help` names one file as an input and an output: the CLI refuses that (the write would
+    replace the input), so such an example fails as shown (texture's --texel-size example read --image ortho.tif and
+    wrote -o ortho.tif)."""
+    import argparse
+
+    from stepterrain import cli
+
+    parser = cli.build_parser()
+    (action,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    for sub in action.choices.values():
+        for argv in help_examples(sub.epilog or ""):
+            args = vars(parser.parse_args(argv))
+            inputs = args.get("input") if isinstance(args.get("input"), list) else [args.get("input")]
+            read = {Path(p) for p in [*inputs, args.get("image"), args.get("texture")] if p is not None}
+            written = {Path(args[key]) for key in ("output", "mesh", "png", "gif", "normals") if args.get(key)}
+            both = sorted(map(str, read & written))
+            assert not both, f"stepterrain {' '.join(argv)}: writes {both}, which it reads"
+
+
 # ------------------------------------------------------------- docs/batch.md's table of what each mesh format keeps
 def format_table() -> dict[str, dict[str, str]]:
     """docs/batch.md's table, {extension: {column: cell}}, a row naming several extensions under each."""
