@@ -2125,7 +2125,9 @@ def _run_locked(
                      f"({shown}), from an earlier run with another source or tile size: left as they were")  # fmt: skip
     # outputs an earlier run left of the items this run writes: one that fails keeps it, made with other input or
     # options (or never recorded), and out/*.glb loaded it with this run's outputs without a word
-    earlier = {item.key for item in todo if os.path.lexists(folder / f"{item.key}{ext}")}
+    # (a folder of that name is none: its item fails, naming it, and was said to keep "an earlier run's output")
+    earlier = {item.key for item in todo
+               if os.path.lexists(folder / f"{item.key}{ext}") and not os.path.isdir(folder / f"{item.key}{ext}")}
 
     recorder = _Recorder(folder, manifest, fingerprints, ranges)
     serial = isinstance(scheduler, str) and scheduler == "serial"

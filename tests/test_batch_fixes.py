@@ -880,6 +880,21 @@ def test_a_failed_items_earlier_output_is_noted(tmp_path):
     assert len(fresh.failed) == 1 and not any("failed item" in note for note in fresh.notes)
 
 
+def test_a_folder_named_like_an_output_is_not_noted_as_an_earlier_runs_output(tmp_path):
+    """A folder in the way of an item's output (out/tile_r0_c0.glb/) fails that item, naming it; the report also
+    said the output folder "still holds an earlier run's output" of it, "made with that run's input and options":
+    no run made it, and there is no output of it to redo or remove."""
+    from .conftest import SHARED_DATA
+
+    z = np.load(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.npz")["elevation"][:61, :61].astype(np.float32)
+    out = tmp_path / "out"
+    (out / "tile_r0_c0.glb").mkdir(parents=True)
+    report = batch(z, out, tile_size=30, interval=50.0, scheduler="serial")
+    assert [r.key for r in report.failed] == ["tile_r0_c0"] and len(report.done) == 3
+    assert "it is a folder" in report.failed[0].error
+    assert not any("earlier run" in note for note in report.notes), report.notes
+
+
 @pytest.mark.parametrize("source", ["folder", "tiles"])
 @pytest.mark.parametrize("how", ["address", "client"])
 def test_a_scheduler_without_workers_is_a_clear_error_not_a_hang(tmp_path, source, how):
