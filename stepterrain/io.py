@@ -1106,7 +1106,7 @@ def _load_geotiff(
             # a missing file inside a zip, an unreachable URL: GDAL's reason, not "unreadable content"
             gdal = os.fspath(file)
             raise DataFileError(f"cannot read {str(file)!r}" + (f" (GDAL path {gdal!r})" if gdal != str(file) else "")
-                                + f": GDAL cannot open it as {_gdal_format(file)}: {exc}") from exc
+                                + f": GDAL cannot open it as {_gdal_format(file)}: {gdal_reason(exc)}") from exc
         with opened as dataset:
             if band > dataset.count:
                 raise InvalidInputError(
@@ -1169,7 +1169,7 @@ def _load_geotiff(
             unmasked = _missing_beyond_gdal_mask(dataset, band, masked.data, window)
     except RasterioError as exc:
         raise DataFileError(
-            f"cannot read {str(file)!r}: expected {_gdal_format(file)}; got unreadable content ({exc})"
+            f"cannot read {str(file)!r}: expected {_gdal_format(file)}; got unreadable content ({gdal_reason(exc)})"
         ) from exc
 
     if masked.dtype == np.bool_ or masked.dtype.kind not in "iuf":  # a complex band kept its real part silently
@@ -1211,6 +1211,23 @@ def _load_geotiff(
     terrain = _grid(file, heights, spacing=spacing, origin=origin, crs=crs, source=source, height_unit=height_unit)
     _check_placed(file, place, terrain)  # a grid without a CRS that looks like degrees: told by its (crop's) heights
     return terrain
+
+
+def gdal_reason(exc: BaseException) -> str:
+    """What GDAL said of a failure rasterio raised as ``exc``: rasterio's read errors say only "Read failed. See
+    previous exception for details.", which a message never showed (a .vrt whose source tile is missing, a GeoTIFF
+    cut short), while GDAL's own error ("tiles/b.tif: No such file or directory", "IReadBlock failed at X offset 0")
+    is their ``__cause__``: the causes' messages, the outer one's only where it says more than to look at them."""
+    parts = []
+    seen: set[int] = set()
+    current: BaseException | None = exc
+    while current is not None and id(current) not in seen:
+        seen.add(id(current))
+        text = str(current).strip()
+        if text and not (current is exc and "previous exception" in text and current.__cause__ is not None):
+            parts.append(text)
+        current = current.__cause__
+    return "; ".join(dict.fromkeys(parts)) or str(exc)
 
 
 def _gdal_format(file: Path) -> str:
