@@ -1007,11 +1007,12 @@ def _warn_own_local_metres(terrain: Terrain) -> None:
 
     if terrain.kind == "grid" and terrain.origin == (0.0, 0.0) and _lonlat_grid(terrain) is not None:
         warnings.warn(
-            "the DEM files are in degrees, and each is placed in local metres of its own (node (0, 0) at its first "
+            "DEM files in degrees are each placed in local metres of their own (node (0, 0) at the file's first "
             "node, the +proj=eqc CRS of its mesh's metadata), so their meshes neither line up nor weld where "
             "neighbours share their border nodes: to step them as one surface, mosaic them (gdalbuildvrt tiles.vrt "
-            "FILES) and cut the .vrt into tiles of tile_size cells, or reproject them to one projected CRS first "
-            "(gdalwarp -t_srs)",
+            "FILES) and cut the .vrt into tiles of tile_size cells, or warp them into one projected raster "
+            "(gdalwarp -t_srs EPSG:... FILES dem.tif) and cut that (files reprojected one by one lie in place but "
+            "share no nodes with their neighbours)",
             stacklevel=2,
         )
 

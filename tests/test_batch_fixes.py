@@ -2441,6 +2441,9 @@ def test_several_dem_files_in_degrees_are_warned_to_lie_each_at_its_own_origin(t
 
     said = run(tmp_path / "geo", "geo_out")
     assert len(said) == 1 and "neither line up nor weld" in said[0] and "gdalbuildvrt" in said[0]
+    # its other remedy warps the files into one raster: each reprojected alone (gdalwarp -t_srs of one file) lies in
+    # place, but on a grid of its own, sharing no nodes with its neighbours, so their meshes did not weld either
+    assert "gdalwarp -t_srs EPSG:... FILES dem.tif" in said[0] and "one by one" in said[0]
     west, east = read_mesh(tmp_path / "geo_out" / "west.glb"), read_mesh(tmp_path / "geo_out" / "east.glb")
     assert west.bounds[0, 0] == east.bounds[0, 0] == 0.0  # what it warns of: both at x = 0, overlapping
     assert run([tmp_path / "geo" / "east.tif"], "one_out") == []  # one file: nothing to line up with
