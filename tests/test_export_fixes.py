@@ -2030,11 +2030,14 @@ signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # the write fails with EFBIG inst
 from stepterrain.export import save_image
 from stepterrain.errors import DataFileError
 image = (np.random.default_rng(0).random((300, 300, 3)) * 255).astype(np.uint8)
-resource.setrlimit(resource.RLIMIT_FSIZE, (20000, resource.RLIM_INFINITY))
+soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)  # a runner's finite hard limit cannot be raised to infinity
+resource.setrlimit(resource.RLIMIT_FSIZE, (20000, hard))
 try:
     save_image(image, {str(tmp_path / "shade.tif")!r}, extent=(0, 300, 0, 300), crs="EPSG:32611")
 except DataFileError as exc:
     print("REFUSED", exc)
+finally:  # what the process writes at its exit (a coverage data file) is not cut short
+    resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
 """
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     said = [line for line in done.stdout.splitlines() if line.startswith("REFUSED")]
