@@ -232,6 +232,9 @@ class _Options:
     #: the caller's working folder, set for dask workers (:func:`_run_dask`): a relative output folder or DEM file
     #: is resolved against it on a worker that runs in another folder (:func:`_on_worker`); out of the repr
     cwd: str | None = dataclasses.field(default=None, repr=False)
+    #: the items are several DEM files (a folder's or a list's), whose meshes are meant to lie side by side: one read
+    #: from degrees, in local metres of its own, is warned of (:func:`_run_item`); out of the repr
+    several_files: bool = dataclasses.field(default=False, repr=False)
 
 
 def _on_worker(path: str, cwd: str | None) -> str:
@@ -958,6 +961,8 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
         if terrain is None:
             terrain = _item_terrain(read, source, options.height_unit, options.file_spacing, options.coarsen,
                                     options.band)  # fmt: skip
+        if options.several_files and item.kind == "file":
+            _warn_own_local_metres(terrain)
         metadata = {"generator": "stepterrain.batch", **dict(options.metadata), **_item_metadata(item)}
         if not _has_surface(terrain):
             # an item with no triangle of three finite heights (sea off a coast, a gap in a series, a tile file of
@@ -991,6 +996,25 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
         cpu_seconds=time.process_time() - cpu_start, faces=n_faces, vertices=n_vertices,
         bytes=written.stat().st_size,
     )  # fmt: skip
+
+
+def _warn_own_local_metres(terrain: Terrain) -> None:
+    """Warn when a DEM file of several was read from degrees (:func:`~stepterrain.io.load_dem`: local metres of its
+    own, node (0, 0) at its first node, its own ``+proj=eqc`` CRS): the meshes of a folder of SRTM ``.hgt`` tiles
+    all lay at (0, 0), on top of one another, and neighbours that share their border nodes did not weld, as the
+    files of a projected folder do, without a word. One message for every file, so a run says it once."""
+    from .io import _lonlat_grid
+
+    if terrain.kind == "grid" and terrain.origin == (0.0, 0.0) and _lonlat_grid(terrain) is not None:
+        warnings.warn(
+            "DEM files in degrees are each placed in local metres of their own (node (0, 0) at the file's first "
+            "node, the +proj=eqc CRS of its mesh's metadata), so their meshes neither line up nor weld where "
+            "neighbours share their border nodes: to step them as one surface, mosaic them (gdalbuildvrt tiles.vrt "
+            "FILES) and cut the .vrt into tiles of tile_size cells, or warp them into one projected raster "
+            "(gdalwarp -t_srs EPSG:... FILES dem.tif) and cut that (files reprojected one by one lie in place but "
+            "share no nodes with their neighbours)",
+            stacklevel=2,
+        )
 
 
 # ---------------------------------------------------------------------------------------------- resume
@@ -1762,6 +1786,13 @@ def batch(
     BatchReport
         One :class:`ItemResult` per item; ``report.ok`` is False when any item failed.
 
+    Warns
+    -----
+    UserWarning
+        The items' own warnings (load_dem's, stepped's), each message once; and, once, that several DEM files are in
+        degrees: each is placed in local metres of its own (node (0, 0) at its first node), so their meshes neither
+        line up nor weld (mosaic them with ``gdalbuildvrt`` and cut the ``.vrt`` into tiles instead).
+
     Raises
     ------
     InvalidInputError
@@ -1976,7 +2007,7 @@ def batch(
         floor=None if floor is None else float(floor), ext=ext, device=None if device is None else str(device),
         metadata=tuple(sorted({**extras, **recorded}.items())), height_unit=height_unit,
         file_spacing=file_spacing, coarsen=coarsen if src is None else None,  # a source's: coarsened already
-        band=band,
+        band=band, several_files=sum(item.kind == "file" for item in items) > 1,
     )  # fmt: skip
     if interval is not None:  # the isovalues are base + k * interval: both recorded (a long list keeps its ends only)
         steps = (("interval", float(interval)), ("base", float(base)))
@@ -2095,7 +2126,9 @@ def _run_locked(
                      f"({shown}), from an earlier run with another source or tile size: left as they were")  # fmt: skip
     # outputs an earlier run left of the items this run writes: one that fails keeps it, made with other input or
     # options (or never recorded), and out/*.glb loaded it with this run's outputs without a word
-    earlier = {item.key for item in todo if os.path.lexists(folder / f"{item.key}{ext}")}
+    # (a folder of that name is none: its item fails, naming it, and was said to keep "an earlier run's output")
+    earlier = {item.key for item in todo
+               if os.path.lexists(folder / f"{item.key}{ext}") and not os.path.isdir(folder / f"{item.key}{ext}")}
 
     recorder = _Recorder(folder, manifest, fingerprints, ranges)
     serial = isinstance(scheduler, str) and scheduler == "serial"

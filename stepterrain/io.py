@@ -246,11 +246,11 @@ def load_dem(
         named; a GeoTIFF CRS ignored for want of a geotransform; a PNG's world file (``.pgw``, ``.wld``) or
         ``.aux.xml`` geotransform, which is not read (the message gives the ``gdal_translate`` to a GeoTIFF that
         keeps it); cells no nodata value or mask marks that hold the lowest value of a signed integer (-32768 in
-        int16, SRTM's void) or float dtype (-3.4028235e+38 in float32, ArcGIS's NoData), read as heights, counted
-        and named with the nodata value to declare; a grid georeferenced without a CRS (or with one PROJ cannot
-        read, kept as given: an .npz's ``crs="4326"``) whose coordinates look like degrees (nodes within x -180 to
-        360 and y -90 to 90, heights spanning more than 100 times its width and height: read as metres, an SRTM tile
-        was a needle centimetres wide), naming the CRS to give it.
+        int16, SRTM's void) or float dtype (-3.4028235e+38 in float32, ArcGIS's NoData, also kept in a float64
+        grid), read as heights, counted and named with the nodata value to declare; a grid georeferenced without a
+        CRS (or with one PROJ cannot read, kept as given: an .npz's ``crs="4326"``) whose coordinates look like
+        degrees (nodes within x -180 to 360 and y -90 to 90, heights spanning more than 100 times its width and
+        height: read as metres, an SRTM tile was a needle centimetres wide), naming the CRS to give it.
 
     Raises
     ------
@@ -1114,7 +1114,7 @@ def _load_geotiff(
             # a missing file inside a zip, an unreachable URL: GDAL's reason, not "unreadable content"
             gdal = os.fspath(file)
             raise DataFileError(f"cannot read {str(file)!r}" + (f" (GDAL path {gdal!r})" if gdal != str(file) else "")
-                                + f": GDAL cannot open it as {_gdal_format(file)}: {exc}") from exc
+                                + f": GDAL cannot open it as {_gdal_format(file)}: {gdal_reason(exc)}") from exc
         with opened as dataset:
             if band > dataset.count:
                 raise InvalidInputError(
@@ -1177,7 +1177,7 @@ def _load_geotiff(
             unmasked = _missing_beyond_gdal_mask(dataset, band, masked.data, window)
     except RasterioError as exc:
         raise DataFileError(
-            f"cannot read {str(file)!r}: expected {_gdal_format(file)}; got unreadable content ({exc})"
+            f"cannot read {str(file)!r}: expected {_gdal_format(file)}; got unreadable content ({gdal_reason(exc)})"
         ) from exc
 
     if masked.dtype == np.bool_ or masked.dtype.kind not in "iuf":  # a complex band kept its real part silently
@@ -1219,6 +1219,23 @@ def _load_geotiff(
     terrain = _grid(file, heights, spacing=spacing, origin=origin, crs=crs, source=source, height_unit=height_unit)
     _check_placed(file, place, terrain)  # a grid without a CRS that looks like degrees: told by its (crop's) heights
     return terrain
+
+
+def gdal_reason(exc: BaseException) -> str:
+    """What GDAL said of a failure rasterio raised as ``exc``: rasterio's read errors say only "Read failed. See
+    previous exception for details.", which a message never showed (a .vrt whose source tile is missing, a GeoTIFF
+    cut short), while GDAL's own error ("tiles/b.tif: No such file or directory", "IReadBlock failed at X offset 0")
+    is their ``__cause__``: the causes' messages, the outer one's only where it says more than to look at them."""
+    parts = []
+    seen: set[int] = set()
+    current: BaseException | None = exc
+    while current is not None and id(current) not in seen:
+        seen.add(id(current))
+        text = str(current).strip()
+        if text and not (current is exc and "previous exception" in text and current.__cause__ is not None):
+            parts.append(text)
+        current = current.__cause__
+    return "; ".join(dict.fromkeys(parts)) or str(exc)
 
 
 def _gdal_format(file: Path) -> str:
@@ -1535,11 +1552,15 @@ def _warn_void_values(file: Path, data: NDArray[Any], missing: NDArray[np.bool_]
     (-32768, the void of SRTM and most int16 DEMs) or of a float dtype (-3.4028235e+38, ArcGIS's float32 NoData): no
     elevation, but a file that lost its nodata value. They were read as heights without a word: a pit 33 km deep in
     the mesh, or "3.4e+37 levels" refused by stepped. One reduction finds the lowest value; only when it is the
-    sentinel are its cells counted, a block of rows at a time (no temporary of the grid's size)."""
+    sentinel are its cells counted, a block of rows at a time (no temporary of the grid's size). In a float64 grid
+    the sentinel is float32's lowest value: float64's own lies beyond float32 and is refused as such, while a float32
+    DEM's NoData kept through a widening copy (``src.read(1).astype(float)`` saved as .npy, ``gdal_translate -ot
+    Float64``) was read as heights without a word."""
     kind = data.dtype.kind
     if data.size == 0 or not (kind == "f" or (kind == "i" and data.dtype.itemsize >= 2)):
         return
-    sentinel = (np.finfo if kind == "f" else np.iinfo)(data.dtype).min
+    lowest_of = np.dtype(np.float32) if kind == "f" and data.dtype.itemsize > 4 else data.dtype
+    sentinel = data.dtype.type((np.finfo if kind == "f" else np.iinfo)(lowest_of).min)
     lowest = np.fmin.reduce(data, axis=None) if kind == "f" else data.min()  # fmin: NaN cells pass over
     if lowest != sentinel:
         return
@@ -1550,7 +1571,9 @@ def _warn_void_values(file: Path, data: NDArray[Any], missing: NDArray[np.bool_]
             hit &= ~missing[start:start + rows]
         count += int(np.count_nonzero(hit))
     if count:
-        value = f"{float(sentinel):.8g}" if kind == "f" else str(int(sentinel))
+        # float64 cells equal the float32 value only as written in full, which a nodata of them must match exactly
+        value = (str(int(sentinel)) if kind == "i" else f"{float(sentinel):.8g}" if lowest_of == data.dtype
+                 else repr(float(sentinel)))
         hint = (f"`gdal_edit.py -a_nodata {value} {file.name}`" if file.suffix.lower() in (".tif", ".tiff") else
                 f"`gdal_translate -a_nodata {value} {file.name} {file.stem}.tif`"
                 if file.suffix.lower() in GDAL_FORMATS else
@@ -1558,7 +1581,8 @@ def _warn_void_values(file: Path, data: NDArray[Any], missing: NDArray[np.bool_]
                 f"save it as an .npz with a 'nodata' of {value}")
         warnings.warn(
             f"{file.name}: {counted(count, 'cell')} of {what} {'holds' if count == 1 else 'hold'} {value}, the lowest "
-            f"{data.dtype} value, which marks voids, but no nodata value or mask of the file marks them: read as "
+            f"{lowest_of} value{'' if lowest_of == data.dtype else f' (stored as {data.dtype})'}, which marks voids, "
+            "but no nodata value or mask of the file marks them: read as "
             f"heights; if they are voids, declare it ({hint})",
             stacklevel=caller_stacklevel(),
         )

@@ -880,6 +880,21 @@ def test_a_failed_items_earlier_output_is_noted(tmp_path):
     assert len(fresh.failed) == 1 and not any("failed item" in note for note in fresh.notes)
 
 
+def test_a_folder_named_like_an_output_is_not_noted_as_an_earlier_runs_output(tmp_path):
+    """A folder in the way of an item's output (out/tile_r0_c0.glb/) fails that item, naming it; the report also
+    said the output folder "still holds an earlier run's output" of it, "made with that run's input and options":
+    no run made it, and there is no output of it to redo or remove."""
+    from .conftest import SHARED_DATA
+
+    z = np.load(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.npz")["elevation"][:61, :61].astype(np.float32)
+    out = tmp_path / "out"
+    (out / "tile_r0_c0.glb").mkdir(parents=True)
+    report = batch(z, out, tile_size=30, interval=50.0, scheduler="serial")
+    assert [r.key for r in report.failed] == ["tile_r0_c0"] and len(report.done) == 3
+    assert "it is a folder" in report.failed[0].error
+    assert not any("earlier run" in note for note in report.notes), report.notes
+
+
 @pytest.mark.parametrize("source", ["folder", "tiles"])
 @pytest.mark.parametrize("how", ["address", "client"])
 def test_a_scheduler_without_workers_is_a_clear_error_not_a_hang(tmp_path, source, how):
@@ -2385,3 +2400,53 @@ def test_a_folders_broken_link_is_an_item_that_fails_not_a_tile_left_out_unsaid(
     assert [r.key for r in report.done] == ["a"]
     assert [r.key for r in report.failed] == ["b"] and "does not exist" in report.failed[0].error
     assert not report.ok
+
+
+def test_several_dem_files_in_degrees_are_warned_to_lie_each_at_its_own_origin(tmp_path):
+    """A folder of DEM files in degrees (SRTM .hgt tiles, any EPSG:4326 GeoTIFFs) was stepped without a word, each
+    file in local metres of its own (node (0, 0) at its first node): the meshes all lay at (0, 0), on top of one
+    another, and neighbours sharing their border nodes did not weld as a projected folder's do. The run now says so
+    once, with the mosaic to cut instead; one file, and files in a projected CRS, say nothing."""
+    import warnings
+
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+    from rasterio.windows import Window
+
+    from .conftest import SHARED_DATA
+
+    def cut(src, name, window):
+        folder = tmp_path / name.split("/")[0]
+        folder.mkdir(exist_ok=True)
+        with rasterio.open(src) as dataset:
+            t = dataset.transform  # (window_transform: a PendingDeprecationWarning of rasterio's own)
+            corner = Affine(t.a, t.b, t.c + window.col_off * t.a, t.d, t.e, t.f + window.row_off * t.e)
+            profile = dict(dataset.profile, width=window.width, height=window.height, transform=corner)
+            with rasterio.open(tmp_path / name, "w", **profile) as out:
+                out.write(dataset.read(1, window=window), 1)
+
+    geo = SHARED_DATA / "front_range_srtmgl3_3arcsec.tif"
+    cut(geo, "geo/west.tif", Window(0, 0, 41, 30))  # share their column of nodes 40
+    cut(geo, "geo/east.tif", Window(40, 0, 41, 30))
+    utm = SHARED_DATA / "big_tujunga_srtm_30m_utm11n.tif"
+    cut(utm, "utm/west.tif", Window(0, 0, 41, 30))
+    cut(utm, "utm/east.tif", Window(40, 0, 41, 30))
+
+    def run(source, out):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            report = batch(source, tmp_path / out, interval=100.0, scheduler="serial")
+        assert report.ok
+        return [str(w.message) for w in caught if "in degrees" in str(w.message)]
+
+    said = run(tmp_path / "geo", "geo_out")
+    assert len(said) == 1 and "neither line up nor weld" in said[0] and "gdalbuildvrt" in said[0]
+    # its other remedy warps the files into one raster: each reprojected alone (gdalwarp -t_srs of one file) lies in
+    # place, but on a grid of its own, sharing no nodes with its neighbours, so their meshes did not weld either
+    assert "gdalwarp -t_srs EPSG:... FILES dem.tif" in said[0] and "one by one" in said[0]
+    west, east = read_mesh(tmp_path / "geo_out" / "west.glb"), read_mesh(tmp_path / "geo_out" / "east.glb")
+    assert west.bounds[0, 0] == east.bounds[0, 0] == 0.0  # what it warns of: both at x = 0, overlapping
+    assert run([tmp_path / "geo" / "east.tif"], "one_out") == []  # one file: nothing to line up with
+    assert run(tmp_path / "utm", "utm_out") == []
+    west, east = read_mesh(tmp_path / "utm_out" / "west.glb"), read_mesh(tmp_path / "utm_out" / "east.glb")
+    assert west.bounds[1, 0] == east.bounds[0, 0]  # a projected folder's neighbours meet on their shared column
