@@ -205,6 +205,20 @@ class BatchReport:
 
 
 @dataclass(frozen=True)
+class _Frame:
+    """Where a DEM file in degrees lies in the local metres that a folder's (or list's) files in one geographic CRS
+    share, those :func:`~stepterrain.io.load_dem` reads their mosaic in (:func:`~stepterrain.io.shared_degree_frame`):
+    ``own`` the spacing load_dem gives the file alone, ``spacing`` and ``origin`` its nodes' in the shared frame, whose
+    ``crs`` and ``source`` it takes."""
+
+    own: tuple[float, float]
+    spacing: tuple[float, float]
+    origin: tuple[float, float]
+    crs: str | None
+    source: str
+
+
+@dataclass(frozen=True)
 class _Options:
     """The stepping and export options every item shares (part of each item's fingerprint)."""
 
@@ -235,6 +249,9 @@ class _Options:
     #: the items are several DEM files (a folder's or a list's), whose meshes are meant to lie side by side: one read
     #: from degrees, in local metres of its own, is warned of (:func:`_run_item`); out of the repr
     several_files: bool = dataclasses.field(default=False, repr=False)
+    #: by item key, the DEM files in degrees placed in the local metres of their mosaic (:func:`_degree_frames`), a
+    #: frame that depends on the other files; out of the repr (:func:`_fingerprints` adds each item's own)
+    frames: tuple[tuple[str, _Frame], ...] = dataclasses.field(default=(), repr=False)
 
 
 def _on_worker(path: str, cwd: str | None) -> str:
@@ -961,7 +978,10 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
         if terrain is None:
             terrain = _item_terrain(read, source, options.height_unit, options.file_spacing, options.coarsen,
                                     options.band)  # fmt: skip
-        if options.several_files and item.kind == "file":
+        frame = dict(options.frames).get(item.key)
+        if frame is not None:
+            terrain = _in_frame(terrain, frame)
+        elif options.several_files and item.kind == "file":
             _warn_own_local_metres(terrain)
         metadata = {"generator": "stepterrain.batch", **dict(options.metadata), **_item_metadata(item)}
         if not _has_surface(terrain):
@@ -998,21 +1018,67 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
     )  # fmt: skip
 
 
+def _degree_frames(items: Sequence[BatchItem]) -> tuple[tuple[str, _Frame], ...]:
+    """The frames of the file items in degrees (:class:`_Frame`), by key: the files of one geographic CRS, two or more,
+    placed in the local metres of their mosaic (:func:`~stepterrain.io.shared_degree_frame`), from their headers, so
+    that their meshes lie side by side and weld where neighbours share border nodes, as a projected folder's do and as
+    the tiles of their ``.vrt`` cut with ``tile_size`` do. load_dem placed each in local metres of its own, node
+    (0, 0) at its first node: the meshes of a folder of SRTM tiles lay on top of one another at (0, 0). None for a file
+    load_dem does not read through GDAL (an .npz in degrees), a rotated grid, nor one alone in its CRS: each stays in
+    its own frame (and :func:`_warn_own_local_metres` says so)."""
+    from .io import _placement, degree_header, shared_degree_frame
+
+    groups: dict[str, list[tuple[BatchItem, tuple[float, ...], tuple[int, int]]]] = {}
+    for item in items:
+        header = degree_header(item.path) if item.kind == "file" and item.path is not None else None
+        if header is not None:
+            groups.setdefault(header[0], []).append((item, header[1], header[2]))
+    frames: list[tuple[str, _Frame]] = []
+    for crs, group in groups.items():
+        if len(group) < 2:
+            continue
+        try:
+            _, frame_crs, source, placed = shared_degree_frame(crs, [g for _, g, _ in group], [s for _, _, s in group])
+            with _RECORDING, warnings.catch_warnings():  # each file's own read warns of its own metres, not this
+                warnings.simplefilter("ignore")
+                own = [_placement(Path(str(item.path)), shape, np.array(g, np.float64), crs, geographic=True,
+                                  metres=None, height_unit=None).spacing for item, g, shape in group]  # fmt: skip
+        except StepTerrainError:  # the union is no degrees (over 360 of longitude): each file in its own frame
+            continue
+        for (item, _, _), spacing_own, (spacing, origin) in zip(group, own, placed, strict=True):
+            name = Path(str(item.path)).name
+            frames.append((item.key, _Frame(spacing_own, spacing, origin, frame_crs, f"{name}, placed in {source}")))
+    return tuple(frames)
+
+
+def _in_frame(terrain: Terrain, frame: _Frame) -> Terrain:
+    """``terrain`` (a file in degrees as :func:`_item_terrain` read it: load_dem's own local metres, perhaps coarsened)
+    moved into its folder's shared frame: its nodes where ``frame`` puts the file's, the mosaic's CRS; an
+    unchanged file's spacing and origin exactly the frame's."""
+    (ox, oy), (kx, ky) = terrain.origin, frame.own
+    spacing = (frame.spacing[0] * (terrain.spacing[0] / kx), frame.spacing[1] * (terrain.spacing[1] / ky))
+    origin = (frame.origin[0] + frame.spacing[0] * (ox / kx), frame.origin[1] + frame.spacing[1] * (oy / ky))
+    return Terrain.from_heights(terrain.heights, spacing=spacing, origin=origin, crs=frame.crs, source=frame.source,
+                                height_unit=terrain.height_unit, _placed=True)  # fmt: skip
+
+
 def _warn_own_local_metres(terrain: Terrain) -> None:
     """Warn when a DEM file of several was read from degrees (:func:`~stepterrain.io.load_dem`: local metres of its
-    own, node (0, 0) at its first node, its own ``+proj=eqc`` CRS): the meshes of a folder of SRTM ``.hgt`` tiles
-    all lay at (0, 0), on top of one another, and neighbours that share their border nodes did not weld, as the
-    files of a projected folder do, without a word. One message for every file, so a run says it once."""
+    own, node (0, 0) at its first node, its own ``+proj=eqc`` CRS) and left there, out of the shared frame of
+    :func:`_degree_frames` (an .npz in degrees, a file alone in its geographic CRS): its mesh lies at (0, 0), and does
+    not weld with neighbours that share its border nodes. One message for every file, so a run says it once."""
     from .io import _lonlat_grid
 
     if terrain.kind == "grid" and terrain.origin == (0.0, 0.0) and _lonlat_grid(terrain) is not None:
         warnings.warn(
-            "DEM files in degrees are each placed in local metres of their own (node (0, 0) at the file's first "
-            "node, the +proj=eqc CRS of its mesh's metadata), so their meshes neither line up nor weld where "
-            "neighbours share their border nodes: to step them as one surface, mosaic them (gdalbuildvrt tiles.vrt "
-            "FILES) and cut the .vrt into tiles of tile_size cells, or warp them into one projected raster "
-            "(gdalwarp -t_srs EPSG:... FILES dem.tif) and cut that (files reprojected one by one lie in place but "
-            "share no nodes with their neighbours)",
+            "DEM files in degrees that GDAL does not read (an .npz), or one alone in its geographic CRS, are not "
+            "placed in the local metres the other files in degrees share: each is placed in local metres of its own "
+            "(node (0, 0) at its first node, the +proj=eqc CRS of its mesh's metadata), so their meshes neither line "
+            "up nor weld where neighbours share their border nodes: to step them as one surface, convert them to "
+            "GeoTIFFs (gdal_translate), or mosaic them (gdalbuildvrt tiles.vrt "
+            "FILES) and cut the .vrt into tiles of tile_size cells, or warp them into one "
+            "projected raster (gdalwarp -t_srs EPSG:... FILES dem.tif) and cut that (files reprojected one by one lie "
+            "in place but share no nodes with their neighbours)",
             stacklevel=2,
         )
 
@@ -1032,6 +1098,7 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
         shared += f"|band={options.band!r}"
     head = json.dumps([shared, _source_identity(source)], sort_keys=True).encode()
     out = {}
+    frames = dict(options.frames)
     if identities is None:
         identities = _file_identities(items)
     for item in items:  # per item, not per cell: hashing is vectorised over each item's bytes
@@ -1042,6 +1109,8 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
                  .encode())  # fmt: skip
         if item.kind == "file":
             h.update(identities[item.key].encode())
+            if item.key in frames:  # placed by the other files too: redone when their mosaic's frame moves it
+                h.update(repr(frames[item.key]).encode())
         elif source is not None:
             ring = int(options.solid)  # a solid tile's τ reads the ring of nodes around it (_tile_off_thresholds)
             (r0, r1), (c0, c1) = (item.rows, item.cols) if item.kind == "tile" else ((0, 0), (0, 0))
@@ -1678,7 +1747,9 @@ def batch(
         ``.vrt``, which beside tiles is their mosaic: name it to read it; hidden ones left out as a shell glob leaves
         them: macOS's ``._dem.tif`` companions; one output per file, named after it: ``dem.tif`` writes
         ``dem.glb``, files sharing a stem in any case their whole names, ``a.npy`` and ``A.npz`` ``a_npy`` and
-        ``A_npz``; two that would still write one file where case is ignored are refused), a list of DEM files,
+        ``A_npz``; two that would still write one file where case is ignored are refused; files in degrees that
+        GDAL reads, two or more in one geographic CRS, are placed in the local metres of their mosaic, as tiles of it:
+        :func:`_degree_frames`), a list of DEM files,
         a ``.npy``/``.npz`` file holding one (T, H, W) series (read as :func:`load_series` reads it: NaN, inf and
         an ``.npz``'s ``nodata`` value, ``mask`` and ``valid`` mark nodata) or a (T, H, W) array (one output per frame,
         ``frame_0000`` ...), or one raster (a ``.tif``/``.npz``/... file, a grid :class:`Terrain` or an (H, W)
@@ -1789,9 +1860,11 @@ def batch(
     Warns
     -----
     UserWarning
-        The items' own warnings (load_dem's, stepped's), each message once; and, once, that several DEM files are in
-        degrees: each is placed in local metres of its own (node (0, 0) at its first node), so their meshes neither
-        line up nor weld (mosaic them with ``gdalbuildvrt`` and cut the ``.vrt`` into tiles instead).
+        The items' own warnings (load_dem's, stepped's), each message once; those of the mosaic of DEM files in
+        degrees (their local metres' error, as load_dem warns of the mosaic's ``.vrt``); and, once, that DEM files in
+        degrees are left in local metres of their own (an .npz, a file alone in its geographic CRS: node (0, 0) at
+        its first node), so their meshes neither line up nor weld (mosaic them with ``gdalbuildvrt`` and cut the
+        ``.vrt`` into tiles instead).
 
     Raises
     ------
@@ -2027,6 +2100,8 @@ def batch(
             # address, an output_dir that is a file or one another run was writing was refused only after that)
             recorded = manifest[1]  # each unchanged file's, not read again
             identities = _file_identities(items)  # stat'd once: for the ranges' keys and the fingerprints
+            if options.several_files:  # files in degrees: placed in the local metres of their mosaic
+                options = dataclasses.replace(options, frames=_degree_frames(items))
             # one file stepped in this process: its range pass's read is its item's (not two reads of one file);
             # several are read one at a time, not all held until their items run
             serial = isinstance(scheduler, str) and scheduler == "serial"

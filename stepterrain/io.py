@@ -1283,6 +1283,66 @@ def _geotiff_placement(
                       height_unit=height_unit)
 
 
+def degree_header(path: str | os.PathLike[str]) -> tuple[str, tuple[float, ...], tuple[int, int]] | None:
+    """(crs, GDAL geotransform, (rows, cols)) of a raster of :data:`GDAL_FORMATS` (or a GDAL virtual path to one) in
+    a geographic CRS, from its header alone, as :func:`load_dem` reads them (a world file's grid with the CRS of the
+    ``.prj`` beside it; a compound CRS's horizontal part); None for any other file, one in a projected CRS or none,
+    a rotated grid, or one GDAL cannot open (its read says why). For :mod:`stepterrain.batch`, which places a
+    folder's files in degrees in the local metres they share (:func:`shared_degree_frame`)."""
+    file = dem_path(path)
+    if file.suffix.lower() not in GDAL_FORMATS:
+        return None
+    try:
+        with open_raster(file) as dataset:
+            transform, crs_obj, shape = dataset.transform, dataset.crs, (int(dataset.height), int(dataset.width))
+            if crs_obj is None and not transform.is_identity:
+                prj = prj_crs(file, "DEM", DataFileError)
+                crs_obj = _crs_object(prj) if prj else None
+            if transform.is_identity or crs_obj is None or not crs_obj.is_geographic:
+                return None
+            crs = _vertical_unit(dataset.units[0] or None, _crs_string(crs_obj))[1]
+    except Exception:  # noqa: BLE001 - no rasterio, or a file GDAL refuses: the item's own read says why
+        return None
+    geotransform = tuple(float(v) for v in transform.to_gdal())
+    if crs is None or geotransform[2] != 0.0 or geotransform[4] != 0.0:
+        return None
+    return crs, geotransform, shape
+
+
+def shared_degree_frame(
+    crs: str, geotransforms: Sequence[Sequence[float]], shapes: Sequence[tuple[int, int]],
+) -> tuple[tuple[float, float], str | None, str, list[tuple[tuple[float, float], tuple[float, float]]]]:
+    """The local metres :func:`load_dem` would read the mosaic of several grids in ``crs`` (degrees) in, as
+    ``gdalbuildvrt`` mosaics them: the grid of the first one's steps over the union of their cells, read as one
+    file (:func:`_placement`: one spacing at the union's middle latitude, node (0, 0) at its top-left node, its
+    warnings those of the mosaic). Returns its (spacing, crs, source) and, for each grid, (spacing, origin) of its
+    nodes in it: a grid on the mosaic's lattice has the mosaic's spacing and its node (0, 0) at a whole number of
+    the mosaic's nodes, placed as a tile cut from the mosaic is (``origin + col * dx``), so the border nodes that
+    neighbours share land on identical coordinates; one of other steps is scaled to them (x linear in longitude).
+    A :class:`DataFileError` when the union is no degrees (:func:`_placement`)."""
+    dx, dy = float(geotransforms[0][1]), float(geotransforms[0][5])
+    xs = [x for g, (_, w) in zip(geotransforms, shapes, strict=True) for x in (g[0], g[0] + w * g[1])]
+    ys = [y for g, (h, _) in zip(geotransforms, shapes, strict=True) for y in (g[3], g[3] + h * g[5])]
+    x0, y0 = (min(xs) if dx > 0 else max(xs)), (min(ys) if dy > 0 else max(ys))
+    shape = (max(round((max(ys) - min(ys)) / abs(dy)), 1), max(round((max(xs) - min(xs)) / abs(dx)), 1))
+    name = "the mosaic of the DEM files"  # not their number: a file within it moves no other
+    place = _placement(Path(name), shape, np.array([x0, dx, 0.0, y0, 0.0, dy], dtype=np.float64), crs,
+                       geographic=True, metres=None, height_unit=None, name=name)
+    assert place.source is not None
+    (sx, sy), placed = place.spacing, []
+
+    def nodes(offset: float) -> float:  # a whole number of the mosaic's nodes, as a tile cut from it lies
+        whole = float(round(offset))
+        return whole if abs(offset - whole) < 1e-6 else offset
+
+    for g in geotransforms:
+        spacing = (sx * (g[1] / dx), sy * (g[5] / dy))  # the mosaic's own where the steps are its steps
+        origin = (sx * nodes((g[0] + 0.5 * g[1] - (x0 + 0.5 * dx)) / dx),
+                  sy * nodes((g[3] + 0.5 * g[5] - (y0 + 0.5 * dy)) / dy))
+        placed.append((spacing, origin))
+    return place.spacing, place.crs, place.source, placed
+
+
 def equals_nodata(array: NDArray[Any], nodata: float) -> NDArray[np.bool_]:
     """Where ``array`` equals ``nodata``, compared in the array's own dtype as GDAL compares it (a float nodata
     rounded to a float32 band's value); a nodata beyond the dtype (inf there) matches no finite cell: call under
