@@ -1025,7 +1025,8 @@ def _degree_frames(items: Sequence[BatchItem]) -> tuple[tuple[str, _Frame], ...]
     the tiles of their ``.vrt`` cut with ``tile_size`` do. load_dem placed each in local metres of its own, node
     (0, 0) at its first node: the meshes of a folder of SRTM tiles lay on top of one another at (0, 0). None for a file
     load_dem does not read through GDAL (an .npz in degrees), a rotated grid, nor one alone in its CRS: each stays in
-    its own frame (and :func:`_warn_own_local_metres` says so)."""
+    its own frame (and :func:`_warn_own_local_metres` says so). Files in two or more geographic CRSs make a frame per
+    CRS, whose meshes overlap at (0, 0): a warning says so once, naming the CRSs."""
     from .io import _placement, degree_header, shared_degree_frame
 
     groups: dict[str, list[tuple[BatchItem, tuple[float, ...], tuple[int, int]]]] = {}
@@ -1034,6 +1035,7 @@ def _degree_frames(items: Sequence[BatchItem]) -> tuple[tuple[str, _Frame], ...]
         if header is not None:
             groups.setdefault(header[0], []).append((item, header[1], header[2]))
     frames: list[tuple[str, _Frame]] = []
+    placed_in: list[str] = []  # the CRSs of the frames, for the warning that they do not line up
     for crs, group in groups.items():
         if len(group) < 2:
             continue
@@ -1048,6 +1050,15 @@ def _degree_frames(items: Sequence[BatchItem]) -> tuple[tuple[str, _Frame], ...]
         for (item, _, _), spacing_own, (spacing, origin) in zip(group, own, placed, strict=True):
             name = Path(str(item.path)).name
             frames.append((item.key, _Frame(spacing_own, spacing, origin, frame_crs, f"{name}, placed in {source}")))
+        placed_in.append(f"{crs} ({len(group)} files)")
+    if len(placed_in) > 1:  # each frame's node (0, 0) at its own mosaic's top-left node: the meshes overlap
+        warnings.warn(
+            f"the DEM files in degrees are in {len(placed_in)} geographic CRSs ({', '.join(placed_in)}): each CRS's "
+            "files are placed in the local metres of their own mosaic (node (0, 0) at its top-left node), so the "
+            "meshes of one CRS neither line up nor weld with those of another: to step them as one surface, warp "
+            "them to one CRS first (gdalwarp -t_srs EPSG:4326)",
+            stacklevel=caller_stacklevel(),
+        )
     return tuple(frames)
 
 
@@ -1864,7 +1875,8 @@ def batch(
         degrees (their local metres' error, as load_dem warns of the mosaic's ``.vrt``); and, once, that DEM files in
         degrees are left in local metres of their own (an .npz, a file alone in its geographic CRS: node (0, 0) at
         its first node), so their meshes neither line up nor weld (mosaic them with ``gdalbuildvrt`` and cut the
-        ``.vrt`` into tiles instead).
+        ``.vrt`` into tiles instead); once, that DEM files in degrees are in two or more geographic CRSs, placed in
+        a frame each, whose meshes overlap (warp them to one CRS first).
 
     Raises
     ------

@@ -1313,7 +1313,8 @@ def shared_degree_frame(
     crs: str, geotransforms: Sequence[Sequence[float]], shapes: Sequence[tuple[int, int]],
 ) -> tuple[tuple[float, float], str | None, str, list[tuple[tuple[float, float], tuple[float, float]]]]:
     """The local metres :func:`load_dem` would read the mosaic of several grids in ``crs`` (degrees) in, as
-    ``gdalbuildvrt`` mosaics them: the grid of the first one's steps over the union of their cells, read as one
+    ``gdalbuildvrt`` mosaics them (files of one cell size; of several, it averages them): the grid of the first one's
+    steps over the union of their cells, read as one
     file (:func:`_placement`: one spacing at the union's middle latitude, node (0, 0) at its top-left node, its
     warnings those of the mosaic). Returns its (spacing, crs, source) and, for each grid, (spacing, origin) of its
     nodes in it: a grid on the mosaic's lattice has the mosaic's spacing and its node (0, 0) at a whole number of

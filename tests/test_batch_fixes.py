@@ -2512,6 +2512,32 @@ def test_dem_files_in_degrees_left_each_in_its_own_frame_are_warned_of_once(tmp_
     assert run([tmp_path / "t1.npz"], "one_out") == []
 
 
+def test_dem_files_in_two_geographic_crss_are_warned_to_lie_in_two_frames(tmp_path):
+    """The files in degrees of each geographic CRS are placed in the local metres of their own mosaic, node (0, 0) at
+    its top-left node: two files in EPSG:4326 and two in EPSG:4269 (NAD83) made two frames, whose meshes overlapped
+    at (0, 0) without a word (a folder of files in degrees said it once before they were placed in a shared frame).
+    The run now says so once, naming the CRSs; files in one CRS say nothing (above)."""
+    rasterio = pytest.importorskip("rasterio")
+    from .conftest import SHARED_DATA
+
+    geo = SHARED_DATA / "front_range_srtmgl3_3arcsec.tif"
+    if not geo.exists():
+        pytest.skip(f"shared data {geo.name} not found")
+    tiles = _cut_tiles(tmp_path, geo, "geo")
+    for name in ("sw", "se"):
+        with rasterio.open(tiles[name], "r+") as dataset:
+            dataset.crs = rasterio.crs.CRS.from_epsg(4269)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        report = batch(tmp_path / "geo", tmp_path / "out", interval=100.0, scheduler="serial")
+    assert report.ok, report.summary()
+    said = [str(w.message) for w in caught if "geographic CRSs" in str(w.message)]
+    assert len(said) == 1 and "EPSG:4269" in said[0] and "EPSG:4326" in said[0] and "gdalwarp" in said[0], said
+    nw, sw = read_mesh(tmp_path / "out" / "nw.glb"), read_mesh(tmp_path / "out" / "sw.glb")
+    # as warned: the north edges of the NAD83 frame's files and of the WGS 84 frame's both at y = 0, overlapping
+    assert nw.bounds[1, 1] == pytest.approx(0.0, abs=1e-3) and sw.bounds[1, 1] == pytest.approx(0.0, abs=1e-3)
+
+
 def test_a_file_in_degrees_added_to_a_folder_redoes_the_files_whose_frame_it_moves(tmp_path):
     """The shared frame of a folder's files in degrees depends on all of them: a file that widens their mosaic moves
     the others (node (0, 0) and the latitude of their one spacing), so a rerun redoes them, as a fresh run writes them;
