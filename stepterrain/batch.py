@@ -1036,15 +1036,22 @@ def _degree_frames(items: Sequence[BatchItem]) -> tuple[tuple[str, _Frame], ...]
             groups.setdefault(header[0], []).append((item, header[1], header[2]))
     frames: list[tuple[str, _Frame]] = []
     placed_in: list[str] = []  # the CRSs of the frames, for the warning that they do not line up
-    for crs, group in groups.items():
+    for crs, found in groups.items():
+        group: list[tuple[BatchItem, tuple[float, ...], tuple[int, int]]] = []
+        own: list[tuple[float, float]] = []
+        with _RECORDING, warnings.catch_warnings():  # each file's own read warns of its own metres, not this
+            warnings.simplefilter("ignore")
+            for item, g, shape in found:
+                try:
+                    own.append(_placement(Path(str(item.path)), shape, np.array(g, np.float64), crs, geographic=True,
+                                          metres=None, height_unit=None).spacing)  # fmt: skip
+                except StepTerrainError:  # a file load_dem refuses (a zero pixel size, latitudes beyond 90): out of
+                    continue  # the mosaic (a zero step ended the run in it), its item fails as its read says why
+                group.append((item, g, shape))
         if len(group) < 2:
             continue
         try:
             _, frame_crs, source, placed = shared_degree_frame(crs, [g for _, g, _ in group], [s for _, _, s in group])
-            with _RECORDING, warnings.catch_warnings():  # each file's own read warns of its own metres, not this
-                warnings.simplefilter("ignore")
-                own = [_placement(Path(str(item.path)), shape, np.array(g, np.float64), crs, geographic=True,
-                                  metres=None, height_unit=None).spacing for item, g, shape in group]  # fmt: skip
         except StepTerrainError:  # the union is no degrees (over 360 of longitude): each file in its own frame
             continue
         for (item, _, _), spacing_own, (spacing, origin) in zip(group, own, placed, strict=True):

@@ -2538,6 +2538,36 @@ def test_dem_files_in_two_geographic_crss_are_warned_to_lie_in_two_frames(tmp_pa
     assert nw.bounds[1, 1] == pytest.approx(0.0, abs=1e-3) and sw.bounds[1, 1] == pytest.approx(0.0, abs=1e-3)
 
 
+def test_a_dem_file_in_degrees_load_dem_refuses_fails_alone_not_the_run_nor_the_others_frame(tmp_path):
+    """A file in degrees whose geotransform load_dem refuses, among files it places in their mosaic's frame: one of
+    zero pixel height ended the whole run with a ZeroDivisionError (the mosaic's rows counted in its steps), where
+    its item had failed alone; one whose latitudes pass 90 (a projected grid labelled EPSG:4326) left every file of
+    its CRS out of the shared frame, back at (0, 0). Each now fails alone, as its read says why, and the others are
+    placed side by side."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    from .conftest import SHARED_DATA
+
+    geo = SHARED_DATA / "front_range_srtmgl3_3arcsec.tif"
+    if not geo.exists():
+        pytest.skip(f"shared data {geo.name} not found")
+    tiles = _cut_tiles(tmp_path, geo, "geo")
+    heights = np.arange(20, dtype=np.float32).reshape(4, 5) * 100.0
+    for name, transform in (("a_flat.tif", Affine(0.001, 0.0, -105.0, 0.0, 0.0, 40.0)),  # first: the frame's steps
+                            ("z_north.tif", Affine(0.001, 0.0, -105.0, 0.0, -0.001, 95.0))):
+        with rasterio.open(tmp_path / "geo" / name, "w", driver="GTiff", width=5, height=4, count=1, dtype="float32",
+                           crs="EPSG:4326", transform=transform) as out:
+            out.write(heights, 1)
+    report = batch(tmp_path / "geo", tmp_path / "out", interval=100.0, scheduler="serial")
+    assert sorted(r.key for r in report.done) == sorted(tiles), report.summary()
+    failed = {r.key: r.error for r in report.failed}
+    assert set(failed) == {"a_flat", "z_north"}, report.summary()
+    assert "zero pixel size" in failed["a_flat"] and "latitudes" in failed["z_north"], failed
+    nw, ne = read_mesh(tmp_path / "out" / "nw.glb"), read_mesh(tmp_path / "out" / "ne.glb")
+    assert nw.bounds[1, 0] > 2000.0 and abs(ne.bounds[0, 0] - nw.bounds[1, 0]) < 1e-3  # side by side
+
+
 def test_a_file_in_degrees_added_to_a_folder_redoes_the_files_whose_frame_it_moves(tmp_path):
     """The shared frame of a folder's files in degrees depends on all of them: a file that widens their mosaic moves
     the others (node (0, 0) and the latitude of their one spacing), so a rerun redoes them, as a fresh run writes them;
