@@ -205,6 +205,20 @@ class BatchReport:
 
 
 @dataclass(frozen=True)
+class _Frame:
+    """Where a DEM file in degrees lies in the local metres that a folder's (or list's) files in one geographic CRS
+    share, those :func:`~stepterrain.io.load_dem` reads their mosaic in (:func:`~stepterrain.io.shared_degree_frame`):
+    ``own`` the spacing load_dem gives the file alone, ``spacing`` and ``origin`` its nodes' in the shared frame, whose
+    ``crs`` and ``source`` it takes."""
+
+    own: tuple[float, float]
+    spacing: tuple[float, float]
+    origin: tuple[float, float]
+    crs: str | None
+    source: str
+
+
+@dataclass(frozen=True)
 class _Options:
     """The stepping and export options every item shares (part of each item's fingerprint)."""
 
@@ -232,6 +246,12 @@ class _Options:
     #: the caller's working folder, set for dask workers (:func:`_run_dask`): a relative output folder or DEM file
     #: is resolved against it on a worker that runs in another folder (:func:`_on_worker`); out of the repr
     cwd: str | None = dataclasses.field(default=None, repr=False)
+    #: the items are several DEM files (a folder's or a list's), whose meshes are meant to lie side by side: one read
+    #: from degrees, in local metres of its own, is warned of (:func:`_run_item`); out of the repr
+    several_files: bool = dataclasses.field(default=False, repr=False)
+    #: by item key, the DEM files in degrees placed in the local metres of their mosaic (:func:`_degree_frames`), a
+    #: frame that depends on the other files; out of the repr (:func:`_fingerprints` adds each item's own)
+    frames: tuple[tuple[str, _Frame], ...] = dataclasses.field(default=(), repr=False)
 
 
 def _on_worker(path: str, cwd: str | None) -> str:
@@ -958,6 +978,11 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
         if terrain is None:
             terrain = _item_terrain(read, source, options.height_unit, options.file_spacing, options.coarsen,
                                     options.band)  # fmt: skip
+        frame = dict(options.frames).get(item.key)
+        if frame is not None:
+            terrain = _in_frame(terrain, frame)
+        elif options.several_files and item.kind == "file":
+            _warn_own_local_metres(terrain)
         metadata = {"generator": "stepterrain.batch", **dict(options.metadata), **_item_metadata(item)}
         if not _has_surface(terrain):
             # an item with no triangle of three finite heights (sea off a coast, a gap in a series, a tile file of
@@ -993,6 +1018,89 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
     )  # fmt: skip
 
 
+def _degree_frames(items: Sequence[BatchItem]) -> tuple[tuple[str, _Frame], ...]:
+    """The frames of the file items in degrees (:class:`_Frame`), by key: the files of one geographic CRS, two or more,
+    placed in the local metres of their mosaic (:func:`~stepterrain.io.shared_degree_frame`), from their headers, so
+    that their meshes lie side by side and weld where neighbours share border nodes, as a projected folder's do and as
+    the tiles of their ``.vrt`` cut with ``tile_size`` do. load_dem placed each in local metres of its own, node
+    (0, 0) at its first node: the meshes of a folder of SRTM tiles lay on top of one another at (0, 0). None for a file
+    load_dem does not read through GDAL (an .npz in degrees), a rotated grid, nor one alone in its CRS: each stays in
+    its own frame (and :func:`_warn_own_local_metres` says so). Files in two or more geographic CRSs make a frame per
+    CRS, whose meshes overlap at (0, 0): a warning says so once, naming the CRSs."""
+    from .io import _placement, degree_header, shared_degree_frame
+
+    groups: dict[str, list[tuple[BatchItem, tuple[float, ...], tuple[int, int]]]] = {}
+    for item in items:
+        header = degree_header(item.path) if item.kind == "file" and item.path is not None else None
+        if header is not None:
+            groups.setdefault(header[0], []).append((item, header[1], header[2]))
+    frames: list[tuple[str, _Frame]] = []
+    placed_in: list[str] = []  # the CRSs of the frames, for the warning that they do not line up
+    for crs, found in groups.items():
+        group: list[tuple[BatchItem, tuple[float, ...], tuple[int, int]]] = []
+        own: list[tuple[float, float]] = []
+        with _RECORDING, warnings.catch_warnings():  # each file's own read warns of its own metres, not this
+            warnings.simplefilter("ignore")
+            for item, g, shape in found:
+                try:
+                    own.append(_placement(Path(str(item.path)), shape, np.array(g, np.float64), crs, geographic=True,
+                                          metres=None, height_unit=None).spacing)  # fmt: skip
+                except StepTerrainError:  # a file load_dem refuses (a zero pixel size, latitudes beyond 90): out of
+                    continue  # the mosaic (a zero step ended the run in it), its item fails as its read says why
+                group.append((item, g, shape))
+        if len(group) < 2:
+            continue
+        try:
+            _, frame_crs, source, placed = shared_degree_frame(crs, [g for _, g, _ in group], [s for _, _, s in group])
+        except StepTerrainError:  # the union is no degrees (over 360 of longitude): each file in its own frame
+            continue
+        for (item, _, _), spacing_own, (spacing, origin) in zip(group, own, placed, strict=True):
+            name = Path(str(item.path)).name
+            frames.append((item.key, _Frame(spacing_own, spacing, origin, frame_crs, f"{name}, placed in {source}")))
+        placed_in.append(f"{crs} ({len(group)} files)")
+    if len(placed_in) > 1:  # each frame's node (0, 0) at its own mosaic's top-left node: the meshes overlap
+        warnings.warn(
+            f"the DEM files in degrees are in {len(placed_in)} geographic CRSs ({', '.join(placed_in)}): each CRS's "
+            "files are placed in the local metres of their own mosaic (node (0, 0) at its top-left node), so the "
+            "meshes of one CRS neither line up nor weld with those of another: to step them as one surface, warp "
+            "them to one CRS first (gdalwarp -t_srs EPSG:4326)",
+            stacklevel=caller_stacklevel(),
+        )
+    return tuple(frames)
+
+
+def _in_frame(terrain: Terrain, frame: _Frame) -> Terrain:
+    """``terrain`` (a file in degrees as :func:`_item_terrain` read it: load_dem's own local metres, perhaps coarsened)
+    moved into its folder's shared frame: its nodes where ``frame`` puts the file's, the mosaic's CRS; an
+    unchanged file's spacing and origin exactly the frame's."""
+    (ox, oy), (kx, ky) = terrain.origin, frame.own
+    spacing = (frame.spacing[0] * (terrain.spacing[0] / kx), frame.spacing[1] * (terrain.spacing[1] / ky))
+    origin = (frame.origin[0] + frame.spacing[0] * (ox / kx), frame.origin[1] + frame.spacing[1] * (oy / ky))
+    return Terrain.from_heights(terrain.heights, spacing=spacing, origin=origin, crs=frame.crs, source=frame.source,
+                                height_unit=terrain.height_unit, _placed=True)  # fmt: skip
+
+
+def _warn_own_local_metres(terrain: Terrain) -> None:
+    """Warn when a DEM file of several was read from degrees (:func:`~stepterrain.io.load_dem`: local metres of its
+    own, node (0, 0) at its first node, its own ``+proj=eqc`` CRS) and left there, out of the shared frame of
+    :func:`_degree_frames` (an .npz in degrees, a file alone in its geographic CRS): its mesh lies at (0, 0), and does
+    not weld with neighbours that share its border nodes. One message for every file, so a run says it once."""
+    from .io import _lonlat_grid
+
+    if terrain.kind == "grid" and terrain.origin == (0.0, 0.0) and _lonlat_grid(terrain) is not None:
+        warnings.warn(
+            "DEM files in degrees that GDAL does not read (an .npz), or one alone in its geographic CRS, are not "
+            "placed in the local metres the other files in degrees share: each is placed in local metres of its own "
+            "(node (0, 0) at its first node, the +proj=eqc CRS of its mesh's metadata), so their meshes neither line "
+            "up nor weld where neighbours share their border nodes: to step them as one surface, convert them to "
+            "GeoTIFFs (gdal_translate), or mosaic them (gdalbuildvrt tiles.vrt "
+            "FILES) and cut the .vrt into tiles of tile_size cells, or warp them into one "
+            "projected raster (gdalwarp -t_srs EPSG:... FILES dem.tif) and cut that (files reprojected one by one lie "
+            "in place but share no nodes with their neighbours)",
+            stacklevel=2,
+        )
+
+
 # ---------------------------------------------------------------------------------------------- resume
 def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _Options,
                   identities: Mapping[str, str] | None = None) -> dict[str, str]:
@@ -1008,6 +1116,7 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
         shared += f"|band={options.band!r}"
     head = json.dumps([shared, _source_identity(source)], sort_keys=True).encode()
     out = {}
+    frames = dict(options.frames)
     if identities is None:
         identities = _file_identities(items)
     for item in items:  # per item, not per cell: hashing is vectorised over each item's bytes
@@ -1018,6 +1127,8 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
                  .encode())  # fmt: skip
         if item.kind == "file":
             h.update(identities[item.key].encode())
+            if item.key in frames:  # placed by the other files too: redone when their mosaic's frame moves it
+                h.update(repr(frames[item.key]).encode())
         elif source is not None:
             ring = int(options.solid)  # a solid tile's τ reads the ring of nodes around it (_tile_off_thresholds)
             (r0, r1), (c0, c1) = (item.rows, item.cols) if item.kind == "tile" else ((0, 0), (0, 0))
@@ -1654,7 +1765,9 @@ def batch(
         ``.vrt``, which beside tiles is their mosaic: name it to read it; hidden ones left out as a shell glob leaves
         them: macOS's ``._dem.tif`` companions; one output per file, named after it: ``dem.tif`` writes
         ``dem.glb``, files sharing a stem in any case their whole names, ``a.npy`` and ``A.npz`` ``a_npy`` and
-        ``A_npz``; two that would still write one file where case is ignored are refused), a list of DEM files,
+        ``A_npz``; two that would still write one file where case is ignored are refused; files in degrees that
+        GDAL reads, two or more in one geographic CRS, are placed in the local metres of their mosaic, as tiles of it:
+        :func:`_degree_frames`), a list of DEM files,
         a ``.npy``/``.npz`` file holding one (T, H, W) series (read as :func:`load_series` reads it: NaN, inf and
         an ``.npz``'s ``nodata`` value, ``mask`` and ``valid`` mark nodata) or a (T, H, W) array (one output per frame,
         ``frame_0000`` ...), or one raster (a ``.tif``/``.npz``/... file, a grid :class:`Terrain` or an (H, W)
@@ -1761,6 +1874,16 @@ def batch(
     -------
     BatchReport
         One :class:`ItemResult` per item; ``report.ok`` is False when any item failed.
+
+    Warns
+    -----
+    UserWarning
+        The items' own warnings (load_dem's, stepped's), each message once; those of the mosaic of DEM files in
+        degrees (their local metres' error, as load_dem warns of the mosaic's ``.vrt``); and, once, that DEM files in
+        degrees are left in local metres of their own (an .npz, a file alone in its geographic CRS: node (0, 0) at
+        its first node), so their meshes neither line up nor weld (mosaic them with ``gdalbuildvrt`` and cut the
+        ``.vrt`` into tiles instead); once, that DEM files in degrees are in two or more geographic CRSs, placed in
+        a frame each, whose meshes overlap (warp them to one CRS first).
 
     Raises
     ------
@@ -1976,7 +2099,7 @@ def batch(
         floor=None if floor is None else float(floor), ext=ext, device=None if device is None else str(device),
         metadata=tuple(sorted({**extras, **recorded}.items())), height_unit=height_unit,
         file_spacing=file_spacing, coarsen=coarsen if src is None else None,  # a source's: coarsened already
-        band=band,
+        band=band, several_files=sum(item.kind == "file" for item in items) > 1,
     )  # fmt: skip
     if interval is not None:  # the isovalues are base + k * interval: both recorded (a long list keeps its ends only)
         steps = (("interval", float(interval)), ("base", float(base)))
@@ -1996,6 +2119,8 @@ def batch(
             # address, an output_dir that is a file or one another run was writing was refused only after that)
             recorded = manifest[1]  # each unchanged file's, not read again
             identities = _file_identities(items)  # stat'd once: for the ranges' keys and the fingerprints
+            if options.several_files:  # files in degrees: placed in the local metres of their mosaic
+                options = dataclasses.replace(options, frames=_degree_frames(items))
             # one file stepped in this process: its range pass's read is its item's (not two reads of one file);
             # several are read one at a time, not all held until their items run
             serial = isinstance(scheduler, str) and scheduler == "serial"
@@ -2095,7 +2220,9 @@ def _run_locked(
                      f"({shown}), from an earlier run with another source or tile size: left as they were")  # fmt: skip
     # outputs an earlier run left of the items this run writes: one that fails keeps it, made with other input or
     # options (or never recorded), and out/*.glb loaded it with this run's outputs without a word
-    earlier = {item.key for item in todo if os.path.lexists(folder / f"{item.key}{ext}")}
+    # (a folder of that name is none: its item fails, naming it, and was said to keep "an earlier run's output")
+    earlier = {item.key for item in todo
+               if os.path.lexists(folder / f"{item.key}{ext}") and not os.path.isdir(folder / f"{item.key}{ext}")}
 
     recorder = _Recorder(folder, manifest, fingerprints, ranges)
     serial = isinstance(scheduler, str) and scheduler == "serial"

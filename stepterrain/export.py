@@ -949,7 +949,9 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
             with rasterio.open(tmp, "w", **profile) as dataset:
                 dataset.write(np.moveaxis(array, 2, 0))
         except (OSError, rasterio.errors.RasterioError) as exc:
-            raise DataFileError(f"cannot write {str(target)!r}: {exc}") from exc
+            from .io import gdal_reason  # GDAL's words (No space left on device), not "See previous exception"
+
+            raise DataFileError(f"cannot write {str(target)!r}: {gdal_reason(exc)}") from exc
     _record_owner([target], target)
     return target
 

@@ -246,11 +246,11 @@ def load_dem(
         named; a GeoTIFF CRS ignored for want of a geotransform; a PNG's world file (``.pgw``, ``.wld``) or
         ``.aux.xml`` geotransform, which is not read (the message gives the ``gdal_translate`` to a GeoTIFF that
         keeps it); cells no nodata value or mask marks that hold the lowest value of a signed integer (-32768 in
-        int16, SRTM's void) or float dtype (-3.4028235e+38 in float32, ArcGIS's NoData), read as heights, counted
-        and named with the nodata value to declare; a grid georeferenced without a CRS (or with one PROJ cannot
-        read, kept as given: an .npz's ``crs="4326"``) whose coordinates look like degrees (nodes within x -180 to
-        360 and y -90 to 90, heights spanning more than 100 times its width and height: read as metres, an SRTM tile
-        was a needle centimetres wide), naming the CRS to give it.
+        int16, SRTM's void) or float dtype (-3.4028235e+38 in float32, ArcGIS's NoData, also kept in a float64
+        grid), read as heights, counted and named with the nodata value to declare; a grid georeferenced without a
+        CRS (or with one PROJ cannot read, kept as given: an .npz's ``crs="4326"``) whose coordinates look like
+        degrees (nodes within x -180 to 360 and y -90 to 90, heights spanning more than 100 times its width and
+        height: read as metres, an SRTM tile was a needle centimetres wide), naming the CRS to give it.
 
     Raises
     ------
@@ -1114,7 +1114,7 @@ def _load_geotiff(
             # a missing file inside a zip, an unreachable URL: GDAL's reason, not "unreadable content"
             gdal = os.fspath(file)
             raise DataFileError(f"cannot read {str(file)!r}" + (f" (GDAL path {gdal!r})" if gdal != str(file) else "")
-                                + f": GDAL cannot open it as {_gdal_format(file)}: {exc}") from exc
+                                + f": GDAL cannot open it as {_gdal_format(file)}: {gdal_reason(exc)}") from exc
         with opened as dataset:
             if band > dataset.count:
                 raise InvalidInputError(
@@ -1177,7 +1177,7 @@ def _load_geotiff(
             unmasked = _missing_beyond_gdal_mask(dataset, band, masked.data, window)
     except RasterioError as exc:
         raise DataFileError(
-            f"cannot read {str(file)!r}: expected {_gdal_format(file)}; got unreadable content ({exc})"
+            f"cannot read {str(file)!r}: expected {_gdal_format(file)}; got unreadable content ({gdal_reason(exc)})"
         ) from exc
 
     if masked.dtype == np.bool_ or masked.dtype.kind not in "iuf":  # a complex band kept its real part silently
@@ -1219,6 +1219,23 @@ def _load_geotiff(
     terrain = _grid(file, heights, spacing=spacing, origin=origin, crs=crs, source=source, height_unit=height_unit)
     _check_placed(file, place, terrain)  # a grid without a CRS that looks like degrees: told by its (crop's) heights
     return terrain
+
+
+def gdal_reason(exc: BaseException) -> str:
+    """What GDAL said of a failure rasterio raised as ``exc``: rasterio's read errors say only "Read failed. See
+    previous exception for details.", which a message never showed (a .vrt whose source tile is missing, a GeoTIFF
+    cut short), while GDAL's own error ("tiles/b.tif: No such file or directory", "IReadBlock failed at X offset 0")
+    is their ``__cause__``: the causes' messages, the outer one's only where it says more than to look at them."""
+    parts = []
+    seen: set[int] = set()
+    current: BaseException | None = exc
+    while current is not None and id(current) not in seen:
+        seen.add(id(current))
+        text = str(current).strip()
+        if text and not (current is exc and "previous exception" in text and current.__cause__ is not None):
+            parts.append(text)
+        current = current.__cause__
+    return "; ".join(dict.fromkeys(parts)) or str(exc)
 
 
 def _gdal_format(file: Path) -> str:
@@ -1264,6 +1281,67 @@ def _geotiff_placement(
     return _placement(file, shape, np.array(transform.to_gdal(), dtype=np.float64), crs,
                       geographic=bool(crs_obj is not None and crs_obj.is_geographic), metres=None,
                       height_unit=height_unit)
+
+
+def degree_header(path: str | os.PathLike[str]) -> tuple[str, tuple[float, ...], tuple[int, int]] | None:
+    """(crs, GDAL geotransform, (rows, cols)) of a raster of :data:`GDAL_FORMATS` (or a GDAL virtual path to one) in
+    a geographic CRS, from its header alone, as :func:`load_dem` reads them (a world file's grid with the CRS of the
+    ``.prj`` beside it; a compound CRS's horizontal part); None for any other file, one in a projected CRS or none,
+    a rotated grid, or one GDAL cannot open (its read says why). For :mod:`stepterrain.batch`, which places a
+    folder's files in degrees in the local metres they share (:func:`shared_degree_frame`)."""
+    file = dem_path(path)
+    if file.suffix.lower() not in GDAL_FORMATS:
+        return None
+    try:
+        with open_raster(file) as dataset:
+            transform, crs_obj, shape = dataset.transform, dataset.crs, (int(dataset.height), int(dataset.width))
+            if crs_obj is None and not transform.is_identity:
+                prj = prj_crs(file, "DEM", DataFileError)
+                crs_obj = _crs_object(prj) if prj else None
+            if transform.is_identity or crs_obj is None or not crs_obj.is_geographic:
+                return None
+            crs = _vertical_unit(dataset.units[0] or None, _crs_string(crs_obj))[1]
+    except Exception:  # noqa: BLE001 - no rasterio, or a file GDAL refuses: the item's own read says why
+        return None
+    geotransform = tuple(float(v) for v in transform.to_gdal())
+    if crs is None or geotransform[2] != 0.0 or geotransform[4] != 0.0:
+        return None
+    return crs, geotransform, shape
+
+
+def shared_degree_frame(
+    crs: str, geotransforms: Sequence[Sequence[float]], shapes: Sequence[tuple[int, int]],
+) -> tuple[tuple[float, float], str | None, str, list[tuple[tuple[float, float], tuple[float, float]]]]:
+    """The local metres :func:`load_dem` would read the mosaic of several grids in ``crs`` (degrees) in, as
+    ``gdalbuildvrt`` mosaics them (files of one cell size; of several, it averages them): the grid of the first one's
+    steps over the union of their cells, read as one
+    file (:func:`_placement`: one spacing at the union's middle latitude, node (0, 0) at its top-left node, its
+    warnings those of the mosaic). Returns its (spacing, crs, source) and, for each grid, (spacing, origin) of its
+    nodes in it: a grid on the mosaic's lattice has the mosaic's spacing and its node (0, 0) at a whole number of
+    the mosaic's nodes, placed as a tile cut from the mosaic is (``origin + col * dx``), so the border nodes that
+    neighbours share land on identical coordinates; one of other steps is scaled to them (x linear in longitude).
+    A :class:`DataFileError` when the union is no degrees (:func:`_placement`)."""
+    dx, dy = float(geotransforms[0][1]), float(geotransforms[0][5])
+    xs = [x for g, (_, w) in zip(geotransforms, shapes, strict=True) for x in (g[0], g[0] + w * g[1])]
+    ys = [y for g, (h, _) in zip(geotransforms, shapes, strict=True) for y in (g[3], g[3] + h * g[5])]
+    x0, y0 = (min(xs) if dx > 0 else max(xs)), (min(ys) if dy > 0 else max(ys))
+    shape = (max(round((max(ys) - min(ys)) / abs(dy)), 1), max(round((max(xs) - min(xs)) / abs(dx)), 1))
+    name = "the mosaic of the DEM files"  # not their number: a file within it moves no other
+    place = _placement(Path(name), shape, np.array([x0, dx, 0.0, y0, 0.0, dy], dtype=np.float64), crs,
+                       geographic=True, metres=None, height_unit=None, name=name)
+    assert place.source is not None
+    (sx, sy), placed = place.spacing, []
+
+    def nodes(offset: float) -> float:  # a whole number of the mosaic's nodes, as a tile cut from it lies
+        whole = float(round(offset))
+        return whole if abs(offset - whole) < 1e-6 else offset
+
+    for g in geotransforms:
+        spacing = (sx * (g[1] / dx), sy * (g[5] / dy))  # the mosaic's own where the steps are its steps
+        origin = (sx * nodes((g[0] + 0.5 * g[1] - (x0 + 0.5 * dx)) / dx),
+                  sy * nodes((g[3] + 0.5 * g[5] - (y0 + 0.5 * dy)) / dy))
+        placed.append((spacing, origin))
+    return place.spacing, place.crs, place.source, placed
 
 
 def equals_nodata(array: NDArray[Any], nodata: float) -> NDArray[np.bool_]:
@@ -1535,11 +1613,15 @@ def _warn_void_values(file: Path, data: NDArray[Any], missing: NDArray[np.bool_]
     (-32768, the void of SRTM and most int16 DEMs) or of a float dtype (-3.4028235e+38, ArcGIS's float32 NoData): no
     elevation, but a file that lost its nodata value. They were read as heights without a word: a pit 33 km deep in
     the mesh, or "3.4e+37 levels" refused by stepped. One reduction finds the lowest value; only when it is the
-    sentinel are its cells counted, a block of rows at a time (no temporary of the grid's size)."""
+    sentinel are its cells counted, a block of rows at a time (no temporary of the grid's size). In a float64 grid
+    the sentinel is float32's lowest value: float64's own lies beyond float32 and is refused as such, while a float32
+    DEM's NoData kept through a widening copy (``src.read(1).astype(float)`` saved as .npy, ``gdal_translate -ot
+    Float64``) was read as heights without a word."""
     kind = data.dtype.kind
     if data.size == 0 or not (kind == "f" or (kind == "i" and data.dtype.itemsize >= 2)):
         return
-    sentinel = (np.finfo if kind == "f" else np.iinfo)(data.dtype).min
+    lowest_of = np.dtype(np.float32) if kind == "f" and data.dtype.itemsize > 4 else data.dtype
+    sentinel = data.dtype.type((np.finfo if kind == "f" else np.iinfo)(lowest_of).min)
     lowest = np.fmin.reduce(data, axis=None) if kind == "f" else data.min()  # fmin: NaN cells pass over
     if lowest != sentinel:
         return
@@ -1550,7 +1632,9 @@ def _warn_void_values(file: Path, data: NDArray[Any], missing: NDArray[np.bool_]
             hit &= ~missing[start:start + rows]
         count += int(np.count_nonzero(hit))
     if count:
-        value = f"{float(sentinel):.8g}" if kind == "f" else str(int(sentinel))
+        # float64 cells equal the float32 value only as written in full, which a nodata of them must match exactly
+        value = (str(int(sentinel)) if kind == "i" else f"{float(sentinel):.8g}" if lowest_of == data.dtype
+                 else repr(float(sentinel)))
         hint = (f"`gdal_edit.py -a_nodata {value} {file.name}`" if file.suffix.lower() in (".tif", ".tiff") else
                 f"`gdal_translate -a_nodata {value} {file.name} {file.stem}.tif`"
                 if file.suffix.lower() in GDAL_FORMATS else
@@ -1558,7 +1642,8 @@ def _warn_void_values(file: Path, data: NDArray[Any], missing: NDArray[np.bool_]
                 f"save it as an .npz with a 'nodata' of {value}")
         warnings.warn(
             f"{file.name}: {counted(count, 'cell')} of {what} {'holds' if count == 1 else 'hold'} {value}, the lowest "
-            f"{data.dtype} value, which marks voids, but no nodata value or mask of the file marks them: read as "
+            f"{lowest_of} value{'' if lowest_of == data.dtype else f' (stored as {data.dtype})'}, which marks voids, "
+            "but no nodata value or mask of the file marks them: read as "
             f"heights; if they are voids, declare it ({hint})",
             stacklevel=caller_stacklevel(),
         )

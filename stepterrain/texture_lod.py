@@ -50,6 +50,7 @@ from .io import (
     _projected_units,
     _spherical_eqc,
     _wkt_block,
+    gdal_reason,
     lonlat_as_local_metres,
     open_raster,
     picture_uint8,
@@ -415,6 +416,8 @@ def _write_bands(path: Path, height: int, rows: int, band: Callable[[int, int], 
             if isinstance(data, np.memmap):  # its pages stayed resident: the whole image by the end
                 _drop_resident(data)
             del data
+    except DataFileError:  # band's own refusal (an image whose read failed): not a failed write of the level
+        raise
     except OSError as exc:
         raise DataFileError(f"cannot write the pyramid level {name!r}: {exc}") from exc
     finally:
@@ -1509,7 +1512,7 @@ class _WindowedTiff:
             if self.masked:
                 out[:, :, -1] = np.where(self.dataset.dataset_mask(window=part) > 0, 255, 0)
         except Exception as exc:  # noqa: BLE001 - rasterio's RasterioIOError of a damaged tile, ...
-            raise DataFileError(f"cannot read {str(self.path)!r} as an image: {exc}") from exc
+            raise DataFileError(f"cannot read {str(self.path)!r} as an image: {gdal_reason(exc)}") from exc
         return out
 
     def read(self, shapes: list[tuple[int, int]], level: int, window: tuple[int, int, int, int],

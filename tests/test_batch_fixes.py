@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import re
+import shutil
+import subprocess
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -878,6 +881,21 @@ def test_a_failed_items_earlier_output_is_noted(tmp_path):
     (src / "t2.npy").write_bytes(b"not a numpy file")
     fresh = batch(src, tmp_path / "fresh", interval=3.0, scheduler="serial")  # a failure with no earlier output
     assert len(fresh.failed) == 1 and not any("failed item" in note for note in fresh.notes)
+
+
+def test_a_folder_named_like_an_output_is_not_noted_as_an_earlier_runs_output(tmp_path):
+    """A folder in the way of an item's output (out/tile_r0_c0.glb/) fails that item, naming it; the report also
+    said the output folder "still holds an earlier run's output" of it, "made with that run's input and options":
+    no run made it, and there is no output of it to redo or remove."""
+    from .conftest import SHARED_DATA
+
+    z = np.load(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.npz")["elevation"][:61, :61].astype(np.float32)
+    out = tmp_path / "out"
+    (out / "tile_r0_c0.glb").mkdir(parents=True)
+    report = batch(z, out, tile_size=30, interval=50.0, scheduler="serial")
+    assert [r.key for r in report.failed] == ["tile_r0_c0"] and len(report.done) == 3
+    assert "it is a folder" in report.failed[0].error
+    assert not any("earlier run" in note for note in report.notes), report.notes
 
 
 @pytest.mark.parametrize("source", ["folder", "tiles"])
@@ -2385,3 +2403,195 @@ def test_a_folders_broken_link_is_an_item_that_fails_not_a_tile_left_out_unsaid(
     assert [r.key for r in report.done] == ["a"]
     assert [r.key for r in report.failed] == ["b"] and "does not exist" in report.failed[0].error
     assert not report.ok
+
+
+def _cut_tiles(tmp_path, src, folder, size=(31, 41)):
+    """Four tiles of ``src`` (rows, cols of nodes each), cut as gdal_translate -srcwin cuts them, neighbours sharing
+    their border row or column of nodes; their paths by name (nw, ne, sw, se)."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+    from rasterio.windows import Window
+
+    (tmp_path / folder).mkdir()
+    h, w = size
+    paths = {}
+    with rasterio.open(src) as dataset:
+        t = dataset.transform  # (window_transform: a PendingDeprecationWarning of rasterio's own)
+        for name, (r, c) in {"nw": (0, 0), "ne": (0, 1), "sw": (1, 0), "se": (1, 1)}.items():
+            window = Window(c * (w - 1), r * (h - 1), w, h)
+            corner = Affine(t.a, t.b, t.c + window.col_off * t.a, t.d, t.e, t.f + window.row_off * t.e)
+            profile = dict(dataset.profile, width=w, height=h, transform=corner)
+            paths[name] = tmp_path / folder / f"{name}.tif"
+            with rasterio.open(paths[name], "w", **profile) as out:
+                out.write(dataset.read(1, window=window), 1)
+    return paths
+
+
+def _border_vertices(mesh, axis, value, tolerance=1e-3):
+    """The vertices of ``mesh`` within ``tolerance`` of the plane ``axis`` = ``value`` (float32's rounding of the
+    coordinates: stepped meshes place a tile's nodes in float32, so a node two tiles share lies in both within it)."""
+    v = np.asarray(mesh.vertices)
+    return v[np.abs(v[:, axis] - value) <= tolerance]
+
+
+def _coincide(a, b, tolerance=1e-3):
+    """Whether every point of ``a`` has one of ``b`` within ``tolerance`` and the other way round."""
+    gap = np.abs(a[:, None, :] - b[None, :, :]).max(axis=2)
+    return bool(len(a) and len(b) and (gap.min(axis=1) <= tolerance).all() and (gap.min(axis=0) <= tolerance).all())
+
+
+@pytest.mark.skipif(shutil.which("gdalbuildvrt") is None, reason="needs gdalbuildvrt (gdal-bin)")
+def test_several_dem_files_in_degrees_lie_in_one_frame_and_weld_as_their_mosaics_tiles(tmp_path):
+    """A folder of DEM files in degrees (SRTM .hgt tiles, any EPSG:4326 GeoTIFFs) was stepped each file in local
+    metres of its own (node (0, 0) at its first node): the meshes all lay at (0, 0), on top of one another, and
+    neighbours sharing their border nodes did not weld as a projected folder's do. They lie now in the local metres
+    of their mosaic: every mesh is the one cutting the files' .vrt into tiles gives, the vertices neighbours share
+    coincide, and no warning is given; a projected folder's outputs are as they were."""
+    from .conftest import SHARED_DATA
+
+    geo = SHARED_DATA / "front_range_srtmgl3_3arcsec.tif"
+    if not geo.exists():
+        pytest.skip(f"shared data {geo.name} not found")
+    tiles = _cut_tiles(tmp_path, geo, "geo")
+    subprocess.run(["gdalbuildvrt", "-q", str(tmp_path / "mosaic.vrt"), *map(str, tiles.values())], check=True)
+
+    def run(source, out, **kwargs):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            report = batch(source, tmp_path / out, interval=100.0, scheduler="serial", **kwargs)
+        assert report.ok, report.summary()
+        return [str(w.message) for w in caught if "in degrees" in str(w.message)]
+
+    said = run(tmp_path / "geo", "geo_out")
+    run(tmp_path / "mosaic.vrt", "vrt_out", tile_size=(30, 40))
+    mesh = {name: read_mesh(tmp_path / "geo_out" / f"{name}.glb") for name in tiles}
+    cut = {"nw": "tile_r0_c0", "ne": "tile_r0_c1", "sw": "tile_r1_c0", "se": "tile_r1_c1"}
+    for name, key in cut.items():  # the .vrt's tiles: same vertices, to float32 rounding
+        of_vrt = read_mesh(tmp_path / "vrt_out" / f"{key}.glb")
+        assert len(mesh[name].vertices) == len(of_vrt.vertices) and len(mesh[name].faces) == len(of_vrt.faces)
+        np.testing.assert_allclose(mesh[name].vertices, of_vrt.vertices, rtol=0, atol=1e-3)
+    x_border = mesh["nw"].bounds[1, 0]  # the west tiles' east edge, the east tiles' west edge
+    assert x_border > 2000.0 and abs(mesh["ne"].bounds[0, 0] - x_border) < 1e-3
+    for west, east in (("nw", "ne"), ("sw", "se")):
+        shared = _border_vertices(mesh[west], 0, x_border)
+        assert len(shared) > 30 and _coincide(shared, _border_vertices(mesh[east], 0, x_border))
+    y_border = mesh["nw"].bounds[0, 1]  # the north tiles' south edge, the south tiles' north edge
+    assert y_border < -2000.0 and abs(mesh["sw"].bounds[1, 1] - y_border) < 1e-3
+    for north, south in (("nw", "sw"), ("ne", "se")):
+        shared = _border_vertices(mesh[north], 1, y_border)
+        assert len(shared) > 30 and _coincide(shared, _border_vertices(mesh[south], 1, y_border))
+    assert "placed in the mosaic of the DEM files" in str(mesh["se"].metadata)
+    assert said == []  # nothing left to warn of
+
+    _cut_tiles(tmp_path, SHARED_DATA / "big_tujunga_srtm_30m_utm11n.tif", "utm")
+    run(tmp_path / "utm", "utm_out")
+    west, east = read_mesh(tmp_path / "utm_out" / "nw.glb"), read_mesh(tmp_path / "utm_out" / "ne.glb")
+    assert west.bounds[1, 0] == east.bounds[0, 0]  # a projected folder's neighbours meet on their shared column
+
+
+def test_dem_files_in_degrees_left_each_in_its_own_frame_are_warned_of_once(tmp_path):
+    """Files in degrees that are not placed in a shared frame (an .npz, which is not read through GDAL) still lie
+    each at (0, 0) in local metres of its own: the run says so once; one such file says nothing."""
+    heights = np.arange(12.0, dtype=np.float32).reshape(3, 4) * 50.0
+    for i in range(2):
+        transform = np.array([-105.0 + i * 0.003, 0.001, 0.0, 40.0, 0.0, -0.001])
+        np.savez(tmp_path / f"t{i}.npz", elevation=heights, transform=transform, crs="EPSG:4326")
+
+    def run(source, out):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            report = batch(source, tmp_path / out, interval=100.0, scheduler="serial")
+        assert report.ok, report.summary()
+        return [str(w.message) for w in caught if "in degrees" in str(w.message)]
+
+    said = run([tmp_path / "t0.npz", tmp_path / "t1.npz"], "out")
+    assert len(said) == 1 and "neither line up nor weld" in said[0] and "gdalbuildvrt" in said[0]
+    # its other remedy warps the files into one raster: each reprojected alone (gdalwarp -t_srs of one file) lies in
+    # place, but on a grid of its own, sharing no nodes with its neighbours, so their meshes would not weld either
+    assert "gdalwarp -t_srs EPSG:... FILES dem.tif" in said[0] and "one by one" in said[0]
+    assert run([tmp_path / "t1.npz"], "one_out") == []
+
+
+def test_dem_files_in_two_geographic_crss_are_warned_to_lie_in_two_frames(tmp_path):
+    """The files in degrees of each geographic CRS are placed in the local metres of their own mosaic, node (0, 0) at
+    its top-left node: two files in EPSG:4326 and two in EPSG:4269 (NAD83) made two frames, whose meshes overlapped
+    at (0, 0) without a word (a folder of files in degrees said it once before they were placed in a shared frame).
+    The run now says so once, naming the CRSs; files in one CRS say nothing (above)."""
+    rasterio = pytest.importorskip("rasterio")
+    from .conftest import SHARED_DATA
+
+    geo = SHARED_DATA / "front_range_srtmgl3_3arcsec.tif"
+    if not geo.exists():
+        pytest.skip(f"shared data {geo.name} not found")
+    tiles = _cut_tiles(tmp_path, geo, "geo")
+    for name in ("sw", "se"):
+        with rasterio.open(tiles[name], "r+") as dataset:
+            dataset.crs = rasterio.crs.CRS.from_epsg(4269)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        report = batch(tmp_path / "geo", tmp_path / "out", interval=100.0, scheduler="serial")
+    assert report.ok, report.summary()
+    said = [str(w.message) for w in caught if "geographic CRSs" in str(w.message)]
+    assert len(said) == 1 and "EPSG:4269" in said[0] and "EPSG:4326" in said[0] and "gdalwarp" in said[0], said
+    nw, sw = read_mesh(tmp_path / "out" / "nw.glb"), read_mesh(tmp_path / "out" / "sw.glb")
+    # as warned: the north edges of the NAD83 frame's files and of the WGS 84 frame's both at y = 0, overlapping
+    assert nw.bounds[1, 1] == pytest.approx(0.0, abs=1e-3) and sw.bounds[1, 1] == pytest.approx(0.0, abs=1e-3)
+
+
+def test_a_dem_file_in_degrees_load_dem_refuses_fails_alone_not_the_run_nor_the_others_frame(tmp_path):
+    """A file in degrees whose geotransform load_dem refuses, among files it places in their mosaic's frame: one of
+    zero pixel height ended the whole run with a ZeroDivisionError (the mosaic's rows counted in its steps), where
+    its item had failed alone; one whose latitudes pass 90 (a projected grid labelled EPSG:4326) left every file of
+    its CRS out of the shared frame, back at (0, 0). Each now fails alone, as its read says why, and the others are
+    placed side by side."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    from .conftest import SHARED_DATA
+
+    geo = SHARED_DATA / "front_range_srtmgl3_3arcsec.tif"
+    if not geo.exists():
+        pytest.skip(f"shared data {geo.name} not found")
+    tiles = _cut_tiles(tmp_path, geo, "geo")
+    heights = np.arange(20, dtype=np.float32).reshape(4, 5) * 100.0
+    for name, transform in (("a_flat.tif", Affine(0.001, 0.0, -105.0, 0.0, 0.0, 40.0)),  # first: the frame's steps
+                            ("z_north.tif", Affine(0.001, 0.0, -105.0, 0.0, -0.001, 95.0))):
+        with rasterio.open(tmp_path / "geo" / name, "w", driver="GTiff", width=5, height=4, count=1, dtype="float32",
+                           crs="EPSG:4326", transform=transform) as out:
+            out.write(heights, 1)
+    report = batch(tmp_path / "geo", tmp_path / "out", interval=100.0, scheduler="serial")
+    assert sorted(r.key for r in report.done) == sorted(tiles), report.summary()
+    failed = {r.key: r.error for r in report.failed}
+    assert set(failed) == {"a_flat", "z_north"}, report.summary()
+    assert "zero pixel size" in failed["a_flat"] and "latitudes" in failed["z_north"], failed
+    nw, ne = read_mesh(tmp_path / "out" / "nw.glb"), read_mesh(tmp_path / "out" / "ne.glb")
+    assert nw.bounds[1, 0] > 2000.0 and abs(ne.bounds[0, 0] - nw.bounds[1, 0]) < 1e-3  # side by side
+
+
+def test_a_file_in_degrees_added_to_a_folder_redoes_the_files_whose_frame_it_moves(tmp_path):
+    """The shared frame of a folder's files in degrees depends on all of them: a file that widens their mosaic moves
+    the others (node (0, 0) and the latitude of their one spacing), so a rerun redoes them, as a fresh run writes them;
+    a file within the mosaic moves none, and the rerun keeps them."""
+    from .conftest import SHARED_DATA
+
+    geo = SHARED_DATA / "front_range_srtmgl3_3arcsec.tif"
+    if not geo.exists():
+        pytest.skip(f"shared data {geo.name} not found")
+    tiles = _cut_tiles(tmp_path, geo, "all")
+    (tmp_path / "geo").mkdir()
+    for name in ("nw", "ne"):
+        shutil.copy(tiles[name], tmp_path / "geo")
+    kwargs = {"levels": [2000.0, 2500.0, 3000.0, 3500.0], "scheduler": "serial"}  # the levels no file moves
+    assert len(batch(tmp_path / "geo", tmp_path / "out", **kwargs).done) == 2
+    assert len(batch(tmp_path / "geo", tmp_path / "out", **kwargs).skipped) == 2
+    shutil.copy(tiles["sw"], tmp_path / "geo")  # south of them: the mosaic's middle latitude moves
+    report = batch(tmp_path / "geo", tmp_path / "out", **kwargs)
+    assert sorted(r.key for r in report.done) == ["ne", "nw", "sw"], report.summary()
+    fresh = batch(tmp_path / "geo", tmp_path / "fresh", **kwargs)
+    for name in ("nw", "ne", "sw"):
+        np.testing.assert_array_equal(read_mesh(tmp_path / "out" / f"{name}.glb").vertices,
+                                      read_mesh(tmp_path / "fresh" / f"{name}.glb").vertices)
+    assert fresh.ok
+    shutil.copy(tiles["nw"], tmp_path / "geo" / "nw_again.tif")  # within the mosaic: no frame moves
+    report = batch(tmp_path / "geo", tmp_path / "out", **kwargs)
+    assert [r.key for r in report.done] == ["nw_again"] and len(report.skipped) == 3, report.summary()

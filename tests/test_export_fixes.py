@@ -2031,3 +2031,36 @@ def test_save_mesh_origin_beyond_float32_is_refused(tmp_path):
         save_mesh(trimesh.creation.box(), tmp_path / "box.glb", origin=[1e39, 0, 0])
     assert list(tmp_path.iterdir()) == []
     save_mesh(trimesh.creation.box(), tmp_path / "box.ply", origin=[1e39, 0, 0])  # PLY stores them as they are
+
+
+@pytest.mark.skipif(os.name != "posix", reason="a file size limit (RLIMIT_FSIZE) makes the write fail for real")
+def test_a_geotiff_write_that_fails_names_gdals_reason_not_a_previous_exception(tmp_path):
+    """A GeoTIFF texture whose write failed (a full disk; here a file size limit, for real) was refused as
+    "cannot write ...: Write failed. See previous exception for details.": rasterio's words, pointing at an exception
+    no message showed. GDAL's own error, the cause of rasterio's, is named now, and no file is left."""
+    import subprocess
+    import sys
+
+    pytest.importorskip("rasterio")
+    script = f"""
+import resource, signal
+import numpy as np
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # the write fails with EFBIG instead of killing the process
+from stepterrain.export import save_image
+from stepterrain.errors import DataFileError
+image = (np.random.default_rng(0).random((300, 300, 3)) * 255).astype(np.uint8)
+soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)  # a runner's finite hard limit cannot be raised to infinity
+resource.setrlimit(resource.RLIMIT_FSIZE, (20000, hard))
+try:
+    save_image(image, {str(tmp_path / "shade.tif")!r}, extent=(0, 300, 0, 300), crs="EPSG:32611")
+except DataFileError as exc:
+    print("REFUSED", exc)
+finally:  # what the process writes at its exit (a coverage data file) is not cut short
+    resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+"""
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    said = [line for line in done.stdout.splitlines() if line.startswith("REFUSED")]
+    assert len(said) == 1, (done.stdout, done.stderr)
+    assert "cannot write" in said[0] and "shade.tif" in said[0] and "Write error" in said[0]
+    assert "previous exception" not in said[0]
+    assert list(tmp_path.iterdir()) == []  # atomic: neither the target nor its temporary file

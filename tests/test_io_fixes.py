@@ -1670,6 +1670,46 @@ def test_the_lowest_value_of_a_signed_or_float_dtype_unmarked_by_nodata_is_named
     assert told(tmp_path / "peak.png")[1] == []
 
 
+def test_float32_nodata_kept_in_a_float64_grid_is_named_as_a_likely_void(tmp_path):
+    """A float32 DEM's NoData (-3.4028235e+38, ArcGIS's) kept through a widening copy (``src.read(1).astype(float)``
+    saved as .npy, ``gdal_translate -ot Float64``) was read as heights without a word: float64's own lowest value,
+    the only one checked, lies beyond float32 and is refused anyway. Its cells were a pit of 3.4e38 m (with explicit
+    levels, a terrace silently flattened onto the lowest one). Now they warn as in a float32 grid, naming the value
+    in full: a float64 cell equals only that, so the nodata the hint gives marks them when declared."""
+    import rasterio
+    from rasterio.transform import Affine
+
+    real = np.load(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.npz")["elevation"][:40, :50].astype(np.float64)
+    z = np.where(real > np.percentile(real, 95), float(np.finfo(np.float32).min), real)
+    n_voids = int((z < -1e38).sum())
+    assert n_voids > 0
+    np.save(tmp_path / "wide.npy", z)
+    with rasterio.open(tmp_path / "wide.tif", "w", driver="GTiff", height=z.shape[0], width=z.shape[1], count=1,
+                       dtype="float64", crs="EPSG:32611",
+                       transform=Affine(30.0, 0.0, 500000.0, 0.0, -30.0, 4000000.0)) as dataset:
+        dataset.write(z, 1)
+    value = "-3.4028234663852886e+38"
+    for name, what, hint in (
+        ("wide.npy", "array", f"save it as an .npz with a 'nodata' of {value}"),
+        ("wide.tif", "band 1", f"`gdal_edit.py -a_nodata {value} wide.tif`"),
+    ):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            terrain = load_dem(tmp_path / name)
+        assert [str(w.message) for w in caught if "marks voids" in str(w.message)] == [
+            f"{name}: {n_voids} cells of {what} hold {value}, the lowest float32 value (stored as float64), which "
+            f"marks voids, but no nodata value or mask of the file marks them: read as heights; if they are voids, "
+            f"declare it ({hint})"]
+        np.testing.assert_array_equal(terrain.heights, z.astype(np.float32))  # still read as stored
+    # the value named marks exactly those cells once declared, as the hint says
+    np.savez(tmp_path / "declared.npz", elevation=z, nodata=float(value))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        declared = load_dem(tmp_path / "declared.npz")
+    assert [w for w in caught if "marks voids" in str(w.message)] == []
+    np.testing.assert_array_equal(np.isnan(declared.heights), z < -1e38)
+
+
 @pytest.mark.parametrize(
     ("dx_m", "dy_m", "message"),
     [(0.0, 1111.0, r"'dx_m' and 'dy_m' must be finite, non-zero metres per cell; got 0\.0 and 1111\.0"),

@@ -170,6 +170,44 @@ def test_vrt_over_a_geotiff_reads_as_the_geotiff(tmp_path):
         st.load_dem(tmp_path / "dem.vrt", band=2)
 
 
+def test_a_failed_read_names_gdals_reason_not_a_previous_exception(tmp_path):
+    """A .vrt mosaic whose source tile is missing, or a GeoTIFF cut short, was refused as "unreadable content
+    (Read failed. See previous exception for details.)": rasterio's words, pointing at an exception no message
+    showed, so nothing said which tile was missing or that the file was short. GDAL's own error, rasterio's
+    exception's cause, is named now."""
+    from .conftest import SHARED_DATA
+
+    with rasterio.open(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.tif") as dataset:
+        z = dataset.read(1)[:40, :60]
+    _write(tmp_path / "west.tif", z[:, :30], "GTiff", _TRANSFORM)
+    _write(tmp_path / "east.tif", z[:, 30:], "GTiff", Affine(30.0, 0.0, _TRANSFORM.c + 900.0, 0.0, -30.0, _TRANSFORM.f))
+    sources = "".join(f"""
+    <SimpleSource>
+      <SourceFilename relativeToVRT="1">{name}.tif</SourceFilename>
+      <SourceBand>1</SourceBand>
+      <SrcRect xOff="0" yOff="0" xSize="30" ySize="40" />
+      <DstRect xOff="{offset}" yOff="0" xSize="30" ySize="40" />
+    </SimpleSource>""" for name, offset in (("west", 0), ("east", 30)))
+    (tmp_path / "dem.vrt").write_text(f"""<VRTDataset rasterXSize="60" rasterYSize="40">
+  <SRS>{_UTM}</SRS>
+  <GeoTransform>{", ".join(map(str, _TRANSFORM.to_gdal()))}</GeoTransform>
+  <VRTRasterBand dataType="Int16" band="1">{sources}
+  </VRTRasterBand>
+</VRTDataset>
+""")
+    np.testing.assert_array_equal(st.load_dem(tmp_path / "dem.vrt").heights, z.astype(np.float32))
+    (tmp_path / "east.tif").unlink()
+    with pytest.raises(st.errors.DataFileError) as refused:
+        st.load_dem(tmp_path / "dem.vrt")
+    assert "east.tif: No such file or directory" in str(refused.value)
+    assert "previous exception" not in str(refused.value)
+    data = (tmp_path / "west.tif").read_bytes()
+    (tmp_path / "short.tif").write_bytes(data[: len(data) // 2])  # its header whole, its strips cut
+    with pytest.raises(st.errors.DataFileError, match=r"short\.tif.*unreadable content \(short\.tif, band 1: ") as cut:
+        st.load_dem(tmp_path / "short.tif")
+    assert "previous exception" not in str(cut.value)
+
+
 def test_usgs_dem_reads_through_rasterio(tmp_path):
     z = _heights((6, 5), np.int16)
     path = tmp_path / "dem.dem"

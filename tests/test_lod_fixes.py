@@ -1144,3 +1144,31 @@ def test_the_visible_corners_of_a_box_span_every_point_of_it_in_view():
     camera = Camera((0.0, 0.0, 100.0), (0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0))
     assert camera.visible_corners(np.array([[5000.0, 5000.0, 0.0], [6000.0, 6000.0, 10.0]])).shape == (0, 3)
     assert len(camera.visible_corners(np.array([[-10.0, -10.0, 0.0], [10.0, 10.0, 10.0]]))) == 8  # the box's own
+
+
+def test_a_pyramid_of_a_tiff_cut_short_names_gdals_reason_not_a_failed_write(tmp_path):
+    """A GeoTIFF image cut short (a download stopped half-way), read by bands of rows into level 0, was refused as
+    "cannot write the pyramid level '/tmp/.../.level_0.u8....tmp': cannot read 'short.tif' as an image: Read failed.
+    See previous exception for details.": a write of a temporary file that did not fail, and rasterio's words in
+    place of GDAL's reason. It is the image's read that failed, with GDAL's reason named."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    from stepterrain.errors import DataFileError
+
+    from .conftest import SHARED_DATA
+
+    with rasterio.open(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.tif") as dataset:
+        z = dataset.read(1)[:120, :160].astype(np.float64)
+    grey = np.round(255 * (z - z.min()) / (z.max() - z.min())).astype(np.uint8)  # the DEM's heights as an image
+    with rasterio.open(tmp_path / "whole.tif", "w", driver="GTiff", height=120, width=160, count=3, dtype="uint8",
+                       photometric="RGB", crs="EPSG:32611",
+                       transform=Affine(30.0, 0.0, 500000.0, 0.0, -30.0, 4000000.0)) as dataset:
+        dataset.write(np.stack([grey, grey[::-1], 255 - grey]))
+    with ImagePyramid.build(tmp_path / "whole.tif", device="cpu") as pyramid:  # read whole, it builds
+        assert pyramid.levels
+    data = (tmp_path / "whole.tif").read_bytes()
+    (tmp_path / "short.tif").write_bytes(data[: len(data) // 2])  # its header whole, its strips cut
+    with pytest.raises(DataFileError, match=r"^cannot read '.*short\.tif' as an image: short\.tif, band \d: ") as cut:
+        ImagePyramid.build(tmp_path / "short.tif", device="cpu")
+    assert "previous exception" not in str(cut.value) and "pyramid level" not in str(cut.value)
