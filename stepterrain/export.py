@@ -354,7 +354,9 @@ def save_mesh(
         Target file; missing folders are created. Extensions: ``.glb``, ``.gltf`` (one self-contained
         file, buffers embedded as base64 data URIs), ``.obj`` (coordinates and UVs exact: each written as the
         shortest text that reads back as the same float64), ``.ply`` (binary; float64 coordinates, float32 where
-        that holds every vertex exactly), ``.stl`` (binary),
+        that holds every vertex exactly), ``.stl`` (binary; a
+        triangle with two corners on one float32 position, of no area, is left out: the walls of zero height of a
+        solid at γ = 0, which a reader merging corners by position would fold onto their neighbours' edges),
         ``.3mf`` (exact coordinates, in the unit it declares, millimetres: a terrain in metres is scaled for a
         print in the slicer; vertex or face colours as a colour group: a colour 3D print keeps its tints;
         a triangle naming one vertex twice, of no area, is left out, as 3MF requires).
@@ -1584,7 +1586,27 @@ def _write_ply(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
 
 def _write_stl(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
     _warn_stl_rounding(mesh, target, bounds)
-    tmp.write_bytes(trimesh.exchange.stl.export_stl(mesh))
+    tmp.write_bytes(trimesh.exchange.stl.export_stl(_without_point_edges(mesh)))
+
+
+def _without_point_edges(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """``mesh`` less its triangles with two corners on one float32 position (as ``.stl`` stores them): they have no
+    area, and a reader that merges corners by position (slicers, ``trimesh.load``) would find them folded onto an
+    edge of their neighbours, used by three faces or more. A solid's walls of zero height (γ = 0, inside a
+    :func:`~stepterrain.stepped.circular_lens` by default) are such triangles: their top and bottom corners are
+    distinct vertices on one position, which keep the indexed solid watertight; without them, the corners merged,
+    the ``.stl`` reads back watertight too. ``mesh`` itself is not modified."""
+    faces = np.asarray(mesh.faces)
+    if len(faces) == 0:
+        return mesh
+    corners = np.asarray(mesh.vertices, dtype=np.float64).astype(np.float32)  # as export_stl rounds them
+    point = np.zeros(len(faces), dtype=bool)
+    for i, j in ((0, 1), (1, 2), (2, 0)):
+        a, b = faces[:, i], faces[:, j]
+        point |= (a == b) | (corners[a] == corners[b]).all(axis=1)
+    if not point.any():
+        return mesh
+    return trimesh.Trimesh(mesh.vertices, faces[~point], process=False)
 
 
 #: How far (in the mesh's units: 1 mm for metres) STL's float32 may move a vertex before save_mesh warns.
