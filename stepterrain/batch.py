@@ -982,7 +982,7 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
         if frame is not None:
             terrain = _in_frame(terrain, frame)
         elif options.several_files and item.kind == "file":
-            _warn_own_local_metres(terrain)
+            _warn_own_local_metres(terrain, options.coarsen)
         metadata = {"generator": "stepterrain.batch", **dict(options.metadata), **_item_metadata(item)}
         if not _has_surface(terrain):
             # an item with no triangle of three finite heights (sea off a coast, a gap in a series, a tile file of
@@ -1080,14 +1080,20 @@ def _in_frame(terrain: Terrain, frame: _Frame) -> Terrain:
                                 height_unit=terrain.height_unit, _placed=True)  # fmt: skip
 
 
-def _warn_own_local_metres(terrain: Terrain) -> None:
+def _warn_own_local_metres(terrain: Terrain, coarsen: int | None = None) -> None:
     """Warn when a DEM file of several was read from degrees (:func:`~stepterrain.io.load_dem`: local metres of its
     own, node (0, 0) at its first node, its own ``+proj=eqc`` CRS) and left there, out of the shared frame of
     :func:`_degree_frames` (an .npz in degrees, a file alone in its geographic CRS): its mesh lies at (0, 0), and does
-    not weld with neighbours that share its border nodes. One message for every file, so a run says it once."""
+    not weld with neighbours that share its border nodes. One message for every file, so a run says it once.
+    ``coarsen``: the file's factor, whose first node, a block's mean, lies half a block from node (0, 0)."""
     from .io import _lonlat_grid
 
-    if terrain.kind == "grid" and terrain.origin == (0.0, 0.0) and _lonlat_grid(terrain) is not None:
+    if terrain.kind != "grid":
+        return
+    half = 0.0 if coarsen is None else (coarsen - 1) / 2 / coarsen  # Terrain.coarsen's origin, in coarse cells
+    first = tuple(half * step for step in terrain.spacing)
+    at_its_own = all(math.isclose(o, f, rel_tol=1e-9) for o, f in zip(terrain.origin, first, strict=True))
+    if at_its_own and _lonlat_grid(terrain) is not None:
         warnings.warn(
             "DEM files in degrees that GDAL does not read (an .npz), or one alone in its geographic CRS, are not "
             "placed in the local metres the other files in degrees share: each is placed in local metres of its own "

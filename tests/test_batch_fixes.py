@@ -2512,6 +2512,24 @@ def test_dem_files_in_degrees_left_each_in_its_own_frame_are_warned_of_once(tmp_
     assert run([tmp_path / "t1.npz"], "one_out") == []
 
 
+def test_dem_files_in_degrees_left_each_in_its_own_frame_are_warned_of_also_when_coarsened(tmp_path):
+    """With ``coarsen``, a file's first node is a block's mean, half a block from load_dem's node (0, 0): files in
+    degrees left each in local metres of its own (here .npz files) lay on top of one another as before, but the run
+    said nothing, the warning looking for a grid whose origin is (0, 0)."""
+    heights = np.arange(42.0, dtype=np.float32).reshape(6, 7) * 50.0
+    for i in range(2):
+        transform = np.array([-105.0 + i * 0.006, 0.001, 0.0, 40.0, 0.0, -0.001])
+        np.savez(tmp_path / f"t{i}.npz", elevation=heights, transform=transform, crs="EPSG:4326")
+    for factor in (2, 3):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            report = batch([tmp_path / "t0.npz", tmp_path / "t1.npz"], tmp_path / f"out{factor}", interval=100.0,
+                           scheduler="serial", coarsen=factor)
+        assert report.ok, report.summary()
+        said = [str(w.message) for w in caught if "in degrees" in str(w.message)]
+        assert len(said) == 1 and "neither line up nor weld" in said[0], (factor, said)
+
+
 def test_dem_files_in_two_geographic_crss_are_warned_to_lie_in_two_frames(tmp_path):
     """The files in degrees of each geographic CRS are placed in the local metres of their own mosaic, node (0, 0) at
     its top-left node: two files in EPSG:4326 and two in EPSG:4269 (NAD83) made two frames, whose meshes overlapped
