@@ -1186,13 +1186,13 @@ def stepped(
     most a quarter of the gap to the next threshold, above the last half the way to the top isovalue; see
     ``_off_thresholds``: a few cm in local coordinates, up to metres in UTM ones), so that an ``.stl`` (float32 world
     coordinates) read back with its corners merged by position is watertight too (where γ = 0 a wall has zero height:
-    :func:`~stepterrain.export.save_mesh` leaves its triangles, of no area, out of the ``.stl``); where τ does not fit, one float32 step
-    (``np.nextafter``), and only levels a few float32 steps apart, where the next float32 value up is itself a
-    threshold, leave such a height as it is, with a warning that the solid may leak there; where two nodata holes meet
-    at a single node, that node gets one copy per side, so the solid stays watertight there. Each edge crossing a
-    threshold owns a wall bottom and top vertex, shared by both triangles of the edge, so the mesh is crack-free: its
-    boundary lies on the input's boundary, terraces face +z and walls face the lower terrace. Cost: O(nodes + edges +
-    output) on the device, two host syncs.
+    :func:`~stepterrain.export.save_mesh` leaves its triangles, of no area, out of the ``.stl``); where τ does not
+    fit, one float32 step (``np.nextafter``), and only levels a few float32 steps apart, where the next float32 value
+    up is itself a threshold, leave such a height as it is, with a warning that the solid may leak there; where two
+    nodata holes meet at a single node, that node gets one copy per side, so the solid stays watertight there. Each
+    edge crossing a threshold owns a wall bottom and top vertex, shared by both triangles of the edge, so the mesh is
+    crack-free: its boundary lies on the input's boundary, terraces face +z and walls face the lower terrace. Cost:
+    O(nodes + edges + output) on the device, two host syncs.
 
     A ``trimesh.Trimesh`` refers to itself, so a mesh you drop is freed only when Python's cyclic garbage
     collector runs, often late: re-stepping a 512² terrain 60 times in a loop held about 1 GB. In long loops,
