@@ -1970,8 +1970,9 @@ def composite(
     full = (0, 0, shape[1], shape[0])
     boxed = []
     for i, layer in enumerate(layers):
-        if isinstance(layer, (str, bytes)) or not isinstance(layer, Sequence) or len(layer) != 5:
-            got = f"{len(layer)} items" if isinstance(layer, Sequence) else type(layer).__name__
+        text = isinstance(layer, (str, bytes))
+        if text or not isinstance(layer, Sequence) or len(layer) != 5:
+            got = f"{len(layer)} items" if isinstance(layer, Sequence) and not text else type(layer).__name__
             raise InvalidInputError(f"layer {i} must be (color, alpha, depth, depth_test, writes_depth); got {got}")
         c, alpha, z, depth_test, writes_depth = layer
         c, alpha, z = np.asarray(c), np.asarray(alpha), np.asarray(z)

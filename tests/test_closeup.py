@@ -955,3 +955,13 @@ def test_composite_takes_a_bool_coverage_mask_as_alpha():
     np.testing.assert_array_equal(got, composite(base, base_depth, [(color, mask.astype(np.float32), depth, True,
                                                                      True)]))
     assert (got[~mask] == base[~mask]).all() and (got[mask] == np.rint(color[mask])).all()
+
+
+@pytest.mark.parametrize("layer, got", [("abcde", "str"), (b"abcde", "bytes"), (5, "int"), ((1, 2), "2 items")])
+def test_composite_names_what_a_malformed_layer_is(layer, got):
+    """A layer of text was refused as "must be (color, alpha, depth, depth_test, writes_depth); got 5 items" for
+    "abcde": five items, as asked. It names the type it got; a tuple or list its length."""
+    depth = np.ones((2, 2), np.float32)
+    with pytest.raises(InvalidInputError, match=rf"^layer 0 must be \(color, alpha, depth, depth_test, "
+                                                rf"writes_depth\); got {got}$"):
+        composite(np.zeros((2, 2, 3), np.uint8), depth, [layer])
