@@ -201,9 +201,19 @@ def test_the_format_table_holds_on_round_trips(tmp_path):
         if coords.startswith("float64"):
             assert np.array_equal(back.vertices, mesh.vertices), f"{ext}: coordinates are not kept exactly"
         elif "three points per face" in coords:
-            assert coords.startswith("float32") and len(back.faces) == len(mesh.faces)
-            got, want = back.triangles.reshape(-1, 3), mesh.triangles.reshape(-1, 3)
-            assert np.array_equal(got, want.astype(np.float32).astype(np.float64)), f"{ext}: not float32 of each point"
+            assert coords.startswith("float32") and "two on one float32 position left out" in coords
+            for solid in (mesh, st.stepped(dem, interval=50.0, gamma=0.0, solid=True, device="cpu")):  # flat walls
+                if solid is not mesh:
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore")
+                        save_mesh(solid, path)
+                want = solid.triangles.astype(np.float32)
+                point = np.zeros(len(want), bool)
+                for i, j in ((0, 1), (1, 2), (2, 0)):
+                    point |= (want[:, i] == want[:, j]).all(axis=1)
+                assert point.any() == (solid is not mesh)
+                got = read_mesh(path).triangles
+                assert np.array_equal(got, want[~point].astype(np.float64)), f"{ext}: not float32 of each point"
         else:
             assert coords.startswith("float32")
             gap = np.abs(back.vertices - mesh.vertices).max()
