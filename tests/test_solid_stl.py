@@ -252,3 +252,92 @@ def test_stl_leaves_out_triangles_with_two_corners_on_one_float32_position(tmp_p
     assert len(back.faces) == 1
     np.testing.assert_array_equal(back.vertices[back.faces[0]], vertices[[0, 1, 2]])
     assert len(mesh.faces) == 5
+
+
+def _pinched(heights: np.ndarray, at: tuple[int, int], size: int = 6) -> np.ndarray:
+    """``heights`` with two nodata blocks whose cells touch at node ``at`` only (diagonally): a pinch there."""
+    r, c = at
+    out = heights.copy()
+    out[r - size:r, c - size:c] = np.nan  # nodes: the cells with a NaN corner are left out, up to node r - 1 + 1
+    out[r + 1:r + 1 + size, c + 1:c + 1 + size] = np.nan
+    return out
+
+
+@pytest.mark.parametrize("gamma", [1.0, 0.5])
+def test_solid_with_nodata_holes_touching_at_a_node_reads_back_watertight_from_stl(crop, gamma, tmp_path):
+    """Two nodata holes whose cells meet at one node (SRTM voids touch diagonally): the indexed solid has a copy of the
+    node per side, but the copies and their skirt columns lay on one position, and the .stl (corners merged by
+    position) had a vertical skirt edge of 4 faces. Each copy now moves a few float32 steps into its own cell."""
+    heights = _pinched(crop.heights, (80, 80))
+    heights[np.random.default_rng(3).random(heights.shape) < 0.03] = np.nan  # random void nodes: more pinches
+    holed = st.Terrain.from_heights(heights, spacing=crop.spacing, origin=crop.origin)
+    values = isovalues(holed.height_range, interval=100.0)
+    mesh = st.stepped(holed, levels=values, gamma=gamma, solid=True)
+    floor = float(mesh.vertices[:, 2].min())
+    surface = st.stepped(stepped_module._off_thresholds(holed, values), levels=values, gamma=gamma)
+    copies = len(mesh.vertices) - len(surface.vertices) - int((mesh.vertices[:, 2] == floor).sum())
+    assert copies > 10
+    _assert_stl_is_the_solid(mesh, tmp_path / "pinched.stl")
+    # the volume is the surface's integral over the domain (signed xy area times mean height above the floor) but
+    # for the copies' moves: each moves its cell's corner by d = 2 u in x and y, which changes the integral by at
+    # most |d| times its fan's outline (under 4 cell sides) times the height above the floor
+    v = np.asarray(surface.vertices)[np.asarray(surface.faces)]
+    area = 0.5 * ((v[:, 1, 0] - v[:, 0, 0]) * (v[:, 2, 1] - v[:, 0, 1])
+                  - (v[:, 2, 0] - v[:, 0, 0]) * (v[:, 1, 1] - v[:, 0, 1]))
+    integral = float((area * (v[:, :, 2].mean(axis=1) - floor)).sum())
+    u = float(np.spacing(np.float32(np.abs(mesh.vertices[:, :2]).max())))
+    bound = copies * 2 * np.sqrt(2) * u * 4 * max(crop.spacing) * (float(mesh.vertices[:, 2].max()) - floor)
+    assert abs(mesh.volume - integral) <= bound
+    assert bound < 1e-3 * mesh.volume  # UTM coordinates: u = 0.5 m, the moves ~1 m; near the origin far less
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    rows=st_.integers(4, 10),
+    cols=st_.integers(4, 10),
+    seed=st_.integers(0, 2**32 - 1),
+    gamma=st_.sampled_from([1.0, 0.5]),
+    far=st_.sampled_from([(0.0, 0.0), (12345.0, 23456.0)]),
+)
+def test_small_grids_with_random_nodata_read_back_watertight_from_stl(rows, cols, seed, gamma, far,
+                                                                      tmp_path_factory):
+    """Small integer grids with random nodata nodes (pinches wherever two void regions touch at a node), near the
+    origin and away from it: the indexed solid and its .stl are watertight and consistently wound."""
+    rng = np.random.default_rng(seed)
+    heights = rng.integers(0, 9, size=(rows, cols)).astype(np.float32)
+    heights[rng.random((rows, cols)) < 0.2] = np.nan
+    t = st.Terrain.from_heights(heights, spacing=(1.0, 1.0), origin=far)
+    if not len(st.stepped(t, interval=2.0).faces):
+        return
+    mesh = st.stepped(t, interval=2.0, gamma=gamma, solid=True)
+    _assert_stl_is_the_solid(mesh, tmp_path_factory.mktemp("stl") / "holed.stl")
+
+
+def test_solid_tiles_share_their_edge_walls_where_holes_touch_on_the_edge(crop, tmp_path):
+    """Nodata holes touching at a node on the edge two tiles share (a pinch of the raster, none of either tile: each
+    has one or two cells there) and inside a tile: the tiles' edge vertices are the same, each tile's .stl is
+    watertight and the whole raster's solid has the edge's vertices too."""
+    from stepterrain.batch import batch
+
+    heights = _pinched(_pinched(crop.heights[:129, :129], (40, 64)), (100, 30))
+    values = isovalues(crop.height_range, interval=100.0)
+    raster = st.Terrain.from_heights(heights, spacing=crop.spacing, origin=crop.origin)
+    batch(raster, tmp_path, tile_size=64, levels=values, solid=True, format=".ply", scheduler="serial")
+    tiles = {(r, c): trimesh.load(tmp_path / f"tile_r{r}_c{c}.ply", process=False) for r in (0, 1) for c in (0, 1)}
+    floor = min(float(m.vertices[:, 2].min()) for m in tiles.values())
+    x_edge = float(tiles[0, 1].vertices[:, 0].min())
+
+    y_pinch = crop.origin[1] + 40 * crop.spacing[1]
+
+    def on_edge(mesh: trimesh.Trimesh, away: bool = False) -> set[tuple[float, ...]]:
+        v = np.asarray(mesh.vertices)  # away: from the holes' rows (a hole beside the edge in one tile only)
+        near = np.abs(v[:, 1] - y_pinch) <= 8 * abs(crop.spacing[1])
+        return {tuple(p) for p in v[(v[:, 0] == x_edge) & (v[:, 2] > floor) & ~(away & near)]}
+
+    for (r, c), tile in tiles.items():
+        _assert_stl_is_the_solid(tile, tmp_path / f"tile_{r}_{c}.stl")
+    assert len(on_edge(tiles[0, 0], True)) > 40 and on_edge(tiles[0, 0], True) == on_edge(tiles[0, 1], True)
+    assert on_edge(tiles[1, 0]) == on_edge(tiles[1, 1])
+    whole = st.stepped(raster, levels=values, solid=True)
+    _assert_stl_is_the_solid(whole, tmp_path / "whole.stl")
+    assert on_edge(tiles[0, 0]) <= {tuple(p) for p in np.asarray(whole.vertices)}
