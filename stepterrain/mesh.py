@@ -310,7 +310,8 @@ def close_solid(
     Where the surface's boundary touches itself at a vertex (two triangles meeting only there, e.g. between
     nodata holes), that vertex is split first: each fan of faces around it gets its own copy, and so does the base
     vertex below it, so every skirt and base edge keeps exactly two faces and the solid stays watertight. A copy
-    (but for the first fan's, and one in a fan with a wall) moves into its fan by 2 float32 steps u of the largest
+    (but for the first fan's, one in a fan with a wall, and one whose move would turn a face over or reach another
+    fan, e.g. on a grid of cells under 2 u) moves into its fan by 2 float32 steps u of the largest
     |x|, |y| in x and y (:func:`_split_pinches`; u = 2^-9 m at 12 km, 0.5 m at UTM northings): an ``.stl``, whose
     readers merge corners by float32 position, then keeps the sides apart and reads back watertight too (on one
     position its vertical skirt edge had four faces). The volume moves by at most 2√2 u times the fan's outline
@@ -467,7 +468,8 @@ def _split_pinches(
     own fan by :data:`PINCH_STEPS` float32 steps u of the surface's largest |x| or |y|, in x and in y (the signs of
     its faces' mean direction from v: into a grid cell, along its diagonal), so that an ``.stl`` (float32, corners
     merged by position) keeps the sides apart too; a copy whose fan has a wall (``terrace_mask`` False) stays on v,
-    its wall's vertical edge vertical. Returns the vertices, the faces and, per vertex, the fan ordinal (0 for every
+    its wall's vertical edge vertical, and so does one whose move would turn a face of its fan over or flatten it
+    (in float64 or float32: 2 u is a metre at UTM northings, a 1 m grid's cell) or land in another fan's angle at v. Returns the vertices, the faces and, per vertex, the fan ordinal (0 for every
     vertex that is not such a copy), to keep the copies apart where rows are keyed by xy, and the vertex each
     appended copy copies (empty when none was split). ``edges`` are the surface's boundary edges
     (:func:`boundary_edges`).
@@ -519,6 +521,36 @@ def _split_pinches(
     u = float(np.spacing(np.float32(np.abs(vertices[:, :2]).max())))
     added = vertices[fans[copies, 0]]  # a fancy-indexed copy
     added[:, :2] += PINCH_STEPS * u * np.sign(toward)
+    # the move must keep each face of its fan the way it faces (in float64 and in float32) and must not land in another
+    # fan's angle at v (2 u is a metre at UTM northings: past a 1 m grid's cell, across a sliver terrace by an
+    # isoline; an obtuse TIN fan's mean direction can point into the other fan); where it would, or a face of the fan
+    # has no xy area, the copy stays on v
+    def orient(q: NDArray[np.float64], r: NDArray[np.float64], s: NDArray[np.float64]) -> NDArray[np.float64]:
+        return (r[:, 0] - q[:, 0]) * (s[:, 1] - q[:, 1]) - (r[:, 1] - q[:, 1]) * (s[:, 0] - q[:, 0])
+
+    o = vertices[v, :2]
+    a, b = vertices[faces[fi, (ji + 1) % 3], :2], vertices[faces[fi, (ji + 2) % 3], :2]
+    side = np.sign(orient(o, a, b))  # per corner at a pinch vertex
+    k = new_index[which[moved]] - n
+    p = added[k, :2]
+    f32 = lambda x: x.astype(np.float32).astype(np.float64)  # noqa: E731  (as the .stl has them)
+    keeps = ((side[moved] != 0) & (np.sign(orient(p, a[moved], b[moved])) == side[moved])
+             & (np.sign(orient(f32(p), f32(a[moved]), f32(b[moved]))) == side[moved]))
+    stay = np.zeros(len(copies), bool)
+    np.logical_or.at(stay, k, ~keeps)
+    # each copy against every corner at its vertex (the pinch vertices' fans are few and small)
+    order = np.argsort(v, kind="stable")
+    lo = np.searchsorted(v[order], fans[copies, 0], "left")
+    count = np.searchsorted(v[order], fans[copies, 0], "right") - lo
+    pair = np.repeat(np.arange(len(copies)), count)
+    corner = order[np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count) + np.repeat(lo, count)]
+    other = which[corner] != copies[pair]
+    pair, corner = pair[other], corner[other]
+    q = added[pair, :2]
+    inside = ((orient(o[corner], a[corner], q) * side[corner] > 0)
+              & (orient(b[corner], o[corner], q) * side[corner] > 0))
+    np.logical_or.at(stay, pair, inside)
+    added[stay, :2] = vertices[fans[copies[stay], 0], :2]
     faces = faces.copy()
     faces[fi[moved], ji[moved]] = new_index[which[moved]]
     vertices = np.concatenate([vertices, added])

@@ -341,3 +341,47 @@ def test_solid_tiles_share_their_edge_walls_where_holes_touch_on_the_edge(crop, 
     whole = st.stepped(raster, levels=values, solid=True)
     _assert_stl_is_the_solid(whole, tmp_path / "whole.stl")
     assert on_edge(tiles[0, 0]) <= {tuple(p) for p in np.asarray(whole.vertices)}
+
+
+def _xy_areas(mesh: trimesh.Trimesh) -> np.ndarray:
+    v = np.asarray(mesh.vertices)[np.asarray(mesh.faces)]
+    return ((v[:, 1, 0] - v[:, 0, 0]) * (v[:, 2, 1] - v[:, 0, 1])
+            - (v[:, 2, 0] - v[:, 0, 0]) * (v[:, 1, 1] - v[:, 0, 1]))
+
+
+@pytest.mark.parametrize("spacing", [1.0, 0.5])
+def test_pinch_copy_does_not_leave_its_cell_on_a_fine_grid_at_utm_coordinates(spacing):
+    """A 1 m (LiDAR) grid at UTM northings: 2 float32 steps are 1 m there, and the copy moved onto the far corner of
+    its cell (a triangle of no area, half the volume) or past it (0.5 m: the triangle turned over, no volume). A move
+    that would turn or flatten a face of its fan is not made: the copy stays on the node, as before."""
+    nan = np.nan
+    bowtie = np.array([[0.25, 0.25, nan], [nan, 0.25, nan], [nan, 0.25, 0.25]])
+    t = st.Terrain.from_heights(bowtie, spacing=(spacing, spacing), origin=(500000.0, 5000000.0))
+    surface = st.stepped(t, interval=1.0)
+    mesh = st.stepped(t, interval=1.0, solid=True, floor=-1.0)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    assert mesh.volume == pytest.approx(spacing**2, rel=1e-9)  # two right triangles of side s, terraces 1 high
+    top = np.asarray(mesh.vertices)[:, 2] > -1.0
+    up = top[np.asarray(mesh.faces)].all(axis=1)
+    assert (np.sign(_xy_areas(mesh)[up]) == np.sign(_xy_areas(surface)[0])).all()
+
+
+def test_pinch_copy_of_a_tin_fan_stays_out_of_the_other_fan():
+    """A TIN whose thin fan lies between 0° and -5.7° of the pinch vertex: its faces' mean direction has signs (+, -),
+    the -45° diagonal, which runs into the other fan (between -38.7° and -50.2°): the copy landed inside the other
+    fan's triangle (the solid intersected itself). Such a copy stays on the vertex."""
+    from stepterrain.mesh import close_solid
+
+    vertices = np.array([[0, 0, 1], [10, -12, 1], [10, -8, 1], [10, -1, 1], [10, 0, 1]], np.float64)
+    faces = np.array([[0, 1, 2], [0, 3, 4]])  # both counter-clockwise; the first fan keeps vertex 0
+    out_vertices, out_faces, _, _, _ = close_solid(vertices, faces, np.ones(2, bool), floor=0.0)
+    mesh = trimesh.Trimesh(out_vertices, out_faces, process=False)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    a, b, c = vertices[faces[0], :2]
+
+    def cross(q: np.ndarray, r: np.ndarray) -> float:
+        return float(q[0] * r[1] - q[1] * r[0])
+
+    for p in out_vertices[:, :2]:  # none strictly inside the first fan's triangle
+        assert not (cross(b - a, p - a) > 0 and cross(c - b, p - b) > 0 and cross(a - c, p - c) > 0)
+    assert mesh.volume == pytest.approx(20 + 5, rel=1e-12)  # the triangles' areas, 1 high
