@@ -469,10 +469,10 @@ def _split_pinches(
     its faces' mean direction from v: into a grid cell, along its diagonal), so that an ``.stl`` (float32, corners
     merged by position) keeps the sides apart too; a copy whose fan has a wall (``terrace_mask`` False) stays on v,
     its wall's vertical edge vertical, and so does one whose move would turn a face of its fan over or flatten it
-    (in float64 or float32: 2 u is a metre at UTM northings, a 1 m grid's cell) or land in another fan's angle at v. Returns the vertices, the faces and, per vertex, the fan ordinal (0 for every
-    vertex that is not such a copy), to keep the copies apart where rows are keyed by xy, and the vertex each
-    appended copy copies (empty when none was split). ``edges`` are the surface's boundary edges
-    (:func:`boundary_edges`).
+    (in float64 or float32: 2 u is a metre at UTM northings, a 1 m grid's cell) or land in another fan's angle at v.
+    Returns the vertices, the faces and, per vertex, the fan ordinal (0 for every vertex that is not such a copy),
+    to keep the copies apart where rows are keyed by xy, and the vertex each appended copy copies (empty when none
+    was split). ``edges`` are the surface's boundary edges (:func:`boundary_edges`).
     """
     from scipy.sparse import coo_matrix  # a dependency; imported here, not with the package (~0.1 s)
     from scipy.sparse.csgraph import connected_components
