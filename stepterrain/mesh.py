@@ -538,6 +538,12 @@ def _split_pinches(
              & (np.sign(orient(f32(p), f32(a[moved]), f32(b[moved]))) == side[moved]))
     stay = np.zeros(len(copies), bool)
     np.logical_or.at(stay, k, ~keeps)
+    # ... and must land in its own fan's angle at v (a face's closed angle; with the face kept, inside that face): the
+    # signs of a thin TIN fan's mean direction can point out of it, into another face of the surface
+    within = ((orient(o[moved], a[moved], p) * side[moved] >= 0) & (orient(b[moved], o[moved], p) * side[moved] >= 0))
+    own = np.zeros(len(copies), bool)
+    np.logical_or.at(own, k, within)
+    stay |= ~own
     # each copy against every corner at its vertex (the pinch vertices' fans are few and small)
     order = np.argsort(v, kind="stable")
     lo = np.searchsorted(v[order], fans[copies, 0], "left")

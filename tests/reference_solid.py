@@ -250,6 +250,7 @@ def _split_pinches(
             mean = (vertices[faces[fi[corners]], :2].mean(axis=1) - added[k, :2]).sum(axis=0)
             to = added[k, :2] + 2.0 * u * np.sign(mean)
             ok = True  # no face of the fan turned (float64, float32), the new position in no other fan's angle at v
+            own = False  # and in its own fan's (closed) angle at v
             for face, j in zip(fi[corners], ji[corners], strict=True):
                 tri = vertices[faces[face], :2].copy()
                 area = _cross(tri[1] - tri[0], tri[2] - tri[0])
@@ -257,12 +258,14 @@ def _split_pinches(
                 tri32 = tri.astype(np.float32).astype(np.float64)
                 ok &= area != 0 and _cross(tri[1] - tri[0], tri[2] - tri[0]) * area > 0
                 ok &= _cross(tri32[1] - tri32[0], tri32[2] - tri32[0]) * area > 0
+                o, a, b = vertices[faces[face], :2][[j, (j + 1) % 3, (j + 2) % 3]]
+                own |= _cross(a - o, to - o) * area >= 0 and _cross(o - b, to - b) * area >= 0
             for face, j in zip(fi[(v == v[corners][0]) & (which != f)], ji[(v == v[corners][0]) & (which != f)],
                                strict=True):
                 o, a, b = vertices[faces[face], :2][[j, (j + 1) % 3, (j + 2) % 3]]
                 area = _cross(a - o, b - o)
                 ok &= not (_cross(a - o, to - o) * area > 0 and _cross(o - b, to - b) * area > 0)
-            if ok:
+            if ok and own:
                 added[k, :2] = to
     faces = faces.copy()
     faces[fi[moved], ji[moved]] = new_index[which[moved]]
