@@ -310,8 +310,8 @@ def close_solid(
     Where the surface's boundary touches itself at a vertex (two triangles meeting only there, e.g. between
     nodata holes), that vertex is split first: each fan of faces around it gets its own copy, and so does the base
     vertex below it, so every skirt and base edge keeps exactly two faces and the solid stays watertight. A copy
-    (but for the first fan's, one in a fan with a wall, and one whose move would turn a face over or reach another
-    fan, e.g. on a grid of cells under 2 u) moves into its fan by 2 float32 steps u of the largest
+    (but for the first fan's, one in a fan with a wall, and one whose move would turn a face over, leave its own fan
+    or reach another, e.g. on a grid of cells under 2 u) moves into its fan by 2 float32 steps u of the largest
     |x|, |y| in x and y (:func:`_split_pinches`; u = 2^-9 m at 12 km, 0.5 m at UTM northings): an ``.stl``, whose
     readers merge corners by float32 position, then keeps the sides apart and reads back watertight too (on one
     position its vertical skirt edge had four faces). The volume moves by at most 2√2 u times the fan's outline
@@ -469,7 +469,8 @@ def _split_pinches(
     its faces' mean direction from v: into a grid cell, along its diagonal), so that an ``.stl`` (float32, corners
     merged by position) keeps the sides apart too; a copy whose fan has a wall (``terrace_mask`` False) stays on v,
     its wall's vertical edge vertical, and so does one whose move would turn a face of its fan over or flatten it
-    (in float64 or float32: 2 u is a metre at UTM northings, a 1 m grid's cell) or land in another fan's angle at v.
+    (in float64 or float32: 2 u is a metre at UTM northings, a 1 m grid's cell), leave its own fan's angle at v or
+    land in another fan's.
     Returns the vertices, the faces and, per vertex, the fan ordinal (0 for every vertex that is not such a copy),
     to keep the copies apart where rows are keyed by xy, and the vertex each appended copy copies (empty when none
     was split). ``edges`` are the surface's boundary edges (:func:`boundary_edges`).
