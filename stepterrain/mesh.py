@@ -308,9 +308,14 @@ def close_solid(
     it, so no zero-area face appears.
 
     Where the surface's boundary touches itself at a vertex (two triangles meeting only there, e.g. between
-    nodata holes), that vertex is split first: each fan of faces around it gets its own copy (same position),
-    and so does the base vertex below it, so every skirt and base edge keeps exactly two faces and the solid
-    stays watertight (two volumes touching along a vertical segment, as a slicer expects).
+    nodata holes), that vertex is split first: each fan of faces around it gets its own copy, and so does the base
+    vertex below it, so every skirt and base edge keeps exactly two faces and the solid stays watertight. A copy
+    (but for the first fan's, one in a fan with a wall, and one whose move would turn a face over, leave its own fan
+    or reach another, e.g. on a grid of cells under 2 u) moves into its fan by 2 float32 steps u of the largest
+    |x|, |y| in x and y (:func:`_split_pinches`; u = 2^-9 m at 12 km, 0.5 m at UTM northings): an ``.stl``, whose
+    readers merge corners by float32 position, then keeps the sides apart and reads back watertight too (on one
+    position its vertical skirt edge had four faces). The volume moves by at most 2√2 u times the fan's outline
+    times its height above ``floor`` per copy.
 
     Zero-volume fins are removed first: where heights sit exactly on a threshold along a ridge line, two walls
     stand back to back on the same vertices (a terrace of zero width); both go, and so do vertices no face
@@ -378,7 +383,7 @@ def close_solid(
     if floor >= zmin:
         raise InvalidInputError(f"floor must lie below the lowest surface height {zmin}; got {floor}")
     edges = _boundary(flat, len(vertices), device)
-    vertices, faces, fan, copied = _split_pinches(vertices, faces, edges)
+    vertices, faces, fan, copied = _split_pinches(vertices, faces, edges, terrace_mask)
     split = len(copied) > 0
     if split:
         flat = _flat_faces(faces, device)
@@ -445,15 +450,27 @@ def close_solid(
     return out_vertices, out_faces, kept, n_skirts + n_base, source
 
 
+#: How far :func:`_split_pinches` moves a pinch vertex's copy into its own fan, in x and in y: in float32 steps of the
+#: surface's largest |x| or |y| (two: the float32 values of the copy and of the vertex it copies differ, whatever
+#: their rounding).
+PINCH_STEPS = 2.0
+
+
 def _split_pinches(
-    vertices: NDArray[np.float64], faces: NDArray[np.int64], edges: NDArray[np.int64]
+    vertices: NDArray[np.float64], faces: NDArray[np.int64], edges: NDArray[np.int64], terrace_mask: NDArray[np.bool_]
 ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64], NDArray[np.int64]]:
     """Give each fan of faces around a pinch vertex (one the boundary passes through more than once) its own copy.
 
     The corners at a pinch vertex v are joined into fans through the interior edges (v, w) they share: the
     connected components of the graph of corners and edges (scipy's ``connected_components``, linear; the label
     propagation before took one round per face around v, quadratic in a big fan), each labelled by its smallest
-    corner. The fan with the smallest corner keeps v; the others get new vertices at the same position, appended.
+    corner. The fan with the smallest corner keeps v; the others get new vertices, appended, each moved into its
+    own fan by :data:`PINCH_STEPS` float32 steps u of the surface's largest |x| or |y|, in x and in y (the signs of
+    its faces' mean direction from v: into a grid cell, along its diagonal), so that an ``.stl`` (float32, corners
+    merged by position) keeps the sides apart too; a copy whose fan has a wall (``terrace_mask`` False) stays on v,
+    its wall's vertical edge vertical, and so does one whose move would turn a face of its fan over or flatten it
+    (in float64 or float32: 2 u is a metre at UTM northings, a 1 m grid's cell), leave its own fan's angle at v or
+    land in another fan's.
     Returns the vertices, the faces and, per vertex, the fan ordinal (0 for every vertex that is not such a copy),
     to keep the copies apart where rows are keyed by xy, and the vertex each appended copy copies (empty when none
     was split). ``edges`` are the surface's boundary edges (:func:`boundary_edges`).
@@ -492,8 +509,57 @@ def _split_pinches(
     new_index = np.full(len(fans), -1, np.int64)
     new_index[copies] = n + np.arange(len(copies))
     moved = rank[which] > 0
+    # each copy moves into its own fan, PINCH_STEPS float32 steps u of the largest |x|, |y| along x and y (the signs
+    # of the fan's mean direction from v: a grid cell's diagonal): after float32 rounding (.stl, no indices) the copies
+    # lie on distinct positions, and a reader that merges corners by position keeps the sides apart
+    # (a copy in a wall's fan stays: its wall's vertical edge, whose ends share a column, stays vertical)
+    toward = np.zeros((len(copies), 2))
+    centroid = vertices[faces[fi[moved]], :2].mean(axis=1) - vertices[v[moved], :2]  # faces: the input's
+    np.add.at(toward, new_index[which[moved]] - n, centroid)
+    walled = np.zeros(len(copies), bool)
+    walled[new_index[which[moved]][~terrace_mask[fi[moved]]] - n] = True
+    toward[walled] = 0.0
+    u = float(np.spacing(np.float32(np.abs(vertices[:, :2]).max())))
+    added = vertices[fans[copies, 0]]  # a fancy-indexed copy
+    added[:, :2] += PINCH_STEPS * u * np.sign(toward)
+    # the move must keep each face of its fan the way it faces (in float64 and in float32) and must not land in another
+    # fan's angle at v (2 u is a metre at UTM northings: past a 1 m grid's cell, across a sliver terrace by an
+    # isoline; an obtuse TIN fan's mean direction can point into the other fan); where it would, or a face of the fan
+    # has no xy area, the copy stays on v
+    def orient(q: NDArray[np.float64], r: NDArray[np.float64], s: NDArray[np.float64]) -> NDArray[np.float64]:
+        return (r[:, 0] - q[:, 0]) * (s[:, 1] - q[:, 1]) - (r[:, 1] - q[:, 1]) * (s[:, 0] - q[:, 0])
+
+    o = vertices[v, :2]
+    a, b = vertices[faces[fi, (ji + 1) % 3], :2], vertices[faces[fi, (ji + 2) % 3], :2]
+    side = np.sign(orient(o, a, b))  # per corner at a pinch vertex
+    k = new_index[which[moved]] - n
+    p = added[k, :2]
+    f32 = lambda x: x.astype(np.float32).astype(np.float64)  # noqa: E731  (as the .stl has them)
+    keeps = ((side[moved] != 0) & (np.sign(orient(p, a[moved], b[moved])) == side[moved])
+             & (np.sign(orient(f32(p), f32(a[moved]), f32(b[moved]))) == side[moved]))
+    stay = np.zeros(len(copies), bool)
+    np.logical_or.at(stay, k, ~keeps)
+    # ... and must land in its own fan's angle at v (a face's closed angle; with the face kept, inside that face): the
+    # signs of a thin TIN fan's mean direction can point out of it, into another face of the surface
+    within = ((orient(o[moved], a[moved], p) * side[moved] >= 0) & (orient(b[moved], o[moved], p) * side[moved] >= 0))
+    own = np.zeros(len(copies), bool)
+    np.logical_or.at(own, k, within)
+    stay |= ~own
+    # each copy against every corner at its vertex (the pinch vertices' fans are few and small)
+    order = np.argsort(v, kind="stable")
+    lo = np.searchsorted(v[order], fans[copies, 0], "left")
+    count = np.searchsorted(v[order], fans[copies, 0], "right") - lo
+    pair = np.repeat(np.arange(len(copies)), count)
+    corner = order[np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count) + np.repeat(lo, count)]
+    other = which[corner] != copies[pair]
+    pair, corner = pair[other], corner[other]
+    q = added[pair, :2]
+    inside = ((orient(o[corner], a[corner], q) * side[corner] > 0)
+              & (orient(b[corner], o[corner], q) * side[corner] > 0))
+    np.logical_or.at(stay, pair, inside)
+    added[stay, :2] = vertices[fans[copies[stay], 0], :2]
     faces = faces.copy()
     faces[fi[moved], ji[moved]] = new_index[which[moved]]
-    vertices = np.concatenate([vertices, vertices[fans[copies, 0]]])
+    vertices = np.concatenate([vertices, added])
     fan = np.concatenate([fan, rank[copies].astype(np.float64)])
     return vertices, faces, fan, fans[copies, 0]

@@ -1189,7 +1189,9 @@ def stepped(
     :func:`~stepterrain.export.save_mesh` leaves its triangles, of no area, out of the ``.stl``); where τ does not
     fit, one float32 step (``np.nextafter``), and only levels a few float32 steps apart, where the next float32 value
     up is itself a threshold, leave such a height as it is, with a warning that the solid may leak there; where two
-    nodata holes meet at a single node, that node gets one copy per side, so the solid stays watertight there. Each
+    nodata holes meet at a single node, that node gets one copy per side, so the solid stays watertight there (each
+    copy but the first moved 2 float32 steps of the coordinates into its own cell, so that the ``.stl`` is too, unless
+    its side has a wall there or the move would turn a triangle over or leave its side: then it stays). Each
     edge crossing a threshold owns a wall bottom and top vertex, shared by both triangles of the edge, so the mesh is
     crack-free: its boundary lies on the input's boundary, terraces face +z and walls face the lower terrace. Cost:
     O(nodes + edges + output) on the device, two host syncs.

@@ -122,7 +122,7 @@ def close_solid(
     if floor >= zmin:
         raise InvalidInputError(f"floor must lie below the lowest surface height {zmin}; got {floor}")
     edges = boundary_edges(faces)
-    vertices, faces, fan, copied = _split_pinches(vertices, faces, edges)
+    vertices, faces, fan, copied = _split_pinches(vertices, faces, edges, terrace_mask)
     split = len(copied) > 0
     if split:
         edges = boundary_edges(faces)
@@ -196,14 +196,19 @@ def _repeated_rows(rows: NDArray[np.int64]) -> NDArray[np.bool_]:
     return np.bincount(ids)[ids] > 1
 
 
+def _cross(p: NDArray[np.float64], q: NDArray[np.float64]) -> float:
+    return float(p[0] * q[1] - p[1] * q[0])
+
+
 def _split_pinches(
-    vertices: NDArray[np.float64], faces: NDArray[np.int64], edges: NDArray[np.int64]
+    vertices: NDArray[np.float64], faces: NDArray[np.int64], edges: NDArray[np.int64], terrace_mask: NDArray[np.bool_]
 ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64], NDArray[np.int64]]:
     """Give each fan of faces around a pinch vertex (one the boundary passes through more than once) its own copy.
 
     The corners at a pinch vertex v are joined into fans through the interior edges (v, w) they share (label
     propagation: at most one round per face around v). The fan with the smallest corner keeps v; the others get
-    new vertices at the same position, appended. Returns the vertices, the faces and, per vertex, the fan
+    new vertices, appended, each moved 2 float32 steps of the largest |x|, |y| into its fan in x and y (unless the
+    fan has a wall). Returns the vertices, the faces and, per vertex, the fan
     ordinal (0 for every vertex that is not such a copy), to keep the copies apart where rows are keyed by xy,
     and the vertex each appended copy copies (empty when none was split). ``edges`` are the surface's boundary
     edges (:func:`boundary_edges`).
@@ -237,8 +242,33 @@ def _split_pinches(
     new_index = np.full(len(fans), -1, np.int64)
     new_index[copies] = n + np.arange(len(copies))
     moved = rank[which] > 0
+    added = vertices[fans[copies, 0]].copy()
+    u = float(np.spacing(np.float32(np.abs(vertices[:, :2]).max())))
+    for k, f in enumerate(copies):  # each copy into its fan (but one with a wall): 2 u along the signs of its faces'
+        corners = moved & (which == f)  # mean direction from v
+        if terrace_mask[fi[corners]].all():
+            mean = (vertices[faces[fi[corners]], :2].mean(axis=1) - added[k, :2]).sum(axis=0)
+            to = added[k, :2] + 2.0 * u * np.sign(mean)
+            ok = True  # no face of the fan turned (float64, float32), the new position in no other fan's angle at v
+            own = False  # and in its own fan's (closed) angle at v
+            for face, j in zip(fi[corners], ji[corners], strict=True):
+                tri = vertices[faces[face], :2].copy()
+                area = _cross(tri[1] - tri[0], tri[2] - tri[0])
+                tri[j] = to
+                tri32 = tri.astype(np.float32).astype(np.float64)
+                ok &= area != 0 and _cross(tri[1] - tri[0], tri[2] - tri[0]) * area > 0
+                ok &= _cross(tri32[1] - tri32[0], tri32[2] - tri32[0]) * area > 0
+                o, a, b = vertices[faces[face], :2][[j, (j + 1) % 3, (j + 2) % 3]]
+                own |= _cross(a - o, to - o) * area >= 0 and _cross(o - b, to - b) * area >= 0
+            for face, j in zip(fi[(v == v[corners][0]) & (which != f)], ji[(v == v[corners][0]) & (which != f)],
+                               strict=True):
+                o, a, b = vertices[faces[face], :2][[j, (j + 1) % 3, (j + 2) % 3]]
+                area = _cross(a - o, b - o)
+                ok &= not (_cross(a - o, to - o) * area > 0 and _cross(o - b, to - b) * area > 0)
+            if ok and own:
+                added[k, :2] = to
     faces = faces.copy()
     faces[fi[moved], ji[moved]] = new_index[which[moved]]
-    vertices = np.concatenate([vertices, vertices[fans[copies, 0]]])
+    vertices = np.concatenate([vertices, added])
     fan = np.concatenate([fan, rank[copies].astype(np.float64)])
     return vertices, faces, fan, fans[copies, 0]

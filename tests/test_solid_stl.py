@@ -12,7 +12,7 @@ import warnings
 import numpy as np
 import pytest
 import trimesh
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st_
 
 import stepterrain as st
@@ -252,3 +252,226 @@ def test_stl_leaves_out_triangles_with_two_corners_on_one_float32_position(tmp_p
     assert len(back.faces) == 1
     np.testing.assert_array_equal(back.vertices[back.faces[0]], vertices[[0, 1, 2]])
     assert len(mesh.faces) == 5
+
+
+def _pinched(heights: np.ndarray, at: tuple[int, int], size: int = 6) -> np.ndarray:
+    """``heights`` with two nodata blocks whose cells touch at node ``at`` only (diagonally): a pinch there."""
+    r, c = at
+    out = heights.copy()
+    out[r - size:r, c - size:c] = np.nan  # nodes: the cells with a NaN corner are left out, up to node r - 1 + 1
+    out[r + 1:r + 1 + size, c + 1:c + 1 + size] = np.nan
+    return out
+
+
+@pytest.mark.parametrize("gamma", [1.0, 0.5])
+def test_solid_with_nodata_holes_touching_at_a_node_reads_back_watertight_from_stl(crop, gamma, tmp_path):
+    """Two nodata holes whose cells meet at one node (SRTM voids touch diagonally): the indexed solid has a copy of the
+    node per side, but the copies and their skirt columns lay on one position, and the .stl (corners merged by
+    position) had a vertical skirt edge of 4 faces. Each copy now moves a few float32 steps into its own cell."""
+    heights = _pinched(crop.heights, (80, 80))
+    heights[np.random.default_rng(3).random(heights.shape) < 0.03] = np.nan  # random void nodes: more pinches
+    holed = st.Terrain.from_heights(heights, spacing=crop.spacing, origin=crop.origin)
+    values = isovalues(holed.height_range, interval=100.0)
+    mesh = st.stepped(holed, levels=values, gamma=gamma, solid=True)
+    floor = float(mesh.vertices[:, 2].min())
+    surface = st.stepped(stepped_module._off_thresholds(holed, values), levels=values, gamma=gamma)
+    copies = len(mesh.vertices) - len(surface.vertices) - int((mesh.vertices[:, 2] == floor).sum())
+    assert copies > 10
+    _assert_stl_is_the_solid(mesh, tmp_path / "pinched.stl")
+    # the volume is the surface's integral over the domain (signed xy area times mean height above the floor) but
+    # for the copies' moves: each moves its cell's corner by d = 2 u in x and y, which changes the integral by at
+    # most |d| times its fan's outline (under 4 cell sides) times the height above the floor
+    v = np.asarray(surface.vertices)[np.asarray(surface.faces)]
+    area = 0.5 * ((v[:, 1, 0] - v[:, 0, 0]) * (v[:, 2, 1] - v[:, 0, 1])
+                  - (v[:, 2, 0] - v[:, 0, 0]) * (v[:, 1, 1] - v[:, 0, 1]))
+    integral = float((area * (v[:, :, 2].mean(axis=1) - floor)).sum())
+    u = float(np.spacing(np.float32(np.abs(mesh.vertices[:, :2]).max())))
+    bound = copies * 2 * np.sqrt(2) * u * 4 * max(crop.spacing) * (float(mesh.vertices[:, 2].max()) - floor)
+    assert abs(mesh.volume - integral) <= bound
+    assert bound < 1e-3 * mesh.volume  # UTM coordinates: u = 0.5 m, the moves ~1 m; near the origin far less
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    rows=st_.integers(4, 10),
+    cols=st_.integers(4, 10),
+    seed=st_.integers(0, 2**32 - 1),
+    gamma=st_.sampled_from([1.0, 0.5]),
+    far=st_.sampled_from([(0.0, 0.0), (12345.0, 23456.0)]),
+)
+def test_small_grids_with_random_nodata_read_back_watertight_from_stl(rows, cols, seed, gamma, far,
+                                                                      tmp_path_factory):
+    """Small integer grids with random nodata nodes (pinches wherever two void regions touch at a node), near the
+    origin and away from it: the indexed solid and its .stl are watertight and consistently wound."""
+    rng = np.random.default_rng(seed)
+    heights = rng.integers(0, 9, size=(rows, cols)).astype(np.float32)
+    heights[rng.random((rows, cols)) < 0.2] = np.nan
+    t = st.Terrain.from_heights(heights, spacing=(1.0, 1.0), origin=far)
+    if not len(st.stepped(t, interval=2.0).faces):
+        return
+    mesh = st.stepped(t, interval=2.0, gamma=gamma, solid=True)
+    _assert_stl_is_the_solid(mesh, tmp_path_factory.mktemp("stl") / "holed.stl")
+
+
+def test_solid_tiles_share_their_edge_walls_where_holes_touch_on_the_edge(crop, tmp_path):
+    """Nodata holes touching at a node on the edge two tiles share (a pinch of the raster, none of either tile: each
+    has one or two cells there) and inside a tile: the tiles' edge vertices are the same, each tile's .stl is
+    watertight and the whole raster's solid has the edge's vertices too."""
+    from stepterrain.batch import batch
+
+    heights = _pinched(_pinched(crop.heights[:129, :129], (40, 64)), (100, 30))
+    values = isovalues(crop.height_range, interval=100.0)
+    raster = st.Terrain.from_heights(heights, spacing=crop.spacing, origin=crop.origin)
+    batch(raster, tmp_path, tile_size=64, levels=values, solid=True, format=".ply", scheduler="serial")
+    tiles = {(r, c): trimesh.load(tmp_path / f"tile_r{r}_c{c}.ply", process=False) for r in (0, 1) for c in (0, 1)}
+    floor = min(float(m.vertices[:, 2].min()) for m in tiles.values())
+    x_edge = float(tiles[0, 1].vertices[:, 0].min())
+
+    y_pinch = crop.origin[1] + 40 * crop.spacing[1]
+
+    def on_edge(mesh: trimesh.Trimesh, away: bool = False) -> set[tuple[float, ...]]:
+        v = np.asarray(mesh.vertices)  # away: from the holes' rows (a hole beside the edge in one tile only)
+        near = np.abs(v[:, 1] - y_pinch) <= 8 * abs(crop.spacing[1])
+        return {tuple(p) for p in v[(v[:, 0] == x_edge) & (v[:, 2] > floor) & ~(away & near)]}
+
+    for (r, c), tile in tiles.items():
+        _assert_stl_is_the_solid(tile, tmp_path / f"tile_{r}_{c}.stl")
+    assert len(on_edge(tiles[0, 0], True)) > 40 and on_edge(tiles[0, 0], True) == on_edge(tiles[0, 1], True)
+    assert on_edge(tiles[1, 0]) == on_edge(tiles[1, 1])
+    whole = st.stepped(raster, levels=values, solid=True)
+    _assert_stl_is_the_solid(whole, tmp_path / "whole.stl")
+    assert on_edge(tiles[0, 0]) <= {tuple(p) for p in np.asarray(whole.vertices)}
+
+
+def _xy_areas(mesh: trimesh.Trimesh) -> np.ndarray:
+    v = np.asarray(mesh.vertices)[np.asarray(mesh.faces)]
+    return ((v[:, 1, 0] - v[:, 0, 0]) * (v[:, 2, 1] - v[:, 0, 1])
+            - (v[:, 2, 0] - v[:, 0, 0]) * (v[:, 1, 1] - v[:, 0, 1]))
+
+
+@pytest.mark.parametrize("spacing", [1.0, 0.5])
+def test_pinch_copy_does_not_leave_its_cell_on_a_fine_grid_at_utm_coordinates(spacing):
+    """A 1 m (LiDAR) grid at UTM northings: 2 float32 steps are 1 m there, and the copy moved onto the far corner of
+    its cell (a triangle of no area, half the volume) or past it (0.5 m: the triangle turned over, no volume). A move
+    that would turn or flatten a face of its fan is not made: the copy stays on the node, as before."""
+    nan = np.nan
+    bowtie = np.array([[0.25, 0.25, nan], [nan, 0.25, nan], [nan, 0.25, 0.25]])
+    t = st.Terrain.from_heights(bowtie, spacing=(spacing, spacing), origin=(500000.0, 5000000.0))
+    surface = st.stepped(t, interval=1.0)
+    mesh = st.stepped(t, interval=1.0, solid=True, floor=-1.0)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    assert mesh.volume == pytest.approx(spacing**2, rel=1e-9)  # two right triangles of side s, terraces 1 high
+    top = np.asarray(mesh.vertices)[:, 2] > -1.0
+    up = top[np.asarray(mesh.faces)].all(axis=1)
+    assert (np.sign(_xy_areas(mesh)[up]) == np.sign(_xy_areas(surface)[0])).all()
+
+
+def test_pinch_copy_of_a_tin_fan_stays_out_of_the_other_fan():
+    """A TIN whose thin fan lies between 0° and -5.7° of the pinch vertex: its faces' mean direction has signs (+, -),
+    the -45° diagonal, which runs into the other fan (between -38.7° and -50.2°): the copy landed inside the other
+    fan's triangle (the solid intersected itself). Such a copy stays on the vertex."""
+    from stepterrain.mesh import close_solid
+
+    vertices = np.array([[0, 0, 1], [10, -12, 1], [10, -8, 1], [10, -1, 1], [10, 0, 1]], np.float64)
+    faces = np.array([[0, 1, 2], [0, 3, 4]])  # both counter-clockwise; the first fan keeps vertex 0
+    out_vertices, out_faces, _, _, _ = close_solid(vertices, faces, np.ones(2, bool), floor=0.0)
+    mesh = trimesh.Trimesh(out_vertices, out_faces, process=False)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    a, b, c = vertices[faces[0], :2]
+
+    def cross(q: np.ndarray, r: np.ndarray) -> float:
+        return float(q[0] * r[1] - q[1] * r[0])
+
+    for p in out_vertices[:, :2]:  # none strictly inside the first fan's triangle
+        assert not (cross(b - a, p - a) > 0 and cross(c - b, p - b) > 0 and cross(a - c, p - c) > 0)
+    assert mesh.volume == pytest.approx(20 + 5, rel=1e-12)  # the triangles' areas, 1 high
+
+
+def _xy2(v: np.ndarray) -> np.ndarray:
+    """Twice the signed xy areas of triangles ``v`` (n, 3, >= 2)."""
+    return ((v[:, 1, 0] - v[:, 0, 0]) * (v[:, 2, 1] - v[:, 0, 1])
+            - (v[:, 2, 0] - v[:, 0, 0]) * (v[:, 1, 1] - v[:, 0, 1]))
+
+
+@settings(max_examples=30, deadline=None)
+@example(rows=8, cols=8, seed=8, spacing=0.5, origin=(5e5, 5e6), gamma=1.0, tin=True)  # into another face: see below
+@example(rows=7, cols=4, seed=4, spacing=0.5, origin=(0.0, 0.0), gamma=1.0, tin=True)
+@given(
+    rows=st_.integers(4, 9),
+    cols=st_.integers(4, 9),
+    seed=st_.integers(0, 2**32 - 1),
+    spacing=st_.one_of(st_.sampled_from([0.5, 1.0]), st_.floats(0.5, 30.0)),  # 2 u is 1 m at UTM northings
+    origin=st_.sampled_from([(0.0, 0.0), (5e5, 5e6)]),
+    gamma=st_.sampled_from([1.0, 0.5, 0.0]),
+    tin=st_.booleans(),
+)
+def test_moved_pinch_copies_keep_their_faces_and_stay_out_of_others(rows, cols, seed, spacing, origin, gamma, tin,
+                                                                     tmp_path_factory):
+    """Random small grids and TINs (jittered nodes, Delaunay) with random nodata, spacings 0.5 to 30 m, near the origin
+    and at UTM coordinates: every terrace face of the solid faces up in float64 and float32 (a moved copy turned
+    none over or flat), no moved copy lies inside another terrace face's xy triangle, the solid is watertight and
+    consistently wound, and where every copy moved its .stl reads back watertight. The examples: a thin TIN fan whose
+    faces' mean direction has signs pointing out of it, past the other fans, into a face not at the node (UTM: 2 u is
+    1 m); the copy moved there (the solid intersected itself). A copy now moves only into its own fan's angle."""
+    from scipy.spatial import Delaunay
+
+    rng = np.random.default_rng(seed)
+    heights = rng.integers(0, 9, size=(rows, cols)).astype(np.float64)
+    heights[rng.random((rows, cols)) < 0.25] = np.nan
+    if tin:
+        yy, xx = np.mgrid[0:rows, 0:cols].astype(np.float64)
+        xy = np.column_stack([xx.ravel(), yy.ravel()]) + rng.uniform(-0.3, 0.3, (rows * cols, 2))
+        points = np.column_stack([origin[0] + spacing * xy[:, 0], origin[1] + spacing * xy[:, 1], heights.ravel()])
+        faces = Delaunay(xy).simplices
+        faces = faces[np.isfinite(heights.ravel()[faces]).all(axis=1)]
+        if not len(faces):
+            return
+        try:
+            terrain = st.Terrain.from_mesh(trimesh.Trimesh(points, faces, process=False))
+        except st.errors.StepTerrainError:
+            return
+    else:
+        terrain = st.Terrain.from_heights(heights.astype(np.float32), spacing=(spacing, spacing), origin=origin)
+    from unittest import mock
+
+    import stepterrain.mesh as mesh_module
+
+    split = mesh_module._split_pinches
+    seen = []
+
+    def recording(*args):  # the copies _split_pinches appends, and the nodes they copy
+        out = split(*args)
+        seen.append((out[0][len(args[0]):], out[0][out[3]]))
+        return out
+
+    with warnings.catch_warnings(), mock.patch.object(mesh_module, "_split_pinches", recording):
+        warnings.simplefilter("ignore")
+        if not len(st.stepped(terrain, interval=2.0, gamma=gamma).faces):
+            return
+        mesh = st.stepped(terrain, interval=2.0, gamma=gamma, solid=True)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    floor = float(vertices[:, 2].min())
+    top = (vertices[faces, 2] > floor).all(axis=1)
+    terraces = faces[top][_xy2(vertices[faces[top]]) > 0]
+    added, nodes = seen[-1]
+    shifted = (added[:, :2] != nodes[:, :2]).any(axis=1)
+    up = np.flatnonzero(vertices[:, 2] > floor)
+    moved = up[(vertices[up, None, :] == added[None, shifted]).all(axis=2).any(axis=1)]
+    assert len(moved) >= shifted.sum()
+    fan = faces[top][np.isin(faces[top], moved).any(axis=1)]  # the moved copies' faces, but walls (vertical edges)
+    xy = vertices[fan, :2]
+    fan = fan[~((xy[:, 0] == xy[:, 1]).all(axis=1) | (xy[:, 1] == xy[:, 2]).all(axis=1)
+                | (xy[:, 2] == xy[:, 0]).all(axis=1))]
+    assert (_xy2(vertices[fan]) > 0).all() and (_xy2(vertices.astype(np.float32).astype(np.float64)[fan]) > 0).all()
+    for m in moved:
+        p = vertices[m, :2]
+        others = terraces[~(terraces == m).any(axis=1)]
+        t = vertices[others, :2]
+        inside = ((_xy2(np.stack([t[:, 0], t[:, 1], np.broadcast_to(p, t[:, 0].shape)], axis=1)) > 0)
+                  & (_xy2(np.stack([t[:, 1], t[:, 2], np.broadcast_to(p, t[:, 0].shape)], axis=1)) > 0)
+                  & (_xy2(np.stack([t[:, 2], t[:, 0], np.broadcast_to(p, t[:, 0].shape)], axis=1)) > 0))
+        assert not inside.any(), (m, p)
+    if shifted.all() and _coincident(mesh) == 0:  # (UTM: wall vertices 0.5 m apart may share a float32 position)
+        back = _stl_round_trip(mesh, tmp_path_factory.mktemp("stl") / "solid.stl")
+        assert back.is_watertight and back.is_winding_consistent
