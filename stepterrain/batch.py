@@ -1072,12 +1072,13 @@ def _degree_frames(items: Sequence[BatchItem]) -> tuple[tuple[str, _Frame], ...]
 def _in_frame(terrain: Terrain, frame: _Frame) -> Terrain:
     """``terrain`` (a file in degrees as :func:`_item_terrain` read it: load_dem's own local metres, perhaps coarsened)
     moved into its folder's shared frame: its nodes where ``frame`` puts the file's, the mosaic's CRS; an
-    unchanged file's spacing and origin exactly the frame's."""
+    unchanged file's spacing and origin exactly the frame's. The heights are borrowed, not copied: the read terrain
+    is dropped for this one (a 3601² SRTM tile held twice was 52 MB more)."""
     (ox, oy), (kx, ky) = terrain.origin, frame.own
     spacing = (frame.spacing[0] * (terrain.spacing[0] / kx), frame.spacing[1] * (terrain.spacing[1] / ky))
     origin = (frame.origin[0] + frame.spacing[0] * (ox / kx), frame.origin[1] + frame.spacing[1] * (oy / ky))
     return Terrain.from_heights(terrain.heights, spacing=spacing, origin=origin, crs=frame.crs, source=frame.source,
-                                height_unit=terrain.height_unit, _placed=True)  # fmt: skip
+                                height_unit=terrain.height_unit, _placed=True, _borrow=True)  # fmt: skip
 
 
 def _warn_own_local_metres(terrain: Terrain, coarsen: int | None = None) -> None:
