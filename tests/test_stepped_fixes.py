@@ -1032,3 +1032,51 @@ def test_a_lens_far_beyond_float32_but_narrow_is_sampled_at_its_edge_not_refused
     np.testing.assert_array_equal(st.stepped(heights, interval=2.0, gamma=lens).vertices, expected)
     (frame,) = st.stepped_series(heights[None], interval=2.0, gamma=lens)
     np.testing.assert_array_equal(frame.vertices, expected)
+
+
+@pytest.mark.parametrize("case", ["lone pixel", "unreferenced point", "welded copy"])
+def test_per_node_gamma_may_be_nan_where_no_vertex_reads_it(case):
+    """A per-node γ NaN was taken only where the height is nodata ("it gives no vertex"), but a grid node with a height
+    whose every triangle touches nodata (a lone pixel in a void of a real DEM), a TIN point on no face (left by
+    ``mesh.update_faces``, as the refusal of degenerate faces suggests) and a point welded into an earlier copy (a
+    triangle soup: γ "is read at the first of such points") give no vertex either: NaN there was refused ("got nan at
+    index"), naming a node the mesh does not hold. A γ raster whose nodata covers the void, lone pixel included, is
+    such a γ. Now NaN at any node no vertex reads is taken; the mesh is the one any value there gives."""
+    heights = st.sample_dem().heights[:40, :50].astype(np.float64)
+    gamma = np.clip((heights - heights.min()) / np.ptp(heights), 0.0, 1.0)
+    if case == "lone pixel":
+        heights[10:20, 10:20] = np.nan
+        heights[15, 15] = 1000.0  # a lone pixel in the void: a height, on no triangle
+        gamma[10:20, 10:20] = np.nan  # the γ raster's own nodata: the void as drawn
+        terrain = heights
+        unread = (15, 15)
+    else:
+        mesh = st.heightfield_mesh(heights)
+        gamma = gamma.reshape(-1)
+        if case == "unreferenced point":
+            unread = 7 * 50 + 9  # the faces around node (7, 9) dropped: its point stays, on no face
+            mesh = trimesh.Trimesh(mesh.vertices, mesh.faces[~(mesh.faces == unread).any(axis=1)], process=False)
+        else:  # a soup: one point per corner, welded where x, y and z coincide
+            corners = mesh.faces.reshape(-1)
+            mesh = trimesh.Trimesh(mesh.vertices[corners], np.arange(len(corners)).reshape(-1, 3), process=False)
+            gamma = gamma[corners]
+            unread = int(np.flatnonzero(corners == corners[-1])[-1])
+            assert unread != int(np.flatnonzero(corners == corners[-1])[0])  # a later copy of a point
+        terrain = mesh
+        gamma[unread] = np.nan
+    filled = st.stepped(terrain, interval=50.0, gamma=np.where(np.isnan(gamma), 0.25, gamma))
+    other = st.stepped(terrain, interval=50.0, gamma=np.where(np.isnan(gamma), 0.75, gamma))
+    np.testing.assert_array_equal(filled.vertices, other.vertices)  # the value there is read by no vertex
+    mesh = st.stepped(terrain, interval=50.0, gamma=gamma)
+    np.testing.assert_array_equal(mesh.vertices, filled.vertices)
+    np.testing.assert_array_equal(mesh.faces, filled.faces)
+    (frame,) = st.stepped_series([terrain], interval=50.0, gamma=gamma)
+    np.testing.assert_array_equal(frame.vertices, filled.vertices)
+    if case == "lone pixel":  # a stack too
+        (frame,) = st.stepped_series(heights[None], interval=50.0, gamma=gamma)
+        np.testing.assert_array_equal(frame.vertices, filled.vertices)
+    # NaN at a node the surface uses is still refused, with its index
+    gamma[(0,) * gamma.ndim] = np.nan
+    at = "0," if gamma.ndim == 1 else "0, 0"
+    with pytest.raises(st.InvalidInputError, match=rf"^gamma must lie in \[0, 1\] .*; got nan at index \({at}\)$"):
+        st.stepped(terrain, interval=50.0, gamma=gamma)
