@@ -261,10 +261,21 @@ def nice_interval(height_range: tuple[float, float], target: int = TARGET_STEPS)
     0.05
     >>> nice_interval((1e7, 1e7 + 3.0))
     10.0
+
+    A flat range (min == max) gives 1.0. A ``height_range`` that is not finite (min, max) with min <= max, or a
+    ``target`` that is not a positive number, is an :class:`InvalidInputError`.
     """
-    lo, hi = height_range
+    if isinstance(target, (bool, np.bool_)):  # True was taken as 1 step
+        raise InvalidInputError(f"target must be a positive number of steps; got {target!r}")
+    target = finite_number(target, "target", positive=True)
+    try:
+        lo, hi = (as_number(v) for v in height_range)
+    except (TypeError, ValueError):  # text, bools, one or three values
+        raise InvalidInputError(f"height_range must be (min, max) heights; got {height_range!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+        raise InvalidInputError(f"height_range must be finite (min, max) with min <= max; got {height_range!r}")
     span = hi - lo
-    if not math.isfinite(span) or span <= 0:
+    if not math.isfinite(span) or span <= 0:  # flat, or beyond float64 (-1e308, 1e308)
         return 1.0
     exponent = math.floor(math.log10(span / target))
     candidates = [m * 10.0**e for e in (exponent - 1, exponent, exponent + 1) for m in (1.0, 2.0, 2.5, 5.0)]

@@ -1080,3 +1080,23 @@ def test_per_node_gamma_may_be_nan_where_no_vertex_reads_it(case):
     at = "0," if gamma.ndim == 1 else "0, 0"
     with pytest.raises(st.InvalidInputError, match=rf"^gamma must lie in \[0, 1\] .*; got nan at index \({at}\)$"):
         st.stepped(terrain, interval=50.0, gamma=gamma)
+
+
+def test_nice_interval_refuses_a_bad_target_or_height_range_by_name():
+    """nice_interval (public in stepterrain.stepped, the CLI's and batch's default interval) divided by ``target``
+    unchecked: target=0 raised a bare ZeroDivisionError and target=-1 "math domain error" from math.log10, naming no
+    argument; a reversed, NaN or infinite height range returned 1.0 without a word (an interval of 1 for heights it
+    never looked at). Both are refused now as isovalues() refuses such a range; a flat range (min == max) still
+    gives 1.0, and the CLI's ranges (finite, min <= max) are unchanged."""
+    from stepterrain.stepped import nice_interval
+
+    for target in (0, -1, np.nan, True, "15"):
+        with pytest.raises(st.InvalidInputError, match=r"^target must be"):
+            nice_interval((0.0, 100.0), target)
+    for height_range in ((10.0, 0.0), (np.nan, 1.0), (0.0, np.inf), (1.0,), "ab"):
+        with pytest.raises(st.InvalidInputError, match=r"^height_range must be"):
+            nice_interval(height_range)
+    assert nice_interval((5.0, 5.0)) == 1.0
+    assert nice_interval((315.0, 2295.0)) == 100.0 and nice_interval((0.0, 100.0), 1.5) == 50.0
+    heights = st.sample_dem().height_range
+    assert len(st.isovalues(heights, interval=nice_interval(heights))) in range(10, 25)
