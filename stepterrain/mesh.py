@@ -81,28 +81,6 @@ def exact_keys(xy: NDArray[np.float64]) -> NDArray[np.int64]:
     return ids
 
 
-def _face_indices(faces: Any) -> NDArray[np.int64]:
-    """``faces`` as int64 vertex indices: integers as they are, floats where each is a whole number (faces read back
-    from a CSV); other floats and bools are refused. ``np.asarray(faces, dtype=np.int64)`` truncated 2.7 to vertex 2
-    (a face on another vertex, silently) and made NaN -2^63, refused as an index of "-9223372036854775808"."""
-    array = np.asarray(faces)
-    if array.dtype.kind == "O":  # numbers as Python objects: read as floats, checked as floats
-        try:
-            array = array.astype(np.float64)
-        except (TypeError, ValueError):
-            raise InvalidInputError("faces must hold vertex indices (integers); got objects that are no numbers") \
-                from None
-    if array.dtype.kind == "f":
-        whole = np.isfinite(array) & (array == np.trunc(array))
-        if not whole.all():
-            at = tuple(int(k) for k in np.argwhere(~whole)[0])
-            raise InvalidInputError(f"faces must hold whole vertex indices; got {float(array[at])} at {at}")
-        return array.astype(np.int64)
-    if array.size and array.dtype.kind not in "iu":
-        raise InvalidInputError(f"faces must hold vertex indices (integers); got dtype {array.dtype}")
-    return np.asarray(array, dtype=np.int64)
-
-
 def _device_of(device: wp.DeviceLike) -> wp.Device:
     """Where the kernels run: ``device`` (a DeviceError naming the devices there are otherwise), the CPU for None."""
     init_warp()
@@ -220,7 +198,7 @@ def boundary_edges(faces: NDArray[np.int64], device: wp.DeviceLike = None) -> ND
     An edge is on the boundary when exactly one half-edge of the mesh has its undirected key; the kernels count
     those among the corners at one of its ends (kernels/solid.py: a vertex -> corner table built without a sort,
     then count -> scan -> emit over the faces). ``device``: where the kernels run (the CPU by default)."""
-    faces = _face_indices(faces)
+    faces = np.asarray(faces, dtype=np.int64)
     if faces.ndim != 2 or faces.shape[1] != 3:  # the kernels read the faces as flat rows of three
         raise InvalidInputError(f"faces must be an (F, 3) array of vertex indices; got shape {faces.shape}")
     if len(faces) == 0:
@@ -354,7 +332,7 @@ def close_solid(
     of each column's smallest surface vertex.
     """
     vertices = np.asarray(vertices, dtype=np.float64)
-    faces = _face_indices(faces)
+    faces = np.asarray(faces, dtype=np.int64)
     if faces.ndim != 2 or faces.shape[1] != 3:
         raise InvalidInputError(f"faces must be an (F, 3) array of vertex indices; got shape {faces.shape}")
     if vertices.ndim != 2 or vertices.shape[1] != 3:  # the kernels read them as flat rows of three

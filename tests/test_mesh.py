@@ -106,31 +106,3 @@ def test_exact_keys_group_bit_identical_rows(xy):
 def test_repeated_rows_equal_the_unique_reference(rows):
     _, inverse, counts = np.unique(rows, axis=0, return_inverse=True, return_counts=True)
     np.testing.assert_array_equal(_repeated_rows(rows), counts[inverse.reshape(-1)] > 1)
-
-
-def test_faces_that_are_no_whole_numbers_are_refused_not_truncated():
-    """boundary_edges and close_solid read ``faces`` with np.asarray(faces, dtype=np.int64): float faces of 2.7 were
-    truncated to vertex 2 (another vertex's face, silently: a boundary or a solid of a mesh not given), and NaN became
-    -2^63, refused as "got -9223372036854775808" (or "got indices -9223372036854775808 .. 29"), naming no NaN. Whole
-    floats (faces read back from a CSV) are vertex indices as before; bools are refused."""
-    import stepterrain as st
-    from stepterrain.errors import InvalidInputError
-    from stepterrain.mesh import close_solid
-
-    grid = st.heightfield_mesh(np.random.default_rng(0).random((5, 6)))
-    faces = np.asarray(grid.faces, dtype=np.int64)
-    terraces = np.ones(len(faces), bool)
-    as_floats = faces.astype(np.float64)
-    np.testing.assert_array_equal(boundary_edges(as_floats), boundary_edges(faces))
-    for got, want in zip(close_solid(grid.vertices, as_floats, terraces, -1.0),
-                         close_solid(grid.vertices, faces, terraces, -1.0), strict=True):
-        np.testing.assert_array_equal(got, want)
-    for bad, shown in ((2.7, r"2\.7"), (np.nan, "nan"), (np.inf, "inf")):
-        wrong = as_floats.copy()
-        wrong[3, 1] = bad
-        with pytest.raises(InvalidInputError, match=rf"^faces must hold whole vertex indices; got {shown} at \(3, 1\)"):
-            boundary_edges(wrong)
-        with pytest.raises(InvalidInputError, match=rf"^faces must hold whole vertex indices; got {shown} at \(3, 1\)"):
-            close_solid(grid.vertices, wrong, terraces, -1.0)
-    with pytest.raises(InvalidInputError, match=r"^faces must hold vertex indices \(integers\); got dtype bool"):
-        boundary_edges(faces > 3)
