@@ -1100,3 +1100,68 @@ def test_nice_interval_refuses_a_bad_target_or_height_range_by_name():
     assert nice_interval((315.0, 2295.0)) == 100.0 and nice_interval((0.0, 100.0), 1.5) == 50.0
     heights = st.sample_dem().height_range
     assert len(st.isovalues(heights, interval=nice_interval(heights))) in range(10, 25)
+
+
+def _nodes_on_finite_triangles(heights: np.ndarray) -> np.ndarray:
+    """Reference for the nodes a stepped grid mesh holds: those of a triangle (n00, n01, n11) or (n00, n11, n10)
+    with three finite heights, cell by cell."""
+    rows, cols = heights.shape
+    used = np.zeros(heights.shape, dtype=bool)
+    for r in range(rows - 1):
+        for c in range(cols - 1):
+            for tri in (((r, c), (r, c + 1), (r + 1, c + 1)), ((r, c), (r + 1, c + 1), (r + 1, c))):
+                if all(np.isfinite(heights[n]) for n in tri):
+                    for n in tri:
+                        used[n] = True
+    return used
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st_.integers(0, 2**31 - 1), kind=st_.sampled_from(["grid", "tin", "solid", "series"]))
+def test_per_node_gamma_nan_is_taken_exactly_where_no_vertex_reads_it(seed, kind):
+    """Property of the per-node γ NaN rule: on random grids with voids (lone pixels included), NaN at every node the
+    mesh does not hold (reference: the nodes of a triangle with three finite heights, cell by cell) gives the mesh
+    any value there gives, with no NaN vertex (grid, TIN with NaN z, solid, a two-frame stack whose frames void
+    different nodes); NaN at one node the mesh holds is refused naming that node (in a stack, the frame)."""
+    rng = np.random.default_rng(seed)
+    rows, cols = int(rng.integers(3, 9)), int(rng.integers(3, 9))
+    heights = rng.uniform(0.0, 10.0, (rows, cols))
+    heights[rng.random((rows, cols)) < rng.uniform(0.1, 0.5)] = np.nan
+    frames = [heights]
+    if kind == "series":
+        other = rng.uniform(0.0, 10.0, (rows, cols))
+        other[rng.random((rows, cols)) < rng.uniform(0.1, 0.5)] = np.nan
+        frames.append(other)
+    used = [_nodes_on_finite_triangles(h) for h in frames]
+    if not all(u.any() for u in used):
+        return  # a frame with no triangle: refused whatever γ is
+    unused = ~np.logical_or.reduce(used)
+    gamma = rng.uniform(0.0, 1.0, (rows, cols))
+    gamma[unused] = np.nan
+
+    def run(g):
+        if kind == "series":
+            return [m.vertices for m in st.stepped_series(np.stack(frames), interval=2.0, gamma=g)]
+        if kind == "tin":
+            mesh = st.heightfield_mesh(np.nan_to_num(heights))
+            mesh.vertices[:, 2] = heights.reshape(-1)
+            return [st.stepped(mesh, interval=2.0, gamma=g.reshape(-1)).vertices]
+        return [st.stepped(heights, interval=2.0, gamma=g, solid=kind == "solid").vertices]
+
+    low, high, got = run(np.where(unused, 0.25, gamma)), run(np.where(unused, 0.75, gamma)), run(gamma)
+    for a, b, c in zip(low, high, got, strict=True):
+        assert np.isfinite(c).all()
+        np.testing.assert_array_equal(a, b)  # no vertex reads those nodes
+        np.testing.assert_array_equal(c, a)
+    k = int(rng.integers(len(frames)))
+    at = tuple(int(i) for i in np.argwhere(used[k] & ~used[0])[0]) if k and (used[k] & ~used[0]).any() else None
+    if at is None:
+        k = 0
+        candidates = np.argwhere(used[0])
+        at = tuple(int(i) for i in candidates[rng.integers(len(candidates))])
+    gamma[at] = np.nan
+    index = f"{at[0] * cols + at[1]}," if kind == "tin" else f"{at[0]}, {at[1]}"
+    prefix = rf"frames\[{k}\]: " if k else ""
+    with pytest.raises(st.InvalidInputError, match=rf"^{prefix}gamma must lie in \[0, 1\] .*; got nan at index "
+                                                   rf"\({index}\)$"):
+        run(gamma)
