@@ -1031,6 +1031,59 @@ def add_layers(
                              wp.clamp(s[3], 0.0, 1.0))
 
 
+@wp.func
+def neumaier_step(s: wp.float64, c: wp.float64, t: wp.float64) -> wp.vec2d:
+    """(s + t, c + the rounding error of s + t): one step of Neumaier's compensated sum (the error is exact)."""
+    n = s + t
+    e = (t - n) + s
+    if wp.abs(s) >= wp.abs(t):
+        e = (s - n) + t
+    return wp.vec2d(n, c + e)
+
+
+@wp.kernel
+def add_layer_wide(
+    thread_offset: wp.int32,
+    total: wp.array2d[wp.vec4d],
+    error: wp.array2d[wp.vec4d],
+    b: wp.array2d[wp.vec4],
+    weight_b: wp.float64,
+    # outputs
+    total_out: wp.array2d[wp.vec4d],
+    error_out: wp.array2d[wp.vec4d],
+):
+    """One thread per pixel: total + weight_b b in float64, compensated (Neumaier), for a weighted addition whose
+    float32 partial sums could overflow: a float32 weight times a channel in [0, 1] is exact in float64, n such
+    terms stay far below its range, and ``error`` keeps what each addition rounded off, so terms that cancel
+    exactly (3e38 and −3e38 times one layer) leave the small ones in any order. The outputs may be the inputs."""
+    i, j = pixel_of(wp.tid() + thread_offset, b.shape[1])
+    v = b[i, j]
+    s = total[i, j]
+    c = error[i, j]
+    r = neumaier_step(s[0], c[0], wp.float64(v[0]) * weight_b)
+    g = neumaier_step(s[1], c[1], wp.float64(v[1]) * weight_b)
+    u = neumaier_step(s[2], c[2], wp.float64(v[2]) * weight_b)
+    a = neumaier_step(s[3], c[3], wp.float64(v[3]) * weight_b)
+    total_out[i, j] = wp.vec4d(r[0], g[0], u[0], a[0])
+    error_out[i, j] = wp.vec4d(r[1], g[1], u[1], a[1])
+
+
+@wp.kernel
+def clamp_wide(
+    thread_offset: wp.int32,
+    total: wp.array2d[wp.vec4d],
+    error: wp.array2d[wp.vec4d],
+    # outputs
+    rgba_out: wp.array2d[wp.vec4],
+):
+    """One thread per pixel: the compensated sum of :func:`add_layer_wide` (total + error) rounded to float32,
+    each channel clamped to [0, 1]."""
+    i, j = pixel_of(wp.tid() + thread_offset, total.shape[1])
+    s = total[i, j] + error[i, j]
+    rgba_out[i, j] = wp.vec4(wp.clamp(wp.float32(s[0]), 0.0, 1.0), wp.clamp(wp.float32(s[1]), 0.0, 1.0),
+                             wp.clamp(wp.float32(s[2]), 0.0, 1.0), wp.clamp(wp.float32(s[3]), 0.0, 1.0))
+
+
 @wp.kernel
 def interpolate_layers(
     thread_offset: wp.int32,

@@ -1523,7 +1523,10 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
 
     Every channel, alpha too, is added straight (not premultiplied), so the colour of a transparent pixel counts
     as much as an opaque one's; :meth:`TextureAnimation.frame` interpolates its keys premultiplied instead. The
-    weights are any finite numbers within float32's range (the kernel's), one per layer.
+    weights are any finite numbers within float32's range (the kernel's), one per layer. The sum runs in float32;
+    where its partial sums could overflow (the weights' magnitudes add up past half float32's top) it runs in
+    float64, compensated, so huge weights that cancel exactly (3e38 and −3e38 on one layer) leave the other
+    terms, in any order.
 
     Examples
     --------
@@ -1555,6 +1558,18 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
         out = wp.empty(shape, dtype=wp.vec4, device=dev)
         launch(texture_kernels.add_layers, dim=shape[0] * shape[1], inputs=[total, zero, checked[0], 0.0, 1],
                outputs=[out], device=dev)
+        return _finish(out, first, "add")
+    if math.fsum(abs(w) for w in checked) > FLOAT32_MAX / 2:
+        # float32 partial sums could overflow: 3e38 + 3e38 − 3e38 − 3e38 became inf − 3e38 = inf, clamped to 1 (in
+        # another order 0); in float64 every product is exact, no partial sum overflows, and the compensation keeps
+        # a small term added before huge ones that cancel
+        wide, error = wp.zeros(shape, dtype=wp.vec4d, device=dev), wp.zeros(shape, dtype=wp.vec4d, device=dev)
+        for k in range(len(checked)):
+            sampled = total if k == 0 else _sampled(others[k - 1], extent, shape, dev, f"layers[{k}]")
+            launch(texture_kernels.add_layer_wide, dim=shape[0] * shape[1],
+                   inputs=[wide, error, sampled, checked[k]], outputs=[wide, error], device=dev)
+        out = wp.empty(shape, dtype=wp.vec4, device=dev)
+        launch(texture_kernels.clamp_wide, dim=shape[0] * shape[1], inputs=[wide, error], outputs=[out], device=dev)
         return _finish(out, first, "add")
     weight_total = checked[0]
     for k, layer in enumerate(others):

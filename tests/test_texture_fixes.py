@@ -1104,3 +1104,23 @@ def test_a_layer_on_the_grid_is_read_as_it_is_at_fine_pixels_far_from_the_origin
     b = TextureLayer("thematic", values, extent, matrix=matrix)
     out = weighted_add([a, b], [0.0, 1.0], device="cpu").rgba()
     np.testing.assert_array_equal(out[..., :3], values)
+
+
+@pytest.mark.parametrize("order", [(0, 1, 2, 3, 4), (4, 0, 2, 1, 3), (0, 2, 1, 3, 4)])
+def test_huge_weights_that_cancel_add_the_same_in_any_order(order):
+    """weighted_add summed Σ w_k · layer_k pairwise in float32: weights near float32's top that cancel (3e38, 3e38,
+    −3e38, −3e38) on one layer overflowed the running sum to inf, and inf − 3e38 stayed inf, clamped to 1: a sum of
+    0.5 · 0.8 came out white, and with the 0.5 · grey term first black (3e38 · shade swallowed it), without a word.
+    Such sums now run in float64, compensated: no partial sum overflows and exactly cancelling terms leave the rest."""
+    shade = hillshade(real_dem_crop("big_tujunga_srtm_30m_utm11n.npz", 48, 4), spacing=(120.0, 120.0), device="cpu")
+    grey = np.full(shade.shape + (3,), 0.8, np.float32)
+    extent = (0.0, 48.0, 0.0, 48.0)
+    a = TextureLayer("thematic", np.repeat(shade[..., None], 3, axis=2), extent)
+    b = TextureLayer("thematic", grey, extent)
+    pairs = [(a, 3e38), (a, 3e38), (a, -3e38), (a, -3e38), (b, 0.5)]
+    out = weighted_add([pairs[k][0] for k in order], [pairs[k][1] for k in order], device="cpu").rgba()
+    np.testing.assert_allclose(out[..., :3], 0.4, atol=1e-6)  # 3e38 · s cancels exactly: 0.5 · 0.8 is left
+    np.testing.assert_allclose(out[..., 3], 0.5, atol=1e-6)  # alpha: 3e38 · 1 cancels too, 0.5 · 1
+    # within float32 the pairwise float32 sum is kept as it was, bit for bit (1 + 1 − 1.5, clamped last)
+    assert np.array_equal(weighted_add([a, a, b], [1.0, 1.0, -1.5], device="cpu").rgba(),
+                          np.clip(np.float32(2.0) * a.rgba() - np.float32(1.5) * b.rgba(), 0.0, 1.0))
