@@ -1124,3 +1124,20 @@ def test_huge_weights_that_cancel_add_the_same_in_any_order(order):
     # within float32 the pairwise float32 sum is kept as it was, bit for bit (1 + 1 − 1.5, clamped last)
     assert np.array_equal(weighted_add([a, a, b], [1.0, 1.0, -1.5], device="cpu").rgba(),
                           np.clip(np.float32(2.0) * a.rgba() - np.float32(1.5) * b.rgba(), 0.0, 1.0))
+
+
+@pytest.mark.parametrize("power", [-80, 60])
+def test_occlusion_of_a_terrain_scaled_by_a_power_of_two_is_the_same(power):
+    """Ambient occlusion depends only on the terrain's shape: scaled as a whole (heights and spacing) it is the same.
+    Its kernel took sin(horizon) = rise / sqrt(rise² + run²) in float32 world units: at 2^-80 (heights 1e-21 m,
+    spacing 1e-23 m) rise² + run² underflowed to 0 and the occlusion came out −inf; at 2^60 (heights 1e21 m) it
+    overflowed to inf, sin 0, and the valleys came out 1 (open). By a power of two the scaling is exact in float32."""
+    heights = real_dem_crop("big_tujunga_srtm_30m_utm11n.npz", 40, 3)
+    heights[10:14, 20:23] = np.nan  # nodata stays NaN
+    spacing = (90.0, -90.0)
+    ref = ambient_occlusion(heights, spacing=spacing, directions=8, device="cpu")
+    k = 2.0 ** power
+    scaled = ambient_occlusion(heights * np.float32(k), spacing=(spacing[0] * k, spacing[1] * k), directions=8,
+                               device="cpu")
+    assert np.nanmin(ref) < 0.9 and np.isnan(ref[10:14, 20:23]).all()  # valleys are occluded
+    np.testing.assert_array_equal(scaled, ref)
