@@ -1450,6 +1450,22 @@ def texel_slope(before: wp.vec2, centre: wp.float32, after: wp.vec2) -> wp.float
 
 
 @wp.func
+def texel_gradient_norm(gx: wp.float32, gy: wp.float32) -> wp.float32:
+    """sqrt(gx² + gy²) without the squares' under- or overflow: below ~1e-19 per texel they squared to 0 (flat
+    ground: no line), above ~1.8e19 to inf (every level at distance 0: all line); there both are divided by the
+    larger first. Elsewhere the plain formula, its float32 values as they were."""
+    s = gx * gx + gy * gy
+    if s >= 1.0e-30 and s <= 1.0e30:
+        return wp.sqrt(s)
+    m = wp.max(wp.abs(gx), wp.abs(gy))
+    if m == 0.0:
+        return 0.0
+    u = gx / m
+    v = gy / m
+    return m * wp.sqrt(u * u + v * v)
+
+
+@wp.func
 def line_coverage(distance: wp.float32, half_width: wp.float32) -> wp.float32:
     """The part of a texel (a unit box) that a straight line ``2 * half_width`` texels wide covers, its centre line
     ``distance`` texels from the texel's centre, across the line: > 0.5 exactly when distance < half_width (for
@@ -1696,7 +1712,7 @@ def draw_contours(
                     down = bilinear_height(heights, nodata, b0, b1, fb, j0, j1, fu)
             gx = texel_slope(left, h, right)
             gy = texel_slope(up, h, down)
-            slope = wp.sqrt(gx * gx + gy * gy)
+            slope = texel_gradient_norm(gx, gy)
             h64 = wp.float64(h)
             if n == 0:
                 q = (h64 - style.base) / style.interval
