@@ -608,9 +608,12 @@ def relight_point(
         return
     point = wp.vec3(float(j) * grid.spacing[0], float(i) * grid.spacing[1], h * grid.z_factor)
     to_light = light_position - point
-    if wp.length(to_light) == 0.0:
-        shade_out[i, j] = 1.0
-        return
+    if wp.dot(to_light, to_light) < 1.0e-30:  # its square near or below float32's smallest: divided by its largest
+        m = wp.max(wp.max(wp.abs(to_light[0]), wp.abs(to_light[1])), wp.abs(to_light[2]))  # component first
+        if m == 0.0:
+            shade_out[i, j] = 1.0
+            return
+        to_light = to_light / m
     shade_out[i, j] = wp.max(wp.dot(decode_normal(rgb, i, j), wp.normalize(to_light)), 0.0)
 
 

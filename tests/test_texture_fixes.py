@@ -1141,3 +1141,19 @@ def test_occlusion_of_a_terrain_scaled_by_a_power_of_two_is_the_same(power):
                                device="cpu")
     assert np.nanmin(ref) < 0.9 and np.isnan(ref[10:14, 20:23]).all()  # valleys are occluded
     np.testing.assert_array_equal(scaled, ref)
+
+
+@pytest.mark.parametrize("power", [-90, -80])
+def test_a_point_light_on_a_tiny_terrain_shades_as_on_the_terrain_scaled_up(power):
+    """relight's point light depends on the scene's shape only: the terrain, its spacing and the light scaled
+    together by a power of two shade the same. The kernel normalized the texel-to-light vector in float32: at
+    2^-90 (spacing 2.4e-26 m) its squared length underflowed, and texels came out lit wrongly, up to 0.5 off."""
+    heights = real_dem_crop("big_tujunga_srtm_30m_utm11n.npz", 40, 3)
+    spacing, light = (90.0, -90.0), (1800.0, -1500.0, float(np.nanmax(heights)) + 400.0)
+    normals = normal_map(heights, spacing=spacing, device="cpu")
+    ref = relight(normals, point=light, terrain=heights, spacing=spacing, device="cpu")
+    k = 2.0 ** power
+    scaled = relight(normals, point=tuple(c * k for c in light), terrain=heights * np.float32(k),
+                     spacing=(spacing[0] * k, spacing[1] * k), device="cpu")
+    assert 0.2 < np.nanmean(ref) < 0.95
+    np.testing.assert_allclose(scaled, ref, atol=1e-6)
