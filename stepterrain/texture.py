@@ -1584,12 +1584,14 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
     if math.fsum(abs(w) for w in checked) > FLOAT32_MAX / 2:
         # float32 partial sums could overflow: 3e38 + 3e38 − 3e38 − 3e38 became inf − 3e38 = inf, clamped to 1 (in
         # another order 0); in float64 every product is exact, no partial sum overflows, and the compensation keeps
-        # a small term added before huge ones that cancel
+        # a small term added before huge ones that cancel. The weights are the kernel's float32 ones, as in the
+        # float32 sum: taken as given, 3e38 and float32(3e38) left 5.5e30 · layer, and their products were inexact
+        # (a fused multiply-add, as CUDA compiles one, changed the compensated sum)
         wide, error = wp.zeros(shape, dtype=wp.vec4d, device=dev), wp.zeros(shape, dtype=wp.vec4d, device=dev)
         for k in range(len(checked)):
             sampled = total if k == 0 else _sampled(others[k - 1], extent, shape, dev, f"layers[{k}]")
             launch(texture_kernels.add_layer_wide, dim=shape[0] * shape[1],
-                   inputs=[wide, error, sampled, checked[k]], outputs=[wide, error], device=dev)
+                   inputs=[wide, error, sampled, float(np.float32(checked[k]))], outputs=[wide, error], device=dev)
         out = wp.empty(shape, dtype=wp.vec4, device=dev)
         launch(texture_kernels.clamp_wide, dim=shape[0] * shape[1], inputs=[wide, error], outputs=[out], device=dev)
         return _finish(out, first, "add")

@@ -1157,3 +1157,20 @@ def test_a_point_light_on_a_tiny_terrain_shades_as_on_the_terrain_scaled_up(powe
                      spacing=(spacing[0] * k, spacing[1] * k), device="cpu")
     assert 0.2 < np.nanmean(ref) < 0.95
     np.testing.assert_allclose(scaled, ref, atol=1e-6)
+
+
+@pytest.mark.parametrize("order", [(0, 1, 2), (2, 0, 1)])
+def test_huge_weights_that_are_one_float32_cancel_as_the_kernel_takes_them(order):
+    """The weights are taken as float32 (the kernel's), so 3e38 and float32(3e38) = 3.0000000054977558e38 are one
+    weight: w · layer − w · layer cancels. The float64 sum took them as given: their difference, 5.5e30 · shade,
+    turned the 0.5 · 0.8 under it white (main, summing in float32, gave 0.4). A float32 weight times a float32
+    channel is exact in float64, so the sum does not depend on how a device fuses its products and additions."""
+    shade = hillshade(real_dem_crop("big_tujunga_srtm_30m_utm11n.npz", 48, 4), spacing=(120.0, 120.0), device="cpu")
+    extent = (0.0, 48.0, 0.0, 48.0)
+    a = TextureLayer("thematic", np.repeat(shade[..., None], 3, axis=2), extent)
+    b = TextureLayer("thematic", np.full(shade.shape + (3,), 0.8, np.float32), extent)
+    assert float(np.float32(3e38)) != 3e38 and (shade > 0.1).mean() > 0.9
+    pairs = [(a, float(np.float32(3e38))), (a, -3e38), (b, 0.5)]
+    out = weighted_add([pairs[k][0] for k in order], [pairs[k][1] for k in order], device="cpu").rgba()
+    np.testing.assert_allclose(out[..., :3], 0.4, atol=1e-6)
+    np.testing.assert_allclose(out[..., 3], 0.5, atol=1e-6)
