@@ -1003,7 +1003,7 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
     except StepTerrainError as exc:
         if _transient(exc):
             raise  # a disk or network hiccup under the library's error (e.g. EIO, ENOSPC): retried like any other
-        return ItemResult(item.key, "failed", error=f"{type(exc).__name__}: {exc}", attempts=1,
+        return ItemResult(item.key, "failed", error=f"{_error_name(exc)}: {exc}", attempts=1,
                           seconds=time.perf_counter() - start, cpu_seconds=time.process_time() - cpu_start)  # fmt: skip
     # A Trimesh refers to itself (its visuals, caches and query helpers hold the mesh), so only the cyclic
     # garbage collector frees its arrays, and by then it has often moved them to its oldest generation: a worker
@@ -1016,6 +1016,12 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
         cpu_seconds=time.process_time() - cpu_start, faces=n_faces, vertices=n_vertices,
         bytes=written.stat().st_size,
     )  # fmt: skip
+
+
+def _error_name(exc: BaseException) -> str:
+    """The name a failed item's error gives ``exc``'s class: its first public one (io's ``_NotDegrees``, a grid in
+    degrees whose nodes are none, is a DataFileError to the caller)."""
+    return next(c.__name__ for c in type(exc).__mro__ if not c.__name__.startswith("_"))
 
 
 def _degree_frames(items: Sequence[BatchItem]) -> tuple[tuple[str, _Frame], ...]:

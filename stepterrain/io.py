@@ -1781,6 +1781,11 @@ class _NotDegrees(DataFileError):
         self.reason = reason
 
 
+#: The farthest from 0 :func:`_placement` takes a geographic grid's node longitudes: both conventions (-180 to 180,
+#: 0 to 360) and a grid unwrapped once round the globe from either lie within it.
+_LONGITUDE_LIMIT = 720.0
+
+
 def _placement(
     file: Path,
     shape: tuple[int, ...],
@@ -1801,6 +1806,11 @@ def _placement(
     ``units_xy``), converted as a CRS in that unit is."""
     name = file.name if name is None else name
     x0, dx, row_x, y0, col_y, dy = (float(v) for v in geotransform)
+    if not all(math.isfinite(v) for v in (x0, dx, row_x, y0, col_y, dy)):  # a geographic grid was read at lon nan
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected a geotransform of 6 finite numbers (x0, dx, 0, y0, 0, dy); got "
+            f"{tuple(float(v) for v in geotransform)}"
+        )
     if not _negligible_rotation(row_x, col_y, dx, dy, shape):
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a north-up grid; got a rotated geotransform "
@@ -1844,6 +1854,13 @@ def _placement(
         raise _NotDegrees(
             file, crs, f"the grid's node latitudes run from {min(node_lats):.9g} to {max(node_lats):.9g}; expected "
             "them within [-90, 90] (a projected grid labelled with a geographic CRS?)"
+        )
+    node_lons = (node_x, node_x + (shape[1] - 1) * dx)
+    if not all(abs(lon) <= _LONGITUDE_LIMIT for lon in node_lons):  # lon_0=1e300 made no local metres
+        raise _NotDegrees(
+            file, crs, f"the grid's node longitudes run from {min(node_lons):.9g} to {max(node_lons):.9g}; expected "
+            f"them within [-{_LONGITUDE_LIMIT:g}, {_LONGITUDE_LIMIT:g}] (a projected grid labelled with a geographic "
+            "CRS?)"
         )
     lon_span = (shape[1] - 1) * abs(dx)
     if lon_span > 360.0 + 1e-9:  # the nodes went round the globe more than once: a strip wider than the earth

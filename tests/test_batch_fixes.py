@@ -2613,3 +2613,37 @@ def test_a_file_in_degrees_added_to_a_folder_redoes_the_files_whose_frame_it_mov
     shutil.copy(tiles["nw"], tmp_path / "geo" / "nw_again.tif")  # within the mosaic: no frame moves
     report = batch(tmp_path / "geo", tmp_path / "out", **kwargs)
     assert [r.key for r in report.done] == ["nw_again"] and len(report.skipped) == 3, report.summary()
+
+
+@pytest.mark.parametrize("bad", ["nan_x0", "nan_dx", "inf_x0", "huge_x0"])
+def test_a_dem_file_in_degrees_with_a_non_finite_or_absurd_geotransform_fails_alone(tmp_path, bad):
+    """A file in degrees whose geotransform holds NaN or inf (x0 or dx), among files placed in their mosaic's frame,
+    ended the whole run with a ValueError/OverflowError in shared_degree_frame (its nodes counted in the mosaic's
+    steps); load_dem read it alone, its local CRS '+lon_0=nan'. One at lon 1e300 made the union no degrees, so
+    every file of its CRS fell back to its own frame at (0, 0). Each now fails alone with a DataFileError naming
+    the file, and the others are placed side by side."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    from .conftest import SHARED_DATA
+
+    geo = SHARED_DATA / "front_range_srtmgl3_3arcsec.tif"
+    if not geo.exists():
+        pytest.skip(f"shared data {geo.name} not found")
+    tiles = _cut_tiles(tmp_path, geo, "geo")
+    nan, inf = float("nan"), float("inf")
+    transform = {"nan_x0": Affine(0.001, 0.0, nan, 0.0, -0.001, 40.0),
+                 "nan_dx": Affine(nan, 0.0, -105.0, 0.0, -0.001, 40.0),
+                 "inf_x0": Affine(0.001, 0.0, inf, 0.0, -0.001, 40.0),
+                 "huge_x0": Affine(0.001, 0.0, 1e300, 0.0, -0.001, 40.0)}[bad]
+    with rasterio.open(tmp_path / "geo" / "bad.tif", "w", driver="GTiff", width=5, height=4, count=1,
+                       dtype="float32", crs="EPSG:4326", transform=transform) as out:
+        out.write(np.arange(20, dtype=np.float32).reshape(4, 5) * 100.0, 1)
+    report = batch(tmp_path / "geo", tmp_path / "out", interval=100.0, scheduler="serial")
+    assert sorted(r.key for r in report.done) == sorted(tiles), report.summary()
+    assert [r.key for r in report.failed] == ["bad"], report.summary()
+    error = report.failed[0].error
+    assert error.startswith("DataFileError: ") and "bad.tif" in error, error
+    assert ("finite" in error) if bad != "huge_x0" else ("longitudes" in error), error
+    nw, ne = read_mesh(tmp_path / "out" / "nw.glb"), read_mesh(tmp_path / "out" / "ne.glb")
+    assert nw.bounds[1, 0] > 2000.0 and abs(ne.bounds[0, 0] - nw.bounds[1, 0]) < 1e-3  # side by side
