@@ -1309,19 +1309,30 @@ def degree_header(path: str | os.PathLike[str]) -> tuple[str, tuple[float, ...],
     return crs, geotransform, shape
 
 
+def _mean_step(steps: Sequence[float], sign: float) -> float:
+    """The mean of the grids' ``steps`` along one axis, as ``gdalbuildvrt -resolution average`` takes it, independent
+    of their order (:func:`math.fsum`), and the step itself where all are one; its sign theirs where they agree, else
+    ``sign`` (gdalbuildvrt's mosaic is north-up)."""
+    magnitudes = [abs(float(v)) for v in steps]
+    mean = magnitudes[0] if len(set(magnitudes)) == 1 else math.fsum(magnitudes) / len(magnitudes)
+    signs = {math.copysign(1.0, float(v)) for v in steps}
+    return math.copysign(mean, signs.pop() if len(signs) == 1 else sign)
+
+
 def shared_degree_frame(
     crs: str, geotransforms: Sequence[Sequence[float]], shapes: Sequence[tuple[int, int]],
 ) -> tuple[tuple[float, float], str | None, str, list[tuple[tuple[float, float], tuple[float, float]]]]:
     """The local metres :func:`load_dem` would read the mosaic of several grids in ``crs`` (degrees) in, as
-    ``gdalbuildvrt`` mosaics them (files of one cell size; of several, it averages them): the grid of the first one's
-    steps over the union of their cells, read as one
+    ``gdalbuildvrt`` mosaics them (``-resolution average``, its default): the grid of the mean of their steps (their
+    own where all have one; whatever their order, so a list's files are placed alike in any order) over the union of
+    their cells, read as one
     file (:func:`_placement`: one spacing at the union's middle latitude, node (0, 0) at its top-left node, its
     warnings those of the mosaic). Returns its (spacing, crs, source) and, for each grid, (spacing, origin) of its
     nodes in it: a grid on the mosaic's lattice has the mosaic's spacing and its node (0, 0) at a whole number of
     the mosaic's nodes, placed as a tile cut from the mosaic is (``origin + col * dx``), so the border nodes that
     neighbours share land on identical coordinates; one of other steps is scaled to them (x linear in longitude).
     A :class:`DataFileError` when the union is no degrees (:func:`_placement`)."""
-    dx, dy = float(geotransforms[0][1]), float(geotransforms[0][5])
+    dx, dy = _mean_step([g[1] for g in geotransforms], 1.0), _mean_step([g[5] for g in geotransforms], -1.0)
     xs = [x for g, (_, w) in zip(geotransforms, shapes, strict=True) for x in (g[0], g[0] + w * g[1])]
     ys = [y for g, (h, _) in zip(geotransforms, shapes, strict=True) for y in (g[3], g[3] + h * g[5])]
     x0, y0 = (min(xs) if dx > 0 else max(xs)), (min(ys) if dy > 0 else max(ys))

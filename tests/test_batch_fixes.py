@@ -2647,3 +2647,45 @@ def test_a_dem_file_in_degrees_with_a_non_finite_or_absurd_geotransform_fails_al
     assert ("finite" in error) if bad != "huge_x0" else ("longitudes" in error), error
     nw, ne = read_mesh(tmp_path / "out" / "nw.glb"), read_mesh(tmp_path / "out" / "ne.glb")
     assert nw.bounds[1, 0] > 2000.0 and abs(ne.bounds[0, 0] - nw.bounds[1, 0]) < 1e-3  # side by side
+
+
+def test_dem_files_in_degrees_of_several_cell_sizes_are_placed_alike_in_any_order(tmp_path):
+    """The shared frame of files in degrees took its steps from the first file: a list of files of several cell sizes
+    placed each file elsewhere in another order (node (0, 0) half of another step from the union's corner), and a
+    rerun in that order redid them all. The frame now takes the mean of their steps, as ``gdalbuildvrt`` mosaics
+    them (``-resolution average``): every order writes the same meshes, and the frame is the one load_dem reads the
+    files' .vrt in (its spacing and +proj=eqc CRS)."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    from stepterrain.io import degree_header, load_dem, shared_degree_frame
+
+    steps = {"a": 0.001, "b": 0.0005, "c": 0.00025}
+    for i, (name, step) in enumerate(steps.items()):
+        n = round(0.01 / step)
+        heights = (np.add.outer(np.arange(n), np.arange(n)) * 50.0 * step / 0.001 + 1000.0).astype(np.float32)
+        with rasterio.open(tmp_path / f"{name}.tif", "w", driver="GTiff", width=n, height=n, count=1,
+                           dtype="float32", crs="EPSG:4326",
+                           transform=Affine(step, 0.0, -105.0 + 0.01 * i, 0.0, -step, 40.0 - 0.003 * i)) as out:
+            out.write(heights, 1)
+    orders = (["a", "b", "c"], ["c", "b", "a"], ["b", "c", "a"])
+    vertices = []
+    for k, order in enumerate(orders):
+        report = batch([tmp_path / f"{name}.tif" for name in order], tmp_path / f"out{k}", interval=100.0,
+                       scheduler="serial")
+        assert report.ok and len(report.done) == 3, report.summary()
+        vertices.append({name: read_mesh(tmp_path / f"out{k}" / f"{name}.glb").vertices for name in steps})
+    for other in vertices[1:]:
+        for name in steps:
+            np.testing.assert_array_equal(other[name], vertices[0][name])
+    if shutil.which("gdalbuildvrt") is None:
+        return
+    subprocess.run(["gdalbuildvrt", "-q", str(tmp_path / "m.vrt"), *(str(tmp_path / f"{n}.tif") for n in steps)],
+                   check=True)
+    headers = [degree_header(tmp_path / f"{name}.tif") for name in steps]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        spacing, crs, _, _ = shared_degree_frame("EPSG:4326", [h[1] for h in headers], [h[2] for h in headers])
+        mosaic = load_dem(tmp_path / "m.vrt")
+    np.testing.assert_allclose(spacing, mosaic.spacing, rtol=1e-9)
+    assert crs == mosaic.crs
