@@ -1059,7 +1059,9 @@ def _degree_frames(items: Sequence[BatchItem]) -> tuple[tuple[str, _Frame], ...]
         try:
             _, frame_crs, source, placed = shared_degree_frame(crs, [g for _, g, _ in group], [s for _, _, s in group])
         except StepTerrainError:  # the union is no degrees (over 360 of longitude): each file in its own frame
+            _warn_antimeridian(crs, group, placed=False)
             continue
+        _warn_antimeridian(crs, group, placed=True)
         for (item, _, _), spacing_own, (spacing, origin) in zip(group, own, placed, strict=True):
             name = Path(str(item.path)).name
             frames.append((item.key, _Frame(spacing_own, spacing, origin, frame_crs, f"{name}, placed in {source}")))
@@ -1073,6 +1075,41 @@ def _degree_frames(items: Sequence[BatchItem]) -> tuple[tuple[str, _Frame], ...]
             stacklevel=caller_stacklevel(),
         )
     return tuple(frames)
+
+
+def _warn_antimeridian(crs: str, group: Sequence[tuple[BatchItem, Sequence[float], tuple[int, int]]], *,
+                       placed: bool) -> None:
+    """Warn when the files in degrees of ``group`` (item, geotransform, shape) in ``crs`` lie either side of the
+    antimeridian, or in two longitude conventions (-180 to 180 and 0 to 360): their mosaic would be narrower by over
+    half the globe wrapped across it than as the ``.vrt`` of ``gdalbuildvrt`` lays them, from their westmost to their
+    eastmost cell. ``placed``: their shared frame, that .vrt's, puts the two sides a whole parallel apart; else their
+    union spanned more than 360 degrees of longitude, and each file was left in local metres of its own."""
+    spans = sorted((min(g[0], g[0] + w * g[1]), max(g[0], g[0] + w * g[1]), Path(str(item.path)).name)
+                   for item, g, (_, w) in group)  # fmt: skip
+    reach, gap, split = spans[0][1], -math.inf, 0  # the widest gap between the files, and the first file past it
+    for i, (west, east, _) in enumerate(spans[1:], start=1):
+        if west - reach > gap:
+            gap, split = west - reach, i
+        reach = max(reach, east)
+    wrapped = 360.0 - (reach - spans[0][0])  # the gap across the antimeridian (negative: the union is over 360)
+    if gap - max(wrapped, 0.0) <= 180.0:
+        return
+
+    def named(side: Sequence[tuple[float, float, str]]) -> str:
+        names = ", ".join(n for _, _, n in side[:3]) + (f" and {len(side) - 3} more" if len(side) > 3 else "")
+        return f"{names} (lon {min(w for w, _, _ in side):.9g} to {max(e for _, e, _ in side):.9g})"
+
+    how = (f"their mosaic's local metres, as in the .vrt gdalbuildvrt makes of them, put the two sides {gap:.9g} "
+           "degrees of longitude apart, so their meshes lie a whole parallel apart and do not weld"
+           if placed else "together they span more than 360 degrees of longitude, so each file is placed in local "
+           "metres of its own (node (0, 0) at its first node), their meshes on top of one another")
+    warnings.warn(
+        f"the DEM files in degrees {named(spans[:split])} and {named(spans[split:])} in {crs} lie either side of the "
+        f"antimeridian, or in two longitude conventions (-180 to 180 and 0 to 360): {how}; to step them as one "
+        "surface, give them one convention first, e.g. longitudes 0 to 360 for each file (gdalwarp -t_srs "
+        "'+proj=longlat +datum=WGS84 +lon_wrap=180'), or step each side as a folder of its own",
+        stacklevel=caller_stacklevel(),
+    )
 
 
 def _in_frame(terrain: Terrain, frame: _Frame) -> Terrain:
@@ -1102,8 +1139,9 @@ def _warn_own_local_metres(terrain: Terrain, coarsen: int | None = None) -> None
     at_its_own = all(math.isclose(o, f, rel_tol=1e-9) for o, f in zip(terrain.origin, first, strict=True))
     if at_its_own and _lonlat_grid(terrain) is not None:
         warnings.warn(
-            "DEM files in degrees that GDAL does not read (an .npz), or one alone in its geographic CRS, are not "
-            "placed in the local metres the other files in degrees share: each is placed in local metres of its own "
+            "DEM files in degrees that GDAL does not read (an .npz), one alone in its geographic CRS, or files whose "
+            "mosaic would span more than 360 degrees of longitude, are not placed in the local metres the other "
+            "files in degrees share: each is placed in local metres of its own "
             "(node (0, 0) at its first node, the +proj=eqc CRS of its mesh's metadata), so their meshes neither line "
             "up nor weld where neighbours share their border nodes: to step them as one surface, convert them to "
             "GeoTIFFs (gdal_translate), or mosaic them (gdalbuildvrt tiles.vrt "

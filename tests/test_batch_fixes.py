@@ -2689,3 +2689,53 @@ def test_dem_files_in_degrees_of_several_cell_sizes_are_placed_alike_in_any_orde
         mosaic = load_dem(tmp_path / "m.vrt")
     np.testing.assert_allclose(spacing, mosaic.spacing, rtol=1e-9)
     assert crs == mosaic.crs
+
+
+@pytest.mark.parametrize("east_lon", [179.99, 359.99])
+def test_dem_files_in_degrees_either_side_of_the_antimeridian_are_warned_of(tmp_path, east_lon):
+    """Files in degrees that meet at the antimeridian (a tile at lon 179.99 to 180 and one at -180 to -179.99) were
+    placed in their mosaic's frame, as the .vrt gdalbuildvrt makes of them has them: a whole parallel apart
+    (some 8500 km at 40° N), without a word. Written with the other file in 0 to 360 (lon 359.99 to 360 and
+    -0.01 to 0: one place), the union spanned over 360 degrees, so each file fell back to a frame of its own,
+    and the run said only that an .npz, or a file alone in its CRS, was left so. The run now says once which
+    files lie either side of the antimeridian (or in two longitude conventions), naming them, and how to join them."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    heights = (np.arange(100, dtype=np.float32).reshape(10, 10) * 5.0 + 100.0)
+    west_lon = -180.0 if east_lon < 180.0 else -0.01
+    for name, lon in (("east.tif", east_lon), ("west.tif", west_lon)):
+        with rasterio.open(tmp_path / name, "w", driver="GTiff", width=10, height=10, count=1, dtype="float32",
+                           crs="EPSG:4326", transform=Affine(0.001, 0.0, lon, 0.0, -0.001, 40.0)) as out:
+            out.write(heights, 1)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        report = batch(tmp_path, tmp_path / "out", interval=100.0, scheduler="serial")
+    assert report.ok, report.summary()
+    said = [str(w.message) for w in caught if "antimeridian" in str(w.message)]
+    assert len(said) == 1 and "east.tif" in said[0] and "west.tif" in said[0], [str(w.message) for w in caught]
+    assert "+lon_wrap=180" in said[0], said[0]
+    # one place, two conventions, each file in a frame of its own: said as such, not as "an .npz, or one alone in
+    # its geographic CRS" alone, which neither file is
+    own = [str(w.message) for w in caught if "neither line up nor weld" in str(w.message)]
+    assert len(own) == (east_lon > 180.0) and all("more than 360 degrees" in m for m in own), own
+
+
+def test_dem_files_in_degrees_side_by_side_or_round_the_globe_say_nothing_of_the_antimeridian(tmp_path):
+    """Neighbours away from it, and files that go round the globe (no gap to close across it), are not warned of."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    heights = (np.arange(100, dtype=np.float32).reshape(10, 10) * 5.0 + 100.0)
+    for folder, lons, step in (("near", (-105.0, -104.99), 0.001), ("round", (-180.0, -60.0, 60.0), 12.0)):
+        (tmp_path / folder).mkdir()
+        for i, lon in enumerate(lons):
+            with rasterio.open(tmp_path / folder / f"t{i}.tif", "w", driver="GTiff", width=10, height=10, count=1,
+                               dtype="float32", crs="EPSG:4326",
+                               transform=Affine(step, 0.0, lon, 0.0, -step, 40.0)) as out:
+                out.write(heights, 1)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            report = batch(tmp_path / folder, tmp_path / f"{folder}_out", interval=100.0, scheduler="serial")
+        assert report.ok, report.summary()
+        assert not any("antimeridian" in str(w.message) for w in caught), folder
