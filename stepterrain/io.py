@@ -266,8 +266,9 @@ def load_dem(
         raster of :data:`GDAL_FORMATS`, or several), or is not elevation data (a colour image, another image format
         under a .png name, a GeoTIFF band that is colour, alpha or other imagery, a 1-D array, text, an archive
         without a 2-D array, a rotated grid (rotation terms that move no node by more than 1e-6 of a cell over the
-        grid, the float noise some tools write, are taken as 0), a geographic grid whose latitudes lie beyond ±90
-        or whose node longitudes span more than 360 degrees, ``lat``/``lon`` axes not matching the heights or
+        grid, the float noise some tools write, are taken as 0), a geotransform that is not finite (NaN, inf), a
+        geographic grid whose latitudes lie beyond ±90 or whose node longitudes span more than 360 degrees or lie
+        beyond ±720, ``lat``/``lon`` axes not matching the heights or
         unevenly spaced,
         an .npz with keys that would georeference it (``crs``, ``dx``/``dy``, ``spacing``/``origin``, ``x``/``y``,
         one of ``lat`` and ``lon``, ...) but neither a ``transform`` nor both ``lat`` and ``lon``, an .npz
