@@ -1288,8 +1288,9 @@ def degree_header(path: str | os.PathLike[str]) -> tuple[str, tuple[float, ...],
     """(crs, GDAL geotransform, (rows, cols)) of a raster of :data:`GDAL_FORMATS` (or a GDAL virtual path to one) in
     a geographic CRS, from its header alone, as :func:`load_dem` reads them (a world file's grid with the CRS of the
     ``.prj`` beside it; a compound CRS's horizontal part); None for any other file, one in a projected CRS or none,
-    a rotated grid, or one GDAL cannot open (its read says why). For :mod:`stepterrain.batch`, which places a
-    folder's files in degrees in the local metres they share (:func:`shared_degree_frame`)."""
+    a rotated grid (rotation terms of float noise, which load_dem takes as 0, are no rotation), or one GDAL cannot
+    open (its read says why). For :mod:`stepterrain.batch`, which places a folder's files in degrees in the local
+    metres they share (:func:`shared_degree_frame`)."""
     file = dem_path(path)
     if file.suffix.lower() not in GDAL_FORMATS:
         return None
@@ -1305,7 +1306,9 @@ def degree_header(path: str | os.PathLike[str]) -> tuple[str, tuple[float, ...],
     except Exception:  # noqa: BLE001 - no rasterio, or a file GDAL refuses: the item's own read says why
         return None
     geotransform = tuple(float(v) for v in transform.to_gdal())
-    if crs is None or geotransform[2] != 0.0 or geotransform[4] != 0.0:
+    # rotation terms of float noise are 0 to load_dem (_placement): such tiles were left out of their mosaic's frame
+    if crs is None or not _negligible_rotation(geotransform[2], geotransform[4], geotransform[1], geotransform[5],
+                                               shape):
         return None
     return crs, geotransform, shape
 

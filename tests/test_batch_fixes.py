@@ -2739,3 +2739,31 @@ def test_dem_files_in_degrees_side_by_side_or_round_the_globe_say_nothing_of_the
             report = batch(tmp_path / folder, tmp_path / f"{folder}_out", interval=100.0, scheduler="serial")
         assert report.ok, report.summary()
         assert not any("antimeridian" in str(w.message) for w in caught), folder
+
+
+def test_dem_files_in_degrees_with_float_noise_rotation_terms_are_placed_in_their_mosaics_frame(tmp_path):
+    """load_dem takes a geotransform's rotation terms of float noise (1e-16 of a degree, as some tools write) as 0,
+    but the folder's frame took any non-zero one for a rotated grid: such files were each left in local metres of
+    their own, their meshes on top of one another at (0, 0), and the run said it was for an .npz or a file alone in
+    its CRS. They are placed side by side now, as the same files with exact zeros are."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    heights = (np.arange(100, dtype=np.float32).reshape(10, 10) * 5.0 + 100.0)
+    meshes = {}
+    for folder, noise in (("exact", 0.0), ("noise", 1e-16)):
+        (tmp_path / folder).mkdir()
+        for name, lon in (("w", -105.0), ("e", -104.991)):  # neighbours sharing a column of nodes
+            with rasterio.open(tmp_path / folder / f"{name}.tif", "w", driver="GTiff", width=10, height=10, count=1,
+                               dtype="float32", crs="EPSG:4326",
+                               transform=Affine(0.001, noise, lon, noise, -0.001, 40.0)) as out:
+                out.write(heights, 1)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            report = batch(tmp_path / folder, tmp_path / f"{folder}_out", interval=100.0, scheduler="serial")
+        assert report.ok, report.summary()
+        assert not any("in degrees" in str(w.message) for w in caught), [str(w.message) for w in caught]
+        meshes[folder] = {n: read_mesh(tmp_path / f"{folder}_out" / f"{n}.glb").vertices for n in ("w", "e")}
+    assert meshes["exact"]["e"][:, 0].min() > 700.0  # east of the west file, not on it at (0, 0)
+    for name in ("w", "e"):
+        np.testing.assert_allclose(meshes["noise"][name], meshes["exact"][name], rtol=0, atol=1e-3)
