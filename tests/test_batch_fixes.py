@@ -2767,3 +2767,30 @@ def test_dem_files_in_degrees_with_float_noise_rotation_terms_are_placed_in_thei
     assert meshes["exact"]["e"][:, 0].min() > 700.0  # east of the west file, not on it at (0, 0)
     for name in ("w", "e"):
         np.testing.assert_allclose(meshes["noise"][name], meshes["exact"][name], rtol=0, atol=1e-3)
+
+
+def test_dem_files_in_degrees_north_up_and_south_up_are_placed_alike_in_either_order(tmp_path):
+    """A list of a north-up file in degrees and a south-up one (rows south to north) south of it took its frame's
+    direction from the first: listed the other way round, each file lay elsewhere (node (0, 0) at the union's
+    south-west node, not its north-west one). Now the frame is north-up when they disagree, as gdalbuildvrt's
+    mosaic is, in either order: the same meshes, the north file's top edge at y = 0 and the south file below it."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    heights = (np.arange(100, dtype=np.float32).reshape(10, 10) * 5.0 + 100.0)
+    for name, transform in (("north", Affine(0.001, 0.0, -105.0, 0.0, -0.001, 40.0)),
+                            ("south", Affine(0.001, 0.0, -105.0, 0.0, 0.001, 39.98))):
+        with rasterio.open(tmp_path / f"{name}.tif", "w", driver="GTiff", width=10, height=10, count=1,
+                           dtype="float32", crs="EPSG:4326", transform=transform) as out:
+            out.write(heights, 1)
+    vertices = []
+    for k, order in enumerate((["north", "south"], ["south", "north"])):
+        report = batch([tmp_path / f"{name}.tif" for name in order], tmp_path / f"out{k}", interval=10.0,
+                       scheduler="serial")
+        assert report.ok, report.summary()
+        vertices.append({n: read_mesh(tmp_path / f"out{k}" / f"{n}.glb").vertices for n in ("north", "south")})
+    for name in ("north", "south"):
+        np.testing.assert_array_equal(vertices[1][name], vertices[0][name])
+    north, south = vertices[0]["north"], vertices[0]["south"]
+    assert north[:, 1].max() == pytest.approx(0.0, abs=1e-3)  # node (0, 0): the union's north-west node
+    assert south[:, 1].max() < north[:, 1].min()  # the south file below the north one
