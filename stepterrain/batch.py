@@ -1083,7 +1083,9 @@ def _warn_antimeridian(crs: str, group: Sequence[tuple[BatchItem, Sequence[float
     antimeridian, or in two longitude conventions (-180 to 180 and 0 to 360): their mosaic would be narrower by over
     half the globe wrapped across it than as the ``.vrt`` of ``gdalbuildvrt`` lays them, from their westmost to their
     eastmost cell. ``placed``: their shared frame, that .vrt's, puts the two sides a whole parallel apart; else their
-    union spanned more than 360 degrees of longitude, and each file was left in local metres of its own."""
+    union spanned more than 360 degrees of longitude, and each file was left in local metres of its own. It names the
+    ``+lon_wrap`` that joins the sides: 180 (0 to 360) across the antimeridian, 0 (-180 to 180) for files in 0 to 360
+    either side of the prime meridian (lon 359.9 to 360 and 0 to 0.1), which 0 to 360 leaves a parallel apart."""
     spans = sorted((min(g[0], g[0] + w * g[1]), max(g[0], g[0] + w * g[1]), Path(str(item.path)).name)
                    for item, g, (_, w) in group)  # fmt: skip
     reach, gap, split = spans[0][1], -math.inf, 0  # the widest gap between the files, and the first file past it
@@ -1095,6 +1097,15 @@ def _warn_antimeridian(crs: str, group: Sequence[tuple[BatchItem, Sequence[float
     if gap - max(wrapped, 0.0) <= 180.0:
         return
 
+    # the sides joined, the western one's longitudes 360 on, from a west edge in [0, 360): over half the globe
+    # narrower than the gap, so within 0 to 360 (the antimeridian between the sides) or 180 to 540 (-180 to 180)
+    lo = min(min(w for w, _, _ in spans[split:]), min(w for w, _, _ in spans[:split]) + 360.0)
+    hi = max(max(e for _, e, _ in spans[split:]), max(e for _, e, _ in spans[:split]) + 360.0)
+    hi -= math.floor((lo + 1e-9) / 360.0) * 360.0  # longitudes -360 to 0 alike
+    wrap, seam = (180.0, "the antimeridian") if hi <= 360.0 + 1e-9 else (
+        0.0, "the prime meridian, where longitudes 0 to 360 wrap as -180 to 180 wrap at the antimeridian")
+    convention = "0 to 360" if wrap else "-180 to 180"
+
     def named(side: Sequence[tuple[float, float, str]]) -> str:
         names = ", ".join(n for _, _, n in side[:3]) + (f" and {len(side) - 3} more" if len(side) > 3 else "")
         return f"{names} (lon {min(w for w, _, _ in side):.9g} to {max(e for _, e, _ in side):.9g})"
@@ -1104,10 +1115,10 @@ def _warn_antimeridian(crs: str, group: Sequence[tuple[BatchItem, Sequence[float
            if placed else "together they span more than 360 degrees of longitude, so each file is placed in local "
            "metres of its own (node (0, 0) at its first node), their meshes on top of one another")
     warnings.warn(
-        f"the DEM files in degrees {named(spans[:split])} and {named(spans[split:])} in {crs} lie either side of the "
-        f"antimeridian, or in two longitude conventions (-180 to 180 and 0 to 360): {how}; to step them as one "
-        "surface, give them one convention first, e.g. longitudes 0 to 360 for each file (gdalwarp -t_srs "
-        "'+proj=longlat +datum=WGS84 +lon_wrap=180'), or step each side as a folder of its own",
+        f"the DEM files in degrees {named(spans[:split])} and {named(spans[split:])} in {crs} lie either side of "
+        f"{seam}, or in two longitude conventions (-180 to 180 and 0 to 360): {how}; to step them as one surface, "
+        f"give each file longitudes {convention} first (gdalwarp -t_srs '+proj=longlat +datum=WGS84 "
+        f"+lon_wrap={wrap:g}'), or step each side as a folder of its own",
         stacklevel=caller_stacklevel(),
     )
 

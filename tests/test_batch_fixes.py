@@ -2794,3 +2794,45 @@ def test_dem_files_in_degrees_north_up_and_south_up_are_placed_alike_in_either_o
     north, south = vertices[0]["north"], vertices[0]["south"]
     assert north[:, 1].max() == pytest.approx(0.0, abs=1e-3)  # node (0, 0): the union's north-west node
     assert south[:, 1].max() < north[:, 1].min()  # the south file below the north one
+
+
+@pytest.mark.parametrize(("west_lon", "east_lon"), [(359.9, 0.0), (179.9, -180.0)])
+def test_the_antimeridian_warnings_advice_joins_the_files(tmp_path, west_lon, east_lon):
+    """Files in degrees in 0 to 360 either side of the prime meridian (lon 359.9 to 360 and 0 to 0.1: western Europe
+    as a 0-to-360 product tiles it) were warned of as either side of the antimeridian and told to take longitudes 0
+    to 360 (+lon_wrap=180), which they have: the advice left them a whole parallel apart. The warning now names the
+    wrap that joins them (+lon_wrap=0 here, 180 across the antimeridian); with each file's longitudes wrapped as it
+    says, the run warns no more and their meshes lie side by side."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    heights = np.arange(100, dtype=np.float32).reshape(10, 10) * 5.0 + 100.0
+
+    def write(folder, wrap=None):
+        (tmp_path / folder).mkdir()
+        for name, lon in (("w", west_lon), ("e", east_lon)):
+            if wrap is not None:  # each file's longitudes within [wrap - 180, wrap + 180), as gdalwarp's +lon_wrap
+                lon = (lon - (wrap - 180.0)) % 360.0 + (wrap - 180.0)
+            with rasterio.open(tmp_path / folder / f"{name}.tif", "w", driver="GTiff", width=10, height=10, count=1,
+                               dtype="float32", crs="EPSG:4326",
+                               transform=Affine(0.01, 0.0, lon, 0.0, -0.01, 51.5)) as out:
+                out.write(heights, 1)
+
+    def run(folder):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            report = batch(tmp_path / folder, tmp_path / f"{folder}_out", interval=50.0, scheduler="serial")
+        assert report.ok, report.summary()
+        meshes = [read_mesh(tmp_path / f"{folder}_out" / f"{n}.glb") for n in ("w", "e")]
+        width = max(m.bounds[1, 0] for m in meshes) - min(m.bounds[0, 0] for m in meshes)
+        return [str(w.message) for w in caught if "antimeridian" in str(w.message)], width
+
+    write("given")
+    said, width = run("given")
+    assert len(said) == 1 and width > 1e6, (said, width)  # a whole parallel apart
+    wraps = re.findall(r"\+lon_wrap=(-?[0-9.]+)", said[0])
+    assert len(wraps) == 1, said[0]
+    assert float(wraps[0]) == (0.0 if west_lon > 180.0 else 180.0), said[0]
+    write("wrapped", float(wraps[0]))
+    said, width = run("wrapped")
+    assert not said and width < 20_000.0, (said, width)  # two tiles of 0.1 degree side by side: some 14 km
