@@ -1340,7 +1340,8 @@ def shared_degree_frame(
     xs = [x for g, (_, w) in zip(geotransforms, shapes, strict=True) for x in (g[0], g[0] + w * g[1])]
     ys = [y for g, (h, _) in zip(geotransforms, shapes, strict=True) for y in (g[3], g[3] + h * g[5])]
     x0, y0 = (min(xs) if dx > 0 else max(xs)), (min(ys) if dy > 0 else max(ys))
-    shape = (max(round((max(ys) - min(ys)) / abs(dy)), 1), max(round((max(xs) - min(xs)) / abs(dx)), 1))
+    # int(0.5 + n) as gdalbuildvrt sizes its mosaic: a half cell up (round() took 2.5 rows to 2, the .vrt has 3)
+    shape = (max(int(0.5 + (max(ys) - min(ys)) / abs(dy)), 1), max(int(0.5 + (max(xs) - min(xs)) / abs(dx)), 1))
     name = "the mosaic of the DEM files"  # not their number: a file within it moves no other
     place = _placement(Path(name), shape, np.array([x0, dx, 0.0, y0, 0.0, dy], dtype=np.float64), crs,
                        geographic=True, metres=None, height_unit=None, name=name)

@@ -2836,3 +2836,31 @@ def test_the_antimeridian_warnings_advice_joins_the_files(tmp_path, west_lon, ea
     write("wrapped", float(wraps[0]))
     said, width = run("wrapped")
     assert not said and width < 20_000.0, (said, width)  # two tiles of 0.1 degree side by side: some 14 km
+
+
+def test_the_shared_frame_of_files_in_degrees_rounds_its_size_as_gdalbuildvrt_does(tmp_path):
+    """gdalbuildvrt sizes its mosaic as int(0.5 + extent / step), a half cell up; the shared frame rounded it half to
+    even, so files whose union is 2.5 mean steps tall (cells of 0.5 and 0.25 degrees) made a mosaic of 2 rows, its
+    middle latitude, x spacing and +proj=eqc CRS those of another grid than the .vrt that load_dem reads: the frame
+    now has the .vrt's 3 rows, its spacing and CRS."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    from stepterrain.io import degree_header, load_dem, shared_degree_frame
+
+    if shutil.which("gdalbuildvrt") is None:
+        pytest.skip("gdalbuildvrt not found")
+    paths = []
+    for name, (x0, y0, step) in {"a": (0.0, 40.0, 0.5), "b": (0.5, 39.3125, 0.25)}.items():  # 0.9375 of latitude
+        paths.append(tmp_path / f"{name}.tif")
+        with rasterio.open(paths[-1], "w", driver="GTiff", width=1, height=1, count=1, dtype="float32",
+                           crs="EPSG:4326", transform=Affine(step, 0.0, x0, 0.0, -step, y0)) as out:
+            out.write(np.full((1, 1), 100.0, np.float32), 1)
+    subprocess.run(["gdalbuildvrt", "-q", str(tmp_path / "m.vrt"), *map(str, paths)], check=True)
+    headers = [degree_header(p) for p in paths]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        spacing, crs, _, _ = shared_degree_frame("EPSG:4326", [h[1] for h in headers], [h[2] for h in headers])
+        mosaic = load_dem(tmp_path / "m.vrt")
+    assert mosaic.heights.shape == (3, 2)
+    assert (spacing, crs) == (mosaic.spacing, mosaic.crs)
