@@ -1789,8 +1789,8 @@ def _unreadable_crs(crs: str) -> bool:
 
 class _NotDegrees(DataFileError):
     """:func:`_placement`'s refusal of a grid whose CRS is geographic but whose nodes are no degrees (latitudes beyond
-    ±90, longitudes over more than 360): ``reason`` what its nodes give, which :func:`degrees_as_local_metres` names
-    for the spacing and origin given instead of the file."""
+    ±90, longitudes over more than 360 or beyond ±720): ``reason`` what its nodes give, which
+    :func:`degrees_as_local_metres` names for the spacing and origin given instead of the file."""
 
     def __init__(self, file: Path, crs: str | None, reason: str) -> None:
         super().__init__(f"cannot read {str(file)!r}: {crs or 'its CRS'} is geographic (degrees), but {reason}")
@@ -1937,7 +1937,8 @@ def degrees_as_local_metres(
     for any other ``crs`` (projected, local, none: the grid is in its own units). Built as given, such a grid had
     cells of a thousandth of a metre under heights in metres: slopes 10^5 too steep (an ROI's ``slope_above``
     marked the whole terrain, renders asked for z_scale 8e-5). An InvalidInputError naming crs, spacing and origin
-    when they are no degrees (latitudes beyond ±90, longitudes over more than 360: metres labelled geographic)."""
+    when they are no degrees (latitudes beyond ±90, longitudes over more than 360 or beyond ±720: metres labelled
+    geographic)."""
     if not crs or crs.lstrip().lower().startswith("+proj=eqc") or not _is_geographic(crs):
         return None
     (dx, dy), (x0, y0) = spacing, origin
