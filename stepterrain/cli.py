@@ -702,6 +702,11 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     base = _isovalue_base(args)
     if args.floor is not None and not args.solid:
         raise InvalidInputError("--floor applies only with --solid")
+    # close_solid's refusals, before the DEM is read and the whole terrain stepped (they came after both)
+    if args.floor is not None and not math.isfinite(args.floor):
+        raise InvalidInputError(f"--floor must be finite; got {args.floor}")
+    if args.floor is not None and abs(args.floor) > float(np.finfo(np.float32).max):
+        raise InvalidInputError(f"--floor must fit in float32 (|x| < 3.4e+38); got {args.floor:g}")
     if args.lens_relative is not None and not args.lens_relative[2] > 0:  # else named as '--lens radius', in metres
         raise InvalidInputError(f"--lens-relative radius fraction must be positive; got {args.lens_relative[2]:g}")
     if args.lens_edge is not None and args.lens is None and args.lens_relative is None:
@@ -737,6 +742,12 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     interval = args.interval
     if interval is None and args.levels is None:
         interval = nice_interval((lo, hi))
+        try:  # the interval picked here, not one given: a refusal named an --interval the user never typed
+            st.isovalues((lo, hi), interval=interval, base=base)
+        except InvalidInputError as exc:
+            raise InvalidInputError(f"no --interval or --levels given, and the round interval {interval:g} picked "
+                                    f"for heights {lo:g} to {hi:g} is refused: {exc}; give --levels (explicit "
+                                    "isovalues) or an --interval that fits") from None
     values = st.isovalues((lo, hi), interval=interval, levels=args.levels, base=base)
     if args.interval is None and args.levels is None:
         progress.say(f"no --interval or --levels given: using --interval {interval:g}, a round interval "

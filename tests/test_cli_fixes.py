@@ -1894,3 +1894,37 @@ def test_a_textured_obj_whose_side_file_is_a_folder_is_refused_before_any_work(c
     line = one_error_line(err, command)
     assert f"{option} {str(obj)!r} writes {name!r} beside it" in line and "a folder" in line, line
     assert sorted(p.name for p in tmp_path.iterdir()) == before  # nothing written
+
+
+@pytest.mark.parametrize("heights", [(-3.4028235e38, 3.4028235e38), (3.3e38, 3.4028235e38)])
+def test_steps_default_interval_near_the_float32_maximum_is_refused_naming_the_pick(tmp_path, capsys, heights):
+    """Without --interval, steps picked nice_interval of the height range: np.spacing of the float32 maximum is inf,
+    an OverflowError traceback (exit 1); past it, the refusal named an --interval the user never gave."""
+    assert cli.nice_interval(heights) > 0  # the library's pick, finite (it raised)
+    grid = np.full((6, 7), heights[0], np.float32)
+    grid[3:, 4:] = heights[1]
+    np.save(tmp_path / "dem.npy", grid)
+    code, _, err = run(capsys, "-q", "steps", tmp_path / "dem.npy", "-o", tmp_path / "x.ply")
+    assert code == 2 and "Traceback" not in err, err
+    assert "no --interval or --levels given, and the round interval" in err and "give --levels" in err, err
+    assert not (tmp_path / "x.ply").exists()
+
+
+def test_steps_floor_beyond_float32_is_refused_before_any_work(tmp_path, capsys, monkeypatch):
+    """``steps --solid --floor 1e39`` read the DEM and stepped the whole terrain before close_solid refused the
+    floor; refused now before the DEM is read, and the library refuses it before stepping."""
+    for floor, message in (("1e39", "--floor must fit in float32 (|x| < 3.4e+38); got 1e+39"),
+                           ("-inf", "--floor must be finite; got -inf"), ("nan", "--floor must be finite; got nan")):
+        code, _, err = run(capsys, "steps", "--solid", "--floor", floor, "-o", tmp_path / "x.ply")
+        assert code == 2 and message in err, err
+        assert "loading" not in err and "stepping" not in err, err
+    from stepterrain import stepped as stepped_module
+
+    def no_stepping(*args, **kwargs):
+        raise AssertionError("stepped before the floor was checked")
+
+    monkeypatch.setattr(stepped_module, "_stepped_arrays", no_stepping)
+    terrain = st.Terrain.from_heights(np.arange(20, dtype=np.float32).reshape(4, 5), spacing=1.0)
+    for floor, message in ((1e39, "floor must fit in float32"), (-math.inf, "floor must be finite")):
+        with pytest.raises(st.InvalidInputError, match=message):
+            st.stepped(terrain, interval=2.0, solid=True, floor=floor, device="cpu")
