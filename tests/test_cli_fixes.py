@@ -1928,3 +1928,21 @@ def test_steps_floor_beyond_float32_is_refused_before_any_work(tmp_path, capsys,
     for floor, message in ((1e39, "floor must fit in float32"), (-math.inf, "floor must be finite")):
         with pytest.raises(st.InvalidInputError, match=message):
             st.stepped(terrain, interval=2.0, solid=True, floor=floor, device="cpu")
+
+
+def test_closeup_spin_is_checked_at_parse_time_and_within_half_a_turn_a_frame(tmp_path, capsys):
+    """``closeup --spin 1e308 --gif`` was accepted: every frame after the first showed the same capped turn (a spin
+    of --fps turns per second stands still, faster ones alias). inf, NaN and 0 were refused only after the output
+    paths and the other options were checked; now by argparse, naming --spin."""
+    for spin in ("inf", "nan", "0", "-0", "1e400", "fast"):
+        code, _, err = run(capsys, "closeup", "--spin", spin, "--gif", tmp_path / "a.gif", "-o", tmp_path / "x.png")
+        assert code == 2, err
+        assert f"argument --spin: expected a finite non-zero number of turns per second (negative: the other way); " \
+               f"got '{spin}'" in err, err
+    for spin, fps in (("1e308", "12"), ("12", "12"), ("-6.5", "12"), ("3", "5")):
+        code, _, err = run(capsys, "closeup", "--spin", spin, "--fps", fps, "--gif", tmp_path / "a.gif", "-o",
+                           tmp_path / "x.png")
+        assert code == 2, err
+        assert f"--spin must be at most half a turn a frame, |--spin| <= --fps / 2 = {float(fps) / 2:g} turns per " \
+               f"second" in err and "loading" not in err, err
+    assert sorted(tmp_path.iterdir()) == []

@@ -358,11 +358,17 @@ def test_cli_closeup_bad_input_exits_2(dem, tmp_path, capsys):
 @pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
 def test_cli_closeup_a_huge_spin_is_no_overflow(dem, tmp_path, capsys):
     """The spin's repetitions ceil(|spin| * frames / fps) overflowed to inf: an OverflowError traceback, exit 1
-    (without --gif too, where --spin is refused now: it does nothing there)."""
+    (without --gif too, where --spin is refused now: it does nothing there). A spin of more than half a turn a frame
+    is refused now, before any work (1e308 made every frame after the first the same); the largest one taken makes
+    the animation."""
     out, gif = tmp_path / "scene.ply", tmp_path / "spin.gif"
-    assert cli.main(["-q", "closeup", str(dem), "--roi-relative", "0.5,0.5,0.2", "--spin", "1e308", "-o", str(out),
-                     "--gif", str(gif), "--frames", "1", "--size", "160x120", "--device", "cpu"]) == 0, \
-        capsys.readouterr().err
+    argv = ["-q", "closeup", str(dem), "--roi-relative", "0.5,0.5,0.2", "-o", str(out), "--gif", str(gif),
+            "--frames", "1", "--size", "160x120", "--device", "cpu"]
+    assert cli.main([*argv, "--spin", "1e308"]) == 2
+    err = capsys.readouterr().err
+    assert "--spin must be at most half a turn a frame" in err and "Traceback" not in err, err
+    assert not out.exists() and not gif.exists()
+    assert cli.main([*argv, "--spin", "-6", "--fps", "12"]) == 0, capsys.readouterr().err
     assert out.exists() and gif.exists()
 
 
