@@ -745,6 +745,8 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         try:  # the interval picked here, not one given: a refusal named an --interval the user never typed
             st.isovalues((lo, hi), interval=interval, base=base)
         except InvalidInputError as exc:
+            if not str(exc).startswith("interval"):  # a --base refused: named as it is
+                raise
             raise InvalidInputError(f"no --interval or --levels given, and the round interval {interval:g} picked "
                                     f"for heights {lo:g} to {hi:g} is refused: {exc}; give --levels (explicit "
                                     "isovalues) or an --interval that fits") from None

@@ -1908,6 +1908,9 @@ def test_steps_default_interval_near_the_float32_maximum_is_refused_naming_the_p
     assert code == 2 and "Traceback" not in err, err
     assert "no --interval or --levels given, and the round interval" in err and "give --levels" in err, err
     assert not (tmp_path / "x.ply").exists()
+    for base, message in (("nan", "--base must be finite; got nan"), ("1e39", "--base must fit in float32")):
+        code, _, err = run(capsys, "-q", "steps", "--base", base, "-o", tmp_path / "x.ply")  # the base's own refusal
+        assert code == 2 and err.startswith(f"stepterrain steps: error: {message}"), err
 
 
 def test_steps_floor_beyond_float32_is_refused_before_any_work(tmp_path, capsys, monkeypatch):
