@@ -454,6 +454,11 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     progress.stage("load", f"loading {args.input if args.input else 'the embedded Big Tujunga DEM'}")
     terrain = _input_terrain(args)
     progress.done(f"{' x '.join(str(n) for n in terrain.shape)} nodes,")
+    if args.contours is not None:  # levels 0, M, 2M, ...: none within the heights drew no line, and said nothing
+        lo, hi = terrain.finite_height_range
+        if math.isfinite(lo) and math.isfinite(hi) and math.ceil(lo / args.contours) * args.contours > hi:
+            raise InvalidInputError(f"--contours {args.contours:g} draws no line: no multiple of it (the contour "
+                                    f"levels) lies within the heights {lo:g} to {hi:g}; give a smaller interval")
     device = resolve_device(args.device)
     grid = None  # --texel-size: the texture's (extent, shape), finer than the DEM's nodes
     if args.texel_size is not None:

@@ -1949,3 +1949,24 @@ def test_closeup_spin_is_checked_at_parse_time_and_within_half_a_turn_a_frame(tm
         assert f"--spin must be at most half a turn a frame, |--spin| <= --fps / 2 = {float(fps) / 2:g} turns per " \
                f"second" in err and "loading" not in err, err
     assert sorted(tmp_path.iterdir()) == []
+
+
+def test_texture_contours_with_no_level_within_the_heights_is_refused(tmp_path, capsys):
+    """``texture --contours M`` with no multiple of M within the heights (1e308, or 200 over heights 100 to 180)
+    drew no line: the texture came out as without --contours, and nothing said so."""
+    heights = np.add.outer(np.linspace(100.0, 140.0, 24), np.linspace(0.0, 40.0, 32)).astype(np.float32)
+    np.save(tmp_path / "dem.npy", heights)
+    for interval in ("200", "1e308", "181"):
+        code, _, err = run(capsys, "-q", "texture", tmp_path / "dem.npy", "--contours", interval, "-o",
+                           tmp_path / "t.png")
+        assert code == 2, err
+        assert f"--contours {float(interval):g} draws no line: no multiple of it (the contour levels) lies within " \
+               f"the heights 100 to 180; give a smaller interval" in err, err
+        assert not (tmp_path / "t.png").exists()
+    code, _, err = run(capsys, "-q", "texture", tmp_path / "dem.npy", "--contours", "150", "-o", tmp_path / "t.png")
+    assert code == 0, err  # one level, 150, within them: drawn
+    plain = tmp_path / "plain.png"
+    assert run(capsys, "-q", "texture", tmp_path / "dem.npy", "-o", plain)[0] == 0
+    from PIL import Image
+
+    assert not np.array_equal(np.asarray(Image.open(tmp_path / "t.png")), np.asarray(Image.open(plain)))
