@@ -248,9 +248,17 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     progress.done(f"{' x '.join(str(n) for n in terrain.shape)} nodes,")
     xmin, xmax, ymin, ymax = terrain.extent
     short = min(xmax - xmin, ymax - ymin)
+    given = getattr(args, "rois", None) or []  # in command-line order
     rois = [value if option == "roi" else (xmin + value[0] * (xmax - xmin), ymin + value[1] * (ymax - ymin),
                                             value[2] * short)
-            for option, value in getattr(args, "rois", None) or []]  # in command-line order
+            for option, value in given]
+    for (option, value), (x, y, r) in zip(given, rois, strict=True):
+        if option == "roi_relative" and not (math.isfinite(x) and math.isfinite(y) and r <= _MAX_OFFSET):
+            # named as the library's "ROI center" or "--roi radius ... got inf", not the fractions typed
+            fx, fy, fr = value
+            raise InvalidInputError(f"--roi-relative {fx:g},{fy:g},{fr:g} places a close-up at ({x:g}, {y:g}) with "
+                                    f"radius {r:g}: expected fractions of the extent (0 to 1 across it) giving a "
+                                    f"finite centre and a radius within {_MAX_OFFSET:g}")
     if not rois:
         rois = [((xmin + xmax) / 2, (ymin + ymax) / 2, 0.12 * short)]
     n = len(rois)

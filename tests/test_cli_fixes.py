@@ -1970,3 +1970,16 @@ def test_texture_contours_with_no_level_within_the_heights_is_refused(tmp_path, 
     from PIL import Image
 
     assert not np.array_equal(np.asarray(Image.open(tmp_path / "t.png")), np.asarray(Image.open(plain)))
+
+
+@pytest.mark.parametrize("fractions", ["0.5,0.5,1e308", "1e308,0.5,0.1", "0.5,-1e308,0.1", "0.5,0.5,1e12"])
+def test_closeup_roi_relative_beyond_the_extent_is_refused_naming_it(tmp_path, capsys, fractions):
+    """A --roi-relative whose fractions overflow the centre or the radius was refused as the library's "ROI center
+    must be a pair of finite numbers; got (inf, ...)" or as "--roi radius ...; got inf": neither the option typed
+    nor its numbers."""
+    code, _, err = run(capsys, "-q", "closeup", "--roi-relative", fractions, "-o", tmp_path / "c.ply")
+    assert code == 2, err
+    shown = ",".join(f"{float(v):g}" for v in fractions.split(","))
+    assert err.startswith(f"stepterrain closeup: error: --roi-relative {shown} places a close-up at ("), err
+    assert "expected fractions of the extent (0 to 1 across it)" in err and "ROI center" not in err, err
+    assert not (tmp_path / "c.ply").exists()
