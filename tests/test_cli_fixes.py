@@ -1983,3 +1983,18 @@ def test_closeup_roi_relative_beyond_the_extent_is_refused_naming_it(tmp_path, c
     assert err.startswith(f"stepterrain closeup: error: --roi-relative {shown} places a close-up at ("), err
     assert "expected fractions of the extent (0 to 1 across it)" in err and "ROI center" not in err, err
     assert not (tmp_path / "c.ply").exists()
+
+
+def test_batch_default_interval_near_the_float32_maximum_is_refused_naming_the_pick(tmp_path, capsys):
+    """batch's default interval (nice_interval over a file's or all files' heights) near the float32 maximum was an
+    OverflowError; past it, the refusal named an --interval the user never gave."""
+    grid = np.full((6, 7), 3.3e38, np.float32)
+    grid[3:, 4:] = np.finfo(np.float32).max
+    folder = tmp_path / "tiles"
+    folder.mkdir()
+    np.save(folder / "a.npy", grid)
+    np.save(folder / "b.npy", grid[::-1])
+    for source in (folder, folder / "a.npy"):
+        code, _, err = run(capsys, "-q", "batch", source, "--scheduler", "serial", "-o", tmp_path / "out")
+        assert code == 2 and "Traceback" not in err, err
+        assert "no --interval or --levels given, and the round interval" in err and "give --levels" in err, err
