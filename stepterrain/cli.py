@@ -767,6 +767,10 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
             fx, fy, fr = args.lens_relative
             cx, cy = xmin + fx * (xmax - xmin), ymin + fy * (ymax - ymin)
             radius = fr * min(xmax - xmin, ymax - ymin)
+            if not all(math.isfinite(v) for v in (cx, cy, radius)):  # named as the library's '--lens radius', inf
+                raise InvalidInputError(f"--lens-relative {fx:g},{fy:g},{fr:g} places the lens at ({cx:g}, {cy:g}) "
+                                        f"with radius {radius:g}: expected fractions of the extent (0 to 1 across "
+                                        "it) giving a finite centre and radius")
         gamma = st.circular_lens(terrain, (cx, cy), radius, edge_width=args.lens_edge, outside=args.gamma)
         progress.say(f"lens at ({cx:.1f}, {cy:.1f}), radius {radius:.1f}: original terrain inside, "
                      f"gamma {args.gamma:g} outside")

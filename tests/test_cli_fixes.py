@@ -1998,3 +1998,15 @@ def test_batch_default_interval_near_the_float32_maximum_is_refused_naming_the_p
         code, _, err = run(capsys, "-q", "batch", source, "--scheduler", "serial", "-o", tmp_path / "out")
         assert code == 2 and "Traceback" not in err, err
         assert "no --interval or --levels given, and the round interval" in err and "give --levels" in err, err
+
+
+@pytest.mark.parametrize("fractions", ["0.5,0.5,1e308", "1e308,0.5,0.2", "0.5,-1e308,0.2"])
+def test_steps_lens_relative_beyond_the_extent_is_refused_naming_it(tmp_path, capsys, fractions):
+    """A --lens-relative whose fractions overflow the lens' centre or radius was refused as "--lens radius must be
+    finite; got inf" (an option not given, a number not typed) or by the library's lens centre."""
+    code, _, err = run(capsys, "-q", "steps", "--lens-relative", fractions, "-o", tmp_path / "s.ply")
+    assert code == 2, err
+    shown = ",".join(f"{float(v):g}" for v in fractions.split(","))
+    assert err.startswith(f"stepterrain steps: error: --lens-relative {shown} places the lens at ("), err
+    assert "expected fractions of the extent (0 to 1 across it)" in err, err
+    assert not (tmp_path / "s.ply").exists()
