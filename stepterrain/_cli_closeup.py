@@ -225,7 +225,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
             _refuse_unused(render_options, "a render (a .png --output, --png or --gif)",
                            f"with the mesh --output {args.output!r} alone")
     if args.edge is not None and not (math.isfinite(args.edge) and args.edge >= 0):
-        raise InvalidInputError(f"--edge must be >= 0; got {args.edge}")
+        raise InvalidInputError(f"--edge must be a finite number >= 0; got {args.edge:g}")  # inf is >= 0
     # degrees (finite: _floats), whole turns taken off exactly: math.radians(1e308) kept none of the angle
     rotations_deg = [tuple(math.fmod(a, 360.0) for a in rot) for rot in args.rotation or []]
     for _fx, _fy, fr in args.roi_relative or []:  # else named as '--roi radius', in world units

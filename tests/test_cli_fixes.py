@@ -2010,3 +2010,10 @@ def test_steps_lens_relative_beyond_the_extent_is_refused_naming_it(tmp_path, ca
     assert err.startswith(f"stepterrain steps: error: --lens-relative {shown} places the lens at ("), err
     assert "expected fractions of the extent (0 to 1 across it)" in err, err
     assert not (tmp_path / "s.ply").exists()
+
+
+def test_closeup_edge_refusal_says_finite(tmp_path, capsys):
+    """``closeup --edge inf`` was refused as "--edge must be >= 0; got inf": inf is >= 0."""
+    for edge in ("inf", "nan", "-1"):
+        code, _, err = run(capsys, "-q", "closeup", "--edge", edge, "-o", tmp_path / "c.ply")
+        assert code == 2 and f"--edge must be a finite number >= 0; got {float(edge):g}" in err, err
