@@ -413,11 +413,14 @@ def test_cli_closeup_a_failing_render_leaves_no_scene_mesh(dem, tmp_path, capsys
 @pytest.mark.parametrize("roi", ["--roi=30,-16,1e300", "--roi-relative=0.5,0.5,1e300"])
 def test_cli_closeup_an_absurd_roi_radius_is_refused_by_name(dem, tmp_path, capsys, roi):
     """A radius of 1e300 overflowed float32: 'overflow encountered in cast' warnings, then an error about
-    non-finite vertices at the write; ROI itself took a size of 2e39."""
+    non-finite vertices at the write; ROI itself took a size of 2e39. A --roi-relative is named as itself, with
+    the fractions typed (it was named as --roi, with the radius in metres)."""
     out = tmp_path / "x.ply"
     assert cli.main(["-q", "closeup", str(dem), roi, "-o", str(out)]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("stepterrain closeup: error: --roi radius must lie in (0, 1e+12]; got ") and "\n" == err[-1]
+    expected = "--roi radius must lie in (0, 1e+12]; got " if roi.startswith("--roi=") else \
+        "--roi-relative 0.5,0.5,1e+300 places a close-up at ("
+    assert err.startswith(f"stepterrain closeup: error: {expected}") and "\n" == err[-1], err
     assert len(err.splitlines()) == 1 and not out.exists()
     with pytest.raises(InvalidInputError, match=r"ROI size must be positive \(width, height\) up to 1e\+12"):
         ROI.circle((0.0, 0.0), 1e39)
