@@ -608,9 +608,12 @@ def relight_point(
         return
     point = wp.vec3(float(j) * grid.spacing[0], float(i) * grid.spacing[1], h * grid.z_factor)
     to_light = light_position - point
-    if wp.length(to_light) == 0.0:
-        shade_out[i, j] = 1.0
-        return
+    if wp.dot(to_light, to_light) < 1.0e-30:  # its square near or below float32's smallest: divided by its largest
+        m = wp.max(wp.max(wp.abs(to_light[0]), wp.abs(to_light[1])), wp.abs(to_light[2]))  # component first
+        if m == 0.0:
+            shade_out[i, j] = 1.0
+            return
+        to_light = to_light / m
     shade_out[i, j] = wp.max(wp.dot(decode_normal(rgb, i, j), wp.normalize(to_light)), 0.0)
 
 
@@ -1031,6 +1034,59 @@ def add_layers(
                              wp.clamp(s[3], 0.0, 1.0))
 
 
+@wp.func
+def neumaier_step(s: wp.float64, c: wp.float64, t: wp.float64) -> wp.vec2d:
+    """(s + t, c + the rounding error of s + t): one step of Neumaier's compensated sum (the error is exact)."""
+    n = s + t
+    e = (t - n) + s
+    if wp.abs(s) >= wp.abs(t):
+        e = (s - n) + t
+    return wp.vec2d(n, c + e)
+
+
+@wp.kernel
+def add_layer_wide(
+    thread_offset: wp.int32,
+    total: wp.array2d[wp.vec4d],
+    error: wp.array2d[wp.vec4d],
+    b: wp.array2d[wp.vec4],
+    weight_b: wp.float64,
+    # outputs
+    total_out: wp.array2d[wp.vec4d],
+    error_out: wp.array2d[wp.vec4d],
+):
+    """One thread per pixel: total + weight_b b in float64, compensated (Neumaier), for a weighted addition whose
+    float32 partial sums could overflow: a float32 weight times a channel in [0, 1] is exact in float64, n such
+    terms stay far below its range, and ``error`` keeps what each addition rounded off, so terms that cancel
+    exactly (3e38 and −3e38 times one layer) leave the small ones in any order. The outputs may be the inputs."""
+    i, j = pixel_of(wp.tid() + thread_offset, b.shape[1])
+    v = b[i, j]
+    s = total[i, j]
+    c = error[i, j]
+    r = neumaier_step(s[0], c[0], wp.float64(v[0]) * weight_b)
+    g = neumaier_step(s[1], c[1], wp.float64(v[1]) * weight_b)
+    u = neumaier_step(s[2], c[2], wp.float64(v[2]) * weight_b)
+    a = neumaier_step(s[3], c[3], wp.float64(v[3]) * weight_b)
+    total_out[i, j] = wp.vec4d(r[0], g[0], u[0], a[0])
+    error_out[i, j] = wp.vec4d(r[1], g[1], u[1], a[1])
+
+
+@wp.kernel
+def clamp_wide(
+    thread_offset: wp.int32,
+    total: wp.array2d[wp.vec4d],
+    error: wp.array2d[wp.vec4d],
+    # outputs
+    rgba_out: wp.array2d[wp.vec4],
+):
+    """One thread per pixel: the compensated sum of :func:`add_layer_wide` (total + error) rounded to float32,
+    each channel clamped to [0, 1]."""
+    i, j = pixel_of(wp.tid() + thread_offset, total.shape[1])
+    s = total[i, j] + error[i, j]
+    rgba_out[i, j] = wp.vec4(wp.clamp(wp.float32(s[0]), 0.0, 1.0), wp.clamp(wp.float32(s[1]), 0.0, 1.0),
+                             wp.clamp(wp.float32(s[2]), 0.0, 1.0), wp.clamp(wp.float32(s[3]), 0.0, 1.0))
+
+
 @wp.kernel
 def interpolate_layers(
     thread_offset: wp.int32,
@@ -1397,6 +1453,22 @@ def texel_slope(before: wp.vec2, centre: wp.float32, after: wp.vec2) -> wp.float
 
 
 @wp.func
+def texel_gradient_norm(gx: wp.float32, gy: wp.float32) -> wp.float32:
+    """sqrt(gx² + gy²) without the squares' under- or overflow: below ~1e-19 per texel they squared to 0 (flat
+    ground: no line), above ~1.8e19 to inf (every level at distance 0: all line); there both are divided by the
+    larger first. Elsewhere the plain formula, its float32 values as they were."""
+    s = gx * gx + gy * gy
+    if s >= 1.0e-30 and s <= 1.0e30:
+        return wp.sqrt(s)
+    m = wp.max(wp.abs(gx), wp.abs(gy))
+    if m == 0.0:
+        return 0.0
+    u = gx / m
+    v = gy / m
+    return m * wp.sqrt(u * u + v * v)
+
+
+@wp.func
 def line_coverage(distance: wp.float32, half_width: wp.float32) -> wp.float32:
     """The part of a texel (a unit box) that a straight line ``2 * half_width`` texels wide covers, its centre line
     ``distance`` texels from the texel's centre, across the line: > 0.5 exactly when distance < half_width (for
@@ -1643,7 +1715,7 @@ def draw_contours(
                     down = bilinear_height(heights, nodata, b0, b1, fb, j0, j1, fu)
             gx = texel_slope(left, h, right)
             gy = texel_slope(up, h, down)
-            slope = wp.sqrt(gx * gx + gy * gy)
+            slope = texel_gradient_norm(gx, gy)
             h64 = wp.float64(h)
             if n == 0:
                 q = (h64 - style.base) / style.interval

@@ -44,6 +44,7 @@ from .terrain import (
     Terrain,
     _edge_table,
     _pair,
+    as_array,
     as_terrain,
     check_flag,
     finite_number,
@@ -1953,7 +1954,8 @@ def composite(
     >>> composite(base, depth, [(red, alpha, np.full((2, 2), 0.5, np.float32), True, False)])[..., 0].tolist()
     [[200, 100], [0, 200]]
     """
-    out = np.asarray(base)
+    # ragged nested lists raised numpy's "inhomogeneous shape" ValueError, naming no argument
+    out = as_array(base, "base", "an (H, W, 3) uint8 image")
     if out.ndim != 3 or out.shape[2] != 3:
         raise InvalidInputError(f"base must be an (H, W, 3) image; got shape {out.shape}")
     if out.dtype != np.uint8:  # cast as it was, 300 came out 44 (and 100.7 100 outside the layers, 101 inside)
@@ -1964,6 +1966,7 @@ def composite(
     if not layers:
         return out.astype(np.uint8, copy=True)
     shape = out.shape[:2]
+    base_depth = as_array(base_depth, "base_depth", f"an {shape} array of depths")
     if np.shape(base_depth) != shape:
         raise InvalidInputError(f"base_depth must be {shape}; got {np.shape(base_depth)}")
     _check_depths(base_depth, "base_depth")
@@ -1975,7 +1978,9 @@ def composite(
             got = f"{len(layer)} items" if isinstance(layer, Sequence) and not text else type(layer).__name__
             raise InvalidInputError(f"layer {i} must be (color, alpha, depth, depth_test, writes_depth); got {got}")
         c, alpha, z, depth_test, writes_depth = layer
-        c, alpha, z = np.asarray(c), np.asarray(alpha), np.asarray(z)
+        c = as_array(c, f"layer {i} color", f"an {out.shape} image")
+        alpha = as_array(alpha, f"layer {i} alpha", f"an {shape} array in [0, 1]")
+        z = as_array(z, f"layer {i} depth", f"an {shape} array of depths")
         if alpha.dtype == np.bool_:  # a coverage mask (np.isfinite(depth)): 0 or 1, as it always composited
             alpha = alpha.astype(np.float32)
         if c.shape != out.shape or alpha.shape != shape or z.shape != shape:

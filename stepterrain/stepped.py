@@ -66,6 +66,7 @@ from .terrain import (
     unmasked,
     unshared,
     used_height_range,
+    used_nodes,
 )
 
 __all__ = ["stepped", "stepped_series", "isovalues", "nice_interval", "Lens", "circular_lens", "GammaLike"]
@@ -260,10 +261,21 @@ def nice_interval(height_range: tuple[float, float], target: int = TARGET_STEPS)
     0.05
     >>> nice_interval((1e7, 1e7 + 3.0))
     10.0
+
+    A flat range (min == max) gives 1.0. A ``height_range`` that is not finite (min, max) with min <= max, or a
+    ``target`` that is not a positive number, is an :class:`InvalidInputError`.
     """
-    lo, hi = height_range
+    if isinstance(target, (bool, np.bool_)):  # True was taken as 1 step
+        raise InvalidInputError(f"target must be a positive number of steps; got {target!r}")
+    target = finite_number(target, "target", positive=True)
+    try:
+        lo, hi = (as_number(v) for v in height_range)
+    except (TypeError, ValueError):  # text, bools, one or three values
+        raise InvalidInputError(f"height_range must be (min, max) heights; got {height_range!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+        raise InvalidInputError(f"height_range must be finite (min, max) with min <= max; got {height_range!r}")
     span = hi - lo
-    if not math.isfinite(span) or span <= 0:
+    if not math.isfinite(span) or span <= 0:  # flat, or beyond float64 (-1e308, 1e308)
         return 1.0
     exponent = math.floor(math.log10(span / target))
     candidates = [m * 10.0**e for e in (exponent - 1, exponent, exponent + 1) for m in (1.0, 2.0, 2.5, 5.0)]
@@ -870,8 +882,8 @@ def blend(
         scalar = float(_check_gamma_values(_gamma_floats(gamma, "gamma"), (), "gamma"))
     else:
         values = _gamma_floats(gamma, "gamma")
-        if values.shape == terrain.shape:  # NaN at a nodata node (γ computed from h) is harmless: it gives no vertex
-            values = np.where(np.isnan(values) & np.isnan(terrain.heights), 0.0, values)
+        if values.shape == terrain.shape:
+            values = _unread_nan_filled(terrain, values)
         node_values = _check_gamma_values(values, terrain.shape, "gamma")
         gammas = wp.empty(n, dtype=wp.float32, device=device)
         launch_chunked(
@@ -891,6 +903,22 @@ def blend(
         fence=True,
     )
     return to_numpy(vertices_np, vertices_wp, (n, 3))
+
+
+def _unread_nan_filled(terrain: Terrain, values: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Per-node γ ``values`` (the terrain's shape) with 0 for NaN where no output vertex reads the node: nodata (γ
+    computed from h), a grid node with a height on no triangle with three finite heights (a lone pixel in a void:
+    :func:`~stepterrain.terrain.used_nodes`, as the step kernels take edges only from such triangles), a TIN point on
+    no kept face (one left by ``mesh.update_faces``, or welded into an earlier copy). NaN at a node the surface uses
+    stays, for :func:`_check_gamma_values` to refuse with its index."""
+    nan = np.isnan(values)
+    if not nan.any():
+        return values
+    if terrain.kind == "tin":
+        unread = terrain.point_used == 0
+    else:
+        unread = ~used_nodes(np.isfinite(terrain.heights))
+    return np.where(nan & unread, 0.0, values)
 
 
 def _gamma_floats(value: Any, name: str) -> NDArray[np.float64]:
@@ -1133,8 +1161,9 @@ def stepped(
         to the end levels.
     gamma : float, (H, W) / (N,) array, callable or Lens
         The blend of §3.3 in [0, 1]: 0 = original surface, 1 = fully stepped. An array gives one γ per
-        terrain node (interpolated onto wall vertices with the crossing's β; NaN where the height is nodata, which
-        gives no vertex); a callable receives the
+        terrain node (interpolated onto wall vertices with the crossing's β; NaN where no vertex reads it: a nodata
+        node, a node with a height on no triangle with three finite heights, a TIN point on no face); a callable
+        receives the
         (V, 3) world positions of the output vertices on the original surface and returns (V,) values;
         a :class:`Lens` (see :func:`circular_lens`) is a γ image over the xy extent.
     colors : str or (L, 3|4) array, optional
@@ -1580,7 +1609,7 @@ def stepped_series(
     :class:`InvalidInputError` naming its index (``frames[k]``): for a (T, H, W) stack before the first frame,
     for an iterable when that frame is reached; so is, for an iterable, ``gamma`` or ``colors`` that does not fit
     a frame (its shape, its own count of isovalues), and for a stack a ``gamma`` that fails on a frame after the
-    first (an array NaN at a node that frame holds a height at, a callable that fails on its points).
+    first (an array NaN at a node that frame's surface uses, a callable that fails on its points).
     """
     check_flag(progress, "progress")
     if spacing is not None:  # once, so that their errors name no frame

@@ -433,6 +433,21 @@ def _maplibre_hillshade(t: Terrain, azimuth: Any, altitude: Any, z_factor: float
 _NEGLIGIBLE_SIDESTEP = 1e-6
 
 
+def _unit_scale(t: Terrain, z_factor: float) -> float:
+    """A power of two taking the larger of a grid's width, height and its height range (times ``z_factor``) to
+    about 1, or 1 where that already lies within 2^±30 (the float32 sweeps' products and squares of world
+    distances stay far inside float32's range there)."""
+    rows, cols = t.heights.shape
+    size = max(abs(float(t.spacing[0])) * max(cols - 1, 1), abs(float(t.spacing[1])) * max(rows - 1, 1))
+    try:
+        lo, hi = t.finite_height_range
+        size = max(size, (float(hi) - float(lo)) * float(z_factor))
+    except InvalidInputError:  # all nodata
+        pass
+    exponent = math.frexp(size)[1]
+    return 1.0 if -30 <= exponent <= 30 else math.ldexp(1.0, -exponent)
+
+
 def _sweep(shape: tuple[int, int], spacing: tuple[float, float], azimuth: float | tuple[float, float],
            altitude: float, device: wp.Device) -> tuple[texture_kernels.Sweep, int, bool]:
     """Digital sweep lines parallel to the light's azimuth (see kernels/texture.py), their count and whether every
@@ -637,6 +652,13 @@ def ambient_occlusion(
     z_factor = _finite(z_factor, "z_factor", positive=True)
     dev = resolve_device(device)
     grid = _height_grid(t, z_factor, dev)
+    # the sweep's float32 world units scaled by a power of two (exact) to a grid about 1 wide and high: tiny or huge
+    # terrains (spacing 1e-23 m, heights 1e21 m) under- or overflowed rise² + run² (an occlusion of −inf, valleys
+    # open) and the hull's cross products; the occlusion depends only on the shape
+    scale = _unit_scale(t, z_factor)
+    if scale != 1.0:
+        grid.spacing = wp.vec2(float(t.spacing[0]) * scale, float(t.spacing[1]) * scale)
+        grid.z_factor = float(z_factor) * scale
     host, occlusion = _output(t.heights.shape, np.float32, wp.float32, dev, zero=True)
     hull = scratch("texture.hull", t.heights.size, wp.vec2, dev)
     weight = 1.0 / int(directions)
@@ -1523,7 +1545,10 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
 
     Every channel, alpha too, is added straight (not premultiplied), so the colour of a transparent pixel counts
     as much as an opaque one's; :meth:`TextureAnimation.frame` interpolates its keys premultiplied instead. The
-    weights are any finite numbers within float32's range (the kernel's), one per layer.
+    weights are any finite numbers within float32's range (the kernel's), one per layer. The sum runs in float32;
+    where its partial sums could overflow (the weights' magnitudes add up past half float32's top) it runs in
+    float64, compensated, so huge weights that cancel exactly (3e38 and −3e38 on one layer) leave the other
+    terms, in any order.
 
     Examples
     --------
@@ -1555,6 +1580,20 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
         out = wp.empty(shape, dtype=wp.vec4, device=dev)
         launch(texture_kernels.add_layers, dim=shape[0] * shape[1], inputs=[total, zero, checked[0], 0.0, 1],
                outputs=[out], device=dev)
+        return _finish(out, first, "add")
+    if math.fsum(abs(w) for w in checked) > FLOAT32_MAX / 2:
+        # float32 partial sums could overflow: 3e38 + 3e38 − 3e38 − 3e38 became inf − 3e38 = inf, clamped to 1 (in
+        # another order 0); in float64 every product is exact, no partial sum overflows, and the compensation keeps
+        # a small term added before huge ones that cancel. The weights are the kernel's float32 ones, as in the
+        # float32 sum: taken as given, 3e38 and float32(3e38) left 5.5e30 · layer, and their products were inexact
+        # (a fused multiply-add, as CUDA compiles one, changed the compensated sum)
+        wide, error = wp.zeros(shape, dtype=wp.vec4d, device=dev), wp.zeros(shape, dtype=wp.vec4d, device=dev)
+        for k in range(len(checked)):
+            sampled = total if k == 0 else _sampled(others[k - 1], extent, shape, dev, f"layers[{k}]")
+            launch(texture_kernels.add_layer_wide, dim=shape[0] * shape[1],
+                   inputs=[wide, error, sampled, float(np.float32(checked[k]))], outputs=[wide, error], device=dev)
+        out = wp.empty(shape, dtype=wp.vec4, device=dev)
+        launch(texture_kernels.clamp_wide, dim=shape[0] * shape[1], inputs=[wide, error], outputs=[out], device=dev)
         return _finish(out, first, "add")
     weight_total = checked[0]
     for k, layer in enumerate(others):

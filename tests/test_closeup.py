@@ -965,3 +965,30 @@ def test_composite_names_what_a_malformed_layer_is(layer, got):
     with pytest.raises(InvalidInputError, match=rf"^layer 0 must be \(color, alpha, depth, depth_test, "
                                                 rf"writes_depth\); got {got}$"):
         composite(np.zeros((2, 2, 3), np.uint8), depth, [layer])
+
+
+@pytest.mark.parametrize("which, message", [
+    ("base", r"^base must be an \(H, W, 3\) uint8 image; got rows of different lengths$"),
+    ("base_depth", r"^base_depth must be .*; got rows of different lengths$"),
+    ("color", r"^layer 0 color must be .*; got rows of different lengths$"),
+    ("alpha", r"^layer 0 alpha must be .*; got rows of different lengths$"),
+    ("depth", r"^layer 0 depth must be .*; got rows of different lengths$"),
+])
+def test_composite_names_a_ragged_image(which, message):
+    """A ragged nested list as the base, its depth or a layer's colour, alpha or depth raised numpy's own ValueError
+    ("setting an array element with a sequence ... inhomogeneous shape"), naming no argument. It is refused naming
+    the argument; the same values as arrays still composite."""
+    rng = np.random.default_rng(4)
+    args = {"base": rng.integers(0, 256, (2, 2, 3), dtype=np.uint8), "base_depth": np.ones((2, 2), np.float32),
+            "color": rng.uniform(0, 255, (2, 2, 3)), "alpha": rng.uniform(0, 1, (2, 2)),
+            "depth": np.full((2, 2), 0.5, np.float32)}
+    ragged = dict(args)
+    ragged[which] = [args[which][0].tolist(), args[which][1][:1].tolist()]
+
+    def run(a):
+        return composite(a["base"], a["base_depth"], [(a["color"], a["alpha"], a["depth"], True, False)])
+
+    with pytest.raises(InvalidInputError, match=message):
+        run(ragged)
+    expected = np.rint(args["alpha"][..., None] * args["color"] + (1 - args["alpha"][..., None]) * args["base"])
+    np.testing.assert_allclose(run(args), expected, atol=1)

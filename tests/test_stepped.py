@@ -1593,8 +1593,10 @@ def test_per_node_gamma_may_be_nan_where_heights_are_nodata(tin):
     assert len(mesh.faces) > 0
     np.testing.assert_array_equal(mesh.vertices, filled.vertices)
     np.testing.assert_array_equal(mesh.faces, filled.faces)
-    gamma[(0,) * gamma.ndim] = np.nan  # a node with a height
-    at = "0," if tin else "0, 0"
+    # a node with a height that the surface uses (node (0, 0), which this test took, has a height but is on no
+    # triangle with three finite heights: its one cell touches the void, so no vertex reads its γ)
+    gamma[(4,) if tin else (0, 4)] = np.nan
+    at = "4," if tin else "0, 4"
     with pytest.raises(st.InvalidInputError, match=rf"^gamma must lie in \[0, 1\] .*; got nan at index \({at}\)$"):
         st.stepped(terrain, interval=1.0, gamma=gamma)
 

@@ -1032,3 +1032,136 @@ def test_a_lens_far_beyond_float32_but_narrow_is_sampled_at_its_edge_not_refused
     np.testing.assert_array_equal(st.stepped(heights, interval=2.0, gamma=lens).vertices, expected)
     (frame,) = st.stepped_series(heights[None], interval=2.0, gamma=lens)
     np.testing.assert_array_equal(frame.vertices, expected)
+
+
+@pytest.mark.parametrize("case", ["lone pixel", "unreferenced point", "welded copy"])
+def test_per_node_gamma_may_be_nan_where_no_vertex_reads_it(case):
+    """A per-node γ NaN was taken only where the height is nodata ("it gives no vertex"), but a grid node with a height
+    whose every triangle touches nodata (a lone pixel in a void of a real DEM), a TIN point on no face (left by
+    ``mesh.update_faces``, as the refusal of degenerate faces suggests) and a point welded into an earlier copy (a
+    triangle soup: γ "is read at the first of such points") give no vertex either: NaN there was refused ("got nan at
+    index"), naming a node the mesh does not hold. A γ raster whose nodata covers the void, lone pixel included, is
+    such a γ. Now NaN at any node no vertex reads is taken; the mesh is the one any value there gives."""
+    heights = st.sample_dem().heights[:40, :50].astype(np.float64)
+    gamma = np.clip((heights - heights.min()) / np.ptp(heights), 0.0, 1.0)
+    if case == "lone pixel":
+        heights[10:20, 10:20] = np.nan
+        heights[15, 15] = 1000.0  # a lone pixel in the void: a height, on no triangle
+        gamma[10:20, 10:20] = np.nan  # the γ raster's own nodata: the void as drawn
+        terrain = heights
+        unread = (15, 15)
+    else:
+        mesh = st.heightfield_mesh(heights)
+        gamma = gamma.reshape(-1)
+        if case == "unreferenced point":
+            unread = 7 * 50 + 9  # the faces around node (7, 9) dropped: its point stays, on no face
+            mesh = trimesh.Trimesh(mesh.vertices, mesh.faces[~(mesh.faces == unread).any(axis=1)], process=False)
+        else:  # a soup: one point per corner, welded where x, y and z coincide
+            corners = mesh.faces.reshape(-1)
+            mesh = trimesh.Trimesh(mesh.vertices[corners], np.arange(len(corners)).reshape(-1, 3), process=False)
+            gamma = gamma[corners]
+            unread = int(np.flatnonzero(corners == corners[-1])[-1])
+            assert unread != int(np.flatnonzero(corners == corners[-1])[0])  # a later copy of a point
+        terrain = mesh
+        gamma[unread] = np.nan
+    filled = st.stepped(terrain, interval=50.0, gamma=np.where(np.isnan(gamma), 0.25, gamma))
+    other = st.stepped(terrain, interval=50.0, gamma=np.where(np.isnan(gamma), 0.75, gamma))
+    np.testing.assert_array_equal(filled.vertices, other.vertices)  # the value there is read by no vertex
+    mesh = st.stepped(terrain, interval=50.0, gamma=gamma)
+    np.testing.assert_array_equal(mesh.vertices, filled.vertices)
+    np.testing.assert_array_equal(mesh.faces, filled.faces)
+    (frame,) = st.stepped_series([terrain], interval=50.0, gamma=gamma)
+    np.testing.assert_array_equal(frame.vertices, filled.vertices)
+    if case == "lone pixel":  # a stack too
+        (frame,) = st.stepped_series(heights[None], interval=50.0, gamma=gamma)
+        np.testing.assert_array_equal(frame.vertices, filled.vertices)
+    # NaN at a node the surface uses is still refused, with its index
+    gamma[(0,) * gamma.ndim] = np.nan
+    at = "0," if gamma.ndim == 1 else "0, 0"
+    with pytest.raises(st.InvalidInputError, match=rf"^gamma must lie in \[0, 1\] .*; got nan at index \({at}\)$"):
+        st.stepped(terrain, interval=50.0, gamma=gamma)
+
+
+def test_nice_interval_refuses_a_bad_target_or_height_range_by_name():
+    """nice_interval (public in stepterrain.stepped, the CLI's and batch's default interval) divided by ``target``
+    unchecked: target=0 raised a bare ZeroDivisionError and target=-1 "math domain error" from math.log10, naming no
+    argument; a reversed, NaN or infinite height range returned 1.0 without a word (an interval of 1 for heights it
+    never looked at). Both are refused now as isovalues() refuses such a range; a flat range (min == max) still
+    gives 1.0, and the CLI's ranges (finite, min <= max) are unchanged."""
+    from stepterrain.stepped import nice_interval
+
+    for target in (0, -1, np.nan, True, "15"):
+        with pytest.raises(st.InvalidInputError, match=r"^target must be"):
+            nice_interval((0.0, 100.0), target)
+    for height_range in ((10.0, 0.0), (np.nan, 1.0), (0.0, np.inf), (1.0,), "ab"):
+        with pytest.raises(st.InvalidInputError, match=r"^height_range must be"):
+            nice_interval(height_range)
+    assert nice_interval((5.0, 5.0)) == 1.0
+    assert nice_interval((315.0, 2295.0)) == 100.0 and nice_interval((0.0, 100.0), 1.5) == 50.0
+    heights = st.sample_dem().height_range
+    assert len(st.isovalues(heights, interval=nice_interval(heights))) in range(10, 25)
+
+
+def _nodes_on_finite_triangles(heights: np.ndarray) -> np.ndarray:
+    """Reference for the nodes a stepped grid mesh holds: those of a triangle (n00, n01, n11) or (n00, n11, n10)
+    with three finite heights, cell by cell."""
+    rows, cols = heights.shape
+    used = np.zeros(heights.shape, dtype=bool)
+    for r in range(rows - 1):
+        for c in range(cols - 1):
+            for tri in (((r, c), (r, c + 1), (r + 1, c + 1)), ((r, c), (r + 1, c + 1), (r + 1, c))):
+                if all(np.isfinite(heights[n]) for n in tri):
+                    for n in tri:
+                        used[n] = True
+    return used
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st_.integers(0, 2**31 - 1), kind=st_.sampled_from(["grid", "tin", "solid", "series"]))
+def test_per_node_gamma_nan_is_taken_exactly_where_no_vertex_reads_it(seed, kind):
+    """Property of the per-node γ NaN rule: on random grids with voids (lone pixels included), NaN at every node the
+    mesh does not hold (reference: the nodes of a triangle with three finite heights, cell by cell) gives the mesh
+    any value there gives, with no NaN vertex (grid, TIN with NaN z, solid, a two-frame stack whose frames void
+    different nodes); NaN at one node the mesh holds is refused naming that node (in a stack, the frame)."""
+    rng = np.random.default_rng(seed)
+    rows, cols = int(rng.integers(3, 9)), int(rng.integers(3, 9))
+    heights = rng.uniform(0.0, 10.0, (rows, cols))
+    heights[rng.random((rows, cols)) < rng.uniform(0.1, 0.5)] = np.nan
+    frames = [heights]
+    if kind == "series":
+        other = rng.uniform(0.0, 10.0, (rows, cols))
+        other[rng.random((rows, cols)) < rng.uniform(0.1, 0.5)] = np.nan
+        frames.append(other)
+    used = [_nodes_on_finite_triangles(h) for h in frames]
+    if not all(u.any() for u in used):
+        return  # a frame with no triangle: refused whatever γ is
+    unused = ~np.logical_or.reduce(used)
+    gamma = rng.uniform(0.0, 1.0, (rows, cols))
+    gamma[unused] = np.nan
+
+    def run(g):
+        if kind == "series":
+            return [m.vertices for m in st.stepped_series(np.stack(frames), interval=2.0, gamma=g)]
+        if kind == "tin":
+            mesh = st.heightfield_mesh(np.nan_to_num(heights))
+            mesh.vertices[:, 2] = heights.reshape(-1)
+            return [st.stepped(mesh, interval=2.0, gamma=g.reshape(-1)).vertices]
+        return [st.stepped(heights, interval=2.0, gamma=g, solid=kind == "solid").vertices]
+
+    low, high, got = run(np.where(unused, 0.25, gamma)), run(np.where(unused, 0.75, gamma)), run(gamma)
+    for a, b, c in zip(low, high, got, strict=True):
+        assert np.isfinite(c).all()
+        np.testing.assert_array_equal(a, b)  # no vertex reads those nodes
+        np.testing.assert_array_equal(c, a)
+    k = int(rng.integers(len(frames)))
+    at = tuple(int(i) for i in np.argwhere(used[k] & ~used[0])[0]) if k and (used[k] & ~used[0]).any() else None
+    if at is None:
+        k = 0
+        candidates = np.argwhere(used[0])
+        at = tuple(int(i) for i in candidates[rng.integers(len(candidates))])
+    gamma[at] = np.nan
+    index = f"{at[0] * cols + at[1]}," if kind == "tin" else f"{at[0]}, {at[1]}"
+    prefix = rf"frames\[{k}\]: " if k else ""
+    with pytest.raises(st.InvalidInputError, match=rf"^{prefix}gamma must lie in \[0, 1\] .*; got nan at index "
+                                                   rf"\({index}\)$"):
+        run(gamma)

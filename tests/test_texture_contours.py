@@ -332,3 +332,19 @@ def test_cli_contours_help_and_refusals(tmp_path, ramp_dem, capsys):
         err = capsys.readouterr().err
         assert match in err, (argv, err)
     assert not (tmp_path / "x.png").exists()
+
+
+@pytest.mark.parametrize("power", [-95, 70])
+def test_contours_of_heights_scaled_by_a_power_of_two_are_the_same(power):
+    """Contour lines depend on the terrain's shape only: heights, interval and spacing scaled together by a power of
+    two draw the same lines. The kernel took |∇h| = sqrt(gx² + gy²) in float32, the heights' change per texel: below
+    ~1e-19 (heights 2.5e-26 m, spacing 7.6e-28 m) it squared to 0, flat ground, and the lines vanished; above
+    ~1.8e19 (heights 1e24 m, spacing 3.5e22 m) it squared to inf, every distance 0, and the whole layer came out
+    line colour."""
+    heights = np.asarray(st.sample_dem().heights, np.float32)[:60, :80]
+    ref = contour_layer(heights, interval=50.0, spacing=(30.0, -30.0), device="cpu").rgba()
+    k = 2.0 ** power
+    scaled = contour_layer(heights * np.float32(k), interval=50.0 * k, spacing=(30.0 * k, -30.0 * k),
+                           device="cpu").rgba()
+    assert 0.05 < (ref[..., 3] > 0.5).mean() < 0.5  # lines, not the whole layer
+    np.testing.assert_allclose(scaled, ref, atol=1e-6)

@@ -1104,3 +1104,73 @@ def test_a_layer_on_the_grid_is_read_as_it_is_at_fine_pixels_far_from_the_origin
     b = TextureLayer("thematic", values, extent, matrix=matrix)
     out = weighted_add([a, b], [0.0, 1.0], device="cpu").rgba()
     np.testing.assert_array_equal(out[..., :3], values)
+
+
+@pytest.mark.parametrize("order", [(0, 1, 2, 3, 4), (4, 0, 2, 1, 3), (0, 2, 1, 3, 4)])
+def test_huge_weights_that_cancel_add_the_same_in_any_order(order):
+    """weighted_add summed Σ w_k · layer_k pairwise in float32: weights near float32's top that cancel (3e38, 3e38,
+    −3e38, −3e38) on one layer overflowed the running sum to inf, and inf − 3e38 stayed inf, clamped to 1: a sum of
+    0.5 · 0.8 came out white, and with the 0.5 · grey term first black (3e38 · shade swallowed it), without a word.
+    Such sums now run in float64, compensated: no partial sum overflows and exactly cancelling terms leave the rest."""
+    shade = hillshade(real_dem_crop("big_tujunga_srtm_30m_utm11n.npz", 48, 4), spacing=(120.0, 120.0), device="cpu")
+    grey = np.full(shade.shape + (3,), 0.8, np.float32)
+    extent = (0.0, 48.0, 0.0, 48.0)
+    a = TextureLayer("thematic", np.repeat(shade[..., None], 3, axis=2), extent)
+    b = TextureLayer("thematic", grey, extent)
+    pairs = [(a, 3e38), (a, 3e38), (a, -3e38), (a, -3e38), (b, 0.5)]
+    out = weighted_add([pairs[k][0] for k in order], [pairs[k][1] for k in order], device="cpu").rgba()
+    np.testing.assert_allclose(out[..., :3], 0.4, atol=1e-6)  # 3e38 · s cancels exactly: 0.5 · 0.8 is left
+    np.testing.assert_allclose(out[..., 3], 0.5, atol=1e-6)  # alpha: 3e38 · 1 cancels too, 0.5 · 1
+    # within float32 the pairwise float32 sum is kept as it was, bit for bit (1 + 1 − 1.5, clamped last)
+    assert np.array_equal(weighted_add([a, a, b], [1.0, 1.0, -1.5], device="cpu").rgba(),
+                          np.clip(np.float32(2.0) * a.rgba() - np.float32(1.5) * b.rgba(), 0.0, 1.0))
+
+
+@pytest.mark.parametrize("power", [-80, 60])
+def test_occlusion_of_a_terrain_scaled_by_a_power_of_two_is_the_same(power):
+    """Ambient occlusion depends only on the terrain's shape: scaled as a whole (heights and spacing) it is the same.
+    Its kernel took sin(horizon) = rise / sqrt(rise² + run²) in float32 world units: at 2^-80 (heights 1e-21 m,
+    spacing 1e-23 m) rise² + run² underflowed to 0 and the occlusion came out −inf; at 2^60 (heights 1e21 m) it
+    overflowed to inf, sin 0, and the valleys came out 1 (open). By a power of two the scaling is exact in float32."""
+    heights = real_dem_crop("big_tujunga_srtm_30m_utm11n.npz", 40, 3)
+    heights[10:14, 20:23] = np.nan  # nodata stays NaN
+    spacing = (90.0, -90.0)
+    ref = ambient_occlusion(heights, spacing=spacing, directions=8, device="cpu")
+    k = 2.0 ** power
+    scaled = ambient_occlusion(heights * np.float32(k), spacing=(spacing[0] * k, spacing[1] * k), directions=8,
+                               device="cpu")
+    assert np.nanmin(ref) < 0.9 and np.isnan(ref[10:14, 20:23]).all()  # valleys are occluded
+    np.testing.assert_array_equal(scaled, ref)
+
+
+@pytest.mark.parametrize("power", [-90, -80])
+def test_a_point_light_on_a_tiny_terrain_shades_as_on_the_terrain_scaled_up(power):
+    """relight's point light depends on the scene's shape only: the terrain, its spacing and the light scaled
+    together by a power of two shade the same. The kernel normalized the texel-to-light vector in float32: at
+    2^-90 (spacing 2.4e-26 m) its squared length underflowed, and texels came out lit wrongly, up to 0.5 off."""
+    heights = real_dem_crop("big_tujunga_srtm_30m_utm11n.npz", 40, 3)
+    spacing, light = (90.0, -90.0), (1800.0, -1500.0, float(np.nanmax(heights)) + 400.0)
+    normals = normal_map(heights, spacing=spacing, device="cpu")
+    ref = relight(normals, point=light, terrain=heights, spacing=spacing, device="cpu")
+    k = 2.0 ** power
+    scaled = relight(normals, point=tuple(c * k for c in light), terrain=heights * np.float32(k),
+                     spacing=(spacing[0] * k, spacing[1] * k), device="cpu")
+    assert 0.2 < np.nanmean(ref) < 0.95
+    np.testing.assert_allclose(scaled, ref, atol=1e-6)
+
+
+@pytest.mark.parametrize("order", [(0, 1, 2), (2, 0, 1)])
+def test_huge_weights_that_are_one_float32_cancel_as_the_kernel_takes_them(order):
+    """The weights are taken as float32 (the kernel's), so 3e38 and float32(3e38) = 3.0000000054977558e38 are one
+    weight: w · layer − w · layer cancels. The float64 sum took them as given: their difference, 5.5e30 · shade,
+    turned the 0.5 · 0.8 under it white (main, summing in float32, gave 0.4). A float32 weight times a float32
+    channel is exact in float64, so the sum does not depend on how a device fuses its products and additions."""
+    shade = hillshade(real_dem_crop("big_tujunga_srtm_30m_utm11n.npz", 48, 4), spacing=(120.0, 120.0), device="cpu")
+    extent = (0.0, 48.0, 0.0, 48.0)
+    a = TextureLayer("thematic", np.repeat(shade[..., None], 3, axis=2), extent)
+    b = TextureLayer("thematic", np.full(shade.shape + (3,), 0.8, np.float32), extent)
+    assert float(np.float32(3e38)) != 3e38 and (shade > 0.1).mean() > 0.9
+    pairs = [(a, float(np.float32(3e38))), (a, -3e38), (b, 0.5)]
+    out = weighted_add([pairs[k][0] for k in order], [pairs[k][1] for k in order], device="cpu").rgba()
+    np.testing.assert_allclose(out[..., :3], 0.4, atol=1e-6)
+    np.testing.assert_allclose(out[..., 3], 0.5, atol=1e-6)
