@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import math
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -454,11 +455,6 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     progress.stage("load", f"loading {args.input if args.input else 'the embedded Big Tujunga DEM'}")
     terrain = _input_terrain(args)
     progress.done(f"{' x '.join(str(n) for n in terrain.shape)} nodes,")
-    if args.contours is not None:  # levels 0, M, 2M, ...: none within the heights drew no line, and said nothing
-        lo, hi = terrain.finite_height_range
-        if math.isfinite(lo) and math.isfinite(hi) and math.ceil(lo / args.contours) * args.contours > hi:
-            raise InvalidInputError(f"--contours {args.contours:g} draws no line: no multiple of it (the contour "
-                                    f"levels) lies within the heights {lo:g} to {hi:g}; give a smaller interval")
     device = resolve_device(args.device)
     grid = None  # --texel-size: the texture's (extent, shape), finer than the DEM's nodes
     if args.texel_size is not None:
@@ -523,6 +519,14 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     if contour_options is not None:  # the contour lines last, unshaded, over both textures (as blend lays them)
         # on the composite's grid (both from texture._texel_grid, or the DEM's nodes; _lay_over_uint8 checks the shape)
         lines = tx.contour_layer(terrain, texel_size=args.texel_size, device=device, **contour_options)
+        if not lines.image[..., 3].max() > 0:  # (NaN-free: nodata texels hold alpha 0)
+            # no level passed within a line's width of a texel's height: the texture came out as without --contours
+            # and said nothing. Not refused: a tile no level crosses, in a set textured at one interval, is no
+            # mistake, and a level just beyond the heights is drawn (within half a line's width of the edge texels)
+            lo, hi = terrain.finite_height_range
+            warnings.warn(f"--contours {args.contours:g} drew no line: no contour level (a multiple of it) passes "
+                          f"within the heights {lo:g} to {hi:g}; the texture is as without --contours (a smaller "
+                          "interval draws lines)", stacklevel=1)
         for picture_out in (image, over_white):
             if picture_out is not None:
                 tx._lay_over_uint8(picture_out, lines)

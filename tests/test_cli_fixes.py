@@ -1951,25 +1951,41 @@ def test_closeup_spin_is_checked_at_parse_time_and_within_half_a_turn_a_frame(tm
     assert sorted(tmp_path.iterdir()) == []
 
 
-def test_texture_contours_with_no_level_within_the_heights_is_refused(tmp_path, capsys):
-    """``texture --contours M`` with no multiple of M within the heights (1e308, or 200 over heights 100 to 180)
-    drew no line: the texture came out as without --contours, and nothing said so."""
-    heights = np.add.outer(np.linspace(100.0, 140.0, 24), np.linspace(0.0, 40.0, 32)).astype(np.float32)
-    np.save(tmp_path / "dem.npy", heights)
-    for interval in ("200", "1e308", "181"):
-        code, _, err = run(capsys, "-q", "texture", tmp_path / "dem.npy", "--contours", interval, "-o",
-                           tmp_path / "t.png")
-        assert code == 2, err
-        assert f"--contours {float(interval):g} draws no line: no multiple of it (the contour levels) lies within " \
-               f"the heights 100 to 180; give a smaller interval" in err, err
-        assert not (tmp_path / "t.png").exists()
-    code, _, err = run(capsys, "-q", "texture", tmp_path / "dem.npy", "--contours", "150", "-o", tmp_path / "t.png")
-    assert code == 0, err  # one level, 150, within them: drawn
-    plain = tmp_path / "plain.png"
-    assert run(capsys, "-q", "texture", tmp_path / "dem.npy", "-o", plain)[0] == 0
+def test_texture_contours_with_no_line_drawn_warns_and_one_beyond_the_heights_is_drawn(tmp_path, capsys):
+    """``texture --contours M`` with no contour line drawn (1e308, or 200 over heights 100 to 180) came out as without
+    --contours, and nothing said so: a warning says it now, the texture still written (a tile no level crosses, in a
+    set textured at one interval, is no mistake). A level just beyond the heights draws a line within half its width
+    (the 100 m line along the upper edge of a hillside tile reaching 99.8 m, 181 at the corner of heights 100 to
+    180): it is not refused."""
     from PIL import Image
 
-    assert not np.array_equal(np.asarray(Image.open(tmp_path / "t.png")), np.asarray(Image.open(plain)))
+    def texture(dem, *extra):
+        out = tmp_path / f"t{len(list(tmp_path.iterdir()))}.png"
+        code, _, err = run(capsys, "-q", "texture", dem, *extra, "-o", out)
+        assert code == 0, err
+        return np.asarray(Image.open(out)), err
+
+    heights = np.add.outer(np.linspace(100.0, 140.0, 24), np.linspace(0.0, 40.0, 32)).astype(np.float32)
+    np.save(tmp_path / "dem.npy", heights)
+    plain, err = texture(tmp_path / "dem.npy")
+    assert err == ""
+    for interval in ("200", "1e308", "183"):
+        image, err = texture(tmp_path / "dem.npy", "--contours", interval)
+        assert err == f"stepterrain texture: warning: --contours {float(interval):g} drew no line: no contour level " \
+                      f"(a multiple of it) passes within the heights 100 to 180; the texture is as without " \
+                      f"--contours (a smaller interval draws lines)\n", err
+        assert np.array_equal(image, plain)
+    image, err = texture(tmp_path / "dem.npy", "--contours", "150")  # one level, 150, within them: drawn
+    assert err == "" and not np.array_equal(image, plain), err
+    image, err = texture(tmp_path / "dem.npy", "--contours", "181")  # 1 above the top corner, ~2.2 a texel: drawn
+    assert err == "" and not np.array_equal(image, plain), err
+    hillside = np.tile(np.linspace(60.0, 99.8, 32, dtype=np.float32), (24, 1))  # 60 to 99.8 m, no multiple of 100
+    np.save(tmp_path / "hill.npy", hillside)
+    plain, _ = texture(tmp_path / "hill.npy")
+    image, err = texture(tmp_path / "hill.npy", "--contours", "100")
+    assert err == "", err
+    changed = np.nonzero((image != plain).any(axis=2))[1]
+    assert changed.size and set(changed.tolist()) <= {30, 31}, changed  # the 100 m line along the east edge
 
 
 @pytest.mark.parametrize("fractions", ["0.5,0.5,1e308", "1e308,0.5,0.1", "0.5,-1e308,0.1", "0.5,0.5,1e12"])
