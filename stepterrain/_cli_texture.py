@@ -524,9 +524,10 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
             # and said nothing. Not refused: a tile no level crosses, in a set textured at one interval, is no
             # mistake, and a level just beyond the heights is drawn (within half a line's width of the edge texels)
             lo, hi = terrain.finite_height_range
+            hint = "a smaller interval draws lines" if lo < hi else "flat ground draws a line only exactly on a level"
             warnings.warn(f"--contours {args.contours:g} drew no line: no contour level (a multiple of it) passes "
-                          f"within the heights {lo:g} to {hi:g}; the texture is as without --contours (a smaller "
-                          "interval draws lines)", stacklevel=1)
+                          f"within the heights {lo:g} to {hi:g}; the texture is as without --contours ({hint})",
+                          stacklevel=1)
         for picture_out in (image, over_white):
             if picture_out is not None:
                 tx._lay_over_uint8(picture_out, lines)

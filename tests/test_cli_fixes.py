@@ -1986,6 +1986,11 @@ def test_texture_contours_with_no_line_drawn_warns_and_one_beyond_the_heights_is
     assert err == "", err
     changed = np.nonzero((image != plain).any(axis=2))[1]
     assert changed.size and set(changed.tolist()) <= {30, 31}, changed  # the 100 m line along the east edge
+    np.save(tmp_path / "flat.npy", np.full((6, 7), 100.0, np.float32))
+    assert texture(tmp_path / "flat.npy", "--contours", "50")[1] == ""  # flat on a level: all line
+    assert texture(tmp_path / "flat.npy", "--contours", "30")[1] == "stepterrain texture: warning: --contours 30 " \
+        "drew no line: no contour level (a multiple of it) passes within the heights 100 to 100; the texture is as " \
+        "without --contours (flat ground draws a line only exactly on a level)\n"
 
 
 @pytest.mark.parametrize("fractions", ["0.5,0.5,1e308", "1e308,0.5,0.1", "0.5,-1e308,0.1", "0.5,0.5,1e12"])
