@@ -1834,7 +1834,8 @@ def batch(
         warned once for the run, with the number of outputs it moved (each item's own message stays in its
         :class:`ItemResult`'s ``warnings``).
     workers : int
-        Worker processes of the LocalCluster.
+        Worker processes of the LocalCluster, at most one per item to run (a LocalCluster gives each worker
+        1/n_workers of the machine's memory as its limit: idle workers took the busy ones' share).
     retries : int
         Extra attempts for an item whose task raised (worker lost, disk error). Bad input data (an
         unreadable tile) fails at once.
@@ -2236,6 +2237,9 @@ def _run_locked(
     # a nanny writes its pre-spawn variables into os.environ again when it restarts a worker that died: put back
     # when the default cluster is closed, as start_local_cluster puts them back once its workers have started
     environ = {key: os.environ.get(key) for key in LOCAL_CLUSTER_MALLOC}
+    # no more LocalCluster workers than items to run: each extra one took seconds to start, and a LocalCluster gives
+    # each worker 1/n_workers of the machine's memory as its limit (workers=8 for two files: an eighth each)
+    workers = min(workers, len(todo))
     try:
         connection = None if serial or not todo else _connect(scheduler, workers, timeout)
     except BaseException:
