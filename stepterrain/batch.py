@@ -1003,7 +1003,7 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
     except StepTerrainError as exc:
         if _transient(exc):
             raise  # a disk or network hiccup under the library's error (e.g. EIO, ENOSPC): retried like any other
-        return ItemResult(item.key, "failed", error=f"{type(exc).__name__}: {exc}", attempts=1,
+        return ItemResult(item.key, "failed", error=f"{_error_name(exc)}: {exc}", attempts=1,
                           seconds=time.perf_counter() - start, cpu_seconds=time.process_time() - cpu_start)  # fmt: skip
     # A Trimesh refers to itself (its visuals, caches and query helpers hold the mesh), so only the cyclic
     # garbage collector frees its arrays, and by then it has often moved them to its oldest generation: a worker
@@ -1016,6 +1016,12 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
         cpu_seconds=time.process_time() - cpu_start, faces=n_faces, vertices=n_vertices,
         bytes=written.stat().st_size,
     )  # fmt: skip
+
+
+def _error_name(exc: BaseException) -> str:
+    """The name a failed item's error gives ``exc``'s class: its first public one (io's ``_NotDegrees``, a grid in
+    degrees whose nodes are none, is a DataFileError to the caller)."""
+    return next(c.__name__ for c in type(exc).__mro__ if not c.__name__.startswith("_"))
 
 
 def _degree_frames(items: Sequence[BatchItem]) -> tuple[tuple[str, _Frame], ...]:
@@ -1053,7 +1059,9 @@ def _degree_frames(items: Sequence[BatchItem]) -> tuple[tuple[str, _Frame], ...]
         try:
             _, frame_crs, source, placed = shared_degree_frame(crs, [g for _, g, _ in group], [s for _, _, s in group])
         except StepTerrainError:  # the union is no degrees (over 360 of longitude): each file in its own frame
+            _warn_antimeridian(crs, group, placed=False)
             continue
+        _warn_antimeridian(crs, group, placed=True)
         for (item, _, _), spacing_own, (spacing, origin) in zip(group, own, placed, strict=True):
             name = Path(str(item.path)).name
             frames.append((item.key, _Frame(spacing_own, spacing, origin, frame_crs, f"{name}, placed in {source}")))
@@ -1067,6 +1075,52 @@ def _degree_frames(items: Sequence[BatchItem]) -> tuple[tuple[str, _Frame], ...]
             stacklevel=caller_stacklevel(),
         )
     return tuple(frames)
+
+
+def _warn_antimeridian(crs: str, group: Sequence[tuple[BatchItem, Sequence[float], tuple[int, int]]], *,
+                       placed: bool) -> None:
+    """Warn when the files in degrees of ``group`` (item, geotransform, shape) in ``crs`` lie either side of the
+    antimeridian, or in two longitude conventions (-180 to 180 and 0 to 360): their mosaic would be narrower by over
+    half the globe wrapped across it than as the ``.vrt`` of ``gdalbuildvrt`` lays them, from their westmost to their
+    eastmost cell. ``placed``: their shared frame, that .vrt's, puts the two sides a whole parallel apart; else their
+    union spanned more than 360 degrees of longitude, and each file was left in local metres of its own. It names the
+    ``+lon_wrap`` that joins the sides: 180 (0 to 360) across the antimeridian, 0 (-180 to 180) for files in 0 to 360
+    either side of the prime meridian (lon 359.9 to 360 and 0 to 0.1), which 0 to 360 leaves a parallel apart."""
+    spans = sorted((min(g[0], g[0] + w * g[1]), max(g[0], g[0] + w * g[1]), Path(str(item.path)).name)
+                   for item, g, (_, w) in group)  # fmt: skip
+    reach, gap, split = spans[0][1], -math.inf, 0  # the widest gap between the files, and the first file past it
+    for i, (west, east, _) in enumerate(spans[1:], start=1):
+        if west - reach > gap:
+            gap, split = west - reach, i
+        reach = max(reach, east)
+    wrapped = 360.0 - (reach - spans[0][0])  # the gap across the antimeridian (negative: the union is over 360)
+    if gap - max(wrapped, 0.0) <= 180.0:
+        return
+
+    # the sides joined, the western one's longitudes 360 on, from a west edge in [0, 360): over half the globe
+    # narrower than the gap, so within 0 to 360 (the antimeridian between the sides) or 180 to 540 (-180 to 180)
+    lo = min(min(w for w, _, _ in spans[split:]), min(w for w, _, _ in spans[:split]) + 360.0)
+    hi = max(max(e for _, e, _ in spans[split:]), max(e for _, e, _ in spans[:split]) + 360.0)
+    hi -= math.floor((lo + 1e-9) / 360.0) * 360.0  # longitudes -360 to 0 alike
+    wrap, seam = (180.0, "the antimeridian") if hi <= 360.0 + 1e-9 else (
+        0.0, "the prime meridian, where longitudes 0 to 360 wrap as -180 to 180 wrap at the antimeridian")
+    convention = "0 to 360" if wrap else "-180 to 180"
+
+    def named(side: Sequence[tuple[float, float, str]]) -> str:
+        names = ", ".join(n for _, _, n in side[:3]) + (f" and {len(side) - 3} more" if len(side) > 3 else "")
+        return f"{names} (lon {min(w for w, _, _ in side):.9g} to {max(e for _, e, _ in side):.9g})"
+
+    how = (f"their mosaic's local metres, as in the .vrt gdalbuildvrt makes of them, put the two sides {gap:.9g} "
+           "degrees of longitude apart, so their meshes lie a whole parallel apart and do not weld"
+           if placed else "together they span more than 360 degrees of longitude, so each file is placed in local "
+           "metres of its own (node (0, 0) at its first node), their meshes on top of one another")
+    warnings.warn(
+        f"the DEM files in degrees {named(spans[:split])} and {named(spans[split:])} in {crs} lie either side of "
+        f"{seam}, or in two longitude conventions (-180 to 180 and 0 to 360): {how}; to step them as one surface, "
+        f"give each file longitudes {convention} first (gdalwarp -t_srs '+proj=longlat +datum=WGS84 "
+        f"+lon_wrap={wrap:g}'), or step each side as a folder of its own",
+        stacklevel=caller_stacklevel(),
+    )
 
 
 def _in_frame(terrain: Terrain, frame: _Frame) -> Terrain:
@@ -1096,8 +1150,9 @@ def _warn_own_local_metres(terrain: Terrain, coarsen: int | None = None) -> None
     at_its_own = all(math.isclose(o, f, rel_tol=1e-9) for o, f in zip(terrain.origin, first, strict=True))
     if at_its_own and _lonlat_grid(terrain) is not None:
         warnings.warn(
-            "DEM files in degrees that GDAL does not read (an .npz), or one alone in its geographic CRS, are not "
-            "placed in the local metres the other files in degrees share: each is placed in local metres of its own "
+            "DEM files in degrees that GDAL does not read (an .npz), one alone in its geographic CRS, or files whose "
+            "mosaic would span more than 360 degrees of longitude, are not placed in the local metres the other "
+            "files in degrees share: each is placed in local metres of its own "
             "(node (0, 0) at its first node, the +proj=eqc CRS of its mesh's metadata), so their meshes neither line "
             "up nor weld where neighbours share their border nodes: to step them as one surface, convert them to "
             "GeoTIFFs (gdal_translate), or mosaic them (gdalbuildvrt tiles.vrt "
