@@ -1889,7 +1889,8 @@ def batch(
         warned once for the run, with the number of outputs it moved (each item's own message stays in its
         :class:`ItemResult`'s ``warnings``).
     workers : int
-        Worker processes of the LocalCluster.
+        Worker processes of the LocalCluster, at most one per item to run (a LocalCluster gives each worker
+        1/n_workers of the machine's memory as its limit: idle workers took the busy ones' share).
     retries : int
         Extra attempts for an item whose task raised (worker lost, disk error). Bad input data (an
         unreadable tile) fails at once.
@@ -2291,6 +2292,9 @@ def _run_locked(
     # a nanny writes its pre-spawn variables into os.environ again when it restarts a worker that died: put back
     # when the default cluster is closed, as start_local_cluster puts them back once its workers have started
     environ = {key: os.environ.get(key) for key in LOCAL_CLUSTER_MALLOC}
+    # no more LocalCluster workers than items to run: each extra one took seconds to start, and a LocalCluster gives
+    # each worker 1/n_workers of the machine's memory as its limit (workers=8 for two files: an eighth each)
+    workers = min(workers, len(todo))
     try:
         connection = None if serial or not todo else _connect(scheduler, workers, timeout)
     except BaseException:
@@ -2335,27 +2339,31 @@ def _run_locked(
         # heights block its workers held (hundreds of kB on the terminal after Ctrl-C); after a run of many items,
         # interrupted or not, a worker logged "ERROR - Failed to communicate with scheduler during heartbeat" and
         # its traceback as the cluster closed. None of them the user's: the cluster is closed in silence
-        own = connection is not None and connection[1] is not None
-        with _dask_logs_silenced(connection[0]) if own else nullcontext():  # type: ignore[index]
-            if connection is not None and isinstance(stream, Generator):
-                # interrupted in this loop (Ctrl-C as a result was recorded): the generator cancels its tasks now,
-                # while the client is open; closed by the garbage collector after it, it failed ("Exception ignored
-                # in: <generator object _run_dask>" ... "RuntimeError: IOLoop is closed") and left them running
-                stream.close()
-            for result in salvage:  # finished before the interrupt: recorded, so that a rerun does not redo them
-                recorder.add(result)
-            recorder.flush()
-            if bar is not None:
-                bar.close()
-            if connection is not None:
-                try:
-                    _disconnect(scheduler, connection)
-                finally:
-                    if connection[1] is not None:  # the default LocalCluster, closed
-                        _restore_environ(environ)
-        # a worker killed while writing (its items run again, or its cluster closed under an interrupted run: the
-        # partial file stayed until a rerun) left its temporary file: the folder is still ours
-        _remove_partial(folder, outputs + [MANIFEST_NAME])
+        # Ctrl-C (SIGTERM, SIGHUP) held back while the run is wound up, raised after it: one that came as the run
+        # ended (or a second one during an interrupted run's clean-up) stopped the manifest's last rewrite, and
+        # the run's outputs, written and complete, were left unrecorded for a rerun to redo
+        with signals_held():
+            own = connection is not None and connection[1] is not None
+            with _dask_logs_silenced(connection[0]) if own else nullcontext():  # type: ignore[index]
+                if connection is not None and isinstance(stream, Generator):
+                    # interrupted in this loop (Ctrl-C as a result was recorded): the generator cancels its tasks now,
+                    # while the client is open; closed by the garbage collector after it, it failed ("Exception ignored
+                    # in: <generator object _run_dask>" ... "RuntimeError: IOLoop is closed") and left them running
+                    stream.close()
+                for result in salvage:  # finished before the interrupt: recorded, so that a rerun does not redo them
+                    recorder.add(result)
+                recorder.flush()
+                if bar is not None:
+                    bar.close()
+                if connection is not None:
+                    try:
+                        _disconnect(scheduler, connection)
+                    finally:
+                        if connection[1] is not None:  # the default LocalCluster, closed
+                            _restore_environ(environ)
+            # a worker killed while writing (its items run again, or its cluster closed under an interrupted run: the
+            # partial file stayed until a rerun) left its temporary file: the folder is still ours
+            _remove_partial(folder, outputs + [MANIFEST_NAME])
     if recorder.unrecorded is not None:
         notes.append(recorder.unrecorded)
     kept = [f"{i.key}{ext}" for i in items if i.key in earlier and results[i.key].status == "failed"]

@@ -2615,6 +2615,39 @@ def test_a_file_in_degrees_added_to_a_folder_redoes_the_files_whose_frame_it_mov
     assert [r.key for r in report.done] == ["nw_again"] and len(report.skipped) == 3, report.summary()
 
 
+def test_the_local_cluster_starts_no_more_workers_than_items_to_run(tmp_path, monkeypatch):
+    # workers=8 for two files started eight worker processes (seconds each to import stepterrain on a small box), and
+    # a LocalCluster gives each worker 1/n_workers of the machine's memory as its limit: the two that had work got an
+    # eighth each, killed by their nannies at 95 % of it where two workers had half the memory each
+    import stepterrain.batch as batch_module
+
+    pytest.importorskip("distributed")
+    started: list[int] = []
+
+    class Started(Exception):
+        pass
+
+    def record(workers):
+        started.append(workers)
+        raise Started  # the count is what matters here: no cluster started
+
+    monkeypatch.setattr(batch_module, "start_local_cluster", record)
+    src = tmp_path / "dems"
+    src.mkdir()
+    for k in range(3):
+        np.save(src / f"t{k}.npy", np.add.outer(np.arange(6.0), np.arange(6.0)).astype(np.float32) + k)
+    out = tmp_path / "out"
+    with pytest.raises(Started):
+        batch(src, out, interval=1.0, workers=8)
+    batch(src, out, interval=1.0, scheduler="serial")
+    (out / "t1.glb").unlink()  # one item left to redo
+    with pytest.raises(Started):
+        batch(src, out, interval=1.0, workers=8)
+    with pytest.raises(Started):
+        batch(src, out, interval=1.0, workers=2)
+    assert started == [3, 1, 1]
+
+
 @pytest.mark.parametrize("bad", ["nan_x0", "nan_dx", "inf_x0", "huge_x0"])
 def test_a_dem_file_in_degrees_with_a_non_finite_or_absurd_geotransform_fails_alone(tmp_path, bad):
     """A file in degrees whose geotransform holds NaN or inf (x0 or dx), among files placed in their mosaic's frame,
