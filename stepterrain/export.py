@@ -1703,6 +1703,11 @@ _STL_ROUNDING_RE = re.compile(r": \.stl stores float32 coordinates, which move t
                               r"(?P<error>[0-9.e+-]+) ")
 
 
+#: The warning of :func:`_warn_stl_open`, its count of open edges as ``edges``: batch says it once for all its files
+_STL_OPEN_RE = re.compile(r": \.stl stores float32 coordinates without indices, .* reads it back with "
+                          r"(?P<edges>[0-9]+) edges? not shared by exactly two triangles")
+
+
 def _warn_stl_rounding(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> None:
     """Warn (a ``UserWarning`` at the caller's line) when STL's float32 moves some coordinate by more than
     :data:`_STL_ROUNDING_TOLERANCE`: UTM northings came back up to 0.5 m off, a globe's surface 0.25 m, without a

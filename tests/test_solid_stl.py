@@ -561,3 +561,22 @@ def test_stl_warns_exactly_when_a_watertight_solid_reads_back_open(rows, cols, s
     assert mesh.is_watertight
     messages, back = _stl_warnings(mesh, tmp_path_factory.mktemp("stl") / "solid.stl")
     assert any(_OPEN_STL in m for m in messages) == (not back.is_watertight)
+
+
+def test_batch_of_solid_tiles_says_once_that_their_stl_reads_back_open(tmp_path):
+    """A batch of UTM solid tiles (a 1 m grid of the embedded DEM's heights, pinches in every tile) as .stl: each
+    tile's file reads back open, and the batch says so once (as it does float32's rounding), not once per tile."""
+    from stepterrain.batch import batch
+
+    heights = st.sample_dem().heights[:80, :80]
+    for r in (20, 60):
+        for c in (20, 60):
+            heights = _pinched(heights, (r, c))
+    raster = st.Terrain.from_heights(heights, spacing=(1.0, -1.0), origin=(500000.0, 5000000.0))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        report = batch(raster, tmp_path, tile_size=40, interval=20.0, solid=True, format=".stl", scheduler="serial")
+    opened = [str(w.message) for w in caught if _OPEN_STL in str(w.message)]
+    assert len(opened) == 1 and opened[0].startswith("4 of the 4 .stl outputs written read back open")
+    assert all(any(_OPEN_STL in m for m in item.warnings) for item in report.results)
+    assert not any(trimesh.load(tmp_path / f"tile_r{r}_c{c}.stl").is_watertight for r in (0, 1) for c in (0, 1))
