@@ -28,9 +28,9 @@ from ._device import (
     to_device,
     to_numpy,
 )
-from .errors import InvalidInputError, OutputTooLargeError
+from .errors import InvalidInputError, OutputTooLargeError, counted
 from .kernels import solid as kernels
-from .terrain import FLOAT32_MAX
+from .terrain import FLOAT32_MAX, finite_number, real_numbers
 
 __all__ = ["close_solid", "boundary_edges", "exact_keys", "mesh_argument"]
 
@@ -192,15 +192,25 @@ def _boundary(faces: wp.array, n: int, device: wp.Device) -> NDArray[np.int64]:
     return edges.numpy().reshape(total, 2)
 
 
+def _face_indices(faces: Any) -> NDArray[np.int64]:
+    """``faces`` as an (F, 3) int64 array, else an :class:`InvalidInputError`: float indices (1.5) were truncated to
+    another vertex without a word. An empty list (numpy's float64) is no faces."""
+    array = np.asarray(faces)
+    if array.size and array.dtype.kind not in "iu":  # not bools, not floats
+        raise InvalidInputError(f"faces must be an (F, 3) integer array of vertex indices; got dtype {array.dtype}")
+    array = array.astype(np.int64, copy=False)
+    if array.ndim != 2 or array.shape[1] != 3:  # the kernels read the faces as flat rows of three
+        raise InvalidInputError(f"faces must be an (F, 3) array of vertex indices; got shape {array.shape}")
+    return array
+
+
 def boundary_edges(faces: NDArray[np.int64], device: wp.DeviceLike = None) -> NDArray[np.int64]:
     """Directed edges (a, b), as wound in their face, that no other face uses: (B, 2), in face order.
 
     An edge is on the boundary when exactly one half-edge of the mesh has its undirected key; the kernels count
     those among the corners at one of its ends (kernels/solid.py: a vertex -> corner table built without a sort,
     then count -> scan -> emit over the faces). ``device``: where the kernels run (the CPU by default)."""
-    faces = np.asarray(faces, dtype=np.int64)
-    if faces.ndim != 2 or faces.shape[1] != 3:  # the kernels read the faces as flat rows of three
-        raise InvalidInputError(f"faces must be an (F, 3) array of vertex indices; got shape {faces.shape}")
+    faces = _face_indices(faces)
     if len(faces) == 0:
         return np.zeros((0, 2), np.int64)
     if faces.min() < 0:
@@ -331,14 +341,16 @@ def close_solid(
     The base vertices follow the surface's order: one per column (the surface vertices that share it), in the order
     of each column's smallest surface vertex.
     """
-    vertices = np.asarray(vertices, dtype=np.float64)
-    faces = np.asarray(faces, dtype=np.int64)
-    if faces.ndim != 2 or faces.shape[1] != 3:
-        raise InvalidInputError(f"faces must be an (F, 3) array of vertex indices; got shape {faces.shape}")
+    vertices = real_numbers(vertices, "vertices", "an (N, 3) array of x, y, z")
+    faces = _face_indices(faces)
     if vertices.ndim != 2 or vertices.shape[1] != 3:  # the kernels read them as flat rows of three
         raise InvalidInputError(f"vertices must be an (N, 3) array of x, y, z; got shape {vertices.shape}")
     if len(vertices) == 0:
         raise InvalidInputError("vertices: close_solid needs a surface to close; got no vertex")
+    bad = int(np.count_nonzero(~np.isfinite(vertices)))
+    if bad:  # NaN reached the solid's vertices, the base and its floor check without a word
+        raise InvalidInputError(f"vertices must be finite; got {counted(bad, 'NaN or infinite coordinate')}")
+    floor = finite_number(floor, "floor")
     if 3 * len(vertices) > MAX_INT32:  # their coordinates, flat, at 3·i in int32 (and pinch copies are checked later)
         raise OutputTooLargeError(f"vertices: the kernels index at most {MAX_INT32 // 3:,} vertices with int32; got "
                                   f"{len(vertices):,}")
@@ -375,8 +387,6 @@ def close_solid(
             vertices = vertices[used]
             source = source[used]
         flat = _flat_faces(faces, device)
-    if not np.isfinite(floor):
-        raise InvalidInputError(f"floor must be finite; got {floor}")
     if abs(floor) > FLOAT32_MAX:  # the mesh's float32 vertices (GPU, GLB) would hold -inf and NaN
         raise InvalidInputError(f"floor must fit in float32 (|x| < {FLOAT32_MAX:.2g}); got {floor:g}")
     zmin = float(vertices[:, 2].min()) if len(vertices) else 0.0
