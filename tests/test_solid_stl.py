@@ -580,3 +580,21 @@ def test_batch_of_solid_tiles_says_once_that_their_stl_reads_back_open(tmp_path)
     assert len(opened) == 1 and opened[0].startswith("4 of the 4 .stl outputs written read back open")
     assert all(any(_OPEN_STL in m for m in item.warnings) for item in report.results)
     assert not any(trimesh.load(tmp_path / f"tile_r{r}_c{c}.stl").is_watertight for r in (0, 1) for c in (0, 1))
+
+
+@pytest.mark.parametrize("gamma", [1.0, 0.5])
+def test_pinch_copy_of_a_one_triangle_fan_moves_into_it_at_utm_coordinates(gamma, tmp_path):
+    """Big Tujunga's SRTM (30 m, UTM) with 5 % void nodes: where voids lie north and south of a node, each side's fan
+    is one grid triangle, and the copy's diagonal move runs along its diagonal edge: float64 rounding put it a hair
+    outside its angle, the copy stayed on the node (13 of 477) and the .stl read back open. It now moves along its
+    fan's mean direction, strictly inside: the .stl is watertight, every face of the fan still faces up."""
+    dem = st.load_dem("/work/shared/data/big_tujunga_srtm_30m_utm11n.tif")
+    heights = dem.heights[:300, :300].copy()
+    heights[np.random.default_rng(0).random(heights.shape) < 0.05] = np.nan
+    holed = st.Terrain.from_heights(heights, spacing=dem.spacing, origin=dem.origin)
+    mesh = st.stepped(holed, interval=50.0, gamma=gamma, solid=True)
+    _assert_stl_is_the_solid(mesh, tmp_path / "voids.stl")
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    top = (vertices[faces, 2] > float(vertices[:, 2].min())).all(axis=1)
+    xy = _xy2(vertices[faces[top]])
+    assert (xy >= 0).all()  # terraces face up (walls: 0); none turned over
