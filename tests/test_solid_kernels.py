@@ -463,3 +463,17 @@ def test_non_finite_vertices_float_faces_and_a_floor_not_a_number_are_refused():
     same = mesh_module.close_solid(vertices, faces.astype(np.int32).tolist(), terrace, floor)
     assert all(np.array_equal(a, b) for a, b in zip(same, mesh_module.close_solid(vertices, faces, terrace, floor),
                                                     strict=True))
+
+
+def test_pinch_copies_moved_along_their_fans_mean_equal_the_reference():
+    """Big Tujunga's SRTM (30 m, UTM) with 5 % void nodes: copies whose diagonal move misses a one-triangle fan by a
+    hair move along their fan's mean direction, as the reference's do (no other test compared that path)."""
+    dem = st.load_dem("/work/shared/data/big_tujunga_srtm_30m_utm11n.tif")
+    heights = dem.heights[:80, :80].copy()
+    heights[np.random.default_rng(0).random(heights.shape) < 0.05] = np.nan
+    holed = st.Terrain.from_heights(heights, spacing=dem.spacing, origin=dem.origin)
+    vertices, faces, terrace, floor = _surface(holed, interval=50.0)
+    got = _assert_same(vertices, faces, terrace, floor)
+    moved = got[0][: len(got[4]), :2] - vertices[got[4], :2]
+    along = (moved != 0).any(axis=1) & (np.abs(np.abs(moved[:, 0]) - np.abs(moved[:, 1])) > 0)
+    assert along.any()  # some copy moved along its mean direction, not the diagonal
