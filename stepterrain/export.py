@@ -1599,8 +1599,8 @@ def _stl_open_edges(mesh: trimesh.Trimesh) -> int:
     merged, triangles with two corners on one position left out, as :func:`_without_point_edges` does) have other
     than two triangles, among the edges at a merged corner: the others keep their faces (0 for a watertight mesh).
     0 at once for a mesh with a vertex of one corner, which is not watertight (an unmerged mesh's: its 28 M
-    vertices took 38 s). One hash and sort of the vertices where no two share a float32 position (a solid at
-    γ > 0, most meshes: 1.1 s of a 9.3 M-face solid's 14 s .stl)."""
+    vertices took 38 s). One hash and sort (not an argsort) of the vertices where no two share a float32 position
+    (a solid at γ > 0, most meshes: 0.4 s of a 9.3 M-face solid's 12 s .stl; 1.1 s with a stable argsort)."""
     faces = np.asarray(mesh.faces)
     if len(faces) == 0 or (np.bincount(faces.reshape(-1), minlength=len(mesh.vertices)) == 1).any():
         return 0  # a vertex of one corner has an edge of one face: not watertight (an unmerged mesh's, by design)
@@ -1608,11 +1608,13 @@ def _stl_open_edges(mesh: trimesh.Trimesh) -> int:
     bits = corners.view(np.uint32).astype(np.uint64)
     key = (bits[:, 0] * np.uint64(0x9E3779B97F4A7C15)) ^ (bits[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F)) ^ bits[:, 2]
     del bits
-    order = np.argsort(key, kind="stable")
+    ranked = np.sort(key)  # no two vertices on one position (most meshes): a sort, 10 times an argsort's speed
+    if not (ranked[1:] == ranked[:-1]).any():
+        return 0
+    del ranked
+    order = np.argsort(key)  # any head of a group will do: not a stable sort (3 times slower)
     key = key[order]
     same = key[1:] == key[:-1]
-    if not same.any():
-        return 0
     shared = np.zeros(len(order), bool)
     shared[1:] |= same
     shared[:-1] |= same
@@ -1641,7 +1643,10 @@ def _stl_open_edges(mesh: trimesh.Trimesh) -> int:
 def _edges_not_two(a: NDArray[Any], b: NDArray[Any], n: int) -> int:
     """How many of the edges (a, b) (vertex indices below ``n``, either way round) occur other than twice."""
     a, b = a.astype(np.int64), b.astype(np.int64)
-    _, counts = np.unique(np.minimum(a, b) * n + np.maximum(a, b), return_counts=True)
+    keys = np.sort(np.minimum(a, b) * n + np.maximum(a, b))
+    if len(keys) == 0:
+        return 0
+    counts = np.diff(np.flatnonzero(np.concatenate([[True], keys[1:] != keys[:-1], [True]])))
     return int((counts != 2).sum())
 
 
