@@ -322,7 +322,9 @@ def close_solid(
     vertex below it, so every skirt and base edge keeps exactly two faces and the solid stays watertight. A copy
     (but for the first fan's, one in a fan with a wall, and one whose move would turn a face over, leave its own fan
     or reach another, e.g. on a grid of cells under 2 u) moves into its fan by 2 float32 steps u of the largest
-    |x|, |y| in x and y (:func:`_split_pinches`; u = 2^-9 m at 12 km, 0.5 m at UTM northings): an ``.stl``, whose
+    |x|, |y| in x and y (or, where that diagonal misses a one-triangle fan's angle by a hair, along the fan's mean
+    direction, the larger component 2 u: :func:`_split_pinches`; u = 2^-9 m at 12 km, 0.5 m at UTM northings): an
+    ``.stl``, whose
     readers merge corners by float32 position, then keeps the sides apart and reads back watertight too (on one
     position its vertical skirt edge had four faces). The volume moves by at most 2√2 u times the fan's outline
     times its height above ``floor`` per copy.
