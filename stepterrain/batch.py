@@ -57,6 +57,7 @@ from .errors import (
     counted,
 )
 from .export import (
+    _STL_OPEN_RE,
     _STL_ROUNDING_RE,
     _STL_ROUNDING_TOLERANCE,
     MESH_EXTENSIONS,
@@ -2314,6 +2315,7 @@ def _run_locked(
         hint = budget_hint()
         level = caller_stacklevel()  # the caller's line, as save_mesh and load_dem point their warnings
         rounded: list[str] = []  # STL's float32 rounding, one message per tile of a UTM raster: said once below
+        opened: list[str] = []  # and the .stl files that read back open (a solid's pinches at UTM), said once too
         said: set[str] = set()  # a message many items give alike, once (the serial run's recording of each item
         # reset Python's registry of warnings already shown, so its "default" filter repeated it for every item)
         for result in stream:
@@ -2326,6 +2328,8 @@ def _run_locked(
             for message in result.warnings:  # a worker process's (or this one's, serial), said here
                 if _STL_ROUNDING_RE.search(message):
                     rounded.append(message)
+                elif _STL_OPEN_RE.search(message):
+                    opened.append(message)
                 elif message not in said:
                     said.add(message)
                     warnings.warn(message, stacklevel=level)
@@ -2333,6 +2337,8 @@ def _run_locked(
         if rounded:
             warnings.warn(_rounding_summary(rounded, sum(r.status == "done" for r in results.values())),
                           stacklevel=level)  # fmt: skip
+        if opened:
+            warnings.warn(_open_summary(opened, sum(r.status == "done" for r in results.values())), stacklevel=level)
     finally:
         # the default LocalCluster's scheduler runs in this process: as it went down under an interrupted run, it
         # logged a CRITICAL traceback for each task still reported to the closed client and an ERROR listing every
@@ -2386,6 +2392,16 @@ def _rounding_summary(messages: Sequence[str], written: int) -> str:
     worst = max(messages, key=lambda m: float(_STL_ROUNDING_RE.search(m)["error"]))  # type: ignore[index]
     return (f"{len(messages)} of the {written} .stl outputs written have vertices that float32 moves by more than "
             f"{_STL_ROUNDING_TOLERANCE:g}; the worst, {worst}")
+
+
+def _open_summary(messages: Sequence[str], written: int) -> str:
+    """One warning for the items' warnings that their ``.stl`` reads back open (each item's stays in its result's
+    ``warnings``): a batch of UTM solid tiles with nodata voids warned once per tile."""
+    if len(messages) == 1:
+        return messages[0]
+    worst = max(messages, key=lambda m: int(_STL_OPEN_RE.search(m)["edges"]))  # type: ignore[index]
+    return (f"{len(messages)} of the {written} .stl outputs written read back open where corners are merged by "
+            f"position; the worst, {worst}")
 
 
 def _shared_levels(

@@ -248,25 +248,47 @@ def _split_pinches(
         corners = moved & (which == f)  # mean direction from v
         if terrace_mask[fi[corners]].all():
             mean = (vertices[faces[fi[corners]], :2].mean(axis=1) - added[k, :2]).sum(axis=0)
+            others = (v == v[corners][0]) & (which != f)
+
+            def fits(to: NDArray[np.float64], corners=corners, others=others) -> bool:
+                ok = True  # no face of the fan turned (float64, float32), the new position in no other fan's angle
+                own = False  # and in its own fan's (closed) angle at v
+                for face, j in zip(fi[corners], ji[corners], strict=True):
+                    tri = vertices[faces[face], :2].copy()
+                    area = _cross(tri[1] - tri[0], tri[2] - tri[0])
+                    tri[j] = to
+                    tri32 = tri.astype(np.float32).astype(np.float64)
+                    ok &= area != 0 and _cross(tri[1] - tri[0], tri[2] - tri[0]) * area > 0
+                    ok &= _cross(tri32[1] - tri32[0], tri32[2] - tri32[0]) * area > 0
+                    o, a, b = vertices[faces[face], :2][[j, (j + 1) % 3, (j + 2) % 3]]
+                    own |= _cross(a - o, to - o) * area >= 0 and _cross(o - b, to - b) * area >= 0
+                for face, j in zip(fi[others], ji[others], strict=True):
+                    o, a, b = vertices[faces[face], :2][[j, (j + 1) % 3, (j + 2) % 3]]
+                    area = _cross(a - o, b - o)
+                    ok &= not (_cross(a - o, to - o) * area > 0 and _cross(o - b, to - b) * area > 0)
+                return bool(ok and own)
+
             to = added[k, :2] + 2.0 * u * np.sign(mean)
-            ok = True  # no face of the fan turned (float64, float32), the new position in no other fan's angle at v
-            own = False  # and in its own fan's (closed) angle at v
-            for face, j in zip(fi[corners], ji[corners], strict=True):
-                tri = vertices[faces[face], :2].copy()
-                area = _cross(tri[1] - tri[0], tri[2] - tri[0])
-                tri[j] = to
-                tri32 = tri.astype(np.float32).astype(np.float64)
-                ok &= area != 0 and _cross(tri[1] - tri[0], tri[2] - tri[0]) * area > 0
-                ok &= _cross(tri32[1] - tri32[0], tri32[2] - tri32[0]) * area > 0
-                o, a, b = vertices[faces[face], :2][[j, (j + 1) % 3, (j + 2) % 3]]
-                own |= _cross(a - o, to - o) * area >= 0 and _cross(o - b, to - b) * area >= 0
-            for face, j in zip(fi[(v == v[corners][0]) & (which != f)], ji[(v == v[corners][0]) & (which != f)],
-                               strict=True):
-                o, a, b = vertices[faces[face], :2][[j, (j + 1) % 3, (j + 2) % 3]]
-                area = _cross(a - o, b - o)
-                ok &= not (_cross(a - o, to - o) * area > 0 and _cross(o - b, to - b) * area > 0)
-            if ok and own:
+            if fits(to):
                 added[k, :2] = to
+                continue
+            # missed its angle by a hair (under 1e-3 rad; a one-triangle fan whose edge is the diagonal): along the
+            # mean direction instead, where no other corner of its fan is a pinch vertex
+            near = shares = False
+            for face, j in zip(fi[corners], ji[corners], strict=True):
+                o, a, b = vertices[faces[face], :2][[j, (j + 1) % 3, (j + 2) % 3]]
+                side = np.sign(_cross(a - o, b - o))
+                reach = np.hypot(*(to - o))
+                with np.errstate(invalid="ignore", divide="ignore"):  # NaN: not near
+                    sine = np.minimum(_cross(a - o, to - o) * side / (reach * np.hypot(*(a - o))),
+                                      _cross(o - b, to - b) * side / (reach * np.hypot(*(b - o))))
+                near |= sine >= -1e-3
+                shares |= bool(pinch[faces[face][(j + 1) % 3]] or pinch[faces[face][(j + 2) % 3]])
+            size = np.abs(mean).max()
+            if near and not shares and size > 0:
+                to = added[k, :2] + 2.0 * u * mean / size
+                if fits(to):
+                    added[k, :2] = to
     faces = faces.copy()
     faces[fi[moved], ji[moved]] = new_index[which[moved]]
     vertices = np.concatenate([vertices, added])

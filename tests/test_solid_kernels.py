@@ -440,3 +440,40 @@ def test_buckets_in_reverse_order_equal_the_reference(case, limit, monkeypatch):
     monkeypatch.setattr(mesh_module, "_buckets", reversed_buckets)
     monkeypatch.setattr(mesh_module, "LARGE_BUCKET", limit)  # 0: every bucket hashed; else the small ones scanned
     assert _assert_same(*_bucket_case(case)) is not None
+
+
+def test_non_finite_vertices_float_faces_and_a_floor_not_a_number_are_refused():
+    """close_solid (public, in stepterrain.mesh) took NaN or infinite coordinates into the solid without a word (NaN
+    in its vertices and base), truncated float face indices (1.5 -> 1: another vertex), and met a floor given as
+    None, text or an array with numpy's TypeError deep inside; each is now an InvalidInputError naming it."""
+    vertices, faces, terrace, floor = _surface(np.arange(20.0).reshape(4, 5), interval=2.0)
+    for bad in (np.nan, np.inf):
+        given = vertices.copy()
+        given[3, 1] = bad
+        with pytest.raises(st.InvalidInputError, match="vertices must be finite; got 1 NaN or infinite coordinate"):
+            mesh_module.close_solid(given, faces, terrace, floor)
+    with pytest.raises(st.InvalidInputError, match="faces must be an \\(F, 3\\) integer array .* got dtype float64"):
+        mesh_module.close_solid(vertices, faces + 0.5, terrace, floor)
+    with pytest.raises(st.InvalidInputError, match="faces must be an \\(F, 3\\) integer array .* got dtype float64"):
+        mesh_module.boundary_edges(faces.astype(np.float64))
+    for bad in (None, "0", np.array([floor]), 1j):
+        with pytest.raises(st.InvalidInputError, match="floor must be a number"):
+            mesh_module.close_solid(vertices, faces, terrace, bad)
+    # integer faces of any width, and lists, still work
+    same = mesh_module.close_solid(vertices, faces.astype(np.int32).tolist(), terrace, floor)
+    assert all(np.array_equal(a, b) for a, b in zip(same, mesh_module.close_solid(vertices, faces, terrace, floor),
+                                                    strict=True))
+
+
+def test_pinch_copies_moved_along_their_fans_mean_equal_the_reference():
+    """Big Tujunga's SRTM (30 m, UTM) with 5 % void nodes: copies whose diagonal move misses a one-triangle fan by a
+    hair move along their fan's mean direction, as the reference's do (no other test compared that path)."""
+    dem = st.load_dem("/work/shared/data/big_tujunga_srtm_30m_utm11n.tif")
+    heights = dem.heights[:80, :80].copy()
+    heights[np.random.default_rng(0).random(heights.shape) < 0.05] = np.nan
+    holed = st.Terrain.from_heights(heights, spacing=dem.spacing, origin=dem.origin)
+    vertices, faces, terrace, floor = _surface(holed, interval=50.0)
+    got = _assert_same(vertices, faces, terrace, floor)
+    moved = got[0][: len(got[4]), :2] - vertices[got[4], :2]
+    along = (moved != 0).any(axis=1) & (np.abs(np.abs(moved[:, 0]) - np.abs(moved[:, 1])) > 0)
+    assert along.any()  # some copy moved along its mean direction, not the diagonal

@@ -475,3 +475,126 @@ def test_moved_pinch_copies_keep_their_faces_and_stay_out_of_others(rows, cols, 
     if shifted.all() and _coincident(mesh) == 0:  # (UTM: wall vertices 0.5 m apart may share a float32 position)
         back = _stl_round_trip(mesh, tmp_path_factory.mktemp("stl") / "solid.stl")
         assert back.is_watertight and back.is_winding_consistent
+
+
+def _stl_warnings(mesh: trimesh.Trimesh, path) -> tuple[list[str], trimesh.Trimesh]:
+    """The warnings ``save_mesh`` gives writing ``mesh`` as ``path`` (an .stl), and the file read back merged."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        save_mesh(mesh, path)
+    return [str(w.message) for w in caught], trimesh.load(path)
+
+
+_OPEN_STL = "not shared by exactly two triangles"
+
+
+@pytest.mark.parametrize("origin", [(500000.0, 5000000.0), (0.0, 0.0)])
+def test_stl_of_a_solid_whose_pinch_copies_stay_on_the_node_warns(origin, tmp_path):
+    """Two nodata holes touching at a node of a 1 m grid (LiDAR) of the embedded DEM's heights, at UTM northings:
+    the pinch copies stay on the node (their 2 float32 steps, 1 m, would leave their cells), and the .stl, corners
+    merged by position, is not watertight there. It was written without a word; it now warns, naming the open edges
+    and what keeps them apart. In local coordinates the copies move: no warning, and the .stl is watertight."""
+    heights = _pinched(st.sample_dem().heights[:40, :40], (20, 20))
+    terrain = st.Terrain.from_heights(heights, spacing=(1.0, -1.0), origin=origin)
+    mesh = st.stepped(terrain, interval=20.0, solid=True)
+    assert mesh.is_watertight
+    messages, back = _stl_warnings(mesh, tmp_path / "pinched.stl")
+    opened = [m for m in messages if _OPEN_STL in m]
+    if origin == (0.0, 0.0):
+        assert not opened and back.is_watertight
+        assert back.volume == pytest.approx(mesh.volume, rel=1e-6)
+    else:
+        assert not back.is_watertight
+        assert len(opened) == 1 and "pinched.stl" in opened[0] and "origin=(0, 0)" in opened[0]
+        assert ".ply, .obj or .3mf" in opened[0]
+
+
+def test_stl_of_a_pinch_at_whole_utm_metres_warns_alone(tmp_path):
+    """The bowtie at whole metres of UTM: float32 holds every coordinate exactly (no rounding warning), but the pinch
+    copy stays on its node (a 1 m cell is 2 float32 steps there): the only word the user gets is this warning."""
+    nan = np.nan
+    bowtie = np.array([[0.25, 0.25, nan], [nan, 0.25, nan], [nan, 0.25, 0.25]])
+    t = st.Terrain.from_heights(bowtie, spacing=(1.0, 1.0), origin=(500000.0, 5000000.0))
+    mesh = st.stepped(t, interval=1.0, solid=True, floor=-1.0)
+    messages, back = _stl_warnings(mesh, tmp_path / "bowtie.stl")
+    assert mesh.is_watertight and not back.is_watertight
+    _, counts = np.unique(back.edges_sorted, axis=0, return_counts=True)  # the reader's: merged by position
+    assert (counts != 2).sum() == 1  # the copy's vertical skirt edge, of four triangles
+    assert len(messages) == 1 and f"1 edge {_OPEN_STL}" in messages[0]
+
+
+def test_stl_of_unmerged_or_flat_walled_solids_does_not_warn(crop, tmp_path):
+    """No false alarm: an unmerged mesh's corners lie on one position by design (not watertight by its indices), and
+    a solid's walls of zero height (γ = 0) have top and bottom on one position, which the .stl merges watertight."""
+    mesh = st.stepped(crop, interval=100.0, gamma=0.0, solid=True)
+    messages, back = _stl_warnings(mesh, tmp_path / "flat.stl")
+    assert back.is_watertight and not [m for m in messages if _OPEN_STL in m]
+    unmerged = mesh.copy()
+    unmerged.unmerge_vertices()
+    messages, _ = _stl_warnings(unmerged, tmp_path / "unmerged.stl")
+    assert not [m for m in messages if _OPEN_STL in m]
+
+
+@settings(max_examples=20, deadline=None)
+@given(
+    rows=st_.integers(4, 9),
+    cols=st_.integers(4, 9),
+    seed=st_.integers(0, 2**32 - 1),
+    spacing=st_.sampled_from([0.5, 1.0, 7.3]),
+    origin=st_.sampled_from([(0.0, 0.0), (5e5, 5e6), (376328.6554542635, 3807902.8276283755)]),
+    gamma=st_.sampled_from([1.0, 0.5, 0.0]),
+)
+def test_stl_warns_exactly_when_a_watertight_solid_reads_back_open(rows, cols, seed, spacing, origin, gamma,
+                                                                   tmp_path_factory):
+    """Random small grids with nodata (pinches), spacings 0.5 to 7.3 m, near the origin and at UTM coordinates, at
+    γ = 1, 0.5, 0 (walls of zero height): save_mesh warns that the .stl reads back open exactly when trimesh.load,
+    merging corners by position, finds it not watertight."""
+    rng = np.random.default_rng(seed)
+    heights = rng.integers(0, 9, size=(rows, cols)).astype(np.float32)
+    heights[rng.random((rows, cols)) < 0.25] = np.nan
+    t = st.Terrain.from_heights(heights, spacing=(spacing, spacing), origin=origin)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        if not len(st.stepped(t, interval=2.0, gamma=gamma).faces):
+            return
+        mesh = st.stepped(t, interval=2.0, gamma=gamma, solid=True)
+    assert mesh.is_watertight
+    messages, back = _stl_warnings(mesh, tmp_path_factory.mktemp("stl") / "solid.stl")
+    assert any(_OPEN_STL in m for m in messages) == (not back.is_watertight)
+
+
+def test_batch_of_solid_tiles_says_once_that_their_stl_reads_back_open(tmp_path):
+    """A batch of UTM solid tiles (a 1 m grid of the embedded DEM's heights, pinches in every tile) as .stl: each
+    tile's file reads back open, and the batch says so once (as it does float32's rounding), not once per tile."""
+    from stepterrain.batch import batch
+
+    heights = st.sample_dem().heights[:80, :80]
+    for r in (20, 60):
+        for c in (20, 60):
+            heights = _pinched(heights, (r, c))
+    raster = st.Terrain.from_heights(heights, spacing=(1.0, -1.0), origin=(500000.0, 5000000.0))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        report = batch(raster, tmp_path, tile_size=40, interval=20.0, solid=True, format=".stl", scheduler="serial")
+    opened = [str(w.message) for w in caught if _OPEN_STL in str(w.message)]
+    assert len(opened) == 1 and opened[0].startswith("4 of the 4 .stl outputs written read back open")
+    assert all(any(_OPEN_STL in m for m in item.warnings) for item in report.results)
+    assert not any(trimesh.load(tmp_path / f"tile_r{r}_c{c}.stl").is_watertight for r in (0, 1) for c in (0, 1))
+
+
+@pytest.mark.parametrize("gamma", [1.0, 0.5])
+def test_pinch_copy_of_a_one_triangle_fan_moves_into_it_at_utm_coordinates(gamma, tmp_path):
+    """Big Tujunga's SRTM (30 m, UTM) with 5 % void nodes: where voids lie north and south of a node, each side's fan
+    is one grid triangle, and the copy's diagonal move runs along its diagonal edge: float64 rounding put it a hair
+    outside its angle, the copy stayed on the node (13 of 477) and the .stl read back open. It now moves along its
+    fan's mean direction, strictly inside: the .stl is watertight, every face of the fan still faces up."""
+    dem = st.load_dem("/work/shared/data/big_tujunga_srtm_30m_utm11n.tif")
+    heights = dem.heights[:300, :300].copy()
+    heights[np.random.default_rng(0).random(heights.shape) < 0.05] = np.nan
+    holed = st.Terrain.from_heights(heights, spacing=dem.spacing, origin=dem.origin)
+    mesh = st.stepped(holed, interval=50.0, gamma=gamma, solid=True)
+    _assert_stl_is_the_solid(mesh, tmp_path / "voids.stl")
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    top = (vertices[faces, 2] > float(vertices[:, 2].min())).all(axis=1)
+    xy = _xy2(vertices[faces[top]])
+    assert (xy >= 0).all()  # terraces face up (walls: 0); none turned over
