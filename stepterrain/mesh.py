@@ -322,8 +322,9 @@ def close_solid(
     vertex below it, so every skirt and base edge keeps exactly two faces and the solid stays watertight. A copy
     (but for the first fan's, one in a fan with a wall, and one whose move would turn a face over, leave its own fan
     or reach another, e.g. on a grid of cells under 2 u) moves into its fan by 2 float32 steps u of the largest
-    |x|, |y| in x and y (or, where that diagonal misses a one-triangle fan's angle by a hair, along the fan's mean
-    direction, the larger component 2 u: :func:`_split_pinches`; u = 2^-9 m at 12 km, 0.5 m at UTM northings): an
+    |x|, |y| in x and y (or, where that diagonal move is refused, e.g. it misses a one-triangle fan's angle, by a
+    hair on square cells, by degrees on non-square ones, along the fan's mean direction, the larger component 2 u,
+    under the same guards: :func:`_split_pinches`; u = 2^-9 m at 12 km, 0.5 m at UTM northings): an
     ``.stl``, whose
     readers merge corners by float32 position, then keeps the sides apart and reads back watertight too (on one
     position its vertical skirt edge had four faces). The volume moves by at most 2√2 u times the fan's outline
@@ -482,8 +483,9 @@ def _split_pinches(
     merged by position) keeps the sides apart too; a copy whose fan has a wall (``terrace_mask`` False) stays on v,
     its wall's vertical edge vertical, and so does one whose move would turn a face of its fan over or flatten it
     (in float64 or float32: 2 u is a metre at UTM northings, a 1 m grid's cell), leave its own fan's angle at v or
-    land in another fan's; one whose diagonal misses its fan's angle by a hair (a one-triangle fan whose edge is the
-    diagonal) moves along the fan's mean direction instead, where no other corner of its fan is a pinch vertex.
+    land in another fan's; one whose diagonal move is refused (e.g. it misses a one-triangle fan's angle: by a hair
+    where the fan's edge is the diagonal, by degrees on non-square cells) tries the fan's mean direction instead, its
+    larger component :data:`PINCH_STEPS` u, under the same guards.
     Returns the vertices, the faces and, per vertex, the fan ordinal (0 for every vertex that is not such a copy),
     to keep the copies apart where rows are keyed by xy, and the vertex each appended copy copies (empty when none
     was split). ``edges`` are the surface's boundary edges (:func:`boundary_edges`).
@@ -578,23 +580,15 @@ def _split_pinches(
         return stay
 
     stay = refused(added[:, :2])
-    # a copy whose diagonal move misses its fan's angle by a hair (under 1e-3 rad: a fan of one grid triangle, voids
-    # north and south of the node, whose edge is the diagonal up to float32's rounding of the stepped crossings on it;
-    # 13 of 477 copies of Big Tujunga's SRTM with 5 % voids, 30 m at UTM, stayed, the .stl open there) moves along
-    # its fan's mean direction instead, its larger component PINCH_STEPS u: strictly inside the angle, its float32
-    # position still distinct. Only where no other corner of its fan is a pinch vertex (whose copy may move too)
-    p = added[k, :2]
-    reach = np.hypot(*(p - o[moved]).T)
-    with np.errstate(invalid="ignore", divide="ignore"):  # a wall's copy does not move (NaN: not near)
-        sine = np.minimum(orient(o[moved], a[moved], p) * side[moved] / (reach * np.hypot(*(a[moved] - o[moved]).T)),
-                          orient(b[moved], o[moved], p) * side[moved] / (reach * np.hypot(*(b[moved] - o[moved]).T)))
-    near = np.zeros(len(copies), bool)
-    np.logical_or.at(near, k, sine >= -1e-3)
-    shares = np.zeros(len(copies), bool)
-    np.logical_or.at(shares, k, pinch[faces[fi[moved], (ji[moved] + 1) % 3]]
-                     | pinch[faces[fi[moved], (ji[moved] + 2) % 3]])
+    # a copy whose diagonal move is refused (it misses its fan's angle: a fan of one grid triangle, voids north and
+    # south of the node, whose edge is the diagonal up to float32's rounding of the stepped crossings on it, or, on
+    # non-square cells, 71 x 93 m at the Front Range's SRTM 3", by degrees: copies stayed, the .stl open there) moves
+    # along its fan's mean direction instead, its larger component PINCH_STEPS u, under the same guards: inside the
+    # angle of any fan whose angle at v is under 180 degrees (a sum of directions in a convex cone), its float32
+    # position still distinct. As for the diagonal, the guards see the fan's other corners unmoved: where one is a
+    # pinch vertex whose copy moves too, only a face a few u across could still turn (a case no test has met)
     size = np.abs(toward).max(axis=1)
-    retry = np.flatnonzero(stay & near & ~shares & (size > 0))
+    retry = np.flatnonzero(stay & (size > 0))
     if len(retry):
         along = added[:, :2].copy()
         along[retry] = (vertices[fans[copies[retry], 0], :2]

@@ -272,20 +272,10 @@ def _split_pinches(
             if fits(to):
                 added[k, :2] = to
                 continue
-            # missed its angle by a hair (under 1e-3 rad; a one-triangle fan whose edge is the diagonal): along the
-            # mean direction instead, where no other corner of its fan is a pinch vertex
-            near = shares = False
-            for face, j in zip(fi[corners], ji[corners], strict=True):
-                o, a, b = vertices[faces[face], :2][[j, (j + 1) % 3, (j + 2) % 3]]
-                side = np.sign(_cross(a - o, b - o))
-                reach = np.hypot(*(to - o))
-                with np.errstate(invalid="ignore", divide="ignore"):  # NaN: not near
-                    sine = np.minimum(_cross(a - o, to - o) * side / (reach * np.hypot(*(a - o))),
-                                      _cross(o - b, to - b) * side / (reach * np.hypot(*(b - o))))
-                near |= sine >= -1e-3
-                shares |= bool(pinch[faces[face][(j + 1) % 3]] or pinch[faces[face][(j + 2) % 3]])
+            # refused (outside its angle: a one-triangle fan whose edge is the diagonal, or any fan on non-square
+            # cells): along the mean direction instead, under the same guards
             size = np.abs(mean).max()
-            if near and not shares and size > 0:
+            if size > 0:
                 to = added[k, :2] + 2.0 * u * mean / size
                 if fits(to):
                     added[k, :2] = to

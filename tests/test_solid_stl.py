@@ -369,7 +369,11 @@ def test_pinch_copy_does_not_leave_its_cell_on_a_fine_grid_at_utm_coordinates(sp
 def test_pinch_copy_of_a_tin_fan_stays_out_of_the_other_fan():
     """A TIN whose thin fan lies between 0° and -5.7° of the pinch vertex: its faces' mean direction has signs (+, -),
     the -45° diagonal, which runs into the other fan (between -38.7° and -50.2°): the copy landed inside the other
-    fan's triangle (the solid intersected itself). Such a copy stays on the vertex."""
+    fan's triangle (the solid intersected itself). Such a diagonal move is refused; the copy moves along its fan's
+    mean direction (-2.9°, the larger component 2 u) instead, strictly inside its own fan's triangle, out of the
+    other's. It used to stay on the vertex (the mean direction was tried only within 1e-3 rad of the angle), the
+    volume then exactly 25; the move, 2 u along x, takes u off the thin triangle's area: the volume is 25 within
+    the documented bound, 2√2 u times the fan's outline times its height (1), as for every moved copy."""
     from stepterrain.mesh import close_solid
 
     vertices = np.array([[0, 0, 1], [10, -12, 1], [10, -8, 1], [10, -1, 1], [10, 0, 1]], np.float64)
@@ -384,7 +388,14 @@ def test_pinch_copy_of_a_tin_fan_stays_out_of_the_other_fan():
 
     for p in out_vertices[:, :2]:  # none strictly inside the first fan's triangle
         assert not (cross(b - a, p - a) > 0 and cross(c - b, p - b) > 0 and cross(a - c, p - c) > 0)
-    assert mesh.volume == pytest.approx(20 + 5, rel=1e-12)  # the triangles' areas, 1 high
+    copy = out_faces[1, 0]  # the second fan's copy of vertex 0: strictly inside its own fan's triangle
+    assert copy == len(vertices)
+    p, (a, b, c) = out_vertices[copy, :2], vertices[faces[1], :2]
+    assert cross(b - a, p - a) > 0 and cross(c - b, p - b) > 0 and cross(a - c, p - c) > 0
+    assert len(np.unique(out_vertices[out_vertices[:, 2] > 0].astype(np.float32), axis=0)) == 6  # apart in float32
+    u = float(np.spacing(np.float32(12.0)))
+    outline = np.hypot(10, 1) + 10 + 1
+    assert mesh.volume == pytest.approx(20 + 5, abs=2 * np.sqrt(2) * u * outline * 1.0)  # the triangles' areas, 1 high
 
 
 def _xy2(v: np.ndarray) -> np.ndarray:
@@ -408,11 +419,14 @@ def _xy2(v: np.ndarray) -> np.ndarray:
 def test_moved_pinch_copies_keep_their_faces_and_stay_out_of_others(rows, cols, seed, spacing, origin, gamma, tin,
                                                                      tmp_path_factory):
     """Random small grids and TINs (jittered nodes, Delaunay) with random nodata, spacings 0.5 to 30 m, near the origin
-    and at UTM coordinates: every terrace face of the solid faces up in float64 and float32 (a moved copy turned
-    none over or flat), no moved copy lies inside another terrace face's xy triangle, the solid is watertight and
-    consistently wound, and where every copy moved its .stl reads back watertight. The examples: a thin TIN fan whose
-    faces' mean direction has signs pointing out of it, past the other fans, into a face not at the node (UTM: 2 u is
-    1 m); the copy moved there (the solid intersected itself). A copy now moves only into its own fan's angle."""
+    and at UTM coordinates: every face of a moved copy's fan faces as it did with the copy on its node, in float64
+    and float32, and is not flat (a moved copy turned none over or flat), no moved copy lies inside another terrace
+    face's xy triangle, the solid is watertight and consistently wound, and where every copy moved its .stl reads
+    back watertight. The examples: a thin TIN fan whose faces' mean direction has signs pointing out of it, past the
+    other fans, into a face not at the node (UTM: 2 u is 1 m); the copy moved there (the solid intersected itself).
+    A copy now moves only into its own fan's angle. And a TIN fan holding a sliver that stepping left facing down by
+    a hair (xy area -6e-8) with its copy on the node: the copy moves along its fan's mean direction, the sliver
+    still faces down (the guard keeps each face's sign; it does not make it face up)."""
     from scipy.spatial import Delaunay
 
     rng = np.random.default_rng(seed)
@@ -463,7 +477,14 @@ def test_moved_pinch_copies_keep_their_faces_and_stay_out_of_others(rows, cols, 
     xy = vertices[fan, :2]
     fan = fan[~((xy[:, 0] == xy[:, 1]).all(axis=1) | (xy[:, 1] == xy[:, 2]).all(axis=1)
                 | (xy[:, 2] == xy[:, 0]).all(axis=1))]
-    assert (_xy2(vertices[fan]) > 0).all() and (_xy2(vertices.astype(np.float32).astype(np.float64)[fan]) > 0).all()
+    # each face of a moved copy's fan faces the way it faced with the copy on its node (up, but for a TIN's sliver
+    # that stepping left a hair under zero area, which stays as it was), in float64 and float32, and is not flat
+    before = vertices.copy()
+    for m in moved:
+        before[m, :2] = nodes[shifted][(added[shifted] == vertices[m]).all(axis=1)][0, :2]
+    side = np.sign(_xy2(before[fan]))
+    assert (side != 0).all() and (np.sign(_xy2(vertices[fan])) == side).all()
+    assert (np.sign(_xy2(vertices.astype(np.float32).astype(np.float64)[fan])) == side).all()
     for m in moved:
         p = vertices[m, :2]
         others = terraces[~(terraces == m).any(axis=1)]
@@ -598,3 +619,32 @@ def test_pinch_copy_of_a_one_triangle_fan_moves_into_it_at_utm_coordinates(gamma
     top = (vertices[faces, 2] > float(vertices[:, 2].min())).all(axis=1)
     xy = _xy2(vertices[faces[top]])
     assert (xy >= 0).all()  # terraces face up (walls: 0); none turned over
+
+
+@pytest.mark.parametrize("gamma", [1.0, 0.5])
+def test_pinch_copies_on_non_square_cells_move_into_their_fans(gamma, tmp_path):
+    """The Front Range's SRTM 3" (equirectangular local metres, cells about 71 x 93 m) with 5 % void nodes: on
+    non-square cells a copy's diagonal move misses a one-triangle fan's angle by degrees, not by a hair; the mean
+    direction was tried only under 1e-3 rad, so copies stayed on their nodes (218 distinct vertices on
+    one float32 position) and the .stl read back open. Any copy whose diagonal move is refused now tries its fan's
+    mean direction, under the same guards: none stays, the .stl is the solid, the terraces still face up and the
+    volume is the surface's integral within 2√2 u times each copy's fan outline times its height."""
+    dem = st.load_dem("/work/shared/data/front_range_srtmgl3_3arcsec.tif")
+    assert abs(dem.spacing[0]) != abs(dem.spacing[1])
+    heights = dem.heights[:250, :250].copy()
+    heights[np.random.default_rng(0).random(heights.shape) < 0.05] = np.nan
+    holed = st.Terrain.from_heights(heights, spacing=dem.spacing, origin=dem.origin)
+    surface = st.stepped(holed, interval=50.0, gamma=gamma)
+    mesh = st.stepped(holed, interval=50.0, gamma=gamma, solid=True)
+    _assert_stl_is_the_solid(mesh, tmp_path / "voids.stl")
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    floor = float(vertices[:, 2].min())
+    top = (vertices[faces, 2] > floor).all(axis=1)
+    assert (_xy2(vertices[faces[top]]) >= 0).all()  # terraces face up (walls: 0); none turned over
+    copies = len(vertices) - len(surface.vertices) - int((vertices[:, 2] == floor).sum())
+    assert copies > 100
+    v = np.asarray(surface.vertices)[np.asarray(surface.faces)]
+    integral = float((0.5 * _xy2(v) * (v[:, :, 2].mean(axis=1) - floor)).sum())
+    u = float(np.spacing(np.float32(np.abs(vertices[:, :2]).max())))
+    bound = copies * 2 * np.sqrt(2) * u * 4 * max(np.abs(dem.spacing)) * (float(vertices[:, 2].max()) - floor)
+    assert abs(mesh.volume - integral) <= bound
