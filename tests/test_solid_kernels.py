@@ -24,6 +24,7 @@ from stepterrain import mesh as mesh_module
 from stepterrain import stepped as stepped_module
 from stepterrain.terrain import Terrain, as_terrain
 from tests import reference_solid
+from tests.conftest import shared_file
 
 CPU = wp.get_device("cpu")
 
@@ -483,7 +484,7 @@ def test_pinch_copies_on_non_square_cells_equal_the_reference():
     """The Front Range's SRTM 3" (cells about 71 x 93 m) with 5 % void nodes: diagonal moves that miss a one-triangle
     fan by degrees are retried along the fan's mean direction, as the reference's are (the retry was limited to
     misses under 1e-3 rad before)."""
-    dem = st.load_dem("/work/shared/data/front_range_srtmgl3_3arcsec.tif")
+    dem = st.load_dem(shared_file("front_range_srtmgl3_3arcsec.tif"))
     heights = dem.heights[:80, :80].copy()
     heights[np.random.default_rng(0).random(heights.shape) < 0.05] = np.nan
     holed = st.Terrain.from_heights(heights, spacing=dem.spacing, origin=dem.origin)

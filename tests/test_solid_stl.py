@@ -19,6 +19,8 @@ import stepterrain as st
 from stepterrain.export import save_mesh
 from stepterrain.stepped import isovalues, thresholds_of
 
+from .conftest import shared_file
+
 stepped_module = st.stepped  # the module, callable as its function stepped
 
 
@@ -629,9 +631,9 @@ def test_pinch_copies_on_non_square_cells_move_into_their_fans(gamma, tmp_path):
     one float32 position) and the .stl read back open. Any copy whose diagonal move is refused now tries its fan's
     mean direction, under the same guards: none stays, the .stl is the solid, the terraces still face up and the
     volume is the surface's integral within 2√2 u times each copy's fan outline times its height."""
-    dem = st.load_dem("/work/shared/data/front_range_srtmgl3_3arcsec.tif")
+    dem = st.load_dem(shared_file("front_range_srtmgl3_3arcsec.tif"))
     assert abs(dem.spacing[0]) != abs(dem.spacing[1])
-    heights = dem.heights[:250, :250].copy()
+    heights = dem.heights[:120, :120].copy()
     heights[np.random.default_rng(0).random(heights.shape) < 0.05] = np.nan
     holed = st.Terrain.from_heights(heights, spacing=dem.spacing, origin=dem.origin)
     surface = st.stepped(holed, interval=50.0, gamma=gamma)
@@ -642,7 +644,7 @@ def test_pinch_copies_on_non_square_cells_move_into_their_fans(gamma, tmp_path):
     top = (vertices[faces, 2] > floor).all(axis=1)
     assert (_xy2(vertices[faces[top]]) >= 0).all()  # terraces face up (walls: 0); none turned over
     copies = len(vertices) - len(surface.vertices) - int((vertices[:, 2] == floor).sum())
-    assert copies > 100
+    assert copies > 20
     v = np.asarray(surface.vertices)[np.asarray(surface.faces)]
     integral = float((0.5 * _xy2(v) * (v[:, :, 2].mean(axis=1) - floor)).sum())
     u = float(np.spacing(np.float32(np.abs(vertices[:, :2]).max())))
