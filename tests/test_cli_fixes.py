@@ -2038,3 +2038,14 @@ def test_closeup_edge_refusal_says_finite(tmp_path, capsys):
     for edge in ("inf", "nan", "-1"):
         code, _, err = run(capsys, "-q", "closeup", "--edge", edge, "-o", tmp_path / "c.ply")
         assert code == 2 and f"--edge must be a finite number >= 0; got {float(edge):g}" in err, err
+
+
+def test_closeup_slow_fps_without_spin_names_the_default_spin(tmp_path, capsys):
+    """``closeup --gif a.gif --fps 0.4`` (a slow slideshow GIF, a rate a GIF stores) with no --spin was refused as
+    "--spin must be at most half a turn a frame ...; got 0.25": an option and a number the user never typed. The
+    refusal names the default spin and the --spin that fits; a --spin within half a turn a frame is not refused."""
+    code, _, err = run(capsys, "closeup", "--gif", tmp_path / "a.gif", "--fps", "0.4", "-o", tmp_path / "x.png")
+    assert code == 2, err
+    assert "the default --spin 0.25 turns more than half a turn a frame at --fps 0.4" in err, err
+    assert "give a --spin with |TURNS/S| <= --fps / 2 = 0.2" in err and "loading" not in err, err
+    assert sorted(tmp_path.iterdir()) == []
