@@ -383,6 +383,10 @@ def _contour_options(args: argparse.Namespace) -> dict[str, Any] | None:
         except InvalidInputError as exc:
             shown = ",".join(f"{v:g}" for v in args.contour_color)
             raise InvalidInputError(f"{str(exc).split('; got')[0]}; got {shown}") from None
+        if len(args.contour_color) == 4 and args.contour_color[3] == 0:  # index lines take its alpha too: no line
+            shown = ",".join(f"{v:g}" for v in args.contour_color)
+            raise InvalidInputError(f"--contour-color must have an alpha above 0 (0 draws every contour line "
+                                    f"transparent: the texture as without --contours); got {shown}")
         options["color"] = args.contour_color
     if args.contour_index is not None:
         if not 0 <= args.contour_index <= np.iinfo(np.int32).max:  # contour_layer's bound, by the option's name

@@ -2049,3 +2049,22 @@ def test_closeup_slow_fps_without_spin_names_the_default_spin(tmp_path, capsys):
     assert "the default --spin 0.25 turns more than half a turn a frame at --fps 0.4" in err, err
     assert "give a --spin with |TURNS/S| <= --fps / 2 = 0.2" in err and "loading" not in err, err
     assert sorted(tmp_path.iterdir()) == []
+
+
+def test_texture_contour_color_of_alpha_zero_is_refused_not_warned_of_as_no_level(tmp_path, capsys):
+    """``texture --contours 10 --contour-color 0.2,0.2,0.2,0`` over heights 100 to 180 (nine levels within them)
+    drew every line transparent, and the no-line warning said "no contour level (a multiple of it) passes within the
+    heights 100 to 180 ... a smaller interval draws lines": untrue, and no smaller interval would. A colour with alpha
+    0 makes --contours draw nothing (index lines take its alpha): refused before any work, naming the option."""
+    heights = np.add.outer(np.linspace(100.0, 140.0, 24), np.linspace(0.0, 40.0, 32)).astype(np.float32)
+    np.save(tmp_path / "dem.npy", heights)
+    out = tmp_path / "t.png"
+    code, _, err = run(capsys, "-q", "texture", tmp_path / "dem.npy", "--contours", "10", "--contour-color",
+                       "0.2,0.2,0.2,0", "-o", out)
+    assert code == 2, err
+    assert err.startswith("stepterrain texture: error: --contour-color must have an alpha above 0 (0 draws every "
+                          "contour line transparent: the texture as without --contours); got 0.2,0.2,0.2,0"), err
+    assert "passes within the heights" not in err and not out.exists()
+    code, _, err = run(capsys, "-q", "texture", tmp_path / "dem.npy", "--contours", "10", "--contour-color",
+                       "0.2,0.2,0.2,0.01", "-o", out)  # faint, not invisible
+    assert code == 0 and err == "" and out.exists(), err
