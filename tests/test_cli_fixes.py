@@ -2068,3 +2068,22 @@ def test_texture_contour_color_of_alpha_zero_is_refused_not_warned_of_as_no_leve
     code, _, err = run(capsys, "-q", "texture", tmp_path / "dem.npy", "--contours", "10", "--contour-color",
                        "0.2,0.2,0.2,0.01", "-o", out)  # faint, not invisible
     assert code == 0 and err == "" and out.exists(), err
+
+
+def test_texture_contours_no_line_warning_names_a_level_within_the_heights_it_did_not_draw(tmp_path, capsys):
+    """A DEM at 60 m with one node at 100.5 (a DSM's mast, a lone summit node): the 100 m level lies within the
+    heights, but its loop around the node is narrower than a texel and no texel is within half a line's width of it.
+    The no-line warning said "no contour level (a multiple of it) passes within the heights 60 to 100.5 ... a smaller
+    interval draws lines": 100 does. It names that level now; a wider --contour-width draws it."""
+    heights = np.full((32, 32), 60.0, np.float32)
+    heights[15, 15] = 100.5
+    np.save(tmp_path / "spike.npy", heights)
+    code, _, err = run(capsys, "-q", "texture", tmp_path / "spike.npy", "--contours", "100", "-o", tmp_path / "a.png")
+    assert code == 0, err
+    assert err == "stepterrain texture: warning: --contours 100 drew no line: its level 100, within the heights 60 " \
+                  "to 100.5, passes within half a line's width of no texel (a loop narrower than a texel, around a " \
+                  "lone peak or pit node); the texture is as without --contours (a wider --contour-width may draw " \
+                  "it)\n", err
+    code, _, err = run(capsys, "-q", "texture", tmp_path / "spike.npy", "--contours", "100", "--contour-width", "2.5",
+                       "-o", tmp_path / "b.png")
+    assert code == 0 and err == "", err
