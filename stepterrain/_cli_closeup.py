@@ -215,6 +215,10 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     if anim is not None and abs(args.spin) > args.fps / 2:
         # a faster spin turns more than half a turn between frames: the animation shows it aliased (turning slower,
         # or backwards; at --fps turns per second it stands still), and 1e308 made every frame the same
+        if "--spin" not in unanimated:  # the default spin at a slow --fps: not a --spin the user typed
+            raise InvalidInputError(f"the default --spin {args.spin:g} turns more than half a turn a frame at --fps "
+                                    f"{args.fps:g} (it would be shown aliased: slower, backwards or standing still); "
+                                    f"give a --spin with |TURNS/S| <= --fps / 2 = {args.fps / 2:g}")
         raise InvalidInputError(f"--spin must be at most half a turn a frame, |--spin| <= --fps / 2 = "
                                 f"{args.fps / 2:g} turns per second (a faster spin is shown aliased: slower, "
                                 f"backwards or standing still); got {args.spin:g}")

@@ -383,6 +383,10 @@ def _contour_options(args: argparse.Namespace) -> dict[str, Any] | None:
         except InvalidInputError as exc:
             shown = ",".join(f"{v:g}" for v in args.contour_color)
             raise InvalidInputError(f"{str(exc).split('; got')[0]}; got {shown}") from None
+        if len(args.contour_color) == 4 and args.contour_color[3] == 0:  # index lines take its alpha too: no line
+            shown = ",".join(f"{v:g}" for v in args.contour_color)
+            raise InvalidInputError(f"--contour-color must have an alpha above 0 (0 draws every contour line "
+                                    f"transparent: the texture as without --contours); got {shown}")
         options["color"] = args.contour_color
     if args.contour_index is not None:
         if not 0 <= args.contour_index <= np.iinfo(np.int32).max:  # contour_layer's bound, by the option's name
@@ -524,10 +528,19 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
             # and said nothing. Not refused: a tile no level crosses, in a set textured at one interval, is no
             # mistake, and a level just beyond the heights is drawn (within half a line's width of the edge texels)
             lo, hi = terrain.finite_height_range
-            hint = "a smaller interval draws lines" if lo < hi else "flat ground draws a line only exactly on a level"
-            warnings.warn(f"--contours {args.contours:g} drew no line: no contour level (a multiple of it) passes "
-                          f"within the heights {lo:g} to {hi:g}; the texture is as without --contours ({hint})",
-                          stacklevel=1)
+            q = lo / args.contours  # the lowest level at or above the heights' minimum (none: 1e-300 past float64)
+            level = math.ceil(q) * args.contours if math.isfinite(q) else math.inf
+            if level <= hi:  # one within them, on a loop narrower than a texel: a lone summit's node, a DSM's mast
+                warnings.warn(f"--contours {args.contours:g} drew no line: its level {level:g}, within the heights "
+                              f"{lo:g} to {hi:g}, passes within half a line's width of no texel (a loop narrower than "
+                              f"a texel, around a lone peak or pit node); the texture is as without --contours (a "
+                              f"wider --contour-width may draw it)", stacklevel=1)
+            else:
+                hint = "a smaller interval draws lines" if lo < hi else \
+                    "flat ground draws a line only exactly on a level"
+                warnings.warn(f"--contours {args.contours:g} drew no line: no contour level (a multiple of it) passes "
+                              f"within the heights {lo:g} to {hi:g}; the texture is as without --contours ({hint})",
+                              stacklevel=1)
         for picture_out in (image, over_white):
             if picture_out is not None:
                 tx._lay_over_uint8(picture_out, lines)

@@ -2038,3 +2038,52 @@ def test_closeup_edge_refusal_says_finite(tmp_path, capsys):
     for edge in ("inf", "nan", "-1"):
         code, _, err = run(capsys, "-q", "closeup", "--edge", edge, "-o", tmp_path / "c.ply")
         assert code == 2 and f"--edge must be a finite number >= 0; got {float(edge):g}" in err, err
+
+
+def test_closeup_slow_fps_without_spin_names_the_default_spin(tmp_path, capsys):
+    """``closeup --gif a.gif --fps 0.4`` (a slow slideshow GIF, a rate a GIF stores) with no --spin was refused as
+    "--spin must be at most half a turn a frame ...; got 0.25": an option and a number the user never typed. The
+    refusal names the default spin and the --spin that fits; a --spin within half a turn a frame is not refused."""
+    code, _, err = run(capsys, "closeup", "--gif", tmp_path / "a.gif", "--fps", "0.4", "-o", tmp_path / "x.png")
+    assert code == 2, err
+    assert "the default --spin 0.25 turns more than half a turn a frame at --fps 0.4" in err, err
+    assert "give a --spin with |TURNS/S| <= --fps / 2 = 0.2" in err and "loading" not in err, err
+    assert sorted(tmp_path.iterdir()) == []
+
+
+def test_texture_contour_color_of_alpha_zero_is_refused_not_warned_of_as_no_level(tmp_path, capsys):
+    """``texture --contours 10 --contour-color 0.2,0.2,0.2,0`` over heights 100 to 180 (nine levels within them)
+    drew every line transparent, and the no-line warning said "no contour level (a multiple of it) passes within the
+    heights 100 to 180 ... a smaller interval draws lines": untrue, and no smaller interval would. A colour with alpha
+    0 makes --contours draw nothing (index lines take its alpha): refused before any work, naming the option."""
+    heights = np.add.outer(np.linspace(100.0, 140.0, 24), np.linspace(0.0, 40.0, 32)).astype(np.float32)
+    np.save(tmp_path / "dem.npy", heights)
+    out = tmp_path / "t.png"
+    code, _, err = run(capsys, "-q", "texture", tmp_path / "dem.npy", "--contours", "10", "--contour-color",
+                       "0.2,0.2,0.2,0", "-o", out)
+    assert code == 2, err
+    assert err.startswith("stepterrain texture: error: --contour-color must have an alpha above 0 (0 draws every "
+                          "contour line transparent: the texture as without --contours); got 0.2,0.2,0.2,0"), err
+    assert "passes within the heights" not in err and not out.exists()
+    code, _, err = run(capsys, "-q", "texture", tmp_path / "dem.npy", "--contours", "10", "--contour-color",
+                       "0.2,0.2,0.2,0.01", "-o", out)  # faint, not invisible
+    assert code == 0 and err == "" and out.exists(), err
+
+
+def test_texture_contours_no_line_warning_names_a_level_within_the_heights_it_did_not_draw(tmp_path, capsys):
+    """A DEM at 60 m with one node at 100.5 (a DSM's mast, a lone summit node): the 100 m level lies within the
+    heights, but its loop around the node is narrower than a texel and no texel is within half a line's width of it.
+    The no-line warning said "no contour level (a multiple of it) passes within the heights 60 to 100.5 ... a smaller
+    interval draws lines": 100 does. It names that level now; a wider --contour-width draws it."""
+    heights = np.full((32, 32), 60.0, np.float32)
+    heights[15, 15] = 100.5
+    np.save(tmp_path / "spike.npy", heights)
+    code, _, err = run(capsys, "-q", "texture", tmp_path / "spike.npy", "--contours", "100", "-o", tmp_path / "a.png")
+    assert code == 0, err
+    assert err == "stepterrain texture: warning: --contours 100 drew no line: its level 100, within the heights 60 " \
+                  "to 100.5, passes within half a line's width of no texel (a loop narrower than a texel, around a " \
+                  "lone peak or pit node); the texture is as without --contours (a wider --contour-width may draw " \
+                  "it)\n", err
+    code, _, err = run(capsys, "-q", "texture", tmp_path / "spike.npy", "--contours", "100", "--contour-width", "2.5",
+                       "-o", tmp_path / "b.png")
+    assert code == 0 and err == "", err
