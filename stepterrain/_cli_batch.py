@@ -247,7 +247,8 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
     tile = args.tile if args.tile is not None else (256 if not args.input else None)
     scheduler = args.scheduler
     rows, cols = (tile, tile) if isinstance(tile, int) else tile or (0, 0)  # "(512, 1024) cells" read as Python
-    cluster = f"a LocalCluster of {_counted(workers, 'worker')}"
+    # at most one worker per item to run (batch), which only the run knows (a rerun's complete items start none)
+    cluster = f"a LocalCluster of {'up to ' if workers > 1 else ''}{_counted(workers, 'worker')}"
     progress.stage("batch", f"stepping {what}" + (f" in tiles of {rows} x {cols} cells" if tile else "")
                    + f" -> {Path(args.output)}/*{_check_ext(args.format)}" + f" on {scheduler or cluster}")
     def failure_line(line: str) -> str:  # the bar's line of a failed item, as the summary's below

@@ -16,8 +16,8 @@ __all__ = ["signals_held", "terminal_signals_blocked_for_children"]
 @contextmanager
 def signals_held() -> Iterator[None]:
     """Hold back SIGINT, SIGTERM and SIGHUP while the block runs; a signal that came meanwhile goes to its own handler
-    when the block ends, also when it ends with an exception (Ctrl-C: KeyboardInterrupt there, the exception its
-    context).
+    when the block ends (several: in the order they came), also when it ends with an exception (Ctrl-C:
+    KeyboardInterrupt there, the exception its context).
 
     A LocalCluster interrupted while its nannies started was never closed: dask's exit hook then failed on it
     ("Exception ignored in atexit callback ... AssertionError: Status.init"); heights half scattered or tasks half
@@ -49,9 +49,10 @@ def signals_held() -> Iterator[None]:
         # also when the block failed: the failure is most likely the signal's own doing (the terminal's Ctrl-C reaches
         # the LocalCluster's worker processes too, which died as they started), and the user asked to stop; it was
         # lost, and `batch` ended "error: cannot start a LocalCluster ... Nanny failed to start", exit status 2
-        for number, handler in held.items():
-            if number in came:
-                handler(number, None)  # Python's default SIGINT handler raises KeyboardInterrupt here
+        # in the order they came: SIGTERM, then Ctrl-C, ended the run as Ctrl-C (exit status 130, not 143), the
+        # SIGTERM never raised
+        for number in dict.fromkeys(came):
+            held[number](number, None)  # Python's default SIGINT handler raises KeyboardInterrupt here
 
 
 @contextmanager

@@ -1887,8 +1887,9 @@ def batch(
         process's memory budget (:func:`stepterrain.set_memory_budget`), set in the worker before each item. The
         LocalCluster's workers record each item's warnings, which are warned again in this process (other clusters'
         workers print theirs); STL's float32 rounding (UTM coordinates), which every tile of a raster meets alike, is
-        warned once for the run, with the number of outputs it moved (each item's own message stays in its
-        :class:`ItemResult`'s ``warnings``).
+        warned once for the run, with the number of outputs it moved, as are ``.stl`` outputs that read back open
+        (a solid's pinch copies at UTM coordinates; each item's own message stays in its :class:`ItemResult`'s
+        ``warnings``).
     workers : int
         Worker processes of the LocalCluster, at most one per item to run (a LocalCluster gives each worker
         1/n_workers of the machine's memory as its limit: idle workers took the busy ones' share).

@@ -685,6 +685,42 @@ def test_a_second_ctrl_c_while_the_run_winds_up_ends_it_at_once(tmp_path, monkey
     assert not (out / ".stepterrain-batch.lock").exists()  # the folder is let go
 
 
+def test_signals_held_while_the_run_winds_up_are_raised_in_the_order_they_came(tmp_path, monkeypatch):
+    # SIGTERM (a job scheduler's) and then Ctrl-C, both while the run wound up: the held signals were replayed in the
+    # order of their numbers, so Ctrl-C's KeyboardInterrupt ended the run (exit status 130) and the SIGTERM that came
+    # first (143) was never raised
+    import signal
+
+    import stepterrain.batch as batch_module
+
+    class Terminated(Exception):
+        pass
+
+    def terminate(signum, frame):
+        raise Terminated
+
+    heights = real_dem(TUJUNGA, size=25, step=4)
+    real_write = batch_module._write_manifest
+
+    def sigterm_then_ctrl_c(*args, **kwargs):
+        signal.getsignal(signal.SIGTERM)(signal.SIGTERM, None)  # held back
+        signal.getsignal(signal.SIGINT)(signal.SIGINT, None)  # held back too
+        real_write(*args, **kwargs)
+
+    monkeypatch.setattr(batch_module, "_MANIFEST_FLUSH_S", float("inf"))  # one rewrite: the run's last
+    monkeypatch.setattr(batch_module, "_write_manifest", sigterm_then_ctrl_c)
+    before = signal.signal(signal.SIGINT, signal.default_int_handler), signal.signal(signal.SIGTERM, terminate)
+    try:
+        with pytest.raises((Terminated, KeyboardInterrupt)) as raised:
+            batch(heights, tmp_path / "out", tile_size=12, interval=100.0, scheduler="serial")
+        assert raised.type is Terminated  # the first signal's
+        assert signal.getsignal(signal.SIGTERM) is terminate
+    finally:
+        signal.signal(signal.SIGINT, before[0])
+        signal.signal(signal.SIGTERM, before[1])
+    assert len(json.loads((tmp_path / "out" / MANIFEST_NAME).read_text())["items"]) == 4  # recorded all the same
+
+
 # ---------------------------------------------------------------------------------------------- retries
 def four_tiles_twice_retried(tmp_path):
     """A 7 x 7 ramp cut into four tiles (tile_r0_c0 ... tile_r1_c1), run serially with two retries."""

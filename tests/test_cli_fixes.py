@@ -842,7 +842,28 @@ def test_counts_in_progress_lines_agree_with_their_nouns(tmp_path, capsys, monke
     _, _, err = run(capsys, "batch", dem, "--tile", "4x6", "--interval", "1", "--workers", "1", "-o", tmp_path / "o")
     assert "in tiles of 4 x 6 cells" in err and "on a LocalCluster of 1 worker\n" in err and "1 workers" not in err
     _, _, err = run(capsys, "batch", dem, "--tile", "4", "--interval", "1", "--workers", "3", "-o", tmp_path / "o")
-    assert "in tiles of 4 x 4 cells" in err and "on a LocalCluster of 3 workers" in err
+    assert "in tiles of 4 x 4 cells" in err and "on a LocalCluster of up to 3 workers" in err
+
+
+def test_batch_stage_line_does_not_promise_more_workers_than_it_may_start(tmp_path, capsys, monkeypatch):
+    """The LocalCluster starts at most one worker per item to run (f9f8cc7): two files with --workers 8 start two,
+    but the stage line said "on a LocalCluster of 8 workers". It says "up to 8" now, as the cluster's size depends on
+    the items left to run (a rerun's complete ones start none)."""
+    import stepterrain.batch
+
+    started: list[int] = []
+
+    def record(workers):
+        started.append(workers)
+        raise KeyboardInterrupt  # the stage line is out and the count known: no cluster started
+
+    monkeypatch.setattr(stepterrain.batch, "start_local_cluster", record)
+    for k in range(2):
+        np.save(tmp_path / f"t{k}.npy", np.add.outer(np.arange(6.0), np.arange(7.0)).astype(np.float32) + k)
+    _, _, err = run(capsys, "batch", tmp_path / "t0.npy", tmp_path / "t1.npy", "--interval", "1", "--workers", "8",
+                    "-o", tmp_path / "o")
+    assert started == [2]
+    assert "LocalCluster of 8 workers" not in err and "on a LocalCluster of up to 8 workers" in err, err
 
 
 @needs_render

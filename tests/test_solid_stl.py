@@ -609,9 +609,10 @@ def test_batch_of_solid_tiles_says_once_that_their_stl_reads_back_open(tmp_path)
 def test_pinch_copy_of_a_one_triangle_fan_moves_into_it_at_utm_coordinates(gamma, tmp_path):
     """Big Tujunga's SRTM (30 m, UTM) with 5 % void nodes: where voids lie north and south of a node, each side's fan
     is one grid triangle, and the copy's diagonal move runs along its diagonal edge: float64 rounding put it a hair
-    outside its angle, the copy stayed on the node (13 of 477) and the .stl read back open. It now moves along its
-    fan's mean direction, strictly inside: the .stl is watertight, every face of the fan still faces up."""
-    dem = st.load_dem("/work/shared/data/big_tujunga_srtm_30m_utm11n.tif")
+    outside its angle, the copy stayed on the node (13 of 477 on 300², 2 on this 150²) and the .stl read back open. It
+    now moves along its fan's mean direction, strictly inside: the .stl is watertight, every face of the fan still
+    faces up."""
+    dem = st.load_dem(shared_file("big_tujunga_srtm_30m_utm11n.tif"))
     heights = dem.heights[:150, :150].copy()  # 4 copies of a one-triangle fan (26 at 300 x 300, 18 s a case)
     heights[np.random.default_rng(0).random(heights.shape) < 0.05] = np.nan
     holed = st.Terrain.from_heights(heights, spacing=dem.spacing, origin=dem.origin)
