@@ -20,10 +20,12 @@ from stepterrain import cli
 from stepterrain._files import gdal_path
 from stepterrain.errors import DataFileError, InvalidInputError
 
+from .conftest import SHARED_DATA
+
 rasterio = pytest.importorskip("rasterio")
 from affine import Affine  # noqa: E402
 
-_FRONT_RANGE = "/work/shared/data/front_range_srtmgl3_3arcsec.tif"
+_FRONT_RANGE = SHARED_DATA / "front_range_srtmgl3_3arcsec.tif"
 
 
 def _geotiff(path, terrain):

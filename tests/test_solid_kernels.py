@@ -469,7 +469,7 @@ def test_non_finite_vertices_float_faces_and_a_floor_not_a_number_are_refused():
 def test_pinch_copies_moved_along_their_fans_mean_equal_the_reference():
     """Big Tujunga's SRTM (30 m, UTM) with 5 % void nodes: copies whose diagonal move misses a one-triangle fan by a
     hair move along their fan's mean direction, as the reference's do (no other test compared that path)."""
-    dem = st.load_dem("/work/shared/data/big_tujunga_srtm_30m_utm11n.tif")
+    dem = st.load_dem(shared_file("big_tujunga_srtm_30m_utm11n.tif"))
     heights = dem.heights[:80, :80].copy()
     heights[np.random.default_rng(0).random(heights.shape) < 0.05] = np.nan
     holed = st.Terrain.from_heights(heights, spacing=dem.spacing, origin=dem.origin)
