@@ -193,10 +193,16 @@ def _boundary(faces: wp.array, n: int, device: wp.Device) -> NDArray[np.int64]:
 
 
 def _face_indices(faces: Any) -> NDArray[np.int64]:
-    """``faces`` as an (F, 3) int64 array, else an :class:`InvalidInputError`: float indices (1.5) were truncated to
-    another vertex without a word. An empty list (numpy's float64) is no faces."""
+    """``faces`` as an (F, 3) int64 array, else an :class:`InvalidInputError`: integers as they are, floats where
+    each is a whole number (faces read back from a text file, as before), other floats (1.5 was truncated to another
+    vertex without a word, NaN named as index -2^63) and bools refused. An empty list (numpy's float64) is no faces."""
     array = np.asarray(faces)
-    if array.size and array.dtype.kind not in "iu":  # not bools, not floats
+    if array.size and array.dtype.kind == "f":
+        whole = np.isfinite(array) & (array == np.trunc(array))
+        if not whole.all():
+            at = tuple(int(k) for k in np.argwhere(~whole)[0])
+            raise InvalidInputError(f"faces must hold whole vertex indices; got {float(array[at])} at {at}")
+    elif array.size and array.dtype.kind not in "iu":  # bools, text, objects
         raise InvalidInputError(f"faces must be an (F, 3) integer array of vertex indices; got dtype {array.dtype}")
     array = array.astype(np.int64, copy=False)
     if array.ndim != 2 or array.shape[1] != 3:  # the kernels read the faces as flat rows of three

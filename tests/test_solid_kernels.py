@@ -446,17 +446,24 @@ def test_buckets_in_reverse_order_equal_the_reference(case, limit, monkeypatch):
 def test_non_finite_vertices_float_faces_and_a_floor_not_a_number_are_refused():
     """close_solid (public, in stepterrain.mesh) took NaN or infinite coordinates into the solid without a word (NaN
     in its vertices and base), truncated float face indices (1.5 -> 1: another vertex), and met a floor given as
-    None, text or an array with numpy's TypeError deep inside; each is now an InvalidInputError naming it."""
+    None, text or an array with numpy's TypeError deep inside; each is now an InvalidInputError naming it.
+    Whole-number float faces are still taken."""
     vertices, faces, terrace, floor = _surface(np.arange(20.0).reshape(4, 5), interval=2.0)
     for bad in (np.nan, np.inf):
         given = vertices.copy()
         given[3, 1] = bad
         with pytest.raises(st.InvalidInputError, match="vertices must be finite; got 1 NaN or infinite coordinate"):
             mesh_module.close_solid(given, faces, terrace, floor)
-    with pytest.raises(st.InvalidInputError, match="faces must be an \\(F, 3\\) integer array .* got dtype float64"):
+    with pytest.raises(st.InvalidInputError, match="faces must hold whole vertex indices; got 0.5 at \\(0, 0\\)"):
         mesh_module.close_solid(vertices, faces + 0.5, terrace, floor)
-    with pytest.raises(st.InvalidInputError, match="faces must be an \\(F, 3\\) integer array .* got dtype float64"):
-        mesh_module.boundary_edges(faces.astype(np.float64))
+    nan_faces = faces.astype(np.float64)
+    nan_faces[2, 1] = np.nan
+    with pytest.raises(st.InvalidInputError, match="faces must hold whole vertex indices; got nan at \\(2, 1\\)"):
+        mesh_module.boundary_edges(nan_faces)
+    with pytest.raises(st.InvalidInputError, match="faces must be an \\(F, 3\\) integer array .* got dtype bool"):
+        mesh_module.boundary_edges(faces > 0)
+    # whole-number floats (faces read back from a text file) are the same faces
+    assert np.array_equal(mesh_module.boundary_edges(faces.astype(np.float64)), mesh_module.boundary_edges(faces))
     for bad in (None, "0", np.array([floor]), 1j):
         with pytest.raises(st.InvalidInputError, match="floor must be a number"):
             mesh_module.close_solid(vertices, faces, terrace, bad)
