@@ -1262,3 +1262,41 @@ def test_an_obj_material_without_kd_renders_in_the_tan_and_kd_grey_in_its_grey(t
     grey = render.render_mesh(kd, window_size=(64, 64), camera="top")[28:36, 28:36].reshape(-1, 3).astype(float)
     lit_tan = tan[28:36, 28:36].reshape(-1, 3).mean(axis=0)
     assert np.ptp(grey.mean(axis=0)) < 3 and np.abs(grey.mean(axis=0) - lit_tan).max() > 20
+
+
+@needs_render
+@pytest.mark.parametrize("camera", ["oblique", (0.7, 0.4)])
+@pytest.mark.parametrize("view_angle", [120.0, 150.0])
+def test_a_wide_view_angle_frames_the_mesh_in_the_middle(camera, view_angle):
+    """A fitted camera recentres the projected box on screen in a few steps of the focal point. Whole steps
+    overshot in a wide view: the near corners swung from one side of the picture to the other at each step, and
+    the last left the mesh against one edge (a cube at 120 degrees in the right half of the picture only, at 170
+    degrees not drawn at all). The drawn pixels' box is now centred, as the fit's symmetric projection puts it,
+    and each axis of it reaches both halves of the picture."""
+    mesh = trimesh.creation.box()
+    width, height = 96, 64
+    image = render.render_mesh(mesh, window_size=(width, height), camera=camera, view_angle=view_angle,
+                               background="black")
+    rows, cols = np.nonzero(image.max(axis=2) > 0)
+    assert len(rows) > 0
+    assert cols.min() < width / 2 < cols.max() and rows.min() < height / 2 < rows.max()
+    assert abs((cols.min() + cols.max() + 1) / 2 - width / 2) <= 0.1 * width
+    assert abs((rows.min() + rows.max() + 1) / 2 - height / 2) <= 0.1 * height
+
+
+def test_the_fitted_camera_centres_the_box_it_frames_at_every_view_angle():
+    """The projection behind the test above, without a render: the fitted camera leaves the middle of the framed
+    corners' extreme directions within 5 % of the view's half-width of its axis on both screen axes (they
+    alternated between one side and the other at wide angles: a cube at 120 degrees between 0.05 and 1 of it), and
+    every corner inside the view."""
+    for box in ([[-5.0, -3.0, 0.0], [5.0, 3.0, 1.5]], [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]):
+        corners = render._box_corners(np.array(box))
+        for camera in ("oblique", "top", (0.7, 0.4), (2.0, -0.3)):
+            for view_angle in (10.0, 30.0, 60.0, 90.0, 120.0, 150.0, 170.0, 179.0):
+                position = render._camera_position(camera, corners, 1.5, view_angle)
+                rel, depth, right, up = render._eye_frame(corners, position)
+                assert (depth > 0).all()
+                tan_v = np.tan(np.radians(view_angle) / 2)
+                for tangents, half in ((rel @ right / depth, tan_v * 1.5), (rel @ up / depth, tan_v)):
+                    assert abs(tangents.max() + tangents.min()) / 2 <= 0.05 * half, (box, camera, view_angle)
+                    assert np.abs(tangents).max() <= half * (1 + 1e-9), (box, camera, view_angle)
