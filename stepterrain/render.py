@@ -235,7 +235,8 @@ def _screen_axes(forward: NDArray[np.float64], up: NDArray[np.float64]
 def _fit_distance(corners: NDArray[np.float64], view_dir: NDArray[np.float64], up: NDArray[np.float64],
                   aspect: float, view_angle: float = _VIEW_ANGLE) -> float:
     """Distance from the box centre along ``view_dir`` at which every corner lies inside the view frustum
-    (``view_angle``: its vertical field of view, degrees)."""
+    (``view_angle``: its vertical field of view, degrees); at least 1e-9 of the corners' reach (an absolute 1e-9
+    framed a mesh smaller than about 1e-10 from afar, and refused it as too thin to see)."""
     forward = -view_dir
     right, true_up = _screen_axes(forward, up)
     tan_v = math.tan(math.radians(view_angle) / 2.0)
@@ -243,7 +244,7 @@ def _fit_distance(corners: NDArray[np.float64], view_dir: NDArray[np.float64], u
     depth = corners @ forward  # corner offset along the viewing direction (positive: farther away)
     need_v = np.abs(corners @ true_up) / tan_v - depth
     need_h = np.abs(corners @ right) / tan_h - depth
-    return float(max(need_v.max(), need_h.max(), 1e-9))
+    return float(max(need_v.max(), need_h.max(), 1e-9 * max(float(np.abs(corners).max()), 1e-300)))
 
 
 def _framing_eye(points: NDArray[np.float64], forward: NDArray[np.float64], right: NDArray[np.float64],

@@ -1300,3 +1300,17 @@ def test_the_fitted_camera_centres_the_box_it_frames_at_every_view_angle():
                 for tangents, half in ((rel @ right / depth, tan_v * 1.5), (rel @ up / depth, tan_v)):
                     assert abs(tangents.max() + tangents.min()) / 2 <= 0.05 * half, (box, camera, view_angle)
                     assert np.abs(tangents).max() <= half * (1 + 1e-9), (box, camera, view_angle)
+
+
+@needs_render
+def test_a_tiny_mesh_renders_as_its_scaled_up_copy():
+    """The fitted camera's distance had a floor of 1e-9 in the mesh's units: a mesh smaller than about 1e-10 was
+    framed from that far, and refused as "too thin to see from a camera fitted to it" (a cube of side 1e-12
+    measured 0.1 x 0.13 pixels), with a z_scale hint that could not help. The floor is now relative to the
+    framed box, and a perspective view does not depend on the scale."""
+    cube = trimesh.creation.box()
+    reference = render.render_mesh(cube, window_size=(64, 48), background="black").max(axis=2) > 0
+    for scale in (1e-12, 1e-20):
+        tiny = trimesh.Trimesh(cube.vertices * scale, cube.faces, process=False)
+        covered = render.render_mesh(tiny, window_size=(64, 48), background="black").max(axis=2) > 0
+        assert (covered != reference).mean() < 0.01, scale
