@@ -1359,7 +1359,7 @@ def _write_obj_text(
             fh.write(f"{_OBJ_METADATA}{piece}\n")
         name = mesh.metadata.get("name")
         if isinstance(name, str) and name.split():  # one line: a line break in a name started a new statement
-            fh.write(f"o {' '.join(name.split())}\n")
+            fh.write(f"o {_obj_text(' '.join(name.split()))}\n")
         if material is not None:
             fh.write(f"mtllib {mtl_name}\nusemtl {material}\n")
         row = "v {!r} {!r} {!r}" + (" {:.8f} {:.8f} {:.8f}" if colors is not None else "") + "\n"
@@ -1370,6 +1370,15 @@ def _write_obj_text(
             _write_rows(fh.write, "f {} {} {}\n", _blocks(faces + 1))
         else:  # the texture coordinate of a corner is its vertex's: v/vt with the same index
             _write_rows(fh.write, "f {}/{} {}/{} {}/{}\n", _blocks(np.repeat(faces + 1, 2, axis=1)))
+
+
+def _obj_text(text: str) -> str:
+    """``text`` (a name on one line) for the end of an OBJ or MTL statement: a backslash there continues the line in
+    OBJ readers (trimesh's, as the OBJ specification has it), so an ``o`` line of a name ending in one (a Windows
+    folder, ``C:\\dem\\``) or a ``usemtl`` of a material so named swallowed the first ``v`` line, and every face
+    then named the wrong vertices or none (read_mesh: an IndexError). Its trailing backslashes become ``_``."""
+    stripped = text.rstrip("\\")
+    return stripped + "_" * (len(text) - len(stripped))
 
 
 def _blocks(values: NDArray[Any]) -> Iterator[NDArray[Any]]:
@@ -1440,7 +1449,7 @@ def _obj_material(mesh: trimesh.Trimesh, mtl_name: str) -> tuple[dict[str, bytes
         material.image = _encoded_image(image)
     name = material.name
     if isinstance(name, str):  # one word for newmtl / usemtl: a line break in it started a statement of its own in
-        name = "_".join(name.split())  # the OBJ ("v 9 9 9" shifted every face) and the MTL, and map_Kd lost the image
+        name = _obj_text("_".join(name.split()))  # the OBJ ("v 9 9 9" shifted every face), the MTL lost map_Kd
     files, name = material.to_obj(name=trimesh.util.unique_name(name, set()))
     sidecars = {mtl_name: b"# written by stepterrain\n\n"}
     for file_name, data in files.items():

@@ -2064,3 +2064,27 @@ finally:  # what the process writes at its exit (a coverage data file) is not cu
     assert "cannot write" in said[0] and "shade.tif" in said[0] and "Write error" in said[0]
     assert "previous exception" not in said[0]
     assert list(tmp_path.iterdir()) == []  # atomic: neither the target nor its temporary file
+
+
+@pytest.mark.parametrize("where", ["name", "material"])
+def test_a_name_ending_in_a_backslash_does_not_continue_the_obj_line(tmp_path, where):
+    """The OBJ's ``o`` line carried the metadata's name, ``usemtl`` (and the MTL's ``newmtl``) the material's, as
+    they were: a trailing backslash (a Windows folder, ``C:\\dem\\``) continues the line in OBJ readers, so the
+    first ``v`` line became part of the name and every face named the vertex after its own; read_mesh and
+    trimesh.load raised an IndexError for the last. Trailing backslashes are now ``_``, and the name read back from
+    the metadata comment is still the one written."""
+    mesh = trimesh.creation.box()
+    name = "C:\\dem\\"
+    if where == "material":
+        material = trimesh.visual.material.PBRMaterial(name=name, baseColorTexture=Image.new("RGB", (4, 4)))
+        mesh.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((8, 2)), material=material)
+        obj = save_mesh(mesh, tmp_path / "t.obj")
+        assert "newmtl C:\\dem_" in (tmp_path / "t.mtl").read_text().splitlines()
+    else:
+        obj = save_mesh(mesh, tmp_path / "t.obj", metadata={"name": name})
+    assert not any(line.endswith("\\") for line in obj.read_text().splitlines())
+    for back in (read_mesh(obj), trimesh.load(obj, force="mesh", process=False, maintain_order=True)):
+        np.testing.assert_array_equal(back.vertices, mesh.vertices)
+        np.testing.assert_array_equal(back.faces, mesh.faces)
+    if where == "name":
+        assert read_mesh(obj).metadata["name"] == name
