@@ -1893,6 +1893,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                 color = _gltf_color_0(file, tree)
             _srgb_vertex_colors(loaded, color)
             _gltf_sampler_wrap(loaded, tree)
+            loaded.metadata.update(_gltf_extras_name(tree))
     except Exception as exc:  # noqa: BLE001 - trimesh and the XML reader raise many kinds for a bad file
         raise DataFileError(f"cannot read {str(file)!r} as a mesh: {type(exc).__name__}: {exc}") from exc
     return loaded  # type: ignore[no-any-return]
@@ -2195,6 +2196,18 @@ def _empty_gltf_extras(file: Path, tree: Any = None) -> dict[str, Any]:
         return {}
     extras = nodes[0].get("extras")
     return dict(extras) if isinstance(extras, dict) else {}
+
+
+def _gltf_extras_name(tree: Any) -> dict[str, Any]:
+    """``{"name": ...}`` from the ``extras`` of the one mesh of a glTF whose JSON is ``tree``, where they hold one
+    (the metadata :func:`save_mesh` wrote), else {}: trimesh's reader merges the extras into the metadata but puts
+    the mesh's (or node's) own name over theirs, so a name given as metadata came back as the file's stem, where
+    the other formats give it back as written."""
+    meshes = tree.get("meshes") if isinstance(tree, dict) else None
+    if not isinstance(meshes, list) or len(meshes) != 1 or not isinstance(meshes[0], dict):
+        return {}
+    extras = meshes[0].get("extras")
+    return {"name": extras["name"]} if isinstance(extras, dict) and "name" in extras else {}
 
 
 def _gltf_color_0(file: Path, tree: Any = None) -> NDArray[np.float64] | None:

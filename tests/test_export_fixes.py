@@ -2088,3 +2088,17 @@ def test_a_name_ending_in_a_backslash_does_not_continue_the_obj_line(tmp_path, w
         np.testing.assert_array_equal(back.faces, mesh.faces)
     if where == "name":
         assert read_mesh(obj).metadata["name"] == name
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+def test_read_mesh_gives_a_gltfs_metadata_name_back(tmp_path, ext):
+    """save_mesh stores the metadata in the glTF mesh's extras, and read_mesh gives it back (as PLY, OBJ and 3MF
+    do), but trimesh's reader puts the mesh's own name (the file's stem) over the extras' ``name``: a name given as
+    metadata came back as "stem", and a mesh read and written again kept that."""
+    mesh = trimesh.creation.box()
+    out = save_mesh(mesh, tmp_path / f"stem{ext}", metadata={"name": "Big Tujunga", "crs": "EPSG:32611"})
+    back = read_mesh(out)
+    assert back.metadata["name"] == "Big Tujunga" and back.metadata["crs"] == "EPSG:32611"
+    again = read_mesh(save_mesh(back, tmp_path / f"again{ext}"))
+    assert again.metadata["name"] == "Big Tujunga"
+    np.testing.assert_allclose(again.vertices, mesh.vertices, atol=1e-6)
