@@ -1352,7 +1352,10 @@ def _write_obj_text(
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
     colors = None
     if material is None and mesh.visual.kind in ("vertex", "face") and len(mesh.visual.vertex_colors):
-        colors = np.asarray(mesh.visual.vertex_colors, dtype=np.float64)[:, :3] / 255.0  # OBJ's colour is RGB
+        # OBJ's colour is RGB, as 0-1 text of 8 decimals rounded up: VTK's reader (pyvista.read) truncates its value
+        # times 255, and 217 / 255 written as 0.85098039 read back as 216 (half of all bytes one less); rounding readers
+        # (trimesh's) read the same byte either way
+        colors = np.ceil(np.asarray(mesh.visual.vertex_colors, dtype=np.float64)[:, :3] / 255.0 * 1e8) / 1e8
     with tmp.open("w", encoding="utf-8", newline="\n") as fh:
         fh.write("# written by stepterrain\n")
         for piece in _metadata_pieces(mesh.metadata):  # comments: the crs, source, isovalues ... (read_mesh's)

@@ -2102,3 +2102,19 @@ def test_read_mesh_gives_a_gltfs_metadata_name_back(tmp_path, ext):
     again = read_mesh(save_mesh(back, tmp_path / f"again{ext}"))
     assert again.metadata["name"] == "Big Tujunga"
     np.testing.assert_allclose(again.vertices, mesh.vertices, atol=1e-6)
+
+
+def test_obj_vertex_colours_read_back_as_the_same_bytes_by_vtk_and_trimesh(tmp_path):
+    """An OBJ's ``v x y z r g b`` colours were c / 255 to 8 decimals, which lie below c / 255 for about half of the
+    bytes (217 / 255 = 0.850980392... written as 0.85098039): VTK's reader (pyvista.read) truncates their value times
+    255, so those came back one less. Rounded up, every byte reads back as written by truncating and rounding
+    readers alike."""
+    pv = pytest.importorskip("pyvista")
+    levels = np.arange(256, dtype=np.uint8)
+    vertices = np.column_stack([np.arange(256.0), np.zeros(256), np.zeros(256)])
+    faces = np.array([[0, 1, 2]])
+    colors = np.column_stack([levels, levels[::-1], np.roll(levels, 85), np.full(256, 255, np.uint8)])
+    mesh = trimesh.Trimesh(vertices, faces, vertex_colors=colors, process=False)
+    obj = save_mesh(mesh, tmp_path / "c.obj")
+    np.testing.assert_array_equal(np.asarray(pv.read(obj).point_data["RGB"]), colors[:, :3])
+    np.testing.assert_array_equal(read_mesh(obj).visual.vertex_colors, colors)
