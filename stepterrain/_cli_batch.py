@@ -139,7 +139,7 @@ def add_parser(commands: Any) -> None:
                    help="an existing dask scheduler, e.g. tcp://host:8786; 'serial' runs in this process "
                         "(default: a LocalCluster of --workers processes)")
     p.add_argument("--workers", type=int, metavar="N",
-                   help="LocalCluster worker processes (default 2); not with --scheduler")
+                   help="LocalCluster worker processes (default 2; at most one per item to run); not with --scheduler")
     p.add_argument("--connect-timeout", type=float, default=None, metavar="S",
                    help="seconds to reach --scheduler (or start the LocalCluster) before giving up (default 10); "
                         "not with --scheduler serial")

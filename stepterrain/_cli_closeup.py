@@ -66,6 +66,19 @@ def _color_option(text: str) -> str | tuple[float, ...]:
     return value
 
 
+def _spin(text: str) -> float:
+    """--spin: a finite non-zero number of turns per second (negative turns the other way), refused by argparse:
+    inf, NaN and 0 were refused only after the output paths and the other options were checked, 1e308 not at all."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value) or value == 0:
+        raise argparse.ArgumentTypeError(f"expected a finite non-zero number of turns per second (negative: the "
+                                         f"other way); got {text!r}")
+    return value
+
+
 def add_parser(commands: Any) -> None:
     """Add the ``closeup`` subcommand to the ``stepterrain`` parser."""
     from .cli import _add_device, _add_input_options, _floats, _path, _window
@@ -117,8 +130,9 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--size", type=_window, default=None, metavar="WxH",
                    help="image size of the render and the animation (default 1280x720)")
     p.add_argument("--gif", type=_path, metavar="OUT.gif|OUT.mp4", help="also write a spinning animation")
-    p.add_argument("--spin", type=float, default=None, metavar="TURNS/S",
-                   help="spin speed of the animation in turns per second (default 0.25)")
+    p.add_argument("--spin", type=_spin, default=None, metavar="TURNS/S",
+                   help="spin speed of the animation in turns per second, negative the other way, at most half a "
+                        "turn a frame: |TURNS/S| <= --fps / 2 (default 0.25)")
     p.add_argument("--frames", type=int, default=None, metavar="N", help="animation frames (default 24)")
     p.add_argument("--fps", type=float, default=None, metavar="FPS", help="animation frame rate (default 12)")
     p.set_defaults(run=_run_closeup)
@@ -198,8 +212,12 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         _check_fps(args.fps, anim.suffix.lower(), "--fps")
         if anim.suffix.lower() == ".mp4":  # refused here, not after rendering every frame
             _check_mp4_size(*args.size, "--size")
-    if not math.isfinite(args.spin) or args.spin == 0:
-        raise InvalidInputError(f"--spin must be a non-zero number of turns per second; got {args.spin}")
+    if anim is not None and abs(args.spin) > args.fps / 2:
+        # a faster spin turns more than half a turn between frames: the animation shows it aliased (turning slower,
+        # or backwards; at --fps turns per second it stands still), and 1e308 made every frame the same
+        raise InvalidInputError(f"--spin must be at most half a turn a frame, |--spin| <= --fps / 2 = "
+                                f"{args.fps / 2:g} turns per second (a faster spin is shown aliased: slower, "
+                                f"backwards or standing still); got {args.spin:g}")
     if anim is None:  # (after their values, which are named first)
         _refuse_unused(unanimated, "--gif (the still render and the scene mesh show the close-ups before any spin)",
                        "without --gif")
@@ -207,7 +225,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
             _refuse_unused(render_options, "a render (a .png --output, --png or --gif)",
                            f"with the mesh --output {args.output!r} alone")
     if args.edge is not None and not (math.isfinite(args.edge) and args.edge >= 0):
-        raise InvalidInputError(f"--edge must be >= 0; got {args.edge}")
+        raise InvalidInputError(f"--edge must be a finite number >= 0; got {args.edge:g}")  # inf is >= 0
     # degrees (finite: _floats), whole turns taken off exactly: math.radians(1e308) kept none of the angle
     rotations_deg = [tuple(math.fmod(a, 360.0) for a in rot) for rot in args.rotation or []]
     for _fx, _fy, fr in args.roi_relative or []:  # else named as '--roi radius', in world units
@@ -230,9 +248,17 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     progress.done(f"{' x '.join(str(n) for n in terrain.shape)} nodes,")
     xmin, xmax, ymin, ymax = terrain.extent
     short = min(xmax - xmin, ymax - ymin)
+    given = getattr(args, "rois", None) or []  # in command-line order
     rois = [value if option == "roi" else (xmin + value[0] * (xmax - xmin), ymin + value[1] * (ymax - ymin),
                                             value[2] * short)
-            for option, value in getattr(args, "rois", None) or []]  # in command-line order
+            for option, value in given]
+    for (option, value), (x, y, r) in zip(given, rois, strict=True):
+        if option == "roi_relative" and not (math.isfinite(x) and math.isfinite(y) and r <= _MAX_OFFSET):
+            # named as the library's "ROI center" or "--roi radius ... got inf", not the fractions typed
+            fx, fy, fr = value
+            raise InvalidInputError(f"--roi-relative {fx:g},{fy:g},{fr:g} places a close-up at ({x:g}, {y:g}) with "
+                                    f"radius {r:g}: expected fractions of the extent (0 to 1 across it) giving a "
+                                    f"finite centre and a radius within {_MAX_OFFSET:g}")
     if not rois:
         rois = [((xmin + xmax) / 2, (ymin + ymax) / 2, 0.12 * short)]
     n = len(rois)

@@ -19,6 +19,7 @@ from .camera import _MAX_COORDINATE
 from .cli import (
     Progress,
     _add_device,
+    _add_height_unit,
     _check_output,
     _check_outputs,
     _check_side_files,
@@ -110,6 +111,9 @@ def add_parser(commands: Any) -> None:
                         "(a GeoTIFF or any other load_dem reads: .asc .hgt .img .vrt ..., a GDAL virtual path or URL "
                         "to one, /vsizip/srtm.zip/N46E007.hgt, or a .zip of one; EPSG:4326; nodata refused as well); "
                         "default: the embedded ETOPO 2022 20'")
+    _add_height_unit(p, help="the INPUT heights' length unit (m, ft, US survey foot, km, cm, ...), for a file that "
+                             "names none or one not known (an .npz 'units', a raster band's unit); heights become "
+                             "metres (default: the unit the file names, else as stored)")
     p.add_argument("--face-size", type=int, default=257, metavar="N",
                    help="nodes per cube face edge, 2^k+1 (default 257; the paper uses 1025)")
     p.add_argument("--exaggeration", type=float, default=1.0, metavar="X", help="vertical exaggeration (default 1)")
@@ -152,7 +156,9 @@ def add_parser(commands: Any) -> None:
     p.set_defaults(run=_run_globe)
 
 
-def _load_grid(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _load_grid(path: str, height_unit: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The (lat, lon, elevation) of a global grid INPUT, its heights in metres: in ``height_unit`` (--height-unit)
+    when given, else in the unit the file names (as load_dem reads it)."""
     virtual = gdal_path(path)  # a /vsizip/... path or a URL: read by GDAL, as load_dem reads it
     if virtual is not None and virtual.suffix.lower() not in GDAL_FORMATS:
         raise InvalidInputError(_virtual_refusal(virtual))
@@ -164,7 +170,7 @@ def _load_grid(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if file.suffix.lower() == ".zip":  # a zip of one raster (an SRTM download), as load_dem reads it
         file = dem_path(file)
     if file.suffix.lower() in GDAL_FORMATS:  # a GeoTIFF, .asc, .hgt, .img, .vrt, ...: as load_dem reads them
-        return _load_geotiff_grid(file)
+        return _load_geotiff_grid(file, height_unit)
     if file.suffix.lower() != ".npz":
         raise InvalidInputError(f"INPUT must be a .npz with elevation, lat and lon arrays, or a raster in degrees "
                                 f"({' '.join(GDAL_FORMATS)}); got {path!r}")
@@ -209,14 +215,17 @@ def _load_grid(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         raise InvalidInputError(f"{path!r}: 'elevation' has {cells} ({', '.join(marked_by)}; first at row {row}, "
                                 f"column {col}); the globe needs a height everywhere: fill "
                                 "them first (e.g. from neighbours)")
-    unit, _, factor = _vertical_unit(_npz_text(texts, "units", file), _npz_text(texts, "crs", file))
+    # --height-unit overrides the file's unit, as load_dem's height_unit does (an unknown one was refused with a
+    # pointer to a --height-unit the globe lacked)
+    unit, _, factor = _vertical_unit(height_unit or _npz_text(texts, "units", file), _npz_text(texts, "crs", file))
     if unit is not None and elevation.dtype.kind in "iuf":  # (other dtypes: Globe.from_latlon names them)
-        named_by = "its 'units'" if "units" in texts else f"its CRS {_npz_text(texts, 'crs', file)}"
+        named_by = "--height-unit" if height_unit else "its 'units'" if "units" in texts else \
+            f"its CRS {_npz_text(texts, 'crs', file)}"
         elevation, _ = _heights_in_metres(elevation, unit, file, named_by, factor)
     return lat, lon, elevation
 
 
-def _load_geotiff_grid(file: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _load_geotiff_grid(file: Path, height_unit: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A global GeoTIFF (or any raster of io.GDAL_FORMATS) in a geographic CRS as (lat, lon, elevation): the heights
     as load_dem reads them (nodata, an internal mask, scale and offset, a height unit, a .prj; missing cells as NaN,
     which the globe refuses: fill them first), and the node degrees of its rows and columns from the degrees it read
@@ -229,7 +238,7 @@ def _load_geotiff_grid(file: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=r".* degrees read as local metres with one spacing")
-        terrain = load_dem(file)
+        terrain = load_dem(file, height_unit=height_unit)
     eqc = _spherical_eqc(terrain.crs)
     lonlat = _lonlat_grid(terrain)  # describe_dem's lonlat_step, without its passes over the heights
     step = lonlat[1] if lonlat else None
@@ -259,6 +268,9 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
 
     out = _check_output(args.output, MESH_EXTENSIONS, "--output")
     png = _check_output(args.png, (".png",), "--png") if args.png else None
+    if args.height_unit is not None and not args.input:
+        raise InvalidInputError(f"--height-unit applies to an INPUT file; the embedded ETOPO 2022 relief is in metres; "
+                                f"got {args.height_unit!r}")
     metrics = tuple(m.strip() for m in (args.metrics if args.metrics is not None else ",".join(METRICS)).split(","))
     if "" in metrics:  # '' or 'geometric,,clip': a metric left out, not fewer metrics
         raise InvalidInputError(f"--metrics must be names among geometric, distance, clip separated by commas; "
@@ -347,7 +359,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
                                     smaller_texture="a smaller --texture image (resampled to fewer pixels)")
 
     progress.stage("load", f"loading {args.input or 'the embedded ETOPO 2022 relief (20 arc-minutes)'}")
-    lat, lon, elevation = _load_grid(args.input) if args.input else load_global_relief()
+    lat, lon, elevation = _load_grid(args.input, args.height_unit) if args.input else load_global_relief()
     progress.done(f"{elevation.shape[0]} x {elevation.shape[1]} lat/lon grid,")
 
     progress.stage("build", f"resampling onto 6 x {args.face_size}^2 nodes and building the hierarchy")
@@ -410,6 +422,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     metadata = {
         "generator": "stepterrain globe",
         "input": args.input or "embedded ETOPO 2022 global relief, 20 arc-minutes",
+        **({"height_unit": args.height_unit} if args.height_unit is not None else {}),
         "face_size": args.face_size,
         "error": args.error,
         "metrics": ",".join(metrics),

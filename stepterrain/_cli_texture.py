@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import math
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -518,6 +519,15 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     if contour_options is not None:  # the contour lines last, unshaded, over both textures (as blend lays them)
         # on the composite's grid (both from texture._texel_grid, or the DEM's nodes; _lay_over_uint8 checks the shape)
         lines = tx.contour_layer(terrain, texel_size=args.texel_size, device=device, **contour_options)
+        if not lines.image[..., 3].max() > 0:  # (NaN-free: nodata texels hold alpha 0)
+            # no level passed within a line's width of a texel's height: the texture came out as without --contours
+            # and said nothing. Not refused: a tile no level crosses, in a set textured at one interval, is no
+            # mistake, and a level just beyond the heights is drawn (within half a line's width of the edge texels)
+            lo, hi = terrain.finite_height_range
+            hint = "a smaller interval draws lines" if lo < hi else "flat ground draws a line only exactly on a level"
+            warnings.warn(f"--contours {args.contours:g} drew no line: no contour level (a multiple of it) passes "
+                          f"within the heights {lo:g} to {hi:g}; the texture is as without --contours ({hint})",
+                          stacklevel=1)
         for picture_out in (image, over_white):
             if picture_out is not None:
                 tx._lay_over_uint8(picture_out, lines)

@@ -1003,7 +1003,7 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
     except StepTerrainError as exc:
         if _transient(exc):
             raise  # a disk or network hiccup under the library's error (e.g. EIO, ENOSPC): retried like any other
-        return ItemResult(item.key, "failed", error=f"{type(exc).__name__}: {exc}", attempts=1,
+        return ItemResult(item.key, "failed", error=f"{_error_name(exc)}: {exc}", attempts=1,
                           seconds=time.perf_counter() - start, cpu_seconds=time.process_time() - cpu_start)  # fmt: skip
     # A Trimesh refers to itself (its visuals, caches and query helpers hold the mesh), so only the cyclic
     # garbage collector frees its arrays, and by then it has often moved them to its oldest generation: a worker
@@ -1016,6 +1016,12 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
         cpu_seconds=time.process_time() - cpu_start, faces=n_faces, vertices=n_vertices,
         bytes=written.stat().st_size,
     )  # fmt: skip
+
+
+def _error_name(exc: BaseException) -> str:
+    """The name a failed item's error gives ``exc``'s class: its first public one (io's ``_NotDegrees``, a grid in
+    degrees whose nodes are none, is a DataFileError to the caller)."""
+    return next(c.__name__ for c in type(exc).__mro__ if not c.__name__.startswith("_"))
 
 
 def _degree_frames(items: Sequence[BatchItem]) -> tuple[tuple[str, _Frame], ...]:
@@ -1053,7 +1059,9 @@ def _degree_frames(items: Sequence[BatchItem]) -> tuple[tuple[str, _Frame], ...]
         try:
             _, frame_crs, source, placed = shared_degree_frame(crs, [g for _, g, _ in group], [s for _, _, s in group])
         except StepTerrainError:  # the union is no degrees (over 360 of longitude): each file in its own frame
+            _warn_antimeridian(crs, group, placed=False)
             continue
+        _warn_antimeridian(crs, group, placed=True)
         for (item, _, _), spacing_own, (spacing, origin) in zip(group, own, placed, strict=True):
             name = Path(str(item.path)).name
             frames.append((item.key, _Frame(spacing_own, spacing, origin, frame_crs, f"{name}, placed in {source}")))
@@ -1067,6 +1075,52 @@ def _degree_frames(items: Sequence[BatchItem]) -> tuple[tuple[str, _Frame], ...]
             stacklevel=caller_stacklevel(),
         )
     return tuple(frames)
+
+
+def _warn_antimeridian(crs: str, group: Sequence[tuple[BatchItem, Sequence[float], tuple[int, int]]], *,
+                       placed: bool) -> None:
+    """Warn when the files in degrees of ``group`` (item, geotransform, shape) in ``crs`` lie either side of the
+    antimeridian, or in two longitude conventions (-180 to 180 and 0 to 360): their mosaic would be narrower by over
+    half the globe wrapped across it than as the ``.vrt`` of ``gdalbuildvrt`` lays them, from their westmost to their
+    eastmost cell. ``placed``: their shared frame, that .vrt's, puts the two sides a whole parallel apart; else their
+    union spanned more than 360 degrees of longitude, and each file was left in local metres of its own. It names the
+    ``+lon_wrap`` that joins the sides: 180 (0 to 360) across the antimeridian, 0 (-180 to 180) for files in 0 to 360
+    either side of the prime meridian (lon 359.9 to 360 and 0 to 0.1), which 0 to 360 leaves a parallel apart."""
+    spans = sorted((min(g[0], g[0] + w * g[1]), max(g[0], g[0] + w * g[1]), Path(str(item.path)).name)
+                   for item, g, (_, w) in group)  # fmt: skip
+    reach, gap, split = spans[0][1], -math.inf, 0  # the widest gap between the files, and the first file past it
+    for i, (west, east, _) in enumerate(spans[1:], start=1):
+        if west - reach > gap:
+            gap, split = west - reach, i
+        reach = max(reach, east)
+    wrapped = 360.0 - (reach - spans[0][0])  # the gap across the antimeridian (negative: the union is over 360)
+    if gap - max(wrapped, 0.0) <= 180.0:
+        return
+
+    # the sides joined, the western one's longitudes 360 on, from a west edge in [0, 360): over half the globe
+    # narrower than the gap, so within 0 to 360 (the antimeridian between the sides) or 180 to 540 (-180 to 180)
+    lo = min(min(w for w, _, _ in spans[split:]), min(w for w, _, _ in spans[:split]) + 360.0)
+    hi = max(max(e for _, e, _ in spans[split:]), max(e for _, e, _ in spans[:split]) + 360.0)
+    hi -= math.floor((lo + 1e-9) / 360.0) * 360.0  # longitudes -360 to 0 alike
+    wrap, seam = (180.0, "the antimeridian") if hi <= 360.0 + 1e-9 else (
+        0.0, "the prime meridian, where longitudes 0 to 360 wrap as -180 to 180 wrap at the antimeridian")
+    convention = "0 to 360" if wrap else "-180 to 180"
+
+    def named(side: Sequence[tuple[float, float, str]]) -> str:
+        names = ", ".join(n for _, _, n in side[:3]) + (f" and {len(side) - 3} more" if len(side) > 3 else "")
+        return f"{names} (lon {min(w for w, _, _ in side):.9g} to {max(e for _, e, _ in side):.9g})"
+
+    how = (f"their mosaic's local metres, as in the .vrt gdalbuildvrt makes of them, put the two sides {gap:.9g} "
+           "degrees of longitude apart, so their meshes lie a whole parallel apart and do not weld"
+           if placed else "together they span more than 360 degrees of longitude, so each file is placed in local "
+           "metres of its own (node (0, 0) at its first node), their meshes on top of one another")
+    warnings.warn(
+        f"the DEM files in degrees {named(spans[:split])} and {named(spans[split:])} in {crs} lie either side of "
+        f"{seam}, or in two longitude conventions (-180 to 180 and 0 to 360): {how}; to step them as one surface, "
+        f"give each file longitudes {convention} first (gdalwarp -t_srs '+proj=longlat +datum=WGS84 "
+        f"+lon_wrap={wrap:g}'), or step each side as a folder of its own",
+        stacklevel=caller_stacklevel(),
+    )
 
 
 def _in_frame(terrain: Terrain, frame: _Frame) -> Terrain:
@@ -1096,8 +1150,9 @@ def _warn_own_local_metres(terrain: Terrain, coarsen: int | None = None) -> None
     at_its_own = all(math.isclose(o, f, rel_tol=1e-9) for o, f in zip(terrain.origin, first, strict=True))
     if at_its_own and _lonlat_grid(terrain) is not None:
         warnings.warn(
-            "DEM files in degrees that GDAL does not read (an .npz), or one alone in its geographic CRS, are not "
-            "placed in the local metres the other files in degrees share: each is placed in local metres of its own "
+            "DEM files in degrees that GDAL does not read (an .npz), one alone in its geographic CRS, or files whose "
+            "mosaic would span more than 360 degrees of longitude, are not placed in the local metres the other "
+            "files in degrees share: each is placed in local metres of its own "
             "(node (0, 0) at its first node, the +proj=eqc CRS of its mesh's metadata), so their meshes neither line "
             "up nor weld where neighbours share their border nodes: to step them as one surface, convert them to "
             "GeoTIFFs (gdal_translate), or mosaic them (gdalbuildvrt tiles.vrt "
@@ -1834,7 +1889,8 @@ def batch(
         warned once for the run, with the number of outputs it moved (each item's own message stays in its
         :class:`ItemResult`'s ``warnings``).
     workers : int
-        Worker processes of the LocalCluster.
+        Worker processes of the LocalCluster, at most one per item to run (a LocalCluster gives each worker
+        1/n_workers of the machine's memory as its limit: idle workers took the busy ones' share).
     retries : int
         Extra attempts for an item whose task raised (worker lost, disk error). Bad input data (an
         unreadable tile) fails at once.
@@ -2236,6 +2292,9 @@ def _run_locked(
     # a nanny writes its pre-spawn variables into os.environ again when it restarts a worker that died: put back
     # when the default cluster is closed, as start_local_cluster puts them back once its workers have started
     environ = {key: os.environ.get(key) for key in LOCAL_CLUSTER_MALLOC}
+    # no more LocalCluster workers than items to run: each extra one took seconds to start, and a LocalCluster gives
+    # each worker 1/n_workers of the machine's memory as its limit (workers=8 for two files: an eighth each)
+    workers = min(workers, len(todo))
     try:
         connection = None if serial or not todo else _connect(scheduler, workers, timeout)
     except BaseException:
@@ -2280,27 +2339,31 @@ def _run_locked(
         # heights block its workers held (hundreds of kB on the terminal after Ctrl-C); after a run of many items,
         # interrupted or not, a worker logged "ERROR - Failed to communicate with scheduler during heartbeat" and
         # its traceback as the cluster closed. None of them the user's: the cluster is closed in silence
-        own = connection is not None and connection[1] is not None
-        with _dask_logs_silenced(connection[0]) if own else nullcontext():  # type: ignore[index]
-            if connection is not None and isinstance(stream, Generator):
-                # interrupted in this loop (Ctrl-C as a result was recorded): the generator cancels its tasks now,
-                # while the client is open; closed by the garbage collector after it, it failed ("Exception ignored
-                # in: <generator object _run_dask>" ... "RuntimeError: IOLoop is closed") and left them running
-                stream.close()
-            for result in salvage:  # finished before the interrupt: recorded, so that a rerun does not redo them
-                recorder.add(result)
-            recorder.flush()
-            if bar is not None:
-                bar.close()
-            if connection is not None:
-                try:
-                    _disconnect(scheduler, connection)
-                finally:
-                    if connection[1] is not None:  # the default LocalCluster, closed
-                        _restore_environ(environ)
-        # a worker killed while writing (its items run again, or its cluster closed under an interrupted run: the
-        # partial file stayed until a rerun) left its temporary file: the folder is still ours
-        _remove_partial(folder, outputs + [MANIFEST_NAME])
+        # Ctrl-C (SIGTERM, SIGHUP) held back while the run is wound up, raised after it: one that came as the run
+        # ended (or a second one during an interrupted run's clean-up) stopped the manifest's last rewrite, and
+        # the run's outputs, written and complete, were left unrecorded for a rerun to redo
+        with signals_held():
+            own = connection is not None and connection[1] is not None
+            with _dask_logs_silenced(connection[0]) if own else nullcontext():  # type: ignore[index]
+                if connection is not None and isinstance(stream, Generator):
+                    # interrupted in this loop (Ctrl-C as a result was recorded): the generator cancels its tasks now,
+                    # while the client is open; closed by the garbage collector after it, it failed ("Exception ignored
+                    # in: <generator object _run_dask>" ... "RuntimeError: IOLoop is closed") and left them running
+                    stream.close()
+                for result in salvage:  # finished before the interrupt: recorded, so that a rerun does not redo them
+                    recorder.add(result)
+                recorder.flush()
+                if bar is not None:
+                    bar.close()
+                if connection is not None:
+                    try:
+                        _disconnect(scheduler, connection)
+                    finally:
+                        if connection[1] is not None:  # the default LocalCluster, closed
+                            _restore_environ(environ)
+            # a worker killed while writing (its items run again, or its cluster closed under an interrupted run: the
+            # partial file stayed until a rerun) left its temporary file: the folder is still ours
+            _remove_partial(folder, outputs + [MANIFEST_NAME])
     if recorder.unrecorded is not None:
         notes.append(recorder.unrecorded)
     kept = [f"{i.key}{ext}" for i in items if i.key in earlier and results[i.key].status == "failed"]
@@ -2350,7 +2413,7 @@ def _levels_and_range(
     without it and ``levels`` the default one for that range."""
     if src is None:
         return None, None, interval
-    from .stepped import isovalues, nice_interval
+    from .stepped import isovalues
 
     if src.height_range is not None:  # found by the source's checks: no further pass, no copy
         lo, hi = src.height_range
@@ -2360,9 +2423,27 @@ def _levels_and_range(
             raise InvalidInputError(f"source {src.name!r} holds no finite height")
         lo, hi = used
     if interval is None and levels is None:
-        interval = nice_interval((lo, hi))
+        interval = _picked_interval(lo, hi, base)
     values = tuple(float(v) for v in isovalues((lo, hi), interval=interval, levels=levels, base=base))
     return values, (lo, hi), interval
+
+
+def _picked_interval(lo: float, hi: float, base: Any) -> float:
+    """:func:`~stepterrain.stepped.nice_interval` of the heights ``lo`` to ``hi``, the default interval, checked
+    with ``base``: a refusal of it (heights near the float32 maximum, whose round interval's top isovalue lies
+    beyond it) named an ``interval=`` the caller never gave."""
+    from .stepped import isovalues, nice_interval
+
+    interval = nice_interval((lo, hi))
+    try:
+        isovalues((lo, hi), interval=interval, base=base)
+    except InvalidInputError as exc:
+        if not str(exc).startswith("interval"):  # a base refused: named as it is
+            raise
+        raise InvalidInputError(f"no interval= or levels= given, and the round interval {interval:g} picked for "
+                                f"heights {lo:g} to {hi:g} is refused: {exc}; give levels= (explicit isovalues) or "
+                                "an interval= that fits") from None
+    return interval
 
 
 def _files_range(
@@ -2474,11 +2555,11 @@ def _files_levels(
     if found is None:
         return options, (ranges, changed), None
     (lo, hi), lowest = found
-    from .stepped import isovalues, nice_interval
+    from .stepped import isovalues
 
     if levels is None:
         if interval is None:  # steps' default for one raster, over all the files
-            interval = nice_interval((lo, hi))
+            interval = _picked_interval(lo, hi, base)
             steps = (("interval", float(interval)), ("base", float(base)))
             options = dataclasses.replace(options, metadata=options.metadata + steps)
         values = tuple(float(v) for v in isovalues((lo, hi), interval=interval, base=base))

@@ -702,6 +702,11 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     base = _isovalue_base(args)
     if args.floor is not None and not args.solid:
         raise InvalidInputError("--floor applies only with --solid")
+    # close_solid's refusals, before the DEM is read and the whole terrain stepped (they came after both)
+    if args.floor is not None and not math.isfinite(args.floor):
+        raise InvalidInputError(f"--floor must be finite; got {args.floor}")
+    if args.floor is not None and abs(args.floor) > float(np.finfo(np.float32).max):
+        raise InvalidInputError(f"--floor must fit in float32 (|x| < 3.4e+38); got {args.floor:g}")
     if args.lens_relative is not None and not args.lens_relative[2] > 0:  # else named as '--lens radius', in metres
         raise InvalidInputError(f"--lens-relative radius fraction must be positive; got {args.lens_relative[2]:g}")
     if args.lens_edge is not None and args.lens is None and args.lens_relative is None:
@@ -737,6 +742,14 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     interval = args.interval
     if interval is None and args.levels is None:
         interval = nice_interval((lo, hi))
+        try:  # the interval picked here, not one given: a refusal named an --interval the user never typed
+            st.isovalues((lo, hi), interval=interval, base=base)
+        except InvalidInputError as exc:
+            if not str(exc).startswith("interval"):  # a --base refused: named as it is
+                raise
+            raise InvalidInputError(f"no --interval or --levels given, and the round interval {interval:g} picked "
+                                    f"for heights {lo:g} to {hi:g} is refused: {exc}; give --levels (explicit "
+                                    "isovalues) or an --interval that fits") from None
     values = st.isovalues((lo, hi), interval=interval, levels=args.levels, base=base)
     if args.interval is None and args.levels is None:
         progress.say(f"no --interval or --levels given: using --interval {interval:g}, a round interval "
@@ -754,6 +767,10 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
             fx, fy, fr = args.lens_relative
             cx, cy = xmin + fx * (xmax - xmin), ymin + fy * (ymax - ymin)
             radius = fr * min(xmax - xmin, ymax - ymin)
+            if not all(math.isfinite(v) for v in (cx, cy, radius)):  # named as the library's '--lens radius', inf
+                raise InvalidInputError(f"--lens-relative {fx:g},{fy:g},{fr:g} places the lens at ({cx:g}, {cy:g}) "
+                                        f"with radius {radius:g}: expected fractions of the extent (0 to 1 across "
+                                        "it) giving a finite centre and radius")
         gamma = st.circular_lens(terrain, (cx, cy), radius, edge_width=args.lens_edge, outside=args.gamma)
         progress.say(f"lens at ({cx:.1f}, {cy:.1f}), radius {radius:.1f}: original terrain inside, "
                      f"gamma {args.gamma:g} outside")

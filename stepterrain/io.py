@@ -266,8 +266,9 @@ def load_dem(
         raster of :data:`GDAL_FORMATS`, or several), or is not elevation data (a colour image, another image format
         under a .png name, a GeoTIFF band that is colour, alpha or other imagery, a 1-D array, text, an archive
         without a 2-D array, a rotated grid (rotation terms that move no node by more than 1e-6 of a cell over the
-        grid, the float noise some tools write, are taken as 0), a geographic grid whose latitudes lie beyond ±90
-        or whose node longitudes span more than 360 degrees, ``lat``/``lon`` axes not matching the heights or
+        grid, the float noise some tools write, are taken as 0), a geotransform that is not finite (NaN, inf), a
+        geographic grid whose latitudes lie beyond ±90 or whose node longitudes span more than 360 degrees or lie
+        beyond ±720, ``lat``/``lon`` axes not matching the heights or
         unevenly spaced,
         an .npz with keys that would georeference it (``crs``, ``dx``/``dy``, ``spacing``/``origin``, ``x``/``y``,
         one of ``lat`` and ``lon``, ...) but neither a ``transform`` nor both ``lat`` and ``lon``, an .npz
@@ -1287,8 +1288,9 @@ def degree_header(path: str | os.PathLike[str]) -> tuple[str, tuple[float, ...],
     """(crs, GDAL geotransform, (rows, cols)) of a raster of :data:`GDAL_FORMATS` (or a GDAL virtual path to one) in
     a geographic CRS, from its header alone, as :func:`load_dem` reads them (a world file's grid with the CRS of the
     ``.prj`` beside it; a compound CRS's horizontal part); None for any other file, one in a projected CRS or none,
-    a rotated grid, or one GDAL cannot open (its read says why). For :mod:`stepterrain.batch`, which places a
-    folder's files in degrees in the local metres they share (:func:`shared_degree_frame`)."""
+    a rotated grid (rotation terms of float noise, which load_dem takes as 0, are no rotation), or one GDAL cannot
+    open (its read says why). For :mod:`stepterrain.batch`, which places a folder's files in degrees in the local
+    metres they share (:func:`shared_degree_frame`)."""
     file = dem_path(path)
     if file.suffix.lower() not in GDAL_FORMATS:
         return None
@@ -1304,28 +1306,42 @@ def degree_header(path: str | os.PathLike[str]) -> tuple[str, tuple[float, ...],
     except Exception:  # noqa: BLE001 - no rasterio, or a file GDAL refuses: the item's own read says why
         return None
     geotransform = tuple(float(v) for v in transform.to_gdal())
-    if crs is None or geotransform[2] != 0.0 or geotransform[4] != 0.0:
+    # rotation terms of float noise are 0 to load_dem (_placement): such tiles were left out of their mosaic's frame
+    if crs is None or not _negligible_rotation(geotransform[2], geotransform[4], geotransform[1], geotransform[5],
+                                               shape):
         return None
     return crs, geotransform, shape
+
+
+def _mean_step(steps: Sequence[float], sign: float) -> float:
+    """The mean of the grids' ``steps`` along one axis, as ``gdalbuildvrt -resolution average`` takes it, independent
+    of their order (:func:`math.fsum`), and the step itself where all are one; its sign theirs where they agree, else
+    ``sign`` (gdalbuildvrt's mosaic is north-up)."""
+    magnitudes = [abs(float(v)) for v in steps]
+    mean = magnitudes[0] if len(set(magnitudes)) == 1 else math.fsum(magnitudes) / len(magnitudes)
+    signs = {math.copysign(1.0, float(v)) for v in steps}
+    return math.copysign(mean, signs.pop() if len(signs) == 1 else sign)
 
 
 def shared_degree_frame(
     crs: str, geotransforms: Sequence[Sequence[float]], shapes: Sequence[tuple[int, int]],
 ) -> tuple[tuple[float, float], str | None, str, list[tuple[tuple[float, float], tuple[float, float]]]]:
     """The local metres :func:`load_dem` would read the mosaic of several grids in ``crs`` (degrees) in, as
-    ``gdalbuildvrt`` mosaics them (files of one cell size; of several, it averages them): the grid of the first one's
-    steps over the union of their cells, read as one
+    ``gdalbuildvrt`` mosaics them (``-resolution average``, its default): the grid of the mean of their steps (their
+    own where all have one; whatever their order, so a list's files are placed alike in any order) over the union of
+    their cells, read as one
     file (:func:`_placement`: one spacing at the union's middle latitude, node (0, 0) at its top-left node, its
     warnings those of the mosaic). Returns its (spacing, crs, source) and, for each grid, (spacing, origin) of its
     nodes in it: a grid on the mosaic's lattice has the mosaic's spacing and its node (0, 0) at a whole number of
     the mosaic's nodes, placed as a tile cut from the mosaic is (``origin + col * dx``), so the border nodes that
     neighbours share land on identical coordinates; one of other steps is scaled to them (x linear in longitude).
     A :class:`DataFileError` when the union is no degrees (:func:`_placement`)."""
-    dx, dy = float(geotransforms[0][1]), float(geotransforms[0][5])
+    dx, dy = _mean_step([g[1] for g in geotransforms], 1.0), _mean_step([g[5] for g in geotransforms], -1.0)
     xs = [x for g, (_, w) in zip(geotransforms, shapes, strict=True) for x in (g[0], g[0] + w * g[1])]
     ys = [y for g, (h, _) in zip(geotransforms, shapes, strict=True) for y in (g[3], g[3] + h * g[5])]
     x0, y0 = (min(xs) if dx > 0 else max(xs)), (min(ys) if dy > 0 else max(ys))
-    shape = (max(round((max(ys) - min(ys)) / abs(dy)), 1), max(round((max(xs) - min(xs)) / abs(dx)), 1))
+    # int(0.5 + n) as gdalbuildvrt sizes its mosaic: a half cell up (round() took 2.5 rows to 2, the .vrt has 3)
+    shape = (max(int(0.5 + (max(ys) - min(ys)) / abs(dy)), 1), max(int(0.5 + (max(xs) - min(xs)) / abs(dx)), 1))
     name = "the mosaic of the DEM files"  # not their number: a file within it moves no other
     place = _placement(Path(name), shape, np.array([x0, dx, 0.0, y0, 0.0, dy], dtype=np.float64), crs,
                        geographic=True, metres=None, height_unit=None, name=name)
@@ -1773,12 +1789,17 @@ def _unreadable_crs(crs: str) -> bool:
 
 class _NotDegrees(DataFileError):
     """:func:`_placement`'s refusal of a grid whose CRS is geographic but whose nodes are no degrees (latitudes beyond
-    ±90, longitudes over more than 360): ``reason`` what its nodes give, which :func:`degrees_as_local_metres` names
-    for the spacing and origin given instead of the file."""
+    ±90, longitudes over more than 360 or beyond ±720): ``reason`` what its nodes give, which
+    :func:`degrees_as_local_metres` names for the spacing and origin given instead of the file."""
 
     def __init__(self, file: Path, crs: str | None, reason: str) -> None:
         super().__init__(f"cannot read {str(file)!r}: {crs or 'its CRS'} is geographic (degrees), but {reason}")
         self.reason = reason
+
+
+#: The farthest from 0 :func:`_placement` takes a geographic grid's node longitudes: both conventions (-180 to 180,
+#: 0 to 360) and a grid unwrapped once round the globe from either lie within it.
+_LONGITUDE_LIMIT = 720.0
 
 
 def _placement(
@@ -1801,6 +1822,11 @@ def _placement(
     ``units_xy``), converted as a CRS in that unit is."""
     name = file.name if name is None else name
     x0, dx, row_x, y0, col_y, dy = (float(v) for v in geotransform)
+    if not all(math.isfinite(v) for v in (x0, dx, row_x, y0, col_y, dy)):  # a geographic grid was read at lon nan
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected a geotransform of 6 finite numbers (x0, dx, 0, y0, 0, dy); got "
+            f"{tuple(float(v) for v in geotransform)}"
+        )
     if not _negligible_rotation(row_x, col_y, dx, dy, shape):
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a north-up grid; got a rotated geotransform "
@@ -1844,6 +1870,13 @@ def _placement(
         raise _NotDegrees(
             file, crs, f"the grid's node latitudes run from {min(node_lats):.9g} to {max(node_lats):.9g}; expected "
             "them within [-90, 90] (a projected grid labelled with a geographic CRS?)"
+        )
+    node_lons = (node_x, node_x + (shape[1] - 1) * dx)
+    if not all(abs(lon) <= _LONGITUDE_LIMIT for lon in node_lons):  # lon_0=1e300 made no local metres
+        raise _NotDegrees(
+            file, crs, f"the grid's node longitudes run from {min(node_lons):.9g} to {max(node_lons):.9g}; expected "
+            f"them within [-{_LONGITUDE_LIMIT:g}, {_LONGITUDE_LIMIT:g}] (a projected grid labelled with a geographic "
+            "CRS?)"
         )
     lon_span = (shape[1] - 1) * abs(dx)
     if lon_span > 360.0 + 1e-9:  # the nodes went round the globe more than once: a strip wider than the earth
@@ -1904,7 +1937,8 @@ def degrees_as_local_metres(
     for any other ``crs`` (projected, local, none: the grid is in its own units). Built as given, such a grid had
     cells of a thousandth of a metre under heights in metres: slopes 10^5 too steep (an ROI's ``slope_above``
     marked the whole terrain, renders asked for z_scale 8e-5). An InvalidInputError naming crs, spacing and origin
-    when they are no degrees (latitudes beyond ±90, longitudes over more than 360: metres labelled geographic)."""
+    when they are no degrees (latitudes beyond ±90, longitudes over more than 360 or beyond ±720: metres labelled
+    geographic)."""
     if not crs or crs.lstrip().lower().startswith("+proj=eqc") or not _is_geographic(crs):
         return None
     (dx, dy), (x0, y0) = spacing, origin

@@ -282,7 +282,12 @@ def nice_interval(height_range: tuple[float, float], target: int = TARGET_STEPS)
     best = min(candidates, key=lambda c: abs(math.log(span / c / target)))
     # 8 float32 steps: one more binade above the heights (the top isovalue) doubles the step, and rounding
     # base + k * interval to float32 takes one more, leaving the levels at least 2 steps apart (_unseparated)
-    finest = 8.0 * float(np.spacing(np.float32(max(abs(lo), abs(hi)))))
+    # float32's step at the larger |height|: np.spacing of the float32 maximum is inf (its next float32 up), which
+    # made the default interval of heights near 3.4e38 an OverflowError; the step below the maximum is the same
+    top = np.float32(max(abs(lo), abs(hi)))
+    with np.errstate(over="ignore"):
+        step = np.spacing(top)
+    finest = 8.0 * float(top - np.nextafter(top, np.float32(0.0)) if np.isinf(step) else step)
     if best < finest:
         low = math.floor(math.log10(finest))
         best = min(c for c in (m * 10.0**e for e in (low, low + 1) for m in (1.0, 2.0, 2.5, 5.0)) if c >= finest)
@@ -1311,13 +1316,16 @@ def _refuse_floor_above_surface(t: Terrain, values: NDArray[np.float32], gamma: 
     """Refuse, before stepping, a solid's ``floor`` that surely lies at or above the stepped surface's lowest point
     (:func:`lowest_surface` of the lowest height a triangle uses): stepping a large terrain (with its warnings) only to
     be refused by :func:`~stepterrain.mesh.close_solid` wasted the work. A floor that is not a finite float32
-    number, or a γ out of range, is left to the checks after stepping."""
+    number is refused here too, as :func:`~stepterrain.mesh.close_solid` refuses it (it stepped the whole terrain
+    first); a γ out of range is left to the checks after stepping."""
     try:
         floor_z = as_number(floor)
     except (TypeError, ValueError, OverflowError):
         raise InvalidInputError(f"floor must be a number (the base height of the solid); got {floor!r}") from None
-    if not (math.isfinite(floor_z) and abs(floor_z) <= FLOAT32_MAX):
-        return
+    if not math.isfinite(floor_z):
+        raise InvalidInputError(f"floor must be finite; got {floor_z}")
+    if abs(floor_z) > FLOAT32_MAX:  # the mesh's float32 vertices would hold -inf and NaN
+        raise InvalidInputError(f"floor must fit in float32 (|x| < {FLOAT32_MAX:.2g}); got {floor_z:g}")
     g: float | None = None
     if not callable(gamma) and not isinstance(gamma, Lens) and _gamma_ndim(gamma) == 0:
         try:

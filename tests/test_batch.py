@@ -620,6 +620,71 @@ def test_killed_run_leaves_no_partial_file_and_resumes(tmp_path, monkeypatch):
     assert [r.status for r in report.results] == ["skipped", "skipped", "done", "done"]
 
 
+def test_ctrl_c_as_the_run_ends_still_records_its_outputs(tmp_path, monkeypatch):
+    # Ctrl-C that came as the last results were recorded (or a second Ctrl-C during the interrupted run's clean-up)
+    # stopped the manifest's last rewrite: every output of the run written and complete, none recorded (a run of
+    # 12 tiles interrupted as it ended left 12 files and a manifest of 1), so a rerun redid them all
+    import signal
+
+    import stepterrain.batch as batch_module
+
+    heights = real_dem(TUJUNGA, size=25, step=4)
+    out = tmp_path / "out"
+    real_write = batch_module._write_manifest
+
+    def ctrl_c_then_write(*args, **kwargs):
+        signal.getsignal(signal.SIGINT)(signal.SIGINT, None)  # the signal's handler, run here as the signal runs it
+        real_write(*args, **kwargs)
+
+    monkeypatch.setattr(batch_module, "_MANIFEST_FLUSH_S", float("inf"))  # one rewrite: the run's last
+    monkeypatch.setattr(batch_module, "_write_manifest", ctrl_c_then_write)
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)  # also where the tests run with it ignored
+    try:
+        with pytest.raises(KeyboardInterrupt):  # the user asked to stop: still said
+            batch(heights, out, tile_size=12, interval=100.0, scheduler="serial")
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        signal.signal(signal.SIGINT, before)
+    monkeypatch.setattr(batch_module, "_write_manifest", real_write)
+    assert sorted(json.loads((out / MANIFEST_NAME).read_text())["items"]) == [
+        f"tile_r{r}_c{c}.glb" for r in range(2) for c in range(2)]  # fmt: skip
+    report = batch(heights, out, tile_size=12, interval=100.0, scheduler="serial")
+    assert [r.status for r in report.results] == ["skipped"] * 4
+
+
+def test_a_second_ctrl_c_while_the_run_winds_up_ends_it_at_once(tmp_path, monkeypatch):
+    # the wind-up holds Ctrl-C back: a second one must still end it there (a cluster close that hangs, a manifest
+    # write on a disk that stalls), not wait for the step it is in, and the handler of SIGINT is Python's again after
+    import signal
+
+    import stepterrain.batch as batch_module
+
+    heights = real_dem(TUJUNGA, size=25, step=4)
+    out = tmp_path / "out"
+    real_write = batch_module._write_manifest
+    reached: list[str] = []
+
+    def two_ctrl_c_then_write(*args, **kwargs):
+        handler = signal.getsignal(signal.SIGINT)
+        handler(signal.SIGINT, None)  # the first: held back
+        reached.append("held")
+        handler(signal.SIGINT, None)  # the second: raised here, the wind-up's step not finished
+        reached.append("not stopped")
+        real_write(*args, **kwargs)
+
+    monkeypatch.setattr(batch_module, "_MANIFEST_FLUSH_S", float("inf"))  # one rewrite: the run's last
+    monkeypatch.setattr(batch_module, "_write_manifest", two_ctrl_c_then_write)
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)  # also where the tests run with it ignored
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            batch(heights, out, tile_size=12, interval=100.0, scheduler="serial")
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        signal.signal(signal.SIGINT, before)
+    assert reached == ["held"]
+    assert not (out / ".stepterrain-batch.lock").exists()  # the folder is let go
+
+
 # ---------------------------------------------------------------------------------------------- retries
 def four_tiles_twice_retried(tmp_path):
     """A 7 x 7 ramp cut into four tiles (tile_r0_c0 ... tile_r1_c1), run serially with two retries."""

@@ -2613,3 +2613,287 @@ def test_a_file_in_degrees_added_to_a_folder_redoes_the_files_whose_frame_it_mov
     shutil.copy(tiles["nw"], tmp_path / "geo" / "nw_again.tif")  # within the mosaic: no frame moves
     report = batch(tmp_path / "geo", tmp_path / "out", **kwargs)
     assert [r.key for r in report.done] == ["nw_again"] and len(report.skipped) == 3, report.summary()
+
+
+def test_the_local_cluster_starts_no_more_workers_than_items_to_run(tmp_path, monkeypatch):
+    # workers=8 for two files started eight worker processes (seconds each to import stepterrain on a small box), and
+    # a LocalCluster gives each worker 1/n_workers of the machine's memory as its limit: the two that had work got an
+    # eighth each, killed by their nannies at 95 % of it where two workers had half the memory each
+    import stepterrain.batch as batch_module
+
+    pytest.importorskip("distributed")
+    started: list[int] = []
+
+    class Started(Exception):
+        pass
+
+    def record(workers):
+        started.append(workers)
+        raise Started  # the count is what matters here: no cluster started
+
+    monkeypatch.setattr(batch_module, "start_local_cluster", record)
+    src = tmp_path / "dems"
+    src.mkdir()
+    for k in range(3):
+        np.save(src / f"t{k}.npy", np.add.outer(np.arange(6.0), np.arange(6.0)).astype(np.float32) + k)
+    out = tmp_path / "out"
+    with pytest.raises(Started):
+        batch(src, out, interval=1.0, workers=8)
+    batch(src, out, interval=1.0, scheduler="serial")
+    (out / "t1.glb").unlink()  # one item left to redo
+    with pytest.raises(Started):
+        batch(src, out, interval=1.0, workers=8)
+    with pytest.raises(Started):
+        batch(src, out, interval=1.0, workers=2)
+    assert started == [3, 1, 1]
+
+
+@pytest.mark.parametrize("bad", ["nan_x0", "nan_dx", "inf_x0", "huge_x0"])
+def test_a_dem_file_in_degrees_with_a_non_finite_or_absurd_geotransform_fails_alone(tmp_path, bad):
+    """A file in degrees whose geotransform holds NaN or inf (x0 or dx), among files placed in their mosaic's frame,
+    ended the whole run with a ValueError/OverflowError in shared_degree_frame (its nodes counted in the mosaic's
+    steps); load_dem read it alone, its local CRS '+lon_0=nan'. One at lon 1e300 made the union no degrees, so
+    every file of its CRS fell back to its own frame at (0, 0). Each now fails alone with a DataFileError naming
+    the file, and the others are placed side by side."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    from .conftest import SHARED_DATA
+
+    geo = SHARED_DATA / "front_range_srtmgl3_3arcsec.tif"
+    if not geo.exists():
+        pytest.skip(f"shared data {geo.name} not found")
+    tiles = _cut_tiles(tmp_path, geo, "geo")
+    nan, inf = float("nan"), float("inf")
+    transform = {"nan_x0": Affine(0.001, 0.0, nan, 0.0, -0.001, 40.0),
+                 "nan_dx": Affine(nan, 0.0, -105.0, 0.0, -0.001, 40.0),
+                 "inf_x0": Affine(0.001, 0.0, inf, 0.0, -0.001, 40.0),
+                 "huge_x0": Affine(0.001, 0.0, 1e300, 0.0, -0.001, 40.0)}[bad]
+    with rasterio.open(tmp_path / "geo" / "bad.tif", "w", driver="GTiff", width=5, height=4, count=1,
+                       dtype="float32", crs="EPSG:4326", transform=transform) as out:
+        out.write(np.arange(20, dtype=np.float32).reshape(4, 5) * 100.0, 1)
+    report = batch(tmp_path / "geo", tmp_path / "out", interval=100.0, scheduler="serial")
+    assert sorted(r.key for r in report.done) == sorted(tiles), report.summary()
+    assert [r.key for r in report.failed] == ["bad"], report.summary()
+    error = report.failed[0].error
+    assert error.startswith("DataFileError: ") and "bad.tif" in error, error
+    assert ("finite" in error) if bad != "huge_x0" else ("longitudes" in error), error
+    nw, ne = read_mesh(tmp_path / "out" / "nw.glb"), read_mesh(tmp_path / "out" / "ne.glb")
+    assert nw.bounds[1, 0] > 2000.0 and abs(ne.bounds[0, 0] - nw.bounds[1, 0]) < 1e-3  # side by side
+
+
+def test_dem_files_in_degrees_of_several_cell_sizes_are_placed_alike_in_any_order(tmp_path):
+    """The shared frame of files in degrees took its steps from the first file: a list of files of several cell sizes
+    placed each file elsewhere in another order (node (0, 0) half of another step from the union's corner), and a
+    rerun in that order redid them all. The frame now takes the mean of their steps, as ``gdalbuildvrt`` mosaics
+    them (``-resolution average``): every order writes the same meshes, and the frame is the one load_dem reads the
+    files' .vrt in (its spacing and +proj=eqc CRS)."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    from stepterrain.io import degree_header, load_dem, shared_degree_frame
+
+    steps = {"a": 0.001, "b": 0.0005, "c": 0.00025}
+    for i, (name, step) in enumerate(steps.items()):
+        n = round(0.01 / step)
+        heights = (np.add.outer(np.arange(n), np.arange(n)) * 50.0 * step / 0.001 + 1000.0).astype(np.float32)
+        with rasterio.open(tmp_path / f"{name}.tif", "w", driver="GTiff", width=n, height=n, count=1,
+                           dtype="float32", crs="EPSG:4326",
+                           transform=Affine(step, 0.0, -105.0 + 0.01 * i, 0.0, -step, 40.0 - 0.003 * i)) as out:
+            out.write(heights, 1)
+    orders = (["a", "b", "c"], ["c", "b", "a"], ["b", "c", "a"])
+    vertices = []
+    for k, order in enumerate(orders):
+        report = batch([tmp_path / f"{name}.tif" for name in order], tmp_path / f"out{k}", interval=100.0,
+                       scheduler="serial")
+        assert report.ok and len(report.done) == 3, report.summary()
+        vertices.append({name: read_mesh(tmp_path / f"out{k}" / f"{name}.glb").vertices for name in steps})
+    for other in vertices[1:]:
+        for name in steps:
+            np.testing.assert_array_equal(other[name], vertices[0][name])
+    if shutil.which("gdalbuildvrt") is None:
+        return
+    subprocess.run(["gdalbuildvrt", "-q", str(tmp_path / "m.vrt"), *(str(tmp_path / f"{n}.tif") for n in steps)],
+                   check=True)
+    headers = [degree_header(tmp_path / f"{name}.tif") for name in steps]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        spacing, crs, _, _ = shared_degree_frame("EPSG:4326", [h[1] for h in headers], [h[2] for h in headers])
+        mosaic = load_dem(tmp_path / "m.vrt")
+    np.testing.assert_allclose(spacing, mosaic.spacing, rtol=1e-9)
+    assert crs == mosaic.crs
+
+
+@pytest.mark.parametrize("east_lon", [179.99, 359.99])
+def test_dem_files_in_degrees_either_side_of_the_antimeridian_are_warned_of(tmp_path, east_lon):
+    """Files in degrees that meet at the antimeridian (a tile at lon 179.99 to 180 and one at -180 to -179.99) were
+    placed in their mosaic's frame, as the .vrt gdalbuildvrt makes of them has them: a whole parallel apart
+    (some 8500 km at 40° N), without a word. Written with the other file in 0 to 360 (lon 359.99 to 360 and
+    -0.01 to 0: one place), the union spanned over 360 degrees, so each file fell back to a frame of its own,
+    and the run said only that an .npz, or a file alone in its CRS, was left so. The run now says once which
+    files lie either side of the antimeridian (or in two longitude conventions), naming them, and how to join them."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    heights = (np.arange(100, dtype=np.float32).reshape(10, 10) * 5.0 + 100.0)
+    west_lon = -180.0 if east_lon < 180.0 else -0.01
+    for name, lon in (("east.tif", east_lon), ("west.tif", west_lon)):
+        with rasterio.open(tmp_path / name, "w", driver="GTiff", width=10, height=10, count=1, dtype="float32",
+                           crs="EPSG:4326", transform=Affine(0.001, 0.0, lon, 0.0, -0.001, 40.0)) as out:
+            out.write(heights, 1)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        report = batch(tmp_path, tmp_path / "out", interval=100.0, scheduler="serial")
+    assert report.ok, report.summary()
+    said = [str(w.message) for w in caught if "antimeridian" in str(w.message)]
+    assert len(said) == 1 and "east.tif" in said[0] and "west.tif" in said[0], [str(w.message) for w in caught]
+    assert "+lon_wrap=180" in said[0], said[0]
+    # one place, two conventions, each file in a frame of its own: said as such, not as "an .npz, or one alone in
+    # its geographic CRS" alone, which neither file is
+    own = [str(w.message) for w in caught if "neither line up nor weld" in str(w.message)]
+    assert len(own) == (east_lon > 180.0) and all("more than 360 degrees" in m for m in own), own
+
+
+def test_dem_files_in_degrees_side_by_side_or_round_the_globe_say_nothing_of_the_antimeridian(tmp_path):
+    """Neighbours away from it, and files that go round the globe (no gap to close across it), are not warned of."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    heights = (np.arange(100, dtype=np.float32).reshape(10, 10) * 5.0 + 100.0)
+    for folder, lons, step in (("near", (-105.0, -104.99), 0.001), ("round", (-180.0, -60.0, 60.0), 12.0)):
+        (tmp_path / folder).mkdir()
+        for i, lon in enumerate(lons):
+            with rasterio.open(tmp_path / folder / f"t{i}.tif", "w", driver="GTiff", width=10, height=10, count=1,
+                               dtype="float32", crs="EPSG:4326",
+                               transform=Affine(step, 0.0, lon, 0.0, -step, 40.0)) as out:
+                out.write(heights, 1)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            report = batch(tmp_path / folder, tmp_path / f"{folder}_out", interval=100.0, scheduler="serial")
+        assert report.ok, report.summary()
+        assert not any("antimeridian" in str(w.message) for w in caught), folder
+
+
+def test_dem_files_in_degrees_with_float_noise_rotation_terms_are_placed_in_their_mosaics_frame(tmp_path):
+    """load_dem takes a geotransform's rotation terms of float noise (1e-16 of a degree, as some tools write) as 0,
+    but the folder's frame took any non-zero one for a rotated grid: such files were each left in local metres of
+    their own, their meshes on top of one another at (0, 0), and the run said it was for an .npz or a file alone in
+    its CRS. They are placed side by side now, as the same files with exact zeros are."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    heights = (np.arange(100, dtype=np.float32).reshape(10, 10) * 5.0 + 100.0)
+    meshes = {}
+    for folder, noise in (("exact", 0.0), ("noise", 1e-16)):
+        (tmp_path / folder).mkdir()
+        for name, lon in (("w", -105.0), ("e", -104.991)):  # neighbours sharing a column of nodes
+            with rasterio.open(tmp_path / folder / f"{name}.tif", "w", driver="GTiff", width=10, height=10, count=1,
+                               dtype="float32", crs="EPSG:4326",
+                               transform=Affine(0.001, noise, lon, noise, -0.001, 40.0)) as out:
+                out.write(heights, 1)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            report = batch(tmp_path / folder, tmp_path / f"{folder}_out", interval=100.0, scheduler="serial")
+        assert report.ok, report.summary()
+        assert not any("in degrees" in str(w.message) for w in caught), [str(w.message) for w in caught]
+        meshes[folder] = {n: read_mesh(tmp_path / f"{folder}_out" / f"{n}.glb").vertices for n in ("w", "e")}
+    assert meshes["exact"]["e"][:, 0].min() > 700.0  # east of the west file, not on it at (0, 0)
+    for name in ("w", "e"):
+        np.testing.assert_allclose(meshes["noise"][name], meshes["exact"][name], rtol=0, atol=1e-3)
+
+
+def test_dem_files_in_degrees_north_up_and_south_up_are_placed_alike_in_either_order(tmp_path):
+    """A list of a north-up file in degrees and a south-up one (rows south to north) south of it took its frame's
+    direction from the first: listed the other way round, each file lay elsewhere (node (0, 0) at the union's
+    south-west node, not its north-west one). Now the frame is north-up when they disagree, as gdalbuildvrt's
+    mosaic is, in either order: the same meshes, the north file's top edge at y = 0 and the south file below it."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    heights = (np.arange(100, dtype=np.float32).reshape(10, 10) * 5.0 + 100.0)
+    for name, transform in (("north", Affine(0.001, 0.0, -105.0, 0.0, -0.001, 40.0)),
+                            ("south", Affine(0.001, 0.0, -105.0, 0.0, 0.001, 39.98))):
+        with rasterio.open(tmp_path / f"{name}.tif", "w", driver="GTiff", width=10, height=10, count=1,
+                           dtype="float32", crs="EPSG:4326", transform=transform) as out:
+            out.write(heights, 1)
+    vertices = []
+    for k, order in enumerate((["north", "south"], ["south", "north"])):
+        report = batch([tmp_path / f"{name}.tif" for name in order], tmp_path / f"out{k}", interval=10.0,
+                       scheduler="serial")
+        assert report.ok, report.summary()
+        vertices.append({n: read_mesh(tmp_path / f"out{k}" / f"{n}.glb").vertices for n in ("north", "south")})
+    for name in ("north", "south"):
+        np.testing.assert_array_equal(vertices[1][name], vertices[0][name])
+    north, south = vertices[0]["north"], vertices[0]["south"]
+    assert north[:, 1].max() == pytest.approx(0.0, abs=1e-3)  # node (0, 0): the union's north-west node
+    assert south[:, 1].max() < north[:, 1].min()  # the south file below the north one
+
+
+@pytest.mark.parametrize(("west_lon", "east_lon"), [(359.9, 0.0), (179.9, -180.0)])
+def test_the_antimeridian_warnings_advice_joins_the_files(tmp_path, west_lon, east_lon):
+    """Files in degrees in 0 to 360 either side of the prime meridian (lon 359.9 to 360 and 0 to 0.1: western Europe
+    as a 0-to-360 product tiles it) were warned of as either side of the antimeridian and told to take longitudes 0
+    to 360 (+lon_wrap=180), which they have: the advice left them a whole parallel apart. The warning now names the
+    wrap that joins them (+lon_wrap=0 here, 180 across the antimeridian); with each file's longitudes wrapped as it
+    says, the run warns no more and their meshes lie side by side."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    heights = np.arange(100, dtype=np.float32).reshape(10, 10) * 5.0 + 100.0
+
+    def write(folder, wrap=None):
+        (tmp_path / folder).mkdir()
+        for name, lon in (("w", west_lon), ("e", east_lon)):
+            if wrap is not None:  # each file's longitudes within [wrap - 180, wrap + 180), as gdalwarp's +lon_wrap
+                lon = (lon - (wrap - 180.0)) % 360.0 + (wrap - 180.0)
+            with rasterio.open(tmp_path / folder / f"{name}.tif", "w", driver="GTiff", width=10, height=10, count=1,
+                               dtype="float32", crs="EPSG:4326",
+                               transform=Affine(0.01, 0.0, lon, 0.0, -0.01, 51.5)) as out:
+                out.write(heights, 1)
+
+    def run(folder):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            report = batch(tmp_path / folder, tmp_path / f"{folder}_out", interval=50.0, scheduler="serial")
+        assert report.ok, report.summary()
+        meshes = [read_mesh(tmp_path / f"{folder}_out" / f"{n}.glb") for n in ("w", "e")]
+        width = max(m.bounds[1, 0] for m in meshes) - min(m.bounds[0, 0] for m in meshes)
+        return [str(w.message) for w in caught if "antimeridian" in str(w.message)], width
+
+    write("given")
+    said, width = run("given")
+    assert len(said) == 1 and width > 1e6, (said, width)  # a whole parallel apart
+    wraps = re.findall(r"\+lon_wrap=(-?[0-9.]+)", said[0])
+    assert len(wraps) == 1, said[0]
+    assert float(wraps[0]) == (0.0 if west_lon > 180.0 else 180.0), said[0]
+    write("wrapped", float(wraps[0]))
+    said, width = run("wrapped")
+    assert not said and width < 20_000.0, (said, width)  # two tiles of 0.1 degree side by side: some 14 km
+
+
+def test_the_shared_frame_of_files_in_degrees_rounds_its_size_as_gdalbuildvrt_does(tmp_path):
+    """gdalbuildvrt sizes its mosaic as int(0.5 + extent / step), a half cell up; the shared frame rounded it half to
+    even, so files whose union is 2.5 mean steps tall (cells of 0.5 and 0.25 degrees) made a mosaic of 2 rows, its
+    middle latitude, x spacing and +proj=eqc CRS those of another grid than the .vrt that load_dem reads: the frame
+    now has the .vrt's 3 rows, its spacing and CRS."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    from stepterrain.io import degree_header, load_dem, shared_degree_frame
+
+    if shutil.which("gdalbuildvrt") is None:
+        pytest.skip("gdalbuildvrt not found")
+    paths = []
+    for name, (x0, y0, step) in {"a": (0.0, 40.0, 0.5), "b": (0.5, 39.3125, 0.25)}.items():  # 0.9375 of latitude
+        paths.append(tmp_path / f"{name}.tif")
+        with rasterio.open(paths[-1], "w", driver="GTiff", width=1, height=1, count=1, dtype="float32",
+                           crs="EPSG:4326", transform=Affine(step, 0.0, x0, 0.0, -step, y0)) as out:
+            out.write(np.full((1, 1), 100.0, np.float32), 1)
+    subprocess.run(["gdalbuildvrt", "-q", str(tmp_path / "m.vrt"), *map(str, paths)], check=True)
+    headers = [degree_header(p) for p in paths]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        spacing, crs, _, _ = shared_degree_frame("EPSG:4326", [h[1] for h in headers], [h[2] for h in headers])
+        mosaic = load_dem(tmp_path / "m.vrt")
+    assert mosaic.heights.shape == (3, 2)
+    assert (spacing, crs) == (mosaic.spacing, mosaic.crs)

@@ -1894,3 +1894,147 @@ def test_a_textured_obj_whose_side_file_is_a_folder_is_refused_before_any_work(c
     line = one_error_line(err, command)
     assert f"{option} {str(obj)!r} writes {name!r} beside it" in line and "a folder" in line, line
     assert sorted(p.name for p in tmp_path.iterdir()) == before  # nothing written
+
+
+@pytest.mark.parametrize("heights", [(-3.4028235e38, 3.4028235e38), (3.3e38, 3.4028235e38)])
+def test_steps_default_interval_near_the_float32_maximum_is_refused_naming_the_pick(tmp_path, capsys, heights):
+    """Without --interval, steps picked nice_interval of the height range: np.spacing of the float32 maximum is inf,
+    an OverflowError traceback (exit 1); past it, the refusal named an --interval the user never gave."""
+    assert cli.nice_interval(heights) > 0  # the library's pick, finite (it raised)
+    grid = np.full((6, 7), heights[0], np.float32)
+    grid[3:, 4:] = heights[1]
+    np.save(tmp_path / "dem.npy", grid)
+    code, _, err = run(capsys, "-q", "steps", tmp_path / "dem.npy", "-o", tmp_path / "x.ply")
+    assert code == 2 and "Traceback" not in err, err
+    assert "no --interval or --levels given, and the round interval" in err and "give --levels" in err, err
+    assert not (tmp_path / "x.ply").exists()
+    for base, message in (("nan", "--base must be finite; got nan"), ("1e39", "--base must fit in float32")):
+        code, _, err = run(capsys, "-q", "steps", "--base", base, "-o", tmp_path / "x.ply")  # the base's own refusal
+        assert code == 2 and err.startswith(f"stepterrain steps: error: {message}"), err
+
+
+def test_steps_floor_beyond_float32_is_refused_before_any_work(tmp_path, capsys, monkeypatch):
+    """``steps --solid --floor 1e39`` read the DEM and stepped the whole terrain before close_solid refused the
+    floor; refused now before the DEM is read, and the library refuses it before stepping."""
+    for floor, message in (("1e39", "--floor must fit in float32 (|x| < 3.4e+38); got 1e+39"),
+                           ("-inf", "--floor must be finite; got -inf"), ("nan", "--floor must be finite; got nan")):
+        code, _, err = run(capsys, "steps", "--solid", "--floor", floor, "-o", tmp_path / "x.ply")
+        assert code == 2 and message in err, err
+        assert "loading" not in err and "stepping" not in err, err
+    from stepterrain import stepped as stepped_module
+
+    def no_stepping(*args, **kwargs):
+        raise AssertionError("stepped before the floor was checked")
+
+    monkeypatch.setattr(stepped_module, "_stepped_arrays", no_stepping)
+    terrain = st.Terrain.from_heights(np.arange(20, dtype=np.float32).reshape(4, 5), spacing=1.0)
+    for floor, message in ((1e39, "floor must fit in float32"), (-math.inf, "floor must be finite")):
+        with pytest.raises(st.InvalidInputError, match=message):
+            st.stepped(terrain, interval=2.0, solid=True, floor=floor, device="cpu")
+
+
+def test_closeup_spin_is_checked_at_parse_time_and_within_half_a_turn_a_frame(tmp_path, capsys):
+    """``closeup --spin 1e308 --gif`` was accepted: every frame after the first showed the same capped turn (a spin
+    of --fps turns per second stands still, faster ones alias). inf, NaN and 0 were refused only after the output
+    paths and the other options were checked; now by argparse, naming --spin."""
+    for spin in ("inf", "nan", "0", "-0", "1e400", "fast"):
+        code, _, err = run(capsys, "closeup", "--spin", spin, "--gif", tmp_path / "a.gif", "-o", tmp_path / "x.png")
+        assert code == 2, err
+        assert f"argument --spin: expected a finite non-zero number of turns per second (negative: the other way); " \
+               f"got '{spin}'" in err, err
+    for spin, fps in (("1e308", "12"), ("12", "12"), ("-6.5", "12"), ("3", "5")):
+        code, _, err = run(capsys, "closeup", "--spin", spin, "--fps", fps, "--gif", tmp_path / "a.gif", "-o",
+                           tmp_path / "x.png")
+        assert code == 2, err
+        assert f"--spin must be at most half a turn a frame, |--spin| <= --fps / 2 = {float(fps) / 2:g} turns per " \
+               f"second" in err and "loading" not in err, err
+    assert sorted(tmp_path.iterdir()) == []
+
+
+def test_texture_contours_with_no_line_drawn_warns_and_one_beyond_the_heights_is_drawn(tmp_path, capsys):
+    """``texture --contours M`` with no contour line drawn (1e308, or 200 over heights 100 to 180) came out as without
+    --contours, and nothing said so: a warning says it now, the texture still written (a tile no level crosses, in a
+    set textured at one interval, is no mistake). A level just beyond the heights draws a line within half its width
+    (the 100 m line along the upper edge of a hillside tile reaching 99.8 m, 181 at the corner of heights 100 to
+    180): it is not refused."""
+    from PIL import Image
+
+    def texture(dem, *extra):
+        out = tmp_path / f"t{len(list(tmp_path.iterdir()))}.png"
+        code, _, err = run(capsys, "-q", "texture", dem, *extra, "-o", out)
+        assert code == 0, err
+        return np.asarray(Image.open(out)), err
+
+    heights = np.add.outer(np.linspace(100.0, 140.0, 24), np.linspace(0.0, 40.0, 32)).astype(np.float32)
+    np.save(tmp_path / "dem.npy", heights)
+    plain, err = texture(tmp_path / "dem.npy")
+    assert err == ""
+    for interval in ("200", "1e308", "183"):
+        image, err = texture(tmp_path / "dem.npy", "--contours", interval)
+        assert err == f"stepterrain texture: warning: --contours {float(interval):g} drew no line: no contour level " \
+                      f"(a multiple of it) passes within the heights 100 to 180; the texture is as without " \
+                      f"--contours (a smaller interval draws lines)\n", err
+        assert np.array_equal(image, plain)
+    image, err = texture(tmp_path / "dem.npy", "--contours", "150")  # one level, 150, within them: drawn
+    assert err == "" and not np.array_equal(image, plain), err
+    image, err = texture(tmp_path / "dem.npy", "--contours", "181")  # 1 above the top corner, ~2.2 a texel: drawn
+    assert err == "" and not np.array_equal(image, plain), err
+    hillside = np.tile(np.linspace(60.0, 99.8, 32, dtype=np.float32), (24, 1))  # 60 to 99.8 m, no multiple of 100
+    np.save(tmp_path / "hill.npy", hillside)
+    plain, _ = texture(tmp_path / "hill.npy")
+    image, err = texture(tmp_path / "hill.npy", "--contours", "100")
+    assert err == "", err
+    changed = np.nonzero((image != plain).any(axis=2))[1]
+    assert changed.size and set(changed.tolist()) <= {30, 31}, changed  # the 100 m line along the east edge
+    np.save(tmp_path / "flat.npy", np.full((6, 7), 100.0, np.float32))
+    assert texture(tmp_path / "flat.npy", "--contours", "50")[1] == ""  # flat on a level: all line
+    assert texture(tmp_path / "flat.npy", "--contours", "30")[1] == "stepterrain texture: warning: --contours 30 " \
+        "drew no line: no contour level (a multiple of it) passes within the heights 100 to 100; the texture is as " \
+        "without --contours (flat ground draws a line only exactly on a level)\n"
+
+
+@pytest.mark.parametrize("fractions", ["0.5,0.5,1e308", "1e308,0.5,0.1", "0.5,-1e308,0.1", "0.5,0.5,1e12"])
+def test_closeup_roi_relative_beyond_the_extent_is_refused_naming_it(tmp_path, capsys, fractions):
+    """A --roi-relative whose fractions overflow the centre or the radius was refused as the library's "ROI center
+    must be a pair of finite numbers; got (inf, ...)" or as "--roi radius ...; got inf": neither the option typed
+    nor its numbers."""
+    code, _, err = run(capsys, "-q", "closeup", "--roi-relative", fractions, "-o", tmp_path / "c.ply")
+    assert code == 2, err
+    shown = ",".join(f"{float(v):g}" for v in fractions.split(","))
+    assert err.startswith(f"stepterrain closeup: error: --roi-relative {shown} places a close-up at ("), err
+    assert "expected fractions of the extent (0 to 1 across it)" in err and "ROI center" not in err, err
+    assert not (tmp_path / "c.ply").exists()
+
+
+def test_batch_default_interval_near_the_float32_maximum_is_refused_naming_the_pick(tmp_path, capsys):
+    """batch's default interval (nice_interval over a file's or all files' heights) near the float32 maximum was an
+    OverflowError; past it, the refusal named an --interval the user never gave."""
+    grid = np.full((6, 7), 3.3e38, np.float32)
+    grid[3:, 4:] = np.finfo(np.float32).max
+    folder = tmp_path / "tiles"
+    folder.mkdir()
+    np.save(folder / "a.npy", grid)
+    np.save(folder / "b.npy", grid[::-1])
+    for source in (folder, folder / "a.npy"):
+        code, _, err = run(capsys, "-q", "batch", source, "--scheduler", "serial", "-o", tmp_path / "out")
+        assert code == 2 and "Traceback" not in err, err
+        assert "no --interval or --levels given, and the round interval" in err and "give --levels" in err, err
+
+
+@pytest.mark.parametrize("fractions", ["0.5,0.5,1e308", "1e308,0.5,0.2", "0.5,-1e308,0.2"])
+def test_steps_lens_relative_beyond_the_extent_is_refused_naming_it(tmp_path, capsys, fractions):
+    """A --lens-relative whose fractions overflow the lens' centre or radius was refused as "--lens radius must be
+    finite; got inf" (an option not given, a number not typed) or by the library's lens centre."""
+    code, _, err = run(capsys, "-q", "steps", "--lens-relative", fractions, "-o", tmp_path / "s.ply")
+    assert code == 2, err
+    shown = ",".join(f"{float(v):g}" for v in fractions.split(","))
+    assert err.startswith(f"stepterrain steps: error: --lens-relative {shown} places the lens at ("), err
+    assert "expected fractions of the extent (0 to 1 across it)" in err, err
+    assert not (tmp_path / "s.ply").exists()
+
+
+def test_closeup_edge_refusal_says_finite(tmp_path, capsys):
+    """``closeup --edge inf`` was refused as "--edge must be >= 0; got inf": inf is >= 0."""
+    for edge in ("inf", "nan", "-1"):
+        code, _, err = run(capsys, "-q", "closeup", "--edge", edge, "-o", tmp_path / "c.ply")
+        assert code == 2 and f"--edge must be a finite number >= 0; got {float(edge):g}" in err, err

@@ -358,11 +358,17 @@ def test_cli_closeup_bad_input_exits_2(dem, tmp_path, capsys):
 @pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
 def test_cli_closeup_a_huge_spin_is_no_overflow(dem, tmp_path, capsys):
     """The spin's repetitions ceil(|spin| * frames / fps) overflowed to inf: an OverflowError traceback, exit 1
-    (without --gif too, where --spin is refused now: it does nothing there)."""
+    (without --gif too, where --spin is refused now: it does nothing there). A spin of more than half a turn a frame
+    is refused now, before any work (1e308 made every frame after the first the same); the largest one taken makes
+    the animation."""
     out, gif = tmp_path / "scene.ply", tmp_path / "spin.gif"
-    assert cli.main(["-q", "closeup", str(dem), "--roi-relative", "0.5,0.5,0.2", "--spin", "1e308", "-o", str(out),
-                     "--gif", str(gif), "--frames", "1", "--size", "160x120", "--device", "cpu"]) == 0, \
-        capsys.readouterr().err
+    argv = ["-q", "closeup", str(dem), "--roi-relative", "0.5,0.5,0.2", "-o", str(out), "--gif", str(gif),
+            "--frames", "1", "--size", "160x120", "--device", "cpu"]
+    assert cli.main([*argv, "--spin", "1e308"]) == 2
+    err = capsys.readouterr().err
+    assert "--spin must be at most half a turn a frame" in err and "Traceback" not in err, err
+    assert not out.exists() and not gif.exists()
+    assert cli.main([*argv, "--spin", "-6", "--fps", "12"]) == 0, capsys.readouterr().err
     assert out.exists() and gif.exists()
 
 
@@ -407,11 +413,14 @@ def test_cli_closeup_a_failing_render_leaves_no_scene_mesh(dem, tmp_path, capsys
 @pytest.mark.parametrize("roi", ["--roi=30,-16,1e300", "--roi-relative=0.5,0.5,1e300"])
 def test_cli_closeup_an_absurd_roi_radius_is_refused_by_name(dem, tmp_path, capsys, roi):
     """A radius of 1e300 overflowed float32: 'overflow encountered in cast' warnings, then an error about
-    non-finite vertices at the write; ROI itself took a size of 2e39."""
+    non-finite vertices at the write; ROI itself took a size of 2e39. A --roi-relative is named as itself, with
+    the fractions typed (it was named as --roi, with the radius in metres)."""
     out = tmp_path / "x.ply"
     assert cli.main(["-q", "closeup", str(dem), roi, "-o", str(out)]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("stepterrain closeup: error: --roi radius must lie in (0, 1e+12]; got ") and "\n" == err[-1]
+    expected = "--roi radius must lie in (0, 1e+12]; got " if roi.startswith("--roi=") else \
+        "--roi-relative 0.5,0.5,1e+300 places a close-up at ("
+    assert err.startswith(f"stepterrain closeup: error: {expected}") and "\n" == err[-1], err
     assert len(err.splitlines()) == 1 and not out.exists()
     with pytest.raises(InvalidInputError, match=r"ROI size must be positive \(width, height\) up to 1e\+12"):
         ROI.circle((0.0, 0.0), 1e39)

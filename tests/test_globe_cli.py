@@ -527,3 +527,42 @@ def test_globe_npz_heights_in_the_unit_it_names_become_metres(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err.startswith("stepterrain globe: error: cannot read ") and "got 'parsec' (its 'units')" in err, err
     assert not (tmp_path / "x.ply").exists()
+
+
+def test_globe_height_unit_names_a_unit_the_file_lacks_or_overrides(tmp_path, capsys):
+    """The globe's refusal of an unknown height unit said "the CLI's --height-unit m", an option globe lacked (exit
+    2, "unrecognized arguments"). globe takes --height-unit as steps does: it overrides an .npz 'units' and a GeoTIFF
+    band's unit (heights in feet become metres), names a unit for a file that names none, and is refused for the
+    embedded relief (metres) before any work."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    lat, lon = np.linspace(-85.0, 85.0, 18), np.linspace(-175.0, 175.0, 36)
+    relief = np.add.outer(np.linspace(0.0, 500.0, 18), np.linspace(0.0, 500.0, 36)).astype(np.float32)
+    np.savez(tmp_path / "metres.npz", elevation=relief * np.float32(0.3048), lat=lat, lon=lon)
+    np.savez(tmp_path / "odd.npz", elevation=relief, lat=lat, lon=lon, units=np.array("parsec"))
+    np.savez(tmp_path / "bare.npz", elevation=relief, lat=lat, lon=lon)
+    tif = tmp_path / "odd.tif"
+    with rasterio.open(tif, "w", driver="GTiff", width=36, height=18, count=1, dtype="float32", crs="EPSG:4326",
+                       transform=Affine(10.0, 0.0, -180.0, 0.0, -10.0, 90.0)) as ds:  # fmt: skip
+        ds.write(relief[::-1], 1)  # north-up rows: latitudes 85 to -85
+        ds.units = ("parsec",)
+
+    def radii(source, *extra):
+        out = tmp_path / "g.ply"
+        assert main(["-q", "globe", str(source), "--no-camera", "--face-size", "9", "--device", "cpu", "-o", str(out),
+                     *extra]) == 0, capsys.readouterr().err
+        return np.linalg.norm(trimesh.load(out, process=False).vertices, axis=1)
+
+    assert main(["-q", "globe", str(tmp_path / "odd.npz"), "--face-size", "9", "-o", str(tmp_path / "x.ply")]) == 2
+    assert "the CLI's --height-unit m" in capsys.readouterr().err  # which it now has
+    expected = radii(tmp_path / "metres.npz")
+    for source in ("odd.npz", "bare.npz", "odd.tif"):
+        assert np.allclose(radii(tmp_path / source, "--height-unit", "ft"), expected, rtol=0.0, atol=1e-3), source
+    assert main(["-q", "globe", "--height-unit", "ft", "-o", str(tmp_path / "e.ply")]) == 2
+    err = capsys.readouterr().err
+    assert "--height-unit applies to an INPUT file; the embedded ETOPO 2022 relief is in metres; got 'ft'" in err, err
+    assert main(["-q", "globe", str(tmp_path / "bare.npz"), "--height-unit", "parsec", "-o", str(tmp_path / "y.ply")]) \
+        == 2
+    assert "argument --height-unit: expected a length unit" in capsys.readouterr().err
+    assert not (tmp_path / "e.ply").exists() and not (tmp_path / "y.ply").exists()
