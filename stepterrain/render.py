@@ -57,6 +57,9 @@ _FRAME_MARGIN = 1.06
 _CENTRED = 0.05
 #: A fitted camera's least distance in front of the framed points, as a fraction of their depth along the view.
 _STAND_OFF = 0.1
+#: The least extent of a box a fitted camera shows: VTK draws in single precision, and a mesh smaller than about
+#: 1e-37 (float32's least normal number is 1.2e-38) came back blank.
+_LEAST_EXTENT = 1e-30
 _VIEW_ANGLE = 30.0  # degrees, vertical field of view
 _VIEW_ANGLE_RANGE = (1e-8, 179.0)  # degrees: VTK clamps a camera's view angle to this range
 _DEFAULT_COLOR = (0.86, 0.82, 0.74)
@@ -235,7 +238,7 @@ def _screen_axes(forward: NDArray[np.float64], up: NDArray[np.float64]
 def _fit_distance(corners: NDArray[np.float64], view_dir: NDArray[np.float64], up: NDArray[np.float64],
                   aspect: float, view_angle: float = _VIEW_ANGLE) -> float:
     """Distance from the box centre along ``view_dir`` at which every corner lies inside the view frustum
-    (``view_angle``: its vertical field of view, degrees); at least 1e-9 of the corners' reach (an absolute 1e-9
+    (``view_angle``: its vertical field of view, degrees); at least 1e-9 of the corners' box size (an absolute 1e-9
     framed a mesh smaller than about 1e-10 from afar, and refused it as too thin to see)."""
     forward = -view_dir
     right, true_up = _screen_axes(forward, up)
@@ -244,7 +247,10 @@ def _fit_distance(corners: NDArray[np.float64], view_dir: NDArray[np.float64], u
     depth = corners @ forward  # corner offset along the viewing direction (positive: farther away)
     need_v = np.abs(corners @ true_up) / tan_v - depth
     need_h = np.abs(corners @ right) / tan_h - depth
-    return float(max(need_v.max(), need_h.max(), 1e-9 * max(float(np.abs(corners).max()), 1e-300)))
+    # the box's size, not its corners' reach from the focal point (that of a single point shrank to 1e-300 as the
+    # focal point moved, the eye landing on it): 0, a single point, seen from 1e-9
+    size = float(np.ptp(corners, axis=0).max())
+    return float(max(need_v.max(), need_h.max(), 1e-9 * (size if size > 0 else 1.0)))
 
 
 def _framing_eye(points: NDArray[np.float64], forward: NDArray[np.float64], right: NDArray[np.float64],
@@ -722,11 +728,16 @@ def _eye_frame(points: NDArray[np.float64], position: Any
 def _check_visible(corners: NDArray[np.float64], position: Any, size: tuple[int, int], box: NDArray[np.float64],
                    z_scale: float, view_angle: float = _VIEW_ANGLE, camera: CameraLike = "oblique") -> None:
     """An InvalidInputError when the fitted ``camera`` shows the framed box less than a pixel wide or tall: a mesh
-    whose height range (times ``z_scale``) dwarfs its horizontal extent, or the reverse, rendered blank."""
+    whose height range (times ``z_scale``) dwarfs its horizontal extent, or the reverse, rendered blank; or a box
+    smaller than :data:`_LEAST_EXTENT` (VTK drew it blank)."""
+    dx, dy, dz = (box[1] - box[0]).tolist()
+    if 0 < max(dx, dy, dz) < _LEAST_EXTENT:
+        raise InvalidInputError(
+            f"the mesh spans {dx:.3g} x {dy:.3g} across and {dz:.3g} tall (with z_scale={z_scale:g}): too small to "
+            f"render (below {_LEAST_EXTENT:g}, VTK draws in single precision); scale its vertices up")
     px, py = _pixel_extent(corners, position, size, view_angle)
     if min(px, py) >= 1.0:
         return
-    dx, dy, dz = (box[1] - box[0]).tolist()
     across, tall = max(dx, dy), dz / z_scale
     hint = "; it has no extent in one direction"
     if across > 0 and tall > 0:

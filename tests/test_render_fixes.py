@@ -1314,3 +1314,30 @@ def test_a_tiny_mesh_renders_as_its_scaled_up_copy():
         tiny = trimesh.Trimesh(cube.vertices * scale, cube.faces, process=False)
         covered = render.render_mesh(tiny, window_size=(64, 48), background="black").max(axis=2) > 0
         assert (covered != reference).mean() < 0.01, scale
+
+
+@needs_render
+@pytest.mark.parametrize("scale", [1e-40, 1e-100, 1e-200])
+def test_a_mesh_too_small_for_the_renderer_is_refused_not_drawn_blank(scale):
+    """The fitted camera frames a mesh at any scale (its least distance is relative to the box), but VTK draws in
+    single precision: a mesh smaller than about 1e-37 came back as a blank picture (1e-200: numpy's divide-by-zero
+    warnings first). It is refused, naming its size."""
+    cube = trimesh.creation.box()
+    tiny = trimesh.Trimesh(cube.vertices * scale, cube.faces, process=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(InvalidInputError, match="too small"):
+            render.render_mesh(tiny, window_size=(64, 48), background="black")
+
+
+@needs_render
+@pytest.mark.parametrize("camera", ["oblique", (0.7, 0.4)])
+def test_a_single_point_mesh_is_refused_without_nan_or_warnings(camera):
+    """A mesh of one point (no extent at all): the relative least distance of the fitted camera was 1e-309, its eye
+    on its focal point (numpy warnings, "nan x nan pixels" in the message). It is refused as 0 x 0 pixels."""
+    point = trimesh.Trimesh([[1.0, 2.0, 3.0]] * 3, [[0, 1, 2]], process=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(InvalidInputError, match="0 x 0 pixels") as caught:
+            render.render_mesh(point, window_size=(64, 48), camera=camera)
+    assert "nan" not in str(caught.value)
