@@ -1356,14 +1356,17 @@ def _write_obj_text(
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
     colors = None
     if material is None and mesh.visual.kind in ("vertex", "face") and len(mesh.visual.vertex_colors):
-        colors = np.asarray(mesh.visual.vertex_colors, dtype=np.float64)[:, :3] / 255.0  # OBJ's colour is RGB
+        # OBJ's colour is RGB, as 0-1 text of 8 decimals rounded up: VTK's reader (pyvista.read) truncates its value
+        # times 255, and 217 / 255 written as 0.85098039 read back as 216 (half of all bytes one less); rounding readers
+        # (trimesh's) read the same byte either way
+        colors = np.ceil(np.asarray(mesh.visual.vertex_colors, dtype=np.float64)[:, :3] / 255.0 * 1e8) / 1e8
     with tmp.open("w", encoding="utf-8", newline="\n") as fh:
         fh.write("# written by stepterrain\n")
         for piece in _metadata_pieces(mesh.metadata):  # comments: the crs, source, isovalues ... (read_mesh's)
             fh.write(f"{_OBJ_METADATA}{piece}\n")
         name = mesh.metadata.get("name")
         if isinstance(name, str) and name.split():  # one line: a line break in a name started a new statement
-            fh.write(f"o {' '.join(name.split())}\n")
+            fh.write(f"o {_obj_text(' '.join(name.split()))}\n")
         if material is not None:
             fh.write(f"mtllib {mtl_name}\nusemtl {material}\n")
         row = "v {!r} {!r} {!r}" + (" {:.8f} {:.8f} {:.8f}" if colors is not None else "") + "\n"
@@ -1374,6 +1377,15 @@ def _write_obj_text(
             _write_rows(fh.write, "f {} {} {}\n", _blocks(faces + 1))
         else:  # the texture coordinate of a corner is its vertex's: v/vt with the same index
             _write_rows(fh.write, "f {}/{} {}/{} {}/{}\n", _blocks(np.repeat(faces + 1, 2, axis=1)))
+
+
+def _obj_text(text: str) -> str:
+    """``text`` (a name on one line) for the end of an OBJ or MTL statement: a backslash there continues the line in
+    OBJ readers (trimesh's, as the OBJ specification has it), so an ``o`` line of a name ending in one (a Windows
+    folder, ``C:\\dem\\``) or a ``usemtl`` of a material so named swallowed the first ``v`` line, and every face
+    then named the wrong vertices or none (read_mesh: an IndexError). Its trailing backslashes become ``_``."""
+    stripped = text.rstrip("\\")
+    return stripped + "_" * (len(text) - len(stripped))
 
 
 def _blocks(values: NDArray[Any]) -> Iterator[NDArray[Any]]:
@@ -1444,7 +1456,7 @@ def _obj_material(mesh: trimesh.Trimesh, mtl_name: str) -> tuple[dict[str, bytes
         material.image = _encoded_image(image)
     name = material.name
     if isinstance(name, str):  # one word for newmtl / usemtl: a line break in it started a statement of its own in
-        name = "_".join(name.split())  # the OBJ ("v 9 9 9" shifted every face) and the MTL, and map_Kd lost the image
+        name = _obj_text("_".join(name.split()))  # the OBJ ("v 9 9 9" shifted every face), the MTL lost map_Kd
     files, name = material.to_obj(name=trimesh.util.unique_name(name, set()))
     sidecars = {mtl_name: b"# written by stepterrain\n\n"}
     for file_name, data in files.items():
@@ -1977,6 +1989,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                 color = _gltf_color_0(file, tree)
             _srgb_vertex_colors(loaded, color)
             _gltf_sampler_wrap(loaded, tree)
+            loaded.metadata.update(_gltf_extras_name(tree))
     except Exception as exc:  # noqa: BLE001 - trimesh and the XML reader raise many kinds for a bad file
         raise DataFileError(f"cannot read {str(file)!r} as a mesh: {type(exc).__name__}: {exc}") from exc
     return loaded  # type: ignore[no-any-return]
@@ -2279,6 +2292,18 @@ def _empty_gltf_extras(file: Path, tree: Any = None) -> dict[str, Any]:
         return {}
     extras = nodes[0].get("extras")
     return dict(extras) if isinstance(extras, dict) else {}
+
+
+def _gltf_extras_name(tree: Any) -> dict[str, Any]:
+    """``{"name": ...}`` from the ``extras`` of the one mesh of a glTF whose JSON is ``tree``, where they hold one
+    (the metadata :func:`save_mesh` wrote), else {}: trimesh's reader merges the extras into the metadata but puts
+    the mesh's (or node's) own name over theirs, so a name given as metadata came back as the file's stem, where
+    the other formats give it back as written."""
+    meshes = tree.get("meshes") if isinstance(tree, dict) else None
+    if not isinstance(meshes, list) or len(meshes) != 1 or not isinstance(meshes[0], dict):
+        return {}
+    extras = meshes[0].get("extras")
+    return {"name": extras["name"]} if isinstance(extras, dict) and "name" in extras else {}
 
 
 def _gltf_color_0(file: Path, tree: Any = None) -> NDArray[np.float64] | None:

@@ -49,6 +49,17 @@ _DIFFUSE = 0.9
 #: The fixed oblique view: camera azimuth (clockwise from north, radians; 180° = looking from the south
 #: towards the north) and elevation above the horizon.
 _OBLIQUE = (math.radians(190.0), math.radians(45.0))
+#: A fitted camera's margin: its eye lies this many times as far from the framed box's centre as the nearest eye
+#: that sees all of it.
+_FRAME_MARGIN = 1.06
+#: How far off the view's axis (a fraction of its half-width) a fitted camera may leave the middle of the framed box
+#: before it is placed exactly (:func:`_framing_eye`): the fit-and-recentre steps leave it within 2 % in a narrow view.
+_CENTRED = 0.05
+#: A fitted camera's least distance in front of the framed points, as a fraction of their depth along the view.
+_STAND_OFF = 0.1
+#: The least extent of a box a fitted camera shows: VTK draws in single precision, and a mesh smaller than about
+#: 1e-37 (float32's least normal number is 1.2e-38) came back blank.
+_LEAST_EXTENT = 1e-30
 _VIEW_ANGLE = 30.0  # degrees, vertical field of view
 _VIEW_ANGLE_RANGE = (1e-8, 179.0)  # degrees: VTK clamps a camera's view angle to this range
 _DEFAULT_COLOR = (0.86, 0.82, 0.74)
@@ -227,7 +238,8 @@ def _screen_axes(forward: NDArray[np.float64], up: NDArray[np.float64]
 def _fit_distance(corners: NDArray[np.float64], view_dir: NDArray[np.float64], up: NDArray[np.float64],
                   aspect: float, view_angle: float = _VIEW_ANGLE) -> float:
     """Distance from the box centre along ``view_dir`` at which every corner lies inside the view frustum
-    (``view_angle``: its vertical field of view, degrees)."""
+    (``view_angle``: its vertical field of view, degrees); at least 1e-9 of the corners' box size (an absolute 1e-9
+    framed a mesh smaller than about 1e-10 from afar, and refused it as too thin to see)."""
     forward = -view_dir
     right, true_up = _screen_axes(forward, up)
     tan_v = math.tan(math.radians(view_angle) / 2.0)
@@ -235,7 +247,53 @@ def _fit_distance(corners: NDArray[np.float64], view_dir: NDArray[np.float64], u
     depth = corners @ forward  # corner offset along the viewing direction (positive: farther away)
     need_v = np.abs(corners @ true_up) / tan_v - depth
     need_h = np.abs(corners @ right) / tan_h - depth
-    return float(max(need_v.max(), need_h.max(), 1e-9))
+    # the box's size, not its corners' reach from the focal point (that of a single point shrank to 1e-300 as the
+    # focal point moved, the eye landing on it): 0, a single point, seen from 1e-9
+    size = float(np.ptp(corners, axis=0).max())
+    return float(max(need_v.max(), need_h.max(), 1e-9 * (size if size > 0 else 1.0)))
+
+
+def _framing_eye(points: NDArray[np.float64], forward: NDArray[np.float64], right: NDArray[np.float64],
+                 up: NDArray[np.float64], aspect: float, view_angle: float = _VIEW_ANGLE) -> NDArray[np.float64]:
+    """The eye of a camera looking along the unit ``forward`` (screen axes ``right`` and ``up``, vertical field of
+    view ``view_angle`` degrees, width / height ``aspect``) that frames ``points`` (N, 3): the nearest eye that sees
+    them all, :data:`_FRAME_MARGIN` times as far from their box's centre (along ``forward``), and placed across the
+    view so that their extreme directions are symmetric about its axis on both screen axes (centred on screen).
+
+    Exact: a point p lies in the view of the eye at depth w (along ``forward``) and offsets u, v (along ``right``,
+    ``up``) iff ``|p_r - u| <= tan_h (p_f - w)`` and ``|p_u - v| <= tan_v (p_f - w)`` (p_r, p_u, p_f: its
+    coordinates), so along each screen axis w <= A + u / tan and w <= B - u / tan, A and B the least p_f -/+ p_r / tan:
+    the nearest eye has the smaller of the axes' (A + B) / 2, kept :data:`_STAND_OFF` of the points' depth in front of
+    them. At each axis's offsets from (w - A) tan to (B - w) tan every point is in view, and the sum of the extreme
+    directions falls as the offset grows: bisection finds where it is 0. :func:`_camera_position` takes it where its
+    fit-and-recentre steps leave the points off centre: in a wide view (view_angle 120 and more) their whole steps
+    overshot, the near corners swinging from one side of the picture to the other, and the last left the mesh
+    against one edge of it (from 170 degrees not drawn at all)."""
+    tan_v = math.tan(math.radians(view_angle) / 2.0)
+    tans = (tan_v * aspect, tan_v)
+    origin = (points.min(axis=0) + points.max(axis=0)) / 2  # precise near the points
+    rel = points - origin
+    along, across = rel @ forward, (rel @ right, rel @ up)
+    bounds = [(float((along - s / tan).min()), float((along + s / tan).min()))
+              for s, tan in zip(across, tans, strict=True)]
+    # in a view wide enough to see all of the points from the nearest of them, the nearest eye lies on it (a box's
+    # corner), and the near plane cut its surroundings away: the eye stays in front of them
+    stand_off = max(_STAND_OFF * float(along.max() - along.min()), 1e-9 * float(np.abs(rel).max()), 1e-300)
+    w = min(min((a + b) / 2 for a, b in bounds), float(along.min()) - stand_off)
+    w -= (_FRAME_MARGIN - 1.0) * abs(w)  # the margin: farther from the box's centre (depth 0)
+    depth = along - w
+    offsets = []
+    for s, tan, (a, b) in zip(across, tans, bounds, strict=True):
+        lo, hi = (w - a) * tan, (b - w) * tan
+        for _ in range(64 if lo < hi else 0):
+            mid = (lo + hi) / 2
+            direction = (s - mid) / depth
+            if direction.max() + direction.min() > 0:
+                lo = mid
+            else:
+                hi = mid
+        offsets.append((lo + hi) / 2)
+    return origin + right * offsets[0] + up * offsets[1] + forward * w
 
 
 def _camera_position(
@@ -281,9 +339,33 @@ def _camera_position(
         sy = (rel @ true_up) / depth
         shift = right * (sx.max() + sx.min()) / 2 + true_up * (sy.max() + sy.min()) / 2
         focal = focal + shift * distance
-    distance = _fit_distance(corners - focal, view_dir, up, aspect, view_angle) * 1.06
+    distance = _fit_distance(corners - focal, view_dir, up, aspect, view_angle) * _FRAME_MARGIN
     eye = focal + view_dir * distance
+    if not _off_centre(corners, eye, forward, (right, true_up), aspect, view_angle):
+        return [tuple(eye.tolist()), tuple(focal.tolist()), tuple(up.tolist())]
+    # a wide view (view_angle 120 and more): the steps above overshot, the near corners swinging from one side of the
+    # picture to the other, and the last left the mesh against one edge (from 170 degrees not drawn at all)
+    eye = _framing_eye(points, forward, right, true_up, aspect, view_angle)
+    centre = (points.min(axis=0) + points.max(axis=0)) / 2
+    focal = eye + forward * max(float((centre - eye) @ forward), float(((points - eye) @ forward).min()))
     return [tuple(eye.tolist()), tuple(focal.tolist()), tuple(up.tolist())]
+
+
+def _off_centre(points: NDArray[np.float64], eye: NDArray[np.float64], forward: NDArray[np.float64],
+                axes: tuple[NDArray[np.float64], NDArray[np.float64]], aspect: float, view_angle: float) -> bool:
+    """Whether ``points`` seen from ``eye`` (looking along ``forward``, screen axes ``axes``: right, up) lie partly
+    outside the view or off its centre: the middle of their extreme directions on a screen axis more than
+    :data:`_CENTRED` of the view's half-width from its axis."""
+    rel = points - eye
+    depth = rel @ forward
+    if not (depth > 0).all():
+        return True
+    tan_v = math.tan(math.radians(view_angle) / 2.0)
+    for axis, tan in zip(axes, (tan_v * aspect, tan_v), strict=True):
+        direction = (rel @ axis) / depth
+        if np.abs(direction).max() > tan or abs(direction.max() + direction.min()) / 2 > _CENTRED * tan:
+            return True
+    return False
 
 
 def _check_position(spec: NDArray[np.float64], camera: Any) -> None:
@@ -646,11 +728,16 @@ def _eye_frame(points: NDArray[np.float64], position: Any
 def _check_visible(corners: NDArray[np.float64], position: Any, size: tuple[int, int], box: NDArray[np.float64],
                    z_scale: float, view_angle: float = _VIEW_ANGLE, camera: CameraLike = "oblique") -> None:
     """An InvalidInputError when the fitted ``camera`` shows the framed box less than a pixel wide or tall: a mesh
-    whose height range (times ``z_scale``) dwarfs its horizontal extent, or the reverse, rendered blank."""
+    whose height range (times ``z_scale``) dwarfs its horizontal extent, or the reverse, rendered blank; or a box
+    smaller than :data:`_LEAST_EXTENT` (VTK drew it blank)."""
+    dx, dy, dz = (box[1] - box[0]).tolist()
+    if 0 < max(dx, dy, dz) < _LEAST_EXTENT:
+        raise InvalidInputError(
+            f"the mesh spans {dx:.3g} x {dy:.3g} across and {dz:.3g} tall (with z_scale={z_scale:g}): too small to "
+            f"render (below {_LEAST_EXTENT:g}, VTK draws in single precision); scale its vertices up")
     px, py = _pixel_extent(corners, position, size, view_angle)
     if min(px, py) >= 1.0:
         return
-    dx, dy, dz = (box[1] - box[0]).tolist()
     across, tall = max(dx, dy), dz / z_scale
     hint = "; it has no extent in one direction"
     if across > 0 and tall > 0:

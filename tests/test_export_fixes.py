@@ -2064,3 +2064,57 @@ finally:  # what the process writes at its exit (a coverage data file) is not cu
     assert "cannot write" in said[0] and "shade.tif" in said[0] and "Write error" in said[0]
     assert "previous exception" not in said[0]
     assert list(tmp_path.iterdir()) == []  # atomic: neither the target nor its temporary file
+
+
+@pytest.mark.parametrize("where", ["name", "material"])
+def test_a_name_ending_in_a_backslash_does_not_continue_the_obj_line(tmp_path, where):
+    """The OBJ's ``o`` line carried the metadata's name, ``usemtl`` (and the MTL's ``newmtl``) the material's, as
+    they were: a trailing backslash (a Windows folder, ``C:\\dem\\``) continues the line in OBJ readers, so the
+    first ``v`` line became part of the name and every face named the vertex after its own; read_mesh and
+    trimesh.load raised an IndexError for the last. Trailing backslashes are now ``_``, and the name read back from
+    the metadata comment is still the one written."""
+    mesh = trimesh.creation.box()
+    name = "C:\\dem\\"
+    if where == "material":
+        material = trimesh.visual.material.PBRMaterial(name=name, baseColorTexture=Image.new("RGB", (4, 4)))
+        mesh.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((8, 2)), material=material)
+        obj = save_mesh(mesh, tmp_path / "t.obj")
+        assert "newmtl C:\\dem_" in (tmp_path / "t.mtl").read_text().splitlines()
+    else:
+        obj = save_mesh(mesh, tmp_path / "t.obj", metadata={"name": name})
+    assert not any(line.endswith("\\") for line in obj.read_text().splitlines())
+    for back in (read_mesh(obj), trimesh.load(obj, force="mesh", process=False, maintain_order=True)):
+        np.testing.assert_array_equal(back.vertices, mesh.vertices)
+        np.testing.assert_array_equal(back.faces, mesh.faces)
+    if where == "name":
+        assert read_mesh(obj).metadata["name"] == name
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+def test_read_mesh_gives_a_gltfs_metadata_name_back(tmp_path, ext):
+    """save_mesh stores the metadata in the glTF mesh's extras, and read_mesh gives it back (as PLY, OBJ and 3MF
+    do), but trimesh's reader puts the mesh's own name (the file's stem) over the extras' ``name``: a name given as
+    metadata came back as "stem", and a mesh read and written again kept that."""
+    mesh = trimesh.creation.box()
+    out = save_mesh(mesh, tmp_path / f"stem{ext}", metadata={"name": "Big Tujunga", "crs": "EPSG:32611"})
+    back = read_mesh(out)
+    assert back.metadata["name"] == "Big Tujunga" and back.metadata["crs"] == "EPSG:32611"
+    again = read_mesh(save_mesh(back, tmp_path / f"again{ext}"))
+    assert again.metadata["name"] == "Big Tujunga"
+    np.testing.assert_allclose(again.vertices, mesh.vertices, atol=1e-6)
+
+
+def test_obj_vertex_colours_read_back_as_the_same_bytes_by_vtk_and_trimesh(tmp_path):
+    """An OBJ's ``v x y z r g b`` colours were c / 255 to 8 decimals, which lie below c / 255 for about half of the
+    bytes (217 / 255 = 0.850980392... written as 0.85098039): VTK's reader (pyvista.read) truncates their value times
+    255, so those came back one less. Rounded up, every byte reads back as written by truncating and rounding
+    readers alike."""
+    pv = pytest.importorskip("pyvista")
+    levels = np.arange(256, dtype=np.uint8)
+    vertices = np.column_stack([np.arange(256.0), np.zeros(256), np.zeros(256)])
+    faces = np.array([[0, 1, 2]])
+    colors = np.column_stack([levels, levels[::-1], np.roll(levels, 85), np.full(256, 255, np.uint8)])
+    mesh = trimesh.Trimesh(vertices, faces, vertex_colors=colors, process=False)
+    obj = save_mesh(mesh, tmp_path / "c.obj")
+    np.testing.assert_array_equal(np.asarray(pv.read(obj).point_data["RGB"]), colors[:, :3])
+    np.testing.assert_array_equal(read_mesh(obj).visual.vertex_colors, colors)

@@ -1262,3 +1262,82 @@ def test_an_obj_material_without_kd_renders_in_the_tan_and_kd_grey_in_its_grey(t
     grey = render.render_mesh(kd, window_size=(64, 64), camera="top")[28:36, 28:36].reshape(-1, 3).astype(float)
     lit_tan = tan[28:36, 28:36].reshape(-1, 3).mean(axis=0)
     assert np.ptp(grey.mean(axis=0)) < 3 and np.abs(grey.mean(axis=0) - lit_tan).max() > 20
+
+
+@needs_render
+@pytest.mark.parametrize("camera", ["oblique", (0.7, 0.4)])
+@pytest.mark.parametrize("view_angle", [120.0, 150.0])
+def test_a_wide_view_angle_frames_the_mesh_in_the_middle(camera, view_angle):
+    """A fitted camera recentres the projected box on screen in a few steps of the focal point. Whole steps
+    overshot in a wide view: the near corners swung from one side of the picture to the other at each step, and
+    the last left the mesh against one edge (a cube at 120 degrees in the right half of the picture only, at 170
+    degrees not drawn at all). The drawn pixels' box is now centred, as the fit's symmetric projection puts it,
+    and each axis of it reaches both halves of the picture."""
+    mesh = trimesh.creation.box()
+    width, height = 96, 64
+    image = render.render_mesh(mesh, window_size=(width, height), camera=camera, view_angle=view_angle,
+                               background="black")
+    rows, cols = np.nonzero(image.max(axis=2) > 0)
+    assert len(rows) > 0
+    assert cols.min() < width / 2 < cols.max() and rows.min() < height / 2 < rows.max()
+    assert abs((cols.min() + cols.max() + 1) / 2 - width / 2) <= 0.1 * width
+    assert abs((rows.min() + rows.max() + 1) / 2 - height / 2) <= 0.1 * height
+
+
+def test_the_fitted_camera_centres_the_box_it_frames_at_every_view_angle():
+    """The projection behind the test above, without a render: the fitted camera leaves the middle of the framed
+    corners' extreme directions within 5 % of the view's half-width of its axis on both screen axes (they
+    alternated between one side and the other at wide angles: a cube at 120 degrees between 0.05 and 1 of it), and
+    every corner inside the view."""
+    for box in ([[-5.0, -3.0, 0.0], [5.0, 3.0, 1.5]], [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]):
+        corners = render._box_corners(np.array(box))
+        for camera in ("oblique", "top", (0.7, 0.4), (2.0, -0.3)):
+            for view_angle in (10.0, 30.0, 60.0, 90.0, 120.0, 150.0, 170.0, 179.0):
+                position = render._camera_position(camera, corners, 1.5, view_angle)
+                rel, depth, right, up = render._eye_frame(corners, position)
+                assert (depth > 0).all()
+                tan_v = np.tan(np.radians(view_angle) / 2)
+                for tangents, half in ((rel @ right / depth, tan_v * 1.5), (rel @ up / depth, tan_v)):
+                    assert abs(tangents.max() + tangents.min()) / 2 <= 0.05 * half, (box, camera, view_angle)
+                    assert np.abs(tangents).max() <= half * (1 + 1e-9), (box, camera, view_angle)
+
+
+@needs_render
+def test_a_tiny_mesh_renders_as_its_scaled_up_copy():
+    """The fitted camera's distance had a floor of 1e-9 in the mesh's units: a mesh smaller than about 1e-10 was
+    framed from that far, and refused as "too thin to see from a camera fitted to it" (a cube of side 1e-12
+    measured 0.1 x 0.13 pixels), with a z_scale hint that could not help. The floor is now relative to the
+    framed box, and a perspective view does not depend on the scale."""
+    cube = trimesh.creation.box()
+    reference = render.render_mesh(cube, window_size=(64, 48), background="black").max(axis=2) > 0
+    for scale in (1e-12, 1e-20):
+        tiny = trimesh.Trimesh(cube.vertices * scale, cube.faces, process=False)
+        covered = render.render_mesh(tiny, window_size=(64, 48), background="black").max(axis=2) > 0
+        assert (covered != reference).mean() < 0.01, scale
+
+
+@needs_render
+@pytest.mark.parametrize("scale", [1e-40, 1e-100, 1e-200])
+def test_a_mesh_too_small_for_the_renderer_is_refused_not_drawn_blank(scale):
+    """The fitted camera frames a mesh at any scale (its least distance is relative to the box), but VTK draws in
+    single precision: a mesh smaller than about 1e-37 came back as a blank picture (1e-200: numpy's divide-by-zero
+    warnings first). It is refused, naming its size."""
+    cube = trimesh.creation.box()
+    tiny = trimesh.Trimesh(cube.vertices * scale, cube.faces, process=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(InvalidInputError, match="too small"):
+            render.render_mesh(tiny, window_size=(64, 48), background="black")
+
+
+@needs_render
+@pytest.mark.parametrize("camera", ["oblique", (0.7, 0.4)])
+def test_a_single_point_mesh_is_refused_without_nan_or_warnings(camera):
+    """A mesh of one point (no extent at all): the relative least distance of the fitted camera was 1e-309, its eye
+    on its focal point (numpy warnings, "nan x nan pixels" in the message). It is refused as 0 x 0 pixels."""
+    point = trimesh.Trimesh([[1.0, 2.0, 3.0]] * 3, [[0, 1, 2]], process=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(InvalidInputError, match="0 x 0 pixels") as caught:
+            render.render_mesh(point, window_size=(64, 48), camera=camera)
+    assert "nan" not in str(caught.value)
