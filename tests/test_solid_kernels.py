@@ -473,16 +473,23 @@ def test_non_finite_vertices_float_faces_and_a_floor_not_a_number_are_refused():
                                                     strict=True))
 
 
-def test_pinch_copies_moved_along_their_fans_mean_equal_the_reference():
-    """Big Tujunga's SRTM (30 m, UTM) with 5 % void nodes: copies whose diagonal move misses a one-triangle fan by a
-    hair move along their fan's mean direction, as the reference's do (no other test compared that path)."""
-    dem = st.load_dem(shared_file("big_tujunga_srtm_30m_utm11n.tif"))
+def _voided_crop_against_the_reference(name: str) -> tuple[tuple, np.ndarray]:
+    """An 80² crop of a shared/data DEM with 5 % void nodes (seed 0), stepped at 50 m and closed by the kernels and
+    the reference (equal: :func:`_assert_same`): the kernels' result and each pinch copy's xy move off its node."""
+    dem = st.load_dem(shared_file(name))
     heights = dem.heights[:80, :80].copy()
     heights[np.random.default_rng(0).random(heights.shape) < 0.05] = np.nan
     holed = st.Terrain.from_heights(heights, spacing=dem.spacing, origin=dem.origin)
     vertices, faces, terrace, floor = _surface(holed, interval=50.0)
     got = _assert_same(vertices, faces, terrace, floor)
     moved = got[0][: len(got[4]), :2] - vertices[got[4], :2]
+    return got, moved
+
+
+def test_pinch_copies_moved_along_their_fans_mean_equal_the_reference():
+    """Big Tujunga's SRTM (30 m, UTM) with 5 % void nodes: copies whose diagonal move misses a one-triangle fan by a
+    hair move along their fan's mean direction, as the reference's do (no other test compared that path)."""
+    got, moved = _voided_crop_against_the_reference("big_tujunga_srtm_30m_utm11n.tif")
     along = (moved != 0).any(axis=1) & (np.abs(np.abs(moved[:, 0]) - np.abs(moved[:, 1])) > 0)
     assert along.any()  # some copy moved along its mean direction, not the diagonal
 
@@ -491,13 +498,7 @@ def test_pinch_copies_on_non_square_cells_equal_the_reference():
     """The Front Range's SRTM 3" (cells about 71 x 93 m) with 5 % void nodes: diagonal moves that miss a one-triangle
     fan by degrees are retried along the fan's mean direction, as the reference's are (the retry was limited to
     misses under 1e-3 rad before)."""
-    dem = st.load_dem(shared_file("front_range_srtmgl3_3arcsec.tif"))
-    heights = dem.heights[:80, :80].copy()
-    heights[np.random.default_rng(0).random(heights.shape) < 0.05] = np.nan
-    holed = st.Terrain.from_heights(heights, spacing=dem.spacing, origin=dem.origin)
-    vertices, faces, terrace, floor = _surface(holed, interval=50.0)
-    got = _assert_same(vertices, faces, terrace, floor)
-    moved = got[0][: len(got[4]), :2] - vertices[got[4], :2]
+    got, moved = _voided_crop_against_the_reference("front_range_srtmgl3_3arcsec.tif")
     shared = np.bincount(got[4])[got[4]] > 1  # the pinch vertices and their copies
     assert shared.sum() > 20
     # every copy moved off its node (none here has a wall): one vertex per pinch node stays on it, the original
