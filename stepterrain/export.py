@@ -1602,21 +1602,23 @@ def _write_ply(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
 
 def _write_stl(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
     _warn_stl_rounding(mesh, target, bounds)
-    _warn_stl_open(mesh, target)
-    tmp.write_bytes(trimesh.exchange.stl.export_stl(_without_point_edges(mesh)))
+    # the corners as export_stl rounds them, once for both checks (-0.0 as 0.0: one hash per position)
+    corners = np.asarray(mesh.vertices, dtype=np.float64).astype(np.float32) + np.float32(0.0)
+    _warn_stl_open(mesh, target, corners)
+    tmp.write_bytes(trimesh.exchange.stl.export_stl(_without_point_edges(mesh, corners)))
 
 
-def _stl_open_edges(mesh: trimesh.Trimesh) -> int:
+def _stl_open_edges(mesh: trimesh.Trimesh, corners: NDArray[np.float32]) -> int:
     """How many edges of ``mesh`` as an ``.stl`` reader that merges corners by position sees it (float32 corners
     merged, triangles with two corners on one position left out, as :func:`_without_point_edges` does) have other
     than two triangles, among the edges at a merged corner: the others keep their faces (0 for a watertight mesh).
     0 at once for a mesh with a vertex of one corner, which is not watertight (an unmerged mesh's: its 28 M
     vertices took 38 s). One hash and sort (not an argsort) of the vertices where no two share a float32 position
-    (a solid at γ > 0, most meshes: 0.4 s of a 9.3 M-face solid's 12 s .stl; 1.1 s with a stable argsort)."""
+    (a solid at γ > 0, most meshes: 0.4 s of a 9.3 M-face solid's 12 s .stl; 1.1 s with a stable argsort).
+    ``corners``: its vertices in float32, -0.0 as 0.0 (:func:`_write_stl`'s)."""
     faces = np.asarray(mesh.faces)
     if len(faces) == 0 or (np.bincount(faces.reshape(-1), minlength=len(mesh.vertices)) == 1).any():
         return 0  # a vertex of one corner has an edge of one face: not watertight (an unmerged mesh's, by design)
-    corners = np.asarray(mesh.vertices, dtype=np.float64).astype(np.float32) + np.float32(0.0)  # -0.0 as 0.0
     bits = corners.view(np.uint32).astype(np.uint64)
     key = (bits[:, 0] * np.uint64(0x9E3779B97F4A7C15)) ^ (bits[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F)) ^ bits[:, 2]
     del bits
@@ -1662,7 +1664,7 @@ def _edges_not_two(a: NDArray[Any], b: NDArray[Any], n: int) -> int:
     return int((counts != 2).sum())
 
 
-def _warn_stl_open(mesh: trimesh.Trimesh, target: Path) -> None:
+def _warn_stl_open(mesh: trimesh.Trimesh, target: Path, corners: NDArray[np.float32]) -> None:
     """Warn (a ``UserWarning`` at the caller's line) when the ``.stl`` of a watertight mesh would not read back
     watertight (:func:`_stl_open_edges`): float32 puts distinct vertices on one position that a reader merging
     corners by position (slicers, ``trimesh.load``) joins. A solid's copies of a pinch node (two nodata holes
@@ -1671,8 +1673,8 @@ def _warn_stl_open(mesh: trimesh.Trimesh, target: Path) -> None:
     node; so is a wall's corner that τ could not keep 4 float32 steps from its node (README, solids). Such files
     were written without a word. Only a mesh watertight by its indices is warned about (the corners of an unmerged
     mesh lie on one position by design), and only where some two vertices share a float32 position: one hash and
-    sort of the vertices otherwise."""
-    open_edges = _stl_open_edges(mesh)
+    sort of the vertices otherwise. ``corners``: the vertices as the ``.stl`` has them (:func:`_write_stl`'s)."""
+    open_edges = _stl_open_edges(mesh, corners)
     if not open_edges:
         return
     faces = np.asarray(mesh.faces)
@@ -1689,17 +1691,17 @@ def _warn_stl_open(mesh: trimesh.Trimesh, target: Path) -> None:
     )
 
 
-def _without_point_edges(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+def _without_point_edges(mesh: trimesh.Trimesh, corners: NDArray[np.float32]) -> trimesh.Trimesh:
     """``mesh`` less its triangles with two corners on one float32 position (as ``.stl`` stores them): they have no
     area, and a reader that merges corners by position (slicers, ``trimesh.load``) would find them folded onto an
     edge of their neighbours, used by three faces or more. A solid's walls of zero height (γ = 0, inside a
     :func:`~stepterrain.stepped.circular_lens` by default) are such triangles: their top and bottom corners are
     distinct vertices on one position, which keep the indexed solid watertight; without them, the corners merged,
-    the ``.stl`` reads back watertight too. ``mesh`` itself is not modified."""
+    the ``.stl`` reads back watertight too. ``mesh`` itself is not modified. ``corners``: its vertices in float32,
+    as ``export_stl`` rounds them (:func:`_write_stl`'s)."""
     faces = np.asarray(mesh.faces)
     if len(faces) == 0:
         return mesh
-    corners = np.asarray(mesh.vertices, dtype=np.float64).astype(np.float32)  # as export_stl rounds them
     x, y, z = (np.ascontiguousarray(corners[:, k]) for k in range(3))
     face_x = x[faces]
     point = np.zeros(len(faces), dtype=bool)

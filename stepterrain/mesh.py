@@ -169,13 +169,10 @@ def _boundary(faces: wp.array, n: int, device: wp.Device) -> NDArray[np.int64]:
     count = faces.shape[0] // 3
     if count == 0:
         return np.zeros((0, 2), np.int64)
-    # the corner counts, two spare zeros after them: their exclusive scan is each bucket's end one place on, which
-    # fill_corners counts down to its start (kernels/solid.py: then vertex v's corners are corners[ends[v + 1]:
-    # ends[v + 2]])
-    counts = _empty(n + 2, np.int32, wp.int32, device, zero=True)
-    launch_chunked(kernels.count_keys, faces.shape[0], [faces], [counts], device, atomics=True)
-    ends = _offsets(counts)
-    del counts
+    # the scan of the corner counts with one spare key (n + 2 entries, the last two 0): each bucket's end one place
+    # on, which fill_corners counts down to its start (kernels/solid.py: then vertex v's corners are
+    # corners[ends[v + 1]:ends[v + 2]])
+    ends = _key_offsets(faces, n + 1, device)
     corners = _empty(faces.shape[0], (np.int32, 2), wp.vec2i, device)
     launch_chunked(kernels.fill_corners, count, [faces], [ends, corners], device, atomics=True)
     threads = chunked_threads(count, device)
