@@ -744,14 +744,15 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     if interval is None and args.levels is None:
         interval = nice_interval((lo, hi))
         try:  # the interval picked here, not one given: a refusal named an --interval the user never typed
-            st.isovalues((lo, hi), interval=interval, base=base)
+            values = st.isovalues((lo, hi), interval=interval, base=base)
         except InvalidInputError as exc:
             if not str(exc).startswith("interval"):  # a --base refused: named as it is
                 raise
             raise InvalidInputError(f"no --interval or --levels given, and the round interval {interval:g} picked "
                                     f"for heights {lo:g} to {hi:g} is refused: {exc}; give --levels (explicit "
                                     "isovalues) or an --interval that fits") from None
-    values = st.isovalues((lo, hi), interval=interval, levels=args.levels, base=base)
+    else:
+        values = st.isovalues((lo, hi), interval=interval, levels=args.levels, base=base)
     if args.interval is None and args.levels is None:
         progress.say(f"no --interval or --levels given: using --interval {interval:g}, a round interval "
                      f"giving {_counted(len(values), 'level')} over heights {lo:g} to {hi:g} "
