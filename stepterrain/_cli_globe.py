@@ -217,10 +217,10 @@ def _load_grid(path: str, height_unit: str | None = None) -> tuple[np.ndarray, n
                                 "them first (e.g. from neighbours)")
     # --height-unit overrides the file's unit, as load_dem's height_unit does (an unknown one was refused with a
     # pointer to a --height-unit the globe lacked)
-    unit, _, factor = _vertical_unit(height_unit or _npz_text(texts, "units", file), _npz_text(texts, "crs", file))
+    crs = _npz_text(texts, "crs", file)
+    unit, _, factor = _vertical_unit(height_unit or _npz_text(texts, "units", file), crs)
     if unit is not None and elevation.dtype.kind in "iuf":  # (other dtypes: Globe.from_latlon names them)
-        named_by = "--height-unit" if height_unit else "its 'units'" if "units" in texts else \
-            f"its CRS {_npz_text(texts, 'crs', file)}"
+        named_by = "--height-unit" if height_unit else "its 'units'" if "units" in texts else f"its CRS {crs}"
         elevation, _ = _heights_in_metres(elevation, unit, file, named_by, factor)
     return lat, lon, elevation
 

@@ -378,13 +378,12 @@ def _contour_options(args: argparse.Namespace) -> dict[str, Any] | None:
             raise InvalidInputError(f"--contour-width must be a positive number of texels; got {args.contour_width:g}")
         options["width"] = args.contour_width
     if args.contour_color is not None:
+        shown = ",".join(f"{v:g}" for v in args.contour_color)
         try:
             _contour_colour(args.contour_color, "--contour-color")
         except InvalidInputError as exc:
-            shown = ",".join(f"{v:g}" for v in args.contour_color)
             raise InvalidInputError(f"{str(exc).split('; got')[0]}; got {shown}") from None
         if len(args.contour_color) == 4 and args.contour_color[3] == 0:  # index lines take its alpha too: no line
-            shown = ",".join(f"{v:g}" for v in args.contour_color)
             raise InvalidInputError(f"--contour-color must have an alpha above 0 (0 draws every contour line "
                                     f"transparent: the texture as without --contours); got {shown}")
         options["color"] = args.contour_color

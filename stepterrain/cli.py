@@ -35,6 +35,7 @@ from ._compaction import budget_hint, get_memory_budget, set_memory_budget
 from .errors import DataFileError, InvalidInputError, StepTerrainError, counted
 from .export import MESH_EXTENSIONS, _special_file_kind, probe_writable
 from .stepped import TARGET_STEPS, colormap, colormap_samples, nice_interval
+from .terrain import FLOAT32_MAX
 
 __all__ = ["main", "build_parser", "nice_interval"]
 
@@ -705,7 +706,7 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     # close_solid's refusals, before the DEM is read and the whole terrain stepped (they came after both)
     if args.floor is not None and not math.isfinite(args.floor):
         raise InvalidInputError(f"--floor must be finite; got {args.floor}")
-    if args.floor is not None and abs(args.floor) > float(np.finfo(np.float32).max):
+    if args.floor is not None and abs(args.floor) > FLOAT32_MAX:
         raise InvalidInputError(f"--floor must fit in float32 (|x| < 3.4e+38); got {args.floor:g}")
     if args.lens_relative is not None and not args.lens_relative[2] > 0:  # else named as '--lens radius', in metres
         raise InvalidInputError(f"--lens-relative radius fraction must be positive; got {args.lens_relative[2]:g}")
@@ -743,14 +744,15 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     if interval is None and args.levels is None:
         interval = nice_interval((lo, hi))
         try:  # the interval picked here, not one given: a refusal named an --interval the user never typed
-            st.isovalues((lo, hi), interval=interval, base=base)
+            values = st.isovalues((lo, hi), interval=interval, base=base)
         except InvalidInputError as exc:
             if not str(exc).startswith("interval"):  # a --base refused: named as it is
                 raise
             raise InvalidInputError(f"no --interval or --levels given, and the round interval {interval:g} picked "
                                     f"for heights {lo:g} to {hi:g} is refused: {exc}; give --levels (explicit "
                                     "isovalues) or an --interval that fits") from None
-    values = st.isovalues((lo, hi), interval=interval, levels=args.levels, base=base)
+    else:
+        values = st.isovalues((lo, hi), interval=interval, levels=args.levels, base=base)
     if args.interval is None and args.levels is None:
         progress.say(f"no --interval or --levels given: using --interval {interval:g}, a round interval "
                      f"giving {_counted(len(values), 'level')} over heights {lo:g} to {hi:g} "
