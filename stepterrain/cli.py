@@ -33,7 +33,7 @@ import numpy as np
 
 from ._compaction import budget_hint, get_memory_budget, set_memory_budget
 from .errors import DataFileError, InvalidInputError, StepTerrainError, counted
-from .export import MESH_EXTENSIONS, _special_file_kind, probe_writable
+from .export import _STL_OPEN_LOCAL, _STL_ROUNDING_LOCAL, MESH_EXTENSIONS, _special_file_kind, probe_writable
 from .stepped import TARGET_STEPS, colormap, colormap_samples, nice_interval
 from .terrain import FLOAT32_MAX
 
@@ -1020,6 +1020,10 @@ _OPTION_PHRASES = {
     "texture": {"pass extent=(xmin, xmax, ymin, ymax)": "give --image-extent xmin,xmax,ymin,ymax"},
 }
 
+#: Advice in the library's messages that only a Python caller can follow, left out of every subcommand's lines: no
+#: option places the terrain at a local origin or moves the mesh (the ``.stl`` warnings: their formats' advice stays).
+_PYTHON_ONLY = (_STL_OPEN_LOCAL, _STL_ROUNDING_LOCAL)
+
 #: closeup's ``closeups[k]: ROI box ...``: the k-th ROI (counted from 1), given by --roi or --roi-relative.
 _CLOSEUP_INDEX = re.compile(r"^closeups\[(\d+)\]: (?=ROI box)")
 
@@ -1071,9 +1075,12 @@ def _as_option(message: str, sub: argparse.ArgumentParser | None) -> str:
     other as a whole word (:func:`_names_as_options`: ``needs interval= or levels=`` -> ``needs --interval or
     --levels``, ``use a smaller face_size`` -> ``use a smaller --face-size``), then the plain-word phrases of
     :data:`_OPTION_PHRASES` (``bring base closer`` -> ``bring --base closer``). A command-line user never typed
-    ``face_size``. For errors, warnings and batch's failure lines alike."""
+    ``face_size``; nor can they follow :data:`_PYTHON_ONLY`'s advice, left out (``steps --solid -o x.stl`` was told to
+    step the terrain at ``origin=(0, 0)``). For errors, warnings and batch's failure lines alike."""
     if sub is None:
         return message
+    for advice in _PYTHON_ONLY:  # first: the options' spelling below would not find it again
+        message = message.replace(advice, "")
     command = sub.prog.split()[-1]
     text = _leading_as_option(message, sub, command)
     for phrase, spelled in _OPTION_PHRASES.get(command, {}).items():

@@ -423,8 +423,10 @@ def save_mesh(
         formats keep float64.
         Also when float32 puts distinct vertices of a watertight mesh on one position so that a reader merging
         ``.stl`` corners by position (slicers, ``trimesh.load``) reads it back open (a solid's copies of a node where
-        two nodata holes touch, left on the node on a grid too fine for its coordinates' float32 steps, as a 1 m grid
-        at UTM northings): the file is written and the message says how many edges and what keeps it watertight.
+        two nodata holes touch, left on the node, or its walls' corners within float32 rounding of a node or of each
+        other, on a grid too fine for its coordinates' float32 steps, as a 1 m grid at UTM northings): the file is
+        written and the message says how many edges and what keeps it watertight (the command line leaves out the
+        advice only Python can follow: stepping the terrain in local coordinates).
 
     Notes
     -----
@@ -1670,7 +1672,10 @@ def _warn_stl_open(mesh: trimesh.Trimesh, target: Path, corners: NDArray[np.floa
     corners by position (slicers, ``trimesh.load``) joins. A solid's copies of a pinch node (two nodata holes
     touching at it) are such vertices where :func:`~stepterrain.mesh.close_solid` left them on the node: on a fine
     grid at UTM coordinates (2 float32 steps of the coordinates would leave the copy's cell), or with a wall at the
-    node; so is a wall's corner that τ could not keep 4 float32 steps from its node (README, solids). Such files
+    node; so is a wall's corner that τ could not keep 4 float32 steps from its node (README, solids), and any wall's
+    corner within float32 rounding of a node or of another wall's corner on its edge, a node on a threshold beside it
+    or not (the walls stand where the edge's heights interpolate to a threshold; τ moves them only next to a node on
+    one): on a 1 m grid at UTM northings (float32 steps of 0.25 to 0.5 m) most small steep solids. Such files
     were written without a word. Only a mesh watertight by its indices is warned about (the corners of an unmerged
     mesh lie on one position by design), and only where some two vertices share a float32 position: one hash and
     sort of the vertices otherwise. ``corners``: the vertices as the ``.stl`` has them (:func:`_write_stl`'s)."""
@@ -1684,9 +1689,9 @@ def _warn_stl_open(mesh: trimesh.Trimesh, target: Path, corners: NDArray[np.floa
         f"{str(target)!r}: .stl stores float32 coordinates without indices, which put distinct vertices of this "
         f"watertight mesh on one position: a reader that merges corners by position (slicers, trimesh.load) reads "
         f"it back with {counted(open_edges, 'edge')} not shared by exactly two triangles (a solid's copies of a node "
-        "where two nodata holes touch, left on the node, or a wall's corner within float32 rounding of a node: "
-        "coordinates too large for the grid's spacing, as a 1 m grid at UTM northings); step the terrain in local "
-        "coordinates (e.g. origin=(0, 0)), or write .ply, .obj or .3mf, which keep the indices",
+        "where two nodata holes touch, left on the node, or a wall's corner within float32 rounding of a node or of "
+        "another wall's corner: coordinates too large for the grid's spacing, as a 1 m grid at UTM northings); write "
+        f".ply, .obj or .3mf, which keep the indices and the float64 world coordinates{_STL_OPEN_LOCAL}",
         stacklevel=caller_stacklevel(),
     )
 
@@ -1723,6 +1728,12 @@ _STL_ROUNDING_RE = re.compile(r": \.stl stores float32 coordinates, which move t
                               r"(?P<error>[0-9.e+-]+) ")
 
 
+#: The ends of the ``.stl`` warnings (:func:`_warn_stl_open`, :func:`_warn_stl_rounding`) that only a Python caller
+#: can follow: the command line has no option that places the terrain at a local origin or moves the mesh (its
+#: coordinates stay the DEM's, georeferenced), so it leaves them out and keeps the formats' advice (``cli._as_option``).
+_STL_OPEN_LOCAL = (", or step the terrain in local coordinates (e.g. origin=(0, 0) of Terrain.from_heights: the .stl's "
+                   "coordinates then count from there, not georeferenced)")
+_STL_ROUNDING_LOCAL = ", or move the mesh to a local origin first"
 #: The warning of :func:`_warn_stl_open`, its count of open edges as ``edges``: batch says it once for all its files
 _STL_OPEN_RE = re.compile(r": \.stl stores float32 coordinates without indices, .* reads it back with "
                           r"(?P<edges>[0-9]+) edges? not shared by exactly two triangles")
@@ -1752,7 +1763,7 @@ def _warn_stl_rounding(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> N
         f"{str(target)!r}: .stl stores float32 coordinates, which move this mesh's vertices by up to "
         f"{float(error.flat[worst]):.3g} (vertex {row} {'xyz'[axis]} = {value!r} is written as "
         f"{float(np.float32(value))!r}), more than {_STL_ROUNDING_TOLERANCE:g} (1 mm in metres): write .ply, .obj "
-        "or .3mf to keep float64, or move the mesh to a local origin first",
+        f"or .3mf to keep float64{_STL_ROUNDING_LOCAL}",
         stacklevel=caller_stacklevel(),
     )
 

@@ -546,6 +546,34 @@ def test_stl_of_a_pinch_at_whole_utm_metres_warns_alone(tmp_path):
     assert len(messages) == 1 and f"1 edge {_OPEN_STL}" in messages[0]
 
 
+def test_cli_stl_warnings_give_only_advice_the_command_line_can_follow(tmp_path, capsys):
+    """``stepterrain steps --solid -o x.stl`` of a steep 1 m grid at UTM northings (a GeoTIFF-like .npz, EPSG:32611):
+    its .stl reads back open, and the warnings said to "step the terrain in local coordinates (e.g. origin=(0, 0))"
+    and to "move the mesh to a local origin first", which no option of the command line does. They now give the
+    formats' advice alone, and following it works: the .3mf is watertight, its coordinates the DEM's own (UTM)."""
+    from stepterrain import cli
+    from stepterrain.export import read_mesh
+
+    heights = (np.random.default_rng(0).random((8, 9)) * 30.0).astype(np.float32)
+    dem = tmp_path / "steep.npz"
+    np.savez(dem, elevation=heights, transform=np.array([500000.0, 1.0, 0.0, 4000008.0, 0.0, -1.0]),
+             crs="EPSG:32611")
+    assert cli.main(["steps", str(dem), "--interval", "2", "--solid", "-q", "-o", str(tmp_path / "x.stl")]) == 0
+    err = capsys.readouterr().err
+    assert not trimesh.load(tmp_path / "x.stl").is_watertight
+    opened = [line for line in err.splitlines() if _OPEN_STL in line]
+    rounded = [line for line in err.splitlines() if "which move this mesh's vertices" in line]
+    assert len(opened) == 1 and len(rounded) == 1, err
+    assert opened[0].endswith("write .ply, .obj or .3mf, which keep the indices and the float64 world coordinates")
+    assert rounded[0].endswith("write .ply, .obj or .3mf to keep float64")
+    assert "origin" not in err and "local coordinates" not in err
+    assert cli.main(["steps", str(dem), "--interval", "2", "--solid", "-q", "-o", str(tmp_path / "x.3mf")]) == 0
+    assert "warning" not in capsys.readouterr().err
+    mesh = read_mesh(tmp_path / "x.3mf")
+    assert mesh.is_watertight
+    assert np.asarray(mesh.vertices)[:, :2].min(axis=0).tolist() == [500000.5, 4000000.5]  # the nodes: cell centres
+
+
 def test_stl_of_unmerged_or_flat_walled_solids_does_not_warn(crop, tmp_path):
     """No false alarm: an unmerged mesh's corners lie on one position by design (not watertight by its indices), and
     a solid's walls of zero height (γ = 0) have top and bottom on one position, which the .stl merges watertight."""
