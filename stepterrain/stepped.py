@@ -1220,7 +1220,9 @@ def stepped(
     most a quarter of the gap to the next threshold, above the last half the way to the top isovalue; see
     ``_off_thresholds``: a few cm in local coordinates, up to metres in UTM ones), so that an ``.stl`` (float32 world
     coordinates) read back with its corners merged by position is watertight too (where γ = 0 a wall has zero height:
-    :func:`~stepterrain.export.save_mesh` leaves its triangles, of no area, out of the ``.stl``); where τ does not
+    :func:`~stepterrain.export.save_mesh` leaves its triangles, of no area, out of the ``.stl``; any wall within
+    float32 rounding of a node or of another wall, as on a 1 m grid at UTM northings, merges there whatever τ, and
+    ``save_mesh`` warns: ``.3mf``, ``.ply`` and ``.obj`` keep it watertight); where τ does not
     fit, one float32 step (``np.nextafter``), and only levels a few float32 steps apart, where the next float32 value
     up is itself a threshold, leave such a height as it is, with a warning that the solid may leak there; where two
     nodata holes meet at a single node, that node gets one copy per side, so the solid stays watertight there (each
