@@ -552,7 +552,7 @@ def test_cli_stl_warnings_give_only_advice_the_command_line_can_follow(tmp_path,
     and to "move the mesh to a local origin first", which no option of the command line does. They now give the
     formats' advice alone, and following it works: the .3mf is watertight, its coordinates the DEM's own (UTM)."""
     from stepterrain import cli
-    from stepterrain.export import read_mesh
+    from stepterrain.export import _STL_OPEN_LOCAL, _STL_ROUNDING_LOCAL, read_mesh
 
     heights = (np.random.default_rng(0).random((8, 9)) * 30.0).astype(np.float32)
     dem = tmp_path / "steep.npz"
@@ -572,6 +572,15 @@ def test_cli_stl_warnings_give_only_advice_the_command_line_can_follow(tmp_path,
     mesh = read_mesh(tmp_path / "x.3mf")
     assert mesh.is_watertight
     assert np.asarray(mesh.vertices)[:, :2].min(axis=0).tolist() == [500000.5, 4000000.5]  # the nodes: cell centres
+    # a Python caller, who can step the terrain at a local origin, is still told so
+    solid = st.stepped(heights, interval=2.0, solid=True, spacing=(1.0, 1.0), origin=(500000.0, 4000000.0))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        save_mesh(solid, tmp_path / "py.stl")
+    said = [str(w.message) for w in caught]
+    assert len(said) == 2, said
+    assert [m for m in said if _OPEN_STL in m][0].endswith(_STL_OPEN_LOCAL)
+    assert [m for m in said if "which move this mesh's vertices" in m][0].endswith(_STL_ROUNDING_LOCAL)
 
 
 def test_stl_of_unmerged_or_flat_walled_solids_does_not_warn(crop, tmp_path):
