@@ -2409,6 +2409,11 @@ def render_closeups(
     image_texture = None if texture is None else _check_texture(texture, "texture", alpha=True)
     box = None if bounds is None else render._check_box(bounds, "bounds")  # before any work; text was taken
     view_angle = render._check_view_angle(view_angle)
+    if renderer is not None:  # a pyvista Plotter raised AttributeError ('size') after the close-ups were culled
+        if not isinstance(renderer, render.LayeredRenderer):
+            raise InvalidInputError(f"renderer must be a stepterrain.render.LayeredRenderer (or None); got "
+                                    f"{type(renderer).__name__}")
+        renderer._check_open()
     clock = timings if timings is not None else {}
     start = _time.perf_counter()
     pivot = _pivot_z(t)

@@ -1580,3 +1580,14 @@ def test_a_closeup_moved_absurdly_far_is_refused_not_rendered_blank():
     assert red_pixels(near).sum() > 100
     framed = render_closeups(t, [far], window_size=SIZE, device="cpu", bounds=[(1000, 2000, 0), (1080, 2064, 160)])
     assert (framed != 255).any(axis=2).sum() > 1000  # the overview, drawn in the caller's frame
+
+
+@pytest.mark.parametrize("renderer", ["yes", 5, object()])
+def test_render_closeups_names_a_renderer_that_is_not_a_layered_renderer(renderer):
+    """A renderer that is not a LayeredRenderer (a pyvista Plotter, a flag) raised AttributeError "'Plotter' object has
+    no attribute 'size'" after the close-ups were transformed and culled."""
+    t = terrain()
+    cu = CloseUp(ROI.circle((1040.0, 2030.0), 10.0), offset=(0.0, 0.0, 30.0))
+    with pytest.raises(InvalidInputError, match=r"renderer must be a stepterrain\.render\.LayeredRenderer \(or None\); "
+                                                r"got "):
+        render_closeups(t, [cu], window_size=SIZE, renderer=renderer, device="cpu")
