@@ -1591,3 +1591,32 @@ def test_render_closeups_names_a_renderer_that_is_not_a_layered_renderer(rendere
     with pytest.raises(InvalidInputError, match=r"renderer must be a stepterrain\.render\.LayeredRenderer \(or None\); "
                                                 r"got "):
         render_closeups(t, [cu], window_size=SIZE, renderer=renderer, device="cpu")
+
+
+def test_the_closeup_memos_let_go_of_rois_no_longer_used():
+    """The identity memos of the close-ups (the ROI uploads, a process-wide memo; per terrain the culls and the anchor
+    outlines) held their ROIs strongly, up to 64 entries: a loop over new ROIs on one DEM (a height band swept over the
+    heights) kept every ROI's mask, its upload, its cull and its outline alive, ~12 MB an iteration on the embedded
+    DEM (800 MB after 64). An entry now goes once one of its ROIs is gone."""
+    import gc
+    import weakref
+
+    from stepterrain import closeup
+
+    t = terrain()
+    xmin, xmax, ymin, ymax = t.extent
+    uploads = len(closeup._ROI_UPLOADS)
+    dead = []
+    for i in range(5):
+        roi = ROI.circle((xmin + 20.0 + 5 * i, (ymin + ymax) / 2), 12.0)
+        dead.append(weakref.ref(roi))
+        cu = CloseUp(roi, offset=(0.0, 0.0, 30.0))
+        closeup_layers(t, [cu], device="cpu")
+        anchor_strips(t, [cu], device="cpu")
+        del roi, cu
+        gc.collect()
+    assert all(ref() is None for ref in dead), "a ROI no longer used is kept alive by a close-up memo"
+    # the last ROI's entries go at the next entry made; none of the four before it stays
+    assert len(t.cached(("closeup", "cull"), dict)) <= 1
+    assert len(t.cached(("closeup", "anchor-static"), dict)) <= 1
+    assert len(closeup._ROI_UPLOADS) <= uploads + 1
