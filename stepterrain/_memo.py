@@ -27,14 +27,20 @@ def derived(memo: dict, key: tuple, refs: tuple, build: Any, *, limit: int = 64)
     for array in value if isinstance(value, tuple) else (value,):
         if isinstance(array, np.ndarray):  # shared by the callers that find it here
             array.setflags(write=False)
-    # list(): a snapshot in one step, so that a thread adding an entry meanwhile does not break the loop
-    for gone, (held, _) in list(memo.items()):
-        if any(isinstance(h, weakref.ref) and h() is None for h in held):
-            memo.pop(gone, None)
+    sweep(memo)
     if len(memo) >= limit:
         memo.clear()
-    memo[key] = (tuple(_hold(ref) for ref in refs), value)
+    memo[key] = (tuple(hold(ref) for ref in refs), value)
     return value
+
+
+def sweep(memo: dict) -> None:
+    """Drop the entries of ``memo`` (each a tuple whose first item holds its objects, as :func:`hold` gives them) one
+    of whose objects is gone."""
+    # list(): a snapshot in one step, so that a thread adding an entry meanwhile does not break the loop
+    for gone, entry in list(memo.items()):
+        if any(isinstance(h, weakref.ref) and h() is None for h in entry[0]):
+            memo.pop(gone, None)
 
 
 class _Strong:
@@ -49,7 +55,7 @@ class _Strong:
         return self.obj
 
 
-def _hold(obj: Any) -> weakref.ref | _Strong:
+def hold(obj: Any) -> weakref.ref | _Strong:
     """A weak reference to ``obj`` where it takes one, else a strong one."""
     try:
         return weakref.ref(obj)
