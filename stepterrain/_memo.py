@@ -21,7 +21,7 @@ def derived(memo: dict, key: tuple, refs: tuple, build: Any, *, limit: int = 64)
     loop over new ones (a height band swept over a DEM's heights) stayed alive with its mask, upload, cull and
     outline until ``limit`` entries (64: ~800 MB on the embedded DEM)."""
     entry = memo.get(key)
-    if entry is not None and all(held() is ref for held, ref in zip(entry[0], refs, strict=True)):
+    if entry is not None and all(same(held, ref) for held, ref in zip(entry[0], refs, strict=True)):
         return entry[1]
     value = build()
     for array in value if isinstance(value, tuple) else (value,):
@@ -53,6 +53,14 @@ class _Strong:
 
     def __call__(self) -> Any:
         return self.obj
+
+
+def same(held: weakref.ref | _Strong, obj: Any) -> bool:
+    """Whether ``held`` (as :func:`hold` gives it) holds ``obj`` itself. A weak reference whose object is gone holds
+    nothing, not None: a renderer's joined layers (a key without the ids) made with colours now gone were found for
+    the same faces without colours (None), and drawn in the gone colours."""
+    got = held()
+    return got is obj and (got is not None or isinstance(held, _Strong))
 
 
 def hold(obj: Any) -> weakref.ref | _Strong:

@@ -33,7 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._compaction import MAX_INT32 as _MAX_INT32
 from ._compaction import budget_value, check_budget, count_buffer, exclusive_offsets
 from ._device import host_copy, launch, launch_chunked, resolve_device, to_device
-from ._memo import Same, derived, hold, sweep
+from ._memo import Same, derived, hold, same, sweep
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, OutputTooLargeError, counted
 from .io import degrees_hint
 from .kernels import closeup as closeup_kernels
@@ -2424,7 +2424,7 @@ def render_closeups(
     memo = t.cached(("closeup", "frame"), dict)
     memo_key = (tuple(id(cu) for cu in items), scalars, cmap, str(resolve_device(device)), id(texture))
     last = memo.get(memo_key) if reuse_closeups else None
-    if (last is not None and all(a() is b for a, b in zip(last[0], items, strict=True)) and last[1]() is texture
+    if (last is not None and all(same(a, b) for a, b in zip(last[0], items, strict=True)) and same(last[1], texture)
             and all(np.array_equal(a, b) for a, b in zip(last[2], matrices, strict=True))):
         layers, strips, anchors, contents, boards, drawn = last[3]
         if image_texture is not None or any(cu.texture is not None for cu in items):

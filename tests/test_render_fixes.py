@@ -1380,3 +1380,42 @@ def test_render_closeups_names_a_closed_renderer():
     renderer.close()
     with pytest.raises(InvalidInputError, match=r"LayeredRenderer is closed"):
         render_closeups(terrain, [cu], window_size=(96, 64), renderer=renderer)
+
+
+@needs_render
+@pytest.mark.parametrize("then", ["plain", "values"])
+def test_joined_layers_of_colours_now_gone_are_not_found_for_the_same_faces_without_them(then):
+    """The renderer's memo of joined layers (keyed by prefix and group only) holds its parts weakly: once the colours
+    of a first call were gone, their dead references read as None, matched a second call's absent colours for the same
+    faces, and the gone colours came back: plain layers were drawn red, value layers raised "rgb and values"."""
+    import gc
+
+    def frozen(array):
+        array = np.array(array)
+        array.setflags(write=False)
+        return array
+
+    v0 = frozen([[0, 0, 0], [10, 0, 0], [0, 10, 0], [10, 10, 0]]).astype(float)
+    v1 = v0 + [40.0, 0.0, 0.0]
+    f0, f1 = frozen(FACES), frozen(FACES)
+    kw = {"plain": lambda: {}, "values": lambda: {"values": np.full(4, 0.5)}}[then]
+
+    def second(renderer):
+        renderer.set_mesh("all", np.concatenate([v0, v1]), np.concatenate([f0, f1 + 4]))
+        renderer.set_view("top", [[0, 0, 0], [50, 10, 0]])
+        return renderer.render_layers("x", {0: (v0, f0, kw()), 1: (v1, f1, kw())})
+
+    with render.LayeredRenderer(window_size=(96, 64)) as fresh:
+        expected = second(fresh)
+    with render.LayeredRenderer(window_size=(96, 64)) as renderer:
+        renderer.set_mesh("all", np.concatenate([v0, v1]), np.concatenate([f0, f1 + 4]))
+        renderer.set_view("top", [[0, 0, 0], [50, 10, 0]])
+        red = {k: frozen(np.tile(np.array([255, 0, 0], np.uint8), (4, 1))) for k in (0, 1)}
+        renderer.render_layers("x", {0: (v0, f0, {"rgb": red[0]}), 1: (v1, f1, {"rgb": red[1]})})
+        assert len(renderer._joined) == 1  # the two layers did share a pass
+        del red
+        gc.collect()
+        got = second(renderer)
+    for k in (0, 1):
+        assert ((expected[k][0][..., 0] > 200) & (expected[k][0][..., 1] < 50)).sum() == 0
+        np.testing.assert_array_equal(got[k][0], expected[k][0])
