@@ -4,6 +4,7 @@ renderer (the joined faces and colours of merged passes)."""
 
 from __future__ import annotations
 
+import weakref
 from typing import Any
 
 import numpy as np
@@ -11,19 +12,63 @@ import numpy as np
 
 def derived(memo: dict, key: tuple, refs: tuple, build: Any, *, limit: int = 64) -> Any:
     """``build()`` memoized under ``key`` while the objects ``refs`` are the same objects (the key holds their
-    ids, which stay theirs while the entry keeps them). Arrays in the value are made read-only: the callers
-    that find it share them. The memo is emptied when it reaches ``limit`` entries."""
+    ids). Arrays in the value are made read-only: the callers that find it share them. The memo is emptied when it
+    reaches ``limit`` entries.
+
+    The entry holds ``refs`` weakly where they take a weak reference (ROIs, arrays, close-up sources; others, such as
+    tuples or None, strongly), and an entry one of whose objects is gone is dropped when the next one is made: a dead
+    object's id may come back with another object, which the identity check tells apart. Held strongly, every ROI of a
+    loop over new ones (a height band swept over a DEM's heights) stayed alive with its mask, upload, cull and
+    outline until ``limit`` entries (64: ~800 MB on the embedded DEM)."""
     entry = memo.get(key)
-    if entry is not None and all(a is b for a, b in zip(entry[0], refs, strict=True)):
+    if entry is not None and all(same(held, ref) for held, ref in zip(entry[0], refs, strict=True)):
         return entry[1]
     value = build()
     for array in value if isinstance(value, tuple) else (value,):
         if isinstance(array, np.ndarray):  # shared by the callers that find it here
             array.setflags(write=False)
+    sweep(memo)
     if len(memo) >= limit:
         memo.clear()
-    memo[key] = (refs, value)
+    memo[key] = (tuple(hold(ref) for ref in refs), value)
     return value
+
+
+def sweep(memo: dict) -> None:
+    """Drop the entries of ``memo`` (each a tuple whose first item holds its objects, as :func:`hold` gives them) one
+    of whose objects is gone."""
+    # list(): a snapshot in one step, so that a thread adding an entry meanwhile does not break the loop
+    for gone, entry in list(memo.items()):
+        if any(isinstance(h, weakref.ref) and h() is None for h in entry[0]):
+            memo.pop(gone, None)
+
+
+class _Strong:
+    """A strong reference called as a weak one is: ``_Strong(obj)()`` is ``obj``."""
+
+    __slots__ = ("obj",)
+
+    def __init__(self, obj: Any) -> None:
+        self.obj = obj
+
+    def __call__(self) -> Any:
+        return self.obj
+
+
+def same(held: weakref.ref | _Strong, obj: Any) -> bool:
+    """Whether ``held`` (as :func:`hold` gives it) holds ``obj`` itself. A weak reference whose object is gone holds
+    nothing, not None: a renderer's joined layers (a key without the ids) made with colours now gone were found for
+    the same faces without colours (None), and drawn in the gone colours."""
+    got = held()
+    return got is obj and (got is not None or isinstance(held, _Strong))
+
+
+def hold(obj: Any) -> weakref.ref | _Strong:
+    """A weak reference to ``obj`` where it takes one, else a strong one."""
+    try:
+        return weakref.ref(obj)
+    except TypeError:  # None, tuples, ints: no weak references
+        return _Strong(obj)
 
 
 class Same:

@@ -33,7 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._compaction import MAX_INT32 as _MAX_INT32
 from ._compaction import budget_value, check_budget, count_buffer, exclusive_offsets
 from ._device import host_copy, launch, launch_chunked, resolve_device, to_device
-from ._memo import Same, derived
+from ._memo import Same, derived, hold, same, sweep
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, OutputTooLargeError, counted
 from .io import degrees_hint
 from .kernels import closeup as closeup_kernels
@@ -2409,16 +2409,22 @@ def render_closeups(
     image_texture = None if texture is None else _check_texture(texture, "texture", alpha=True)
     box = None if bounds is None else render._check_box(bounds, "bounds")  # before any work; text was taken
     view_angle = render._check_view_angle(view_angle)
+    if renderer is not None:  # a pyvista Plotter raised AttributeError ('size') after the close-ups were culled
+        if not isinstance(renderer, render.LayeredRenderer):
+            raise InvalidInputError(f"renderer must be a stepterrain.render.LayeredRenderer (or None); got "
+                                    f"{type(renderer).__name__}")
+        renderer._check_open()
     clock = timings if timings is not None else {}
     start = _time.perf_counter()
     pivot = _pivot_z(t)
     matrices = [cu.matrix(pivot, time=time) for cu in items]
     # per terrain, the last geometry of each set of close-ups (a few sets: e.g. scenes shown in turn); an entry
-    # holds the objects it depends on, so that their ids stay theirs while it lives
+    # holds the objects it depends on weakly (as _memo.derived), and goes once one is gone: held strongly, a loop
+    # over new close-ups kept the last 8 frames' close-ups, masks, uploads and culls alive
     memo = t.cached(("closeup", "frame"), dict)
     memo_key = (tuple(id(cu) for cu in items), scalars, cmap, str(resolve_device(device)), id(texture))
     last = memo.get(memo_key) if reuse_closeups else None
-    if (last is not None and all(a is b for a, b in zip(last[0], items, strict=True)) and last[1] is texture
+    if (last is not None and all(same(a, b) for a, b in zip(last[0], items, strict=True)) and same(last[1], texture)
             and all(np.array_equal(a, b) for a, b in zip(last[2], matrices, strict=True))):
         layers, strips, anchors, contents, boards, drawn = last[3]
         if image_texture is not None or any(cu.texture is not None for cu in items):
@@ -2429,9 +2435,11 @@ def render_closeups(
         _check_content(t, items, layers)
         strips = anchor_strips(t, items, time=time, device=device)
         anchors, contents, boards, drawn = _frame_geometry(t, items, layers, strips, scalars, cmap, image_texture)
+        sweep(memo)
         if len(memo) >= 8 and memo_key not in memo:
             memo.clear()
-        memo[memo_key] = (tuple(items), texture, matrices, (layers, strips, anchors, contents, boards, drawn))
+        memo[memo_key] = (tuple(hold(cu) for cu in items), hold(texture), matrices,
+                          (layers, strips, anchors, contents, boards, drawn))
     clock["transform"] = _time.perf_counter() - start
 
     start = _time.perf_counter()

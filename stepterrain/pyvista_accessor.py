@@ -274,14 +274,14 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
 
     ``pv.wrap`` of a Trimesh drops its vertex colours (pyvista carries vertex attributes only); this keeps them as
     point data ``RGBA`` (uint8), also the active scalars ``colors_rgba`` (plotted as colours); colours by face go to
-    cell data so. Face attributes become cell data and vertex attributes point data (bools as uint8), a textured
-    mesh's UVs (one per vertex) the active texture coordinates (its image is not data of a PolyData: plot with
-    ``texture=np.asarray(image)``, the image being ``mesh.visual.material.baseColorTexture``, or ``.image`` for a
-    globe's ``drape_texture``), ``isovalues`` a float64 ``field_data`` array, and every metadata item that is JSON
-    (values as :func:`~stepterrain.export.save_mesh` writes them to glTF extras) goes to ``user_dict``, as
-    ``pv.wrap`` keeps them; a numeric array too long for that (a globe's ``node_entry``, a close-up layer's
-    ``source_faces``) is a ``field_data`` array, as ``pv.wrap`` keeps it; any
-    other item is left out with a warning naming it. :func:`from_polydata` is the way back.
+    cell data so. Face attributes become cell data and vertex attributes point data (bools as uint8, half floats as
+    float32), a textured mesh's UVs (one per vertex) the active texture coordinates (its image is not data of a
+    PolyData: plot with ``texture=np.asarray(image)``, the image being ``mesh.visual.material.baseColorTexture``, or
+    ``.image`` for a globe's ``drape_texture``), ``isovalues`` a float64 ``field_data`` array, and every metadata
+    item that is JSON (values as :func:`~stepterrain.export.save_mesh` writes them to glTF extras) goes to
+    ``user_dict``, as ``pv.wrap`` keeps them; a numeric array too long for that (a globe's ``node_entry``, a
+    close-up layer's ``source_faces``) is a ``field_data`` array, as ``pv.wrap`` keeps it; any other item is left
+    out with a warning naming it. :func:`from_polydata` is the way back.
 
     The PolyData's points and data arrays are its own copies (as ``pv.wrap`` makes them): they were the mesh's own
     buffers, so exaggerating the PolyData's heights (``poly.points[:, 2] *= 3``) or setting its colours changed the
@@ -304,13 +304,13 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
     for name, values in mesh.face_attributes.items():
         array = np.asarray(values)
         if array.shape[:1] == (len(faces),):
-            poly.cell_data[name] = array.astype(np.uint8) if array.dtype == bool else own(array)
+            poly.cell_data[name] = _vtk_values(array, own)
     # vertex attributes (a close-up layer's mask_factor, a PLY's properties) and a draped mesh's UVs were dropped,
     # where pv.wrap keeps them: pl.add_mesh(poly, texture=...) found no texture coordinates
     for name, values in mesh.vertex_attributes.items():
         array = np.asarray(values)
         if array.shape[:1] == (len(mesh.vertices),) and array.dtype.kind in "biuf":
-            poly.point_data[name] = array.astype(np.uint8) if array.dtype == bool else own(array)
+            poly.point_data[name] = _vtk_values(array, own)
     uv = getattr(mesh.visual, "uv", None) if mesh.visual.kind == "texture" else None
     if uv is not None and np.shape(uv) == (len(mesh.vertices), 2):
         poly.active_texture_coordinates = own(uv, dtype=np.float64)
@@ -339,7 +339,7 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
         # an array past glTF extras' length (a globe's per-vertex node_entry) was left out without a word
         array = value if isinstance(value, np.ndarray) else None
         if array is not None and array.dtype.kind in "biuf" and isinstance(key, str):
-            poly.field_data[key] = array.astype(np.uint8) if array.dtype == bool else own(array)
+            poly.field_data[key] = _vtk_values(array, own)
         else:
             dropped.append(key)
     if dropped:
@@ -348,6 +348,16 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
     if kept:
         poly.user_dict.update(kept)
     return poly
+
+
+def _vtk_values(array: NDArray[Any], own: Any) -> NDArray[Any]:
+    """``array`` as VTK takes it: bools as uint8 (VTK has no bool arrays), half floats as float32 (VTK has no float16:
+    its TypeError "Could not find a suitable VTK type for float16" came out of to_polydata), else ``own(array)``."""
+    if array.dtype == bool:
+        return array.astype(np.uint8)
+    if array.dtype == np.float16:
+        return array.astype(np.float32)
+    return own(array)
 
 
 def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:

@@ -1519,6 +1519,15 @@ class LayeredRenderer:
         self._origin: NDArray[np.float64] | None = None
         self._box: NDArray[np.float64] | None = None
         self._view_token: Any = None
+        self._closed = False
+
+    def _check_open(self) -> None:
+        """An InvalidInputError once :meth:`close` ran: the closed plotter's window is gone, and a renderer used
+        after it went on against it (set_mesh and set_view without a word, then VTK's AttributeError at the first
+        pass, or render_closeups' "no layer named ['overview']; have []")."""
+        if self._closed:
+            raise InvalidInputError("this LayeredRenderer is closed (close() ran, or its with-block ended); its render "
+                                    "window is released: make a new one")
 
     @_quietly
     def _new_plotter(self, size: tuple[int, int]) -> Any:
@@ -1560,6 +1569,7 @@ class LayeredRenderer:
         The first mesh fixes the local origin. ``bounds``: the (2, 3) bounds of the finite vertices when the caller
         already has them. A NaN vertex is left out of the framing (its faces are not drawn); an infinite one, like
         any bad argument, raises an InvalidInputError naming it."""
+        self._check_open()
         if not isinstance(name, str):  # render() sorts the names: a number beside a string raised a TypeError
             raise InvalidInputError(f"name must be a string; got {name!r}")
         if rgb is not None and values is not None:
@@ -1656,6 +1666,7 @@ class LayeredRenderer:
         fitted camera that would show the z-scaled box less than a pixel wide or tall (a ``z_scale`` far too large or
         small for the terrain) is an InvalidInputError, as in :func:`render_mesh`: such a render came out blank. The
         near plane keeps off the meshes uploaded by then, as render_mesh's keeps off its mesh."""
+        self._check_open()
         if self._origin is None:
             raise InvalidInputError("set_view needs a mesh first (set_mesh)")
         view_angle = _check_view_angle(view_angle)
@@ -1728,6 +1739,7 @@ class LayeredRenderer:
         nor those meshes changed since (a still camera over a still overview while close-ups move). With
         ``rect`` = (col0, row0, col1, row1) (end exclusive, row 0 at the top) only that part of the window is
         read back: the images are ``window[row0:row1, col0:col1]`` of the full pass, pixel for pixel."""
+        self._check_open()
         if self._box is None:
             raise InvalidInputError("render needs a view first (set_view)")
         try:  # a string is a sequence of characters: render("ab") showed layers 'a' and 'b'
@@ -1781,6 +1793,7 @@ class LayeredRenderer:
         col1, row1) is read back (the whole window where the box is unknown), and the images are exactly that
         part of the full-window images (outside it a layer has no fragment), so the read-backs and the
         compositing cost follow the close-up's size on screen, not the window's."""
+        self._check_open()
         rects: dict[int, tuple[int, int, int, int] | None] = {}
         boxes = {k: _finite_bounds(np.asarray(v, dtype=np.float64).reshape(-1, 3))  # once per layer
                  for k, (v, _f, _kw) in layers.items()}
@@ -1881,6 +1894,7 @@ class LayeredRenderer:
     def project(self, points: ArrayLike) -> NDArray[np.float64]:
         """Pixel (column, row) of world points (N, 3) in the current view (row 0 at the top); NaN for a
         point behind the camera."""
+        self._check_open()
         points = self._local(_layer_rows(points, "points", "(N, 3) world points"))
         width, height = self.size
         camera = self._plotter.renderer.GetActiveCamera()
@@ -1911,6 +1925,7 @@ class LayeredRenderer:
         size and place over a spin (fitted to the turned content's box, it shrank by a quarter and more as the
         box's corners turned away from the screen axes), at the cost of being somewhat smaller than the box fit of
         content that does not turn (None)."""
+        self._check_open()
         vertices = np.asarray(_layer_rows(vertices, "vertices", "(V, 3) coordinates"), dtype=np.float64)
         # an infinite vertex left VTK's render blank, one NaN vertex made the centre (every coordinate) NaN
         bounds = _finite_bounds(vertices, "vertices")
@@ -2025,10 +2040,14 @@ class LayeredRenderer:
 
     @_quietly
     def close(self) -> None:
-        """Release the render window."""
+        """Release the render window, and the meshes and passes held for it; the renderer is then unusable (an
+        InvalidInputError says so). Closing again does nothing."""
+        self._closed = True
         with contextlib.suppress(Exception):
             self._plotter.close()
-        self._actors.clear()
+        for held in (self._actors, self._meshes, self._versions, self._passes, self._joined, self._keys, self._bounds,
+                     self._local_bounds):
+            held.clear()
 
     def __enter__(self) -> LayeredRenderer:
         return self

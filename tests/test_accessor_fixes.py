@@ -497,3 +497,24 @@ def test_structured_grid_with_only_another_array_steps_its_points_z_with_a_warni
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         np.testing.assert_array_equal(flat.stepterrain.elevation().ravel(), grid.points[:, 2].astype(np.float32))
+
+
+def test_to_polydata_takes_half_float_attributes_as_float32():
+    """A float16 face or vertex attribute (half floats: a compact per-face value) raised VTK's TypeError "Could not
+    find a suitable VTK type for float16" from to_polydata (and so from every render and save of the mesh as a
+    PolyData); VTK has no half floats: they go to VTK as float32, the same values."""
+    from stepterrain.pyvista_accessor import from_polydata, to_polydata
+
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 1.0]])
+    faces = np.array([[0, 1, 2], [1, 3, 2]])
+    per_face = np.array([0.5, 1.5], np.float16)
+    per_vertex = np.array([0.25, 2.0, -3.5, 65504.0], np.float16)
+    mesh = trimesh.Trimesh(vertices, faces, process=False, face_attributes={"h": per_face},
+                           vertex_attributes={"w": per_vertex})
+    poly = to_polydata(mesh)
+    assert poly.cell_data["h"].dtype == np.float32 and poly.point_data["w"].dtype == np.float32
+    np.testing.assert_array_equal(poly.cell_data["h"], per_face.astype(np.float32))
+    np.testing.assert_array_equal(poly.point_data["w"], per_vertex.astype(np.float32))
+    back = from_polydata(poly)
+    np.testing.assert_array_equal(back.face_attributes["h"], per_face.astype(np.float32))
+    np.testing.assert_array_equal(back.vertex_attributes["w"], per_vertex.astype(np.float32))

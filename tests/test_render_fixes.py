@@ -1341,3 +1341,81 @@ def test_a_single_point_mesh_is_refused_without_nan_or_warnings(camera):
         with pytest.raises(InvalidInputError, match="0 x 0 pixels") as caught:
             render.render_mesh(point, window_size=(64, 48), camera=camera)
     assert "nan" not in str(caught.value)
+
+
+@needs_render
+@pytest.mark.parametrize("step", ["set_mesh", "set_view", "render", "render_layers", "render_billboard", "project"])
+def test_a_closed_layered_renderer_is_named_closed(step):
+    """A LayeredRenderer used after close() (or its with-block) went on against the closed plotter: set_mesh and
+    set_view passed without a word, render raised AttributeError ("'NoneType' object has no attribute 'Render'")
+    from deep in VTK's window, and render_closeups(renderer=...) of the same terrain said "no layer named
+    ['overview']; have []"."""
+    with render.LayeredRenderer(window_size=(32, 32)) as renderer:
+        renderer.set_mesh("a", VERTICES, FACES)
+        renderer.set_view("oblique", [[0, 0, 0], [10, 10, 5]])
+    calls = {
+        "set_mesh": lambda: renderer.set_mesh("b", VERTICES, FACES),
+        "set_view": lambda: renderer.set_view("top", [[0, 0, 0], [10, 10, 5]]),
+        "render": lambda: renderer.render(["a"]),
+        "render_layers": lambda: renderer.render_layers("x", {0: (VERTICES, FACES, {})}),
+        "render_billboard": lambda: renderer.render_billboard(VERTICES, FACES, None, (0.0, 1.0), VERTICES),
+        "project": lambda: renderer.project(VERTICES),
+    }
+    with pytest.raises(InvalidInputError, match=r"LayeredRenderer is closed .*make a new one"):
+        calls[step]()
+    renderer.close()  # closing twice stays harmless
+
+
+@needs_render
+def test_render_closeups_names_a_closed_renderer():
+    """render_closeups with a renderer closed after an earlier frame: "no layer named ['overview']; have []" (the
+    overview's mesh record outlived close(), so it was 'updated' in place and never shown)."""
+    from stepterrain.closeup import ROI, CloseUp, render_closeups
+
+    heights = np.add.outer(np.linspace(0, 50, 20), np.linspace(0, 30, 24)).astype(np.float32)
+    terrain = st.Terrain.from_heights(heights, spacing=(10.0, 10.0))
+    cu = CloseUp(ROI.circle((120.0, 100.0), 40.0), scale=1.5, offset=(0.0, 0.0, 60.0))
+    renderer = render.LayeredRenderer(window_size=(96, 64))
+    render_closeups(terrain, [cu], window_size=(96, 64), renderer=renderer)
+    renderer.close()
+    with pytest.raises(InvalidInputError, match=r"LayeredRenderer is closed"):
+        render_closeups(terrain, [cu], window_size=(96, 64), renderer=renderer)
+
+
+@needs_render
+@pytest.mark.parametrize("then", ["plain", "values"])
+def test_joined_layers_of_colours_now_gone_are_not_found_for_the_same_faces_without_them(then):
+    """The renderer's memo of joined layers (keyed by prefix and group only) holds its parts weakly: once the colours
+    of a first call were gone, their dead references read as None, matched a second call's absent colours for the same
+    faces, and the gone colours came back: plain layers were drawn red, value layers raised "rgb and values"."""
+    import gc
+
+    def frozen(array):
+        array = np.array(array)
+        array.setflags(write=False)
+        return array
+
+    v0 = frozen([[0, 0, 0], [10, 0, 0], [0, 10, 0], [10, 10, 0]]).astype(float)
+    v1 = v0 + [40.0, 0.0, 0.0]
+    f0, f1 = frozen(FACES), frozen(FACES)
+    kw = {"plain": lambda: {}, "values": lambda: {"values": np.full(4, 0.5)}}[then]
+
+    def second(renderer):
+        renderer.set_mesh("all", np.concatenate([v0, v1]), np.concatenate([f0, f1 + 4]))
+        renderer.set_view("top", [[0, 0, 0], [50, 10, 0]])
+        return renderer.render_layers("x", {0: (v0, f0, kw()), 1: (v1, f1, kw())})
+
+    with render.LayeredRenderer(window_size=(96, 64)) as fresh:
+        expected = second(fresh)
+    with render.LayeredRenderer(window_size=(96, 64)) as renderer:
+        renderer.set_mesh("all", np.concatenate([v0, v1]), np.concatenate([f0, f1 + 4]))
+        renderer.set_view("top", [[0, 0, 0], [50, 10, 0]])
+        red = {k: frozen(np.tile(np.array([255, 0, 0], np.uint8), (4, 1))) for k in (0, 1)}
+        renderer.render_layers("x", {0: (v0, f0, {"rgb": red[0]}), 1: (v1, f1, {"rgb": red[1]})})
+        assert len(renderer._joined) == 1  # the two layers did share a pass
+        del red
+        gc.collect()
+        got = second(renderer)
+    for k in (0, 1):
+        assert ((expected[k][0][..., 0] > 200) & (expected[k][0][..., 1] < 50)).sum() == 0
+        np.testing.assert_array_equal(got[k][0], expected[k][0])
