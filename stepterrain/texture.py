@@ -829,6 +829,25 @@ def _invertible(matrix: NDArray[np.float64]) -> bool:
         return False
 
 
+def _masked_pixels(image: Any) -> NDArray[np.bool_] | None:
+    """The (h, w) pixels a numpy masked array masks (any of its channels), None for another array or a mask of
+    none: those are nodata, as a masked array's masked heights are (``terrain.unmasked``); ``np.asarray`` dropped the
+    mask, and the values under it were drawn (an orthophoto read with ``rasterio``'s ``masked=True``: its collar
+    opaque black) or refused as out of range (a fill value of 1e20)."""
+    if not np.ma.isMaskedArray(image) or np.ma.getmask(image) is np.ma.nomask:
+        return None
+    mask = np.ma.getmaskarray(image)
+    if mask.ndim == 3:
+        mask = mask.any(axis=2)
+    return mask if mask.any() else None
+
+
+def _image_argument(value: Any, name: str, expected: str) -> Any:
+    """``value`` as an array for a layer's image: a numpy masked array as it is (its mask the layer's nodata,
+    :func:`_masked_pixels`), anything else through ``as_array``."""
+    return value if np.ma.isMaskedArray(value) else as_array(value, name, expected)
+
+
 #: Bytes a pixel of :meth:`TextureLayer.rgba` at its peak: the float32 RGBA, the finite flags of its channels and the
 #: nodata mask and its negation.
 _RGBA_BYTES = 16 + 4 + 1 + 1
@@ -841,8 +860,9 @@ class TextureLayer:
     ``kind``: "thematic" (RGB or RGBA colour), "luminance" (one channel of brightness), "topographic"
     (shading, a luminance layer computed from the terrain, §7) or "visibility" (one channel of alpha, §5).
     ``image``: (h, w, 3|4) for thematic, (h, w) otherwise; uint8 (0-255) or float in [0, 1], NaN for nodata (a
-    transparent pixel); row 0 is the north edge (ymax), column 0 the west edge; it is kept as given (a numpy
-    memmap stays on disk), and its RGBA is cached only when the array is read-only, so in-place edits show.
+    transparent pixel; a numpy masked array's masked pixels too, whatever values lie under the mask); row 0 is the
+    north edge (ymax), column 0 the west edge; it is kept as given (a numpy memmap stays on disk), and its RGBA is
+    cached only when the array is read-only (and not masked), so in-place edits show.
     ``extent``: (xmin, xmax, ymin, ymax) in world units, the outer edges of the pixels. ``matrix``: the 3 × 3
     texture matrix taking world (x, y, 1) to texel (column, row, 1) (texel centres at integers); ``None``
     derives it from the extent. Moving a layer (a lens) changes only the matrix (:meth:`moved`). ``border``:
@@ -929,7 +949,8 @@ class TextureLayer:
         # the RGBA and, while it is checked, the per-channel finite flags and the per-pixel nodata mask
         check_budget(_RGBA_BYTES * h * w, f"the (h, w, 4) float32 RGBA of a {w} x {h} {self.kind} layer",
                      hint="crop or downsample the image (texture_lod.ImagePyramid serves a large one by level)")
-        image = np.asarray(self.image)
+        image = np.asarray(self.image)  # a masked array's values; its masked pixels are nodata below
+        masked = _masked_pixels(self.image)
         out = np.ones((*self.shape, 4), dtype=np.float32)
         # the image goes straight into its channels, scaled there: a float32 copy of it and its scaled copy (12 + 12
         # bytes a pixel of RGB) were made first, and the finite pixels were copied out for their range (16 more), so
@@ -946,10 +967,14 @@ class TextureLayer:
         if image.dtype == np.uint8:
             channels /= np.float32(255.0)
         nodata = ~np.isfinite(out).all(axis=2)
+        if masked is not None:
+            nodata |= masked
         if nodata.any():
             # NaN is nodata, as in heights; an infinite value was taken for nodata too: a weight of inf left the
             # other layer as it was, an inf colour turned transparent
             infinite = np.isinf(out).any(axis=2)
+            if masked is not None:  # whatever lies under the mask is no value of the layer
+                infinite &= ~masked
             if infinite.any():
                 first = tuple(int(k) for k in np.argwhere(infinite)[0])
                 raise InvalidInputError(f"{self.kind} layer values must be finite or NaN (nodata); got an infinite "
@@ -962,7 +987,8 @@ class TextureLayer:
             raise InvalidInputError(f"{self.kind} layer values must lie in [0, 1] (or uint8 0-255); got "
                                     f"[{lo:g}, {hi:g}]")
         np.clip(out, 0.0, 1.0, out=out)
-        if not image.flags.writeable:  # a writeable image (kept as given) may change later: never cached
+        if not image.flags.writeable and not np.ma.isMaskedArray(self.image):  # a writeable image (kept as given), or
+            # a masked array's mask, may change later: never cached
             out.setflags(write=False)  # handed out again and wrapped for the kernels: an edit would change them all
             self._rgba_cache["rgba"] = out
         return out
@@ -1002,6 +1028,8 @@ def _north_up(terrain: Terrain, image: NDArray[Any]) -> NDArray[Any]:
         image = image[::-1]
     if terrain.spacing[0] < 0:
         image = image[:, ::-1]
+    if np.ma.isMaskedArray(image):  # np.ascontiguousarray dropped the mask (the layer's nodata)
+        return image.copy()
     return np.ascontiguousarray(image)
 
 
@@ -1018,7 +1046,7 @@ def terrain_layer(terrain: Terrain | ArrayLike, image: ArrayLike, kind: LayerKin
     (-0.5, 2.5, -0.5, 1.5)
     """
     t = _grid_terrain(terrain, spacing)
-    array = as_array(image, "image", "an (H, W) or (H, W, C) array on the terrain's nodes")
+    array = _image_argument(image, "image", "an (H, W) or (H, W, C) array on the terrain's nodes")
     if array.shape[:2] != t.heights.shape:
         raise InvalidInputError(f"image of shape {array.shape[:2]} does not match the terrain's "
                                 f"{t.heights.shape} nodes (mismatched size)")
@@ -1331,7 +1359,7 @@ def _as_layer(value: Any, like: TextureLayer | None, name: str) -> TextureLayer:
     if like is None:
         raise InvalidInputError(f"{name} must be a TextureLayer (or an array alongside a TextureLayer); "
                                 f"got {type(value).__name__}")
-    array = as_array(value, name, f"a TextureLayer or an array of {like.shape} pixels")
+    array = _image_argument(value, name, f"a TextureLayer or an array of {like.shape} pixels")
     if array.shape[:2] != like.shape:
         raise InvalidInputError(f"{name} has shape {array.shape[:2]} but the layer it combines with has "
                                 f"{like.shape} (mismatched size)")
@@ -1429,7 +1457,8 @@ def _composed_input(layer: TextureLayer | None, extent: Extent, shape: tuple[int
         return wp.empty((1, 1), dtype=wp.vec4, device=device), identity, -1
     same = _is_grid(layer, extent, shape)
     image = np.asarray(layer.image)
-    if raw and same and image.dtype == np.uint8 and image.ndim == 3:  # read as rgba() reads it, without its floats
+    if raw and same and image.dtype == np.uint8 and image.ndim == 3 and _masked_pixels(layer.image) is None:
+        # read as rgba() reads it, without its floats (a masked array's mask: through rgba())
         return wp.array(np.ascontiguousarray(image), dtype=wp.uint8, device=device), identity, 3
     if not same:
         _check_overlaps(layer, extent, name)
@@ -1525,7 +1554,7 @@ def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | 
                                     "TextureLayer('visibility', values, extent)")
         w = weights
     else:
-        array = as_array(weights, "weights", "a visibility layer or an (h, w) array")
+        array = _image_argument(weights, "weights", "a visibility layer or an (h, w) array")
         if array.ndim != 2:
             raise InvalidInputError(f"weights must be a visibility layer or an (h, w) array; got shape {array.shape}")
         w = _as_layer(_named("weights", TextureLayer, "visibility", array, a.extent, matrix=a.matrix)
