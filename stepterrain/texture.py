@@ -1151,14 +1151,19 @@ def _coarser_than_nodes(t: Terrain, texel_size: float) -> float | None:
     return node if texel_size > node * (1.0 + 1e-9) else None
 
 
-def _texel_grid(t: Terrain, texel_size: float) -> tuple[Extent, tuple[int, int]]:
+def _texel_grid(t: Terrain, texel_size: float, name: str = "texel_size") -> tuple[Extent, tuple[int, int]]:
     """The pixel grid of a texture of ``texel_size`` texels over a grid terrain: its texture extent (the node extent
     plus half a cell, :func:`terrain_extent`) cut into whole texels no larger than ``texel_size`` (a size within a
     part in 10^9 of dividing it exactly divides it: 10 over a 30 m grid is three texels a cell), as
-    (extent, (rows, cols))."""
+    (extent, (rows, cols)). A size so small that the texels of a side overflow float64 is refused naming ``name``
+    (math.ceil raised an OverflowError: a traceback from ``stepterrain texture --texel-size 1e-320``)."""
     extent = terrain_extent(t)
     width, height = extent[1] - extent[0], extent[3] - extent[2]
-    cols, rows = (max(1, math.ceil(span / texel_size * (1.0 - 1e-9))) for span in (width, height))
+    counts = [span / texel_size * (1.0 - 1e-9) for span in (width, height)]
+    if not all(math.isfinite(n) for n in counts):
+        raise InvalidInputError(f"{name} must be a positive size that cuts the terrain's {width:g} x {height:g} "
+                                f"texture extent into a finite number of texels; got {texel_size:g}")
+    cols, rows = (max(1, math.ceil(n)) for n in counts)
     return extent, (rows, cols)
 
 

@@ -1251,3 +1251,15 @@ def test_masked_array_pyramid_and_image_layer_get_alpha():
         assert np.array_equal(pyramid.levels[1], reduce_rounded_reference(level0))
     layer = image_layer(ortho, heights, extent=(-0.5, 39.5, -0.5, 39.5), device="cpu")  # a pixel a node
     assert layer.shape == rgb.shape[:2] and np.array_equal(layer.image[..., 3] == 0, collar)
+
+
+def test_contour_layer_texel_size_too_small_to_count_is_refused_by_name():
+    """contour_layer(texel_size=1e-320): its texels a side overflow float64 (inf), and math.ceil raised an
+    OverflowError; now an InvalidInputError naming texel_size (a small finite count is left to the budget check)."""
+    from stepterrain.texture import contour_layer
+
+    heights = real_dem_crop("big_tujunga_srtm_30m_utm11n.npz", size=20, step=3)
+    with pytest.raises(InvalidInputError, match=r"texel_size must be a positive size that cuts the terrain's "
+                                                r"1800 x 1800 texture extent into a finite number of texels; "
+                                                r"got 9.99989e-321"):
+        contour_layer(heights, interval=50.0, spacing=(90.0, -90.0), texel_size=1e-320, device="cpu")
