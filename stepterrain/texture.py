@@ -1529,7 +1529,8 @@ def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | 
     """Texture layer blending (§3.2.3): ``a · (1 − w) + b · w`` per pixel, w the alpha of ``weights``.
 
     ``weights`` is a visibility layer (its alpha; a lens, §5), a thematic RGBA layer (its alpha) or an (h, w)
-    array of weights in [0, 1] (a layer without alpha, luminance or RGB, is refused: it would weigh 1);
+    array of weights: floats in [0, 1], uint8 0-255, or a bool mask (True weighs 1) (a layer without alpha,
+    luminance or RGB, is refused: it would weigh 1; so is a uint8 array of 0 and 1 only, a mask that weighs 1/255);
     ``None`` uses ``b``'s own alpha. Every layer is sampled through its texture matrix onto ``a``'s pixels.
     Colours are straight (not premultiplied) alpha, and ``b`` is laid over ``a`` with coverage
     ``c = w · alpha_b`` (``c = alpha_b`` for ``weights=None``): alpha ``c + alpha_a · (1 − c)``, colour
@@ -1562,6 +1563,13 @@ def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | 
         array = _image_argument(weights, "weights", "a visibility layer or an (h, w) array")
         if array.ndim != 2:
             raise InvalidInputError(f"weights must be a visibility layer or an (h, w) array; got shape {array.shape}")
+        if array.dtype == np.bool_:  # a mask (np.ma keeps its own mask): True weighs 1; a layer takes no bools, and
+            # the way out of that refusal, .astype(np.uint8), weighed 1/255
+            array = array.astype(np.float32)
+        elif array.dtype == np.uint8 and array.size and int(array.max()) == 1:
+            raise InvalidInputError("weights is a uint8 array of 0 and 1 only, but uint8 weights are 0-255: 1 weighs "
+                                    "1/255 (b all but invisible); give a mask as bool or as floats in [0, 1], or "
+                                    "uint8 255 for a full weight")
         w = _as_layer(_named("weights", TextureLayer, "visibility", array, a.extent, matrix=a.matrix)
                       if array.shape == a.shape else array, a, "weights")
     dev = resolve_device(device)

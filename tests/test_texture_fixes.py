@@ -1263,3 +1263,21 @@ def test_contour_layer_texel_size_too_small_to_count_is_refused_by_name():
                                                 r"1800 x 1800 texture extent into a finite number of texels; "
                                                 r"got 9.99989e-321"):
         contour_layer(heights, interval=50.0, spacing=(90.0, -90.0), texel_size=1e-320, device="cpu")
+
+
+def test_blend_weights_as_a_mask():
+    """blend's weights as a mask over the Big Tujunga hillshade (where the ground lies above its median): a bool mask
+    weighs 1 where True; it was refused (a layer takes no bools), and the way out, mask.astype(np.uint8), weighed 1/255
+    (uint8 is 0-255): b all but invisible, without a word. A uint8 array of 0 and 1 only is refused, naming weights."""
+    heights = real_dem_crop("big_tujunga_srtm_30m_utm11n.npz", size=48, step=2)
+    shade = hillshade(heights, spacing=(60.0, -60.0), device="cpu")
+    mask = heights > np.median(heights)
+    a = TextureLayer("luminance", shade, (0.0, 48.0, 0.0, 48.0))
+    b = np.zeros((48, 48, 3), np.float32)
+    out = blend(a, b, mask, device="cpu").rgba()
+    assert np.allclose(out[mask, :3], 0.0) and np.allclose(out[~mask, 0], shade[~mask])
+    with pytest.raises(InvalidInputError, match=r"weights is a uint8 array of 0 and 1 only, but uint8 weights are "
+                                                r"0-255: 1 weighs 1/255"):
+        blend(a, b, mask.astype(np.uint8), device="cpu")
+    full = blend(a, b, mask.astype(np.uint8) * 255, device="cpu").rgba()  # 0-255 as before
+    assert np.array_equal(full, out)
