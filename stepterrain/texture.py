@@ -842,6 +842,12 @@ def _masked_pixels(image: Any) -> NDArray[np.bool_] | None:
     return mask if mask.any() else None
 
 
+def _maximum(array: Any) -> float | None:
+    """The largest value of ``array``, a masked array's largest unmasked one; None where it masks all."""
+    top = array.max()
+    return None if top is np.ma.masked else float(top)
+
+
 def _image_argument(value: Any, name: str, expected: str) -> Any:
     """``value`` as an array for a layer's image: a numpy masked array as it is (its mask the layer's nodata,
     :func:`_masked_pixels`), anything else through ``as_array``."""
@@ -1530,7 +1536,8 @@ def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | 
 
     ``weights`` is a visibility layer (its alpha; a lens, §5), a thematic RGBA layer (its alpha) or an (h, w)
     array of weights: floats in [0, 1], uint8 0-255, or a bool mask (True weighs 1) (a layer without alpha,
-    luminance or RGB, is refused: it would weigh 1; so is a uint8 array of 0 and 1 only, a mask that weighs 1/255);
+    luminance or RGB, is refused: it would weigh 1; a uint8 array of 0 and 1 only, likely a mask weighing 1/255, is
+    warned about);
     ``None`` uses ``b``'s own alpha. Every layer is sampled through its texture matrix onto ``a``'s pixels.
     Colours are straight (not premultiplied) alpha, and ``b`` is laid over ``a`` with coverage
     ``c = w · alpha_b`` (``c = alpha_b`` for ``weights=None``): alpha ``c + alpha_a · (1 − c)``, colour
@@ -1566,10 +1573,13 @@ def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | 
         if array.dtype == np.bool_:  # a mask (np.ma keeps its own mask): True weighs 1; a layer takes no bools, and
             # the way out of that refusal, .astype(np.uint8), weighed 1/255
             array = array.astype(np.float32)
-        elif array.dtype == np.uint8 and array.size and int(array.max()) == 1:
-            raise InvalidInputError("weights is a uint8 array of 0 and 1 only, but uint8 weights are 0-255: 1 weighs "
-                                    "1/255 (b all but invisible); give a mask as bool or as floats in [0, 1], or "
-                                    "uint8 255 for a full weight")
+        elif array.dtype == np.uint8 and array.size and _maximum(array) == 1:
+            # most likely a mask saved as 0/1 (b all but invisible), but a faint 0-255 weight image may hold only
+            # these (a fade's first frame): warned, weighed as given (a masked array masking all: no maximum, and
+            # int() of it raised a MaskError)
+            warnings.warn("weights is a uint8 array of 0 and 1 only: uint8 weights are 0-255, so 1 weighs 1/255 "
+                          "(b all but invisible). A mask? Give it as bool or as floats in [0, 1], or uint8 255 for "
+                          "a full weight", stacklevel=caller_stacklevel())
         w = _as_layer(_named("weights", TextureLayer, "visibility", array, a.extent, matrix=a.matrix)
                       if array.shape == a.shape else array, a, "weights")
     dev = resolve_device(device)

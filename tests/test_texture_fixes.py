@@ -1268,7 +1268,10 @@ def test_contour_layer_texel_size_too_small_to_count_is_refused_by_name():
 def test_blend_weights_as_a_mask():
     """blend's weights as a mask over the Big Tujunga hillshade (where the ground lies above its median): a bool mask
     weighs 1 where True; it was refused (a layer takes no bools), and the way out, mask.astype(np.uint8), weighed 1/255
-    (uint8 is 0-255): b all but invisible, without a word. A uint8 array of 0 and 1 only is refused, naming weights."""
+    (uint8 is 0-255): b all but invisible, without a word. A uint8 array of 0 and 1 only is warned about, naming
+    weights, and weighed as given: a faint 0-255 weight image (a fade's first frame, 1 everywhere) may be just that,
+    and was refused. A masked uint8 array masking every pixel weighs nothing (int() of its maximum, np.ma.masked,
+    raised a MaskError)."""
     heights = real_dem_crop("big_tujunga_srtm_30m_utm11n.npz", size=48, step=2)
     shade = hillshade(heights, spacing=(60.0, -60.0), device="cpu")
     mask = heights > np.median(heights)
@@ -1276,8 +1279,15 @@ def test_blend_weights_as_a_mask():
     b = np.zeros((48, 48, 3), np.float32)
     out = blend(a, b, mask, device="cpu").rgba()
     assert np.allclose(out[mask, :3], 0.0) and np.allclose(out[~mask, 0], shade[~mask])
-    with pytest.raises(InvalidInputError, match=r"weights is a uint8 array of 0 and 1 only, but uint8 weights are "
-                                                r"0-255: 1 weighs 1/255"):
-        blend(a, b, mask.astype(np.uint8), device="cpu")
+    faint = np.where(mask, np.float32(1 / 255), np.float32(0))
+    for ones, weight in ((mask.astype(np.uint8), faint),  # a 0/1 mask
+                         (np.ones((48, 48), np.uint8), np.full((48, 48), np.float32(1 / 255)))):  # a fade's 1st frame
+        with pytest.warns(UserWarning, match=r"weights is a uint8 array of 0 and 1 only: uint8 weights are 0-255, "
+                                             r"so 1 weighs 1/255") as record:
+            got = blend(a, b, ones, device="cpu").rgba()
+        assert record[0].filename == __file__  # pointed at the caller
+        assert np.array_equal(got, blend(a, b, weight, device="cpu").rgba())
     full = blend(a, b, mask.astype(np.uint8) * 255, device="cpu").rgba()  # 0-255 as before
     assert np.array_equal(full, out)
+    hidden = np.ma.masked_array(np.ones((48, 48), np.uint8), mask=True)
+    assert np.array_equal(blend(a, b, hidden, device="cpu").rgba(), a.rgba())
