@@ -194,7 +194,7 @@ def _check_texel_size(terrain: Any, texel: float, textured_gpu: str | None,
     if _lonlat_grid(terrain) is not None:  # a size in degrees is the likely mistake
         larger = (f"give a larger --texel-size, in metres: a DEM in degrees is read as local metres (its node spacing "
                   f"{sx:g} x {sy:g} m), not in degrees (or --crop the DEM)")
-    extent, (rows, cols) = _texel_grid(terrain, texel)
+    extent, (rows, cols) = _texel_grid(terrain, texel, "--texel-size")
     check_budget((_COMPOSE_BYTES_PER_TEXEL + (_CONTOUR_TEXEL_BYTES if contours else 0)) * rows * cols,
                  f"the {cols} x {rows} texel texture of --texel-size {texel:g} (while it is composed and "
                  "written)", hint=larger)

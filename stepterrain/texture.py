@@ -829,6 +829,31 @@ def _invertible(matrix: NDArray[np.float64]) -> bool:
         return False
 
 
+def _masked_pixels(image: Any) -> NDArray[np.bool_] | None:
+    """The (h, w) pixels a numpy masked array masks (any of its channels), None for another array or a mask of
+    none: those are nodata, as a masked array's masked heights are (``terrain.unmasked``); ``np.asarray`` dropped the
+    mask, and the values under it were drawn (an orthophoto read with ``rasterio``'s ``masked=True``: its collar
+    opaque black) or refused as out of range (a fill value of 1e20)."""
+    if not np.ma.isMaskedArray(image) or np.ma.getmask(image) is np.ma.nomask:
+        return None
+    mask = np.ma.getmaskarray(image)
+    if mask.ndim == 3:
+        mask = mask.any(axis=2)
+    return mask if mask.any() else None
+
+
+def _maximum(array: Any) -> float | None:
+    """The largest value of ``array``, a masked array's largest unmasked one; None where it masks all."""
+    top = array.max()
+    return None if top is np.ma.masked else float(top)
+
+
+def _image_argument(value: Any, name: str, expected: str) -> Any:
+    """``value`` as an array for a layer's image: a numpy masked array as it is (its mask the layer's nodata,
+    :func:`_masked_pixels`), anything else through ``as_array``."""
+    return value if np.ma.isMaskedArray(value) else as_array(value, name, expected)
+
+
 #: Bytes a pixel of :meth:`TextureLayer.rgba` at its peak: the float32 RGBA, the finite flags of its channels and the
 #: nodata mask and its negation.
 _RGBA_BYTES = 16 + 4 + 1 + 1
@@ -841,8 +866,9 @@ class TextureLayer:
     ``kind``: "thematic" (RGB or RGBA colour), "luminance" (one channel of brightness), "topographic"
     (shading, a luminance layer computed from the terrain, §7) or "visibility" (one channel of alpha, §5).
     ``image``: (h, w, 3|4) for thematic, (h, w) otherwise; uint8 (0-255) or float in [0, 1], NaN for nodata (a
-    transparent pixel); row 0 is the north edge (ymax), column 0 the west edge; it is kept as given (a numpy
-    memmap stays on disk), and its RGBA is cached only when the array is read-only, so in-place edits show.
+    transparent pixel; a numpy masked array's masked pixels too, whatever values lie under the mask); row 0 is the
+    north edge (ymax), column 0 the west edge; it is kept as given (a numpy memmap stays on disk), and its RGBA is
+    cached only when the array is read-only (and not masked), so in-place edits show.
     ``extent``: (xmin, xmax, ymin, ymax) in world units, the outer edges of the pixels. ``matrix``: the 3 × 3
     texture matrix taking world (x, y, 1) to texel (column, row, 1) (texel centres at integers); ``None``
     derives it from the extent. Moving a layer (a lens) changes only the matrix (:meth:`moved`). ``border``:
@@ -929,7 +955,8 @@ class TextureLayer:
         # the RGBA and, while it is checked, the per-channel finite flags and the per-pixel nodata mask
         check_budget(_RGBA_BYTES * h * w, f"the (h, w, 4) float32 RGBA of a {w} x {h} {self.kind} layer",
                      hint="crop or downsample the image (texture_lod.ImagePyramid serves a large one by level)")
-        image = np.asarray(self.image)
+        image = np.asarray(self.image)  # a masked array's values; its masked pixels are nodata below
+        masked = _masked_pixels(self.image)
         out = np.ones((*self.shape, 4), dtype=np.float32)
         # the image goes straight into its channels, scaled there: a float32 copy of it and its scaled copy (12 + 12
         # bytes a pixel of RGB) were made first, and the finite pixels were copied out for their range (16 more), so
@@ -946,10 +973,14 @@ class TextureLayer:
         if image.dtype == np.uint8:
             channels /= np.float32(255.0)
         nodata = ~np.isfinite(out).all(axis=2)
+        if masked is not None:
+            nodata |= masked
         if nodata.any():
             # NaN is nodata, as in heights; an infinite value was taken for nodata too: a weight of inf left the
             # other layer as it was, an inf colour turned transparent
             infinite = np.isinf(out).any(axis=2)
+            if masked is not None:  # whatever lies under the mask is no value of the layer
+                infinite &= ~masked
             if infinite.any():
                 first = tuple(int(k) for k in np.argwhere(infinite)[0])
                 raise InvalidInputError(f"{self.kind} layer values must be finite or NaN (nodata); got an infinite "
@@ -962,7 +993,8 @@ class TextureLayer:
             raise InvalidInputError(f"{self.kind} layer values must lie in [0, 1] (or uint8 0-255); got "
                                     f"[{lo:g}, {hi:g}]")
         np.clip(out, 0.0, 1.0, out=out)
-        if not image.flags.writeable:  # a writeable image (kept as given) may change later: never cached
+        if not image.flags.writeable and not np.ma.isMaskedArray(self.image):  # a writeable image (kept as given), or
+            # a masked array's mask, may change later: never cached
             out.setflags(write=False)  # handed out again and wrapped for the kernels: an edit would change them all
             self._rgba_cache["rgba"] = out
         return out
@@ -1002,6 +1034,8 @@ def _north_up(terrain: Terrain, image: NDArray[Any]) -> NDArray[Any]:
         image = image[::-1]
     if terrain.spacing[0] < 0:
         image = image[:, ::-1]
+    if np.ma.isMaskedArray(image):  # np.ascontiguousarray dropped the mask (the layer's nodata)
+        return image.copy()
     return np.ascontiguousarray(image)
 
 
@@ -1018,7 +1052,7 @@ def terrain_layer(terrain: Terrain | ArrayLike, image: ArrayLike, kind: LayerKin
     (-0.5, 2.5, -0.5, 1.5)
     """
     t = _grid_terrain(terrain, spacing)
-    array = as_array(image, "image", "an (H, W) or (H, W, C) array on the terrain's nodes")
+    array = _image_argument(image, "image", "an (H, W) or (H, W, C) array on the terrain's nodes")
     if array.shape[:2] != t.heights.shape:
         raise InvalidInputError(f"image of shape {array.shape[:2]} does not match the terrain's "
                                 f"{t.heights.shape} nodes (mismatched size)")
@@ -1123,14 +1157,19 @@ def _coarser_than_nodes(t: Terrain, texel_size: float) -> float | None:
     return node if texel_size > node * (1.0 + 1e-9) else None
 
 
-def _texel_grid(t: Terrain, texel_size: float) -> tuple[Extent, tuple[int, int]]:
+def _texel_grid(t: Terrain, texel_size: float, name: str = "texel_size") -> tuple[Extent, tuple[int, int]]:
     """The pixel grid of a texture of ``texel_size`` texels over a grid terrain: its texture extent (the node extent
     plus half a cell, :func:`terrain_extent`) cut into whole texels no larger than ``texel_size`` (a size within a
     part in 10^9 of dividing it exactly divides it: 10 over a 30 m grid is three texels a cell), as
-    (extent, (rows, cols))."""
+    (extent, (rows, cols)). A size so small that the texels of a side overflow float64 is refused naming ``name``
+    (math.ceil raised an OverflowError: a traceback from ``stepterrain texture --texel-size 1e-320``)."""
     extent = terrain_extent(t)
     width, height = extent[1] - extent[0], extent[3] - extent[2]
-    cols, rows = (max(1, math.ceil(span / texel_size * (1.0 - 1e-9))) for span in (width, height))
+    counts = [span / texel_size * (1.0 - 1e-9) for span in (width, height)]
+    if not all(math.isfinite(n) for n in counts):
+        raise InvalidInputError(f"{name} must be a positive size that cuts the terrain's {width:g} x {height:g} "
+                                f"texture extent into a finite number of texels; got {texel_size:g}")
+    cols, rows = (max(1, math.ceil(n)) for n in counts)
     return extent, (rows, cols)
 
 
@@ -1331,7 +1370,7 @@ def _as_layer(value: Any, like: TextureLayer | None, name: str) -> TextureLayer:
     if like is None:
         raise InvalidInputError(f"{name} must be a TextureLayer (or an array alongside a TextureLayer); "
                                 f"got {type(value).__name__}")
-    array = as_array(value, name, f"a TextureLayer or an array of {like.shape} pixels")
+    array = _image_argument(value, name, f"a TextureLayer or an array of {like.shape} pixels")
     if array.shape[:2] != like.shape:
         raise InvalidInputError(f"{name} has shape {array.shape[:2]} but the layer it combines with has "
                                 f"{like.shape} (mismatched size)")
@@ -1429,7 +1468,8 @@ def _composed_input(layer: TextureLayer | None, extent: Extent, shape: tuple[int
         return wp.empty((1, 1), dtype=wp.vec4, device=device), identity, -1
     same = _is_grid(layer, extent, shape)
     image = np.asarray(layer.image)
-    if raw and same and image.dtype == np.uint8 and image.ndim == 3:  # read as rgba() reads it, without its floats
+    if raw and same and image.dtype == np.uint8 and image.ndim == 3 and _masked_pixels(layer.image) is None:
+        # read as rgba() reads it, without its floats (a masked array's mask: through rgba())
         return wp.array(np.ascontiguousarray(image), dtype=wp.uint8, device=device), identity, 3
     if not same:
         _check_overlaps(layer, extent, name)
@@ -1495,7 +1535,9 @@ def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | 
     """Texture layer blending (§3.2.3): ``a · (1 − w) + b · w`` per pixel, w the alpha of ``weights``.
 
     ``weights`` is a visibility layer (its alpha; a lens, §5), a thematic RGBA layer (its alpha) or an (h, w)
-    array of weights in [0, 1] (a layer without alpha, luminance or RGB, is refused: it would weigh 1);
+    array of weights: floats in [0, 1], uint8 0-255, or a bool mask (True weighs 1) (a layer without alpha,
+    luminance or RGB, is refused: it would weigh 1; a uint8 array of 0 and 1 only, likely a mask weighing 1/255, is
+    warned about);
     ``None`` uses ``b``'s own alpha. Every layer is sampled through its texture matrix onto ``a``'s pixels.
     Colours are straight (not premultiplied) alpha, and ``b`` is laid over ``a`` with coverage
     ``c = w · alpha_b`` (``c = alpha_b`` for ``weights=None``): alpha ``c + alpha_a · (1 − c)``, colour
@@ -1525,9 +1567,19 @@ def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | 
                                     "TextureLayer('visibility', values, extent)")
         w = weights
     else:
-        array = as_array(weights, "weights", "a visibility layer or an (h, w) array")
+        array = _image_argument(weights, "weights", "a visibility layer or an (h, w) array")
         if array.ndim != 2:
             raise InvalidInputError(f"weights must be a visibility layer or an (h, w) array; got shape {array.shape}")
+        if array.dtype == np.bool_:  # a mask (np.ma keeps its own mask): True weighs 1; a layer takes no bools, and
+            # the way out of that refusal, .astype(np.uint8), weighed 1/255
+            array = array.astype(np.float32)
+        elif array.dtype == np.uint8 and array.size and _maximum(array) == 1:
+            # most likely a mask saved as 0/1 (b all but invisible), but a faint 0-255 weight image may hold only
+            # these (a fade's first frame): warned, weighed as given (a masked array masking all: no maximum, and
+            # int() of it raised a MaskError)
+            warnings.warn("weights is a uint8 array of 0 and 1 only: uint8 weights are 0-255, so 1 weighs 1/255 "
+                          "(b all but invisible). A mask? Give it as bool or as floats in [0, 1], or uint8 255 for "
+                          "a full weight", stacklevel=caller_stacklevel())
         w = _as_layer(_named("weights", TextureLayer, "visibility", array, a.extent, matrix=a.matrix)
                       if array.shape == a.shape else array, a, "weights")
     dev = resolve_device(device)

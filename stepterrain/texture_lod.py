@@ -58,7 +58,7 @@ from .io import (
 )
 from .kernels import texture as texture_kernels
 from .terrain import Terrain, as_array, as_number, as_terrain, check_flag, finite_number, real_numbers
-from .texture import TextureLayer, _check_extent, _grid_terrain, terrain_extent
+from .texture import TextureLayer, _check_extent, _grid_terrain, _masked_pixels, terrain_extent
 
 __all__ = [
     "ImagePyramid",
@@ -192,6 +192,18 @@ def _source_image(image: Any, dataset: Any = None) -> tuple[NDArray[np.uint8], s
         array = array[:, :, None]
     if array.ndim != 3 or array.shape[0] < 1 or array.shape[1] < 1 or not 1 <= array.shape[2] <= 4:
         raise InvalidInputError(f"pyramid image must be (H, W) or (H, W, C<=4); got shape {array.shape}")
+    masked = _masked_pixels(array)
+    if masked is not None:  # its masked pixels transparent (alpha 0), as a GeoTIFF's nodata: the mask was dropped
+        # and the values under it drawn (an orthophoto read with rasterio's masked=True: its collar opaque black)
+        pixels = np.ma.getdata(array)
+        if pixels.shape[2] in (1, 3):  # no alpha yet: one added, 255 where not masked
+            pixels = np.concatenate([pixels, np.full((*pixels.shape[:2], 1), 255, np.uint8)], axis=2)
+        else:
+            pixels = pixels.copy()
+        pixels[masked, -1] = 0
+        pixels.flags.writeable = False  # this call's own copy: level 0 as it is
+        return pixels, None, False, None
+    array = np.ma.getdata(array)  # a masked array masking nothing: its values
     backing = _memmap_backing(array)
     if path is not None:  # pixels this call decoded or mapped read-only: level 0 as they are, and read-only
         array.flags.writeable = False
@@ -571,7 +583,8 @@ class ImagePyramid:
 
         Parameters
         ----------
-        image : (H, W) or (H, W, C) uint8 array, a numpy memmap, or a path (.npy is memory-mapped; PNG, JPEG,
+        image : (H, W) or (H, W, C) uint8 array (a numpy masked array's masked pixels transparent: alpha 0, an
+            alpha channel added to grey or RGB), a numpy memmap, or a path (.npy is memory-mapped; PNG, JPEG,
             TIFF are read with Pillow, and a TIFF of 8-bit bands or a PNG as Pillow reads them with rasterio, a band
             of rows at a time, never whole: see Notes; a transparent colour, and a GeoTIFF's nodata or mask band,
             read with rasterio, become alpha; an EXIF orientation, or a TIFF's Orientation tag, is not applied, as

@@ -688,6 +688,9 @@ def test_cli_texture_texel_size_shades_the_finer_grid_and_drapes_it(tmp_path, sm
     (["--texel-size", "nan"], "--texel-size must be a positive number of the DEM's units (metres) per texel; got nan"),
     (["--texel-size", "45"], "--texel-size must be no larger than the DEM's node spacing (30; the default is one "
                              "texel per node): it makes the texture finer; got --texel-size 45"),
+    # so small that the texels a side overflow float64: math.ceil's OverflowError, a traceback
+    (["--texel-size", "1e-320"], "--texel-size must be a positive size that cuts the terrain's 35910 x 19290 texture "
+                                 "extent into a finite number of texels; got 9.99989e-321"),
     (["--texel-size", "1", "--memory-budget", "1GiB"],
      "the 35910 x 19290 texel texture of --texel-size 1 (while it is composed and written) would need "),
     (["--texel-size", "2", "--memory-budget", "64GiB", "--mesh", "{tmp}/m.glb"],

@@ -21,6 +21,7 @@ from stepterrain.texture import (
     blend,
     cast_shadows,
     combine,
+    drape,
     highlight_lens,
     hillshade,
     modulate,
@@ -1174,3 +1175,119 @@ def test_huge_weights_that_are_one_float32_cancel_as_the_kernel_takes_them(order
     out = weighted_add([pairs[k][0] for k in order], [pairs[k][1] for k in order], device="cpu").rgba()
     np.testing.assert_allclose(out[..., :3], 0.4, atol=1e-6)
     np.testing.assert_allclose(out[..., 3], 0.5, atol=1e-6)
+
+
+# ------------------------------------------------------------------------------------------ masked arrays
+def _masked_ortho():
+    """An 'orthophoto' of the Big Tujunga crop (its hillshade as uint8 RGB) as rasterio's ``read(masked=True)`` gives
+    one, bands moved last: a nodata collar of zeros masked along the west and north edges."""
+    heights = real_dem_crop("big_tujunga_srtm_30m_utm11n.npz", size=40, step=3)
+    shade = hillshade(heights, spacing=(90.0, -90.0), device="cpu")
+    rgb = np.repeat(np.round(shade * 254 + 1).astype(np.uint8)[..., None], 3, axis=2)
+    collar = np.zeros(rgb.shape[:2], dtype=bool)
+    collar[:, :6] = True
+    collar[:4] = True
+    rgb[collar] = 0
+    return heights, rgb, collar, np.ma.masked_array(rgb, mask=np.repeat(collar[..., None], 3, axis=2))
+
+
+def test_masked_array_layers_take_the_mask_as_nodata():
+    """A numpy masked array as a layer's image (an orthophoto read with rasterio's masked=True, a hillshade masked
+    where it has no data): its masked pixels are nodata (transparent), as a masked array's masked heights are.
+    np.asarray dropped the mask: the collar's zeros were drawn opaque black (black over the background in the drape),
+    and a float image whose masked entries hold a fill value (1e20) was refused as out of [0, 1]."""
+    _, rgb, collar, ortho = _masked_ortho()
+    extent = (0.0, 40.0, 0.0, 40.0)
+    layer = TextureLayer("thematic", ortho, extent)
+    rgba = layer.rgba()
+    assert (rgba[collar, 3] == 0).all()
+    assert (rgba[~collar, 3] == 1).all()
+    assert np.array_equal(rgba[~collar], TextureLayer("thematic", rgb, extent).rgba()[~collar])
+    # the drape composites it over the background: white on the collar, not the black under the mask
+    mesh = trimesh.Trimesh([[1.0, 1.0, 0.0], [39.0, 1.0, 0.0], [1.0, 39.0, 0.0]], [[0, 1, 2]], process=False)
+    picture = np.asarray(drape(mesh, layer).visual.material.baseColorTexture)
+    assert (picture[collar] == 255).all() and np.array_equal(picture[~collar], rgb[~collar])
+    # stepterrain texture's one-pass composite reads a uint8 picture on its grid as bytes: the mask through rgba()
+    from stepterrain import texture as tx
+
+    shading = TextureLayer("luminance", np.ones(rgb.shape[:2], np.float32), extent)
+    composed = tx._composed(shading, None, layer, extent, rgb.shape[:2], (1.0, 1.0, 1.0), "cpu")
+    assert np.array_equal(composed, picture)
+    # a float luminance layer masked where it holds a fill value
+    shade = np.ma.masked_array(rgb[..., 0] / 255.0, mask=collar)
+    shade.data[collar] = 1e20
+    lum = TextureLayer("luminance", shade, extent).rgba()
+    assert (lum[collar, 3] == 0).all() and np.allclose(lum[~collar, 0], rgb[~collar, 0] / 255.0)
+
+
+def test_masked_arrays_as_operation_arguments_and_on_terrain_nodes():
+    """A masked array given where an operation takes an array (blend's b and weights, terrain_layer's image on the
+    nodes, turned north-up): its mask is the layer's nodata, so a masked weight or colour leaves ``a`` as it is."""
+    heights, rgb, collar, ortho = _masked_ortho()
+    a = TextureLayer("thematic", np.full((*rgb.shape[:2], 3), 0.25, np.float32), (0.0, 40.0, 0.0, 40.0))
+    out = blend(a, ortho, device="cpu").rgba()
+    assert np.allclose(out[collar, :3], 0.25) and np.allclose(out[~collar, 0], rgb[~collar, 0] / 255.0)
+    weights = np.ma.masked_array(np.ones(rgb.shape[:2]), mask=collar)
+    out = blend(a, np.ones((*rgb.shape[:2], 3)), weights, device="cpu").rgba()
+    assert np.allclose(out[collar, :3], 0.25) and np.allclose(out[~collar, :3], 1.0)
+    # on the nodes of a grid with dy > 0: row 0 is the south edge, the layer's row 0 the north one
+    layer = terrain_layer(heights, ortho, spacing=(90.0, 90.0))
+    assert np.array_equal(layer.rgba()[..., 3] == 0, collar[::-1])
+
+
+def test_masked_array_pyramid_and_image_layer_get_alpha():
+    """ImagePyramid.build and image_layer of a masked uint8 array: alpha 0 at its masked pixels (an alpha channel
+    added to RGB), so the collar is transparent over the terrain and its zeros do not darken the coarser levels; the
+    mask was dropped and the collar drawn black."""
+    from stepterrain.texture_lod import ImagePyramid, image_layer
+
+    from .reference_texture import reduce_rounded_reference
+
+    heights, rgb, collar, ortho = _masked_ortho()
+    with ImagePyramid.build(ortho, device="cpu") as pyramid:
+        level0 = np.asarray(pyramid.levels[0])
+        assert level0.shape == (*rgb.shape[:2], 4)
+        assert np.array_equal(level0[..., 3], np.where(collar, 0, 255)) and np.array_equal(level0[..., :3], rgb)
+        assert np.array_equal(pyramid.levels[1], reduce_rounded_reference(level0))
+    layer = image_layer(ortho, heights, extent=(-0.5, 39.5, -0.5, 39.5), device="cpu")  # a pixel a node
+    assert layer.shape == rgb.shape[:2] and np.array_equal(layer.image[..., 3] == 0, collar)
+
+
+def test_contour_layer_texel_size_too_small_to_count_is_refused_by_name():
+    """contour_layer(texel_size=1e-320): its texels a side overflow float64 (inf), and math.ceil raised an
+    OverflowError; now an InvalidInputError naming texel_size (a small finite count is left to the budget check)."""
+    from stepterrain.texture import contour_layer
+
+    heights = real_dem_crop("big_tujunga_srtm_30m_utm11n.npz", size=20, step=3)
+    with pytest.raises(InvalidInputError, match=r"texel_size must be a positive size that cuts the terrain's "
+                                                r"1800 x 1800 texture extent into a finite number of texels; "
+                                                r"got 9.99989e-321"):
+        contour_layer(heights, interval=50.0, spacing=(90.0, -90.0), texel_size=1e-320, device="cpu")
+
+
+def test_blend_weights_as_a_mask():
+    """blend's weights as a mask over the Big Tujunga hillshade (where the ground lies above its median): a bool mask
+    weighs 1 where True; it was refused (a layer takes no bools), and the way out, mask.astype(np.uint8), weighed 1/255
+    (uint8 is 0-255): b all but invisible, without a word. A uint8 array of 0 and 1 only is warned about, naming
+    weights, and weighed as given: a faint 0-255 weight image (a fade's first frame, 1 everywhere) may be just that,
+    and was refused. A masked uint8 array masking every pixel weighs nothing (int() of its maximum, np.ma.masked,
+    raised a MaskError)."""
+    heights = real_dem_crop("big_tujunga_srtm_30m_utm11n.npz", size=48, step=2)
+    shade = hillshade(heights, spacing=(60.0, -60.0), device="cpu")
+    mask = heights > np.median(heights)
+    a = TextureLayer("luminance", shade, (0.0, 48.0, 0.0, 48.0))
+    b = np.zeros((48, 48, 3), np.float32)
+    out = blend(a, b, mask, device="cpu").rgba()
+    assert np.allclose(out[mask, :3], 0.0) and np.allclose(out[~mask, 0], shade[~mask])
+    faint = np.where(mask, np.float32(1 / 255), np.float32(0))
+    for ones, weight in ((mask.astype(np.uint8), faint),  # a 0/1 mask
+                         (np.ones((48, 48), np.uint8), np.full((48, 48), np.float32(1 / 255)))):  # a fade's 1st frame
+        with pytest.warns(UserWarning, match=r"weights is a uint8 array of 0 and 1 only: uint8 weights are 0-255, "
+                                             r"so 1 weighs 1/255") as record:
+            got = blend(a, b, ones, device="cpu").rgba()
+        assert record[0].filename == __file__  # pointed at the caller
+        assert np.array_equal(got, blend(a, b, weight, device="cpu").rgba())
+    full = blend(a, b, mask.astype(np.uint8) * 255, device="cpu").rgba()  # 0-255 as before
+    assert np.array_equal(full, out)
+    hidden = np.ma.masked_array(np.ones((48, 48), np.uint8), mask=True)
+    assert np.array_equal(blend(a, b, hidden, device="cpu").rgba(), a.rgba())
