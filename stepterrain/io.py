@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._compaction import check_budget
-from ._files import URL_FILE_SYSTEMS, GdalPath, _restored, as_path, gdal_path, require_regular_file
+from ._files import URL_FILE_SYSTEMS, GdalPath, _restored, as_path, gdal_path, local_archive, require_regular_file
 from .errors import (
     DataFileError,
     InvalidInputError,
@@ -164,9 +164,11 @@ def load_dem(
         ``/vsicurl/https://...`` and a URL, mapped as rasterio maps it (``https://``/``http://``/``ftp://`` to
         ``/vsicurl/``, ``s3://`` to ``/vsis3/``, ``gs://`` to ``/vsigs/``, ``az://`` to ``/vsiaz/``, ...: GDAL's
         ``GDAL_HTTP_*``/``AWS_*`` settings apply); ``source`` is then the inner file's name, no ``.prj`` beside it is
-        looked for, and ``.npy``/``.npz``/``.png`` are refused there (read from local files only). A local ``.zip``
+        looked for but in a local zip (``/vsizip/`` of a zip file: a world file's ``.prj`` beside the TIFF in the
+        zip), and ``.npy``/``.npz``/``.png`` are refused there (read from local files only). A local ``.zip``
         is read as the ``/vsizip/`` path of the one raster of :data:`GDAL_FORMATS` it holds (an SRTM download,
-        ``N46E007.SRTMGL1.hgt.zip``; its sidecars beside it in the zip); one of several is refused, naming them
+        ``N46E007.SRTMGL1.hgt.zip``; its sidecars beside it in the zip, a TIFF's ``.tfw`` and ``.prj`` too); one
+        of several is refused, naming them
         (``/vsizip/<zip>/<name>`` picks one).
     band : int
         1-based raster band to read; GeoTIFF and the other GDAL rasters only (the other formats hold one band). It
@@ -1406,22 +1408,46 @@ def prj_crs(path: Path, what: str, refusal: type[StepTerrainError] = InvalidInpu
     ``what`` the raster is ("image", "DEM"): the raster would be taken in no CRS, or another's, without a word. Its
     extension in either case (``DEM.PRJ`` beside ``DEM.TIF``, as DOS-era ESRI data ships it, and GDAL reads the world
     file ``DEM.TFW``)."""
-    if isinstance(path, GdalPath):  # only local files are looked for beside it
-        return None
-    for prj in _prj_files(path):
-        if not prj.is_file():
-            continue
+    if isinstance(path, GdalPath):  # in a local zip, the .prj beside it there; elsewhere (a URL) none is looked for
+        found = _zipped_prj(path)
+    else:
+        found = next(((str(prj), prj) for prj in _prj_files(path) if prj.is_file()), None)
+    if found is not None:
+        named, prj = found
         from rasterio.crs import CRS
 
         try:
-            text = prj.read_text(errors="replace").strip()
+            text = (prj.read_text(errors="replace") if isinstance(prj, Path) else prj).strip()
         except OSError as exc:
-            raise DataFileError(f"cannot read {str(prj)!r}, the CRS of {what} {str(path)!r}: {exc}") from exc
+            raise DataFileError(f"cannot read {named!r}, the CRS of {what} {str(path)!r}: {exc}") from exc
         try:
             return _crs_string(CRS.from_user_input(text))
         except Exception as exc:  # noqa: BLE001 - rasterio's CRSError, or a WKT it parses but cannot name
-            raise refusal(f"{str(prj)!r} beside {what} {str(path)!r} is not a CRS (WKT, as GIS software writes it "
+            raise refusal(f"{named!r} beside {what} {str(path)!r} is not a CRS (WKT, as GIS software writes it "
                           f"beside a world file): {exc}") from exc
+    return None
+
+
+def _zipped_prj(path: GdalPath) -> tuple[str, str] | None:
+    """(name, text) of the first .prj :func:`prj_crs` reads beside the raster ``path`` when it is a ``/vsizip/``
+    path into a local zip (a zip's own raster, :func:`zip_member`): a TIFF's world file (.tfw) GDAL reads inside the
+    zip, but not its .prj, and the CRS of the grid it places was lost (a grid in US survey feet kept feet as metres).
+    None for any other virtual path, or without one."""
+    gdal = os.fspath(path)
+    archive_path = local_archive(path) if gdal.startswith("/vsizip/") else None
+    if archive_path is None or not os.path.isfile(archive_path):
+        return None
+    member = PurePosixPath(gdal[len("/vsizip/") + len(archive_path):].lstrip("/"))
+    try:
+        with zipfile.ZipFile(archive_path) as archive:
+            names = set(archive.namelist())
+            for prj in (member.with_suffix(".prj"), member.with_suffix(".PRJ"), member.with_name(member.name + ".prj"),
+                        member.with_name(member.name + ".PRJ")):  # as _prj_files names them beside a local file
+                if str(prj) in names:
+                    text = archive.read(str(prj)).decode(errors="replace")
+                    return f"{str(path)[: -len(member.name)]}{prj.name}", text
+    except (OSError, RuntimeError, zipfile.BadZipFile) as exc:  # RuntimeError: an encrypted member
+        raise DataFileError(f"cannot read the zip {archive_path!r} of {str(path)!r}: {exc}") from exc
     return None
 
 
