@@ -263,7 +263,8 @@ def load_dem(
         ``height_unit`` not a known length unit (the message lists them), or a ``crop`` that
         :meth:`Terrain.crop <stepterrain.terrain.Terrain.crop>` refuses (its message after ``crop:``).
     DataFileError
-        The file does not exist, cannot be read (a virtual path or URL GDAL cannot open: a file missing from the zip,
+        The file does not exist, cannot be read (a GDAL raster whose path is not UTF-8, as GDAL takes names; a
+        virtual path or URL GDAL cannot open: a file missing from the zip,
         an unreachable URL, with GDAL's reason; a URL scheme GDAL has no file system for; a ``.zip`` holding no
         raster of :data:`GDAL_FORMATS`, or several), or is not elevation data (a colour image, another image format
         under a .png name, a GeoTIFF band that is colour, alpha or other imagery, a 1-D array, text, an archive
@@ -1111,6 +1112,12 @@ def _load_geotiff(
     try:
         try:
             opened = open_raster(file)
+        except UnicodeEncodeError as exc:  # a Latin-1 name ('H\xf6he.tif'): surrogate escapes rasterio can't encode
+            raise DataFileError(
+                f"cannot read {str(file)!r}: its path is not UTF-8 (its bytes: {os.fsencode(str(file))!r}), and GDAL "
+                "takes file names in UTF-8 only; rename the file (or its folder), e.g. `convmv -f latin1 -t utf8 "
+                "--notest NAME`"
+            ) from exc
         except RasterioError as exc:
             if not isinstance(file, GdalPath):
                 raise

@@ -1900,3 +1900,27 @@ def test_an_npz_lon_axis_with_neighbours_360_degrees_apart_is_refused_for_what_i
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         assert load_dem(tmp_path / "across.npz").shape == (3, 3)
+
+
+def test_a_geotiff_whose_name_is_not_utf8_is_refused_by_name(tmp_path, capsys):
+    """A GeoTIFF named in Latin-1 ('H\\xf6he.tif', from an old zip or a network share, on a UTF-8 system) reaches
+    Python as a name with surrogate escapes, which rasterio cannot hand to GDAL: load_dem raised UnicodeEncodeError
+    from deep in rasterio, and `stepterrain info` printed a traceback. It is refused as a DataFileError naming the file
+    and the rename that reads it; an .npy of such a name is read as before (NumPy opens any name)."""
+    pytest.importorskip("rasterio")
+    from stepterrain import cli
+
+    name = os.fsdecode(b"H\xf6he")
+    try:
+        tif = tmp_path / f"{name}.tif"
+        tif.write_bytes((SHARED_DATA / "big_tujunga_srtm_30m_utm11n.tif").read_bytes())
+    except (OSError, UnicodeError):
+        pytest.skip("the file system takes UTF-8 names only")
+    refused = r"cannot read '.*H\\udcf6he\.tif': its path is not UTF-8 \(its bytes: b'.*H\\xf6he\.tif'\).*rename"
+    with pytest.raises(DataFileError, match=refused):
+        load_dem(tif)
+    assert cli.main(["info", str(tif)]) == 2
+    assert "its path is not UTF-8" in capsys.readouterr().err
+    npy = tmp_path / f"{name}.npy"
+    np.save(npy, np.arange(12.0).reshape(3, 4))
+    assert load_dem(npy).shape == (3, 4)
