@@ -279,7 +279,8 @@ def load_dem(
         ("furlong") or a unit other than its CRS's (feet for EPSG:32611), an .npz in degrees with one of
         ``dx_m``/``dy_m`` or either not
         finite, non-zero metres, an .npz ``scale``/``offset`` (``scale_factor``/``add_offset``) of its
-        heights other than 1/0 (not read: the heights are taken as stored), a ``mask`` or ``valid`` that is not a
+        heights other than 1/0 (not read: the heights are taken as stored), or a PNG's in its ``.aux.xml`` (as
+        ``gdal_translate -of PNG`` writes a scaled band's), a ``mask`` or ``valid`` that is not a
         boolean array of the heights' shape, a .prj beside a GeoTIFF georeferenced without a CRS that is no CRS,
         nothing but nodata, a GeoTIFF band's scale that is 0 or not finite or offset that is not finite, heights
         in a unit that is not a known length unit:
@@ -1007,10 +1008,42 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
         nodata *= 255 // (2 ** int(low_bits.group(1)) - 1)
     if mode == "LA":  # grey + alpha: a transparent cell (alpha 0) is missing, as GDAL reads alpha as the mask
         array = np.where(array[..., 1] == 0, np.float32(np.nan), array[..., 0].astype(np.float32))
+    _refuse_png_scaling(file)
     heights = _elevation(array, file, f"{mode} image", nodata)
     heights, unit = _heights_in_metres(heights, height_unit, file, "height_unit")
     _warn_png_georeferencing(file)
     return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None, height_unit=unit)
+
+
+def _refuse_png_scaling(file: Path) -> None:
+    """A DataFileError when the PNG heightmap ``file``'s ``dem.png.aux.xml`` (GDAL's PAM file) gives its band a scale
+    or offset other than 1 and 0 (height = value * scale + offset): `gdal_translate -of PNG` of a DEM of scaled
+    integers keeps the integers and writes them there, and the PNG's pixels, which Pillow reads, were taken as heights
+    (decimetres as metres: 10 times too high) without a word. A GeoTIFF made from the PNG keeps them, and load_dem
+    reads it scaled. An aux.xml that cannot be read or parsed is left to the georeferencing warning."""
+    from xml.etree import ElementTree
+
+    aux = file.with_name(file.name + ".aux.xml")
+    try:
+        root = ElementTree.fromstring(aux.read_bytes()) if aux.is_file() else None
+    except (OSError, ElementTree.ParseError):
+        return
+    for band in [] if root is None else root.iter("PAMRasterBand"):
+        if band.get("band", "1").strip() != "1":  # a grey + alpha PNG's alpha band
+            continue
+        try:
+            scale, offset = (float(band.findtext(tag) or default) for tag, default in (("Scale", 1), ("Offset", 0)))
+        except ValueError:  # not numbers: GDAL reads none either
+            return
+        if scale != 1.0 or offset != 0.0:
+            prj = next((side for side in _prj_files(file) if side.is_file()), None)
+            srs = f"-a_srs {prj.name} " if prj is not None else ""
+            raise DataFileError(
+                f"cannot read {str(file)!r}: expected a PNG heightmap of heights as stored; got scale {scale:g}, "
+                f"offset {offset:g} of its values in {aux.name} (height = value * scale + offset), which load_dem "
+                f"does not read for a PNG: make it a GeoTIFF, which GDAL reads with them (`gdal_translate "
+                f"{srs}{file.name} {file.stem}.tif`)"
+            )
 
 
 def _warn_png_georeferencing(file: Path) -> None:

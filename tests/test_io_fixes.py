@@ -1924,3 +1924,48 @@ def test_a_geotiff_whose_name_is_not_utf8_is_refused_by_name(tmp_path, capsys):
     npy = tmp_path / f"{name}.npy"
     np.save(npy, np.arange(12.0).reshape(3, 4))
     assert load_dem(npy).shape == (3, 4)
+
+
+def test_a_png_heightmaps_scale_and_offset_in_its_aux_xml_are_refused_not_dropped(tmp_path):
+    """A DEM of scaled integers (height = value * scale + offset, GDAL's band scale and offset) exported to a 16-bit
+    PNG by `gdal_translate -of PNG` keeps its values and writes the scale and offset to dem.png.aux.xml, which load_dem
+    does not read for a PNG (Pillow reads the pixels): the stored values were read as heights, 10 times too high and
+    100 m off, without a word (a GeoTIFF of the same values is read scaled). Refused naming the scale and offset and
+    the gdal_translate to a GeoTIFF that keeps them; a scale of 1 and offset of 0, or no band entry, read as before."""
+    heights = load_dem(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.npz").heights[:40, :50]
+    stored = np.round((heights - 100.0) / 0.1).astype(np.uint16)  # decimetres above 100 m
+    png = tmp_path / "dem.png"
+    Image.fromarray(stored).save(png)
+
+    def aux(scale, offset):
+        (tmp_path / "dem.png.aux.xml").write_text(
+            "<PAMDataset>\n  <Metadata>\n    <MDI key=\"AREA_OR_POINT\">Area</MDI>\n  </Metadata>\n"
+            f"  <PAMRasterBand band=\"1\">\n    <Offset>{offset}</Offset>\n    <Scale>{scale}</Scale>\n"
+            "  </PAMRasterBand>\n</PAMDataset>\n")
+
+    aux(0.1, 100)
+    with pytest.raises(DataFileError, match=r"scale 0\.1, offset 100 of its values in dem\.png\.aux\.xml.*"
+                                            r"gdal_translate dem\.png dem\.tif"):
+        load_dem(png)
+    if _has_rasterio():  # the GeoTIFF the hint names reads the heights (GDAL reads the PNG's aux.xml)
+        import rasterio
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # rasterio's NotGeoreferencedWarning for the plain PNG and TIFF
+            with rasterio.open(png) as src, \
+                    rasterio.open(tmp_path / "dem.tif", "w", **{**src.profile, "driver": "GTiff"}) as out:
+                out.write(src.read())
+                out.scales, out.offsets = src.scales, src.offsets
+        np.testing.assert_allclose(load_dem(tmp_path / "dem.tif").heights, heights, atol=0.05)
+    aux(1, 0)
+    np.testing.assert_array_equal(load_dem(png).heights, stored.astype(np.float32))
+    (tmp_path / "dem.png.aux.xml").write_text("<PAMDataset>\n  <Metadata/>\n</PAMDataset>\n")
+    np.testing.assert_array_equal(load_dem(png).heights, stored.astype(np.float32))
+
+
+def _has_rasterio():
+    try:
+        import rasterio  # noqa: F401
+    except ImportError:
+        return False
+    return True
