@@ -1463,9 +1463,37 @@ def prj_crs(path: Path, what: str, refusal: type[StepTerrainError] = InvalidInpu
         try:
             return _crs_string(CRS.from_user_input(text))
         except Exception as exc:  # noqa: BLE001 - rasterio's CRSError, or a WKT it parses but cannot name
+            arcinfo = _arcinfo_prj_crs(text)
+            if arcinfo is not None:
+                return arcinfo
             raise refusal(f"{named!r} beside {what} {str(path)!r} is not a CRS (WKT, as GIS software writes it "
                           f"beside a world file): {exc}") from exc
     return None
+
+
+#: The 2 x 2 ASCII grid beside which :func:`_arcinfo_prj_crs` has GDAL read a .prj.
+_PRJ_PROBE_GRID = b"ncols 2\nnrows 2\nxllcorner 0\nyllcorner 0\ncellsize 1\n0 0\n0 0\n"
+
+
+def _arcinfo_prj_crs(text: str) -> str | None:
+    """The CRS of a .prj in the ESRI ArcInfo keyword form (``Projection UTM``, ``Zone 11``, ``Units METERS``, ...,
+    as ArcInfo and ArcView 3 wrote it beside grids and their TIFF exports), which GDAL reads beside an ASCII grid
+    (its ESRI import) but no WKT parser takes: read so, beside a 2 x 2 ASCII grid in GDAL's memory file system (the
+    one way rasterio reaches that import). None for WKT (refused as it is), text GDAL finds no CRS in, or a CRS it
+    cannot name."""
+    if "[" in text or not re.match(r"\s*projection\b", text, re.IGNORECASE):
+        return None
+    import uuid
+
+    from rasterio.io import MemoryFile
+
+    folder = f"stepterrain-prj-{uuid.uuid4().hex}"  # the two files side by side, apart from any other read's
+    try:
+        with MemoryFile(text.encode(), dirname=folder, filename="grid.prj"), \
+                MemoryFile(_PRJ_PROBE_GRID, dirname=folder, filename="grid.asc") as grid, grid.open() as dataset:
+            return _crs_string(dataset.crs)
+    except Exception:  # noqa: BLE001 - GDAL reads no grid or CRS of it: refused as not a CRS
+        return None
 
 
 def _zipped_prj(path: GdalPath) -> tuple[str, str] | None:

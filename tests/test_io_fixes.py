@@ -1969,3 +1969,40 @@ def _has_rasterio():
     except ImportError:
         return False
     return True
+
+
+def test_an_arcinfo_style_prj_beside_a_world_file_tiff_gives_its_crs(tmp_path):
+    """An ESRI .prj in the ArcInfo keyword form ("Projection UTM / Zone 11 / Units METERS ...", as ArcInfo and
+    ArcView 3 wrote it beside grids and their TIFF exports) is the CRS GDAL reads beside an ASCII grid, but no WKT
+    parser takes it: beside a TIFF with a world file it was refused as "not a CRS". It gives the same CRS as beside
+    the ASCII grid (one in US survey feet converted as any such CRS); a .prj in neither form is still refused."""
+    rasterio = pytest.importorskip("rasterio")
+
+    arcinfo = ("Projection    UTM\nZone          11\nDatum         WGS84\nZunits        NO\nUnits         METERS\n"
+               "Spheroid      WGS84\nXshift        0.0000000000\nYshift        0.0000000000\nParameters\n")
+    z = load_dem(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.npz").heights[:30, :40]
+    tif = tmp_path / "dem.tif"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # rasterio's NotGeoreferencedWarning for the bare TIFF
+        with rasterio.open(tif, "w", driver="GTiff", width=40, height=30, count=1, dtype="float32") as ds:
+            ds.write(z, 1)
+    tif.with_suffix(".tfw").write_text("30.0\n0.0\n0.0\n-30.0\n376328.655\n3807902.828\n")
+    tif.with_suffix(".prj").write_text(arcinfo)
+    asc = tmp_path / "grid.asc"
+    asc.write_text("ncols 40\nnrows 30\nxllcorner 376313.655\nyllcorner 3807017.828\ncellsize 30\n"
+                   + "\n".join(" ".join(f"{v:g}" for v in row) for row in z) + "\n")
+    asc.with_suffix(".prj").write_text(arcinfo)
+    beside_grid = load_dem(asc)
+    assert beside_grid.crs == "EPSG:32611"  # as GDAL reads it beside the grid
+    t = load_dem(tif)
+    assert (t.crs, t.spacing) == (beside_grid.crs, (30.0, -30.0))
+    assert t.origin == pytest.approx(beside_grid.origin)
+    np.testing.assert_array_equal(t.heights, beside_grid.heights)
+    tif.with_suffix(".prj").write_text("Projection    STATEPLANE\nFipszone      0405\nDatum         NAD83\n"
+                                       "Units         FEET\nSpheroid      GRS1980\nParameters\n")
+    with pytest.warns(UserWarning, match=r"Foot_US units, so spacing and origin were converted to metres"):
+        feet = load_dem(tif)
+    assert feet.spacing == pytest.approx((30.0 * 1200 / 3937, -30.0 * 1200 / 3937))
+    tif.with_suffix(".prj").write_text("WGS 84 / UTM zone 11N, metres\n")  # a note, in neither form
+    with pytest.raises(DataFileError, match=r"dem\.prj' beside DEM '.*dem\.tif' is not a CRS"):
+        load_dem(tif)
