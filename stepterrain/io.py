@@ -1443,7 +1443,9 @@ def _prj_files(path: Path) -> list[Path]:
 
 def prj_crs(path: Path, what: str, refusal: type[StepTerrainError] = InvalidInputError) -> str | None:
     """The CRS in a .prj file beside the raster ``path`` (``ortho.prj`` or ``ortho.jpg.prj``, the ESRI convention for
-    a world file's CRS, which GDAL does not read for a TIFF, JPEG or PNG: their CRS was unknown), for a raster GDAL
+    a world file's CRS, which GDAL does not read for a TIFF, JPEG or PNG: their CRS was unknown; WKT, or the ArcInfo
+    keyword form GDAL reads beside a grid, :func:`_arcinfo_prj_crs`; in a local zip, the one beside it there,
+    :func:`_zipped_prj`), for a raster GDAL
     georeferences without a CRS; None without one. A .prj that is no CRS is refused (a ``refusal``), naming it and
     ``what`` the raster is ("image", "DEM"): the raster would be taken in no CRS, or another's, without a word. Its
     extension in either case (``DEM.PRJ`` beside ``DEM.TIF``, as DOS-era ESRI data ships it, and GDAL reads the world
