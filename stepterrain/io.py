@@ -1131,7 +1131,7 @@ def _load_geotiff(
     """A GeoTIFF's band as :func:`load_dem` reads it; with ``crop`` only the window of the nodes
     ``Terrain.crop(crop)`` keeps (see :func:`read_dem`)."""
     try:
-        import rasterio  # noqa: F401 - only whether it is there
+        import rasterio
         from rasterio.enums import ColorInterp
         from rasterio.errors import RasterioError
         from rasterio.windows import Window
@@ -1216,8 +1216,11 @@ def _load_geotiff(
                 _check_read_budget(file, shape, np.dtype(dataset.dtypes[band - 1]),
                                    hint="crop or coarsen it first (load_dem's crop=, --crop on the command line, "
                                         "reads only the crop's window; gdal_translate -outsize coarsens)")
-            masked = dataset.read(band, masked=True, window=window)
-            unmasked = _missing_beyond_gdal_mask(dataset, band, masked.data, window)
+            # block by block: GDAL's one big read of a raw raster (.bil, .flt) cut short filled the missing rows with
+            # zeros without an error (heights of 0 m); its block reads fail there, as a GeoTIFF's do
+            with rasterio.Env(GDAL_ONE_BIG_READ="NO"):
+                masked = dataset.read(band, masked=True, window=window)
+                unmasked = _missing_beyond_gdal_mask(dataset, band, masked.data, window)
     except RasterioError as exc:
         raise DataFileError(
             f"cannot read {str(file)!r}: expected {_gdal_format(file)}; got unreadable content ({gdal_reason(exc)})"
