@@ -1485,7 +1485,8 @@ def _arcinfo_prj_crs(text: str) -> str | None:
     as ArcInfo and ArcView 3 wrote it beside grids and their TIFF exports), which GDAL reads beside an ASCII grid
     (its ESRI import) but no WKT parser takes: read so, beside a 2 x 2 ASCII grid in GDAL's memory file system (the
     one way rasterio reaches that import). None for WKT (refused as it is), text GDAL finds no CRS in, or a CRS it
-    cannot name."""
+    cannot name; a projection GDAL does not know (``Projection UTMX``), which it takes as a local CRS of that name
+    (neither geographic nor projected), is none either: refused, as before, not a grid in no CRS without a word."""
     if "[" in text or not re.match(r"\s*projection\b", text, re.IGNORECASE):
         return None
     import uuid
@@ -1496,7 +1497,8 @@ def _arcinfo_prj_crs(text: str) -> str | None:
     try:
         with MemoryFile(text.encode(), dirname=folder, filename="grid.prj"), \
                 MemoryFile(_PRJ_PROBE_GRID, dirname=folder, filename="grid.asc") as grid, grid.open() as dataset:
-            return _crs_string(dataset.crs)
+            crs = dataset.crs
+            return _crs_string(crs) if crs is not None and (crs.is_geographic or crs.is_projected) else None
     except Exception:  # noqa: BLE001 - GDAL reads no grid or CRS of it: refused as not a CRS
         return None
 

@@ -2003,6 +2003,8 @@ def test_an_arcinfo_style_prj_beside_a_world_file_tiff_gives_its_crs(tmp_path):
     with pytest.warns(UserWarning, match=r"Foot_US units, so spacing and origin were converted to metres"):
         feet = load_dem(tif)
     assert feet.spacing == pytest.approx((30.0 * 1200 / 3937, -30.0 * 1200 / 3937))
-    tif.with_suffix(".prj").write_text("WGS 84 / UTM zone 11N, metres\n")  # a note, in neither form
-    with pytest.raises(DataFileError, match=r"dem\.prj' beside DEM '.*dem\.tif' is not a CRS"):
-        load_dem(tif)
+    for text in ("WGS 84 / UTM zone 11N, metres\n",  # a note, in neither form
+                 arcinfo.replace("UTM", "UTMX", 1)):  # a projection GDAL does not know: a local CRS "UTMX" to it
+        tif.with_suffix(".prj").write_text(text)
+        with pytest.raises(DataFileError, match=r"dem\.prj' beside DEM '.*dem\.tif' is not a CRS"):
+            load_dem(tif)

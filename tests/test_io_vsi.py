@@ -340,6 +340,11 @@ def test_a_zipped_world_file_tiff_takes_its_crs_from_the_prj_in_the_zip(tmp_path
         warnings.simplefilter("error")  # no "look like degrees" warning: its CRS is read
         t = st.load_dem(degrees_zip)
     assert (t.crs, t.spacing, t.origin, t.source) == (local.crs, local.spacing, local.origin, local.source)
+    # batch places such tiles in the degrees they share by their header: its CRS is the zipped .prj's too
+    from stepterrain.io import degree_header
+
+    assert degree_header(degrees_zip) == degree_header(degrees_tif)
+    assert degree_header(degrees_zip)[0] == "EPSG:4326"
     old = os.getcwd()
     os.chdir(tmp_path)
     try:
