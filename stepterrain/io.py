@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._compaction import check_budget
-from ._files import URL_FILE_SYSTEMS, GdalPath, _restored, as_path, gdal_path, require_regular_file
+from ._files import URL_FILE_SYSTEMS, GdalPath, _restored, as_path, gdal_path, local_archive, require_regular_file
 from .errors import (
     DataFileError,
     InvalidInputError,
@@ -164,9 +164,11 @@ def load_dem(
         ``/vsicurl/https://...`` and a URL, mapped as rasterio maps it (``https://``/``http://``/``ftp://`` to
         ``/vsicurl/``, ``s3://`` to ``/vsis3/``, ``gs://`` to ``/vsigs/``, ``az://`` to ``/vsiaz/``, ...: GDAL's
         ``GDAL_HTTP_*``/``AWS_*`` settings apply); ``source`` is then the inner file's name, no ``.prj`` beside it is
-        looked for, and ``.npy``/``.npz``/``.png`` are refused there (read from local files only). A local ``.zip``
+        looked for but in a local zip (``/vsizip/`` of a zip file: a world file's ``.prj`` beside the TIFF in the
+        zip), and ``.npy``/``.npz``/``.png`` are refused there (read from local files only). A local ``.zip``
         is read as the ``/vsizip/`` path of the one raster of :data:`GDAL_FORMATS` it holds (an SRTM download,
-        ``N46E007.SRTMGL1.hgt.zip``; its sidecars beside it in the zip); one of several is refused, naming them
+        ``N46E007.SRTMGL1.hgt.zip``; its sidecars beside it in the zip, a TIFF's ``.tfw`` and ``.prj`` too); one
+        of several is refused, naming them
         (``/vsizip/<zip>/<name>`` picks one).
     band : int
         1-based raster band to read; GeoTIFF and the other GDAL rasters only (the other formats hold one band). It
@@ -261,7 +263,8 @@ def load_dem(
         ``height_unit`` not a known length unit (the message lists them), or a ``crop`` that
         :meth:`Terrain.crop <stepterrain.terrain.Terrain.crop>` refuses (its message after ``crop:``).
     DataFileError
-        The file does not exist, cannot be read (a virtual path or URL GDAL cannot open: a file missing from the zip,
+        The file does not exist, cannot be read (a GDAL raster whose path is not UTF-8, as GDAL takes names; a
+        virtual path or URL GDAL cannot open: a file missing from the zip,
         an unreachable URL, with GDAL's reason; a URL scheme GDAL has no file system for; a ``.zip`` holding no
         raster of :data:`GDAL_FORMATS`, or several), or is not elevation data (a colour image, another image format
         under a .png name, a GeoTIFF band that is colour, alpha or other imagery, a 1-D array, text, an archive
@@ -276,7 +279,8 @@ def load_dem(
         ("furlong") or a unit other than its CRS's (feet for EPSG:32611), an .npz in degrees with one of
         ``dx_m``/``dy_m`` or either not
         finite, non-zero metres, an .npz ``scale``/``offset`` (``scale_factor``/``add_offset``) of its
-        heights other than 1/0 (not read: the heights are taken as stored), a ``mask`` or ``valid`` that is not a
+        heights other than 1/0 (not read: the heights are taken as stored), or a PNG's in its ``.aux.xml`` (as
+        ``gdal_translate -of PNG`` writes a scaled band's), a ``mask`` or ``valid`` that is not a
         boolean array of the heights' shape, a .prj beside a GeoTIFF georeferenced without a CRS that is no CRS,
         nothing but nodata, a GeoTIFF band's scale that is 0 or not finite or offset that is not finite, heights
         in a unit that is not a known length unit:
@@ -1004,10 +1008,42 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
         nodata *= 255 // (2 ** int(low_bits.group(1)) - 1)
     if mode == "LA":  # grey + alpha: a transparent cell (alpha 0) is missing, as GDAL reads alpha as the mask
         array = np.where(array[..., 1] == 0, np.float32(np.nan), array[..., 0].astype(np.float32))
+    _refuse_png_scaling(file)
     heights = _elevation(array, file, f"{mode} image", nodata)
     heights, unit = _heights_in_metres(heights, height_unit, file, "height_unit")
     _warn_png_georeferencing(file)
     return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None, height_unit=unit)
+
+
+def _refuse_png_scaling(file: Path) -> None:
+    """A DataFileError when the PNG heightmap ``file``'s ``dem.png.aux.xml`` (GDAL's PAM file) gives its band a scale
+    or offset other than 1 and 0 (height = value * scale + offset): `gdal_translate -of PNG` of a DEM of scaled
+    integers keeps the integers and writes them there, and the PNG's pixels, which Pillow reads, were taken as heights
+    (decimetres as metres: 10 times too high) without a word. A GeoTIFF made from the PNG keeps them, and load_dem
+    reads it scaled. An aux.xml that cannot be read or parsed is left to the georeferencing warning."""
+    from xml.etree import ElementTree
+
+    aux = file.with_name(file.name + ".aux.xml")
+    try:
+        root = ElementTree.fromstring(aux.read_bytes()) if aux.is_file() else None
+    except (OSError, ElementTree.ParseError):
+        return
+    for band in [] if root is None else root.iter("PAMRasterBand"):
+        if band.get("band", "1").strip() != "1":  # a grey + alpha PNG's alpha band
+            continue
+        try:
+            scale, offset = (float(band.findtext(tag) or default) for tag, default in (("Scale", 1), ("Offset", 0)))
+        except ValueError:  # not numbers: GDAL reads none either
+            return
+        if scale != 1.0 or offset != 0.0:
+            prj = next((side for side in _prj_files(file) if side.is_file()), None)
+            srs = f"-a_srs {prj.name} " if prj is not None else ""
+            raise DataFileError(
+                f"cannot read {str(file)!r}: expected a PNG heightmap of heights as stored; got scale {scale:g}, "
+                f"offset {offset:g} of its values in {aux.name} (height = value * scale + offset), which load_dem "
+                f"does not read for a PNG: make it a GeoTIFF, which GDAL reads with them (`gdal_translate "
+                f"{srs}{file.name} {file.stem}.tif`)"
+            )
 
 
 def _warn_png_georeferencing(file: Path) -> None:
@@ -1095,7 +1131,7 @@ def _load_geotiff(
     """A GeoTIFF's band as :func:`load_dem` reads it; with ``crop`` only the window of the nodes
     ``Terrain.crop(crop)`` keeps (see :func:`read_dem`)."""
     try:
-        import rasterio  # noqa: F401 - only whether it is there
+        import rasterio
         from rasterio.enums import ColorInterp
         from rasterio.errors import RasterioError
         from rasterio.windows import Window
@@ -1109,6 +1145,12 @@ def _load_geotiff(
     try:
         try:
             opened = open_raster(file)
+        except UnicodeEncodeError as exc:  # a Latin-1 name ('H\xf6he.tif'): surrogate escapes rasterio can't encode
+            raise DataFileError(
+                f"cannot read {str(file)!r}: its path is not UTF-8 (its bytes: {os.fsencode(str(file))!r}), and GDAL "
+                "takes file names in UTF-8 only; rename the file (or its folder), e.g. `convmv -f latin1 -t utf8 "
+                "--notest NAME`"
+            ) from exc
         except RasterioError as exc:
             if not isinstance(file, GdalPath):
                 raise
@@ -1174,8 +1216,11 @@ def _load_geotiff(
                 _check_read_budget(file, shape, np.dtype(dataset.dtypes[band - 1]),
                                    hint="crop or coarsen it first (load_dem's crop=, --crop on the command line, "
                                         "reads only the crop's window; gdal_translate -outsize coarsens)")
-            masked = dataset.read(band, masked=True, window=window)
-            unmasked = _missing_beyond_gdal_mask(dataset, band, masked.data, window)
+            # block by block: GDAL's one big read of a raw raster (.bil, .flt) cut short filled the missing rows with
+            # zeros without an error (heights of 0 m); its block reads fail there, as a GeoTIFF's do
+            with rasterio.Env(GDAL_ONE_BIG_READ="NO"):
+                masked = dataset.read(band, masked=True, window=window)
+                unmasked = _missing_beyond_gdal_mask(dataset, band, masked.data, window)
     except RasterioError as exc:
         raise DataFileError(
             f"cannot read {str(file)!r}: expected {_gdal_format(file)}; got unreadable content ({gdal_reason(exc)})"
@@ -1401,27 +1446,83 @@ def _prj_files(path: Path) -> list[Path]:
 
 def prj_crs(path: Path, what: str, refusal: type[StepTerrainError] = InvalidInputError) -> str | None:
     """The CRS in a .prj file beside the raster ``path`` (``ortho.prj`` or ``ortho.jpg.prj``, the ESRI convention for
-    a world file's CRS, which GDAL does not read for a TIFF, JPEG or PNG: their CRS was unknown), for a raster GDAL
+    a world file's CRS, which GDAL does not read for a TIFF, JPEG or PNG: their CRS was unknown; WKT, or the ArcInfo
+    keyword form GDAL reads beside a grid, :func:`_arcinfo_prj_crs`; in a local zip, the one beside it there,
+    :func:`_zipped_prj`), for a raster GDAL
     georeferences without a CRS; None without one. A .prj that is no CRS is refused (a ``refusal``), naming it and
     ``what`` the raster is ("image", "DEM"): the raster would be taken in no CRS, or another's, without a word. Its
     extension in either case (``DEM.PRJ`` beside ``DEM.TIF``, as DOS-era ESRI data ships it, and GDAL reads the world
     file ``DEM.TFW``)."""
-    if isinstance(path, GdalPath):  # only local files are looked for beside it
-        return None
-    for prj in _prj_files(path):
-        if not prj.is_file():
-            continue
+    if isinstance(path, GdalPath):  # in a local zip, the .prj beside it there; elsewhere (a URL) none is looked for
+        found = _zipped_prj(path)
+    else:
+        found = next(((str(prj), prj) for prj in _prj_files(path) if prj.is_file()), None)
+    if found is not None:
+        named, prj = found
         from rasterio.crs import CRS
 
         try:
-            text = prj.read_text(errors="replace").strip()
+            text = (prj.read_text(errors="replace") if isinstance(prj, Path) else prj).strip()
         except OSError as exc:
-            raise DataFileError(f"cannot read {str(prj)!r}, the CRS of {what} {str(path)!r}: {exc}") from exc
+            raise DataFileError(f"cannot read {named!r}, the CRS of {what} {str(path)!r}: {exc}") from exc
         try:
             return _crs_string(CRS.from_user_input(text))
         except Exception as exc:  # noqa: BLE001 - rasterio's CRSError, or a WKT it parses but cannot name
-            raise refusal(f"{str(prj)!r} beside {what} {str(path)!r} is not a CRS (WKT, as GIS software writes it "
+            arcinfo = _arcinfo_prj_crs(text)
+            if arcinfo is not None:
+                return arcinfo
+            raise refusal(f"{named!r} beside {what} {str(path)!r} is not a CRS (WKT, as GIS software writes it "
                           f"beside a world file): {exc}") from exc
+    return None
+
+
+#: The 2 x 2 ASCII grid beside which :func:`_arcinfo_prj_crs` has GDAL read a .prj.
+_PRJ_PROBE_GRID = b"ncols 2\nnrows 2\nxllcorner 0\nyllcorner 0\ncellsize 1\n0 0\n0 0\n"
+
+
+def _arcinfo_prj_crs(text: str) -> str | None:
+    """The CRS of a .prj in the ESRI ArcInfo keyword form (``Projection UTM``, ``Zone 11``, ``Units METERS``, ...,
+    as ArcInfo and ArcView 3 wrote it beside grids and their TIFF exports), which GDAL reads beside an ASCII grid
+    (its ESRI import) but no WKT parser takes: read so, beside a 2 x 2 ASCII grid in GDAL's memory file system (the
+    one way rasterio reaches that import). None for WKT (refused as it is), text GDAL finds no CRS in, or a CRS it
+    cannot name; a projection GDAL does not know (``Projection UTMX``), which it takes as a local CRS of that name
+    (neither geographic nor projected), is none either: refused, as before, not a grid in no CRS without a word."""
+    if "[" in text or not re.match(r"\s*projection\b", text, re.IGNORECASE):
+        return None
+    import uuid
+
+    from rasterio.io import MemoryFile
+
+    folder = f"stepterrain-prj-{uuid.uuid4().hex}"  # the two files side by side, apart from any other read's
+    try:
+        with MemoryFile(text.encode(), dirname=folder, filename="grid.prj"), \
+                MemoryFile(_PRJ_PROBE_GRID, dirname=folder, filename="grid.asc") as grid, grid.open() as dataset:
+            crs = dataset.crs
+            return _crs_string(crs) if crs is not None and (crs.is_geographic or crs.is_projected) else None
+    except Exception:  # noqa: BLE001 - GDAL reads no grid or CRS of it: refused as not a CRS
+        return None
+
+
+def _zipped_prj(path: GdalPath) -> tuple[str, str] | None:
+    """(name, text) of the first .prj :func:`prj_crs` reads beside the raster ``path`` when it is a ``/vsizip/``
+    path into a local zip (a zip's own raster, :func:`zip_member`): a TIFF's world file (.tfw) GDAL reads inside the
+    zip, but not its .prj, and the CRS of the grid it places was lost (a grid in US survey feet kept feet as metres).
+    None for any other virtual path, or without one."""
+    gdal = os.fspath(path)
+    archive_path = local_archive(path) if gdal.startswith("/vsizip/") else None
+    if archive_path is None or not os.path.isfile(archive_path):
+        return None
+    member = PurePosixPath(gdal[len("/vsizip/") + len(archive_path):].lstrip("/"))
+    try:
+        with zipfile.ZipFile(archive_path) as archive:
+            names = set(archive.namelist())
+            for prj in (member.with_suffix(".prj"), member.with_suffix(".PRJ"), member.with_name(member.name + ".prj"),
+                        member.with_name(member.name + ".PRJ")):  # as _prj_files names them beside a local file
+                if str(prj) in names:
+                    text = archive.read(str(prj)).decode(errors="replace")
+                    return f"{str(path)[: -len(member.name)]}{prj.name}", text
+    except (OSError, RuntimeError, zipfile.BadZipFile) as exc:  # RuntimeError: an encrypted member
+        raise DataFileError(f"cannot read the zip {archive_path!r} of {str(path)!r}: {exc}") from exc
     return None
 
 

@@ -1900,3 +1900,111 @@ def test_an_npz_lon_axis_with_neighbours_360_degrees_apart_is_refused_for_what_i
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         assert load_dem(tmp_path / "across.npz").shape == (3, 3)
+
+
+def test_a_geotiff_whose_name_is_not_utf8_is_refused_by_name(tmp_path, capsys):
+    """A GeoTIFF named in Latin-1 ('H\\xf6he.tif', from an old zip or a network share, on a UTF-8 system) reaches
+    Python as a name with surrogate escapes, which rasterio cannot hand to GDAL: load_dem raised UnicodeEncodeError
+    from deep in rasterio, and `stepterrain info` printed a traceback. It is refused as a DataFileError naming the file
+    and the rename that reads it; an .npy of such a name is read as before (NumPy opens any name)."""
+    pytest.importorskip("rasterio")
+    from stepterrain import cli
+
+    name = os.fsdecode(b"H\xf6he")
+    try:
+        tif = tmp_path / f"{name}.tif"
+        tif.write_bytes((SHARED_DATA / "big_tujunga_srtm_30m_utm11n.tif").read_bytes())
+    except (OSError, UnicodeError):
+        pytest.skip("the file system takes UTF-8 names only")
+    refused = r"cannot read '.*H\\udcf6he\.tif': its path is not UTF-8 \(its bytes: b'.*H\\xf6he\.tif'\).*rename"
+    with pytest.raises(DataFileError, match=refused):
+        load_dem(tif)
+    assert cli.main(["info", str(tif)]) == 2
+    assert "its path is not UTF-8" in capsys.readouterr().err
+    npy = tmp_path / f"{name}.npy"
+    np.save(npy, np.arange(12.0).reshape(3, 4))
+    assert load_dem(npy).shape == (3, 4)
+
+
+def test_a_png_heightmaps_scale_and_offset_in_its_aux_xml_are_refused_not_dropped(tmp_path):
+    """A DEM of scaled integers (height = value * scale + offset, GDAL's band scale and offset) exported to a 16-bit
+    PNG by `gdal_translate -of PNG` keeps its values and writes the scale and offset to dem.png.aux.xml, which load_dem
+    does not read for a PNG (Pillow reads the pixels): the stored values were read as heights, 10 times too high and
+    100 m off, without a word (a GeoTIFF of the same values is read scaled). Refused naming the scale and offset and
+    the gdal_translate to a GeoTIFF that keeps them; a scale of 1 and offset of 0, or no band entry, read as before."""
+    heights = load_dem(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.npz").heights[:40, :50]
+    stored = np.round((heights - 100.0) / 0.1).astype(np.uint16)  # decimetres above 100 m
+    png = tmp_path / "dem.png"
+    Image.fromarray(stored).save(png)
+
+    def aux(scale, offset):
+        (tmp_path / "dem.png.aux.xml").write_text(
+            "<PAMDataset>\n  <Metadata>\n    <MDI key=\"AREA_OR_POINT\">Area</MDI>\n  </Metadata>\n"
+            f"  <PAMRasterBand band=\"1\">\n    <Offset>{offset}</Offset>\n    <Scale>{scale}</Scale>\n"
+            "  </PAMRasterBand>\n</PAMDataset>\n")
+
+    aux(0.1, 100)
+    with pytest.raises(DataFileError, match=r"scale 0\.1, offset 100 of its values in dem\.png\.aux\.xml.*"
+                                            r"gdal_translate dem\.png dem\.tif"):
+        load_dem(png)
+    if _has_rasterio():  # the GeoTIFF the hint names reads the heights (GDAL reads the PNG's aux.xml)
+        import rasterio
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # rasterio's NotGeoreferencedWarning for the plain PNG and TIFF
+            with rasterio.open(png) as src, \
+                    rasterio.open(tmp_path / "dem.tif", "w", **{**src.profile, "driver": "GTiff"}) as out:
+                out.write(src.read())
+                out.scales, out.offsets = src.scales, src.offsets
+        np.testing.assert_allclose(load_dem(tmp_path / "dem.tif").heights, heights, atol=0.05)
+    aux(1, 0)
+    np.testing.assert_array_equal(load_dem(png).heights, stored.astype(np.float32))
+    (tmp_path / "dem.png.aux.xml").write_text("<PAMDataset>\n  <Metadata/>\n</PAMDataset>\n")
+    np.testing.assert_array_equal(load_dem(png).heights, stored.astype(np.float32))
+
+
+def _has_rasterio():
+    try:
+        import rasterio  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def test_an_arcinfo_style_prj_beside_a_world_file_tiff_gives_its_crs(tmp_path):
+    """An ESRI .prj in the ArcInfo keyword form ("Projection UTM / Zone 11 / Units METERS ...", as ArcInfo and
+    ArcView 3 wrote it beside grids and their TIFF exports) is the CRS GDAL reads beside an ASCII grid, but no WKT
+    parser takes it: beside a TIFF with a world file it was refused as "not a CRS". It gives the same CRS as beside
+    the ASCII grid (one in US survey feet converted as any such CRS); a .prj in neither form is still refused."""
+    rasterio = pytest.importorskip("rasterio")
+
+    arcinfo = ("Projection    UTM\nZone          11\nDatum         WGS84\nZunits        NO\nUnits         METERS\n"
+               "Spheroid      WGS84\nXshift        0.0000000000\nYshift        0.0000000000\nParameters\n")
+    z = load_dem(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.npz").heights[:30, :40]
+    tif = tmp_path / "dem.tif"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # rasterio's NotGeoreferencedWarning for the bare TIFF
+        with rasterio.open(tif, "w", driver="GTiff", width=40, height=30, count=1, dtype="float32") as ds:
+            ds.write(z, 1)
+    tif.with_suffix(".tfw").write_text("30.0\n0.0\n0.0\n-30.0\n376328.655\n3807902.828\n")
+    tif.with_suffix(".prj").write_text(arcinfo)
+    asc = tmp_path / "grid.asc"
+    asc.write_text("ncols 40\nnrows 30\nxllcorner 376313.655\nyllcorner 3807017.828\ncellsize 30\n"
+                   + "\n".join(" ".join(f"{v:g}" for v in row) for row in z) + "\n")
+    asc.with_suffix(".prj").write_text(arcinfo)
+    beside_grid = load_dem(asc)
+    assert beside_grid.crs == "EPSG:32611"  # as GDAL reads it beside the grid
+    t = load_dem(tif)
+    assert (t.crs, t.spacing) == (beside_grid.crs, (30.0, -30.0))
+    assert t.origin == pytest.approx(beside_grid.origin)
+    np.testing.assert_array_equal(t.heights, beside_grid.heights)
+    tif.with_suffix(".prj").write_text("Projection    STATEPLANE\nFipszone      0405\nDatum         NAD83\n"
+                                       "Units         FEET\nSpheroid      GRS1980\nParameters\n")
+    with pytest.warns(UserWarning, match=r"Foot_US units, so spacing and origin were converted to metres"):
+        feet = load_dem(tif)
+    assert feet.spacing == pytest.approx((30.0 * 1200 / 3937, -30.0 * 1200 / 3937))
+    for text in ("WGS 84 / UTM zone 11N, metres\n",  # a note, in neither form
+                 arcinfo.replace("UTM", "UTMX", 1)):  # a projection GDAL does not know: a local CRS "UTMX" to it
+        tif.with_suffix(".prj").write_text(text)
+        with pytest.raises(DataFileError, match=r"dem\.prj' beside DEM '.*dem\.tif' is not a CRS"):
+            load_dem(tif)

@@ -334,3 +334,23 @@ def test_a_bil_header_corrected_in_place_redoes_its_batch_item(tmp_path):
     (folder / "dem.hdr").write_text(header.replace("1995", "2995"))  # corrected in place: same size
     assert lowest_y() == (1, 2995.0 - 40.0)
     assert lowest_y() == (0, 2995.0 - 40.0)  # unchanged: skipped
+
+
+@pytest.mark.parametrize("ext, dtype", [(".flt", np.float32), (".bil", np.int16)])
+def test_a_truncated_raw_grid_is_refused_not_filled_with_zeros(tmp_path, ext, dtype):
+    """An ESRI .flt or .bil cut short (an interrupted download or copy) holds fewer rows than its .hdr declares. GDAL
+    reads such a raw raster whole in one read that fills the missing bytes with zeros without an error (only its
+    block-by-block read fails), so the rows past the cut were read as heights of 0 m: a cliff down to sea level in
+    the mesh, without a word. It is refused as unreadable content, the whole file and a crop reaching past the cut;
+    a crop of the rows it holds reads them, as the intact file's."""
+    z = st.sample_dem().heights[:30, :40].astype(dtype)  # real heights, 315-2295 m
+    path = _write(tmp_path / f"dem{ext}", z, "EHdr", _TRANSFORM)
+    whole = st.load_dem(path)
+    intact = whole.crop((380000.0, 380500.0, 3799700.0, 3800000.0))  # rows 0-9
+    with open(path, "r+b") as raw:
+        raw.truncate(path.stat().st_size // 2)  # rows 15 on are gone
+    with pytest.raises(st.errors.DataFileError, match=r"got unreadable content"):
+        st.load_dem(path)
+    with pytest.raises(st.errors.DataFileError, match=r"got unreadable content"):
+        st.load_dem(path, crop=whole.extent)
+    _same(st.load_dem(path, crop=(380000.0, 380500.0, 3799700.0, 3800000.0)), intact)

@@ -295,3 +295,64 @@ def test_cli_batch_names_a_vsizip_file_item_after_the_inner_file(tiles, tmp_path
                        "-o", out)
     assert code == 0, err
     assert "1 written, 0 complete already" in err
+
+
+def test_a_zipped_world_file_tiff_takes_its_crs_from_the_prj_in_the_zip(tmp_path):
+    """A zip of a TIFF with its world file (.tfw) and .prj, as GIS software exports a DEM: GDAL reads the world file
+    inside the zip but not the .prj (it never does for a TIFF), and load_dem looked for a .prj beside local files
+    only. The same three files read in local metres from a folder lost their CRS from the zip: one in degrees was
+    read as degrees (with a warning) and one in US survey feet kept its feet as metres, 3.28 times too wide, without
+    a word. The .prj inside the zip is read as the one beside a local file (the zip's own raster, a /vsizip/ path
+    relative or absolute, in a folder of the zip); one that is no CRS is refused by name."""
+    from rasterio.crs import CRS
+
+    z = (np.arange(12.0).reshape(3, 4) * 10 + 3000).astype(np.int16)
+
+    def world_zip(name, a, c, e, f, prj, folder=""):
+        local = tmp_path / name
+        local.mkdir()
+        tif = local / "dem.tif"
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # rasterio's NotGeoreferencedWarning for the bare TIFF
+            with rasterio.open(tif, "w", driver="GTiff", width=4, height=3, count=1, dtype="int16") as ds:
+                ds.write(z, 1)
+        tif.with_suffix(".tfw").write_text(f"{a!r}\n0.0\n0.0\n{e!r}\n{c + a / 2!r}\n{f + e / 2!r}\n")
+        local.joinpath(prj[0]).write_text(prj[1])
+        with zipfile.ZipFile(tmp_path / f"{name}.zip", "w") as archive:
+            for file in local.iterdir():
+                archive.write(file, folder + file.name)
+        return local / "dem.tif", tmp_path / f"{name}.zip"
+
+    feet_tif, feet_zip = world_zip("site", 100.0, 6.4e6, -100.0, 1.9e6, ("dem.prj", CRS.from_epsg(2229).to_wkt()))
+    with pytest.warns(UserWarning, match="EPSG:2229 is in US survey foot units"):
+        local = st.load_dem(feet_tif)
+    assert local.crs == "EPSG:26945"
+    for given in (feet_zip, f"/vsizip/{feet_zip}/dem.tif"):
+        with pytest.warns(UserWarning, match="EPSG:2229 is in US survey foot units"):
+            t = st.load_dem(given)
+        assert (t.crs, t.spacing, t.origin) == (local.crs, local.spacing, local.origin), given
+
+    degrees_tif, degrees_zip = world_zip("front", 1 / 1200, -105.8, -1 / 1200, 40.4,
+                                         ("dem.tif.prj", CRS.from_epsg(4326).to_wkt()), folder="dem/")
+    local = st.load_dem(degrees_tif)
+    assert local.crs.startswith("+proj=eqc")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "look like degrees" warning: its CRS is read
+        t = st.load_dem(degrees_zip)
+    assert (t.crs, t.spacing, t.origin, t.source) == (local.crs, local.spacing, local.origin, local.source)
+    # batch places such tiles in the degrees they share by their header: its CRS is the zipped .prj's too
+    from stepterrain.io import degree_header
+
+    assert degree_header(degrees_zip) == degree_header(degrees_tif)
+    assert degree_header(degrees_zip)[0] == "EPSG:4326"
+    old = os.getcwd()
+    os.chdir(tmp_path)
+    try:
+        t = st.load_dem("/vsizip/front.zip/dem/dem.tif")  # relative to the working folder, as GDAL reads it
+    finally:
+        os.chdir(old)
+    assert (t.crs, t.spacing) == (local.crs, local.spacing)
+
+    _, broken_zip = world_zip("broken", 30.0, 5e5, -30.0, 4e6, ("dem.prj", "not a CRS"))
+    with pytest.raises(DataFileError, match=r"dem\.prj' beside DEM '.*dem\.tif' is not a CRS"):
+        st.load_dem(broken_zip)
