@@ -69,7 +69,7 @@ from .export import (
     save_mesh,
     unwritable_reason,
 )
-from .io import GDAL_FORMATS, SUPPORTED_EXTENSIONS
+from .io import GDAL_FORMATS, GZIP_FORMATS, SUPPORTED_EXTENSIONS
 from .terrain import (
     FLOAT32_MAX,
     Terrain,
@@ -119,6 +119,13 @@ _SCHEDULER_RE = re.compile(r"^(tcp|tls|inproc|ucx|ws|wss)://[^\s/:]+(:\d{1,5})?/
 #: The DEM files a folder source is read for: all but a .vrt, which in a folder of tiles is the mosaic of them
 #: (gdalbuildvrt's), so its heights would be meshed twice (a .vrt named as a file, or in a glob, is read)
 _FOLDER_EXTENSIONS = tuple(ext for ext in SUPPORTED_EXTENSIONS if ext != ".vrt")
+#: The gzip files a folder source is read for, by their whole ending (``N46E007.hgt.gz``): of :data:`GZIP_FORMATS`
+_FOLDER_GZIPS = tuple(ext + ".gz" for ext in GZIP_FORMATS)
+
+
+def _gzip_raster(name: str) -> bool:
+    """Whether the file ``name`` is a gzip of a raster load_dem reads (``N46E007.hgt.gz``, ``dem.tif.gz``)."""
+    return name.lower().endswith(_FOLDER_GZIPS)
 _MANIFEST_FLUSH_S = 1.0
 
 
@@ -349,7 +356,7 @@ def plan_items(
             # a broken link too (is_file() is False for it): an item that fails "does not exist", not a tile left
             # out without a word
             found = [p for p in path.iterdir() if (p.is_file() or (p.is_symlink() and not p.exists()))
-                     and p.suffix.lower() in _FOLDER_EXTENSIONS]
+                     and (p.suffix.lower() in _FOLDER_EXTENSIONS or _gzip_raster(p.name))]
             # hidden files left out, as the shell glob tiles/*.tif leaves them: macOS's AppleDouble "._t.tif" beside
             # every tile on a FAT/exFAT drive was an item each, failing as unreadable (exit status 1)
             files = sorted(p for p in found if not p.name.startswith("."))
@@ -357,11 +364,15 @@ def plan_items(
                 hidden = len(found) - len(files)
                 raise InvalidInputError(
                     f"source folder {str(path)!r} holds no DEM file; expected files ending in "
-                    f"{', '.join(_FOLDER_EXTENSIONS)} (a .vrt is read only when named"
+                    f"{', '.join(_FOLDER_EXTENSIONS)} or {', '.join(_FOLDER_GZIPS)} (a .vrt is read only when named"
                     + (f"; {hidden} hidden file{'s' * (hidden != 1)}, named with a leading '.', left out"
                        if hidden else "") + ")"
                 )
-            return _file_items(files), None
+            # a gzip (N46E007.hgt.gz) as load_dem reads it: named as the file inside (its output N46E007.glb), its
+            # path the .gz's (its fingerprint stats the .gz and the inner file's sidecars beside it)
+            from .io import gzip_member
+
+            return _file_items([gzip_member(f) if _gzip_raster(f.name) else f for f in files]), None
         if virtual is None and not path.exists():
             raise DataFileError(f"source {str(path)!r} does not exist (expected a DEM file or a folder of tiles)"
                                 + _unmatched_glob(path))
@@ -422,11 +433,11 @@ def plan_items(
                 f"source lists the folder {str(folder)!r} among DEM files; give the folder alone (one item per file "
                 f"in it), or its files")
         # a .zip that is no file here is missing (one that is was read as its raster): it was "must end in ..."
-        bad = [str(f) for f in files if f.suffix.lower() not in (*SUPPORTED_EXTENSIONS, ".zip")]
+        bad = [str(f) for f in files if f.suffix.lower() not in (*SUPPORTED_EXTENSIONS, ".zip", ".gz")]
         if bad:
             raise InvalidInputError(
-                f"source files must end in {', '.join(SUPPORTED_EXTENSIONS)} (or name a GDAL virtual path, a URL or a "
-                f".zip holding one raster); got {bad[0]!r}"
+                f"source files must end in {', '.join(SUPPORTED_EXTENSIONS)} (or name a GDAL virtual path, a URL, a "
+                f".zip holding one raster or a .gz of one: {', '.join(_FOLDER_GZIPS)}); got {bad[0]!r}"
                 + (f" and {len(bad) - 1} more" if len(bad) > 1 else "")
             )
         missing = [str(f) for f in files if not isinstance(f, GdalPath) and not f.exists()]
@@ -563,14 +574,15 @@ def _series_or_none(path: Path) -> NDArray[np.float32] | None:
 
 def _virtual_source(source: str | os.PathLike[str]) -> Path | None:
     """The file a source names through GDAL (:func:`~stepterrain.io.dem_path`): a ``/vsizip/...`` path or a URL, or
-    a local ``.zip`` of one raster (one of several is refused, naming them: a zip is no folder of tiles here); None
+    a local ``.zip`` of one raster (one of several is refused, naming them: a zip is no folder of tiles here) or a
+    local ``.gz`` of one (:func:`~stepterrain.io.gzip_member`); None
     for a local file or folder."""
     from .io import dem_path
 
     text = os.fspath(source)
     if not isinstance(text, str):
         return None
-    if isinstance(source, GdalPath) or gdal_path(text) is not None or (text.lower().endswith(".zip")
+    if isinstance(source, GdalPath) or gdal_path(text) is not None or (text.lower().endswith((".zip", ".gz"))
                                                                        and os.path.isfile(text)):
         return dem_path(source)
     return None
@@ -1255,6 +1267,8 @@ def _file_identity(path: str, listings: dict[str, dict[str, list[str]] | None],
     file = os.path.abspath(path)
     parts = [identity(file)]
     folder, name = os.path.split(file)
+    if _gzip_raster(name):  # N46E007.hgt.gz: the sidecars of the file inside, beside it (dem.prj of dem.asc.gz)
+        name = name[:-3]
     stem, ext = os.path.splitext(name)
     if ext.lower() in GDAL_FORMATS:
         if folder not in listings:

@@ -10,6 +10,7 @@ Shared input room of every capability (papers 000-004); the embedded Big Tujunga
 from __future__ import annotations
 
 import contextvars
+import gzip
 import importlib.resources
 import math
 import os
@@ -17,6 +18,7 @@ import re
 import threading
 import warnings
 import zipfile
+import zlib
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path, PurePosixPath
 from typing import Any, BinaryIO, Literal, NamedTuple
@@ -54,6 +56,10 @@ GDAL_FORMATS: dict[str, str] = {
     ".flt": "an ESRI float grid", ".dem": "a USGS DEM", ".dt0": "a DTED tile", ".dt1": "a DTED tile",
     ".dt2": "a DTED tile",
 }
+#: Rasters :func:`load_dem` reads from a local gzip file of one (``N46E007.hgt.gz``, ``dem.tif.gz``), through GDAL's
+#: ``/vsigzip/`` (:func:`gzip_member`): those of :data:`GDAL_FORMATS` but a .bil or .flt (GDAL reads no .hdr beside a
+#: gzip: it cannot open them) and a .vrt (its sources are named beside it).
+GZIP_FORMATS: tuple[str, ...] = tuple(ext for ext in GDAL_FORMATS if ext not in (".bil", ".flt", ".vrt"))
 #: File extensions :func:`load_dem` reads (lower case; matching is case-insensitive).
 SUPPORTED_EXTENSIONS: tuple[str, ...] = (".npy", ".npz", ".png", *GDAL_FORMATS)
 
@@ -343,6 +349,7 @@ def _read_dem(
     if isinstance(file, GdalPath):  # GDAL reads it, by the extension of the file inside (a URL's path)
         if ext not in GDAL_FORMATS:
             raise InvalidInputError(_virtual_refusal(file))
+        check_gzip(file)  # a local .gz (N46E007.hgt.gz, /vsigzip/dem.tif.gz): whole, or refused
     elif ext not in SUPPORTED_EXTENSIONS:
         if os.path.isdir(file):  # `steps tiles/` said "unknown DEM extension '(none)'"
             raise DataFileError(f"DEM path {str(file)!r} is a folder; expected a DEM file "
@@ -381,7 +388,8 @@ def _read_dem(
 def dem_path(path: str | os.PathLike[str]) -> Path:
     """The file :func:`load_dem` reads for ``path``: a :class:`~stepterrain._files.GdalPath` for a GDAL virtual path
     (``/vsizip/...``, ``/vsigzip/...``, ``/vsicurl/...``) or a URL (``https://``, ``s3://``, ...), and for a local
-    ``.zip`` holding one raster of :data:`GDAL_FORMATS` (:func:`zip_member`); the Path of a local file otherwise.
+    ``.zip`` holding one raster of :data:`GDAL_FORMATS` (:func:`zip_member`) and a local ``.gz`` of one of
+    :data:`GZIP_FORMATS` (:func:`gzip_member`); the Path of a local file otherwise.
     A path argument that is no str or path-like is an InvalidInputError."""
     if isinstance(path, GdalPath):
         return path
@@ -392,6 +400,8 @@ def dem_path(path: str | os.PathLike[str]) -> Path:
         return virtual
     if file.suffix.lower() == ".zip":
         return zip_member(file)
+    if file.suffix.lower() == ".gz":
+        return gzip_member(file)
     return file
 
 
@@ -423,6 +433,70 @@ def zip_member(file: Path) -> GdalPath:
                             + found)
     gdal = f"/vsizip/{os.path.abspath(file)}/{rasters[0]}"
     return _restored(f"{given}/{rasters[0]}", gdal, gdal)  # named as the member; str() the GDAL path, which reads it
+
+
+def gzip_member(file: Path) -> GdalPath:
+    """The ``/vsigzip/`` path of the local gzip file ``file`` of one raster of :data:`GZIP_FORMATS`
+    (``N46E007.hgt.gz``, as AWS Terrain Tiles serve SRTM; ``dem.tif.gz``): a GdalPath named as the file inside
+    (``N46E007.hgt``: an SRTM tile placed by its name), its ``str()`` the path as given. Another inner extension is
+    refused, naming those read (an InvalidInputError): ``.npy``/``.npz``/``.png`` and the .bil, .flt and .vrt GDAL
+    cannot read alone (gunzip them), a ``.tar.gz`` (``/vsitar/`` names its file). Whether the file exists and is a whole
+    gzip stream is checked when it is read (:func:`check_gzip`)."""
+    given = str(file)
+    inner = Path(file.name[: -len(file.suffix)])
+    ext = inner.suffix.lower()
+    if ext not in GZIP_FORMATS:
+        if ext == ".tar":
+            why = f"a tar archive: name the file inside it, '/vsitar/{given}/<name>.tif'"
+        elif ext in SUPPORTED_EXTENSIONS:  # .npy .npz .png .bil .flt .vrt
+            why = (f"{ext} files are read uncompressed only" + (
+                " (GDAL reads no .hdr beside a gzip)" if ext in (".bil", ".flt") else
+                " (its sources are named beside it)" if ext == ".vrt" else "") + f": gunzip it first, `gunzip -k {given}`")
+        else:
+            why = f"unknown DEM extension {inner.suffix or '(none)'!r} of the file inside, {inner.name!r}"
+        raise InvalidInputError(f"cannot read {given!r}: a .gz is read as the raster it compresses, one of "
+                                f"{', '.join(e + '.gz' for e in GZIP_FORMATS)}; {why}")
+    gdal = f"/vsigzip/{os.path.abspath(file)}"
+    return _restored(given[: -len(file.suffix)], gdal, given)
+
+
+#: Local gzip files :func:`check_gzip` found whole, by (path, size, mtime, ctime, inode): a batch reads a file's header
+#: and then its heights, and a rerun's pass of ranges reads it again, each decompressing it once more.
+_WHOLE_GZIPS: dict[tuple[str, int, int, int, int], None] = {}
+_WHOLE_GZIPS_LOCK = threading.Lock()
+
+
+def check_gzip(file: GdalPath) -> None:
+    """Refuse the ``/vsigzip/`` path ``file`` of a local gzip file unless that file is one whole gzip stream: it
+    exists, is gzip, is not cut short, and its CRC-32 and length match its data (a DataFileError naming the file and
+    zlib's reason). GDAL read a cut short .gz up to where it ends, and read no CRC: a corrupt byte gave wrong heights
+    without a word, and a window of a crop read before the damage unchecked. The file is decompressed once, in
+    blocks, for the check (:data:`_WHOLE_GZIPS` remembers a whole one). Nothing for another path or a remote one."""
+    gdal = os.fspath(file)
+    archive = local_archive(file) if gdal.startswith("/vsigzip/") else None
+    if archive is None:
+        return
+    local = Path(archive)
+    require_regular_file(local, "DEM file", "DEM path")
+    st = local.stat()
+    key = (os.path.abspath(archive), st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino)
+    with _WHOLE_GZIPS_LOCK:
+        if key in _WHOLE_GZIPS:
+            return
+    try:
+        with gzip.open(local, "rb") as stream:
+            while stream.read(1 << 20):
+                pass
+    except (OSError, EOFError, zlib.error) as exc:  # gzip.BadGzipFile is an OSError
+        reason = "it is cut short" if isinstance(exc, EOFError) else "it is corrupt or no gzip"
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected a whole gzip file of {_gdal_format(file)}; {reason} "
+            f"({str(exc) or type(exc).__name__}): download or compress it again"
+        ) from exc
+    with _WHOLE_GZIPS_LOCK:
+        if len(_WHOLE_GZIPS) > 4096:
+            _WHOLE_GZIPS.clear()
+        _WHOLE_GZIPS[key] = None
 
 
 def _virtual_refusal(file: GdalPath) -> str:
@@ -1121,7 +1195,9 @@ def open_raster(path: str | os.PathLike[str]) -> Any:
 
     with _OPEN_QUIETLY, warnings.catch_warnings():
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        return rasterio.open(os.fspath(path))  # a GdalPath's GDAL path (its str() is the text as given)
+        # a gzip's size found once, at its end: GDAL wrote it to a '.gz.properties' file beside the user's .gz
+        with rasterio.Env(CPL_VSIL_GZIP_WRITE_PROPERTIES="NO"):
+            return rasterio.open(os.fspath(path))  # a GdalPath's GDAL path (its str() is the text as given)
 
 
 def _load_geotiff(
@@ -1189,6 +1265,7 @@ def _load_geotiff(
             shape = (dataset.height, dataset.width)
             if transform.is_identity:  # no geotransform: perhaps ground control points or RPCs instead
                 _refuse_warped_georeferencing(file, dataset.gcps, dataset.rpcs)
+                _refuse_gzip_world_file(file)
             elif crs_obj is None:  # a world file's grid: its CRS in a .prj beside it (degrees were read as metres)
                 prj = prj_crs(file, "DEM", DataFileError)
                 crs_obj = _crs_object(prj) if prj else None
@@ -1218,7 +1295,7 @@ def _load_geotiff(
                                         "reads only the crop's window; gdal_translate -outsize coarsens)")
             # block by block: GDAL's one big read of a raw raster (.bil, .flt) cut short filled the missing rows with
             # zeros without an error (heights of 0 m); its block reads fail there, as a GeoTIFF's do
-            with rasterio.Env(GDAL_ONE_BIG_READ="NO"):
+            with rasterio.Env(GDAL_ONE_BIG_READ="NO", CPL_VSIL_GZIP_WRITE_PROPERTIES="NO"):
                 masked = dataset.read(band, masked=True, window=window)
                 unmasked = _missing_beyond_gdal_mask(dataset, band, masked.data, window)
     except RasterioError as exc:
@@ -1448,12 +1525,15 @@ def prj_crs(path: Path, what: str, refusal: type[StepTerrainError] = InvalidInpu
     """The CRS in a .prj file beside the raster ``path`` (``ortho.prj`` or ``ortho.jpg.prj``, the ESRI convention for
     a world file's CRS, which GDAL does not read for a TIFF, JPEG or PNG: their CRS was unknown; WKT, or the ArcInfo
     keyword form GDAL reads beside a grid, :func:`_arcinfo_prj_crs`; in a local zip, the one beside it there,
-    :func:`_zipped_prj`), for a raster GDAL
+    :func:`_zipped_prj`; of a local gzip, ``dem.asc.gz``, the inner file's beside it, ``dem.prj``), for a raster GDAL
     georeferences without a CRS; None without one. A .prj that is no CRS is refused (a ``refusal``), naming it and
     ``what`` the raster is ("image", "DEM"): the raster would be taken in no CRS, or another's, without a word. Its
     extension in either case (``DEM.PRJ`` beside ``DEM.TIF``, as DOS-era ESRI data ships it, and GDAL reads the world
     file ``DEM.TFW``)."""
-    if isinstance(path, GdalPath):  # in a local zip, the .prj beside it there; elsewhere (a URL) none is looked for
+    gzipped = _local_gzip(path)
+    if gzipped is not None:  # a local .gz (dem.asc.gz): the .prj of the file inside, beside the .gz (dem.prj)
+        found = next(((str(prj), prj) for prj in _prj_files(Path(gzipped[:-3])) if prj.is_file()), None)
+    elif isinstance(path, GdalPath):  # in a local zip, the .prj beside it there; elsewhere (a URL) none is looked for
         found = _zipped_prj(path)
     else:
         found = next(((str(prj), prj) for prj in _prj_files(path) if prj.is_file()), None)
@@ -1501,6 +1581,42 @@ def _arcinfo_prj_crs(text: str) -> str | None:
             return _crs_string(crs) if crs is not None and (crs.is_geographic or crs.is_projected) else None
     except Exception:  # noqa: BLE001 - GDAL reads no grid or CRS of it: refused as not a CRS
         return None
+
+
+def _local_gzip(path: Path) -> str | None:
+    """The local gzip file (as GDAL names it) that the ``/vsigzip/`` path ``path`` reads (a local ``.gz``,
+    :func:`gzip_member`), else None."""
+    if not isinstance(path, GdalPath) or not os.fspath(path).startswith("/vsigzip/"):
+        return None
+    return local_archive(path)
+
+
+#: World files GDAL reads beside a TIFF (``{stem}``: its name without the extension), matched in any case: beside a
+#: gzipped TIFF GDAL reads none, and :func:`_refuse_gzip_world_file` refuses one.
+_WORLD_FILES = ("{stem}.tfw", "{stem}.tifw", "{stem}.tiffw", "{stem}.wld")
+
+
+def _refuse_gzip_world_file(file: Path) -> None:
+    """Refuse the raster ``file``, read without a geotransform from a local gzip (``dem.tif.gz``), when a world file of
+    the file inside lies beside the gzip (``dem.tfw``): GDAL reads no file beside a gzip, and the grid was read as
+    1 m cells at (0, 0) without a word where the plain TIFF is placed by it."""
+    gzipped = _local_gzip(file)
+    if gzipped is None:
+        return
+    folder = os.path.dirname(gzipped) or "."
+    try:
+        names = {n.lower(): n for n in os.listdir(folder)}
+    except OSError:
+        return
+    inner = Path(gzipped[:-3]).name
+    for pattern in _WORLD_FILES:
+        found = names.get(pattern.format(stem=Path(inner).stem, name=inner).lower())
+        if found is not None:
+            raise DataFileError(
+                f"cannot read {str(file)!r}: it has no georeferencing of its own, and GDAL reads no world file beside "
+                f"a gzip: {found!r} beside it is not read (the grid would lie at 1 m cells at (0, 0)); gunzip it "
+                f"first, `gunzip -k {str(file)}`, and read the TIFF beside its world file"
+            )
 
 
 def _zipped_prj(path: GdalPath) -> tuple[str, str] | None:
@@ -2193,7 +2309,9 @@ def _check_degrees_without_crs(file: Path, terrain: Terrain, crs: str | None = N
     if not high - low > _DEGREES_RELIEF * across:
         return
     name = file.name
-    if isinstance(file, GdalPath):  # in a zip or at a URL: no .prj beside it is read, and gdal_edit cannot edit it
+    if _local_gzip(file) is not None:  # a local .gz: the .prj of the file inside is read beside it
+        hint = f"put a .prj with it beside the file ({file.with_suffix('.prj').name})"
+    elif isinstance(file, GdalPath):  # in a zip or at a URL: no .prj beside it is read, and gdal_edit cannot edit it
         hint = f"`gdal_translate -a_srs EPSG:4326 {os.fspath(file)} {file.stem}.tif` writes a copy that names it"
     elif file.suffix.lower() in (".tif", ".tiff"):
         hint = (f"put a .prj with it beside the file ({file.with_suffix('.prj').name}), or assign it: "
