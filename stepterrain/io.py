@@ -451,7 +451,8 @@ def gzip_member(file: Path) -> GdalPath:
         elif ext in SUPPORTED_EXTENSIONS:  # .npy .npz .png .bil .flt .vrt
             why = (f"{ext} files are read uncompressed only" + (
                 " (GDAL reads no .hdr beside a gzip)" if ext in (".bil", ".flt") else
-                " (its sources are named beside it)" if ext == ".vrt" else "") + f": gunzip it first, `gunzip -k {given}`")
+                " (its sources are named beside it)" if ext == ".vrt" else "")
+                + f": gunzip it first, `gunzip -k {given}`")
         else:
             why = f"unknown DEM extension {inner.suffix or '(none)'!r} of the file inside, {inner.name!r}"
         raise InvalidInputError(f"cannot read {given!r}: a .gz is read as the raster it compresses, one of "

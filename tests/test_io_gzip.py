@@ -18,9 +18,9 @@ from stepterrain.errors import DataFileError, InvalidInputError
 from .conftest import SHARED_DATA
 
 rasterio = pytest.importorskip("rasterio")
-import rasterio.shutil  # noqa: E402
-from rasterio.io import MemoryFile  # noqa: E402
 from affine import Affine  # noqa: E402
+from rasterio.io import MemoryFile  # noqa: E402
+from rasterio.shutil import copy as gdal_copy  # noqa: E402
 
 _FRONT_RANGE = SHARED_DATA / "front_range_srtmgl3_3arcsec.tif"
 _TUJUNGA = SHARED_DATA / "big_tujunga_srtm_30m_utm11n.tif"
@@ -49,7 +49,7 @@ def _hgt_tiles(folder):
             with memory.open(driver="GTiff", width=1201, height=1201, count=1, dtype="int16", crs="EPSG:4326",
                              transform=Affine(h, 0.0, -106 - h / 2, 0.0, -h, lat0 + 1 + h / 2), nodata=-32768) as ds:
                 ds.write(tile, 1)
-            rasterio.shutil.copy(memory.name, folder / f"{name}.hgt", driver="SRTMHGT")
+            gdal_copy(memory.name, folder / f"{name}.hgt", driver="SRTMHGT")
         tiles.append(folder / f"{name}.hgt")
     return tiles
 
@@ -94,7 +94,7 @@ def test_a_tif_gz_and_an_asc_gz_with_its_prj_beside_read_as_the_plain_files(tmp_
     _same(st.load_dem(tif), st.load_dem(_TUJUNGA))
     # an ESRI ASCII grid takes its CRS from the .prj beside it: dem.prj beside dem.asc.gz, as beside dem.asc
     asc = tmp_path / "front.asc"
-    rasterio.shutil.copy(str(_FRONT_RANGE), str(asc), driver="AAIGrid")
+    gdal_copy(str(_FRONT_RANGE), str(asc), driver="AAIGrid")
     assert (tmp_path / "front.prj").is_file()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
