@@ -21,7 +21,7 @@ examples:
   stepterrain batch --tile 256 -o out/tiles
       the embedded Big Tujunga DEM cut into 256-cell tiles (shared borders), one .glb each, 2 local workers
   stepterrain batch dem_tiles/ --interval 50 --format .ply -o out/ply
-      every DEM file in a folder (.npy .npz .png .tif .asc .hgt .img .bil ...; not a .vrt), one PLY each
+      every DEM file in a folder (.npy .npz .png .tif .asc .hgt .img .bil ..., .hgt.gz; not a .vrt), one PLY each
   stepterrain batch npy_tiles/ --spacing 30 --coarsen 2 --interval 50 -o out/half
       .npy tiles (no georeferencing) of 30 m cells, each averaged to 60 m
   stepterrain batch big.tif --crop 380000,390000,3790000,3800000 --coarsen 4 --tile 256 -o out/
@@ -92,7 +92,8 @@ def add_parser(commands: Any) -> None:
     p.add_argument("input", nargs="*", type=_path, metavar="INPUT",
                    help="a folder of DEM files, several DEM files (a shell glob: tiles/*.tif; one DEM file without "
                         "--tile is one item too, as is a GDAL virtual path or URL, /vsizip/srtm.zip/N46E007.hgt, or "
-                        "a .zip holding one raster: a zip of tiles is no folder here), a (T, H, W) .npy/.npz series, "
+                        "a .zip holding one raster: a zip of tiles is no folder here; a folder's N46E007.hgt.gz "
+                        "tiles are read as their .hgt), a (T, H, W) .npy/.npz series, "
                         "or one DEM to cut with --tile; "
                         "default: the embedded Big Tujunga DEM")
     _add_height_unit(p)

@@ -436,8 +436,8 @@ def plan_items(
         bad = [str(f) for f in files if f.suffix.lower() not in (*SUPPORTED_EXTENSIONS, ".zip", ".gz")]
         if bad:
             raise InvalidInputError(
-                f"source files must end in {', '.join(SUPPORTED_EXTENSIONS)} (or name a GDAL virtual path, a URL, a gzip "
-                f"of one raster, {', '.join(_FOLDER_GZIPS)}, or a .zip holding one raster); got {bad[0]!r}"
+                f"source files must end in {', '.join(SUPPORTED_EXTENSIONS)} (or name a GDAL virtual path, a URL, a "
+                f"gzip of one raster, {', '.join(_FOLDER_GZIPS)}, or a .zip holding one raster); got {bad[0]!r}"
                 + (f" and {len(bad) - 1} more" if len(bad) > 1 else "")
             )
         missing = [str(f) for f in files if not isinstance(f, GdalPath) and not f.exists()]

@@ -224,7 +224,7 @@ def _cell_size(text: str) -> tuple[float, ...]:
 #: The DEM files an INPUT may name (load_dem's), for the help of steps, closeup, texture and info.
 INPUT_HELP = ("DEM file (.npy .npz .png .tif .asc .hgt .img .vrt .bil .flt .dem .dt0-2), a GDAL virtual path or URL to "
               "one of the GDAL rasters (/vsizip/srtm.zip/N46E007.hgt, /vsigzip/dem.tif.gz, https://.../cog.tif, "
-              "s3://bucket/dem.tif) or a .zip holding one")
+              "s3://bucket/dem.tif), a .zip holding one or a gzip of one (N46E007.hgt.gz, dem.tif.gz)")
 
 
 def _add_input_options(p: argparse.ArgumentParser) -> None:

@@ -175,7 +175,15 @@ def load_dem(
         is read as the ``/vsizip/`` path of the one raster of :data:`GDAL_FORMATS` it holds (an SRTM download,
         ``N46E007.SRTMGL1.hgt.zip``; its sidecars beside it in the zip, a TIFF's ``.tfw`` and ``.prj`` too); one
         of several is refused, naming them
-        (``/vsizip/<zip>/<name>`` picks one).
+        (``/vsizip/<zip>/<name>`` picks one). A local single-file gzip of one of :data:`GZIP_FORMATS` (an SRTM tile as
+        AWS Terrain Tiles serve it, ``N46E007.hgt.gz``, placed by the inner name; ``dem.tif.gz``, ``dem.asc.gz``) is
+        read as the file inside, through its ``/vsigzip/`` path (:func:`gzip_member`; ``source`` names the inner
+        file): first checked whole (its CRC-32 and length; a cut short or corrupt one, or one that is no gzip, is
+        refused, a ``/vsigzip/`` path of a local file too); of the files beside it only the inner file's ``.prj``
+        (``dem.prj`` or ``dem.tif.prj`` beside ``dem.tif.gz``) is read, as beside the plain file (GDAL reads none
+        through a gzip: a world file beside a gzipped TIFF without georeferencing of its own is refused, an
+        ``.aux.xml`` is not read); a ``.bil``/``.flt`` (its ``.hdr``), ``.vrt``, ``.npy``/``.npz``/``.png`` or
+        ``.tar`` in one is refused (gunzip it).
     band : int
         1-based raster band to read; GeoTIFF and the other GDAL rasters only (the other formats hold one band). It
         must be a grey or undefined band; the file's mask (nodata, an internal mask or an alpha band) marks its
@@ -263,14 +271,16 @@ def load_dem(
     Raises
     ------
     InvalidInputError
-        Unknown extension (the message lists the supported ones; a virtual path's or URL's inner file of
+        Unknown extension (the message lists the supported ones; a local ``.gz`` of another file than
+        :data:`GZIP_FORMATS`'s names them; a virtual path's or URL's inner file of
         ``.npy``/``.npz``/``.png``, or another extension, says what GDAL is asked to read), ``band`` not a valid band
         number,
         ``height_unit`` not a known length unit (the message lists them), or a ``crop`` that
         :meth:`Terrain.crop <stepterrain.terrain.Terrain.crop>` refuses (its message after ``crop:``).
     DataFileError
         The file does not exist, cannot be read (a GDAL raster whose path is not UTF-8, as GDAL takes names; a
-        virtual path or URL GDAL cannot open: a file missing from the zip,
+        virtual path or URL GDAL cannot open: a file missing from the zip, a gzip cut short or corrupt, a world
+        file beside a gzipped TIFF without georeferencing,
         an unreachable URL, with GDAL's reason; a URL scheme GDAL has no file system for; a ``.zip`` holding no
         raster of :data:`GDAL_FORMATS`, or several), or is not elevation data (a colour image, another image format
         under a .png name, a GeoTIFF band that is colour, alpha or other imagery, a 1-D array, text, an archive
