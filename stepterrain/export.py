@@ -167,7 +167,8 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     ------
     DataFileError
         The folder cannot be created or written, ``path`` is a folder, a named pipe, a device or a loop of
-        symbolic links, or the finished file cannot be flushed to disk or moved onto ``path``.
+        symbolic links, an existing file the writer may not write (read-only, as ``open()`` refuses it), or the
+        finished file cannot be flushed to disk or moved onto ``path``.
     """
     target = _link_target(Path(path))
     special = _special_file_kind(target, folders=True)  # one stat of the target for both refusals
@@ -176,6 +177,7 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     if special is not None:  # os.replace put a regular file in its place: as root, a link to /dev/null replaced it
         raise DataFileError(f"cannot write {str(target)!r}: it is a {special}, not a regular file; expected the "
                             "name of a file (written whole, then renamed into place)")
+    _refuse_read_only(target)
     folder = target.parent if str(target.parent) else Path(".")
     if not folder.exists():
         try:
@@ -212,6 +214,16 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         with contextlib.suppress(OSError):
             tmp_path.unlink()
         raise
+
+
+def _refuse_read_only(target: Path) -> None:
+    """Refuse to replace an existing file the writer may not write (``os.access``: its permission bits, ACL or
+    read-only attribute), as ``open(path, "w")`` refuses it. The rename into place needs only the folder's
+    permission: a file a user had write-protected (``chmod a-w``) to keep a delivered mesh was replaced without a
+    word. (Root may write any file, and replaces it as ``open()`` would.)"""
+    if os.path.exists(target) and not os.access(target, os.W_OK):
+        raise DataFileError(f"cannot write {str(target)!r}: the file exists and is read-only (write-protected for "
+                            "this user); make it writable (chmod u+w) to replace it, or choose another name")
 
 
 def _keep_owner(path: Path, old: os.stat_result) -> None:
