@@ -1543,3 +1543,15 @@ def test_a_globe_drape_leaves_no_vertex_unused_and_reads_back_with_its_counts(tm
     for suffix in (".glb", ".gltf", ".obj"):
         back = read_mesh(save_mesh(textured, tmp_path / f"globe{suffix}"))
         assert (len(back.vertices), len(back.faces)) == (len(textured.vertices), len(textured.faces)), suffix
+
+
+def test_a_camera_looking_straight_down_at_a_pole_names_its_view_direction_as_numbers():
+    """Camera(eye over the north pole, target the centre) with the default up (0, 0, 1): the refusal printed the view
+    direction as "(np.float64(0.0), np.float64(0.0), np.float64(-20000000.0))" (NumPy 2 reprs) and said nothing of
+    what up to give."""
+    with pytest.raises(InvalidInputError) as caught:
+        Camera(eye=(0.0, 0.0, 2.0e7), target=(0.0, 0.0, 0.0))
+    message = str(caught.value)
+    assert "np.float64" not in message
+    assert "view direction (0.0, 0.0, -20000000.0)" in message and "up=(1, 0, 0)" in message
+    Camera(eye=(0.0, 0.0, 2.0e7), target=(0.0, 0.0, 0.0), up=(1.0, 0.0, 0.0))  # the up it suggests is taken
