@@ -1293,7 +1293,10 @@ def _split_faces(mesh: trimesh.Trimesh, n: int, cells: int) -> list[trimesh.Trim
     the whole mesh's ``face_attributes`` and metadata, ``node_entry`` cut to its own vertices, and the whole mesh's
     bounds as ``metadata["shared_bounds"]``: :func:`~stepterrain.export.save_mesh` stores the six alike by them, so
     that a seam vertex's copies in two files are stored identically (each glTF about its own centre rounded them
-    apart, by up to 0.25 m on the Earth: cracks along the cube edges)."""
+    apart, by up to 0.25 m on the Earth: cracks along the cube edges). The UVs come with a plain matte material, the
+    whole mesh's as save_mesh writes it (white, metallic 0, roughness 1), and no image: trimesh's placeholder (a grey
+    2 x 2 texture, filled in for UVs given alone) was embedded in the files and drawn by the renders, the faces dark
+    grey where the whole mesh is white."""
     out = []
     cube_face = np.asarray(mesh.face_attributes["cube_face"])
     entry = np.asarray(mesh.metadata["node_entry"], dtype=np.int64)
@@ -1306,7 +1309,8 @@ def _split_faces(mesh: trimesh.Trimesh, n: int, cells: int) -> list[trimesh.Trim
         x = points[used] @ _axis(frame[0])
         y = points[used] @ _axis(frame[1])
         uv = np.column_stack([(x + cells) / (2.0 * cells), (y + cells) / (2.0 * cells)])
-        visual = trimesh.visual.TextureVisuals(uv=uv)
+        visual = trimesh.visual.TextureVisuals(uv=uv, material=trimesh.visual.material.PBRMaterial(
+            name=f"cube_face_{f}", metallicFactor=0.0, roughnessFactor=1.0, doubleSided=True))
         metadata = {**mesh.metadata, "node_entry": entry[used].astype(np.int32), "cube_face": f, **shared}
         out.append(trimesh.Trimesh(mesh.vertices[used], local.reshape(-1, 3), process=False, visual=visual,
                                    metadata=metadata, face_attributes={"cube_face": cube_face[cube_face == f]}))

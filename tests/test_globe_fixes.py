@@ -13,7 +13,7 @@ from stepterrain.kernels import cubesphere as cs
 
 import stepterrain._compaction as compaction
 from stepterrain.errors import InvalidInputError, OutputTooLargeError
-from stepterrain.globe import Camera, Globe, adaptive_mesh, look_from
+from stepterrain.globe import Camera, Globe, adaptive_mesh, look_from, render_view
 
 from .conftest import needs_render
 
@@ -1585,3 +1585,39 @@ def test_the_six_per_face_meshes_written_one_by_one_keep_their_seams_welded(tmp_
     rounding = np.abs(read_mesh(save_mesh(whole, tmp_path / f"whole{ext}")).vertices - whole.vertices).max()
     assert 0 < max(np.abs(read.vertices - part.vertices).max() for part, read in zip(parts, back, strict=True)) \
         <= rounding
+
+
+def test_the_per_face_meshes_carry_their_uvs_without_a_made_up_texture(tmp_path):
+    """Globe.mesh(per_face=True) gave each face TextureVisuals(uv=uv) without an image, so trimesh filled in its
+    placeholder material: a 2 x 2 grey (100, 100, 100) image. The GLB embedded it as the base colour texture and the
+    OBJ wrote it as a side image with Kd 0.4: viewers showed the faces nearly black where the whole mesh is white, and
+    render_view drew them grey (84 against 184 for the whole mesh). The UVs stay (for a texture per face, §5.3) with a
+    plain matte material, as the whole mesh's."""
+    import json
+    import struct
+
+    from stepterrain.export import save_mesh
+
+    globe = Globe.sample(face_size=9, device="cpu")
+    part = globe.mesh(error=0.0, per_face=True)[1]
+    assert part.visual.uv.shape == (len(part.vertices), 2)
+    data = save_mesh(part, tmp_path / "face.glb").read_bytes()
+    tree = json.loads(data[20 : 20 + struct.unpack("<I", data[12:16])[0]])
+    assert "images" not in tree and "textures" not in tree
+    (material,) = tree["materials"]
+    assert material["pbrMetallicRoughness"].get("baseColorFactor", [1.0] * 4) == [1.0] * 4
+    assert material["pbrMetallicRoughness"]["metallicFactor"] == 0.0
+    save_mesh(part, tmp_path / "face.obj")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["face.glb", "face.mtl", "face.obj"]  # no image made up
+    kd = [line.split()[1:] for line in (tmp_path / "face.mtl").read_text().splitlines() if line.startswith("Kd")]
+    assert kd == [["1.00000000"] * 3]
+
+
+@needs_render
+def test_a_per_face_mesh_renders_in_the_colours_of_the_whole_mesh():
+    globe = Globe.sample(face_size=9, device="cpu")
+    camera = look_from(0.0, 0.0, 2.0e7)  # straight over cube face 1's centre (+x)
+    part = render_view(globe.mesh(error=0.0, per_face=True)[1], camera, window_size=(64, 40))
+    whole = render_view(globe.mesh(error=0.0), camera, window_size=(64, 40))
+    np.testing.assert_allclose(part[15:25, 25:40].astype(float).mean(), whole[15:25, 25:40].astype(float).mean(),
+                               atol=2.0)
