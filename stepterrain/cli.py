@@ -586,10 +586,6 @@ def _check_outputs(inputs: dict[str, str | None] | None = None, /, **paths: Path
             special = _special_file_kind(key)
             if special is not None:  # refused by atomic_path too, but only once the work was done
                 raise DataFileError(f"{name} {str(path)!r} is a {special}, not a regular file; expected a file name")
-            if key.is_file() and not os.access(key, os.W_OK):  # refused by atomic_path too, after the work
-                raise DataFileError(f"{name} {str(path)!r} cannot be written: the file exists and is read-only "
-                                    "(write-protected for this user); make it writable (chmod u+w) to replace it, or "
-                                    "choose another name")
             folder = key.parent
             while not folder.exists() and folder != folder.parent:
                 folder = folder.parent
@@ -601,6 +597,10 @@ def _check_outputs(inputs: dict[str, str | None] | None = None, /, **paths: Path
         if error is not None:
             raise DataFileError(f"{name} {str(path)!r} cannot be written: folder {str(folder)!r} is not writable "
                                 f"({error.strerror})") from error
+        if key.is_file() and not os.access(key, os.W_OK):  # refused by atomic_path too, but after the work
+            raise DataFileError(f"{name} {str(path)!r} cannot be written: the file exists and is read-only "
+                                "(write-protected for this user); make it writable (chmod u+w) to replace it, or "
+                                "choose another name")
 
 
 def _name_max(folder: Path) -> int:

@@ -177,7 +177,6 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     if special is not None:  # os.replace put a regular file in its place: as root, a link to /dev/null replaced it
         raise DataFileError(f"cannot write {str(target)!r}: it is a {special}, not a regular file; expected the "
                             "name of a file (written whole, then renamed into place)")
-    _refuse_read_only(target)
     folder = target.parent if str(target.parent) else Path(".")
     if not folder.exists():
         try:
@@ -189,6 +188,7 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         raise DataFileError(f"output folder {str(folder)!r} is not a folder")
     if not os.access(folder, os.W_OK):
         raise DataFileError(f"output folder {str(folder)!r} is not writable")
+    _refuse_read_only(target)  # (after the folder: a read-only mount is the folder's matter)
     try:
         tmp_path = _new_temporary(folder, target.name)
     except OSError as exc:  # the true reason: /proc said "No such file or directory" of itself
