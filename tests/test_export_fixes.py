@@ -2188,15 +2188,19 @@ def test_a_command_refuses_a_read_only_output_before_any_work(tmp_path, monkeypa
 def test_recorded_shared_bounds_decide_the_storage_only_while_they_hold_the_mesh(tmp_path):
     """save_mesh stores a mesh by the shared bounds it records (Globe.mesh's per-face meshes) like given ones; a mesh
     moved since, out of them, is stored by its own bounds: its float32 positions about its own centre, not rounded at
-    the distance of the stale ones."""
+    the distance of the stale ones. So is a small piece within them (a mesh cut from a member of the set), which
+    about their centre would round far worse than about its own."""
     box = trimesh.creation.box()
     box.vertices = box.vertices * 0.125 + (1.0e6 + 1 / 3, 2.0e6, 0.0)
     exact = read_mesh(save_mesh(box, tmp_path / "plain.glb")).vertices
     np.testing.assert_allclose(exact, box.vertices, rtol=0, atol=1e-6)
     box.metadata["shared_bounds"] = [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]]  # stale: the box lies far outside
     np.testing.assert_array_equal(read_mesh(save_mesh(box, tmp_path / "stale.glb")).vertices, exact)
-    box.metadata["shared_bounds"] = [[-3.0e6, -3.0e6, -3.0e6], [3.0e6, 3.0e6, 3.0e6]]  # holding it: stored about 0
-    about_zero = read_mesh(save_mesh(box, tmp_path / "shared.glb")).vertices
+    box.metadata["shared_bounds"] = [[-3.0e6, -3.0e6, -3.0e6], [3.0e6, 3.0e6, 3.0e6]]  # holding a small piece
+    np.testing.assert_array_equal(read_mesh(save_mesh(box, tmp_path / "piece.glb")).vertices, exact)
+    box.vertices = (box.vertices - box.vertices.mean(axis=0)) * 2.4e7 + (1.0e6 + 1 / 3, 0.5e6, 0.0)  # 3000 km
+    own = read_mesh(save_mesh(trimesh.Trimesh(box.vertices, box.faces), tmp_path / "own.glb")).vertices
+    about_zero = read_mesh(save_mesh(box, tmp_path / "shared.glb")).vertices  # a member of the set: stored about 0
     as_given = read_mesh(save_mesh(box, tmp_path / "given.glb", shared_bounds=box.metadata["shared_bounds"])).vertices
     np.testing.assert_array_equal(about_zero, as_given)
-    assert np.abs(about_zero - box.vertices).max() > 1e-3  # float32 at a million metres
+    assert (about_zero != own).any()
