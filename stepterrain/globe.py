@@ -1303,14 +1303,17 @@ def _split_faces(mesh: trimesh.Trimesh, n: int, cells: int) -> list[trimesh.Trim
     points = _cube_points(entry, n, cells)
     vertices = np.asarray(mesh.vertices)
     shared = {"shared_bounds": [vertices.min(axis=0).tolist(), vertices.max(axis=0).tolist()]} if len(vertices) else {}
+    # alike for all six (name, colour), each its own copy: trimesh.util.concatenate keeps one; six of different
+    # names it packed into a texture atlas with transparent padding and grey texels (its colour for an unset one)
+    material = {"name": "globe", "baseColorFactor": (255, 255, 255, 255), "metallicFactor": 0.0,
+                "roughnessFactor": 1.0, "doubleSided": True}
     for f, frame in enumerate(cube_kernels.FACE_FRAMES):
         faces = np.asarray(mesh.faces)[cube_face == f]
         used, local = np.unique(faces.reshape(-1), return_inverse=True)
         x = points[used] @ _axis(frame[0])
         y = points[used] @ _axis(frame[1])
         uv = np.column_stack([(x + cells) / (2.0 * cells), (y + cells) / (2.0 * cells)])
-        visual = trimesh.visual.TextureVisuals(uv=uv, material=trimesh.visual.material.PBRMaterial(
-            name=f"cube_face_{f}", metallicFactor=0.0, roughnessFactor=1.0, doubleSided=True))
+        visual = trimesh.visual.TextureVisuals(uv=uv, material=trimesh.visual.material.PBRMaterial(**material))
         metadata = {**mesh.metadata, "node_entry": entry[used].astype(np.int32), "cube_face": f, **shared}
         out.append(trimesh.Trimesh(mesh.vertices[used], local.reshape(-1, 3), process=False, visual=visual,
                                    metadata=metadata, face_attributes={"cube_face": cube_face[cube_face == f]}))
