@@ -1557,6 +1557,17 @@ def test_a_camera_looking_straight_down_at_a_pole_names_its_view_direction_as_nu
     Camera(eye=(0.0, 0.0, 2.0e7), target=(0.0, 0.0, 0.0), up=(1.0, 0.0, 0.0))  # the up it suggests is taken
 
 
+@pytest.mark.parametrize("target", [(5.0, 0.0, 0.0), (0.0, -3.0, 0.0), (1.0, 1.0, 1.0)])
+def test_the_up_a_camera_refusal_suggests_is_taken(target):
+    """The refusal of an up along the view direction suggested up=(1, 0, 0) whatever the view: for a view along x, the
+    very up it had refused. It suggests the axis least along the view direction now, which is taken."""
+    with pytest.raises(InvalidInputError) as caught:
+        Camera(eye=(0.0, 0.0, 0.0), target=target, up=target)
+    suggested = re.search(r"up=\((\d), (\d), (\d)\)", str(caught.value))
+    assert suggested is not None, str(caught.value)
+    Camera(eye=(0.0, 0.0, 0.0), target=target, up=tuple(float(k) for k in suggested.groups()))
+
+
 @pytest.mark.parametrize("ext", [".glb", ".gltf"])
 @pytest.mark.parametrize("view", [None, (30.0, 10.0, 2.0e7)])
 def test_the_six_per_face_meshes_written_one_by_one_keep_their_seams_welded(tmp_path, ext, view):
@@ -1621,3 +1632,50 @@ def test_a_per_face_mesh_renders_in_the_colours_of_the_whole_mesh():
     whole = render_view(globe.mesh(error=0.0), camera, window_size=(64, 40))
     np.testing.assert_allclose(part[15:25, 25:40].astype(float).mean(), whole[15:25, 25:40].astype(float).mean(),
                                atol=2.0)
+
+
+def test_a_piece_of_a_per_face_mesh_is_stored_about_its_own_centre(tmp_path):
+    """trimesh copies metadata into a piece cut from a mesh (``submesh``, ``update_faces``) and into one transformed, so
+    a piece of a per-face mesh, or one shrunk about its own centre, still records the whole globe's shared bounds and
+    lies within them: stored about the globe's centre, a 320 km triangle's GLB rounded by 0.19 m instead of 7.5 mm, a
+    9 km mesh's by 0.25 m instead of 0.24 mm. The recorded bounds decide only while they round at most one binary order
+    coarser than the mesh's own; the six whole faces keep them (the weld test above)."""
+    import trimesh
+
+    from stepterrain.export import read_mesh, save_mesh
+
+    face = Globe.sample(face_size=33, device="cpu").mesh(error=100.0, per_face=True, cull=False)[1]
+    shrunk = face.copy()
+    shrunk.apply_transform(trimesh.transformations.scale_matrix(1e-3, origin=face.vertices.mean(axis=0)))
+    for name, piece in (("triangle", face.submesh([np.arange(1)], append=True)), ("shrunk", shrunk)):
+        assert piece.metadata["shared_bounds"] == face.metadata["shared_bounds"]
+        alone = piece.copy()
+        del alone.metadata["shared_bounds"]
+        back = read_mesh(save_mesh(piece, tmp_path / f"{name}.glb")).vertices
+        np.testing.assert_array_equal(back, read_mesh(save_mesh(alone, tmp_path / f"{name}_alone.glb")).vertices)
+        extent = float(np.ptp(piece.vertices, axis=0).max())
+        assert np.abs(back - piece.vertices).max() <= extent * 2.0**-24 + 1e-9, name  # float32 about its own centre
+
+
+def test_the_six_per_face_meshes_concatenate_with_their_plain_material(tmp_path):
+    """trimesh.util.concatenate(parts) (the six faces in one mesh again) packed six materials of different names into a
+    texture atlas: transparent padding (the GLB alphaMode MASK, single-sided) and grey texels (trimesh's colour for an
+    unset base colour). Alike, they are kept as one white material without an image."""
+    import json
+    import struct
+
+    import trimesh
+
+    from stepterrain.export import save_mesh
+
+    parts = Globe.sample(face_size=9, device="cpu").mesh(error=0.0, per_face=True)
+    whole = trimesh.util.concatenate(parts)
+    assert whole.visual.uv.shape == (len(whole.vertices), 2)
+    data = save_mesh(whole, tmp_path / "whole.glb").read_bytes()
+    tree = json.loads(data[20 : 20 + struct.unpack("<I", data[12:16])[0]])
+    assert "images" not in tree and "textures" not in tree
+    (material,) = tree["materials"]
+    assert material["pbrMetallicRoughness"]["baseColorFactor"] == [1.0] * 4 and material["doubleSided"] is True
+    assert material.get("alphaMode", "OPAQUE") == "OPAQUE"
+    parts[0].visual.material.baseColorFactor = (255, 0, 0, 255)  # each face its own material: the others stay white
+    assert [tuple(p.visual.material.baseColorFactor) for p in parts[1:]] == [(255, 255, 255, 255)] * 5
