@@ -1303,10 +1303,10 @@ def _split_faces(mesh: trimesh.Trimesh, n: int, cells: int) -> list[trimesh.Trim
     points = _cube_points(entry, n, cells)
     vertices = np.asarray(mesh.vertices)
     shared = {"shared_bounds": [vertices.min(axis=0).tolist(), vertices.max(axis=0).tolist()]} if len(vertices) else {}
-    # alike for all six (name, colour), each its own copy: trimesh.util.concatenate keeps one; six of different
-    # names it packed into a texture atlas with transparent padding and grey texels (its colour for an unset one)
-    material = {"name": "globe", "baseColorFactor": (255, 255, 255, 255), "metallicFactor": 0.0,
-                "roughnessFactor": 1.0, "doubleSided": True}
+    # alike for all six (one name), each its own copy: trimesh.util.concatenate keeps one; six of different names it
+    # packed into a texture atlas with transparent padding and grey texels (its colour for an unset base colour; a set
+    # one, white, made save_mesh's OBJ keep trimesh's specular Ks 0.4 instead of the matte 0)
+    material = {"name": "globe", "metallicFactor": 0.0, "roughnessFactor": 1.0, "doubleSided": True}
     for f, frame in enumerate(cube_kernels.FACE_FRAMES):
         faces = np.asarray(mesh.faces)[cube_face == f]
         used, local = np.unique(faces.reshape(-1), return_inverse=True)

@@ -1660,7 +1660,7 @@ def test_a_piece_of_a_per_face_mesh_is_stored_about_its_own_centre(tmp_path):
 def test_the_six_per_face_meshes_concatenate_with_their_plain_material(tmp_path):
     """trimesh.util.concatenate(parts) (the six faces in one mesh again) packed six materials of different names into a
     texture atlas: transparent padding (the GLB alphaMode MASK, single-sided) and grey texels (trimesh's colour for an
-    unset base colour). Alike, they are kept as one white material without an image."""
+    unset base colour). Alike, they are kept as one white material without an image (the OBJ's matte Ks 0 too)."""
     import json
     import struct
 
@@ -1672,10 +1672,14 @@ def test_the_six_per_face_meshes_concatenate_with_their_plain_material(tmp_path)
     whole = trimesh.util.concatenate(parts)
     assert whole.visual.uv.shape == (len(whole.vertices), 2)
     data = save_mesh(whole, tmp_path / "whole.glb").read_bytes()
+    save_mesh(parts[2], tmp_path / "face.obj")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["face.mtl", "face.obj", "whole.glb"]
+    assert [line for line in (tmp_path / "face.mtl").read_text().splitlines() if line[:2] in ("Kd", "Ks")] == [
+        "Kd 1.00000000 1.00000000 1.00000000", "Ks 0.00000000 0.00000000 0.00000000"]
     tree = json.loads(data[20 : 20 + struct.unpack("<I", data[12:16])[0]])
     assert "images" not in tree and "textures" not in tree
     (material,) = tree["materials"]
-    assert material["pbrMetallicRoughness"]["baseColorFactor"] == [1.0] * 4 and material["doubleSided"] is True
-    assert material.get("alphaMode", "OPAQUE") == "OPAQUE"
+    assert material["pbrMetallicRoughness"].get("baseColorFactor", [1.0] * 4) == [1.0] * 4
+    assert material["doubleSided"] is True and material.get("alphaMode", "OPAQUE") == "OPAQUE"
     parts[0].visual.material.baseColorFactor = (255, 0, 0, 255)  # each face its own material: the others stay white
-    assert [tuple(p.visual.material.baseColorFactor) for p in parts[1:]] == [(255, 255, 255, 255)] * 5
+    assert [p.visual.material.baseColorFactor for p in parts[1:]] == [None] * 5
