@@ -99,3 +99,21 @@ def test_batch_md_image_data_keeps_a_north_up_array_north_up():
     z = np.asarray(grid["elevation"])
     np.testing.assert_array_equal(z[y == y.max()], heights[0], err_msg="the north row is not at the north edge")
     np.testing.assert_array_equal(z[y == y.min()], heights[-1])
+
+
+def test_info_refusal_of_an_unknown_extension_names_the_mesh_formats_too(tmp_path, capsys):
+    """``stepterrain info FILE`` describes "a DEM or a mesh file" (its --help), but a FILE of another extension (a
+    photo, ``scan.xyz``) was refused as "unknown DEM extension '.jpg'; supported: .npy, .npz, ..., .dt2": the DEM
+    formats alone, as if info read no mesh. The refusal names the mesh formats too; steps' keeps to DEMs."""
+    from stepterrain import cli
+
+    for name in ("photo.jpg", "scan.xyz"):
+        path = tmp_path / name
+        path.write_bytes(b"not a DEM nor a mesh")
+        assert cli.main(["info", str(path)]) == 2
+        err = capsys.readouterr().err
+        assert f"unknown DEM extension '{path.suffix}'" in err and ".dt2" in err, err
+        assert "a mesh file" in err and ".glb, .gltf, .obj, .ply, .stl, .3mf" in err, err
+        assert len(err.strip().splitlines()) == 1, err
+    assert cli.main(["steps", str(tmp_path / "photo.jpg"), "-o", str(tmp_path / "a.glb")]) == 2
+    assert "mesh file" not in capsys.readouterr().err
