@@ -173,6 +173,8 @@ def level_of(h: wp.float32, iso: Isovalues) -> wp.int32:
     """
     thresholds = iso.thresholds
     n = thresholds.shape[0]
+    if wp.isnan(h):  # nodata: NaN compares false, so the walk below went up through every threshold and back down
+        return 0
     if iso.uniform != 0:
         x = (h - iso.first) * iso.inv_gap + 1.0
         k = wp.int32(0)
