@@ -1175,9 +1175,9 @@ def test_a_nodata_node_takes_no_walk_over_uniform_levels():
     ``interval=``) a NaN estimate started at 0 and NaN compares false: the walk stepped up through every threshold and
     back down again, 2 x levels comparisons a nodata node (the binary search of other levels takes log2 of them). A DEM
     with a sea or a void and a fine interval paid for it: a 400² grid half nodata with 10,001 levels took 0.72 s to
-    step (0.04 s now; 7 ms without the nodata), the count of levels times the nodata being the cost, not the mesh. Measured here
-    against as many finite heights on the same levels (whose estimate lands on their level): the nodata took about as
-    long as the finite heights, not thousands of times longer."""
+    step (0.04 s now; 7 ms without the nodata), the count of levels times the nodata being the cost, not the mesh.
+    Measured here against as many finite heights on the same levels (whose estimate lands on their level): the nodata
+    takes about as long as the finite heights, not thousands of times longer."""
     dev = resolve_device("cpu")
     values = st.isovalues((0.0, 100.0), interval=0.005)  # 20,001 levels: more than the CPU's 64-threshold vector path
     iso = stepped_module._build_isovalue_struct(values, dev)
