@@ -95,8 +95,12 @@ class Camera:
         if np.linalg.norm(up) == 0.0 and up.any():
             raise InvalidInputError(f"Camera up {self.up} is too short to normalise in float64 (length below 1e-154)")
         if np.linalg.norm(np.cross(forward / length, up)) < 1e-9 * max(np.linalg.norm(up), 1e-300):
+            # the direction as plain numbers: tuple(forward) printed "(np.float64(0.0), np.float64(0.0), ...)"; the
+            # axis least along it as the up suggested (a fixed (1, 0, 0) was the refused up of a view along x)
+            across = tuple(int(k == int(np.argmin(np.abs(forward)))) for k in range(3))
             raise InvalidInputError(f"Camera up {self.up} must not be zero or parallel to the view direction "
-                                    f"{tuple(forward)}")
+                                    f"{tuple(forward.tolist())} (target - eye); give an up across it, e.g. "
+                                    f"up={across}")
         if not (0.0 < self.fov < math.pi):
             raise InvalidInputError(f"Camera fov must lie in (0, π) radians; got {self.fov!r}")
         if self.aspect is not None:  # a number before the viewport is compared with it

@@ -563,9 +563,9 @@ def _check_output(path: str, extensions: Sequence[str], what: str) -> Path:
 def _check_outputs(inputs: dict[str, str | None] | None = None, /, **paths: Path | None) -> None:
     """Refuse, before any work, output options that name the same file (the second write would replace the
     first), an input file (``inputs``: option name -> path, e.g. ``{"INPUT": args.input}``; the write would
-    replace the input) or a file that cannot be written (the path is a folder, a named pipe or a device, or its
-    nearest existing folder is a file or not writable): a command with several outputs would otherwise write the
-    first and fail on the next. Creates nothing."""
+    replace the input) or a file that cannot be written (the path is a folder, a named pipe, a device or a
+    read-only file, or its nearest existing folder is a file or not writable): a command with several outputs would
+    otherwise write the first and fail on the next. Creates nothing."""
     seen: dict[Path, str] = {}
     for option, path in paths.items():
         if path is None:
@@ -597,6 +597,10 @@ def _check_outputs(inputs: dict[str, str | None] | None = None, /, **paths: Path
         if error is not None:
             raise DataFileError(f"{name} {str(path)!r} cannot be written: folder {str(folder)!r} is not writable "
                                 f"({error.strerror})") from error
+        if key.is_file() and not os.access(key, os.W_OK):  # refused by atomic_path too, but after the work
+            raise DataFileError(f"{name} {str(path)!r} cannot be written: the file exists and is read-only "
+                                "(write-protected for this user); make it writable (chmod u+w) to replace it, or "
+                                "choose another name")
 
 
 def _name_max(folder: Path) -> int:
@@ -893,7 +897,12 @@ def _run_info(args: argparse.Namespace, progress: Progress) -> int:
     else:
         from .io import describe_dem
 
-        terrain = _load_input(args.file, args.height_unit, band=args.band)
+        try:
+            terrain = _load_input(args.file, args.height_unit, band=args.band)
+        except InvalidInputError as exc:  # load_dem's refusal listed the DEM formats alone: info reads meshes too
+            if "unknown DEM extension" not in str(exc):
+                raise
+            raise InvalidInputError(f"{exc}; or a mesh file: {', '.join(MESH_EXTENSIONS)}") from None
         summary = describe_dem(terrain)
     if args.json:
         print(json.dumps(summary, indent=2, default=str))

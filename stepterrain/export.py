@@ -167,7 +167,8 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     ------
     DataFileError
         The folder cannot be created or written, ``path`` is a folder, a named pipe, a device or a loop of
-        symbolic links, or the finished file cannot be flushed to disk or moved onto ``path``.
+        symbolic links, an existing file the writer may not write (read-only, as ``open()`` refuses it), or the
+        finished file cannot be flushed to disk or moved onto ``path``.
     """
     target = _link_target(Path(path))
     special = _special_file_kind(target, folders=True)  # one stat of the target for both refusals
@@ -187,6 +188,7 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         raise DataFileError(f"output folder {str(folder)!r} is not a folder")
     if not os.access(folder, os.W_OK):
         raise DataFileError(f"output folder {str(folder)!r} is not writable")
+    _refuse_read_only(target)  # (after the folder: a read-only mount is the folder's matter)
     try:
         tmp_path = _new_temporary(folder, target.name)
     except OSError as exc:  # the true reason: /proc said "No such file or directory" of itself
@@ -212,6 +214,16 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         with contextlib.suppress(OSError):
             tmp_path.unlink()
         raise
+
+
+def _refuse_read_only(target: Path) -> None:
+    """Refuse to replace an existing file the writer may not write (``os.access``: its permission bits, ACL or
+    read-only attribute), as ``open(path, "w")`` refuses it. The rename into place needs only the folder's
+    permission: a file a user had write-protected (``chmod a-w``) to keep a delivered mesh was replaced without a
+    word. (Root may write any file, and replaces it as ``open()`` would.)"""
+    if os.path.exists(target) and not os.access(target, os.W_OK):
+        raise DataFileError(f"cannot write {str(target)!r}: the file exists and is read-only (write-protected for "
+                            "this user); make it writable (chmod u+w) to replace it, or choose another name")
 
 
 def _keep_owner(path: Path, old: os.stat_result) -> None:
@@ -375,7 +387,11 @@ def save_mesh(
         decided by these, the same for every mesh of the set, instead of by the mesh's own bounds: glTF's node
         translation (the floor of their centre) and PLY's float64 beyond 65536 (below it, a PLY is float32 where
         float32 holds every vertex exactly, else float64). A vertex the meshes share is then stored identically in
-        each (or, in PLY, read back identically), so they weld exactly. Need not contain the mesh.
+        each (or, in PLY, read back identically), so they weld exactly. Need not contain the mesh. By default the
+        shared bounds the mesh records (``metadata["shared_bounds"]``, which :meth:`~stepterrain.globe.Globe.mesh`
+        sets on its six ``per_face`` meshes) when they hold all its vertices (not for a mesh moved or scaled since)
+        and its float32 positions round by them at most twice as far as by its own bounds (not for a piece cut
+        from such a mesh, ``submesh``, which stored about the whole globe's centre rounded 25 to 1000 times worse).
     origin : (3,) array_like, optional
         The point (x, y, z) a ``.glb``/``.gltf`` stores its float32 positions relative to, floored to whole units:
         the node translation, in place of the one ``shared_bounds`` or the mesh's bounds give (the floor of their
@@ -384,8 +400,9 @@ def save_mesh(
         finely as the view shows them, where the centre of a view's mesh, which spans thousands of km (the coarse
         triangles at its border and on the far side), moved those under an eye 100 m up by 0.3 m. By default the
         eye a view's mesh records (``metadata["eye"]``, which :meth:`~stepterrain.globe.Globe.mesh` sets with a
-        camera) when it lies within one diagonal of the mesh's bounds (not for a mesh scaled or moved far from it
-        since) and no ``shared_bounds`` are given. Ignored by the other formats, which store coordinates as they are.
+        camera) when it lies within one diagonal of the mesh's bounds, or of the shared bounds it records (not for a
+        mesh scaled or moved far from it since), and no ``shared_bounds`` are given. Ignored by the other formats,
+        which store coordinates as they are.
 
     Returns
     -------
@@ -521,9 +538,11 @@ def save_mesh(
             f"cannot write {str(target)!r}: mesh has {counted(len(vertices), 'vertex', 'vertices')} but no faces, and "
             f"{ext} stores triangles only (the points would be lost); write .ply, .obj, .glb or .gltf to keep them"
         )
-    frame = _shared_bounds(shared_bounds) or bounds  # how coordinates are stored: a set's, or the mesh's own
+    # how coordinates are stored: a set's shared bounds (given, or recorded by the mesh), or the mesh's own
+    recorded = None if shared_bounds is not None else _recorded_bounds(mesh.metadata, extras, bounds)
+    frame = _shared_bounds(shared_bounds) or _no_coarser(recorded, bounds) or bounds
     anchor = _origin_argument(origin) if origin is not None or shared_bounds is not None else \
-        _recorded_eye(mesh.metadata, extras, bounds)  # a set's shared bounds store shared vertices alike: kept
+        _recorded_eye(mesh.metadata, extras, recorded or bounds)  # a set's shared bounds store shared vertices alike
     _check_float32_reach(bounds, ext, target, frame, anchor)
     if ext == ".glb":
         _check_glb_size(mesh, target)
@@ -676,10 +695,48 @@ def _origin_argument(origin: ArrayLike | None) -> NDArray[np.float64] | None:
     return np.floor(_finite_argument(origin, "origin", (3,), "3 finite numbers (x, y, z)")) + 0.0  # no -0 in JSON
 
 
+def _recorded_bounds(recorded: Any, given: Mapping[str, Any], bounds: Bounds) -> Bounds:
+    """The default ``shared_bounds`` of :func:`save_mesh`: those a mesh of a set records (``metadata["shared_bounds"]``,
+    as :meth:`~stepterrain.globe.Globe.mesh` records them on its six ``per_face`` meshes; ``metadata`` given to
+    save_mesh over the mesh's own), when they are finite (2, 3) corners holding every vertex (``bounds``); else None
+    (a mesh moved or scaled since: its own bounds decide). Each cube face's glTF stored its float32 positions about
+    its own centre, so the copies of a seam vertex in two files rounded apart (0.25 m on the Earth): cracks along
+    the cube edges where the six files met in a viewer."""
+    value = given["shared_bounds"] if "shared_bounds" in given else \
+        recorded.get("shared_bounds") if isinstance(recorded, Mapping) else None
+    if value is None or bounds is None:
+        return None
+    try:  # as save_mesh's shared_bounds are read, but bounds it cannot take are left, not refused
+        lo, hi = _shared_bounds(value)  # type: ignore[misc]
+    except InvalidInputError:
+        return None
+    if not ((lo <= bounds[0]).all() and (bounds[1] <= hi).all()):
+        return None
+    return lo, hi
+
+
+def _no_coarser(recorded: Bounds, bounds: Bounds) -> Bounds:
+    """``recorded`` shared bounds (:func:`_recorded_bounds`) as the storage frame of a mesh of ``bounds`` while its
+    positions, stored relative to their glTF node translation (:func:`_local_origin`), reach at most twice as far
+    as relative to its own: float32 then rounds them at most one binary order coarser. Else None, its own bounds
+    decide. A whole cube face reaches about sqrt(2) times farther from the globe's centre than from its own, so the
+    six per-face meshes all keep the shared frame; a piece cut from one (``submesh``, ``update_faces``: trimesh
+    copies the metadata), or one shrunk about its own centre, lies within the recorded bounds yet rounded about the
+    globe's centre: 0.19 m instead of 7.5 mm for a 320 km triangle of a face, 0.25 m instead of 0.24 mm for a 9 km
+    mesh."""
+    if recorded is None or bounds is None:
+        return None
+    lo, hi = bounds
+    shared, own = (_local_origin(frame) for frame in (recorded, bounds))
+    reach = float(np.maximum(np.abs(lo - shared), np.abs(hi - shared)).max())
+    return recorded if reach <= 2.0 * float(np.maximum(np.abs(lo - own), np.abs(hi - own)).max()) else None
+
+
 def _recorded_eye(recorded: Any, given: Mapping[str, Any], bounds: Bounds) -> NDArray[np.float64] | None:
     """The default ``origin`` of :func:`save_mesh`: the eye a view's mesh records (``metadata["eye"]``, as
     :meth:`~stepterrain.globe.Globe.mesh` does; ``metadata`` given to save_mesh over the mesh's own), floored, when it
-    is 3 finite numbers lying within one diagonal of the mesh's bounds. Farther (a mesh scaled or moved since, its
+    is 3 finite numbers lying within one diagonal of ``bounds`` (the mesh's, or the shared bounds it records: the
+    same decision for every mesh of the set). Farther (a mesh scaled or moved since, its
     eye stale), its float32 positions would round worse than about the bounds' centre: None, the centre kept."""
     eye = given["eye"] if "eye" in given else recorded.get("eye") if isinstance(recorded, Mapping) else None
     if eye is None or bounds is None:

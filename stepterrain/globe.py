@@ -607,7 +607,9 @@ class Globe:
             With the clip metric and a camera, drop leaf triangles wholly outside the frustum (the mesh then
             has a border where the view ends; without culling it stays closed).
         per_face : bool
-            Return six meshes, one per cube face, each with UV texture coordinates of its face (§5.3).
+            Return six meshes, one per cube face, each with UV texture coordinates of its face (§5.3) and the
+            whole mesh's bounds as ``metadata["shared_bounds"]`` (:func:`~stepterrain.export.save_mesh` stores the
+            six files alike by them: the seams stay welded).
 
         Returns
         -------
@@ -1288,19 +1290,31 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
 
 def _split_faces(mesh: trimesh.Trimesh, n: int, cells: int) -> list[trimesh.Trimesh]:
     """One mesh per cube face with UV = face-local (j, i) / N (paper 003 §5.3: one texture per face), each with
-    the whole mesh's ``face_attributes`` and metadata, ``node_entry`` cut to its own vertices."""
+    the whole mesh's ``face_attributes`` and metadata, ``node_entry`` cut to its own vertices, and the whole mesh's
+    bounds as ``metadata["shared_bounds"]``: :func:`~stepterrain.export.save_mesh` stores the six alike by them, so
+    that a seam vertex's copies in two files are stored identically (each glTF about its own centre rounded them
+    apart, by up to 0.25 m on the Earth: cracks along the cube edges). The UVs come with a plain matte material, the
+    whole mesh's as save_mesh writes it (white, metallic 0, roughness 1), and no image: trimesh's placeholder (a grey
+    2 x 2 texture, filled in for UVs given alone) was embedded in the files and drawn by the renders, the faces dark
+    grey where the whole mesh is white."""
     out = []
     cube_face = np.asarray(mesh.face_attributes["cube_face"])
     entry = np.asarray(mesh.metadata["node_entry"], dtype=np.int64)
     points = _cube_points(entry, n, cells)
+    vertices = np.asarray(mesh.vertices)
+    shared = {"shared_bounds": [vertices.min(axis=0).tolist(), vertices.max(axis=0).tolist()]} if len(vertices) else {}
+    # alike for all six (one name), each its own copy: trimesh.util.concatenate keeps one; six of different names it
+    # packed into a texture atlas with transparent padding and grey texels (its colour for an unset base colour; a set
+    # one, white, made save_mesh's OBJ keep trimesh's specular Ks 0.4 instead of the matte 0)
+    material = {"name": "globe", "metallicFactor": 0.0, "roughnessFactor": 1.0, "doubleSided": True}
     for f, frame in enumerate(cube_kernels.FACE_FRAMES):
         faces = np.asarray(mesh.faces)[cube_face == f]
         used, local = np.unique(faces.reshape(-1), return_inverse=True)
         x = points[used] @ _axis(frame[0])
         y = points[used] @ _axis(frame[1])
         uv = np.column_stack([(x + cells) / (2.0 * cells), (y + cells) / (2.0 * cells)])
-        visual = trimesh.visual.TextureVisuals(uv=uv)
-        metadata = {**mesh.metadata, "node_entry": entry[used].astype(np.int32), "cube_face": f}
+        visual = trimesh.visual.TextureVisuals(uv=uv, material=trimesh.visual.material.PBRMaterial(**material))
+        metadata = {**mesh.metadata, "node_entry": entry[used].astype(np.int32), "cube_face": f, **shared}
         out.append(trimesh.Trimesh(mesh.vertices[used], local.reshape(-1, 3), process=False, visual=visual,
                                    metadata=metadata, face_attributes={"cube_face": cube_face[cube_face == f]}))
     return out

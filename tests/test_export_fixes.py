@@ -2118,3 +2118,89 @@ def test_obj_vertex_colours_read_back_as_the_same_bytes_by_vtk_and_trimesh(tmp_p
     obj = save_mesh(mesh, tmp_path / "c.obj")
     np.testing.assert_array_equal(np.asarray(pv.read(obj).point_data["RGB"]), colors[:, :3])
     np.testing.assert_array_equal(read_mesh(obj).visual.vertex_colors, colors)
+
+
+def _read_only_for_this_user(monkeypatch, *protected: os.PathLike[str]) -> None:
+    """What os.access answers a user other than root for files whose write bits are off (root may write any file)."""
+    real_access = os.access
+    names = {os.path.abspath(p) for p in protected}
+
+    def access(path, mode, *args, **kwargs):
+        if mode & os.W_OK and os.path.abspath(path) in names:
+            return False
+        return real_access(path, mode, *args, **kwargs)
+
+    monkeypatch.setattr(os, "access", access)
+
+
+@pytest.mark.parametrize("ext", [".ply", ".glb", ".png", ".obj-side"])
+def test_a_read_only_file_is_refused_not_replaced(tmp_path, monkeypatch, ext):
+    """A user who write-protected a delivered mesh (chmod a-w) had it replaced without a word: the rename into place
+    needs only the folder's permission, where ``open(path, "w")``, a GIS tool or ``cp`` refuse the file. Refused now,
+    and the file, its mode and (for a textured OBJ's read-only .mtl) the OBJ itself are kept."""
+    textured = trimesh.creation.box()
+    textured.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((8, 2)),
+                                                    image=Image.new("RGB", (2, 2), (200, 10, 10)))  # fmt: skip
+    if ext == ".png":
+        path, protected = tmp_path / "i.png", tmp_path / "i.png"
+        write = lambda: save_image(np.zeros((2, 2, 3), np.uint8), path)  # noqa: E731
+    elif ext == ".obj-side":
+        path, protected = tmp_path / "m.obj", tmp_path / "m.mtl"
+        write = lambda: save_mesh(textured, path)  # noqa: E731
+    else:
+        path, protected = tmp_path / f"m{ext}", tmp_path / f"m{ext}"
+        write = lambda: save_mesh(trimesh.creation.box(), path)  # noqa: E731
+    write()
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    protected.chmod(0o444)
+    _read_only_for_this_user(monkeypatch, protected)
+    textured.vertices = textured.vertices * 2.0
+    with pytest.raises(DataFileError, match=rf"cannot write '.*{protected.name}': the file exists and is read-only"):
+        if ext == ".png":
+            save_image(np.full((2, 2, 3), 9, np.uint8), path)
+        else:
+            save_mesh(textured if ext == ".obj-side" else trimesh.creation.icosphere(), path)
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before  # no temporary file left either
+    assert protected.stat().st_mode & 0o777 == 0o444
+
+
+@pytest.mark.skipif(os.name != "posix" or os.geteuid() == 0, reason="root may write a read-only file")
+def test_a_read_only_file_is_refused_by_its_permission_bits(tmp_path):
+    path = save_mesh(trimesh.creation.box(), tmp_path / "m.ply")
+    before = path.read_bytes()
+    path.chmod(0o444)
+    with pytest.raises(DataFileError, match="the file exists and is read-only"):
+        save_mesh(trimesh.creation.icosphere(), path)
+    assert path.read_bytes() == before
+
+
+def test_a_command_refuses_a_read_only_output_before_any_work(tmp_path, monkeypatch, capsys):
+    out = save_mesh(trimesh.creation.box(), tmp_path / "globe.ply")
+    before = out.read_bytes()
+    _read_only_for_this_user(monkeypatch, out)
+    monkeypatch.setattr("stepterrain.globe.Globe.from_latlon",
+                        lambda *a, **k: pytest.fail("the globe was built for an output it cannot write"))
+    assert cli.main(["globe", "--face-size", "9", "--no-camera", "-o", str(out)]) == 2
+    assert "--output" in (err := capsys.readouterr().err) and "read-only" in err
+    assert out.read_bytes() == before
+
+
+def test_recorded_shared_bounds_decide_the_storage_only_while_they_hold_the_mesh(tmp_path):
+    """save_mesh stores a mesh by the shared bounds it records (Globe.mesh's per-face meshes) like given ones; a mesh
+    moved since, out of them, is stored by its own bounds: its float32 positions about its own centre, not rounded at
+    the distance of the stale ones. So is a small piece within them (a mesh cut from a member of the set), which
+    about their centre would round far worse than about its own."""
+    box = trimesh.creation.box()
+    box.vertices = box.vertices * 0.125 + (1.0e6 + 1 / 3, 2.0e6, 0.0)
+    exact = read_mesh(save_mesh(box, tmp_path / "plain.glb")).vertices
+    np.testing.assert_allclose(exact, box.vertices, rtol=0, atol=1e-6)
+    box.metadata["shared_bounds"] = [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]]  # stale: the box lies far outside
+    np.testing.assert_array_equal(read_mesh(save_mesh(box, tmp_path / "stale.glb")).vertices, exact)
+    box.metadata["shared_bounds"] = [[-3.0e6, -3.0e6, -3.0e6], [3.0e6, 3.0e6, 3.0e6]]  # holding a small piece
+    np.testing.assert_array_equal(read_mesh(save_mesh(box, tmp_path / "piece.glb")).vertices, exact)
+    box.vertices = (box.vertices - box.vertices.mean(axis=0)) * 2.4e7 + (1.0e6 + 1 / 3, 0.5e6, 0.0)  # 3000 km
+    own = read_mesh(save_mesh(trimesh.Trimesh(box.vertices, box.faces), tmp_path / "own.glb")).vertices
+    about_zero = read_mesh(save_mesh(box, tmp_path / "shared.glb")).vertices  # a member of the set: stored about 0
+    as_given = read_mesh(save_mesh(box, tmp_path / "given.glb", shared_bounds=box.metadata["shared_bounds"])).vertices
+    np.testing.assert_array_equal(about_zero, as_given)
+    assert (about_zero != own).any()

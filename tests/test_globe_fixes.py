@@ -13,7 +13,7 @@ from stepterrain.kernels import cubesphere as cs
 
 import stepterrain._compaction as compaction
 from stepterrain.errors import InvalidInputError, OutputTooLargeError
-from stepterrain.globe import Camera, Globe, adaptive_mesh, look_from
+from stepterrain.globe import Camera, Globe, adaptive_mesh, look_from, render_view
 
 from .conftest import needs_render
 
@@ -1543,3 +1543,143 @@ def test_a_globe_drape_leaves_no_vertex_unused_and_reads_back_with_its_counts(tm
     for suffix in (".glb", ".gltf", ".obj"):
         back = read_mesh(save_mesh(textured, tmp_path / f"globe{suffix}"))
         assert (len(back.vertices), len(back.faces)) == (len(textured.vertices), len(textured.faces)), suffix
+
+
+def test_a_camera_looking_straight_down_at_a_pole_names_its_view_direction_as_numbers():
+    """Camera(eye over the north pole, target the centre) with the default up (0, 0, 1): the refusal printed the view
+    direction as "(np.float64(0.0), np.float64(0.0), np.float64(-20000000.0))" (NumPy 2 reprs) and said nothing of
+    what up to give."""
+    with pytest.raises(InvalidInputError) as caught:
+        Camera(eye=(0.0, 0.0, 2.0e7), target=(0.0, 0.0, 0.0))
+    message = str(caught.value)
+    assert "np.float64" not in message
+    assert "view direction (0.0, 0.0, -20000000.0)" in message and "up=(1, 0, 0)" in message
+    Camera(eye=(0.0, 0.0, 2.0e7), target=(0.0, 0.0, 0.0), up=(1.0, 0.0, 0.0))  # the up it suggests is taken
+
+
+@pytest.mark.parametrize("target", [(5.0, 0.0, 0.0), (0.0, -3.0, 0.0), (1.0, 1.0, 1.0)])
+def test_the_up_a_camera_refusal_suggests_is_taken(target):
+    """The refusal of an up along the view direction suggested up=(1, 0, 0) whatever the view: for a view along x, the
+    very up it had refused. It suggests the axis least along the view direction now, which is taken."""
+    with pytest.raises(InvalidInputError) as caught:
+        Camera(eye=(0.0, 0.0, 0.0), target=target, up=target)
+    suggested = re.search(r"up=\((\d), (\d), (\d)\)", str(caught.value))
+    assert suggested is not None, str(caught.value)
+    Camera(eye=(0.0, 0.0, 0.0), target=target, up=tuple(float(k) for k in suggested.groups()))
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+@pytest.mark.parametrize("view", [None, (30.0, 10.0, 2.0e7)])
+def test_the_six_per_face_meshes_written_one_by_one_keep_their_seams_welded(tmp_path, ext, view):
+    """Globe.mesh(per_face=True) gives one mesh per cube face (paper 003 §5.3: a texture per face), naturally written to
+    six files. Each glTF stored its float32 positions about its own centre (or, with a camera, about the eye for the
+    faces near it and its own centre for the far ones), so the two copies of a seam vertex rounded apart by up to
+    0.25 m on the Earth: cracks along the cube edges where the files met in a viewer. They are stored by the whole
+    mesh's bounds now (recorded as metadata["shared_bounds"]), alike in every file: the copies read back identical."""
+    from stepterrain.export import read_mesh, save_mesh
+
+    globe = Globe.sample(face_size=33, device="cpu")
+    camera = None if view is None else look_from(*view)
+    parts = globe.mesh(error=100.0, camera=camera, per_face=True, cull=False)
+    back = [read_mesh(save_mesh(part, tmp_path / f"face{k}{ext}")) for k, part in enumerate(parts)]
+    seams = 0
+    for a in range(6):
+        index = {tuple(v): i for i, v in enumerate(parts[a].vertices)}
+        for b in range(a + 1, 6):
+            pairs = np.array([(index[tuple(v)], j) for j, v in enumerate(parts[b].vertices) if tuple(v) in index])
+            if len(pairs):
+                seams += len(pairs)
+                np.testing.assert_array_equal(back[a].vertices[pairs[:, 0]], back[b].vertices[pairs[:, 1]])
+    assert seams > 100  # every cube edge is some face pair's seam
+    # each face as finely as the whole mesh in one file (float32 about its centre, or about a camera's eye)
+    whole = globe.mesh(error=100.0, camera=camera, cull=False)
+    rounding = np.abs(read_mesh(save_mesh(whole, tmp_path / f"whole{ext}")).vertices - whole.vertices).max()
+    assert 0 < max(np.abs(read.vertices - part.vertices).max() for part, read in zip(parts, back, strict=True)) \
+        <= rounding
+
+
+def test_the_per_face_meshes_carry_their_uvs_without_a_made_up_texture(tmp_path):
+    """Globe.mesh(per_face=True) gave each face TextureVisuals(uv=uv) without an image, so trimesh filled in its
+    placeholder material: a 2 x 2 grey (100, 100, 100) image. The GLB embedded it as the base colour texture and the
+    OBJ wrote it as a side image with Kd 0.4: viewers showed the faces nearly black where the whole mesh is white, and
+    render_view drew them grey (84 against 184 for the whole mesh). The UVs stay (for a texture per face, §5.3) with a
+    plain matte material, as the whole mesh's."""
+    import json
+    import struct
+
+    from stepterrain.export import save_mesh
+
+    globe = Globe.sample(face_size=9, device="cpu")
+    part = globe.mesh(error=0.0, per_face=True)[1]
+    assert part.visual.uv.shape == (len(part.vertices), 2)
+    data = save_mesh(part, tmp_path / "face.glb").read_bytes()
+    tree = json.loads(data[20 : 20 + struct.unpack("<I", data[12:16])[0]])
+    assert "images" not in tree and "textures" not in tree
+    (material,) = tree["materials"]
+    assert material["pbrMetallicRoughness"].get("baseColorFactor", [1.0] * 4) == [1.0] * 4
+    assert material["pbrMetallicRoughness"]["metallicFactor"] == 0.0
+    save_mesh(part, tmp_path / "face.obj")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["face.glb", "face.mtl", "face.obj"]  # no image made up
+    kd = [line.split()[1:] for line in (tmp_path / "face.mtl").read_text().splitlines() if line.startswith("Kd")]
+    assert kd == [["1.00000000"] * 3]
+
+
+@needs_render
+def test_a_per_face_mesh_renders_in_the_colours_of_the_whole_mesh():
+    globe = Globe.sample(face_size=9, device="cpu")
+    camera = look_from(0.0, 0.0, 2.0e7)  # straight over cube face 1's centre (+x)
+    part = render_view(globe.mesh(error=0.0, per_face=True)[1], camera, window_size=(64, 40))
+    whole = render_view(globe.mesh(error=0.0), camera, window_size=(64, 40))
+    np.testing.assert_allclose(part[15:25, 25:40].astype(float).mean(), whole[15:25, 25:40].astype(float).mean(),
+                               atol=2.0)
+
+
+def test_a_piece_of_a_per_face_mesh_is_stored_about_its_own_centre(tmp_path):
+    """trimesh copies metadata into a piece cut from a mesh (``submesh``, ``update_faces``) and into one transformed, so
+    a piece of a per-face mesh, or one shrunk about its own centre, still records the whole globe's shared bounds and
+    lies within them: stored about the globe's centre, a 320 km triangle's GLB rounded by 0.19 m instead of 7.5 mm, a
+    9 km mesh's by 0.25 m instead of 0.24 mm. The recorded bounds decide only while they round at most one binary order
+    coarser than the mesh's own; the six whole faces keep them (the weld test above)."""
+    import trimesh
+
+    from stepterrain.export import read_mesh, save_mesh
+
+    face = Globe.sample(face_size=33, device="cpu").mesh(error=100.0, per_face=True, cull=False)[1]
+    shrunk = face.copy()
+    shrunk.apply_transform(trimesh.transformations.scale_matrix(1e-3, origin=face.vertices.mean(axis=0)))
+    for name, piece in (("triangle", face.submesh([np.arange(1)], append=True)), ("shrunk", shrunk)):
+        assert piece.metadata["shared_bounds"] == face.metadata["shared_bounds"]
+        alone = piece.copy()
+        del alone.metadata["shared_bounds"]
+        back = read_mesh(save_mesh(piece, tmp_path / f"{name}.glb")).vertices
+        np.testing.assert_array_equal(back, read_mesh(save_mesh(alone, tmp_path / f"{name}_alone.glb")).vertices)
+        extent = float(np.ptp(piece.vertices, axis=0).max())
+        assert np.abs(back - piece.vertices).max() <= extent * 2.0**-24 + 1e-9, name  # float32 about its own centre
+
+
+def test_the_six_per_face_meshes_concatenate_with_their_plain_material(tmp_path):
+    """trimesh.util.concatenate(parts) (the six faces in one mesh again) packed six materials of different names into a
+    texture atlas: transparent padding (the GLB alphaMode MASK, single-sided) and grey texels (trimesh's colour for an
+    unset base colour). Alike, they are kept as one white material without an image (the OBJ's matte Ks 0 too)."""
+    import json
+    import struct
+
+    import trimesh
+
+    from stepterrain.export import save_mesh
+
+    parts = Globe.sample(face_size=9, device="cpu").mesh(error=0.0, per_face=True)
+    whole = trimesh.util.concatenate(parts)
+    assert whole.visual.uv.shape == (len(whole.vertices), 2)
+    data = save_mesh(whole, tmp_path / "whole.glb").read_bytes()
+    save_mesh(parts[2], tmp_path / "face.obj")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["face.mtl", "face.obj", "whole.glb"]
+    assert [line for line in (tmp_path / "face.mtl").read_text().splitlines() if line[:2] in ("Kd", "Ks")] == [
+        "Kd 1.00000000 1.00000000 1.00000000", "Ks 0.00000000 0.00000000 0.00000000"]
+    tree = json.loads(data[20 : 20 + struct.unpack("<I", data[12:16])[0]])
+    assert "images" not in tree and "textures" not in tree
+    (material,) = tree["materials"]
+    assert material["pbrMetallicRoughness"].get("baseColorFactor", [1.0] * 4) == [1.0] * 4
+    assert material["doubleSided"] is True and material.get("alphaMode", "OPAQUE") == "OPAQUE"
+    parts[0].visual.material.baseColorFactor = (255, 0, 0, 255)  # each face its own material: the others stay white
+    assert [p.visual.material.baseColorFactor for p in parts[1:]] == [None] * 5
