@@ -109,7 +109,8 @@ def add_parser(commands: Any) -> None:
                         "an optional units names, as load_dem reads it; cells equal to an optional nodata value, "
                         "or marked by a boolean mask or valid, are refused: fill them first), or a raster in degrees "
                         "(a GeoTIFF or any other load_dem reads: .asc .hgt .img .vrt ..., a GDAL virtual path or URL "
-                        "to one, /vsizip/srtm.zip/N46E007.hgt, or a .zip of one; EPSG:4326; nodata refused as well); "
+                        "to one, /vsizip/srtm.zip/N46E007.hgt, or a .zip or gzip of one, dem.tif.gz; EPSG:4326; nodata "
+                        "refused as well); "
                         "default: the embedded ETOPO 2022 20'")
     _add_height_unit(p, help="the INPUT heights' length unit (m, ft, US survey foot, km, cm, ...), for a file that "
                              "names none or one not known (an .npz 'units', a raster band's unit); heights become "
@@ -167,13 +168,13 @@ def _load_grid(path: str, height_unit: str | None = None) -> tuple[np.ndarray, n
         raise DataFileError(f"INPUT {path!r} does not exist")
     if virtual is None and not file.is_file():
         raise DataFileError(f"INPUT {path!r} is not a file")
-    if file.suffix.lower() == ".zip":  # a zip of one raster (an SRTM download), as load_dem reads it
-        file = dem_path(file)
+    if file.suffix.lower() in (".zip", ".gz"):  # a zip or gzip of one raster (an SRTM download), as load_dem reads
+        file = dem_path(file)  # it (a .gz of an .npz refused: gunzip it)
     if file.suffix.lower() in GDAL_FORMATS:  # a GeoTIFF, .asc, .hgt, .img, .vrt, ...: as load_dem reads them
         return _load_geotiff_grid(file, height_unit)
     if file.suffix.lower() != ".npz":
         raise InvalidInputError(f"INPUT must be a .npz with elevation, lat and lon arrays, or a raster in degrees "
-                                f"({' '.join(GDAL_FORMATS)}); got {path!r}")
+                                f"({' '.join(GDAL_FORMATS)}, or a .zip or .gz of one); got {path!r}")
     try:
         handle, data = open_npz(file)
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:

@@ -235,3 +235,28 @@ def test_cli_info_steps_and_batch_read_an_hgt_gz(hgt, tmp_path, capsys):
     bad.write_bytes(gzip.compress(b"x"))
     code, _, err = run(capsys, "steps", bad, "-o", tmp_path / "x.ply")
     assert code != 0 and "gunzip it first" in err and "Traceback" not in err
+
+
+def test_cli_globe_reads_a_gzip_of_a_raster_in_degrees(tmp_path, capsys):
+    """load_dem reads a local .tif.gz, and the globe reads a raster as load_dem does: it refused g.tif.gz as "INPUT
+    must be a .npz ... or a raster in degrees"; it gives the mesh of g.tif. A gzip of an .npz is refused (gunzip it)."""
+    import trimesh
+
+    z = (np.add.outer(np.arange(18), np.arange(36)) % 50 * 100).astype(np.float32)
+    tif = tmp_path / "g.tif"
+    with rasterio.open(tif, "w", driver="GTiff", width=36, height=18, count=1, dtype="float32", crs="EPSG:4326",
+                       transform=Affine(10.0, 0.0, 0.0, 0.0, -10.0, 90.0)) as ds:
+        ds.write(z, 1)
+    gz = _gz(tif)
+    meshes = []
+    for source in (tif, gz):
+        out = tmp_path / f"{source.name}.ply"
+        code, _, err = run(capsys, "-q", "globe", source, "--face-size", "9", "--no-camera", "--error", "0", "-o", out)
+        assert code == 0, err
+        meshes.append(trimesh.load(out, process=False))
+    np.testing.assert_array_equal(meshes[0].vertices, meshes[1].vertices)
+    np.testing.assert_array_equal(meshes[0].faces, meshes[1].faces)
+    npz = tmp_path / "grid.npz.gz"
+    npz.write_bytes(gzip.compress(b"x"))
+    code, _, err = run(capsys, "globe", npz, "--face-size", "9", "-o", tmp_path / "x.glb")
+    assert code == 2 and ".npz files are read uncompressed only: gunzip it first" in err, err
