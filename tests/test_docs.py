@@ -102,17 +102,23 @@ def help_examples(epilog: str) -> list[list[str]]:
     """The command lines of an epilog's ``examples:`` section (a trailing backslash continues a line)."""
     import shlex
 
+    # drop "stepterrain" and a trailing "(remark)"
+    return [shlex.split(text.split("  (")[0])[1:] for text in command_lines(epilog.splitlines())]
+
+
+def command_lines(raw_lines: list[str]) -> list[str]:
+    """The ``stepterrain ...`` lines among ``raw_lines``, stripped, a trailing backslash continuing a line."""
     lines, pending = [], ""
-    for raw in epilog.splitlines():
-        text = raw.strip()
+    for raw in raw_lines:
+        line = raw.strip()
         if pending:
-            text, pending = pending + " " + text, ""
-        elif not text.startswith("stepterrain "):
+            line, pending = pending + " " + line, ""
+        elif not line.startswith("stepterrain "):
             continue
-        if text.endswith("\\"):
-            pending = text[:-1].strip()
+        if line.endswith("\\"):
+            pending = line[:-1].strip()
             continue
-        lines.append(shlex.split(text.split("  (")[0])[1:])  # drop "stepterrain" and a trailing "(remark)"
+        lines.append(line)
     return lines
 
 
@@ -266,19 +272,9 @@ BASH_BLOCK = re.compile(r"^```bash\n(.*?)^```", re.S | re.M)
 def page_command_lines(text: str) -> list[str]:
     """The ``stepterrain ...`` lines of a page's ```bash blocks, a trailing backslash continuing a line and a trailing
     ``# comment`` dropped."""
-    lines, pending = [], ""
-    for block in BASH_BLOCK.findall(text):
-        for raw in block.splitlines():
-            line = raw.strip()
-            if pending:
-                line, pending = pending + " " + line, ""
-            elif not line.startswith("stepterrain "):
-                continue
-            if line.endswith("\\"):
-                pending = line[:-1].strip()
-                continue
-            lines.append(re.split(r"\s+#", line)[0])
-    return lines
+    return [
+        re.split(r"\s+#", line)[0] for block in BASH_BLOCK.findall(text) for line in command_lines(block.splitlines())
+    ]
 
 
 def command_line_problems(line: str, parser) -> list[str]:
