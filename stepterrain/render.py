@@ -1736,7 +1736,8 @@ class LayeredRenderer:
         color and (H, W) float32 depth (inf: empty).
 
         With ``reuse`` the previous images of the same pass come back without rendering when neither the view
-        nor those meshes changed since (a still camera over a still overview while close-ups move). With
+        nor those meshes changed since (a still camera over a still overview while close-ups move); a pass with
+        ``reuse`` comes back read-only (the cached images themselves: copy them to edit). With
         ``rect`` = (col0, row0, col1, row1) (end exclusive, row 0 at the top) only that part of the window is
         read back: the images are ``window[row0:row1, col0:col1]`` of the full pass, pixel for pixel."""
         self._check_open()
@@ -1757,12 +1758,16 @@ class LayeredRenderer:
         state = (self._view_version, tuple(self._versions.get(n, 0) for n in sorted(wanted)))
         cached = self._passes.get(key)
         if reuse and cached is not None and cached[0] == state:
-            return cached[1], cached[2]
+            return cached[1].view(), cached[2].view()
         for name, actor in self._actors.items():
             actor.SetVisibility(name in wanted)
         color, depth = self._read(self._plotter, rect)
-        if reuse:
+        if reuse:  # the cache's own images, read-only: a caller who edited the returned image (it was the cached
+            # array itself) changed what the next reuse returned. Views of read-only arrays cannot be made writeable
+            # again, and cost no copy; a caller who edits one makes a copy
+            color.flags.writeable = depth.flags.writeable = False
             self._passes[key] = (state, color, depth)
+            return color.view(), depth.view()
         return color, depth
 
     def _check_rect(self, rect: Any) -> tuple[int, int, int, int]:

@@ -1419,3 +1419,28 @@ def test_joined_layers_of_colours_now_gone_are_not_found_for_the_same_faces_with
     for k in (0, 1):
         assert ((expected[k][0][..., 0] > 200) & (expected[k][0][..., 1] < 50)).sum() == 0
         np.testing.assert_array_equal(got[k][0], expected[k][0])
+
+
+@needs_render
+def test_a_reused_pass_cannot_be_edited_through_the_returned_images():
+    """render(reuse=True) returned its cached arrays themselves: a caller who drew into the returned image changed the
+    cache, and the next reuse returned the edited image instead of the pass."""
+    with render.LayeredRenderer(window_size=(48, 32)) as renderer:
+        renderer.set_mesh("a", VERTICES, FACES)
+        renderer.set_view("oblique", [[0, 0, 0], [10, 10, 5]])
+        fresh, fresh_depth = renderer.render(["a"])
+        for _ in range(2):  # the pass that fills the cache, then the one that reuses it
+            color, depth = renderer.render(["a"], reuse=True)
+            for image, value in ((color, 7), (depth, 0.5)):
+                try:
+                    image[...] = value
+                except ValueError:
+                    pass
+                try:  # nor made writeable again
+                    image.flags.writeable = True
+                    image[...] = value
+                except ValueError:
+                    pass
+        again, again_depth = renderer.render(["a"], reuse=True)
+        np.testing.assert_array_equal(again, fresh)
+        np.testing.assert_array_equal(again_depth, fresh_depth)
