@@ -38,7 +38,7 @@ from .errors import DataFileError, InvalidInputError, MissingDependencyError, Ou
 from .io import degrees_hint
 from .kernels import closeup as closeup_kernels
 from .kernels import compaction as compaction_kernels
-from .stepped import LAND_START
+from .stepped import land_range
 from .terrain import (
     FLOAT32_MAX,
     Terrain,
@@ -2081,9 +2081,9 @@ def _colors_for(mesh_values: NDArray[np.float32], cmap: str, vmin: float, vmax: 
         raise InvalidInputError(f"cmap must name a matplotlib colormap; got {cmap!r}") from None
     span = vmax - vmin if vmax > vmin else 1.0
     x = np.clip((mesh_values - vmin) / span, 0, 1)
-    lo = LAND_START.get(cmap, 0.0)  # the colormap's land part (stepped.LAND_START: 'terrain' skips its sea blues)
-    if lo:
-        x = lo + (1.0 - lo) * x
+    lo, hi = land_range(cmap)  # the colormap's land part (stepped.land_range: 'terrain' skips its sea blues)
+    if (lo, hi) != (0.0, 1.0):
+        x = lo + (hi - lo) * x
     # = (table(x)[:, :3] * 255 + 0.5).astype(uint8), entry by entry: matplotlib looks a float x up in its
     # N-entry table at int(x·N) (x·N in x's dtype, N itself mapped to N − 1, NaN to the "bad" color); the
     # table is converted to uint8 once instead of every vertex's RGBA
