@@ -911,12 +911,14 @@ def _trim_sources(cache: dict[Any, _Source], current: set[Any]) -> None:
     """Drop the least recently used sources of ``cache`` (in use order, oldest first) until they hold at most
     :data:`_SOURCES_BYTES` and :data:`_SOURCES_ENTRIES` entries in all; those of the current call (``current``)
     stay, whatever they hold."""
-    total = sum(_source_bytes(src) for src in cache.values())
+    # list(): snapshots in one step, so that another thread's close-ups on the same terrain do not break the loops
+    total = sum(_source_bytes(src) for src in list(cache.values()))
     for key in list(cache):
         if total <= _SOURCES_BYTES and len(cache) <= _SOURCES_ENTRIES:
             break
         if key not in current:
-            total -= _source_bytes(cache.pop(key))
+            src = cache.pop(key, None)
+            total -= 0 if src is None else _source_bytes(src)
 
 
 def _grid_window(terrain: Terrain, box: tuple[float, float, float, float]) -> tuple[int, int, int, int]:
