@@ -180,6 +180,11 @@ def level_of(h: wp.float32, iso: Isovalues) -> wp.int32:
             k = n
         elif x >= 0.0:  # false for NaN
             k = wp.int32(x)
+        elif wp.isnan(h):
+            # nodata: NaN compares false, so the walk below went up through every threshold and back down. Checked
+            # here, where only heights below the first threshold come: ahead of the estimate, the check cost every
+            # finite height (quantizing 2048² on the CPU: 10 -> 12.5 ms)
+            return 0
         while k < n:
             if load(thresholds, k) > h:
                 break

@@ -897,7 +897,12 @@ def _run_info(args: argparse.Namespace, progress: Progress) -> int:
     else:
         from .io import describe_dem
 
-        terrain = _load_input(args.file, args.height_unit, band=args.band)
+        try:
+            terrain = _load_input(args.file, args.height_unit, band=args.band)
+        except InvalidInputError as exc:  # load_dem's refusal listed the DEM formats alone: info reads meshes too
+            if "unknown DEM extension" not in str(exc):
+                raise
+            raise InvalidInputError(f"{exc}; or a mesh file: {', '.join(MESH_EXTENSIONS)}") from None
         summary = describe_dem(terrain)
     if args.json:
         print(json.dumps(summary, indent=2, default=str))

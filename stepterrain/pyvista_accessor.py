@@ -7,7 +7,8 @@ without leaving pyvista. Importing this module registers the accessor; pyvista d
 ``dataset.stepterrain`` through the ``pyvista.accessors`` entry point in ``pyproject.toml``, so neither
 ``import stepterrain`` nor an explicit import of this module is needed.
 
-    grid = pv.ImageData(dimensions=(W, H, 1), spacing=(30, 30, 1)); grid["elevation"] = heights.ravel()
+    grid = pv.ImageData(dimensions=(W, H, 1), spacing=(30, 30, 1))   # rows run south to north in an ImageData:
+    grid["elevation"] = heights[::-1].ravel()                        # a north-up DEM's rows go in reversed
     steps = grid.stepterrain.stepped(interval=50)      # pv.PolyData, cell data "level" and "wall"
 """
 

@@ -257,3 +257,69 @@ def test_the_format_table_holds_on_round_trips(tmp_path):
             assert wrap == ("CLAMP_TO_EDGE", "CLAMP_TO_EDGE"), (ext, wrap)  # drape's sampler, read back
         else:
             assert wrap is None, (ext, wrap)
+
+
+# --------------------------------------------------------- the command lines of the README's and docs' ```bash blocks
+BASH_BLOCK = re.compile(r"^```bash\n(.*?)^```", re.S | re.M)
+
+
+def page_command_lines(text: str) -> list[str]:
+    """The ``stepterrain ...`` lines of a page's ```bash blocks, a trailing backslash continuing a line and a trailing
+    ``# comment`` dropped."""
+    lines, pending = [], ""
+    for block in BASH_BLOCK.findall(text):
+        for raw in block.splitlines():
+            line = raw.strip()
+            if pending:
+                line, pending = pending + " " + line, ""
+            elif not line.startswith("stepterrain "):
+                continue
+            if line.endswith("\\"):
+                pending = line[:-1].strip()
+                continue
+            lines.append(re.split(r"\s+#", line)[0])
+    return lines
+
+
+def command_line_problems(line: str, parser) -> list[str]:
+    """What is wrong with one page command line: an option its subcommand lacks (also in a synopsis line with
+    ``[...]`` and ``a|b``), or, for a runnable line (no brackets), arguments argparse refuses."""
+    import argparse
+    import contextlib
+    import io
+    import shlex
+
+    from stepterrain.cli import _UsageError
+
+    (action,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    words = shlex.split(line)
+    command = words[1]
+    if command not in action.choices:
+        return [f"no subcommand {command!r}"]
+    known = {o for a in (*parser._actions, *action.choices[command]._actions) for o in a.option_strings}
+    problems = [f"{command} has no option {o}" for o in re.findall(r"(?<![\w-])(--[a-z][a-z0-9-]*)", line)
+                if o not in known]
+    if "[" not in line:
+        try:
+            with contextlib.redirect_stderr(io.StringIO()):
+                parser.parse_args(words[1:])
+        except (SystemExit, _UsageError):  # argparse's refusals, and the CLI's for values argparse cannot check
+            problems.append("argparse refuses it")
+    return problems
+
+
+def test_page_command_lines_name_options_that_exist():
+    """Every ``stepterrain`` line of the README's and docs' ```bash blocks (the README's synopsis of each command
+    included) names options its subcommand has, and every runnable one parses: a renamed or removed option shows
+    here, not only to a reader whose copied line fails."""
+    from stepterrain import cli
+
+    parser = cli.build_parser()
+    assert command_line_problems("stepterrain steps --intervall 50 -o a.glb", parser) == [
+        "steps has no option --intervall", "argparse refuses it"]  # the check itself sees a wrong option
+    checked = 0
+    for page in PAGES:
+        for line in page_command_lines(page.read_text(encoding="utf-8")):
+            assert not command_line_problems(line, parser), (page.name, line, command_line_problems(line, parser))
+            checked += 1
+    assert checked >= 20, checked

@@ -44,3 +44,76 @@ def test_readme_adaptive_mesh_lies_on_the_dem_it_meshes():
     i, j = np.round(i).astype(int), np.round(j).astype(int)
     assert i.min() == 0 and j.min() == 0 and i.max() == dem.shape[0] - 1 and j.max() == dem.shape[1] - 1
     np.testing.assert_array_equal(local.vertices[:, 2], dem.heights[i, j])
+
+
+def _north_up_crop():
+    import numpy as np
+
+    import stepterrain as st
+
+    heights = np.asarray(st.sample_dem().heights, dtype=np.float32)[:65, :97].copy()
+    assert not np.array_equal(heights[0], heights[-1])  # a mirror image would show
+    return heights
+
+
+def test_globe_md_adaptive_mesh_keeps_a_north_up_array_north_up():
+    """docs/globe.md's ``local = adaptive_mesh(heights, error=5.0, spacing=30.0)`` put row i at y = 30 i: a north-up
+    array's (load_dem's, the docs' ``heights``) north row at the south edge, a mirror image, as the README's line did
+    (test above). The line as the page gives it puts row 0 at the north edge: y falls as the row grows."""
+    import re
+
+    import numpy as np
+    import warp as wp
+
+    from stepterrain.globe import adaptive_mesh
+
+    wp.config.quiet = True
+    (line,) = re.findall(r"^local = adaptive_mesh\(.*$", (ROOT / "docs" / "globe.md").read_text(), re.M)
+    heights = _north_up_crop()
+    names = {"adaptive_mesh": adaptive_mesh, "heights": heights}
+    exec(line.split("  #")[0], names)  # noqa: S102 - the page's own line
+    local = names["local"]
+    i, j = np.asarray(local.metadata["node_index"]).T
+    np.testing.assert_array_equal(local.vertices[:, 2], heights[i, j])
+    north = local.vertices[i == 0, 1]
+    south = local.vertices[i == heights.shape[0] - 1, 1]
+    assert north.min() > south.max(), "row 0 of a north-up array lies south of its last row: a mirror image"
+    assert np.allclose(np.diff(sorted(set(local.vertices[:, 1]))), 30.0)
+
+
+def test_batch_md_image_data_keeps_a_north_up_array_north_up():
+    """docs/batch.md says a north-up DEM's heights go into an ImageData (rows south to north) as ``heights[::-1]``,
+    and its block then filled the grid with ``heights.ravel()``: the north row at y = 0, the terrain stepped as its
+    mirror image. The block's line as the page gives it puts row 0 of a north-up array at the grid's north edge."""
+    import re
+
+    import numpy as np
+    import pyvista as pv
+
+    (line,) = re.findall(r"^grid = pv\.ImageData\(.*$", (ROOT / "docs" / "batch.md").read_text(), re.M)
+    heights = _north_up_crop()
+    names = {"pv": pv, "heights": heights, "H": heights.shape[0], "W": heights.shape[1]}
+    exec(line.split("  #")[0], names)  # noqa: S102 - the page's own line
+    grid = names["grid"]
+    y = np.asarray(grid.points)[:, 1]
+    z = np.asarray(grid["elevation"])
+    np.testing.assert_array_equal(z[y == y.max()], heights[0], err_msg="the north row is not at the north edge")
+    np.testing.assert_array_equal(z[y == y.min()], heights[-1])
+
+
+def test_info_refusal_of_an_unknown_extension_names_the_mesh_formats_too(tmp_path, capsys):
+    """``stepterrain info FILE`` describes "a DEM or a mesh file" (its --help), but a FILE of another extension (a
+    photo, ``scan.xyz``) was refused as "unknown DEM extension '.jpg'; supported: .npy, .npz, ..., .dt2": the DEM
+    formats alone, as if info read no mesh. The refusal names the mesh formats too; steps' keeps to DEMs."""
+    from stepterrain import cli
+
+    for name in ("photo.jpg", "scan.xyz"):
+        path = tmp_path / name
+        path.write_bytes(b"not a DEM nor a mesh")
+        assert cli.main(["info", str(path)]) == 2
+        err = capsys.readouterr().err
+        assert f"unknown DEM extension '{path.suffix}'" in err and ".dt2" in err, err
+        assert "a mesh file" in err and ".glb, .gltf, .obj, .ply, .stl, .3mf" in err, err
+        assert len(err.strip().splitlines()) == 1, err
+    assert cli.main(["steps", str(tmp_path / "photo.jpg"), "-o", str(tmp_path / "a.glb")]) == 2
+    assert "mesh file" not in capsys.readouterr().err

@@ -8,11 +8,13 @@ import warnings
 import numpy as np
 import pytest
 import trimesh
+import warp as wp
 from hypothesis import given, settings
 from hypothesis import strategies as st_
+from stepterrain.kernels import stepped as stepped_kernels
 
 import stepterrain as st
-from stepterrain._device import resolve_device
+from stepterrain._device import launch_chunked, resolve_device
 from stepterrain.stepped import step_arrays, thresholds_of
 from stepterrain.terrain import as_terrain
 
@@ -1165,3 +1167,35 @@ def test_per_node_gamma_nan_is_taken_exactly_where_no_vertex_reads_it(seed, kind
     with pytest.raises(st.InvalidInputError, match=rf"^{prefix}gamma must lie in \[0, 1\] .*; got nan at index "
                                                    rf"\({index}\)$"):
         run(gamma)
+
+
+@pytest.mark.parametrize(
+    ("values", "uniform"),
+    [
+        (st.isovalues((0.0, 100.0), interval=0.005), True),  # 20,001 levels: level_of's estimate-and-correct walk
+        (st.isovalues((0.0, 100.0), interval=2.0), True),  # 51: the CPU's vector path (at most 64 thresholds)
+        (np.geomspace(1.0, 100.0, 5000), False),  # the binary search
+    ],
+    ids=["uniform", "vector", "binary"],
+)
+def test_a_nodata_node_takes_level_0_on_every_quantize_path(device, values, uniform):
+    """level_of (kernels/stepped.py) gives NaN level 0, but on the estimate-and-correct path of uniform levels (every
+    ``interval=``; on the CPU above 64 thresholds, on CUDA always) a NaN estimate started at 0 and NaN compares false:
+    the walk stepped up through every threshold and back down again, 2 x levels comparisons a nodata node, before
+    returning 0. It now returns 0 at once (the speed-up is measured by benchmarks/run_nodata_levels.py, not here).
+    Every path still gives a nodata node level 0 and every other height the count of thresholds at or below it."""
+    dev = resolve_device(device)
+    values = np.asarray(values, np.float32)
+    iso = stepped_module._build_isovalue_struct(values, dev)
+    assert iso.uniform == int(uniform)
+    thresholds = thresholds_of(values)
+    finite = np.concatenate([thresholds, (thresholds[:-1] + thresholds[1:]) / 2, np.nextafter(thresholds, -np.inf),
+                             [-np.inf, -1e30, values[0], values[-1], 1e30, np.inf]]).astype(np.float32)
+    heights = np.full(2 * len(finite), np.nan, np.float32)  # every other node nodata
+    heights[1::2] = finite
+    levels = wp.zeros(len(heights), dtype=wp.int32, device=dev)
+    launch_chunked(stepped_kernels.quantize_levels, n=len(heights), inputs=[wp.array(heights, device=dev), iso],
+                   outputs=[levels], device=dev)
+    got = levels.numpy()
+    assert not got[0::2].any()  # NaN: level 0
+    np.testing.assert_array_equal(got[1::2], np.searchsorted(thresholds, finite, side="right"))
