@@ -315,6 +315,8 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
             array = np.asarray(values)
             if array.shape[:1] != (count,):
                 continue
+            if array.dtype.kind == "O" and all(isinstance(v, str) for v in array.ravel()):
+                array = array.astype(str)  # strings held as objects (a pandas column's values) are strings
             if array.dtype.kind in _DATA_KINDS:
                 data[name] = _vtk_values(array, own)
             else:
@@ -361,8 +363,9 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
     return poly
 
 
-#: The dtype kinds :func:`to_polydata` keeps as point or cell data: booleans, integers, floats, complex, strings.
-_DATA_KINDS = "biufcU"
+#: The dtype kinds :func:`to_polydata` keeps as point or cell data: booleans, integers, floats, complex, strings
+#: (str and bytes, both VTK string arrays).
+_DATA_KINDS = "biufcUS"
 
 
 def _vtk_values(array: NDArray[Any], own: Any) -> NDArray[Any]:

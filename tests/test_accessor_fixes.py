@@ -547,3 +547,25 @@ def test_to_polydata_treats_vertex_and_face_attributes_alike(kind, values):
     else:
         assert "tag" not in data
         assert any(f"{kind} attribute 'tag'" in m and str(array.dtype) in m for m in messages), messages
+
+
+@pytest.mark.parametrize("values", [lambda n: np.array(["wall", "flat"] * (n // 2), object),  # a pandas column's
+                                    lambda n: np.array([b"wall", b"flat"] * (n // 2))])  # bytes
+@pytest.mark.parametrize("kind", ["face", "vertex"])
+def test_to_polydata_keeps_strings_held_as_objects_or_bytes(kind, values):
+    """Strings held in an object array (pandas' string columns) or as bytes are strings: the rule 'numbers and
+    strings kept' left them out with a warning (and a face attribute of them had been kept before it)."""
+    mesh = trimesh.creation.box()
+    n = len(mesh.faces) if kind == "face" else len(mesh.vertices)
+    array = values(n)
+    (mesh.face_attributes if kind == "face" else mesh.vertex_attributes)["tag"] = array
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        poly = to_polydata(mesh)
+    assert not any("tag" in str(w.message) for w in caught)
+    expected = np.array([v.decode() if isinstance(v, bytes) else v for v in array])
+    np.testing.assert_array_equal(np.asarray((poly.cell_data if kind == "face" else poly.point_data)["tag"]),
+                                  expected)
+    back = from_polydata(poly)
+    np.testing.assert_array_equal((back.face_attributes if kind == "face" else back.vertex_attributes)["tag"],
+                                  expected)
