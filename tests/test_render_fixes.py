@@ -1494,3 +1494,26 @@ def test_render_layers_drops_the_layers_of_an_earlier_call_it_no_longer_draws():
             assert sorted(renderer._actors) == ["closeup0", "overview"]
     finally:
         st.set_memory_budget(previous)
+
+
+@needs_render
+def test_render_layers_drops_only_its_own_prefixs_earlier_layers():
+    """Dropping the layers an earlier call drew and this one does not stays within the prefix: another prefix's
+    layers (render_closeups' anchors beside its close-ups) and meshes set with set_mesh (a name that starts like the
+    prefix too) stay, and are drawn as before."""
+    ground, layer = _grid(20, 0.0, 0.0), _grid(6, 5.0, 4.0)
+    with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+        renderer.set_mesh("overview", *ground)
+        renderer.set_mesh("closeup_user", *_grid(4, 12.0, 2.0))
+        renderer.set_view((30.0, 35.0), [[0, 0, 0], [20, 20, 5]])
+        user = renderer.render(["closeup_user"])
+        both = {0: (*layer, {}), 1: (*_grid(4, 1.0, 3.0), {})}
+        anchors = renderer.render_layers("anchor", both, merge=False)
+        renderer.render_layers("closeup", both, merge=False)
+        renderer.render_layers("closeup", {0: (*layer, {})}, merge=False)
+        assert sorted(renderer._actors) == ["anchor0", "anchor1", "closeup0", "closeup_user", "overview"]
+        for k in (0, 1):
+            np.testing.assert_array_equal(renderer.render([f"anchor{k}"])[0], anchors[k][0])
+        renderer.render_layers("anchor", {}, merge=False)
+        assert sorted(renderer._actors) == ["closeup0", "closeup_user", "overview"]
+        np.testing.assert_array_equal(renderer.render(["closeup_user"])[0], user[0])
