@@ -218,12 +218,12 @@ def _hypsometric(terrain: Any, name: str) -> np.ndarray | None:
     found = _colormap(name)
     if found is None:
         return None
-    cmap, lo_frac = found
+    cmap, lo_frac, hi_frac = found
     heights = terrain.heights
     finite = np.isfinite(heights)
     lo, hi = terrain.finite_height_range  # computed once per terrain (the texture's relief check asked already)
     scaled = np.clip((heights - lo) / max(hi - lo, 1e-12), 0, 1)
-    rgba = cmap(lo_frac + (1 - lo_frac) * np.where(finite, scaled, 0.0)).astype(np.float32)
+    rgba = cmap(lo_frac + (hi_frac - lo_frac) * np.where(finite, scaled, 0.0)).astype(np.float32)
     rgba[~finite, 3] = 0.0
     return rgba
 

@@ -650,9 +650,9 @@ def _check_side_files(option: str, path: Path, sides: list[Path], inputs: dict[s
                                     f"{what}; give {option} or {name} another name")
 
 
-def _colormap(name: str) -> tuple[Any, float] | None:
-    """The matplotlib colormap ``--colormap NAME`` names and the fraction its land colours start at
-    (``stepped.LAND_START``); None for 'none'."""
+def _colormap(name: str) -> tuple[Any, float, float] | None:
+    """The matplotlib colormap ``--colormap NAME`` names and the fractions its land colours lie between
+    (``stepped.land_range``); None for 'none'."""
     if name.lower() == "none":
         return None
     return colormap(name, argument="--colormap", hint=" or 'none'")

@@ -38,7 +38,7 @@ from .errors import DataFileError, InvalidInputError, MissingDependencyError, Ou
 from .io import degrees_hint
 from .kernels import closeup as closeup_kernels
 from .kernels import compaction as compaction_kernels
-from .stepped import LAND_START
+from .stepped import land_range
 from .terrain import (
     FLOAT32_MAX,
     Terrain,
@@ -896,6 +896,31 @@ class _Source:
     scalars: NDArray[np.float32] | None = None
 
 
+#: The most bytes, and entries, the per-terrain cache of close-up sources keeps (the current call's always kept).
+#: It held up to 64 sources whatever their size, then was emptied: a ROI dragged over the embedded DEM (a quarter
+#: of its width) kept 255 MB of sources of positions left behind, and the clearing rebuilt the still ones too.
+_SOURCES_BYTES = 64 << 20
+_SOURCES_ENTRIES = 64
+
+
+def _source_bytes(src: _Source) -> int:
+    return sum(a.nbytes for a in (src.points, src.faces, src.source_faces, src.colors, src.scalars) if a is not None)
+
+
+def _trim_sources(cache: dict[Any, _Source], current: set[Any]) -> None:
+    """Drop the least recently used sources of ``cache`` (in use order, oldest first) until they hold at most
+    :data:`_SOURCES_BYTES` and :data:`_SOURCES_ENTRIES` entries in all; those of the current call (``current``)
+    stay, whatever they hold."""
+    # list(): snapshots in one step, so that another thread's close-ups on the same terrain do not break the loops
+    total = sum(_source_bytes(src) for src in list(cache.values()))
+    for key in list(cache):
+        if total <= _SOURCES_BYTES and len(cache) <= _SOURCES_ENTRIES:
+            break
+        if key not in current:
+            src = cache.pop(key, None)
+            total -= 0 if src is None else _source_bytes(src)
+
+
 def _grid_window(terrain: Terrain, box: tuple[float, float, float, float]) -> tuple[int, int, int, int]:
     """Node index window (i0, i1, j0, j1), inclusive, covering the ROI box plus one node."""
     rows, cols = terrain.heights.shape
@@ -1245,15 +1270,17 @@ def closeup_layers(
         return []
     sources: list[_Source] = []
     # a close-up's input geometry depends on its ROI box and mapping only, not on M: frames that move or turn
-    # a close-up re-use it (a small per-terrain cache, emptied when it grows, e.g. while a ROI is dragged)
+    # a close-up re-use it (a small per-terrain cache, least recently used first out)
     cache = t.cached(("closeup", "sources"), dict)
-    if len(cache) > 64:
-        cache.clear()
+    keys = []
     for cu in items:  # one window per close-up (a handful): no loop over cells or vertices
         key = (cu.roi.box, cu.stepped, cu.gamma if cu.stepped is not None else None,
                (cu.cmap or colors) if cu.stepped is not None else None, cu.scalars, str(device))
-        src = cache.get(key)
-        if src is None:
+        keys.append(key)
+        src = cache.pop(key, None)  # put back last: the most recently used
+        if src is not None:
+            cache[key] = src
+        else:
             if cu.stepped is not None:
                 src = _stepped_source(t, cu, cu.cmap or colors, device)
             elif t.kind == "grid":
@@ -1264,6 +1291,7 @@ def closeup_layers(
                 src.scalars = _vertex_scalars(t, src.points, cu.scalars)
             cache[key] = src
         sources.append(src)
+    _trim_sources(cache, set(keys))
     total_points, total_faces = sum(len(src.points) for src in sources), sum(len(src.faces) for src in sources)
     check_budget(total_points * _CULL_POINT_BYTES + total_faces * _CULL_FACE_BYTES, "close-up geometry",
                  memory_budget, hint="use smaller ROIs or fewer close-ups")
@@ -2081,9 +2109,9 @@ def _colors_for(mesh_values: NDArray[np.float32], cmap: str, vmin: float, vmax: 
         raise InvalidInputError(f"cmap must name a matplotlib colormap; got {cmap!r}") from None
     span = vmax - vmin if vmax > vmin else 1.0
     x = np.clip((mesh_values - vmin) / span, 0, 1)
-    lo = LAND_START.get(cmap, 0.0)  # the colormap's land part (stepped.LAND_START: 'terrain' skips its sea blues)
-    if lo:
-        x = lo + (1.0 - lo) * x
+    lo, hi = land_range(cmap)  # the colormap's land part (stepped.land_range: 'terrain' skips its sea blues)
+    if (lo, hi) != (0.0, 1.0):
+        x = lo + (hi - lo) * x
     # = (table(x)[:, :3] * 255 + 0.5).astype(uint8), entry by entry: matplotlib looks a float x up in its
     # N-entry table at int(x·N) (x·N in x's dtype, N itself mapped to N − 1, NaN to the "bad" color); the
     # table is converted to uint8 once instead of every vertex's RGBA

@@ -276,10 +276,11 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
     ``pv.wrap`` of a Trimesh drops its vertex colours (pyvista carries vertex attributes only); this keeps them as
     point data ``RGBA`` (uint8), also the active scalars ``colors_rgba`` (plotted as colours); colours by face go to
     cell data so. Face attributes become cell data and vertex attributes point data (bools as uint8, half floats as
-    float32), a textured mesh's UVs (one per vertex) the active texture coordinates (its image is not data of a
-    PolyData: plot with ``texture=np.asarray(image)``, the image being ``mesh.visual.material.baseColorTexture``, or
-    ``.image`` for a globe's ``drape_texture``), ``isovalues`` a float64 ``field_data`` array, and every metadata
-    item that is JSON (values as :func:`~stepterrain.export.save_mesh` writes them to glTF extras) goes to
+    float32; numbers and strings, anything else left out with a warning naming it), a textured mesh's UVs (one per
+    vertex) the active texture coordinates (its image is not data of a PolyData: plot with
+    ``texture=np.asarray(image)``, the image being ``mesh.visual.material.baseColorTexture``, or ``.image`` for
+    a globe's ``drape_texture``), ``isovalues`` a float64 ``field_data`` array, and every metadata item that is JSON
+    (values as :func:`~stepterrain.export.save_mesh` writes them to glTF extras) goes to
     ``user_dict``, as ``pv.wrap`` keeps them; a numeric array too long for that (a globe's ``node_entry``, a
     close-up layer's ``source_faces``) is a ``field_data`` array, as ``pv.wrap`` keeps it; any other item is left
     out with a warning naming it. :func:`from_polydata` is the way back.
@@ -302,16 +303,27 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
     # VTK's offsets and connectivity on the faces as they are: a padded [3, a, b, c] copy took 2.5 s and 550 MB
     # more for 13 M faces (a 2600² grid stepped), almost all of grid.stepterrain.stepped's time past the kernels
     poly = pv.PolyData.from_regular_faces(own(mesh.vertices, dtype=np.float64), faces, deep=False)
-    for name, values in mesh.face_attributes.items():
-        array = np.asarray(values)
-        if array.shape[:1] == (len(faces),):
-            poly.cell_data[name] = _vtk_values(array, own)
     # vertex attributes (a close-up layer's mask_factor, a PLY's properties) and a draped mesh's UVs were dropped,
-    # where pv.wrap keeps them: pl.add_mesh(poly, texture=...) found no texture coordinates
-    for name, values in mesh.vertex_attributes.items():
-        array = np.asarray(values)
-        if array.shape[:1] == (len(mesh.vertices),) and array.dtype.kind in "biuf":
-            poly.point_data[name] = _vtk_values(array, own)
+    # where pv.wrap keeps them: pl.add_mesh(poly, texture=...) found no texture coordinates. Both kinds follow one
+    # rule: numbers and strings are kept (a string vertex attribute was dropped without a word while a face one was
+    # kept); what VTK holds no array of (objects, which VTK turned into their str, None into 'None'; datetimes,
+    # whose TypeError came out of to_polydata) is left out with a warning, as metadata is
+    left_out = []
+    for kind, attributes, count, data in (("face", mesh.face_attributes, len(faces), poly.cell_data),
+                                          ("vertex", mesh.vertex_attributes, len(mesh.vertices), poly.point_data)):
+        for name, values in attributes.items():
+            array = np.asarray(values)
+            if array.shape[:1] != (count,):
+                continue
+            if array.dtype.kind == "O" and all(isinstance(v, str) for v in array.ravel()):
+                array = array.astype(str)  # strings held as objects (a pandas column's values) are strings
+            if array.dtype.kind in _DATA_KINDS:
+                data[name] = _vtk_values(array, own)
+            else:
+                left_out.append(f"{kind} attribute {name!r} ({array.dtype})")
+    if left_out:
+        warnings.warn(f"to_polydata: {', '.join(left_out)} left out: VTK holds arrays of numbers and strings only",
+                      stacklevel=caller_stacklevel())
     uv = getattr(mesh.visual, "uv", None) if mesh.visual.kind == "texture" else None
     if uv is not None and np.shape(uv) == (len(mesh.vertices), 2):
         poly.active_texture_coordinates = own(uv, dtype=np.float64)
@@ -349,6 +361,11 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
     if kept:
         poly.user_dict.update(kept)
     return poly
+
+
+#: The dtype kinds :func:`to_polydata` keeps as point or cell data: booleans, integers, floats, complex, strings
+#: (str and bytes, both VTK string arrays).
+_DATA_KINDS = "biufcUS"
 
 
 def _vtk_values(array: NDArray[Any], own: Any) -> NDArray[Any]:

@@ -1513,6 +1513,7 @@ class LayeredRenderer:
         self._view_version = 0
         self._passes: dict[tuple[str, ...], Any] = {}
         self._joined: dict[Any, Any] = {}
+        self._layer_names: dict[str, set[str]] = {}  # render_layers' layers by prefix, as of its last call
         self._keys: dict[str, Any] = {}
         self._bounds: dict[str, NDArray[np.float64]] = {}
         self._local_bounds: dict[str, NDArray[np.float64]] = {}
@@ -1736,7 +1737,8 @@ class LayeredRenderer:
         color and (H, W) float32 depth (inf: empty).
 
         With ``reuse`` the previous images of the same pass come back without rendering when neither the view
-        nor those meshes changed since (a still camera over a still overview while close-ups move). With
+        nor those meshes changed since (a still camera over a still overview while close-ups move); a pass with
+        ``reuse`` comes back read-only (the cached images themselves: copy them to edit). With
         ``rect`` = (col0, row0, col1, row1) (end exclusive, row 0 at the top) only that part of the window is
         read back: the images are ``window[row0:row1, col0:col1]`` of the full pass, pixel for pixel."""
         self._check_open()
@@ -1757,12 +1759,16 @@ class LayeredRenderer:
         state = (self._view_version, tuple(self._versions.get(n, 0) for n in sorted(wanted)))
         cached = self._passes.get(key)
         if reuse and cached is not None and cached[0] == state:
-            return cached[1], cached[2]
+            return cached[1].view(), cached[2].view()
         for name, actor in self._actors.items():
             actor.SetVisibility(name in wanted)
         color, depth = self._read(self._plotter, rect)
-        if reuse:
+        if reuse:  # the cache's own images, read-only: a caller who edited the returned image (it was the cached
+            # array itself) changed what the next reuse returned. Views of read-only arrays cannot be made writeable
+            # again, and cost no copy; a caller who edits one makes a copy
+            color.flags.writeable = depth.flags.writeable = False
             self._passes[key] = (state, color, depth)
+            return color.view(), depth.view()
         return color, depth
 
     def _check_rect(self, rect: Any) -> tuple[int, int, int, int]:
@@ -1792,7 +1798,11 @@ class LayeredRenderer:
         With ``crop`` each layer comes back as (color, depth, rect): only its screen box ``rect`` = (col0, row0,
         col1, row1) is read back (the whole window where the box is unknown), and the images are exactly that
         part of the full-window images (outside it a layer has no fragment), so the read-backs and the
-        compositing cost follow the close-up's size on screen, not the window's."""
+        compositing cost follow the close-up's size on screen, not the window's.
+
+        The layers of this ``prefix`` that the previous call uploaded and this one does not draw (a close-up gone,
+        layers merged otherwise) are removed first: their memory is freed, and they no longer widen the clipping range
+        of the next :meth:`set_view`."""
         self._check_open()
         rects: dict[int, tuple[int, int, int, int] | None] = {}
         boxes = {k: _finite_bounds(np.asarray(v, dtype=np.float64).reshape(-1, 3))  # once per layer
@@ -1815,6 +1825,14 @@ class LayeredRenderer:
                         break
             if not placed:
                 groups.append([k])
+        # this call's layer names; those of this prefix's previous call not among them (a close-up gone, layers merged
+        # otherwise) are dropped first: kept hidden, they held their meshes' memory, counted against the budget of
+        # this call's uploads (a frame the budget allowed was refused), and widened the next view's clipping range
+        # (its far plane out to where a close-up once was, its near plane 300 times nearer: depth precision lost)
+        names = {f"{prefix}{group[0]}" if len(group) == 1 else f"{prefix}-merged{g}" for g, group in enumerate(groups)}
+        for stale in self._layer_names.get(prefix, set()) - names:
+            self.remove(stale)
+        self._layer_names[prefix] = names
         out: dict[int, tuple[NDArray[np.uint8], NDArray[np.float32]]] = {}
         for g, group in enumerate(groups):
             if len(group) == 1:

@@ -1042,9 +1042,18 @@ def _needs_sources(terrain: Terrain, gamma: GammaLike, colors: Any) -> bool:
 LAND_START: dict[str, float] = {"terrain": 0.25}
 
 
-def colormap(name: str, *, argument: str = "colors", hint: str = "") -> tuple[Any, float]:
-    """The matplotlib colormap ``name`` and where its land colours start (:data:`LAND_START`); an unknown name
-    is an :class:`InvalidInputError` naming ``argument`` (and ``hint``, e.g. " or 'none'")."""
+def land_range(name: str) -> tuple[float, float]:
+    """The part (lo, hi) of the colormap ``name`` holding its land colours: from :data:`LAND_START` up for a map
+    listed there, and its mirror, up to ``1 - LAND_START``, for the reversed map (matplotlib's ``"<name>_r"``, whose
+    sea blues are its last quarter: 'terrain_r' drew the highest ground as water); (0, 1) for any other."""
+    if isinstance(name, str) and name.endswith("_r") and name[:-2] in LAND_START:
+        return 0.0, 1.0 - LAND_START[name[:-2]]
+    return (LAND_START.get(name, 0.0) if isinstance(name, str) else 0.0), 1.0
+
+
+def colormap(name: str, *, argument: str = "colors", hint: str = "") -> tuple[Any, float, float]:
+    """The matplotlib colormap ``name`` and the part (lo, hi) of it holding its land colours (:func:`land_range`); an
+    unknown name is an :class:`InvalidInputError` naming ``argument`` (and ``hint``, e.g. " or 'none'")."""
     import matplotlib
 
     try:
@@ -1053,13 +1062,13 @@ def colormap(name: str, *, argument: str = "colors", hint: str = "") -> tuple[An
         raise InvalidInputError(
             f"{argument} must name a matplotlib colormap (e.g. 'terrain', 'viridis'){hint}; got {name!r}"
         ) from None
-    return cmap, LAND_START.get(name, 0.0)
+    return (cmap, *land_range(name))
 
 
 def colormap_samples(name: str, n_levels: int, *, argument: str = "colors") -> NDArray[np.float64]:
     """(L, 4) float RGBA sampled evenly from the land part of a matplotlib colormap (see :data:`LAND_START`)."""
-    cmap, lo = colormap(name, argument=argument)
-    samples = np.linspace(lo, 1.0, n_levels) if n_levels > 1 else np.array([(lo + 1.0) / 2])
+    cmap, lo, hi = colormap(name, argument=argument)
+    samples = np.linspace(lo, hi, n_levels) if n_levels > 1 else np.array([(lo + hi) / 2])
     return np.asarray(cmap(samples), dtype=np.float64)
 
 

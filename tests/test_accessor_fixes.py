@@ -12,7 +12,7 @@ import trimesh
 import stepterrain.pyvista_accessor  # noqa: F401 - registers the accessor
 from stepterrain import render
 from stepterrain.errors import InvalidInputError
-from stepterrain.pyvista_accessor import RGBA_ALIAS
+from stepterrain.pyvista_accessor import RGBA_ALIAS, from_polydata, to_polydata
 
 
 def test_structured_grid_with_elevation_in_cell_data_is_refused_not_stepped_flat():
@@ -518,3 +518,54 @@ def test_to_polydata_takes_half_float_attributes_as_float32():
     back = from_polydata(poly)
     np.testing.assert_array_equal(back.face_attributes["h"], per_face.astype(np.float32))
     np.testing.assert_array_equal(back.vertex_attributes["w"], per_vertex.astype(np.float32))
+
+
+@pytest.mark.parametrize("values", [lambda n: np.array(["wall", "flat"] * (n // 2)),  # strings: kept both ways
+                                    lambda n: np.zeros(n, "datetime64[s]"),  # VTK has no such array
+                                    lambda n: np.array([None, 1] * (n // 2), object)])  # was drawn as 'None' / '1'
+@pytest.mark.parametrize("kind", ["face", "vertex"])
+def test_to_polydata_treats_vertex_and_face_attributes_alike(kind, values):
+    """A string vertex attribute was dropped without a word while a face one was kept; a datetime face attribute
+    raised VTK's TypeError and an object one became its str ('None'), where the vertex ones were dropped silently.
+    Now both kinds keep numbers and strings and leave anything else out with a warning naming it."""
+    mesh = trimesh.creation.box()
+    n = len(mesh.faces) if kind == "face" else len(mesh.vertices)
+    array = values(n)
+    (mesh.face_attributes if kind == "face" else mesh.vertex_attributes)["tag"] = array
+    keep = array.dtype.kind == "U"
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        poly = to_polydata(mesh)
+    data = poly.cell_data if kind == "face" else poly.point_data
+    messages = [str(w.message) for w in caught]
+    if keep:
+        np.testing.assert_array_equal(np.asarray(data["tag"]), array)
+        assert not any("tag" in m for m in messages)
+        back = from_polydata(poly)
+        np.testing.assert_array_equal((back.face_attributes if kind == "face" else back.vertex_attributes)["tag"],
+                                      array)
+    else:
+        assert "tag" not in data
+        assert any(f"{kind} attribute 'tag'" in m and str(array.dtype) in m for m in messages), messages
+
+
+@pytest.mark.parametrize("values", [lambda n: np.array(["wall", "flat"] * (n // 2), object),  # a pandas column's
+                                    lambda n: np.array([b"wall", b"flat"] * (n // 2))])  # bytes
+@pytest.mark.parametrize("kind", ["face", "vertex"])
+def test_to_polydata_keeps_strings_held_as_objects_or_bytes(kind, values):
+    """Strings held in an object array (pandas' string columns) or as bytes are strings: the rule 'numbers and
+    strings kept' left them out with a warning (and a face attribute of them had been kept before it)."""
+    mesh = trimesh.creation.box()
+    n = len(mesh.faces) if kind == "face" else len(mesh.vertices)
+    array = values(n)
+    (mesh.face_attributes if kind == "face" else mesh.vertex_attributes)["tag"] = array
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        poly = to_polydata(mesh)
+    assert not any("tag" in str(w.message) for w in caught)
+    expected = np.array([v.decode() if isinstance(v, bytes) else v for v in array])
+    np.testing.assert_array_equal(np.asarray((poly.cell_data if kind == "face" else poly.point_data)["tag"]),
+                                  expected)
+    back = from_polydata(poly)
+    np.testing.assert_array_equal((back.face_attributes if kind == "face" else back.vertex_attributes)["tag"],
+                                  expected)

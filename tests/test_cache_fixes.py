@@ -103,3 +103,30 @@ def test_globe_heights_and_positions_cannot_change_the_globe():
     after = globe.mesh(error=1e5)
     np.testing.assert_array_equal(after.vertices, before.vertices)
     np.testing.assert_array_equal(after.faces, before.faces)
+
+
+def test_closeup_sources_cache_is_bounded_in_bytes_and_keeps_its_hits(monkeypatch):
+    """The per-terrain close-up sources were kept up to 64 whatever their size, then all dropped: a ROI dragged over
+    the embedded DEM kept ~4 MB per position left behind (255 MB after 60), and the clearing rebuilt the still
+    close-up's source too. Now least recently used first out past a byte bound; a re-render (other times, the
+    still close-up) still finds its sources: one build per distinct ROI box."""
+    from stepterrain import closeup as closeup_module
+    from stepterrain.closeup import ROI, CloseUp, closeup_layers
+
+    t = st.sample_dem()
+    xmin, xmax, ymin, ymax = t.extent
+    radius = 0.12 * (xmax - xmin)
+    builds = []
+    build = closeup_module._grid_source
+    monkeypatch.setattr(closeup_module, "_grid_source", lambda *a, **k: builds.append(a[1]) or build(*a, **k))
+    still = CloseUp(ROI.circle((xmin + 0.7 * (xmax - xmin), (ymin + ymax) / 2), radius), offset=(0, 0, 500.0))
+    cache = t.cached(("closeup", "sources"), dict)
+    positions = 24
+    for i in range(positions):
+        dragged = CloseUp(ROI.circle((xmin + radius * (1 + 0.03 * i), (ymin + ymax) / 2), radius),
+                          offset=(0, 0, 500.0))
+        for time in (0.0, 1.0):  # an animated re-render of the same frame
+            closeup_layers(t, [dragged, still], time=time, device="cpu")
+        held = sum(closeup_module._source_bytes(src) for src in cache.values())
+        assert held <= closeup_module._SOURCES_BYTES, f"{held / 2**20:.0f} MiB of sources after {i + 1} positions"
+    assert len(builds) == len(set(builds)) == positions + 1  # every ROI box built once, the still one too

@@ -1652,3 +1652,27 @@ def test_render_closeups_lets_go_of_closeups_no_longer_used(monkeypatch):
     again = render_closeups(t, [cu], window_size=SIZE, device="cpu")
     assert calls == []
     np.testing.assert_array_equal(first, again)
+
+
+@pytest.mark.parametrize("name", ["terrain", "viridis"])
+def test_a_reversed_colormap_is_its_maps_land_part_reversed(name):
+    """LAND_START knew only 'terrain': 'terrain_r' was sampled whole, its sea-blue last quarter on the highest
+    ground. A reversed map is now the land part of its map, reversed, in stepped's level colours and in the
+    close-ups' per-vertex colours."""
+    import matplotlib
+
+    from stepterrain.closeup import _colors_for
+    from stepterrain.stepped import colormap_samples
+
+    # matplotlib looks a map up in its 256-entry table: the reversed map's samples fall at most one entry apart
+    table_step = np.abs(np.diff(matplotlib.colormaps[name](np.linspace(0, 1, 257))[:, :3], axis=0)).max()
+    levels = colormap_samples(name, 7)
+    assert np.abs(colormap_samples(f"{name}_r", 7) - levels[::-1]).max() <= table_step + 1e-9
+    x = np.linspace(0.0, 1.0, 101, dtype=np.float32)
+    reversed_rgb = _colors_for(x, f"{name}_r", 0.0, 1.0).astype(int)
+    # an independent reference: the forward map's land part at 1 - x
+    lo = 0.25 if name == "terrain" else 0.0
+    reference = np.round(matplotlib.colormaps[name](lo + (1 - lo) * (1.0 - x.astype(np.float64)))[:, :3] * 255)
+    assert np.abs(reversed_rgb - reference).max() <= table_step * 255 + 1
+    top = reversed_rgb[-1]
+    assert not (top[2] > top[0] + 40 and top[2] > top[1]), f"the highest ground is sea blue: {top}"

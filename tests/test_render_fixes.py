@@ -1419,3 +1419,101 @@ def test_joined_layers_of_colours_now_gone_are_not_found_for_the_same_faces_with
     for k in (0, 1):
         assert ((expected[k][0][..., 0] > 200) & (expected[k][0][..., 1] < 50)).sum() == 0
         np.testing.assert_array_equal(got[k][0], expected[k][0])
+
+
+@needs_render
+def test_a_reused_pass_cannot_be_edited_through_the_returned_images():
+    """render(reuse=True) returned its cached arrays themselves: a caller who drew into the returned image changed the
+    cache, and the next reuse returned the edited image instead of the pass."""
+    with render.LayeredRenderer(window_size=(48, 32)) as renderer:
+        renderer.set_mesh("a", VERTICES, FACES)
+        renderer.set_view("oblique", [[0, 0, 0], [10, 10, 5]])
+        fresh, fresh_depth = renderer.render(["a"])
+        for _ in range(2):  # the pass that fills the cache, then the one that reuses it
+            color, depth = renderer.render(["a"], reuse=True)
+            for image, value in ((color, 7), (depth, 0.5)):
+                try:
+                    image[...] = value
+                except ValueError:
+                    pass
+                try:  # nor made writeable again
+                    image.flags.writeable = True
+                    image[...] = value
+                except ValueError:
+                    pass
+        again, again_depth = renderer.render(["a"], reuse=True)
+        np.testing.assert_array_equal(again, fresh)
+        np.testing.assert_array_equal(again_depth, fresh_depth)
+
+
+def _grid(nx: int, x0: float, z: float) -> tuple[np.ndarray, np.ndarray]:
+    """A flat nx x nx grid of 1 m cells at x0, height z: (vertices, faces)."""
+    xs, ys = np.meshgrid(np.arange(nx, dtype=float) + x0, np.arange(nx, dtype=float))
+    vertices = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, z)])
+    i = (np.arange(nx - 1)[:, None] * nx + np.arange(nx - 1)[None, :]).ravel()
+    faces = np.concatenate([np.column_stack([i, i + 1, i + nx]), np.column_stack([i + 1, i + nx + 1, i + nx])])
+    return vertices, faces
+
+
+@needs_render
+def test_render_layers_drops_the_layers_of_an_earlier_call_it_no_longer_draws():
+    """Layers of an earlier frame (a close-up gone) stayed as hidden actors: they kept the next view's clipping range
+    out to where they were (near plane 300 times nearer, far 50 times farther: depth precision lost) and their
+    meshes counted against the budget of the next frame's uploads, which refused a frame a fresh renderer drew."""
+    ground = _grid(20, 0.0, 0.0)
+    near_layer, far_layer = _grid(6, 5.0, 4.0), _grid(6, 5.0 + 20000.0, 3000.0)
+    box = [[0, 0, 0], [20, 20, 5]]
+
+    def frames(renderer, layers_of_frames):
+        renderer.set_mesh("overview", *ground)
+        for n, layers in enumerate(layers_of_frames):
+            renderer.set_view((30.0 + n, 35.0), box)
+            renderer.render_layers("closeup", {k: (v, f, {}) for k, (v, f) in layers.items()}, merge=False)
+        renderer.set_view((40.0, 35.0), box)
+        return renderer._plotter.camera.clipping_range
+
+    with render.LayeredRenderer(window_size=(64, 48)) as fresh:
+        expected = frames(fresh, [{0: near_layer}])
+    with render.LayeredRenderer(window_size=(64, 48)) as reused:
+        got = frames(reused, [{0: near_layer, 1: far_layer}, {0: near_layer}])
+        assert "closeup1" not in reused._actors
+    np.testing.assert_allclose(got, expected, rtol=1e-12)
+
+    # the budget: the first frame's layers fit, and so does the second's layer 0 (grown) beside the overview, but not
+    # beside the gone layer 1 too
+    big = _grid(60, 5.0, 4.0)
+    need = render._render_bytes(64, 48, layered=True, vertices=sum(len(m[0]) for m in (ground, near_layer, big)),
+                                faces=sum(len(m[1]) for m in (ground, near_layer, big)))
+    previous = st.set_memory_budget(need)
+    try:
+        with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+            renderer.set_mesh("overview", *ground)
+            renderer.set_view((30.0, 35.0), box)
+            renderer.render_layers("closeup", {0: (*near_layer, {}), 1: (*big, {})}, merge=False)
+            renderer.render_layers("closeup", {0: (*big, {})}, merge=False)  # refused while layer 1 stayed
+            assert sorted(renderer._actors) == ["closeup0", "overview"]
+    finally:
+        st.set_memory_budget(previous)
+
+
+@needs_render
+def test_render_layers_drops_only_its_own_prefixs_earlier_layers():
+    """Dropping the layers an earlier call drew and this one does not stays within the prefix: another prefix's
+    layers (render_closeups' anchors beside its close-ups) and meshes set with set_mesh (a name that starts like the
+    prefix too) stay, and are drawn as before."""
+    ground, layer = _grid(20, 0.0, 0.0), _grid(6, 5.0, 4.0)
+    with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+        renderer.set_mesh("overview", *ground)
+        renderer.set_mesh("closeup_user", *_grid(4, 12.0, 2.0))
+        renderer.set_view((30.0, 35.0), [[0, 0, 0], [20, 20, 5]])
+        user = renderer.render(["closeup_user"])
+        both = {0: (*layer, {}), 1: (*_grid(4, 1.0, 3.0), {})}
+        anchors = renderer.render_layers("anchor", both, merge=False)
+        renderer.render_layers("closeup", both, merge=False)
+        renderer.render_layers("closeup", {0: (*layer, {})}, merge=False)
+        assert sorted(renderer._actors) == ["anchor0", "anchor1", "closeup0", "closeup_user", "overview"]
+        for k in (0, 1):
+            np.testing.assert_array_equal(renderer.render([f"anchor{k}"])[0], anchors[k][0])
+        renderer.render_layers("anchor", {}, merge=False)
+        assert sorted(renderer._actors) == ["closeup0", "closeup_user", "overview"]
+        np.testing.assert_array_equal(renderer.render(["closeup_user"])[0], user[0])

@@ -1075,3 +1075,24 @@ def test_cli_texture_png_counts_the_draped_mesh_against_the_budget_before_any_wo
     assert f"give {more}--coarsen N or a --crop, or leave --png out (its copies for rendering grow" in err, err
     assert "topographic texture" not in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy"]
+
+
+def test_hypsometric_colours_of_a_reversed_cmap_are_its_land_part_reversed():
+    """--colormap terrain_r: the texture's hypsometric colours are terrain's land part reversed (stepped.land_range),
+    not the whole reversed map, whose last quarter (sea blue) fell on the highest ground."""
+    import matplotlib
+
+    import stepterrain as st
+    from stepterrain._cli_texture import _hypsometric
+
+    terrain = st.sample_dem()
+    table = matplotlib.colormaps["terrain"]
+    step = np.abs(np.diff(table(np.linspace(0, 1, 257)), axis=0)).max()  # one of its 256 table entries
+    lo, hi = terrain.finite_height_range
+    scaled = np.clip((terrain.heights - lo) / (hi - lo), 0, 1)
+    finite = np.isfinite(terrain.heights)
+    reference = table(0.25 + 0.75 * (1.0 - np.where(finite, scaled, 0.0)))  # independent: the forward map's land part
+    got = _hypsometric(terrain, "terrain_r")
+    assert np.abs(got[finite] - reference[finite]).max() <= step + 1e-6
+    top = got[np.unravel_index(np.nanargmax(terrain.heights), terrain.heights.shape)]
+    assert not (top[2] > top[0] + 0.15 and top[2] > top[1]), f"the highest ground is sea blue: {top}"
