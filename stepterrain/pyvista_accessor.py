@@ -276,7 +276,8 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
     ``pv.wrap`` of a Trimesh drops its vertex colours (pyvista carries vertex attributes only); this keeps them as
     point data ``RGBA`` (uint8), also the active scalars ``colors_rgba`` (plotted as colours); colours by face go to
     cell data so. Face attributes become cell data and vertex attributes point data (bools as uint8, half floats as
-    float32; numbers and strings, anything else left out with a warning naming it), a textured mesh's UVs (one per
+    float32; numbers and strings, anything else left out with a warning naming it, as are complex numbers of
+    several components), a textured mesh's UVs (one per
     vertex) the active texture coordinates (its image is not data of a PolyData: plot with
     ``texture=np.asarray(image)``, the image being ``mesh.visual.material.baseColorTexture``, or ``.image`` for
     a globe's ``drape_texture``), ``isovalues`` a float64 ``field_data`` array, and every metadata item that is JSON
@@ -317,13 +318,16 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
                 continue
             if array.dtype.kind == "O" and all(isinstance(v, str) for v in array.ravel()):
                 array = array.astype(str)  # strings held as objects (a pandas column's values) are strings
-            if array.dtype.kind in _DATA_KINDS:
+            if array.dtype.kind == "c" and array.ndim > 1:  # pyvista's ValueError "Complex data must be single
+                # dimensional" came out of to_polydata: it stores a complex value as two floats, one value a cell
+                left_out.append(f"{kind} attribute {name!r} ({array.dtype} of shape {array.shape})")
+            elif array.dtype.kind in _DATA_KINDS:
                 data[name] = _vtk_values(array, own)
             else:
                 left_out.append(f"{kind} attribute {name!r} ({array.dtype})")
     if left_out:
-        warnings.warn(f"to_polydata: {', '.join(left_out)} left out: VTK holds arrays of numbers and strings only",
-                      stacklevel=caller_stacklevel())
+        warnings.warn(f"to_polydata: {', '.join(left_out)} left out: VTK holds arrays of numbers and strings only "
+                      "(complex numbers one to a point or cell)", stacklevel=caller_stacklevel())
     uv = getattr(mesh.visual, "uv", None) if mesh.visual.kind == "texture" else None
     if uv is not None and np.shape(uv) == (len(mesh.vertices), 2):
         poly.active_texture_coordinates = own(uv, dtype=np.float64)

@@ -569,3 +569,24 @@ def test_to_polydata_keeps_strings_held_as_objects_or_bytes(kind, values):
     back = from_polydata(poly)
     np.testing.assert_array_equal((back.face_attributes if kind == "face" else back.vertex_attributes)["tag"],
                                   expected)
+
+
+@pytest.mark.parametrize("kind", ["face", "vertex"])
+def test_to_polydata_leaves_out_complex_attributes_of_several_components(kind):
+    """A complex attribute of two components a face or vertex raised pyvista's ValueError ("Complex data must be
+    single dimensional") out of to_polydata; now it is left out with a warning naming it, and a one-component complex
+    attribute beside it is kept as it is."""
+    mesh = trimesh.creation.box()
+    n = len(mesh.faces) if kind == "face" else len(mesh.vertices)
+    attributes = mesh.face_attributes if kind == "face" else mesh.vertex_attributes
+    attributes["pair"] = np.arange(2 * n).reshape(n, 2) * (1 + 2j)
+    attributes["one"] = np.arange(n) * (1 - 1j)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        poly = to_polydata(mesh)
+    data = poly.cell_data if kind == "face" else poly.point_data
+    assert "pair" not in data
+    np.testing.assert_array_equal(np.asarray(data["one"]), attributes["one"])
+    messages = [str(w.message) for w in caught]
+    assert any(f"{kind} attribute 'pair'" in m and "complex128" in m for m in messages), messages
+    assert not any("'one'" in m for m in messages), messages
