@@ -2452,9 +2452,9 @@ def render_closeups(
     memo = t.cached(("closeup", "frame"), dict)
     memo_key = (tuple(id(cu) for cu in items), scalars, cmap, str(resolve_device(device)), id(texture))
     last = memo.get(memo_key) if reuse_closeups else None
-    if (last is not None and all(same(a, b) for a, b in zip(last[0], items, strict=True)) and same(last[1], texture)
-            and all(np.array_equal(a, b) for a, b in zip(last[2], matrices, strict=True))):
-        layers, strips, anchors, contents, boards, drawn = last[3]
+    if (last is not None and all(same(a, b) for a, b in zip(last[0], (*items, texture), strict=True))
+            and all(np.array_equal(a, b) for a, b in zip(last[1], matrices, strict=True))):
+        layers, strips, anchors, contents, boards, drawn = last[2]
         if image_texture is not None or any(cu.texture is not None for cu in items):
             # an image may have changed in place since (the same object): its colors are sampled again
             anchors, contents, boards, drawn = _frame_geometry(t, items, layers, strips, scalars, cmap, image_texture)
@@ -2466,7 +2466,9 @@ def render_closeups(
         sweep(memo)
         if len(memo) >= 8 and memo_key not in memo:
             memo.clear()
-        memo[memo_key] = (tuple(hold(cu) for cu in items), hold(texture), matrices,
+        # the texture held beside the close-ups, where sweep() sees it: held apart, an entry whose texture was gone
+        # stayed (a new image each frame, a video draped: 8 frames' geometry kept)
+        memo[memo_key] = (tuple(hold(x) for x in (*items, texture)), matrices,
                           (layers, strips, anchors, contents, boards, drawn))
     clock["transform"] = _time.perf_counter() - start
 

@@ -1676,3 +1676,23 @@ def test_a_reversed_colormap_is_its_maps_land_part_reversed(name):
     assert np.abs(reversed_rgb - reference).max() <= table_step * 255 + 1
     top = reversed_rgb[-1]
     assert not (top[2] > top[0] + 40 and top[2] > top[1]), f"the highest ground is sea blue: {top}"
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_render_closeups_memo_lets_go_of_frames_whose_texture_is_gone():
+    """render_closeups' frame memo held the texture weakly but apart from the close-ups, where the sweep of gone
+    entries did not look: a new texture image each frame (a video draped) over the same close-up kept an entry per
+    frame, its layers, strips and boards, up to 8. An entry now goes once its texture is gone, as once a close-up is."""
+    import gc
+
+    t = terrain()
+    xmin, xmax, ymin, ymax = t.extent
+    cu = CloseUp(ROI.circle((xmin + 25.0, (ymin + ymax) / 2), 12.0), offset=(0.0, 0.0, 30.0))
+    memo = t.cached(("closeup", "frame"), dict)
+    for i in range(4):
+        image = np.full((4, 4, 3), 40 * i, np.uint8)  # a new frame of a video, the previous one dropped
+        render_closeups(t, [cu], window_size=SIZE, texture=image, device="cpu")
+        del image
+        gc.collect()
+    assert len(memo) <= 1, f"{len(memo)} frames kept for textures no longer used"
