@@ -97,7 +97,7 @@ class Camera:
         if np.linalg.norm(np.cross(forward / length, up)) < 1e-9 * max(np.linalg.norm(up), 1e-300):
             # the direction as plain numbers: tuple(forward) printed "(np.float64(0.0), np.float64(0.0), ...)"; the
             # axis least along it as the up suggested (a fixed (1, 0, 0) was the refused up of a view along x)
-            across = tuple(int(k == int(np.argmin(np.abs(forward)))) for k in range(3))
+            across = tuple(np.eye(3, dtype=int)[np.argmin(np.abs(forward))].tolist())
             raise InvalidInputError(f"Camera up {self.up} must not be zero or parallel to the view direction "
                                     f"{tuple(forward.tolist())} (target - eye); give an up across it, e.g. "
                                     f"up={across}")
