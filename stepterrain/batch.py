@@ -126,6 +126,8 @@ _FOLDER_GZIPS = tuple(ext + ".gz" for ext in GZIP_FORMATS)
 def _gzip_raster(name: str) -> bool:
     """Whether the file ``name`` is a gzip of a raster load_dem reads (``N46E007.hgt.gz``, ``dem.tif.gz``)."""
     return name.lower().endswith(_FOLDER_GZIPS)
+
+
 _MANIFEST_FLUSH_S = 1.0
 
 
@@ -432,7 +434,7 @@ def plan_items(
             raise InvalidInputError(
                 f"source lists the folder {str(folder)!r} among DEM files; give the folder alone (one item per file "
                 f"in it), or its files")
-        # a .zip that is no file here is missing (one that is was read as its raster): it was "must end in ..."
+        # a .zip or .gz that is no file here is missing (one that is was read as its raster): it was "must end in ..."
         bad = [str(f) for f in files if f.suffix.lower() not in (*SUPPORTED_EXTENSIONS, ".zip", ".gz")]
         if bad:
             raise InvalidInputError(

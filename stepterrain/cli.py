@@ -902,7 +902,12 @@ def _run_info(args: argparse.Namespace, progress: Progress) -> int:
         except InvalidInputError as exc:  # load_dem's refusal listed the DEM formats alone: info reads meshes too
             if "unknown DEM extension" not in str(exc):
                 raise
-            raise InvalidInputError(f"{exc}; or a mesh file: {', '.join(MESH_EXTENSIONS)}") from None
+            meshes = ", ".join(MESH_EXTENSIONS)
+            name = Path(args.file).name
+            if name.lower().endswith(".gz") and Path(name[:-3]).suffix.lower() in MESH_EXTENSIONS:  # m.stl.gz
+                raise InvalidInputError(f"{exc}; a mesh file ({meshes}) is read uncompressed only: gunzip it first, "
+                                        f"`gunzip -k {args.file}`") from None
+            raise InvalidInputError(f"{exc}; or a mesh file: {meshes}") from None
         summary = describe_dem(terrain)
     if args.json:
         print(json.dumps(summary, indent=2, default=str))

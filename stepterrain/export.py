@@ -400,8 +400,9 @@ def save_mesh(
         finely as the view shows them, where the centre of a view's mesh, which spans thousands of km (the coarse
         triangles at its border and on the far side), moved those under an eye 100 m up by 0.3 m. By default the
         eye a view's mesh records (``metadata["eye"]``, which :meth:`~stepterrain.globe.Globe.mesh` sets with a
-        camera) when it lies within one diagonal of the mesh's bounds, or of the shared bounds it records (not for a
-        mesh scaled or moved far from it since), and no ``shared_bounds`` are given. Ignored by the other formats,
+        camera) when it lies within one diagonal of the mesh's bounds, or of the shared bounds it records and is
+        stored by (not for a mesh scaled or moved far from it since, nor a piece cut from one), and no
+        ``shared_bounds`` are given. Ignored by the other formats,
         which store coordinates as they are.
 
     Returns
@@ -539,8 +540,9 @@ def save_mesh(
             f"{ext} stores triangles only (the points would be lost); write .ply, .obj, .glb or .gltf to keep them"
         )
     # how coordinates are stored: a set's shared bounds (given, or recorded by the mesh), or the mesh's own
-    recorded = None if shared_bounds is not None else _recorded_bounds(mesh.metadata, extras, bounds)
-    frame = _shared_bounds(shared_bounds) or _no_coarser(recorded, bounds) or bounds
+    recorded = None if shared_bounds is not None else \
+        _no_coarser(_recorded_bounds(mesh.metadata, extras, bounds), bounds)  # not a piece cut from a member
+    frame = _shared_bounds(shared_bounds) or recorded or bounds
     anchor = _origin_argument(origin) if origin is not None or shared_bounds is not None else \
         _recorded_eye(mesh.metadata, extras, recorded or bounds)  # a set's shared bounds store shared vertices alike
     _check_float32_reach(bounds, ext, target, frame, anchor)

@@ -20,8 +20,8 @@ import warnings
 import zipfile
 import zlib
 from collections.abc import Callable, Mapping, Sequence
-from pathlib import Path, PurePosixPath
-from typing import Any, BinaryIO, Literal, NamedTuple
+from pathlib import Path, PurePath, PurePosixPath
+from typing import Any, BinaryIO, Literal, NamedTuple, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -1113,7 +1113,9 @@ def _refuse_png_scaling(file: Path) -> None:
         root = ElementTree.fromstring(aux.read_bytes()) if aux.is_file() else None
     except (OSError, ElementTree.ParseError):
         return
-    for band in [] if root is None else root.iter("PAMRasterBand"):
+    if root is None:
+        return
+    for band in root.iter("PAMRasterBand"):
         if band.get("band", "1").strip() != "1":  # a grey + alpha PNG's alpha band
             continue
         try:
@@ -1525,9 +1527,13 @@ def _missing_beyond_gdal_mask(
     return missing
 
 
-def _prj_files(path: Path) -> list[Path]:
+_P = TypeVar("_P", bound=PurePath)
+
+
+def _prj_files(path: _P) -> list[_P]:
     """The .prj files that may hold the CRS of the raster ``path``, in the order :func:`prj_crs` reads them:
-    ``ortho.prj``, ``ortho.PRJ``, ``ortho.jpg.prj``, ``ortho.jpg.PRJ``."""
+    ``ortho.prj``, ``ortho.PRJ``, ``ortho.jpg.prj``, ``ortho.jpg.PRJ`` (a local file's, or a zip member's,
+    :func:`_zipped_prj`)."""
     return [path.with_suffix(ext) for ext in (".prj", ".PRJ")] + [path.with_name(path.name + ext)
                                                                   for ext in (".prj", ".PRJ")]
 
@@ -1621,7 +1627,7 @@ def _refuse_gzip_world_file(file: Path) -> None:
         return
     inner = Path(gzipped[:-3]).name
     for pattern in _WORLD_FILES:
-        found = names.get(pattern.format(stem=Path(inner).stem, name=inner).lower())
+        found = names.get(pattern.format(stem=Path(inner).stem).lower())
         if found is not None:
             raise DataFileError(
                 f"cannot read {str(file)!r}: it has no georeferencing of its own, and GDAL reads no world file beside "
@@ -1643,8 +1649,7 @@ def _zipped_prj(path: GdalPath) -> tuple[str, str] | None:
     try:
         with zipfile.ZipFile(archive_path) as archive:
             names = set(archive.namelist())
-            for prj in (member.with_suffix(".prj"), member.with_suffix(".PRJ"), member.with_name(member.name + ".prj"),
-                        member.with_name(member.name + ".PRJ")):  # as _prj_files names them beside a local file
+            for prj in _prj_files(member):  # as beside a local file
                 if str(prj) in names:
                     text = archive.read(str(prj)).decode(errors="replace")
                     return f"{str(path)[: -len(member.name)]}{prj.name}", text

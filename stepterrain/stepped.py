@@ -1066,7 +1066,7 @@ def colormap(name: str, *, argument: str = "colors", hint: str = "") -> tuple[An
 
 
 def colormap_samples(name: str, n_levels: int, *, argument: str = "colors") -> NDArray[np.float64]:
-    """(L, 4) float RGBA sampled evenly from the land part of a matplotlib colormap (see :data:`LAND_START`)."""
+    """(L, 4) float RGBA sampled evenly from the land part of a matplotlib colormap (:func:`land_range`)."""
     cmap, lo, hi = colormap(name, argument=argument)
     samples = np.linspace(lo, hi, n_levels) if n_levels > 1 else np.array([(lo + hi) / 2])
     return np.asarray(cmap(samples), dtype=np.float64)

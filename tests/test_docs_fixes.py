@@ -117,3 +117,23 @@ def test_info_refusal_of_an_unknown_extension_names_the_mesh_formats_too(tmp_pat
         assert len(err.strip().splitlines()) == 1, err
     assert cli.main(["steps", str(tmp_path / "photo.jpg"), "-o", str(tmp_path / "a.glb")]) == 2
     assert "mesh file" not in capsys.readouterr().err
+
+
+def test_info_refusal_of_a_gzipped_mesh_says_to_gunzip_it(tmp_path, capsys):
+    """``stepterrain info m.stl.gz`` was refused as "unknown DEM extension '.stl' of the file inside ...; or a mesh
+    file: ..., .stl, ...": the extension refused and then listed as read. A gzip of a mesh file is refused saying that
+    info reads a mesh uncompressed only; a gzip of another file keeps the refusal naming the mesh formats."""
+    import gzip
+
+    from stepterrain import cli
+
+    path = tmp_path / "m.stl.gz"
+    path.write_bytes(gzip.compress(b"solid x\nendsolid x\n"))
+    assert cli.main(["info", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "is read uncompressed only: gunzip it first" in err and "or a mesh file" not in err, err
+    other = tmp_path / "notes.txt.gz"
+    other.write_bytes(gzip.compress(b"x"))
+    assert cli.main(["info", str(other)]) == 2
+    err = capsys.readouterr().err
+    assert "or a mesh file: .glb" in err and "gunzip" not in err, err

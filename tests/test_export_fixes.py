@@ -2204,3 +2204,20 @@ def test_recorded_shared_bounds_decide_the_storage_only_while_they_hold_the_mesh
     as_given = read_mesh(save_mesh(box, tmp_path / "given.glb", shared_bounds=box.metadata["shared_bounds"])).vertices
     np.testing.assert_array_equal(about_zero, as_given)
     assert (about_zero != own).any()
+
+
+def test_a_piece_cut_from_a_per_face_mesh_is_not_stored_about_the_eye_of_the_whole_face(tmp_path):
+    """A piece of a per-face globe mesh with a camera (``submesh``: trimesh copies the metadata, its ``eye`` and
+    ``shared_bounds``) is stored by its own bounds, as the shared bounds would round it far worse; but the eye was
+    still taken as its glTF origin while within one diagonal of those shared bounds (the whole globe's): a 1 km piece
+    400 km from the eye was stored relative to the eye, its vertices rounded by 1 cm instead of 10 µm about its own
+    centre. The eye is checked against the bounds the mesh is stored by, as for a mesh recording none."""
+    box = trimesh.creation.box()
+    box.vertices = box.vertices * 1000.0 + (6.4e6 + 1 / 3, 1 / 7, 0.0)
+    own = read_mesh(save_mesh(trimesh.Trimesh(box.vertices, box.faces), tmp_path / "own.glb")).vertices
+    box.metadata["eye"] = [6.4e6 + 4.0e5, 0.0, 0.0]
+    np.testing.assert_array_equal(read_mesh(save_mesh(box, tmp_path / "eye.glb")).vertices, own)  # eye too far
+    box.metadata["shared_bounds"] = [[-6.5e6] * 3, [6.5e6] * 3]  # a piece of a face of the globe's set
+    piece = read_mesh(save_mesh(box, tmp_path / "piece.glb")).vertices
+    np.testing.assert_array_equal(piece, own)
+    np.testing.assert_allclose(piece, box.vertices, rtol=0, atol=1e-4)
