@@ -244,7 +244,14 @@ class StepTerrainAccessor:
         mesh = stepped(terrain, interval=interval, levels=levels, base=base, gamma=self._node_gamma(gamma, terrain),
                        colors=colors, solid=solid, floor=floor, memory_budget=memory_budget,
                        device=device)  # fmt: skip
-        return _to_polydata(mesh, share=True)  # the mesh is this call's own: its buffers need no copy
+        try:
+            return _to_polydata(mesh, share=True)  # the mesh is this call's own: its buffers need no copy
+        finally:
+            # A Trimesh refers to itself (its visuals, ray, permutate and nearest hold it): left to the cyclic
+            # collector, it kept the shared buffers from the output pool after the PolyData was gone, so a slider
+            # re-stepping the grid took fresh memory every call (220 MB a call on the sample DEM with collection
+            # off). Emptied, nothing refers back to it; the PolyData's arrays alone decide when the buffers return.
+            mesh.__dict__.clear()
 
     def _node_gamma(self, gamma: Any, terrain: Terrain | trimesh.Trimesh) -> Any:
         """A per-node ``gamma`` laid out as the terrain :meth:`terrain` made takes it: (H, W) for a grid Terrain, (N,)
