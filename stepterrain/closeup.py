@@ -38,6 +38,7 @@ from .errors import DataFileError, InvalidInputError, MissingDependencyError, Ou
 from .io import degrees_hint
 from .kernels import closeup as closeup_kernels
 from .kernels import compaction as compaction_kernels
+from .mesh import release
 from .stepped import land_range
 from .terrain import (
     FLOAT32_MAX,
@@ -1074,8 +1075,10 @@ def _stepped_source(terrain: Terrain, cu: CloseUp, colors: str, device: wp.Devic
     ox, oy = terrain.local_origin
     points = np.asarray(mesh.vertices, dtype=np.float64) - [ox, oy, 0.0]
     rgb = np.asarray(mesh.visual.vertex_colors)[:, :3].astype(np.uint8)
-    return _Source(points.astype(np.float32), np.asarray(mesh.faces, np.int32), np.full(len(mesh.faces), -1, np.int64),
-                   colors=rgb)
+    source = _Source(points.astype(np.float32), np.asarray(mesh.faces, np.int32),
+                     np.full(len(mesh.faces), -1, np.int64), colors=rgb)
+    release(mesh)  # copied from: its arrays go now, not when the cyclic collector runs
+    return source
 
 
 @dataclass(frozen=True)

@@ -59,6 +59,16 @@ def mesh_argument(mesh: Any, name: str = "mesh", hint: str = "") -> trimesh.Trim
                             f"{type(mesh).__name__}")
 
 
+def release(mesh: trimesh.Trimesh) -> None:
+    """Empty ``mesh``, a Trimesh the library made for itself and is done with, so that reference counting frees it.
+
+    A Trimesh refers to itself (its visuals, ``ray``, ``permutate`` and ``nearest`` hold it), so a dropped one waits
+    for Python's cyclic collector, and with it the arrays it holds: a stepped mesh's large arrays are lent from the
+    output pool (:func:`~stepterrain.set_output_pool_limit`), and until they return every call takes fresh memory. An
+    array another object still shares (a PolyData's points) stays alive through that object alone."""
+    mesh.__dict__.clear()
+
+
 def exact_keys(xy: NDArray[np.float64]) -> NDArray[np.int64]:
     """Group ids of rows that are bit-identical (e.g. vertices sharing an exact xy).
 

@@ -236,6 +236,7 @@ class StepTerrainAccessor:
         >>> bool(np.allclose(steps.points[:, 2] % 2.0, 0.0)), int(steps.cell_data["wall"].sum()) > 0
         (True, True)
         """
+        from .mesh import release
         from .stepped import stepped
 
         if interval is None and levels is None:
@@ -247,11 +248,9 @@ class StepTerrainAccessor:
         try:
             return _to_polydata(mesh, share=True)  # the mesh is this call's own: its buffers need no copy
         finally:
-            # A Trimesh refers to itself (its visuals, ray, permutate and nearest hold it): left to the cyclic
-            # collector, it kept the shared buffers from the output pool after the PolyData was gone, so a slider
-            # re-stepping the grid took fresh memory every call (220 MB a call on the sample DEM with collection
-            # off). Emptied, nothing refers back to it; the PolyData's arrays alone decide when the buffers return.
-            mesh.__dict__.clear()
+            # left to the cyclic collector, the Trimesh kept the shared buffers from the output pool after the
+            # PolyData was gone: a slider re-stepping the sample DEM took fresh memory (220 MB) every call
+            release(mesh)
 
     def _node_gamma(self, gamma: Any, terrain: Terrain | trimesh.Trimesh) -> Any:
         """A per-node ``gamma`` laid out as the terrain :meth:`terrain` made takes it: (H, W) for a grid Terrain, (N,)
