@@ -1829,22 +1829,22 @@ class LayeredRenderer:
         # otherwise) are dropped first: kept hidden, they held their meshes' memory, counted against the budget of
         # this call's uploads (a frame the budget allowed was refused), and widened the next view's clipping range
         # (its far plane out to where a close-up once was, its near plane 300 times nearer: depth precision lost)
-        names = {f"{prefix}{group[0]}" if len(group) == 1 else f"{prefix}-merged{g}" for g, group in enumerate(groups)}
-        for stale in self._layer_names.get(prefix, set()) - names:
+        names = [f"{prefix}{group[0]}" if len(group) == 1 else f"{prefix}-merged{g}" for g, group in enumerate(groups)]
+        for stale in self._layer_names.get(prefix, set()) - set(names):
             self.remove(stale)
-        self._layer_names[prefix] = names
+        self._layer_names[prefix] = set(names)
         out: dict[int, tuple[NDArray[np.uint8], NDArray[np.float32]]] = {}
-        for g, group in enumerate(groups):
+        for name, group in zip(names, groups, strict=True):
             if len(group) == 1:
                 k = group[0]
                 vertices, faces, kw = layers[k]
-                self.set_mesh(f"{prefix}{k}", vertices, faces, bounds=boxes[k], **kw)
+                self.set_mesh(name, vertices, faces, bounds=boxes[k], **kw)
                 if crop:
                     rect = rects[k] if rects[k] is not None else self._box_rect(boxes[k])
                     rect = rect if rect is not None else (0, 0, *self.size)
-                    out[k] = (*self.render([f"{prefix}{k}"], rect=rect), rect)
+                    out[k] = (*self.render([name], rect=rect), rect)
                 else:
-                    out[k] = self.render([f"{prefix}{k}"])
+                    out[k] = self.render([name])
                 continue
             counts = np.cumsum([0] + [len(layers[k][0]) for k in group])
             vertices = np.concatenate([np.asarray(layers[k][0], np.float64) for k in group])
@@ -1870,17 +1870,17 @@ class LayeredRenderer:
             parts = [boxes[k] for k in group if boxes[k] is not None]
             group_box = (np.array([np.min([b[0] for b in parts], axis=0), np.max([b[1] for b in parts], axis=0)])
                          if parts else None)
-            self.set_mesh(f"{prefix}-merged{g}", vertices, faces, bounds=group_box, **kw)
+            self.set_mesh(name, vertices, faces, bounds=group_box, **kw)
             if crop:  # read back the union of the group's boxes, then cut each layer's own box out of it
                 union = (min(rects[k][0] for k in group), min(rects[k][1] for k in group),
                          max(rects[k][2] for k in group), max(rects[k][3] for k in group))
-                color, depth = self.render([f"{prefix}-merged{g}"], rect=union)
+                color, depth = self.render([name], rect=union)
                 for k in group:
                     c0, r0, c1, r1 = rects[k]
                     box = (slice(r0 - union[1], r1 - union[1]), slice(c0 - union[0], c1 - union[0]))
                     out[k] = (color[box], depth[box], rects[k])
                 continue
-            color, depth = self.render([f"{prefix}-merged{g}"])
+            color, depth = self.render([name])
             for k in group:
                 c0, r0, c1, r1 = rects[k]
                 own_color = np.zeros_like(color)
