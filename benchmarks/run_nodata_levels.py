@@ -19,11 +19,12 @@ Run once per tree, alternating, each in its own process (an old tree extracted w
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+
+from machine import pin_to_one_core  # benchmarks/ is the script folder (standard library only)
 
 
 def best_seconds(run: Callable[[], object], repeat: int) -> float:
@@ -48,8 +49,7 @@ def main() -> None:
     args = parser.parse_args()
     root = Path(args.root).resolve()
     sys.path.insert(0, str(root))
-    if hasattr(os, "sched_setaffinity"):
-        os.sched_setaffinity(0, {0})
+    pin_to_one_core()
     import numpy as np
     import warp as wp
 

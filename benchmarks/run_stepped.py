@@ -47,7 +47,7 @@ if str(_HERE.parent) not in sys.path:
     sys.path.insert(0, str(_HERE.parent))
 
 from benchmarks import baselines  # noqa: E402
-from benchmarks.machine import cpu_model  # noqa: E402
+from benchmarks.machine import cpu_model, pin_to_one_core  # noqa: E402
 
 CONTENDERS = ("warp", "vtk_banded", "vtk_clip_per_band", "numpy_ref")
 BASELINES = ("vtk_banded", "numpy_ref", "vtk_clip_per_band")
@@ -105,14 +105,6 @@ def code_version() -> str:
     changed = ", ".join(line[3:] for line in dirty.splitlines())
     sha = hashlib.sha1(digest.encode()).hexdigest()[:10]
     return f"commit {head} + uncommitted changes in {changed} (diff sha1 {sha})"
-
-
-def pin_to_one_core() -> str:
-    if not hasattr(os, "sched_setaffinity"):
-        return "not pinned (no sched_setaffinity)"
-    core = min(os.sched_getaffinity(0))
-    os.sched_setaffinity(0, {core})
-    return f"pinned to CPU {core}"
 
 
 # ----------------------------------------------------------------------------- cases and contenders

@@ -1662,9 +1662,9 @@ def _write_ply(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
 
 
 def _write_stl(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
-    _warn_stl_rounding(mesh, target, bounds)
-    # the corners as export_stl rounds them, once for both checks (-0.0 as 0.0: one hash per position)
+    # the corners as export_stl rounds them, once for the three checks (-0.0 as 0.0: one hash per position)
     corners = np.asarray(mesh.vertices, dtype=np.float64).astype(np.float32) + np.float32(0.0)
+    _warn_stl_rounding(mesh, target, bounds, corners)
     _warn_stl_open(mesh, target, corners)
     tmp.write_bytes(trimesh.exchange.stl.export_stl(_without_point_edges(mesh, corners)))
 
@@ -1798,21 +1798,22 @@ _STL_OPEN_RE = re.compile(r": \.stl stores float32 coordinates without indices, 
                           r"(?P<edges>[0-9]+) edges? not shared by exactly two triangles")
 
 
-def _warn_stl_rounding(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> None:
+def _warn_stl_rounding(mesh: trimesh.Trimesh, target: Path, bounds: Bounds, corners: NDArray[np.float32]) -> None:
     """Warn (a ``UserWarning`` at the caller's line) when STL's float32 moves some coordinate by more than
     :data:`_STL_ROUNDING_TOLERANCE`: UTM northings came back up to 0.5 m off, a globe's surface 0.25 m, without a
     word.
     A warning, not a refusal: float32 is the format (every STL reader expects it), and a print or a preview is
     often fine with it; the message says where float64 is kept. Only coordinates beyond 2^15 can round that far
     (half a float32 step at 32768 is 0.002), so smaller meshes cost nothing, and larger ones one cast: a grid of
-    whole metres (a UTM DEM's posts) is exact in float32 and is not warned about."""
+    whole metres (a UTM DEM's posts) is exact in float32 and is not warned about. ``corners``: the vertices in
+    float32, as the ``.stl`` has them (:func:`_write_stl`'s)."""
     if bounds is None:
         return
     reach = max(float(np.abs(bounds[0]).max()), float(np.abs(bounds[1]).max()))
     if np.spacing(np.float32(reach)) / 2 <= _STL_ROUNDING_TOLERANCE:
         return
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
-    error = np.abs(vertices.astype(np.float32) - vertices)  # as export_stl rounds them: round to nearest
+    error = np.abs(corners - vertices)  # as export_stl rounds them: round to nearest
     worst = int(np.argmax(error))
     if error.flat[worst] <= _STL_ROUNDING_TOLERANCE:
         return

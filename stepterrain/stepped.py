@@ -66,7 +66,6 @@ from .terrain import (
     unmasked,
     unshared,
     used_height_range,
-    used_nodes,
 )
 
 __all__ = ["stepped", "stepped_series", "isovalues", "nice_interval", "Lens", "circular_lens", "GammaLike"]
@@ -914,11 +913,7 @@ def _unread_nan_filled(terrain: Terrain, values: NDArray[np.float64]) -> NDArray
     nan = np.isnan(values)
     if not nan.any():
         return values
-    if terrain.kind == "tin":
-        unread = terrain.point_used == 0
-    else:
-        unread = ~used_nodes(np.isfinite(terrain.heights))
-    return np.where(nan & unread, 0.0, values)
+    return np.where(nan & ~terrain._used_mask(), 0.0, values)
 
 
 def _gamma_floats(value: Any, name: str) -> NDArray[np.float64]:

@@ -897,11 +897,16 @@ class Terrain:
     def used_heights(self) -> NDArray[np.float32]:
         """The heights the surface is made of (a copy): a grid's nodes on a triangle with three finite heights
         (:func:`used_nodes`; all of them without nodata), a TIN's points on kept faces."""
-        if self.kind == "tin":
-            return self.heights[self.point_used != 0]
-        if not self.has_nodata:
+        if self.kind == "grid" and not self.has_nodata:
             return self.heights.reshape(-1).copy()
-        return self.heights[used_nodes(np.isfinite(self.heights))]
+        return self.heights[self._used_mask()]
+
+    def _used_mask(self) -> NDArray[np.bool_]:
+        """Per node (the grid's shape; a TIN's point), whether the surface uses it (:meth:`used_heights`): a grid's
+        node on a triangle with three finite heights (:func:`used_nodes`), a TIN's point on a kept face."""
+        if self.kind == "tin":
+            return self.point_used != 0
+        return used_nodes(np.isfinite(self.heights))
 
     @property
     def height_range(self) -> tuple[float, float]:
@@ -941,7 +946,7 @@ class Terrain:
             return on[self.point_used[on] != 0]
         if on.size == 0 or not self.has_nodata:
             return on
-        return on[used_nodes(np.isfinite(self.heights)).reshape(-1)[on]]
+        return on[self._used_mask().reshape(-1)[on]]
 
     @property
     def finite_height_range(self) -> tuple[float, float]:
