@@ -483,8 +483,7 @@ def check_gzip(file: GdalPath) -> None:
     zlib's reason). GDAL read a cut short .gz up to where it ends, and read no CRC: a corrupt byte gave wrong heights
     without a word, and a window of a crop read before the damage unchecked. The file is decompressed once, in
     blocks, for the check (:data:`_WHOLE_GZIPS` remembers a whole one). Nothing for another path or a remote one."""
-    gdal = os.fspath(file)
-    archive = local_archive(file) if gdal.startswith("/vsigzip/") else None
+    archive = _local_gzip(file)
     if archive is None:
         return
     local = Path(archive)
