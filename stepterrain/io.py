@@ -1122,7 +1122,7 @@ def _refuse_png_scaling(file: Path) -> None:
         except ValueError:  # not numbers: GDAL reads none either
             return
         if scale != 1.0 or offset != 0.0:
-            prj = next((side for side in _prj_files(file) if side.is_file()), None)
+            prj = _prj_beside(file)
             srs = f"-a_srs {prj.name} " if prj is not None else ""
             raise DataFileError(
                 f"cannot read {str(file)!r}: expected a PNG heightmap of heights as stored; got scale {scale:g}, "
@@ -1150,7 +1150,7 @@ def _warn_png_georeferencing(file: Path) -> None:
             found = None
     if found is None:
         return
-    prj = next((side for side in _prj_files(file) if side.is_file()), None)  # as prj_crs looks (dem.png.prj too)
+    prj = _prj_beside(file)  # as prj_crs looks (dem.png.prj too)
     srs = f"-a_srs {prj.name} " if prj is not None else ""
     warnings.warn(
         f"{file.name}: its georeferencing in {found.name} is not read: load_dem reads a PNG heightmap as an "
@@ -1537,6 +1537,12 @@ def _prj_files(path: _P) -> list[_P]:
                                                                   for ext in (".prj", ".PRJ")]
 
 
+def _prj_beside(path: Path) -> Path | None:
+    """The first of :func:`_prj_files` beside the local raster ``path`` that is a file, the one :func:`prj_crs`
+    reads; None without one."""
+    return next((prj for prj in _prj_files(path) if prj.is_file()), None)
+
+
 def prj_crs(path: Path, what: str, refusal: type[StepTerrainError] = InvalidInputError) -> str | None:
     """The CRS in a .prj file beside the raster ``path`` (``ortho.prj`` or ``ortho.jpg.prj``, the ESRI convention for
     a world file's CRS, which GDAL does not read for a TIFF, JPEG or PNG: their CRS was unknown; WKT, or the ArcInfo
@@ -1547,12 +1553,11 @@ def prj_crs(path: Path, what: str, refusal: type[StepTerrainError] = InvalidInpu
     extension in either case (``DEM.PRJ`` beside ``DEM.TIF``, as DOS-era ESRI data ships it, and GDAL reads the world
     file ``DEM.TFW``)."""
     gzipped = _local_gzip(path)
-    if gzipped is not None:  # a local .gz (dem.asc.gz): the .prj of the file inside, beside the .gz (dem.prj)
-        found = next(((str(prj), prj) for prj in _prj_files(Path(gzipped[:-3])) if prj.is_file()), None)
-    elif isinstance(path, GdalPath):  # in a local zip, the .prj beside it there; elsewhere (a URL) none is looked for
-        found = _zipped_prj(path)
-    else:
-        found = next(((str(prj), prj) for prj in _prj_files(path) if prj.is_file()), None)
+    if gzipped is None and isinstance(path, GdalPath):  # in a local zip, the .prj beside it there; elsewhere (a URL)
+        found = _zipped_prj(path)  # none is looked for
+    else:  # a local file's; a local .gz's (dem.asc.gz): the .prj of the file inside, beside the .gz (dem.prj)
+        local = _prj_beside(Path(gzipped[:-3]) if gzipped is not None else path)
+        found = (str(local), local) if local is not None else None
     if found is not None:
         named, prj = found
         from rasterio.crs import CRS
