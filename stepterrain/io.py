@@ -473,7 +473,7 @@ def gzip_member(file: Path) -> GdalPath:
 
 #: Local gzip files :func:`check_gzip` found whole, by (path, size, mtime, ctime, inode): a batch reads a file's header
 #: and then its heights, and a rerun's pass of ranges reads it again, each decompressing it once more.
-_WHOLE_GZIPS: dict[tuple[str, int, int, int, int], None] = {}
+_WHOLE_GZIPS: set[tuple[str, int, int, int, int]] = set()
 _WHOLE_GZIPS_LOCK = threading.Lock()
 
 
@@ -506,7 +506,7 @@ def check_gzip(file: GdalPath) -> None:
     with _WHOLE_GZIPS_LOCK:
         if len(_WHOLE_GZIPS) > 4096:
             _WHOLE_GZIPS.clear()
-        _WHOLE_GZIPS[key] = None
+        _WHOLE_GZIPS.add(key)
 
 
 def _virtual_refusal(file: GdalPath) -> str:
@@ -1108,11 +1108,11 @@ def _refuse_png_scaling(file: Path) -> None:
     from xml.etree import ElementTree
 
     aux = file.with_name(file.name + ".aux.xml")
-    try:
-        root = ElementTree.fromstring(aux.read_bytes()) if aux.is_file() else None
-    except (OSError, ElementTree.ParseError):
+    if not aux.is_file():
         return
-    if root is None:
+    try:
+        root = ElementTree.fromstring(aux.read_bytes())
+    except (OSError, ElementTree.ParseError):
         return
     for band in root.iter("PAMRasterBand"):
         if band.get("band", "1").strip() != "1":  # a grey + alpha PNG's alpha band
