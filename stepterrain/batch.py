@@ -2446,7 +2446,7 @@ def _levels_and_range(
     without it and ``levels`` the default one for that range."""
     if src is None:
         return None, None, interval
-    from .stepped import isovalues
+    from .stepped import _default_isovalues, isovalues
 
     if src.height_range is not None:  # found by the source's checks: no further pass, no copy
         lo, hi = src.height_range
@@ -2456,27 +2456,10 @@ def _levels_and_range(
             raise InvalidInputError(f"source {src.name!r} holds no finite height")
         lo, hi = used
     if interval is None and levels is None:
-        interval = _picked_interval(lo, hi, base)
-    values = tuple(float(v) for v in isovalues((lo, hi), interval=interval, levels=levels, base=base))
-    return values, (lo, hi), interval
-
-
-def _picked_interval(lo: float, hi: float, base: Any) -> float:
-    """:func:`~stepterrain.stepped.nice_interval` of the heights ``lo`` to ``hi``, the default interval, checked
-    with ``base``: a refusal of it (heights near the float32 maximum, whose round interval's top isovalue lies
-    beyond it) named an ``interval=`` the caller never gave."""
-    from .stepped import isovalues, nice_interval
-
-    interval = nice_interval((lo, hi))
-    try:
-        isovalues((lo, hi), interval=interval, base=base)
-    except InvalidInputError as exc:
-        if not str(exc).startswith("interval"):  # a base refused: named as it is
-            raise
-        raise InvalidInputError(f"no interval= or levels= given, and the round interval {interval:g} picked for "
-                                f"heights {lo:g} to {hi:g} is refused: {exc}; give levels= (explicit isovalues) or "
-                                "an interval= that fits") from None
-    return interval
+        interval, found = _default_isovalues(lo, hi, base)
+    else:
+        found = isovalues((lo, hi), interval=interval, levels=levels, base=base)
+    return tuple(float(v) for v in found), (lo, hi), interval
 
 
 def _files_range(
@@ -2588,14 +2571,16 @@ def _files_levels(
     if found is None:
         return options, (ranges, changed), None
     (lo, hi), lowest = found
-    from .stepped import isovalues
+    from .stepped import _default_isovalues, isovalues
 
     if levels is None:
         if interval is None:  # steps' default for one raster, over all the files
-            interval = _picked_interval(lo, hi, base)
+            interval, found = _default_isovalues(lo, hi, base)
             steps = (("interval", float(interval)), ("base", float(base)))
             options = dataclasses.replace(options, metadata=options.metadata + steps)
-        values = tuple(float(v) for v in isovalues((lo, hi), interval=interval, base=base))
+        else:
+            found = isovalues((lo, hi), interval=interval, base=base)
+        values = tuple(float(v) for v in found)
         options = dataclasses.replace(options, interval=None, levels=values, base=0.0)
     else:
         values = options.levels  # type: ignore[assignment]

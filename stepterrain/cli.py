@@ -34,8 +34,8 @@ import numpy as np
 from ._compaction import budget_hint, get_memory_budget, set_memory_budget
 from .errors import DataFileError, InvalidInputError, StepTerrainError, counted
 from .export import _STL_OPEN_LOCAL, _STL_ROUNDING_LOCAL, MESH_EXTENSIONS, _special_file_kind, probe_writable
-from .stepped import TARGET_STEPS, colormap, colormap_samples, nice_interval
-from .terrain import FLOAT32_MAX
+from .stepped import TARGET_STEPS, _default_isovalues, colormap, colormap_samples, nice_interval
+from .terrain import FLOAT32_MAX, finite_number
 
 __all__ = ["main", "build_parser", "nice_interval"]
 
@@ -708,9 +708,7 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     if args.floor is not None and not args.solid:
         raise InvalidInputError("--floor applies only with --solid")
     # close_solid's refusals, before the DEM is read and the whole terrain stepped (they came after both)
-    if args.floor is not None and not math.isfinite(args.floor):
-        raise InvalidInputError(f"--floor must be finite; got {args.floor}")
-    if args.floor is not None and abs(args.floor) > FLOAT32_MAX:
+    if args.floor is not None and abs(finite_number(args.floor, "--floor")) > FLOAT32_MAX:
         raise InvalidInputError(f"--floor must fit in float32 (|x| < 3.4e+38); got {args.floor:g}")
     if args.lens_relative is not None and not args.lens_relative[2] > 0:  # else named as '--lens radius', in metres
         raise InvalidInputError(f"--lens-relative radius fraction must be positive; got {args.lens_relative[2]:g}")
@@ -746,15 +744,8 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     # isovalues
     interval = args.interval
     if interval is None and args.levels is None:
-        interval = nice_interval((lo, hi))
-        try:  # the interval picked here, not one given: a refusal named an --interval the user never typed
-            values = st.isovalues((lo, hi), interval=interval, base=base)
-        except InvalidInputError as exc:
-            if not str(exc).startswith("interval"):  # a --base refused: named as it is
-                raise
-            raise InvalidInputError(f"no --interval or --levels given, and the round interval {interval:g} picked "
-                                    f"for heights {lo:g} to {hi:g} is refused: {exc}; give --levels (explicit "
-                                    "isovalues) or an --interval that fits") from None
+        # the interval picked here, not one given: a refusal named an --interval the user never typed
+        interval, values = _default_isovalues(lo, hi, base, interval_name="--interval", levels_name="--levels")
     else:
         values = st.isovalues((lo, hi), interval=interval, levels=args.levels, base=base)
     if args.interval is None and args.levels is None:

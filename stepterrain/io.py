@@ -473,7 +473,7 @@ def gzip_member(file: Path) -> GdalPath:
 
 #: Local gzip files :func:`check_gzip` found whole, by (path, size, mtime, ctime, inode): a batch reads a file's header
 #: and then its heights, and a rerun's pass of ranges reads it again, each decompressing it once more.
-_WHOLE_GZIPS: dict[tuple[str, int, int, int, int], None] = {}
+_WHOLE_GZIPS: set[tuple[str, int, int, int, int]] = set()
 _WHOLE_GZIPS_LOCK = threading.Lock()
 
 
@@ -483,8 +483,7 @@ def check_gzip(file: GdalPath) -> None:
     zlib's reason). GDAL read a cut short .gz up to where it ends, and read no CRC: a corrupt byte gave wrong heights
     without a word, and a window of a crop read before the damage unchecked. The file is decompressed once, in
     blocks, for the check (:data:`_WHOLE_GZIPS` remembers a whole one). Nothing for another path or a remote one."""
-    gdal = os.fspath(file)
-    archive = local_archive(file) if gdal.startswith("/vsigzip/") else None
+    archive = _local_gzip(file)
     if archive is None:
         return
     local = Path(archive)
@@ -507,7 +506,7 @@ def check_gzip(file: GdalPath) -> None:
     with _WHOLE_GZIPS_LOCK:
         if len(_WHOLE_GZIPS) > 4096:
             _WHOLE_GZIPS.clear()
-        _WHOLE_GZIPS[key] = None
+        _WHOLE_GZIPS.add(key)
 
 
 def _virtual_refusal(file: GdalPath) -> str:
@@ -1109,11 +1108,11 @@ def _refuse_png_scaling(file: Path) -> None:
     from xml.etree import ElementTree
 
     aux = file.with_name(file.name + ".aux.xml")
-    try:
-        root = ElementTree.fromstring(aux.read_bytes()) if aux.is_file() else None
-    except (OSError, ElementTree.ParseError):
+    if not aux.is_file():
         return
-    if root is None:
+    try:
+        root = ElementTree.fromstring(aux.read_bytes())
+    except (OSError, ElementTree.ParseError):
         return
     for band in root.iter("PAMRasterBand"):
         if band.get("band", "1").strip() != "1":  # a grey + alpha PNG's alpha band
@@ -1123,7 +1122,7 @@ def _refuse_png_scaling(file: Path) -> None:
         except ValueError:  # not numbers: GDAL reads none either
             return
         if scale != 1.0 or offset != 0.0:
-            prj = next((side for side in _prj_files(file) if side.is_file()), None)
+            prj = _prj_beside(file)
             srs = f"-a_srs {prj.name} " if prj is not None else ""
             raise DataFileError(
                 f"cannot read {str(file)!r}: expected a PNG heightmap of heights as stored; got scale {scale:g}, "
@@ -1151,7 +1150,7 @@ def _warn_png_georeferencing(file: Path) -> None:
             found = None
     if found is None:
         return
-    prj = next((side for side in _prj_files(file) if side.is_file()), None)  # as prj_crs looks (dem.png.prj too)
+    prj = _prj_beside(file)  # as prj_crs looks (dem.png.prj too)
     srs = f"-a_srs {prj.name} " if prj is not None else ""
     warnings.warn(
         f"{file.name}: its georeferencing in {found.name} is not read: load_dem reads a PNG heightmap as an "
@@ -1538,6 +1537,12 @@ def _prj_files(path: _P) -> list[_P]:
                                                                   for ext in (".prj", ".PRJ")]
 
 
+def _prj_beside(path: Path) -> Path | None:
+    """The first of :func:`_prj_files` beside the local raster ``path`` that is a file, the one :func:`prj_crs`
+    reads; None without one."""
+    return next((prj for prj in _prj_files(path) if prj.is_file()), None)
+
+
 def prj_crs(path: Path, what: str, refusal: type[StepTerrainError] = InvalidInputError) -> str | None:
     """The CRS in a .prj file beside the raster ``path`` (``ortho.prj`` or ``ortho.jpg.prj``, the ESRI convention for
     a world file's CRS, which GDAL does not read for a TIFF, JPEG or PNG: their CRS was unknown; WKT, or the ArcInfo
@@ -1548,12 +1553,11 @@ def prj_crs(path: Path, what: str, refusal: type[StepTerrainError] = InvalidInpu
     extension in either case (``DEM.PRJ`` beside ``DEM.TIF``, as DOS-era ESRI data ships it, and GDAL reads the world
     file ``DEM.TFW``)."""
     gzipped = _local_gzip(path)
-    if gzipped is not None:  # a local .gz (dem.asc.gz): the .prj of the file inside, beside the .gz (dem.prj)
-        found = next(((str(prj), prj) for prj in _prj_files(Path(gzipped[:-3])) if prj.is_file()), None)
-    elif isinstance(path, GdalPath):  # in a local zip, the .prj beside it there; elsewhere (a URL) none is looked for
-        found = _zipped_prj(path)
-    else:
-        found = next(((str(prj), prj) for prj in _prj_files(path) if prj.is_file()), None)
+    if gzipped is None and isinstance(path, GdalPath):  # in a local zip, the .prj beside it there; elsewhere (a URL)
+        found = _zipped_prj(path)  # none is looked for
+    else:  # a local file's; a local .gz's (dem.asc.gz): the .prj of the file inside, beside the .gz (dem.prj)
+        local = _prj_beside(Path(gzipped[:-3]) if gzipped is not None else path)
+        found = (str(local), local) if local is not None else None
     if found is not None:
         named, prj = found
         from rasterio.crs import CRS

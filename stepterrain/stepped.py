@@ -321,6 +321,26 @@ def given_levels(levels: Any, base: Any, uniform: str, expected: str, item: str)
     return values
 
 
+def _default_isovalues(
+    lo: float, hi: float, base: Any, *, interval_name: str = "interval=", levels_name: str = "levels="
+) -> tuple[float, NDArray[np.float32]]:
+    """The default interval over the heights ``lo`` to ``hi`` (:func:`nice_interval`, used when neither an interval
+    nor levels is given) and its :func:`isovalues` from ``base``. A refusal of it (heights near the float32 maximum,
+    whose round interval's top isovalue lies beyond it) named an interval the caller never gave: it says the interval
+    was picked, naming the caller's options ``interval_name``/``levels_name`` (``--interval``/``--levels`` for the
+    command line); a ``base`` refused is raised as it is."""
+    interval = nice_interval((lo, hi))
+    try:
+        values = isovalues((lo, hi), interval=interval, base=base)
+    except InvalidInputError as exc:
+        if not str(exc).startswith("interval"):  # a base refused: named as it is
+            raise
+        raise InvalidInputError(f"no {interval_name} or {levels_name} given, and the round interval {interval:g} "
+                                f"picked for heights {lo:g} to {hi:g} is refused: {exc}; give {levels_name} (explicit "
+                                f"isovalues) or an {interval_name} that fits") from None
+    return interval, values
+
+
 def isovalues(
     height_range: tuple[float, float],
     *,
