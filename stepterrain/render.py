@@ -1802,8 +1802,12 @@ class LayeredRenderer:
 
         The layers of this ``prefix`` that the previous call uploaded and this one does not draw (a close-up gone,
         layers merged otherwise) are removed first: their memory is freed, and they no longer widen the clipping range
-        of the next :meth:`set_view`."""
+        of the next :meth:`set_view`. The layers are named ``"{prefix}:{k}"`` (``"{prefix}:merged{g}"`` for a shared
+        pass), so ``prefix`` is a str without ':'."""
         self._check_open()
+        if not isinstance(prefix, str) or ":" in prefix:
+            raise InvalidInputError(f"render_layers prefix must be a str without ':' (its layers are named "
+                                    f"'prefix:k'); got {prefix!r}")
         rects: dict[int, tuple[int, int, int, int] | None] = {}
         boxes = {k: _finite_bounds(np.asarray(v, dtype=np.float64).reshape(-1, 3))  # once per layer
                  for k, (v, _f, _kw) in layers.items()}
@@ -1829,7 +1833,9 @@ class LayeredRenderer:
         # otherwise) are dropped first: kept hidden, they held their meshes' memory, counted against the budget of
         # this call's uploads (a frame the budget allowed was refused), and widened the next view's clipping range
         # (its far plane out to where a close-up once was, its near plane 300 times nearer: depth precision lost)
-        names = [f"{prefix}{group[0]}" if len(group) == 1 else f"{prefix}-merged{g}" for g, group in enumerate(groups)]
+        # "prefix:k" and "prefix:merged<g>": the prefix holds no ':', so a name tells its prefix (bare prefix + k
+        # collided: "cu" + "10" and "cu1" + "0" were one actor, and a call of one prefix removed the other's layer)
+        names = [f"{prefix}:{group[0]}" if len(group) == 1 else f"{prefix}:merged{g}" for g, group in enumerate(groups)]
         for stale in self._layer_names.get(prefix, set()) - set(names):
             self.remove(stale)
         self._layer_names[prefix] = set(names)

@@ -1476,7 +1476,7 @@ def test_render_layers_drops_the_layers_of_an_earlier_call_it_no_longer_draws():
         expected = frames(fresh, [{0: near_layer}])
     with render.LayeredRenderer(window_size=(64, 48)) as reused:
         got = frames(reused, [{0: near_layer, 1: far_layer}, {0: near_layer}])
-        assert "closeup1" not in reused._actors
+        assert "closeup:1" not in reused._actors
     np.testing.assert_allclose(got, expected, rtol=1e-12)
 
     # the budget: the first frame's layers fit, and so does the second's layer 0 (grown) beside the overview, but not
@@ -1491,7 +1491,7 @@ def test_render_layers_drops_the_layers_of_an_earlier_call_it_no_longer_draws():
             renderer.set_view((30.0, 35.0), box)
             renderer.render_layers("closeup", {0: (*near_layer, {}), 1: (*big, {})}, merge=False)
             renderer.render_layers("closeup", {0: (*big, {})}, merge=False)  # refused while layer 1 stayed
-            assert sorted(renderer._actors) == ["closeup0", "overview"]
+            assert sorted(renderer._actors) == ["closeup:0", "overview"]
     finally:
         st.set_memory_budget(previous)
 
@@ -1511,9 +1511,40 @@ def test_render_layers_drops_only_its_own_prefixs_earlier_layers():
         anchors = renderer.render_layers("anchor", both, merge=False)
         renderer.render_layers("closeup", both, merge=False)
         renderer.render_layers("closeup", {0: (*layer, {})}, merge=False)
-        assert sorted(renderer._actors) == ["anchor0", "anchor1", "closeup0", "closeup_user", "overview"]
+        assert sorted(renderer._actors) == ["anchor:0", "anchor:1", "closeup:0", "closeup_user", "overview"]
         for k in (0, 1):
-            np.testing.assert_array_equal(renderer.render([f"anchor{k}"])[0], anchors[k][0])
+            np.testing.assert_array_equal(renderer.render([f"anchor:{k}"])[0], anchors[k][0])
         renderer.render_layers("anchor", {}, merge=False)
-        assert sorted(renderer._actors) == ["closeup0", "closeup_user", "overview"]
+        assert sorted(renderer._actors) == ["closeup:0", "closeup_user", "overview"]
         np.testing.assert_array_equal(renderer.render(["closeup_user"])[0], user[0])
+
+
+@needs_render
+def test_render_layers_names_cannot_collide_across_prefixes():
+    """Layer names were ``prefix + str(k)``: prefix "cu" layer 10 and prefix "cu1" layer 0 were both "cu10", one actor.
+    The second call overwrote the first's mesh, and a later call of "cu" that no longer drew layer 10 removed "cu1"'s
+    layer 0 (its later render: "no layer named")."""
+    ground = _grid(20, 0.0, 0.0)
+    with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+        renderer.set_mesh("overview", *ground)
+        renderer.set_view((30.0, 35.0), [[0, 0, 0], [20, 20, 5]])
+        many = {k: (*_grid(3, 1.0 + k, 2.0), {}) for k in range(11)}
+        renderer.render_layers("cu", many, merge=False)
+        other = renderer.render_layers("cu1", {0: (*_grid(5, 8.0, 3.0), {})}, merge=False)
+        assert len(renderer._actors) == 1 + 11 + 1
+        renderer.render_layers("cu", {k: many[k] for k in range(10)}, merge=False)  # drops "cu"'s layer 10 only
+        assert len(renderer._actors) == 1 + 10 + 1
+        again = renderer.render_layers("cu1", {0: (*_grid(5, 8.0, 3.0), {})}, merge=False)
+        np.testing.assert_array_equal(again[0][0], other[0][0])
+        (name,) = set(renderer._actors) - set(renderer._layer_names["cu"]) - {"overview"}
+        np.testing.assert_array_equal(renderer.render([name])[0], other[0][0])
+
+
+@needs_render
+@pytest.mark.parametrize("prefix", [5, None, b"cu", "cu:1"])
+def test_render_layers_names_a_bad_prefix(prefix):
+    with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+        renderer.set_mesh("overview", *_grid(20, 0.0, 0.0))
+        renderer.set_view((30.0, 35.0), [[0, 0, 0], [20, 20, 5]])
+        with pytest.raises(InvalidInputError, match=r"render_layers prefix must be a str without ':' .*; got "):
+            renderer.render_layers(prefix, {0: (*_grid(3, 1.0, 2.0), {})}, merge=False)
