@@ -33,7 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._compaction import MAX_INT32 as _MAX_INT32
 from ._compaction import budget_value, check_budget, count_buffer, exclusive_offsets
 from ._device import host_copy, launch, launch_chunked, resolve_device, to_device
-from ._memo import Same, derived, hold, same, sweep
+from ._memo import MISSING, Same, derived, keep, recall
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, OutputTooLargeError, counted
 from .io import degrees_hint
 from .kernels import closeup as closeup_kernels
@@ -2454,10 +2454,11 @@ def render_closeups(
     # over new close-ups kept the last 8 frames' close-ups, masks, uploads and culls alive
     memo = t.cached(("closeup", "frame"), dict)
     memo_key = (tuple(id(cu) for cu in items), scalars, cmap, str(resolve_device(device)), id(texture))
-    last = memo.get(memo_key) if reuse_closeups else None
-    if (last is not None and all(same(a, b) for a, b in zip(last[0], (*items, texture), strict=True))
-            and all(np.array_equal(a, b) for a, b in zip(last[1], matrices, strict=True))):
-        layers, strips, anchors, contents, boards, drawn = last[2]
+    # the texture held beside the close-ups (swept as they are): held apart, an entry whose texture was gone stayed
+    # (a new image each frame, a video draped: 8 frames' geometry kept)
+    last = recall(memo, memo_key, (*items, texture)) if reuse_closeups else MISSING
+    if last is not MISSING and all(np.array_equal(a, b) for a, b in zip(last[0], matrices, strict=True)):
+        layers, strips, anchors, contents, boards, drawn = last[1]
         if image_texture is not None or any(cu.texture is not None for cu in items):
             # an image may have changed in place since (the same object): its colors are sampled again
             anchors, contents, boards, drawn = _frame_geometry(t, items, layers, strips, scalars, cmap, image_texture)
@@ -2466,13 +2467,8 @@ def render_closeups(
         _check_content(t, items, layers)
         strips = anchor_strips(t, items, time=time, device=device)
         anchors, contents, boards, drawn = _frame_geometry(t, items, layers, strips, scalars, cmap, image_texture)
-        sweep(memo)
-        if len(memo) >= 8 and memo_key not in memo:
-            memo.clear()
-        # the texture held beside the close-ups, where sweep() sees it: held apart, an entry whose texture was gone
-        # stayed (a new image each frame, a video draped: 8 frames' geometry kept)
-        memo[memo_key] = (tuple(hold(x) for x in (*items, texture)), matrices,
-                          (layers, strips, anchors, contents, boards, drawn))
+        keep(memo, memo_key, (*items, texture), (matrices, (layers, strips, anchors, contents, boards, drawn)),
+             limit=8)
     clock["transform"] = _time.perf_counter() - start
 
     start = _time.perf_counter()
