@@ -18,9 +18,10 @@ the faces with m > 0 by count -> scan -> emit, so a close-up costs in proportion
 from __future__ import annotations
 
 import hashlib
+import inspect
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import MutableMapping, Sequence
 from dataclasses import KW_ONLY, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
@@ -2437,6 +2438,14 @@ def render_closeups(
     _check_cmap(cmap)
     _check_in_terrain(t, items)
     _check_grid_scalars(t, scalars, items)
+    # before any work: "no" is true to Python (merge_passes="no" merged), and a list for timings raised its
+    # TypeError after every pass was rendered
+    reuse_overview = check_flag(reuse_overview, "reuse_overview")
+    reuse_closeups = check_flag(reuse_closeups, "reuse_closeups")
+    merge_passes = check_flag(merge_passes, "merge_passes")
+    if timings is not None and not isinstance(timings, MutableMapping):
+        raise InvalidInputError(f"timings must be a dict (filled with seconds per step) or None; got "
+                                f"{type(timings).__name__}")
     image_texture = None if texture is None else _check_texture(texture, "texture", alpha=True)
     box = None if bounds is None else render._check_box(bounds, "bounds")  # before any work; text was taken
     view_angle = render._check_view_angle(view_angle)
@@ -2715,6 +2724,12 @@ def animate_closeups(
         if name in options:
             raise InvalidInputError(f"animate_closeups sets {name} for each frame itself (frame i at time i / fps, "
                                     f"one renderer); got {name}={options[name]!r}")
+    # render_closeups' TypeError for an option it does not take came at the first frame, after the box was fitted
+    takes = inspect.signature(render_closeups).parameters
+    for name in options:
+        if name not in takes:
+            raise InvalidInputError(f"animate_closeups passes options to render_closeups, which takes no {name!r}; "
+                                    f"got {name}={options[name]!r:.80}")
     t = as_terrain(terrain)
     items = _check_closeups(closeups)
     if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 1:
