@@ -18,7 +18,7 @@ import numbers
 import os
 import sys
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal
 
@@ -1464,6 +1464,29 @@ def _layer_values(values: Any, n_vertices: int, name: str) -> NDArray[np.float64
     return array
 
 
+def _check_layers(layers: Any) -> dict[int, tuple[Any, Any, dict[str, Any]]]:
+    """:meth:`LayeredRenderer.render_layers`' ``layers`` checked for their shape, else an InvalidInputError naming the
+    layer: a list raised AttributeError ('items'), a short entry ValueError (unpack), options None AttributeError
+    ('get'), an unknown option set_mesh's TypeError, and a str key "merged0" took the name of a merged pass (one actor
+    for two layers). Their arrays are checked by :meth:`LayeredRenderer.set_mesh`."""
+    expected = "(vertices, faces, options), options a dict of 'rgb' or 'values' (or {})"
+    if not isinstance(layers, Mapping):
+        raise InvalidInputError(f"layers must be a dict {{k: (vertices, faces, options)}} (k an int); got "
+                                f"{type(layers).__name__}")
+    for k, entry in layers.items():
+        if isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)):
+            raise InvalidInputError(f"layers keys must be ints (the layer numbers); got {k!r:.80}")
+        if not isinstance(entry, (tuple, list)) or len(entry) != 3:
+            got = type(entry).__name__ + (f" of {len(entry)}" if isinstance(entry, (tuple, list)) else "")
+            raise InvalidInputError(f"layers[{k}] must be {expected}; got {got}")
+        if not isinstance(entry[2], Mapping):
+            raise InvalidInputError(f"layers[{k}] must be {expected}; got options {type(entry[2]).__name__}")
+        unknown = sorted(str(name) for name in entry[2] if name not in ("rgb", "values"))
+        if unknown:
+            raise InvalidInputError(f"layers[{k}] options may hold 'rgb' and 'values' only; got {unknown}")
+    return layers
+
+
 def _camera_token(camera: CameraLike) -> Any:
     """What tells one camera from another exactly: a name, or its numbers' float64 bytes. ``repr`` of a numpy camera
     prints 8 digits, so two UTM eye positions centimetres apart had one token and the second kept the first's view."""
@@ -1553,6 +1576,8 @@ class LayeredRenderer:
 
     def bounds_of(self, name: str) -> NDArray[np.float64]:
         """World bounds (2, 3) of an uploaded mesh."""
+        if name not in self._bounds:  # a bare KeyError named nothing
+            raise InvalidInputError(f"no layer named {name!r}; have {sorted(self._bounds)}")
         return self._bounds[name]
 
     def _local(self, vertices: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -1744,6 +1769,7 @@ class LayeredRenderer:
         self._check_open()
         if self._box is None:
             raise InvalidInputError("render needs a view first (set_view)")
+        reuse = check_flag(reuse, "reuse")  # "no" is true to Python: a cached pass came back
         try:  # a string is a sequence of characters: render("ab") showed layers 'a' and 'b'
             wanted = set(names) if not isinstance(names, (str, bytes)) else None
         except TypeError:  # not iterable (5), or unhashable names
@@ -1808,6 +1834,8 @@ class LayeredRenderer:
         if not isinstance(prefix, str) or ":" in prefix:
             raise InvalidInputError(f"render_layers prefix must be a str without ':' (its layers are named "
                                     f"'prefix:k'); got {prefix!r}")
+        layers = _check_layers(layers)
+        merge, crop = check_flag(merge, "merge"), check_flag(crop, "crop")
         rects: dict[int, tuple[int, int, int, int] | None] = {}
         boxes = {k: _finite_bounds(np.asarray(v, dtype=np.float64).reshape(-1, 3))  # once per layer
                  for k, (v, _f, _kw) in layers.items()}
@@ -1900,7 +1928,8 @@ class LayeredRenderer:
         """Pixel box (col0, row0, col1, row1), end exclusive, holding every fragment of a mesh with these
         vertices, from the projected corners of their bounds (padded by 2 pixels); None when a corner lies
         behind the camera."""
-        return self._box_rect(_finite_bounds(np.asarray(vertices, dtype=np.float64).reshape(-1, 3)))
+        rows = _layer_rows(vertices, "vertices", "(N, 3) world points")  # "x" raised numpy's ValueError
+        return self._box_rect(_finite_bounds(np.asarray(rows, dtype=np.float64)))
 
     def _box_rect(self, box: NDArray[np.float64] | None) -> tuple[int, int, int, int] | None:
         """:meth:`screen_rect` of the vertex bounds ``box`` (2, 3) (None: no finite vertex)."""

@@ -1548,3 +1548,53 @@ def test_render_layers_names_a_bad_prefix(prefix):
         renderer.set_view((30.0, 35.0), [[0, 0, 0], [20, 20, 5]])
         with pytest.raises(InvalidInputError, match=r"render_layers prefix must be a str without ':' .*; got "):
             renderer.render_layers(prefix, {0: (*_grid(3, 1.0, 2.0), {})}, merge=False)
+
+
+@needs_render
+@pytest.mark.parametrize(("layers", "message"), [
+    ([(VERTICES, FACES, {})], r"layers must be a dict \{k: \(vertices, faces, options\)\} .*; got list"),
+    ({0: (VERTICES,)}, r"layers\[0\] must be \(vertices, faces, options\).*; got tuple of 1"),
+    ({0: (VERTICES, FACES, None)}, r"layers\[0\] must be \(vertices, faces, options\).*; got options NoneType"),
+    ({0: (VERTICES, FACES, {"color": 1})}, r"layers\[0\] options may hold 'rgb' and 'values' only; got \['color'\]"),
+    ({"merged0": (VERTICES, FACES, {})}, r"layers keys must be ints .*; got 'merged0'"),
+    ({True: (VERTICES, FACES, {})}, r"layers keys must be ints .*; got True"),
+])
+def test_render_layers_names_a_bad_layer(layers, message):
+    """A list raised AttributeError ('items'), a short entry ValueError (unpack), options None AttributeError ('get'),
+    an unknown option set_mesh's TypeError; a str key "merged0" was named as a merged pass of the same prefix (one
+    actor for two layers)."""
+    with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+        renderer.set_mesh("overview", *_grid(20, 0.0, 0.0))
+        renderer.set_view((30.0, 35.0), [[0, 0, 0], [20, 20, 5]])
+        with pytest.raises(InvalidInputError, match=message):
+            renderer.render_layers("cu", layers)
+
+
+@needs_render
+@pytest.mark.parametrize("call", ["render", "render_layers merge", "render_layers crop"])
+def test_layered_renderer_names_a_bad_flag(call):
+    """reuse="no", merge="no", crop="no" are true to Python: the option was switched on without a word."""
+    with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+        renderer.set_mesh("overview", *_grid(20, 0.0, 0.0))
+        renderer.set_view((30.0, 35.0), [[0, 0, 0], [20, 20, 5]])
+        name = call.split()[-1] if " " in call else "reuse"
+        with pytest.raises(InvalidInputError, match=rf"{name} must be True or False; got 'no'"):
+            if call == "render":
+                renderer.render(["overview"], reuse="no")
+            else:
+                renderer.render_layers("cu", {0: (*_grid(3, 1.0, 2.0), {})}, **{name: "no"})
+
+
+@needs_render
+def test_layered_renderer_screen_rect_and_bounds_of_name_bad_input():
+    """screen_rect("x") raised numpy's ValueError, bounds_of an unknown name a bare KeyError."""
+    with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+        renderer.set_mesh("overview", *_grid(20, 0.0, 0.0))
+        renderer.set_view((30.0, 35.0), [[0, 0, 0], [20, 20, 5]])
+        with pytest.raises(InvalidInputError, match=r"vertices must be \(N, 3\) world points"):
+            renderer.screen_rect("x")
+        with pytest.raises(InvalidInputError, match=r"no layer named 'zz'; have \['overview'\]"):
+            renderer.bounds_of("zz")
+        assert renderer.screen_rect(_grid(3, 1.0, 2.0)[0]) is not None
+        np.testing.assert_array_equal(renderer.bounds_of("overview"), [[0, 0, 0], [19, 19, 0]])
+
