@@ -1464,6 +1464,10 @@ def _layer_values(values: Any, n_vertices: int, name: str) -> NDArray[np.float64
     return array
 
 
+#: The most passes :meth:`LayeredRenderer.render` keeps for ``reuse`` (those of the current view; the oldest go first).
+_REUSED_PASSES = 8
+
+
 def _check_layers(layers: Any) -> dict[int, tuple[Any, Any, dict[str, Any]]]:
     """:meth:`LayeredRenderer.render_layers`' ``layers`` checked for their shape, else an InvalidInputError naming the
     layer: a list raised AttributeError ('items'), a short entry ValueError (unpack), options None AttributeError
@@ -1793,6 +1797,13 @@ class LayeredRenderer:
             # array itself) changed what the next reuse returned. Views of read-only arrays cannot be made writeable
             # again, and cost no copy; a caller who edits one makes a copy
             color.flags.writeable = depth.flags.writeable = False
+            # a pass of an earlier view is never reused (the view's version only grows): kept, a loop moving the
+            # camera with a crop following a mesh held every frame's images; of this view's, the latest few stay
+            for old in [k for k, (kept, _c, _d) in list(self._passes.items()) if kept[0] != self._view_version]:
+                self._passes.pop(old, None)
+            self._passes.pop(key, None)  # put back last: the most recent
+            while len(self._passes) >= _REUSED_PASSES:
+                self._passes.pop(next(iter(self._passes)))
             self._passes[key] = (state, color, depth)
             return color.view(), depth.view()
         return color, depth

@@ -1598,3 +1598,27 @@ def test_layered_renderer_screen_rect_and_bounds_of_name_bad_input():
         assert renderer.screen_rect(_grid(3, 1.0, 2.0)[0]) is not None
         np.testing.assert_array_equal(renderer.bounds_of("overview"), [[0, 0, 0], [19, 19, 0]])
 
+
+@needs_render
+def test_reused_passes_of_earlier_views_and_many_rects_are_not_kept():
+    """render(reuse=True) kept every pass it read under its layers and rect, whatever the view: a loop moving the
+    camera with a crop following a mesh kept each frame's images (50 frames of a 320 x 240 window: 50 passes, 4.9 MB),
+    though a pass of an earlier view can never be reused (the view's version only grows). Now the passes of other
+    views go, and at most a few of the current view's are kept; a still view's pass is reused as before."""
+    vertices, faces = _grid(20, 0.0, 1.0)
+    with render.LayeredRenderer(window_size=(320, 240)) as renderer:
+        renderer.set_mesh("a", vertices, faces)
+        for n in range(50):
+            renderer.set_view((30.0 + n, 35.0), [[0, 0, 0], [20, 20, 1]])
+            rect = renderer.screen_rect(vertices[:60] + [n * 0.1, 0, 0])
+            renderer.render(["a"], reuse=True, rect=rect)
+        assert len(renderer._passes) == 1
+        for c0 in range(40):  # a still view, crops of many places
+            renderer.render(["a"], reuse=True, rect=(c0, 0, c0 + 100, 100))
+        assert len(renderer._passes) <= render._REUSED_PASSES
+        color, depth = renderer.render(["a"], reuse=True)
+        again, again_depth = renderer.render(["a"], reuse=True)
+        assert np.shares_memory(again, color)  # the kept images, not a new pass
+        fresh, fresh_depth = renderer.render(["a"])
+        np.testing.assert_array_equal(again, fresh)
+        np.testing.assert_array_equal(again_depth, fresh_depth)
