@@ -171,3 +171,39 @@ def test_identity_memo_from_several_threads_gives_each_caller_the_value_of_its_o
     finally:
         sys.setswitchinterval(interval)
     assert not wrong, f"{len(wrong)} calls got a value made from other objects"
+
+
+def test_closeup_joined_inputs_are_not_kept_for_every_cached_source():
+    """The concatenated inputs and their uploads of each set of close-up sources ("joined", ~1.5 times the sources'
+    bytes) were kept while the sources were, up to 64 sets: a ROI dragged over the embedded DEM held 98 MiB of them
+    beside the 63 MiB of sources the 64 MiB bound allows (161 MiB). They are cheap to make again from the cached
+    sources (a concatenation and an upload), so only the last few sets keep them."""
+    import gc
+
+    import warp as wp
+
+    from stepterrain import closeup as closeup_module
+    from stepterrain.closeup import ROI, CloseUp, closeup_layers
+
+    def held(value) -> int:
+        if isinstance(value, np.ndarray):
+            return value.nbytes
+        if isinstance(value, wp.array):
+            return value.capacity
+        return sum(held(v) for v in value) if isinstance(value, (tuple, list)) else 0
+
+    t = st.sample_dem()
+    xmin, xmax, ymin, ymax = t.extent
+    radius = 0.08 * (xmax - xmin)
+    sources = t.cached(("closeup", "sources"), dict)
+    joined = t.cached(("closeup", "joined"), dict)
+    for i in range(20):
+        dragged = CloseUp(ROI.circle((xmin + radius * (1 + 0.1 * i), (ymin + ymax) / 2), radius),
+                          offset=(0, 0, 500.0))
+        closeup_layers(t, [dragged], device="cpu")
+        del dragged
+        gc.collect()
+    assert len(sources) == 20  # the sources stay cached (within their byte bound) as before
+    largest = max(held(entry[1]) for entry in joined.values())
+    assert len(joined) <= closeup_module._JOINED_SETS
+    assert sum(held(entry[1]) for entry in joined.values()) <= closeup_module._JOINED_SETS * largest
