@@ -1848,8 +1848,11 @@ class LayeredRenderer:
         layers = _check_layers(layers)
         merge, crop = check_flag(merge, "merge"), check_flag(crop, "crop")
         rects: dict[int, tuple[int, int, int, int] | None] = {}
-        boxes = {k: _finite_bounds(np.asarray(v, dtype=np.float64).reshape(-1, 3))  # once per layer
-                 for k, (v, _f, _kw) in layers.items()}
+        # (V, 3) rows once per layer, checked here: "x" raised numpy's ValueError before set_mesh saw it, and a flat
+        # (3V,) array counted 3V vertices in a merged pass (its faces shifted onto the next layer's vertices)
+        rows = {k: np.asarray(_layer_rows(v, f"layers[{k}] vertices", "(V, 3) coordinates"), np.float64)
+                for k, (v, _f, _kw) in layers.items()}
+        boxes = {k: _finite_bounds(rows[k]) for k in layers}
         for k in layers:
             rects[k] = self._box_rect(boxes[k]) if merge else None
         groups: list[list[int]] = []
@@ -1891,8 +1894,8 @@ class LayeredRenderer:
                 else:
                     out[k] = self.render([name])
                 continue
-            counts = np.cumsum([0] + [len(layers[k][0]) for k in group])
-            vertices = np.concatenate([np.asarray(layers[k][0], np.float64) for k in group])
+            counts = np.cumsum([0] + [len(rows[k]) for k in group])
+            vertices = np.concatenate([rows[k] for k in group])
             kw0 = layers[group[0]][2]
 
             def join(group: list[int] = group, counts: Any = counts, kw0: dict = kw0

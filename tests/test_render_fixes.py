@@ -1558,6 +1558,8 @@ def test_render_layers_names_a_bad_prefix(prefix):
     ({0: (VERTICES, FACES, {"color": 1})}, r"layers\[0\] options may hold 'rgb' and 'values' only; got \['color'\]"),
     ({"merged0": (VERTICES, FACES, {})}, r"layers keys must be ints .*; got 'merged0'"),
     ({True: (VERTICES, FACES, {})}, r"layers keys must be ints .*; got True"),
+    ({0: ("x", FACES, {})}, r"layers\[0\] vertices must be \(V, 3\) coordinates"),
+    ({0: ([[1.0, 2.0]], FACES, {})}, r"layers\[0\] vertices must be \(V, 3\) coordinates; got shape \(1, 2\)"),
 ])
 def test_render_layers_names_a_bad_layer(layers, message):
     """A list raised AttributeError ('items'), a short entry ValueError (unpack), options None AttributeError ('get'),
@@ -1622,3 +1624,19 @@ def test_reused_passes_of_earlier_views_and_many_rects_are_not_kept():
         fresh, fresh_depth = renderer.render(["a"])
         np.testing.assert_array_equal(again, fresh)
         np.testing.assert_array_equal(again_depth, fresh_depth)
+
+
+@needs_render
+def test_render_layers_merges_layers_given_as_flat_vertex_arrays():
+    """Vertices as a flat (3V,) array (taken by set_mesh) counted 3V vertices in a merged pass: the second layer's
+    faces were shifted past the joined vertices (or numpy's ValueError joining a flat array to (V, 3) rows)."""
+    near, far = _grid(3, 1.0, 2.0), _grid(3, 12.0, 2.0)
+    with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+        renderer.set_mesh("overview", *_grid(20, 0.0, 0.0))
+        renderer.set_view((30.0, 35.0), [[0, 0, 0], [20, 20, 5]])
+        rows = renderer.render_layers("cu", {0: (*near, {}), 1: (*far, {})})
+        assert any(name.startswith("cu:merged") for name in renderer._actors)  # one pass for both
+        flat = renderer.render_layers("cu", {0: (near[0].ravel(), near[1], {}), 1: (far[0].ravel(), far[1], {})})
+    for k in (0, 1):
+        np.testing.assert_array_equal(flat[k][0], rows[k][0])
+        np.testing.assert_array_equal(flat[k][1], rows[k][1])
