@@ -1580,7 +1580,7 @@ class LayeredRenderer:
 
     def bounds_of(self, name: str) -> NDArray[np.float64]:
         """World bounds (2, 3) of an uploaded mesh."""
-        if name not in self._bounds:  # a bare KeyError named nothing
+        if not isinstance(name, str) or name not in self._bounds:  # a bare KeyError (a list: TypeError) named nothing
             raise InvalidInputError(f"no layer named {name!r}; have {sorted(self._bounds)}")
         return self._bounds[name]
 

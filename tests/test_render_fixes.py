@@ -1597,6 +1597,8 @@ def test_layered_renderer_screen_rect_and_bounds_of_name_bad_input():
             renderer.screen_rect("x")
         with pytest.raises(InvalidInputError, match=r"no layer named 'zz'; have \['overview'\]"):
             renderer.bounds_of("zz")
+        with pytest.raises(InvalidInputError, match=r"no layer named \['overview'\]; have \['overview'\]"):
+            renderer.bounds_of(["overview"])
         assert renderer.screen_rect(_grid(3, 1.0, 2.0)[0]) is not None
         np.testing.assert_array_equal(renderer.bounds_of("overview"), [[0, 0, 0], [19, 19, 0]])
 
