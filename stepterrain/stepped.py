@@ -1681,7 +1681,12 @@ def stepped_series(
         # the isovalues span the heights a triangle uses, as each frame's Terrain.height_range (a node on none is in
         # no mesh): a lone pixel in a void moved every frame's levels and colours; without nodata, the finite range
         used = (lo, hi) if finite.size == stack.size else used_height_range(stack)
-        values = isovalues(used or (lo, hi), interval=interval, levels=levels, base=base)
+        # of the float32 heights every frame is stepped from (its Terrain's): a float64 height 1e-9 above an
+        # isovalue, which float32 rounds onto it, added a level no vertex reaches (other colours and level indices
+        # than stepped() of the frame). Rounding is monotone, so the range rounded is the float32 heights' range;
+        # within float32 (heights beyond it were refused above)
+        used = tuple(float(np.float32(v)) for v in (used or (lo, hi)))
+        values = isovalues(used, interval=interval, levels=levels, base=base)
         iterable: Iterable[ArrayLike] = stack
     else:
         values = None

@@ -1199,3 +1199,31 @@ def test_a_nodata_node_takes_level_0_on_every_quantize_path(device, values, unif
     got = levels.numpy()
     assert not got[0::2].any()  # NaN: level 0
     np.testing.assert_array_equal(got[1::2], np.searchsorted(thresholds, finite, side="right"))
+
+
+@pytest.mark.parametrize("hole", [False, True], ids=["no-nodata", "nodata"])
+def test_a_float64_stack_shares_the_isovalues_its_float32_frames_are_stepped_with(hole):
+    """stepped_series of a (T, H, W) stack took its shared isovalues from the float64 heights, while every frame is
+    stepped from its float32 heights (a Terrain's): a height 1e-9 above an isovalue (or below one) rounds onto it in
+    float32, yet added a level above (below) that no vertex reaches, so the frame's colours by level, its level
+    indices and its recorded isovalues differed from stepped() of the same frame and from the stack as float32. The
+    range is now the float32 heights'."""
+    heights = st.sample_dem().heights[:40, :50].astype(np.float64)
+    heights = heights - heights.max() + 1000.0  # the highest height exactly on the isovalue 1000
+    lo = float(heights.min())
+    heights[heights == heights.max()] += 1e-9  # float32 rounds it back onto 1000
+    heights[heights == lo] = np.floor(lo / 50.0) * 50.0 - 1e-9  # and the lowest onto an isovalue from below
+    if hole:
+        heights[10:14, 20:25] = np.nan
+    stack = np.stack([heights, heights - 50.0])
+    got = list(st.stepped_series(stack, interval=50.0, colors="viridis"))
+    want = list(st.stepped_series(stack.astype(np.float32), interval=50.0, colors="viridis"))
+    for a, b in zip(got, want, strict=True):
+        assert a.metadata["isovalues"] == b.metadata["isovalues"]
+        np.testing.assert_array_equal(a.vertices, b.vertices)
+        np.testing.assert_array_equal(a.face_attributes["level"], b.face_attributes["level"])
+        np.testing.assert_array_equal(a.visual.vertex_colors, b.visual.vertex_colors)
+    single = next(st.stepped_series(heights[None], interval=50.0, colors="viridis"))
+    alone = st.stepped(heights, interval=50.0, colors="viridis")
+    assert single.metadata["isovalues"] == alone.metadata["isovalues"]
+    np.testing.assert_array_equal(single.visual.vertex_colors, alone.visual.vertex_colors)
