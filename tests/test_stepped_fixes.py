@@ -1227,3 +1227,25 @@ def test_a_float64_stack_shares_the_isovalues_its_float32_frames_are_stepped_wit
     alone = st.stepped(heights, interval=50.0, colors="viridis")
     assert single.metadata["isovalues"] == alone.metadata["isovalues"]
     np.testing.assert_array_equal(single.visual.vertex_colors, alone.visual.vertex_colors)
+
+
+@pytest.mark.parametrize("stray", [(5.0, 5.0, 1e39), (1e300, 5.0, 1.0), (5.0, -1e300, 1.0)],
+                         ids=["z-beyond-float32", "x-beyond-float32", "y-beyond-float32"])
+def test_a_point_on_no_face_beyond_float32_steps_without_a_numpy_warning(stray):
+    """A point no face uses does not matter (Terrain.from_mesh refuses coordinates beyond float32 only on kept faces):
+    its z cast to the float32 heights, and its x or y to the float32 local points, each raised numpy's "overflow
+    encountered in cast" RuntimeWarning (an error where warnings are, as under pytest's -W error), from a TIN that
+    then stepped exactly as the TIN without the point (and Terrain(kind="tin", ...) given its heights warned comparing
+    them with the points' z). Now it steps silently, as that TIN does."""
+    base = st.heightfield_mesh(st.sample_dem().heights[:12, :15], spacing=(30.0, 30.0))
+    points = np.vstack([base.vertices + [376000.0, 3790000.0, 0.0], [stray]])
+    with_stray = trimesh.Trimesh(points, base.faces, process=False)
+    without = trimesh.Trimesh(points[:-1], base.faces, process=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = st.stepped(with_stray, interval=50.0, solid=True)
+        terrain = st.Terrain(kind="tin", heights=as_terrain(with_stray).heights, points=points, faces=base.faces)
+    want = st.stepped(without, interval=50.0, solid=True)
+    np.testing.assert_array_equal(got.vertices, want.vertices)
+    np.testing.assert_array_equal(got.faces, want.faces)
+    assert terrain.height_range == as_terrain(without).height_range
