@@ -1249,3 +1249,35 @@ def test_a_point_on_no_face_beyond_float32_steps_without_a_numpy_warning(stray):
     np.testing.assert_array_equal(got.vertices, want.vertices)
     np.testing.assert_array_equal(got.faces, want.faces)
     assert terrain.height_range == as_terrain(without).height_range
+
+
+def test_carried_vertex_colours_are_the_input_colours_interpolated_at_every_output_vertex():
+    """Issue §3: a TIN's vertex colours are carried onto the steps by the crossings' β. The tests before checked the
+    nodes' colours only; here every output vertex (wall bottoms and tops, twins, nodes) of a Delaunay TIN of the
+    embedded DEM at UTM coordinates, with a hole, takes the input's colour interpolated at its xy: colours affine in
+    x and y, so that the interpolation over any triangle gives them (to the bytes' rounding), whatever γ."""
+    from scipy.spatial import Delaunay
+
+    dem = st.sample_dem()
+    rng = np.random.default_rng(4)
+    rows, cols = rng.integers(0, 120, 600), rng.integers(0, 160, 600)
+    x0, y0 = dem.origin
+    points = np.unique(np.column_stack([x0 + cols * dem.spacing[0], y0 + rows * dem.spacing[1],
+                                        dem.heights[rows, cols]]), axis=0)
+    faces = Delaunay(points[:, :2]).simplices
+    centre = points[faces, :2].mean(axis=1)
+    middle = points[:, :2].mean(axis=0)
+    faces = faces[np.abs(centre - middle).max(axis=1) > 600.0]  # a hole in the middle
+    lo, span = points[:, :2].min(axis=0), np.ptp(points[:, :2], axis=0)
+
+    def colour_at(xy):
+        s = (xy - lo) / span
+        return np.column_stack([255 * s[:, 0], 255 * s[:, 1], 255 * (1 - s[:, 0]), 127 + 100 * s[:, 1]])
+
+    tin = trimesh.Trimesh(points, faces, process=False)
+    tin.visual = trimesh.visual.ColorVisuals(tin, vertex_colors=np.round(colour_at(points[:, :2])).astype(np.uint8))
+    for gamma in (1.0, 0.4):
+        mesh = st.stepped(tin, interval=25.0, gamma=gamma)
+        assert mesh.face_attributes["wall"].any()
+        got = mesh.visual.vertex_colors.astype(np.float64)
+        assert np.abs(got - colour_at(mesh.vertices[:, :2])).max() <= 1.0 + 1e-6
