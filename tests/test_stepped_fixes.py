@@ -1281,3 +1281,31 @@ def test_carried_vertex_colours_are_the_input_colours_interpolated_at_every_outp
         assert mesh.face_attributes["wall"].any()
         got = mesh.visual.vertex_colors.astype(np.float64)
         assert np.abs(got - colour_at(mesh.vertices[:, :2])).max() <= 1.0 + 1e-6
+
+
+@pytest.mark.parametrize("soup", [False, True], ids=["welded", "soup"])
+def test_short_detached_vertex_colours_are_refused_before_stepping(soup):
+    """As face colours and UVs are: a TIN whose visual is a ColorVisuals(vertex_colors=...) built apart from the mesh
+    keeps the rows given, and with fewer rows than the points its faces use, Terrain.from_mesh (welding coincident
+    points by position and colour) raised numpy's IndexError, so stepped(), stepped_series() and every other use
+    of such a TIN failed with it. Now the terrain is built (a soup welded by position alone) and stepped() refuses
+    the colours it cannot carry, naming visual.vertex_colors, before the passes; colors= still steps it (as one
+    welded surface), and rows beyond the points are still fine."""
+    mesh = st.heightfield_mesh(st.sample_dem().heights[:6, :7], spacing=(30.0, 30.0))
+    if soup:
+        mesh.unmerge_vertices()
+    short = trimesh.visual.ColorVisuals(vertex_colors=np.full((5, 4), 200, np.uint8))
+    mesh.visual = short
+    assert len(mesh.visual.vertex_colors) == 5
+    st.Terrain.from_mesh(mesh)
+    needed = int(np.flatnonzero(as_terrain(mesh).point_used)[-1]) + 1  # the last point a face uses (once welded)
+    message = rf"visual.vertex_colors must hold one RGBA row per vertex \(at least {needed}\).*got 5 rows"
+    with pytest.raises(st.InvalidInputError, match=message):
+        st.stepped(mesh, interval=20.0)
+    with pytest.raises(st.InvalidInputError, match=message):
+        list(st.stepped_series([mesh], interval=20.0))
+    coloured = st.stepped(mesh, interval=20.0, colors="terrain")
+    welded = st.stepped(st.heightfield_mesh(st.sample_dem().heights[:6, :7], spacing=(30.0, 30.0)), interval=20.0)
+    assert len(coloured.vertices) == len(welded.vertices) and len(coloured.faces) == len(welded.faces)
+    mesh.visual = trimesh.visual.ColorVisuals(vertex_colors=np.full((len(mesh.vertices) + 3, 4), 200, np.uint8))
+    assert (st.stepped(mesh, interval=20.0).visual.vertex_colors == 200).all()
