@@ -1116,9 +1116,9 @@ def _level_colors(colors: Any, n_levels: int) -> NDArray[np.uint8]:
 def _check_carried_visual(terrain: Terrain) -> None:
     """Refuse, before the passes, texture coordinates :func:`_carry_visual` cannot interpolate: not one (u, v) row
     per TIN vertex (trimesh keeps a short ``visual.uv``; indexing it raised an IndexError after the kernels ran);
-    and face colours with no row for some face, or vertex colours with no row for some point a face uses (a
+    and face colours with no row for some face, or vertex colours with fewer rows than the points (a
     ``ColorVisuals(face_colors=...)`` or ``ColorVisuals(vertex_colors=...)`` built apart from the mesh keeps the rows
-    given)."""
+    given; short vertex colours are welded by position alone, which gave a point a coincident one's colour)."""
     visual = terrain.visual
     if terrain.face_index is not None and len(terrain.face_index):
         n_colors, needed = len(visual.face_colors), int(terrain.face_index.max()) + 1
@@ -1128,11 +1128,11 @@ def _check_carried_visual(terrain: Terrain) -> None:
                 f"onto the steps; got {counted(n_colors, 'row')} (give colors= to colour the steps instead)"
             )
     if isinstance(visual, trimesh.visual.ColorVisuals) and visual.kind == "vertex":
-        n_colors = len(visual.vertex_colors)
-        needed = int(np.flatnonzero(terrain.point_used)[-1]) + 1  # the last point a kept face uses, and those before
+        n_colors, needed = len(visual.vertex_colors), terrain.heights.size  # a TIN's points, a grid's nodes
         if n_colors < needed:  # _carry_visual indexes them by point: numpy's IndexError after the passes
+            named = "terrain mesh" if terrain.kind == "tin" else "terrain"
             raise InvalidInputError(
-                f"terrain mesh visual.vertex_colors must hold one RGBA row per vertex (at least {needed}) to be "
+                f"{named} visual.vertex_colors must hold one RGBA row per vertex (at least {needed}) to be "
                 f"carried onto the steps; got {counted(n_colors, 'row')} (give colors= to colour the steps instead)"
             )
     if isinstance(visual, trimesh.visual.TextureVisuals) and visual.uv is not None:

@@ -1339,8 +1339,8 @@ def _welded(points: NDArray[np.float64], faces: NDArray[np.int64], visual: Any) 
     columns = [points[used] + 0.0]  # -0.0 as 0.0
     if isinstance(visual, trimesh.visual.ColorVisuals) and visual.kind == "vertex":
         colors = np.asarray(visual.vertex_colors)
-        if len(colors) > used[-1]:  # else short (built apart from the mesh): welded by position, the colours refused
-            columns.append(colors.astype(np.float64)[used])  # before stepping (stepped._check_carried_visual)
+        if len(colors) >= len(points):  # else short (built apart from the mesh): welded by position, the colours
+            columns.append(colors.astype(np.float64)[used])  # refused before stepping (stepped._check_carried_visual)
     elif isinstance(visual, trimesh.visual.TextureVisuals) and visual.uv is not None:
         uv = np.asarray(visual.uv)
         if uv.ndim != 2 or len(uv) != len(points):  # refused before stepping (_check_carried_visual)

@@ -1298,8 +1298,7 @@ def test_short_detached_vertex_colours_are_refused_before_stepping(soup):
     mesh.visual = short
     assert len(mesh.visual.vertex_colors) == 5
     st.Terrain.from_mesh(mesh)
-    needed = int(np.flatnonzero(as_terrain(mesh).point_used)[-1]) + 1  # the last point a face uses (once welded)
-    message = rf"visual.vertex_colors must hold one RGBA row per vertex \(at least {needed}\).*got 5 rows"
+    message = rf"visual.vertex_colors must hold one RGBA row per vertex \(at least {len(mesh.vertices)}\).*got 5 rows"
     with pytest.raises(st.InvalidInputError, match=message):
         st.stepped(mesh, interval=20.0)
     with pytest.raises(st.InvalidInputError, match=message):
@@ -1309,3 +1308,38 @@ def test_short_detached_vertex_colours_are_refused_before_stepping(soup):
     assert len(coloured.vertices) == len(welded.vertices) and len(coloured.faces) == len(welded.faces)
     mesh.visual = trimesh.visual.ColorVisuals(vertex_colors=np.full((len(mesh.vertices) + 3, 4), 200, np.uint8))
     assert (st.stepped(mesh, interval=20.0).visual.vertex_colors == 200).all()
+
+
+def test_short_vertex_colours_are_refused_where_the_welded_faces_use_only_points_with_a_row():
+    """A soup with short detached vertex colours is welded by position alone; the refusal counted the rows the welded
+    faces need, so a soup whose last points coincide with earlier ones stepped, a given colour merged into a
+    coincident point's: here point 3 (white) lies on point 1 (green) and point 5, with no row, on point 2; six rows
+    keep 1 and 3 apart (both colours at (10, 0)), five stepped all green there. Now short colours are refused."""
+    points = np.array([[0, 0, 0], [10, 0, 5], [0, 10, 30], [10, 0, 5], [10, 10, 40], [0, 10, 30]], dtype=np.float64)
+    rows = np.array([[255, 0, 0, 255], [0, 255, 0, 255], [0, 0, 255, 255], [255, 255, 255, 255], [9, 9, 9, 255],
+                     [0, 0, 255, 255]], dtype=np.uint8)
+    mesh = trimesh.Trimesh(points, [[0, 1, 2], [3, 4, 5]], process=False)
+    mesh.visual = trimesh.visual.ColorVisuals(vertex_colors=rows)
+    full = st.stepped(mesh, interval=10.0)
+    at = np.linalg.norm(full.vertices[:, :2] - [10.0, 0.0], axis=1) < 1e-9
+    assert {tuple(c) for c in full.visual.vertex_colors[at].tolist()} == {(0, 255, 0, 255), (255, 255, 255, 255)}
+    mesh.visual = trimesh.visual.ColorVisuals(vertex_colors=rows[:5])
+    with pytest.raises(st.InvalidInputError, match=r"visual.vertex_colors .*\(at least 6\).*got 5 rows"):
+        st.stepped(mesh, interval=10.0)
+    assert len(st.stepped(mesh, interval=10.0, colors="terrain").vertices) < len(full.vertices)  # welded
+
+
+def test_a_grid_terrain_carries_its_vertex_colours_and_short_ones_are_refused():
+    """The refusal of short vertex colours read a TIN's point_used, which a grid Terrain has not (an IndexError for
+    every grid carrying vertex colours); a grid's rows are its nodes: all of them carried, fewer refused."""
+    heights = st.sample_dem().heights[:20, :24]
+    rgba = np.zeros((heights.size, 4), np.uint8)
+    rgba[:, 0], rgba[:, 3] = np.arange(heights.size) % 256, 255
+    terrain = st.Terrain(kind="grid", heights=heights, visual=trimesh.visual.ColorVisuals(vertex_colors=rgba))
+    mesh = st.stepped(terrain, interval=50.0)
+    at_node = np.all(mesh.vertices[:, :2] == np.round(mesh.vertices[:, :2]), axis=1)  # spacing 1: nodes' xy whole
+    rows, cols = mesh.vertices[at_node, 1].astype(int), mesh.vertices[at_node, 0].astype(int)
+    np.testing.assert_array_equal(mesh.visual.vertex_colors[at_node, 0], rgba[rows * heights.shape[1] + cols, 0])
+    short = st.Terrain(kind="grid", heights=heights, visual=trimesh.visual.ColorVisuals(vertex_colors=rgba[:-1]))
+    with pytest.raises(st.InvalidInputError, match=rf"^terrain visual.vertex_colors .*\(at least {heights.size}\)"):
+        st.stepped(short, interval=50.0)
