@@ -1136,11 +1136,12 @@ def _check_carried_visual(terrain: Terrain) -> None:
                 f"carried onto the steps; got {counted(n_colors, 'row')} (give colors= to colour the steps instead)"
             )
     if isinstance(visual, trimesh.visual.TextureVisuals) and visual.uv is not None:
-        uv = np.asarray(visual.uv)
-        if uv.ndim != 2 or len(uv) != len(terrain.points):
+        uv, needed = np.asarray(visual.uv), terrain.heights.size  # a TIN's points, a grid's nodes (len(points): None)
+        if uv.ndim != 2 or len(uv) != needed:
+            named = "terrain mesh" if terrain.kind == "tin" else "terrain"
             raise InvalidInputError(
-                f"terrain mesh visual.uv must hold one (u, v) row per vertex, shape ({len(terrain.points)}, 2), to be "
-                f"carried onto the steps; got shape {uv.shape} (give colors= to colour the steps instead)"
+                f"{named} visual.uv must hold one (u, v) row per vertex, shape ({needed}, 2), to be carried onto the "
+                f"steps; got shape {uv.shape} (give colors= to colour the steps instead)"
             )
 
 

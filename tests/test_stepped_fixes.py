@@ -1343,3 +1343,20 @@ def test_a_grid_terrain_carries_its_vertex_colours_and_short_ones_are_refused():
     short = st.Terrain(kind="grid", heights=heights, visual=trimesh.visual.ColorVisuals(vertex_colors=rgba[:-1]))
     with pytest.raises(st.InvalidInputError, match=rf"^terrain visual.vertex_colors .*\(at least {heights.size}\)"):
         st.stepped(short, interval=50.0)
+
+
+def test_a_grid_terrain_carries_its_uvs_and_a_uv_row_short_is_refused():
+    """The check of carried texture coordinates took len(terrain.points), None on a grid Terrain: a TypeError for
+    every grid with a TextureVisuals. A grid's UVs are one row per node: carried (a node's output vertex keeps its
+    row), and one row short refused naming visual.uv."""
+    heights = st.sample_dem().heights[:20, :24]
+    rows, cols = np.divmod(np.arange(heights.size), heights.shape[1])
+    uv = np.column_stack([cols / (heights.shape[1] - 1), rows / (heights.shape[0] - 1)])
+    terrain = st.Terrain(kind="grid", heights=heights, visual=trimesh.visual.TextureVisuals(uv=uv))
+    mesh = st.stepped(terrain, interval=50.0)
+    at_node = np.all(mesh.vertices[:, :2] == np.round(mesh.vertices[:, :2]), axis=1)  # spacing 1: nodes' xy whole
+    node = mesh.vertices[at_node, 1].astype(int) * heights.shape[1] + mesh.vertices[at_node, 0].astype(int)
+    np.testing.assert_allclose(mesh.visual.uv[at_node], uv[node], atol=1e-12)
+    short = st.Terrain(kind="grid", heights=heights, visual=trimesh.visual.TextureVisuals(uv=uv[:-1]))
+    with pytest.raises(st.InvalidInputError, match=rf"^terrain visual.uv .*shape \({heights.size}, 2\)"):
+        st.stepped(short, interval=50.0)
