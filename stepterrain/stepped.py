@@ -1115,8 +1115,8 @@ def _level_colors(colors: Any, n_levels: int) -> NDArray[np.uint8]:
 
 def _check_carried_visual(terrain: Terrain) -> None:
     """Refuse, before the passes, texture coordinates :func:`_carry_visual` cannot interpolate: not one (u, v) row
-    per TIN vertex (trimesh keeps a short ``visual.uv``; indexing it raised an IndexError after the kernels ran);
-    and face colours with no row for some face, or vertex colours with fewer rows than the points (a
+    per TIN vertex or grid node (trimesh keeps a short ``visual.uv``; indexing it raised an IndexError after the
+    kernels ran); and face colours with no row for some face, or vertex colours with fewer rows than the points (a
     ``ColorVisuals(face_colors=...)`` or ``ColorVisuals(vertex_colors=...)`` built apart from the mesh keeps the rows
     given; short vertex colours are welded by position alone, which gave a point a coincident one's colour)."""
     visual = terrain.visual
