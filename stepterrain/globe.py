@@ -1596,6 +1596,11 @@ def _refuse_regional_geotiff(picture: Any, path: Any) -> None:
             f"GeoTIFF over longitudes {west:.6g} to {east:.6g} and latitudes {south:.6g} to {north:.6g}: a regional "
             "image drapes a DEM of its region (`stepterrain texture DEM --image IMAGE`, "
             "st.texture_lod.image_layer)")
+    if abs(west + 180.0) > 1.5 * sx or abs(north - 90.0) > 1.5 * sy:  # 0..360: draped 180 degrees off, silently
+        raise InvalidInputError(
+            f"{name} must be a global plate-carrée image with column 0 at 180W and row 0 at 90N; got a GeoTIFF over "
+            f"longitudes {west:.6g} to {east:.6g} and latitudes {south:.6g} to {north:.6g}: shift it first "
+            "(`gdalwarp -t_srs '+proj=longlat +datum=WGS84 +lon_wrap=0' -te -180 -90 180 90 ...`)")
 
 
 def _kept_jpeg(picture: Any) -> bool:
