@@ -1540,6 +1540,7 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
                 from .texture_lod import _tiff_as_stored
 
                 _tiff_as_stored(picture)  # its stored pixels, as a PNG's or JPEG's: Pillow turns a TIFF by its tag
+                _refuse_regional_geotiff(picture, image)
                 if _kept_jpeg(picture):
                     picture.load()  # its pixels, and Pillow closes the file it opened
                     kept, image = picture, np.asarray(picture)
@@ -1560,6 +1561,46 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
         scale = 255.0 if pixels.dtype.kind == "f" and pixels.max() <= 1.0 else 1.0
         pixels = np.round(pixels.astype(np.float64) * scale).astype(np.uint8)
     return pixels, kept
+
+
+def _refuse_regional_geotiff(picture: Any, path: Any) -> None:
+    """Refuse a GeoTIFF whose georeferencing says it is no global plate-carrée image: projected (GTModelTypeGeoKey
+    1), or in degrees over less than 360 x 180 (a regional orthophoto, a DEM), which a drape by latitude and longitude
+    stretched over the whole globe, silently. A TIFF without a geotransform (ModelPixelScale 33550 and ModelTiepoint
+    33922 tags) is taken as global, as any other image is."""
+    if getattr(picture, "format", None) != "TIFF":
+        return
+    tags = picture.tag_v2
+    keys = tags.get(34735)  # GeoKeyDirectory: (version, revision, minor, count, then key, location, count, value)
+    model = None
+    if isinstance(keys, tuple) and len(keys) >= 4:
+        for k in range(4, len(keys) - 3, 4):
+            if keys[k] == 1024 and keys[k + 1] == 0:  # GTModelTypeGeoKey, its value inline
+                model = keys[k + 3]
+    name = f"texture {str(path)!r}"
+    if model == 1:
+        raise InvalidInputError(f"{name} must be a global plate-carrée image (longitude and latitude in degrees); got "
+                                "a GeoTIFF in a projected CRS: reproject it first (`gdalwarp -t_srs EPSG:4326 "
+                                "-te -180 -90 180 90 ...`)")
+    scale, tie = tags.get(33550), tags.get(33922)
+    if not (isinstance(scale, tuple) and isinstance(tie, tuple) and len(scale) >= 2 and len(tie) >= 6):
+        return
+    width, height = picture.size
+    sx, sy, (i, j, _, x, y, _) = float(scale[0]), float(scale[1]), tie[:6]
+    west, north = float(x) - float(i) * sx, float(y) + float(j) * sy
+    east, south = west + width * sx, north - height * sy
+    # a pixel of slack either way: a PixelIsPoint raster's extent lies half a pixel inside the area one's
+    if abs((east - west) - 360.0) > 1.5 * sx or abs((north - south) - 180.0) > 1.5 * sy:
+        raise InvalidInputError(
+            f"{name} must be a global plate-carrée image (360 x 180 degrees, row 0 at 90N, column 0 at 180W); got a "
+            f"GeoTIFF over longitudes {west:.6g} to {east:.6g} and latitudes {south:.6g} to {north:.6g}: a regional "
+            "image drapes a DEM of its region (`stepterrain texture DEM --image IMAGE`, "
+            "st.texture_lod.image_layer)")
+    if abs(west + 180.0) > 1.5 * sx or abs(north - 90.0) > 1.5 * sy:  # 0..360: draped 180 degrees off, silently
+        raise InvalidInputError(
+            f"{name} must be a global plate-carrée image with column 0 at 180W and row 0 at 90N; got a GeoTIFF over "
+            f"longitudes {west:.6g} to {east:.6g} and latitudes {south:.6g} to {north:.6g}: shift it first "
+            "(`gdalwarp -t_srs '+proj=longlat +datum=WGS84 +lon_wrap=0' -te -180 -90 180 90 ...`)")
 
 
 def _kept_jpeg(picture: Any) -> bool:

@@ -1237,6 +1237,38 @@ def test_a_tiff_texture_with_an_orientation_tag_is_draped_as_stored(tmp_path, or
         assert np.array_equal(np.asarray(written.convert("RGB")), rgb)
 
 
+def test_a_geotiff_texture_that_is_not_global_is_refused(tmp_path, capsys):
+    """drape_texture(mesh, "dem.tif") and ``globe --texture dem.tif`` of a GeoTIFF that its georeferencing places over
+    a region (the Front Range DEM, 0.63 degrees square) or in a projected CRS (Big Tujunga, UTM 11N) stretched it over
+    the whole globe, silently (a DEM's 16-bit heights as a near-black texture). It is refused now, naming the
+    extent, and so is a global one from 0 to 360 degrees (draped 180 degrees off); the global Blue Marble GeoTIFF
+    (-180..180, -90..90) drapes as before."""
+    from stepterrain.cli import main
+    from stepterrain.globe import drape_texture
+
+    from .conftest import shared_file
+
+    mesh = Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=9, device="cpu").mesh()
+    regional = shared_file("front_range_srtmgl3_3arcsec.tif")
+    with pytest.raises(InvalidInputError, match=r"global plate-carr.e image .*longitudes -105\.816 to -105\.185"):
+        drape_texture(mesh, regional)
+    with pytest.raises(InvalidInputError, match="projected CRS"):
+        drape_texture(mesh, shared_file("big_tujunga_srtm_30m_utm11n.tif"))
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    shifted = tmp_path / "earth_0_360.tif"  # global, but column 0 at 0E: draped 180 degrees off
+    with rasterio.open(shifted, "w", driver="GTiff", width=180, height=90, count=3, dtype="uint8", crs="EPSG:4326",
+                       transform=Affine(2.0, 0.0, 0.0, 0.0, -2.0, 90.0)) as dataset:
+        dataset.write(np.zeros((3, 90, 180), np.uint8))
+    with pytest.raises(InvalidInputError, match="column 0 at 180W .*longitudes 0 to 360"):
+        drape_texture(mesh, shifted)
+    textured = drape_texture(mesh, shared_file("earth_day_bluemarble_3840x1920.tif"))
+    assert textured.visual.material.image.size == (3840, 1920)
+    assert main(["-q", "globe", "--face-size", "9", "--texture", str(regional), "-o", str(tmp_path / "g.glb")]) == 2
+    assert "--texture" in capsys.readouterr().err and not (tmp_path / "g.glb").exists()
+
+
 def _two_pole_texture():
     """A plate-carrée texture whose poles differ: ice white south of 70° S, dark blue north of 70° N, green between."""
     image = np.empty((128, 256, 3), np.uint8)
