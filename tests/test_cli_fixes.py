@@ -384,6 +384,30 @@ def test_a_texture_draped_on_a_ply_mesh_becomes_its_vertex_colours(tmp_path, cap
     assert len(np.unique(png.reshape(-1, 3), axis=0)) > 50  # a real texture, not one colour
 
 
+def test_a_texture_draped_on_an_stl_mesh_is_refused_before_the_dem_is_read(tmp_path, capsys, monkeypatch):
+    """`texture --mesh out.stl` composed the texture, draped it and wrote an STL without it (an STL holds no texture
+    nor colour), saying nothing, where `steps --colormap` and `globe --texture` refuse an .stl. Refused by name now,
+    before the DEM is read; a .ply (the texture's colours at the vertices) still passes."""
+    from stepterrain import _cli_texture
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((12, 14)).astype(np.float32) * 100)
+    loads = []
+    real = _cli_texture._input_terrain
+    monkeypatch.setattr(_cli_texture, "_input_terrain", lambda args: loads.append(args) or real(args))
+    mesh = tmp_path / "m.STL"
+    code, _, err = run(capsys, "-q", "texture", dem, "-o", tmp_path / "t.png", "--mesh", mesh, "--device", "cpu")
+    assert code == 2
+    assert one_error_line(err, "texture") == (
+        f"stepterrain texture: error: --mesh drapes the texture on a mesh; an .stl --mesh holds no texture or "
+        f"colours: got --mesh {str(mesh)!r}; write .glb, .gltf or .obj (the texture) or .ply or .3mf (its colour at "
+        f"each vertex)")
+    assert loads == [] and list(tmp_path.iterdir()) == [dem]
+    code, _, err = run(capsys, "-q", "texture", dem, "-o", tmp_path / "t.png", "--mesh", tmp_path / "m.ply",
+                       "--device", "cpu")
+    assert code == 0 and len(loads) == 1 and (tmp_path / "m.ply").exists(), err
+
+
 def test_a_closeup_rotation_of_many_turns_is_its_angle_modulo_360(tmp_path, capsys):
     """--rotation 0,1e308 was converted to radians first: math.radians(1e308) kept none of the angle, so the close-up
     turned by whatever cos(1.7e306) gave. Whole turns come off first (exactly), so it is 1e308 mod 360 degrees."""
