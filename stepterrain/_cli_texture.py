@@ -38,6 +38,7 @@ from .cli import (
 )
 from .errors import DataFileError, InvalidInputError, MissingDependencyError
 from .export import IMAGE_EXTENSIONS, MESH_EXTENSIONS
+from .terrain import finite_number
 
 _EPILOG = """\
 examples:
@@ -434,6 +435,12 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError(f"{option} has no effect on --hillshade {args.method}, which shades by {why} (as "
                                 f"gdaldem -{args.method}); it aims --shadows only; got {option} {value:g} without "
                                 "--shadows")
+    # topographic_layer's numbers, whatever the DEM, by their options before it is loaded (refused after it)
+    for option, value, bounds in (("--z-factor", args.z_factor, {"positive": True}),
+                                  ("--shadow-strength", args.shadow_strength, {"lo": 0.0, "hi": 1.0}),
+                                  ("--occlusion", args.occlusion, {"lo": 0.0, "hi": 1.0})):
+        if value is not None:
+            finite_number(value, option, **bounds)
     if args.method == "none":  # no hillshade: what only shapes the hillshade would come out the same whatever it was
         _check_unshaded(args)
     # the library refuses an angle its method ignores, as this does: only the angles given are passed on
