@@ -125,7 +125,8 @@ def add_parser(commands: Any) -> None:
     p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
                    help="the rendered image (.png), or the scene as a mesh by extension: " + " ".join(MESH_EXTENSIONS)
                    + " (overview, close-ups and anchors with vertex colors, the anchors' transparency in their "
-                     "alpha; .obj holds RGB only, the anchors opaque; .stl holds no colors)")
+                     "alpha; .obj holds RGB only, the anchors opaque; .stl holds no colors: --colormap and --color are "
+                     "refused with it unless --png or --gif renders them)")
     p.add_argument("--png", type=_path, metavar="OUT.png", help="also write the render here (with a mesh --output)")
     p.add_argument("--size", type=_window, default=None, metavar="WxH",
                    help="image size of the render and the animation (default 1280x720)")
@@ -188,6 +189,13 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         raise InvalidInputError(f"--png applies only with a mesh --output (a .png --output is the render already); "
                                 f"got --output {args.output!r} with --png {args.png!r}")
     picture = out if mesh_out is None else png  # the still render's one file, if any
+    if mesh_out is not None and mesh_out.suffix.lower() == ".stl" and picture is None and anim is None:
+        # the colours went nowhere: an STL holds none and no render showed them (as steps --colormap with an .stl)
+        given = [f"--colormap {args.colormap}"] * (args.colormap is not None) + ["--color"] * bool(args.color)
+        if given:
+            raise InvalidInputError(f"an .stl --output holds no colours: got {' and '.join(given)} (colouring the "
+                                    f"scene and its renders) with --output {args.output!r} and no --png or --gif; "
+                                    "write .glb, .ply or .3mf for colours, or leave them out")
     if anim is not None and anim.suffix.lower() == ".mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
         raise MissingDependencyError("MP4 output needs imageio-ffmpeg: pip install 'stepterrain[video]'")
     render_options = _given(args, {"z_scale": 2.0, "size": (1280, 720)})

@@ -1348,6 +1348,27 @@ def test_a_colormap_an_stl_cannot_hold_is_refused(tmp_path, capsys):
     assert code == 0 and any((tmp_path / "out").glob("*.ply")), err
 
 
+def test_closeup_colours_an_stl_cannot_hold_are_refused(tmp_path, capsys):
+    """``closeup --colormap viridis -o scene.stl`` (or --color), with no --png or --gif, wrote the scene without any
+    colour and said nothing, where steps and batch refuse their --colormap with an .stl. Refused by name now, before
+    the DEM is read; without them, or with a .ply, it passes."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((12, 14)).astype(np.float32) * 100)
+    out = tmp_path / "scene.stl"
+    for colours, named in ((["--colormap", "viridis"], "--colormap viridis"), (["--color", "red"], "--color")):
+        code, _, err = run(capsys, "-q", "closeup", dem, *colours, "-o", out)
+        assert code == 2
+        assert one_error_line(err, "closeup") == (
+            f"stepterrain closeup: error: an .stl --output holds no colours: got {named} (colouring the scene and its "
+            f"renders) with --output {str(out)!r} and no --png or --gif; write .glb, .ply or .3mf for colours, or "
+            "leave them out")
+        assert list(tmp_path.iterdir()) == [dem]
+    code, _, err = run(capsys, "-q", "closeup", dem, "-o", out)
+    assert code == 0 and out.exists(), err
+    code, _, err = run(capsys, "-q", "closeup", dem, "--color", "red", "-o", tmp_path / "scene.ply")
+    assert code == 0, err
+
+
 def test_a_roi_or_lens_in_degrees_of_a_dem_in_degrees_names_its_centre_in_metres(tmp_path, capsys):
     """closeup --roi=-105.5,40.1,0.05 on the Front Range tile (in degrees, read as local metres) was refused as
     outside the extent, steps --lens warned it changed nothing, naming the metres extent only. Both now say it looks
