@@ -255,9 +255,10 @@ def _load_geotiff_grid(file: Path, height_unit: str | None = None) -> tuple[np.n
 
 def _check_globe_numbers(args: argparse.Namespace) -> None:
     """The numbers :meth:`~stepterrain.globe.Globe.from_latlon`, :meth:`~stepterrain.globe.Globe.mesh` and
-    :func:`~stepterrain.globe.look_from` refuse whatever the grid (``--face-size`` not 2^k + 1, ``--radius`` or
-    ``--exaggeration`` not positive or beyond float32, ``--error`` below 0, a NaN ``--heading``), by their option
-    names, before the INPUT is loaded: they were refused only once the whole lat/lon grid had been read."""
+    :func:`~stepterrain.globe.look_from` refuse whatever the grid (``--face-size`` not 2^k + 1, ``--radius`` not
+    positive or beyond float32 node positions, ``--exaggeration`` not positive or below a normal float32, ``--error``
+    below 0 or NaN, a non-finite ``--heading``), by their option names, before the INPUT is loaded: they were refused
+    only once the whole lat/lon grid had been read (an ``--exaggeration`` too large for the grid's heights still is)."""
     from .globe import _error_value, _face_cells, _positive
 
     _face_cells(args.face_size, "--face-size")
