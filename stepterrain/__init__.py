@@ -23,8 +23,10 @@ does not import pyvista (VTK), and a pyvista user need not import stepterrain fi
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+import importlib as _importlib
+from types import ModuleType as _ModuleType
+from typing import TYPE_CHECKING
+from typing import Any as _Any
 
 from ._signals import signals_held as _signals_held
 
@@ -75,19 +77,26 @@ _SUBMODULES = frozenset({"camera", "closeup", "export", "globe", "mesh", "pyvist
                          "texture", "texture_lod"})
 
 
-def __getattr__(name: str) -> Any:
+def __getattr__(name: str) -> _Any:
     if name in _SUBMODULES:
-        return importlib.import_module(f".{name}", __name__)
+        return _importlib.import_module(f".{name}", __name__)
     module = _LAZY.get(name)
     if module is None:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    value = getattr(_importlib.import_module(f".{module}", __name__), name)
     globals()[name] = value
     return value
 
 
 def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_LAZY))
+    """The public namespace (``dir(stepterrain)``, tab completion): :data:`__all__` (the lazy names too, unloaded),
+    the submodules (loaded or not: :data:`_SUBMODULES`) and the module's dunders (``__version__``, ``__doc__``, ...);
+    not the names the package's own code imports (``annotations``, ``Any``, ...) nor its private ones."""
+    here = globals()
+    modules = {name for name, value in here.items() if isinstance(value, _ModuleType) and not name.startswith("_")
+               and value.__name__.startswith(f"{__name__}.")}  # its own submodules loaded with it (io, errors, ...)
+    dunders = {name for name in here if name.startswith("__") and name.endswith("__")}
+    return sorted(set(__all__) | _SUBMODULES | modules | dunders)
 
 
 __all__ = [
@@ -117,3 +126,7 @@ __all__ = [
     "stepped_series",
     *_LAZY,
 ]
+
+# names the module's code imported for itself, kept out of its namespace (dir(), tab completion; __dir__ leaves them
+# out too): the __future__ import's behaviour stays, and type checkers read TYPE_CHECKING by that name
+del annotations, TYPE_CHECKING

@@ -125,7 +125,8 @@ def add_parser(commands: Any) -> None:
     p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
                    help="the rendered image (.png), or the scene as a mesh by extension: " + " ".join(MESH_EXTENSIONS)
                    + " (overview, close-ups and anchors with vertex colors, the anchors' transparency in their "
-                     "alpha; .obj holds RGB only, the anchors opaque; .stl holds no colors)")
+                     "alpha; .obj holds RGB only, the anchors opaque; .stl holds no colors: --colormap and --color are "
+                     "refused with it unless --png or --gif renders them)")
     p.add_argument("--png", type=_path, metavar="OUT.png", help="also write the render here (with a mesh --output)")
     p.add_argument("--size", type=_window, default=None, metavar="WxH",
                    help="image size of the render and the animation (default 1280x720)")
@@ -164,6 +165,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     from .closeup import (
         _MAX_CLOSEUPS,
         _MAX_OFFSET,
+        _MAX_SCALE,
         _MIN_PIXELS_PER_CLOSEUP,
         ROI,
         TRANSFER_PRESETS,
@@ -187,6 +189,13 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         raise InvalidInputError(f"--png applies only with a mesh --output (a .png --output is the render already); "
                                 f"got --output {args.output!r} with --png {args.png!r}")
     picture = out if mesh_out is None else png  # the still render's one file, if any
+    if mesh_out is not None and mesh_out.suffix.lower() == ".stl" and picture is None and anim is None:
+        # the colours went nowhere: an STL holds none and no render showed them (as steps --colormap with an .stl)
+        given = [f"--colormap {args.colormap}"] * (args.colormap is not None) + ["--color"] * bool(args.color)
+        if given:
+            raise InvalidInputError(f"an .stl --output holds no colours: got {' and '.join(given)} (colouring the "
+                                    f"scene and its renders) with --output {args.output!r} and no --png or --gif; "
+                                    "write .glb, .ply or .3mf for colours, or leave them out")
     if anim is not None and anim.suffix.lower() == ".mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
         raise MissingDependencyError("MP4 output needs imageio-ffmpeg: pip install 'stepterrain[video]'")
     render_options = _given(args, {"z_scale": 2.0, "size": (1280, 720)})
@@ -236,6 +245,28 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         if not fr > 0:
             raise InvalidInputError(f"--roi-relative radius fraction must be positive; got {fr:g}")
     n_rois = len(args.roi or []) + len(args.roi_relative or []) or 1
+    # the per-close-up options, their counts and the values CloseUp refuses whatever the DEM, before it is loaded
+    # (they were refused after it): --offset's default lift and --roi-relative's radii need its extent
+    scales = _per_closeup(args.scale, n_rois, (1.5,), "--scale")
+    for s in scales:
+        if len(s) not in (1, 3):
+            raise InvalidInputError(f"--scale must be s or sx,sy,sz; got {','.join(f'{v:g}' for v in s)}")
+        sx, sy, sz = (float(v) for v in (s * 3 if len(s) == 1 else s))
+        if sx <= 0 or sy <= 0 or sz < 0:
+            raise InvalidInputError(f"--scale must be positive (sx, sy > 0; sz >= 0, 0 flattens); got {(sx, sy, sz)}")
+        if max(sx, sy, sz) > _MAX_SCALE:  # float32 positions on the device
+            raise InvalidInputError(f"--scale must be at most {_MAX_SCALE:g}; got {(sx, sy, sz)}")
+    _per_closeup(args.offset, n_rois, None, "--offset")
+    rotations = _per_closeup(rotations_deg, n_rois, (0.0, 0.0), "--rotation")
+    colors = _per_closeup(args.color, n_rois, None, "--color")
+    steps = _per_closeup(args.stepped, n_rois, None, "--stepped")
+    for interval in steps:
+        if interval is not None and not (math.isfinite(interval) and interval >= 0):  # 0 is allowed: continuous
+            raise InvalidInputError(f"--stepped must be a finite number >= 0 (0: a continuous close-up); got "
+                                    f"{interval:g}")
+    for _x, _y, r in args.roi or []:  # closeup's ROI size bound: float32 positions (finite: _floats)
+        if not 0 < r <= _MAX_OFFSET:
+            raise InvalidInputError(f"--roi radius must lie in (0, {_MAX_OFFSET:g}]; got {r:g}")
     if (picture is not None or anim is not None) and n_rois > max_closeups(args.size):
         raise InvalidInputError(f"--size {args.size[0]}x{args.size[1]} holds at most "
                                 f"{_counted(max_closeups(args.size), 'close-up')} (one per {_MIN_PIXELS_PER_CLOSEUP}x"
@@ -265,20 +296,10 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
                                     f"finite centre and a radius within {_MAX_OFFSET:g}")
     if not rois:
         rois = [((xmin + xmax) / 2, (ymin + ymax) / 2, 0.12 * short)]
-    n = len(rois)
-    scales = _per_closeup(args.scale, n, (1.5,), "--scale")
-    for s in scales:
-        if len(s) not in (1, 3):
-            raise InvalidInputError(f"--scale must be s or sx,sy,sz; got {','.join(f'{v:g}' for v in s)}")
+    n = len(rois)  # n_rois
     lift = 0.2 * max(xmax - xmin, ymax - ymin)
     offsets = _per_closeup(args.offset, n, (0.0, 0.0, lift), "--offset")
-    rotations = _per_closeup(rotations_deg, n, (0.0, 0.0), "--rotation")
-    colors = _per_closeup(args.color, n, None, "--color")
-    steps = _per_closeup(args.stepped, n, None, "--stepped")
     for interval in steps:
-        if interval is not None and not (math.isfinite(interval) and interval >= 0):  # 0 is allowed: continuous
-            raise InvalidInputError(f"--stepped must be a finite number >= 0 (0: a continuous close-up); got "
-                                    f"{interval:g}")
         if interval:  # the levels of a stepped close-up span the terrain's height range: named by the option
             try:
                 isovalues(terrain.height_range, interval=interval)

@@ -254,6 +254,32 @@ def _load_geotiff_grid(file: Path, height_unit: str | None = None) -> tuple[np.n
     return lat, lon, terrain.heights
 
 
+def _check_globe_numbers(args: argparse.Namespace) -> None:
+    """The numbers :meth:`~stepterrain.globe.Globe.from_latlon`, :meth:`~stepterrain.globe.Globe.mesh` and
+    :func:`~stepterrain.globe.look_from` refuse whatever the grid (``--face-size`` not 2^k + 1, ``--radius`` not
+    positive or beyond float32 node positions, ``--exaggeration`` not positive or below a normal float32, ``--error``
+    below 0 or NaN, a non-finite ``--heading``), by their option names, before the INPUT is loaded: they were refused
+    only once the whole lat/lon grid had been read (an ``--exaggeration`` too large for the grid's heights still is)."""
+    from .globe import _error_value, _face_cells, _positive
+
+    _face_cells(args.face_size, "--face-size")
+    radius = _positive(args.radius, "--radius")
+    limit = float(np.finfo(np.float32).max) / 4  # from_latlon's bound: float32 node positions
+    if radius > limit:
+        raise InvalidInputError(f"--radius must be at most {limit:.2g} m (float32 node positions); got {radius:g}")
+    exaggeration = _positive(args.exaggeration, "--exaggeration")
+    tiny = float(np.finfo(np.float32).tiny)  # from_latlon's bound: the kernels take it as float32
+    if exaggeration < tiny:
+        raise InvalidInputError(f"--exaggeration must be at least {tiny:.3g} (a normal float32, as the kernels take "
+                                f"it); got {exaggeration:g}")
+    try:
+        _error_value(args.error)
+    except InvalidInputError as exc:  # the library's 'error must be ...'
+        raise InvalidInputError(f"--{exc}") from None
+    if args.heading is not None and not math.isfinite(args.heading):  # look_from's, once the globe was built
+        raise InvalidInputError(f"--heading must be a finite number; got {args.heading!r}")
+
+
 def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     from . import export, render
     from .globe import (
@@ -270,6 +296,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
 
     out = _check_output(args.output, MESH_EXTENSIONS, "--output")
     png = _check_output(args.png, (".png",), "--png") if args.png else None
+    _check_globe_numbers(args)
     if args.height_unit is not None and not args.input:
         raise InvalidInputError(f"--height-unit applies to an INPUT file; the embedded ETOPO 2022 relief is in metres; "
                                 f"got {args.height_unit!r}")
@@ -317,8 +344,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError(f"--texture colours the mesh and the --png render; an .stl --output holds no colours: "
                                 f"got --texture {args.texture!r} with --output {args.output!r} and no --png")
     _check_outputs({"INPUT": args.input, "--texture": args.texture}, output=out, png=png)
-    # a --radius Globe.from_latlon refuses (NaN, <= 0, beyond float32 positions) is named there, after the loading
-    radius = args.radius if 0 < args.radius <= float(np.finfo(np.float32).max) / 4 else 0.0
+    radius = args.radius  # positive, within float32 positions: _check_globe_numbers
     # the default eye 3R above 30N 10E: R the --radius (a fixed 3 earth radii showed a larger planet as a patch of
     # its surface and a smaller one as a speck, not the whole globe the help promises)
     lat_deg, lon_deg, altitude = args.eye if args.eye is not None else (30.0, 10.0, 3 * (radius or _EARTH_RADIUS))

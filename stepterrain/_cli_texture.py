@@ -38,6 +38,7 @@ from .cli import (
 )
 from .errors import DataFileError, InvalidInputError, MissingDependencyError
 from .export import IMAGE_EXTENSIONS, MESH_EXTENSIONS
+from .terrain import finite_number
 
 _EPILOG = """\
 examples:
@@ -152,7 +153,8 @@ def add_parser(commands: Any) -> None:
                         "with nodata, else RGB")
     p.add_argument("--mesh", type=_path, metavar="OUT", help="drape the texture on a mesh; format by extension: "
                    + " ".join(MESH_EXTENSIONS) + " (GLB/glTF embed the image, OBJ writes it beside; .ply and .3mf "
-                   "hold no texture: the texture's colour at each vertex instead; .stl holds no colours)")
+                   "hold no texture: the texture's colour at each vertex instead; .stl, which holds no colours, is "
+                   "refused)")
     p.add_argument("--interval", type=float, metavar="M",
                    help="with --mesh/--png: drape on the stepped terrain with this step interval (default: the "
                         "continuous heightfield)")
@@ -403,6 +405,11 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
 
     out = _check_output(args.output, IMAGE_EXTENSIONS, "--output")
     mesh_out = _check_output(args.mesh, MESH_EXTENSIONS, "--mesh") if args.mesh else None
+    if mesh_out is not None and mesh_out.suffix.lower() == ".stl":  # the drape went nowhere: an STL holds no colour
+        # (as steps refuses --colormap and globe --texture with an .stl): refused before the DEM is read
+        raise InvalidInputError(f"--mesh drapes the texture on a mesh; an .stl --mesh holds no texture or colours: got "
+                                f"--mesh {args.mesh!r}; write .glb, .gltf or .obj (the texture) or .ply or .3mf (its "
+                                f"colour at each vertex)")
     textured_mesh = mesh_out is not None and mesh_out.suffix.lower() in export._TEXTURED  # they keep a texture
     png = _check_output(args.png, (".png",), "--png") if args.png else None
     normals_out = _check_output(args.normals, IMAGE_EXTENSIONS, "--normals") if args.normals else None
@@ -429,6 +436,12 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError(f"{option} has no effect on --hillshade {args.method}, which shades by {why} (as "
                                 f"gdaldem -{args.method}); it aims --shadows only; got {option} {value:g} without "
                                 "--shadows")
+    # topographic_layer's numbers, whatever the DEM, by their options before it is loaded (refused after it)
+    for option, value, bounds in (("--z-factor", args.z_factor, {"positive": True}),
+                                  ("--shadow-strength", args.shadow_strength, {"lo": 0.0, "hi": 1.0}),
+                                  ("--occlusion", args.occlusion, {"lo": 0.0, "hi": 1.0})):
+        if value is not None:
+            finite_number(value, option, **bounds)
     if args.method == "none":  # no hillshade: what only shapes the hillshade would come out the same whatever it was
         _check_unshaded(args)
     # the library refuses an angle its method ignores, as this does: only the angles given are passed on

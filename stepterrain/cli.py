@@ -714,6 +714,15 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError(f"--lens-relative radius fraction must be positive; got {args.lens_relative[2]:g}")
     if args.lens_edge is not None and args.lens is None and args.lens_relative is None:
         raise InvalidInputError("--lens-edge applies only with --lens or --lens-relative")
+    # isovalues' and circular_lens's refusals whatever the DEM, by their options before it is read (after it)
+    if args.interval is not None and not (math.isfinite(args.interval) and args.interval > 0):
+        raise InvalidInputError(f"--interval must be a positive finite number; got {args.interval!r}")
+    if not math.isfinite(base):
+        raise InvalidInputError(f"--base must be finite; got {base!r}")
+    if args.lens is not None and not args.lens[2] > 0:  # finite: _floats
+        raise InvalidInputError(f"--lens radius must be a positive finite number; got {args.lens[2]!r}")
+    if args.lens_edge is not None and finite_number(args.lens_edge, "--lens-edge") < 0:
+        raise InvalidInputError(f"--lens-edge must be >= 0; got {args.lens_edge!r}")
     if (args.lens is not None or args.lens_relative is not None) and args.gamma == 0.0:
         # original terrain inside the lens, --gamma 0 (the original terrain) outside: the mesh was the same without it
         option = "--lens" if args.lens is not None else "--lens-relative"

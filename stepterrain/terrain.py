@@ -978,6 +978,29 @@ class Terrain:
         ys = (self.origin[1], self.origin[1] + (h - 1) * self.spacing[1])
         return (min(xs), max(xs), min(ys), max(ys))
 
+    def __repr__(self) -> str:
+        """A line naming the terrain: kind, shape (a TIN's points and faces), a grid's spacing and origin, the range
+        of its finite heights (:attr:`finite_height_range`, computed once per terrain), whether it has nodata, and
+        its height unit, CRS and source where known (a long PROJ string or WKT cut short). The dataclass's repr
+        printed every array whole."""
+        def short(text: str, limit: int = 60) -> str:
+            return repr(text if len(text) <= limit else text[:limit - 3] + "...")
+
+        if self.kind == "grid":
+            parts = [f"shape={self.shape}", f"spacing=({self.spacing[0]:.10g}, {self.spacing[1]:.10g})",
+                     f"origin=({self.origin[0]:.10g}, {self.origin[1]:.10g})"]
+        else:
+            parts = [f"points={len(self.points)}", f"faces={len(self.faces)}"]
+        try:
+            lo, hi = self.finite_height_range
+            parts.append(f"heights=({lo:.10g}, {hi:.10g})")
+        except InvalidInputError:  # all nodata
+            parts.append("heights=()")
+        parts.append(f"nodata={self.has_nodata}")
+        parts += [f"{name}={short(value)}" for name, value in
+                  (("height_unit", self.height_unit), ("crs", self.crs), ("source", self.source)) if value is not None]
+        return f"Terrain(kind={self.kind!r}, {', '.join(parts)})"
+
     def _tin_extent(self) -> tuple[float, float, float, float]:
         used = self.points[self.point_used.astype(bool)]
         return (float(used[:, 0].min()), float(used[:, 0].max()), float(used[:, 1].min()), float(used[:, 1].max()))

@@ -36,6 +36,37 @@ def test_entry_points_survive_importing_their_modules():
     assert callable(st.stepped) and callable(st.batch)
 
 
+def test_the_namespace_shows_the_public_names_only_and_loads_nothing():
+    """dir(stepterrain) (and so tab completion) listed the names its own code imports: Any, TYPE_CHECKING,
+    annotations, importlib, beside the private ones. Now __all__ (the lazy names unloaded), the submodules and the
+    dunders; dir() loads no capability module, and ``from stepterrain import *`` still takes every public name."""
+    import subprocess
+    import sys
+
+    script = """
+import sys
+import stepterrain as st
+lazy = ["stepterrain." + m for m in sorted(set(st._LAZY.values()))]
+names = dir(st)
+assert not [m for m in lazy if m in sys.modules], [m for m in lazy if m in sys.modules]
+print(names)
+for name in ("Any", "TYPE_CHECKING", "annotations", "importlib"):
+    assert not hasattr(st, name), name
+namespace = {}
+exec("from stepterrain import *", namespace)
+assert sorted(set(namespace) - {"__builtins__"}) == sorted(st.__all__)
+"""
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    names = eval(done.stdout.strip().splitlines()[-1])  # noqa: S307 - the list the child printed
+    public = [name for name in names if not name.startswith("__")]
+    assert not [name for name in public if name.startswith("_")]
+    assert set(st.__all__) | st._SUBMODULES <= set(public)
+    assert set(public) - set(st.__all__) - st._SUBMODULES <= {"batch", "errors", "io", "kernels", "stepped",
+                                                              "terrain"}  # submodules loaded with the package
+    assert {"__version__", "__doc__", "__name__"} <= set(names)
+
+
 @pytest.mark.parametrize("name", sorted(st._SUBMODULES))
 def test_submodules_are_attributes(name):
     if name == "pyvista_accessor":

@@ -384,6 +384,72 @@ def test_a_texture_draped_on_a_ply_mesh_becomes_its_vertex_colours(tmp_path, cap
     assert len(np.unique(png.reshape(-1, 3), axis=0)) > 50  # a real texture, not one colour
 
 
+def test_a_texture_draped_on_an_stl_mesh_is_refused_before_the_dem_is_read(tmp_path, capsys, monkeypatch):
+    """`texture --mesh out.stl` composed the texture, draped it and wrote an STL without it (an STL holds no texture
+    nor colour), saying nothing, where `steps --colormap` and `globe --texture` refuse an .stl. Refused by name now,
+    before the DEM is read; a .ply (the texture's colours at the vertices) still passes."""
+    from stepterrain import _cli_texture
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((12, 14)).astype(np.float32) * 100)
+    loads = []
+    real = _cli_texture._input_terrain
+    monkeypatch.setattr(_cli_texture, "_input_terrain", lambda args: loads.append(args) or real(args))
+    mesh = tmp_path / "m.STL"
+    code, _, err = run(capsys, "-q", "texture", dem, "-o", tmp_path / "t.png", "--mesh", mesh, "--device", "cpu")
+    assert code == 2
+    assert one_error_line(err, "texture") == (
+        f"stepterrain texture: error: --mesh drapes the texture on a mesh; an .stl --mesh holds no texture or "
+        f"colours: got --mesh {str(mesh)!r}; write .glb, .gltf or .obj (the texture) or .ply or .3mf (its colour at "
+        f"each vertex)")
+    assert loads == [] and list(tmp_path.iterdir()) == [dem]
+    code, _, err = run(capsys, "-q", "texture", dem, "-o", tmp_path / "t.png", "--mesh", tmp_path / "m.ply",
+                       "--device", "cpu")
+    assert code == 0 and len(loads) == 1 and (tmp_path / "m.ply").exists(), err
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["steps", "--interval", "-1"], "--interval must be a positive finite number; got -1.0"),
+    (["steps", "--base", "nan"], "--base must be finite; got nan"),
+    (["steps", "--lens", "1,2,0"], "--lens radius must be a positive finite number; got 0.0"),
+    (["steps", "--lens", "1,2,5", "--lens-edge", "-1"], "--lens-edge must be >= 0; got -1.0"),
+    (["steps", "--lens", "1,2,5", "--lens-edge", "nan"], "--lens-edge must be finite; got nan"),
+    (["texture", "--z-factor", "0"], "--z-factor must be positive; got 0.0"),
+    (["texture", "--shadows", "--shadow-strength", "2"], "--shadow-strength must lie in [0, 1]; got 2"),
+    (["texture", "--occlusion", "nan"], "--occlusion must be finite; got nan"),
+    (["closeup", "--scale", "0"], "--scale must be positive (sx, sy > 0; sz >= 0, 0 flattens); got (0.0, 0.0, 0.0)"),
+    (["closeup", "--scale", "1e30"], "--scale must be at most 1e+06; got (1e+30, 1e+30, 1e+30)"),
+    (["closeup", "--scale", "1,2"], "--scale must be s or sx,sy,sz; got 1,2"),
+    (["closeup", "--offset", "1,1,1", "--offset", "2,2,2"], "--offset must be given once or once per ROI (1); got 2"),
+    (["closeup", "--stepped", "-1"], "--stepped must be a finite number >= 0 (0: a continuous close-up); got -1"),
+    (["closeup", "--roi", "1,2,-1"], "--roi radius must lie in (0, 1e+12]; got -1"),
+])
+def test_option_values_refused_whatever_the_dem_are_refused_before_it_is_read(tmp_path, capsys, monkeypatch, argv,
+                                                                              message):
+    """steps --interval -1 / --base nan / a --lens radius or --lens-edge, texture --z-factor 0 / --shadow-strength /
+    --occlusion, closeup --scale / --offset counts / --stepped / a --roi radius: values refused whatever the DEM
+    were refused only once it had been read (a large GeoTIFF: minutes), by the library or a check after the load.
+    Refused before now, with the same messages; the DEM is read once the value is fine."""
+    from stepterrain import _cli_texture
+    from stepterrain import cli as cli_module
+
+    loads = []
+
+    def load(args, *rest, **options):
+        loads.append(1)
+        raise st.errors.InvalidInputError("the DEM was read")
+
+    for module in (cli_module, _cli_texture):
+        monkeypatch.setattr(module, "_input_terrain", load)
+    out = tmp_path / ("t.png" if argv[0] == "texture" else "m.glb")
+    code, _, err = run(capsys, "-q", *argv, "-o", out, "--device", "cpu")
+    assert code == 2
+    assert one_error_line(err, argv[0]) == f"stepterrain {argv[0]}: error: {message}"
+    assert loads == [] and list(tmp_path.iterdir()) == []
+    code, _, err = run(capsys, "-q", argv[0], "-o", out, "--device", "cpu")
+    assert code == 2 and "the DEM was read" in err and loads == [1]
+
+
 def test_a_closeup_rotation_of_many_turns_is_its_angle_modulo_360(tmp_path, capsys):
     """--rotation 0,1e308 was converted to radians first: math.radians(1e308) kept none of the angle, so the close-up
     turned by whatever cos(1.7e306) gave. Whole turns come off first (exactly), so it is 1e308 mod 360 degrees."""
@@ -1280,6 +1346,27 @@ def test_a_colormap_an_stl_cannot_hold_is_refused(tmp_path, capsys):
     code, _, err = run(capsys, "-q", "batch", dem, "--tile", "8", "--colormap", "viridis", "--format", ".ply",
                        "--scheduler", "serial", "-o", tmp_path / "out")
     assert code == 0 and any((tmp_path / "out").glob("*.ply")), err
+
+
+def test_closeup_colours_an_stl_cannot_hold_are_refused(tmp_path, capsys):
+    """``closeup --colormap viridis -o scene.stl`` (or --color), with no --png or --gif, wrote the scene without any
+    colour and said nothing, where steps and batch refuse their --colormap with an .stl. Refused by name now, before
+    the DEM is read; without them, or with a .ply, it passes."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((12, 14)).astype(np.float32) * 100)
+    out = tmp_path / "scene.stl"
+    for colours, named in ((["--colormap", "viridis"], "--colormap viridis"), (["--color", "red"], "--color")):
+        code, _, err = run(capsys, "-q", "closeup", dem, *colours, "-o", out)
+        assert code == 2
+        assert one_error_line(err, "closeup") == (
+            f"stepterrain closeup: error: an .stl --output holds no colours: got {named} (colouring the scene and its "
+            f"renders) with --output {str(out)!r} and no --png or --gif; write .glb, .ply or .3mf for colours, or "
+            "leave them out")
+        assert list(tmp_path.iterdir()) == [dem]
+    code, _, err = run(capsys, "-q", "closeup", dem, "-o", out)
+    assert code == 0 and out.exists(), err
+    code, _, err = run(capsys, "-q", "closeup", dem, "--color", "red", "-o", tmp_path / "scene.ply")
+    assert code == 0, err
 
 
 def test_a_roi_or_lens_in_degrees_of_a_dem_in_degrees_names_its_centre_in_metres(tmp_path, capsys):

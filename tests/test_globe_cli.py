@@ -12,6 +12,7 @@ import trimesh
 
 from stepterrain import render
 from stepterrain.cli import main
+from stepterrain.errors import InvalidInputError
 
 AVAILABLE, REASON = render.offscreen_available()
 
@@ -147,6 +148,37 @@ def test_globe_bad_input_exits_2(tmp_path, capsys, argv, message):
     assert status == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "x.glb").exists()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--face-size", "100"], "--face-size must be 2^k + 1 with k >= 1 (3, 5, 9, ..., 1025); got 100"),
+    (["--radius", "-1"], "--radius must be a positive finite number; got -1.0"),
+    (["--radius", "1e39"], "--radius must be at most 8.5e+37 m (float32 node positions); got 1e+39"),
+    (["--exaggeration", "0"], "--exaggeration must be a positive finite number; got 0.0"),
+    (["--exaggeration", "1e-40"], "--exaggeration must be at least 1.18e-38 (a normal float32, as the kernels take "
+                                  "it); got 1e-40"),
+    (["--error", "nan"], "--error must be a finite number >= 0 (metres); got nan"),
+    (["--heading", "nan"], "--heading must be a finite number; got nan"),
+])
+def test_globe_numbers_are_refused_before_the_grid_is_loaded(tmp_path, capsys, monkeypatch, argv, message):
+    """--face-size 100, a --radius, --exaggeration, --error or --heading the library refuses whatever the grid were
+    refused only after the whole lat/lon grid had been read (a global GeoTIFF: minutes); now before, with the same
+    message. Without the bad value the grid is loaded."""
+    import stepterrain.globe as globe_module
+
+    loads = []
+
+    def relief():
+        loads.append(1)
+        raise InvalidInputError("the grid was loaded")
+
+    monkeypatch.setattr(globe_module, "load_global_relief", relief)
+    status = main(["-q", "globe", *argv, "-o", str(tmp_path / "x.glb")])
+    assert status == 2
+    assert capsys.readouterr().err.strip() == f"stepterrain globe: error: {message}"
+    assert loads == [] and list(tmp_path.iterdir()) == []
+    assert main(["-q", "globe", "-o", str(tmp_path / "x.glb")]) == 2
+    assert "the grid was loaded" in capsys.readouterr().err and loads == [1]
 
 
 @pytest.mark.parametrize(

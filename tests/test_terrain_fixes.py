@@ -1295,3 +1295,27 @@ def test_a_tin_in_degrees_across_the_antimeridian_is_the_grid_s_surface(wrap):
     np.testing.assert_allclose(tin.points[:, :2] - tin.points[:, :2].min(axis=0),
                                vertices[:, :2] - vertices[:, :2].min(axis=0), rtol=1e-9, atol=1e-6)
     assert tin.mesh().area == pytest.approx(grid.mesh().area, rel=1e-9)
+
+
+def test_a_terrains_repr_is_one_short_line_naming_it():
+    """repr(Terrain) was the dataclass's, printing every array whole (heights, a TIN's points, faces and edge tables:
+    thousands of lines for the sample DEM). One line now: kind, shape (a TIN's points and faces), a grid's spacing and
+    origin, its finite heights' range, nodata, and the height unit, CRS and source where known, long ones cut."""
+    dem = st.sample_dem()
+    h = dem.heights
+    assert repr(dem) == (
+        f"Terrain(kind='grid', shape={h.shape}, spacing=(30, -30), origin=({dem.origin[0]:.10g}, "
+        f"{dem.origin[1]:.10g}), heights=({float(h.min()):.10g}, {float(h.max()):.10g}), nodata=False, "
+        f"height_unit='m', crs='EPSG:32611', source='big_tujunga_srtm_30m_utm11n.npz')")
+    holes = np.full((4, 5), np.nan, np.float32)
+    holes[1, 2], holes[3, 4] = -2.5, 7.0  # on no triangle: finite heights all the same
+    wkt = 'PROJCS["a local grid",' + "x" * 500 + "]"
+    grid = st.Terrain.from_heights(holes, spacing=(0.5, -0.25), origin=(10, 20), crs=wkt)
+    text = repr(grid)
+    assert text.startswith("Terrain(kind='grid', shape=(4, 5), spacing=(0.5, -0.25), origin=(10, 20), "
+                           "heights=(-2.5, 7), nodata=True, crs='PROJCS[\"a local grid\",xxx")
+    assert len(text) < 200 and "..." in text and "\n" not in text
+    tin = st.Terrain.from_mesh(trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 1], [1, 1, 2]], [[0, 1, 2], [1, 3, 2]],
+                                               process=False))
+    assert repr(tin) == "Terrain(kind='tin', points=4, faces=2, heights=(0, 2), nodata=False)"
+    assert "array" not in repr(dem) + text + repr(tin)
