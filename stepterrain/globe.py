@@ -1742,7 +1742,8 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
               fov: float = math.radians(30.0), aspect: float = 1.6, radius: float = EARTH_RADIUS,
               max_radius: float | None = None) -> Camera:
     """A camera at (latitude, longitude) in degrees (latitude in [-90, 90], longitude in [-360, 360]: east of
-    Greenwich either way round), ``altitude`` metres above the sphere of ``radius``,
+    Greenwich either way round), ``altitude`` metres above the sphere of ``radius`` (negative below it, above the
+    centre: more than -``radius``),
     looking down (tilt 0) or tilted towards ``heading`` (degrees clockwise from north, any finite value: whole
     turns are taken off exactly) by ``tilt`` degrees, in [-90, 90] (90: the horizon; a negative tilt looks the
     other way, towards heading + 180).
@@ -1781,6 +1782,10 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
         heading = math.fmod(heading, 360.0)
     radius = _positive(radius, "radius")
     top = radius if max_radius is None else _positive(max_radius, "max_radius")
+    if radius + altitude <= 0:  # the eye at the centre, or through it: (radius + altitude) · outward put an eye of
+        # altitude -2R - 10 km 10 km above the antipode, looking up into space (an empty mesh, without a word)
+        raise InvalidInputError(f"altitude must be more than -radius (metres above the sphere of radius {radius:g}; "
+                                f"the eye at or beyond the centre lies on no side of it); got {altitude:g}")
     if abs(radius + altitude) > _MAX_COORDINATE:  # the Camera's coordinate bound, named by its inputs here
         raise InvalidInputError(f"radius + altitude must stay within {_MAX_COORDINATE:g} m of the centre; got "
                                 f"{radius:g} + {altitude:g}")

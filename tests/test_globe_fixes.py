@@ -13,7 +13,7 @@ from stepterrain.kernels import cubesphere as cs
 
 import stepterrain._compaction as compaction
 from stepterrain.errors import InvalidInputError, OutputTooLargeError
-from stepterrain.globe import Camera, Globe, adaptive_mesh, look_from, render_view
+from stepterrain.globe import EARTH_RADIUS, Camera, Globe, adaptive_mesh, look_from, render_view
 
 from .conftest import needs_render
 
@@ -1683,3 +1683,15 @@ def test_the_six_per_face_meshes_concatenate_with_their_plain_material(tmp_path)
     assert material["doubleSided"] is True and material.get("alphaMode", "OPAQUE") == "OPAQUE"
     parts[0].visual.material.baseColorFactor = (255, 0, 0, 255)  # each face its own material: the others stay white
     assert [p.visual.material.baseColorFactor for p in parts[1:]] == [None] * 5
+
+
+@pytest.mark.parametrize("altitude", [-2 * EARTH_RADIUS - 10_000.0, -EARTH_RADIUS])
+def test_look_from_refuses_an_eye_at_or_beyond_the_centre(altitude):
+    """look_from put the eye at (radius + altitude) · outward: an altitude below -radius turned it through the centre,
+    and look_from(0, 0, -2R - 10 km) was a camera 10 km above the antipode (0°, 180°) looking up into space, which
+    Globe.mesh took and clipped to an empty mesh without a word. An eye at or beyond the centre is refused by name;
+    one below the sphere above the centre (under the Dead Sea) is still a camera."""
+    with pytest.raises(InvalidInputError, match=r"^altitude must be more than -radius .*; got "):
+        look_from(0.0, 0.0, altitude)
+    below = look_from(31.5, 35.5, -400.0)  # the Dead Sea's shore lies 430 m below the sphere
+    assert np.linalg.norm(below.eye) == pytest.approx(EARTH_RADIUS - 400.0)
