@@ -259,6 +259,9 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         METRICS,
         Globe,
         _drape_texture,
+        _error_value,
+        _face_cells,
+        _positive,
         _texture_image,
         drape_colors,
         elevation_colors,
@@ -269,6 +272,13 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
 
     out = _check_output(args.output, MESH_EXTENSIONS, "--output")
     png = _check_output(args.png, (".png",), "--png") if args.png else None
+    # the numbers Globe.from_latlon and Globe.mesh refuse whatever the grid, before the work (their messages, the
+    # options named): a negative --error or a --face-size of 1000 was refused only after the grid was loaded (and the
+    # --error after the hierarchy was built: seconds to minutes at --face-size 4097 or 16385)
+    _face_cells(args.face_size)
+    _positive(args.exaggeration, "exaggeration")
+    _positive(args.radius, "radius")
+    _error_value(args.error)
     if args.height_unit is not None and not args.input:
         raise InvalidInputError(f"--height-unit applies to an INPUT file; the embedded ETOPO 2022 relief is in metres; "
                                 f"got {args.height_unit!r}")

@@ -1695,3 +1695,28 @@ def test_look_from_refuses_an_eye_at_or_beyond_the_centre(altitude):
         look_from(0.0, 0.0, altitude)
     below = look_from(31.5, 35.5, -400.0)  # the Dead Sea's shore lies 430 m below the sphere
     assert np.linalg.norm(below.eye) == pytest.approx(EARTH_RADIUS - 400.0)
+
+
+@pytest.mark.parametrize("option, value", [("--error", "-1"), ("--face-size", "1000"), ("--exaggeration", "0"),
+                                           ("--radius", "-6371000")])
+def test_the_cli_refuses_a_bad_number_before_loading_the_grid(tmp_path, capsys, monkeypatch, option, value):
+    """``stepterrain globe`` refused a negative --error only after it had loaded the grid and built the hierarchy
+    (Globe.mesh checks it), and a --face-size that is not 2^k + 1, a --exaggeration or --radius <= 0 after loading the
+    grid (Globe.from_latlon): with a large GeoTIFF or --face-size 4097, seconds to minutes of work for a typo. They
+    are refused first now, in the library's words with the option named; the grid is never read."""
+    from stepterrain import _cli_globe
+    from stepterrain.cli import main
+
+    def loaded(*args, **kwargs):
+        raise AssertionError("the grid was loaded before the option was checked")
+
+    monkeypatch.setattr(_cli_globe, "_load_grid", loaded)
+    monkeypatch.setattr("stepterrain.globe.load_global_relief", loaded)
+    grid = tmp_path / "grid.npz"
+    np.savez(grid, elevation=np.zeros((18, 36)), lat=np.arange(85, -90, -10.0), lon=np.arange(-175, 180, 10.0))
+    out = tmp_path / "g.ply"
+    for source in ([str(grid)], []):
+        assert main(["-q", "globe", *source, option, value, "-o", str(out), "--device", "cpu"]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"stepterrain globe: error: {option} must ") and value in err, err
+        assert not out.exists()
