@@ -326,7 +326,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError(f"--texture colours the mesh and the --png render; an .stl --output holds no colours: "
                                 f"got --texture {args.texture!r} with --output {args.output!r} and no --png")
     _check_outputs({"INPUT": args.input, "--texture": args.texture}, output=out, png=png)
-    # a --radius Globe.from_latlon refuses (NaN, <= 0, beyond float32 positions) is named there, after the loading
+    # a --radius beyond float32 positions is refused by Globe.from_latlon, after the loading (NaN and <= 0 above)
     radius = args.radius if 0 < args.radius <= float(np.finfo(np.float32).max) / 4 else 0.0
     # the default eye 3R above 30N 10E: R the --radius (a fixed 3 earth radii showed a larger planet as a patch of
     # its surface and a smaller one as a speck, not the whole globe the help promises)
