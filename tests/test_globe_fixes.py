@@ -1720,3 +1720,24 @@ def test_the_cli_refuses_a_bad_number_before_loading_the_grid(tmp_path, capsys, 
         err = capsys.readouterr().err
         assert err.startswith(f"stepterrain globe: error: {option} must ") and value in err, err
         assert not out.exists()
+
+
+def test_a_globe_drape_saved_as_obj_shows_its_texture_at_full_brightness_and_matte(tmp_path):
+    """drape_texture's TextureVisuals(uv=..., image=...) is trimesh's SimpleMaterial (Kd 0.4, Ks 0.4 by default).
+    save_mesh wrote it to glTF white and matte, but its .mtl kept Kd 0.4 and Ks 0.4 (only a PBR material's MTL was made
+    white): the MTL model multiplies map_Kd by Kd (three.js's MTLLoader does), so ``stepterrain globe --texture
+    bluemarble.jpg -o globe.obj`` showed the earth at 40 % brightness, and shiny. The MTL now says Kd 1, Ks 0, as the
+    glTF's material; the mesh's own material is left as it was."""
+    from stepterrain.export import save_mesh
+    from stepterrain.globe import drape_texture
+
+    lat, lon = np.arange(85, -90, -10.0), np.arange(-175, 180, 10.0)
+    globe = Globe.from_latlon(np.zeros((lat.size, lon.size)), lat, lon, face_size=5, device="cpu")
+    image = np.random.default_rng(3).integers(0, 256, (16, 32, 3), dtype=np.uint8)
+    draped = drape_texture(globe.mesh(), image)
+    diffuse = np.array(draped.visual.material.diffuse)
+    save_mesh(draped, tmp_path / "globe.obj")
+    lines = {line.split()[0]: [float(v) for v in line.split()[1:]]
+             for line in (tmp_path / "globe.mtl").read_text().splitlines() if line[:3] in ("Kd ", "Ks ")}
+    assert lines == {"Kd": [1.0, 1.0, 1.0], "Ks": [0.0, 0.0, 0.0]}
+    np.testing.assert_array_equal(draped.visual.material.diffuse, diffuse)  # the caller's mesh untouched
