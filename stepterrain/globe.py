@@ -1413,7 +1413,10 @@ def adaptive_mesh(
     spacing = 1.0 if spacing is None else spacing
     origin = (0.0, 0.0) if origin is None else origin
     try:
-        dx, dy = (spacing, spacing) if np.isscalar(spacing) else tuple(spacing)  # type: ignore[misc]
+        # one number: a 0-d array too (an .npz's np.load(...)["dx"], which heightfield_mesh takes; tuple() refused it)
+        single = np.isscalar(spacing) or (isinstance(spacing, np.ndarray) and spacing.ndim == 0
+                                          and is_real_dtype(spacing.dtype))
+        dx, dy = (spacing, spacing) if single else tuple(spacing)  # type: ignore[misc]
     except (TypeError, ValueError):
         raise InvalidInputError(f"spacing must be a number or (dx, dy); got {spacing!r}") from None
     dx, dy = check_spacing(_nonzero(dx, "spacing dx"), _nonzero(dy, "spacing dy"))
