@@ -1531,6 +1531,8 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
     if isinstance(image, (str, bytes)) or hasattr(image, "__fspath__"):
         from PIL import Image
 
+        path = image
+
         try:
             try:
                 picture = Image.open(image)  # type: ignore[arg-type]
@@ -1553,6 +1555,9 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
                     picture.close()
         except OSError as exc:
             raise DataFileError(f"cannot read texture {image!r}: {exc}") from exc
+        shift = _plate_carree_shift(path, np.asarray(image).shape[:2])
+        if shift:  # a global GeoTIFF in longitudes 0..360: its columns put at -180..180, as the drape reads them
+            image, kept = np.roll(np.asarray(image), shift, axis=1), None
     pixels = np.asarray(image)
     if pixels.ndim != 3 or pixels.shape[2] not in (3, 4) or min(pixels.shape[:2]) < 2:
         raise InvalidInputError(f"texture must be an (H, W, 3|4) image of at least 2 x 2 pixels; got shape "
@@ -1563,6 +1568,44 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
         scale = 255.0 if pixels.dtype.kind == "f" and pixels.max() <= 1.0 else 1.0
         pixels = np.round(pixels.astype(np.float64) * scale).astype(np.uint8)
     return pixels, kept
+
+
+def _plate_carree_shift(path: Any, shape: tuple[int, ...]) -> int:
+    """Columns to roll a georeferenced texture file (a GeoTIFF, an image with a world file) by so that its column 0
+    starts at 180° W, as the drape reads every texture: 0 for one without georeferencing (or without rasterio), or
+    that starts there. One whose georeferencing is not the whole globe in degrees (a projected CRS, a regional
+    extent, a rotated or south-up grid) is refused: it was draped over the whole globe from 180° W without a word
+    (a GeoTIFF in longitudes 0..360 half a turn round, a UTM orthophoto wrapped round the earth)."""
+    try:
+        import rasterio
+        from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
+    except ImportError:  # pragma: no cover - rasterio is a dependency
+        return 0
+    import warnings
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(path) as dataset:
+                transform, crs = dataset.transform, dataset.crs
+    except (RasterioIOError, OSError, ValueError):  # a file GDAL cannot read: Pillow's pixels as they are
+        return 0
+    if transform.is_identity:  # no georeferencing: plate carrée from 180° W, as documented
+        return 0
+    height, width = shape[0], shape[1]
+    a, b, west, d, e, north = (float(v) for v in transform[:6])
+    tol = 1e-6
+    # no CRS (a world file without a .prj): the extent alone says degrees
+    whole = ((crs is None or crs.is_geographic) and abs(b) <= tol * abs(a) and abs(d) <= tol * abs(e) and a > 0
+             and e < 0 and abs(width * a - 360.0) <= tol * 360.0 and abs(height * -e - 180.0) <= tol * 180.0
+             and abs(north - 90.0) <= tol * 90.0)
+    columns = (west + 180.0) / a if a > 0 else math.nan
+    if not whole or abs(columns - round(columns)) > 1e-3:
+        raise InvalidInputError(
+            f"texture {str(path)!r} must be a global plate-carrée image in degrees (360° x 180°, north-up, its north "
+            f"edge at 90° N, whole pixels from 180° W); got georeferencing {crs or 'without a CRS'}, west/north edge "
+            f"({west:.9g}, {north:.9g}), pixel size ({a:.9g}, {e:.9g}) for {width} x {height} pixels")
+    return int(round(columns)) % width
 
 
 def _kept_jpeg(picture: Any) -> bool:
@@ -1677,7 +1720,8 @@ def _drape_texture(mesh: trimesh.Trimesh, pixels: NDArray[np.uint8], picture: An
 
 
 def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint8]:
-    """(V, 4) uint8 RGBA per vertex from a global plate-carrée image (row 0 at 90° N, column 0 at 180° W),
+    """(V, 4) uint8 RGBA per vertex from a global plate-carrée image (row 0 at 90° N, column 0 at 180° W; a file
+    georeferenced as the whole globe in degrees, 0..360 too, is placed by it, other georeferencing refused),
     bilinear at each vertex's direction (paper 003 §5.3: a global texture draped by latitude and longitude). An
     (H, W, 4) image's alpha is kept (bilinear; its colour is weighted by alpha, so that transparent texels' colour
     does not darken the opaque ones' next to them), an RGB image's is 255.

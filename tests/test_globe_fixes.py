@@ -1741,3 +1741,36 @@ def test_a_globe_drape_saved_as_obj_shows_its_texture_at_full_brightness_and_mat
              for line in (tmp_path / "globe.mtl").read_text().splitlines() if line[:3] in ("Kd ", "Ks ")}
     assert lines == {"Kd": [1.0, 1.0, 1.0], "Ks": [0.0, 0.0, 0.0]}
     np.testing.assert_array_equal(draped.visual.material.diffuse, diffuse)  # the caller's mesh untouched
+
+
+def test_a_georeferenced_texture_is_draped_where_its_georeferencing_puts_it(tmp_path):
+    """A texture file was draped as a plate-carrée image from 180° W whatever its georeferencing said: a global
+    GeoTIFF in longitudes 0..360 came out half a turn round, and a UTM orthophoto (or a regional one in degrees)
+    was wrapped round the whole earth, without a word. A global one in degrees is put at -180..180 now; any other
+    georeferencing is refused by name. A texture without georeferencing is plate carrée from 180° W, as before."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    from stepterrain.globe import drape_colors
+
+    pixels = np.zeros((18, 36, 3), np.uint8)
+    pixels[:, 18:, 0] = 255  # red east of Greenwich, in -180..180 columns
+
+    def geotiff(name, data, transform, crs="EPSG:4326"):
+        with rasterio.open(tmp_path / name, "w", driver="GTiff", width=data.shape[1], height=data.shape[0], count=3,
+                           dtype="uint8", crs=crs, transform=transform) as ds:  # fmt: skip
+            ds.write(np.moveaxis(data, 2, 0))
+        return tmp_path / name
+
+    directions = np.array([[0.0, 1.0, 0.0], [0.0, -1.0, 0.0], [1.0, 1.0, 0.5], [-1.0, -1.0, -0.5]]) * EARTH_RADIUS
+    expected = drape_colors(directions, pixels)
+    assert expected[:, 0].tolist() == [255, 0, 255, 0]  # 90° E and 45° E red, 90° W and 135° W not
+    east = geotiff("east.tif", np.roll(pixels, 18, axis=1), Affine(10.0, 0.0, 0.0, 0.0, -10.0, 90.0))  # 0..360
+    np.testing.assert_array_equal(drape_colors(directions, east), expected)
+    np.testing.assert_array_equal(drape_colors(directions, geotiff("west.tif", pixels, Affine(
+        10.0, 0.0, -180.0, 0.0, -10.0, 90.0))), expected)
+    for name, transform, crs in (("utm.tif", Affine(10.0, 0.0, 376000.0, 0.0, -10.0, 3807000.0), "EPSG:32611"),
+                                 ("alps.tif", Affine(0.1, 0.0, 5.0, 0.0, -0.1, 48.0), "EPSG:4326"),
+                                 ("south_up.tif", Affine(10.0, 0.0, -180.0, 0.0, 10.0, -90.0), "EPSG:4326")):
+        with pytest.raises(InvalidInputError, match=r"^texture .* must be a global plate-carrée image in degrees"):
+            drape_colors(directions, geotiff(name, pixels, transform, crs))
