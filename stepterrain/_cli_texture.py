@@ -60,8 +60,9 @@ examples:
       shadows, on the DEM's grid and draped on the mesh
   stepterrain texture dem.tif --image ortho.jpg -o draped.png
       a JPEG placed by the world file beside it (ortho.jgw; its CRS from ortho.prj, else taken as the DEM's)
-  stepterrain texture dem.npy --spacing 30 --image map.png --image-extent=0,1500,0,1200 -o tex.png --png out/map.png
-      a PNG without georeferencing, its outer pixel edges at x 0..1500, y 0..1200 in the DEM's coordinates
+  stepterrain texture dem.npy --spacing 30 --image map.png --image-extent=0,1500,-1200,0 -o tex.png --png out/map.png
+      a PNG without georeferencing, its outer pixel edges at x 0..1500, y -1200..0 in the DEM's coordinates
+      (an .npy's node (0, 0) is its north-west corner at (0, 0): its rows run south)
   stepterrain texture dem.tif --image ortho.tif --hillshade none -o ortho.png --mesh out/ortho.glb
       the orthophoto as it is (its own light), no hillshade over it
   stepterrain texture dem.tif --image ortho.tif --texel-size 0.5 -o out/ortho_05m.tif --mesh out/ortho.glb

@@ -12,26 +12,48 @@ import numpy as np
 
 def derived(memo: dict, key: tuple, refs: tuple, build: Any, *, limit: int = 64) -> Any:
     """``build()`` memoized under ``key`` while the objects ``refs`` are the same objects (the key holds their
-    ids). Arrays in the value are made read-only: the callers that find it share them. The memo is emptied when it
-    reaches ``limit`` entries.
+    ids). Arrays in the value are made read-only: the callers that find it share them. Entries are kept and dropped
+    as :func:`keep` does.
 
-    The entry holds ``refs`` weakly where they take a weak reference (ROIs, arrays, close-up sources; others, such as
-    tuples or None, strongly), and an entry one of whose objects is gone is dropped when the next one is made: a dead
-    object's id may come back with another object, which the identity check tells apart. Held strongly, every ROI of a
-    loop over new ones (a height band swept over a DEM's heights) stayed alive with its mask, upload, cull and
-    outline until ``limit`` entries (64: ~800 MB on the embedded DEM)."""
-    entry = memo.get(key)
-    if entry is not None and all(same(held, ref) for held, ref in zip(entry[0], refs, strict=True)):
-        return entry[1]
+    Held strongly, every ROI of a loop over new ones (a height band swept over a DEM's heights) stayed alive with its
+    mask, upload, cull and outline until ``limit`` entries (64: ~800 MB on the embedded DEM)."""
+    value = recall(memo, key, refs)
+    if value is not MISSING:
+        return value
     value = build()
     for array in value if isinstance(value, tuple) else (value,):
         if isinstance(array, np.ndarray):  # shared by the callers that find it here
             array.setflags(write=False)
+    keep(memo, key, refs, value, limit=limit)
+    return value
+
+
+#: What :func:`recall` gives for no entry (a value may be None).
+MISSING = object()
+
+
+def recall(memo: dict, key: tuple, refs: tuple) -> Any:
+    """The value :func:`keep` put under ``key`` with these very objects ``refs``; ``MISSING`` for none (or one kept
+    with other objects, some perhaps gone: a dead object's id may come back with another object)."""
+    entry = memo.get(key)  # one read: the objects and the value of one entry, whatever other threads put meanwhile
+    if entry is not None and all(same(held, ref) for held, ref in zip(entry[0], refs, strict=True)):
+        return entry[1]
+    return MISSING
+
+
+def keep(memo: dict, key: tuple, refs: tuple, value: Any, *, limit: int) -> None:
+    """Put ``value`` under ``key`` for :func:`recall` with the objects ``refs``, held weakly where they take a weak
+    reference (ROIs, arrays, close-ups, textures; others, such as tuples or None, strongly). The entries one of whose
+    objects is gone are dropped first (:func:`sweep`), then all of them when ``limit`` are left and ``key`` is a new
+    one (one put again in place does not grow the memo).
+
+    Threads may share a memo: an entry is one tuple, put and read in one step, so :func:`recall` finds a value with the
+    objects it was made from or nothing; at worst a sweep or a clearing drops an entry another thread just put, which
+    is made again when next asked for."""
     sweep(memo)
-    if len(memo) >= limit:
+    if len(memo) >= limit and key not in memo:
         memo.clear()
     memo[key] = (tuple(hold(ref) for ref in refs), value)
-    return value
 
 
 def sweep(memo: dict) -> None:

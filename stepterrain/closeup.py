@@ -18,9 +18,10 @@ the faces with m > 0 by count -> scan -> emit, so a close-up costs in proportion
 from __future__ import annotations
 
 import hashlib
+import inspect
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import MutableMapping, Sequence
 from dataclasses import KW_ONLY, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
@@ -33,7 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._compaction import MAX_INT32 as _MAX_INT32
 from ._compaction import budget_value, check_budget, count_buffer, exclusive_offsets
 from ._device import host_copy, launch, launch_chunked, resolve_device, to_device
-from ._memo import Same, derived, hold, same, sweep
+from ._memo import MISSING, Same, derived, keep, recall
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, OutputTooLargeError, counted
 from .io import degrees_hint
 from .kernels import closeup as closeup_kernels
@@ -904,6 +905,12 @@ _SOURCES_BYTES = 64 << 20
 _SOURCES_ENTRIES = 64
 
 
+#: The most sets of close-up sources whose concatenated inputs and uploads are kept. Kept while their sources were (up
+#: to 64 sets), they held ~1.5 times the sources' bytes beside them, past the bound above (a ROI dragged over the
+#: embedded DEM: 98 MiB beside 63 MiB of sources); made again from cached sources, they cost a concatenation.
+_JOINED_SETS = 8
+
+
 def _source_bytes(src: _Source) -> int:
     return sum(a.nbytes for a in (src.points, src.faces, src.source_faces, src.colors, src.scalars) if a is not None)
 
@@ -1316,7 +1323,7 @@ def closeup_layers(
         return n_faces, point_start, points, faces, point_layer, uploads
 
     joined_key = ("closeup", "joined", tuple(id(src) for src in sources), str(device))
-    joined = derived(t.cached(("closeup", "joined"), dict), joined_key, tuple(sources), join)
+    joined = derived(t.cached(("closeup", "joined"), dict), joined_key, tuple(sources), join, limit=_JOINED_SETS)
     n_faces, point_start, points, faces, point_layer, (points_wp, layer_wp, faces_wp) = joined
     n, nf = len(points), len(faces)
     layers = _layers_struct(items, matrices, t.local_origin, device)
@@ -2437,6 +2444,14 @@ def render_closeups(
     _check_cmap(cmap)
     _check_in_terrain(t, items)
     _check_grid_scalars(t, scalars, items)
+    # before any work: "no" is true to Python (merge_passes="no" merged), and a list for timings raised its
+    # TypeError after every pass was rendered
+    reuse_overview = check_flag(reuse_overview, "reuse_overview")
+    reuse_closeups = check_flag(reuse_closeups, "reuse_closeups")
+    merge_passes = check_flag(merge_passes, "merge_passes")
+    if timings is not None and not isinstance(timings, MutableMapping):
+        raise InvalidInputError(f"timings must be a dict (filled with seconds per step) or None; got "
+                                f"{type(timings).__name__}")
     image_texture = None if texture is None else _check_texture(texture, "texture", alpha=True)
     box = None if bounds is None else render._check_box(bounds, "bounds")  # before any work; text was taken
     view_angle = render._check_view_angle(view_angle)
@@ -2454,10 +2469,11 @@ def render_closeups(
     # over new close-ups kept the last 8 frames' close-ups, masks, uploads and culls alive
     memo = t.cached(("closeup", "frame"), dict)
     memo_key = (tuple(id(cu) for cu in items), scalars, cmap, str(resolve_device(device)), id(texture))
-    last = memo.get(memo_key) if reuse_closeups else None
-    if (last is not None and all(same(a, b) for a, b in zip(last[0], (*items, texture), strict=True))
-            and all(np.array_equal(a, b) for a, b in zip(last[1], matrices, strict=True))):
-        layers, strips, anchors, contents, boards, drawn = last[2]
+    # the texture held beside the close-ups (swept as they are): held apart, an entry whose texture was gone stayed
+    # (a new image each frame, a video draped: 8 frames' geometry kept)
+    last = recall(memo, memo_key, (*items, texture)) if reuse_closeups else MISSING
+    if last is not MISSING and all(np.array_equal(a, b) for a, b in zip(last[0], matrices, strict=True)):
+        layers, strips, anchors, contents, boards, drawn = last[1]
         if image_texture is not None or any(cu.texture is not None for cu in items):
             # an image may have changed in place since (the same object): its colors are sampled again
             anchors, contents, boards, drawn = _frame_geometry(t, items, layers, strips, scalars, cmap, image_texture)
@@ -2466,13 +2482,8 @@ def render_closeups(
         _check_content(t, items, layers)
         strips = anchor_strips(t, items, time=time, device=device)
         anchors, contents, boards, drawn = _frame_geometry(t, items, layers, strips, scalars, cmap, image_texture)
-        sweep(memo)
-        if len(memo) >= 8 and memo_key not in memo:
-            memo.clear()
-        # the texture held beside the close-ups, where sweep() sees it: held apart, an entry whose texture was gone
-        # stayed (a new image each frame, a video draped: 8 frames' geometry kept)
-        memo[memo_key] = (tuple(hold(x) for x in (*items, texture)), matrices,
-                          (layers, strips, anchors, contents, boards, drawn))
+        keep(memo, memo_key, (*items, texture), (matrices, (layers, strips, anchors, contents, boards, drawn)),
+             limit=8)
     clock["transform"] = _time.perf_counter() - start
 
     start = _time.perf_counter()
@@ -2719,6 +2730,12 @@ def animate_closeups(
         if name in options:
             raise InvalidInputError(f"animate_closeups sets {name} for each frame itself (frame i at time i / fps, "
                                     f"one renderer); got {name}={options[name]!r}")
+    # render_closeups' TypeError for an option it does not take came at the first frame, after the box was fitted
+    takes = inspect.signature(render_closeups).parameters
+    for name in options:
+        if name not in takes:
+            raise InvalidInputError(f"animate_closeups passes options to render_closeups, which takes no {name!r}; "
+                                    f"got {name}={options[name]!r:.80}")
     t = as_terrain(terrain)
     items = _check_closeups(closeups)
     if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 1:

@@ -1973,7 +1973,10 @@ _WRITERS: dict[str, Callable[..., None]] = {
 
 # ---------------------------------------------------------------------------------------------- reading back
 def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
-    """A mesh file read back as one ``trimesh.Trimesh`` (``process=False``), as ``stepterrain info`` describes it.
+    """A mesh file read back as one ``trimesh.Trimesh`` (``process=False``), as ``stepterrain info`` describes it,
+    but for an STL: it comes back as stored, three vertices per face (a triangle soup, never watertight), where
+    ``stepterrain info`` merges its corners by position first; ``mesh.merge_vertices()`` does so here (a ``steps
+    --solid -o print.stl`` is then watertight, as ``info`` says).
 
     trimesh's reader (``force="mesh"``: a scene's meshes in world coordinates; a glTF's world, y-up by its spec, turned
     z-up, (x, y, z) -> (x, -z, y): a file :func:`save_mesh` wrote gives back exactly the vertices written, to float32's

@@ -1531,8 +1531,6 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
     if isinstance(image, (str, bytes)) or hasattr(image, "__fspath__"):
         from PIL import Image
 
-        path = image
-
         try:
             try:
                 picture = Image.open(image)  # type: ignore[arg-type]
@@ -1545,6 +1543,7 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
                 from .texture_lod import _tiff_as_stored
 
                 _tiff_as_stored(picture)  # its stored pixels, as a PNG's or JPEG's: Pillow turns a TIFF by its tag
+                shift = _plate_carree_shift(picture, image)  # from its header: refused before its pixels are read
                 if _kept_jpeg(picture):
                     picture.load()  # its pixels, and Pillow closes the file it opened
                     kept, image = picture, np.asarray(picture)
@@ -1555,7 +1554,6 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
                     picture.close()
         except OSError as exc:
             raise DataFileError(f"cannot read texture {image!r}: {exc}") from exc
-        shift = _plate_carree_shift(path, np.asarray(image).shape[:2])
         if shift:  # a global GeoTIFF in longitudes 0..360: its columns put at -180..180, as the drape reads them
             image, kept = np.roll(np.asarray(image), shift, axis=1), None
     pixels = np.asarray(image)
@@ -1570,42 +1568,102 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
     return pixels, kept
 
 
-def _plate_carree_shift(path: Any, shape: tuple[int, ...]) -> int:
-    """Columns to roll a georeferenced texture file (a GeoTIFF, an image with a world file) by so that its column 0
-    starts at 180° W, as the drape reads every texture: 0 for one without georeferencing (or without rasterio), or
-    that starts there. One whose georeferencing is not the whole globe in degrees (a projected CRS, a regional
-    extent, a rotated or south-up grid) is refused: it was draped over the whole globe from 180° W without a word
-    (a GeoTIFF in longitudes 0..360 half a turn round, a UTM orthophoto wrapped round the earth)."""
-    try:
-        import rasterio
-        from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
-    except ImportError:  # pragma: no cover - rasterio is a dependency
+def _plate_carree_shift(picture: Any, path: Any) -> int:
+    """Columns to roll a texture file by so that its column 0 starts at 180° W, as the drape reads every texture,
+    from its georeferencing: a GeoTIFF's tags (ModelPixelScale 33550 and ModelTiepoint 33922, or
+    ModelTransformation 34264; GTModelTypeGeoKey and GTRasterTypeGeoKey in the GeoKeyDirectory 34735), else a world
+    file beside it (``.jgw``/``.pgw``/``.tfw``, ``.jpgw``..., ``.wld``; its CRS from a ``.prj``), as GDAL reads
+    them. Read from ``picture``'s header (a PIL image opened, not decoded) and the small files beside ``path``: no
+    pixels, and no rasterio (the optional ``[geo]`` extra). 0 for an image without georeferencing (plate carrée from
+    180° W, as documented) or one that starts there; a global one in longitudes 0..360 (or from any whole column)
+    is rolled. One whose georeferencing is no whole globe in degrees is refused before its pixels are read: a
+    projected CRS, a regional extent (a DEM, an orthophoto), a rotated or south-up grid; each was draped over the
+    whole globe from 180° W, without a word (a UTM orthophoto wrapped round the earth)."""
+    name = f"texture {str(path)!r}"
+    found = _geotiff_transform(picture) if getattr(picture, "format", None) == "TIFF" else None
+    if found is None:
+        found = _world_file_transform(path)
+    if found is None:
         return 0
-    import warnings
-
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotGeoreferencedWarning)
-            with rasterio.open(path) as dataset:
-                transform, crs = dataset.transform, dataset.crs
-    except (RasterioIOError, OSError, ValueError):  # a file GDAL cannot read: Pillow's pixels as they are
-        return 0
-    if transform.is_identity:  # no georeferencing: plate carrée from 180° W, as documented
-        return 0
-    height, width = shape[0], shape[1]
-    a, b, west, d, e, north = (float(v) for v in transform[:6])
-    tol = 1e-6
-    # no CRS (a world file without a .prj): the extent alone says degrees
-    whole = ((crs is None or crs.is_geographic) and abs(b) <= tol * abs(a) and abs(d) <= tol * abs(e) and a > 0
-             and e < 0 and abs(width * a - 360.0) <= tol * 360.0 and abs(height * -e - 180.0) <= tol * 180.0
-             and abs(north - 90.0) <= tol * 90.0)
-    columns = (west + 180.0) / a if a > 0 else math.nan
-    if not whole or abs(columns - round(columns)) > 1e-3:
+    (a, b, west, d, e, north), projected, source = found
+    if projected:
+        raise InvalidInputError(f"{name} must be a global plate-carrée image (longitude and latitude in degrees); got "
+                                f"{source} in a projected CRS: reproject it first (`gdalwarp -t_srs EPSG:4326 "
+                                "-te -180 -90 180 90 ...`)")
+    width, height = picture.size
+    if not (a > 0 and e < 0 and b == 0 and d == 0):
+        raise InvalidInputError(f"{name} must be a global plate-carrée image, north-up (row 0 at 90N); got {source} "
+                                f"with pixel size ({a:.6g}, {e:.6g}) and rotation ({b:.6g}, {d:.6g})")
+    sx, sy = a, -e
+    east, south = west + width * sx, north - height * sy
+    # a pixel of slack either way: a PixelIsPoint raster's extent may lie half a pixel inside the area one's
+    if abs((east - west) - 360.0) > 1.5 * sx or abs((north - south) - 180.0) > 1.5 * sy or abs(north - 90) > 1.5 * sy:
         raise InvalidInputError(
-            f"texture {str(path)!r} must be a global plate-carrée image in degrees (360° x 180°, north-up, its north "
-            f"edge at 90° N, whole pixels from 180° W); got georeferencing {crs or 'without a CRS'}, west/north edge "
-            f"({west:.9g}, {north:.9g}), pixel size ({a:.9g}, {e:.9g}) for {width} x {height} pixels")
-    return int(round(columns)) % width
+            f"{name} must be a global plate-carrée image (360 x 180 degrees, row 0 at 90N); got {source} over "
+            f"longitudes {west:.6g} to {east:.6g} and latitudes {south:.6g} to {north:.6g}: a regional image drapes "
+            "a DEM of its region (`stepterrain texture DEM --image IMAGE`, st.texture_lod.image_layer)")
+    # the nearest whole column (within half a pixel, as a -180..180 one is taken): a 0..360 image's 180 W is half-way
+    return round((west + 180.0) / sx) % width
+
+
+def _geotiff_transform(picture: Any) -> tuple[tuple[float, ...], bool, str] | None:
+    """A GeoTIFF's (a, b, c, d, e, f) geotransform (x = c + a·col + b·row, y = f + d·col + e·row at pixel corners),
+    whether its GTModelTypeGeoKey says projected (1; 3, geocentric, alike: no degrees), and "a GeoTIFF"; None for
+    a TIFF without a geotransform. A PixelIsPoint raster's tiepoint is a pixel's centre: moved to its corner, as
+    GDAL does."""
+    tags = picture.tag_v2
+    keys = tags.get(34735)  # GeoKeyDirectory: (version, revision, minor, count, then key, location, count, value)
+    geokeys = {}
+    if isinstance(keys, tuple) and len(keys) >= 4:
+        for k in range(4, len(keys) - 3, 4):
+            if keys[k + 1] == 0:  # its value inline
+                geokeys[keys[k]] = keys[k + 3]
+    matrix, scale, tie = tags.get(34264), tags.get(33550), tags.get(33922)
+    if isinstance(matrix, tuple) and len(matrix) >= 8:
+        a, b, c, d, e, f = (float(matrix[i]) for i in (0, 1, 3, 4, 5, 7))
+    elif isinstance(scale, tuple) and isinstance(tie, tuple) and len(scale) >= 2 and len(tie) >= 6:
+        a, e = float(scale[0]), -float(scale[1])
+        i, j, _, x, y, _ = (float(v) for v in tie[:6])
+        b = d = 0.0
+        c, f = x - i * a, y - j * e
+    else:
+        return None
+    if geokeys.get(1025) == 2:  # GTRasterTypeGeoKey RasterPixelIsPoint
+        c, f = c - (a + b) / 2, f - (d + e) / 2
+    return (a, b, c, d, e, f), geokeys.get(1024) in (1, 3), "a GeoTIFF"
+
+
+def _world_file_transform(path: Any) -> tuple[tuple[float, ...], bool, str] | None:
+    """The geotransform of the world file beside the image ``path`` (the names GDAL looks for: ``.jgw`` for
+    ``.jpg``, ``.jpgw``, ``.wld``; six numbers A, D, B, E, C, F, C and F at the upper-left pixel's centre), whether
+    the ``.prj`` beside it names a projected CRS, and the world file's name; None without one (or one that is not
+    six numbers: GDAL ignores it too)."""
+    import os
+    import pathlib
+
+    image = pathlib.Path(os.fsdecode(path))
+    ext = image.suffix[1:]
+    names = [f"{ext[0]}{ext[-1]}w", f"{ext}w"] if ext else []
+    for suffix in [*names, "wld"]:
+        for candidate in (image.with_suffix(f".{suffix}"), image.with_suffix(f".{suffix.upper()}")):
+            try:
+                words = candidate.read_text(errors="replace").split()
+            except (OSError, ValueError):
+                continue
+            try:
+                a, d, b, e, c, f = (float(w) for w in words[:6])
+            except ValueError:
+                return None
+            if len(words) < 6 or not all(map(math.isfinite, (a, b, c, d, e, f))):
+                return None
+            try:
+                prj = image.with_suffix(".prj").read_text(errors="replace").lstrip().upper()
+            except (OSError, ValueError):
+                prj = ""
+            projected = prj.startswith(("PROJCS", "PROJCRS", "PROJECTEDCRS"))
+            corner = (a, b, c - (a + b) / 2, d, e, f - (d + e) / 2)  # the upper-left pixel's corner
+            return corner, projected, f"a world file {candidate.name!r}"
+    return None
 
 
 def _kept_jpeg(picture: Any) -> bool:

@@ -18,7 +18,7 @@ import numbers
 import os
 import sys
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal
 
@@ -1464,6 +1464,33 @@ def _layer_values(values: Any, n_vertices: int, name: str) -> NDArray[np.float64
     return array
 
 
+#: The most passes :meth:`LayeredRenderer.render` keeps for ``reuse`` (those of the current view; the oldest go first).
+_REUSED_PASSES = 8
+
+
+def _check_layers(layers: Any) -> dict[int, tuple[Any, Any, dict[str, Any]]]:
+    """:meth:`LayeredRenderer.render_layers`' ``layers`` checked for their shape, else an InvalidInputError naming the
+    layer: a list raised AttributeError ('items'), a short entry ValueError (unpack), options None AttributeError
+    ('get'), an unknown option set_mesh's TypeError, and a str key "merged0" took the name of a merged pass (one actor
+    for two layers). Their arrays are checked by :meth:`LayeredRenderer.set_mesh`."""
+    expected = "(vertices, faces, options), options a dict of 'rgb' or 'values' (or {})"
+    if not isinstance(layers, Mapping):
+        raise InvalidInputError(f"layers must be a dict {{k: (vertices, faces, options)}} (k an int); got "
+                                f"{type(layers).__name__}")
+    for k, entry in layers.items():
+        if isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)):
+            raise InvalidInputError(f"layers keys must be ints (the layer numbers); got {k!r:.80}")
+        if not isinstance(entry, (tuple, list)) or len(entry) != 3:
+            got = type(entry).__name__ + (f" of {len(entry)}" if isinstance(entry, (tuple, list)) else "")
+            raise InvalidInputError(f"layers[{k}] must be {expected}; got {got}")
+        if not isinstance(entry[2], Mapping):
+            raise InvalidInputError(f"layers[{k}] must be {expected}; got options {type(entry[2]).__name__}")
+        unknown = sorted(str(name) for name in entry[2] if name not in ("rgb", "values"))
+        if unknown:
+            raise InvalidInputError(f"layers[{k}] options may hold 'rgb' and 'values' only; got {unknown}")
+    return layers
+
+
 def _camera_token(camera: CameraLike) -> Any:
     """What tells one camera from another exactly: a name, or its numbers' float64 bytes. ``repr`` of a numpy camera
     prints 8 digits, so two UTM eye positions centimetres apart had one token and the second kept the first's view."""
@@ -1553,6 +1580,8 @@ class LayeredRenderer:
 
     def bounds_of(self, name: str) -> NDArray[np.float64]:
         """World bounds (2, 3) of an uploaded mesh."""
+        if not isinstance(name, str) or name not in self._bounds:  # a bare KeyError (a list: TypeError) named nothing
+            raise InvalidInputError(f"no layer named {name!r}; have {sorted(self._bounds)}")
         return self._bounds[name]
 
     def _local(self, vertices: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -1744,6 +1773,7 @@ class LayeredRenderer:
         self._check_open()
         if self._box is None:
             raise InvalidInputError("render needs a view first (set_view)")
+        reuse = check_flag(reuse, "reuse")  # "no" is true to Python: a cached pass came back
         try:  # a string is a sequence of characters: render("ab") showed layers 'a' and 'b'
             wanted = set(names) if not isinstance(names, (str, bytes)) else None
         except TypeError:  # not iterable (5), or unhashable names
@@ -1767,6 +1797,13 @@ class LayeredRenderer:
             # array itself) changed what the next reuse returned. Views of read-only arrays cannot be made writeable
             # again, and cost no copy; a caller who edits one makes a copy
             color.flags.writeable = depth.flags.writeable = False
+            # a pass of an earlier view is never reused (the view's version only grows): kept, a loop moving the
+            # camera with a crop following a mesh held every frame's images; of this view's, the latest few stay
+            for old in [k for k, (kept, _c, _d) in list(self._passes.items()) if kept[0] != self._view_version]:
+                self._passes.pop(old, None)
+            self._passes.pop(key, None)  # put back last: the most recent
+            while len(self._passes) >= _REUSED_PASSES:
+                self._passes.pop(next(iter(self._passes)))
             self._passes[key] = (state, color, depth)
             return color.view(), depth.view()
         return color, depth
@@ -1802,11 +1839,20 @@ class LayeredRenderer:
 
         The layers of this ``prefix`` that the previous call uploaded and this one does not draw (a close-up gone,
         layers merged otherwise) are removed first: their memory is freed, and they no longer widen the clipping range
-        of the next :meth:`set_view`."""
+        of the next :meth:`set_view`. The layers are named ``"{prefix}:{k}"`` (``"{prefix}:merged{g}"`` for a shared
+        pass), so ``prefix`` is a str without ':'."""
         self._check_open()
+        if not isinstance(prefix, str) or ":" in prefix:
+            raise InvalidInputError(f"render_layers prefix must be a str without ':' (its layers are named "
+                                    f"'prefix:k'); got {prefix!r}")
+        layers = _check_layers(layers)
+        merge, crop = check_flag(merge, "merge"), check_flag(crop, "crop")
         rects: dict[int, tuple[int, int, int, int] | None] = {}
-        boxes = {k: _finite_bounds(np.asarray(v, dtype=np.float64).reshape(-1, 3))  # once per layer
-                 for k, (v, _f, _kw) in layers.items()}
+        # (V, 3) rows once per layer, checked here: "x" raised numpy's ValueError before set_mesh saw it, and a flat
+        # (3V,) array counted 3V vertices in a merged pass (its faces shifted onto the next layer's vertices)
+        rows = {k: np.asarray(_layer_rows(v, f"layers[{k}] vertices", "(V, 3) coordinates"), np.float64)
+                for k, (v, _f, _kw) in layers.items()}
+        boxes = {k: _finite_bounds(rows[k]) for k in layers}
         for k in layers:
             rects[k] = self._box_rect(boxes[k]) if merge else None
         groups: list[list[int]] = []
@@ -1829,7 +1875,9 @@ class LayeredRenderer:
         # otherwise) are dropped first: kept hidden, they held their meshes' memory, counted against the budget of
         # this call's uploads (a frame the budget allowed was refused), and widened the next view's clipping range
         # (its far plane out to where a close-up once was, its near plane 300 times nearer: depth precision lost)
-        names = [f"{prefix}{group[0]}" if len(group) == 1 else f"{prefix}-merged{g}" for g, group in enumerate(groups)]
+        # "prefix:k" and "prefix:merged<g>": the prefix holds no ':', so a name tells its prefix (bare prefix + k
+        # collided: "cu" + "10" and "cu1" + "0" were one actor, and a call of one prefix removed the other's layer)
+        names = [f"{prefix}:{group[0]}" if len(group) == 1 else f"{prefix}:merged{g}" for g, group in enumerate(groups)]
         for stale in self._layer_names.get(prefix, set()) - set(names):
             self.remove(stale)
         self._layer_names[prefix] = set(names)
@@ -1846,8 +1894,8 @@ class LayeredRenderer:
                 else:
                     out[k] = self.render([name])
                 continue
-            counts = np.cumsum([0] + [len(layers[k][0]) for k in group])
-            vertices = np.concatenate([np.asarray(layers[k][0], np.float64) for k in group])
+            counts = np.cumsum([0] + [len(rows[k]) for k in group])
+            vertices = np.concatenate([rows[k] for k in group])
             kw0 = layers[group[0]][2]
 
             def join(group: list[int] = group, counts: Any = counts, kw0: dict = kw0
@@ -1894,7 +1942,8 @@ class LayeredRenderer:
         """Pixel box (col0, row0, col1, row1), end exclusive, holding every fragment of a mesh with these
         vertices, from the projected corners of their bounds (padded by 2 pixels); None when a corner lies
         behind the camera."""
-        return self._box_rect(_finite_bounds(np.asarray(vertices, dtype=np.float64).reshape(-1, 3)))
+        rows = _layer_rows(vertices, "vertices", "(N, 3) world points")  # "x" raised numpy's ValueError
+        return self._box_rect(_finite_bounds(np.asarray(rows, dtype=np.float64)))
 
     def _box_rect(self, box: NDArray[np.float64] | None) -> tuple[int, int, int, int] | None:
         """:meth:`screen_rect` of the vertex bounds ``box`` (2, 3) (None: no finite vertex)."""

@@ -1115,9 +1115,10 @@ def _level_colors(colors: Any, n_levels: int) -> NDArray[np.uint8]:
 
 def _check_carried_visual(terrain: Terrain) -> None:
     """Refuse, before the passes, texture coordinates :func:`_carry_visual` cannot interpolate: not one (u, v) row
-    per TIN vertex (trimesh keeps a short ``visual.uv``; indexing it raised an IndexError after the kernels ran);
-    and face colours with no row for some face (a ``ColorVisuals(face_colors=...)`` built apart from the mesh keeps
-    the rows given)."""
+    per TIN vertex or grid node (trimesh keeps a short ``visual.uv``; indexing it raised an IndexError after the
+    kernels ran); and face colours with no row for some face, or vertex colours with fewer rows than the points (a
+    ``ColorVisuals(face_colors=...)`` or ``ColorVisuals(vertex_colors=...)`` built apart from the mesh keeps the rows
+    given; short vertex colours are welded by position alone, which gave a point a coincident one's colour)."""
     visual = terrain.visual
     if terrain.face_index is not None and len(terrain.face_index):
         n_colors, needed = len(visual.face_colors), int(terrain.face_index.max()) + 1
@@ -1126,12 +1127,21 @@ def _check_carried_visual(terrain: Terrain) -> None:
                 f"terrain mesh visual.face_colors must hold one RGBA row per face (at least {needed}) to be carried "
                 f"onto the steps; got {counted(n_colors, 'row')} (give colors= to colour the steps instead)"
             )
-    if isinstance(visual, trimesh.visual.TextureVisuals) and visual.uv is not None:
-        uv = np.asarray(visual.uv)
-        if uv.ndim != 2 or len(uv) != len(terrain.points):
+    if isinstance(visual, trimesh.visual.ColorVisuals) and visual.kind == "vertex":
+        n_colors, needed = len(visual.vertex_colors), terrain.heights.size  # a TIN's points, a grid's nodes
+        if n_colors < needed:  # _carry_visual indexes them by point: numpy's IndexError after the passes
+            named = "terrain mesh" if terrain.kind == "tin" else "terrain"
             raise InvalidInputError(
-                f"terrain mesh visual.uv must hold one (u, v) row per vertex, shape ({len(terrain.points)}, 2), to be "
-                f"carried onto the steps; got shape {uv.shape} (give colors= to colour the steps instead)"
+                f"{named} visual.vertex_colors must hold one RGBA row per vertex (at least {needed}) to be "
+                f"carried onto the steps; got {counted(n_colors, 'row')} (give colors= to colour the steps instead)"
+            )
+    if isinstance(visual, trimesh.visual.TextureVisuals) and visual.uv is not None:
+        uv, needed = np.asarray(visual.uv), terrain.heights.size  # a TIN's points, a grid's nodes (len(points): None)
+        if uv.ndim != 2 or len(uv) != needed:
+            named = "terrain mesh" if terrain.kind == "tin" else "terrain"
+            raise InvalidInputError(
+                f"{named} visual.uv must hold one (u, v) row per vertex, shape ({needed}, 2), to be carried onto the "
+                f"steps; got shape {uv.shape} (give colors= to colour the steps instead)"
             )
 
 
@@ -1681,7 +1691,12 @@ def stepped_series(
         # the isovalues span the heights a triangle uses, as each frame's Terrain.height_range (a node on none is in
         # no mesh): a lone pixel in a void moved every frame's levels and colours; without nodata, the finite range
         used = (lo, hi) if finite.size == stack.size else used_height_range(stack)
-        values = isovalues(used or (lo, hi), interval=interval, levels=levels, base=base)
+        # of the float32 heights every frame is stepped from (its Terrain's): a float64 height 1e-9 above an
+        # isovalue, which float32 rounds onto it, added a level no vertex reaches (other colours and level indices
+        # than stepped() of the frame). Rounding is monotone, so the range rounded is the float32 heights' range;
+        # within float32 (heights beyond it were refused above)
+        used = tuple(float(np.float32(v)) for v in (used or (lo, hi)))
+        values = isovalues(used, interval=interval, levels=levels, base=base)
         iterable: Iterable[ArrayLike] = stack
     else:
         values = None

@@ -619,7 +619,9 @@ class Terrain:
                                     f"dtype {faces.dtype}")
         if self.heights is not None:
             given = np.asarray(unmasked(self.heights))
-            if given.shape != (len(points),) or not np.array_equal(given, points[:, 2].astype(np.float32),
+            with np.errstate(over="ignore"):  # a point on no face may lie beyond float32 (inf, as _build_tin makes it)
+                z32 = points[:, 2].astype(np.float32)
+            if given.shape != (len(points),) or not np.array_equal(given, z32,
                                                                    equal_nan=given.dtype.kind == "f"):
                 raise InvalidInputError(f"heights of a Terrain of kind 'tin' are its points' z (None to take them); "
                                         f"got {_described(self.heights)} that differs from points[:, 2]")
@@ -860,9 +862,12 @@ class Terrain:
                 "faces with finite heights overlap another: two sheets one above the other, or a surface that wraps "
                 f"over itself){_y_up_hint(points, faces, flipped)}{_float32_hint(points, point_used)}"
             )
+        with np.errstate(over="ignore"):  # a point on no face beyond float32 (refused above on a kept face): inf,
+            # which no pass reads (its "overflow encountered in cast" warning was an error under -W error)
+            heights = np.ascontiguousarray(points[:, 2], dtype=np.float32)
         return cls(
             kind="tin",
-            heights=np.ascontiguousarray(points[:, 2], dtype=np.float32),
+            heights=heights,
             points=points,
             faces=faces,
             edges=edges,
@@ -989,8 +994,9 @@ class Terrain:
         """TIN points relative to :attr:`local_origin`, float32 (N, 3)."""
         ox, oy = self.local_origin
         local = np.empty((len(self.points), 3), dtype=np.float32)
-        local[:, 0] = self.points[:, 0] - ox
-        local[:, 1] = self.points[:, 1] - oy
+        with np.errstate(over="ignore"):  # a point on no kept face far away goes to ±inf: no edge reads it
+            local[:, 0] = self.points[:, 0] - ox
+            local[:, 1] = self.points[:, 1] - oy
         local[:, 2] = self.heights
         return local
 
@@ -1332,7 +1338,9 @@ def _welded(points: NDArray[np.float64], faces: NDArray[np.int64], visual: Any) 
     used = np.flatnonzero(np.bincount(faces.reshape(-1), minlength=len(points)))  # not np.unique: 70x slower
     columns = [points[used] + 0.0]  # -0.0 as 0.0
     if isinstance(visual, trimesh.visual.ColorVisuals) and visual.kind == "vertex":
-        columns.append(np.asarray(visual.vertex_colors, dtype=np.float64)[used])
+        colors = np.asarray(visual.vertex_colors)
+        if len(colors) >= len(points):  # else short (built apart from the mesh): welded by position, the colours
+            columns.append(colors.astype(np.float64)[used])  # refused before stepping (stepped._check_carried_visual)
     elif isinstance(visual, trimesh.visual.TextureVisuals) and visual.uv is not None:
         uv = np.asarray(visual.uv)
         if uv.ndim != 2 or len(uv) != len(points):  # refused before stepping (_check_carried_visual)

@@ -2009,6 +2009,19 @@ def _covering_image(image: NDArray[np.uint8], layer: TextureLayer, vertices: NDA
     rest of it."""
     rows, cols = layer.shape
     texel = vertices[:, :2] @ layer.matrix[:2, :2].T + layer.matrix[:2, 2]  # (column, row), centres at integers
+    low, high = texel.min(axis=0), texel.max(axis=0)
+    if high[0] < -0.5 or low[0] > cols - 0.5 or high[1] < -0.5 or low[1] > rows - 0.5:
+        # no part of the mesh under the image: a mesh in other coordinates than the layer's (a pyvista grid at
+        # (0, 0) under a DEM's layer in UTM) got a texture of the image's edge or the background, silently
+        xy_low, xy_high = vertices[:, :2].min(axis=0), vertices[:, :2].max(axis=0)
+        corners = np.array([[-0.5, -0.5], [cols - 0.5, rows - 0.5]]) - layer.matrix[:2, 2]
+        world = np.linalg.solve(layer.matrix[:2, :2], corners.T).T
+        (x0, y0), (x1, y1) = world.min(axis=0), world.max(axis=0)
+        raise InvalidInputError(
+            f"mesh must lie under the layer (in its world coordinates) to be draped; got a mesh over x "
+            f"{xy_low[0]:.6g} to {xy_high[0]:.6g}, y {xy_low[1]:.6g} to {xy_high[1]:.6g}, wholly outside the "
+            f"layer's image over x {x0:.6g} to {x1:.6g}, y {y0:.6g} to {y1:.6g}: make the mesh and the layer of one "
+            "terrain (a pyvista grid with the DEM's origin and spacing, st.stepped(dem) of the layer's dem)")
     c0, c1 = min(0, math.floor(texel[:, 0].min())), max(cols - 1, math.ceil(texel[:, 0].max()))
     r0, r1 = min(0, math.floor(texel[:, 1].min())), max(rows - 1, math.ceil(texel[:, 1].max()))
     shape = (r1 - r0 + 1, c1 - c0 + 1, 3)

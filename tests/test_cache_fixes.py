@@ -130,3 +130,80 @@ def test_closeup_sources_cache_is_bounded_in_bytes_and_keeps_its_hits(monkeypatc
         held = sum(closeup_module._source_bytes(src) for src in cache.values())
         assert held <= closeup_module._SOURCES_BYTES, f"{held / 2**20:.0f} MiB of sources after {i + 1} positions"
     assert len(builds) == len(set(builds)) == positions + 1  # every ROI box built once, the still one too
+
+
+def test_identity_memo_from_several_threads_gives_each_caller_the_value_of_its_own_objects():
+    """_memo.derived / recall / keep, shared by threads (close-ups of one terrain drawn from a pool): objects die and
+    new ones take their ids while other threads sweep, clear and put entries under the same keys. A sweep may drop an
+    entry another thread just put (it is made again), but no caller gets a value made from other objects: an entry's
+    objects and value are one tuple, put and read in one step."""
+    import sys
+    import threading
+
+    from stepterrain._memo import derived
+
+    class Obj:
+        pass
+
+    memo: dict = {}
+    wrong: list = []
+
+    def worker(seed: int) -> None:
+        rng = np.random.default_rng(seed)
+        pool = [Obj() for _ in range(4)]
+        for _ in range(3000):
+            if rng.random() < 0.1:  # an object gone, a new one in its place (often at the freed id)
+                pool[int(rng.integers(4))] = Obj()
+            obj = pool[int(rng.integers(4))]
+            got = derived(memo, ("k", int(rng.integers(3))), (obj,), lambda obj=obj: (np.array([id(obj)]), obj),
+                          limit=3)
+            if got[1] is not obj or got[0][0] != id(obj):
+                wrong.append(seed)
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)
+    try:
+        threads = [threading.Thread(target=worker, args=(seed,)) for seed in range(4)]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+    finally:
+        sys.setswitchinterval(interval)
+    assert not wrong, f"{len(wrong)} calls got a value made from other objects"
+
+
+def test_closeup_joined_inputs_are_not_kept_for_every_cached_source():
+    """The concatenated inputs and their uploads of each set of close-up sources ("joined", ~1.5 times the sources'
+    bytes) were kept while the sources were, up to 64 sets: a ROI dragged over the embedded DEM held 98 MiB of them
+    beside the 63 MiB of sources the 64 MiB bound allows (161 MiB). They are cheap to make again from the cached
+    sources (a concatenation and an upload), so only the last few sets keep them."""
+    import gc
+
+    import warp as wp
+
+    from stepterrain import closeup as closeup_module
+    from stepterrain.closeup import ROI, CloseUp, closeup_layers
+
+    def held(value) -> int:
+        if isinstance(value, np.ndarray):
+            return value.nbytes
+        if isinstance(value, wp.array):
+            return value.capacity
+        return sum(held(v) for v in value) if isinstance(value, (tuple, list)) else 0
+
+    t = st.sample_dem()
+    xmin, xmax, ymin, ymax = t.extent
+    radius = 0.08 * (xmax - xmin)
+    sources = t.cached(("closeup", "sources"), dict)
+    joined = t.cached(("closeup", "joined"), dict)
+    for i in range(20):
+        dragged = CloseUp(ROI.circle((xmin + radius * (1 + 0.1 * i), (ymin + ymax) / 2), radius),
+                          offset=(0, 0, 500.0))
+        closeup_layers(t, [dragged], device="cpu")
+        del dragged
+        gc.collect()
+    assert len(sources) == 20  # the sources stay cached (within their byte bound) as before
+    largest = max(held(entry[1]) for entry in joined.values())
+    assert len(joined) <= closeup_module._JOINED_SETS
+    assert sum(held(entry[1]) for entry in joined.values()) <= closeup_module._JOINED_SETS * largest

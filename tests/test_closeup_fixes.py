@@ -1696,3 +1696,38 @@ def test_render_closeups_memo_lets_go_of_frames_whose_texture_is_gone():
         del image
         gc.collect()
     assert len(memo) <= 1, f"{len(memo)} frames kept for textures no longer used"
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+@pytest.mark.parametrize(("option", "value", "message"), [
+    ("merge_passes", "no", r"merge_passes must be True or False; got 'no'"),
+    ("reuse_overview", "yes", r"reuse_overview must be True or False; got 'yes'"),
+    ("reuse_closeups", 2, r"reuse_closeups must be True or False; got 2"),
+    ("timings", [], r"timings must be a dict .*; got list"),
+])
+def test_render_closeups_names_a_bad_flag_or_timings(option, value, message, monkeypatch):
+    """merge_passes="no" (true to Python) merged the passes, reuse_closeups=2 reused: options read as their opposite
+    without a word; timings=[] raised list's TypeError after every pass was rendered. Refused before any work."""
+    import stepterrain.closeup as closeup_module
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("the close-ups were transformed before the options were checked")
+
+    monkeypatch.setattr(closeup_module, "closeup_layers", no_work)
+    with pytest.raises(InvalidInputError, match=message):
+        render_closeups(terrain(), [one()], window_size=SIZE, device="cpu", **{option: value})
+
+
+def test_animate_closeups_names_an_unknown_option_before_any_work(monkeypatch):
+    """An option render_closeups does not take (a typo: ``zscale``) raised its TypeError at the first frame, after
+    the swept box was fitted (every distinct turn's close-ups transformed and culled) and the renderer made."""
+    import stepterrain.closeup as closeup_module
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("the close-ups were transformed before the options were checked")
+
+    monkeypatch.setattr(closeup_module, "closeup_layers", no_work)
+    with pytest.raises(InvalidInputError, match=r"animate_closeups passes options to render_closeups, which takes no "
+                                                r"'zscale'; got zscale=2"):
+        animate_closeups(terrain(), [one()], frames=2, window_size=SIZE, device="cpu", zscale=2)

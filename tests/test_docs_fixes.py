@@ -6,6 +6,10 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
+import numpy as np
+
+import stepterrain as st
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -137,3 +141,42 @@ def test_info_refusal_of_a_gzipped_mesh_says_to_gunzip_it(tmp_path, capsys):
     assert cli.main(["info", str(other)]) == 2
     err = capsys.readouterr().err
     assert "or a mesh file: .glb" in err and "gunzip" not in err, err
+
+
+def test_the_image_extent_example_lays_the_map_over_its_npy_dem(tmp_path, monkeypatch):
+    """texture --help and docs/texture.md showed ``dem.npy --spacing 30 --image map.png --image-extent=0,1500,0,1200``
+    for a DEM 1500 x 1200 m: but an .npy's node (0, 0) is its north-west corner at (0, 0) and its rows run south, so
+    it lies at y -1200..0, and that extent touched it along its north edge only (half a cell): the map showed in the
+    first row of texels, the hypsometric colours everywhere else, without a word. The examples say -1200,0 now; run
+    as shown (on a crop of the real Big Tujunga DEM, 51 x 41 nodes of 30 m), the map covers the texture."""
+    import argparse
+    import shlex
+
+    from PIL import Image
+
+    from stepterrain import cli
+
+    from .test_docs import help_examples, page_command_lines
+
+    parser = cli.build_parser()
+    (action,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    lines = [argv for argv in help_examples(action.choices["texture"].epilog) if "dem.npy" in argv]
+    page = (ROOT / "docs" / "texture.md").read_text(encoding="utf-8")
+    lines += [shlex.split(line)[1:] for line in page_command_lines(page) if "dem.npy" in line]
+    assert len(lines) == 2 and all(any(a.startswith("--image-extent") for a in argv) for argv in lines)
+    np.save(tmp_path / "dem.npy", np.asarray(st.sample_dem().heights)[:41, :51])  # 51 x 41 nodes: 1500 x 1200 m
+    magenta = np.zeros((120, 150, 3), np.uint8)
+    magenta[..., 0] = magenta[..., 2] = 255
+    Image.fromarray(magenta).save(tmp_path / "map.png")
+    monkeypatch.chdir(tmp_path)
+    for argv in lines:
+        if "--png" in argv:  # no render
+            k = argv.index("--png")
+            argv = argv[:k] + argv[k + 2:]
+        assert cli.main(["-q", *argv]) == 0, argv
+        out = argv[argv.index("-o") + 1]
+        with Image.open(tmp_path / out) as written:
+            texture = np.asarray(written.convert("RGB")).astype(int)
+        # the map shaded by the hillshade keeps no green; the hypsometric colours (terrain) all have some
+        covered = (texture[..., 1] == 0) & (texture[..., 0] > 0)
+        assert covered.mean() > 0.95, (" ".join(argv), covered.mean())

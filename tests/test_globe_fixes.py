@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import re
+import sys
 import warnings
 
 import numpy as np
@@ -1237,6 +1238,39 @@ def test_a_tiff_texture_with_an_orientation_tag_is_draped_as_stored(tmp_path, or
         assert np.array_equal(np.asarray(written.convert("RGB")), rgb)
 
 
+def test_a_geotiff_texture_that_is_not_global_is_refused(tmp_path, capsys):
+    """drape_texture(mesh, "dem.tif") and ``globe --texture dem.tif`` of a GeoTIFF that its georeferencing places over
+    a region (the Front Range DEM, 0.63 degrees square) or in a projected CRS (Big Tujunga, UTM 11N) stretched it over
+    the whole globe, silently (a DEM's 16-bit heights as a near-black texture). It is refused now, naming the
+    extent; a global one from 0 to 360 degrees (draped 180 degrees off) is shifted to start at 180 W; the global Blue
+    Marble GeoTIFF (-180..180, -90..90) drapes as before."""
+    from stepterrain.cli import main
+    from stepterrain.globe import drape_texture
+
+    from .conftest import shared_file
+
+    mesh = Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=9, device="cpu").mesh()
+    regional = shared_file("front_range_srtmgl3_3arcsec.tif")
+    with pytest.raises(InvalidInputError, match=r"global plate-carr.e image .*longitudes -105\.816 to -105\.185"):
+        drape_texture(mesh, regional)
+    with pytest.raises(InvalidInputError, match="projected CRS"):
+        drape_texture(mesh, shared_file("big_tujunga_srtm_30m_utm11n.tif"))
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    shifted = tmp_path / "earth_0_360.tif"  # global, but column 0 at 0E: draped 180 degrees off
+    data = np.broadcast_to(np.arange(180, dtype=np.uint8)[None, :, None], (90, 180, 3))  # each column its own value
+    with rasterio.open(shifted, "w", driver="GTiff", width=180, height=90, count=3, dtype="uint8", crs="EPSG:4326",
+                       transform=Affine(2.0, 0.0, 0.0, 0.0, -2.0, 90.0)) as dataset:
+        dataset.write(np.moveaxis(data, 2, 0))
+    drawn = np.asarray(drape_texture(mesh, shifted).visual.material.image)
+    np.testing.assert_array_equal(drawn, np.roll(data, 90, axis=1))  # its column 90 (180E = 180W) first
+    textured = drape_texture(mesh, shared_file("earth_day_bluemarble_3840x1920.tif"))
+    assert textured.visual.material.image.size == (3840, 1920)
+    assert main(["-q", "globe", "--face-size", "9", "--texture", str(regional), "-o", str(tmp_path / "g.glb")]) == 2
+    assert "--texture" in capsys.readouterr().err and not (tmp_path / "g.glb").exists()
+
+
 def _two_pole_texture():
     """A plate-carrée texture whose poles differ: ice white south of 70° S, dark blue north of 70° N, green between."""
     image = np.empty((128, 256, 3), np.uint8)
@@ -1743,34 +1777,56 @@ def test_a_globe_drape_saved_as_obj_shows_its_texture_at_full_brightness_and_mat
     np.testing.assert_array_equal(draped.visual.material.diffuse, diffuse)  # the caller's mesh untouched
 
 
-def test_a_georeferenced_texture_is_draped_where_its_georeferencing_puts_it(tmp_path):
+def test_a_georeferenced_texture_is_draped_where_its_georeferencing_puts_it(tmp_path, monkeypatch):
     """A texture file was draped as a plate-carrée image from 180° W whatever its georeferencing said: a global
     GeoTIFF in longitudes 0..360 came out half a turn round, and a UTM orthophoto (or a regional one in degrees)
     was wrapped round the whole earth, without a word. A global one in degrees is put at -180..180 now; any other
-    georeferencing is refused by name. A texture without georeferencing is plate carrée from 180° W, as before."""
+    georeferencing is refused by name. A texture without georeferencing is plate carrée from 180° W, as before.
+    The GeoTIFF tags and world files are read without rasterio (the optional [geo] extra; the files are written with
+    it here, read with it hidden)."""
     rasterio = pytest.importorskip("rasterio")
+    from PIL import Image
     from rasterio.transform import Affine
 
-    from stepterrain.globe import drape_colors
+    from stepterrain.globe import _texture_pixels, drape_colors
 
     pixels = np.zeros((18, 36, 3), np.uint8)
     pixels[:, 18:, 0] = 255  # red east of Greenwich, in -180..180 columns
 
-    def geotiff(name, data, transform, crs="EPSG:4326"):
+    def geotiff(name, data, transform, crs="EPSG:4326", **tags):
         with rasterio.open(tmp_path / name, "w", driver="GTiff", width=data.shape[1], height=data.shape[0], count=3,
                            dtype="uint8", crs=crs, transform=transform) as ds:  # fmt: skip
+            ds.update_tags(**tags)
             ds.write(np.moveaxis(data, 2, 0))
+        return tmp_path / name
+
+    def png(name, data, world, prj=None):  # a world file: A, D, B, E, then the upper-left pixel's centre C, F
+        Image.fromarray(data).save(tmp_path / name)
+        (tmp_path / name).with_suffix(".pgw").write_text("\n".join(map(str, world)) + "\n")
+        if prj:
+            (tmp_path / name).with_suffix(".prj").write_text(prj)
         return tmp_path / name
 
     directions = np.array([[0.0, 1.0, 0.0], [0.0, -1.0, 0.0], [1.0, 1.0, 0.5], [-1.0, -1.0, -0.5]]) * EARTH_RADIUS
     expected = drape_colors(directions, pixels)
     assert expected[:, 0].tolist() == [255, 0, 255, 0]  # 90° E and 45° E red, 90° W and 135° W not
     east = geotiff("east.tif", np.roll(pixels, 18, axis=1), Affine(10.0, 0.0, 0.0, 0.0, -10.0, 90.0))  # 0..360
-    np.testing.assert_array_equal(drape_colors(directions, east), expected)
-    np.testing.assert_array_equal(drape_colors(directions, geotiff("west.tif", pixels, Affine(
-        10.0, 0.0, -180.0, 0.0, -10.0, 90.0))), expected)
-    for name, transform, crs in (("utm.tif", Affine(10.0, 0.0, 376000.0, 0.0, -10.0, 3807000.0), "EPSG:32611"),
-                                 ("alps.tif", Affine(0.1, 0.0, 5.0, 0.0, -0.1, 48.0), "EPSG:4326"),
-                                 ("south_up.tif", Affine(10.0, 0.0, -180.0, 0.0, 10.0, -90.0), "EPSG:4326")):
-        with pytest.raises(InvalidInputError, match=r"^texture .* must be a global plate-carrée image in degrees"):
-            drape_colors(directions, geotiff(name, pixels, transform, crs))
+    west = geotiff("west.tif", pixels, Affine(10.0, 0.0, -180.0, 0.0, -10.0, 90.0))
+    # PixelIsPoint: its tiepoint at the first pixel's centre (15 E), its west edge at 10 E (19 columns, not 19.5)
+    point = geotiff("point.tif", np.roll(pixels, 17, axis=1), Affine(10.0, 0.0, 10.0, 0.0, -10.0, 90.0),
+                    AREA_OR_POINT="Point")
+    world_east = png("east.png", np.roll(pixels, 18, axis=1), (10, 0, 0, -10, 5, 85))
+    refused = [geotiff("utm.tif", pixels, Affine(10.0, 0.0, 376000.0, 0.0, -10.0, 3807000.0), "EPSG:32611"),
+               geotiff("alps.tif", pixels, Affine(0.1, 0.0, 5.0, 0.0, -0.1, 48.0)),
+               geotiff("south_up.tif", pixels, Affine(10.0, 0.0, -180.0, 0.0, 10.0, -90.0)),
+               geotiff("rotated.tif", pixels, Affine(10.0, 0.01, -180.0, 0.0, -10.0, 90.0)),  # ModelTransformation
+               png("alps.png", pixels, (0.1, 0, 0, -0.1, 5.05, 47.95)),
+               png("utm.png", pixels, (10, 0, 0, -10, -175, 85), prj='PROJCS["WGS 84 / UTM zone 11N",GEOGCS[...]]')]
+    with monkeypatch.context() as hidden:
+        hidden.setitem(sys.modules, "rasterio", None)  # import rasterio raises ImportError
+        for placed in (east, west, point, world_east):
+            np.testing.assert_array_equal(drape_colors(directions, placed), expected, err_msg=str(placed))
+            np.testing.assert_array_equal(_texture_pixels(placed), pixels, err_msg=str(placed))  # each column
+        for name in refused:
+            with pytest.raises(InvalidInputError, match=r"^texture .* must be a global plate-carrée image"):
+                drape_colors(directions, name)

@@ -1476,7 +1476,7 @@ def test_render_layers_drops_the_layers_of_an_earlier_call_it_no_longer_draws():
         expected = frames(fresh, [{0: near_layer}])
     with render.LayeredRenderer(window_size=(64, 48)) as reused:
         got = frames(reused, [{0: near_layer, 1: far_layer}, {0: near_layer}])
-        assert "closeup1" not in reused._actors
+        assert "closeup:1" not in reused._actors
     np.testing.assert_allclose(got, expected, rtol=1e-12)
 
     # the budget: the first frame's layers fit, and so does the second's layer 0 (grown) beside the overview, but not
@@ -1491,7 +1491,7 @@ def test_render_layers_drops_the_layers_of_an_earlier_call_it_no_longer_draws():
             renderer.set_view((30.0, 35.0), box)
             renderer.render_layers("closeup", {0: (*near_layer, {}), 1: (*big, {})}, merge=False)
             renderer.render_layers("closeup", {0: (*big, {})}, merge=False)  # refused while layer 1 stayed
-            assert sorted(renderer._actors) == ["closeup0", "overview"]
+            assert sorted(renderer._actors) == ["closeup:0", "overview"]
     finally:
         st.set_memory_budget(previous)
 
@@ -1511,9 +1511,134 @@ def test_render_layers_drops_only_its_own_prefixs_earlier_layers():
         anchors = renderer.render_layers("anchor", both, merge=False)
         renderer.render_layers("closeup", both, merge=False)
         renderer.render_layers("closeup", {0: (*layer, {})}, merge=False)
-        assert sorted(renderer._actors) == ["anchor0", "anchor1", "closeup0", "closeup_user", "overview"]
+        assert sorted(renderer._actors) == ["anchor:0", "anchor:1", "closeup:0", "closeup_user", "overview"]
         for k in (0, 1):
-            np.testing.assert_array_equal(renderer.render([f"anchor{k}"])[0], anchors[k][0])
+            np.testing.assert_array_equal(renderer.render([f"anchor:{k}"])[0], anchors[k][0])
         renderer.render_layers("anchor", {}, merge=False)
-        assert sorted(renderer._actors) == ["closeup0", "closeup_user", "overview"]
+        assert sorted(renderer._actors) == ["closeup:0", "closeup_user", "overview"]
         np.testing.assert_array_equal(renderer.render(["closeup_user"])[0], user[0])
+
+
+@needs_render
+def test_render_layers_names_cannot_collide_across_prefixes():
+    """Layer names were ``prefix + str(k)``: prefix "cu" layer 10 and prefix "cu1" layer 0 were both "cu10", one actor.
+    The second call overwrote the first's mesh, and a later call of "cu" that no longer drew layer 10 removed "cu1"'s
+    layer 0 (its later render: "no layer named")."""
+    ground = _grid(20, 0.0, 0.0)
+    with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+        renderer.set_mesh("overview", *ground)
+        renderer.set_view((30.0, 35.0), [[0, 0, 0], [20, 20, 5]])
+        many = {k: (*_grid(3, 1.0 + k, 2.0), {}) for k in range(11)}
+        renderer.render_layers("cu", many, merge=False)
+        other = renderer.render_layers("cu1", {0: (*_grid(5, 8.0, 3.0), {})}, merge=False)
+        assert len(renderer._actors) == 1 + 11 + 1
+        renderer.render_layers("cu", {k: many[k] for k in range(10)}, merge=False)  # drops "cu"'s layer 10 only
+        assert len(renderer._actors) == 1 + 10 + 1
+        again = renderer.render_layers("cu1", {0: (*_grid(5, 8.0, 3.0), {})}, merge=False)
+        np.testing.assert_array_equal(again[0][0], other[0][0])
+        (name,) = set(renderer._actors) - set(renderer._layer_names["cu"]) - {"overview"}
+        np.testing.assert_array_equal(renderer.render([name])[0], other[0][0])
+
+
+@needs_render
+@pytest.mark.parametrize("prefix", [5, None, b"cu", "cu:1"])
+def test_render_layers_names_a_bad_prefix(prefix):
+    with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+        renderer.set_mesh("overview", *_grid(20, 0.0, 0.0))
+        renderer.set_view((30.0, 35.0), [[0, 0, 0], [20, 20, 5]])
+        with pytest.raises(InvalidInputError, match=r"render_layers prefix must be a str without ':' .*; got "):
+            renderer.render_layers(prefix, {0: (*_grid(3, 1.0, 2.0), {})}, merge=False)
+
+
+@needs_render
+@pytest.mark.parametrize(("layers", "message"), [
+    ([(VERTICES, FACES, {})], r"layers must be a dict \{k: \(vertices, faces, options\)\} .*; got list"),
+    ({0: (VERTICES,)}, r"layers\[0\] must be \(vertices, faces, options\).*; got tuple of 1"),
+    ({0: (VERTICES, FACES, None)}, r"layers\[0\] must be \(vertices, faces, options\).*; got options NoneType"),
+    ({0: (VERTICES, FACES, {"color": 1})}, r"layers\[0\] options may hold 'rgb' and 'values' only; got \['color'\]"),
+    ({"merged0": (VERTICES, FACES, {})}, r"layers keys must be ints .*; got 'merged0'"),
+    ({True: (VERTICES, FACES, {})}, r"layers keys must be ints .*; got True"),
+    ({0: ("x", FACES, {})}, r"layers\[0\] vertices must be \(V, 3\) coordinates"),
+    ({0: ([[1.0, 2.0]], FACES, {})}, r"layers\[0\] vertices must be \(V, 3\) coordinates; got shape \(1, 2\)"),
+])
+def test_render_layers_names_a_bad_layer(layers, message):
+    """A list raised AttributeError ('items'), a short entry ValueError (unpack), options None AttributeError ('get'),
+    an unknown option set_mesh's TypeError; a str key "merged0" was named as a merged pass of the same prefix (one
+    actor for two layers)."""
+    with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+        renderer.set_mesh("overview", *_grid(20, 0.0, 0.0))
+        renderer.set_view((30.0, 35.0), [[0, 0, 0], [20, 20, 5]])
+        with pytest.raises(InvalidInputError, match=message):
+            renderer.render_layers("cu", layers)
+
+
+@needs_render
+@pytest.mark.parametrize("call", ["render", "render_layers merge", "render_layers crop"])
+def test_layered_renderer_names_a_bad_flag(call):
+    """reuse="no", merge="no", crop="no" are true to Python: the option was switched on without a word."""
+    with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+        renderer.set_mesh("overview", *_grid(20, 0.0, 0.0))
+        renderer.set_view((30.0, 35.0), [[0, 0, 0], [20, 20, 5]])
+        name = call.split()[-1] if " " in call else "reuse"
+        with pytest.raises(InvalidInputError, match=rf"{name} must be True or False; got 'no'"):
+            if call == "render":
+                renderer.render(["overview"], reuse="no")
+            else:
+                renderer.render_layers("cu", {0: (*_grid(3, 1.0, 2.0), {})}, **{name: "no"})
+
+
+@needs_render
+def test_layered_renderer_screen_rect_and_bounds_of_name_bad_input():
+    """screen_rect("x") raised numpy's ValueError, bounds_of an unknown name a bare KeyError."""
+    with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+        renderer.set_mesh("overview", *_grid(20, 0.0, 0.0))
+        renderer.set_view((30.0, 35.0), [[0, 0, 0], [20, 20, 5]])
+        with pytest.raises(InvalidInputError, match=r"vertices must be \(N, 3\) world points"):
+            renderer.screen_rect("x")
+        with pytest.raises(InvalidInputError, match=r"no layer named 'zz'; have \['overview'\]"):
+            renderer.bounds_of("zz")
+        with pytest.raises(InvalidInputError, match=r"no layer named \['overview'\]; have \['overview'\]"):
+            renderer.bounds_of(["overview"])
+        assert renderer.screen_rect(_grid(3, 1.0, 2.0)[0]) is not None
+        np.testing.assert_array_equal(renderer.bounds_of("overview"), [[0, 0, 0], [19, 19, 0]])
+
+
+@needs_render
+def test_reused_passes_of_earlier_views_and_many_rects_are_not_kept():
+    """render(reuse=True) kept every pass it read under its layers and rect, whatever the view: a loop moving the
+    camera with a crop following a mesh kept each frame's images (50 frames of a 320 x 240 window: 50 passes, 4.9 MB),
+    though a pass of an earlier view can never be reused (the view's version only grows). Now the passes of other
+    views go, and at most a few of the current view's are kept; a still view's pass is reused as before."""
+    vertices, faces = _grid(20, 0.0, 1.0)
+    with render.LayeredRenderer(window_size=(320, 240)) as renderer:
+        renderer.set_mesh("a", vertices, faces)
+        for n in range(50):
+            renderer.set_view((30.0 + n, 35.0), [[0, 0, 0], [20, 20, 1]])
+            rect = renderer.screen_rect(vertices[:60] + [n * 0.1, 0, 0])
+            renderer.render(["a"], reuse=True, rect=rect)
+        assert len(renderer._passes) == 1
+        for c0 in range(40):  # a still view, crops of many places
+            renderer.render(["a"], reuse=True, rect=(c0, 0, c0 + 100, 100))
+        assert len(renderer._passes) <= render._REUSED_PASSES
+        color, depth = renderer.render(["a"], reuse=True)
+        again, again_depth = renderer.render(["a"], reuse=True)
+        assert np.shares_memory(again, color)  # the kept images, not a new pass
+        fresh, fresh_depth = renderer.render(["a"])
+        np.testing.assert_array_equal(again, fresh)
+        np.testing.assert_array_equal(again_depth, fresh_depth)
+
+
+@needs_render
+def test_render_layers_merges_layers_given_as_flat_vertex_arrays():
+    """Vertices as a flat (3V,) array (taken by set_mesh) counted 3V vertices in a merged pass: the second layer's
+    faces were shifted past the joined vertices (or numpy's ValueError joining a flat array to (V, 3) rows)."""
+    near, far = _grid(3, 1.0, 2.0), _grid(3, 12.0, 2.0)
+    with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+        renderer.set_mesh("overview", *_grid(20, 0.0, 0.0))
+        renderer.set_view((30.0, 35.0), [[0, 0, 0], [20, 20, 5]])
+        rows = renderer.render_layers("cu", {0: (*near, {}), 1: (*far, {})})
+        assert any(name.startswith("cu:merged") for name in renderer._actors)  # one pass for both
+        flat = renderer.render_layers("cu", {0: (near[0].ravel(), near[1], {}), 1: (far[0].ravel(), far[1], {})})
+    for k in (0, 1):
+        np.testing.assert_array_equal(flat[k][0], rows[k][0])
+        np.testing.assert_array_equal(flat[k][1], rows[k][1])

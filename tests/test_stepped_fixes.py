@@ -1199,3 +1199,164 @@ def test_a_nodata_node_takes_level_0_on_every_quantize_path(device, values, unif
     got = levels.numpy()
     assert not got[0::2].any()  # NaN: level 0
     np.testing.assert_array_equal(got[1::2], np.searchsorted(thresholds, finite, side="right"))
+
+
+@pytest.mark.parametrize("hole", [False, True], ids=["no-nodata", "nodata"])
+def test_a_float64_stack_shares_the_isovalues_its_float32_frames_are_stepped_with(hole):
+    """stepped_series of a (T, H, W) stack took its shared isovalues from the float64 heights, while every frame is
+    stepped from its float32 heights (a Terrain's): a height 1e-9 above an isovalue (or below one) rounds onto it in
+    float32, yet added a level above (below) that no vertex reaches, so the frame's colours by level, its level
+    indices and its recorded isovalues differed from stepped() of the same frame and from the stack as float32. The
+    range is now the float32 heights'."""
+    heights = st.sample_dem().heights[:40, :50].astype(np.float64)
+    heights = heights - heights.max() + 1000.0  # the highest height exactly on the isovalue 1000
+    lo = float(heights.min())
+    heights[heights == heights.max()] += 1e-9  # float32 rounds it back onto 1000
+    heights[heights == lo] = np.floor(lo / 50.0) * 50.0 - 1e-9  # and the lowest onto an isovalue from below
+    if hole:
+        heights[10:14, 20:25] = np.nan
+    stack = np.stack([heights, heights - 50.0])
+    got = list(st.stepped_series(stack, interval=50.0, colors="viridis"))
+    want = list(st.stepped_series(stack.astype(np.float32), interval=50.0, colors="viridis"))
+    for a, b in zip(got, want, strict=True):
+        assert a.metadata["isovalues"] == b.metadata["isovalues"]
+        np.testing.assert_array_equal(a.vertices, b.vertices)
+        np.testing.assert_array_equal(a.face_attributes["level"], b.face_attributes["level"])
+        np.testing.assert_array_equal(a.visual.vertex_colors, b.visual.vertex_colors)
+    single = next(st.stepped_series(heights[None], interval=50.0, colors="viridis"))
+    alone = st.stepped(heights, interval=50.0, colors="viridis")
+    assert single.metadata["isovalues"] == alone.metadata["isovalues"]
+    np.testing.assert_array_equal(single.visual.vertex_colors, alone.visual.vertex_colors)
+
+
+@pytest.mark.parametrize("stray", [(5.0, 5.0, 1e39), (1e300, 5.0, 1.0), (5.0, -1e300, 1.0)],
+                         ids=["z-beyond-float32", "x-beyond-float32", "y-beyond-float32"])
+def test_a_point_on_no_face_beyond_float32_steps_without_a_numpy_warning(stray):
+    """A point no face uses does not matter (Terrain.from_mesh refuses coordinates beyond float32 only on kept faces):
+    its z cast to the float32 heights, and its x or y to the float32 local points, each raised numpy's "overflow
+    encountered in cast" RuntimeWarning (an error where warnings are, as under pytest's -W error), from a TIN that
+    then stepped exactly as the TIN without the point (and Terrain(kind="tin", ...) given its heights warned comparing
+    them with the points' z). Now it steps silently, as that TIN does."""
+    base = st.heightfield_mesh(st.sample_dem().heights[:12, :15], spacing=(30.0, 30.0))
+    points = np.vstack([base.vertices + [376000.0, 3790000.0, 0.0], [stray]])
+    with_stray = trimesh.Trimesh(points, base.faces, process=False)
+    without = trimesh.Trimesh(points[:-1], base.faces, process=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = st.stepped(with_stray, interval=50.0, solid=True)
+        terrain = st.Terrain(kind="tin", heights=as_terrain(with_stray).heights, points=points, faces=base.faces)
+    want = st.stepped(without, interval=50.0, solid=True)
+    np.testing.assert_array_equal(got.vertices, want.vertices)
+    np.testing.assert_array_equal(got.faces, want.faces)
+    assert terrain.height_range == as_terrain(without).height_range
+
+
+def test_carried_vertex_colours_are_the_input_colours_interpolated_at_every_output_vertex():
+    """Issue §3: a TIN's vertex colours are carried onto the steps by the crossings' β. The tests before checked the
+    nodes' colours only; here every output vertex (wall bottoms and tops, twins, nodes) of a Delaunay TIN of the
+    embedded DEM at UTM coordinates, with a hole, takes the input's colour interpolated at its xy: colours affine in
+    x and y, so that the interpolation over any triangle gives them (to the bytes' rounding), whatever γ."""
+    from scipy.spatial import Delaunay
+
+    dem = st.sample_dem()
+    rng = np.random.default_rng(4)
+    rows, cols = rng.integers(0, 120, 600), rng.integers(0, 160, 600)
+    x0, y0 = dem.origin
+    points = np.unique(np.column_stack([x0 + cols * dem.spacing[0], y0 + rows * dem.spacing[1],
+                                        dem.heights[rows, cols]]), axis=0)
+    faces = Delaunay(points[:, :2]).simplices
+    centre = points[faces, :2].mean(axis=1)
+    middle = points[:, :2].mean(axis=0)
+    faces = faces[np.abs(centre - middle).max(axis=1) > 600.0]  # a hole in the middle
+    lo, span = points[:, :2].min(axis=0), np.ptp(points[:, :2], axis=0)
+
+    def colour_at(xy):
+        s = (xy - lo) / span
+        return np.column_stack([255 * s[:, 0], 255 * s[:, 1], 255 * (1 - s[:, 0]), 127 + 100 * s[:, 1]])
+
+    tin = trimesh.Trimesh(points, faces, process=False)
+    tin.visual = trimesh.visual.ColorVisuals(tin, vertex_colors=np.round(colour_at(points[:, :2])).astype(np.uint8))
+    for gamma in (1.0, 0.4):
+        mesh = st.stepped(tin, interval=25.0, gamma=gamma)
+        assert mesh.face_attributes["wall"].any()
+        got = mesh.visual.vertex_colors.astype(np.float64)
+        assert np.abs(got - colour_at(mesh.vertices[:, :2])).max() <= 1.0 + 1e-6
+
+
+@pytest.mark.parametrize("soup", [False, True], ids=["welded", "soup"])
+def test_short_detached_vertex_colours_are_refused_before_stepping(soup):
+    """As face colours and UVs are: a TIN whose visual is a ColorVisuals(vertex_colors=...) built apart from the mesh
+    keeps the rows given, and with fewer rows than the points its faces use, Terrain.from_mesh (welding coincident
+    points by position and colour) raised numpy's IndexError, so stepped(), stepped_series() and every other use
+    of such a TIN failed with it. Now the terrain is built (a soup welded by position alone) and stepped() refuses
+    the colours it cannot carry, naming visual.vertex_colors, before the passes; colors= still steps it (as one
+    welded surface), and rows beyond the points are still fine."""
+    mesh = st.heightfield_mesh(st.sample_dem().heights[:6, :7], spacing=(30.0, 30.0))
+    if soup:
+        mesh.unmerge_vertices()
+    short = trimesh.visual.ColorVisuals(vertex_colors=np.full((5, 4), 200, np.uint8))
+    mesh.visual = short
+    assert len(mesh.visual.vertex_colors) == 5
+    st.Terrain.from_mesh(mesh)
+    message = rf"visual.vertex_colors must hold one RGBA row per vertex \(at least {len(mesh.vertices)}\).*got 5 rows"
+    with pytest.raises(st.InvalidInputError, match=message):
+        st.stepped(mesh, interval=20.0)
+    with pytest.raises(st.InvalidInputError, match=message):
+        list(st.stepped_series([mesh], interval=20.0))
+    coloured = st.stepped(mesh, interval=20.0, colors="terrain")
+    welded = st.stepped(st.heightfield_mesh(st.sample_dem().heights[:6, :7], spacing=(30.0, 30.0)), interval=20.0)
+    assert len(coloured.vertices) == len(welded.vertices) and len(coloured.faces) == len(welded.faces)
+    mesh.visual = trimesh.visual.ColorVisuals(vertex_colors=np.full((len(mesh.vertices) + 3, 4), 200, np.uint8))
+    assert (st.stepped(mesh, interval=20.0).visual.vertex_colors == 200).all()
+
+
+def test_short_vertex_colours_are_refused_where_the_welded_faces_use_only_points_with_a_row():
+    """A soup with short detached vertex colours is welded by position alone; the refusal counted the rows the welded
+    faces need, so a soup whose last points coincide with earlier ones stepped, a given colour merged into a
+    coincident point's: here point 3 (white) lies on point 1 (green) and point 5, with no row, on point 2; six rows
+    keep 1 and 3 apart (both colours at (10, 0)), five stepped all green there. Now short colours are refused."""
+    points = np.array([[0, 0, 0], [10, 0, 5], [0, 10, 30], [10, 0, 5], [10, 10, 40], [0, 10, 30]], dtype=np.float64)
+    rows = np.array([[255, 0, 0, 255], [0, 255, 0, 255], [0, 0, 255, 255], [255, 255, 255, 255], [9, 9, 9, 255],
+                     [0, 0, 255, 255]], dtype=np.uint8)
+    mesh = trimesh.Trimesh(points, [[0, 1, 2], [3, 4, 5]], process=False)
+    mesh.visual = trimesh.visual.ColorVisuals(vertex_colors=rows)
+    full = st.stepped(mesh, interval=10.0)
+    at = np.linalg.norm(full.vertices[:, :2] - [10.0, 0.0], axis=1) < 1e-9
+    assert {tuple(c) for c in full.visual.vertex_colors[at].tolist()} == {(0, 255, 0, 255), (255, 255, 255, 255)}
+    mesh.visual = trimesh.visual.ColorVisuals(vertex_colors=rows[:5])
+    with pytest.raises(st.InvalidInputError, match=r"visual.vertex_colors .*\(at least 6\).*got 5 rows"):
+        st.stepped(mesh, interval=10.0)
+    assert len(st.stepped(mesh, interval=10.0, colors="terrain").vertices) < len(full.vertices)  # welded
+
+
+def test_a_grid_terrain_carries_its_vertex_colours_and_short_ones_are_refused():
+    """The refusal of short vertex colours read a TIN's point_used, which a grid Terrain has not (an IndexError for
+    every grid carrying vertex colours); a grid's rows are its nodes: all of them carried, fewer refused."""
+    heights = st.sample_dem().heights[:20, :24]
+    rgba = np.zeros((heights.size, 4), np.uint8)
+    rgba[:, 0], rgba[:, 3] = np.arange(heights.size) % 256, 255
+    terrain = st.Terrain(kind="grid", heights=heights, visual=trimesh.visual.ColorVisuals(vertex_colors=rgba))
+    mesh = st.stepped(terrain, interval=50.0)
+    at_node = np.all(mesh.vertices[:, :2] == np.round(mesh.vertices[:, :2]), axis=1)  # spacing 1: nodes' xy whole
+    rows, cols = mesh.vertices[at_node, 1].astype(int), mesh.vertices[at_node, 0].astype(int)
+    np.testing.assert_array_equal(mesh.visual.vertex_colors[at_node, 0], rgba[rows * heights.shape[1] + cols, 0])
+    short = st.Terrain(kind="grid", heights=heights, visual=trimesh.visual.ColorVisuals(vertex_colors=rgba[:-1]))
+    with pytest.raises(st.InvalidInputError, match=rf"^terrain visual.vertex_colors .*\(at least {heights.size}\)"):
+        st.stepped(short, interval=50.0)
+
+
+def test_a_grid_terrain_carries_its_uvs_and_a_uv_row_short_is_refused():
+    """The check of carried texture coordinates took len(terrain.points), None on a grid Terrain: a TypeError for
+    every grid with a TextureVisuals. A grid's UVs are one row per node: carried (a node's output vertex keeps its
+    row), and one row short refused naming visual.uv."""
+    heights = st.sample_dem().heights[:20, :24]
+    rows, cols = np.divmod(np.arange(heights.size), heights.shape[1])
+    uv = np.column_stack([cols / (heights.shape[1] - 1), rows / (heights.shape[0] - 1)])
+    terrain = st.Terrain(kind="grid", heights=heights, visual=trimesh.visual.TextureVisuals(uv=uv))
+    mesh = st.stepped(terrain, interval=50.0)
+    at_node = np.all(mesh.vertices[:, :2] == np.round(mesh.vertices[:, :2]), axis=1)  # spacing 1: nodes' xy whole
+    node = mesh.vertices[at_node, 1].astype(int) * heights.shape[1] + mesh.vertices[at_node, 0].astype(int)
+    np.testing.assert_allclose(mesh.visual.uv[at_node], uv[node], atol=1e-12)
+    short = st.Terrain(kind="grid", heights=heights, visual=trimesh.visual.TextureVisuals(uv=uv[:-1]))
+    with pytest.raises(st.InvalidInputError, match=rf"^terrain visual.uv .*shape \({heights.size}, 2\)"):
+        st.stepped(short, interval=50.0)

@@ -475,6 +475,23 @@ def test_drape_a_layer_covering_part_of_the_mesh_keeps_its_border_beyond_it(bord
     assert (texels[inner & (x >= 6.0)] == beyond).all()
 
 
+def test_drape_refuses_a_mesh_wholly_outside_the_layer():
+    """A mesh in other coordinates than the layer's (a pyvista ImageData at (0, 0) under the layer of a DEM in UTM)
+    was draped with the layer's edge texels stretched over it (or the background), silently: the image grew to cover
+    both. Now it is refused, naming both extents; a mesh under part of the layer is draped as before."""
+    dem = st.sample_dem().coarsen(8)
+    layer = st.topographic_layer(dem, device="cpu")
+    local = st.heightfield_mesh(np.asarray(dem.heights), spacing=(240.0, 240.0))  # the same heights at (0, 0)
+    with pytest.raises(InvalidInputError, match=r"mesh must lie under the layer.*x 0 to .*376\d{3}"):
+        drape(local, layer)
+    edge = TextureLayer(layer.kind, layer.image, layer.extent, border="edge")
+    with pytest.raises(InvalidInputError, match="wholly outside"):
+        drape(local, edge)
+    part = st.heightfield_mesh(np.asarray(dem.heights), spacing=dem.spacing,
+                               origin=(dem.origin[0] + 20_000.0, dem.origin[1]))  # its west half under the layer
+    assert len(drape(part, layer).visual.uv) == len(part.vertices)
+
+
 AVAILABLE, REASON = render.offscreen_available()
 
 
