@@ -1509,6 +1509,13 @@ def _obj_material(mesh: trimesh.Trimesh, mtl_name: str) -> tuple[dict[str, bytes
         if unset:  # trimesh's default Kd 0.4 dims map_Kd to 40 % (MTL multiplies them; three.js does), Ks 0.4 shines
             material.diffuse = np.array([255, 255, 255, 255], np.uint8)
             material.specular = np.array([0, 0, 0, 255], np.uint8)  # matte, as the glTF material
+    elif isinstance(material, trimesh.visual.material.SimpleMaterial) and material.image is not None:
+        # an image given as TextureVisuals(uv=..., image=...) (globe.drape_texture's, the globe CLI's --texture): the
+        # glTF writes it with a white factor, matte (_textured_material); its MTL kept trimesh's Kd 0.4 and Ks 0.4,
+        # the drape at 40 % brightness and shiny. A copy: the mesh's own material stays as it is
+        material = copy.copy(material)
+        material.diffuse = np.array([255, 255, 255, 255], np.uint8)
+        material.specular = np.array([0, 0, 0, 255], np.uint8)
     image = getattr(material, "image", None)
     # trimesh's to_obj writes a PNG (or one opened from none) as PNG: encoded once, as a glTF's texture; a JPEG as the
     # file's bytes, as a glTF's (_encoded_image)

@@ -1413,7 +1413,10 @@ def adaptive_mesh(
     spacing = 1.0 if spacing is None else spacing
     origin = (0.0, 0.0) if origin is None else origin
     try:
-        dx, dy = (spacing, spacing) if np.isscalar(spacing) else tuple(spacing)  # type: ignore[misc]
+        # one number: a 0-d array too (an .npz's np.load(...)["dx"], which heightfield_mesh takes; tuple() refused it)
+        single = np.isscalar(spacing) or (isinstance(spacing, np.ndarray) and spacing.ndim == 0
+                                          and is_real_dtype(spacing.dtype))
+        dx, dy = (spacing, spacing) if single else tuple(spacing)  # type: ignore[misc]
     except (TypeError, ValueError):
         raise InvalidInputError(f"spacing must be a number or (dx, dy); got {spacing!r}") from None
     dx, dy = check_spacing(_nonzero(dx, "spacing dx"), _nonzero(dy, "spacing dy"))
@@ -1540,7 +1543,7 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
                 from .texture_lod import _tiff_as_stored
 
                 _tiff_as_stored(picture)  # its stored pixels, as a PNG's or JPEG's: Pillow turns a TIFF by its tag
-                _refuse_regional_geotiff(picture, image)
+                shift = _plate_carree_shift(picture, image)  # from its header: refused before its pixels are read
                 if _kept_jpeg(picture):
                     picture.load()  # its pixels, and Pillow closes the file it opened
                     kept, image = picture, np.asarray(picture)
@@ -1551,6 +1554,8 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
                     picture.close()
         except OSError as exc:
             raise DataFileError(f"cannot read texture {image!r}: {exc}") from exc
+        if shift:  # a global GeoTIFF in longitudes 0..360: its columns put at -180..180, as the drape reads them
+            image, kept = np.roll(np.asarray(image), shift, axis=1), None
     pixels = np.asarray(image)
     if pixels.ndim != 3 or pixels.shape[2] not in (3, 4) or min(pixels.shape[:2]) < 2:
         raise InvalidInputError(f"texture must be an (H, W, 3|4) image of at least 2 x 2 pixels; got shape "
@@ -1563,44 +1568,102 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
     return pixels, kept
 
 
-def _refuse_regional_geotiff(picture: Any, path: Any) -> None:
-    """Refuse a GeoTIFF whose georeferencing says it is no global plate-carrée image: projected (GTModelTypeGeoKey
-    1), or in degrees over less than 360 x 180 (a regional orthophoto, a DEM), which a drape by latitude and longitude
-    stretched over the whole globe, silently. A TIFF without a geotransform (ModelPixelScale 33550 and ModelTiepoint
-    33922 tags) is taken as global, as any other image is."""
-    if getattr(picture, "format", None) != "TIFF":
-        return
+def _plate_carree_shift(picture: Any, path: Any) -> int:
+    """Columns to roll a texture file by so that its column 0 starts at 180° W, as the drape reads every texture,
+    from its georeferencing: a GeoTIFF's tags (ModelPixelScale 33550 and ModelTiepoint 33922, or
+    ModelTransformation 34264; GTModelTypeGeoKey and GTRasterTypeGeoKey in the GeoKeyDirectory 34735), else a world
+    file beside it (``.jgw``/``.pgw``/``.tfw``, ``.jpgw``..., ``.wld``; its CRS from a ``.prj``), as GDAL reads
+    them. Read from ``picture``'s header (a PIL image opened, not decoded) and the small files beside ``path``: no
+    pixels, and no rasterio (the optional ``[geo]`` extra). 0 for an image without georeferencing (plate carrée from
+    180° W, as documented) or one that starts there; a global one in longitudes 0..360 (or from any whole column)
+    is rolled. One whose georeferencing is no whole globe in degrees is refused before its pixels are read: a
+    projected CRS, a regional extent (a DEM, an orthophoto), a rotated or south-up grid; each was draped over the
+    whole globe from 180° W, without a word (a UTM orthophoto wrapped round the earth)."""
+    name = f"texture {str(path)!r}"
+    found = _geotiff_transform(picture) if getattr(picture, "format", None) == "TIFF" else None
+    if found is None:
+        found = _world_file_transform(path)
+    if found is None:
+        return 0
+    (a, b, west, d, e, north), projected, source = found
+    if projected:
+        raise InvalidInputError(f"{name} must be a global plate-carrée image (longitude and latitude in degrees); got "
+                                f"{source} in a projected CRS: reproject it first (`gdalwarp -t_srs EPSG:4326 "
+                                "-te -180 -90 180 90 ...`)")
+    width, height = picture.size
+    if not (a > 0 and e < 0 and b == 0 and d == 0):
+        raise InvalidInputError(f"{name} must be a global plate-carrée image, north-up (row 0 at 90N); got {source} "
+                                f"with pixel size ({a:.6g}, {e:.6g}) and rotation ({b:.6g}, {d:.6g})")
+    sx, sy = a, -e
+    east, south = west + width * sx, north - height * sy
+    # a pixel of slack either way: a PixelIsPoint raster's extent may lie half a pixel inside the area one's
+    if abs((east - west) - 360.0) > 1.5 * sx or abs((north - south) - 180.0) > 1.5 * sy or abs(north - 90) > 1.5 * sy:
+        raise InvalidInputError(
+            f"{name} must be a global plate-carrée image (360 x 180 degrees, row 0 at 90N); got {source} over "
+            f"longitudes {west:.6g} to {east:.6g} and latitudes {south:.6g} to {north:.6g}: a regional image drapes "
+            "a DEM of its region (`stepterrain texture DEM --image IMAGE`, st.texture_lod.image_layer)")
+    # the nearest whole column (within half a pixel, as a -180..180 one is taken): a 0..360 image's 180 W is half-way
+    return round((west + 180.0) / sx) % width
+
+
+def _geotiff_transform(picture: Any) -> tuple[tuple[float, ...], bool, str] | None:
+    """A GeoTIFF's (a, b, c, d, e, f) geotransform (x = c + a·col + b·row, y = f + d·col + e·row at pixel corners),
+    whether its GTModelTypeGeoKey says projected (1; 3, geocentric, alike: no degrees), and "a GeoTIFF"; None for
+    a TIFF without a geotransform. A PixelIsPoint raster's tiepoint is a pixel's centre: moved to its corner, as
+    GDAL does."""
     tags = picture.tag_v2
     keys = tags.get(34735)  # GeoKeyDirectory: (version, revision, minor, count, then key, location, count, value)
-    model = None
+    geokeys = {}
     if isinstance(keys, tuple) and len(keys) >= 4:
         for k in range(4, len(keys) - 3, 4):
-            if keys[k] == 1024 and keys[k + 1] == 0:  # GTModelTypeGeoKey, its value inline
-                model = keys[k + 3]
-    name = f"texture {str(path)!r}"
-    if model == 1:
-        raise InvalidInputError(f"{name} must be a global plate-carrée image (longitude and latitude in degrees); got "
-                                "a GeoTIFF in a projected CRS: reproject it first (`gdalwarp -t_srs EPSG:4326 "
-                                "-te -180 -90 180 90 ...`)")
-    scale, tie = tags.get(33550), tags.get(33922)
-    if not (isinstance(scale, tuple) and isinstance(tie, tuple) and len(scale) >= 2 and len(tie) >= 6):
-        return
-    width, height = picture.size
-    sx, sy, (i, j, _, x, y, _) = float(scale[0]), float(scale[1]), tie[:6]
-    west, north = float(x) - float(i) * sx, float(y) + float(j) * sy
-    east, south = west + width * sx, north - height * sy
-    # a pixel of slack either way: a PixelIsPoint raster's extent lies half a pixel inside the area one's
-    if abs((east - west) - 360.0) > 1.5 * sx or abs((north - south) - 180.0) > 1.5 * sy:
-        raise InvalidInputError(
-            f"{name} must be a global plate-carrée image (360 x 180 degrees, row 0 at 90N, column 0 at 180W); got a "
-            f"GeoTIFF over longitudes {west:.6g} to {east:.6g} and latitudes {south:.6g} to {north:.6g}: a regional "
-            "image drapes a DEM of its region (`stepterrain texture DEM --image IMAGE`, "
-            "st.texture_lod.image_layer)")
-    if abs(west + 180.0) > 1.5 * sx or abs(north - 90.0) > 1.5 * sy:  # 0..360: draped 180 degrees off, silently
-        raise InvalidInputError(
-            f"{name} must be a global plate-carrée image with column 0 at 180W and row 0 at 90N; got a GeoTIFF over "
-            f"longitudes {west:.6g} to {east:.6g} and latitudes {south:.6g} to {north:.6g}: shift it first "
-            "(`gdalwarp -t_srs '+proj=longlat +datum=WGS84 +lon_wrap=0' -te -180 -90 180 90 ...`)")
+            if keys[k + 1] == 0:  # its value inline
+                geokeys[keys[k]] = keys[k + 3]
+    matrix, scale, tie = tags.get(34264), tags.get(33550), tags.get(33922)
+    if isinstance(matrix, tuple) and len(matrix) >= 8:
+        a, b, c, d, e, f = (float(matrix[i]) for i in (0, 1, 3, 4, 5, 7))
+    elif isinstance(scale, tuple) and isinstance(tie, tuple) and len(scale) >= 2 and len(tie) >= 6:
+        a, e = float(scale[0]), -float(scale[1])
+        i, j, _, x, y, _ = (float(v) for v in tie[:6])
+        b = d = 0.0
+        c, f = x - i * a, y - j * e
+    else:
+        return None
+    if geokeys.get(1025) == 2:  # GTRasterTypeGeoKey RasterPixelIsPoint
+        c, f = c - (a + b) / 2, f - (d + e) / 2
+    return (a, b, c, d, e, f), geokeys.get(1024) in (1, 3), "a GeoTIFF"
+
+
+def _world_file_transform(path: Any) -> tuple[tuple[float, ...], bool, str] | None:
+    """The geotransform of the world file beside the image ``path`` (the names GDAL looks for: ``.jgw`` for
+    ``.jpg``, ``.jpgw``, ``.wld``; six numbers A, D, B, E, C, F, C and F at the upper-left pixel's centre), whether
+    the ``.prj`` beside it names a projected CRS, and the world file's name; None without one (or one that is not
+    six numbers: GDAL ignores it too)."""
+    import os
+    import pathlib
+
+    image = pathlib.Path(os.fsdecode(path))
+    ext = image.suffix[1:]
+    names = [f"{ext[0]}{ext[-1]}w", f"{ext}w"] if ext else []
+    for suffix in [*names, "wld"]:
+        for candidate in (image.with_suffix(f".{suffix}"), image.with_suffix(f".{suffix.upper()}")):
+            try:
+                words = candidate.read_text(errors="replace").split()
+            except (OSError, ValueError):
+                continue
+            try:
+                a, d, b, e, c, f = (float(w) for w in words[:6])
+            except ValueError:
+                return None
+            if len(words) < 6 or not all(map(math.isfinite, (a, b, c, d, e, f))):
+                return None
+            try:
+                prj = image.with_suffix(".prj").read_text(errors="replace").lstrip().upper()
+            except (OSError, ValueError):
+                prj = ""
+            projected = prj.startswith(("PROJCS", "PROJCRS", "PROJECTEDCRS"))
+            corner = (a, b, c - (a + b) / 2, d, e, f - (d + e) / 2)  # the upper-left pixel's corner
+            return corner, projected, f"a world file {candidate.name!r}"
+    return None
 
 
 def _kept_jpeg(picture: Any) -> bool:
@@ -1715,7 +1778,8 @@ def _drape_texture(mesh: trimesh.Trimesh, pixels: NDArray[np.uint8], picture: An
 
 
 def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint8]:
-    """(V, 4) uint8 RGBA per vertex from a global plate-carrée image (row 0 at 90° N, column 0 at 180° W),
+    """(V, 4) uint8 RGBA per vertex from a global plate-carrée image (row 0 at 90° N, column 0 at 180° W; a file
+    georeferenced as the whole globe in degrees, 0..360 too, is placed by it, other georeferencing refused),
     bilinear at each vertex's direction (paper 003 §5.3: a global texture draped by latitude and longitude). An
     (H, W, 4) image's alpha is kept (bilinear; its colour is weighted by alpha, so that transparent texels' colour
     does not darken the opaque ones' next to them), an RGB image's is 255.
@@ -1783,7 +1847,8 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
               fov: float = math.radians(30.0), aspect: float = 1.6, radius: float = EARTH_RADIUS,
               max_radius: float | None = None) -> Camera:
     """A camera at (latitude, longitude) in degrees (latitude in [-90, 90], longitude in [-360, 360]: east of
-    Greenwich either way round), ``altitude`` metres above the sphere of ``radius``,
+    Greenwich either way round), ``altitude`` metres above the sphere of ``radius`` (negative below it, above the
+    centre: more than -``radius``),
     looking down (tilt 0) or tilted towards ``heading`` (degrees clockwise from north, any finite value: whole
     turns are taken off exactly) by ``tilt`` degrees, in [-90, 90] (90: the horizon; a negative tilt looks the
     other way, towards heading + 180).
@@ -1822,6 +1887,10 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
         heading = math.fmod(heading, 360.0)
     radius = _positive(radius, "radius")
     top = radius if max_radius is None else _positive(max_radius, "max_radius")
+    if radius + altitude <= 0:  # the eye at the centre, or through it: (radius + altitude) · outward put an eye of
+        # altitude -2R - 10 km 10 km above the antipode, looking up into space (an empty mesh, without a word)
+        raise InvalidInputError(f"altitude must be more than -radius (metres above the sphere of radius {radius:g}; "
+                                f"the eye at or beyond the centre lies on no side of it); got {altitude:g}")
     if abs(radius + altitude) > _MAX_COORDINATE:  # the Camera's coordinate bound, named by its inputs here
         raise InvalidInputError(f"radius + altitude must stay within {_MAX_COORDINATE:g} m of the centre; got "
                                 f"{radius:g} + {altitude:g}")

@@ -207,8 +207,8 @@ def as_number(value: Any) -> float:
     True) and which are slips (a value read from a file or a flag in the wrong place), not numbers. An integer
     beyond float64 (10**400) is a ValueError: ``float``'s OverflowError is none, and went past callers that
     catch (TypeError, ValueError)."""
-    if isinstance(value, (str, bytes, bool, np.bool_)):
-        raise TypeError(f"not a number: {value!r}")
+    if isinstance(value, (str, bytes, bool, np.bool_)) or (isinstance(value, np.ndarray) and value.dtype.kind in "bSU"):
+        raise TypeError(f"not a number: {value!r}")  # a 0-d array of text or a bool too: float() takes them alike
     try:
         return float(value)
     except OverflowError:

@@ -343,3 +343,22 @@ def test_bad_origin_or_spacing_is_refused_by_name(kwargs, match):
     # a NaN/inf origin gave non-finite vertices; the others raised TypeError/ValueError from unpacking
     with pytest.raises(InvalidInputError, match=match):
         adaptive_mesh(np.zeros((5, 5)), error=0.0, device="cpu", **kwargs)
+
+
+def test_a_spacing_read_from_an_npz_is_one_number():
+    """np.load(...)["dx"] is a 0-d array: heightfield_mesh takes it as one spacing, adaptive_mesh refused it ("spacing
+    must be a number or (dx, dy); got array(70.8...)", tuple() of a 0-d array). It is that number now, the same mesh
+    as the float's; a 0-d array of text or a bool is still no spacing (float() took np.array('30') and np.array(True)
+    as 30.0 and 1.0 inside a pair)."""
+    with np.load(shared_file("front_range_srtmgl3_3arcsec.npz")) as data:
+        z, dx, dy = data["elevation"][:65, :65], data["dx_m"], data["dy_m"]
+    assert dx.ndim == 0
+    mesh = adaptive_mesh(z, spacing=dx, error=5.0, device="cpu")
+    same = adaptive_mesh(z, spacing=float(dx), error=5.0, device="cpu")
+    np.testing.assert_array_equal(mesh.vertices, same.vertices)
+    np.testing.assert_array_equal(mesh.faces, same.faces)
+    pair = adaptive_mesh(z, spacing=(dx, dy), error=5.0, device="cpu")
+    assert np.ptp(pair.vertices[:, 1]) == pytest.approx(64 * float(dy))
+    for bad in (np.array("30"), np.array(True), (np.array("30"), 1.0), (1.0, np.array(True))):
+        with pytest.raises(InvalidInputError, match=r"^spacing (dx |dy )?must be a (non-zero )?number"):
+            adaptive_mesh(z, spacing=bad, error=5.0, device="cpu")

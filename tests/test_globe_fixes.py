@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import re
+import sys
 import warnings
 
 import numpy as np
@@ -13,7 +14,7 @@ from stepterrain.kernels import cubesphere as cs
 
 import stepterrain._compaction as compaction
 from stepterrain.errors import InvalidInputError, OutputTooLargeError
-from stepterrain.globe import Camera, Globe, adaptive_mesh, look_from, render_view
+from stepterrain.globe import EARTH_RADIUS, Camera, Globe, adaptive_mesh, look_from, render_view
 
 from .conftest import needs_render
 
@@ -1241,8 +1242,8 @@ def test_a_geotiff_texture_that_is_not_global_is_refused(tmp_path, capsys):
     """drape_texture(mesh, "dem.tif") and ``globe --texture dem.tif`` of a GeoTIFF that its georeferencing places over
     a region (the Front Range DEM, 0.63 degrees square) or in a projected CRS (Big Tujunga, UTM 11N) stretched it over
     the whole globe, silently (a DEM's 16-bit heights as a near-black texture). It is refused now, naming the
-    extent, and so is a global one from 0 to 360 degrees (draped 180 degrees off); the global Blue Marble GeoTIFF
-    (-180..180, -90..90) drapes as before."""
+    extent; a global one from 0 to 360 degrees (draped 180 degrees off) is shifted to start at 180 W; the global Blue
+    Marble GeoTIFF (-180..180, -90..90) drapes as before."""
     from stepterrain.cli import main
     from stepterrain.globe import drape_texture
 
@@ -1258,11 +1259,12 @@ def test_a_geotiff_texture_that_is_not_global_is_refused(tmp_path, capsys):
     from rasterio.transform import Affine
 
     shifted = tmp_path / "earth_0_360.tif"  # global, but column 0 at 0E: draped 180 degrees off
+    data = np.broadcast_to(np.arange(180, dtype=np.uint8)[None, :, None], (90, 180, 3))  # each column its own value
     with rasterio.open(shifted, "w", driver="GTiff", width=180, height=90, count=3, dtype="uint8", crs="EPSG:4326",
                        transform=Affine(2.0, 0.0, 0.0, 0.0, -2.0, 90.0)) as dataset:
-        dataset.write(np.zeros((3, 90, 180), np.uint8))
-    with pytest.raises(InvalidInputError, match="column 0 at 180W .*longitudes 0 to 360"):
-        drape_texture(mesh, shifted)
+        dataset.write(np.moveaxis(data, 2, 0))
+    drawn = np.asarray(drape_texture(mesh, shifted).visual.material.image)
+    np.testing.assert_array_equal(drawn, np.roll(data, 90, axis=1))  # its column 90 (180E = 180W) first
     textured = drape_texture(mesh, shared_file("earth_day_bluemarble_3840x1920.tif"))
     assert textured.visual.material.image.size == (3840, 1920)
     assert main(["-q", "globe", "--face-size", "9", "--texture", str(regional), "-o", str(tmp_path / "g.glb")]) == 2
@@ -1715,3 +1717,116 @@ def test_the_six_per_face_meshes_concatenate_with_their_plain_material(tmp_path)
     assert material["doubleSided"] is True and material.get("alphaMode", "OPAQUE") == "OPAQUE"
     parts[0].visual.material.baseColorFactor = (255, 0, 0, 255)  # each face its own material: the others stay white
     assert [p.visual.material.baseColorFactor for p in parts[1:]] == [None] * 5
+
+
+@pytest.mark.parametrize("altitude", [-2 * EARTH_RADIUS - 10_000.0, -EARTH_RADIUS])
+def test_look_from_refuses_an_eye_at_or_beyond_the_centre(altitude):
+    """look_from put the eye at (radius + altitude) · outward: an altitude below -radius turned it through the centre,
+    and look_from(0, 0, -2R - 10 km) was a camera 10 km above the antipode (0°, 180°) looking up into space, which
+    Globe.mesh took and clipped to an empty mesh without a word. An eye at or beyond the centre is refused by name;
+    one below the sphere above the centre (under the Dead Sea) is still a camera."""
+    with pytest.raises(InvalidInputError, match=r"^altitude must be more than -radius .*; got "):
+        look_from(0.0, 0.0, altitude)
+    below = look_from(31.5, 35.5, -400.0)  # the Dead Sea's shore lies 430 m below the sphere
+    assert np.linalg.norm(below.eye) == pytest.approx(EARTH_RADIUS - 400.0)
+
+
+@pytest.mark.parametrize("option, value", [("--error", "-1"), ("--face-size", "1000"), ("--exaggeration", "0"),
+                                           ("--radius", "-6371000")])
+def test_the_cli_refuses_a_bad_number_before_loading_the_grid(tmp_path, capsys, monkeypatch, option, value):
+    """``stepterrain globe`` refused a negative --error only after it had loaded the grid and built the hierarchy
+    (Globe.mesh checks it), and a --face-size that is not 2^k + 1, a --exaggeration or --radius <= 0 after loading the
+    grid (Globe.from_latlon): with a large GeoTIFF or --face-size 4097, seconds to minutes of work for a typo. They
+    are refused first now, in the library's words with the option named; the grid is never read."""
+    from stepterrain import _cli_globe
+    from stepterrain.cli import main
+
+    def loaded(*args, **kwargs):
+        raise AssertionError("the grid was loaded before the option was checked")
+
+    monkeypatch.setattr(_cli_globe, "_load_grid", loaded)
+    monkeypatch.setattr("stepterrain.globe.load_global_relief", loaded)
+    grid = tmp_path / "grid.npz"
+    np.savez(grid, elevation=np.zeros((18, 36)), lat=np.arange(85, -90, -10.0), lon=np.arange(-175, 180, 10.0))
+    out = tmp_path / "g.ply"
+    for source in ([str(grid)], []):
+        assert main(["-q", "globe", *source, option, value, "-o", str(out), "--device", "cpu"]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"stepterrain globe: error: {option} must ") and value in err, err
+        assert not out.exists()
+
+
+def test_a_globe_drape_saved_as_obj_shows_its_texture_at_full_brightness_and_matte(tmp_path):
+    """drape_texture's TextureVisuals(uv=..., image=...) is trimesh's SimpleMaterial (Kd 0.4, Ks 0.4 by default).
+    save_mesh wrote it to glTF white and matte, but its .mtl kept Kd 0.4 and Ks 0.4 (only a PBR material's MTL was made
+    white): the MTL model multiplies map_Kd by Kd (three.js's MTLLoader does), so ``stepterrain globe --texture
+    bluemarble.jpg -o globe.obj`` showed the earth at 40 % brightness, and shiny. The MTL now says Kd 1, Ks 0, as the
+    glTF's material; the mesh's own material is left as it was."""
+    from stepterrain.export import save_mesh
+    from stepterrain.globe import drape_texture
+
+    lat, lon = np.arange(85, -90, -10.0), np.arange(-175, 180, 10.0)
+    globe = Globe.from_latlon(np.zeros((lat.size, lon.size)), lat, lon, face_size=5, device="cpu")
+    image = np.random.default_rng(3).integers(0, 256, (16, 32, 3), dtype=np.uint8)
+    draped = drape_texture(globe.mesh(), image)
+    diffuse = np.array(draped.visual.material.diffuse)
+    save_mesh(draped, tmp_path / "globe.obj")
+    lines = {line.split()[0]: [float(v) for v in line.split()[1:]]
+             for line in (tmp_path / "globe.mtl").read_text().splitlines() if line[:3] in ("Kd ", "Ks ")}
+    assert lines == {"Kd": [1.0, 1.0, 1.0], "Ks": [0.0, 0.0, 0.0]}
+    np.testing.assert_array_equal(draped.visual.material.diffuse, diffuse)  # the caller's mesh untouched
+
+
+def test_a_georeferenced_texture_is_draped_where_its_georeferencing_puts_it(tmp_path, monkeypatch):
+    """A texture file was draped as a plate-carrée image from 180° W whatever its georeferencing said: a global
+    GeoTIFF in longitudes 0..360 came out half a turn round, and a UTM orthophoto (or a regional one in degrees)
+    was wrapped round the whole earth, without a word. A global one in degrees is put at -180..180 now; any other
+    georeferencing is refused by name. A texture without georeferencing is plate carrée from 180° W, as before.
+    The GeoTIFF tags and world files are read without rasterio (the optional [geo] extra; the files are written with
+    it here, read with it hidden)."""
+    rasterio = pytest.importorskip("rasterio")
+    from PIL import Image
+    from rasterio.transform import Affine
+
+    from stepterrain.globe import _texture_pixels, drape_colors
+
+    pixels = np.zeros((18, 36, 3), np.uint8)
+    pixels[:, 18:, 0] = 255  # red east of Greenwich, in -180..180 columns
+
+    def geotiff(name, data, transform, crs="EPSG:4326", **tags):
+        with rasterio.open(tmp_path / name, "w", driver="GTiff", width=data.shape[1], height=data.shape[0], count=3,
+                           dtype="uint8", crs=crs, transform=transform) as ds:  # fmt: skip
+            ds.update_tags(**tags)
+            ds.write(np.moveaxis(data, 2, 0))
+        return tmp_path / name
+
+    def png(name, data, world, prj=None):  # a world file: A, D, B, E, then the upper-left pixel's centre C, F
+        Image.fromarray(data).save(tmp_path / name)
+        (tmp_path / name).with_suffix(".pgw").write_text("\n".join(map(str, world)) + "\n")
+        if prj:
+            (tmp_path / name).with_suffix(".prj").write_text(prj)
+        return tmp_path / name
+
+    directions = np.array([[0.0, 1.0, 0.0], [0.0, -1.0, 0.0], [1.0, 1.0, 0.5], [-1.0, -1.0, -0.5]]) * EARTH_RADIUS
+    expected = drape_colors(directions, pixels)
+    assert expected[:, 0].tolist() == [255, 0, 255, 0]  # 90° E and 45° E red, 90° W and 135° W not
+    east = geotiff("east.tif", np.roll(pixels, 18, axis=1), Affine(10.0, 0.0, 0.0, 0.0, -10.0, 90.0))  # 0..360
+    west = geotiff("west.tif", pixels, Affine(10.0, 0.0, -180.0, 0.0, -10.0, 90.0))
+    # PixelIsPoint: its tiepoint at the first pixel's centre (15 E), its west edge at 10 E (19 columns, not 19.5)
+    point = geotiff("point.tif", np.roll(pixels, 17, axis=1), Affine(10.0, 0.0, 10.0, 0.0, -10.0, 90.0),
+                    AREA_OR_POINT="Point")
+    world_east = png("east.png", np.roll(pixels, 18, axis=1), (10, 0, 0, -10, 5, 85))
+    refused = [geotiff("utm.tif", pixels, Affine(10.0, 0.0, 376000.0, 0.0, -10.0, 3807000.0), "EPSG:32611"),
+               geotiff("alps.tif", pixels, Affine(0.1, 0.0, 5.0, 0.0, -0.1, 48.0)),
+               geotiff("south_up.tif", pixels, Affine(10.0, 0.0, -180.0, 0.0, 10.0, -90.0)),
+               geotiff("rotated.tif", pixels, Affine(10.0, 0.01, -180.0, 0.0, -10.0, 90.0)),  # ModelTransformation
+               png("alps.png", pixels, (0.1, 0, 0, -0.1, 5.05, 47.95)),
+               png("utm.png", pixels, (10, 0, 0, -10, -175, 85), prj='PROJCS["WGS 84 / UTM zone 11N",GEOGCS[...]]')]
+    with monkeypatch.context() as hidden:
+        hidden.setitem(sys.modules, "rasterio", None)  # import rasterio raises ImportError
+        for placed in (east, west, point, world_east):
+            np.testing.assert_array_equal(drape_colors(directions, placed), expected, err_msg=str(placed))
+            np.testing.assert_array_equal(_texture_pixels(placed), pixels, err_msg=str(placed))  # each column
+        for name in refused:
+            with pytest.raises(InvalidInputError, match=r"^texture .* must be a global plate-carrée image"):
+                drape_colors(directions, name)
