@@ -752,6 +752,13 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         progress.say(f"no --interval or --levels given: using --interval {interval:g}, a round interval "
                      f"giving {_counted(len(values), 'level')} over heights {lo:g} to {hi:g} "
                      f"(aim ~{TARGET_STEPS} steps)")
+    else:  # isovalues given: levels in another unit, or an interval over the relief, gave one flat terrace unsaid
+        from .stepped import _one_level
+
+        span = f"{values[0]:g}" if len(values) == 1 else f"{values[0]:g} to {values[-1]:g}"
+        given = f"--levels {span}" if args.levels is not None else f"--interval {interval:g} ({span})"
+        if (why := _one_level(lo, hi, values, given)) is not None:
+            warnings.warn(why, stacklevel=1)
     colors = _level_colors(args.colormap, len(values))
 
     # γ: scalar or a lens

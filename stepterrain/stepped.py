@@ -341,6 +341,23 @@ def _default_isovalues(
     return interval, values
 
 
+def _one_level(lo: float, hi: float, values: ArrayLike, given: str) -> str | None:
+    """Why the heights ``lo`` to ``hi`` step onto one isovalue of ``values`` (no threshold between two of them, their
+    midpoint, lies within the heights: heights outside the levels clamp to the end ones), None when they step
+    onto several. ``given`` names the isovalues as the caller gave them (``levels 5000 to 6000``): levels typed in
+    another unit, or an interval larger than the relief, gave a flat plate at a height the terrain never reaches,
+    unsaid."""
+    levels = np.asarray(values, np.float64).reshape(-1)
+    if levels.size == 0:
+        return None
+    mids = (levels[:-1] + levels[1:]) / 2.0
+    if np.searchsorted(mids, lo, side="left") != np.searchsorted(mids, hi, side="right"):
+        return None
+    level = float(levels[min(int(np.searchsorted(mids, lo, side="left")), levels.size - 1)])
+    return (f"every height ({lo:g} to {hi:g}) steps onto the one isovalue {level:g} of the {given}: the stepped "
+            f"terrain is one flat terrace at {level:g}; give isovalues within the heights")
+
+
 def isovalues(
     height_range: tuple[float, float],
     *,

@@ -2108,3 +2108,36 @@ def test_texture_contours_no_line_warning_names_a_level_within_the_heights_it_di
     code, _, err = run(capsys, "-q", "texture", tmp_path / "spike.npy", "--contours", "100", "--contour-width", "2.5",
                        "-o", tmp_path / "b.png")
     assert code == 0 and err == "", err
+
+
+@pytest.mark.parametrize("argv, level, flat", [
+    (("--levels", "5000,6000"), "5000", True),  # levels typed in feet for a DEM in metres, or a wrong number
+    (("--levels", "-20,-10"), "-10", True),
+    (("--interval", "1e6"), "0", True),  # an interval over the whole relief
+    (("--levels", "100,200"), None, False),  # a threshold (150) within the heights 0 to 980: two terraces
+    (("--interval", "50"), None, False),
+])
+def test_steps_and_batch_warn_when_the_isovalues_give_one_flat_terrace(argv, level, flat, tmp_path, capsys):
+    """Isovalues outside the heights (0 to 980 here) clamp every node to the end one: the mesh came out a flat plate
+    at a height the terrain never reaches, exit 0 and not a word said (the lens that changes nothing is warned of)."""
+    import trimesh
+
+    np.save(tmp_path / "ramp.npy", np.add.outer(np.arange(40.0), np.arange(60.0)) * 10.0)
+    code, out, err = run(capsys, "steps", tmp_path / "ramp.npy", *argv, "-o", tmp_path / "a.ply")
+    assert code == 0, err
+    z = np.unique(trimesh.load(tmp_path / "a.ply").vertices[:, 2])
+    assert (z.size == 1) == flat  # the warning tells the truth about the mesh
+    said = [line for line in err.splitlines() if "warning:" in line]
+    if flat:
+        assert len(said) == 1 and f"one flat terrace at {level}" in said[0] and "height (0 to 980)" in said[0], err
+        assert argv[0] in said[0] and float(z[0]) == float(level)
+    else:
+        assert not said, err
+    code, out, err = run(capsys, "batch", tmp_path / "ramp.npy", "--tile", "20", *argv, "--scheduler", "serial",
+                         "-q", "-o", tmp_path / "out")
+    assert code == 0, err
+    said = [line for line in err.splitlines() if "warning:" in line]
+    if flat:  # once for the whole raster, not per tile, naming the option
+        assert len(said) == 1 and f"one flat terrace at {level}" in said[0] and argv[0] in said[0], err
+    else:
+        assert not said, err
