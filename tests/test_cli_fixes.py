@@ -2141,3 +2141,15 @@ def test_steps_and_batch_warn_when_the_isovalues_give_one_flat_terrace(argv, lev
         assert len(said) == 1 and f"one flat terrace at {level}" in said[0] and argv[0] in said[0], err
     else:
         assert not said, err
+
+
+def test_the_one_flat_terrace_warning_is_not_given_for_an_empty_mesh(tmp_path, capsys):
+    """Nodes on no triangle (nodata between them) give an empty mesh, warned of as such: not also "one flat terrace"
+    at a height no vertex has."""
+    heights = np.full((10, 10), np.nan, np.float32)
+    heights[::3, ::3] = 100.0
+    heights[1, 1] = 5.0
+    np.save(tmp_path / "isolated.npy", heights)
+    code, out, err = run(capsys, "steps", tmp_path / "isolated.npy", "--levels", "1,2", "-o", tmp_path / "a.ply")
+    said = [line for line in err.splitlines() if "warning:" in line]
+    assert code == 0 and len(said) == 1 and "the mesh is empty" in said[0], err
