@@ -342,18 +342,19 @@ def _default_isovalues(
 
 
 def _one_level(lo: float, hi: float, values: ArrayLike, given: str) -> str | None:
-    """Why the heights ``lo`` to ``hi`` step onto one isovalue of ``values`` (no threshold between two of them, their
-    midpoint, lies within the heights: heights outside the levels clamp to the end ones), None when they step
-    onto several. ``given`` names the isovalues as the caller gave them (``levels 5000 to 6000``): levels typed in
-    another unit, or an interval larger than the relief, gave a flat plate at a height the terrain never reaches,
-    unsaid."""
-    levels = np.asarray(values, np.float64).reshape(-1)
+    """Why the heights ``lo`` to ``hi`` step onto one isovalue of ``values`` (no threshold between two of them,
+    :func:`thresholds_of`, lies within the heights: heights outside the levels clamp to the end ones), None when they
+    step onto several. Levels as the kernels find them (``level_of``: the thresholds at or below a float32 height).
+    ``given`` names the isovalues as the caller gave them (``levels 5000 to 6000``): levels typed in another unit,
+    or an interval larger than the relief, gave a flat plate at a height the terrain never reaches, unsaid."""
+    levels = np.asarray(values, np.float32).reshape(-1)
     if levels.size == 0:
         return None
-    mids = (levels[:-1] + levels[1:]) / 2.0
-    if np.searchsorted(mids, lo, side="left") != np.searchsorted(mids, hi, side="right"):
+    thresholds = thresholds_of(levels)
+    below, above = (int(np.searchsorted(thresholds, np.float32(h), side="right")) for h in (lo, hi))
+    if below != above:
         return None
-    level = float(levels[min(int(np.searchsorted(mids, lo, side="left")), levels.size - 1)])
+    level = float(levels[below])
     return (f"every height ({lo:g} to {hi:g}) steps onto the one isovalue {level:g} of the {given}: the stepped "
             f"terrain is one flat terrace at {level:g}; give isovalues within the heights")
 

@@ -2114,6 +2114,7 @@ def test_texture_contours_no_line_warning_names_a_level_within_the_heights_it_di
     (("--levels", "5000,6000"), "5000", True),  # levels typed in feet for a DEM in metres, or a wrong number
     (("--levels", "-20,-10"), "-10", True),
     (("--interval", "1e6"), "0", True),  # an interval over the whole relief
+    (("--levels", "-980,980"), "980", True),  # the lowest height on the threshold 0: it steps up, as all do
     (("--levels", "100,200"), None, False),  # a threshold (150) within the heights 0 to 980: two terraces
     (("--interval", "50"), None, False),
 ])
