@@ -2225,7 +2225,7 @@ def batch(
 
             span = f"{shared[0]:g}" if len(shared) == 1 else f"{shared[0]:g} to {shared[-1]:g}"
             given = f"levels= {span}" if levels is not None else f"interval= {float(interval):g} ({span})"  # type: ignore[arg-type]
-            if (why := _one_level(*z_range, shared, given)) is not None:
+            if (why := _one_level(*z_range, shared, given, gamma_value)) is not None:
                 warnings.warn(why, stacklevel=2)
         if chosen and z_range is not None and progress:  # as `stepterrain steps` says it, once
             _say_interval(progress, float(interval), len(level_values or ()), z_range)  # type: ignore[arg-type]

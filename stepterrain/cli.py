@@ -758,7 +758,8 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
 
         span = f"{values[0]:g}" if len(values) == 1 else f"{values[0]:g} to {values[-1]:g}"
         given = f"--levels {span}" if args.levels is not None else f"--interval {interval:g} ({span})"
-        flat = _one_level(lo, hi, values, given)
+        lens = args.lens is not None or args.lens_relative is not None
+        flat = _one_level(lo, hi, values, given, args.gamma, lens=lens)
     colors = _level_colors(args.colormap, len(values))
 
     # γ: scalar or a lens

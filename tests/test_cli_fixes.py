@@ -2154,3 +2154,32 @@ def test_the_one_flat_terrace_warning_is_not_given_for_an_empty_mesh(tmp_path, c
     code, out, err = run(capsys, "steps", tmp_path / "isolated.npy", "--levels", "1,2", "-o", tmp_path / "a.ply")
     said = [line for line in err.splitlines() if "warning:" in line]
     assert code == 0 and len(said) == 1 and "the mesh is empty" in said[0], err
+
+
+@pytest.mark.parametrize("heights, argv, said", [
+    ("flat", ("--interval", "10"), None),  # a flat DEM is one terrace whatever the isovalues: nothing lost
+    ("ramp", ("--levels", "5000,6000", "--gamma", "1e-60"), None),  # γ 0 in float32: the original terrain
+    ("ramp", ("--levels", "5000,6000", "--gamma", "0.5"), "no step, its heights pulled toward 5000 (γ = 0.5)"),
+    ("ramp", ("--levels", "5000,6000", "--lens-relative", "0.5,0.5,0.3"), "one flat terrace at 5000 outside the lens"),
+])
+def test_the_one_level_warning_says_what_the_mesh_is(heights, argv, said, tmp_path, capsys):
+    """The one-isovalue warning said "one flat terrace" of a mesh that is none: a γ < 1 blend (the relief pulled
+    toward the level), γ 0 in float32 (the original terrain, isovalues unused) and a lens (the original terrain
+    inside it); and warned a flat DEM, one terrace whatever its isovalues, with isovalues on its height."""
+    import trimesh
+
+    dem = np.full((20, 30), 100.0) if heights == "flat" else np.add.outer(np.arange(40.0), np.arange(60.0)) * 10.0
+    np.save(tmp_path / "dem.npy", dem)
+    code, _, err = run(capsys, "steps", tmp_path / "dem.npy", *argv, "-o", tmp_path / "a.ply")
+    assert code == 0, err
+    z = trimesh.load(tmp_path / "a.ply").vertices[:, 2]
+    warned = [line for line in err.splitlines() if "warning:" in line]
+    if said is None:
+        assert not warned and np.isin(z, dem).all(), err  # the DEM's own heights: nothing lost to the isovalues
+    else:
+        assert len(warned) == 1 and said in warned[0] and np.unique(z).size > 1, err  # no plate
+    if argv[-2] == "--gamma":  # batch takes a scalar γ alike
+        code, _, err = run(capsys, "batch", tmp_path / "dem.npy", "--tile", "20", *argv, "--scheduler", "serial",
+                           "-q", "-o", tmp_path / "out")
+        warned = [line for line in err.splitlines() if "warning:" in line]
+        assert code == 0 and len(warned) == (said is not None) and (said is None or said in warned[0]), err
