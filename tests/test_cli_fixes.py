@@ -2183,3 +2183,19 @@ def test_the_one_level_warning_says_what_the_mesh_is(heights, argv, said, tmp_pa
                            "-q", "-o", tmp_path / "out")
         warned = [line for line in err.splitlines() if "warning:" in line]
         assert code == 0 and len(warned) == (said is not None) and (said is None or said in warned[0]), err
+
+
+def test_the_one_level_warning_of_a_single_level_within_the_heights_asks_for_a_threshold(tmp_path, capsys):
+    """``--levels 500`` over heights 0 to 980 is one plate however it lies: the warning said "give isovalues within
+    the heights" of a level within them. A plate needs two isovalues whose midpoint (the threshold) lies within."""
+    import trimesh
+
+    np.save(tmp_path / "ramp.npy", np.add.outer(np.arange(40.0), np.arange(60.0)) * 10.0)
+    code, _, err = run(capsys, "steps", tmp_path / "ramp.npy", "--levels", "500", "-o", tmp_path / "a.ply")
+    warned = [line for line in err.splitlines() if "warning:" in line]
+    assert code == 0 and len(warned) == 1 and "one flat terrace at 500" in warned[0], err
+    assert "two of which have their midpoint within the heights" in warned[0], err
+    assert np.unique(trimesh.load(tmp_path / "a.ply").vertices[:, 2]).tolist() == [500.0]
+    code, _, err = run(capsys, "steps", tmp_path / "ramp.npy", "--levels", "0,500", "-o", tmp_path / "b.ply")
+    assert code == 0 and "warning:" not in err, err  # their midpoint, 250, within: two terraces
+    assert np.unique(trimesh.load(tmp_path / "b.ply").vertices[:, 2]).tolist() == [0.0, 500.0]
