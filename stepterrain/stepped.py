@@ -362,8 +362,8 @@ def _one_level(lo: float, hi: float, values: ArrayLike, given: str, gamma: float
     level = float(levels[below])
     shape = f"one flat terrace at {level:g}" if g == 1.0 else f"its heights pulled toward {level:g} (γ = {gamma:g})"
     return (f"every height ({lo:g} to {hi:g}) steps onto the one isovalue {level:g} of the {given}: the stepped "
-            f"terrain has no step, {shape}{' outside the lens' if lens else ''}; give isovalues two of which have their "
-            "midpoint within the heights")
+            f"terrain has no step, {shape}{' outside the lens' if lens else ''}; give isovalues two of which have "
+            "their midpoint within the heights")
 
 
 def isovalues(
