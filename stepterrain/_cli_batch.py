@@ -38,8 +38,9 @@ exit status: 0 every item written (a tile, frame or file of nodata only, sea off
 complete already; 1 some items failed (listed with their reasons);
 2 bad input (unknown format, unreadable source, output folder not writable, scheduler unreachable, a --floor
 not below the stepped surface of every item, a --spacing for DEM files that all place their nodes themselves, a
---coarsen that leaves every item too few nodes or only nodata); 130 interrupted (Ctrl-C), 143 terminated
-(SIGTERM), 129 hung up (SIGHUP): finished outputs are kept, partial files removed, and a rerun goes on from there.
+--band no input holds, a --coarsen that leaves every item too few nodes or only nodata); 130 interrupted (Ctrl-C),
+143 terminated (SIGTERM), 129 hung up (SIGHUP): finished outputs are kept, partial files removed, and a rerun goes
+on from there.
 """
 
 
@@ -287,6 +288,10 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
                       f"--band {args.band} applies to GDAL rasters only; ",
                       ("the only input holds one band", "all {n} inputs hold one band"), ": leave --band out",
                       after="holds one band, ")
+        # GDAL rasters all of fewer bands (load_dem's): refused alike by every item, said once, as a .npy's one band
+        _refuse_alike(report, "band must be between 1 and ", f"--band {args.band} is beyond the bands of ",
+                      ("the only input", "all {n} inputs"), ": give a --band every input holds, or leave --band out",
+                      after="band must be ")
     if args.coarsen is not None:  # batch._coarsened's
         _refuse_alike(report, f"coarsen={args.coarsen}: ", f"--coarsen {args.coarsen} leaves no mesh of ",
                       ("the only input", "any of the {n} inputs"), ": give a smaller --coarsen")

@@ -2219,6 +2219,14 @@ def batch(
             if chosen and z_range is not None:
                 interval = dict(options.metadata)["interval"]
                 level_values = options.levels
+        shared = level_values or options.levels  # a folder's: over its files' range
+        if not chosen and z_range is not None and shared:  # isovalues given: one flat terrace is said, once
+            from .stepped import _one_level
+
+            span = f"{shared[0]:g}" if len(shared) == 1 else f"{shared[0]:g} to {shared[-1]:g}"
+            given = f"levels= {span}" if levels is not None else f"interval= {float(interval):g} ({span})"  # type: ignore[arg-type]
+            if (why := _one_level(*z_range, shared, given, gamma_value)) is not None:
+                warnings.warn(why, stacklevel=2)
         if chosen and z_range is not None and progress:  # as `stepterrain steps` says it, once
             _say_interval(progress, float(interval), len(level_values or ()), z_range)  # type: ignore[arg-type]
         run = dict(scheduler=scheduler, workers=workers, retries=retries, resume=resume, timeout=timeout)

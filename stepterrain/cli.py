@@ -761,6 +761,14 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         progress.say(f"no --interval or --levels given: using --interval {interval:g}, a round interval "
                      f"giving {_counted(len(values), 'level')} over heights {lo:g} to {hi:g} "
                      f"(aim ~{TARGET_STEPS} steps)")
+    flat = None  # isovalues given: levels in another unit, or an interval over the relief, gave one flat terrace unsaid
+    if args.interval is not None or args.levels is not None:
+        from .stepped import _one_level
+
+        span = f"{values[0]:g}" if len(values) == 1 else f"{values[0]:g} to {values[-1]:g}"
+        given = f"--levels {span}" if args.levels is not None else f"--interval {interval:g} ({span})"
+        lens = args.lens is not None or args.lens_relative is not None
+        flat = _one_level(lo, hi, values, given, args.gamma, lens=lens)
     colors = _level_colors(args.colormap, len(values))
 
     # γ: scalar or a lens
@@ -829,6 +837,8 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     progress.done(f"{_counted(len(mesh.faces), 'face')}, {_counted(len(mesh.vertices), 'vertex', 'vertices')}")
     if len(mesh.faces) == 0:
         warnings.warn("the mesh is empty: no triangle of the input has three finite heights", stacklevel=1)
+    elif flat is not None:  # said of a mesh that has a surface (the heights of nodes on no triangle say nothing)
+        warnings.warn(flat, stacklevel=1)
 
     from . import export
 

@@ -341,6 +341,31 @@ def _default_isovalues(
     return interval, values
 
 
+def _one_level(lo: float, hi: float, values: ArrayLike, given: str, gamma: float = 1.0,
+               lens: bool = False) -> str | None:
+    """Why the heights ``lo`` to ``hi`` step onto one isovalue of ``values`` (no threshold between two of them,
+    :func:`thresholds_of`, lies within the heights: heights outside the levels clamp to the end ones), None when they
+    step onto several. Levels as the kernels find them (``level_of``: the thresholds at or below a float32 height).
+    ``given`` names the isovalues as the caller gave them (``levels 5000 to 6000``): levels typed in another unit,
+    or an interval larger than the relief, gave a flat plate at a height the terrain never reaches, unsaid. None
+    too for flat heights (``lo == hi``: one terrace whatever the isovalues) and for ``gamma`` 0 in float32 (the
+    original terrain); ``gamma`` < 1 blends the relief toward the level (§3.3), no plate; ``lens``: γ = ``gamma``
+    outside a lens, the original terrain inside."""
+    levels = np.asarray(values, np.float32).reshape(-1)
+    g = float(np.float32(gamma))
+    if levels.size == 0 or not lo < hi or not g > 0.0:
+        return None
+    thresholds = thresholds_of(levels)
+    below, above = (int(np.searchsorted(thresholds, np.float32(h), side="right")) for h in (lo, hi))
+    if below != above:
+        return None
+    level = float(levels[below])
+    shape = f"one flat terrace at {level:g}" if g == 1.0 else f"its heights pulled toward {level:g} (γ = {gamma:g})"
+    return (f"every height ({lo:g} to {hi:g}) steps onto the one isovalue {level:g} of the {given}: the stepped "
+            f"terrain has no step, {shape}{' outside the lens' if lens else ''}; give isovalues two of which have "
+            "their midpoint within the heights")
+
+
 def isovalues(
     height_range: tuple[float, float],
     *,

@@ -2897,3 +2897,37 @@ def test_the_shared_frame_of_files_in_degrees_rounds_its_size_as_gdalbuildvrt_do
         mosaic = load_dem(tmp_path / "m.vrt")
     assert mosaic.heights.shape == (3, 2)
     assert (spacing, crs) == (mosaic.spacing, mosaic.crs)
+
+
+def test_cli_batch_band_beyond_every_geotiffs_bands_exits_2_once(tmp_path, capsys):
+    """``batch FOLDER --band 2`` over one-band GeoTIFFs failed item by item ("band must be between 1 and 1"), a wall
+    of identical failures and exit status 1, while --band over .npy files (one band too) and --spacing, --coarsen
+    refused by every file are one usage error: said once now, naming the option, exit 2. A folder where some file
+    holds the band still lists the others' failures, exit 1."""
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFFs are written with rasterio")
+    from rasterio.transform import Affine
+
+    from stepterrain import cli
+
+    from .conftest import real_dem
+
+    heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=21, step=1)
+    geo = tmp_path / "geo"
+    geo.mkdir()
+    for k, bands in enumerate((1, 1, 2)):
+        with rasterio.open(geo / f"g{k}.tif", "w", driver="GTiff", height=21, width=10, count=bands, dtype="float32",
+                           crs="EPSG:32611", transform=Affine(30, 0, 380000 + 300 * k, 0, -30, 3800000)) as dst:
+            for b in range(bands):
+                dst.write(heights[:, 10 * k:10 * k + 10], b + 1)
+    out = tmp_path / "out"
+    argv = ["-q", "batch", "--interval", "50", "--scheduler", "serial", "--band", "2", "-o", str(out)]
+    assert cli.main([*argv, str(geo / "g0.tif"), str(geo / "g1.tif")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("stepterrain batch: error: --band 2 is beyond the bands of all 2 inputs (e.g. g0: between "
+                          "1 and 1 for ") and err.rstrip().endswith(
+        "got --band 2): give a --band every input holds, or leave --band out") and err.count("\n") == 1, err
+    assert not list(out.glob("*.glb"))
+    assert cli.main([*argv, str(geo)]) == 1  # g2 holds a second band: written, the others' failures listed
+    err = capsys.readouterr().err
+    assert [p.name for p in out.glob("*.glb")] == ["g2.glb"]
+    assert err.count("failed g") == 2 and "band must be between 1 and 1" in err, err

@@ -2195,3 +2195,94 @@ def test_texture_contours_no_line_warning_names_a_level_within_the_heights_it_di
     code, _, err = run(capsys, "-q", "texture", tmp_path / "spike.npy", "--contours", "100", "--contour-width", "2.5",
                        "-o", tmp_path / "b.png")
     assert code == 0 and err == "", err
+
+
+@pytest.mark.parametrize("argv, level, flat", [
+    (("--levels", "5000,6000"), "5000", True),  # levels typed in feet for a DEM in metres, or a wrong number
+    (("--levels", "-20,-10"), "-10", True),
+    (("--interval", "1e6"), "0", True),  # an interval over the whole relief
+    (("--levels", "-980,980"), "980", True),  # the lowest height on the threshold 0: it steps up, as all do
+    (("--levels", "100,200"), None, False),  # a threshold (150) within the heights 0 to 980: two terraces
+    (("--interval", "50"), None, False),
+])
+def test_steps_and_batch_warn_when_the_isovalues_give_one_flat_terrace(argv, level, flat, tmp_path, capsys):
+    """Isovalues outside the heights (0 to 980 here) clamp every node to the end one: the mesh came out a flat plate
+    at a height the terrain never reaches, exit 0 and not a word said (the lens that changes nothing is warned of)."""
+    import trimesh
+
+    np.save(tmp_path / "ramp.npy", np.add.outer(np.arange(40.0), np.arange(60.0)) * 10.0)
+    code, out, err = run(capsys, "steps", tmp_path / "ramp.npy", *argv, "-o", tmp_path / "a.ply")
+    assert code == 0, err
+    z = np.unique(trimesh.load(tmp_path / "a.ply").vertices[:, 2])
+    assert (z.size == 1) == flat  # the warning tells the truth about the mesh
+    said = [line for line in err.splitlines() if "warning:" in line]
+    if flat:
+        assert len(said) == 1 and f"one flat terrace at {level}" in said[0] and "height (0 to 980)" in said[0], err
+        assert argv[0] in said[0] and float(z[0]) == float(level)
+    else:
+        assert not said, err
+    code, out, err = run(capsys, "batch", tmp_path / "ramp.npy", "--tile", "20", *argv, "--scheduler", "serial",
+                         "-q", "-o", tmp_path / "out")
+    assert code == 0, err
+    said = [line for line in err.splitlines() if "warning:" in line]
+    if flat:  # once for the whole raster, not per tile, naming the option
+        assert len(said) == 1 and f"one flat terrace at {level}" in said[0] and argv[0] in said[0], err
+    else:
+        assert not said, err
+
+
+def test_the_one_flat_terrace_warning_is_not_given_for_an_empty_mesh(tmp_path, capsys):
+    """Nodes on no triangle (nodata between them) give an empty mesh, warned of as such: not also "one flat terrace"
+    at a height no vertex has."""
+    heights = np.full((10, 10), np.nan, np.float32)
+    heights[::3, ::3] = 100.0
+    heights[1, 1] = 5.0
+    np.save(tmp_path / "isolated.npy", heights)
+    code, out, err = run(capsys, "steps", tmp_path / "isolated.npy", "--levels", "1,2", "-o", tmp_path / "a.ply")
+    said = [line for line in err.splitlines() if "warning:" in line]
+    assert code == 0 and len(said) == 1 and "the mesh is empty" in said[0], err
+
+
+@pytest.mark.parametrize("heights, argv, said", [
+    ("flat", ("--interval", "10"), None),  # a flat DEM is one terrace whatever the isovalues: nothing lost
+    ("ramp", ("--levels", "5000,6000", "--gamma", "1e-60"), None),  # γ 0 in float32: the original terrain
+    ("ramp", ("--levels", "5000,6000", "--gamma", "0.5"), "no step, its heights pulled toward 5000 (γ = 0.5)"),
+    ("ramp", ("--levels", "5000,6000", "--lens-relative", "0.5,0.5,0.3"), "one flat terrace at 5000 outside the lens"),
+])
+def test_the_one_level_warning_says_what_the_mesh_is(heights, argv, said, tmp_path, capsys):
+    """The one-isovalue warning said "one flat terrace" of a mesh that is none: a γ < 1 blend (the relief pulled
+    toward the level), γ 0 in float32 (the original terrain, isovalues unused) and a lens (the original terrain
+    inside it); and warned a flat DEM, one terrace whatever its isovalues, with isovalues on its height."""
+    import trimesh
+
+    dem = np.full((20, 30), 100.0) if heights == "flat" else np.add.outer(np.arange(40.0), np.arange(60.0)) * 10.0
+    np.save(tmp_path / "dem.npy", dem)
+    code, _, err = run(capsys, "steps", tmp_path / "dem.npy", *argv, "-o", tmp_path / "a.ply")
+    assert code == 0, err
+    z = trimesh.load(tmp_path / "a.ply").vertices[:, 2]
+    warned = [line for line in err.splitlines() if "warning:" in line]
+    if said is None:
+        assert not warned and np.isin(z, dem).all(), err  # the DEM's own heights: nothing lost to the isovalues
+    else:
+        assert len(warned) == 1 and said in warned[0] and np.unique(z).size > 1, err  # no plate
+    if argv[-2] == "--gamma":  # batch takes a scalar γ alike
+        code, _, err = run(capsys, "batch", tmp_path / "dem.npy", "--tile", "20", *argv, "--scheduler", "serial",
+                           "-q", "-o", tmp_path / "out")
+        warned = [line for line in err.splitlines() if "warning:" in line]
+        assert code == 0 and len(warned) == (said is not None) and (said is None or said in warned[0]), err
+
+
+def test_the_one_level_warning_of_a_single_level_within_the_heights_asks_for_a_threshold(tmp_path, capsys):
+    """``--levels 500`` over heights 0 to 980 is one plate however it lies: the warning said "give isovalues within
+    the heights" of a level within them. A plate needs two isovalues whose midpoint (the threshold) lies within."""
+    import trimesh
+
+    np.save(tmp_path / "ramp.npy", np.add.outer(np.arange(40.0), np.arange(60.0)) * 10.0)
+    code, _, err = run(capsys, "steps", tmp_path / "ramp.npy", "--levels", "500", "-o", tmp_path / "a.ply")
+    warned = [line for line in err.splitlines() if "warning:" in line]
+    assert code == 0 and len(warned) == 1 and "one flat terrace at 500" in warned[0], err
+    assert "two of which have their midpoint within the heights" in warned[0], err
+    assert np.unique(trimesh.load(tmp_path / "a.ply").vertices[:, 2]).tolist() == [500.0]
+    code, _, err = run(capsys, "steps", tmp_path / "ramp.npy", "--levels", "0,500", "-o", tmp_path / "b.ply")
+    assert code == 0 and "warning:" not in err, err  # their midpoint, 250, within: two terraces
+    assert np.unique(trimesh.load(tmp_path / "b.ply").vertices[:, 2]).tolist() == [0.0, 500.0]
