@@ -348,7 +348,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     radius = args.radius  # positive, within float32 positions: _check_globe_numbers
     # the default eye 3R above 30N 10E: R the --radius (a fixed 3 earth radii showed a larger planet as a patch of
     # its surface and a smaller one as a speck, not the whole globe the help promises)
-    lat_deg, lon_deg, altitude = args.eye if args.eye is not None else (30.0, 10.0, 3 * (radius or _EARTH_RADIUS))
+    lat_deg, lon_deg, altitude = args.eye if args.eye is not None else (30.0, 10.0, 3 * radius)
     if not (-90.0 <= lat_deg <= 90.0):
         raise InvalidInputError(f"--eye latitude must lie in [-90, 90]; got {lat_deg}")
     if not (-360.0 <= lon_deg <= 360.0):  # look_from's bound, which named the library's 'longitude'
@@ -356,7 +356,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     # any altitude above the terrain there, below the sphere too (the Dead Sea lies 430 m under it): the library
     # refuses an eye below the terrain, named by --eye below. The CLI's own "altitude > 0" refused such views; an
     # eye at or beyond the centre is below any terrain (every node lies outside the centre), refused here alike
-    if radius > 0 and radius + altitude <= 0:
+    if radius + altitude <= 0:
         raise InvalidInputError(f"--eye {lat_deg:g},{lon_deg:g},{altitude:g} lies below the terrain there (the "
                                 f"altitude is metres above the sphere of --radius): the eye at or beyond the planet's "
                                 f"centre (altitude <= -{radius:g} m, the --radius)")

@@ -1654,7 +1654,7 @@ def _world_file_transform(path: Any) -> tuple[tuple[float, ...], bool, str] | No
                 a, d, b, e, c, f = (float(w) for w in words[:6])
             except ValueError:
                 return None
-            if len(words) < 6 or not all(map(math.isfinite, (a, b, c, d, e, f))):
+            if not all(map(math.isfinite, (a, b, c, d, e, f))):  # fewer than six: the unpacking's ValueError
                 return None
             try:
                 prj = image.with_suffix(".prj").read_text(errors="replace").lstrip().upper()
