@@ -13,10 +13,7 @@ import numpy as np
 def derived(memo: dict, key: tuple, refs: tuple, build: Any, *, limit: int = 64) -> Any:
     """``build()`` memoized under ``key`` while the objects ``refs`` are the same objects (the key holds their
     ids). Arrays in the value are made read-only: the callers that find it share them. Entries are kept and dropped
-    as :func:`keep` does.
-
-    Held strongly, every ROI of a loop over new ones (a height band swept over a DEM's heights) stayed alive with its
-    mask, upload, cull and outline until ``limit`` entries (64: ~800 MB on the embedded DEM)."""
+    as :func:`keep` does."""
     value = recall(memo, key, refs)
     if value is not MISSING:
         return value
@@ -43,9 +40,11 @@ def recall(memo: dict, key: tuple, refs: tuple) -> Any:
 
 def keep(memo: dict, key: tuple, refs: tuple, value: Any, *, limit: int) -> None:
     """Put ``value`` under ``key`` for :func:`recall` with the objects ``refs``, held weakly where they take a weak
-    reference (ROIs, arrays, close-ups, textures; others, such as tuples or None, strongly). The entries one of whose
-    objects is gone are dropped first (:func:`sweep`), then all of them when ``limit`` are left and ``key`` is a new
-    one (one put again in place does not grow the memo).
+    reference (ROIs, arrays, close-ups, textures; others, such as tuples or None, strongly). Held strongly, every ROI
+    of a loop over new ones (a height band swept over a DEM's heights) stayed alive with its mask, upload, cull and
+    outline until ``limit`` entries (64: ~800 MB on the embedded DEM). The entries one of whose objects is gone are
+    dropped first (:func:`sweep`), then all of them when ``limit`` are left and ``key`` is a new one (one put again in
+    place does not grow the memo).
 
     Threads may share a memo: an entry is one tuple, put and read in one step, so :func:`recall` finds a value with the
     objects it was made from or nothing; at worst a sweep or a clearing drops an entry another thread just put, which
