@@ -46,6 +46,8 @@ examples:
   stepterrain steps -o out/terrain.glb --png out/terrain.png
       the embedded Big Tujunga DEM (30 m SRTM), 100 m steps (the round interval nearest ~15; 21 levels), GLB + render
   stepterrain steps dem.tif --interval 50 --gamma 0.7 -o dem.ply
+  stepterrain steps dem.tif --interval 100 --png dem.png
+      the render alone: no -o, no mesh file
   stepterrain steps --levels 400,800,1200,1600,2000 --colormap viridis -o levels.obj
   stepterrain steps --lens-relative 0.5,0.5,0.2 -o lens.glb --png lens.png
       original terrain inside a soft circular lens at the centre, steps outside (paper 000, Fig. 4)
@@ -481,7 +483,8 @@ def _add_steps(commands: Any) -> None:
         "steps",
         help="stepped terrain: terraces and walls at isovalues (paper 000)",
         description="Step a DEM into terraces and walls (Glander et al. 2010), write the mesh by extension "
-        "(.glb .gltf .obj .ply .stl .3mf) and optionally an off-screen render.",
+        "(.glb .gltf .obj .ply .stl .3mf) and optionally an off-screen render; give -o, --png or both "
+        "(--png alone writes only the render).",
         epilog=_STEPS_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -509,9 +512,11 @@ def _add_steps(commands: Any) -> None:
     p.add_argument("--colormap", default=None, metavar="NAME",
                    help="matplotlib colormap for the level colors, or 'none' (default terrain, land part)")
     _add_device(p)
-    p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
-                   help="mesh file; format by extension: " + " ".join(MESH_EXTENSIONS))
-    p.add_argument("--png", type=_path, metavar="OUT.png", help="also write an off-screen render")
+    p.add_argument("-o", "--output", type=_path, metavar="OUT",
+                   help="mesh file; format by extension: " + " ".join(MESH_EXTENSIONS)
+                        + " (optional with --png: a render-only run writes no mesh)")
+    p.add_argument("--png", type=_path, metavar="OUT.png",
+                   help="write an off-screen render (beside the mesh, or alone without -o)")
     p.add_argument("--size", type=_window, default=None, metavar="WxH",
                    help="render size, with --png (default 1280x800)")
     p.add_argument("--z-scale", type=float, default=None, metavar="S",
@@ -700,7 +705,10 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
 
     from . import render
 
-    out = _check_output(args.output, MESH_EXTENSIONS, "--output")
+    if args.output is None and args.png is None:  # a render-only run (--png alone) writes no mesh
+        raise InvalidInputError("give -o/--output OUT (the mesh file), --png OUT.png (a render) or both; "
+                                "got neither")
+    out = _check_output(args.output, MESH_EXTENSIONS, "--output") if args.output is not None else None
     png = _check_output(args.png, (".png",), "--png") if args.png else None
     if not (0.0 <= args.gamma <= 1.0):
         raise InvalidInputError(f"--gamma must lie in [0, 1] (0 = original, 1 = stepped); got {args.gamma}")
@@ -735,7 +743,8 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     _check_size(args.size, renders=png is not None)
     if png is None:  # (after their values, which are named first) they shape the render alone, and were ignored
         _refuse_unused(render_options, "--png (the render)", "without --png")
-    if args.colormap is not None and args.colormap.lower() != "none" and png is None and out.suffix.lower() == ".stl":
+    if (args.colormap is not None and args.colormap.lower() != "none" and png is None and out is not None
+            and out.suffix.lower() == ".stl"):
         # the level colours were dropped unsaid: an STL holds none, and no render showed them
         raise InvalidInputError(f"--colormap colours the mesh and the --png render; an .stl --output holds no "
                                 f"colours: got --colormap {args.colormap} with --output {args.output!r} and no --png")
@@ -842,7 +851,8 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
 
     from . import export
 
-    export._check_write_budget(mesh, out.suffix.lower(), out)  # before the render: a write refused after it wasted it
+    if out is not None:  # before the render: a write refused after it wasted it
+        export._check_write_budget(mesh, out.suffix.lower(), out)
 
     # render first (in memory), so a run that fails anywhere writes neither file
     image = None
@@ -853,18 +863,19 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         image = render.render_mesh(mesh, window_size=args.size, z_scale=args.z_scale)
         progress.done()
 
-    # write: each file atomically (temporary file + rename)
-    progress.stage("write", f"writing {out}")
-    metadata = {
-        "generator": "stepterrain steps",
-        **_input_metadata(args),
-        "isovalues_count": int(len(values)),
-        "interval": interval,
-        "gamma": "lens" if isinstance(gamma, st.Lens) else float(args.gamma),
-        "solid": bool(args.solid),
-    }
-    written = export.save_mesh(mesh, out, metadata=metadata)
-    progress.done(_size(written))
+    # write: each file atomically (temporary file + rename); no mesh file for a render-only run (--png without -o)
+    if out is not None:
+        progress.stage("write", f"writing {out}")
+        metadata = {
+            "generator": "stepterrain steps",
+            **_input_metadata(args),
+            "isovalues_count": int(len(values)),
+            "interval": interval,
+            "gamma": "lens" if isinstance(gamma, st.Lens) else float(args.gamma),
+            "solid": bool(args.solid),
+        }
+        written = export.save_mesh(mesh, out, metadata=metadata)
+        progress.done(_size(written))
     if image is not None:
         progress.stage("write_png", f"writing {png}")
         export._save_image(image, png, reused=False)

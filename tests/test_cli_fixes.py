@@ -2286,3 +2286,35 @@ def test_the_one_level_warning_of_a_single_level_within_the_heights_asks_for_a_t
     code, _, err = run(capsys, "steps", tmp_path / "ramp.npy", "--levels", "0,500", "-o", tmp_path / "b.ply")
     assert code == 0 and "warning:" not in err, err  # their midpoint, 250, within: two terraces
     assert np.unique(trimesh.load(tmp_path / "b.ply").vertices[:, 2]).tolist() == [0.0, 500.0]
+
+
+@needs_render
+def test_steps_png_without_output_writes_the_render_alone(tmp_path, capsys):
+    """A user who wants only the picture: ``steps --png out.png`` without ``-o`` was refused (-o was required). It
+    steps, renders and writes the PNG, and no mesh file."""
+    from PIL import Image
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, (np.add.outer(np.arange(12.0), np.arange(14.0)) * 10 + 1000).astype(np.float32))
+    png = tmp_path / "out.png"
+    code, _, err = run(capsys, "steps", dem, "--interval", "20", "--png", png, "--size", "64x48")
+    assert code == 0, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy", "out.png"]
+    with Image.open(png) as image:
+        assert image.format == "PNG" and image.size == (64, 48)
+        pixels = np.asarray(image.convert("RGB")).reshape(-1, 3)
+    assert len(np.unique(pixels, axis=0)) > 1  # a picture of the terrain, not one flat colour
+    assert "writing out.png" in err or f"writing {png}" in err, err
+
+
+def test_steps_without_output_or_png_is_a_usage_error(tmp_path, capsys):
+    """-o/--output is optional with --png; with neither, the run has nothing to write: exit 2 naming both options,
+    before any work, nothing written."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.add.outer(np.arange(6.0), np.arange(7.0)).astype(np.float32))
+    code, _, err = run(capsys, "steps", dem, "--interval", "1")
+    assert code == 2
+    line = one_error_line(err, "steps")
+    assert "-o/--output" in line and "--png" in line and "got neither" in line
+    assert [p.name for p in tmp_path.iterdir()] == ["dem.npy"]
+
