@@ -273,8 +273,9 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
     progress.done(f"{len(report.done)} written, {len(report.skipped)} complete already, {len(report.failed)} failed")
     # a folder's georeferencing is known only item by item (tiles and series are checked up front, and a floor
     # against every file's lowest height): a floor that close_solid still refuses for every item (within the float32
-    # rounding of a γ < 1 blend), a --spacing for files that all place their nodes themselves, a --coarsen every file
-    # refuses, is a usage error, said once, not a list of identical failures
+    # rounding of a γ < 1 blend), a --spacing for files that all place their nodes themselves, a --band every file
+    # refuses (files of one band, or rasters of fewer bands), a --coarsen every file refuses, is a usage error, said
+    # once, not a list of identical failures
     if args.floor is not None:  # mesh.close_solid's
         _refuse_alike(report, "floor must lie below", f"--floor {args.floor:g} must lie below the stepped surface of "
                       "every input; it lies above ", ("the only one", "all {n}"), "", after=": ")

@@ -135,7 +135,8 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--contours", type=float, metavar="M",
                    help="contour lines every M height units (levels 0, M, 2M, ...), drawn last, over the shaded "
                         "colours and --image (unshaded, as on a topographic map), anti-aliased, their width in texels "
-                        "of the texture (on --texel-size's grid too); not over the DEM's nodata")
+                        "of the texture (on --texel-size's grid too); not over the DEM's nodata. Heights in a named "
+                        "unit (the file's, or --height-unit ft) are metres once loaded, so M then counts metres")
     p.add_argument("--contour-width", type=float, default=None, metavar="TEXELS",
                    help="with --contours: line width in texels (default 1); index lines are twice as wide")
     p.add_argument("--contour-color", type=_floats(None, "r,g,b or r,g,b,a in [0, 1]"), default=None,

@@ -764,12 +764,11 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     if interval is None and args.levels is None:
         # the interval picked here, not one given: a refusal named an --interval the user never typed
         interval, values = _default_isovalues(lo, hi, base, interval_name="--interval", levels_name="--levels")
-    else:
-        values = st.isovalues((lo, hi), interval=interval, levels=args.levels, base=base)
-    if args.interval is None and args.levels is None:
         progress.say(f"no --interval or --levels given: using --interval {interval:g}, a round interval "
                      f"giving {_counted(len(values), 'level')} over heights {lo:g} to {hi:g} "
                      f"(aim ~{TARGET_STEPS} steps)")
+    else:
+        values = st.isovalues((lo, hi), interval=interval, levels=args.levels, base=base)
     flat = None  # isovalues given: levels in another unit, or an interval over the relief, gave one flat terrace unsaid
     if args.interval is not None or args.levels is not None:
         from .stepped import _one_level

@@ -1596,7 +1596,7 @@ def _plate_carree_shift(picture: Any, path: Any) -> int:
                                 f"with pixel size ({a:.6g}, {e:.6g}) and rotation ({b:.6g}, {d:.6g})")
     sx, sy = a, -e
     east, south = west + width * sx, north - height * sy
-    # a pixel of slack either way: a PixelIsPoint raster's extent may lie half a pixel inside the area one's
+    # 1.5 pixels of slack either way: a PixelIsPoint raster's extent may lie half a pixel inside the area one's
     if abs((east - west) - 360.0) > 1.5 * sx or abs((north - south) - 180.0) > 1.5 * sy or abs(north - 90) > 1.5 * sy:
         raise InvalidInputError(
             f"{name} must be a global plate-carrée image (360 x 180 degrees, row 0 at 90N); got {source} over "

@@ -693,7 +693,8 @@ class Terrain:
         mesh, or some of its faces: tiles from exporters of opposite conventions, merged) are turned up; points that
         coincide (the same x, y and z, and vertex colour or UV) are welded, so a triangle soup (an STL file) or a
         mesh of several parts (a glTF's primitives) steps as one welded surface, and its solid has no walls inside
-        (a per-node γ array is read at the first of such points);
+        (a per-node γ array is read at the first of such points; vertex colours built apart from the mesh with fewer
+        rows than its points weld by position alone, and :func:`~stepterrain.stepped.stepped` refuses them);
         faces that fold over in projection, faces that overlap others in xy (two sheets one above the other, a
         spiral ramp over itself, a triangle inside another's face: an intersection of positive area; faces that
         only touch, at a corner or along an edge, are fine) and edges shared by more than two faces are refused,
