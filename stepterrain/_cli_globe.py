@@ -80,6 +80,8 @@ _EPILOG = """\
 examples:
   stepterrain globe -o out/globe.glb --png out/globe.png
       the embedded ETOPO 2022 relief (20'), 257^2 nodes per face, seen from 3 earth radii above 30N 10E
+  stepterrain globe --eye 46,9,400000 --tilt 60 --error 20 --png alps.png
+      the render alone: no -o, no mesh file
   stepterrain globe --face-size 1025 --error 0 -o full.ply
       the full-resolution sphere: 6 x 1024^2 x 2 triangles
   stepterrain globe --eye 46,9,400000 --tilt 60 --error 20 --exaggeration 10 -o alps.glb --png alps.png
@@ -100,7 +102,8 @@ def add_parser(commands: Any) -> None:
         help="global terrain on the cube sphere: view-dependent, crack-free meshes (paper 003)",
         description="Resample a global lat/lon elevation grid onto the six faces of a cube sphere, build the "
         "longest-edge bisection hierarchy with saturated bounding spheres / cone frustums (Adelsberger), and "
-        "write a view-dependent mesh by extension (.glb .gltf .obj .ply .stl .3mf), optionally rendered.",
+        "write a view-dependent mesh by extension (.glb .gltf .obj .ply .stl .3mf), optionally rendered; give -o, "
+        "--png or both (--png alone writes only the render).",
         epilog=_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -151,9 +154,11 @@ def add_parser(commands: Any) -> None:
                         "embedded as the mesh's texture in .glb/.gltf/.obj and drawn as a texture in the --png "
                         "render, as vertex colours in .ply/.3mf; default: colours by elevation")
     _add_device(p)
-    p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
-                   help="mesh file; format by extension: " + " ".join(MESH_EXTENSIONS))
-    p.add_argument("--png", type=_path, metavar="OUT.png", help="also write an off-screen render from the eye")
+    p.add_argument("-o", "--output", type=_path, metavar="OUT",
+                   help="mesh file; format by extension: " + " ".join(MESH_EXTENSIONS)
+                        + " (optional with --png: a render-only run writes no mesh)")
+    p.add_argument("--png", type=_path, metavar="OUT.png",
+                   help="write an off-screen render from the eye (beside the mesh, or alone without -o)")
     p.add_argument("--size", type=_window, default=None, metavar="WxH",
                    help="render size, and the view's aspect with the camera (default 1280x800)")
     p.set_defaults(run=_run_globe)
@@ -295,7 +300,10 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         render_view,
     )
 
-    out = _check_output(args.output, MESH_EXTENSIONS, "--output")
+    if args.output is None and args.png is None:  # a render-only run (--png alone) writes no mesh
+        raise InvalidInputError("give -o/--output OUT (the mesh file), --png OUT.png (a render) or both; "
+                                "got neither")
+    out = _check_output(args.output, MESH_EXTENSIONS, "--output") if args.output is not None else None
     png = _check_output(args.png, (".png",), "--png") if args.png else None
     _check_globe_numbers(args)
     if args.height_unit is not None and not args.input:
@@ -380,7 +388,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     # the image before the work: a missing, unreadable or non-image --texture failed after the globe was built
     # decoded once for both drapes; a JPEG used as is (picture) is embedded as its file's bytes, not a PNG 3x larger
     pixels, picture = _texture_image(args.texture) if args.texture else (None, None)
-    if args.texture is not None:  # a textured OBJ's .mtl and texture image, named as drape_texture's will be
+    if args.texture is not None and out is not None:  # a textured OBJ's .mtl and image, named as drape_texture's
         _check_side_files("--output", out, _drape_side_files(out, picture is not None),
                           {"INPUT": args.input, "--texture": args.texture}, {"--png": png})
     if png is not None and pixels is not None:  # the render holds the draped texture too (16 bytes a texel)
@@ -430,7 +438,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
             "--no-cull")
 
     textured = None
-    keeps_texture = out.suffix.lower() in (".glb", ".gltf", ".obj")
+    keeps_texture = out is not None and out.suffix.lower() in (".glb", ".gltf", ".obj")
     if pixels is not None:
         mesh.visual.vertex_colors = drape_colors(mesh.vertices, pixels)
         # the render draws the image itself (vertex colours blurred it to the mesh's triangles: far from the eye,
@@ -447,27 +455,29 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         image = render_view(textured if textured is not None else mesh, camera, window_size=args.size)
         progress.done()
 
-    progress.stage("write", f"writing {out}")
-    metadata = {
-        "generator": "stepterrain globe",
-        "input": args.input or "embedded ETOPO 2022 global relief, 20 arc-minutes",
-        **({"height_unit": args.height_unit} if args.height_unit is not None else {}),
-        "face_size": args.face_size,
-        "error": args.error,
-        "metrics": ",".join(metrics),
-        "exaggeration": args.exaggeration,
-    }
-    if shaped:  # the bounding shapes the distance and clip metrics measured
-        metadata["bounds"] = bounds
-    if not args.no_camera:  # the eye the mesh was refined for (with --no-camera it only places a --png render)
-        metadata["eye_lat_lon_alt"] = [lat_deg, lon_deg, altitude]
-    mesh.metadata.pop("node_entry", None)
-    # a view's glTF stored relative to the eye: relative to the centre of the mesh, which spans thousands of km (the
-    # coarse triangles at the view's border and on the far side), float32 moved the vertices under an eye 100 m up
-    # by 0.3 m; relative to the eye each is stored within float32's rounding of its own distance from the eye
-    written = export.save_mesh(textured if textured is not None and keeps_texture else mesh, out, metadata=metadata,
-                               origin=None if args.no_camera else camera.eye)
-    progress.done(_size(written))
+    # no mesh file for a render-only run (--png without -o)
+    if out is not None:
+        progress.stage("write", f"writing {out}")
+        metadata = {
+            "generator": "stepterrain globe",
+            "input": args.input or "embedded ETOPO 2022 global relief, 20 arc-minutes",
+            **({"height_unit": args.height_unit} if args.height_unit is not None else {}),
+            "face_size": args.face_size,
+            "error": args.error,
+            "metrics": ",".join(metrics),
+            "exaggeration": args.exaggeration,
+        }
+        if shaped:  # the bounding shapes the distance and clip metrics measured
+            metadata["bounds"] = bounds
+        if not args.no_camera:  # the eye the mesh was refined for (with --no-camera it only places a --png)
+            metadata["eye_lat_lon_alt"] = [lat_deg, lon_deg, altitude]
+        mesh.metadata.pop("node_entry", None)
+        # a view's glTF stored relative to the eye: relative to the centre of the mesh, which spans thousands of km
+        # (the coarse triangles at the view's border and on the far side), float32 moved the vertices under an eye
+        # 100 m up by 0.3 m; relative to the eye each is stored within float32's rounding of its own distance from it
+        written = export.save_mesh(textured if textured is not None and keeps_texture else mesh, out,
+                                   metadata=metadata, origin=None if args.no_camera else camera.eye)
+        progress.done(_size(written))
     if image is not None:
         progress.stage("write_png", f"writing {png}")
         export._save_image(image, png, reused=False)

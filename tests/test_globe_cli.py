@@ -228,6 +228,40 @@ def test_globe_png(tmp_path):
 
 @pytest.mark.render
 @pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_globe_png_without_output_writes_the_render_alone(tmp_path, capsys):
+    """A user who wants only the picture: ``globe --png out.png`` without ``-o`` was refused (-o was required). It
+    builds, renders and writes the PNG, and no mesh file."""
+    png = tmp_path / "globe.png"
+    code = main(["globe", "--face-size", "5", "--error", "0", "--png", str(png), "--size", "64x48",
+                 "--device", "cpu"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert [p.name for p in tmp_path.iterdir()] == ["globe.png"]
+    from PIL import Image
+
+    with Image.open(png) as image:
+        assert image.format == "PNG" and image.size == (64, 48)
+        pixels = np.asarray(image.convert("RGB")).reshape(-1, 3)
+    assert len(np.unique(pixels, axis=0)) > 1  # a picture of the globe, not one flat colour
+    assert f"writing {png}" in err and "writing None" not in err, err
+
+
+def test_globe_without_output_or_png_is_a_usage_error(tmp_path, capsys, monkeypatch):
+    """-o/--output is optional with --png; with neither, the run has nothing to write: exit 2 naming both options,
+    before any work (the grid is not loaded), nothing written."""
+    import stepterrain.globe as globe_module
+
+    monkeypatch.setattr(globe_module, "load_global_relief", lambda: pytest.fail("the grid was loaded"))
+    monkeypatch.chdir(tmp_path)
+    assert main(["globe", "--face-size", "5"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == ("stepterrain globe: error: give -o/--output OUT (the mesh file), --png OUT.png (a render) or "
+                   "both; got neither")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
 def test_example_globe(tmp_path):
     path = Path(__file__).resolve().parents[1] / "examples" / "globe.py"
     spec = importlib.util.spec_from_file_location("example_globe", path)
