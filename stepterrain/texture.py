@@ -2022,8 +2022,8 @@ def _covering_image(image: NDArray[np.uint8], layer: TextureLayer, vertices: NDA
             f"{xy_low[0]:.6g} to {xy_high[0]:.6g}, y {xy_low[1]:.6g} to {xy_high[1]:.6g}, wholly outside the "
             f"layer's image over x {x0:.6g} to {x1:.6g}, y {y0:.6g} to {y1:.6g}: make the mesh and the layer of one "
             "terrain (a pyvista grid with the DEM's origin and spacing, st.stepped(dem) of the layer's dem)")
-    c0, c1 = min(0, math.floor(texel[:, 0].min())), max(cols - 1, math.ceil(texel[:, 0].max()))
-    r0, r1 = min(0, math.floor(texel[:, 1].min())), max(rows - 1, math.ceil(texel[:, 1].max()))
+    c0, c1 = min(0, math.floor(low[0])), max(cols - 1, math.ceil(high[0]))
+    r0, r1 = min(0, math.floor(low[1])), max(rows - 1, math.ceil(high[1]))
     shape = (r1 - r0 + 1, c1 - c0 + 1, 3)
     check_budget(shape[0] * shape[1] * 3, f"the {shape[1]} x {shape[0]} texture covering the draped mesh",
                  hint="drape a layer that covers the mesh (or blend it onto one)")
