@@ -1307,7 +1307,7 @@ def _load_geotiff(
                                         "reads only the crop's window; gdal_translate -outsize coarsens)")
             # block by block: GDAL's one big read of a raw raster (.bil, .flt) cut short filled the missing rows with
             # zeros without an error (heights of 0 m); its block reads fail there, as a GeoTIFF's do
-            with rasterio.Env(GDAL_ONE_BIG_READ="NO", CPL_VSIL_GZIP_WRITE_PROPERTIES="NO"):
+            with rasterio.Env(GDAL_ONE_BIG_READ="NO"):
                 masked = dataset.read(band, masked=True, window=window)
                 unmasked = _missing_beyond_gdal_mask(dataset, band, masked.data, window)
     except RasterioError as exc:
