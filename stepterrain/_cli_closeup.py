@@ -165,7 +165,6 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     from .closeup import (
         _MAX_CLOSEUPS,
         _MAX_OFFSET,
-        _MAX_SCALE,
         _MIN_PIXELS_PER_CLOSEUP,
         ROI,
         TRANSFER_PRESETS,
@@ -173,6 +172,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         CloseUp,
         _check_fps,
         _check_mp4_size,
+        _closeup_scale,
         animate_closeups,
         max_closeups,
         render_closeups,
@@ -251,11 +251,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     for s in scales:
         if len(s) not in (1, 3):
             raise InvalidInputError(f"--scale must be s or sx,sy,sz; got {','.join(f'{v:g}' for v in s)}")
-        sx, sy, sz = (float(v) for v in (s * 3 if len(s) == 1 else s))
-        if sx <= 0 or sy <= 0 or sz < 0:
-            raise InvalidInputError(f"--scale must be positive (sx, sy > 0; sz >= 0, 0 flattens); got {(sx, sy, sz)}")
-        if max(sx, sy, sz) > _MAX_SCALE:  # float32 positions on the device
-            raise InvalidInputError(f"--scale must be at most {_MAX_SCALE:g}; got {(sx, sy, sz)}")
+        _closeup_scale(s, "--scale")  # CloseUp's own check, named as the option
     _per_closeup(args.offset, n_rois, None, "--offset")
     rotations = _per_closeup(rotations_deg, n_rois, (0.0, 0.0), "--rotation")
     colors = _per_closeup(args.color, n_rois, None, "--color")

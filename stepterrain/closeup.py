@@ -137,6 +137,17 @@ def _scale3(value: Any, name: str) -> NDArray[np.float64]:
     return s
 
 
+def _closeup_scale(value: Any, name: str) -> NDArray[np.float64]:
+    """A close-up's (sx, sy, sz) (:func:`_scale3`): sx, sy > 0, sz >= 0 (0 flattens), none past :data:`_MAX_SCALE`
+    (float32 positions on the device), else an InvalidInputError naming ``name``."""
+    s = _scale3(value, name)
+    if s[0] <= 0 or s[1] <= 0 or s[2] < 0:
+        raise InvalidInputError(f"{name} must be positive (sx, sy > 0; sz >= 0, 0 flattens); got {tuple(s.tolist())}")
+    if s.max() > _MAX_SCALE:  # float32 positions on the device
+        raise InvalidInputError(f"{name} must be at most {_MAX_SCALE:g}; got {tuple(s.tolist())}")
+    return s
+
+
 def _outline_level(value: Any, name: str) -> float:
     """A mask value whose contour is an outline: a number in (0, 1) (m lies in [0, 1]), else an InvalidInputError
     naming ``name``; :meth:`ROI.outline` and :class:`AnchorStyle` take the same levels."""
@@ -753,12 +764,7 @@ class CloseUp:
             raise InvalidInputError(f"close-up rotation must be (α, β) in radians, each within ±{_MAX_ANGLE:.6g} (1024 "
                                     f"turns; degrees? use math.radians); got {tuple(rot.tolist())}")
         object.__setattr__(self, "rotation", (float(rot[0]), float(rot[1])))
-        s = _scale3(self.scale, "close-up scale")
-        if s[0] <= 0 or s[1] <= 0 or s[2] < 0:
-            raise InvalidInputError(
-                f"close-up scale must be positive (sx, sy > 0; sz >= 0, 0 flattens); got {tuple(s.tolist())}")
-        if s.max() > _MAX_SCALE:  # float32 positions on the device
-            raise InvalidInputError(f"close-up scale must be at most {_MAX_SCALE:g}; got {tuple(s.tolist())}")
+        s = _closeup_scale(self.scale, "close-up scale")
         object.__setattr__(self, "scale", tuple(float(v) for v in s))
         p = _numbers(self.offset)
         if p.size != 3 or not np.all(np.isfinite(p)) or np.abs(p).max() > _MAX_OFFSET:

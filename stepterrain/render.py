@@ -1885,8 +1885,8 @@ class LayeredRenderer:
         for name, group in zip(names, groups, strict=True):
             if len(group) == 1:
                 k = group[0]
-                vertices, faces, kw = layers[k]
-                self.set_mesh(name, vertices, faces, bounds=boxes[k], **kw)
+                _v, faces, kw = layers[k]
+                self.set_mesh(name, rows[k], faces, bounds=boxes[k], **kw)  # the float64 rows: not converted again
                 if crop:
                     rect = rects[k] if rects[k] is not None else self._box_rect(boxes[k])
                     rect = rect if rect is not None else (0, 0, *self.size)
