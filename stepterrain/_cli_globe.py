@@ -20,13 +20,13 @@ from .cli import (
     Progress,
     _add_device,
     _add_height_unit,
-    _check_output,
     _check_outputs,
     _check_side_files,
     _check_size,
     _counted,
     _floats,
     _given,
+    _mesh_and_png,
     _path,
     _refuse_unused,
     _size,
@@ -300,11 +300,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         render_view,
     )
 
-    if args.output is None and args.png is None:  # a render-only run (--png alone) writes no mesh
-        raise InvalidInputError("give -o/--output OUT (the mesh file), --png OUT.png (a render) or both; "
-                                "got neither")
-    out = _check_output(args.output, MESH_EXTENSIONS, "--output") if args.output is not None else None
-    png = _check_output(args.png, (".png",), "--png") if args.png else None
+    out, png = _mesh_and_png(args.output, args.png)
     _check_globe_numbers(args)
     if args.height_unit is not None and not args.input:
         raise InvalidInputError(f"--height-unit applies to an INPUT file; the embedded ETOPO 2022 relief is in metres; "
