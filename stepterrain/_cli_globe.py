@@ -266,18 +266,11 @@ def _check_globe_numbers(args: argparse.Namespace) -> None:
     positive or beyond float32 node positions, ``--exaggeration`` not positive or below a normal float32, ``--error``
     below 0 or NaN, a non-finite ``--heading``), by their option names, before the INPUT is loaded: they were refused
     only once the whole lat/lon grid had been read (an ``--exaggeration`` too large for the grid's heights still is)."""
-    from .globe import _error_value, _face_cells, _positive
+    from .globe import _error_value, _exaggeration_value, _face_cells, _radius_value
 
-    _face_cells(args.face_size, "--face-size")
-    radius = _positive(args.radius, "--radius")
-    limit = float(np.finfo(np.float32).max) / 4  # from_latlon's bound: float32 node positions
-    if radius > limit:
-        raise InvalidInputError(f"--radius must be at most {limit:.2g} m (float32 node positions); got {radius:g}")
-    exaggeration = _positive(args.exaggeration, "--exaggeration")
-    tiny = float(np.finfo(np.float32).tiny)  # from_latlon's bound: the kernels take it as float32
-    if exaggeration < tiny:
-        raise InvalidInputError(f"--exaggeration must be at least {tiny:.3g} (a normal float32, as the kernels take "
-                                f"it); got {exaggeration:g}")
+    _face_cells(args.face_size, "--face-size")  # from_latlon's checks, by the options' names
+    _radius_value(args.radius, "--radius")
+    _exaggeration_value(args.exaggeration, "--exaggeration")
     try:
         _error_value(args.error)
     except InvalidInputError as exc:  # the library's 'error must be ...'
