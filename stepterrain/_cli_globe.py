@@ -20,13 +20,13 @@ from .cli import (
     Progress,
     _add_device,
     _add_height_unit,
-    _check_output,
     _check_outputs,
     _check_side_files,
     _check_size,
     _counted,
     _floats,
     _given,
+    _mesh_and_png,
     _path,
     _refuse_unused,
     _size,
@@ -266,18 +266,11 @@ def _check_globe_numbers(args: argparse.Namespace) -> None:
     positive or beyond float32 node positions, ``--exaggeration`` not positive or below a normal float32, ``--error``
     below 0 or NaN, a non-finite ``--heading``), by their option names, before the INPUT is loaded: they were refused
     only once the whole lat/lon grid had been read (an ``--exaggeration`` too large for the grid's heights still is)."""
-    from .globe import _error_value, _face_cells, _positive
+    from .globe import _error_value, _exaggeration_value, _face_cells, _radius_value
 
-    _face_cells(args.face_size, "--face-size")
-    radius = _positive(args.radius, "--radius")
-    limit = float(np.finfo(np.float32).max) / 4  # from_latlon's bound: float32 node positions
-    if radius > limit:
-        raise InvalidInputError(f"--radius must be at most {limit:.2g} m (float32 node positions); got {radius:g}")
-    exaggeration = _positive(args.exaggeration, "--exaggeration")
-    tiny = float(np.finfo(np.float32).tiny)  # from_latlon's bound: the kernels take it as float32
-    if exaggeration < tiny:
-        raise InvalidInputError(f"--exaggeration must be at least {tiny:.3g} (a normal float32, as the kernels take "
-                                f"it); got {exaggeration:g}")
+    _face_cells(args.face_size, "--face-size")  # from_latlon's checks, by the options' names
+    _radius_value(args.radius, "--radius")
+    _exaggeration_value(args.exaggeration, "--exaggeration")
     try:
         _error_value(args.error)
     except InvalidInputError as exc:  # the library's 'error must be ...'
@@ -300,11 +293,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         render_view,
     )
 
-    if args.output is None and args.png is None:  # a render-only run (--png alone) writes no mesh
-        raise InvalidInputError("give -o/--output OUT (the mesh file), --png OUT.png (a render) or both; "
-                                "got neither")
-    out = _check_output(args.output, MESH_EXTENSIONS, "--output") if args.output is not None else None
-    png = _check_output(args.png, (".png",), "--png") if args.png else None
+    out, png = _mesh_and_png(args.output, args.png)
     _check_globe_numbers(args)
     if args.height_unit is not None and not args.input:
         raise InvalidInputError(f"--height-unit applies to an INPUT file; the embedded ETOPO 2022 relief is in metres; "

@@ -565,6 +565,16 @@ def _check_output(path: str, extensions: Sequence[str], what: str) -> Path:
     return out
 
 
+def _mesh_and_png(output: str | None, png: str | None) -> tuple[Path | None, Path | None]:
+    """``-o/--output`` (a mesh file) and ``--png`` (a render) of ``steps`` and ``globe``, each checked by
+    :func:`_check_output`: either or both (``--png`` alone, a render-only run, writes no mesh), neither refused."""
+    if output is None and png is None:
+        raise InvalidInputError("give -o/--output OUT (the mesh file), --png OUT.png (a render) or both; "
+                                "got neither")
+    return (_check_output(output, MESH_EXTENSIONS, "--output") if output is not None else None,
+            _check_output(png, (".png",), "--png") if png else None)
+
+
 def _check_outputs(inputs: dict[str, str | None] | None = None, /, **paths: Path | None) -> None:
     """Refuse, before any work, output options that name the same file (the second write would replace the
     first), an input file (``inputs``: option name -> path, e.g. ``{"INPUT": args.input}``; the write would
@@ -705,11 +715,7 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
 
     from . import render
 
-    if args.output is None and args.png is None:  # a render-only run (--png alone) writes no mesh
-        raise InvalidInputError("give -o/--output OUT (the mesh file), --png OUT.png (a render) or both; "
-                                "got neither")
-    out = _check_output(args.output, MESH_EXTENSIONS, "--output") if args.output is not None else None
-    png = _check_output(args.png, (".png",), "--png") if args.png else None
+    out, png = _mesh_and_png(args.output, args.png)
     if not (0.0 <= args.gamma <= 1.0):
         raise InvalidInputError(f"--gamma must lie in [0, 1] (0 = original, 1 = stepped); got {args.gamma}")
     base = _isovalue_base(args)

@@ -160,6 +160,30 @@ def _error_value(error: Any) -> float:
     return _number(error, "error", "", lambda v: v >= 0, " >= 0 (metres)")
 
 
+#: :meth:`Globe.from_latlon`'s bound on the radius and the relief: float32 node positions, and their differences.
+_MAX_POSITION = float(np.finfo(np.float32).max) / 4
+
+
+def _radius_value(radius: Any, name: str = "radius") -> float:
+    """A positive ``radius`` within float32 node positions (:data:`_MAX_POSITION`)."""
+    radius = _positive(radius, name)
+    if radius > _MAX_POSITION:
+        raise InvalidInputError(f"{name} must be at most {_MAX_POSITION:.2g} m (float32 node positions); got "
+                                f"{radius:g}")
+    return radius
+
+
+def _exaggeration_value(exaggeration: Any, name: str = "exaggeration") -> float:
+    """A positive ``exaggeration`` at least a normal float32: the kernels take it as float32 (1e-320 became 0, a
+    flat globe)."""
+    exaggeration = _positive(exaggeration, name)
+    tiny = float(np.finfo(np.float32).tiny)
+    if exaggeration < tiny:
+        raise InvalidInputError(f"{name} must be at least {tiny:.3g} (a normal float32, as the kernels take it); got "
+                                f"{exaggeration:g}")
+    return exaggeration
+
+
 def _check_distance_scale(value: Any, camera: Camera | None, names: set[str]) -> None:
     """``distance_scale`` is ℓ of the distance metric alone: given without a camera or without that metric it changed
     nothing (the mesh came out the same whatever it was), so it is refused, as ``floor`` without ``solid=True``."""
@@ -443,12 +467,8 @@ class Globe:
         (98, 192, True)
         """
         cells = _face_cells(face_size)
-        radius = _positive(radius, "radius")
-        exaggeration = _positive(exaggeration, "exaggeration")
-        tiny = float(np.finfo(np.float32).tiny)  # the kernels take it as float32: 1e-320 became 0, a flat globe
-        if exaggeration < tiny:
-            raise InvalidInputError(f"exaggeration must be at least {tiny:.3g} (a normal float32, as the kernels take "
-                                    f"it); got {exaggeration:g}")
+        radius = _radius_value(radius)
+        exaggeration = _exaggeration_value(exaggeration)
         z = _height_grid(elevation, "elevation")
         n_entries = 6 * (cells + 1) ** 2
         slots = (cells // 2 + 1) ** 2  # the angle tables cover a quarter face
@@ -459,11 +479,8 @@ class Globe:
                      f"a globe of face_size {cells + 1} from a {z.shape[0]}x{z.shape[1]} grid",
                      hint="use a smaller face_size or a coarser grid")
         relief = exaggeration * float(np.abs(z).max(initial=0.0))
-        limit = float(np.finfo(np.float32).max) / 4  # float32 node heights and positions, and their differences
-        if radius > limit:
-            raise InvalidInputError(f"radius must be at most {limit:.2g} m (float32 node positions); got {radius:g}")
-        if relief > limit:
-            raise InvalidInputError(f"exaggeration · elevation must stay within ±{limit:.2g} m (float32 node "
+        if relief > _MAX_POSITION:  # float32 node heights and positions, and their differences
+            raise InvalidInputError(f"exaggeration · elevation must stay within ±{_MAX_POSITION:.2g} m (float32 node "
                                     f"positions); got {exaggeration:g} x {float(np.abs(z).max()):.9g} m")
         lowest = np.unravel_index(int(np.argmin(z)), z.shape)
         deepest = float(z[lowest])
