@@ -1264,6 +1264,13 @@ def _load_geotiff(
                     f"cannot read {str(file)!r}: expected an elevation band (grey or undefined); band {band} is "
                     f"{what}, not elevation data"
                 )
+            stored = dataset.dtypes[band - 1]
+            if stored.startswith("complex"):  # from the header, before the read: CInt16 ('complex_int16') has no
+                # NumPy dtype, and np.dtype() of it in the budget check raised a raw TypeError
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: expected real-valued elevation data; got band {band} of dtype "
+                    f"{stored}"
+                )
             scale, offset = dataset.scales[band - 1], dataset.offsets[band - 1]
             if not (math.isfinite(scale) and scale != 0.0 and math.isfinite(offset)):  # 0: one flat height, silently
                 raise DataFileError(

@@ -2008,3 +2008,29 @@ def test_an_arcinfo_style_prj_beside_a_world_file_tiff_gives_its_crs(tmp_path):
         tif.with_suffix(".prj").write_text(text)
         with pytest.raises(DataFileError, match=r"dem\.prj' beside DEM '.*dem\.tif' is not a CRS"):
             load_dem(tif)
+
+
+@pytest.mark.parametrize("crop", [None, (0.0, 50.0, -50.0, 0.0)])
+def test_a_complex_int16_band_is_refused_as_a_complex64_one_is(tmp_path, crop):
+    # a CInt16 band (SAR, interferograms: `gdal_translate -ot CInt16`) has no NumPy dtype: rasterio names it
+    # 'complex_int16', and np.dtype() of it in the memory-budget check raised a raw TypeError ("data type
+    # 'complex_int16' not understood") out of load_dem and `stepterrain info`; it is refused as a complex64 band is,
+    # from the header, before the band is read
+    rasterio = pytest.importorskip("rasterio")
+    source = tmp_path / "heights.tif"
+    with rasterio.open(source, "w", driver="GTiff", width=4, height=3, count=1, dtype="int16", crs="EPSG:32611",
+                       transform=rasterio.Affine(30.0, 0.0, 0.0, 0.0, -30.0, 0.0)) as ds:  # fmt: skip
+        ds.write(np.arange(12, dtype=np.int16).reshape(3, 4), 1)
+    vrt = tmp_path / "sar.vrt"  # GDAL's own CInt16 band over it, as `gdal_translate -ot CInt16 -of VRT` writes
+    vrt.write_text(
+        '<VRTDataset rasterXSize="4" rasterYSize="3"><SRS>EPSG:32611</SRS>'
+        "<GeoTransform>0, 30, 0, 0, 0, -30</GeoTransform>"
+        '<VRTRasterBand dataType="CInt16" band="1"><SimpleSource>'
+        f'<SourceFilename relativeToVRT="0">{source}</SourceFilename><SourceBand>1</SourceBand>'
+        "</SimpleSource></VRTRasterBand></VRTDataset>"
+    )
+    with rasterio.open(vrt) as ds:
+        assert ds.dtypes == ("complex_int16",)  # what the header declares, which no np.dtype() reads
+    with pytest.raises(DataFileError, match=r"sar\.vrt.*expected real-valued elevation data; got band 1 of dtype "
+                                            r"complex_int16$"):
+        load_dem(vrt, crop=crop)
