@@ -300,7 +300,9 @@ def load_dem(
         boolean array of the heights' shape, a .prj beside a GeoTIFF georeferenced without a CRS that is no CRS,
         nothing but nodata, a GeoTIFF band's scale that is 0 or not finite or offset that is not finite, heights
         in a unit that is not a known length unit:
-        "degC", "meters above sea level"; ``height_unit`` overrides it), or is a GeoTIFF
+        "degC", "meters above sea level"; ``height_unit`` overrides it), a ``.hgt`` not named by its south-west
+        corner (``everest.hgt``: GDAL places a tile by its name, ``N27E086.hgt``, and reads no other) or not of a
+        tile's size (cut short), or is a GeoTIFF
         georeferenced only by ground control points (GCPs) or rational polynomial coefficients (RPCs), which is
         not a regular grid until warped (``gdalwarp`` makes it one; the message gives the command).
     MissingDependencyError
@@ -1244,8 +1246,9 @@ def _load_geotiff(
                 raise
             # a missing file inside a zip, an unreachable URL: GDAL's reason, not "unreadable content"
             gdal = os.fspath(file)
+            reason = _hgt_refusal(file) or f"GDAL cannot open it as {_gdal_format(file)}: {gdal_reason(exc)}"
             raise DataFileError(f"cannot read {str(file)!r}" + (f" (GDAL path {gdal!r})" if gdal != str(file) else "")
-                                + f": GDAL cannot open it as {_gdal_format(file)}: {gdal_reason(exc)}") from exc
+                                + f": {reason}") from exc
         with opened as dataset:
             if band > dataset.count:
                 raise InvalidInputError(
@@ -1319,7 +1322,8 @@ def _load_geotiff(
                 unmasked = _missing_beyond_gdal_mask(dataset, band, masked.data, window)
     except RasterioError as exc:
         raise DataFileError(
-            f"cannot read {str(file)!r}: expected {_gdal_format(file)}; got unreadable content ({gdal_reason(exc)})"
+            f"cannot read {str(file)!r}: "
+            + (_hgt_refusal(file) or f"expected {_gdal_format(file)}; got unreadable content ({gdal_reason(exc)})")
         ) from exc
 
     if masked.dtype == np.bool_ or masked.dtype.kind not in "iuf":  # a complex band kept its real part silently
@@ -1385,6 +1389,35 @@ def _gdal_format(file: Path) -> str:
     ext = file.suffix.lower()
     name = GDAL_FORMATS.get(ext, "a raster GDAL reads")
     return name if name == "a GeoTIFF" else f"{name} ({ext})"
+
+
+#: The sizes of the SRTM tiles GDAL's SRTMHGT driver reads (bytes of big-endian int16 samples): 1201 x 1201 (SRTM3,
+#: 3 arc-seconds), 3601 x 3601 (SRTM1), 1801 x 3601 (SRTM1 above 50 degrees) and 7201 x 7201 (0.5 arc-seconds).
+_HGT_SIZES = frozenset(2 * rows * cols for rows, cols in ((1201, 1201), (3601, 3601), (1801, 3601), (7201, 7201)))
+_HGT_NAME = re.compile(r"[NS]\d\d[EW]\d\d\d\.", re.IGNORECASE)
+
+
+def _hgt_refusal(file: Path) -> str | None:
+    """Why GDAL did not know the ``.hgt`` ``file`` as an SRTM tile, where its name or size says so: GDAL's SRTMHGT
+    driver takes a .hgt only named by its south-west corner (``N34W119.hgt``, ``N34W119.SRTMGL1.hgt``: the corner,
+    then a dot), which places it, and of a tile's size. Its refusal was "unreadable content (... not recognized as
+    being in a supported file format)", for a tile a user renamed (``everest.hgt``) or one cut short. None for
+    another extension, or a .hgt whose name and size (of a local file) are a tile's."""
+    if file.suffix.lower() != ".hgt":
+        return None
+    if _HGT_NAME.match(file.name) is None:
+        return (f"expected an SRTM tile named by its south-west corner (N34W119.hgt, N34W119.SRTMGL1.hgt: GDAL "
+                f"places a .hgt by its name and reads no other); got the name {file.name!r}: rename it so")
+    if isinstance(file, GdalPath):
+        return None
+    try:
+        size = file.stat().st_size
+    except OSError:
+        return None
+    if size in _HGT_SIZES:
+        return None
+    return (f"expected an SRTM tile of 1201 x 1201 or 3601 x 3601 16-bit samples (2,884,802 or 25,934,402 bytes; "
+            f"1801 x 3601 above 50 degrees of latitude); got {size:,} bytes (cut short, or not an SRTM tile)")
 
 
 def _warn_crs_without_geotransform(file: Path, crs_obj: Any, crs: str | None) -> None:

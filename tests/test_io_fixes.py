@@ -2034,3 +2034,24 @@ def test_a_complex_int16_band_is_refused_as_a_complex64_one_is(tmp_path, crop):
     with pytest.raises(DataFileError, match=r"sar\.vrt.*expected real-valued elevation data; got band 1 of dtype "
                                             r"complex_int16$"):
         load_dem(vrt, crop=crop)
+
+
+def test_an_srtm_tile_renamed_or_cut_short_says_what_gdal_needs_of_a_hgt(tmp_path):
+    # GDAL knows a .hgt only by its name (N40W106.hgt: its south-west corner, which places it) and its size (1201 or
+    # 3601 samples square); a tile renamed by a user (everest.hgt) or cut short was refused as "unreadable content
+    # ('everest.hgt' not recognized as being in a supported file format.)", though its content was fine
+    pytest.importorskip("rasterio")
+    tile = tmp_path / "N40W106.hgt"
+    (np.arange(1201 * 1201) % 3000).astype(">i2").tofile(tile)
+    z = load_dem(tile).heights
+    assert z.shape == (1201, 1201) and z[0, 1] == 1.0  # the tile itself reads
+    renamed = tmp_path / "everest.hgt"
+    renamed.write_bytes(tile.read_bytes())
+    with pytest.raises(DataFileError, match=r"everest\.hgt.*expected an SRTM tile named by its south-west corner "
+                                            r"\(N34W119\.hgt.*\); got the name 'everest\.hgt'"):
+        load_dem(renamed)
+    cut = tmp_path / "N41W106.hgt"
+    cut.write_bytes(tile.read_bytes()[:1000])
+    with pytest.raises(DataFileError, match=r"N41W106\.hgt.*expected an SRTM tile of 1201 x 1201 or 3601 x 3601 "
+                                            r"16-bit samples \(2,884,802 or 25,934,402 bytes.*\); got 1,000 bytes"):
+        load_dem(cut)
