@@ -416,8 +416,9 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         out, png = _mesh_and_png(args.output, args.png, extensions=IMAGE_EXTENSIONS,
                                  output_is="OUT.png|OUT.tif (the texture)", png_is="a render of the draped texture",
                                  others=[("--mesh", args.mesh, "OUT (the texture draped on a mesh)")])
-    except InvalidInputError as exc:  # the normal map is written beside the texture, not in its place
-        if args.normals is None:
+    except InvalidInputError as exc:  # the normal map is written beside the texture, not in its place: said where
+        # none of them was given (not to a bad -o or --png, refused for itself)
+        if args.normals is None or any(given is not None for given in (args.output, args.png, args.mesh)):
             raise
         raise InvalidInputError(f"{exc} (--normals {args.normals!r} is written beside them, not alone)") from None
     mesh_out = _check_output(args.mesh, MESH_EXTENSIONS, "--mesh") if args.mesh else None

@@ -1143,3 +1143,19 @@ def test_cli_texture_without_any_output_is_a_usage_error(tmp_path, capsys):
     assert main(["texture", dem, "--normals", normals]) == 2
     assert capsys.readouterr().err == f"{expected} (--normals {normals!r} is written beside them, not alone)\n"
     assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_texture_normals_leaves_a_bad_output_s_message_as_it_was(tmp_path, capsys):
+    """With --normals, the refusal of a bad -o or --png (an unknown extension) gained "(--normals ... is written
+    beside them, not alone)", a note for a run with none of -o, --mesh and --png, false there: the -o or --png given
+    is refused for its extension, and --normals is written beside it. The message is the one without --normals."""
+    dem = str(tmp_path / "missing.npy")
+    normals = ["--normals", str(tmp_path / "n.png")]
+    for bad in (["-o", str(tmp_path / "t.jpg")], ["--png", str(tmp_path / "r.jpg")],
+                ["-o", str(tmp_path / "t.png"), "--png", str(tmp_path / "r.jpg")]):
+        assert main(["texture", dem, "--shadows", *bad]) == 2
+        alone = capsys.readouterr().err
+        assert "unknown extension '.jpg'" in alone, alone
+        assert main(["texture", dem, "--shadows", *bad, *normals]) == 2
+        assert capsys.readouterr().err == alone
+    assert list(tmp_path.iterdir()) == []
