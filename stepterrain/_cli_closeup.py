@@ -19,9 +19,11 @@ examples:
       the embedded Big Tujunga DEM with one close-up at the centre, lifted and enlarged
   stepterrain closeup --roi 390000,3798000,2500 --scale 2 --offset 0,0,5000 --stepped 100 -o steps.png
       a stepped close-up (MPFR) over the continuous overview (paper 001, Fig. 1)
+  stepterrain closeup --roi-relative 0.5,0.5,0.15 --png view.png
+      the render alone: --png without -o (the same picture as -o view.png)
   stepterrain closeup --roi-relative 0.25,0.5,0.12 --roi-relative 0.75,0.5,0.12 --scale 1.5 \\
       --offset 0,0,5000 --anchor ends --gif spin.gif --spin 0.25 --frames 24 -o first.png
-      two close-ups (one per --roi), a spinning animation as GIF (or .mp4)
+      two close-ups (one per --roi), a spinning animation as GIF (or .mp4); without -o, the animation alone
   stepterrain closeup dem.tif --roi-relative 0.5,0.5,0.2 --shape rectangle --scalars slope -o slope.png
   stepterrain closeup --roi-relative 0.5,0.5,0.15 -o scene.glb --png scene.png
       the overview, close-up and anchor as one colored mesh (anchor opacity in the vertex alpha), and a render
@@ -87,7 +89,9 @@ def add_parser(commands: Any) -> None:
         "closeup",
         help="detail+overview views: 3D close-ups of ROIs over the terrain (paper 001)",
         description="Render a DEM with 3D close-ups (Trapp & Döllner 2019): each ROI is lifted, scaled and turned "
-                    "into a detail view joined to the overview by a colored anchor; PNG, and GIF/MP4 when spinning.",
+                    "into a detail view joined to the overview by a colored anchor; PNG, and GIF/MP4 when spinning. "
+                    "Give -o, --png, --gif or several (--png alone writes only the render, --gif alone only the "
+                    "animation).",
         epilog=_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -122,15 +126,18 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--z-scale", type=float, default=None, metavar="S",
                    help="vertical exaggeration of the render and the animation (default 2)")
     _add_device(p)
-    p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
+    p.add_argument("-o", "--output", type=_path, metavar="OUT",
                    help="the rendered image (.png), or the scene as a mesh by extension: " + " ".join(MESH_EXTENSIONS)
                    + " (overview, close-ups and anchors with vertex colors, the anchors' transparency in their "
                      "alpha; .obj holds RGB only, the anchors opaque; .stl holds no colors: --colormap and --color are "
-                     "refused with it unless --png or --gif renders them)")
-    p.add_argument("--png", type=_path, metavar="OUT.png", help="also write the render here (with a mesh --output)")
+                     "refused with it unless --png or --gif renders them); optional with --png or --gif")
+    p.add_argument("--png", type=_path, metavar="OUT.png",
+                   help="write the render here: beside a mesh --output, or alone without -o (a render-only run, as "
+                        "a .png --output)")
     p.add_argument("--size", type=_window, default=None, metavar="WxH",
                    help="image size of the render and the animation (default 1280x720)")
-    p.add_argument("--gif", type=_path, metavar="OUT.gif|OUT.mp4", help="also write a spinning animation")
+    p.add_argument("--gif", type=_path, metavar="OUT.gif|OUT.mp4",
+                   help="write a spinning animation (beside -o or --png, or alone: the animation only)")
     p.add_argument("--spin", type=_spin, default=None, metavar="TURNS/S",
                    help="spin speed of the animation in turns per second, negative the other way, at most half a "
                         "turn a frame: |TURNS/S| <= --fps / 2 (default 0.25)")
@@ -160,6 +167,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         _given,
         _input_metadata,
         _input_terrain,
+        _mesh_and_png,
         _refuse_unused,
     )
     from .closeup import (
@@ -180,15 +188,17 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     )
     from .stepped import colormap, isovalues
 
-    out = _check_output(args.output, (".png", *MESH_EXTENSIONS), "--output")
-    png = _check_output(args.png, (".png",), "--png") if args.png else None
-    mesh_out = out if out.suffix.lower() != ".png" else None
+    # -o, --png, --gif: any of them (--png alone: a render-only run, no -o file; --gif alone: the animation only)
+    out, png = _mesh_and_png(args.output, args.png, extensions=(".png", *MESH_EXTENSIONS),
+                             output_is="OUT (the render .png, or the scene as a mesh)",
+                             others=[("--gif", args.gif, "OUT.gif|OUT.mp4 (a spinning animation)")])
+    mesh_out = out if out is not None and out.suffix.lower() != ".png" else None
     anim = _check_output(args.gif, (".gif", ".mp4"), "--gif") if args.gif else None
     _check_outputs({"INPUT": args.input}, output=out, png=png, gif=anim)
-    if png is not None and mesh_out is None:  # the same render was written to both files
-        raise InvalidInputError(f"--png applies only with a mesh --output (a .png --output is the render already); "
-                                f"got --output {args.output!r} with --png {args.png!r}")
-    picture = out if mesh_out is None else png  # the still render's one file, if any
+    if png is not None and out is not None and mesh_out is None:  # the same render was written to both files
+        raise InvalidInputError(f"--png writes the render beside a mesh --output, or alone (a .png --output is the "
+                                f"render already); got --output {args.output!r} with --png {args.png!r}")
+    picture = png if out is None or mesh_out is not None else out  # the still render's one file, if any
     if mesh_out is not None and mesh_out.suffix.lower() == ".stl" and picture is None and anim is None:
         # the colours went nowhere: an STL holds none and no render showed them (as steps --colormap with an .stl)
         given = [f"--colormap {args.colormap}"] * (args.colormap is not None) + ["--color"] * bool(args.color)

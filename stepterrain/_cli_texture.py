@@ -29,6 +29,7 @@ from .cli import (
     _given,
     _input_metadata,
     _input_terrain,
+    _mesh_and_png,
     _path,
     _refuse_degrees,
     _refuse_unused,
@@ -51,6 +52,8 @@ examples:
   stepterrain texture --shadows --occlusion 0.5 --azimuth 270 --altitude 20 -o low_sun.png
   stepterrain texture --shadows -o tex.png --mesh out/steps.glb --interval 100 --png out/steps.png
       the texture draped on the stepped terrain (100 m steps), GLB with the image embedded, and a render
+  stepterrain texture --shadows --interval 100 --png out/steps.png
+      the render alone: no -o, no texture file (--mesh alone likewise writes only the draped mesh)
   stepterrain texture --shadows --contours 100 -o topo.png
       contour lines every 100 m (every 5th, from 0 m, an index line: twice as wide, darker) over the shaded colours
   stepterrain texture --contours 50 --contour-width 1.5 --contour-color 0.2,0.2,0.2 --contour-index 0 -o c.png
@@ -79,8 +82,9 @@ def add_parser(commands: Any) -> None:
         help="topographic textures: hillshade, self-shadowing, thematic layers, draping (paper 004)",
         description="Compute a topographic texture of a DEM in Warp (Horn hillshade as gdaldem defines it, "
                     "sweep-line self-shadowing, horizon-based ambient occlusion), modulate it with a "
-                    "hypsometric thematic layer, write it as PNG and optionally drape it on a mesh "
-                    "(Döllner, Baumann & Hinrichs 2000).",
+                    "hypsometric thematic layer, write it as PNG or GeoTIFF and optionally drape it on a mesh "
+                    "(Döllner, Baumann & Hinrichs 2000). Give -o, --mesh, --png or several (--png alone writes only "
+                    "the render of the draped texture, --mesh alone only the draped mesh).",
         epilog=_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -148,10 +152,11 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--normals", type=_path, metavar="OUT.png", help="also write the normals encoded as RGB "
                    "(.png, or .tif: a GeoTIFF; RGBA, alpha 0 at nodata, for a DEM with nodata)")
     _add_device(p)
-    p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT.png",
+    p.add_argument("-o", "--output", type=_path, metavar="OUT.png",
                    help="the texture as PNG, or as a GeoTIFF (.tif, .tiff: georeferenced on the DEM's pixel grid and "
                         "CRS; needs rasterio, pip install 'stepterrain[geo]'); RGBA with alpha 0 at nodata for a DEM "
-                        "with nodata, else RGB")
+                        "with nodata, else RGB; optional with --mesh or --png (a run without it writes no texture "
+                        "file)")
     p.add_argument("--mesh", type=_path, metavar="OUT", help="drape the texture on a mesh; format by extension: "
                    + " ".join(MESH_EXTENSIONS) + " (GLB/glTF embed the image, OBJ writes it beside; .ply and .3mf "
                    "hold no texture: the texture's colour at each vertex instead; .stl, which holds no colours, is "
@@ -159,7 +164,9 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--interval", type=float, metavar="M",
                    help="with --mesh/--png: drape on the stepped terrain with this step interval (default: the "
                         "continuous heightfield)")
-    p.add_argument("--png", type=_path, metavar="OUT.png", help="also write an off-screen render of the draped mesh")
+    p.add_argument("--png", type=_path, metavar="OUT.png",
+                   help="write an off-screen render of the draped mesh (beside -o and --mesh, or alone: a render-only "
+                        "run)")
     p.add_argument("--size", type=_window, default=None, metavar="WxH",
                    help="render size, with --png (default 1280x800)")
     p.add_argument("--z-scale", type=float, default=None, metavar="S",
@@ -404,7 +411,16 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     from . import texture as tx
     from ._device import resolve_device
 
-    out = _check_output(args.output, IMAGE_EXTENSIONS, "--output")
+    # -o, --mesh, --png: any of them (--png alone: a render-only run, no texture file; --mesh alone: the drape only)
+    try:
+        out, png = _mesh_and_png(args.output, args.png, extensions=IMAGE_EXTENSIONS,
+                                 output_is="OUT.png|OUT.tif (the texture)", png_is="a render of the draped texture",
+                                 others=[("--mesh", args.mesh, "OUT (the texture draped on a mesh)")])
+    except InvalidInputError as exc:  # the normal map is written beside the texture, not in its place: said where
+        # none of them was given (not to a bad -o or --png, refused for itself)
+        if args.normals is None or any(given is not None for given in (args.output, args.png, args.mesh)):
+            raise
+        raise InvalidInputError(f"{exc} (--normals {args.normals!r} is written beside them, not alone)") from None
     mesh_out = _check_output(args.mesh, MESH_EXTENSIONS, "--mesh") if args.mesh else None
     if mesh_out is not None and mesh_out.suffix.lower() == ".stl":  # the drape went nowhere: an STL holds no colour
         # (as steps refuses --colormap and globe --texture with an .stl): refused before the DEM is read
@@ -412,7 +428,6 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
                                 f"--mesh {args.mesh!r}; write .glb, .gltf or .obj (the texture) or .ply or .3mf (its "
                                 f"colour at each vertex)")
     textured_mesh = mesh_out is not None and mesh_out.suffix.lower() in export._TEXTURED  # they keep a texture
-    png = _check_output(args.png, (".png",), "--png") if args.png else None
     normals_out = _check_output(args.normals, IMAGE_EXTENSIONS, "--normals") if args.normals else None
     if any(_is_tiff(path) for path in (out, normals_out)) and importlib.util.find_spec("rasterio") is None:
         raise MissingDependencyError("writing a GeoTIFF needs rasterio: pip install 'stepterrain[geo]'")
@@ -578,11 +593,13 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
             shot = render.render_textured_mesh(draped, window_size=args.size, z_scale=args.z_scale, lighting=False)
             progress.done()
 
-    progress.stage("write", f"writing {out}")
-    # the mesh's texture is this image (not over_white's RGB): the mesh takes the PNG's bytes, its pixels hashed for it
-    reused = draped is not None and textured_mesh and over_white is None
-    export._save_image(image, out, reused=reused, **_georeference(out, composite.extent, terrain.crs))
-    progress.done(_size(out))
+    if out is not None:  # no texture file for a run without -o (--mesh or --png alone)
+        progress.stage("write", f"writing {out}")
+        # the mesh's texture is this image (not over_white's RGB): the mesh takes the PNG's bytes, its pixels hashed
+        # for it
+        reused = draped is not None and textured_mesh and over_white is None
+        export._save_image(image, out, reused=reused, **_georeference(out, composite.extent, terrain.crs))
+        progress.done(_size(out))
     if normals is not None:
         if holes is not None:
             normals = np.dstack([normals, np.where(holes, 0, 255).astype(np.uint8)])

@@ -565,13 +565,22 @@ def _check_output(path: str, extensions: Sequence[str], what: str) -> Path:
     return out
 
 
-def _mesh_and_png(output: str | None, png: str | None) -> tuple[Path | None, Path | None]:
-    """``-o/--output`` (a mesh file) and ``--png`` (a render) of ``steps`` and ``globe``, each checked by
-    :func:`_check_output`: either or both (``--png`` alone, a render-only run, writes no mesh), neither refused."""
-    if output is None and png is None:
-        raise InvalidInputError("give -o/--output OUT (the mesh file), --png OUT.png (a render) or both; "
-                                "got neither")
-    return (_check_output(output, MESH_EXTENSIONS, "--output") if output is not None else None,
+def _mesh_and_png(output: str | None, png: str | None, *, extensions: Sequence[str] = MESH_EXTENSIONS,
+                  output_is: str = "OUT (the mesh file)", png_is: str = "a render",
+                  others: Sequence[tuple[str, str | None, str]] = ()) -> tuple[Path | None, Path | None]:
+    """``-o/--output`` and ``--png`` (a render) of every subcommand that renders, each checked by
+    :func:`_check_output` (``-o`` against ``extensions``: ``steps`` and ``globe`` a mesh file, ``closeup`` a mesh or
+    its render, ``texture`` the texture image): either or both (``--png`` alone, a render-only run, writes no ``-o``
+    file), neither refused, naming both (``output_is``, ``png_is``: what each writes). ``others``: the command's
+    further outputs that make a run without ``-o`` too, as (option, value, "METAVAR (what it writes)"), named after
+    them in the refusal (``closeup --gif``, ``texture --mesh``); their values are checked by the caller."""
+    if output is None and png is None and not any(value for _, value, _ in others):
+        names = [f"-o/--output {output_is}", f"--png OUT.png ({png_is})",
+                 *(f"{option} {what}" for option, _, what in others)]
+        if len(names) == 2:
+            raise InvalidInputError(f"give {names[0]}, {names[1]} or both; got neither")
+        raise InvalidInputError(f"give {', '.join(names[:-1])} or {names[-1]}, or several of them; got none")
+    return (_check_output(output, extensions, "--output") if output is not None else None,
             _check_output(png, (".png",), "--png") if png else None)
 
 

@@ -907,9 +907,9 @@ def test_cli_closeup_png_beside_a_png_output_is_refused(tmp_path, capsys):
     argv = ["-q", "closeup", "--device", "cpu", "-o", str(tmp_path / "a.png"), "--png", str(tmp_path / "b.png")]
     assert cli.main(argv) == 2
     err = capsys.readouterr().err
-    assert err == (f"stepterrain closeup: error: --png applies only with a mesh --output (a .png --output is the "
-                   f"render already); got --output {str(tmp_path / 'a.png')!r} with --png {str(tmp_path / 'b.png')!r}"
-                   "\n"), err
+    assert err == (f"stepterrain closeup: error: --png writes the render beside a mesh --output, or alone (a .png "
+                   f"--output is the render already); got --output {str(tmp_path / 'a.png')!r} with --png "
+                   f"{str(tmp_path / 'b.png')!r}\n"), err
     assert list(tmp_path.iterdir()) == []
     # beside a mesh: past the check (a --size too small for the close-up stops it before any work)
     assert cli.main(["-q", "closeup", "-o", str(tmp_path / "s.ply"), "--png", str(tmp_path / "b.png"),
@@ -1731,3 +1731,72 @@ def test_animate_closeups_names_an_unknown_option_before_any_work(monkeypatch):
     with pytest.raises(InvalidInputError, match=r"animate_closeups passes options to render_closeups, which takes no "
                                                 r"'zscale'; got zscale=2"):
         animate_closeups(terrain(), [one()], frames=2, window_size=SIZE, device="cpu", zscale=2)
+
+
+def _small_closeup_dem(folder) -> str:
+    """A 30 x 40 hill as .npy (10 m nodes): a close-up's render at 96x64 in a fraction of a second."""
+    i, j = np.mgrid[0:30, 0:40].astype(np.float32)
+    path = folder / "hill.npy"
+    np.save(path, (300.0 * np.exp(-((i - 15.0) ** 2 + (j - 20.0) ** 2) / 120.0) + 2.0 * j).astype(np.float32))
+    return str(path)
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_cli_closeup_png_without_output_writes_the_render_alone(tmp_path, capsys):
+    """A user who wants only the picture: ``closeup --roi ... --png view.png`` without ``-o`` was refused (-o was
+    required), as ``steps`` and ``globe`` take --png alone. It renders and writes the PNG alone, the same picture
+    as ``-o view.png`` makes."""
+    from PIL import Image
+
+    from stepterrain import cli
+
+    dem = _small_closeup_dem(tmp_path)
+    args = ["closeup", dem, "--spacing", "10", "--roi-relative", "0.5,0.5,0.2", "--size", "96x64", "--device", "cpu"]
+    alone = tmp_path / "alone"
+    alone.mkdir()
+    assert cli.main([*args, "--png", str(alone / "view.png")]) == 0, capsys.readouterr().err
+    assert f"writing {alone / 'view.png'}" in capsys.readouterr().err
+    assert [p.name for p in alone.iterdir()] == ["view.png"]
+    with Image.open(alone / "view.png") as image:
+        assert image.format == "PNG" and image.size == (96, 64)
+        pixels = np.asarray(image.convert("RGB"))
+    assert len(np.unique(pixels.reshape(-1, 3), axis=0)) > 10  # the terrain and its close-up, not one flat colour
+    assert cli.main(["-q", *args, "-o", str(tmp_path / "o.png")]) == 0, capsys.readouterr().err
+    with Image.open(tmp_path / "o.png") as image:
+        np.testing.assert_array_equal(np.asarray(image.convert("RGB")), pixels)
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_cli_closeup_gif_without_output_writes_the_animation_alone(tmp_path, capsys):
+    """``closeup --gif spin.gif`` without ``-o`` was refused (-o was required, so an animation came with a still or a
+    scene mesh nobody asked for). It writes the animation alone: its frames spin (they differ), no other file."""
+    from PIL import Image, ImageSequence
+
+    from stepterrain import cli
+
+    dem = _small_closeup_dem(tmp_path)
+    gif = tmp_path / "spin.gif"
+    code = cli.main(["-q", "closeup", dem, "--spacing", "10", "--roi-relative", "0.5,0.5,0.2", "--size", "64x64",
+                     "--gif", str(gif), "--frames", "3", "--fps", "4", "--spin", "1", "--device", "cpu"])
+    assert code == 0, capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["hill.npy", "spin.gif"]
+    with Image.open(gif) as image:
+        frames = [np.asarray(frame.convert("RGB")) for frame in ImageSequence.Iterator(image)]
+    assert len(frames) == 3 and frames[0].shape == (64, 64, 3)
+    assert len(np.unique(frames[0].reshape(-1, 3), axis=0)) > 10
+    assert not np.array_equal(frames[0], frames[1])  # a quarter turn a frame: the close-up has turned
+
+
+def test_cli_closeup_without_any_output_is_a_usage_error(tmp_path, capsys):
+    """-o/--output is optional with --png or --gif; with none of them the run has nothing to write: exit 2 with
+    one line naming the three, before any work (a DEM that does not exist is not looked at), nothing written."""
+    from stepterrain import cli
+
+    code = cli.main(["closeup", str(tmp_path / "missing.npy"), "--roi-relative", "0.5,0.5,0.2"])
+    assert code == 2
+    assert capsys.readouterr().err == (
+        "stepterrain closeup: error: give -o/--output OUT (the render .png, or the scene as a mesh), --png OUT.png "
+        "(a render) or --gif OUT.gif|OUT.mp4 (a spinning animation), or several of them; got none\n")
+    assert list(tmp_path.iterdir()) == []

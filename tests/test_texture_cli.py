@@ -1096,3 +1096,66 @@ def test_hypsometric_colours_of_a_reversed_cmap_are_its_land_part_reversed():
     assert np.abs(got[finite] - reference[finite]).max() <= step + 1e-6
     top = got[np.unravel_index(np.nanargmax(terrain.heights), terrain.heights.shape)]
     assert not (top[2] > top[0] + 0.15 and top[2] > top[1]), f"the highest ground is sea blue: {top}"
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_cli_texture_png_without_output_writes_the_render_alone(tmp_path, small_dem, capsys):
+    """A user who wants only the picture of the draped texture: ``texture --png render.png`` without ``-o`` was refused
+    (-o was required, so a texture file came along unasked), as ``steps`` and ``globe`` take --png alone. It renders
+    and writes the PNG alone, the same picture as beside ``-o``."""
+    args = ["texture", str(small_dem), "--shadows", "--interval", "20", "--size", "64x48", "--device", "cpu"]
+    alone = tmp_path / "alone"
+    alone.mkdir()
+    assert main([*args, "--png", str(alone / "render.png")]) == 0, capsys.readouterr().err
+    assert "writing None" not in capsys.readouterr().err
+    assert [p.name for p in alone.iterdir()] == ["render.png"]
+    pixels = read_png(alone / "render.png")
+    assert pixels.shape[:2] == (48, 64) and len(np.unique(pixels.reshape(-1, pixels.shape[2]), axis=0)) > 10
+    assert main(["-q", *args, "-o", str(tmp_path / "t.png"), "--png", str(tmp_path / "r.png")]) == 0
+    np.testing.assert_array_equal(read_png(tmp_path / "r.png"), pixels)
+
+
+def test_cli_texture_mesh_without_output_writes_the_draped_mesh_alone(tmp_path, small_dem, capsys):
+    """``texture --mesh draped.glb`` without ``-o`` was refused: the GLB embeds the texture, and a separate texture
+    file was forced on the user. It writes the draped mesh alone, its texture the one ``-o`` writes."""
+    mesh = tmp_path / "draped.glb"
+    args = ["texture", str(small_dem), "--shadows", "--device", "cpu", "-q"]
+    assert main([*args, "--mesh", str(mesh)]) == 0, capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["draped.glb", "hill.npy"]
+    back = trimesh.load(mesh, force="mesh", process=False)
+    assert isinstance(back.visual, trimesh.visual.TextureVisuals) and len(back.faces) == 2 * 39 * 49
+    assert main([*args, "-o", str(tmp_path / "t.png")]) == 0, capsys.readouterr().err
+    np.testing.assert_array_equal(np.asarray(back.visual.material.baseColorTexture.convert("RGB")),
+                                  read_png(tmp_path / "t.png"))
+
+
+def test_cli_texture_without_any_output_is_a_usage_error(tmp_path, capsys):
+    """-o/--output is optional with --mesh or --png; with none of them (--normals alone included: it is written
+    beside the texture) the run has nothing to write: exit 2 with one line naming them, before any work (a DEM that
+    does not exist is not looked at), nothing written."""
+    expected = ("stepterrain texture: error: give -o/--output OUT.png|OUT.tif (the texture), --png OUT.png (a render "
+                "of the draped texture) or --mesh OUT (the texture draped on a mesh), or several of them; got none")
+    dem = str(tmp_path / "missing.npy")
+    assert main(["texture", dem, "--shadows"]) == 2
+    assert capsys.readouterr().err == expected + "\n"
+    normals = str(tmp_path / "n.png")
+    assert main(["texture", dem, "--normals", normals]) == 2
+    assert capsys.readouterr().err == f"{expected} (--normals {normals!r} is written beside them, not alone)\n"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_texture_normals_leaves_a_bad_output_s_message_as_it_was(tmp_path, capsys):
+    """With --normals, the refusal of a bad -o or --png (an unknown extension) gained "(--normals ... is written
+    beside them, not alone)", a note for a run with none of -o, --mesh and --png, false there: the -o or --png given
+    is refused for its extension, and --normals is written beside it. The message is the one without --normals."""
+    dem = str(tmp_path / "missing.npy")
+    normals = ["--normals", str(tmp_path / "n.png")]
+    for bad in (["-o", str(tmp_path / "t.jpg")], ["--png", str(tmp_path / "r.jpg")],
+                ["-o", str(tmp_path / "t.png"), "--png", str(tmp_path / "r.jpg")]):
+        assert main(["texture", dem, "--shadows", *bad]) == 2
+        alone = capsys.readouterr().err
+        assert "unknown extension '.jpg'" in alone, alone
+        assert main(["texture", dem, "--shadows", *bad, *normals]) == 2
+        assert capsys.readouterr().err == alone
+    assert list(tmp_path.iterdir()) == []
