@@ -515,6 +515,12 @@ def _add_steps(commands: Any) -> None:
     p.add_argument("-o", "--output", type=_path, metavar="OUT",
                    help="mesh file; format by extension: " + " ".join(MESH_EXTENSIONS)
                         + " (optional with --png: a render-only run writes no mesh)")
+    p.add_argument("--print-size", type=float, default=None, metavar="MM",
+                   help="scale the mesh file for a 3D print: its longer horizontal side MM long (millimetres, as "
+                        "slicers read .stl and .3mf), its lowest corner at 0,0,0 (the base of --solid on z = 0); "
+                        "the mesh is no longer georeferenced (its metadata 'print' maps it back)")
+    p.add_argument("--print-z-scale", type=float, default=None, metavar="S",
+                   help="vertical exaggeration of the --print-size model (default 1: true proportions)")
     p.add_argument("--png", type=_path, metavar="OUT.png",
                    help="write an off-screen render (beside the mesh, or alone without -o)")
     p.add_argument("--size", type=_window, default=None, metavar="WxH",
@@ -743,6 +749,14 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError(f"{option} shows the original terrain inside it and --gamma outside: with --gamma 0 "
                                 f"the terrain is original everywhere and the lens changes nothing; give --gamma > 0 "
                                 f"or leave {option} out")
+    if args.print_z_scale is not None and args.print_size is None:
+        raise InvalidInputError("--print-z-scale applies only with --print-size (the model scaled for a print)")
+    if args.print_size is not None:
+        if out is None:  # the render shows the terrain as stepped: the print's scale shaped nothing
+            raise InvalidInputError("--print-size scales the mesh file (-o); got it without -o")
+        finite_number(args.print_size, "--print-size", positive=True)  # before the DEM is read and stepped
+        if args.print_z_scale is not None:
+            finite_number(args.print_z_scale, "--print-z-scale", positive=True)
     render_options = _given(args, {"size": (1280, 800), "z_scale": 2.0})
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
@@ -867,6 +881,13 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         progress.stage("render", f"rendering {args.size[0]}x{args.size[1]} off-screen")
         image = render.render_mesh(mesh, window_size=args.size, z_scale=args.z_scale)
         progress.done()
+
+    if args.print_size is not None:  # after the render, which shows the terrain as stepped (its --z-scale alone)
+        mesh = export._scaled_for_print(mesh, args.print_size, 1.0 if args.print_z_scale is None else
+                                        args.print_z_scale, copy=False, names=("--print-size", "--print-z-scale"))
+        scale = mesh.metadata["print"]["scale"]
+        extents = " x ".join(f"{v:.4g}" for v in mesh.extents)
+        progress.say(f"scaled for a print: {extents} mm (one unit of the terrain's coordinates is {scale:.4g} mm)")
 
     # write: each file atomically (temporary file + rename); no mesh file for a render-only run (--png without -o)
     if out is not None:
