@@ -54,6 +54,8 @@ examples:
   stepterrain steps --interval 200 --solid --floor 0 -o print.3mf
       a watertight solid for 3D printing (also where integer heights sit on thresholds), with its colours;
       .stl holds float32, which rounds UTM coordinates by centimetres (a warning says by how much)
+  stepterrain steps --interval 100 --solid --print-size 150 --print-z-scale 2 -o model.stl
+      the solid scaled for a print: longer side 150 mm, lowest corner at 0,0,0, heights twice as steep
 """
 
 _INFO_EPILOG = """\
