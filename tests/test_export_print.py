@@ -146,3 +146,15 @@ def test_print_model_of_a_mesh_without_faces_or_horizontal_extent_is_refused():
         scale_for_print(bad, 150.0)
     with pytest.raises(InvalidInputError, match="mesh"):
         scale_for_print(np.zeros((3, 3)), 150.0)
+
+
+def test_print_model_of_a_pyvista_solid_is_that_of_its_trimesh(crop):
+    pv = pytest.importorskip("pyvista")
+    from stepterrain.pyvista_accessor import from_polydata
+
+    grid = pv.ImageData(dimensions=(90, 60, 1), spacing=(30.0, 30.0, 1.0), origin=(376328.0, 3790000.0, 0.0))
+    grid.point_data["elevation"] = np.asarray(np.flipud(crop.heights), np.float32).ravel()
+    poly = grid.stepterrain.stepped(interval=50.0, solid=True)
+    mesh = from_polydata(poly)
+    model = scale_for_print(poly, 100.0, z_scale=1.5)
+    _check_print(model, mesh, 100.0, 1.5)
