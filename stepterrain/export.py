@@ -652,7 +652,8 @@ def _scaled_for_print(mesh: trimesh.Trimesh, size: Any, z_scale: Any, *, copy: b
                                 f"{names[0]} or {names[1]}")
     scaled = mesh.copy() if copy else mesh
     scaled.vertices = (vertices - lo) * factors
-    metadata = {key: value for key, value in mesh.metadata.items() if key not in _WORLD_METADATA}
+    # the copy's own (deep-copied) metadata: the input's lists (isovalues) were shared, an edit of one the other's
+    metadata = {key: value for key, value in scaled.metadata.items() if key not in _WORLD_METADATA}
     metadata["print"] = {"size": size, "scale": scale, "z_scale": z_scale, "origin": [float(v) for v in lo]}
     scaled.metadata = metadata
     return scaled

@@ -158,3 +158,14 @@ def test_print_model_of_a_pyvista_solid_is_that_of_its_trimesh(crop):
     mesh = from_polydata(poly)
     model = scale_for_print(poly, 100.0, z_scale=1.5)
     _check_print(model, mesh, 100.0, 1.5)
+
+
+def test_print_model_metadata_is_its_own(solid):
+    """The copy's metadata shares no list with the input's: editing the model's isovalues left the solid's as they were
+    (a shallow copy of the input's metadata shared them)."""
+    before = list(solid.metadata["isovalues"])
+    model = scale_for_print(solid, 150.0)
+    model.metadata["isovalues"].append(1e9)
+    model.metadata["print"]["origin"][0] = 0.0
+    assert solid.metadata["isovalues"] == before
+    assert "print" not in solid.metadata
