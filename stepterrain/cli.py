@@ -520,7 +520,8 @@ def _add_steps(commands: Any) -> None:
     p.add_argument("--print-size", type=float, default=None, metavar="MM",
                    help="scale the mesh file for a 3D print: its longer horizontal side MM long (millimetres, as "
                         "slicers read .stl and .3mf), its lowest corner at 0,0,0 (the base of --solid on z = 0); "
-                        "the mesh is no longer georeferenced (its metadata 'print' maps it back)")
+                        "the mesh is no longer georeferenced (its metadata 'print' maps it back); with --solid "
+                        "(a surface alone is no printable solid: a warning says so)")
     p.add_argument("--print-z-scale", type=float, default=None, metavar="S",
                    help="vertical exaggeration of the --print-size model (default 1: true proportions)")
     p.add_argument("--png", type=_path, metavar="OUT.png",
@@ -890,6 +891,10 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         scale = mesh.metadata["print"]["scale"]
         extents = " x ".join(f"{v:.4g}" for v in mesh.extents)
         progress.say(f"scaled for a print: {extents} mm (one unit of the terrain's coordinates is {scale:.4g} mm)")
+        if not args.solid:  # scaled as asked, but a sheet of no thickness: a slicer opened it as nothing to print
+            warnings.warn("--print-size without --solid: the model is the open stepped surface, of no thickness, "
+                          "which a slicer cannot print; add --solid for a watertight model with a base",
+                          stacklevel=1)
 
     # write: each file atomically (temporary file + rename); no mesh file for a render-only run (--png without -o)
     if out is not None:

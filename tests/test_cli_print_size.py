@@ -108,3 +108,16 @@ def test_steps_print_size_stl_of_a_steep_1m_grid_at_utm_reads_back_watertight(tm
     model = scale_for_print(solid, 150.0)
     assert len(back.vertices) == len(model.vertices)
     assert back.volume == pytest.approx(model.volume, rel=1e-5)
+
+
+def test_steps_print_size_of_a_surface_warns_that_it_is_no_solid(tmp_path, capsys):
+    """Without --solid the print model is the open surface, no slicer prints it: the run said nothing of it."""
+    crop = ",".join(f"{v:g}" for v in CROP)
+    code, _, err = run(capsys, "steps", "--crop", crop, "--interval", "100", "--print-size", "150",
+                       "-o", tmp_path / "sheet.stl")
+    assert code == 0, err
+    assert "warning: --print-size without --solid" in err
+    assert not trimesh.load(tmp_path / "sheet.stl").is_watertight  # what the warning says
+    code, _, err = run(capsys, "steps", "--crop", crop, "--interval", "100", "--solid", "--print-size", "150",
+                       "-o", tmp_path / "solid.stl")
+    assert code == 0 and "warning" not in err, err
