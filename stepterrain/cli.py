@@ -1034,7 +1034,15 @@ def _mesh_summary(path: Path) -> dict[str, Any]:
         summary["levels"] = int(len(np.unique(level[level >= 0])))
     if isinstance(wall, np.ndarray) and wall.dtype == np.bool_ and wall.shape == (len(mesh.faces),):
         summary["wall_faces"] = int(wall.sum())
+    items = []
     for key, value in (mesh.metadata or {}).items():
+        # a record of plain items as meta.KEY.ITEM: steps --print-size's 'print' (size, scale, z_scale, origin), the
+        # mapping of a print model back to the world, was left out, a dict
+        if isinstance(value, dict) and not str(key).startswith("_"):
+            items.extend((f"{key}.{name}", item) for name, item in value.items())
+        else:
+            items.append((key, value))
+    for key, value in items:
         if isinstance(value, str):  # an STL header is 80 bytes padded with NULs, which made the text output binary
             value = value.strip("\x00").strip()
             if not value:

@@ -121,3 +121,22 @@ def test_steps_print_size_of_a_surface_warns_that_it_is_no_solid(tmp_path, capsy
     code, _, err = run(capsys, "steps", "--crop", crop, "--interval", "100", "--solid", "--print-size", "150",
                        "-o", tmp_path / "solid.stl")
     assert code == 0 and "warning" not in err, err
+
+
+def test_info_shows_the_print_record_of_a_print_model(tmp_path, capsys):
+    """`info` of a print model names its mapping back to the world (meta.print.*): a dict, it was left out."""
+    import json
+
+    out = tmp_path / "model.ply"
+    code, _, err = run(capsys, "steps", "--crop", ",".join(f"{v:g}" for v in CROP), "--interval", "100", "--solid",
+                       "--print-size", "150", "--print-z-scale", "2", "-o", out)
+    assert code == 0, err
+    record = read_mesh(out).metadata["print"]
+    code, text, err = run(capsys, "info", out, "--json")
+    assert code == 0, err
+    summary = json.loads(text)
+    assert {key: summary[f"meta.print.{key}"] for key in record} == record
+    # the world's x of the model's corner, as the record maps it: the crop's first node
+    assert summary["meta.print.origin"][0] == pytest.approx(CROP[0], abs=30.0)
+    code, text, err = run(capsys, "info", out)
+    assert code == 0 and "meta.print.scale" in text and "meta.print.z_scale" in text, err
