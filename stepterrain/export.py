@@ -583,7 +583,8 @@ def scale_for_print(mesh: trimesh.Trimesh, size: float, *, z_scale: float = 1.0)
     the embedded DEM's ``.stl`` as a print 36 km wide, hundreds of km from its bed, and STL's float32 moved its
     vertices by up to 0.125 m there. Scaled, its coordinates lie within ``size`` of 0, where float32 holds them
     to about 1e-5 mm. Each vertex (x, y, z) becomes ``((x - x0) s, (y - y0) s, (z - z0) s z_scale)`` with ``s = size
-    / max(x1 - x0, y1 - y0)`` over the bounds (x0, y0, z0)-(x1, y1, z1), in float64: the faces, their winding (all
+    / max(x1 - x0, y1 - y0)`` over the bounds (x0, y0, z0)-(x1, y1, z1) of the vertices its faces use (as
+    ``mesh.bounds``; a vertex of no face is moved alike but sets no bound), in float64: the faces, their winding (all
     factors positive: no mirror) and hence watertightness are kept, and the volume is scaled by ``s³ z_scale``.
     Vertex and face colours, face attributes (``level``, ``wall``) and a texture are kept. The metadata is kept less
     what holds world coordinates (``crs``, ``floor``, a recorded ``shared_bounds`` and ``eye``), with ``print`` added:
@@ -608,8 +609,8 @@ def scale_for_print(mesh: trimesh.Trimesh, size: float, *, z_scale: float = 1.0)
     ------
     InvalidInputError
         ``size`` or ``z_scale`` is not a positive finite number, the scaled model would not fit in float32 (STL's
-        coordinates), or ``mesh`` is not a mesh, has no faces, has non-finite vertices or no horizontal extent (all
-        its vertices on one vertical line).
+        coordinates), or ``mesh`` is not a mesh, has no faces, faces indexing beyond its vertices, non-finite
+        vertices or no horizontal extent (all its vertices on one vertical line).
 
     Examples
     --------
@@ -638,7 +639,15 @@ def _scaled_for_print(mesh: trimesh.Trimesh, size: Any, z_scale: Any, *, copy: b
         bad = int((~np.isfinite(vertices).all(axis=1)).sum())
         raise InvalidInputError(f"mesh vertices must be finite to be scaled for a print; got {bad} of "
                                 f"{len(vertices)} vertices with NaN or inf")
-    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    faces = np.asarray(mesh.faces)
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise InvalidInputError(f"mesh faces must index its {len(vertices)} vertices (0 .. {len(vertices) - 1}); got "
+                                f"indices {faces.min()} .. {faces.max()}")
+    # the bounds of the vertices the faces use, as trimesh's bounds and a slicer see the model: a stray vertex (a
+    # file's unused point) made the print smaller than size and lifted it off the origin
+    used = np.zeros(len(vertices), bool)
+    used[faces.reshape(-1)] = True
+    lo, hi = vertices[used].min(axis=0), vertices[used].max(axis=0)
     extent = float(max(hi[0] - lo[0], hi[1] - lo[1]))
     if not extent > 0:
         raise InvalidInputError(f"mesh must have a horizontal extent to be scaled to {names[0]} {size:g}; got all its "

@@ -169,3 +169,20 @@ def test_print_model_metadata_is_its_own(solid):
     model.metadata["print"]["origin"][0] = 0.0
     assert solid.metadata["isovalues"] == before
     assert "print" not in solid.metadata
+
+
+def test_print_model_bounds_are_those_of_the_faces_not_of_a_stray_vertex():
+    """A watertight box with one vertex of no face far from it (a file's unused point): the model's bounds, as trimesh
+    and a slicer see them, are size long from the origin (the stray vertex set the scale and the corner: 9.9 mm)."""
+    box = trimesh.creation.box(extents=(2.0, 10.0, 4.0))
+    box.apply_translation((500000.0, 4000000.0, 1000.0))
+    mesh = trimesh.Trimesh(np.vstack([box.vertices, [[500100.0, 3999950.0, 970.0]]]), box.faces, process=False)
+    model = scale_for_print(mesh, 100.0)
+    np.testing.assert_allclose(model.bounds, [[0.0, 0.0, 0.0], [20.0, 100.0, 40.0]], atol=1e-9)
+    # the box's own print, the stray vertex moved alike
+    np.testing.assert_allclose(model.vertices, (mesh.vertices - box.bounds[0]) * 10.0, rtol=0, atol=1e-9)
+    assert model.is_watertight and model.volume == pytest.approx(20.0 * 100.0 * 40.0, rel=1e-12)
+    assert model.metadata["print"]["origin"] == pytest.approx([499999.0, 3999995.0, 998.0])
+    bad = trimesh.Trimesh(box.vertices, np.vstack([box.faces, [[0, 1, 99]]]), process=False, validate=False)
+    with pytest.raises(InvalidInputError, match="mesh faces must index its 8 vertices"):
+        scale_for_print(bad, 100.0)
