@@ -647,7 +647,8 @@ def _scaled_for_print(mesh: trimesh.Trimesh, size: Any, z_scale: Any, *, copy: b
     # file's unused point) made the print smaller than size and lifted it off the origin
     used = np.zeros(len(vertices), bool)
     used[faces.reshape(-1)] = True
-    lo, hi = vertices[used].min(axis=0), vertices[used].max(axis=0)
+    bounded = vertices if used.all() else vertices[used]  # (no copy of a stepped mesh's, which uses every vertex)
+    lo, hi = bounded.min(axis=0), bounded.max(axis=0)
     extent = float(max(hi[0] - lo[0], hi[1] - lo[1]))
     if not extent > 0:
         raise InvalidInputError(f"mesh must have a horizontal extent to be scaled to {names[0]} {size:g}; got all its "
