@@ -580,16 +580,16 @@ def scale_for_print(mesh: trimesh.Trimesh, size: float, *, z_scale: float = 1.0)
     its heights exaggerated ``z_scale`` times beyond the common scale.
 
     A stepped solid of a UTM DEM (``stepped(dem, solid=True)``) is in metres at its place on the globe: a slicer read
-    the embedded DEM's ``.stl`` as a print 36 km wide, hundreds of km from its bed, and STL's float32 moved its
-    vertices by up to 0.125 m there. Scaled, its coordinates lie within ``size`` of 0, where float32 holds them
-    to about 1e-5 mm. Each vertex (x, y, z) becomes ``((x - x0) s, (y - y0) s, (z - z0) s z_scale)`` with ``s = size
-    / max(x1 - x0, y1 - y0)`` over the bounds (x0, y0, z0)-(x1, y1, z1) of the vertices its faces use (as
+    the embedded DEM's ``.stl`` (metres taken as millimetres) as a print 36 m wide, 3.8 km from its bed, and STL's
+    float32 moved its vertices by up to 0.125 m there. Scaled, its coordinates lie within ``size`` of 0, where float32
+    holds them to about 1e-5 mm. Each vertex (x, y, z) becomes ``((x - x0) s, (y - y0) s, (z - z0) s z_scale)`` with ``s
+    = size / max(x1 - x0, y1 - y0)`` over the bounds (x0, y0, z0)-(x1, y1, z1) of the vertices its faces use (as
     ``mesh.bounds``; a vertex of no face is moved alike but sets no bound), in float64: the faces, their winding (all
-    factors positive: no mirror) and hence watertightness are kept, and the volume is scaled by ``s³ z_scale``.
-    Vertex and face colours, face attributes (``level``, ``wall``) and a texture are kept. The metadata is kept less
-    what holds world coordinates (``crs``, ``floor``, a recorded ``shared_bounds`` and ``eye``), with ``print`` added:
-    ``{"size": size, "scale": s, "z_scale": z_scale, "origin": [x0, y0, z0]}``, so that ``x = x' / s + x0`` (and
-    ``z = z' / (s z_scale) + z0``) gives the world coordinates back. ``mesh`` itself is not modified.
+    factors positive: no mirror) and hence watertightness are kept, and the volume is scaled by ``s³ z_scale``. Vertex
+    and face colours, face attributes (``level``, ``wall``) and a texture are kept. The metadata is kept less what holds
+    world coordinates (``crs``, ``floor``, a recorded ``shared_bounds`` and ``eye``), with ``print`` added: ``{"size":
+    size, "scale": s, "z_scale": z_scale, "origin": [x0, y0, z0]}``, so that ``x = x' / s + x0`` (and ``z = z' / (s
+    z_scale) + z0``) gives the world coordinates back. ``mesh`` itself is not modified.
 
     Parameters
     ----------

@@ -1,5 +1,5 @@
 """``export.scale_for_print``: a stepped solid of a UTM DEM scaled for a 3D print (issue #2). In UTM metres a slicer
-read the embedded DEM's ``.stl`` as millimetres, a print 36 km wide placed hundreds of km from its bed, and STL's
+read the embedded DEM's ``.stl`` as millimetres, a print 36 m wide placed 3.8 km from its bed, and STL's
 float32 moved its northings by up to 0.125 m; scaled, its longer side is the print size, its lowest corner at the
 origin."""
 
