@@ -54,6 +54,8 @@ examples:
   stepterrain steps --interval 200 --solid --floor 0 -o print.3mf
       a watertight solid for 3D printing (also where integer heights sit on thresholds), with its colours;
       .stl holds float32, which rounds UTM coordinates by centimetres (a warning says by how much)
+  stepterrain steps --interval 100 --solid --print-size 150 --print-z-scale 2 -o model.stl
+      the solid scaled for a print: longer side 150 mm, lowest corner at 0,0,0, heights twice as steep
 """
 
 _INFO_EPILOG = """\
@@ -515,6 +517,13 @@ def _add_steps(commands: Any) -> None:
     p.add_argument("-o", "--output", type=_path, metavar="OUT",
                    help="mesh file; format by extension: " + " ".join(MESH_EXTENSIONS)
                         + " (optional with --png: a render-only run writes no mesh)")
+    p.add_argument("--print-size", type=float, default=None, metavar="MM",
+                   help="scale the mesh file for a 3D print: its longer horizontal side MM long (millimetres, as "
+                        "slicers read .stl and .3mf), its lowest corner at 0,0,0 (the base of --solid on z = 0); "
+                        "the mesh is no longer georeferenced (its metadata 'print' maps it back); with --solid "
+                        "(a surface alone is no printable solid: a warning says so)")
+    p.add_argument("--print-z-scale", type=float, default=None, metavar="S",
+                   help="vertical exaggeration of the --print-size model (default 1: true proportions)")
     p.add_argument("--png", type=_path, metavar="OUT.png",
                    help="write an off-screen render (beside the mesh, or alone without -o)")
     p.add_argument("--size", type=_window, default=None, metavar="WxH",
@@ -752,6 +761,14 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError(f"{option} shows the original terrain inside it and --gamma outside: with --gamma 0 "
                                 f"the terrain is original everywhere and the lens changes nothing; give --gamma > 0 "
                                 f"or leave {option} out")
+    if args.print_z_scale is not None and args.print_size is None:
+        raise InvalidInputError("--print-z-scale applies only with --print-size (the model scaled for a print)")
+    if args.print_size is not None:
+        if out is None:  # the render shows the terrain as stepped: the print's scale shaped nothing
+            raise InvalidInputError("--print-size scales the mesh file (-o); got it without -o")
+        finite_number(args.print_size, "--print-size", positive=True)  # before the DEM is read and stepped
+        if args.print_z_scale is not None:
+            finite_number(args.print_z_scale, "--print-z-scale", positive=True)
     render_options = _given(args, {"size": (1280, 800), "z_scale": 2.0})
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
@@ -876,6 +893,17 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         progress.stage("render", f"rendering {args.size[0]}x{args.size[1]} off-screen")
         image = render.render_mesh(mesh, window_size=args.size, z_scale=args.z_scale)
         progress.done()
+
+    if args.print_size is not None:  # after the render, which shows the terrain as stepped (its --z-scale alone)
+        mesh = export._scaled_for_print(mesh, args.print_size, 1.0 if args.print_z_scale is None else
+                                        args.print_z_scale, copy=False, names=("--print-size", "--print-z-scale"))
+        scale = mesh.metadata["print"]["scale"]
+        extents = " x ".join(f"{v:.4g}" for v in mesh.extents)
+        progress.say(f"scaled for a print: {extents} mm (one unit of the terrain's coordinates is {scale:.4g} mm)")
+        if not args.solid:  # scaled as asked, but a sheet of no thickness: a slicer opened it as nothing to print
+            warnings.warn("--print-size without --solid: the model is the open stepped surface, of no thickness, "
+                          "which a slicer cannot print; add --solid for a watertight model with a base",
+                          stacklevel=1)
 
     # write: each file atomically (temporary file + rename); no mesh file for a render-only run (--png without -o)
     if out is not None:
@@ -1015,7 +1043,15 @@ def _mesh_summary(path: Path) -> dict[str, Any]:
         summary["levels"] = int(len(np.unique(level[level >= 0])))
     if isinstance(wall, np.ndarray) and wall.dtype == np.bool_ and wall.shape == (len(mesh.faces),):
         summary["wall_faces"] = int(wall.sum())
+    items = []
     for key, value in (mesh.metadata or {}).items():
+        # a record of plain items as meta.KEY.ITEM: steps --print-size's 'print' (size, scale, z_scale, origin), the
+        # mapping of a print model back to the world, was left out, a dict
+        if isinstance(value, dict) and not str(key).startswith("_"):
+            items.extend((f"{key}.{name}", item) for name, item in value.items())
+        else:
+            items.append((key, value))
+    for key, value in items:
         if isinstance(value, str):  # an STL header is 80 bytes padded with NULs, which made the text output binary
             value = value.strip("\x00").strip()
             if not value:

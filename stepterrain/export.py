@@ -44,9 +44,9 @@ from ._device import recycled_empty
 from ._files import as_path, require_regular_file
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, caller_stacklevel, counted
 from .mesh import mesh_argument
-from .terrain import FLOAT32_MAX, as_array, real_numbers
+from .terrain import FLOAT32_MAX, as_array, finite_number, real_numbers
 
-__all__ = ["atomic_path", "save_mesh", "save_image", "MESH_EXTENSIONS", "add_write_listener"]
+__all__ = ["atomic_path", "save_mesh", "scale_for_print", "save_image", "MESH_EXTENSIONS", "add_write_listener"]
 
 #: Mesh file extensions :func:`save_mesh` writes (lower case; matching is case-insensitive).
 MESH_EXTENSIONS: tuple[str, ...] = (".glb", ".gltf", ".obj", ".ply", ".stl", ".3mf")
@@ -567,6 +567,106 @@ def save_mesh(
     for listener in tuple(_WRITE_LISTENERS):
         listener(target)
     return target
+
+
+#: Keys of a mesh's metadata that hold world coordinates (:func:`save_mesh`'s recorded frame and eye, the CRS they are
+#: in): :func:`scale_for_print` leaves them out of its copy, whose coordinates are millimetres from its own corner.
+_WORLD_METADATA = ("shared_bounds", "eye", "crs", "floor")
+
+
+def scale_for_print(mesh: trimesh.Trimesh, size: float, *, z_scale: float = 1.0) -> trimesh.Trimesh:
+    """A copy of ``mesh`` scaled for a 3D print: its longer horizontal side ``size`` long (millimetres, the unit STL
+    readers and slicers take and 3MF declares), its lowest corner (x, y, z) at the origin (a solid's base on z = 0),
+    its heights exaggerated ``z_scale`` times beyond the common scale.
+
+    A stepped solid of a UTM DEM (``stepped(dem, solid=True)``) is in metres at its place on the globe: a slicer read
+    the embedded DEM's ``.stl`` (metres taken as millimetres) as a print 36 m wide, 3.8 km from its bed, and STL's
+    float32 moved its vertices by up to 0.125 m there. Scaled, its coordinates lie within ``size`` of 0, where float32
+    holds them to about 1e-5 mm. Each vertex (x, y, z) becomes ``((x - x0) s, (y - y0) s, (z - z0) s z_scale)`` with ``s
+    = size / max(x1 - x0, y1 - y0)`` over the bounds (x0, y0, z0)-(x1, y1, z1) of the vertices its faces use (as
+    ``mesh.bounds``; a vertex of no face is moved alike but sets no bound), in float64: the faces, their winding (all
+    factors positive: no mirror) and hence watertightness are kept, and the volume is scaled by ``s³ z_scale``. Vertex
+    and face colours, face attributes (``level``, ``wall``) and a texture are kept. The metadata is kept less what holds
+    world coordinates (``crs``, ``floor``, a recorded ``shared_bounds`` and ``eye``), with ``print`` added: ``{"size":
+    size, "scale": s, "z_scale": z_scale, "origin": [x0, y0, z0]}``, so that ``x = x' / s + x0`` (and ``z = z' / (s
+    z_scale) + z0``) gives the world coordinates back. ``mesh`` itself is not modified.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh or pyvista.PolyData
+        The mesh to scale (a PolyData of triangles as :func:`save_mesh` takes it), with at least one face.
+    size : float
+        The length of the model's longer horizontal side (x or y), in the print's unit (millimetres).
+    z_scale : float, optional
+        Vertical exaggeration on top of the common scale (default 1: true proportions).
+
+    Returns
+    -------
+    trimesh.Trimesh
+        The scaled copy.
+
+    Raises
+    ------
+    InvalidInputError
+        ``size`` or ``z_scale`` is not a positive finite number, the scaled model would not fit in float32 (STL's
+        coordinates), or ``mesh`` is not a mesh, has no faces, faces indexing beyond its vertices, non-finite
+        vertices or no horizontal extent (all its vertices on one vertical line).
+
+    Examples
+    --------
+    >>> import stepterrain as st
+    >>> from stepterrain.export import scale_for_print
+    >>> solid = st.stepped(st.sample_dem().crop((380000, 381000, 3790000, 3790500)), interval=100.0, solid=True)
+    >>> model = scale_for_print(solid, 150.0)
+    >>> [round(float(v), 6) for v in model.extents[:2]], model.is_watertight
+    ([150.0, 70.3125], True)
+    """
+    return _scaled_for_print(mesh_argument(mesh), size, z_scale, copy=True)
+
+
+def _scaled_for_print(mesh: trimesh.Trimesh, size: Any, z_scale: Any, *, copy: bool,
+                      names: tuple[str, str] = ("size", "z_scale")) -> trimesh.Trimesh:
+    """:func:`scale_for_print`'s work: a scaled copy of ``mesh``, or (``copy`` False: the command line, whose stepped
+    mesh is its own) ``mesh`` itself scaled, its faces, colours and attributes not copied. ``names``: the arguments
+    as the refusals name them (the command line's ``--print-size`` and ``--print-z-scale``)."""
+    size = finite_number(size, names[0], positive=True)
+    z_scale = finite_number(z_scale, names[1], positive=True)
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    if len(mesh.faces) == 0:
+        raise InvalidInputError(f"mesh must have faces to be scaled for a print; got {len(vertices)} vertices and no "
+                                "faces")
+    if not np.isfinite(vertices).all():
+        bad = int((~np.isfinite(vertices).all(axis=1)).sum())
+        raise InvalidInputError(f"mesh vertices must be finite to be scaled for a print; got {bad} of "
+                                f"{len(vertices)} vertices with NaN or inf")
+    faces = np.asarray(mesh.faces)
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise InvalidInputError(f"mesh faces must index its {len(vertices)} vertices (0 .. {len(vertices) - 1}); got "
+                                f"indices {faces.min()} .. {faces.max()}")
+    # the bounds of the vertices the faces use, as trimesh's bounds and a slicer see the model: a stray vertex (a
+    # file's unused point) made the print smaller than size and lifted it off the origin
+    used = np.zeros(len(vertices), bool)
+    used[faces.reshape(-1)] = True
+    bounded = vertices if used.all() else vertices[used]  # (no copy of a stepped mesh's, which uses every vertex)
+    lo, hi = bounded.min(axis=0), bounded.max(axis=0)
+    extent = float(max(hi[0] - lo[0], hi[1] - lo[1]))
+    if not extent > 0:
+        raise InvalidInputError(f"mesh must have a horizontal extent to be scaled to {names[0]} {size:g}; got all its "
+                                f"vertices at x = {lo[0]!r}, y = {lo[1]!r}")
+    scale = size / extent
+    factors = np.array([scale, scale, scale * z_scale])
+    top = float(((hi - lo) * factors).max())
+    if not top < FLOAT32_MAX:
+        raise InvalidInputError(f"the model scaled to {names[0]} {size:g} with {names[1]} {z_scale:g} reaches {top:g}, "
+                                f"beyond float32 (|x| < {FLOAT32_MAX:.2g}, STL's coordinates); give a smaller "
+                                f"{names[0]} or {names[1]}")
+    scaled = mesh.copy() if copy else mesh
+    scaled.vertices = (vertices - lo) * factors
+    # the copy's own (deep-copied) metadata: the input's lists (isovalues) were shared, an edit of one the other's
+    metadata = {key: value for key, value in scaled.metadata.items() if key not in _WORLD_METADATA}
+    metadata["print"] = {"size": size, "scale": scale, "z_scale": z_scale, "origin": [float(v) for v in lo]}
+    scaled.metadata = metadata
+    return scaled
 
 
 #: Bytes :func:`save_mesh` holds at its peak beyond the mesh, per vertex and per face, by format: the prepared copy,
