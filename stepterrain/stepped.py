@@ -1234,7 +1234,8 @@ def stepped(
         Close the surface with side skirts and a flat base at ``floor`` (default: one interval below the
         lowest isovalue or the lower surface that γ < 1 gives under explicit ``levels``; with ``levels``, a
         tenth of their span, at least 0.1): a watertight, consistently wound volume for 3D printing, also where
-        heights sit on a threshold (they are stepped from a little above it: see Notes). A ``floor``
+        heights sit on a threshold (they are stepped from a little above it: see Notes), and over a TIN's seams (points
+        kept apart for their vertex colours or UVs are welded by position, taking the first copy's). A ``floor``
         not below the surface's lowest point is refused; where the heights tell that point (a TIN, a grid without
         nodata: the lowest height blended with its isovalue), before stepping.
     spacing, origin : (dx, dy), (x0, y0)
@@ -1321,7 +1322,7 @@ def stepped(
     if solid and floor is not None:
         _refuse_floor_above_surface(t, values, gamma, floor)  # before stepping; close_solid has the final word
     if solid:
-        t = _off_thresholds(t, values)
+        t = _off_thresholds(t._welded_by_position(), values)
     arrays, vertices = _stepped_arrays(t, values, gamma, colors, dev, memory_budget, solid)
     # a TIN's CRS and source: Terrain.from_mesh reads them from its metadata, _assemble records them
     return _assemble(

@@ -1360,3 +1360,41 @@ def test_a_grid_terrain_carries_its_uvs_and_a_uv_row_short_is_refused():
     short = st.Terrain(kind="grid", heights=heights, visual=trimesh.visual.TextureVisuals(uv=uv[:-1]))
     with pytest.raises(st.InvalidInputError, match=rf"^terrain visual.uv .*shape \({heights.size}, 2\)"):
         st.stepped(short, interval=50.0)
+
+
+@pytest.mark.parametrize("kind", ["uv", "colors", "soup"])
+def test_a_solid_of_a_tin_with_seams_in_its_uvs_or_colours_has_no_skirt_inside(kind, tmp_path):
+    """A TIN's points that coincide are welded only where their vertex colours or UVs agree too (the surface keeps
+    its seams), and solid=True closed that surface: it stood a skirt down to the base on both sides of every seam
+    (a glTF of two textured primitives, an OBJ's UV seam, a soup with a colour per corner: a prism under every face),
+    two or more bodies back to back whose .stl, its corners merged by position, read back not watertight. A solid is
+    now closed over the surface welded by position: one body, the solid of the seamless TIN, watertight as .stl."""
+    heights = np.asarray(st.sample_dem().heights[:9, :11], np.float64)
+    tin = st.heightfield_mesh(heights, spacing=(30.0, 30.0), origin=(376000.0, 3807000.0))
+    n = len(tin.vertices)
+    points = np.vstack([tin.vertices, tin.vertices])
+    faces = tin.faces.copy()
+    if kind == "soup":  # every corner a point of its own
+        points = tin.vertices[faces.reshape(-1)]
+        faces = np.arange(len(points)).reshape(-1, 3)
+    else:  # the faces right of a seam use the second copy of the points
+        right = tin.triangles_center[:, 0] > np.median(tin.triangles_center[:, 0])
+        faces[right] += n
+    ramp = (points[:, :2] - points[:, :2].min(axis=0)) / np.ptp(points[:, :2], axis=0)
+    if kind == "uv":
+        ramp[n:] = ramp[n:] * 0.5 + 0.5  # the second primitive's texture elsewhere in the atlas
+        visual = trimesh.visual.TextureVisuals(uv=ramp)
+    else:
+        rgba = np.tile(np.array([200, 120, 40, 255], np.uint8), (len(points), 1))
+        rgba[np.arange(len(points)) % (3 if kind == "soup" else 2 * n) >= (1 if kind == "soup" else n), 0] = 10
+        visual = trimesh.visual.ColorVisuals(vertex_colors=rgba)
+    seamed = trimesh.Trimesh(points, faces, visual=visual, process=False)
+    solid = st.stepped(seamed, interval=40.0, gamma=0.7, solid=True, device="cpu")
+    plain = st.stepped(tin, interval=40.0, gamma=0.7, solid=True, device="cpu")
+    assert solid.is_watertight and solid.body_count == 1
+    assert len(solid.faces) == len(plain.faces)
+    np.testing.assert_allclose(solid.volume, plain.volume, rtol=1e-9)
+    assert type(solid.visual) is type(seamed.visual)
+    path = tmp_path / "solid.stl"
+    solid.export(path)
+    assert trimesh.load(path).is_watertight
