@@ -1398,3 +1398,28 @@ def test_a_solid_of_a_tin_with_seams_in_its_uvs_or_colours_has_no_skirt_inside(k
     path = tmp_path / "solid.stl"
     solid.export(path)
     assert trimesh.load(path).is_watertight
+
+
+def test_a_tin_is_welded_by_position_once_for_all_its_solids():
+    """The weld by position that a solid of a seamed TIN is closed over (a hash of every point and a new edge table:
+    about 1.5 s for a million faces, more than the solid's stepping) was redone by every stepped(solid=True) call of
+    the same mesh, whose Terrain (Terrain.from_mesh) is cached on it for that very reason: now once per terrain, and
+    the welded terrain steps as before."""
+    heights = np.asarray(st.sample_dem().heights[:7, :8], np.float64)
+    tin = st.heightfield_mesh(heights, spacing=(30.0, 30.0))
+    points = tin.vertices[tin.faces.reshape(-1)]  # a soup with a colour per corner
+    corners = np.array([[200, 120, 40, 255], [10, 120, 40, 255], [10, 20, 240, 255]], np.uint8)
+    rgba = np.tile(corners, (len(tin.faces), 1))
+    soup = trimesh.Trimesh(points, np.arange(len(points)).reshape(-1, 3),
+                           visual=trimesh.visual.ColorVisuals(vertex_colors=rgba), process=False)
+    terrain = st.Terrain.from_mesh(soup)
+    welded = terrain._welded_by_position()
+    assert welded is not terrain and terrain._welded_by_position() is welded
+    assert len(np.unique(welded.faces)) == len(tin.vertices)
+    first = st.stepped(soup, interval=40.0, solid=True, device="cpu")
+    again = st.stepped(soup, interval=40.0, solid=True, device="cpu")
+    assert first.is_watertight and first.body_count == 1
+    np.testing.assert_array_equal(first.vertices, again.vertices)
+    np.testing.assert_array_equal(first.faces, again.faces)
+    plain = st.Terrain.from_mesh(tin)
+    assert plain._welded_by_position() is plain
