@@ -1389,7 +1389,8 @@ def test_a_solid_of_a_tin_with_seams_in_its_uvs_or_colours_has_no_skirt_inside(k
         rgba[np.arange(len(points)) % (3 if kind == "soup" else 2 * n) >= (1 if kind == "soup" else n), 0] = 10
         visual = trimesh.visual.ColorVisuals(vertex_colors=rgba)
     seamed = trimesh.Trimesh(points, faces, visual=visual, process=False)
-    solid = st.stepped(seamed, interval=40.0, gamma=0.7, solid=True, device="cpu")
+    with pytest.warns(UserWarning, match=r"^terrain: \d+ points of the TIN coincide with others but differ"):
+        solid = st.stepped(seamed, interval=40.0, gamma=0.7, solid=True, device="cpu")
     plain = st.stepped(tin, interval=40.0, gamma=0.7, solid=True, device="cpu")
     assert solid.is_watertight and solid.body_count == 1
     assert len(solid.faces) == len(plain.faces)
@@ -1416,10 +1417,46 @@ def test_a_tin_is_welded_by_position_once_for_all_its_solids():
     welded = terrain._welded_by_position()
     assert welded is not terrain and terrain._welded_by_position() is welded
     assert len(np.unique(welded.faces)) == len(tin.vertices)
-    first = st.stepped(soup, interval=40.0, solid=True, device="cpu")
-    again = st.stepped(soup, interval=40.0, solid=True, device="cpu")
+    with pytest.warns(UserWarning, match=r"differ in their vertex colours.*the colours blend"):
+        first = st.stepped(soup, interval=40.0, solid=True, device="cpu")
+        again = st.stepped(soup, interval=40.0, solid=True, device="cpu")
     assert first.is_watertight and first.body_count == 1
     np.testing.assert_array_equal(first.vertices, again.vertices)
     np.testing.assert_array_equal(first.faces, again.faces)
     plain = st.Terrain.from_mesh(tin)
     assert plain._welded_by_position() is plain
+
+
+def test_a_solid_of_a_tin_with_uv_seams_warns_that_its_texture_smears_along_them():
+    """A solid is closed over a seamed TIN welded by position, each seam point taking its first copy's UV (one UV per
+    vertex of an indexed watertight mesh): the faces on the other side of a seam (a glTF's primitives packed into one
+    atlas, an OBJ's texture charts) then stretch their texture across the atlas to the other chart, silently. The
+    terrace faces beside the seam below span three times the texture of any face of the surface without solid=True:
+    now a warning names the seam points and the way out; no warning without seams, nor where ``colors`` replaces
+    the visual."""
+    heights = np.asarray(st.sample_dem().heights[:9, :11], np.float64)
+    tin = st.heightfield_mesh(heights, spacing=(30.0, 30.0), origin=(376000.0, 3807000.0))
+    n = len(tin.vertices)
+    points = np.vstack([tin.vertices, tin.vertices])
+    faces = tin.faces.copy()
+    faces[tin.triangles_center[:, 0] > np.median(tin.triangles_center[:, 0])] += n
+    uv = (points[:, :2] - points[:, :2].min(axis=0)) / np.ptp(points[:, :2], axis=0)
+    uv[n:] = uv[n:] * 0.5 + 0.5  # the second primitive's texture elsewhere in the atlas
+    seamed = trimesh.Trimesh(points, faces, visual=trimesh.visual.TextureVisuals(uv=uv), process=False)
+
+    def largest_terrace_span(mesh):
+        top = mesh.face_normals[:, 2] > 0.99
+        return np.ptp(mesh.visual.uv[mesh.faces[top]][..., 0], axis=1).max()
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        surface = st.stepped(seamed, interval=40.0, gamma=0.7, device="cpu")
+        st.stepped(seamed, interval=40.0, gamma=0.7, solid=True, colors="terrain", device="cpu")
+        st.stepped(tin, interval=40.0, gamma=0.7, solid=True, device="cpu")
+    seam_points = int(np.isin(np.unique(faces[faces >= n]) - n, faces[faces < n]).sum())
+    with pytest.warns(UserWarning, match=rf"^terrain: {seam_points} points of the TIN coincide with others but differ "
+                                         r"in their UVs.*texture.*smears.*without solid=True") as caught:
+        solid = st.stepped(seamed, interval=40.0, gamma=0.7, solid=True, device="cpu")
+    assert caught[0].filename == __file__
+    assert largest_terrace_span(solid) > 2.5 * largest_terrace_span(surface)  # what the warning is about
+    assert solid.is_watertight and solid.body_count == 1
