@@ -1234,7 +1234,9 @@ def stepped(
         Close the surface with side skirts and a flat base at ``floor`` (default: one interval below the
         lowest isovalue or the lower surface that γ < 1 gives under explicit ``levels``; with ``levels``, a
         tenth of their span, at least 0.1): a watertight, consistently wound volume for 3D printing, also where
-        heights sit on a threshold (they are stepped from a little above it: see Notes). A ``floor``
+        heights sit on a threshold (they are stepped from a little above it: see Notes), and over a TIN's seams (points
+        kept apart for their vertex colours or UVs are welded by position, taking the first copy's: one colour or UV
+        per vertex, so the faces beside a seam blend the colours or smear the texture, with a warning). A ``floor``
         not below the surface's lowest point is refused; where the heights tell that point (a TIN, a grid without
         nodata: the lowest height blended with its isovalue), before stepping.
     spacing, origin : (dx, dy), (x0, y0)
@@ -1321,12 +1323,31 @@ def stepped(
     if solid and floor is not None:
         _refuse_floor_above_surface(t, values, gamma, floor)  # before stepping; close_solid has the final word
     if solid:
-        t = _off_thresholds(t, values)
+        welded = t._welded_by_position()
+        if welded is not t and colors is None:
+            _warn_seams_welded(t, welded)
+        t = _off_thresholds(welded, values)
     arrays, vertices = _stepped_arrays(t, values, gamma, colors, dev, memory_budget, solid)
     # a TIN's CRS and source: Terrain.from_mesh reads them from its metadata, _assemble records them
     return _assemble(
         t, arrays, vertices, values, gamma=gamma, colors=colors, solid=solid, floor=floor, interval=interval,
         device=dev,
+    )
+
+
+def _warn_seams_welded(seamed: Terrain, welded: Terrain) -> None:
+    """Warn that a solid of a TIN with seams (points kept apart for their vertex colours or UVs) carries, at each seam
+    point, its first copy's colour or UV (:meth:`Terrain._welded_by_position`): the faces beside the seam blend them,
+    and a texture stretches across its atlas there (a glTF's primitives packed into one, an OBJ's charts)."""
+    merged = int(np.count_nonzero(seamed.point_used)) - int(np.count_nonzero(welded.point_used))
+    uv = isinstance(seamed.visual, trimesh.visual.TextureVisuals)
+    what, one, effect = ("UVs", "UV", "the texture smears") if uv else ("vertex colours", "colour", "the colours blend")
+    warnings.warn(
+        f"terrain: {merged} points of the TIN coincide with others but differ in their {what} (seams: a glTF's "
+        f"primitives, an OBJ's texture charts, a soup with a colour per corner); the solid is closed over them welded "
+        f"(one {one} per vertex of a watertight mesh), each taking its first copy's {one}, so {effect} over the faces "
+        "beside those seams. Step without solid=True to keep the seams on the surface.",
+        stacklevel=caller_stacklevel(),
     )
 
 

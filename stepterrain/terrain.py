@@ -16,7 +16,7 @@ import math
 import numbers
 import sys
 from collections.abc import Callable, Sequence
-from dataclasses import InitVar, dataclass, field
+from dataclasses import InitVar, dataclass, field, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -942,6 +942,33 @@ class Terrain:
         if self.kind == "tin":
             return bool(self.point_used.any())
         return not self.has_nodata or self._used_span()[1]
+
+    def _welded_by_position(self) -> Terrain:
+        """The terrain a solid is closed over: a TIN whose coinciding points were kept apart for their vertex colours
+        or UVs (seams: :func:`_welded`) with those points welded by position alone, each seam's corners taking the
+        colour or UV of the first copy; itself otherwise. The seams' boundary edges were closed by skirts down to the
+        base on both sides, inside the solid (two bodies back to back; a soup with a colour per corner, a prism under
+        every face), whose ``.stl``, its corners merged by position, read back not watertight. Computed once per
+        terrain (a hash of the points and a new edge table: about 1.5 s a million faces, more than the solid's
+        stepping; a mesh's Terrain is cached on it, so every solid of one mesh shares it)."""
+        if self.kind != "tin" or self.visual is None:
+            return self
+        welded = self.cached("welded_by_position", self._build_welded_by_position)
+        return self if welded is False else welded
+
+    def _build_welded_by_position(self) -> Terrain | Literal[False]:
+        """:meth:`_welded_by_position`'s terrain, False where it is ``self`` (no cycle through the cache)."""
+        faces = _welded(self.points, self.faces, None)
+        if faces is self.faces:
+            return False
+        try:
+            edges, face_edges = _edge_table(faces, len(self.points))
+        except InvalidInputError:  # welded, the seam's sides overlap (not a height field by position): kept apart
+            return False
+        point_used = np.zeros(len(self.points), dtype=np.int32)
+        point_used[faces.reshape(-1)] = 1
+        return replace(self, faces=faces, edges=edges, face_edges=face_edges, point_used=point_used,
+                       _device_cache={}, _owned=True)
 
     def _used_nodes_in(self, values: ArrayLike) -> NDArray[np.intp]:
         """The flat indices of the nodes (a TIN's points) the surface uses (:meth:`used_heights`) whose height is one

@@ -1360,3 +1360,103 @@ def test_a_grid_terrain_carries_its_uvs_and_a_uv_row_short_is_refused():
     short = st.Terrain(kind="grid", heights=heights, visual=trimesh.visual.TextureVisuals(uv=uv[:-1]))
     with pytest.raises(st.InvalidInputError, match=rf"^terrain visual.uv .*shape \({heights.size}, 2\)"):
         st.stepped(short, interval=50.0)
+
+
+@pytest.mark.parametrize("kind", ["uv", "colors", "soup"])
+def test_a_solid_of_a_tin_with_seams_in_its_uvs_or_colours_has_no_skirt_inside(kind, tmp_path):
+    """A TIN's points that coincide are welded only where their vertex colours or UVs agree too (the surface keeps
+    its seams), and solid=True closed that surface: it stood a skirt down to the base on both sides of every seam
+    (a glTF of two textured primitives, an OBJ's UV seam, a soup with a colour per corner: a prism under every face),
+    two or more bodies back to back whose .stl, its corners merged by position, read back not watertight. A solid is
+    now closed over the surface welded by position: one body, the solid of the seamless TIN, watertight as .stl."""
+    heights = np.asarray(st.sample_dem().heights[:9, :11], np.float64)
+    tin = st.heightfield_mesh(heights, spacing=(30.0, 30.0), origin=(376000.0, 3807000.0))
+    n = len(tin.vertices)
+    points = np.vstack([tin.vertices, tin.vertices])
+    faces = tin.faces.copy()
+    if kind == "soup":  # every corner a point of its own
+        points = tin.vertices[faces.reshape(-1)]
+        faces = np.arange(len(points)).reshape(-1, 3)
+    else:  # the faces right of a seam use the second copy of the points
+        right = tin.triangles_center[:, 0] > np.median(tin.triangles_center[:, 0])
+        faces[right] += n
+    ramp = (points[:, :2] - points[:, :2].min(axis=0)) / np.ptp(points[:, :2], axis=0)
+    if kind == "uv":
+        ramp[n:] = ramp[n:] * 0.5 + 0.5  # the second primitive's texture elsewhere in the atlas
+        visual = trimesh.visual.TextureVisuals(uv=ramp)
+    else:
+        rgba = np.tile(np.array([200, 120, 40, 255], np.uint8), (len(points), 1))
+        rgba[np.arange(len(points)) % (3 if kind == "soup" else 2 * n) >= (1 if kind == "soup" else n), 0] = 10
+        visual = trimesh.visual.ColorVisuals(vertex_colors=rgba)
+    seamed = trimesh.Trimesh(points, faces, visual=visual, process=False)
+    with pytest.warns(UserWarning, match=r"^terrain: \d+ points of the TIN coincide with others but differ"):
+        solid = st.stepped(seamed, interval=40.0, gamma=0.7, solid=True, device="cpu")
+    plain = st.stepped(tin, interval=40.0, gamma=0.7, solid=True, device="cpu")
+    assert solid.is_watertight and solid.body_count == 1
+    assert len(solid.faces) == len(plain.faces)
+    np.testing.assert_allclose(solid.volume, plain.volume, rtol=1e-9)
+    assert type(solid.visual) is type(seamed.visual)
+    path = tmp_path / "solid.stl"
+    solid.export(path)
+    assert trimesh.load(path).is_watertight
+
+
+def test_a_tin_is_welded_by_position_once_for_all_its_solids():
+    """The weld by position that a solid of a seamed TIN is closed over (a hash of every point and a new edge table:
+    about 1.5 s for a million faces, more than the solid's stepping) was redone by every stepped(solid=True) call of
+    the same mesh, whose Terrain (Terrain.from_mesh) is cached on it for that very reason: now once per terrain, and
+    the welded terrain steps as before."""
+    heights = np.asarray(st.sample_dem().heights[:7, :8], np.float64)
+    tin = st.heightfield_mesh(heights, spacing=(30.0, 30.0))
+    points = tin.vertices[tin.faces.reshape(-1)]  # a soup with a colour per corner
+    corners = np.array([[200, 120, 40, 255], [10, 120, 40, 255], [10, 20, 240, 255]], np.uint8)
+    rgba = np.tile(corners, (len(tin.faces), 1))
+    soup = trimesh.Trimesh(points, np.arange(len(points)).reshape(-1, 3),
+                           visual=trimesh.visual.ColorVisuals(vertex_colors=rgba), process=False)
+    terrain = st.Terrain.from_mesh(soup)
+    welded = terrain._welded_by_position()
+    assert welded is not terrain and terrain._welded_by_position() is welded
+    assert len(np.unique(welded.faces)) == len(tin.vertices)
+    with pytest.warns(UserWarning, match=r"differ in their vertex colours.*the colours blend"):
+        first = st.stepped(soup, interval=40.0, solid=True, device="cpu")
+        again = st.stepped(soup, interval=40.0, solid=True, device="cpu")
+    assert first.is_watertight and first.body_count == 1
+    np.testing.assert_array_equal(first.vertices, again.vertices)
+    np.testing.assert_array_equal(first.faces, again.faces)
+    plain = st.Terrain.from_mesh(tin)
+    assert plain._welded_by_position() is plain
+
+
+def test_a_solid_of_a_tin_with_uv_seams_warns_that_its_texture_smears_along_them():
+    """A solid is closed over a seamed TIN welded by position, each seam point taking its first copy's UV (one UV per
+    vertex of an indexed watertight mesh): the faces on the other side of a seam (a glTF's primitives packed into one
+    atlas, an OBJ's texture charts) then stretch their texture across the atlas to the other chart, silently. The
+    terrace faces beside the seam below span three times the texture of any face of the surface without solid=True:
+    now a warning names the seam points and the way out; no warning without seams, nor where ``colors`` replaces
+    the visual."""
+    heights = np.asarray(st.sample_dem().heights[:9, :11], np.float64)
+    tin = st.heightfield_mesh(heights, spacing=(30.0, 30.0), origin=(376000.0, 3807000.0))
+    n = len(tin.vertices)
+    points = np.vstack([tin.vertices, tin.vertices])
+    faces = tin.faces.copy()
+    faces[tin.triangles_center[:, 0] > np.median(tin.triangles_center[:, 0])] += n
+    uv = (points[:, :2] - points[:, :2].min(axis=0)) / np.ptp(points[:, :2], axis=0)
+    uv[n:] = uv[n:] * 0.5 + 0.5  # the second primitive's texture elsewhere in the atlas
+    seamed = trimesh.Trimesh(points, faces, visual=trimesh.visual.TextureVisuals(uv=uv), process=False)
+
+    def largest_terrace_span(mesh):
+        top = mesh.face_normals[:, 2] > 0.99
+        return np.ptp(mesh.visual.uv[mesh.faces[top]][..., 0], axis=1).max()
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        surface = st.stepped(seamed, interval=40.0, gamma=0.7, device="cpu")
+        st.stepped(seamed, interval=40.0, gamma=0.7, solid=True, colors="terrain", device="cpu")
+        st.stepped(tin, interval=40.0, gamma=0.7, solid=True, device="cpu")
+    seam_points = int(np.isin(np.unique(faces[faces >= n]) - n, faces[faces < n]).sum())
+    with pytest.warns(UserWarning, match=rf"^terrain: {seam_points} points of the TIN coincide with others but differ "
+                                         r"in their UVs.*texture.*smears.*without solid=True") as caught:
+        solid = st.stepped(seamed, interval=40.0, gamma=0.7, solid=True, device="cpu")
+    assert caught[0].filename == __file__
+    assert largest_terrace_span(solid) > 2.5 * largest_terrace_span(surface)  # what the warning is about
+    assert solid.is_watertight and solid.body_count == 1
