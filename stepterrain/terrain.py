@@ -959,8 +959,8 @@ class Terrain:
     def _build_welded_by_position(self) -> Terrain | Literal[False]:
         """:meth:`_welded_by_position`'s terrain, False where it is ``self`` (no cycle through the cache)."""
         faces = _welded(self.points, self.faces, None)
-        if faces is self.faces:
-            return False
+        if faces is self.faces or np.array_equal(faces, self.faces):  # equal: points kept apart by a face of no
+            return False  # area, which every weld keeps apart (no seam)
         try:
             edges, face_edges = _edge_table(faces, len(self.points))
         except InvalidInputError:  # welded, the seam's sides overlap (not a height field by position): kept apart

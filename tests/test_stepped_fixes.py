@@ -1460,3 +1460,23 @@ def test_a_solid_of_a_tin_with_uv_seams_warns_that_its_texture_smears_along_them
     assert caught[0].filename == __file__
     assert largest_terrace_span(solid) > 2.5 * largest_terrace_span(surface)  # what the warning is about
     assert solid.is_watertight and solid.body_count == 1
+
+
+def test_a_solid_of_a_coloured_tin_without_seams_but_with_a_zero_area_face_does_not_warn_of_seams():
+    """A face two of whose corners coincide (an STL's or a PLY's sliver) keeps those points apart in every weld; the
+    weld by position found them alike, rebuilt the same faces and warned that "0 points of the TIN coincide with
+    others but differ in their vertex colours" of a TIN with one colour at every point: no seam, no warning."""
+    heights = np.asarray(st.sample_dem().heights[:6, :7], np.float64)
+    tin = st.heightfield_mesh(heights, spacing=(30.0, 30.0))
+    points = np.vstack([tin.vertices, tin.vertices[:1]])  # point 0 twice, the copy in a face of no area
+    faces = np.vstack([tin.faces, [[0, len(points) - 1, 1]]])
+    rgba = np.tile(np.array([200, 120, 40, 255], np.uint8), (len(points), 1))
+    mesh = trimesh.Trimesh(points, faces, visual=trimesh.visual.ColorVisuals(vertex_colors=rgba), process=False)
+    terrain = st.Terrain.from_mesh(mesh)
+    assert terrain._welded_by_position() is terrain
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        solid = st.stepped(mesh, interval=40.0, solid=True, device="cpu")
+    plain = st.stepped(tin, interval=40.0, solid=True, device="cpu")
+    assert solid.is_watertight
+    np.testing.assert_allclose(solid.volume, plain.volume, rtol=1e-9)
