@@ -651,8 +651,8 @@ def _scaled_for_print(mesh: trimesh.Trimesh, size: Any, z_scale: Any, *, copy: b
     lo, hi = bounded.min(axis=0), bounded.max(axis=0)
     extent = float(max(hi[0] - lo[0], hi[1] - lo[1]))
     if not extent > 0:
-        raise InvalidInputError(f"mesh must have a horizontal extent to be scaled to {names[0]} {size:g}; got all its "
-                                f"vertices at x = {lo[0]!r}, y = {lo[1]!r}")
+        raise InvalidInputError(f"mesh must have a horizontal extent to be scaled to {names[0]} {size:g}; got the "
+                                f"vertices of its faces all at x = {float(lo[0])!r}, y = {float(lo[1])!r}")
     scale = size / extent
     factors = np.array([scale, scale, scale * z_scale])
     top = float(((hi - lo) * factors).max())

@@ -186,3 +186,13 @@ def test_print_model_bounds_are_those_of_the_faces_not_of_a_stray_vertex():
     bad = trimesh.Trimesh(box.vertices, np.vstack([box.faces, [[0, 1, 99]]]), process=False, validate=False)
     with pytest.raises(InvalidInputError, match="mesh faces must index its 8 vertices"):
         scale_for_print(bad, 100.0)
+
+
+def test_print_model_of_a_vertical_mesh_is_refused_naming_its_xy_as_numbers():
+    """The refusal named the line the faces stand on as ``x = np.float64(5.0)`` (a NumPy scalar's repr), and as where
+    "all its vertices" lie while a vertex of no face lay elsewhere: the faces' vertices, as plain numbers."""
+    vertical = trimesh.Trimesh([[5.0, 7.0, 0.0], [5.0, 7.0, 1.0], [5.0, 7.0, 2.0], [9.0, 9.0, 9.0]], [[0, 1, 2]],
+                               process=False)
+    with pytest.raises(InvalidInputError) as caught:
+        scale_for_print(vertical, 150.0)
+    assert str(caught.value).endswith("got the vertices of its faces all at x = 5.0, y = 7.0")
