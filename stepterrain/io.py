@@ -1246,7 +1246,10 @@ def _load_geotiff(
                 raise
             # a missing file inside a zip, an unreachable URL: GDAL's reason, not "unreadable content"
             gdal = os.fspath(file)
-            reason = _hgt_refusal(file) or f"GDAL cannot open it as {_gdal_format(file)}: {gdal_reason(exc)}"
+            reason = gdal_reason(exc)
+            # a .hgt's name is why only where GDAL found the file and knew no format of it (not a missing one)
+            found = "not recognized as being in a supported file format" in reason
+            reason = (found and _hgt_refusal(file)) or f"GDAL cannot open it as {_gdal_format(file)}: {reason}"
             raise DataFileError(f"cannot read {str(file)!r}" + (f" (GDAL path {gdal!r})" if gdal != str(file) else "")
                                 + f": {reason}") from exc
         with opened as dataset:

@@ -2055,3 +2055,21 @@ def test_an_srtm_tile_renamed_or_cut_short_says_what_gdal_needs_of_a_hgt(tmp_pat
     with pytest.raises(DataFileError, match=r"N41W106\.hgt.*expected an SRTM tile of 1201 x 1201 or 3601 x 3601 "
                                             r"16-bit samples \(2,884,802 or 25,934,402 bytes.*\); got 1,000 bytes"):
         load_dem(cut)
+
+
+def test_a_hgt_missing_from_a_zip_is_named_missing_not_to_be_renamed(tmp_path):
+    # the name refusal of a .hgt (GDAL places a tile by its name) applies to a file GDAL found and did not know: a
+    # /vsizip/ path to a renamed tile the zip does not hold was told to "rename it so", not that it is not there
+    pytest.importorskip("rasterio")
+    import zipfile
+
+    archive = tmp_path / "srtm.zip"
+    with zipfile.ZipFile(archive, "w") as z:
+        z.writestr("everest.hgt", (np.arange(1201 * 1201) % 3000).astype(">i2").tobytes())
+    there = f"/vsizip/{archive}/everest.hgt"
+    with pytest.raises(DataFileError, match=r"everest\.hgt.*expected an SRTM tile named by its south-west corner"):
+        load_dem(there)  # in the zip, under a name GDAL does not place
+    missing = f"/vsizip/{archive}/lhotse.hgt"
+    with pytest.raises(DataFileError) as caught:
+        load_dem(missing)
+    assert "does not exist" in str(caught.value) and "rename" not in str(caught.value), caught.value
