@@ -1247,9 +1247,7 @@ def _load_geotiff(
             # a missing file inside a zip, an unreachable URL: GDAL's reason, not "unreadable content"
             gdal = os.fspath(file)
             reason = gdal_reason(exc)
-            # a .hgt's name is why only where GDAL found the file and knew no format of it (not a missing one)
-            found = "not recognized as being in a supported file format" in reason
-            reason = (found and _hgt_refusal(file)) or f"GDAL cannot open it as {_gdal_format(file)}: {reason}"
+            reason = _hgt_refusal(file, reason) or f"GDAL cannot open it as {_gdal_format(file)}: {reason}"
             raise DataFileError(f"cannot read {str(file)!r}" + (f" (GDAL path {gdal!r})" if gdal != str(file) else "")
                                 + f": {reason}") from exc
         with opened as dataset:
@@ -1324,9 +1322,10 @@ def _load_geotiff(
                 masked = dataset.read(band, masked=True, window=window)
                 unmasked = _missing_beyond_gdal_mask(dataset, band, masked.data, window)
     except RasterioError as exc:
+        reason = gdal_reason(exc)
         raise DataFileError(
             f"cannot read {str(file)!r}: "
-            + (_hgt_refusal(file) or f"expected {_gdal_format(file)}; got unreadable content ({gdal_reason(exc)})")
+            + (_hgt_refusal(file, reason) or f"expected {_gdal_format(file)}; got unreadable content ({reason})")
         ) from exc
 
     if masked.dtype == np.bool_ or masked.dtype.kind not in "iuf":  # a complex band kept its real part silently
@@ -1400,13 +1399,15 @@ _HGT_SIZES = frozenset(2 * rows * cols for rows, cols in ((1201, 1201), (3601, 3
 _HGT_NAME = re.compile(r"[NS]\d\d[EW]\d\d\d\.", re.IGNORECASE)
 
 
-def _hgt_refusal(file: Path) -> str | None:
+def _hgt_refusal(file: Path, reason: str) -> str | None:
     """Why GDAL did not know the ``.hgt`` ``file`` as an SRTM tile, where its name or size says so: GDAL's SRTMHGT
     driver takes a .hgt only named by its south-west corner (``N34W119.hgt``, ``N34W119.SRTMGL1.hgt``: the corner,
     then a dot), which places it, and of a tile's size. Its refusal was "unreadable content (... not recognized as
     being in a supported file format)", for a tile a user renamed (``everest.hgt``) or one cut short. None for
-    another extension, or a .hgt whose name and size (of a local file) are a tile's."""
-    if file.suffix.lower() != ".hgt":
+    another extension, a .hgt whose name and size (of a local file) are a tile's, or GDAL's ``reason`` other than
+    knowing no format of the file it found (a file missing from a zip, a raster it opened by its content and failed
+    to read): that reason is the one to give."""
+    if file.suffix.lower() != ".hgt" or "not recognized as being in a supported file format" not in reason:
         return None
     if _HGT_NAME.match(file.name) is None:
         return (f"expected an SRTM tile named by its south-west corner (N34W119.hgt, N34W119.SRTMGL1.hgt: GDAL "

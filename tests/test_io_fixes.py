@@ -2073,3 +2073,18 @@ def test_a_hgt_missing_from_a_zip_is_named_missing_not_to_be_renamed(tmp_path):
     with pytest.raises(DataFileError) as caught:
         load_dem(missing)
     assert "does not exist" in str(caught.value) and "rename" not in str(caught.value), caught.value
+
+
+def test_a_raster_gdal_opened_under_a_hgt_name_keeps_gdal_s_read_failure(tmp_path):
+    # a .hgt GDAL opened by its content (a GeoTIFF under that name) and failed to read (cut short) was told to be
+    # renamed as an SRTM tile, which would not read it either: GDAL's reason, as for a .tif cut short
+    rasterio = pytest.importorskip("rasterio")
+    source = tmp_path / "whole.tif"
+    with rasterio.open(source, "w", driver="GTiff", width=256, height=256, count=1, dtype="float32",
+                       transform=rasterio.Affine(30.0, 0.0, 0.0, 0.0, -30.0, 0.0)) as ds:  # fmt: skip
+        ds.write(np.random.default_rng(0).random((256, 256), np.float32), 1)
+    cut = tmp_path / "dem.hgt"
+    cut.write_bytes(source.read_bytes()[: source.stat().st_size // 2])
+    with pytest.raises(DataFileError, match=r"dem\.hgt.*IReadBlock failed") as caught:
+        load_dem(cut)
+    assert "rename" not in str(caught.value)
