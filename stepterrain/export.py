@@ -665,6 +665,7 @@ def _scaled_for_print(mesh: trimesh.Trimesh, size: Any, z_scale: Any, *, copy: b
     # the copy's own (deep-copied) metadata: the input's lists (isovalues) were shared, an edit of one the other's
     metadata = {key: value for key, value in scaled.metadata.items() if key not in _WORLD_METADATA}
     metadata["print"] = {"size": size, "scale": scale, "z_scale": z_scale, "origin": [float(v) for v in lo]}
+    metadata["units"] = "millimeters"  # trimesh's units: a mesh read from a glTF (metres) kept "meters"
     scaled.metadata = metadata
     return scaled
 

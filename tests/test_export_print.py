@@ -196,3 +196,14 @@ def test_print_model_of_a_vertical_mesh_is_refused_naming_its_xy_as_numbers():
     with pytest.raises(InvalidInputError) as caught:
         scale_for_print(vertical, 150.0)
     assert str(caught.value).endswith("got the vertices of its faces all at x = 5.0, y = 7.0")
+
+
+def test_print_model_says_its_unit_is_the_millimetre():
+    """trimesh's ``units`` of a print model is millimetres, whatever the input said: a mesh read back from a glTF
+    (metres by the format) kept "meters" on the model its size made millimetres."""
+    box = trimesh.creation.box(extents=(300.0, 200.0, 50.0))
+    box.units = "meters"
+    model = scale_for_print(box, 150.0)
+    assert model.units == "millimeters"
+    assert box.units == "meters"
+    assert np.allclose(model.extents, (150.0, 100.0, 25.0))
