@@ -589,7 +589,8 @@ def scale_for_print(mesh: trimesh.Trimesh, size: float, *, z_scale: float = 1.0)
     and face colours, face attributes (``level``, ``wall``) and a texture are kept. The metadata is kept less what holds
     world coordinates (``crs``, ``floor``, a recorded ``shared_bounds`` and ``eye``), with ``print`` added: ``{"size":
     size, "scale": s, "z_scale": z_scale, "origin": [x0, y0, z0]}``, so that ``x = x' / s + x0`` (and ``z = z' / (s
-    z_scale) + z0``) gives the world coordinates back. ``mesh`` itself is not modified.
+    z_scale) + z0``) gives the world coordinates back, and ``units`` (trimesh's) is ``"millimeters"``. ``mesh`` itself
+    is not modified.
 
     Parameters
     ----------
