@@ -45,7 +45,7 @@ from .terrain import (
     unwrapped_longitudes,
 )
 
-__all__ = ["load_dem", "sample_dem", "describe_dem", "SUPPORTED_EXTENSIONS", "EARTH_RADIUS_M"]
+__all__ = ["load_dem", "sample_dem", "describe_dem", "SUPPORTED_EXTENSIONS", "HEIGHT_ENCODINGS", "EARTH_RADIUS_M"]
 
 #: Raster formats :func:`load_dem` reads through rasterio (GDAL), as it reads a GeoTIFF, by extension: the format's
 #: name for messages. Dispatch is by this list, not by trying GDAL on any file: a folder of tiles holds sidecars GDAL
@@ -62,6 +62,13 @@ GDAL_FORMATS: dict[str, str] = {
 GZIP_FORMATS: tuple[str, ...] = tuple(ext for ext in GDAL_FORMATS if ext not in (".bil", ".flt", ".vrt"))
 #: File extensions :func:`load_dem` reads (lower case; matching is case-insensitive).
 SUPPORTED_EXTENSIONS: tuple[str, ...] = (".npy", ".npz", ".png", *GDAL_FORMATS)
+
+#: The elevation encodings of RGB web-map terrain tiles :func:`load_dem` decodes (its ``height_encoding``): the
+#: formula from a pixel's 8-bit red, green and blue to its height in metres.
+HEIGHT_ENCODINGS: dict[str, str] = {
+    "terrain-rgb": "Mapbox Terrain-RGB: -10000 + (R * 65536 + G * 256 + B) * 0.1",
+    "terrarium": "Mapzen/AWS Terrarium: R * 256 + G + B / 256 - 32768",
+}
 
 #: Mean earth radius (IUGG R1, metres) used to turn geographic degrees into local metres.
 EARTH_RADIUS_M = 6371008.8
@@ -131,7 +138,7 @@ _KNOWN_UNITS = "m, km, dm, cm, mm, ft (international foot), US survey foot"
 # ---------------------------------------------------------------------------------------------- public API
 def load_dem(
     path: str | os.PathLike[str], *, band: int = 1, height_unit: str | None = None,
-    crop: Sequence[float] | None = None,
+    crop: Sequence[float] | None = None, height_encoding: str | None = None,
 ) -> Terrain:
     """Read an elevation raster into a :class:`Terrain`, choosing the reader by file extension.
 
@@ -327,13 +334,13 @@ def load_dem(
     >>> st.load_dem(path, crop=(1.0, 2.0, -2.0, -1.0)).heights.tolist()
     [[5.0, 6.0], [9.0, 10.0]]
     """
-    return read_dem(path, band=band, height_unit=height_unit, crop=crop)
+    return read_dem(path, band=band, height_unit=height_unit, crop=crop, height_encoding=height_encoding)
 
 
 def read_dem(
     path: str | os.PathLike[str], *, band: int = 1, height_unit: str | None = None,
     crop: Sequence[float] | None = None, option: str = "crop", refuse: Callable[[Terrain], None] | None = None,
-    nodata_only: bool = False,
+    nodata_only: bool = False, height_encoding: str | None = None,
 ) -> Terrain:
     """:func:`load_dem`, its ``crop`` refusals named ``option`` (the CLI's "--crop") and, with ``crop``, ``refuse``
     called with the whole grid before it is cropped (for a GeoTIFF, a
@@ -343,19 +350,21 @@ def read_dem(
     empty item (:mod:`stepterrain.batch`)."""
     token = _NODATA_ONLY.set(nodata_only)
     try:
-        return _read_dem(path, band, height_unit, crop, option, refuse)
+        return _read_dem(path, band, height_unit, crop, option, refuse, height_encoding)
     finally:
         _NODATA_ONLY.reset(token)
 
 
 def _read_dem(
     path: str | os.PathLike[str], band: int, height_unit: str | None, crop: Sequence[float] | None, option: str,
-    refuse: Callable[[Terrain], None] | None,
+    refuse: Callable[[Terrain], None] | None, height_encoding: str | None = None,
 ) -> Terrain:
     """:func:`read_dem`, its ``nodata_only`` set."""
     band = check_band(band)
     if height_unit is not None:
         height_unit = check_height_unit(height_unit)
+    if height_encoding is not None:
+        height_encoding = check_height_encoding(height_encoding)
     file = dem_path(path)
     ext = file.suffix.lower()
     if isinstance(file, GdalPath):  # GDAL reads it, by the extension of the file inside (a URL's path)
@@ -376,11 +385,19 @@ def _read_dem(
         raise InvalidInputError(
             f"band applies to GDAL rasters only; {str(file)!r} holds one band, got band={band}"
         )
+    if height_encoding is not None and (ext != ".png" or isinstance(file, GdalPath)):
+        raise InvalidInputError(
+            f"height_encoding applies to a local RGB PNG tile (Terrain-RGB or Terrarium); {str(file)!r} is no PNG; "
+            f"got height_encoding={height_encoding!r}"
+        )
     reader = {".npy": _load_npy, ".npz": _load_npz, ".png": _load_png}.get(ext)
     try:
-        if reader is None:
+        if height_encoding is not None:
+            terrain = _load_encoded_png(file, height_unit, height_encoding)
+        elif reader is None:
             return _load_geotiff(file, int(band), height_unit, crop, option, refuse)
-        terrain = reader(file, height_unit)
+        else:
+            terrain = reader(file, height_unit)
     except MemoryError as exc:  # a header declaring 400000 x 400000 cells (a sparse GeoTIFF of a few MB)
         if isinstance(exc, StepTerrainError):
             raise
@@ -1067,7 +1084,9 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
                     "a 1-bit black-and-white image (mode '1': two levels are no elevation data; save the heights as "
                     "8- or 16-bit greyscale)"
                     if mode == "1"
-                    else f"a {mode} image (colour or palette images are not elevation data)"
+                    else f"a {mode} image (colour or palette images are not elevation data; an RGB terrain tile reads "
+                         f"with its encoding: height_encoding, the CLI's --height-encoding, "
+                         f"{' or '.join(map(repr, HEIGHT_ENCODINGS))})"
                 )
                 raise DataFileError(
                     f"cannot read {str(file)!r}: expected a single-channel 8- or 16-bit greyscale heightmap; got {got}"
@@ -1160,6 +1179,104 @@ def _warn_png_georeferencing(file: Path) -> None:
         f"with it (`gdal_translate {srs}{file.name} {file.stem}.tif`), or give its cell size (the CLI's --spacing)",
         stacklevel=caller_stacklevel(),
     )
+
+
+def decode_terrain_rgb(rgb: NDArray[Any], encoding: str) -> NDArray[np.float64]:
+    """The heights in metres, float64, of the (..., 3 or more) 8-bit ``rgb`` pixels of a terrain tile in
+    ``encoding`` (:data:`HEIGHT_ENCODINGS`; a fourth channel, alpha, is ignored). Both are exact in float64 up to its
+    rounding of the decimal: Terrain-RGB's 0.1 m steps as (code - 100000) / 10, the float64 nearest the decimal
+    height, Terrarium's 1/256 m steps exactly."""
+    r, g, b = (rgb[..., i].astype(np.int64) for i in range(3))
+    if encoding == "terrain-rgb":
+        return ((r * 65536 + g * 256 + b) - 100000) / 10.0
+    return (r * 256 + g - 32768) + b / 256.0
+
+
+def _load_encoded_png(file: Path, height_unit: str | None, encoding: str) -> Terrain:
+    """:func:`load_dem` of an RGB(A) PNG web-map terrain tile whose pixels encode heights in ``encoding``
+    (:data:`HEIGHT_ENCODINGS`, checked), decoded in float64 (:func:`decode_terrain_rgb`) and kept as float32, as
+    any heights are; alpha 0 (a transparent pixel, or a transparent colour, tRNS) marks a missing cell, the
+    encodings' only nodata. A palette PNG reads through its palette (its colours are the codes, losslessly). A world
+    file beside it (``tile.pgw``, ``tile.pngw``, ``tile.wld``) places it, with the CRS of a ``.prj`` beside it, as
+    GDAL reads one: a web-map tile is in EPSG:3857, whose metres are ground metres times 1/cos φ (warned, see
+    :func:`load_dem`). A greyscale PNG, or one of 16 bits per channel (Pillow reads 8), is refused."""
+    from PIL import Image, UnidentifiedImageError
+
+    label = f"height_encoding={encoding!r}"
+    try:
+        with Image.open(file) as image:
+            mode = image.mode
+            rawmode = str(image.tile[0][3]) if image.tile else ""
+            if image.format != "PNG":
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: expected a PNG terrain tile ({label}); got a {image.format} image "
+                    f"under a .png name (a lossy format would not keep the codes)"
+                )
+            if mode not in ("RGB", "RGBA", "P", "PA") or rawmode.startswith("LA"):
+                got = ("a 16-bit greyscale + alpha" if rawmode.startswith("LA")
+                       else f"a greyscale ({mode})" if mode in ("1", "L", "LA", "La", "I", "F") or mode.startswith("I;")
+                       else f"a {mode}")
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: expected an 8-bit RGB or RGBA PNG terrain tile ({label}); got {got} "
+                    f"image (a greyscale heightmap reads its values as heights, without height_encoding)"
+                )
+            if ";16" in rawmode:  # Pillow reads 16-bit RGB(A) as 8 bits per channel: the codes' low bytes lost
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: expected an 8-bit RGB or RGBA PNG terrain tile ({label}); got a "
+                    f"PNG of 16 bits per channel, which Pillow reads only as 8 (the encodings use 8 bits per channel)"
+                )
+            _check_read_budget(file, (image.height, image.width), np.dtype(np.uint32))
+            rgba = picture_uint8(image, f"terrain tile {str(file)!r}", alpha=True)
+    except Image.DecompressionBombError as exc:
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected a PNG terrain tile within Pillow's decompression-bomb limit "
+            f"(PIL.Image.MAX_IMAGE_PIXELS); got {exc}"
+        ) from exc
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
+        if isinstance(exc, DataFileError):
+            raise
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected a PNG terrain tile ({label}); got unreadable content ({exc})"
+        ) from exc
+    missing = rgba[..., 3] == 0 if rgba.shape[-1] == 4 else None
+    decoded = decode_terrain_rgb(rgba, encoding)
+    del rgba
+    heights = _elevation(decoded, file, f"{encoding} {mode} image", None, missing, warn_voids=False)
+    del decoded
+    heights, unit = _heights_in_metres(heights, height_unit, file, "height_unit")
+    geotransform = _png_world_file(file)
+    if geotransform is None:
+        _warn_png_georeferencing(file)  # an .aux.xml geotransform, not read
+        return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None, height_unit=unit)
+    crs = prj_crs(file, "the PNG tile", DataFileError) if _prj_beside(file) is not None else None
+    return _georeferenced(file, heights, geotransform, crs, geographic=_is_geographic(crs), metres=None,
+                          height_unit=unit)
+
+
+def _png_world_file(file: Path) -> NDArray[np.float64] | None:
+    """The GDAL geotransform (of the cell corners) of the world file beside the PNG ``file``, in the order GDAL looks
+    for one (``tile.pgw``, ``tile.pngw``, ``tile.wld``, lower or UPPER case); None without one. A world file holds
+    six numbers A, D, B, E, C, F, (C, F) the centre of the upper-left pixel; one that does not is a DataFileError."""
+    for ext in (".pgw", ".pngw", ".wld"):
+        for side in (file.with_suffix(ext), file.with_suffix(ext.upper())):
+            if not side.is_file():
+                continue
+            try:
+                words = side.read_text(errors="replace").split()
+            except OSError as exc:
+                raise DataFileError(f"cannot read {str(side)!r}, the world file of {str(file)!r}: {exc}") from exc
+            try:
+                a, d, b, e, c, f = (float(w) for w in words)
+            except ValueError:
+                a = math.nan
+            if not math.isfinite(a) or not all(map(math.isfinite, (b, c, d, e, f))):
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: expected its world file {side.name!r} to hold six finite numbers "
+                    f"(A, D, B, E, C, F: pixel width, rotations, pixel height, upper-left pixel centre); got "
+                    f"{' '.join(words)[:200]!r}"
+                )
+            return np.array([c - (a + b) / 2, a, b, f - (d + e) / 2, d, e], dtype=np.float64)
+    return None
 
 
 def picture_uint8(picture: Any, what: str, *, alpha: bool = False) -> NDArray[np.uint8]:
@@ -2778,6 +2895,17 @@ def check_band(band: Any) -> int:
     if isinstance(band, bool) or not isinstance(band, (int, np.integer)) or band < 1:
         raise InvalidInputError(f"band must be a positive 1-based band number; got {band!r}")
     return int(band)
+
+
+def check_height_encoding(height_encoding: Any) -> str:
+    """``height_encoding`` in lower case when it names one of :data:`HEIGHT_ENCODINGS` (any case), else an
+    InvalidInputError listing them."""
+    name = height_encoding.strip().lower() if isinstance(height_encoding, str) else None
+    if name not in HEIGHT_ENCODINGS:
+        raise InvalidInputError(
+            f"height_encoding must be one of {', '.join(map(repr, HEIGHT_ENCODINGS))} or None; got {height_encoding!r}"
+        )
+    return name
 
 
 def check_height_unit(height_unit: Any) -> str:
