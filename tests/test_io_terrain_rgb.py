@@ -23,6 +23,7 @@ from stepterrain.export import read_mesh
 from stepterrain.io import HEIGHT_ENCODINGS, load_dem
 
 from .conftest import needs_render, shared_file
+from .test_export import glb_json
 
 
 # ---------------------------------------------------------------- an encoder of its own (the formulas inverted)
@@ -252,3 +253,36 @@ def test_cli_steps_and_info_read_a_terrarium_tile(tmp_path, capsys):
     assert code == 2 and "argument --height-encoding: expected one of terrain-rgb, terrarium; got 'mapbox'" in err
     code, _, err = run(capsys, "steps", "--height-encoding", "terrarium", "-o", tmp_path / "e.glb", "-q")
     assert code != 0 and "--height-encoding applies to an RGB PNG INPUT" in err
+
+
+def test_batch_reads_a_folder_of_tiles_with_its_encoding(tmp_path, capsys):
+    """batch's ``height_encoding`` (the CLI's --height-encoding) reaches every file: a folder of two Terrarium tiles
+    gives meshes within their heights, recorded in the metadata; the same run resumed skips them, another encoding
+    redoes them (the fingerprint holds it); an array source refuses it."""
+    import trimesh
+
+    from stepterrain.batch import batch
+
+    folder = tmp_path / "tiles"
+    folder.mkdir()
+    heights = st.sample_dem().heights[::6, ::6][:30, :40]
+    for k, z in enumerate((heights, heights + 250.0)):
+        Image.fromarray(encode_terrarium(z), "RGB").save(folder / f"t{k}.png")
+    out = tmp_path / "out"
+    report = batch(folder, out, interval=50.0, scheduler="serial", format=".ply", height_encoding="terrarium")
+    assert report.ok and len(report.done) == 2
+    for r in report.done:
+        zs = trimesh.load(r.path, process=False).vertices[:, 2]
+        assert heights.min() - 1 <= zs.min() and zs.max() <= heights.max() + 251 and zs.max() - zs.min() > 100
+    assert len(batch(folder, out, interval=50.0, scheduler="serial", format=".ply",
+                     height_encoding="terrarium").skipped) == 2
+    assert len(batch(folder, out, interval=50.0, scheduler="serial", format=".ply",
+                     height_encoding="terrain-rgb").done) == 2  # other heights: redone
+    with pytest.raises(InvalidInputError, match=r"height_encoding applies to RGB PNG tile files"):
+        batch(heights, tmp_path / "a", tile_size=16, scheduler="serial", height_encoding="terrarium")
+    code, _, err = run(capsys, "batch", folder, "-o", tmp_path / "cli", "--height-encoding", "terrarium",
+                       "--scheduler", "serial", "-q")
+    assert code == 0, err
+    glb = sorted((tmp_path / "cli").glob("*.glb"))
+    assert len(glb) == 2
+    assert glb_json(glb[0])["meshes"][0]["extras"]["height_encoding"] == "terrarium"
