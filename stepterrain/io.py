@@ -161,7 +161,7 @@ def load_dem(
         ``.png`` (8- or 16-bit greyscale heightmap, values are heights, a 2- or
         4-bit one's scaled to 0-255 as Pillow reads them; a transparent grey value (tRNS) or, in 8-bit grey +
         alpha, alpha 0 marks missing cells, as GDAL reads them; 16-bit grey + alpha is refused: Pillow reads it as
-        8 bits),
+        8 bits; an RGB(A) web-map terrain tile with ``height_encoding``, below),
         ``.tif``/``.tiff`` (GeoTIFF, needs rasterio) or another raster GDAL reads, through rasterio as a GeoTIFF is
         read (its georeferencing, CRS, nodata, scale and offset, unit, a .prj beside it, ``band`` and ``crop``
         windows alike; below, what is said of a GeoTIFF holds for them): ``.asc`` (ESRI ASCII grid; ``xllcorner``
@@ -207,6 +207,17 @@ def load_dem(
         budget instead of the whole file's: a small crop of a DEM over the budget (its warnings are the whole
         read's, but that of a grid without a CRS that looks like degrees weighs the crop's heights; heights beyond
         float32 outside the window go unread). Other formats are read whole first.
+    height_encoding : str, optional
+        Read a ``.png`` as an 8-bit RGB or RGBA web-map terrain tile whose colours encode heights in metres (any
+        case; :data:`HEIGHT_ENCODINGS`): ``"terrain-rgb"``, Mapbox Terrain-RGB, -10000 + (R·65536 + G·256 + B)·0.1;
+        ``"terrarium"``, Mapzen/AWS Terrarium, R·256 + G + B/256 - 32768. Decoded exactly in float64 (Terrain-RGB's
+        0.1 m steps as (code - 100000) / 10) and kept as float32, as all heights are: exact to the code within
+        ±10 km for Terrain-RGB, everywhere for Terrarium. The encodings have no nodata value: a transparent pixel
+        (alpha 0, or the PNG's transparent colour) is a missing cell. A palette PNG reads through its palette. A
+        world file beside the tile (``tile.pgw``, ``tile.pngw``, ``tile.wld``) places it as GDAL reads one, with
+        the CRS of a ``.prj`` beside it (``EPSG:3857`` for a web-map tile, whose scale warning follows); without one
+        it is unreferenced, as a greyscale PNG is. Without ``height_encoding`` an RGB PNG is refused (the message
+        names the encodings); with it a greyscale or 16-bit-per-channel PNG, or a file that is no local PNG, is.
 
     Returns
     -------
@@ -281,7 +292,8 @@ def load_dem(
         Unknown extension (the message lists the supported ones; a local ``.gz`` of another file than
         :data:`GZIP_FORMATS`'s names them; a virtual path's or URL's inner file of
         ``.npy``/``.npz``/``.png``, or another extension, says what GDAL is asked to read), ``band`` not a valid band
-        number,
+        number, ``height_encoding`` not one of :data:`HEIGHT_ENCODINGS` (the message lists them) or given for a file
+        that is no local PNG,
         ``height_unit`` not a known length unit (the message lists them), or a ``crop`` that
         :meth:`Terrain.crop <stepterrain.terrain.Terrain.crop>` refuses (its message after ``crop:``).
     DataFileError
@@ -290,9 +302,10 @@ def load_dem(
         file beside a gzipped TIFF without georeferencing,
         an unreachable URL, with GDAL's reason; a URL scheme GDAL has no file system for; a ``.zip`` holding no
         raster of :data:`GDAL_FORMATS`, or several), or is not elevation data (a colour image, another image format
-        under a .png name, a GeoTIFF band that is colour, alpha or other imagery, a 1-D array, text, an archive
-        without a 2-D array, a rotated grid (rotation terms that move no node by more than 1e-6 of a cell over the
-        grid, the float noise some tools write, are taken as 0), a geotransform that is not finite (NaN, inf), a
+        under a .png name, with ``height_encoding`` a greyscale PNG or one of 16 bits per channel or a world file
+        that is not six finite numbers, a GeoTIFF band that is colour, alpha or other imagery, a 1-D array, text, an
+        archive without a 2-D array, a rotated grid (rotation terms that move no node by more than 1e-6 of a cell over
+        the grid, the float noise some tools write, are taken as 0), a geotransform that is not finite (NaN, inf), a
         geographic grid whose latitudes lie beyond ±90 or whose node longitudes span more than 360 degrees or lie
         beyond ±720, ``lat``/``lon`` axes not matching the heights or
         unevenly spaced,
