@@ -1098,8 +1098,7 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
                     "8- or 16-bit greyscale)"
                     if mode == "1"
                     else f"a {mode} image (colour or palette images are not elevation data; an RGB terrain tile reads "
-                         f"with its encoding: height_encoding, the CLI's --height-encoding, "
-                         f"{' or '.join(map(repr, HEIGHT_ENCODINGS))})"
+                         f"with its encoding named, height_encoding={' or '.join(map(repr, HEIGHT_ENCODINGS))})"
                 )
                 raise DataFileError(
                     f"cannot read {str(file)!r}: expected a single-channel 8- or 16-bit greyscale heightmap; got {got}"
