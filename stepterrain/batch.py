@@ -2114,7 +2114,7 @@ def batch(
     if height_encoding is not None:
         from .io import check_height_encoding
 
-        height_encoding = check_height_encoding(height_encoding)
+        height_encoding = check_height_encoding(height_encoding, height_unit)  # a unit checked above
         if not _of_files(source):
             raise InvalidInputError(
                 f"height_encoding applies to RGB PNG tile files, read by load_dem; got a {type(source).__name__} "

@@ -212,7 +212,8 @@ def load_dem(
         case; :data:`HEIGHT_ENCODINGS`): ``"terrain-rgb"``, Mapbox Terrain-RGB, -10000 + (R·65536 + G·256 + B)·0.1;
         ``"terrarium"``, Mapzen/AWS Terrarium, R·256 + G + B/256 - 32768. Decoded exactly in float64 (Terrain-RGB's
         0.1 m steps as (code - 100000) / 10) and kept as float32, as all heights are: exact to the code within
-        ±10 km for Terrain-RGB, everywhere for Terrarium. The encodings have no nodata value: a transparent pixel
+        ±10 km for Terrain-RGB, everywhere for Terrarium. The heights are metres (``height_unit`` "m"; another
+        ``height_unit`` is refused). The encodings have no nodata value: a transparent pixel
         (alpha 0, or the PNG's transparent colour) is a missing cell. A palette PNG reads through its palette. A
         world file beside the tile (``tile.pgw``, ``tile.pngw``, ``tile.wld``) places it as GDAL reads one, with
         the CRS of a ``.prj`` beside it (``EPSG:3857`` for a web-map tile, whose scale warning follows); without one
@@ -293,7 +294,7 @@ def load_dem(
         :data:`GZIP_FORMATS`'s names them; a virtual path's or URL's inner file of
         ``.npy``/``.npz``/``.png``, or another extension, says what GDAL is asked to read), ``band`` not a valid band
         number, ``height_encoding`` not one of :data:`HEIGHT_ENCODINGS` (the message lists them) or given for a file
-        that is no local PNG,
+        that is no local PNG or with a ``height_unit`` other than the metre,
         ``height_unit`` not a known length unit (the message lists them), or a ``crop`` that
         :meth:`Terrain.crop <stepterrain.terrain.Terrain.crop>` refuses (its message after ``crop:``).
     DataFileError
@@ -377,7 +378,7 @@ def _read_dem(
     if height_unit is not None:
         height_unit = check_height_unit(height_unit)
     if height_encoding is not None:
-        height_encoding = check_height_encoding(height_encoding)
+        height_encoding = check_height_encoding(height_encoding, height_unit)
     file = dem_path(path)
     ext = file.suffix.lower()
     if isinstance(file, GdalPath):  # GDAL reads it, by the extension of the file inside (a URL's path)
@@ -406,7 +407,7 @@ def _read_dem(
     reader = {".npy": _load_npy, ".npz": _load_npz, ".png": _load_png}.get(ext)
     try:
         if height_encoding is not None:
-            terrain = _load_encoded_png(file, height_unit, height_encoding)
+            terrain = _load_encoded_png(file, height_encoding)
         elif reader is None:
             return _load_geotiff(file, int(band), height_unit, crop, option, refuse)
         else:
@@ -1204,7 +1205,7 @@ def decode_terrain_rgb(rgb: NDArray[Any], encoding: str) -> NDArray[np.float64]:
     return (r * 256 + g - 32768) + b / 256.0
 
 
-def _load_encoded_png(file: Path, height_unit: str | None, encoding: str) -> Terrain:
+def _load_encoded_png(file: Path, encoding: str) -> Terrain:
     """:func:`load_dem` of an RGB(A) PNG web-map terrain tile whose pixels encode heights in ``encoding``
     (:data:`HEIGHT_ENCODINGS`, checked), decoded in float64 (:func:`decode_terrain_rgb`) and kept as float32, as
     any heights are; alpha 0 (a transparent pixel, or a transparent colour, tRNS) marks a missing cell, the
@@ -1255,7 +1256,7 @@ def _load_encoded_png(file: Path, height_unit: str | None, encoding: str) -> Ter
     del rgba
     heights = _elevation(decoded, file, f"{encoding} {mode} image", None, missing, warn_voids=False)
     del decoded
-    heights, unit = _heights_in_metres(heights, height_unit, file, "height_unit")
+    unit = "m"  # the encoding's unit (a height_unit of another was refused): no placement asks for one
     geotransform = _png_world_file(file)
     if geotransform is None:
         _warn_png_georeferencing(file)  # an .aux.xml geotransform, not read
@@ -2909,13 +2910,19 @@ def check_band(band: Any) -> int:
     return int(band)
 
 
-def check_height_encoding(height_encoding: Any) -> str:
+def check_height_encoding(height_encoding: Any, height_unit: str | None = None) -> str:
     """``height_encoding`` in lower case when it names one of :data:`HEIGHT_ENCODINGS` (any case), else an
-    InvalidInputError listing them."""
+    InvalidInputError listing them; also one when a ``height_unit`` (checked) other than the metre comes with it: the
+    encodings define metres (a unit of feet scaled the decoded metres by 0.3048 without a word)."""
     name = height_encoding.strip().lower() if isinstance(height_encoding, str) else None
     if name not in HEIGHT_ENCODINGS:
         raise InvalidInputError(
             f"height_encoding must be one of {', '.join(map(repr, HEIGHT_ENCODINGS))} or None; got {height_encoding!r}"
+        )
+    if height_unit is not None and _unit_factor(height_unit) != 1.0:
+        raise InvalidInputError(
+            f"height_unit applies to heights of no stated unit; height_encoding={name!r} gives metres; "
+            f"got height_unit={height_unit!r}"
         )
     return name
 

@@ -287,3 +287,40 @@ def test_batch_reads_a_folder_of_tiles_with_its_encoding(tmp_path, capsys):
     glb = sorted((tmp_path / "cli").glob("*.glb"))
     assert len(glb) == 2
     assert glb_json(glb[0])["meshes"][0]["extras"]["height_encoding"] == "terrarium"
+
+
+def test_an_encoding_gives_metres_so_a_height_unit_is_refused_and_none_is_asked_for(tmp_path):
+    """The encodings define metres: ``height_unit='ft'`` scaled the decoded metres by 0.3048 without a word (a tile
+    of 500 m read as 152.4 m), and a tile placed in a CRS in feet was told to pass ``height_unit='US survey foot'``,
+    which did so. A unit other than the metre is refused naming both arguments; the metre is taken; the Terrain's
+    ``height_unit`` is "m", so no placement asks for a unit."""
+    pytest.importorskip("rasterio")
+    rgb = encode_terrarium(np.full((3, 4), 500.0))
+    Image.fromarray(rgb, "RGB").save(tmp_path / "tile.png")
+    with pytest.raises(InvalidInputError, match=r"height_unit applies to heights of no stated unit; "
+                                                r"height_encoding='terrarium' gives metres; got height_unit='ft'"):
+        load_dem(tmp_path / "tile.png", height_encoding="terrarium", height_unit="ft")
+    metres = load_dem(tmp_path / "tile.png", height_encoding="terrarium", height_unit="metre")
+    assert metres.height_unit == "m" and np.all(metres.heights == 500.0)
+    assert load_dem(tmp_path / "tile.png", height_encoding="terrarium").height_unit == "m"
+    (tmp_path / "tile.pgw").write_text("100\n0\n0\n-100\n6400000\n1900000\n")
+    (tmp_path / "tile.prj").write_text("EPSG:2229")  # NAD83 / California zone 5 (US survey feet)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        terrain = load_dem(tmp_path / "tile.png", height_encoding="terrarium")
+    assert not [w for w in caught if "height_unit" in str(w.message)], [str(w.message) for w in caught]
+    assert terrain.crs == "EPSG:26945" and np.all(terrain.heights == 500.0)
+
+
+def test_batch_refuses_a_height_unit_with_an_encoding_before_any_item(tmp_path):
+    """batch(height_encoding=..., height_unit='ft') is refused up front, as load_dem refuses it, not item by item."""
+    from stepterrain.batch import batch
+
+    folder = tmp_path / "tiles"
+    folder.mkdir()
+    Image.fromarray(encode_terrarium(np.full((8, 8), 500.0) + np.arange(8)), "RGB").save(folder / "t.png")
+    with pytest.raises(InvalidInputError, match=r"height_unit applies to heights of no stated unit; "
+                                                r"height_encoding='terrarium' gives metres; got height_unit='ft'"):
+        batch(folder, tmp_path / "out", interval=1.0, scheduler="serial", height_encoding="terrarium",
+              height_unit="ft")
+    assert not (tmp_path / "out").exists()
