@@ -1245,6 +1245,11 @@ _GEOTIFF_SIDECARS: tuple[str, ...] = (
     "{stem}.wld", "{stem}.rpb", "{stem}_rpc.txt", "{stem}.imd", "{stem}.prj", "{name}.prj",
     "{stem}.hdr", "{stem}.stx", "{stem}.blw", "{stem}.rrd",  # a .bil/.flt's header and statistics, an .img's overviews
 )
+#: Files beside a PNG that load_dem reads with it: the world file and .prj that place a terrain tile
+#: (``height_encoding``), and the .aux.xml whose scale it refuses for a greyscale heightmap
+_PNG_SIDECARS: tuple[str, ...] = (
+    "{stem}.pgw", "{stem}.pngw", "{stem}.wld", "{stem}.prj", "{name}.prj", "{name}.aux.xml",
+)
 
 
 def _file_identities(items: Sequence[BatchItem]) -> dict[str, str]:
@@ -1258,7 +1263,8 @@ def _file_identities(items: Sequence[BatchItem]) -> dict[str, str]:
 def _file_identity(path: str, listings: dict[str, dict[str, list[str]] | None],
                    seen: frozenset[str] = frozenset()) -> str:
     """A file item's input as the fingerprint sees it: path, size, mtime, ctime and inode of the file, of the
-    sidecar files GDAL reads with a GeoTIFF or another GDAL raster (:data:`_GEOTIFF_SIDECARS`), and of the files
+    sidecar files GDAL reads with a GeoTIFF or another GDAL raster (:data:`_GEOTIFF_SIDECARS`) or load_dem with a PNG
+    (:data:`_PNG_SIDECARS`: a terrain tile's world file and .prj), and of the files
     a .vrt reads its heights from (:func:`_vrt_sources`, with their sidecars: a source tile rewritten under an
     unchanged .vrt redoes its item).
 
@@ -1283,7 +1289,8 @@ def _file_identity(path: str, listings: dict[str, dict[str, list[str]] | None],
     if _gzip_raster(name):  # N46E007.hgt.gz: the sidecars of the file inside, beside it (dem.prj of dem.asc.gz)
         name = name[:-3]
     stem, ext = os.path.splitext(name)
-    if ext.lower() in GDAL_FORMATS:
+    sidecars = _GEOTIFF_SIDECARS if ext.lower() in GDAL_FORMATS else _PNG_SIDECARS if ext.lower() == ".png" else ()
+    if sidecars:
         if folder not in listings:
             names: dict[str, list[str]] | None = {}
             try:
@@ -1295,7 +1302,7 @@ def _file_identity(path: str, listings: dict[str, dict[str, list[str]] | None],
         found = listings[folder]
         if found is None:
             parts.append("unlistable")
-        for pattern in _GEOTIFF_SIDECARS if found is not None else ():
+        for pattern in sidecars if found is not None else ():
             for side in sorted(found.get(pattern.format(name=name, stem=stem).lower(), ())):
                 parts.append(identity(os.path.join(folder, side)))
     if ext.lower() == ".vrt" and file not in seen:  # GDAL refuses a .vrt that names itself; not followed round

@@ -324,3 +324,26 @@ def test_batch_refuses_a_height_unit_with_an_encoding_before_any_item(tmp_path):
         batch(folder, tmp_path / "out", interval=1.0, scheduler="serial", height_encoding="terrarium",
               height_unit="ft")
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("sidecar", ["tile.pgw", "tile.PGW", "tile.prj"])
+def test_a_changed_world_file_or_prj_beside_a_tile_redoes_its_batch_item(tmp_path, sidecar):
+    """A terrain tile's world file and .prj place it (its origin, CRS): a batch resumed after either changed skipped
+    the tile as complete, its mesh at the old place, as a GeoTIFF's changed sidecars redo its item."""
+    from stepterrain.batch import batch
+
+    folder = tmp_path / "tiles"
+    folder.mkdir()
+    heights = st.sample_dem().heights[:24, :32]
+    Image.fromarray(encode_terrarium(heights), "RGB").save(folder / "tile.png")
+    world = folder / (sidecar if sidecar != "tile.prj" else "tile.pgw")
+    world.write_text("30\n0\n0\n-30\n380015\n3800985\n")
+    (folder / "tile.prj").write_text("EPSG:32611")
+    kwargs = dict(interval=50.0, scheduler="serial", format=".ply", height_encoding="terrarium")
+    assert len(batch(folder, tmp_path / "out", **kwargs).done) == 1
+    assert len(batch(folder, tmp_path / "out", **kwargs).skipped) == 1
+    if sidecar == "tile.prj":
+        (folder / "tile.prj").write_text("EPSG:32610")
+    else:
+        world.write_text("30\n0\n0\n-30\n390015\n3800985\n")
+    assert len(batch(folder, tmp_path / "out", **kwargs).done) == 1
