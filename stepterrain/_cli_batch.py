@@ -306,6 +306,11 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
         _refuse_alike(report, "band must be between 1 and ", f"--band {args.band} is beyond the bands of ",
                       ("the only input", "all {n} inputs"), ": give a --band every input holds, or leave --band out",
                       after="band must be ")
+    if args.height_encoding is not None:  # load_dem's, for files that are no PNG
+        _refuse_alike(report, "height_encoding applies to a local RGB PNG tile ",
+                      f"--height-encoding {args.height_encoding} applies to RGB PNG terrain tiles; ",
+                      ("the only input is no PNG", "all {n} inputs are no PNG"), ": leave --height-encoding out",
+                      after="(Terrain-RGB or Terrarium); ")
     if args.coarsen is not None:  # batch._coarsened's
         _refuse_alike(report, f"coarsen={args.coarsen}: ", f"--coarsen {args.coarsen} leaves no mesh of ",
                       ("the only input", "any of the {n} inputs"), ": give a smaller --coarsen")

@@ -347,3 +347,18 @@ def test_a_changed_world_file_or_prj_beside_a_tile_redoes_its_batch_item(tmp_pat
     else:
         world.write_text("30\n0\n0\n-30\n390015\n3800985\n")
     assert len(batch(folder, tmp_path / "out", **kwargs).done) == 1
+
+
+def test_cli_batch_height_encoding_every_file_refuses_is_one_usage_error(tmp_path, capsys):
+    """`batch FOLDER --height-encoding terrarium` over a folder with no PNG failed every item alike (exit 1, the same
+    refusal once per file); as --band every file refuses, it is one usage error (exit 2) naming the option."""
+    folder = tmp_path / "dems"
+    folder.mkdir()
+    for k in range(3):
+        np.save(folder / f"d{k}.npy", st.sample_dem().heights[:20, :20] + k)
+    code, _, err = run(capsys, "batch", folder, "-o", tmp_path / "out", "--height-encoding", "terrarium",
+                       "--scheduler", "serial", "-q")
+    assert code == 2, err
+    assert err.count("applies to") == 1
+    assert ("--height-encoding terrarium applies to RGB PNG terrain tiles; all 3 inputs are no PNG (e.g. d0: "
+            in err and ": leave --height-encoding out" in err), err
