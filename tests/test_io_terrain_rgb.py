@@ -362,3 +362,29 @@ def test_cli_batch_height_encoding_every_file_refuses_is_one_usage_error(tmp_pat
     assert err.count("applies to") == 1
     assert ("--height-encoding terrarium applies to RGB PNG terrain tiles; all 3 inputs are no PNG (e.g. d0: "
             in err and ": leave --height-encoding out" in err), err
+
+
+@pytest.mark.parametrize("encoding", list(HEIGHT_ENCODINGS))
+@pytest.mark.parametrize("mode", ["RGB", "RGBA"])
+def test_the_documented_peak_of_a_tile_read_holds(tmp_path, encoding, mode):
+    """load_dem's budget check counts the float32 heights a tile keeps (4 bytes a cell); its docstring states what the
+    read allocates at its peak beyond that: about 17 bytes a cell for a terrain tile (45 when three int64 channels and
+    their float64 sums were decoded). Measured with tracemalloc (numpy's allocations), as a GeoTIFF's read is."""
+    import tracemalloc
+
+    rows, cols = 300, 200
+    rng = np.random.default_rng(3)
+    pixels = rng.integers(0, 256, (rows, cols, 4), dtype=np.uint8)
+    pixels[..., 0] = rng.integers(0, 2, (rows, cols))  # heights within float32's reach either way
+    pixels[..., 3] = 255
+    pixels[0, 0, 3] = 0
+    Image.fromarray(pixels if mode == "RGBA" else pixels[..., :3].copy(), mode).save(tmp_path / "tile.png")
+    expected = load_dem(tmp_path / "tile.png", height_encoding=encoding).heights  # imports and caches outside it
+    tracemalloc.start()
+    try:
+        terrain = load_dem(tmp_path / "tile.png", height_encoding=encoding)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    np.testing.assert_array_equal(terrain.heights, expected)
+    assert peak <= 17.5 * rows * cols, peak / (rows * cols)
