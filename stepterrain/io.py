@@ -277,15 +277,16 @@ def load_dem(
         from its central meridian, a polar stereographic one away from its true-scale latitude (EPSG:3413 and
         EPSG:3031 by 3 % at the poles); a UTM grid of a zone's extent and a small local grid do not. It is measured
         through PROJ (so with rasterio only) at up to 7 x 7 nodes of the grid, its corners and edges included; the
-        message names the worst node and its scales. Also: a grid converted to metres whose heights' unit is not
-        named; a GeoTIFF CRS ignored for want of a geotransform; a PNG's world file (``.pgw``, ``.wld``) or
-        ``.aux.xml`` geotransform, which is not read (the message gives the ``gdal_translate`` to a GeoTIFF that
-        keeps it); cells no nodata value or mask marks that hold the lowest value of a signed integer (-32768 in
-        int16, SRTM's void) or float dtype (-3.4028235e+38 in float32, ArcGIS's NoData, also kept in a float64
-        grid), read as heights, counted and named with the nodata value to declare; a grid georeferenced without a
-        CRS (or with one PROJ cannot read, kept as given: an .npz's ``crs="4326"``) whose coordinates look like
-        degrees (nodes within x -180 to 360 and y -90 to 90, heights spanning more than 100 times its width and
-        height: read as metres, an SRTM tile was a needle centimetres wide), naming the CRS to give it.
+        message names the worst node and its scales. Also: a grid converted to metres whose heights' unit is not named;
+        a GeoTIFF CRS ignored for want of a geotransform; a greyscale PNG's world file (``.pgw``, ``.wld``) or
+        ``.aux.xml`` geotransform, or a terrain tile's ``.aux.xml`` one, which is not read (the message gives the
+        ``gdal_translate`` to a GeoTIFF, or a tile's to a world file, that keeps it); cells no nodata value or mask
+        marks that hold the lowest value of a signed integer (-32768 in int16, SRTM's void) or float dtype
+        (-3.4028235e+38 in float32, ArcGIS's NoData, also kept in a float64 grid), read as heights, counted and named
+        with the nodata value to declare; a grid georeferenced without a CRS (or with one PROJ cannot read, kept as
+        given: an .npz's ``crs="4326"``) whose coordinates look like degrees (nodes within x -180 to 360 and y -90 to
+        90, heights spanning more than 100 times its width and height: read as metres, an SRTM tile was a needle
+        centimetres wide), naming the CRS to give it.
 
     Raises
     ------
@@ -1166,13 +1167,14 @@ def _refuse_png_scaling(file: Path) -> None:
             )
 
 
-def _warn_png_georeferencing(file: Path) -> None:
+def _warn_png_georeferencing(file: Path, tile: bool = False) -> None:
     """Warn, at the caller of :func:`load_dem`, when GDAL would georeference the PNG heightmap ``file`` by a world
     file beside it (``dem.pgw``, ``dem.pngw``, ``dem.wld``, in lower or UPPER case) or by a geotransform in its
     ``dem.png.aux.xml`` (as a GIS exports a PNG): load_dem reads a PNG as an unreferenced grid of 1 m cells at
     (0, 0), and a 30 m DEM exported so was meshed 30 times too steep, away from its place, without a word (the
     texture readers place such a PNG by its world file). The command it suggests names the .prj :func:`prj_crs`
-    would read (:func:`_prj_files`)."""
+    would read (:func:`_prj_files`). A terrain ``tile`` (``height_encoding``), placed by a world file only, is told
+    to write one from its ``.aux.xml`` (a GeoTIFF of its colours is refused)."""
     found = next((side for ext in (".pgw", ".pngw", ".wld") for side in (file.with_suffix(ext),
                                                                         file.with_suffix(ext.upper()))
                   if side.is_file()), None)
@@ -1183,6 +1185,16 @@ def _warn_png_georeferencing(file: Path) -> None:
         except OSError:
             found = None
     if found is None:
+        return
+    if tile:
+        warnings.warn(
+            f"{file.name}: its georeferencing in {found.name} is not read: load_dem places a terrain tile by a world "
+            f"file beside it ({file.stem}.pgw, .pngw or .wld) and reads it unreferenced otherwise, spacing (1, -1) and "
+            f"origin (0, 0); to place it, write one (`gdal_translate -of PNG -co WORLDFILE=YES {file.name} "
+            f"placed.png` writes placed.png and placed.wld; a .prj beside it gives its CRS), or give its cell size "
+            f"(the CLI's --spacing)",
+            stacklevel=caller_stacklevel(),
+        )
         return
     prj = _prj_beside(file)  # as prj_crs looks (dem.png.prj too)
     srs = f"-a_srs {prj.name} " if prj is not None else ""
@@ -1266,7 +1278,7 @@ def _load_encoded_png(file: Path, encoding: str) -> Terrain:
     unit = "m"  # the encoding's unit (a height_unit of another was refused): no placement asks for one
     geotransform = _png_world_file(file)
     if geotransform is None:
-        _warn_png_georeferencing(file)  # an .aux.xml geotransform, not read
+        _warn_png_georeferencing(file, tile=True)  # an .aux.xml geotransform, not read
         return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None, height_unit=unit)
     crs = prj_crs(file, "the PNG tile", DataFileError) if _prj_beside(file) is not None else None
     return _georeferenced(file, heights, geotransform, crs, geographic=_is_geographic(crs), metres=None,

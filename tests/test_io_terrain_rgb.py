@@ -388,3 +388,20 @@ def test_the_documented_peak_of_a_tile_read_holds(tmp_path, encoding, mode):
         tracemalloc.stop()
     np.testing.assert_array_equal(terrain.heights, expected)
     assert peak <= 17.5 * rows * cols, peak / (rows * cols)
+
+
+def test_a_tiles_aux_xml_georeferencing_warning_gives_advice_that_reads(tmp_path):
+    """A terrain tile placed by a tile.png.aux.xml alone (no world file) is read unreferenced, warned; the warning told
+    a greyscale heightmap's way out, `gdal_translate tile.png tile.tif`, whose RGB GeoTIFF load_dem refuses (colour
+    bands, and height_encoding is for PNGs): it names a world file, which places the tile."""
+    Image.fromarray(encode_terrarium(np.full((4, 5), 800.0)), "RGB").save(tmp_path / "tile.png")
+    (tmp_path / "tile.png.aux.xml").write_text(
+        "<PAMDataset><GeoTransform>380000, 30, 0, 3800000, 0, -30</GeoTransform></PAMDataset>")
+    with pytest.warns(UserWarning, match=r"tile\.png\.aux\.xml is not read") as caught:
+        terrain = load_dem(tmp_path / "tile.png", height_encoding="terrarium")
+    assert terrain.origin == (0.0, 0.0)
+    message = " ".join(str(w.message) for w in caught)
+    assert "GeoTIFF" not in message and "-co WORLDFILE=YES" in message, message
+    (tmp_path / "placed.wld").write_text("30\n0\n0\n-30\n380015\n3799985\n")  # what that command writes
+    (tmp_path / "tile.png").rename(tmp_path / "placed.png")
+    assert load_dem(tmp_path / "placed.png", height_encoding="terrarium").origin == (380015.0, 3799985.0)
