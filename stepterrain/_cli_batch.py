@@ -78,7 +78,17 @@ def _tile(text: str) -> int | tuple[int, int]:
 
 def add_parser(commands: Any) -> None:
     """Add the ``batch`` subcommand to the ``stepterrain`` parser."""
-    from .cli import _add_band, _add_device, _add_height_unit, _cell_size, _coarsen_factor, _floats, _path, _window
+    from .cli import (
+        _add_band,
+        _add_device,
+        _add_height_encoding,
+        _add_height_unit,
+        _cell_size,
+        _coarsen_factor,
+        _floats,
+        _path,
+        _window,
+    )
     from .export import MESH_EXTENSIONS
     from .stepped import TARGET_STEPS
 
@@ -99,6 +109,7 @@ def add_parser(commands: Any) -> None:
                         "default: the embedded Big Tujunga DEM")
     _add_height_unit(p)
     _add_band(p)
+    _add_height_encoding(p)
     p.add_argument("--spacing", type=_cell_size, metavar="D|dx,dy",
                    help="the node spacing in metres of DEM files with no georeferencing (.npy, a PNG heightmap, a "
                         "GeoTIFF without a geotransform), each read as 1 m cells otherwise; rows run north to south; "
@@ -243,7 +254,8 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
         if listed:  # one: said how to cut it into tiles instead
             what = _counted(len(files), "DEM file") + (f" ({files[0]}; --tile N cuts it)" if len(files) == 1 else "")
     else:  # the embedded DEM, which refuses a --height-unit
-        source = _load_input(None, args.height_unit, spacing=args.spacing, band=args.band)  # and --spacing, --band
+        source = _load_input(None, args.height_unit, spacing=args.spacing, band=args.band,  # and --spacing, --band
+                             height_encoding=args.height_encoding)
         args.spacing = None
         what = "the embedded Big Tujunga DEM"
     tile = args.tile if args.tile is not None else (256 if not args.input else None)
@@ -269,6 +281,7 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
             "input": _absolute(args.input) if args.input else "embedded Big Tujunga DEM"},
         height_unit=args.height_unit, spacing=args.spacing, crop=args.crop, coarsen=args.coarsen, device=args.device,
         band=args.band, overview_size=None if png is None else args.size,  # its render checked before the items run
+        height_encoding=args.height_encoding,
     )  # fmt: skip
     progress.done(f"{len(report.done)} written, {len(report.skipped)} complete already, {len(report.failed)} failed")
     # a folder's georeferencing is known only item by item (tiles and series are checked up front, and a floor
@@ -293,6 +306,11 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
         _refuse_alike(report, "band must be between 1 and ", f"--band {args.band} is beyond the bands of ",
                       ("the only input", "all {n} inputs"), ": give a --band every input holds, or leave --band out",
                       after="band must be ")
+    if args.height_encoding is not None:  # load_dem's, for files that are no PNG
+        _refuse_alike(report, "height_encoding applies to a local RGB PNG tile ",
+                      f"--height-encoding {args.height_encoding} applies to RGB PNG terrain tiles; ",
+                      ("the only input is no PNG", "all {n} inputs are no PNG"), ": leave --height-encoding out",
+                      after="(Terrain-RGB or Terrarium); ")
     if args.coarsen is not None:  # batch._coarsened's
         _refuse_alike(report, f"coarsen={args.coarsen}: ", f"--coarsen {args.coarsen} leaves no mesh of ",
                       ("the only input", "any of the {n} inputs"), ": give a smaller --coarsen")

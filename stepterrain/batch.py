@@ -253,6 +253,9 @@ class _Options:
     #: the GDAL raster band the DEM files' heights are read from (:func:`~stepterrain.io.load_dem`'s ``band``), None for
     #: the first; out of the repr as ``height_unit`` (:func:`_fingerprints` adds it when set)
     band: int | None = dataclasses.field(default=None, repr=False)
+    #: the RGB encoding of PNG terrain tiles (:func:`~stepterrain.io.load_dem`'s ``height_encoding``); out of the repr
+    #: as ``height_unit`` (:func:`_fingerprints` adds it when set)
+    height_encoding: str | None = dataclasses.field(default=None, repr=False)
     #: the caller's working folder, set for dask workers (:func:`_run_dask`): a relative output folder or DEM file
     #: is resolved against it on a worker that runs in another folder (:func:`_on_worker`); out of the repr
     cwd: str | None = dataclasses.field(default=None, repr=False)
@@ -331,6 +334,7 @@ def plan_items(
     height_unit: str | None = None,
     band: int | None = None,
     crop: ArrayLike | None = None,
+    height_encoding: str | None = None,
 ) -> tuple[list[BatchItem], _Source | None]:
     """The items :func:`batch` would run for ``source`` (see there), and the in-memory source they slice. A GeoTIFF
     (or another GDAL raster) cut into tiles is read only in the window of ``crop`` (load_dem's ``crop``: its nodes
@@ -388,6 +392,11 @@ def plan_items(
                         f"height_unit applies to DEM files, read by load_dem; a (T, H, W) series {str(path)!r} is "
                         f"read as stored; got height_unit={height_unit!r}"
                     )
+                if height_encoding is not None:  # as load_dem refuses it for a file that is no PNG
+                    raise InvalidInputError(
+                        f"height_encoding applies to RGB PNG tiles; the (T, H, W) series {str(path)!r} holds "
+                        f"heights; got height_encoding={height_encoding!r}"
+                    )
                 if band is not None and band != 1:  # as load_dem refuses a band of a format with one
                     raise InvalidInputError(
                         f"band applies to GDAL rasters only; the (T, H, W) series "
@@ -402,7 +411,7 @@ def plan_items(
             # a GDAL raster's crop: its window only (other files are cropped by _reshaped_source)
             window = crop if path.suffix.lower() in GDAL_FORMATS else None
             terrain = read_dem(path, height_unit=height_unit, band=1 if band is None else band, crop=window,
-                               refuse=lambda whole: _check_crop(whole, crop))
+                               refuse=lambda whole: _check_crop(whole, crop), height_encoding=height_encoding)
         except DataFileError:
             # a (T, H, W) series file with tile_size said "cannot read ...: expected a 2-D (H, W) elevation grid",
             # as if the file were broken; a series in memory says what the option is for
@@ -675,14 +684,14 @@ def _tile_items(shape: tuple[int, ...], tile_size: int | tuple[int, int]) -> lis
 # ---------------------------------------------------------------------------------------------- one item
 def _item_terrain(item: BatchItem, source: _Source | None, height_unit: str | None = None,
                   spacing: tuple[float, float] | None = None, coarsen: int | None = None,
-                  band: int | None = None) -> Terrain:
+                  band: int | None = None, height_encoding: str | None = None) -> Terrain:
     if item.kind == "file":
         from .io import read_dem
 
         # a file of nodata only (a tile of sea cut from a coastal raster) is read, all NaN: an empty item, as a tile
         # of one raster is, not refused as not elevation data as load_dem refuses it
         terrain = read_dem(item.path, height_unit=height_unit, band=1 if band is None else band,  # type: ignore[arg-type]
-                           nodata_only=True)
+                           nodata_only=True, height_encoding=height_encoding)
         if spacing is not None:
             _check_unreferenced(terrain.crs, terrain.spacing, terrain.origin, str(item.path))
             terrain = Terrain.from_heights(terrain.heights, spacing=spacing, source=terrain.source,
@@ -992,7 +1001,7 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
     try:
         if terrain is None:
             terrain = _item_terrain(read, source, options.height_unit, options.file_spacing, options.coarsen,
-                                    options.band)  # fmt: skip
+                                    options.band, options.height_encoding)  # fmt: skip
         frame = dict(options.frames).get(item.key)
         if frame is not None:
             terrain = _in_frame(terrain, frame)
@@ -1191,6 +1200,8 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
         shared += f"|height_unit={options.height_unit!r}"
     if options.band is not None:
         shared += f"|band={options.band!r}"
+    if options.height_encoding is not None:
+        shared += f"|height_encoding={options.height_encoding!r}"
     head = json.dumps([shared, _source_identity(source)], sort_keys=True).encode()
     out = {}
     frames = dict(options.frames)
@@ -1234,6 +1245,11 @@ _GEOTIFF_SIDECARS: tuple[str, ...] = (
     "{stem}.wld", "{stem}.rpb", "{stem}_rpc.txt", "{stem}.imd", "{stem}.prj", "{name}.prj",
     "{stem}.hdr", "{stem}.stx", "{stem}.blw", "{stem}.rrd",  # a .bil/.flt's header and statistics, an .img's overviews
 )
+#: Files beside a PNG that load_dem reads with it: the world file and .prj that place a terrain tile
+#: (``height_encoding``), and the .aux.xml whose scale it refuses for a greyscale heightmap
+_PNG_SIDECARS: tuple[str, ...] = (
+    "{stem}.pgw", "{stem}.pngw", "{stem}.wld", "{stem}.prj", "{name}.prj", "{name}.aux.xml",
+)
 
 
 def _file_identities(items: Sequence[BatchItem]) -> dict[str, str]:
@@ -1247,7 +1263,8 @@ def _file_identities(items: Sequence[BatchItem]) -> dict[str, str]:
 def _file_identity(path: str, listings: dict[str, dict[str, list[str]] | None],
                    seen: frozenset[str] = frozenset()) -> str:
     """A file item's input as the fingerprint sees it: path, size, mtime, ctime and inode of the file, of the
-    sidecar files GDAL reads with a GeoTIFF or another GDAL raster (:data:`_GEOTIFF_SIDECARS`), and of the files
+    sidecar files GDAL reads with a GeoTIFF or another GDAL raster (:data:`_GEOTIFF_SIDECARS`) or load_dem with a PNG
+    (:data:`_PNG_SIDECARS`: a terrain tile's world file and .prj), and of the files
     a .vrt reads its heights from (:func:`_vrt_sources`, with their sidecars: a source tile rewritten under an
     unchanged .vrt redoes its item).
 
@@ -1272,7 +1289,8 @@ def _file_identity(path: str, listings: dict[str, dict[str, list[str]] | None],
     if _gzip_raster(name):  # N46E007.hgt.gz: the sidecars of the file inside, beside it (dem.prj of dem.asc.gz)
         name = name[:-3]
     stem, ext = os.path.splitext(name)
-    if ext.lower() in GDAL_FORMATS:
+    sidecars = _GEOTIFF_SIDECARS if ext.lower() in GDAL_FORMATS else _PNG_SIDECARS if ext.lower() == ".png" else ()
+    if sidecars:
         if folder not in listings:
             names: dict[str, list[str]] | None = {}
             try:
@@ -1284,7 +1302,7 @@ def _file_identity(path: str, listings: dict[str, dict[str, list[str]] | None],
         found = listings[folder]
         if found is None:
             parts.append("unlistable")
-        for pattern in _GEOTIFF_SIDECARS if found is not None else ():
+        for pattern in sidecars if found is not None else ():
             for side in sorted(found.get(pattern.format(name=name, stem=stem).lower(), ())):
                 parts.append(identity(os.path.join(folder, side)))
     if ext.lower() == ".vrt" and file not in seen:  # GDAL refuses a .vrt that names itself; not followed round
@@ -1385,6 +1403,8 @@ def _range_key(identity: str, options: _Options) -> str:
     the options its heights are read with."""
     read = [options.height_unit, options.band, options.coarsen,
             None if options.file_spacing is None else list(options.file_spacing)]  # fmt: skip
+    if options.height_encoding is not None:  # the keys of runs without it unchanged
+        read.append(options.height_encoding)
     return hashlib.blake2b(json.dumps([identity, read]).encode(), digest_size=16).hexdigest()
 
 
@@ -1834,6 +1854,7 @@ def batch(
     band: int | None = None,
     device: wp.DeviceLike = None,
     overview_size: tuple[int, int] | None = None,
+    height_encoding: str | None = None,
 ) -> BatchReport:
     """Step many terrains, one mesh file each, on dask.distributed (or serially).
 
@@ -1939,6 +1960,10 @@ def batch(
         raster's: ``.img``, ``.vrt``, ...); a ``.npy``, ``.npz`` or PNG holds one band and refuses another (in a folder
         or list: its item fails, naming it). Recorded as
         ``band`` in every output's metadata. Not for arrays, Terrains or (T, H, W) series.
+    height_encoding : str, optional
+        The RGB encoding of PNG terrain tiles among the DEM files, as :func:`~stepterrain.io.load_dem` takes it:
+        ``"terrain-rgb"`` or ``"terrarium"`` (a file that is no PNG refuses it: its item fails, naming it). Recorded
+        as ``height_encoding`` in every output's metadata. Not for arrays, Terrains or (T, H, W) series.
     device : warp device, optional
         Where each worker runs the kernels (default: Warp's default device on that worker): a name ("cpu",
         "cuda:0") or a ``warp.Device``. With ``scheduler="serial"`` the items run in this process, so an unknown or
@@ -2093,6 +2118,15 @@ def batch(
                 f"band applies to DEM files (a GeoTIFF's bands), read by load_dem; got a {type(source).__name__} "
                 f"source, which holds one band; got band={band}"
             )
+    if height_encoding is not None:
+        from .io import check_height_encoding
+
+        height_encoding = check_height_encoding(height_encoding, height_unit)  # a unit checked above
+        if not _of_files(source):
+            raise InvalidInputError(
+                f"height_encoding applies to RGB PNG tile files, read by load_dem; got a {type(source).__name__} "
+                f"source, which holds heights; got height_encoding={height_encoding!r}"
+            )
     if isinstance(source, Terrain) and source.visual is not None and colors is None and not solid:
         # stepped() carries a grid's vertex colours or UVs onto its steps; the tiles, cut from the heights alone,
         # were written grey without a word
@@ -2106,7 +2140,7 @@ def batch(
     windowed = crop is not None and spacing is None and tile_size is not None and isinstance(
         source, (str, os.PathLike)) and Path(os.fspath(source)).suffix.lower() in GDAL_FORMATS
     items, src = plan_items(source, tile_size=tile_size, height_unit=height_unit, band=band,
-                            crop=crop if windowed else None)
+                            crop=crop if windowed else None, height_encoding=height_encoding)
     own = _LIBRARY_KEYS | {key for item in items[:1] for key in _item_metadata(item)}
     if taken := sorted(set(extras) & own):  # the library's value replaced the caller's without a word, or the
         raise InvalidInputError(  # caller's the mesh's own (isovalues, gamma, CRS)
@@ -2118,6 +2152,8 @@ def batch(
     recorded: dict[str, Any] = {}  # the file options, as steps, closeup and texture record them
     if band is not None:  # which of the files' bands the heights are
         recorded["band"] = band
+    if height_encoding is not None:  # the colours the files' heights were decoded from
+        recorded["height_encoding"] = height_encoding
     if origin is not None and (files or src is None or not isinstance(source, np.ndarray | list | tuple)):
         raise InvalidInputError("origin applies to an array source; a file, a folder or a Terrain has its own")
     if spacing is not None and files:  # a file without georeferencing: load_dem's 1 m cells, rows north to south
@@ -2180,7 +2216,7 @@ def batch(
         floor=None if floor is None else float(floor), ext=ext, device=None if device is None else str(device),
         metadata=tuple(sorted({**extras, **recorded}.items())), height_unit=height_unit,
         file_spacing=file_spacing, coarsen=coarsen if src is None else None,  # a source's: coarsened already
-        band=band, several_files=sum(item.kind == "file" for item in items) > 1,
+        band=band, height_encoding=height_encoding, several_files=sum(item.kind == "file" for item in items) > 1,
     )  # fmt: skip
     if interval is not None:  # the isovalues are base + k * interval: both recorded (a long list keeps its ends only)
         steps = (("interval", float(interval)), ("base", float(base)))
@@ -2527,14 +2563,14 @@ def _file_range(item: BatchItem, options: _Options, retries: int, kept: _Kept | 
         try:
             if kept is None:
                 terrain = _item_terrain(item, None, options.height_unit, options.file_spacing, options.coarsen,
-                                        options.band)  # fmt: skip
+                                        options.band, options.height_encoding)  # fmt: skip
             else:  # the item's read: its warnings recorded for its result too, as run_item records its own read's
                 caught: list[warnings.WarningMessage] = []
                 try:
                     with _RECORDING, warnings.catch_warnings(record=True) as caught:
                         warnings.simplefilter("default")
                         terrain = _item_terrain(item, None, options.height_unit, options.file_spacing,
-                                                options.coarsen, options.band)  # fmt: skip
+                                                options.coarsen, options.band, options.height_encoding)  # fmt: skip
                 finally:  # said here too (a read that failed included), as a file read for the range alone says them
                     for w in caught:
                         warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)

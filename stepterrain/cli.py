@@ -194,6 +194,26 @@ def _add_band(p: argparse.ArgumentParser) -> None:
                         "from (default 1, as GDAL's tools read it); .npy, .npz and PNG hold one band")
 
 
+def _height_encoding(text: str) -> str:
+    """A ``--height-encoding``: one of load_dem's :data:`~stepterrain.io.HEIGHT_ENCODINGS`, checked before any file
+    is read."""
+    from .io import HEIGHT_ENCODINGS
+
+    name = text.strip().lower()
+    if name not in HEIGHT_ENCODINGS:
+        raise argparse.ArgumentTypeError(f"expected one of {', '.join(HEIGHT_ENCODINGS)}; got {text!r}")
+    return name
+
+
+def _add_height_encoding(p: argparse.ArgumentParser) -> None:
+    """``--height-encoding``: load_dem's ``height_encoding``, the RGB encoding of an INPUT PNG terrain tile."""
+    p.add_argument("--height-encoding", type=_height_encoding, default=None, metavar="NAME",
+                   help="decode an RGB(A) PNG INPUT's heights from its colours, as web-map terrain tiles store them: "
+                        "terrain-rgb (Mapbox: -10000 + (R*65536 + G*256 + B)*0.1 m) or terrarium (Mapzen/AWS: "
+                        "R*256 + G + B/256 - 32768 m); transparent pixels are nodata, a world file (.pgw) beside it "
+                        "places it (default: a PNG is a greyscale heightmap)")
+
+
 def _positive_int(text: str) -> int:
     """A count option (``--coarsen``): a whole number >= 1, refused by argparse before any file is read."""
     try:
@@ -239,6 +259,7 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
                    help=INPUT_HELP + "; default: the embedded Big Tujunga DEM")
     _add_height_unit(p)
     _add_band(p)
+    _add_height_encoding(p)
     p.add_argument("--spacing", type=_cell_size, metavar="D|dx,dy",
                    help="the node spacing in metres of an INPUT with no georeferencing (.npy, a PNG heightmap, a "
                         "GeoTIFF without a geotransform), read as 1 m otherwise; rows run north to south")
@@ -252,12 +273,13 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
 
 
 def _load_input(path: str | None, height_unit: str | None, *, spacing: Sequence[float] | None = None,
-                crop: Sequence[float] | None = None, coarsen: int | None = None, band: int | None = None) -> Any:
-    """The DEM at ``path`` (``--height-unit`` and ``--band`` applied), else the embedded one (where a unit or a band
-    is refused); then ``--spacing`` (a grid load_dem could not place), ``--crop`` (:meth:`Terrain.crop`) and
-    ``--coarsen`` (:meth:`Terrain.coarsen`, block means). A file's ``--crop`` without ``--spacing`` is load_dem's
-    ``crop``: a GeoTIFF's (or another GDAL raster's) window is all that is read (a crop of a file over the memory
-    budget), the same nodes."""
+                crop: Sequence[float] | None = None, coarsen: int | None = None, band: int | None = None,
+                height_encoding: str | None = None) -> Any:
+    """The DEM at ``path`` (``--height-unit``, ``--band`` and ``--height-encoding`` applied), else the embedded one
+    (where a unit, a band or an encoding is refused); then ``--spacing`` (a grid load_dem could not place),
+    ``--crop`` (:meth:`Terrain.crop`) and ``--coarsen`` (:meth:`Terrain.coarsen`, block means). A file's ``--crop``
+    without ``--spacing`` is load_dem's ``crop``: a GeoTIFF's (or another GDAL raster's) window is all that is read (a
+    crop of a file over the memory budget), the same nodes."""
     from .io import own_placement, read_dem, sample_dem
 
     def refuse(whole: Any) -> None:
@@ -267,7 +289,8 @@ def _load_input(path: str | None, height_unit: str | None, *, spacing: Sequence[
 
     if path:  # load_dem, with --crop unless --spacing must place the grid first
         terrain = read_dem(path, band=1 if band is None else band, height_unit=height_unit,
-                           crop=crop if spacing is None else None, option="--crop", refuse=refuse)
+                           crop=crop if spacing is None else None, option="--crop", refuse=refuse,
+                           height_encoding=height_encoding)
         if spacing is None:
             crop = None  # done
     elif height_unit is not None:
@@ -275,6 +298,9 @@ def _load_input(path: str | None, height_unit: str | None, *, spacing: Sequence[
             f"--height-unit applies to an INPUT file; the embedded DEM is in metres; got {height_unit!r}")
     elif band is not None:
         raise InvalidInputError(f"--band applies to a GeoTIFF INPUT; the embedded DEM holds one band; got {band}")
+    elif height_encoding is not None:
+        raise InvalidInputError(f"--height-encoding applies to an RGB PNG INPUT; the embedded DEM holds heights; "
+                                f"got {height_encoding!r}")
     else:
         terrain = sample_dem()
     if spacing is not None:
@@ -338,7 +364,7 @@ def _refuse_gdal_order(terrain: Any, crop: Sequence[float]) -> None:
 def _input_terrain(args: argparse.Namespace) -> Any:
     """The INPUT DEM of a subcommand with :func:`_add_input_options`, its options applied (:func:`_load_input`)."""
     return _load_input(args.input, args.height_unit, spacing=args.spacing, crop=args.crop, coarsen=args.coarsen,
-                       band=args.band)
+                       band=args.band, height_encoding=args.height_encoding)
 
 
 def _add_device(p: argparse.ArgumentParser, where: str = "") -> None:
@@ -355,6 +381,8 @@ def _input_metadata(args: argparse.Namespace) -> dict[str, Any]:
         metadata["height_unit"] = args.height_unit
     if args.band is not None:  # which of the file's bands the heights are
         metadata["band"] = int(args.band)
+    if args.height_encoding is not None:  # the colours its heights were decoded from
+        metadata["height_encoding"] = args.height_encoding
     if args.spacing is not None:
         # the DEM's (dx, dy) as Terrain.spacing, `info` and a heightfield mesh's own metadata give it: rows run north
         # to south, dy negative (--spacing 30 recorded (30, 30), and replaced a draped mesh's (30, -30))
@@ -548,6 +576,7 @@ def _add_info(commands: Any) -> None:
     _add_height_unit(p, help="a DEM's heights' length unit (m, ft, US survey foot, km, ...), for a file that names "
                               "none or one not known; not for a mesh")
     _add_band(p)
+    _add_height_encoding(p)
     p.add_argument("--json", action="store_true", help="print JSON instead of aligned text")
     p.set_defaults(run=_run_info)
 
@@ -956,12 +985,15 @@ def _run_info(args: argparse.Namespace, progress: Progress) -> int:
         if args.band is not None:
             raise InvalidInputError(f"--band applies to a GeoTIFF DEM; {args.file!r} is a mesh file; got --band "
                                     f"{args.band}")
+        if args.height_encoding is not None:
+            raise InvalidInputError(f"--height-encoding applies to an RGB PNG DEM; {args.file!r} is a mesh file; got "
+                                    f"--height-encoding {args.height_encoding!r}")
         summary = _mesh_summary(Path(args.file))
     else:
         from .io import describe_dem
 
         try:
-            terrain = _load_input(args.file, args.height_unit, band=args.band)
+            terrain = _load_input(args.file, args.height_unit, band=args.band, height_encoding=args.height_encoding)
         except InvalidInputError as exc:  # load_dem's refusal listed the DEM formats alone: info reads meshes too
             if "unknown DEM extension" not in str(exc):
                 raise

@@ -45,7 +45,7 @@ from .terrain import (
     unwrapped_longitudes,
 )
 
-__all__ = ["load_dem", "sample_dem", "describe_dem", "SUPPORTED_EXTENSIONS", "EARTH_RADIUS_M"]
+__all__ = ["load_dem", "sample_dem", "describe_dem", "SUPPORTED_EXTENSIONS", "HEIGHT_ENCODINGS", "EARTH_RADIUS_M"]
 
 #: Raster formats :func:`load_dem` reads through rasterio (GDAL), as it reads a GeoTIFF, by extension: the format's
 #: name for messages. Dispatch is by this list, not by trying GDAL on any file: a folder of tiles holds sidecars GDAL
@@ -62,6 +62,13 @@ GDAL_FORMATS: dict[str, str] = {
 GZIP_FORMATS: tuple[str, ...] = tuple(ext for ext in GDAL_FORMATS if ext not in (".bil", ".flt", ".vrt"))
 #: File extensions :func:`load_dem` reads (lower case; matching is case-insensitive).
 SUPPORTED_EXTENSIONS: tuple[str, ...] = (".npy", ".npz", ".png", *GDAL_FORMATS)
+
+#: The elevation encodings of RGB web-map terrain tiles :func:`load_dem` decodes (its ``height_encoding``): the
+#: formula from a pixel's 8-bit red, green and blue to its height in metres.
+HEIGHT_ENCODINGS: dict[str, str] = {
+    "terrain-rgb": "Mapbox Terrain-RGB: -10000 + (R * 65536 + G * 256 + B) * 0.1",
+    "terrarium": "Mapzen/AWS Terrarium: R * 256 + G + B / 256 - 32768",
+}
 
 #: Mean earth radius (IUGG R1, metres) used to turn geographic degrees into local metres.
 EARTH_RADIUS_M = 6371008.8
@@ -131,7 +138,7 @@ _KNOWN_UNITS = "m, km, dm, cm, mm, ft (international foot), US survey foot"
 # ---------------------------------------------------------------------------------------------- public API
 def load_dem(
     path: str | os.PathLike[str], *, band: int = 1, height_unit: str | None = None,
-    crop: Sequence[float] | None = None,
+    crop: Sequence[float] | None = None, height_encoding: str | None = None,
 ) -> Terrain:
     """Read an elevation raster into a :class:`Terrain`, choosing the reader by file extension.
 
@@ -154,7 +161,7 @@ def load_dem(
         ``.png`` (8- or 16-bit greyscale heightmap, values are heights, a 2- or
         4-bit one's scaled to 0-255 as Pillow reads them; a transparent grey value (tRNS) or, in 8-bit grey +
         alpha, alpha 0 marks missing cells, as GDAL reads them; 16-bit grey + alpha is refused: Pillow reads it as
-        8 bits),
+        8 bits; an RGB(A) web-map terrain tile with ``height_encoding``, below),
         ``.tif``/``.tiff`` (GeoTIFF, needs rasterio) or another raster GDAL reads, through rasterio as a GeoTIFF is
         read (its georeferencing, CRS, nodata, scale and offset, unit, a .prj beside it, ``band`` and ``crop``
         windows alike; below, what is said of a GeoTIFF holds for them): ``.asc`` (ESRI ASCII grid; ``xllcorner``
@@ -200,6 +207,18 @@ def load_dem(
         budget instead of the whole file's: a small crop of a DEM over the budget (its warnings are the whole
         read's, but that of a grid without a CRS that looks like degrees weighs the crop's heights; heights beyond
         float32 outside the window go unread). Other formats are read whole first.
+    height_encoding : str, optional
+        Read a ``.png`` as an 8-bit RGB or RGBA web-map terrain tile whose colours encode heights in metres (any
+        case; :data:`HEIGHT_ENCODINGS`): ``"terrain-rgb"``, Mapbox Terrain-RGB, -10000 + (R·65536 + G·256 + B)·0.1;
+        ``"terrarium"``, Mapzen/AWS Terrarium, R·256 + G + B/256 - 32768. Decoded exactly in float64 (Terrain-RGB's
+        0.1 m steps as (code - 100000) / 10) and kept as float32, as all heights are: exact to the code within
+        ±10 km for Terrain-RGB, everywhere for Terrarium. The heights are metres (``height_unit`` "m"; another
+        ``height_unit`` is refused). The encodings have no nodata value: a transparent pixel
+        (alpha 0, or the PNG's transparent colour) is a missing cell. A palette PNG reads through its palette. A
+        world file beside the tile (``tile.pgw``, ``tile.pngw``, ``tile.wld``) places it as GDAL reads one, with
+        the CRS of a ``.prj`` beside it (``EPSG:3857`` for a web-map tile, whose scale warning follows); without one
+        it is unreferenced, as a greyscale PNG is. Without ``height_encoding`` an RGB PNG is refused (the message
+        names the encodings); with it a greyscale or 16-bit-per-channel PNG, or a file that is no local PNG, is.
 
     Returns
     -------
@@ -258,15 +277,16 @@ def load_dem(
         from its central meridian, a polar stereographic one away from its true-scale latitude (EPSG:3413 and
         EPSG:3031 by 3 % at the poles); a UTM grid of a zone's extent and a small local grid do not. It is measured
         through PROJ (so with rasterio only) at up to 7 x 7 nodes of the grid, its corners and edges included; the
-        message names the worst node and its scales. Also: a grid converted to metres whose heights' unit is not
-        named; a GeoTIFF CRS ignored for want of a geotransform; a PNG's world file (``.pgw``, ``.wld``) or
-        ``.aux.xml`` geotransform, which is not read (the message gives the ``gdal_translate`` to a GeoTIFF that
-        keeps it); cells no nodata value or mask marks that hold the lowest value of a signed integer (-32768 in
-        int16, SRTM's void) or float dtype (-3.4028235e+38 in float32, ArcGIS's NoData, also kept in a float64
-        grid), read as heights, counted and named with the nodata value to declare; a grid georeferenced without a
-        CRS (or with one PROJ cannot read, kept as given: an .npz's ``crs="4326"``) whose coordinates look like
-        degrees (nodes within x -180 to 360 and y -90 to 90, heights spanning more than 100 times its width and
-        height: read as metres, an SRTM tile was a needle centimetres wide), naming the CRS to give it.
+        message names the worst node and its scales. Also: a grid converted to metres whose heights' unit is not named;
+        a GeoTIFF CRS ignored for want of a geotransform; a greyscale PNG's world file (``.pgw``, ``.wld``) or
+        ``.aux.xml`` geotransform, or a terrain tile's ``.aux.xml`` one, which is not read (the message gives the
+        ``gdal_translate`` to a GeoTIFF, or a tile's to a world file, that keeps it); cells no nodata value or mask
+        marks that hold the lowest value of a signed integer (-32768 in int16, SRTM's void) or float dtype
+        (-3.4028235e+38 in float32, ArcGIS's NoData, also kept in a float64 grid), read as heights, counted and named
+        with the nodata value to declare; a grid georeferenced without a CRS (or with one PROJ cannot read, kept as
+        given: an .npz's ``crs="4326"``) whose coordinates look like degrees (nodes within x -180 to 360 and y -90 to
+        90, heights spanning more than 100 times its width and height: read as metres, an SRTM tile was a needle
+        centimetres wide), naming the CRS to give it.
 
     Raises
     ------
@@ -274,7 +294,8 @@ def load_dem(
         Unknown extension (the message lists the supported ones; a local ``.gz`` of another file than
         :data:`GZIP_FORMATS`'s names them; a virtual path's or URL's inner file of
         ``.npy``/``.npz``/``.png``, or another extension, says what GDAL is asked to read), ``band`` not a valid band
-        number,
+        number, ``height_encoding`` not one of :data:`HEIGHT_ENCODINGS` (the message lists them) or given for a file
+        that is no local PNG or with a ``height_unit`` other than the metre,
         ``height_unit`` not a known length unit (the message lists them), or a ``crop`` that
         :meth:`Terrain.crop <stepterrain.terrain.Terrain.crop>` refuses (its message after ``crop:``).
     DataFileError
@@ -283,9 +304,10 @@ def load_dem(
         file beside a gzipped TIFF without georeferencing,
         an unreachable URL, with GDAL's reason; a URL scheme GDAL has no file system for; a ``.zip`` holding no
         raster of :data:`GDAL_FORMATS`, or several), or is not elevation data (a colour image, another image format
-        under a .png name, a GeoTIFF band that is colour, alpha or other imagery, a 1-D array, text, an archive
-        without a 2-D array, a rotated grid (rotation terms that move no node by more than 1e-6 of a cell over the
-        grid, the float noise some tools write, are taken as 0), a geotransform that is not finite (NaN, inf), a
+        under a .png name, with ``height_encoding`` a greyscale PNG or one of 16 bits per channel or a world file
+        that is not six finite numbers, a GeoTIFF band that is colour, alpha or other imagery, a 1-D array, text, an
+        archive without a 2-D array, a rotated grid (rotation terms that move no node by more than 1e-6 of a cell over
+        the grid, the float noise some tools write, are taken as 0), a geotransform that is not finite (NaN, inf), a
         geographic grid whose latitudes lie beyond ±90 or whose node longitudes span more than 360 degrees or lie
         beyond ±720, ``lat``/``lon`` axes not matching the heights or
         unevenly spaced,
@@ -313,8 +335,8 @@ def load_dem(
         larger of the stored values and the float32 heights the Terrain keeps: cells x max(stored bytes per cell,
         4). That is a lower bound of what the read allocates at its peak: the stored band, a mask, and float32 or
         float64 working copies (nodata, a GeoTIFF's scale and offset, a height unit) live together for a moment,
-        about 8-9 bytes per cell for 8-, 16- and 32-bit rasters and up to about 16 for float64 or scaled bands, so
-        leave that much headroom.
+        about 8-9 bytes per cell for 8-, 16- and 32-bit rasters, up to about 16 for float64 or scaled bands and 17
+        for an RGB(A) terrain tile (``height_encoding``), so leave that much headroom.
 
     Examples
     --------
@@ -327,13 +349,13 @@ def load_dem(
     >>> st.load_dem(path, crop=(1.0, 2.0, -2.0, -1.0)).heights.tolist()
     [[5.0, 6.0], [9.0, 10.0]]
     """
-    return read_dem(path, band=band, height_unit=height_unit, crop=crop)
+    return read_dem(path, band=band, height_unit=height_unit, crop=crop, height_encoding=height_encoding)
 
 
 def read_dem(
     path: str | os.PathLike[str], *, band: int = 1, height_unit: str | None = None,
     crop: Sequence[float] | None = None, option: str = "crop", refuse: Callable[[Terrain], None] | None = None,
-    nodata_only: bool = False,
+    nodata_only: bool = False, height_encoding: str | None = None,
 ) -> Terrain:
     """:func:`load_dem`, its ``crop`` refusals named ``option`` (the CLI's "--crop") and, with ``crop``, ``refuse``
     called with the whole grid before it is cropped (for a GeoTIFF, a
@@ -343,19 +365,21 @@ def read_dem(
     empty item (:mod:`stepterrain.batch`)."""
     token = _NODATA_ONLY.set(nodata_only)
     try:
-        return _read_dem(path, band, height_unit, crop, option, refuse)
+        return _read_dem(path, band, height_unit, crop, option, refuse, height_encoding)
     finally:
         _NODATA_ONLY.reset(token)
 
 
 def _read_dem(
     path: str | os.PathLike[str], band: int, height_unit: str | None, crop: Sequence[float] | None, option: str,
-    refuse: Callable[[Terrain], None] | None,
+    refuse: Callable[[Terrain], None] | None, height_encoding: str | None = None,
 ) -> Terrain:
     """:func:`read_dem`, its ``nodata_only`` set."""
     band = check_band(band)
     if height_unit is not None:
         height_unit = check_height_unit(height_unit)
+    if height_encoding is not None:
+        height_encoding = check_height_encoding(height_encoding, height_unit)
     file = dem_path(path)
     ext = file.suffix.lower()
     if isinstance(file, GdalPath):  # GDAL reads it, by the extension of the file inside (a URL's path)
@@ -376,11 +400,19 @@ def _read_dem(
         raise InvalidInputError(
             f"band applies to GDAL rasters only; {str(file)!r} holds one band, got band={band}"
         )
+    if height_encoding is not None and (ext != ".png" or isinstance(file, GdalPath)):
+        raise InvalidInputError(
+            f"height_encoding applies to a local RGB PNG tile (Terrain-RGB or Terrarium); {str(file)!r} is no PNG; "
+            f"got height_encoding={height_encoding!r}"
+        )
     reader = {".npy": _load_npy, ".npz": _load_npz, ".png": _load_png}.get(ext)
     try:
-        if reader is None:
+        if height_encoding is not None:
+            terrain = _load_encoded_png(file, height_encoding)
+        elif reader is None:
             return _load_geotiff(file, int(band), height_unit, crop, option, refuse)
-        terrain = reader(file, height_unit)
+        else:
+            terrain = reader(file, height_unit)
     except MemoryError as exc:  # a header declaring 400000 x 400000 cells (a sparse GeoTIFF of a few MB)
         if isinstance(exc, StepTerrainError):
             raise
@@ -1067,7 +1099,8 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
                     "a 1-bit black-and-white image (mode '1': two levels are no elevation data; save the heights as "
                     "8- or 16-bit greyscale)"
                     if mode == "1"
-                    else f"a {mode} image (colour or palette images are not elevation data)"
+                    else f"a {mode} image (colour or palette images are not elevation data; an RGB terrain tile reads "
+                         f"with its encoding named, height_encoding={' or '.join(map(repr, HEIGHT_ENCODINGS))})"
                 )
                 raise DataFileError(
                     f"cannot read {str(file)!r}: expected a single-channel 8- or 16-bit greyscale heightmap; got {got}"
@@ -1134,13 +1167,14 @@ def _refuse_png_scaling(file: Path) -> None:
             )
 
 
-def _warn_png_georeferencing(file: Path) -> None:
+def _warn_png_georeferencing(file: Path, tile: bool = False) -> None:
     """Warn, at the caller of :func:`load_dem`, when GDAL would georeference the PNG heightmap ``file`` by a world
     file beside it (``dem.pgw``, ``dem.pngw``, ``dem.wld``, in lower or UPPER case) or by a geotransform in its
     ``dem.png.aux.xml`` (as a GIS exports a PNG): load_dem reads a PNG as an unreferenced grid of 1 m cells at
     (0, 0), and a 30 m DEM exported so was meshed 30 times too steep, away from its place, without a word (the
     texture readers place such a PNG by its world file). The command it suggests names the .prj :func:`prj_crs`
-    would read (:func:`_prj_files`)."""
+    would read (:func:`_prj_files`). A terrain ``tile`` (``height_encoding``), placed by a world file only, is told
+    to write one from its ``.aux.xml`` (a GeoTIFF of its colours is refused)."""
     found = next((side for ext in (".pgw", ".pngw", ".wld") for side in (file.with_suffix(ext),
                                                                         file.with_suffix(ext.upper()))
                   if side.is_file()), None)
@@ -1152,6 +1186,16 @@ def _warn_png_georeferencing(file: Path) -> None:
             found = None
     if found is None:
         return
+    if tile:
+        warnings.warn(
+            f"{file.name}: its georeferencing in {found.name} is not read: load_dem places a terrain tile by a world "
+            f"file beside it ({file.stem}.pgw, .pngw or .wld) and reads it unreferenced otherwise, spacing (1, -1) and "
+            f"origin (0, 0); to place it, write one (`gdal_translate -of PNG -co WORLDFILE=YES {file.name} "
+            f"placed.png` writes placed.png and placed.wld; a .prj beside it gives its CRS), or give its cell size "
+            f"(the CLI's --spacing)",
+            stacklevel=caller_stacklevel(),
+        )
+        return
     prj = _prj_beside(file)  # as prj_crs looks (dem.png.prj too)
     srs = f"-a_srs {prj.name} " if prj is not None else ""
     warnings.warn(
@@ -1160,6 +1204,111 @@ def _warn_png_georeferencing(file: Path) -> None:
         f"with it (`gdal_translate {srs}{file.name} {file.stem}.tif`), or give its cell size (the CLI's --spacing)",
         stacklevel=caller_stacklevel(),
     )
+
+
+def decode_terrain_rgb(rgb: NDArray[Any], encoding: str) -> NDArray[np.float64]:
+    """The heights in metres, float64, of the (..., 3 or more) 8-bit ``rgb`` pixels of a terrain tile in
+    ``encoding`` (:data:`HEIGHT_ENCODINGS`; a fourth channel, alpha, is ignored). Both are exact in float64 up to its
+    rounding of the decimal: Terrain-RGB's 0.1 m steps as (code - 100000) / 10, the float64 nearest the decimal
+    height, Terrarium's 1/256 m steps exactly, as (code - 32768·256) / 256, code = R·65536 + G·256 + B in both.
+    The 24-bit code is built in one int32 array and divided into one float64 (12 bytes a pixel besides ``rgb``;
+    three int64 channels and their sums took 40)."""
+    code = rgb[..., 0].astype(np.int32)
+    for channel in (1, 2):
+        code <<= 8
+        code |= rgb[..., channel]
+    code -= 100000 if encoding == "terrain-rgb" else 32768 * 256
+    heights = code.astype(np.float64)
+    del code
+    heights /= 10.0 if encoding == "terrain-rgb" else 256.0
+    return heights
+
+
+def _load_encoded_png(file: Path, encoding: str) -> Terrain:
+    """:func:`load_dem` of an RGB(A) PNG web-map terrain tile whose pixels encode heights in ``encoding``
+    (:data:`HEIGHT_ENCODINGS`, checked), decoded in float64 (:func:`decode_terrain_rgb`) and kept as float32, as
+    any heights are; alpha 0 (a transparent pixel, or a transparent colour, tRNS) marks a missing cell, the
+    encodings' only nodata. A palette PNG reads through its palette (its colours are the codes, losslessly). A world
+    file beside it (``tile.pgw``, ``tile.pngw``, ``tile.wld``) places it, with the CRS of a ``.prj`` beside it, as
+    GDAL reads one: a web-map tile is in EPSG:3857, whose metres are ground metres times 1/cos φ (warned, see
+    :func:`load_dem`). A greyscale PNG, or one of 16 bits per channel (Pillow reads 8), is refused."""
+    from PIL import Image, UnidentifiedImageError
+
+    label = f"height_encoding={encoding!r}"
+    try:
+        with Image.open(file) as image:
+            mode = image.mode
+            rawmode = str(image.tile[0][3]) if image.tile else ""
+            if image.format != "PNG":
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: expected a PNG terrain tile ({label}); got a {image.format} image "
+                    f"under a .png name (a lossy format would not keep the codes)"
+                )
+            if mode not in ("RGB", "RGBA", "P", "PA") or rawmode.startswith("LA"):
+                got = ("a 16-bit greyscale + alpha" if rawmode.startswith("LA")
+                       else f"a greyscale ({mode})" if mode in ("1", "L", "LA", "La", "I", "F") or mode.startswith("I;")
+                       else f"a {mode}")
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: expected an 8-bit RGB or RGBA PNG terrain tile ({label}); got {got} "
+                    f"image (a greyscale heightmap reads its values as heights, without height_encoding)"
+                )
+            if ";16" in rawmode:  # Pillow reads 16-bit RGB(A) as 8 bits per channel: the codes' low bytes lost
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: expected an 8-bit RGB or RGBA PNG terrain tile ({label}); got a "
+                    f"PNG of 16 bits per channel, which Pillow reads only as 8 (the encodings use 8 bits per channel)"
+                )
+            _check_read_budget(file, (image.height, image.width), np.dtype(np.uint32))
+            rgba = picture_uint8(image, f"terrain tile {str(file)!r}", alpha=True)
+    except Image.DecompressionBombError as exc:
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected a PNG terrain tile within Pillow's decompression-bomb limit "
+            f"(PIL.Image.MAX_IMAGE_PIXELS); got {exc}"
+        ) from exc
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
+        if isinstance(exc, DataFileError):
+            raise
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected a PNG terrain tile ({label}); got unreadable content ({exc})"
+        ) from exc
+    missing = rgba[..., 3] == 0 if rgba.shape[-1] == 4 else None
+    decoded = decode_terrain_rgb(rgba, encoding)
+    del rgba
+    heights = _elevation(decoded, file, f"{encoding} {mode} image", None, missing, warn_voids=False)
+    del decoded
+    unit = "m"  # the encoding's unit (a height_unit of another was refused): no placement asks for one
+    geotransform = _png_world_file(file)
+    if geotransform is None:
+        _warn_png_georeferencing(file, tile=True)  # an .aux.xml geotransform, not read
+        return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None, height_unit=unit)
+    crs = prj_crs(file, "the PNG tile", DataFileError) if _prj_beside(file) is not None else None
+    return _georeferenced(file, heights, geotransform, crs, geographic=_is_geographic(crs), metres=None,
+                          height_unit=unit)
+
+
+def _png_world_file(file: Path) -> NDArray[np.float64] | None:
+    """The GDAL geotransform (of the cell corners) of the world file beside the PNG ``file``, in the order GDAL looks
+    for one (``tile.pgw``, ``tile.pngw``, ``tile.wld``, lower or UPPER case); None without one. A world file holds
+    six numbers A, D, B, E, C, F, (C, F) the centre of the upper-left pixel; one that does not is a DataFileError."""
+    for ext in (".pgw", ".pngw", ".wld"):
+        for side in (file.with_suffix(ext), file.with_suffix(ext.upper())):
+            if not side.is_file():
+                continue
+            try:
+                words = side.read_text(errors="replace").split()
+            except OSError as exc:
+                raise DataFileError(f"cannot read {str(side)!r}, the world file of {str(file)!r}: {exc}") from exc
+            try:
+                a, d, b, e, c, f = (float(w) for w in words)
+            except ValueError:
+                a = math.nan
+            if not math.isfinite(a) or not all(map(math.isfinite, (b, c, d, e, f))):
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: expected its world file {side.name!r} to hold six finite numbers "
+                    f"(A, D, B, E, C, F: pixel width, rotations, pixel height, upper-left pixel centre); got "
+                    f"{' '.join(words)[:200]!r}"
+                )
+            return np.array([c - (a + b) / 2, a, b, f - (d + e) / 2, d, e], dtype=np.float64)
+    return None
 
 
 def picture_uint8(picture: Any, what: str, *, alpha: bool = False) -> NDArray[np.uint8]:
@@ -1784,7 +1933,8 @@ def _check_read_budget(file: Path, shape: tuple[int, ...], dtype: np.dtype, what
     (:func:`stepterrain.set_memory_budget`): a header declaring 400000 x 400000 cells otherwise allocated until the
     machine swapped or NumPy raised a raw MemoryError. A lower bound of the read's peak, as :func:`load_dem` says
     (measured by tests/test_io_fixes.py: 8-9 bytes per cell for 8- to 32-bit rasters, up to 16 for float64 or a
-    scaled band); it checks what the Terrain keeps, as the budget bounds a call's output elsewhere."""
+    scaled band; 17 for a terrain tile, tests/test_io_terrain_rgb.py); it checks what the Terrain keeps, as the
+    budget bounds a call's output elsewhere."""
     cells = math.prod(int(n) for n in shape)
     check_budget(
         cells * max(dtype.itemsize, 4),
@@ -2782,6 +2932,23 @@ def check_band(band: Any) -> int:
     if isinstance(band, bool) or not isinstance(band, (int, np.integer)) or band < 1:
         raise InvalidInputError(f"band must be a positive 1-based band number; got {band!r}")
     return int(band)
+
+
+def check_height_encoding(height_encoding: Any, height_unit: str | None = None) -> str:
+    """``height_encoding`` in lower case when it names one of :data:`HEIGHT_ENCODINGS` (any case), else an
+    InvalidInputError listing them; also one when a ``height_unit`` (checked) other than the metre comes with it: the
+    encodings define metres (a unit of feet scaled the decoded metres by 0.3048 without a word)."""
+    name = height_encoding.strip().lower() if isinstance(height_encoding, str) else None
+    if name not in HEIGHT_ENCODINGS:
+        raise InvalidInputError(
+            f"height_encoding must be one of {', '.join(map(repr, HEIGHT_ENCODINGS))} or None; got {height_encoding!r}"
+        )
+    if height_unit is not None and _unit_factor(height_unit) != 1.0:
+        raise InvalidInputError(
+            f"height_unit applies to heights of no stated unit; height_encoding={name!r} gives metres; "
+            f"got height_unit={height_unit!r}"
+        )
+    return name
 
 
 def check_height_unit(height_unit: Any) -> str:

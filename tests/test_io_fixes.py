@@ -336,7 +336,9 @@ def test_a_1_bit_png_is_refused_as_1_bit_not_as_colour(tmp_path):
                                             r"are no elevation data; save the heights as 8- or 16-bit greyscale\)$"):
         load_dem(path)
     Image.fromarray(np.zeros((4, 4, 3), np.uint8)).save(tmp_path / "rgb.png")
-    with pytest.raises(DataFileError, match=r"got a RGB image \(colour or palette images are not elevation data\)$"):
+    with pytest.raises(DataFileError, match=r"got a RGB image \(colour or palette images are not elevation data; "
+                                            r"an RGB terrain tile reads with its encoding named, "
+                                            r"height_encoding='terrain-rgb' or 'terrarium'\)$"):
         load_dem(tmp_path / "rgb.png")
 
 
