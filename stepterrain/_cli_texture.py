@@ -117,8 +117,9 @@ def add_parser(commands: Any) -> None:
                         "outside it those show. A GeoTIFF, or a JPEG or PNG with a world file beside it (.jgw, .pgw, "
                         ".wld; its CRS from a .prj or .aux.xml beside it), is placed by its georeferencing: in the "
                         "DEM's CRS (one without a CRS is taken in the DEM's CRS, refused over a DEM in degrees), or "
-                        "in degrees over a DEM in degrees (another CRS is refused: gdalwarp it first); resampled to "
-                        "the DEM's grid (or --texel-size's) through an image pyramid (the decoded image is checked "
+                        "in degrees over a DEM in degrees (another CRS is refused: gdalwarp it first; one off the DEM "
+                        "is refused, one covering under 10%% of it warned of); resampled to the DEM's grid (or "
+                        "--texel-size's) through an image pyramid (the decoded image is checked "
                         "against --memory-budget; of a GeoTIFF or PNG, only its window over the DEM is read and "
                         "checked)")
     p.add_argument("--image-extent", type=_floats(4, "xmin,xmax,ymin,ymax"), metavar="xmin,xmax,ymin,ymax",

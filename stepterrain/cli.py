@@ -1134,7 +1134,9 @@ _OPTION_PHRASES = {
               "a larger max_items= or --tile": "a larger --tile"},  # overview_image's partial mosaic
     "globe": {"raise the error": "raise --error", "--radius + exaggeration": "--radius + --exaggeration"},
     # a rotated, south-up or east-to-west GeoTIFF --image (texture_lod's refusal names image_layer's argument)
-    "texture": {"pass extent=(xmin, xmax, ymin, ymax)": "give --image-extent xmin,xmax,ymin,ymax"},
+    "texture": {"pass extent=(xmin, xmax, ymin, ymax)": "give --image-extent xmin,xmax,ymin,ymax",
+                # image_layer's warning of an image over a sliver of the terrain
+                "georeferencing (or extent=)": "georeferencing (or --image-extent)"},
 }
 
 #: Advice in the library's messages that only a Python caller can follow, left out of every subcommand's lines: no

@@ -80,6 +80,9 @@ __all__ = [
 
 Extent = tuple[float, float, float, float]
 _BAND_BYTES = 32 * 1024**2  # source bytes read per band while building a level
+#: :func:`image_layer` warns when its image covers less than this fraction of the terrain's extent: a sliver of it is
+#: more often a wrong CRS, a misread world file or a swapped extent than an image meant to cover so little
+_MIN_IMAGE_COVERAGE = 0.1
 
 
 # ---------------------------------------------------------------------------------------------- pyramid
@@ -1613,6 +1616,29 @@ def _png_exif(path: Path) -> bytes | None:
         return None
 
 
+def _covered_fraction(placed: ImagePyramid, target: Extent) -> float:
+    """The fraction of ``target``'s area (the terrain's extent) that ``placed``'s extent covers (a world image,
+    spanning a whole turn of longitude, covers every column)."""
+    xmin, xmax, ymin, ymax = placed.extent
+    tx0, tx1, ty0, ty1 = target
+    across = 1.0 if placed._wraps else max(0.0, min(xmax, tx1) - max(xmin, tx0)) / (tx1 - tx0)
+    return across * max(0.0, min(ymax, ty1) - max(ymin, ty0)) / (ty1 - ty0)
+
+
+def _warn_sliver(image: Any, placed: ImagePyramid, target: Extent) -> None:
+    """A warning when the image overlaps less than :data:`_MIN_IMAGE_COVERAGE` of the terrain's extent, naming
+    the fraction and both extents: the rest of the layer is transparent (the layers beneath it show there), which an
+    image in the wrong CRS or at a swapped extent made silently, a corner of it coloured."""
+    fraction = _covered_fraction(placed, target)
+    if fraction >= _MIN_IMAGE_COVERAGE:
+        return
+    what = f"image {str(image)!r}" if isinstance(image, (str, os.PathLike)) else "the image"
+    warnings.warn(f"{what} covers only {100 * fraction:.3g} % of the terrain: its extent {placed.extent}, the "
+                  f"terrain's {target} (xmin, xmax, ymin, ymax); the layer is transparent over the rest (the layers "
+                  "beneath it show there): check the image's CRS and georeferencing (or extent=) if it should cover "
+                  "more", stacklevel=caller_stacklevel())
+
+
 def image_layer(image: ArrayLike | str | os.PathLike[str], terrain: Terrain, *, extent: ArrayLike | None = None,
                 device: wp.DeviceLike = None, name: str = "image", texel_size: float | None = None) -> TextureLayer:
     """An image placed over a grid ``terrain`` as a thematic layer (RGB, or RGBA: alpha 0 at its nodata or
@@ -1643,6 +1669,10 @@ def image_layer(image: ArrayLike | str | os.PathLike[str], terrain: Terrain, *, 
     without a world file, a plain TIFF) needs ``extent`` = (xmin, xmax, ymin, ymax), the outer edges of its pixels
     in the terrain's own coordinates (those of ``terrain.extent``; a geographic DEM's local metres), which also
     places a georeferenced image there instead of its georeferencing.
+
+    An image that overlaps the terrain only in part is transparent beyond its edges; one that covers less than 10 %
+    of the terrain's extent warns, naming the fraction covered and both extents (a wrong CRS, a misread world file or
+    a swapped ``extent`` more often gives such a sliver than an image meant to cover so little).
 
     Raises
     ------
@@ -1706,6 +1736,7 @@ def image_layer(image: ArrayLike | str | os.PathLike[str], terrain: Terrain, *, 
                         "pixels in the terrain's coordinates")
             raise InvalidInputError(f"the image extent {placed.extent} does not overlap the terrain's {target} "
                                     f"(mismatched extent){hint}")
+        _warn_sliver(image, placed, target)
         # a pixel more on each side (within the image): a texel near the terrain's edge is interpolated with the
         # image's next pixel beyond it, not the window's edge pixel repeated (a cropped DEM, or a tile beside
         # another, took other colours on its nodes near the edge than the whole DEM did on the same nodes); a world

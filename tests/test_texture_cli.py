@@ -557,8 +557,9 @@ def test_cli_texture_image_without_georeferencing_names_both_ways_to_place_it(tm
     xmin, ymax = 376313.0 + 30 * 200, 3807917.0 - 30 * 100  # the hint followed: placed by the files it names
     (tmp_path / world).write_text(f"30\n0\n0\n-30\n{xmin + 15}\n{ymax - 15}\n")
     (tmp_path / "photo.prj").write_text(terrain.crs)
-    assert image_layer(image, terrain, device="cpu").extent == pytest.approx((xmin, xmin + 50 * 30,
-                                                                               ymax - 40 * 30, ymax))
+    with pytest.warns(UserWarning, match="covers only 0.26 % of the terrain"):  # 50 x 40 of its 1197 x 643 nodes
+        placed = image_layer(image, terrain, device="cpu")
+    assert placed.extent == pytest.approx((xmin, xmin + 50 * 30, ymax - 40 * 30, ymax))
 
 
 def test_cli_texture_hillshade_none_drapes_an_image_unshaded_and_shadows_still_darken(tmp_path):
@@ -832,7 +833,8 @@ def test_cli_texture_image_with_a_world_file_is_placed_as_a_geotiff(tmp_path, su
     assert np.array_equal(draped, texture_of(tmp_path, "geotiff", str(source), "--image", str(geotiff),
                                              "--colormap", "none", "--hillshade", "none"))
     terrain = load_dem(source)
-    layer, reference = image_layer(image, terrain, device="cpu"), image_layer(geotiff, terrain, device="cpu")
+    with pytest.warns(UserWarning, match="covers only 0.624 % of the terrain"):  # one warning each
+        layer, reference = image_layer(image, terrain, device="cpu"), image_layer(geotiff, terrain, device="cpu")
     assert layer.extent == reference.extent and np.array_equal(layer.image, reference.image)
     with ImagePyramid.build(image, device="cpu") as pyramid:  # its CRS from the .prj
         assert pyramid.crs == "EPSG:32611" and pyramid.extent == pytest.approx(
@@ -1159,3 +1161,68 @@ def test_cli_texture_normals_leaves_a_bad_output_s_message_as_it_was(tmp_path, c
         assert main(["texture", dem, "--shadows", *bad, *normals]) == 2
         assert capsys.readouterr().err == alone
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("rows, cols", [(190, 80), (430, 609), (643, 1197)])
+def test_cli_texture_image_over_a_sliver_of_the_dem_warns_with_the_fraction_and_both_extents(tmp_path, capsys,
+                                                                                               rows, cols):
+    """--image GEOTIFF over the north-west corner of the Big Tujunga DEM (its own grid and CRS), covering 2 %, 34 %
+    and all of it: under 10 % a warning names --image, the fraction of the DEM it covers (rows x cols of its 643 x
+    1197 nodes) and both extents, so a wrong CRS or swapped extent is noticed (it was drawn without a word); the
+    texture is the same either way (the image's pixels there, the plain texture elsewhere), and a larger image is
+    drawn silently."""
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFF images need rasterio")
+
+    from stepterrain import load_dem
+    from stepterrain.texture import terrain_extent
+
+    from .conftest import shared_file
+
+    source = shared_file(TUJUNGA)
+    with rasterio.open(source) as dem:
+        transform, crs = dem.transform, dem.crs
+    image = write_geotiff(tmp_path / "ortho.tif", coded_pixels(rows, cols), transform, crs)
+    draped = texture_of(tmp_path, "draped", str(source), "--image", str(image))
+    err = capsys.readouterr().err
+    fraction = rows * cols / (643 * 1197)
+    if fraction < 0.1:
+        x0, y1 = transform @ (0, 0)
+        x1, y0 = transform @ (cols, rows)
+        assert (f"stepterrain texture: warning: --image {str(image)!r} covers only {100 * fraction:.3g} % of the "
+                f"terrain: its extent {(x0, x1, y0, y1)}, the terrain's {terrain_extent(load_dem(source))}") in err
+        assert "--image-extent" in err and "extent=" not in err, err
+    else:
+        assert err == ""
+    plain = texture_of(tmp_path, "plain", str(source))
+    off = np.ones(draped.shape[:2], bool)
+    off[:rows, :cols] = False
+    assert np.array_equal(draped[off], plain[off])  # outside the image: the texture without it
+    assert np.abs(draped[:rows, :cols] - plain[:rows, :cols]).max() > 50
+
+
+def test_image_layer_over_a_sliver_of_the_terrain_warns_at_the_callers_line():
+    """image_layer (the library call behind --image): an image placed by extent= over a corner of the Big Tujunga
+    DEM that covers 1 % of it warns once, with the fraction and both extents, pointing at the caller's line; one
+    covering 20 % does not; one wholly off it is refused naming both extents."""
+    import warnings
+
+    from stepterrain import load_dem
+    from stepterrain.texture import terrain_extent
+    from stepterrain.texture_lod import image_layer
+
+    from .conftest import shared_file
+
+    terrain = load_dem(shared_file(TUJUNGA))
+    xmin, xmax, ymin, ymax = terrain_extent(terrain)
+    width, height = xmax - xmin, ymax - ymin
+    sliver = (xmax - 0.1 * width, xmax + width, ymin - height, ymin + 0.1 * height)  # 1 % of it, mostly beyond it
+    with pytest.warns(UserWarning, match=r"^the image covers only 1 % of the terrain: its extent ") as caught:
+        layer = image_layer(coded_pixels(64, 64), terrain, extent=sliver, device="cpu")
+    assert len(caught) == 1 and caught[0].filename == __file__
+    assert f"its extent {sliver}, the terrain's {(xmin, xmax, ymin, ymax)}" in str(caught[0].message)
+    assert layer.border == "transparent"  # the rest of the terrain: transparent, the layers beneath showing
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        image_layer(coded_pixels(64, 64), terrain, extent=(xmin, xmin + 0.2 * width, ymin, ymax), device="cpu")
+    with pytest.raises(InvalidInputError, match=r"does not overlap the terrain's \(376313"):
+        image_layer(coded_pixels(64, 64), terrain, extent=(xmax, xmax + width, ymin, ymax), device="cpu")
