@@ -167,6 +167,40 @@ def _path(text: str) -> str:
     return text
 
 
+def _camera(text: str) -> str | tuple[float, float]:
+    """A ``--camera``: ``oblique``, ``top`` or ``AZ,EL`` in degrees, as render_mesh's ``camera`` takes it (its pair in
+    radians: the direction the camera looks from, azimuth clockwise from north = +y, elevation above the horizon).
+    Checked by argparse (exit 2, naming --camera) before any file is read."""
+    name = text.strip().lower()
+    if name in ("oblique", "top"):
+        return name
+    expected = ("oblique, top or AZ,EL in degrees (azimuth clockwise from north, elevation -90 to 90), e.g. "
+                "--camera=225,30")
+    try:
+        azimuth, elevation = _floats(2, expected)(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"expected {expected}; got {text!r}") from None
+    if not -90.0 <= elevation <= 90.0:
+        raise argparse.ArgumentTypeError(f"expected an elevation EL from -90 to 90 degrees; got {text!r}")
+    # whole turns taken off exactly: math.radians(1e308) kept none of the angle
+    return math.radians(math.fmod(azimuth, 360.0)), math.radians(elevation)
+
+
+#: ``--camera``'s help, with the render it applies to.
+_CAMERA_HELP = ("the view of {what}: oblique (default: from just west of south, 45 degrees up), top (straight down, "
+                "north up) or AZ,EL in degrees: the direction the camera looks from, azimuth clockwise from north "
+                "(0 from the north, 90 from the east, 180 from the south), elevation above the horizon (-90 to 90, "
+                "negative from below; within 0.1 of +-90 taken as +-89.9; a negative AZ as --camera=-90,30); "
+                "framed to the terrain either way")
+
+
+def _add_camera(p: argparse.ArgumentParser, what: str = "the render, with --png") -> None:
+    """``--camera``: the render's camera (render_mesh's ``camera``), parsed by :func:`_camera`; left out it is None,
+    for :func:`_given` (default ``"oblique"``) and :func:`_refuse_unused` without a render."""
+    p.add_argument("--camera", type=_camera, default=None, metavar="oblique|top|AZ,EL",
+                   help=_CAMERA_HELP.format(what=what))
+
+
 def _height_unit(text: str) -> str:
     """A ``--height-unit``: a length unit load_dem knows, checked before any file is read."""
     from .io import _KNOWN_UNITS, _unit_factor
@@ -521,6 +555,7 @@ def _add_steps(commands: Any) -> None:
                    help="render size, with --png (default 1280x800)")
     p.add_argument("--z-scale", type=float, default=None, metavar="S",
                    help="vertical exaggeration of the render only, with --png (default 2)")
+    _add_camera(p)
     p.set_defaults(run=_run_steps)
 
 
@@ -752,7 +787,7 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError(f"{option} shows the original terrain inside it and --gamma outside: with --gamma 0 "
                                 f"the terrain is original everywhere and the lens changes nothing; give --gamma > 0 "
                                 f"or leave {option} out")
-    render_options = _given(args, {"size": (1280, 800), "z_scale": 2.0})
+    render_options = _given(args, {"size": (1280, 800), "z_scale": 2.0, "camera": "oblique"})
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
     _check_size(args.size, renders=png is not None)
@@ -874,7 +909,7 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         render._check_render_budget(args.size[0], args.size[1], "--size", mesh=(len(mesh.vertices), len(mesh.faces)),
                                     mesh_hint=_STEPS_RENDER_HINT)
         progress.stage("render", f"rendering {args.size[0]}x{args.size[1]} off-screen")
-        image = render.render_mesh(mesh, window_size=args.size, z_scale=args.z_scale)
+        image = render.render_mesh(mesh, window_size=args.size, z_scale=args.z_scale, camera=args.camera)
         progress.done()
 
     # write: each file atomically (temporary file + rename); no mesh file for a render-only run (--png without -o)
