@@ -55,6 +55,8 @@ examples:
       the texture draped on the stepped terrain (100 m steps), GLB with the image embedded, and a render
   stepterrain texture --shadows --interval 100 --png out/steps.png
       the render alone: no -o, no texture file (--mesh alone likewise writes only the draped mesh)
+  stepterrain texture --shadows --png out/map.png --camera top
+      the render seen straight down, north up (--camera AZ,EL: from azimuth AZ, EL degrees up)
   stepterrain texture --shadows --contours 100 -o topo.png
       contour lines every 100 m (every 5th, from 0 m, an index line: twice as wide, darker) over the shaded colours
   stepterrain texture --contours 50 --contour-width 1.5 --contour-color 0.2,0.2,0.2 --contour-index 0 -o c.png

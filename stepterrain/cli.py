@@ -48,6 +48,8 @@ examples:
   stepterrain steps dem.tif --interval 50 --gamma 0.7 -o dem.ply
   stepterrain steps dem.tif --interval 100 --png dem.png
       the render alone: no -o, no mesh file
+  stepterrain steps --png top.png --camera top
+      the render seen straight down, north up (--camera AZ,EL: from azimuth AZ, EL degrees up)
   stepterrain steps --levels 400,800,1200,1600,2000 --colormap viridis -o levels.obj
   stepterrain steps --lens-relative 0.5,0.5,0.2 -o lens.glb --png lens.png
       original terrain inside a soft circular lens at the centre, steps outside (paper 000, Fig. 4)
