@@ -35,7 +35,7 @@ from ._compaction import budget_hint, get_memory_budget, set_memory_budget
 from .errors import DataFileError, InvalidInputError, StepTerrainError, counted
 from .export import _STL_OPEN_LOCAL, _STL_ROUNDING_LOCAL, MESH_EXTENSIONS, _special_file_kind, probe_writable
 from .stepped import TARGET_STEPS, _default_isovalues, colormap, colormap_samples, nice_interval
-from .terrain import FLOAT32_MAX, finite_number
+from .terrain import FLOAT32_MAX, Terrain, finite_number
 
 __all__ = ["main", "build_parser", "nice_interval"]
 
@@ -141,6 +141,23 @@ def usage_errors(parser: argparse.ArgumentParser) -> Iterator[None]:
         yield
     except StepTerrainError as exc:
         parser.error(str(exc))
+
+
+def add_dem_option(parser: argparse.ArgumentParser) -> None:
+    """``--dem PATH`` for scripts' own argparse mains (examples/): a DEM file to use instead of the embedded one,
+    loaded by :func:`example_dem` (within :func:`usage_errors`: a file it cannot read is a usage error)."""
+    parser.add_argument("--dem", type=_path, default=None, metavar="PATH",
+                        help="a DEM file to use instead of the embedded Big Tujunga DEM (any format load_dem reads: "
+                             ".tif, .npy, .asc, .hgt, ...; heights in metres, a .npy's cells 1 m apart); --size crops "
+                             "it as it crops the embedded one")
+
+
+def example_dem(path: str | os.PathLike[str] | None) -> Terrain:
+    """``--dem``'s terrain (:func:`add_dem_option`): :func:`~stepterrain.load_dem` of ``path``, or the embedded Big
+    Tujunga DEM (:func:`~stepterrain.sample_dem`) when it is None."""
+    import stepterrain as st
+
+    return st.sample_dem() if path is None else st.load_dem(path)
 
 
 def _floats(count: int | None, what: str) -> Callable[[str], tuple[float, ...]]:
