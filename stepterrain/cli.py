@@ -201,8 +201,9 @@ def _camera(text: str) -> str | tuple[float, float]:
         raise argparse.ArgumentTypeError(f"expected {expected}; got {text!r}") from None
     if not -90.0 <= elevation <= 90.0:
         raise argparse.ArgumentTypeError(f"expected an elevation EL from -90 to 90 degrees; got {text!r}")
-    # whole turns taken off exactly: math.radians(1e308) kept none of the angle
-    return math.radians(math.fmod(azimuth, 360.0)), math.radians(elevation)
+    # whole turns taken off exactly, into one turn from 0 as texture's --azimuth: math.radians(1e308) kept none of
+    # the angle, and radians(-170) was not radians(190) (the default's azimuth) to the last bit
+    return math.radians(azimuth % 360.0), math.radians(elevation)
 
 
 #: ``--camera``'s help, with the render it applies to.

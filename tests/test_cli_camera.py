@@ -45,13 +45,21 @@ def read_png(path):
         ("top", "top"),
         (" TOP ", "top"),
         ("225,30", (math.radians(225.0), math.radians(30.0))),
-        ("-90, -45", (math.radians(-90.0), math.radians(-45.0))),
+        ("-90, -45", (math.radians(270.0), math.radians(-45.0))),  # azimuths from 0 to a turn
         ("720,90", (0.0, math.radians(90.0))),  # whole turns taken off
     ],
 )
 def test_camera_values_parse_to_render_mesh_cameras(text, expected):
     got = cli._camera(text)
     assert got == pytest.approx(expected) if isinstance(expected, tuple) else got == expected
+
+
+@pytest.mark.parametrize("text", ["190,45", "-170,45", "550,45", "-530,45"])
+def test_the_default_views_angles_name_it_exactly(text):
+    """The oblique view is the fixed (190, 45) degrees for any mesh: its azimuth written another way round names the
+    same camera bit for bit (radians(-170) differed from radians(190) - 2 pi in the last bit, so '--camera=-170,45'
+    gave the default's pixels only where that rounding moved no pixel edge)."""
+    assert cli._camera(text) == render._OBLIQUE
 
 
 @pytest.mark.parametrize("text", ["side", "", "10", "1,2,3", "a,b", "1,,2", "10,90.5", "10,-91", "nan,10", "10,inf"])
