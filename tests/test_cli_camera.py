@@ -145,3 +145,23 @@ def test_texture_and_closeup_and_batch_take_the_camera(dem, tmp_path, capsys):
             assert code == 0, err
             images[camera] = read_png(png)
         assert not np.array_equal(images["top"], images[None]), command
+
+
+@pytest.mark.render
+@needs_render
+def test_batch_views_every_cell_of_a_contact_sheet_from_the_camera(tmp_path, capsys):
+    """A series' contact sheet (2 x 2 cells of 48 x 32): every cell is seen from --camera (another picture than the
+    default view's), as the mosaic's one render is."""
+    frames = np.cumsum(np.random.default_rng(0).random((4, 10, 12)), axis=0).astype(np.float32)
+    np.save(tmp_path / "s.npy", frames)
+    sheets = {}
+    for camera in ("top", None):
+        png = tmp_path / f"{camera}.png"
+        code, _, err = run(capsys, "-q", "batch", tmp_path / "s.npy", "-o", tmp_path / f"o_{camera}", "--scheduler",
+                           "serial", "--png", png, "--size", "96x64", *([] if camera is None else ["--camera", camera]))
+        assert code == 0, err
+        sheets[camera] = read_png(png)
+    for r in range(2):
+        for c in range(2):
+            cell = np.s_[r * 32:(r + 1) * 32, c * 48:(c + 1) * 48]
+            assert not np.array_equal(sheets["top"][cell], sheets[None][cell]), (r, c)
