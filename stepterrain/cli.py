@@ -1110,18 +1110,23 @@ _OPTION_ALIASES = {
     "texture": {"window_size": "--size"},
 }
 
+#: render._check_visible's advice for a fitted camera that shows the mesh under a pixel from any z_scale: its
+#: ``camera`` is --camera in the subcommands that render with one.
+_LOOK_FROM = {"look from another direction (camera)": "look from another direction (--camera)"}
+
 #: Library arguments named as plain words in mid-sentence, which the general rule leaves alone (a plain word may be
 #: just a word: "gives 2000 levels"), per subcommand: the library's phrase and the command line's.
 _OPTION_PHRASES = {
-    "steps": {"bring base closer": "bring --base closer"},
-    "batch": {"bring base closer": "bring --base closer",
+    "steps": {"bring base closer": "bring --base closer", **_LOOK_FROM},
+    "closeup": _LOOK_FROM,
+    "batch": {"bring base closer": "bring --base closer", **_LOOK_FROM,
               # batch._check_unreferenced's, in a failed item's line ("failed KEY: InvalidInputError: spacing ...")
               ": spacing applies to DEM files": ": --spacing applies to DEM files",
               "render no overview": "leave --png out",  # batch._check_overview's hint
               "a larger max_items= or --tile": "a larger --tile"},  # overview_image's partial mosaic
     "globe": {"raise the error": "raise --error", "--radius + exaggeration": "--radius + --exaggeration"},
     # a rotated, south-up or east-to-west GeoTIFF --image (texture_lod's refusal names image_layer's argument)
-    "texture": {"pass extent=(xmin, xmax, ymin, ymax)": "give --image-extent xmin,xmax,ymin,ymax"},
+    "texture": {"pass extent=(xmin, xmax, ymin, ymax)": "give --image-extent xmin,xmax,ymin,ymax", **_LOOK_FROM},
 }
 
 #: Advice in the library's messages that only a Python caller can follow, left out of every subcommand's lines: no

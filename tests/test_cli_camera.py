@@ -165,3 +165,25 @@ def test_batch_views_every_cell_of_a_contact_sheet_from_the_camera(tmp_path, cap
         for c in range(2):
             cell = np.s_[r * 32:(r + 1) * 32, c * 48:(c + 1) * 48]
             assert not np.array_equal(sheets["top"][cell], sheets[None][cell]), (r, c)
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["steps", "{dem}", "--interval", "0.1", "--png", "{tmp}/a.png"],
+        ["texture", "{dem}", "--shadows", "--png", "{tmp}/a.png"],
+        ["closeup", "{dem}", "--roi", "300,-2.5,2", "--offset", "0,0,1", "--png", "{tmp}/a.png"],
+        ["batch", "{dem}", "--interval", "0.1", "--scheduler", "serial", "-o", "{tmp}/b", "--png", "{tmp}/a.png"],
+    ],
+)
+@needs_render
+def test_a_view_too_thin_to_see_points_to_the_camera_option(tmp_path, capsys, argv):
+    """A strip of ground 600 x 6 nodes seen from the top, under a pixel tall in 64 x 64 whatever its z-scale: the
+    advice to look from another direction named render_mesh's ``camera``, which the command line spells --camera."""
+    path = tmp_path / "strip.npy"
+    np.save(path, np.random.default_rng(0).random((6, 600)).astype(np.float32))
+    code, _, err = run(capsys, "-q", *[a.format(dem=path, tmp=tmp_path) for a in argv], "--size", "64x64",
+                       "--camera", "top")
+    assert code == 2, err
+    assert "too thin to see" in err and "look from another direction (--camera)" in err, err
+    assert "(camera)" not in err and "Traceback" not in err
