@@ -207,8 +207,9 @@ def _camera(text: str) -> str | tuple[float, float]:
 
 
 #: ``--camera``'s help, with the render it applies to.
-_CAMERA_HELP = ("the view of {what}: oblique (default: from just west of south, 45 degrees up), top (straight down, "
-                "north up) or AZ,EL in degrees: the direction the camera looks from, azimuth clockwise from north "
+_CAMERA_HELP = ("the view of {what}: oblique (default: 190,45, from just west of south, 45 degrees up), top "
+                "(straight down, north up: 180,90) or AZ,EL in degrees: the direction the camera looks from, azimuth "
+                "clockwise from north "
                 "(0 from the north, 90 from the east, 180 from the south), elevation above the horizon (-90 to 90, "
                 "negative from below; within 0.1 of +-90 taken as +-89.9; a negative AZ as --camera=-90,30); "
                 "framed to the terrain either way")

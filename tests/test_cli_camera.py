@@ -62,6 +62,15 @@ def test_the_default_views_angles_name_it_exactly(text):
     assert cli._camera(text) == render._OBLIQUE
 
 
+def test_top_is_straight_down_from_the_south_as_the_help_says():
+    """--help: top is 180,90 (the far side up: north); 0,90 looks down with south up."""
+    corners = np.array([[0.0, 0.0, 0.0], [300.0, 200.0, 40.0]])
+    top = render._camera_position("top", corners, 1.5)
+    assert render._camera_position(cli._camera("180,90"), corners, 1.5) == top
+    assert render._camera_position(cli._camera("-180,89.95"), corners, 1.5) == top
+    assert render._camera_position(cli._camera("0,90"), corners, 1.5)[2] == pytest.approx((0.0, -1.0, 0.0), abs=1e-12)
+
+
 @pytest.mark.parametrize("text", ["side", "", "10", "1,2,3", "a,b", "1,,2", "10,90.5", "10,-91", "nan,10", "10,inf"])
 @pytest.mark.parametrize(
     "argv",
