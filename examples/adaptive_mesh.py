@@ -17,16 +17,16 @@ from pathlib import Path
 import numpy as np
 
 import stepterrain as st
-from stepterrain.cli import usage_errors
+from stepterrain.cli import add_dem_option, example_dem, usage_errors
 from stepterrain.export import save_image
 from stepterrain.globe import adaptive_mesh
 from stepterrain.render import render_mesh
 
 
-def crop(size: int) -> st.Terrain:
-    """The embedded DEM, centre-cropped and subsampled to about ``size`` x ``size`` nodes (north-up, as stored:
-    :func:`adaptive_mesh` takes its negative dy and north-west origin as they are)."""
-    dem = st.sample_dem()
+def crop(size: int, dem: st.Terrain | None = None) -> st.Terrain:
+    """``dem`` (default: the embedded DEM), centre-cropped and subsampled to about ``size`` x ``size`` nodes (as
+    stored: :func:`adaptive_mesh` takes a north-up DEM's negative dy and north-west origin as they are)."""
+    dem = st.sample_dem() if dem is None else dem
     rows, cols = dem.shape
     stride = max(1, min(rows, cols) // size)
     n = min(size, rows // stride, cols // stride)
@@ -62,6 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default=None, help="Warp device: cpu, cuda, cuda:0 (default: Warp's)")
     parser.add_argument("--size", type=int, default=512, help="nodes per side of the DEM crop (default 512)")
+    add_dem_option(parser)
     parser.add_argument("--errors", type=float, nargs="+", default=(40.0, 10.0, 2.5), help="bounds in metres")
     parser.add_argument("--output", type=Path, default=Path("out/adaptive_mesh.png"), help="PNG to write")
     parser.add_argument("--panel", type=int, nargs=2, default=(480, 400), metavar=("W", "H"),
@@ -74,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    terrain = crop(args.size)
+    terrain = crop(args.size, example_dem(args.dem))
     panels = []
     for error in args.errors:
         mesh = adaptive_mesh(terrain, error=error, device=args.device)

@@ -14,9 +14,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from stepterrain import sample_dem
 from stepterrain.batch import batch, overview_image
-from stepterrain.cli import usage_errors
+from stepterrain.cli import add_dem_option, example_dem, usage_errors
 from stepterrain.export import IMAGE_EXTENSIONS, save_image
 from stepterrain.terrain import Terrain
 
@@ -24,8 +23,10 @@ from stepterrain.terrain import Terrain
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, default=1197,
-                        help="keep every (1197 // SIZE)-th DEM node: SIZE to 2 x SIZE - 1 nodes across, all 1197 from "
-                             "SIZE 599 on (default: all 1197)")
+                        help="keep every (COLS // SIZE)-th DEM node, COLS the DEM's columns (1197 in the embedded "
+                             "one): SIZE to 2 x SIZE - 1 nodes across, all COLS from SIZE (COLS + 1) // 2 on "
+                             "(default: all 1197 of the embedded DEM)")
+    add_dem_option(parser)
     parser.add_argument("--tile", type=int, default=256, help="cells per tile (default 256)")
     parser.add_argument("--interval", type=float, default=100.0, help="step interval in metres (default 100)")
     parser.add_argument("--workers", type=int, default=2, help="LocalCluster worker processes (default 2)")
@@ -45,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    dem = sample_dem()
+    dem = example_dem(args.dem)
     step = max(1, dem.shape[1] // args.size)
     terrain = Terrain.from_heights(dem.heights[::step, ::step], spacing=(dem.spacing[0] * step, dem.spacing[1] * step),
                                    origin=dem.origin, crs=dem.crs, source=dem.source)  # fmt: skip

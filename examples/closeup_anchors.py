@@ -14,7 +14,7 @@ import argparse
 import sys
 
 import stepterrain as st
-from stepterrain.cli import usage_errors
+from stepterrain.cli import add_dem_option, example_dem, usage_errors
 from stepterrain.closeup import ROI, AnchorStyle, CloseUp, render_closeups
 from stepterrain.render import save_png
 
@@ -40,6 +40,7 @@ def closeups(terrain: st.Terrain, inactive: bool = False) -> list[CloseUp]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, default=0, help="crop the DEM to SIZE x SIZE nodes (0: whole DEM)")
+    add_dem_option(parser)
     parser.add_argument("--window", type=int, nargs=2, default=(1280, 720), metavar=("W", "H"))
     parser.add_argument("--output", default="closeup_anchors.png")
     parser.add_argument("--inactive", action="store_true", help="show the inactive depictions of Fig. 5")
@@ -50,7 +51,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    terrain = st.sample_dem()
+    terrain = example_dem(args.dem)
     if args.size:
         rows, cols = terrain.shape
         dx, dy = terrain.spacing

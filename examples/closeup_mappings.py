@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 
 import stepterrain as st
-from stepterrain.cli import usage_errors
+from stepterrain.cli import add_dem_option, example_dem, usage_errors
 from stepterrain.closeup import ROI, AnchorStyle, CloseUp, animate_closeups, render_closeups, save_animation
 from stepterrain.render import save_png
 
@@ -40,7 +40,8 @@ def closeups(terrain: st.Terrain) -> list[CloseUp]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, default=0,
-                        help="crop the embedded DEM to SIZE x SIZE nodes from its centre (0: the whole DEM)")
+                        help="crop the DEM to SIZE x SIZE nodes from its centre (0: the whole DEM)")
+    add_dem_option(parser)
     parser.add_argument("--window", type=int, nargs=2, default=(1280, 720), metavar=("W", "H"))
     parser.add_argument("--output", default="closeup_mappings.png")
     parser.add_argument("--gif", default=None, help="also write a spinning animation (.gif or .mp4)")
@@ -64,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    terrain = st.sample_dem()
+    terrain = example_dem(args.dem)
     if args.size:
         rows, cols = terrain.shape
         i0, j0 = max(0, (rows - args.size) // 2), max(0, (cols - args.size) // 2)

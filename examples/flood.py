@@ -23,7 +23,7 @@ import matplotlib
 import numpy as np
 
 from stepterrain import get_memory_budget
-from stepterrain.cli import usage_errors
+from stepterrain.cli import add_dem_option, example_dem, usage_errors
 from stepterrain.closeup import save_animation
 from stepterrain.errors import InvalidInputError, MissingDependencyError, OutputTooLargeError
 from stepterrain.export import atomic_path, save_image
@@ -68,6 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default=None, help="Warp device: cpu, cuda, cuda:0 (default: Warp's)")
     parser.add_argument("--size", type=int, default=256, help="nodes per side of the DEM crop (default 256)")
+    add_dem_option(parser)
     parser.add_argument("--frames", type=int, default=24, help="frames of the animation (default 24)")
     parser.add_argument("--keyframes", type=int, default=5, help="keyframe layers (default 5)")
     parser.add_argument("--output", type=Path, default=Path("out/flood.png"),
@@ -89,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
-    terrain = crop_sample(args.size)
+    terrain = crop_sample(args.size, example_dem(args.dem))
     rows, cols = terrain.shape
     if args.mp4 and (rows % 2 or cols % 2):  # before any work: the GIF and PNG were written, then the MP4 stretched
         raise InvalidInputError(f"--mp4 needs frames of an even width and height (H.264 codes 2 x 2 colour blocks; "

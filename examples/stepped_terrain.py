@@ -20,13 +20,13 @@ from pathlib import Path
 import numpy as np
 
 import stepterrain as st
-from stepterrain.cli import nice_interval, usage_errors
+from stepterrain.cli import add_dem_option, example_dem, nice_interval, usage_errors
 from stepterrain.render import render_mesh, save_png
 
 
-def crop_sample(size: int) -> st.Terrain:
-    """The embedded DEM, subsampled and centre-cropped to about ``size`` x ``size`` nodes."""
-    dem = st.sample_dem()
+def crop_sample(size: int, dem: st.Terrain | None = None) -> st.Terrain:
+    """``dem`` (default: the embedded DEM), subsampled and centre-cropped to about ``size`` x ``size`` nodes."""
+    dem = st.sample_dem() if dem is None else dem
     rows, cols = dem.shape
     stride = max(1, min(rows, cols) // size)
     n_rows, n_cols = min(size, rows // stride), min(size, cols // stride)
@@ -43,6 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default=None, help="Warp device: cpu, cuda, cuda:0 (default: Warp's)")
     parser.add_argument("--size", type=int, default=256, help="nodes per side of the DEM crop (default 256)")
+    add_dem_option(parser)
     parser.add_argument("--output", type=Path, default=Path("out/stepped_terrain.png"), help="PNG to write")
     parser.add_argument("--panel", type=int, nargs=2, default=(640, 480), metavar=("W", "H"),
                         help="size of one panel in pixels (default 640 480)")
@@ -54,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    terrain = crop_sample(args.size)
+    terrain = crop_sample(args.size, example_dem(args.dem))
     lo, hi = terrain.height_range
     interval = nice_interval((lo, hi), target=12)
     levels = st.isovalues((lo, hi), interval=interval)

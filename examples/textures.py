@@ -28,7 +28,7 @@ import matplotlib
 import numpy as np
 
 import stepterrain as st
-from stepterrain.cli import nice_interval, usage_errors
+from stepterrain.cli import add_dem_option, example_dem, nice_interval, usage_errors
 from stepterrain.render import render_textured_mesh, save_png
 from stepterrain.texture import (
     Pipeline,
@@ -41,9 +41,9 @@ from stepterrain.texture import (
 )
 
 
-def crop_sample(size: int) -> st.Terrain:
-    """The embedded DEM, subsampled and centre-cropped to about ``size`` x ``size`` nodes."""
-    dem = st.sample_dem()
+def crop_sample(size: int, dem: st.Terrain | None = None) -> st.Terrain:
+    """``dem`` (default: the embedded DEM), subsampled and centre-cropped to about ``size`` x ``size`` nodes."""
+    dem = st.sample_dem() if dem is None else dem
     rows, cols = dem.shape
     stride = max(1, min(rows, cols) // size)
     n_rows, n_cols = min(size, rows // stride), min(size, cols // stride)
@@ -69,6 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default=None, help="Warp device: cpu, cuda, cuda:0 (default: Warp's)")
     parser.add_argument("--size", type=int, default=256, help="nodes per side of the DEM crop (default 256)")
+    add_dem_option(parser)
     parser.add_argument("--output", type=Path, default=Path("out/textures.png"), help="PNG to write")
     parser.add_argument("--panel", type=int, nargs=2, default=(800, 600), metavar=("W", "H"),
                         help="size of one panel in pixels (default 800 600)")
@@ -81,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
-    terrain = crop_sample(args.size)
+    terrain = crop_sample(args.size, example_dem(args.dem))
     topo = topographic_layer(terrain, azimuth=math.radians(315), altitude=math.radians(30), shadows=True,
                              shadow_strength=0.5, occlusion=0.25, device=args.device)
     hyps, slopes = colour_layers(terrain)

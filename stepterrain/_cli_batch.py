@@ -80,6 +80,7 @@ def add_parser(commands: Any) -> None:
     """Add the ``batch`` subcommand to the ``stepterrain`` parser."""
     from .cli import (
         _add_band,
+        _add_camera,
         _add_device,
         _add_height_encoding,
         _add_height_unit,
@@ -163,6 +164,7 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--png", type=_path, metavar="OUT.png",
                    help="also render an overview: the welded tiles, or a contact sheet of up to 16 items")
     p.add_argument("--size", type=_window, default=None, metavar="WxH", help="--png size (default 1280x800)")
+    _add_camera(p, "the overview render, with --png (each cell of a contact sheet alike)")
     p.set_defaults(run=functools.partial(_run_batch, sub=p))  # its failure lines spell library arguments as p's options
 
 
@@ -210,7 +212,7 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
         raise InvalidInputError(f"--workers applies only to the default LocalCluster, not with --scheduler; got "
                                 f"--workers {args.workers} with --scheduler {args.scheduler}")
     workers = 2 if args.workers is None else args.workers
-    render_options = _given(args, {"size": (1280, 800)})
+    render_options = _given(args, {"size": (1280, 800), "camera": "oblique"})
     _check_size(args.size, renders=png is not None)
     if png is None:  # (after its value, which is named first) it was ignored
         _refuse_unused(render_options, "--png (the overview render)", "without --png")
@@ -325,6 +327,7 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
         from .export import _save_image
 
         progress.stage("render", f"rendering an overview {args.size[0]}x{args.size[1]}")
-        _save_image(overview_image(report, window_size=args.size), png, reused=False)  # no mesh takes its bytes
+        image = overview_image(report, window_size=args.size, camera=args.camera)
+        _save_image(image, png, reused=False)  # no mesh takes its bytes
         progress.done(str(png))
     return 0 if report.ok else 1

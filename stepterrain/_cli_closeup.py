@@ -83,7 +83,7 @@ def _spin(text: str) -> float:
 
 def add_parser(commands: Any) -> None:
     """Add the ``closeup`` subcommand to the ``stepterrain`` parser."""
-    from .cli import _add_device, _add_input_options, _floats, _path, _window
+    from .cli import _add_camera, _add_device, _add_input_options, _floats, _path, _window
 
     p = commands.add_parser(
         "closeup",
@@ -143,6 +143,8 @@ def add_parser(commands: Any) -> None:
                         "turn a frame: |TURNS/S| <= --fps / 2 (default 0.25)")
     p.add_argument("--frames", type=int, default=None, metavar="N", help="animation frames (default 24)")
     p.add_argument("--fps", type=float, default=None, metavar="FPS", help="animation frame rate (default 12)")
+    _add_camera(p, "the render and the animation (a .png --output, --png or --gif), framing the overview and "
+                   "the close-ups")
     p.set_defaults(run=_run_closeup)
 
 
@@ -208,7 +210,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
                                     "write .glb, .ply or .3mf for colours, or leave them out")
     if anim is not None and anim.suffix.lower() == ".mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
         raise MissingDependencyError("MP4 output needs imageio-ffmpeg: pip install 'stepterrain[video]'")
-    render_options = _given(args, {"z_scale": 2.0, "size": (1280, 720)})
+    render_options = _given(args, {"z_scale": 2.0, "size": (1280, 720), "camera": "oblique"})
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
     if args.colormap is not None and args.scalars == "none" and not any(args.stepped or []):
@@ -336,7 +338,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
                                 stepped=st_ or None, view="billboard" if args.billboard else "overview",
                                 spin=(args.spin, repetitions)))
     scalars = None if args.scalars == "none" else args.scalars
-    options = dict(z_scale=args.z_scale, scalars=scalars, cmap=args.colormap, device=args.device)
+    options = dict(z_scale=args.z_scale, scalars=scalars, cmap=args.colormap, device=args.device, camera=args.camera)
 
     # everything is computed in memory first, then written: a run that fails anywhere writes no file
     scene = image = frames = None

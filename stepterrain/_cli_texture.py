@@ -17,6 +17,7 @@ import numpy as np
 
 from .cli import (
     Progress,
+    _add_camera,
     _add_device,
     _add_input_options,
     _check_output,
@@ -54,6 +55,8 @@ examples:
       the texture draped on the stepped terrain (100 m steps), GLB with the image embedded, and a render
   stepterrain texture --shadows --interval 100 --png out/steps.png
       the render alone: no -o, no texture file (--mesh alone likewise writes only the draped mesh)
+  stepterrain texture --shadows --png out/map.png --camera top
+      the render seen straight down, north up (--camera AZ,EL: from azimuth AZ, EL degrees up)
   stepterrain texture --shadows --contours 100 -o topo.png
       contour lines every 100 m (every 5th, from 0 m, an index line: twice as wide, darker) over the shaded colours
   stepterrain texture --contours 50 --contour-width 1.5 --contour-color 0.2,0.2,0.2 --contour-index 0 -o c.png
@@ -172,6 +175,7 @@ def add_parser(commands: Any) -> None:
                    help="render size, with --png (default 1280x800)")
     p.add_argument("--z-scale", type=float, default=None, metavar="S",
                    help="vertical exaggeration of the render only, with --png (default 2)")
+    _add_camera(p, "the render of the draped mesh, with --png")
     p.set_defaults(run=_run_texture)
 
 
@@ -473,7 +477,7 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError("--interval applies only with --mesh or --png")
     if args.interval is not None and not (math.isfinite(args.interval) and args.interval > 0):
         raise InvalidInputError(f"--interval must be a positive number; got {args.interval:g}")
-    render_options = _given(args, {"size": (1280, 800), "z_scale": 2.0})
+    render_options = _given(args, {"size": (1280, 800), "z_scale": 2.0, "camera": "oblique"})
     _check_size(args.size, renders=png is not None)
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
@@ -591,7 +595,8 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         progress.done(f"{_counted(len(draped.faces), 'face')}")
         if png is not None:
             progress.stage("render", f"rendering {args.size[0]}x{args.size[1]} off-screen")
-            shot = render.render_textured_mesh(draped, window_size=args.size, z_scale=args.z_scale, lighting=False)
+            shot = render.render_textured_mesh(draped, window_size=args.size, z_scale=args.z_scale, lighting=False,
+                                                camera=args.camera)
             progress.done()
 
     if out is not None:  # no texture file for a run without -o (--mesh or --png alone)

@@ -3020,6 +3020,7 @@ def overview_image(
     mosaic: bool | None = None,
     max_items: int = _MOSAIC_ITEMS,
     z_scale: float = 2.0,
+    camera: Any = "oblique",
 ) -> NDArray[np.uint8]:
     """An off-screen picture of a batch's outputs: the welded mosaic of tiles, or a contact sheet of items.
 
@@ -3030,7 +3031,9 @@ def overview_image(
     ``window_size`` (H = its height, W = its width) either way.
     At most ``max_items`` outputs are read (the first, in item order: a mosaic of more tiles shows only part of the
     raster, with a warning saying so), after the window is checked against the memory budget (an
-    OutputTooLargeError, as :func:`stepterrain.render.render_mesh` raises).
+    OutputTooLargeError, as :func:`stepterrain.render.render_mesh` raises). ``camera`` is render_mesh's ("oblique",
+    "top", (azimuth, elevation) in radians), for the mosaic and for each cell of a contact sheet alike; an explicit
+    position is relative to the centre of what is rendered (the mosaic, or each item).
     """
     import trimesh
 
@@ -3039,6 +3042,7 @@ def overview_image(
 
     width, height, _ = render._check_window(window_size, z_scale)  # the contact sheet's w // cols truncated 64.7
     render._check_render_budget(width, height)  # before any output is read
+    render._camera_position(camera, np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]]), 1.0)  # its refusal, likewise
     if isinstance(max_items, bool) or not isinstance(max_items, (int, np.integer)) or max_items < 1:
         # -1 dropped the last output silently, 0 said "wrote no output", "3" raised a slicing TypeError
         raise InvalidInputError(f"max_items must be an int >= 1; got {max_items!r}")
@@ -3069,7 +3073,8 @@ def overview_image(
             rgba = np.c_[rgb, np.full(len(rgb), 255)].astype(np.uint8)
             mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=rgba)
             parts.append(mesh)
-        return render.render_mesh(trimesh.util.concatenate(parts), window_size=(width, height), z_scale=z_scale)
+        return render.render_mesh(trimesh.util.concatenate(parts), window_size=(width, height), z_scale=z_scale,
+                                  camera=camera)
     rows, cols = _sheet_grid(len(meshes))
     # the cells share the window's pixels exactly: width // cols per cell made the sheet narrower or shorter than
     # window_size (1280 x 798 for 1280 x 800 and 10 items), and a 16-pixel floor per cell wider or taller (64 x 48
@@ -3083,7 +3088,8 @@ def overview_image(
             continue
         r, c = divmod(k, cols)
         w, h = xs[c + 1] - xs[c], ys[r + 1] - ys[r]
-        picture = render.render_mesh(mesh, window_size=(max(w, 8), max(h, 8)), z_scale=z_scale)[..., :3]
+        picture = render.render_mesh(mesh, window_size=(max(w, 8), max(h, 8)), z_scale=z_scale,
+                                     camera=camera)[..., :3]
         if picture.shape[:2] != (h, w):
             from PIL import Image
 

@@ -35,7 +35,7 @@ from ._compaction import budget_hint, get_memory_budget, set_memory_budget
 from .errors import DataFileError, InvalidInputError, StepTerrainError, counted
 from .export import _STL_OPEN_LOCAL, _STL_ROUNDING_LOCAL, MESH_EXTENSIONS, _special_file_kind, probe_writable
 from .stepped import TARGET_STEPS, _default_isovalues, colormap, colormap_samples, nice_interval
-from .terrain import FLOAT32_MAX, finite_number
+from .terrain import FLOAT32_MAX, Terrain, finite_number
 
 __all__ = ["main", "build_parser", "nice_interval"]
 
@@ -48,6 +48,8 @@ examples:
   stepterrain steps dem.tif --interval 50 --gamma 0.7 -o dem.ply
   stepterrain steps dem.tif --interval 100 --png dem.png
       the render alone: no -o, no mesh file
+  stepterrain steps --png top.png --camera top
+      the render seen straight down, north up (--camera AZ,EL: from azimuth AZ, EL degrees up)
   stepterrain steps --levels 400,800,1200,1600,2000 --colormap viridis -o levels.obj
   stepterrain steps --lens-relative 0.5,0.5,0.2 -o lens.glb --png lens.png
       original terrain inside a soft circular lens at the centre, steps outside (paper 000, Fig. 4)
@@ -143,6 +145,23 @@ def usage_errors(parser: argparse.ArgumentParser) -> Iterator[None]:
         parser.error(str(exc))
 
 
+def add_dem_option(parser: argparse.ArgumentParser) -> None:
+    """``--dem PATH`` for scripts' own argparse mains (examples/): a DEM file to use instead of the embedded one,
+    loaded by :func:`example_dem` (within :func:`usage_errors`: a file it cannot read is a usage error)."""
+    parser.add_argument("--dem", type=_path, default=None, metavar="PATH",
+                        help="a DEM file to use instead of the embedded Big Tujunga DEM (any format load_dem reads: "
+                             ".tif, .npy, .asc, .hgt, ...; heights in metres, a .npy's cells 1 m apart); --size crops "
+                             "it as it crops the embedded one")
+
+
+def example_dem(path: str | os.PathLike[str] | None) -> Terrain:
+    """``--dem``'s terrain (:func:`add_dem_option`): :func:`~stepterrain.load_dem` of ``path``, or the embedded Big
+    Tujunga DEM (:func:`~stepterrain.sample_dem`) when it is None."""
+    import stepterrain as st
+
+    return st.sample_dem() if path is None else st.load_dem(path)
+
+
 def _floats(count: int | None, what: str) -> Callable[[str], tuple[float, ...]]:
     def parse(text: str) -> tuple[float, ...]:
         # blanks around a value go ('1, 2, 3'); blanks inside one are an error, not removed ('1 2 3' read as 123)
@@ -167,6 +186,42 @@ def _path(text: str) -> str:
     if not text:
         raise argparse.ArgumentTypeError(f"expected a file name; got {text!r}")
     return text
+
+
+def _camera(text: str) -> str | tuple[float, float]:
+    """A ``--camera``: ``oblique``, ``top`` or ``AZ,EL`` in degrees, as render_mesh's ``camera`` takes it (its pair in
+    radians: the direction the camera looks from, azimuth clockwise from north = +y, elevation above the horizon).
+    Checked by argparse (exit 2, naming --camera) before any file is read."""
+    name = text.strip().lower()
+    if name in ("oblique", "top"):
+        return name
+    expected = ("oblique, top or AZ,EL in degrees (azimuth clockwise from north, elevation -90 to 90), e.g. "
+                "--camera=225,30")
+    try:
+        azimuth, elevation = _floats(2, expected)(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"expected {expected}; got {text!r}") from None
+    if not -90.0 <= elevation <= 90.0:
+        raise argparse.ArgumentTypeError(f"expected an elevation EL from -90 to 90 degrees; got {text!r}")
+    # whole turns taken off exactly, into one turn from 0 as texture's --azimuth: math.radians(1e308) kept none of
+    # the angle, and radians(-170) was not radians(190) (the default's azimuth) to the last bit
+    return math.radians(azimuth % 360.0), math.radians(elevation)
+
+
+#: ``--camera``'s help, with the render it applies to.
+_CAMERA_HELP = ("the view of {what}: oblique (default: 190,45, from just west of south, 45 degrees up), top "
+                "(straight down, north up: 180,90) or AZ,EL in degrees: the direction the camera looks from, azimuth "
+                "clockwise from north "
+                "(0 from the north, 90 from the east, 180 from the south), elevation above the horizon (-90 to 90, "
+                "negative from below; within 0.1 of +-90 taken as +-89.9; a negative AZ as --camera=-90,30); "
+                "framed to the terrain either way")
+
+
+def _add_camera(p: argparse.ArgumentParser, what: str = "the render, with --png") -> None:
+    """``--camera``: the render's camera (render_mesh's ``camera``), parsed by :func:`_camera`; left out it is None,
+    for :func:`_given` (default ``"oblique"``) and :func:`_refuse_unused` without a render."""
+    p.add_argument("--camera", type=_camera, default=None, metavar="oblique|top|AZ,EL",
+                   help=_CAMERA_HELP.format(what=what))
 
 
 def _height_unit(text: str) -> str:
@@ -558,6 +613,7 @@ def _add_steps(commands: Any) -> None:
                    help="render size, with --png (default 1280x800)")
     p.add_argument("--z-scale", type=float, default=None, metavar="S",
                    help="vertical exaggeration of the render only, with --png (default 2)")
+    _add_camera(p)
     p.set_defaults(run=_run_steps)
 
 
@@ -798,7 +854,7 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         finite_number(args.print_size, "--print-size", positive=True)  # before the DEM is read and stepped
         if args.print_z_scale is not None:
             finite_number(args.print_z_scale, "--print-z-scale", positive=True)
-    render_options = _given(args, {"size": (1280, 800), "z_scale": 2.0})
+    render_options = _given(args, {"size": (1280, 800), "z_scale": 2.0, "camera": "oblique"})
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
     _check_size(args.size, renders=png is not None)
@@ -920,7 +976,7 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         render._check_render_budget(args.size[0], args.size[1], "--size", mesh=(len(mesh.vertices), len(mesh.faces)),
                                     mesh_hint=_STEPS_RENDER_HINT)
         progress.stage("render", f"rendering {args.size[0]}x{args.size[1]} off-screen")
-        image = render.render_mesh(mesh, window_size=args.size, z_scale=args.z_scale)
+        image = render.render_mesh(mesh, window_size=args.size, z_scale=args.z_scale, camera=args.camera)
         progress.done()
 
     if args.print_size is not None:  # after the render, which shows the terrain as stepped (its --z-scale alone)
@@ -1123,11 +1179,16 @@ _OPTION_ALIASES = {
     "texture": {"window_size": "--size"},
 }
 
+#: render._check_visible's advice for a fitted camera that shows the mesh under a pixel from any z_scale: its
+#: ``camera`` is --camera in the subcommands that render with one.
+_LOOK_FROM = {"look from another direction (camera)": "look from another direction (--camera)"}
+
 #: Library arguments named as plain words in mid-sentence, which the general rule leaves alone (a plain word may be
 #: just a word: "gives 2000 levels"), per subcommand: the library's phrase and the command line's.
 _OPTION_PHRASES = {
-    "steps": {"bring base closer": "bring --base closer"},
-    "batch": {"bring base closer": "bring --base closer",
+    "steps": {"bring base closer": "bring --base closer", **_LOOK_FROM},
+    "closeup": _LOOK_FROM,
+    "batch": {"bring base closer": "bring --base closer", **_LOOK_FROM,
               # batch._check_unreferenced's, in a failed item's line ("failed KEY: InvalidInputError: spacing ...")
               ": spacing applies to DEM files": ": --spacing applies to DEM files",
               "render no overview": "leave --png out",  # batch._check_overview's hint
@@ -1136,7 +1197,7 @@ _OPTION_PHRASES = {
     # a rotated, south-up or east-to-west GeoTIFF --image (texture_lod's refusal names image_layer's argument)
     "texture": {"pass extent=(xmin, xmax, ymin, ymax)": "give --image-extent xmin,xmax,ymin,ymax",
                 # image_layer's warning of an image over a sliver of the terrain
-                "georeferencing (or extent=)": "georeferencing (or --image-extent)"},
+                "georeferencing (or extent=)": "georeferencing (or --image-extent)", **_LOOK_FROM},
 }
 
 #: Advice in the library's messages that only a Python caller can follow, left out of every subcommand's lines: no

@@ -1257,6 +1257,8 @@ def test_file_names_whose_outputs_clash_are_named(tmp_path):
     ({"max_items": "3"}, "max_items must be an int >= 1; got '3'"),  # a TypeError from slicing
     ({"max_items": 2.5}, "max_items must be an int >= 1; got 2.5"),
     ({"mosaic": "no"}, "mosaic must be True or False; got 'no'"),  # truthy: a mosaic
+    ({"camera": "side"}, "camera must be 'oblique', 'top'"),  # before any output is read (this one does not exist)
+    ({"camera": (1.0, float("nan"))}, "camera must be 'oblique', 'top'"),
 ])
 def test_overview_image_options_are_checked(tmp_path, kwargs, match):
     report = BatchReport(tmp_path, [ItemResult("tile_r0_c0", "done", path=str(tmp_path / "tile_r0_c0.glb"))])

@@ -1,0 +1,139 @@
+"""The examples' ``--dem PATH`` (stepterrain.cli.add_dem_option / example_dem): run on a user's DEM file instead of
+the embedded one, cropped by ``--size`` as the embedded DEM is, writing their picture; a file that cannot be read is a
+usage error (exit 2) that writes nothing."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import stepterrain as st
+from stepterrain import render
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+AVAILABLE, REASON = render.offscreen_available()
+pytestmark = [pytest.mark.render,
+              pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")]
+
+#: example -> (its arguments at a tiny size, the picture's (height, width)); ``{out}`` is the PNG written
+RUNS = {
+    "stepped_terrain": (["--size", "24", "--panel", "96", "72", "--device", "cpu"], (72, 3 * 96)),
+    "textures": (["--size", "24", "--panel", "96", "72", "--device", "cpu"], (72, 2 * 96)),
+    "adaptive_mesh": (["--size", "24", "--errors", "20", "--panel", "96", "72", "--device", "cpu"], None),
+    "flood": (["--size", "24", "--frames", "2", "--keyframes", "2", "--device", "cpu"], None),
+    "batch_tiles": (["--size", "40", "--tile", "16", "--scheduler", "serial", "--interval", "2",
+                     "--window", "96", "72", "--device", "cpu"], (72, 96)),
+    "closeup_anchors": (["--window", "256", "144", "--device", "cpu"], (144, 256)),
+    "closeup_mappings": (["--window", "192", "108", "--device", "cpu"], (108, 192)),
+}
+
+
+def load_example(name: str):
+    spec = importlib.util.spec_from_file_location(f"example_dem_{name}", EXAMPLES / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def read_png(path: Path) -> np.ndarray:
+    from PIL import Image
+
+    with Image.open(path) as image:
+        return np.asarray(image.convert("RGB"))
+
+
+@pytest.fixture
+def user_dem(tmp_path):
+    """A 30 x 40 crop of the embedded DEM as a .npy (1 m cells: heights divided by its 30 m spacing, so the relief
+    keeps its proportions), in a folder of its own."""
+    dem = st.sample_dem()
+    folder = tmp_path / "data"
+    folder.mkdir()
+    path = folder / "mine.npy"
+    np.save(path, (dem.heights[500:530, 600:640] / 30.0).astype(np.float32))
+    return path
+
+
+@pytest.fixture
+def only_the_user_dem(monkeypatch):
+    """The embedded DEM cannot be read; the files load_dem reads are listed."""
+    read = []
+    load = st.load_dem
+
+    def embedded(*args, **kwargs):
+        raise AssertionError("the embedded DEM was read, not --dem's file")
+
+    def loading(path, *args, **kwargs):
+        read.append(Path(path))
+        return load(path, *args, **kwargs)
+
+    monkeypatch.setattr(st, "sample_dem", embedded)
+    monkeypatch.setattr(st, "load_dem", loading)
+    return read
+
+
+@pytest.mark.parametrize("name", sorted(RUNS))
+def test_an_example_runs_on_a_dem_file(name, user_dem, only_the_user_dem, tmp_path, capsys):
+    argv, shape = RUNS[name]
+    out = tmp_path / "out" / f"{name}.png"
+    out.parent.mkdir()
+    example = load_example(name)
+    assert example.main([*argv, "--dem", str(user_dem), "--output", str(out)]) == 0
+    assert only_the_user_dem == [user_dem]
+    image = read_png(out)
+    if shape is not None:
+        assert image.shape[:2] == shape
+    assert image.std() > 5  # a picture, not a blank one
+
+
+def test_the_crop_is_of_the_dem_file(user_dem, only_the_user_dem, tmp_path, capsys):
+    """stepped_terrain's --size crops the file as it crops the embedded DEM: of a 30 x 40 file, --size 30 keeps the
+    centre 30 x 30 nodes, --size 15 every second node of them."""
+    example = load_example("stepped_terrain")
+    out = tmp_path / "s.png"
+    assert example.main(["--size", "30", "--panel", "64", "48", "--device", "cpu", "--dem", str(user_dem),
+                         "--output", str(out)]) == 0
+    assert "(30 x 30 nodes" in capsys.readouterr().err
+    assert example.main(["--size", "15", "--panel", "64", "48", "--device", "cpu", "--dem", str(user_dem),
+                         "--output", str(out)]) == 0
+    assert "(15 x 15 nodes" in capsys.readouterr().err
+
+
+def test_an_example_reads_a_geotiff_dem(tmp_path, capsys):
+    """A GeoTIFF crop (30 m cells, its CRS) runs as the embedded DEM does."""
+    rasterio = pytest.importorskip("rasterio")
+    dem = st.sample_dem()
+    heights = dem.heights[400:440, 500:548].astype(np.float32)
+    dx, dy = dem.spacing
+    x0, y0 = dem.origin[0] + 500 * dx, dem.origin[1] + 400 * dy
+    path = tmp_path / "crop.tif"
+    transform = rasterio.transform.Affine(dx, 0.0, x0 - dx / 2, 0.0, dy, y0 - dy / 2)  # node-centred pixels
+    with rasterio.open(path, "w", driver="GTiff", width=48, height=40, count=1, dtype="float32", crs=dem.crs,
+                       transform=transform) as dst:
+        dst.write(heights, 1)
+    terrain = st.load_dem(path)
+    assert terrain.shape == (40, 48) and terrain.spacing == pytest.approx((dx, dy))
+    out = tmp_path / "t.png"
+    example = load_example("stepped_terrain")
+    assert example.main(["--size", "48", "--panel", "64", "48", "--device", "cpu", "--dem", str(path),
+                         "--output", str(out)]) == 0
+    assert "(40 x 48 nodes" in capsys.readouterr().err and read_png(out).shape[:2] == (48, 3 * 64)
+
+
+@pytest.mark.parametrize("name", ["stepped_terrain", "closeup_mappings", "batch_tiles"])
+def test_an_unreadable_dem_is_a_usage_error_writing_nothing(name, tmp_path, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    (tmp_path / "bad.npy").write_bytes(b"not a numpy file")
+    for dem in (tmp_path / "missing.tif", tmp_path / "bad.npy"):
+        example = load_example(name)
+        argv, _ = RUNS[name]
+        with pytest.raises(SystemExit) as exit_info:
+            example.main([*argv, "--dem", str(dem), "--output", str(out / "x.png")])
+        assert exit_info.value.code == 2
+        err = capsys.readouterr().err
+        assert "error: " in err and dem.name in err and "Traceback" not in err
+        assert list(out.iterdir()) == []
