@@ -8,6 +8,7 @@ import json
 import struct
 import warnings
 import zlib
+from fractions import Fraction
 
 import numpy as np
 import pytest
@@ -48,7 +49,7 @@ def exact(rgb: np.ndarray, encoding: str) -> np.ndarray:
     """The float64 decimal heights of the codes, computed apart from the loader (Python ints and fractions)."""
     r, g, b = (rgb[..., i].astype(np.int64) for i in range(3))
     if encoding == "terrain-rgb":
-        return np.vectorize(lambda c: float(c - 100000) / 10.0, otypes=[np.float64])(r * 65536 + g * 256 + b)
+        return np.vectorize(lambda c: float(Fraction(c - 100000, 10)), otypes=[np.float64])(r * 65536 + g * 256 + b)
     return (r * 256 + g).astype(np.float64) - 32768.0 + b.astype(np.float64) / 256.0
 
 
