@@ -1242,8 +1242,8 @@ def _load_encoded_png(file: Path, encoding: str) -> Terrain:
                     f"cannot read {str(file)!r}: expected a PNG terrain tile ({label}); got a {image.format} image "
                     f"under a .png name (a lossy format would not keep the codes)"
                 )
-            if mode not in ("RGB", "RGBA", "P", "PA") or rawmode.startswith("LA"):
-                got = ("a 16-bit greyscale + alpha" if rawmode.startswith("LA")
+            if mode not in ("RGB", "RGBA", "P", "PA") or rawmode.startswith("LA;16"):
+                got = ("a 16-bit greyscale + alpha" if rawmode.startswith("LA;16")
                        else f"a greyscale ({mode})" if mode in ("1", "L", "LA", "La", "I", "F") or mode.startswith("I;")
                        else f"a {mode}")
                 raise DataFileError(
