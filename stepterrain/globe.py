@@ -52,7 +52,7 @@ from ._device import (
 )
 from .camera import _MAX_COORDINATE, Camera
 from .errors import DataFileError, InvalidInputError, OutputTooLargeError, counted
-from .io import picture_uint8
+from .io import picture_uint8, world_file
 from .kernels import bounds as bounds_kernels
 from .kernels import compaction as compaction_kernels
 from .kernels import cubesphere as cube_kernels
@@ -1651,36 +1651,25 @@ def _geotiff_transform(picture: Any) -> tuple[tuple[float, ...], bool, str] | No
 
 
 def _world_file_transform(path: Any) -> tuple[tuple[float, ...], bool, str] | None:
-    """The geotransform of the world file beside the image ``path`` (the names GDAL looks for: ``.jgw`` for
-    ``.jpg``, ``.jpgw``, ``.wld``; six numbers A, D, B, E, C, F, C and F at the upper-left pixel's centre), whether
-    the ``.prj`` beside it names a projected CRS, and the world file's name; None without one (or one that is not
-    six numbers: GDAL ignores it too)."""
+    """The geotransform of the world file beside the image ``path`` (:func:`~stepterrain.io.world_file`: the names
+    GDAL looks for, ``.jgw`` for ``.jpg``, ``.jpgw``, ``.wld``; six numbers A, D, B, E, C, F, C and F at the
+    upper-left pixel's centre), whether the ``.prj`` beside it names a projected CRS, and the world file's name; None
+    without one (or one that is not six numbers: GDAL ignores it too)."""
     import os
     import pathlib
 
     image = pathlib.Path(os.fsdecode(path))
-    ext = image.suffix[1:]
-    names = [f"{ext[0]}{ext[-1]}w", f"{ext}w"] if ext else []
-    for suffix in [*names, "wld"]:
-        for candidate in (image.with_suffix(f".{suffix}"), image.with_suffix(f".{suffix.upper()}")):
-            try:
-                words = candidate.read_text(errors="replace").split()
-            except (OSError, ValueError):
-                continue
-            try:
-                a, d, b, e, c, f = (float(w) for w in words[:6])
-            except ValueError:
-                return None
-            if not all(map(math.isfinite, (a, b, c, d, e, f))):  # fewer than six: the unpacking's ValueError
-                return None
-            try:
-                prj = image.with_suffix(".prj").read_text(errors="replace").lstrip().upper()
-            except (OSError, ValueError):
-                prj = ""
-            projected = prj.startswith(("PROJCS", "PROJCRS", "PROJECTEDCRS"))
-            corner = (a, b, c - (a + b) / 2, d, e, f - (d + e) / 2)  # the upper-left pixel's corner
-            return corner, projected, f"a world file {candidate.name!r}"
-    return None
+    found = world_file(image)
+    if found is None:
+        return None
+    (a, d, b, e, c, f), side = found
+    try:
+        prj = image.with_suffix(".prj").read_text(errors="replace").lstrip().upper()
+    except (OSError, ValueError):
+        prj = ""
+    projected = prj.startswith(("PROJCS", "PROJCRS", "PROJECTEDCRS"))
+    corner = (a, b, c - (a + b) / 2, d, e, f - (d + e) / 2)  # the upper-left pixel's corner
+    return corner, projected, f"a world file {side.name!r}"
 
 
 def _kept_jpeg(picture: Any) -> bool:

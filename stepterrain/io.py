@@ -1175,9 +1175,7 @@ def _warn_png_georeferencing(file: Path, tile: bool = False) -> None:
     texture readers place such a PNG by its world file). The command it suggests names the .prj :func:`prj_crs`
     would read (:func:`_prj_files`). A terrain ``tile`` (``height_encoding``), placed by a world file only, is told
     to write one from its ``.aux.xml`` (a GeoTIFF of its colours is refused)."""
-    found = next((side for ext in (".pgw", ".pngw", ".wld") for side in (file.with_suffix(ext),
-                                                                        file.with_suffix(ext.upper()))
-                  if side.is_file()), None)
+    found = next((side for side in world_file_names(file) if side.is_file()), None)
     if found is None:
         aux = file.with_name(file.name + ".aux.xml")
         try:
@@ -1244,8 +1242,8 @@ def _load_encoded_png(file: Path, encoding: str) -> Terrain:
                     f"cannot read {str(file)!r}: expected a PNG terrain tile ({label}); got a {image.format} image "
                     f"under a .png name (a lossy format would not keep the codes)"
                 )
-            if mode not in ("RGB", "RGBA", "P", "PA") or rawmode.startswith("LA"):
-                got = ("a 16-bit greyscale + alpha" if rawmode.startswith("LA")
+            if mode not in ("RGB", "RGBA", "P", "PA") or rawmode.startswith("LA;16"):
+                got = ("a 16-bit greyscale + alpha" if rawmode.startswith("LA;16")
                        else f"a greyscale ({mode})" if mode in ("1", "L", "LA", "La", "I", "F") or mode.startswith("I;")
                        else f"a {mode}")
                 raise DataFileError(
@@ -1286,28 +1284,49 @@ def _load_encoded_png(file: Path, encoding: str) -> Terrain:
 
 
 def _png_world_file(file: Path) -> NDArray[np.float64] | None:
-    """The GDAL geotransform (of the cell corners) of the world file beside the PNG ``file``, in the order GDAL looks
-    for one (``tile.pgw``, ``tile.pngw``, ``tile.wld``, lower or UPPER case); None without one. A world file holds
-    six numbers A, D, B, E, C, F, (C, F) the centre of the upper-left pixel; one that does not is a DataFileError."""
-    for ext in (".pgw", ".pngw", ".wld"):
-        for side in (file.with_suffix(ext), file.with_suffix(ext.upper())):
-            if not side.is_file():
-                continue
-            try:
-                words = side.read_text(errors="replace").split()
-            except OSError as exc:
-                raise DataFileError(f"cannot read {str(side)!r}, the world file of {str(file)!r}: {exc}") from exc
-            try:
-                a, d, b, e, c, f = (float(w) for w in words)
-            except ValueError:
-                a = math.nan
-            if not math.isfinite(a) or not all(map(math.isfinite, (b, c, d, e, f))):
-                raise DataFileError(
-                    f"cannot read {str(file)!r}: expected its world file {side.name!r} to hold six finite numbers "
-                    f"(A, D, B, E, C, F: pixel width, rotations, pixel height, upper-left pixel centre); got "
-                    f"{' '.join(words)[:200]!r}"
-                )
-            return np.array([c - (a + b) / 2, a, b, f - (d + e) / 2, d, e], dtype=np.float64)
+    """The GDAL geotransform (of the cell corners) of the world file beside the PNG ``file`` (:func:`world_file`,
+    strict: one that is not six finite numbers is a DataFileError); None without one."""
+    found = world_file(file, strict=True)
+    if found is None:
+        return None
+    (a, d, b, e, c, f), _ = found
+    return np.array([c - (a + b) / 2, a, b, f - (d + e) / 2, d, e], dtype=np.float64)
+
+
+def world_file_names(image: Path) -> list[Path]:
+    """The world files GDAL looks for beside ``image``, in its order: the extension's first and last letters and
+    "w" (``tile.pgw`` for ``tile.png``, ``ortho.jgw`` for ``ortho.jpg``), the extension and "w" (``tile.pngw``),
+    then ``.wld``, each in lower case, then UPPER."""
+    ext = image.suffix[1:].lower()
+    names = [f"{ext[0]}{ext[-1]}w", f"{ext}w"] if ext else []
+    return [image.with_suffix(f".{name}") for suffix in [*names, "wld"] for name in (suffix, suffix.upper())]
+
+
+def world_file(image: Path, *, strict: bool = False) -> tuple[tuple[float, ...], Path] | None:
+    """The six numbers A, D, B, E, C, F of the first world file beside ``image`` (:func:`world_file_names`; (C, F)
+    the centre of the upper-left pixel) and its path; None without one. One that does not start with six finite
+    numbers gives None, as GDAL ignores it; with ``strict`` it is a DataFileError naming it, as is one of more than
+    six numbers or one that cannot be read."""
+    for side in world_file_names(image):
+        try:
+            words = side.read_text(errors="replace").split()
+        except (OSError, ValueError) as exc:
+            if strict and side.is_file():
+                raise DataFileError(f"cannot read {str(side)!r}, the world file of {str(image)!r}: {exc}") from exc
+            continue
+        try:
+            numbers = tuple(float(w) for w in (words if strict else words[:6]))
+        except ValueError:
+            numbers = ()
+        if len(numbers) == 6 and all(map(math.isfinite, numbers)):
+            return numbers, side
+        if strict:
+            raise DataFileError(
+                f"cannot read {str(image)!r}: expected its world file {side.name!r} to hold six finite numbers "
+                f"(A, D, B, E, C, F: pixel width, rotations, pixel height, upper-left pixel centre); got "
+                f"{' '.join(words)[:200]!r}"
+            )
+        return None
     return None
 
 

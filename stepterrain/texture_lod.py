@@ -55,6 +55,7 @@ from .io import (
     open_raster,
     picture_uint8,
     prj_crs,
+    world_file_names,
 )
 from .kernels import texture as texture_kernels
 from .terrain import Terrain, as_array, as_number, as_terrain, check_flag, finite_number, real_numbers
@@ -1420,8 +1421,7 @@ def _world_file_hint(path: Path) -> str:
     """How to georeference the image file ``path`` beside it, for a refusal of one without georeferencing: GDAL's
     world file name for it (the extension's first and last letters and "w": ortho.jgw for ortho.jpg or .jpeg,
     .pgw for a PNG, .tfw for a TIFF; .wld without an extension) and the .prj that names its CRS."""
-    ext = path.suffix.lower().lstrip(".")
-    world = path.with_suffix(f".{ext[0]}{ext[-1]}w" if ext else ".wld").name
+    world = world_file_names(path)[0].name
     return f"put a world file {world!r} beside it, with its CRS in {path.with_suffix('.prj').name!r}"
 
 

@@ -1830,3 +1830,20 @@ def test_a_georeferenced_texture_is_draped_where_its_georeferencing_puts_it(tmp_
         for name in refused:
             with pytest.raises(InvalidInputError, match=r"^texture .* must be a global plate-carrée image"):
                 drape_colors(directions, name)
+
+
+def test_a_texture_with_an_upper_case_extension_finds_its_lower_case_world_file(tmp_path):
+    """GDAL looks for the world file of ``ALPS.PNG`` as ``ALPS.pgw`` (the extension's first and last letters and "w",
+    lower case first, then ``ALPS.PGW``): the globe looked for ``ALPS.PGw``, so a regional image whose ``.pgw`` said
+    so was draped round the whole earth from 180° W, without a word; it is refused by name now, as ``alps.png`` is."""
+    from PIL import Image
+
+    from stepterrain.globe import drape_colors
+
+    directions = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]) * EARTH_RADIUS
+    for name in ("alps.png", "ALPS.PNG"):
+        Image.fromarray(np.zeros((18, 36, 3), np.uint8)).save(tmp_path / name, format="PNG")
+        (tmp_path / name).with_suffix(".pgw").write_text("0.1\n0\n0\n-0.1\n5.05\n47.95\n")
+        with pytest.raises(InvalidInputError, match=r"must be a global plate-carrée image .* world file "
+                                                    r"'(alps|ALPS)\.pgw'"):
+            drape_colors(directions, tmp_path / name)

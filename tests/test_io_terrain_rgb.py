@@ -8,6 +8,7 @@ import json
 import struct
 import warnings
 import zlib
+from fractions import Fraction
 
 import numpy as np
 import pytest
@@ -48,7 +49,7 @@ def exact(rgb: np.ndarray, encoding: str) -> np.ndarray:
     """The float64 decimal heights of the codes, computed apart from the loader (Python ints and fractions)."""
     r, g, b = (rgb[..., i].astype(np.int64) for i in range(3))
     if encoding == "terrain-rgb":
-        return np.vectorize(lambda c: float(c - 100000) / 10.0, otypes=[np.float64])(r * 65536 + g * 256 + b)
+        return np.vectorize(lambda c: float(Fraction(c - 100000, 10)), otypes=[np.float64])(r * 65536 + g * 256 + b)
     return (r * 256 + g).astype(np.float64) - 32768.0 + b.astype(np.float64) / 256.0
 
 
@@ -405,3 +406,24 @@ def test_a_tiles_aux_xml_georeferencing_warning_gives_advice_that_reads(tmp_path
     (tmp_path / "placed.wld").write_text("30\n0\n0\n-30\n380015\n3799985\n")  # what that command writes
     (tmp_path / "tile.png").rename(tmp_path / "placed.png")
     assert load_dem(tmp_path / "placed.png", height_encoding="terrarium").origin == (380015.0, 3799985.0)
+
+
+def test_a_grey_and_alpha_png_is_refused_as_what_it_is(tmp_path):
+    """With an encoding, an 8-bit grey + alpha PNG is refused as greyscale (LA), a 16-bit one (read by Pillow as RGBA
+    from its rawmode LA;16B) as 16-bit grey + alpha: the 8-bit one was called 16-bit too."""
+    grey = np.stack([np.full((3, 4), 90, np.uint8), np.full((3, 4), 255, np.uint8)], axis=-1)
+    Image.fromarray(grey, "LA").save(tmp_path / "la8.png")
+    with pytest.raises(DataFileError, match=r"terrain tile \(height_encoding='terrarium'\); got a greyscale \(LA\) "
+                                            r"image"):
+        load_dem(tmp_path / "la8.png", height_encoding="terrarium")
+    h, w = 3, 4
+    raw = b"".join(b"\0" + np.full((w, 2), 40000, ">u2").tobytes() for _ in range(h))
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    (tmp_path / "la16.png").write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, 4, 0,
+                                                                                       0, 0))
+                                       + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b""))
+    with pytest.raises(DataFileError, match=r"got a 16-bit greyscale \+ alpha image"):
+        load_dem(tmp_path / "la16.png", height_encoding="terrarium")
