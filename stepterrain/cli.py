@@ -989,6 +989,10 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
             warnings.warn("--print-size without --solid: the model is the open stepped surface, of no thickness, "
                           "which a slicer cannot print; add --solid for a watertight model with a base",
                           stacklevel=1)
+        if out is not None and out.suffix.lower() in (".glb", ".gltf"):  # glTF's unit is the metre, by its spec
+            warnings.warn(f"--print-size {args.print_size:g} writes millimetres, but glTF's unit is the metre: "
+                          f"{out.name} opens {args.print_size:g} m wide in a glTF viewer or slicer; write .stl or "
+                          ".3mf (millimetres) for a print", stacklevel=1)
 
     # write: each file atomically (temporary file + rename); no mesh file for a render-only run (--png without -o)
     if out is not None:

@@ -140,3 +140,19 @@ def test_info_shows_the_print_record_of_a_print_model(tmp_path, capsys):
     assert summary["meta.print.origin"][0] == pytest.approx(CROP[0], abs=30.0)
     code, text, err = run(capsys, "info", out)
     assert code == 0 and "meta.print.scale" in text and "meta.print.z_scale" in text, err
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+def test_steps_print_size_to_gltf_warns_that_its_unit_is_the_metre(tmp_path, capsys, ext):
+    """glTF's unit is the metre: a 150 mm print model written as .glb opened 150 m wide, without a word."""
+    crop = ",".join(f"{v:g}" for v in CROP)
+    out = tmp_path / f"model{ext}"
+    code, _, err = run(capsys, "steps", "--crop", crop, "--interval", "100", "--solid", "--print-size", "150",
+                       "-o", out)
+    assert code == 0, err
+    assert "warning: --print-size 150 writes millimetres, but glTF's unit is the metre" in err
+    assert f"model{ext} opens 150 m wide" in err
+    assert max(read_mesh(out).extents[:2]) == pytest.approx(150.0, rel=1e-5)  # written as asked
+    code, _, err = run(capsys, "steps", "--crop", crop, "--interval", "100", "--solid", "--print-size", "150",
+                       "-o", tmp_path / "model.3mf")
+    assert code == 0 and "warning" not in err, err
