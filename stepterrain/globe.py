@@ -52,7 +52,7 @@ from ._device import (
 )
 from .camera import _MAX_COORDINATE, Camera
 from .errors import DataFileError, InvalidInputError, OutputTooLargeError, counted
-from .io import picture_uint8, world_file
+from .io import _prj_beside, picture_uint8, world_file
 from .kernels import bounds as bounds_kernels
 from .kernels import compaction as compaction_kernels
 from .kernels import cubesphere as cube_kernels
@@ -1663,8 +1663,9 @@ def _world_file_transform(path: Any) -> tuple[tuple[float, ...], bool, str] | No
     if found is None:
         return None
     (a, d, b, e, c, f), side = found
-    try:
-        prj = image.with_suffix(".prj").read_text(errors="replace").lstrip().upper()
+    try:  # the .prj io reads beside a world file (ortho.prj, ortho.PRJ, ortho.jpg.prj)
+        prj_file = _prj_beside(image)
+        prj = "" if prj_file is None else prj_file.read_text(errors="replace").lstrip().upper()
     except (OSError, ValueError):
         prj = ""
     projected = prj.startswith(("PROJCS", "PROJCRS", "PROJECTEDCRS"))
