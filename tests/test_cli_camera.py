@@ -11,8 +11,9 @@ import pytest
 import stepterrain as st
 from stepterrain import cli, render
 
-AVAILABLE, REASON = render.offscreen_available()
-needs_render = pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+from .conftest import needs_render
+from .test_cli import run
+from .test_examples_dem import read_png
 
 
 @pytest.fixture
@@ -23,19 +24,6 @@ def dem(tmp_path):
     path = tmp_path / "hill.npy"
     np.save(path, heights.astype(np.float32))
     return path
-
-
-def run(capsys, *argv):
-    code = cli.main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def read_png(path):
-    from PIL import Image
-
-    with Image.open(path) as image:
-        return np.asarray(image.convert("RGB"))
 
 
 @pytest.mark.parametrize(
@@ -114,7 +102,6 @@ def test_help_names_the_camera(capsys, command):
     assert "--camera oblique|top|AZ,EL" in out and "azimuth clockwise from north" in out
 
 
-@pytest.mark.render
 @needs_render
 def test_steps_camera_is_render_mesh_camera(dem, tmp_path, capsys):
     size = (160, 120)
@@ -140,7 +127,6 @@ def test_steps_camera_is_render_mesh_camera(dem, tmp_path, capsys):
     assert np.array_equal(read_png(tmp_path / "named.png"), images[None])
 
 
-@pytest.mark.render
 @needs_render
 def test_texture_and_closeup_and_batch_take_the_camera(dem, tmp_path, capsys):
     for command, extra in (("texture", []), ("closeup", []),
@@ -156,7 +142,6 @@ def test_texture_and_closeup_and_batch_take_the_camera(dem, tmp_path, capsys):
         assert not np.array_equal(images["top"], images[None]), command
 
 
-@pytest.mark.render
 @needs_render
 def test_batch_views_every_cell_of_a_contact_sheet_from_the_camera(tmp_path, capsys):
     """A series' contact sheet (2 x 2 cells of 48 x 32): every cell is seen from --camera (another picture than the

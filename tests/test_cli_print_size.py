@@ -8,16 +8,11 @@ import pytest
 import trimesh
 
 import stepterrain as st
-from stepterrain import cli
 from stepterrain.export import read_mesh, scale_for_print
 
+from .test_cli import run
+
 CROP = (380000.0, 382000.0, 3790000.0, 3791200.0)  # of the embedded DEM, in UTM metres
-
-
-def run(capsys, *argv):
-    code = cli.main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def test_steps_print_size_writes_an_stl_of_the_size_at_the_origin_watertight(tmp_path, capsys):

@@ -4,7 +4,6 @@ usage error (exit 2) that writes nothing."""
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +12,8 @@ import pytest
 import stepterrain as st
 from stepterrain import render
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+from .test_examples import load_example
+
 AVAILABLE, REASON = render.offscreen_available()
 pytestmark = [pytest.mark.render,
               pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")]
@@ -29,13 +29,6 @@ RUNS = {
     "closeup_anchors": (["--window", "256", "144", "--device", "cpu"], (144, 256)),
     "closeup_mappings": (["--window", "192", "108", "--device", "cpu"], (108, 192)),
 }
-
-
-def load_example(name: str):
-    spec = importlib.util.spec_from_file_location(f"example_dem_{name}", EXAMPLES / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def read_png(path: Path) -> np.ndarray:
