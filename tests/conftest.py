@@ -130,3 +130,13 @@ def gltf_written_files_are_valid(tmp_path_factory):
     if bad:
         pytest.fail(f"{len(bad)} of {len(copies)} glTF/GLB files written by the tests fail the Khronos glTF "
                     "validator:\n" + "\n".join(bad), pytrace=False)
+
+
+@pytest.fixture
+def dem(tmp_path):
+    """A 24 x 32 synthetic hill (the command-line tests' DEM file) (heights 0-10) saved as .npy."""
+    y, x = np.mgrid[0:24, 0:32].astype(np.float32)
+    heights = 10.0 * np.exp(-((x - 15.0) ** 2 + (y - 11.0) ** 2) / 60.0) + 0.05 * x
+    path = tmp_path / "hill.npy"
+    np.save(path, heights.astype(np.float32))
+    return path

@@ -16,16 +16,6 @@ from .test_cli import run
 from .test_examples_dem import read_png
 
 
-@pytest.fixture
-def dem(tmp_path):
-    """A 24 x 32 synthetic hill (heights 0-10) saved as .npy."""
-    y, x = np.mgrid[0:24, 0:32].astype(np.float32)
-    heights = 10.0 * np.exp(-((x - 15.0) ** 2 + (y - 11.0) ** 2) / 60.0) + 0.05 * x
-    path = tmp_path / "hill.npy"
-    np.save(path, heights.astype(np.float32))
-    return path
-
-
 @pytest.mark.parametrize(
     ("text", "expected"),
     [
