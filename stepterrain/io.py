@@ -1279,7 +1279,7 @@ def _load_encoded_png(file: Path, encoding: str) -> Terrain:
     if geotransform is None:
         _warn_png_georeferencing(file, tile=True)  # an .aux.xml geotransform, not read
         return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None, height_unit=unit)
-    crs = prj_crs(file, "the PNG tile", DataFileError) if _prj_beside(file) is not None else None
+    crs = prj_crs(file, "the PNG tile", DataFileError)  # None without a .prj (and rasterio unimported)
     return _georeferenced(file, heights, geotransform, crs, geographic=_is_geographic(crs), metres=None,
                           height_unit=unit)
 
