@@ -1187,7 +1187,8 @@ def _warn_png_georeferencing(file: Path, tile: bool = False) -> None:
     texture readers place such a PNG by its world file). The command it suggests names the .prj :func:`prj_crs`
     would read (:func:`_prj_files`). A terrain ``tile`` (``height_encoding``), placed by a world file only, is told
     to write one from its ``.aux.xml`` (a GeoTIFF of its colours is refused)."""
-    found = next((side for side in world_file_names(file) if side.is_file()), None)
+    # a tile's world file, if any, placed it (_png_world_file): only its .aux.xml is left to look for
+    found = None if tile else next((side for side in world_file_names(file) if side.is_file()), None)
     if found is None:
         aux = file.with_name(file.name + ".aux.xml")
         try:
