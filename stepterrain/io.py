@@ -9,6 +9,7 @@ Shared input room of every capability (papers 000-004); the embedded Big Tujunga
 
 from __future__ import annotations
 
+import contextlib
 import contextvars
 import gzip
 import importlib.resources
@@ -19,7 +20,7 @@ import threading
 import warnings
 import zipfile
 import zlib
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path, PurePath, PurePosixPath
 from typing import Any, BinaryIO, Literal, NamedTuple, TypeVar
 
@@ -1076,10 +1077,32 @@ def npz_heights_key(arrays: Mapping[str, NDArray[Any]], ndims: tuple[int, ...]) 
     return next((key for key in present if arrays[key].ndim in ndims), present[0] if present else None)
 
 
-def _load_png(file: Path, height_unit: str | None) -> Terrain:
+@contextlib.contextmanager
+def _pillow_read(file: Path, expected: str, *, detail: str = "", bomb_hint: str = "") -> Iterator[None]:
+    """Pillow's refusals while reading the PNG ``file`` as ``expected`` as DataFileErrors: its decompression-bomb
+    limit (not an OSError: it went past as Pillow's own exception; ``bomb_hint`` after it) and unreadable content
+    (``detail`` after ``expected``); a DataFileError raised inside passes as it is."""
     from PIL import Image, UnidentifiedImageError
 
     try:
+        yield
+    except Image.DecompressionBombError as exc:
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected {expected} within Pillow's decompression-bomb limit "
+            f"(PIL.Image.MAX_IMAGE_PIXELS); got {exc}{bomb_hint}"
+        ) from exc
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
+        if isinstance(exc, DataFileError):
+            raise
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected {expected}{detail}; got unreadable content ({exc})"
+        ) from exc
+
+
+def _load_png(file: Path, height_unit: str | None) -> Terrain:
+    from PIL import Image
+
+    with _pillow_read(file, "a PNG heightmap", bomb_hint=" (a DEM this large reads as a GeoTIFF or .npy)"):
         with Image.open(file) as image:
             mode = image.mode
             if image.format != "PNG":  # Pillow opens any image it knows: a lossy JPEG, a GeoTIFF's bare pixels
@@ -1111,17 +1134,6 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
             low_bits = re.fullmatch(r"L;([24])", str(image.tile[0][3])) if image.tile else None
             array = np.array(image)
             transparent = image.info.get("transparency")  # a grey PNG's tRNS value, GDAL's nodata for PNG
-    except Image.DecompressionBombError as exc:  # not an OSError: it went past as Pillow's own exception
-        raise DataFileError(
-            f"cannot read {str(file)!r}: expected a PNG heightmap within Pillow's decompression-bomb limit "
-            f"(PIL.Image.MAX_IMAGE_PIXELS); got {exc} (a DEM this large reads as a GeoTIFF or .npy)"
-        ) from exc
-    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
-        if isinstance(exc, DataFileError):
-            raise
-        raise DataFileError(
-            f"cannot read {str(file)!r}: expected a PNG heightmap; got unreadable content ({exc})"
-        ) from exc
     nodata = transparent if isinstance(transparent, int) and not isinstance(transparent, bool) else None
     if nodata is not None and low_bits:  # the tRNS value in the samples' 0-255 scale (tRNS 15 of 4 bits is 255)
         nodata *= 255 // (2 ** int(low_bits.group(1)) - 1)
@@ -1175,7 +1187,8 @@ def _warn_png_georeferencing(file: Path, tile: bool = False) -> None:
     texture readers place such a PNG by its world file). The command it suggests names the .prj :func:`prj_crs`
     would read (:func:`_prj_files`). A terrain ``tile`` (``height_encoding``), placed by a world file only, is told
     to write one from its ``.aux.xml`` (a GeoTIFF of its colours is refused)."""
-    found = next((side for side in world_file_names(file) if side.is_file()), None)
+    # a tile's world file, if any, placed it (_png_world_file): only its .aux.xml is left to look for
+    found = None if tile else next((side for side in world_file_names(file) if side.is_file()), None)
     if found is None:
         aux = file.with_name(file.name + ".aux.xml")
         try:
@@ -1230,10 +1243,10 @@ def _load_encoded_png(file: Path, encoding: str) -> Terrain:
     file beside it (``tile.pgw``, ``tile.pngw``, ``tile.wld``) places it, with the CRS of a ``.prj`` beside it, as
     GDAL reads one: a web-map tile is in EPSG:3857, whose metres are ground metres times 1/cos φ (warned, see
     :func:`load_dem`). A greyscale PNG, or one of 16 bits per channel (Pillow reads 8), is refused."""
-    from PIL import Image, UnidentifiedImageError
+    from PIL import Image
 
     label = f"height_encoding={encoding!r}"
-    try:
+    with _pillow_read(file, "a PNG terrain tile", detail=f" ({label})"):
         with Image.open(file) as image:
             mode = image.mode
             rawmode = str(image.tile[0][3]) if image.tile else ""
@@ -1257,17 +1270,6 @@ def _load_encoded_png(file: Path, encoding: str) -> Terrain:
                 )
             _check_read_budget(file, (image.height, image.width), np.dtype(np.uint32))
             rgba = picture_uint8(image, f"terrain tile {str(file)!r}", alpha=True)
-    except Image.DecompressionBombError as exc:
-        raise DataFileError(
-            f"cannot read {str(file)!r}: expected a PNG terrain tile within Pillow's decompression-bomb limit "
-            f"(PIL.Image.MAX_IMAGE_PIXELS); got {exc}"
-        ) from exc
-    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
-        if isinstance(exc, DataFileError):
-            raise
-        raise DataFileError(
-            f"cannot read {str(file)!r}: expected a PNG terrain tile ({label}); got unreadable content ({exc})"
-        ) from exc
     missing = rgba[..., 3] == 0 if rgba.shape[-1] == 4 else None
     decoded = decode_terrain_rgb(rgba, encoding)
     del rgba
@@ -1278,7 +1280,7 @@ def _load_encoded_png(file: Path, encoding: str) -> Terrain:
     if geotransform is None:
         _warn_png_georeferencing(file, tile=True)  # an .aux.xml geotransform, not read
         return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None, height_unit=unit)
-    crs = prj_crs(file, "the PNG tile", DataFileError) if _prj_beside(file) is not None else None
+    crs = prj_crs(file, "the PNG tile", DataFileError)  # None without a .prj (and rasterio unimported)
     return _georeferenced(file, heights, geotransform, crs, geographic=_is_geographic(crs), metres=None,
                           height_unit=unit)
 
