@@ -23,9 +23,10 @@ from stepterrain.globe import adaptive_mesh
 from stepterrain.render import render_mesh
 
 
-def crop(size: int, dem: st.Terrain) -> st.Terrain:
-    """``dem`` (:func:`example_dem`), centre-cropped and subsampled to about ``size`` x ``size`` nodes (as
+def crop(size: int, dem: st.Terrain | None = None) -> st.Terrain:
+    """``dem`` (default: the embedded DEM), centre-cropped and subsampled to about ``size`` x ``size`` nodes (as
     stored: :func:`adaptive_mesh` takes a north-up DEM's negative dy and north-west origin as they are)."""
+    dem = st.sample_dem() if dem is None else dem
     rows, cols = dem.shape
     stride = max(1, min(rows, cols) // size)
     n = min(size, rows // stride, cols // stride)

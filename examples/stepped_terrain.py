@@ -24,8 +24,9 @@ from stepterrain.cli import add_dem_option, example_dem, nice_interval, usage_er
 from stepterrain.render import render_mesh, save_png
 
 
-def crop_sample(size: int, dem: st.Terrain) -> st.Terrain:
-    """``dem`` (:func:`example_dem`), subsampled and centre-cropped to about ``size`` x ``size`` nodes."""
+def crop_sample(size: int, dem: st.Terrain | None = None) -> st.Terrain:
+    """``dem`` (default: the embedded DEM), subsampled and centre-cropped to about ``size`` x ``size`` nodes."""
+    dem = st.sample_dem() if dem is None else dem
     rows, cols = dem.shape
     stride = max(1, min(rows, cols) // size)
     n_rows, n_cols = min(size, rows // stride), min(size, cols // stride)

@@ -41,8 +41,9 @@ from stepterrain.texture import (
 )
 
 
-def crop_sample(size: int, dem: st.Terrain) -> st.Terrain:
-    """``dem`` (:func:`example_dem`), subsampled and centre-cropped to about ``size`` x ``size`` nodes."""
+def crop_sample(size: int, dem: st.Terrain | None = None) -> st.Terrain:
+    """``dem`` (default: the embedded DEM), subsampled and centre-cropped to about ``size`` x ``size`` nodes."""
+    dem = st.sample_dem() if dem is None else dem
     rows, cols = dem.shape
     stride = max(1, min(rows, cols) // size)
     n_rows, n_cols = min(size, rows // stride), min(size, cols // stride)
