@@ -4,10 +4,11 @@ Shows paper 000 (Glander et al. 2010) §3.3 and §4 live: drag the interval slid
 the γ slider to blend between the original surface (0) and the steps (1), and move the sphere to place a
 lens that shows the original terrain inside it. Every change re-steps the grid through the pyvista accessor
 ``grid.stepterrain.stepped(...)``. Headless by default: writes one PNG of the initial state;
-``--interactive`` opens a window.
+``--interactive`` opens a window. ``--dem PATH`` shows a DEM file of yours instead of the embedded one.
 
     python examples/interactive.py --output out/interactive.png
     python examples/interactive.py --interactive
+    python examples/interactive.py --interactive --dem my_dem.tif
 """
 
 from __future__ import annotations
@@ -21,19 +22,22 @@ from pathlib import Path
 import numpy as np
 import pyvista as pv
 
-from stepterrain import circular_lens, sample_dem
-from stepterrain.cli import usage_errors
+from stepterrain import Terrain, circular_lens, sample_dem
+from stepterrain.cli import add_dem_option, example_dem, usage_errors
 from stepterrain.export import IMAGE_EXTENSIONS, save_image
 from stepterrain.render import require_offscreen
 
 
-def dem_grid(size: int) -> pv.ImageData:
-    """The embedded Big Tujunga DEM, every (1197 // ``size``)-th node (``size`` to 2 ``size`` - 1 nodes across, at
-    most 1197), as a pyvista ImageData."""
-    terrain = sample_dem()
+def dem_grid(size: int, terrain: Terrain | None = None) -> pv.ImageData:
+    """``terrain`` (default: the embedded Big Tujunga DEM, 1197 columns), every (columns // ``size``)-th node
+    (``size`` to 2 ``size`` - 1 nodes across, at most all of them), as a pyvista ImageData of its cell size."""
+    terrain = sample_dem() if terrain is None else terrain
     step = max(1, terrain.shape[1] // size)
-    heights = terrain.heights[::step, ::step][::-1]  # rows south to north: y grows with the row index
-    grid = pv.ImageData(dimensions=(heights.shape[1], heights.shape[0], 1), spacing=(30.0 * step, 30.0 * step, 1))
+    heights = terrain.heights[::step, ::step]
+    if terrain.spacing[1] < 0:  # a north-up DEM: its rows south to north, as y grows with the grid's row index
+        heights = heights[::-1]
+    dx, dy = abs(terrain.spacing[0]) * step, abs(terrain.spacing[1]) * step
+    grid = pv.ImageData(dimensions=(heights.shape[1], heights.shape[0], 1), spacing=(dx, dy, 1))
     grid["elevation"] = heights.reshape(-1)
     return grid
 
@@ -85,7 +89,7 @@ class SteppedScene:
 
 def build(plotter: pv.Plotter, grid: pv.ImageData, *, device: str | None = None) -> SteppedScene:
     """Add the stepped terrain, two sliders and the lens sphere to ``plotter``."""
-    lo, hi = float(grid["elevation"].min()), float(grid["elevation"].max())
+    lo, hi = float(np.nanmin(grid["elevation"])), float(np.nanmax(grid["elevation"]))  # a DEM's nodata is NaN
     span = hi - lo
     xmin, xmax, ymin, ymax, _, _ = grid.bounds
     radius = 0.2 * min(xmax - xmin, ymax - ymin)
@@ -129,8 +133,9 @@ def fit_view(plotter: pv.Plotter, bounds: tuple[float, ...], *, side: float = 0.
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, default=240,
-                        help="keep every (1197 // SIZE)-th DEM node: SIZE to 2 x SIZE - 1 nodes across, all 1197 from "
-                             "SIZE 599 on (default 240: 300 nodes)")
+                        help="keep every (columns // SIZE)-th DEM node: SIZE to 2 x SIZE - 1 nodes across, all of the "
+                             "embedded DEM's 1197 from SIZE 599 on (default 240: 300 nodes)")
+    add_dem_option(parser)
     parser.add_argument("--window", type=int, nargs=2, default=(1024, 768), metavar=("W", "H"))
     parser.add_argument("--output", default="interactive.png", help="PNG of the initial view (headless)")
     parser.add_argument("--interactive", action="store_true", help="open a window instead of writing a PNG")
@@ -149,9 +154,10 @@ def main(argv: list[str] | None = None) -> int:
 def run(args: argparse.Namespace) -> int:
     if not args.interactive:  # headless: EGL or OSMesa as the library's renders pick it (VTK tried X first)
         require_offscreen()
+    grid = dem_grid(args.size, example_dem(args.dem))  # before the window: a file it cannot read opens none
     plotter = pv.Plotter(off_screen=not args.interactive, window_size=tuple(args.window))
     plotter.set_background("white")
-    build(plotter, dem_grid(args.size), device=args.device)
+    build(plotter, grid, device=args.device)
     if args.interactive:  # pragma: no cover - needs a display
         plotter.show()
         return 0

@@ -28,6 +28,7 @@ RUNS = {
                      "--window", "96", "72", "--device", "cpu"], (72, 96)),
     "closeup_anchors": (["--window", "256", "144", "--device", "cpu"], (144, 256)),
     "closeup_mappings": (["--window", "192", "108", "--device", "cpu"], (108, 192)),
+    "interactive": (["--size", "24", "--window", "96", "72", "--device", "cpu"], (72, 96)),
 }
 
 
@@ -116,7 +117,29 @@ def test_an_example_reads_a_geotiff_dem(tmp_path, capsys):
     assert "(40 x 48 nodes" in capsys.readouterr().err and read_png(out).shape[:2] == (48, 3 * 64)
 
 
-@pytest.mark.parametrize("name", ["stepped_terrain", "closeup_mappings", "batch_tiles"])
+def test_interactive_shows_a_dem_file_with_nodata(user_dem, only_the_user_dem, tmp_path, capsys):
+    """interactive.py's slider range and first interval come from the grid's lowest and highest heights: a DEM file
+    with nodata holes (NaN) gave a NaN interval, refused as a usage error. They are the heights it has; the picture
+    is the one of the same DEM without the holes but for the holes."""
+    heights = np.load(user_dem)
+    holes = heights.copy()
+    holes[5:10, 5:12] = np.nan
+    holed = user_dem.with_name("holes.npy")
+    np.save(holed, holes)
+    example = load_example("interactive")
+    argv, shape = RUNS["interactive"]
+    pictures = []
+    for dem in (user_dem, holed):
+        out = tmp_path / f"{dem.stem}.png"
+        assert example.main([*argv, "--dem", str(dem), "--output", str(out)]) == 0
+        pictures.append(read_png(out))
+    assert only_the_user_dem == [user_dem, holed]
+    assert pictures[1].shape[:2] == shape and pictures[1].std() > 5
+    # the same heights around the holes: the same interval and view, so most pixels agree
+    assert np.mean(np.all(pictures[0] == pictures[1], axis=2)) > 0.5
+
+
+@pytest.mark.parametrize("name", ["stepped_terrain", "closeup_mappings", "batch_tiles", "interactive"])
 def test_an_unreadable_dem_is_a_usage_error_writing_nothing(name, tmp_path, capsys):
     out = tmp_path / "out"
     out.mkdir()
