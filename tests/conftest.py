@@ -1,4 +1,5 @@
-"""Shared fixtures: the device fixture, hypothesis profiles, real DEM crops and the mesh validity helper."""
+"""Shared fixtures: the device fixture, hypothesis profiles, real DEM crops, the mesh validity helper, and the
+command-line tests' DEM file and in-process runner."""
 
 from __future__ import annotations
 
@@ -140,3 +141,14 @@ def dem(tmp_path):
     path = tmp_path / "hill.npy"
     np.save(path, heights.astype(np.float32))
     return path
+
+
+def run_cli(capsys, *argv) -> tuple[int, str, str]:
+    """The ``stepterrain`` command run in this process on ``argv`` (each through ``str``: paths go as they are): its
+    exit code and what it wrote to stdout and stderr, read through the test's ``capsys``. The command-line tests
+    import it as ``run``."""
+    from stepterrain import cli
+
+    code = cli.main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err

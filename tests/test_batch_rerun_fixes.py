@@ -12,11 +12,11 @@ from pathlib import Path
 import pytest
 
 import stepterrain as st
-from stepterrain import cli
 from stepterrain.batch import MANIFEST_NAME, batch
 from stepterrain.io import load_dem
 from stepterrain.stepped import isovalues, nice_interval
 
+from .conftest import run_cli as run
 from .test_batch_files_shared import _count_reads, _write_tif, strips
 from .test_export import glb_json
 
@@ -24,12 +24,6 @@ pytest.importorskip("rasterio", reason="GeoTIFF tiles are written with rasterio"
 
 INTERVAL_LINE = re.compile(r"^stepterrain: no --interval or --levels given: using --interval (\S+), a round interval "
                            r"giving (\d+) levels over heights (\S+) to (\S+) \(aim ~\d+ steps\)$", re.M)
-
-
-def run(capsys, *argv):
-    code = cli.main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 @pytest.mark.parametrize("given", [[], ["--tile", "256"]], ids=["folder", "tiles"])

@@ -13,13 +13,9 @@ import trimesh
 from stepterrain import cli, render
 from stepterrain.errors import MissingDependencyError
 
+from .conftest import run_cli as run
+
 AVAILABLE, REASON = render.offscreen_available()
-
-
-def run(capsys, *argv):
-    code = cli.main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def files_in(folder):

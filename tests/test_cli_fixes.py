@@ -16,13 +16,8 @@ import stepterrain as st
 from stepterrain import cli
 
 from .conftest import needs_render
+from .conftest import run_cli as run
 from .test_examples import assert_usage_error_writing_nothing
-
-
-def run(capsys, *argv):
-    code = cli.main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def tile_folder(folder: Path, broken: bool = False) -> Path:

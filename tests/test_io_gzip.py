@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 import stepterrain as st
-from stepterrain import cli
 from stepterrain.errors import DataFileError, InvalidInputError
 
 from .conftest import SHARED_DATA
+from .conftest import run_cli as run
 
 rasterio = pytest.importorskip("rasterio")
 from affine import Affine  # noqa: E402
@@ -168,12 +168,6 @@ def test_a_gzip_of_another_file_is_refused_naming_what_is_read(tmp_path, name, s
 
 
 # ------------------------------------------------------------------------------------------ batch and CLI
-def run(capsys, *argv):
-    code = cli.main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
 def test_batch_of_a_folder_of_hgt_gz_tiles_places_them_as_the_plain_tiles(hgt, tmp_path):
     """A folder of .hgt.gz tiles (as AWS Terrain Tiles serve them) held "no DEM file": its tiles are items named as
     the tiles (N39W106.ply), placed side by side in their mosaic's local metres as the plain tiles are."""

@@ -18,12 +18,12 @@ from hypothesis.extra import numpy as hnp
 from PIL import Image
 
 import stepterrain as st
-from stepterrain import cli
 from stepterrain.errors import DataFileError, InvalidInputError
 from stepterrain.export import read_mesh
 from stepterrain.io import HEIGHT_ENCODINGS, load_dem
 
 from .conftest import needs_render, shared_file
+from .conftest import run_cli as run
 from .test_export import glb_json
 
 
@@ -209,12 +209,6 @@ def test_refusals(tmp_path):
     with pytest.raises(InvalidInputError, match=r"height_encoding applies to a local RGB PNG tile .*z\.npy' is no "
                                                 r"PNG"):
         load_dem(tmp_path / "z.npy", height_encoding="terrarium")
-
-
-def run(capsys, *argv):
-    code = cli.main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def _tile(tmp_path) -> np.ndarray:

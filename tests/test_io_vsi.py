@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 
 import stepterrain as st
-from stepterrain import cli
 from stepterrain._files import gdal_path
 from stepterrain.errors import DataFileError, InvalidInputError
 
 from .conftest import SHARED_DATA
+from .conftest import run_cli as run
 
 rasterio = pytest.importorskip("rasterio")
 from affine import Affine  # noqa: E402
@@ -232,12 +232,6 @@ def test_a_virtual_file_item_is_read_by_a_worker_in_another_folder(tiles, tmp_pa
 
 
 # ------------------------------------------------------------------------------------------ CLI
-def run(capsys, *argv):
-    code = cli.main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
 def test_cli_info_reads_a_vsizip_path_and_a_zip(tiles, capsys):
     reference = st.load_dem(tiles / "dem.tif")
     for given in (f"/vsizip/{tiles / 'one.zip'}/dem.tif", tiles / "one.zip"):
