@@ -52,7 +52,8 @@ examples:
       reprojects exactly onto its degrees): it lies exactly over the DEM in QGIS or ArcGIS
   stepterrain texture --shadows --occlusion 0.5 --azimuth 270 --altitude 20 -o low_sun.png
   stepterrain texture --shadows -o tex.png --mesh out/steps.glb --interval 100 --png out/steps.png
-      the texture draped on the stepped terrain (100 m steps), GLB with the image embedded, and a render
+      the texture draped on the stepped terrain (100 m steps), GLB with the image embedded, and a render, lit as
+      steps --png lights its own so the terraces read (--lighting off: the texture's shading alone)
   stepterrain texture --shadows --interval 100 --png out/steps.png
       the render alone: no -o, no texture file (--mesh alone likewise writes only the draped mesh)
   stepterrain texture --shadows --png out/map.png --camera top
@@ -176,6 +177,13 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--z-scale", type=float, default=None, metavar="S",
                    help="vertical exaggeration of the render only, with --png (default 2)")
     _add_camera(p, "the render of the draped mesh, with --png")
+    p.add_argument("--lighting", choices=("auto", "on", "off"), default=None,
+                   help="light the render's mesh, with --png, as steps --png lights its render (key light from the "
+                        "north-west, fill from the camera): on, off (the texture as it is, its own shading alone), or "
+                        "auto (default): on for the stepped terrain (--interval: the hillshade shades the DEM's "
+                        "slopes, not its terraces and walls) and for --hillshade none without --image (no shading in "
+                        "the texture), off for the heightfield under a hillshade or an orthophoto, which would be "
+                        "shaded twice")
     p.set_defaults(run=_run_texture)
 
 
@@ -355,6 +363,18 @@ def _texture_colours(draped: Any) -> Any:
     return out
 
 
+def _render_lit(args: argparse.Namespace) -> bool:
+    """Whether ``--png`` lights the draped mesh (render_textured_mesh's ``lighting``): ``--lighting on``/``off``, or
+    for ``auto`` whether the texture lacks the shading of the surface shown. A hillshade shades the DEM's continuous
+    slopes (paper 004 §7: a topographic texture carries its shading), so lighting the heightfield under it shaded it
+    twice; on the stepped terrain (``--interval``) the flat terraces and their walls bore the slopes' hillshade, unlit,
+    and read as one smooth surface: the steps showed only at the silhouette. ``--hillshade none`` without ``--image``
+    leaves the colours unshaded; an orthophoto keeps its own light."""
+    if args.lighting != "auto":
+        return bool(args.lighting == "on")
+    return args.interval is not None or (args.method == "none" and args.image is None)
+
+
 #: The material of the --mesh drape (its name names a textured OBJ's image: ``<stem>_terrain_texture.png``).
 _DRAPE_MATERIAL = "terrain texture"
 
@@ -477,7 +497,7 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError("--interval applies only with --mesh or --png")
     if args.interval is not None and not (math.isfinite(args.interval) and args.interval > 0):
         raise InvalidInputError(f"--interval must be a positive number; got {args.interval:g}")
-    render_options = _given(args, {"size": (1280, 800), "z_scale": 2.0, "camera": "oblique"})
+    render_options = _given(args, {"size": (1280, 800), "z_scale": 2.0, "camera": "oblique", "lighting": "auto"})
     _check_size(args.size, renders=png is not None)
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
@@ -595,8 +615,8 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         progress.done(f"{_counted(len(draped.faces), 'face')}")
         if png is not None:
             progress.stage("render", f"rendering {args.size[0]}x{args.size[1]} off-screen")
-            shot = render.render_textured_mesh(draped, window_size=args.size, z_scale=args.z_scale, lighting=False,
-                                                camera=args.camera)
+            shot = render.render_textured_mesh(draped, window_size=args.size, z_scale=args.z_scale,
+                                                lighting=_render_lit(args), camera=args.camera)
             progress.done()
 
     if out is not None:  # no texture file for a run without -o (--mesh or --png alone)

@@ -1037,7 +1037,28 @@ def _size(path: Path | str) -> str:
 
 
 # ------------------------------------------------------------------------------------------ info
+#: A file ``info`` reads at least this large says so first on a terminal (trimesh reads a mesh in one call, with no
+#: progress to report: a 190 MB OBJ took a minute without a word).
+_INFO_LOUD_BYTES = 20_000_000
+
+
+def _reading(path: str | None, progress: Progress) -> bool:
+    """Start a progress stage "reading PATH (N MB)..." for ``info`` when the file is a large one and stderr is a
+    terminal, not piped or captured: info's stderr is otherwise empty when it succeeds (its summary is the output, and
+    scripts read both); True when one was started."""
+    if path is None or progress.quiet:
+        return False
+    try:
+        if not progress.stream.isatty() or not os.path.isfile(path) or os.path.getsize(path) < _INFO_LOUD_BYTES:
+            return False
+    except (OSError, ValueError):  # a closed stream, a path the OS refuses: no line; the reader says what is wrong
+        return False
+    progress.stage("read", f"reading {path} ({_size(path)})...")
+    return True
+
+
 def _run_info(args: argparse.Namespace, progress: Progress) -> int:
+    loud = _reading(args.file, progress)
     if args.file and Path(args.file).suffix.lower() in MESH_EXTENSIONS:
         if args.height_unit is not None:  # it was ignored without a word: a mesh's z is not converted
             raise InvalidInputError(f"--height-unit applies to a DEM; {args.file!r} is a mesh file, described as "
@@ -1064,6 +1085,8 @@ def _run_info(args: argparse.Namespace, progress: Progress) -> int:
                                         f"`gunzip -k {args.file}`") from None
             raise InvalidInputError(f"{exc}; or a mesh file: {meshes}") from None
         summary = describe_dem(terrain)
+    if loud:
+        progress.done()
     if args.json:
         print(json.dumps(summary, indent=2, default=str))
     else:

@@ -352,6 +352,44 @@ def test_info_on_a_dem_and_on_a_mesh(dem, tmp_path, capsys):
     assert code == 2 and "missing.glb" in err
 
 
+@pytest.mark.parametrize("kind", ["mesh", "dem"])
+def test_info_on_a_large_file_says_it_is_reading_on_a_terminal_only(dem, tmp_path, capsys, monkeypatch, kind):
+    """``info big.obj`` (a 190 MB OBJ: a minute in trimesh's reader, one call with no progress to report) printed
+    nothing until the summary. A file of at least _INFO_LOUD_BYTES now says "reading PATH (N MB)..." and its time on
+    stderr when that is a terminal; piped or captured (scripts, these tests) info's stderr stays empty, and -q
+    silences it as every progress line."""
+    import io
+
+    path = dem
+    if kind == "mesh":
+        path = tmp_path / "hill.obj"
+        assert run(capsys, "-q", "steps", dem, "--interval", "2", "-o", path)[0] == 0
+    size = path.stat().st_size
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    def info(*options, limit=size, stream_cls=Terminal):
+        monkeypatch.setattr(cli, "_INFO_LOUD_BYTES", limit)
+        stream = stream_cls()
+        monkeypatch.setattr("sys.stderr", stream)
+        code = cli.main(["info", str(path), *options])
+        return code, capsys.readouterr().out, stream.getvalue()
+
+    code, out, err = info()
+    lines = err.splitlines()
+    assert code == 0 and len(lines) == 2, err
+    assert lines[0] == f"stepterrain: reading {path} ({cli._size(path)})..." and lines[1].startswith(
+        "stepterrain:   in "), err
+    assert out == info(stream_cls=io.StringIO)[1]  # the summary itself is the same
+    assert info(stream_cls=io.StringIO)[2] == ""  # not a terminal
+    assert info(limit=size + 1)[2] == ""  # smaller than the limit
+    assert info("-q")[2] == ""
+    assert info("--json")[2].startswith("stepterrain: reading")  # the JSON is on stdout, untouched
+    json.loads(info("--json")[1])
+
+
 def test_info_counts_nonfinite_vertices_and_bounds_the_finite_ones(tmp_path, capsys):
     mesh = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, np.nan], [1, 1, 2]], [[0, 1, 2], [1, 3, 2]], process=False)
     path = tmp_path / "nan.ply"

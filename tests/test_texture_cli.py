@@ -172,6 +172,70 @@ def test_cli_texture_render_stepped(tmp_path, small_dem):
     assert read_png(png).shape[:2] == (120, 160)
 
 
+def _rendered(tmp_path: Path, name: str, *argv: str) -> np.ndarray:
+    png = tmp_path / f"{name}.png"
+    assert main(["-q", "texture", *argv, "--png", str(png), "--size", "160x120", "--z-scale", "0.2",
+                 "--device", "cpu"]) == 0
+    return read_png(png).astype(np.float64)
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_cli_texture_png_lights_the_stepped_terrain_as_steps_does(tmp_path, small_dem, capsys):
+    """``texture --interval --png`` rendered the draped stepped terrain unlit: the texture's hillshade shades the DEM's
+    slopes, not the terraces and walls, so the steps showed only at the silhouette (a uniform-colour texture rendered
+    as one flat colour). The render is lit now (--lighting auto) as ``steps --png`` lights its render, so terraces
+    and walls take different brightnesses; ``--lighting off`` is the texture as it is, and the heightfield under a
+    hillshade stays unlit by default (lit, it was shaded twice). The draped mesh is the same either way."""
+    from PIL import Image
+
+    grey = (150, 150, 150)
+    image = tmp_path / "grey.png"
+    Image.new("RGB", (16, 16), grey).save(image)
+    # one uniform colour over the whole DEM (its nodes 0-39 by 0-49 at spacing 1, north up): no shading in the texture
+    plain = ("--image", str(image), "--image-extent=-1,50,-40,1", "--hillshade", "none", "--colormap", "none",
+             "--interval", "20", "--camera", "200,35")
+    lit = _rendered(tmp_path, "lit", str(small_dem), *plain)
+    unlit = _rendered(tmp_path, "unlit", str(small_dem), *plain, "--lighting", "off")
+    terrain = np.abs(unlit - 255).max(axis=2) > 0  # the mesh's pixels (the background is white)
+    assert terrain.mean() > 0.1
+    assert np.abs(unlit[terrain] - grey).max() <= 1  # unlit: the texture's one colour, terraces unseen
+    brightness = lit[terrain].mean(axis=1)
+    assert brightness.std() > 10, brightness.std()  # lit: terraces and walls apart
+    levels = np.unique(np.round(brightness / 8))
+    assert len(levels) >= 3, levels  # several brightnesses (flat terraces, walls facing the light, walls turned away)
+    assert np.array_equal(_rendered(tmp_path, "on", str(small_dem), *plain, "--lighting", "on"), lit)
+
+    # the heightfield under the hillshade: unlit by default (the texture shades it), lit on request
+    shaded = _rendered(tmp_path, "shaded", str(small_dem), "--camera", "200,35")
+    assert np.array_equal(shaded, _rendered(tmp_path, "shaded_off", str(small_dem), "--camera", "200,35",
+                                            "--lighting", "off"))
+    assert not np.array_equal(shaded, _rendered(tmp_path, "shaded_on", str(small_dem), "--camera", "200,35",
+                                                "--lighting", "on"))
+
+    # --hillshade none without --image: hypsometric colours, no shading in them: lit by default
+    colours = ("--hillshade", "none", "--camera", "200,35")
+    assert np.array_equal(_rendered(tmp_path, "colours", str(small_dem), *colours),
+                          _rendered(tmp_path, "colours_on", str(small_dem), *colours, "--lighting", "on"))
+
+    # the draped mesh (and the texture) are the same bytes whatever lights the render
+    files = {}
+    for lighting in ("on", "off"):
+        (tmp_path / lighting).mkdir()  # the same names: a GLB names its mesh after its file
+        mesh, out = tmp_path / lighting / "m.glb", tmp_path / lighting / "t.png"
+        assert main(["-q", "texture", str(small_dem), "--interval", "20", "-o", str(out), "--mesh", str(mesh), "--png",
+                     str(tmp_path / f"r_{lighting}.png"), "--size", "64x48", "--lighting", lighting,
+                     "--device", "cpu"]) == 0
+        files[lighting] = (mesh.read_bytes(), out.read_bytes())
+    assert files["on"] == files["off"]
+
+    # a render option without --png, as --size and --camera are
+    capsys.readouterr()
+    assert main(["texture", str(small_dem), "-o", str(tmp_path / "t.png"), "--lighting", "on"]) == 2
+    assert ("--lighting applies only with --png (the render of the draped mesh); got it without --png"
+            in capsys.readouterr().err)
+
+
 def load_example(name: str):
     spec = importlib.util.spec_from_file_location(f"example_{name}", EXAMPLES / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
