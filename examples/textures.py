@@ -113,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
     panel = np.full((height, width, 3), 255, np.uint8)
     y0, x0 = (height - picture.height) // 2, (width - picture.width) // 2
     panel[y0: y0 + picture.height, x0: x0 + picture.width] = np.asarray(picture)
-    view = render_textured_mesh(mesh, window_size=(width, height), z_scale=1.5, lighting=False)
+    view = render_textured_mesh(mesh, window_size=(width, height), z_scale=1.5, lighting=True)
     save_png(np.concatenate([panel, view], axis=1), args.output)
     print(f"wrote {args.output} ({terrain.shape[0]} x {terrain.shape[1]} nodes, {len(mesh.faces):,} faces, "
           f"{time.perf_counter() - start:.2f} s)", file=sys.stderr)
