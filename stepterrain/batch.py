@@ -1056,14 +1056,19 @@ def _degree_frames(items: Sequence[BatchItem]) -> tuple[tuple[str, _Frame], ...]
     (0, 0) at its first node: the meshes of a folder of SRTM tiles lay on top of one another at (0, 0). None for a file
     load_dem does not read through GDAL (an .npz in degrees), a rotated grid, nor one alone in its CRS: each stays in
     its own frame (and :func:`_warn_own_local_metres` says so). Files in two or more geographic CRSs make a frame per
-    CRS, whose meshes overlap at (0, 0): a warning says so once, naming the CRSs."""
-    from .io import _placement, degree_header, shared_degree_frame
+    CRS, whose meshes overlap at (0, 0): a warning says so once, naming the CRSs. So does one for files in two or
+    more CRSs of which one is projected (:func:`_warn_projected_crss`)."""
+    from .io import _placement, raster_header, shared_degree_frame
 
     groups: dict[str, list[tuple[BatchItem, tuple[float, ...], tuple[int, int]]]] = {}
+    projected: list[str] = []  # the CRS of each file in a projected one, for the warning that they do not line up
     for item in items:
-        header = degree_header(item.path) if item.kind == "file" and item.path is not None else None
-        if header is not None:
-            groups.setdefault(header[0], []).append((item, header[1], header[2]))
+        header = raster_header(item.path) if item.kind == "file" and item.path is not None else None
+        if header is not None and header[1]:
+            groups.setdefault(header[0], []).append((item, header[2], header[3]))
+        elif header is not None:
+            projected.append(header[0])
+    _warn_projected_crss(projected, {crs: len(found) for crs, found in groups.items()})
     frames: list[tuple[str, _Frame]] = []
     placed_in: list[str] = []  # the CRSs of the frames, for the warning that they do not line up
     for crs, found in groups.items():
@@ -1099,6 +1104,42 @@ def _degree_frames(items: Sequence[BatchItem]) -> tuple[tuple[str, _Frame], ...]
             stacklevel=caller_stacklevel(),
         )
     return tuple(frames)
+
+
+def _warn_projected_crss(projected: Sequence[str], geographic: Mapping[str, int]) -> None:
+    """Warn once when a folder's files lie in two or more CRSs, one of them projected: ``projected``, the CRS of each
+    file in a projected one, ``geographic``, the number of files in each geographic CRS. Each file's mesh lies in
+    its own CRS's coordinates as load_dem places it (a projected CRS's metres,
+    :func:`~stepterrain.io.projected_frame_crs`; files in degrees in local metres of their mosaic, node (0, 0) at
+    its top-left node), so the meshes of files in
+    UTM zones 10 and 11, or in a UTM zone and in degrees, lay hundreds of kilometres apart or on top of one another
+    without a word, where files in two geographic CRSs were warned of. CRSs are told apart as rasterio compares them
+    (EPSG:32611 and its ESRI WKT are one)."""
+    from .io import _crs_object, projected_frame_crs
+
+    counts: dict[str, int] = {}
+    for crs in projected:
+        placed = projected_frame_crs(crs)
+        parsed = _crs_object(placed)
+        same = next((known for known in counts if known == placed or (
+            parsed is not None and _crs_object(known) == parsed)), placed)  # fmt: skip
+        counts[same] = counts.get(same, 0) + 1
+    if not counts or len(counts) + len(geographic) < 2:
+        return
+
+    def files(n: int) -> str:
+        return f"{n} file{'s' if n != 1 else ''}"
+
+    named = [f"{crs} ({files(n)})" for crs, n in counts.items()]
+    named += [f"{crs} ({files(n)} in degrees)" for crs, n in geographic.items()]
+    target = max(counts, key=lambda crs: counts[crs])
+    warnings.warn(
+        f"the DEM files are in {len(named)} CRSs ({', '.join(named)}): each file's mesh lies in its own CRS's "
+        "coordinates (a projected CRS's metres; files in degrees in local metres of their own, node (0, 0) at "
+        "their mosaic's top-left node), so the meshes of one CRS neither line up nor weld with those of another: to "
+        f"step them as one surface, warp them to one CRS first (gdalwarp -t_srs {target} FILE OUT.tif)",
+        stacklevel=caller_stacklevel(),
+    )
 
 
 def _warn_antimeridian(crs: str, group: Sequence[tuple[BatchItem, Sequence[float], tuple[int, int]]], *,
@@ -1989,7 +2030,10 @@ def batch(
         degrees are left in local metres of their own (an .npz, a file alone in its geographic CRS: node (0, 0) at
         its first node), so their meshes neither line up nor weld (mosaic them with ``gdalbuildvrt`` and cut the
         ``.vrt`` into tiles instead); once, that DEM files in degrees are in two or more geographic CRSs, placed in
-        a frame each, whose meshes overlap (warp them to one CRS first).
+        a frame each, whose meshes overlap (warp them to one CRS first); once, that DEM files are in two or more
+        CRSs of which one is projected (UTM zones 10 and 11, or a UTM zone and degrees; one CRS named two ways, by
+        its EPSG code and its WKT, is one), each mesh in its own CRS's coordinates, so they do not line up (warp
+        them to one CRS first).
 
     Raises
     ------

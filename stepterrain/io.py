@@ -1632,13 +1632,12 @@ def _geotiff_placement(
                       height_unit=height_unit)
 
 
-def degree_header(path: str | os.PathLike[str]) -> tuple[str, tuple[float, ...], tuple[int, int]] | None:
-    """(crs, GDAL geotransform, (rows, cols)) of a raster of :data:`GDAL_FORMATS` (or a GDAL virtual path to one) in
-    a geographic CRS, from its header alone, as :func:`load_dem` reads them (a world file's grid with the CRS of the
-    ``.prj`` beside it; a compound CRS's horizontal part); None for any other file, one in a projected CRS or none,
-    a rotated grid (rotation terms of float noise, which load_dem takes as 0, are no rotation), or one GDAL cannot
-    open (its read says why). For :mod:`stepterrain.batch`, which places a folder's files in degrees in the local
-    metres they share (:func:`shared_degree_frame`)."""
+def raster_header(path: str | os.PathLike[str]) -> tuple[str, bool, tuple[float, ...], tuple[int, int]] | None:
+    """(crs, geographic, GDAL geotransform, (rows, cols)) of a georeferenced raster of :data:`GDAL_FORMATS` (or a
+    GDAL virtual path to one), from its header alone, as :func:`load_dem` reads them (a world file's grid with the
+    CRS of the ``.prj`` beside it; a compound CRS's horizontal part where its heights become metres); None for any
+    other file, one without a geotransform or a CRS, a rotated grid (rotation terms of float noise, which load_dem
+    takes as 0, are no rotation), or one GDAL cannot open (its read says why)."""
     file = dem_path(path)
     if file.suffix.lower() not in GDAL_FORMATS:
         return None
@@ -1648,8 +1647,9 @@ def degree_header(path: str | os.PathLike[str]) -> tuple[str, tuple[float, ...],
             if crs_obj is None and not transform.is_identity:
                 prj = prj_crs(file, "DEM", DataFileError)
                 crs_obj = _crs_object(prj) if prj else None
-            if transform.is_identity or crs_obj is None or not crs_obj.is_geographic:
+            if transform.is_identity or crs_obj is None:
                 return None
+            geographic = bool(crs_obj.is_geographic)
             crs = _vertical_unit(dataset.units[0] or None, _crs_string(crs_obj))[1]
     except Exception:  # noqa: BLE001 - no rasterio, or a file GDAL refuses: the item's own read says why
         return None
@@ -1658,7 +1658,31 @@ def degree_header(path: str | os.PathLike[str]) -> tuple[str, tuple[float, ...],
     if crs is None or not _negligible_rotation(geotransform[2], geotransform[4], geotransform[1], geotransform[5],
                                                shape):
         return None
-    return crs, geotransform, shape
+    return crs, geographic, geotransform, shape
+
+
+def degree_header(path: str | os.PathLike[str]) -> tuple[str, tuple[float, ...], tuple[int, int]] | None:
+    """(crs, GDAL geotransform, (rows, cols)) of a raster of :data:`GDAL_FORMATS` (or a GDAL virtual path to one) in
+    a geographic CRS, from its header alone, as :func:`load_dem` reads them (:func:`raster_header`); None for any
+    other file, one in a projected CRS or none, a rotated grid, or one GDAL cannot open. For
+    :mod:`stepterrain.batch`, which places a folder's files in degrees in the local metres they share
+    (:func:`shared_degree_frame`)."""
+    header = raster_header(path)
+    if header is None or not header[1]:
+        return None
+    return header[0], header[2], header[3]
+
+
+def projected_frame_crs(crs: str) -> str:
+    """The CRS whose coordinates :func:`load_dem` places the nodes of a grid in projected ``crs`` in: ``crs`` itself
+    for one in metres, the same projection in metres for one in another unit (EPSG:2229, US survey feet, is read in
+    its metre twin EPSG:26945), the horizontal part of a compound CRS; for :mod:`stepterrain.batch`, which tells
+    when a folder's files lie in several CRSs (their meshes do not line up)."""
+    compound = _compound_heights(crs)
+    if compound is not None and compound[2]:
+        crs = compound[2]
+    projected = _projected_units(crs)
+    return crs if projected is None else projected[2] or crs
 
 
 def _mean_step(steps: Sequence[float], sign: float) -> float:

@@ -2556,6 +2556,58 @@ def test_dem_files_in_two_geographic_crss_are_warned_to_lie_in_two_frames(tmp_pa
     assert nw.bounds[1, 1] == pytest.approx(0.0, abs=1e-3) and sw.bounds[1, 1] == pytest.approx(0.0, abs=1e-3)
 
 
+def test_dem_files_in_two_projected_crss_are_warned_not_to_line_up(tmp_path):
+    """A folder's files in two projected CRSs (tiles of Big Tujunga in UTM zone 11, one warped to zone 10, as a
+    download across a zone boundary comes) lie each in its own CRS's metres: their meshes lay hundreds of kilometres
+    apart without a word, where files in two geographic CRSs were warned of (above). The run now says so once,
+    naming the CRSs and the gdalwarp that joins them, and so for files in a projected CRS beside files in degrees;
+    files in one projected CRS, named once by its EPSG code and once by its ESRI WKT, say nothing."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.warp import Resampling, calculate_default_transform, reproject
+
+    from .conftest import SHARED_DATA
+
+    utm = SHARED_DATA / "big_tujunga_srtm_30m_utm11n.tif"
+    if not utm.exists():
+        pytest.skip(f"shared data {utm.name} not found")
+    tiles = _cut_tiles(tmp_path, utm, "utm")
+
+    def warp(name, crs):
+        with rasterio.open(tiles[name]) as src, warnings.catch_warnings():
+            warnings.simplefilter("ignore", PendingDeprecationWarning)  # rasterio's own Affine * in it
+            transform, width, height = calculate_default_transform(src.crs, crs, src.width, src.height, *src.bounds)
+            profile = dict(src.profile, crs=crs, transform=transform, width=width, height=height)
+            heights = src.read(1)
+        tiles[name].unlink()
+        with rasterio.open(tiles[name], "w", **profile) as out:
+            reproject(heights, rasterio.band(out, 1), src_transform=src.transform, src_crs=src.crs,
+                      dst_transform=transform, dst_crs=crs, resampling=Resampling.nearest)
+
+    def said(folder):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            report = batch(folder, tmp_path / f"out_{folder.name}", interval=100.0, scheduler="serial")
+        assert report.ok, report.summary()
+        return [str(w.message) for w in caught if "CRSs" in str(w.message)]
+
+    # one CRS, named two ways: silent
+    with rasterio.open(tiles["se"], "r+") as dataset:
+        dataset.crs = rasterio.crs.CRS.from_wkt(dataset.crs.to_wkt(version="WKT1_ESRI"))
+    assert said(tmp_path / "utm") == []
+
+    warp("se", "EPSG:32610")
+    found = said(tmp_path / "utm")
+    assert len(found) == 1 and "EPSG:32611 (3 files)" in found[0] and "EPSG:32610 (1 file)" in found[0], found
+    assert "gdalwarp -t_srs EPSG:32611" in found[0], found
+    # as warned: the zone 10 tile's mesh lies hundreds of kilometres east of its zone 11 neighbours'
+    sw, se = read_mesh(tmp_path / "out_utm" / "sw.glb"), read_mesh(tmp_path / "out_utm" / "se.glb")
+    assert se.bounds[0, 0] - sw.bounds[1, 0] > 100e3
+
+    warp("se", "EPSG:4326")
+    found = said(tmp_path / "utm")
+    assert len(found) == 1 and "EPSG:32611 (3 files)" in found[0] and "EPSG:4326 (1 file in degrees)" in found[0]
+
+
 def test_a_dem_file_in_degrees_load_dem_refuses_fails_alone_not_the_run_nor_the_others_frame(tmp_path):
     """A file in degrees whose geotransform load_dem refuses, among files it places in their mosaic's frame: one of
     zero pixel height ended the whole run with a ZeroDivisionError (the mosaic's rows counted in its steps), where
