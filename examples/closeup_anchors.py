@@ -46,6 +46,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--inactive", action="store_true", help="show the inactive depictions of Fig. 5")
     parser.add_argument("--device", default=None)
     args = parser.parse_args(argv)
+    if args.size < 0 or args.size == 1:  # cropped to nothing or one node: the library named no option
+        parser.error(f"--size must be 0 (the whole DEM) or at least 2 nodes; got {args.size}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
         return run(args)
 

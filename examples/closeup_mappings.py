@@ -48,6 +48,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=24)
     parser.add_argument("--device", default=None)
     args = parser.parse_args(argv)
+    if args.size < 0 or args.size == 1:  # cropped to nothing or one node: the library named no option
+        parser.error(f"--size must be 0 (the whole DEM) or at least 2 nodes; got {args.size}")
     if args.gif and args.frames < 1:  # refused by the library only after the PNG was written
         parser.error(f"--frames must be at least 1; got {args.frames}")
     if args.gif and Path(args.gif).suffix.lower() not in (".gif", ".mp4"):  # refused after the PNG was written too

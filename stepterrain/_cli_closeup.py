@@ -183,9 +183,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         _check_fps,
         _check_mp4_size,
         _closeup_scale,
-        animate_closeups,
         max_closeups,
-        render_closeups,
         save_animation,
     )
     from .stepped import colormap, isovalues
@@ -341,24 +339,17 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     options = dict(z_scale=args.z_scale, scalars=scalars, cmap=args.colormap, device=args.device, camera=args.camera)
 
     # everything is computed in memory first, then written: a run that fails anywhere writes no file
-    scene = image = frames = None
-    if mesh_out is not None:
-        from .closeup import closeup_scene
-
-        progress.stage("mesh", f"building the scene mesh with {_counted(n, 'close-up')}")
-        scene = closeup_scene(terrain, closeups, scalars=scalars, cmap=args.colormap, device=args.device)
-        progress.done(f"{_counted(len(scene.faces), 'face')},")
-    if picture is not None:
-        progress.stage("render", f"rendering {_counted(n, 'close-up')} at {args.size[0]}x{args.size[1]}")
-        timings: dict[str, float] = {}
-        image = render_closeups(terrain, closeups, window_size=args.size, timings=timings, **options)
-        progress.done(f"transform {timings['transform']:.2f} s, passes {timings['render']:.2f} s, "
-                      f"composite {timings['composite']:.2f} s;")
-    if anim is not None:
-        progress.stage("animate", f"rendering {_counted(args.frames, 'frame')} for {anim}")
-        frames = animate_closeups(terrain, closeups, frames=args.frames, fps=args.fps, window_size=args.size,
-                                  progress=not progress.quiet, **options)
-        progress.done()
+    try:
+        scene, image, frames = _closeup_outputs(args, progress, terrain, closeups, mesh_out, picture, anim, options)
+    except InvalidInputError as exc:
+        text = str(exc)
+        if given or not text.startswith("closeups[0]: ROI box"):
+            raise
+        # the default close-up: the library's "closeups[0]" read as "--roi/--roi-relative (close-up 1)", options the
+        # user never gave, and "make it larger or move it" named no way to
+        raise InvalidInputError(f"no --roi or --roi-relative given: the default close-up at the DEM's centre (radius "
+                                f"{rois[0][2]:g}, 0.12 of its shorter side) {text[len('closeups[0]: '):]}; give "
+                                "--roi x,y,r or --roi-relative fx,fy,fr over the terrain") from None
     if scene is not None and mesh_out is not None:
         from .export import save_mesh
 
@@ -375,3 +366,31 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         save_animation(frames, anim, fps=args.fps)
         progress.done()
     return 0
+
+
+def _closeup_outputs(args: argparse.Namespace, progress: Any, terrain: Any, closeups: list, mesh_out: Any, picture: Any,
+                     anim: Any, options: dict[str, Any]) -> tuple[Any, Any, Any]:
+    """The scene mesh, the still render and the animation frames that were asked for (None otherwise), in memory."""
+    from .cli import _counted
+    from .closeup import animate_closeups, render_closeups
+
+    n = len(closeups)
+    scene = image = frames = None
+    if mesh_out is not None:
+        from .closeup import closeup_scene
+
+        progress.stage("mesh", f"building the scene mesh with {_counted(n, 'close-up')}")
+        scene = closeup_scene(terrain, closeups, scalars=options["scalars"], cmap=args.colormap, device=args.device)
+        progress.done(f"{_counted(len(scene.faces), 'face')},")
+    if picture is not None:
+        progress.stage("render", f"rendering {_counted(n, 'close-up')} at {args.size[0]}x{args.size[1]}")
+        timings: dict[str, float] = {}
+        image = render_closeups(terrain, closeups, window_size=args.size, timings=timings, **options)
+        progress.done(f"transform {timings['transform']:.2f} s, passes {timings['render']:.2f} s, "
+                      f"composite {timings['composite']:.2f} s;")
+    if anim is not None:
+        progress.stage("animate", f"rendering {_counted(args.frames, 'frame')} for {anim}")
+        frames = animate_closeups(terrain, closeups, frames=args.frames, fps=args.fps, window_size=args.size,
+                                  progress=not progress.quiet, **options)
+        progress.done()
+    return scene, image, frames

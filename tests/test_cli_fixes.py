@@ -15,7 +15,7 @@ import pytest
 import stepterrain as st
 from stepterrain import cli
 
-from .conftest import needs_render
+from .conftest import needs_render, real_dem
 from .conftest import run_cli as run
 from .test_examples import assert_usage_error_writing_nothing
 
@@ -2313,3 +2313,21 @@ def test_steps_without_output_or_png_is_a_usage_error(tmp_path, capsys):
     assert "-o/--output" in line and "--png" in line and "got neither" in line
     assert [p.name for p in tmp_path.iterdir()] == ["dem.npy"]
 
+
+
+def test_closeup_default_roi_over_nodata_names_the_default_not_a_roi_option(tmp_path, capsys):
+    """Without --roi or --roi-relative the one close-up sits at the DEM's centre; over nodata there (a lake, the sea
+    of a coastal DEM) the refusal read '--roi/--roi-relative (close-up 1): ... make it larger or move it', naming
+    options the user never gave. It now says the default close-up was placed there, and how to place one."""
+    heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=64, step=4)
+    heights[16:48, 16:48] = np.nan  # nodata all round the centre, wider than the default ROI (0.12 of 63 nodes)
+    path = tmp_path / "lake.npy"
+    np.save(path, heights)
+    code, _, err = run(capsys, "-q", "closeup", path, "-o", tmp_path / "c.glb")
+    assert code == 2
+    line = one_error_line(err, "closeup")
+    assert line.startswith("stepterrain closeup: error: no --roi or --roi-relative given: the default close-up at the "
+                           "DEM's centre"), line
+    assert "holds no terrain" in line and "are nodata" in line  # the library's reason is kept
+    assert line.endswith("give --roi x,y,r or --roi-relative fx,fy,fr over the terrain"), line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["lake.npy"]

@@ -263,3 +263,14 @@ def test_interactive_initial_view_shows_the_whole_terrain(tmp_path):
     terrain[:30] = False  # the sliders
     assert terrain.sum() > 0.25 * terrain.size, "the terrain fills much of the view"
     assert not terrain[:, 0].any() and not terrain[:, -1].any() and not terrain[-1].any()
+
+
+@pytest.mark.parametrize("name", ["closeup_anchors", "closeup_mappings"])
+@pytest.mark.parametrize("size", ["-5", "1"])
+def test_closeup_examples_refuse_a_size_below_two_nodes_by_name(name, size, tmp_path, capsys):
+    """--size -5 cropped the DEM to nothing and --size 1 to one node: the library refused 'heights needs at least
+    2 x 2 nodes; got shape (0, 0)', naming no option (the other examples refuse --size by name). 0 stays the whole
+    DEM."""
+    argv = ["--size", size, "--window", "200", "150", "--output", str(tmp_path / "out.png"), "--device", "cpu"]
+    assert_usage_error_writing_nothing(name, argv, f"--size must be 0 (the whole DEM) or at least 2 nodes; got {size}",
+                                       tmp_path, capsys)
