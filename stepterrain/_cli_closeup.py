@@ -107,7 +107,8 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--scale", type=_floats(None, "s or sx,sy,sz"), action="append", metavar="s",
                    help="close-up scale: s or sx,sy,sz (default 1.5)")
     p.add_argument("--offset", type=_floats(3, "dx,dy,dz"), action="append", metavar="dx,dy,dz",
-                   help="close-up displacement in world units (default: lifted by a fifth of the extent)")
+                   help="close-up displacement in world units (default: lifted by a fifth of the extent's longer "
+                        "side, at least 0.3 of its north-south depth: it clears the overview seen from the south)")
     p.add_argument("--rotation", type=_floats(2, "alpha,beta (degrees)"), action="append", metavar="a,b",
                    help="tilt about x and turn about the vertical, degrees (default 0,0; whole turns are taken off)")
     p.add_argument("--color", type=_color_option, action="append", metavar="COLOR",
@@ -303,7 +304,9 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     if not rois:
         rois = [((xmin + xmax) / 2, (ymin + ymax) / 2, 0.12 * short)]
     n = len(rois)  # n_rois
-    lift = 0.2 * max(xmax - xmin, ymax - ymin)
+    # a fifth of the longer side, and at least 0.3 of the north-south depth: the default camera looks from the south,
+    # and a close-up lifted by a fifth of a north-south strip's length sat on its far end, drawn over the terrain
+    lift = max(0.2 * max(xmax - xmin, ymax - ymin), 0.3 * (ymax - ymin))
     offsets = _per_closeup(args.offset, n, (0.0, 0.0, lift), "--offset")
     for interval in steps:
         if interval:  # the levels of a stepped close-up span the terrain's height range: named by the option

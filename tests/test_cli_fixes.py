@@ -2331,3 +2331,38 @@ def test_closeup_default_roi_over_nodata_names_the_default_not_a_roi_option(tmp_
     assert "holds no terrain" in line and "are nodata" in line  # the library's reason is kept
     assert line.endswith("give --roi x,y,r or --roi-relative fx,fy,fr over the terrain"), line
     assert sorted(p.name for p in tmp_path.iterdir()) == ["lake.npy"]
+
+
+@pytest.mark.parametrize("strip", [True, False], ids=["north-south strip", "whole DEM"])
+def test_closeup_default_lift_clears_the_overview_seen_from_the_default_camera(tmp_path, strip):
+    """The default close-up is lifted so that, seen from the default (oblique, from the south) camera at the render's
+    z scale of 2, its lowest point lies above the overview's highest on screen. The lift was a fifth of the longer
+    side: on a north-south strip (6 x 19 km of the embedded DEM) the close-up sat on the far half of the overview,
+    drawn over the terrain; the whole DEM (wider than tall) is lifted as before."""
+    from stepterrain import render
+    from stepterrain.export import read_mesh
+
+    xmin, _, ymin, ymax = st.sample_dem().extent
+    crop = ["--crop", f"{xmin + 15000},{xmin + 21000},{ymin},{ymax}"] if strip else []
+    assert cli.main(["closeup", *crop, "-o", str(tmp_path / "scene.ply"), "-q"]) == 0
+    scene = read_mesh(tmp_path / "scene.ply")
+    points = np.asarray(scene.vertices) * [1.0, 1.0, 2.0]  # the render's default --z-scale
+    layer = scene.face_attributes["layer"]
+    overview, closeup = (points[np.unique(scene.faces[layer == k])] for k in (0, 1))
+    (x0, y0, _), (x1, y1, _) = overview.min(axis=0), overview.max(axis=0)
+    assert (y1 - y0 > 3 * (x1 - x0)) == strip
+    # the close-up proper: the default ROI at the centre, radius r = 0.12 of the shorter side, scaled by 1.5 about its
+    # centre; layer 1's soft edge blends down to the terrain between r and 1.2 r from it, so those within r are lifted
+    radius = 0.12 * min(x1 - x0, y1 - y0)
+    closeup = closeup[np.hypot(closeup[:, 0] - (x0 + x1) / 2, closeup[:, 1] - (y0 + y1) / 2) < 0.95 * radius]
+    eye, focal, up = (np.asarray(v) for v in render._camera_position("oblique", points, 1280 / 800))
+    view = (focal - eye) / np.linalg.norm(focal - eye)
+    screen_up = up - (up @ view) * view
+    screen_up /= np.linalg.norm(screen_up)
+
+    def screen_y(p):  # the perspective render's height on screen
+        return ((p - eye) @ screen_up) / ((p - eye) @ view)
+
+    closeup_height = np.ptp(screen_y(closeup))
+    gap = screen_y(closeup).min() - screen_y(overview).max()
+    assert gap > 0.3 * closeup_height, f"the close-up clears the overview by {gap / closeup_height:.2f} of its height"
