@@ -142,10 +142,14 @@ _NAME_MAX = 255
 def _temporary_stem(name: str) -> str:
     """``name`` for :func:`atomic_path`'s temporary ``.<name>.XXXXXXXX.tmp``, cut to fit :data:`_NAME_MAX` bytes: a
     target name of 242 to 255 bytes is valid, but its temporary name was not (ENAMETOOLONG), and the write was
-    refused as "cannot write in the output folder"."""
-    raw = os.fsencode(name)
+    refused as "cannot write in the output folder". The stem is UTF-8, cut between characters, an undecodable byte of
+    ``name`` (``'\\udcf6'`` for a Latin-1 ``\\xf6``) as ``_``: writers that hand the temporary's name to a C library as
+    UTF-8 (PIL's TIFF writer, rasterio) raised UnicodeEncodeError for such a name, and for one cut inside a character
+    (``os.fsdecode`` of its first bytes ended in a surrogate)."""
+    text = name if _utf8_name(name) == name else _utf8_name(name).replace("\ufffd", "_")
+    raw = text.encode("utf-8")
     room = _NAME_MAX - len(".") - len(".XXXXXXXX.tmp")
-    return name if len(raw) <= room else os.fsdecode(raw[:room])
+    return text if len(raw) <= room else raw[:room].decode("utf-8", "ignore")  # a character cut: dropped
 
 
 @contextlib.contextmanager

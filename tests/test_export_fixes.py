@@ -2268,3 +2268,23 @@ def test_an_obj_named_with_no_utf8_is_written_with_its_texture(tmp_path):
     named.metadata["name"] = "h\udcf6he.ply"
     save_mesh(named, tmp_path / "named.obj")
     assert "o h\ufffdhe.ply\n" in (tmp_path / "named.obj").read_text(encoding="utf-8")
+
+
+@pytest.mark.skipif(os.name == "nt" or os.fsencode("\udcf6") != b"\xf6", reason="needs byte file names (POSIX)")
+@pytest.mark.parametrize("name", [b"h\xf6he.tif", ("\u00fc" * 121 + ".tif").encode()])
+@pytest.mark.parametrize("georeferenced", [False, True])
+def test_a_tiff_is_written_under_a_name_that_its_temporary_file_could_not_hold(tmp_path, name, georeferenced):
+    """atomic_path's temporary ``.<name>.XXXXXXXX.tmp`` took the target's name as it was, and PIL's TIFF writer
+    (libtiff) and rasterio (GDAL) pass the file name on as UTF-8: save_image of a TIFF named in Latin-1
+    (``h\\xf6he.tif``), or of a name of 246 bytes whose temporary's cut to 255 bytes ended inside a character, raised
+    UnicodeEncodeError "surrogates not allowed". The temporary's name is UTF-8 now; the file keeps its own name."""
+    target = tmp_path / os.fsdecode(name)
+    image = np.arange(4 * 6 * 3, dtype=np.uint8).reshape(4, 6, 3)
+    if georeferenced:
+        pytest.importorskip("rasterio")
+        save_image(image, target, extent=(0.0, 6.0, 0.0, 4.0), crs="EPSG:32611")
+    else:
+        save_image(image, target)
+    assert [os.fsencode(p.name) for p in tmp_path.iterdir()] == [name]
+    with Image.open(target) as back:
+        np.testing.assert_array_equal(np.asarray(back.convert("RGB")), image)
