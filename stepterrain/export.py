@@ -2218,8 +2218,12 @@ def _trimesh_read(load: Callable[..., Any], file: Path, **kwargs: Any) -> Any:
     name = _utf8_name(file.name)
     resolver = trimesh.resolvers.FilePathResolver(str(file))  # the folder, for side files
     resolver.file_name = name  # an OBJ's geometry is named by it
+    # typed as trimesh types a path: an h\xf6he.tar.gz is a "tar.gz" (its last suffix, "gz", trimesh does not read)
+    file_type = trimesh.util.split_extension(file.name, special=["tar.gz", "tar.bz2"]).lower()
     with file.open("rb") as stream:
-        loaded = load(stream, file_type=file.suffix.lower().lstrip("."), resolver=resolver, **kwargs)
+        loaded = load(stream, file_type=file_type, resolver=resolver, **kwargs)
+    if file_type in trimesh.exchange.load.compressed_loaders:  # named after the files in it, as for a plain name
+        return loaded
     for item in [loaded, *getattr(loaded, "geometry", {}).values()]:
         metadata = getattr(item, "metadata", None)
         if isinstance(metadata, dict):  # a file name (trimesh's "geometry_0" for a stream) as for a plain name

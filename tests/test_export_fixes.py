@@ -2288,3 +2288,32 @@ def test_a_tiff_is_written_under_a_name_that_its_temporary_file_could_not_hold(t
     assert [os.fsencode(p.name) for p in tmp_path.iterdir()] == [name]
     with Image.open(target) as back:
         np.testing.assert_array_equal(np.asarray(back.convert("RGB")), image)
+
+
+@pytest.mark.skipif(os.name == "nt" or os.fsencode("\udcf6") != b"\xf6", reason="needs byte file names (POSIX)")
+@pytest.mark.parametrize("ext", [".zip", ".tar.gz"])
+def test_an_archive_whose_name_is_not_utf8_is_read_as_under_a_plain_name(tmp_path, ext):
+    """An archive holding a mesh (a ``.zip``, ``.tar.gz``) is read by trimesh, the mesh's name that of the file in it.
+    One named in Latin-1 (``h\\xf6he.tar.gz``) was read so too before non-UTF-8 names were read from the open file;
+    then its type was taken from the last suffix only (``gz``, which trimesh does not read: NotImplementedError),
+    where trimesh takes ``tar.gz``, and a ``.zip``'s mesh was named after the archive, not after the file in it."""
+    import io
+    import tarfile
+    import zipfile
+
+    ply = trimesh.exchange.ply.export_ply(st.stepped(np.arange(20.0).reshape(4, 5) % 7, interval=2.0))
+    plain, odd = tmp_path / f"plain{ext}", tmp_path / os.fsdecode(b"h\xf6he" + ext.encode())
+    for target in (plain, odd):
+        if ext == ".zip":
+            with zipfile.ZipFile(target, "w") as archive:
+                archive.writestr("m.ply", ply)
+        else:
+            with tarfile.open(target, "w:" + ext.rsplit(".", 1)[1]) as archive:
+                info = tarfile.TarInfo("m.ply")
+                info.size = len(ply)
+                archive.addfile(info, io.BytesIO(ply))
+    expected, got = read_mesh(plain), read_mesh(odd)
+    assert len(expected.faces) == 142
+    np.testing.assert_array_equal(got.vertices, expected.vertices)
+    np.testing.assert_array_equal(got.faces, expected.faces)
+    assert got.metadata.get("name") == expected.metadata.get("name")
