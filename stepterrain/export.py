@@ -142,10 +142,14 @@ _NAME_MAX = 255
 def _temporary_stem(name: str) -> str:
     """``name`` for :func:`atomic_path`'s temporary ``.<name>.XXXXXXXX.tmp``, cut to fit :data:`_NAME_MAX` bytes: a
     target name of 242 to 255 bytes is valid, but its temporary name was not (ENAMETOOLONG), and the write was
-    refused as "cannot write in the output folder"."""
-    raw = os.fsencode(name)
+    refused as "cannot write in the output folder". The stem is UTF-8, cut between characters, an undecodable byte of
+    ``name`` (``'\\udcf6'`` for a Latin-1 ``\\xf6``) as ``_``: writers that hand the temporary's name to a C library as
+    UTF-8 (PIL's TIFF writer, rasterio) raised UnicodeEncodeError for such a name, and for one cut inside a character
+    (``os.fsdecode`` of its first bytes ended in a surrogate)."""
+    text = name if _utf8_name(name) == name else _utf8_name(name).replace("\ufffd", "_")
+    raw = text.encode("utf-8")
     room = _NAME_MAX - len(".") - len(".XXXXXXXX.tmp")
-    return name if len(raw) <= room else os.fsdecode(raw[:room])
+    return text if len(raw) <= room else raw[:room].decode("utf-8", "ignore")  # a character cut: dropped
 
 
 @contextlib.contextmanager
@@ -1304,7 +1308,7 @@ def _empty_gltf(mesh: trimesh.Trimesh) -> bool:
 def _empty_document(mesh: trimesh.Trimesh, target: Path) -> tuple[dict[str, Any], list[Any]]:
     """glTF JSON of an empty mesh: one node without a mesh, ``mesh.metadata`` as its ``extras`` (glTF has no
     mesh without a primitive, nor a primitive without POSITION); no buffers."""
-    node: dict[str, Any] = {"name": target.stem or "mesh"}
+    node: dict[str, Any] = {"name": _utf8_name(target.stem) or "mesh"}
     if mesh.metadata:
         node["extras"] = mesh.metadata  # already JSON-safe (_prepared_mesh)
     tree = {"asset": {"version": "2.0", "generator": "stepterrain"}, "scene": 0, "scenes": [{"nodes": [0]}],
@@ -1372,7 +1376,7 @@ def _gltf_document(
     (mode 0, no indices): its vertices are kept (trimesh's writer dropped them and wrote an empty file). The one
     material is :func:`_terrain_material`."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
-    node: dict[str, Any] = {"name": target.stem or "mesh", "mesh": 0}
+    node: dict[str, Any] = {"name": _utf8_name(target.stem) or "mesh", "mesh": 0}
     assert bounds is not None  # _direct_gltf: the mesh has vertices
     lo, hi = bounds
     offset = np.zeros(3)
@@ -1427,7 +1431,7 @@ def _gltf_document(
                           "count": len(colors), "type": "VEC4"})  # fmt: skip
         blend = bool(len(rgba)) and int(rgba[:, 3].min()) < 255
     primitive["material"] = 0
-    gltf_mesh: dict[str, Any] = {"name": target.stem or "mesh", "primitives": [primitive]}
+    gltf_mesh: dict[str, Any] = {"name": _utf8_name(target.stem) or "mesh", "primitives": [primitive]}
     if mesh.metadata:
         gltf_mesh["extras"] = mesh.metadata  # already JSON-safe (_prepared_mesh)
     tree = {
@@ -1478,7 +1482,7 @@ def _obj_side_files(
     target = _link_target(target)
     # side files are named without whitespace: "mtllib my terrain.mtl" names two files for OBJ readers that split
     # the line as the format says (tinyobjloader, many slicers), and the texture was not found
-    stem = "_".join(target.stem.split()) or "mesh"
+    stem = "_".join(_utf8_name(target.stem).split()) or "mesh"  # written in the UTF-8 OBJ: named so on disk too
     mtl_name = f"{stem}.mtl"
     sidecars, material, uv = _obj_material(mesh, mtl_name)
     sidecars = _own_texture_names(sidecars, mtl_name, stem)
@@ -1546,7 +1550,9 @@ def _obj_text(text: str) -> str:
     """``text`` (a name on one line) for the end of an OBJ or MTL statement: a backslash there continues the line in
     OBJ readers (trimesh's, as the OBJ specification has it), so an ``o`` line of a name ending in one (a Windows
     folder, ``C:\\dem\\``) or a ``usemtl`` of a material so named swallowed the first ``v`` line, and every face
-    then named the wrong vertices or none (read_mesh: an IndexError). Its trailing backslashes become ``_``."""
+    then named the wrong vertices or none (read_mesh: an IndexError). Its trailing backslashes become ``_``, and it is
+    UTF-8 (:func:`_utf8_name`)."""
+    text = _utf8_name(text)
     stripped = text.rstrip("\\")
     return stripped + "_" * (len(text) - len(stripped))
 
@@ -2137,7 +2143,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         if gltf:  # trimesh.load(force="mesh") is load_scene().to_mesh(), which drops COLOR_0 beside a material
             tree = _check_dense_gltf(file)  # its JSON, read once
             stored_z_up = _stored_z_up(tree)
-            scene = trimesh.load_scene(file, process=False)
+            scene = _trimesh_read(trimesh.load_scene, file, process=False)
             y_up = not (_faces_along_z(scene) if stored_z_up is None else stored_z_up)
             if y_up:  # glTF's world is y-up (§3.4); ours z-up. Exact for save_mesh's files: their turn undone
                 scene.apply_transform(_Y_UP_TO_Z_UP)
@@ -2146,7 +2152,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         else:  # an OBJ of faces of vertex indices only keeps the vertices no face names (_obj_faces_name_vertices_only)
             plain_obj = file.suffix.lower() == ".obj" and _obj_faces_name_vertices_only(file)
             order = {"maintain_order": True} if plain_obj else {}
-            loaded = trimesh.load(file, force="mesh", process=False, **order)
+            loaded = _trimesh_read(trimesh.load, file, force="mesh", process=False, **order)
         if isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices) == 0:
             loaded = _read_points(file, scene) or loaded
             if gltf and len(loaded.vertices) == 0:  # an empty mesh's metadata, in its node's extras
@@ -2178,6 +2184,51 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     except Exception as exc:  # noqa: BLE001 - trimesh and the XML reader raise many kinds for a bad file
         raise DataFileError(f"cannot read {str(file)!r} as a mesh: {type(exc).__name__}: {exc}") from exc
     return loaded  # type: ignore[no-any-return]
+
+
+def _utf8_name(text: str) -> str:
+    """``text`` as UTF-8 can hold it: a file name's undecodable byte (Python's ``'\\udcf6'`` for a Latin-1 ``\\xf6``
+    on a UTF-8 system, ``os.fsdecode``'s surrogate escape), or any other lone surrogate, as U+FFFD. A name so made
+    (a glTF node's, an OBJ's ``o`` line and its ``.mtl`` beside it) failed the write with a UnicodeEncodeError, or
+    wrote glTF JSON holding a lone surrogate, which its specification and readers refuse."""
+    try:
+        text.encode("utf-8")
+        return text
+    except UnicodeEncodeError:
+        pass
+    try:
+        return text.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+    except UnicodeEncodeError:  # a surrogate that is no escaped byte (U+D800)
+        return text.encode("utf-8", "surrogatepass").decode("utf-8", "replace")
+
+
+def _trimesh_read(load: Callable[..., Any], file: Path, **kwargs: Any) -> Any:
+    """``load(file, **kwargs)`` (``trimesh.load`` or ``trimesh.load_scene``), also for a ``file`` whose name is no
+    UTF-8 (a Latin-1 ``h\\xf6he.ply`` on a UTF-8 system, which Python names ``'h\\udcf6he.ply'``): trimesh names the
+    scene node after the file and encodes that name as UTF-8, so such a file was refused ("cannot read ... 'utf-8'
+    codec can't encode character '\\udcf6' ... surrogates not allowed"). It is read from the open file then, its side
+    files (an OBJ's material and textures, a glTF's buffers) found beside it as before, and named as its name reads
+    with the undecodable bytes as U+FFFD (``metadata["name"]``, which every writer can store)."""
+    try:
+        file.name.encode("utf-8")
+    except UnicodeEncodeError:
+        pass
+    else:
+        return load(file, **kwargs)
+    name = _utf8_name(file.name)
+    resolver = trimesh.resolvers.FilePathResolver(str(file))  # the folder, for side files
+    resolver.file_name = name  # an OBJ's geometry is named by it
+    # typed as trimesh types a path: an h\xf6he.tar.gz is a "tar.gz" (its last suffix, "gz", trimesh does not read)
+    file_type = trimesh.util.split_extension(file.name, special=["tar.gz", "tar.bz2"]).lower()
+    with file.open("rb") as stream:
+        loaded = load(stream, file_type=file_type, resolver=resolver, **kwargs)
+    if file_type in trimesh.exchange.load.compressed_loaders:  # named after the files in it, as for a plain name
+        return loaded
+    for item in [loaded, *getattr(loaded, "geometry", {}).values()]:
+        metadata = getattr(item, "metadata", None)
+        if isinstance(metadata, dict):  # a file name (trimesh's "geometry_0" for a stream) as for a plain name
+            metadata.update({key: name for key in ("name", "node") if key in metadata})
+    return loaded
 
 
 #: PLY properties trimesh's reader makes into the mesh itself (positions, normals, colours, UVs, faces): not attributes.
@@ -2615,7 +2666,7 @@ def _check_format(file: Path) -> None:
 def _read_points(file: Path, scene: trimesh.Scene | None = None) -> trimesh.Trimesh | None:
     """The point clouds of ``file`` (in world coordinates, with their colours) as one mesh without faces; None without
     any. ``scene``: a glTF's, as :func:`read_mesh` loaded it (and turned z-up), not loaded again."""
-    loaded = scene if scene is not None else trimesh.load(file, process=False)
+    loaded = scene if scene is not None else _trimesh_read(trimesh.load, file, process=False)
     parts = loaded.dump() if isinstance(loaded, trimesh.Scene) else [loaded]
     clouds = [part for part in parts if isinstance(part, trimesh.PointCloud) and len(part.vertices)]
     if not clouds:
@@ -3156,9 +3207,8 @@ def _gltf_scene(mesh: trimesh.Trimesh, target: Path, bounds: Bounds,
     if mesh.visual.kind == "texture" and isinstance(mesh.visual.material, trimesh.visual.material.PBRMaterial):
         _encoded_textures(mesh.visual.material)  # the prepared copy's own material (or _textured_material's)
     scene = trimesh.Scene()
-    scene.add_geometry(
-        mesh, geom_name=target.stem or "mesh", node_name=target.stem or "mesh", transform=transform
-    )
+    name = _utf8_name(target.stem) or "mesh"
+    scene.add_geometry(mesh, geom_name=name, node_name=name, transform=transform)
     return scene
 
 

@@ -113,7 +113,7 @@ def _let_trimesh_write_bool_ply() -> None:
 _let_trimesh_write_bool_ply()
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Lens:
     """A γ mask over the terrain's xy extent (paper 000 §4, Fig. 4).
 
@@ -122,6 +122,8 @@ class Lens:
     bilinearly at every output vertex, so walls stay vertical; beyond ``extent`` a vertex takes the value of the
     nearest mask edge (the sampler clamps), so a mask over part of the terrain holds its border value elsewhere.
     The sampler works in float32: :func:`stepped` refuses an extent wider or taller than float32 holds (3.4e+38).
+    Lenses compare and hash by identity, as :class:`~stepterrain.closeup.ROI` does (the generated field-wise ``==``
+    raised numpy's "truth value ... is ambiguous" on their masks, and ``hash`` "unhashable type").
     """
 
     mask: NDArray[np.float32]

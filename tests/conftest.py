@@ -119,7 +119,8 @@ def gltf_written_files_are_valid(tmp_path_factory):
 
     def record(path: Path) -> None:
         if path.suffix.lower() in (".glb", ".gltf") and path.is_file():
-            copy = folder / f"{len(copies):05d}_{path.name}"
+            # a name that is no UTF-8 (h\udcf6he.glb, Latin-1) as one that is: node opens files by UTF-8 names
+            copy = folder / f"{len(copies):05d}_{os.fsencode(path.name).decode('utf-8', 'replace')}"
             shutil.copyfile(path, copy)
             copies[copy] = path
 

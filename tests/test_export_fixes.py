@@ -2221,3 +2221,99 @@ def test_a_piece_cut_from_a_per_face_mesh_is_not_stored_about_the_eye_of_the_who
     piece = read_mesh(save_mesh(box, tmp_path / "piece.glb")).vertices
     np.testing.assert_array_equal(piece, own)
     np.testing.assert_allclose(piece, box.vertices, rtol=0, atol=1e-4)
+
+
+@pytest.mark.skipif(os.name == "nt" or os.fsencode("\udcf6") != b"\xf6", reason="needs byte file names (POSIX)")
+@pytest.mark.parametrize("ext", [".ply", ".obj", ".stl", ".glb", ".gltf", ".3mf"])
+def test_a_file_whose_name_is_not_utf8_is_read(tmp_path, ext):
+    """A file named in Latin-1 on a UTF-8 system (``h\\xf6he.ply``, as ``os.listdir`` and a shell glob give it:
+    Python's ``'h\\udcf6he.ply'``) was written by save_mesh but not read back: trimesh named the mesh's scene node after
+    the file and encoded that name as UTF-8, so read_mesh (and ``stepterrain info``, the batch's skip check) raised
+    "cannot read ... UnicodeEncodeError: 'utf-8' codec can't encode character '\\udcf6' ... surrogates not allowed".
+    The file is read as the same file under a plain name is; its name in the metadata is the file's with the
+    undecodable byte as U+FFFD."""
+    heights = np.arange(20.0).reshape(4, 5) % 7
+    mesh = st.stepped(heights, interval=2.0, colors="terrain")
+    plain, odd = tmp_path / f"plain{ext}", tmp_path / os.fsdecode(b"h\xf6he" + ext.encode())
+    save_mesh(mesh, plain)
+    save_mesh(mesh, odd)
+    assert os.fsencode(odd.name) == b"h\xf6he" + ext.encode()
+    expected, got = read_mesh(plain), read_mesh(odd)
+    np.testing.assert_array_equal(got.vertices, expected.vertices)
+    np.testing.assert_array_equal(got.faces, expected.faces)
+    np.testing.assert_array_equal(got.visual.vertex_colors, expected.visual.vertex_colors)
+    assert got.metadata.get("isovalues") == expected.metadata.get("isovalues")
+    if "name" in expected.metadata and expected.metadata["name"].startswith("plain"):
+        assert got.metadata["name"] == expected.metadata["name"].replace("plain", "h\ufffdhe")
+    (got.metadata.get("name") or "").encode("utf-8")  # a name every writer can store
+
+
+@pytest.mark.skipif(os.name == "nt" or os.fsencode("\udcf6") != b"\xf6", reason="needs byte file names (POSIX)")
+def test_an_obj_named_with_no_utf8_is_written_with_its_texture(tmp_path):
+    """The OBJ's text is UTF-8: a textured OBJ saved as ``t\\xf6x.obj`` (``'t\\udcf6x.obj'``) named its ``.mtl`` in the
+    ``mtllib`` line, and a mesh whose ``metadata["name"]`` held a lone surrogate (a file's name as read) its ``o`` line,
+    and save_mesh raised a UnicodeEncodeError. Such names are written with U+FFFD in place of the undecodable byte,
+    and the side files beside the OBJ are named as its ``mtllib`` line names them, so the texture is found."""
+    from PIL import Image
+
+    mesh = st.heightfield_mesh(np.arange(20.0).reshape(4, 5) % 7)
+    uv = mesh.vertices[:, :2] / mesh.vertices[:, :2].max(axis=0)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=uv, image=Image.new("RGB", (4, 4), (200, 30, 40)))
+    target = tmp_path / os.fsdecode(b"t\xf6x.obj")
+    save_mesh(mesh, target)
+    back = read_mesh(target)
+    assert back.visual.kind == "texture" and back.visual.material.image.size == (4, 4)
+    assert (tmp_path / "t\ufffdx.mtl").is_file()
+    named = st.stepped(np.arange(20.0).reshape(4, 5) % 7, interval=2.0)
+    named.metadata["name"] = "h\udcf6he.ply"
+    save_mesh(named, tmp_path / "named.obj")
+    assert "o h\ufffdhe.ply\n" in (tmp_path / "named.obj").read_text(encoding="utf-8")
+
+
+@pytest.mark.skipif(os.name == "nt" or os.fsencode("\udcf6") != b"\xf6", reason="needs byte file names (POSIX)")
+@pytest.mark.parametrize("name", [b"h\xf6he.tif", ("\u00fc" * 121 + ".tif").encode()])
+@pytest.mark.parametrize("georeferenced", [False, True])
+def test_a_tiff_is_written_under_a_name_that_its_temporary_file_could_not_hold(tmp_path, name, georeferenced):
+    """atomic_path's temporary ``.<name>.XXXXXXXX.tmp`` took the target's name as it was, and PIL's TIFF writer
+    (libtiff) and rasterio (GDAL) pass the file name on as UTF-8: save_image of a TIFF named in Latin-1
+    (``h\\xf6he.tif``), or of a name of 246 bytes whose temporary's cut to 255 bytes ended inside a character, raised
+    UnicodeEncodeError "surrogates not allowed". The temporary's name is UTF-8 now; the file keeps its own name."""
+    target = tmp_path / os.fsdecode(name)
+    image = np.arange(4 * 6 * 3, dtype=np.uint8).reshape(4, 6, 3)
+    if georeferenced:
+        pytest.importorskip("rasterio")
+        save_image(image, target, extent=(0.0, 6.0, 0.0, 4.0), crs="EPSG:32611")
+    else:
+        save_image(image, target)
+    assert [os.fsencode(p.name) for p in tmp_path.iterdir()] == [name]
+    with Image.open(target) as back:
+        np.testing.assert_array_equal(np.asarray(back.convert("RGB")), image)
+
+
+@pytest.mark.skipif(os.name == "nt" or os.fsencode("\udcf6") != b"\xf6", reason="needs byte file names (POSIX)")
+@pytest.mark.parametrize("ext", [".zip", ".tar.gz"])
+def test_an_archive_whose_name_is_not_utf8_is_read_as_under_a_plain_name(tmp_path, ext):
+    """An archive holding a mesh (a ``.zip``, ``.tar.gz``) is read by trimesh, the mesh's name that of the file in it.
+    One named in Latin-1 (``h\\xf6he.tar.gz``) was read so too before non-UTF-8 names were read from the open file;
+    then its type was taken from the last suffix only (``gz``, which trimesh does not read: NotImplementedError),
+    where trimesh takes ``tar.gz``, and a ``.zip``'s mesh was named after the archive, not after the file in it."""
+    import io
+    import tarfile
+    import zipfile
+
+    ply = trimesh.exchange.ply.export_ply(st.stepped(np.arange(20.0).reshape(4, 5) % 7, interval=2.0))
+    plain, odd = tmp_path / f"plain{ext}", tmp_path / os.fsdecode(b"h\xf6he" + ext.encode())
+    for target in (plain, odd):
+        if ext == ".zip":
+            with zipfile.ZipFile(target, "w") as archive:
+                archive.writestr("m.ply", ply)
+        else:
+            with tarfile.open(target, "w:" + ext.rsplit(".", 1)[1]) as archive:
+                info = tarfile.TarInfo("m.ply")
+                info.size = len(ply)
+                archive.addfile(info, io.BytesIO(ply))
+    expected, got = read_mesh(plain), read_mesh(odd)
+    assert len(expected.faces) == 142
+    np.testing.assert_array_equal(got.vertices, expected.vertices)
+    np.testing.assert_array_equal(got.faces, expected.faces)
+    assert got.metadata.get("name") == expected.metadata.get("name")

@@ -1480,3 +1480,21 @@ def test_a_solid_of_a_coloured_tin_without_seams_but_with_a_zero_area_face_does_
     plain = st.stepped(tin, interval=40.0, solid=True, device="cpu")
     assert solid.is_watertight
     np.testing.assert_allclose(solid.volume, plain.volume, rtol=1e-9)
+
+
+def test_lenses_compare_and_hash_by_identity_as_rois_do():
+    """``Lens`` was a frozen dataclass with the generated ``__eq__`` and ``__hash__`` over its fields: comparing two
+    lenses (``lens == other``, ``lens in [a, b]``) raised numpy's "truth value of an array ... is ambiguous" from
+    comparing their masks, and ``hash(lens)`` (a lens in a set or as a dict key, a memo keyed by γ) raised "unhashable
+    type: 'numpy.ndarray'". It compares by identity now, as :class:`~stepterrain.closeup.ROI` and ``CloseUp`` do (they
+    hold arrays too)."""
+    a = st.Lens(np.zeros((2, 2)))
+    b = st.Lens(np.zeros((2, 2)), extent=(0.0, 1.0, 0.0, 1.0))
+    assert a == a and a != b and not (a == b)
+    assert b in [a, b] and st.Lens(np.ones((3, 3))) not in [a, b]
+    assert len({a, b, a}) == 2 and {a: 1, b: 2}[b] == 2
+    assert a != 1.0 and a != np.zeros((2, 2)).tolist()
+    # stepping with it is unchanged: a lens of γ 0 gives the original surface
+    h = np.random.default_rng(0).random((6, 7)) * 10
+    np.testing.assert_array_equal(st.stepped(h, interval=2.0, gamma=a).vertices,
+                                  st.stepped(h, interval=2.0, gamma=0.0).vertices)
