@@ -2127,18 +2127,45 @@ def _warn_void_values(file: Path, data: NDArray[Any], missing: NDArray[np.bool_]
         # float64 cells equal the float32 value only as written in full, which a nodata of them must match exactly
         value = (str(int(sentinel)) if kind == "i" else f"{float(sentinel):.8g}" if lowest_of == data.dtype
                  else repr(float(sentinel)))
-        hint = (f"`gdal_edit.py -a_nodata {value} {file.name}`" if file.suffix.lower() in (".tif", ".tiff") else
-                f"`gdal_translate -a_nodata {value} {file.name} {file.stem}.tif`"
-                if file.suffix.lower() in GDAL_FORMATS else
-                f"save a 'nodata' of {value} beside the heights" if file.suffix.lower() == ".npz" else
-                f"save it as an .npz with a 'nodata' of {value}")
         warnings.warn(
             f"{file.name}: {counted(count, 'cell')} of {what} {'holds' if count == 1 else 'hold'} {value}, the lowest "
             f"{lowest_of} value{'' if lowest_of == data.dtype else f' (stored as {data.dtype})'}, which marks voids, "
             "but no nodata value or mask of the file marks them: read as "
-            f"heights; if they are voids, declare it ({hint})",
+            f"heights; if they are voids, declare it ({_declare_nodata(file, value)})",
             stacklevel=caller_stacklevel(),
         )
+
+
+def _declare_nodata(file: Path, value: str) -> str:
+    """How to declare ``value`` (as written in full) the nodata of ``file``, by its format: ``gdal_edit.py`` for a
+    GeoTIFF, ``gdal_translate`` to one for another GDAL raster, an .npz ``nodata`` otherwise (:func:`load_dem` and
+    the CLI take no nodata of their own)."""
+    suffix = file.suffix.lower()
+    return (f"`gdal_edit.py -a_nodata {value} {file.name}`" if suffix in (".tif", ".tiff") else
+            f"`gdal_translate -a_nodata {value} {file.name} {file.stem}.tif`" if suffix in GDAL_FORMATS else
+            f"save a 'nodata' of {value} beside the heights" if suffix == ".npz" else
+            f"save it as an .npz with a 'nodata' of {value}")
+
+
+def _undeclared_sentinel(file: Path, array: NDArray[Any], big: NDArray[np.bool_], at: tuple[int, ...]) -> str:
+    """The cause and the fix of the refusal of a float64 ``array``'s values beyond float32 (``big``, not nodata; the
+    first at ``at``) when they are a nodata value the file does not declare: float64's lowest or highest value
+    (-1.7976931348623157e+308, the nodata GDAL and ArcGIS give a Float64 raster by default) or one value held by
+    several cells (no measurement repeats beyond float32), counted and named in full with the nodata to declare;
+    "" for a lone odd value. The refusal said only "heights beyond float32", which named no void nor how to mark
+    them."""
+    value = array[at]
+    count = int(np.count_nonzero(array[big] == value))  # among the cells beyond float32 only
+    extreme = abs(float(value)) == np.finfo(np.float64).max
+    if count < 2 and not extreme:
+        return ""
+    text = repr(float(value))  # in full: a nodata matches a float64 cell only as written exactly
+    others = int(np.count_nonzero(big)) - count
+    also = f" (and {counted(others, 'other cell')} beyond float32)" if others else ""
+    what = (f"the {'lowest' if value < 0 else 'highest'} float64 value, which marks voids" if extreme else
+            "one value repeated beyond float32, no height: a mark of voids")
+    return (f", in {counted(count, 'cell')}{also}: {what}, but no nodata value or mask of the file marks "
+            f"{'it' if count == 1 else 'them'}; if they are voids, declare it ({_declare_nodata(file, text)})")
 
 
 def nodata_as_nan(
@@ -2169,7 +2196,7 @@ def nodata_as_nan(
         if big.any():
             at = first_index(big)
             raise DataFileError(f"cannot read {str(file)!r}: {what} holds heights beyond float32 (|z| < 3.4e+38); "
-                                f"got {float(array[at])!r} at index {at}")
+                                f"got {float(array[at])!r} at index {at}{_undeclared_sentinel(file, array, big, at)}")
     with np.errstate(over="ignore"):  # only nodata overflows here (beyond float32, refused above otherwise)
         heights = np.ascontiguousarray(array, dtype=np.float32)
     if not heights.flags.writeable:  # float32 as stored, a view of a read-only memory map

@@ -1712,6 +1712,67 @@ def test_float32_nodata_kept_in_a_float64_grid_is_named_as_a_likely_void(tmp_pat
     np.testing.assert_array_equal(np.isnan(declared.heights), z < -1e38)
 
 
+@pytest.mark.parametrize("sentinel", [-np.finfo(np.float64).max, np.finfo(np.float64).max])
+def test_float64_nodata_beyond_float32_undeclared_is_refused_naming_the_void_and_the_fix(tmp_path, capsys, sentinel):
+    """A Float64 GeoTIFF whose voids hold float64's lowest value (-1.7976931348623157e+308, the nodata GDAL and
+    ArcGIS give a Float64 raster by default) without declaring it was refused as "band 1 holds heights beyond
+    float32 ...; got -1.7976931348623157e+308 at index (i, j)": no word of a void, how many cells, nor how to mark
+    them. The refusal (load_dem, and `stepterrain info` and `steps`, which read through it) now counts the cells
+    and gives the nodata to declare, in full; declared as it says, the file reads with those cells as nodata and
+    every other height as stored."""
+    import rasterio
+
+    from stepterrain import cli
+
+    with rasterio.open(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.tif") as source:
+        real = source.read(1)[:60, :80].astype(np.float64)
+        profile = {**source.profile, "width": 80, "height": 60, "dtype": "float64", "nodata": None}
+    voids = real > np.percentile(real, 97)
+    z = np.where(voids, sentinel, real)
+    path = tmp_path / "voids.tif"
+    with rasterio.open(path, "w", **profile) as dataset:
+        dataset.write(z, 1)
+    value = repr(float(sentinel))
+    extreme = "lowest" if sentinel < 0 else "highest"
+    told = (f"in {int(voids.sum())} cells: the {extreme} float64 value, which marks voids, but no nodata value or "
+            f"mask of the file marks them; if they are voids, declare it (`gdal_edit.py -a_nodata {value} voids.tif`)")
+    with pytest.raises(DataFileError, match=r"band 1 holds heights beyond float32") as caught:
+        load_dem(path)
+    i, j = np.argwhere(voids)[0]
+    assert str(caught.value).endswith(f"; got {value} at index ({i}, {j}), {told}")
+    for command in ("info", "steps"):
+        code = cli.main([command, str(path), "-o", str(tmp_path / "out.ply")][: 2 if command == "info" else 4])
+        err = capsys.readouterr().err
+        assert code == 2 and err.rstrip().endswith(told) and "Traceback" not in err
+    assert not (tmp_path / "out.ply").exists()
+    np.save(tmp_path / "voids.npy", z)
+    with pytest.raises(DataFileError, match=re.escape(f"(save it as an .npz with a 'nodata' of {value})")):
+        load_dem(tmp_path / "voids.npy")
+    with rasterio.open(path, "r+") as dataset:  # as the hint's gdal_edit.py does
+        dataset.nodata = float(value)
+    declared = load_dem(path)
+    np.testing.assert_array_equal(np.isnan(declared.heights), voids)
+    np.testing.assert_array_equal(declared.heights[~voids], real[~voids].astype(np.float32))
+
+
+def test_a_lone_value_beyond_float32_is_refused_without_a_void_hint(tmp_path):
+    """A single odd value beyond float32 (not float64's extreme) is no void marker: refused as before, no hint;
+    repeated, it is named as one."""
+    z = np.full((3, 4), 100.0)
+    z[1, 2] = 1e39
+    np.save(tmp_path / "big.npy", z)
+    with pytest.raises(DataFileError, match=r"got 1e\+39 at index \(1, 2\)$"):
+        load_dem(tmp_path / "big.npy")
+    z[2, 3] = 1e39
+    z[2, 0] = -5e39
+    np.savez(tmp_path / "big.npz", elevation=z)
+    with pytest.raises(DataFileError, match=re.escape(
+            "got 1e+39 at index (1, 2), in 2 cells (and 1 other cell beyond float32): one value repeated beyond "
+            "float32, no height: a mark of voids, but no nodata value or mask of the file marks them; if they "
+            "are voids, declare it (save a 'nodata' of 1e+39 beside the heights)")):
+        load_dem(tmp_path / "big.npz")
+
+
 @pytest.mark.parametrize(
     ("dx_m", "dy_m", "message"),
     [(0.0, 1111.0, r"'dx_m' and 'dy_m' must be finite, non-zero metres per cell; got 0\.0 and 1111\.0"),
