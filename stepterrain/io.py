@@ -282,9 +282,11 @@ def load_dem(
         a GeoTIFF CRS ignored for want of a geotransform; a greyscale PNG's world file (``.pgw``, ``.wld``) or
         ``.aux.xml`` geotransform, or a terrain tile's ``.aux.xml`` one, which is not read (the message gives the
         ``gdal_translate`` to a GeoTIFF, or a tile's to a world file, that keeps it); cells no nodata value or mask
-        marks that hold the lowest value of a signed integer (-32768 in int16, SRTM's void) or float dtype
-        (-3.4028235e+38 in float32, ArcGIS's NoData, also kept in a float64 grid), read as heights, counted and named
-        with the nodata value to declare; a grid georeferenced without a CRS (or with one PROJ cannot read, kept as
+        marks that hold the lowest value of a signed integer (-32768 in int16, SRTM's void) or the lowest or highest
+        of a float dtype (-3.4028235e+38 in float32, ArcGIS's NoData, or +3.4028235e+38, also kept in a float64
+        grid), read as heights, counted and named with the nodata value to declare (a float64 grid's own extremes,
+        -1.7976931348623157e+308, GDAL's and ArcGIS's Float64 NoData, lie beyond float32 and are refused, counted and
+        named likewise: see Raises); a grid georeferenced without a CRS (or with one PROJ cannot read, kept as
         given: an .npz's ``crs="4326"``) whose coordinates look like degrees (nodes within x -180 to 360 and y -90 to
         90, heights spanning more than 100 times its width and height: read as metres, an SRTM tile was a needle
         centimetres wide), naming the CRS to give it.
@@ -321,7 +323,10 @@ def load_dem(
         heights other than 1/0 (not read: the heights are taken as stored), or a PNG's in its ``.aux.xml`` (as
         ``gdal_translate -of PNG`` writes a scaled band's), a ``mask`` or ``valid`` that is not a
         boolean array of the heights' shape, a .prj beside a GeoTIFF georeferenced without a CRS that is no CRS,
-        nothing but nodata, a GeoTIFF band's scale that is 0 or not finite or offset that is not finite, heights
+        nothing but nodata, a finite height beyond float32 (|z| < 3.4e+38; float64's lowest or highest value, or one
+        value several cells hold, is named as an undeclared nodata: the message counts its cells and gives the
+        nodata to declare, ``gdal_edit.py -a_nodata -1.7976931348623157e+308 dem.tif``), a GeoTIFF band's scale
+        that is 0 or not finite or offset that is not finite, heights
         in a unit that is not a known length unit:
         "degC", "meters above sea level"; ``height_unit`` overrides it), a ``.hgt`` not named by its south-west
         corner (``everest.hgt``: GDAL places a tile by its name, ``N27E086.hgt``, and reads no other) or not of a
@@ -2102,21 +2107,34 @@ def _elevation(
 def _warn_void_values(file: Path, data: NDArray[Any], missing: NDArray[np.bool_] | None, what: str) -> None:
     """Warn, at the caller of :func:`load_dem`, when cells of the stored values ``data`` that no nodata value or mask
     marks (``missing``, of its shape, or None) hold the lowest value of a signed integer dtype of 16 bits or more
-    (-32768, the void of SRTM and most int16 DEMs) or of a float dtype (-3.4028235e+38, ArcGIS's float32 NoData): no
-    elevation, but a file that lost its nodata value. They were read as heights without a word: a pit 33 km deep in
-    the mesh, or "3.4e+37 levels" refused by stepped. One reduction finds the lowest value; only when it is the
-    sentinel are its cells counted, a block of rows at a time (no temporary of the grid's size). In a float64 grid
-    the sentinel is float32's lowest value: float64's own lies beyond float32 and is refused as such, while a float32
-    DEM's NoData kept through a widening copy (``src.read(1).astype(float)`` saved as .npy, ``gdal_translate -ot
-    Float64``) was read as heights without a word."""
+    (-32768, the void of SRTM and most int16 DEMs) or the lowest or highest of a float dtype (-3.4028235e+38,
+    ArcGIS's float32 NoData, or +3.4028235e+38, FLT_MAX, no height in any unit): no elevation, but a file that lost
+    its nodata value. They were read as heights without a word: a pit 33 km deep in the mesh, or "3.4e+37 levels"
+    refused by stepped. One reduction finds the lowest (and one the highest) value; only when it is the sentinel are
+    its cells counted, a block of rows at a time (no temporary of the grid's size). In a float64 grid the sentinels
+    are float32's: float64's own lie beyond float32 and are refused, naming them (:func:`_undeclared_sentinel`),
+    while a float32 DEM's NoData kept through a widening copy (``src.read(1).astype(float)`` saved as .npy,
+    ``gdal_translate -ot Float64``) was read as heights without a word."""
     kind = data.dtype.kind
     if data.size == 0 or not (kind == "f" or (kind == "i" and data.dtype.itemsize >= 2)):
         return
     lowest_of = np.dtype(np.float32) if kind == "f" and data.dtype.itemsize > 4 else data.dtype
-    sentinel = data.dtype.type((np.finfo if kind == "f" else np.iinfo)(lowest_of).min)
-    lowest = np.fmin.reduce(data, axis=None) if kind == "f" else data.min()  # fmin: NaN cells pass over
-    if lowest != sentinel:
-        return
+    info = (np.finfo if kind == "f" else np.iinfo)(lowest_of)
+    # fmin/fmax: NaN cells pass over; a float dtype's highest value marks voids as its lowest does (no height is
+    # 3.4e+38 in any unit), an integer's (32767: 3276.7 m in decimetres, a 16-bit PNG's peak) is a height
+    ends = (("lowest", info.min, np.fmin), ("highest", info.max, np.fmax)) if kind == "f" else (("lowest", info.min,
+                                                                                                  np.minimum),)
+    for end, extreme, reduce in ends:
+        sentinel = data.dtype.type(extreme)
+        if reduce.reduce(data, axis=None) == sentinel:
+            _warn_void_value(file, data, missing, what, sentinel, f"the {end} {lowest_of} value")
+
+
+def _warn_void_value(
+    file: Path, data: NDArray[Any], missing: NDArray[np.bool_] | None, what: str, sentinel: Any, named: str,
+) -> None:
+    """:func:`_warn_void_values`' warning of the cells of ``data`` holding ``sentinel`` (``named``: "the lowest
+    float32 value") that ``missing`` does not mark, counted a block of rows at a time; none, no warning."""
     count, rows = 0, max(1, (1 << 20) // max(1, data[0].size))
     for start in range(0, data.shape[0], rows):
         hit = data[start:start + rows] == sentinel
@@ -2125,13 +2143,13 @@ def _warn_void_values(file: Path, data: NDArray[Any], missing: NDArray[np.bool_]
         count += int(np.count_nonzero(hit))
     if count:
         # float64 cells equal the float32 value only as written in full, which a nodata of them must match exactly
-        value = (str(int(sentinel)) if kind == "i" else f"{float(sentinel):.8g}" if lowest_of == data.dtype
-                 else repr(float(sentinel)))
+        wide = data.dtype.kind == "f" and data.dtype.itemsize > 4
+        value = (str(int(sentinel)) if data.dtype.kind == "i" else repr(float(sentinel)) if wide
+                 else f"{float(sentinel):.8g}")
         warnings.warn(
-            f"{file.name}: {counted(count, 'cell')} of {what} {'holds' if count == 1 else 'hold'} {value}, the lowest "
-            f"{lowest_of} value{'' if lowest_of == data.dtype else f' (stored as {data.dtype})'}, which marks voids, "
-            "but no nodata value or mask of the file marks them: read as "
-            f"heights; if they are voids, declare it ({_declare_nodata(file, value)})",
+            f"{file.name}: {counted(count, 'cell')} of {what} {'holds' if count == 1 else 'hold'} {value}, {named}"
+            f"{f' (stored as {data.dtype})' if wide else ''}, which marks voids, but no nodata value or mask of the "
+            f"file marks them: read as heights; if they are voids, declare it ({_declare_nodata(file, value)})",
             stacklevel=caller_stacklevel(),
         )
 

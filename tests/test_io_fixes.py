@@ -1755,6 +1755,55 @@ def test_float64_nodata_beyond_float32_undeclared_is_refused_naming_the_void_and
     np.testing.assert_array_equal(declared.heights[~voids], real[~voids].astype(np.float32))
 
 
+def test_the_highest_float32_value_undeclared_warns_as_the_lowest_does(tmp_path, capsys):
+    """A float32 DEM whose voids hold +3.4028235e+38 (FLT_MAX, no height in any unit) without declaring it was read
+    as heights without a word (the lowest value warned): `stepterrain steps` then refused "the round interval
+    2.5e+37 picked for heights 315 to 3.40282e+38" naming no void, and explicit levels stepped a tower 3.4e38 m
+    tall. It warns now as the lowest value does, in a float64 copy too (the value in full), and `stepterrain info`
+    still describes the file after the warning; declared as the hint says, the cells are nodata."""
+    import rasterio
+
+    from stepterrain import cli
+
+    with rasterio.open(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.tif") as source:
+        real = source.read(1)[:60, :80].astype(np.float32)
+        profile = {**source.profile, "width": 80, "height": 60, "dtype": "float32", "nodata": None}
+    voids = real > np.percentile(real, 97)
+    top = np.finfo(np.float32).max
+    z = np.where(voids, top, real)
+    path = tmp_path / "top.tif"
+    with rasterio.open(path, "w", **profile) as dataset:
+        dataset.write(z, 1)
+    n = int(voids.sum())
+
+    def told(file):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            terrain = load_dem(file)
+        return terrain, [str(w.message) for w in caught if "marks voids" in str(w.message)]
+
+    terrain, messages = told(path)
+    assert messages == [f"top.tif: {n} cells of band 1 hold 3.4028235e+38, the highest float32 value, which marks "
+                        "voids, but no nodata value or mask of the file marks them: read as heights; if they are "
+                        "voids, declare it (`gdal_edit.py -a_nodata 3.4028235e+38 top.tif`)"]
+    np.testing.assert_array_equal(terrain.heights, z)  # still read as stored
+    np.save(tmp_path / "wide.npy", z.astype(np.float64))
+    assert told(tmp_path / "wide.npy")[1] == [
+        f"wide.npy: {n} cells of array hold 3.4028234663852886e+38, the highest float32 value (stored as float64), "
+        "which marks voids, but no nodata value or mask of the file marks them: read as heights; if they are voids, "
+        "declare it (save it as an .npz with a 'nodata' of 3.4028234663852886e+38)"]
+    assert cli.main(["info", str(path)]) == 0
+    out, err = capsys.readouterr()
+    assert "the highest float32 value" in err and "height_range" in out and "nodata_count      0" in out
+    with rasterio.open(path, "r+") as dataset:  # as the hint's gdal_edit.py does
+        dataset.nodata = float("3.4028235e+38")
+    declared, messages = told(path)
+    assert messages == []
+    np.testing.assert_array_equal(np.isnan(declared.heights), voids)
+    np.testing.assert_array_equal(declared.heights[~voids], real[~voids])
+    assert told(tmp_path / "wide.npy")[0].heights.max() == np.float32(top)  # unchanged: only warned
+
+
 def test_a_lone_value_beyond_float32_is_refused_without_a_void_hint(tmp_path):
     """A single odd value beyond float32 (not float64's extreme) is no void marker: refused as before, no hint;
     repeated, it is named as one."""
