@@ -2175,7 +2175,7 @@ def _undeclared_sentinel(file: Path, array: NDArray[Any], big: NDArray[np.bool_]
     value = array[at]
     count = int(np.count_nonzero(array[big] == value))  # among the cells beyond float32 only
     extreme = abs(float(value)) == np.finfo(np.float64).max
-    if count < 2 and not extreme:
+    if (count < 2 and not extreme) or not math.isfinite(float(value)):  # a float128 one beyond float64: no nodata
         return ""
     text = repr(float(value))  # in full: a nodata matches a float64 cell only as written exactly
     others = int(np.count_nonzero(big)) - count
