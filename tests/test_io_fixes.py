@@ -1822,6 +1822,84 @@ def test_a_lone_value_beyond_float32_is_refused_without_a_void_hint(tmp_path):
         load_dem(tmp_path / "big.npz")
 
 
+def test_undeclared_void_hint_through_a_gdal_virtual_path_translates_rather_than_edits_in_place(tmp_path):
+    """A DEM read through /vsigzip/ (a local dem.tif.gz), /vsizip/ (a local zip or its /vsizip/ path) holding
+    undeclared voids was told `gdal_edit.py -a_nodata ... dem.tif`: there is no dem.tif to edit, and gdal_edit.py
+    cannot write inside a .gz or a zip. The hint now gives the gdal_translate that writes a GeoTIFF declaring it,
+    from the path GDAL reads; run as told, the new file reads with the voids as nodata."""
+    import gzip
+    import shlex
+    import shutil
+    import zipfile
+
+    import rasterio
+
+    with rasterio.open(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.tif") as source:
+        real = source.read(1)[:30, :40].astype(np.float64)
+        profile = {**source.profile, "width": 40, "height": 30, "nodata": None}
+    voids = real > np.percentile(real, 95)
+    for dtype, sentinel in (("float64", -np.finfo(np.float64).max), ("float32", np.finfo(np.float32).max)):
+        folder = tmp_path / dtype
+        folder.mkdir()
+        tif = folder / "dem.tif"
+        with rasterio.open(tif, "w", **{**profile, "dtype": dtype}) as dataset:
+            dataset.write(np.where(voids, sentinel, real).astype(dtype), 1)
+        with open(tif, "rb") as raw, gzip.open(folder / "dem.tif.gz", "wb") as packed:
+            shutil.copyfileobj(raw, packed)
+        with zipfile.ZipFile(folder / "dem.zip", "w") as archive:
+            archive.write(tif, "dem.tif")
+        tif.unlink()
+        for given in (folder / "dem.tif.gz", folder / "dem.zip", f"/vsizip/{folder}/dem.zip/dem.tif"):
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                try:
+                    load_dem(given)
+                    message = next(str(w.message) for w in caught if "marks voids" in str(w.message))
+                except DataFileError as exc:
+                    message = str(exc)
+            hint = re.search(r"declare it \(`([^`]*)`", message)
+            assert hint and hint.group(1).startswith("gdal_translate -a_nodata "), message
+            words = shlex.split(hint.group(1))
+            assert words[-1] == "dem.tif" and words[-2].startswith(("/vsigzip/", "/vsizip/")), message
+            with rasterio.open(words[-2]) as src:  # as gdal_translate -a_nodata does
+                out = folder / words[-1]
+                with rasterio.open(out, "w", **{**src.profile, "nodata": float(words[2])}) as dst:
+                    dst.write(src.read(1), 1)
+            with warnings.catch_warnings():
+                warnings.simplefilter("error")
+                declared = load_dem(out)
+            np.testing.assert_array_equal(np.isnan(declared.heights), voids)
+            out.unlink()
+
+
+def test_undeclared_float64_void_under_a_band_scale_is_named_by_its_stored_value(tmp_path):
+    """A scaled Float64 GeoTIFF (scale 0.1) holding float64's lowest value undeclared was refused naming the scaled
+    value, -1.7976931348623158e+307, as "one value repeated" and the nodata to declare: GDAL compares nodata with the
+    stored values, so declaring it matched no cell. The stored value is named (float64's lowest) and declaring it
+    as told reads the voids as nodata."""
+    import rasterio
+
+    with rasterio.open(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.tif") as source:
+        real = source.read(1)[:30, :40].astype(np.float64)
+        profile = {**source.profile, "width": 40, "height": 30, "dtype": "float64", "nodata": None}
+    voids = real > np.percentile(real, 95)
+    path = tmp_path / "scaled.tif"
+    with rasterio.open(path, "w", **profile) as dataset:
+        dataset.write(np.where(voids, -np.finfo(np.float64).max, real * 10), 1)
+        dataset.scales = (0.1,)
+    value = repr(float(-np.finfo(np.float64).max))
+    with pytest.raises(DataFileError, match=re.escape(
+            f"in {int(voids.sum())} cells: the lowest float64 value as stored, which marks voids, but no nodata value "
+            f"or mask of the file marks them; if they are voids, declare it (`gdal_edit.py -a_nodata {value} "
+            "scaled.tif`)")):
+        load_dem(path)
+    with rasterio.open(path, "r+") as dataset:
+        dataset.nodata = float(value)
+    declared = load_dem(path)
+    np.testing.assert_array_equal(np.isnan(declared.heights), voids)
+    np.testing.assert_allclose(declared.heights[~voids], real[~voids], rtol=1e-6)
+
+
 @pytest.mark.parametrize(
     ("dx_m", "dy_m", "message"),
     [(0.0, 1111.0, r"'dx_m' and 'dy_m' must be finite, non-zero metres per cell; got 0\.0 and 1111\.0"),
