@@ -2148,14 +2148,20 @@ def _warn_void_value(
     if count:
         # float64 cells equal the float32 value only as written in full, which a nodata of them must match exactly
         wide = data.dtype.kind == "f" and data.dtype.itemsize > 4
-        value = (str(int(sentinel)) if data.dtype.kind == "i" else repr(float(sentinel)) if wide
-                 else f"{float(sentinel):.8g}")
+        value = _nodata_text(sentinel, data.dtype)
         warnings.warn(
             f"{file.name}: {counted(count, 'cell')} of {what} {'holds' if count == 1 else 'hold'} {value}, {named}"
             f"{f' (stored as {data.dtype})' if wide else ''}, which marks voids, but no nodata value or mask of the "
             f"file marks them: read as heights; if they are voids, declare it ({_declare_nodata(file, value)})",
             stacklevel=caller_stacklevel(),
         )
+
+
+def _nodata_text(value: Any, dtype: np.dtype[Any]) -> str:
+    """``value`` of ``dtype`` as a nodata to declare: an integer's digits, a float32's 8 significant digits, a
+    wider float's in full (a nodata matches a float64 cell only as written exactly)."""
+    return (str(int(value)) if dtype.kind in "iu" else repr(float(value)) if dtype.itemsize > 4
+            else f"{float(value):.8g}")
 
 
 def _declare_nodata(file: Path, value: str) -> str:
@@ -2204,8 +2210,7 @@ def _undeclared_sentinel(
     extreme = dtype.kind == "f" and abs(float(raw)) == np.finfo(dtype).max
     if (count < 2 and not extreme) or not math.isfinite(float(raw)):  # a float128 one beyond float64: no nodata
         return ""
-    # in full: a nodata matches a float64 cell only as written exactly
-    text = repr(float(raw)) if dtype.itemsize > 4 else f"{float(raw):.8g}" if dtype.kind == "f" else str(int(raw))
+    text = _nodata_text(raw, dtype)
     others = int(np.count_nonzero(big)) - count
     also = f" (and {counted(others, 'other cell')} beyond float32)" if others else ""
     kept = "" if stored is None else " as stored"
