@@ -1822,6 +1822,17 @@ def test_a_lone_value_beyond_float32_is_refused_without_a_void_hint(tmp_path):
         load_dem(tmp_path / "big.npz")
 
 
+@pytest.mark.skipif(np.finfo(np.longdouble).max <= np.finfo(np.float64).max, reason="no extended long double")
+def test_a_long_double_value_beyond_float64_gets_no_nodata_hint_of_inf(tmp_path):
+    """A repeated float128 value beyond float64 is no nodata a GeoTIFF or an .npz of float64 can hold: written as a
+    float it is inf, and the hint said to declare a 'nodata' of inf, which matches no cell. Refused without one."""
+    z = np.full((3, 4), 100, dtype=np.longdouble)
+    z[0, :2] = np.longdouble("1e400")
+    np.save(tmp_path / "wide.npy", z)
+    with pytest.raises(DataFileError, match=r"beyond float32 .*at index \(0, 0\)$"):
+        load_dem(tmp_path / "wide.npy")
+
+
 def test_undeclared_void_hint_through_a_gdal_virtual_path_translates_rather_than_edits_in_place(tmp_path):
     """A DEM read through /vsigzip/ (a local dem.tif.gz), /vsizip/ (a local zip or its /vsizip/ path) holding
     undeclared voids was told `gdal_edit.py -a_nodata ... dem.tif`: there is no dem.tif to edit, and gdal_edit.py
