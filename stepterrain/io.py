@@ -16,6 +16,7 @@ import importlib.resources
 import math
 import os
 import re
+import shlex
 import threading
 import warnings
 import zipfile
@@ -282,9 +283,11 @@ def load_dem(
         a GeoTIFF CRS ignored for want of a geotransform; a greyscale PNG's world file (``.pgw``, ``.wld``) or
         ``.aux.xml`` geotransform, or a terrain tile's ``.aux.xml`` one, which is not read (the message gives the
         ``gdal_translate`` to a GeoTIFF, or a tile's to a world file, that keeps it); cells no nodata value or mask
-        marks that hold the lowest value of a signed integer (-32768 in int16, SRTM's void) or float dtype
-        (-3.4028235e+38 in float32, ArcGIS's NoData, also kept in a float64 grid), read as heights, counted and named
-        with the nodata value to declare; a grid georeferenced without a CRS (or with one PROJ cannot read, kept as
+        marks that hold the lowest value of a signed integer (-32768 in int16, SRTM's void) or the lowest or highest
+        of a float dtype (-3.4028235e+38 in float32, ArcGIS's NoData, or +3.4028235e+38, also kept in a float64
+        grid), read as heights, counted and named with the nodata value to declare (a float64 grid's own extremes,
+        -1.7976931348623157e+308, GDAL's and ArcGIS's Float64 NoData, lie beyond float32 and are refused, counted and
+        named likewise: see Raises); a grid georeferenced without a CRS (or with one PROJ cannot read, kept as
         given: an .npz's ``crs="4326"``) whose coordinates look like degrees (nodes within x -180 to 360 and y -90 to
         90, heights spanning more than 100 times its width and height: read as metres, an SRTM tile was a needle
         centimetres wide), naming the CRS to give it.
@@ -321,7 +324,11 @@ def load_dem(
         heights other than 1/0 (not read: the heights are taken as stored), or a PNG's in its ``.aux.xml`` (as
         ``gdal_translate -of PNG`` writes a scaled band's), a ``mask`` or ``valid`` that is not a
         boolean array of the heights' shape, a .prj beside a GeoTIFF georeferenced without a CRS that is no CRS,
-        nothing but nodata, a GeoTIFF band's scale that is 0 or not finite or offset that is not finite, heights
+        nothing but nodata, a finite height beyond float32 (|z| < 3.4e+38; float64's lowest or highest value, or one
+        value several cells hold, is named as an undeclared nodata: the message counts its cells and gives the
+        nodata to declare, ``gdal_edit.py -a_nodata -1.7976931348623157e+308 dem.tif``, or through a ``.gz``, zip
+        or URL the ``gdal_translate -a_nodata`` to a GeoTIFF; a scaled band's value as stored), a GeoTIFF band's scale
+        that is 0 or not finite or offset that is not finite, heights
         in a unit that is not a known length unit:
         "degC", "meters above sea level"; ``height_unit`` overrides it), a ``.hgt`` not named by its south-west
         corner (``everest.hgt``: GDAL places a tile by its name, ``N27E086.hgt``, and reads no other) or not of a
@@ -1510,10 +1517,12 @@ def _load_geotiff(
         mask = unmasked if mask is np.ma.nomask else np.logical_or(mask, unmasked, out=unmasked)
     del unmasked
     _warn_void_values(file, masked.data, None if mask is np.ma.nomask else mask, f"band {band}")
+    stored = None
     if scale != 1.0 or offset != 0.0:  # stored values -> heights, GDAL's convention: value * scale + offset
         array = masked.data.astype(np.float64)
         array *= scale
         array += offset
+        stored = (masked.dtype, scale, offset)  # for a refusal of values beyond float32, naming them as stored
     else:  # a float band as stored is already a copy of the file's data: filled in place
         array = masked.data.astype(np.float64 if masked.dtype.itemsize > 4 else np.float32, copy=False)
     del masked
@@ -1521,7 +1530,7 @@ def _load_geotiff(
         np.copyto(array, np.nan, where=mask)
     del mask
     try:
-        heights = _elevation(array, file, f"band {band}", warn_voids=False)  # warned above, on the values as stored
+        heights = _elevation(array, file, f"band {band}", warn_voids=False, stored=stored)  # warned above, as stored
     except Exception:
         if window is not None and not np.isfinite(array).any():  # as Terrain.crop refuses it
             raise InvalidInputError(f"{option}: {crop_of_nodata(bounds, array.shape)}") from None
@@ -2078,11 +2087,11 @@ def npz_missing(
 
 def _elevation(
     array: NDArray[Any], file: Path, what: str, nodata: float | None = None,
-    missing: NDArray[np.bool_] | None = None, *, warn_voids: bool = True,
+    missing: NDArray[np.bool_] | None = None, *, warn_voids: bool = True, stored: _Stored | None = None,
 ) -> NDArray[np.float32]:
     """Check that ``array`` is an (H, W) real grid of at least 2 x 2 nodes; float32 with NaN nodata
     (non-finite values, cells equal to ``nodata``, compared in the array's own dtype, and cells True in
-    ``missing``, of the array's shape). ``warn_voids``: see :func:`nodata_as_nan`."""
+    ``missing``, of the array's shape). ``warn_voids`` and ``stored``: see :func:`nodata_as_nan`."""
     where = f"cannot read {str(file)!r}"
     if array.dtype == np.bool_ or array.dtype.kind not in "iuf":
         raise DataFileError(
@@ -2096,27 +2105,40 @@ def _elevation(
         raise DataFileError(
             f"{where}: expected an elevation grid of at least 2 x 2 nodes; got {what} of shape {array.shape}"
         )
-    return nodata_as_nan(array, file, what, nodata, missing, warn_voids=warn_voids)
+    return nodata_as_nan(array, file, what, nodata, missing, warn_voids=warn_voids, stored=stored)
 
 
 def _warn_void_values(file: Path, data: NDArray[Any], missing: NDArray[np.bool_] | None, what: str) -> None:
     """Warn, at the caller of :func:`load_dem`, when cells of the stored values ``data`` that no nodata value or mask
     marks (``missing``, of its shape, or None) hold the lowest value of a signed integer dtype of 16 bits or more
-    (-32768, the void of SRTM and most int16 DEMs) or of a float dtype (-3.4028235e+38, ArcGIS's float32 NoData): no
-    elevation, but a file that lost its nodata value. They were read as heights without a word: a pit 33 km deep in
-    the mesh, or "3.4e+37 levels" refused by stepped. One reduction finds the lowest value; only when it is the
-    sentinel are its cells counted, a block of rows at a time (no temporary of the grid's size). In a float64 grid
-    the sentinel is float32's lowest value: float64's own lies beyond float32 and is refused as such, while a float32
-    DEM's NoData kept through a widening copy (``src.read(1).astype(float)`` saved as .npy, ``gdal_translate -ot
-    Float64``) was read as heights without a word."""
+    (-32768, the void of SRTM and most int16 DEMs) or the lowest or highest of a float dtype (-3.4028235e+38,
+    ArcGIS's float32 NoData, or +3.4028235e+38, FLT_MAX, no height in any unit): no elevation, but a file that lost
+    its nodata value. They were read as heights without a word: a pit 33 km deep in the mesh, or "3.4e+37 levels"
+    refused by stepped. One reduction finds the lowest (and one the highest) value; only when it is the sentinel are
+    its cells counted, a block of rows at a time (no temporary of the grid's size). In a float64 grid the sentinels
+    are float32's: float64's own lie beyond float32 and are refused, naming them (:func:`_undeclared_sentinel`),
+    while a float32 DEM's NoData kept through a widening copy (``src.read(1).astype(float)`` saved as .npy,
+    ``gdal_translate -ot Float64``) was read as heights without a word."""
     kind = data.dtype.kind
     if data.size == 0 or not (kind == "f" or (kind == "i" and data.dtype.itemsize >= 2)):
         return
     lowest_of = np.dtype(np.float32) if kind == "f" and data.dtype.itemsize > 4 else data.dtype
-    sentinel = data.dtype.type((np.finfo if kind == "f" else np.iinfo)(lowest_of).min)
-    lowest = np.fmin.reduce(data, axis=None) if kind == "f" else data.min()  # fmin: NaN cells pass over
-    if lowest != sentinel:
-        return
+    info = (np.finfo if kind == "f" else np.iinfo)(lowest_of)
+    # fmin/fmax: NaN cells pass over; a float dtype's highest value marks voids as its lowest does (no height is
+    # 3.4e+38 in any unit), an integer's (32767: 3276.7 m in decimetres, a 16-bit PNG's peak) is a height
+    ends = (("lowest", info.min, np.fmin), ("highest", info.max, np.fmax)) if kind == "f" else (("lowest", info.min,
+                                                                                                  np.minimum),)
+    for end, extreme, reduce in ends:
+        sentinel = data.dtype.type(extreme)
+        if reduce.reduce(data, axis=None) == sentinel:
+            _warn_void_value(file, data, missing, what, sentinel, f"the {end} {lowest_of} value")
+
+
+def _warn_void_value(
+    file: Path, data: NDArray[Any], missing: NDArray[np.bool_] | None, what: str, sentinel: Any, named: str,
+) -> None:
+    """:func:`_warn_void_values`' warning of the cells of ``data`` holding ``sentinel`` (``named``: "the lowest
+    float32 value") that ``missing`` does not mark, counted a block of rows at a time; none, no warning."""
     count, rows = 0, max(1, (1 << 20) // max(1, data[0].size))
     for start in range(0, data.shape[0], rows):
         hit = data[start:start + rows] == sentinel
@@ -2125,25 +2147,83 @@ def _warn_void_values(file: Path, data: NDArray[Any], missing: NDArray[np.bool_]
         count += int(np.count_nonzero(hit))
     if count:
         # float64 cells equal the float32 value only as written in full, which a nodata of them must match exactly
-        value = (str(int(sentinel)) if kind == "i" else f"{float(sentinel):.8g}" if lowest_of == data.dtype
-                 else repr(float(sentinel)))
-        hint = (f"`gdal_edit.py -a_nodata {value} {file.name}`" if file.suffix.lower() in (".tif", ".tiff") else
-                f"`gdal_translate -a_nodata {value} {file.name} {file.stem}.tif`"
-                if file.suffix.lower() in GDAL_FORMATS else
-                f"save a 'nodata' of {value} beside the heights" if file.suffix.lower() == ".npz" else
-                f"save it as an .npz with a 'nodata' of {value}")
+        wide = data.dtype.kind == "f" and data.dtype.itemsize > 4
+        value = _nodata_text(sentinel, data.dtype)
         warnings.warn(
-            f"{file.name}: {counted(count, 'cell')} of {what} {'holds' if count == 1 else 'hold'} {value}, the lowest "
-            f"{lowest_of} value{'' if lowest_of == data.dtype else f' (stored as {data.dtype})'}, which marks voids, "
-            "but no nodata value or mask of the file marks them: read as "
-            f"heights; if they are voids, declare it ({hint})",
+            f"{file.name}: {counted(count, 'cell')} of {what} {'holds' if count == 1 else 'hold'} {value}, {named}"
+            f"{f' (stored as {data.dtype})' if wide else ''}, which marks voids, but no nodata value or mask of the "
+            f"file marks them: read as heights; if they are voids, declare it ({_declare_nodata(file, value)})",
             stacklevel=caller_stacklevel(),
         )
 
 
+def _nodata_text(value: Any, dtype: np.dtype[Any]) -> str:
+    """``value`` of ``dtype`` as a nodata to declare: an integer's digits, a float32's 8 significant digits, a
+    wider float's in full (a nodata matches a float64 cell only as written exactly)."""
+    return (str(int(value)) if dtype.kind in "iu" else repr(float(value)) if dtype.itemsize > 4
+            else f"{float(value):.8g}")
+
+
+def _declare_nodata(file: Path, value: str) -> str:
+    """How to declare ``value`` (as written in full) the nodata of ``file``, by its format: ``gdal_edit.py`` for a
+    GeoTIFF, ``gdal_translate`` to one for another GDAL raster or one GDAL reads through a virtual path (a local
+    ``.gz`` or zip, ``/vsizip/``, a URL: gdal_edit.py cannot write inside an archive, and no ``dem.tif`` lies there
+    to edit), an .npz ``nodata`` otherwise (:func:`load_dem` and the CLI take no nodata of their own)."""
+    suffix = file.suffix.lower()
+    if isinstance(file, GdalPath):  # read from the path GDAL reads, written beside the working folder
+        return f"`gdal_translate -a_nodata {value} {shlex.quote(os.fspath(file))} {file.stem}.tif`"
+    return (f"`gdal_edit.py -a_nodata {value} {file.name}`" if suffix in (".tif", ".tiff") else
+            f"`gdal_translate -a_nodata {value} {file.name} {file.stem}.tif`" if suffix in GDAL_FORMATS else
+            f"save a 'nodata' of {value} beside the heights" if suffix == ".npz" else
+            f"save it as an .npz with a 'nodata' of {value}")
+
+
+#: A GeoTIFF band's stored dtype, scale and offset, where its heights were scaled (:func:`_undeclared_sentinel`).
+_Stored = tuple[np.dtype[Any], float, float]
+
+
+def _undeclared_sentinel(
+    file: Path, array: NDArray[Any], big: NDArray[np.bool_], at: tuple[int, ...], stored: _Stored | None = None,
+) -> str:
+    """The cause and the fix of the refusal of a float64 ``array``'s values beyond float32 (``big``, not nodata; the
+    first at ``at``) when they are a nodata value the file does not declare: float64's lowest or highest value
+    (-1.7976931348623157e+308, the nodata GDAL and ArcGIS give a Float64 raster by default) or one value held by
+    several cells (no measurement repeats beyond float32), counted and named in full with the nodata to declare;
+    "" for a lone odd value. The refusal said only "heights beyond float32", which named no void nor how to mark
+    them. ``stored``: where ``array`` is a GeoTIFF band scaled by its scale and offset, the band's stored dtype,
+    scale and offset: a nodata is declared (and GDAL compares it) in the stored values, so the stored value is named,
+    found exactly (a stored extreme, or a value whose scaling gives the cell's again), or no hint is given."""
+    value = array[at]
+    count = int(np.count_nonzero(array[big] == value))  # among the cells beyond float32 only
+    dtype, raw = array.dtype, value
+    if stored is not None:  # the stored value that scales to it, exactly; else none named
+        dtype, scale, offset = stored
+        limits = np.finfo(dtype) if dtype.kind == "f" else np.iinfo(dtype)
+        guess = (float(value) - offset) / scale
+        raw = None
+        for candidate in (float(limits.max), float(limits.min), guess if dtype.kind == "f" else round(guess)):
+            if limits.min <= candidate <= limits.max and np.float64(dtype.type(candidate)) * scale + offset == value:
+                raw = dtype.type(candidate)
+                break
+        if raw is None:
+            return ""
+    extreme = dtype.kind == "f" and abs(float(raw)) == np.finfo(dtype).max
+    if (count < 2 and not extreme) or not math.isfinite(float(raw)):  # a float128 one beyond float64: no nodata
+        return ""
+    text = _nodata_text(raw, dtype)
+    others = int(np.count_nonzero(big)) - count
+    also = f" (and {counted(others, 'other cell')} beyond float32)" if others else ""
+    kept = "" if stored is None else " as stored"
+    what = (f"the {'lowest' if raw < 0 else 'highest'} {dtype} value{kept}, which marks voids" if extreme
+            else f"one value{kept} repeated beyond float32 when scaled, no height: a mark of voids" if kept else
+            "one value repeated beyond float32, no height: a mark of voids")
+    return (f", in {counted(count, 'cell')}{also}: {what}, but no nodata value or mask of the file marks "
+            f"{'it' if count == 1 else 'them'}; if they are voids, declare it ({_declare_nodata(file, text)})")
+
+
 def nodata_as_nan(
     array: NDArray[Any], file: Path, what: str, nodata: float | None = None,
-    missing: NDArray[np.bool_] | None = None, *, warn_voids: bool = True,
+    missing: NDArray[np.bool_] | None = None, *, warn_voids: bool = True, stored: _Stored | None = None,
 ) -> NDArray[np.float32]:
     """Real ``array`` (any shape: a (T, H, W) series too) as C-contiguous float32 with NaN nodata: non-finite
     values, cells equal to ``nodata`` (compared in the array's own dtype) and cells True in ``missing`` (a boolean
@@ -2151,7 +2231,8 @@ def nodata_as_nan(
     (in a cell not missing) or nothing but nodata (read as all NaN within :func:`read_dem`'s ``nodata_only``) is a
     DataFileError naming ``file`` and ``what``. A read-only array (a memory map) is read into memory.
     ``warn_voids``: :func:`_warn_void_values` on ``array`` (False where the caller warned on the values as stored: a
-    GeoTIFF's band, before its scale and offset)."""
+    GeoTIFF's band, before its scale and offset). ``stored``: a scaled band's stored dtype, scale and offset, by
+    which a refusal of values beyond float32 names them as stored (:func:`_undeclared_sentinel`)."""
     hits = None
     if nodata is not None:
         with np.errstate(over="ignore"):  # a nodata beyond the dtype (1e40, -99999 in float16) is inf: no finite cell
@@ -2168,8 +2249,9 @@ def nodata_as_nan(
             big &= ~hits
         if big.any():
             at = first_index(big)
+            why = _undeclared_sentinel(file, array, big, at, stored)
             raise DataFileError(f"cannot read {str(file)!r}: {what} holds heights beyond float32 (|z| < 3.4e+38); "
-                                f"got {float(array[at])!r} at index {at}")
+                                f"got {float(array[at])!r} at index {at}{why}")
     with np.errstate(over="ignore"):  # only nodata overflows here (beyond float32, refused above otherwise)
         heights = np.ascontiguousarray(array, dtype=np.float32)
     if not heights.flags.writeable:  # float32 as stored, a view of a read-only memory map

@@ -1712,6 +1712,205 @@ def test_float32_nodata_kept_in_a_float64_grid_is_named_as_a_likely_void(tmp_pat
     np.testing.assert_array_equal(np.isnan(declared.heights), z < -1e38)
 
 
+@pytest.mark.parametrize("sentinel", [-np.finfo(np.float64).max, np.finfo(np.float64).max])
+def test_float64_nodata_beyond_float32_undeclared_is_refused_naming_the_void_and_the_fix(tmp_path, capsys, sentinel):
+    """A Float64 GeoTIFF whose voids hold float64's lowest value (-1.7976931348623157e+308, the nodata GDAL and
+    ArcGIS give a Float64 raster by default) without declaring it was refused as "band 1 holds heights beyond
+    float32 ...; got -1.7976931348623157e+308 at index (i, j)": no word of a void, how many cells, nor how to mark
+    them. The refusal (load_dem, and `stepterrain info` and `steps`, which read through it) now counts the cells
+    and gives the nodata to declare, in full; declared as it says, the file reads with those cells as nodata and
+    every other height as stored."""
+    import rasterio
+
+    from stepterrain import cli
+
+    with rasterio.open(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.tif") as source:
+        real = source.read(1)[:60, :80].astype(np.float64)
+        profile = {**source.profile, "width": 80, "height": 60, "dtype": "float64", "nodata": None}
+    voids = real > np.percentile(real, 97)
+    z = np.where(voids, sentinel, real)
+    path = tmp_path / "voids.tif"
+    with rasterio.open(path, "w", **profile) as dataset:
+        dataset.write(z, 1)
+    value = repr(float(sentinel))
+    extreme = "lowest" if sentinel < 0 else "highest"
+    told = (f"in {int(voids.sum())} cells: the {extreme} float64 value, which marks voids, but no nodata value or "
+            f"mask of the file marks them; if they are voids, declare it (`gdal_edit.py -a_nodata {value} voids.tif`)")
+    with pytest.raises(DataFileError, match=r"band 1 holds heights beyond float32") as caught:
+        load_dem(path)
+    i, j = np.argwhere(voids)[0]
+    assert str(caught.value).endswith(f"; got {value} at index ({i}, {j}), {told}")
+    for command in ("info", "steps"):
+        code = cli.main([command, str(path), "-o", str(tmp_path / "out.ply")][: 2 if command == "info" else 4])
+        err = capsys.readouterr().err
+        assert code == 2 and err.rstrip().endswith(told) and "Traceback" not in err
+    assert not (tmp_path / "out.ply").exists()
+    np.save(tmp_path / "voids.npy", z)
+    with pytest.raises(DataFileError, match=re.escape(f"(save it as an .npz with a 'nodata' of {value})")):
+        load_dem(tmp_path / "voids.npy")
+    with rasterio.open(path, "r+") as dataset:  # as the hint's gdal_edit.py does
+        dataset.nodata = float(value)
+    declared = load_dem(path)
+    np.testing.assert_array_equal(np.isnan(declared.heights), voids)
+    np.testing.assert_array_equal(declared.heights[~voids], real[~voids].astype(np.float32))
+
+
+def test_the_highest_float32_value_undeclared_warns_as_the_lowest_does(tmp_path, capsys):
+    """A float32 DEM whose voids hold +3.4028235e+38 (FLT_MAX, no height in any unit) without declaring it was read
+    as heights without a word (the lowest value warned): `stepterrain steps` then refused "the round interval
+    2.5e+37 picked for heights 315 to 3.40282e+38" naming no void, and explicit levels stepped a tower 3.4e38 m
+    tall. It warns now as the lowest value does, in a float64 copy too (the value in full), and `stepterrain info`
+    still describes the file after the warning; declared as the hint says, the cells are nodata."""
+    import rasterio
+
+    from stepterrain import cli
+
+    with rasterio.open(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.tif") as source:
+        real = source.read(1)[:60, :80].astype(np.float32)
+        profile = {**source.profile, "width": 80, "height": 60, "dtype": "float32", "nodata": None}
+    voids = real > np.percentile(real, 97)
+    top = np.finfo(np.float32).max
+    z = np.where(voids, top, real)
+    path = tmp_path / "top.tif"
+    with rasterio.open(path, "w", **profile) as dataset:
+        dataset.write(z, 1)
+    n = int(voids.sum())
+
+    def told(file):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            terrain = load_dem(file)
+        return terrain, [str(w.message) for w in caught if "marks voids" in str(w.message)]
+
+    terrain, messages = told(path)
+    assert messages == [f"top.tif: {n} cells of band 1 hold 3.4028235e+38, the highest float32 value, which marks "
+                        "voids, but no nodata value or mask of the file marks them: read as heights; if they are "
+                        "voids, declare it (`gdal_edit.py -a_nodata 3.4028235e+38 top.tif`)"]
+    np.testing.assert_array_equal(terrain.heights, z)  # still read as stored
+    np.save(tmp_path / "wide.npy", z.astype(np.float64))
+    assert told(tmp_path / "wide.npy")[1] == [
+        f"wide.npy: {n} cells of array hold 3.4028234663852886e+38, the highest float32 value (stored as float64), "
+        "which marks voids, but no nodata value or mask of the file marks them: read as heights; if they are voids, "
+        "declare it (save it as an .npz with a 'nodata' of 3.4028234663852886e+38)"]
+    assert cli.main(["info", str(path)]) == 0
+    out, err = capsys.readouterr()
+    assert "the highest float32 value" in err and "height_range" in out and "nodata_count      0" in out
+    with rasterio.open(path, "r+") as dataset:  # as the hint's gdal_edit.py does
+        dataset.nodata = float("3.4028235e+38")
+    declared, messages = told(path)
+    assert messages == []
+    np.testing.assert_array_equal(np.isnan(declared.heights), voids)
+    np.testing.assert_array_equal(declared.heights[~voids], real[~voids])
+    assert told(tmp_path / "wide.npy")[0].heights.max() == np.float32(top)  # unchanged: only warned
+
+
+def test_a_lone_value_beyond_float32_is_refused_without_a_void_hint(tmp_path):
+    """A single odd value beyond float32 (not float64's extreme) is no void marker: refused as before, no hint;
+    repeated, it is named as one."""
+    z = np.full((3, 4), 100.0)
+    z[1, 2] = 1e39
+    np.save(tmp_path / "big.npy", z)
+    with pytest.raises(DataFileError, match=r"got 1e\+39 at index \(1, 2\)$"):
+        load_dem(tmp_path / "big.npy")
+    z[2, 3] = 1e39
+    z[2, 0] = -5e39
+    np.savez(tmp_path / "big.npz", elevation=z)
+    with pytest.raises(DataFileError, match=re.escape(
+            "got 1e+39 at index (1, 2), in 2 cells (and 1 other cell beyond float32): one value repeated beyond "
+            "float32, no height: a mark of voids, but no nodata value or mask of the file marks them; if they "
+            "are voids, declare it (save a 'nodata' of 1e+39 beside the heights)")):
+        load_dem(tmp_path / "big.npz")
+
+
+@pytest.mark.skipif(np.finfo(np.longdouble).max <= np.finfo(np.float64).max, reason="no extended long double")
+def test_a_long_double_value_beyond_float64_gets_no_nodata_hint_of_inf(tmp_path):
+    """A repeated float128 value beyond float64 is no nodata a GeoTIFF or an .npz of float64 can hold: written as a
+    float it is inf, and the hint said to declare a 'nodata' of inf, which matches no cell. Refused without one."""
+    z = np.full((3, 4), 100, dtype=np.longdouble)
+    z[0, :2] = np.longdouble("1e400")
+    np.save(tmp_path / "wide.npy", z)
+    with pytest.raises(DataFileError, match=r"beyond float32 .*at index \(0, 0\)$"):
+        load_dem(tmp_path / "wide.npy")
+
+
+def test_undeclared_void_hint_through_a_gdal_virtual_path_translates_rather_than_edits_in_place(tmp_path):
+    """A DEM read through /vsigzip/ (a local dem.tif.gz), /vsizip/ (a local zip or its /vsizip/ path) holding
+    undeclared voids was told `gdal_edit.py -a_nodata ... dem.tif`: there is no dem.tif to edit, and gdal_edit.py
+    cannot write inside a .gz or a zip. The hint now gives the gdal_translate that writes a GeoTIFF declaring it,
+    from the path GDAL reads; run as told, the new file reads with the voids as nodata."""
+    import gzip
+    import shlex
+    import shutil
+    import zipfile
+
+    import rasterio
+
+    with rasterio.open(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.tif") as source:
+        real = source.read(1)[:30, :40].astype(np.float64)
+        profile = {**source.profile, "width": 40, "height": 30, "nodata": None}
+    voids = real > np.percentile(real, 95)
+    for dtype, sentinel in (("float64", -np.finfo(np.float64).max), ("float32", np.finfo(np.float32).max)):
+        folder = tmp_path / dtype
+        folder.mkdir()
+        tif = folder / "dem.tif"
+        with rasterio.open(tif, "w", **{**profile, "dtype": dtype}) as dataset:
+            dataset.write(np.where(voids, sentinel, real).astype(dtype), 1)
+        with open(tif, "rb") as raw, gzip.open(folder / "dem.tif.gz", "wb") as packed:
+            shutil.copyfileobj(raw, packed)
+        with zipfile.ZipFile(folder / "dem.zip", "w") as archive:
+            archive.write(tif, "dem.tif")
+        tif.unlink()
+        for given in (folder / "dem.tif.gz", folder / "dem.zip", f"/vsizip/{folder}/dem.zip/dem.tif"):
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                try:
+                    load_dem(given)
+                    message = next(str(w.message) for w in caught if "marks voids" in str(w.message))
+                except DataFileError as exc:
+                    message = str(exc)
+            hint = re.search(r"declare it \(`([^`]*)`", message)
+            assert hint and hint.group(1).startswith("gdal_translate -a_nodata "), message
+            words = shlex.split(hint.group(1))
+            assert words[-1] == "dem.tif" and words[-2].startswith(("/vsigzip/", "/vsizip/")), message
+            with rasterio.open(words[-2]) as src:  # as gdal_translate -a_nodata does
+                out = folder / words[-1]
+                with rasterio.open(out, "w", **{**src.profile, "nodata": float(words[2])}) as dst:
+                    dst.write(src.read(1), 1)
+            with warnings.catch_warnings():
+                warnings.simplefilter("error")
+                declared = load_dem(out)
+            np.testing.assert_array_equal(np.isnan(declared.heights), voids)
+            out.unlink()
+
+
+def test_undeclared_float64_void_under_a_band_scale_is_named_by_its_stored_value(tmp_path):
+    """A scaled Float64 GeoTIFF (scale 0.1) holding float64's lowest value undeclared was refused naming the scaled
+    value, -1.7976931348623158e+307, as "one value repeated" and the nodata to declare: GDAL compares nodata with the
+    stored values, so declaring it matched no cell. The stored value is named (float64's lowest) and declaring it
+    as told reads the voids as nodata."""
+    import rasterio
+
+    with rasterio.open(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.tif") as source:
+        real = source.read(1)[:30, :40].astype(np.float64)
+        profile = {**source.profile, "width": 40, "height": 30, "dtype": "float64", "nodata": None}
+    voids = real > np.percentile(real, 95)
+    path = tmp_path / "scaled.tif"
+    with rasterio.open(path, "w", **profile) as dataset:
+        dataset.write(np.where(voids, -np.finfo(np.float64).max, real * 10), 1)
+        dataset.scales = (0.1,)
+    value = repr(float(-np.finfo(np.float64).max))
+    with pytest.raises(DataFileError, match=re.escape(
+            f"in {int(voids.sum())} cells: the lowest float64 value as stored, which marks voids, but no nodata value "
+            f"or mask of the file marks them; if they are voids, declare it (`gdal_edit.py -a_nodata {value} "
+            "scaled.tif`)")):
+        load_dem(path)
+    with rasterio.open(path, "r+") as dataset:
+        dataset.nodata = float(value)
+    declared = load_dem(path)
+    np.testing.assert_array_equal(np.isnan(declared.heights), voids)
+    np.testing.assert_allclose(declared.heights[~voids], real[~voids], rtol=1e-6)
+
+
 @pytest.mark.parametrize(
     ("dx_m", "dy_m", "message"),
     [(0.0, 1111.0, r"'dx_m' and 'dy_m' must be finite, non-zero metres per cell; got 0\.0 and 1111\.0"),
