@@ -52,7 +52,7 @@ from ._device import (
 )
 from .camera import _MAX_COORDINATE, Camera
 from .errors import DataFileError, InvalidInputError, OutputTooLargeError, counted
-from .io import _prj_beside, picture_uint8, world_file
+from .io import _check_read_budget, _prj_beside, picture_uint8, world_file
 from .kernels import bounds as bounds_kernels
 from .kernels import compaction as compaction_kernels
 from .kernels import cubesphere as cube_kernels
@@ -1546,6 +1546,9 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
     embedded, as PNG)."""
     kept = None
     if isinstance(image, (str, bytes)) or hasattr(image, "__fspath__"):
+        import os
+        from pathlib import Path
+
         from PIL import Image
 
         try:
@@ -1561,6 +1564,13 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
 
                 _tiff_as_stored(picture)  # its stored pixels, as a PNG's or JPEG's: Pillow turns a TIFF by its tag
                 shift = _plate_carree_shift(picture, image)  # from its header: refused before its pixels are read
+                # its (H, W, 3|4) pixels against the memory budget, from the header, as texture_lod checks an image
+                # before decoding it: a texture was decoded whole whatever the budget (--memory-budget 10MB decoded
+                # an 8000 x 4000 JPEG, 96 MB of pixels, 500 MB peak with the drape)
+                alpha = "A" in picture.getbands() or "transparency" in picture.info
+                _check_read_budget(Path(os.fsdecode(image)), (4 if alpha else 3, picture.height, picture.width),
+                                   np.dtype(np.uint8), "the texture",
+                                   hint="downsample it first (resampled to fewer pixels)")
                 if _kept_jpeg(picture):
                     picture.load()  # its pixels, and Pillow closes the file it opened
                     kept, image = picture, np.asarray(picture)
@@ -1704,6 +1714,9 @@ def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trim
         ``mesh`` is not a trimesh.Trimesh, or the image is not (H, W, 3|4) with values in [0, 255].
     DataFileError
         The image file cannot be read.
+    OutputTooLargeError
+        The image file's pixels exceed the memory budget (:func:`stepterrain.set_memory_budget`), checked from its
+        header before it is decoded.
 
     Examples
     --------
@@ -1796,6 +1809,8 @@ def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint
     InvalidInputError
         The image is not (H, W, 3|4) or cannot be read; ``vertices`` not (V, 3) (a mesh: pass ``mesh.vertices``),
         not finite or at the centre.
+    OutputTooLargeError
+        The image file's pixels exceed the memory budget, checked from its header before it is decoded.
 
     Examples
     --------

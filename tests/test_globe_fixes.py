@@ -1847,3 +1847,50 @@ def test_a_texture_with_an_upper_case_extension_finds_its_lower_case_world_file(
         with pytest.raises(InvalidInputError, match=r"must be a global plate-carrée image .* world file "
                                                     r"'(alps|ALPS)\.pgw'"):
             drape_colors(directions, tmp_path / name)
+
+
+def test_a_texture_file_over_the_memory_budget_is_refused_before_it_is_decoded(budget, tmp_path, capsys, monkeypatch):
+    """The globe's texture files were decoded whole whatever the memory budget (an 8000 x 4000 JPEG: 96 MB of pixels,
+    and 500 MB peak for the drape, under ``--memory-budget 10MB``), while the texture command's image read checks its
+    pixels first (texture_lod's _check_read_budget). drape_colors and drape_texture refuse a file whose (H, W, 3|4)
+    pixels exceed the budget (counted as a raster read: _check_read_budget), from its header, before decoding it;
+    ``stepterrain globe --texture`` exits 2 naming it and --memory-budget, before the globe is built. Within the
+    budget it drapes as before."""
+    from PIL import Image
+
+    import stepterrain.globe as globe
+    from stepterrain.cli import main
+    from stepterrain.globe import drape_colors, drape_texture
+
+    picture = tmp_path / "earth.png"
+    Image.fromarray(np.zeros((100, 200, 3), np.uint8)).save(picture)
+    vertices = np.array([[EARTH_RADIUS, 0.0, 0.0]])
+    decoded = []
+    real_decode = globe.picture_uint8
+    monkeypatch.setattr(globe, "picture_uint8", lambda *a, **k: decoded.append(1) or real_decode(*a, **k))
+    need = 4 * 3 * 100 * 200  # its RGB cells as a raster read counts them (at least 4 bytes a cell: the drape's peak
+    budget(need - 1)  # is several times its pixels)
+    message = re.escape(f"reading {str(picture)!r} (the texture: 3 x 100 x 200 cells of uint8)")
+    for drape in (drape_colors, lambda _, image: drape_texture(trimesh_sphere(), image)):
+        with pytest.raises(OutputTooLargeError, match=message):
+            drape(vertices, picture)
+    assert not decoded  # refused from the header
+    budget(need)
+    assert drape_colors(vertices, picture).shape == (1, 4) and decoded
+
+    def built(*args, **kwargs):
+        raise AssertionError("the globe was built before the texture's budget was checked")
+
+    monkeypatch.setattr(globe.Globe, "from_latlon", built)
+    out = tmp_path / "g.ply"
+    code = main(["-q", "globe", "--face-size", "9", "--texture", str(picture), "-o", str(out),
+                 "--memory-budget", str(need - 1), "--device", "cpu"])
+    err = capsys.readouterr().err
+    assert code == 2 and "the texture: 3 x 100 x 200 cells of uint8" in err and "--memory-budget" in err, err
+    assert not out.exists()
+
+
+def trimesh_sphere():
+    import trimesh
+
+    return trimesh.creation.icosphere(subdivisions=1, radius=EARTH_RADIUS)
