@@ -1598,16 +1598,20 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
 def _plate_carree_shift(picture: Any, path: Any) -> int:
     """Columns to roll a texture file by so that its column 0 starts at 180° W, as the drape reads every texture,
     from its georeferencing: a GeoTIFF's tags (ModelPixelScale 33550 and ModelTiepoint 33922, or
-    ModelTransformation 34264; GTModelTypeGeoKey and GTRasterTypeGeoKey in the GeoKeyDirectory 34735), else a world
-    file beside it (``.jgw``/``.pgw``/``.tfw``, ``.jpgw``..., ``.wld``; its CRS from a ``.prj``), as GDAL reads
-    them. Read from ``picture``'s header (a PIL image opened, not decoded) and the small files beside ``path``: no
-    pixels, and no rasterio (the optional ``[geo]`` extra). 0 for an image without georeferencing (plate carrée from
-    180° W, as documented) or one that starts there; a global one in longitudes 0..360 (or from any whole column)
+    ModelTransformation 34264; GTModelTypeGeoKey and GTRasterTypeGeoKey in the GeoKeyDirectory 34735), else GDAL's
+    PAM file beside it (``earth.png.aux.xml``: its GeoTransform and SRS, where ``gdal_translate -of PNG`` or ``-of
+    JPEG`` puts them), else a world file beside it (``.jgw``/``.pgw``/``.tfw``, ``.jpgw``..., ``.wld``; its CRS from
+    a ``.prj``), as GDAL reads them (the PAM file before the world file). Read from ``picture``'s header (a PIL
+    image opened, not decoded) and the small files beside ``path``: no pixels, and no rasterio (the optional
+    ``[geo]`` extra). 0 for an image without georeferencing (plate carrée from 180° W, as documented) or one that
+    starts there; a global one in longitudes 0..360 (or from any whole column)
     is rolled. One whose georeferencing is no whole globe in degrees is refused before its pixels are read: a
     projected CRS, a regional extent (a DEM, an orthophoto), a rotated or south-up grid; each was draped over the
     whole globe from 180° W, without a word (a UTM orthophoto wrapped round the earth)."""
     name = f"texture {str(path)!r}"
     found = _geotiff_transform(picture) if getattr(picture, "format", None) == "TIFF" else None
+    if found is None:
+        found = _aux_xml_transform(path)
     if found is None:
         found = _world_file_transform(path)
     if found is None:
@@ -1658,6 +1662,41 @@ def _geotiff_transform(picture: Any) -> tuple[tuple[float, ...], bool, str] | No
     if geokeys.get(1025) == 2:  # GTRasterTypeGeoKey RasterPixelIsPoint
         c, f = c - (a + b) / 2, f - (d + e) / 2
     return (a, b, c, d, e, f), geokeys.get(1024) in (1, 3), "a GeoTIFF"
+
+
+def _aux_xml_transform(path: Any) -> tuple[tuple[float, ...], bool, str] | None:
+    """The geotransform in GDAL's PAM file beside the image ``path`` (``earth.png.aux.xml``: its ``GeoTransform``, the
+    six numbers c, a, b, f, d, e of the upper-left pixel's corner, as (a, b, c, d, e, f)), whether its ``SRS`` (else
+    the ``.prj`` beside the image) names a projected CRS, and "a PAM file 'earth.png.aux.xml'"; None without one, or
+    with one GDAL reads no geotransform from (none, not six numbers, or the identity, GDAL's default). A PNG or JPEG
+    that GDAL wrote keeps its georeferencing there alone (no world file): a regional or projected one, or a global
+    one in longitudes 0..360, was draped round the globe from 180° W, without a word."""
+    import os
+    import pathlib
+    from xml.etree import ElementTree
+
+    image = pathlib.Path(os.fsdecode(path))
+    aux = image.with_name(image.name + ".aux.xml")
+    try:
+        root = ElementTree.fromstring(aux.read_bytes()) if aux.is_file() else None
+    except (OSError, ElementTree.ParseError):  # unreadable: GDAL reads no georeferencing from it either
+        return None
+    text = root.findtext("GeoTransform") if root is not None else None
+    try:
+        c, a, b, f, d, e = (float(v) for v in (text or "").split(","))
+    except ValueError:  # none, or not six numbers
+        return None
+    if (c, a, b, f, d, e) == (0.0, 1.0, 0.0, 0.0, 0.0, 1.0):  # GDAL's default geotransform: no georeferencing
+        return None
+    srs = (root.findtext("SRS") or "").strip()
+    if not srs:
+        try:  # the .prj io reads beside an image (earth.prj, earth.png.prj)
+            prj_file = _prj_beside(image)
+            srs = "" if prj_file is None else prj_file.read_text(errors="replace")
+        except (OSError, ValueError):
+            srs = ""
+    projected = srs.lstrip().upper().startswith(("PROJCS", "PROJCRS", "PROJECTEDCRS"))
+    return (a, b, c, d, e, f), projected, f"a PAM file {aux.name!r}"
 
 
 def _world_file_transform(path: Any) -> tuple[tuple[float, ...], bool, str] | None:

@@ -1894,3 +1894,52 @@ def trimesh_sphere():
     import trimesh
 
     return trimesh.creation.icosphere(subdivisions=1, radius=EARTH_RADIUS)
+
+
+def test_a_texture_georeferenced_by_its_aux_xml_is_draped_where_it_says_or_refused(tmp_path, capsys):
+    """GDAL writes a PNG's or JPEG's georeferencing into its PAM file, ``earth.png.aux.xml`` (``gdal_translate -of PNG``
+    writes no world file), and reads it back first. The globe read GeoTIFF tags and world files only: a regional PNG
+    or JPEG georeferenced so (an orthophoto of the Alps), a projected one, and a global one in longitudes 0..360 were
+    all draped round the whole earth from 180° W without a word (the last half a turn off), as GeoTIFFs were before.
+    Its geotransform and SRS are read now (the files written by GDAL through rasterio): the global one is put at
+    -180..180, the others refused by name (drape_colors, drape_texture and ``stepterrain globe --texture``). An
+    identity geotransform is GDAL's "none": the image stays plate carrée from 180° W."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    from stepterrain.cli import main
+    from stepterrain.globe import _texture_pixels, drape_colors, drape_texture
+
+    pixels = np.zeros((18, 36, 3), np.uint8)
+    pixels[:, 18:, 0] = 255  # red east of Greenwich, in -180..180 columns
+
+    def picture(name, data, transform, crs="EPSG:4326"):
+        path = tmp_path / name
+        with warnings.catch_warnings():  # "not a GeoTIFF" (the PNG and JPEG drivers keep it in the .aux.xml)
+            warnings.simplefilter("ignore")
+            with rasterio.open(path, "w", driver="PNG" if name.endswith(".png") else "JPEG", width=data.shape[1],
+                               height=data.shape[0], count=3, dtype="uint8", crs=crs, transform=transform) as ds:
+                ds.write(np.moveaxis(data, 2, 0))
+        assert (tmp_path / f"{name}.aux.xml").is_file() and not path.with_suffix(".pgw").exists()
+        return path
+
+    directions = np.array([[0.0, 1.0, 0.0], [0.0, -1.0, 0.0], [1.0, 1.0, 0.5], [-1.0, -1.0, -0.5]]) * EARTH_RADIUS
+    expected = drape_colors(directions, pixels)
+    east = picture("east.png", np.roll(pixels, 18, axis=1), Affine(10.0, 0.0, 0.0, 0.0, -10.0, 90.0))  # 0..360
+    np.testing.assert_array_equal(_texture_pixels(east), pixels)
+    np.testing.assert_array_equal(drape_colors(directions, east), expected)
+    plain = picture("plain.png", pixels, Affine.identity())  # GDAL's default geotransform: no georeferencing
+    np.testing.assert_array_equal(drape_colors(directions, plain), expected)
+    alps = picture("alps.png", pixels, Affine(0.1, 0.0, 5.0, 0.0, -0.1, 48.0))
+    alps_jpeg = picture("alps.jpg", pixels, Affine(0.1, 0.0, 5.0, 0.0, -0.1, 48.0))
+    utm = picture("utm.png", pixels, Affine(10.0, 0.0, 376000.0, 0.0, -10.0, 3807000.0), "EPSG:32611")
+    for path, why in ((alps, "over longitudes 5 to 8.6 and latitudes 46.2 to 48"),
+                      (alps_jpeg, "over longitudes 5 to 8.6 and latitudes 46.2 to 48"), (utm, "in a projected CRS")):
+        aux = f"{path.name}.aux.xml"
+        for drape in (drape_colors, lambda _, image: drape_texture(trimesh_sphere(), image)):
+            with pytest.raises(InvalidInputError, match=r"^texture .* must be a global plate-carrée image"
+                                                        rf".*got a PAM file {re.escape(repr(aux))} {why}"):
+                drape(directions, path)
+        out = tmp_path / "g.ply"
+        assert main(["-q", "globe", "--face-size", "9", "--texture", str(path), "-o", str(out), "--device", "cpu"]) == 2
+        assert "must be a global plate-carrée image" in capsys.readouterr().err and not out.exists()
