@@ -1664,6 +1664,31 @@ def _geotiff_transform(picture: Any) -> tuple[tuple[float, ...], bool, str] | No
     return (a, b, c, d, e, f), geokeys.get(1024) in (1, 3), "a GeoTIFF"
 
 
+def _pam_root(image: Any) -> Any:
+    """The parsed XML of GDAL's PAM file beside the image path ``image`` (``earth.png.aux.xml``), None without one
+    or with one that cannot be read or parsed (GDAL reads nothing from it either)."""
+    from xml.etree import ElementTree
+
+    aux = image.with_name(image.name + ".aux.xml")
+    try:
+        return ElementTree.fromstring(aux.read_bytes()) if aux.is_file() else None
+    except (OSError, ElementTree.ParseError):
+        return None
+
+
+def _projected_beside(image: Any, root: Any) -> bool:
+    """Whether the CRS of the image path ``image`` is projected: the ``SRS`` of its PAM file (``root``, parsed by
+    :func:`_pam_root`), else the ``.prj`` io reads beside it (``ortho.prj``, ``ortho.PRJ``, ``ortho.jpg.prj``)."""
+    srs = (root.findtext("SRS") or "").strip() if root is not None else ""
+    if not srs:
+        try:
+            prj_file = _prj_beside(image)
+            srs = "" if prj_file is None else prj_file.read_text(errors="replace")
+        except (OSError, ValueError):
+            srs = ""
+    return srs.lstrip().upper().startswith(("PROJCS", "PROJCRS", "PROJECTEDCRS"))
+
+
 def _aux_xml_transform(path: Any) -> tuple[tuple[float, ...], bool, str] | None:
     """The geotransform in GDAL's PAM file beside the image ``path`` (``earth.png.aux.xml``: its ``GeoTransform``, the
     six numbers c, a, b, f, d, e of the upper-left pixel's corner, as (a, b, c, d, e, f)), whether its ``SRS`` (else
@@ -1673,14 +1698,9 @@ def _aux_xml_transform(path: Any) -> tuple[tuple[float, ...], bool, str] | None:
     one in longitudes 0..360, was draped round the globe from 180° W, without a word."""
     import os
     import pathlib
-    from xml.etree import ElementTree
 
     image = pathlib.Path(os.fsdecode(path))
-    aux = image.with_name(image.name + ".aux.xml")
-    try:
-        root = ElementTree.fromstring(aux.read_bytes()) if aux.is_file() else None
-    except (OSError, ElementTree.ParseError):  # unreadable: GDAL reads no georeferencing from it either
-        return None
+    root = _pam_root(image)
     text = root.findtext("GeoTransform") if root is not None else None
     try:
         c, a, b, f, d, e = (float(v) for v in (text or "").split(","))
@@ -1688,22 +1708,16 @@ def _aux_xml_transform(path: Any) -> tuple[tuple[float, ...], bool, str] | None:
         return None
     if (c, a, b, f, d, e) == (0.0, 1.0, 0.0, 0.0, 0.0, 1.0):  # GDAL's default geotransform: no georeferencing
         return None
-    srs = (root.findtext("SRS") or "").strip()
-    if not srs:
-        try:  # the .prj io reads beside an image (earth.prj, earth.png.prj)
-            prj_file = _prj_beside(image)
-            srs = "" if prj_file is None else prj_file.read_text(errors="replace")
-        except (OSError, ValueError):
-            srs = ""
-    projected = srs.lstrip().upper().startswith(("PROJCS", "PROJCRS", "PROJECTEDCRS"))
-    return (a, b, c, d, e, f), projected, f"a PAM file {aux.name!r}"
+    return (a, b, c, d, e, f), _projected_beside(image, root), f"a PAM file {image.name + '.aux.xml'!r}"
 
 
 def _world_file_transform(path: Any) -> tuple[tuple[float, ...], bool, str] | None:
     """The geotransform of the world file beside the image ``path`` (:func:`~stepterrain.io.world_file`: the names
     GDAL looks for, ``.jgw`` for ``.jpg``, ``.jpgw``, ``.wld``; six numbers A, D, B, E, C, F, C and F at the
-    upper-left pixel's centre), whether the ``.prj`` beside it names a projected CRS, and the world file's name; None
-    without one (or one that is not six numbers: GDAL ignores it too)."""
+    upper-left pixel's centre), whether the ``SRS`` of the PAM file beside it (``ortho.png.aux.xml``, where
+    ``gdal_translate -co WORLDFILE=YES`` writes it), else its ``.prj``, names a projected CRS, and the world file's
+    name; None without one (or one that is not six numbers: GDAL ignores it too). (The PAM file's CRS was not read: a
+    UTM image's world file was refused as one "over longitudes 376000 to 376360".)"""
     import os
     import pathlib
 
@@ -1712,12 +1726,7 @@ def _world_file_transform(path: Any) -> tuple[tuple[float, ...], bool, str] | No
     if found is None:
         return None
     (a, d, b, e, c, f), side = found
-    try:  # the .prj io reads beside a world file (ortho.prj, ortho.PRJ, ortho.jpg.prj)
-        prj_file = _prj_beside(image)
-        prj = "" if prj_file is None else prj_file.read_text(errors="replace").lstrip().upper()
-    except (OSError, ValueError):
-        prj = ""
-    projected = prj.startswith(("PROJCS", "PROJCRS", "PROJECTEDCRS"))
+    projected = _projected_beside(image, _pam_root(image))
     corner = (a, b, c - (a + b) / 2, d, e, f - (d + e) / 2)  # the upper-left pixel's corner
     return corner, projected, f"a world file {side.name!r}"
 

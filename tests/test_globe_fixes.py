@@ -1943,3 +1943,25 @@ def test_a_texture_georeferenced_by_its_aux_xml_is_draped_where_it_says_or_refus
         out = tmp_path / "g.ply"
         assert main(["-q", "globe", "--face-size", "9", "--texture", str(path), "-o", str(out), "--device", "cpu"]) == 2
         assert "must be a global plate-carrée image" in capsys.readouterr().err and not out.exists()
+
+
+def test_a_world_file_texture_takes_its_crs_from_the_aux_xml_beside_it(tmp_path):
+    """``gdal_translate -of PNG -co WORLDFILE=YES`` writes the world file (``utm.wld``) and puts the CRS in the PAM
+    file (``utm.png.aux.xml``), not in a ``.prj``. The globe read a world file's CRS from a ``.prj`` alone: a UTM
+    image was refused as a regional one "over longitudes 376000 to 376360 and latitudes 3.80682e+06 to 3.807e+06",
+    metres named as degrees. It is named as projected now, with the reprojection to run."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    from stepterrain.globe import drape_colors
+
+    path = tmp_path / "utm.png"
+    with warnings.catch_warnings():  # "not a GeoTIFF"
+        warnings.simplefilter("ignore")
+        with rasterio.open(path, "w", driver="PNG", width=36, height=18, count=3, dtype="uint8", crs="EPSG:32611",
+                           transform=Affine(10.0, 0.0, 376000.0, 0.0, -10.0, 3807000.0), WORLDFILE="YES") as ds:
+            ds.write(np.zeros((3, 18, 36), np.uint8))
+    assert (tmp_path / "utm.wld").is_file() and not (tmp_path / "utm.prj").exists()
+    assert "<GeoTransform>" not in (tmp_path / "utm.png.aux.xml").read_text()  # its CRS alone
+    with pytest.raises(InvalidInputError, match=r"got a world file 'utm\.wld' in a projected CRS: reproject it"):
+        drape_colors(np.array([[EARTH_RADIUS, 0.0, 0.0]]), path)
