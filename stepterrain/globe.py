@@ -1598,20 +1598,23 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
 def _plate_carree_shift(picture: Any, path: Any) -> int:
     """Columns to roll a texture file by so that its column 0 starts at 180° W, as the drape reads every texture,
     from its georeferencing: a GeoTIFF's tags (ModelPixelScale 33550 and ModelTiepoint 33922, or
-    ModelTransformation 34264; GTModelTypeGeoKey and GTRasterTypeGeoKey in the GeoKeyDirectory 34735), else GDAL's
-    PAM file beside it (``earth.png.aux.xml``: its GeoTransform and SRS, where ``gdal_translate -of PNG`` or ``-of
-    JPEG`` puts them), else a world file beside it (``.jgw``/``.pgw``/``.tfw``, ``.jpgw``..., ``.wld``; its CRS from
-    a ``.prj``), as GDAL reads them (the PAM file before the world file). Read from ``picture``'s header (a PIL
-    image opened, not decoded) and the small files beside ``path``: no pixels, and no rasterio (the optional
-    ``[geo]`` extra). 0 for an image without georeferencing (plate carrée from 180° W, as documented) or one that
-    starts there; a global one in longitudes 0..360 (or from any whole column)
-    is rolled. One whose georeferencing is no whole globe in degrees is refused before its pixels are read: a
-    projected CRS, a regional extent (a DEM, an orthophoto), a rotated or south-up grid; each was draped over the
-    whole globe from 180° W, without a word (a UTM orthophoto wrapped round the earth)."""
+    ModelTransformation 34264; GTModelTypeGeoKey and GTRasterTypeGeoKey in the GeoKeyDirectory 34735), GDAL's PAM
+    file beside it (``earth.png.aux.xml``: its GeoTransform and SRS, where ``gdal_translate -of PNG`` or ``-of
+    JPEG`` puts them), or a world file beside it (``.jgw``/``.pgw``/``.tfw``, ``.jpgw``..., ``.wld``; its CRS from
+    a ``.prj``), as GDAL reads them (the PAM file first, then a GeoTIFF's tags, then the world file). Read from
+    ``picture``'s header (a PIL image opened, not decoded) and the small files beside ``path``: no pixels, and no
+    rasterio (the optional ``[geo]`` extra). 0 for an image without georeferencing (plate carrée from 180° W, as
+    documented) or one that starts there; a global one in longitudes 0..360 (or from any whole column) is rolled.
+    One whose georeferencing is no whole globe in degrees is refused before its pixels are read: a projected CRS, a
+    regional extent (a DEM, an orthophoto), a rotated or south-up grid; each was draped over the whole globe from
+    180° W, without a word (a UTM orthophoto wrapped round the earth)."""
     name = f"texture {str(path)!r}"
-    found = _geotiff_transform(picture) if getattr(picture, "format", None) == "TIFF" else None
+    tags = _geotiff_transform(picture) if getattr(picture, "format", None) == "TIFF" else None
+    found = _aux_xml_transform(path)  # GDAL's PAM file first, before a GeoTIFF's tags too (GDAL_GEOREF_SOURCES)
+    if found is not None and tags is not None:  # projected by its PAM file's SRS, .prj or tags: refused alike
+        found = (found[0], found[1] or tags[1], found[2])
     if found is None:
-        found = _aux_xml_transform(path)
+        found = tags
     if found is None:
         found = _world_file_transform(path)
     if found is None:

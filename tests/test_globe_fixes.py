@@ -1965,3 +1965,43 @@ def test_a_world_file_texture_takes_its_crs_from_the_aux_xml_beside_it(tmp_path)
     assert "<GeoTransform>" not in (tmp_path / "utm.png.aux.xml").read_text()  # its CRS alone
     with pytest.raises(InvalidInputError, match=r"got a world file 'utm\.wld' in a projected CRS: reproject it"):
         drape_colors(np.array([[EARTH_RADIUS, 0.0, 0.0]]), path)
+
+
+def test_a_geotiff_texture_is_placed_by_its_aux_xml_before_its_tags_as_gdal_reads_it(tmp_path):
+    """GDAL reads a GeoTIFF's georeferencing from its PAM file (``earth.tif.aux.xml``, where GDAL writes a
+    geotransform set on a file opened read-only) before its own tags (GDAL_GEOREF_SOURCES: PAM, then INTERNAL), as
+    rasterio, load_dem and the texture command read it. The globe read the tags first: a GeoTIFF whose tags say a
+    regional extent and whose .aux.xml the whole globe was refused as regional, and one whose .aux.xml puts it in
+    0..360 was draped half a turn off. Now its .aux.xml comes first; its tags' CRS still says whether it is
+    projected when the .aux.xml names none."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    from stepterrain.globe import _texture_pixels, drape_colors
+
+    pixels = np.zeros((18, 36, 3), np.uint8)
+    pixels[:, 18:, 0] = 255  # red east of Greenwich, in -180..180 columns
+    directions = np.array([[0.0, 1.0, 0.0], [0.0, -1.0, 0.0], [1.0, 1.0, 0.5], [-1.0, -1.0, -0.5]]) * EARTH_RADIUS
+    expected = drape_colors(directions, pixels)
+
+    def geotiff(name, data, tags, crs, aux):
+        path = tmp_path / name
+        with rasterio.open(path, "w", driver="GTiff", width=36, height=18, count=3, dtype="uint8", crs=crs,
+                           transform=tags) as ds:
+            ds.write(np.moveaxis(data, 2, 0))
+        (tmp_path / f"{name}.aux.xml").write_text(f"<PAMDataset><GeoTransform>{', '.join(map(str, aux))}"
+                                                  "</GeoTransform></PAMDataset>")
+        with rasterio.open(path) as ds:  # GDAL's own reading: the PAM file's geotransform, not the tags'
+            assert ds.transform.to_gdal() == aux
+        return path
+
+    regional = Affine(0.1, 0.0, 5.0, 0.0, -0.1, 48.0)
+    world = geotiff("world.tif", pixels, regional, "EPSG:4326", (-180.0, 10.0, 0.0, 90.0, 0.0, -10.0))
+    np.testing.assert_array_equal(drape_colors(directions, world), expected)
+    east = geotiff("east.tif", np.roll(pixels, 18, axis=1), Affine(10.0, 0.0, -180.0, 0.0, -10.0, 90.0), "EPSG:4326",
+                   (0.0, 10.0, 0.0, 90.0, 0.0, -10.0))
+    np.testing.assert_array_equal(_texture_pixels(east), pixels)
+    utm = geotiff("utm.tif", pixels, Affine(10.0, 0.0, 376000.0, 0.0, -10.0, 3807000.0), "EPSG:32611",
+                  (376000.0, 10.0, 0.0, 3807000.0, 0.0, -10.0))
+    with pytest.raises(InvalidInputError, match=r"got a PAM file 'utm\.tif\.aux\.xml' in a projected CRS"):
+        drape_colors(directions, utm)
