@@ -52,7 +52,7 @@ from ._device import (
 )
 from .camera import _MAX_COORDINATE, Camera
 from .errors import DataFileError, InvalidInputError, OutputTooLargeError, counted
-from .io import _check_read_budget, _prj_beside, picture_uint8, world_file
+from .io import _check_read_budget, _pam_root, _prj_beside, picture_uint8, world_file
 from .kernels import bounds as bounds_kernels
 from .kernels import compaction as compaction_kernels
 from .kernels import cubesphere as cube_kernels
@@ -1667,21 +1667,10 @@ def _geotiff_transform(picture: Any) -> tuple[tuple[float, ...], bool, str] | No
     return (a, b, c, d, e, f), geokeys.get(1024) in (1, 3), "a GeoTIFF"
 
 
-def _pam_root(image: Any) -> Any:
-    """The parsed XML of GDAL's PAM file beside the image path ``image`` (``earth.png.aux.xml``), None without one
-    or with one that cannot be read or parsed (GDAL reads nothing from it either)."""
-    from xml.etree import ElementTree
-
-    aux = image.with_name(image.name + ".aux.xml")
-    try:
-        return ElementTree.fromstring(aux.read_bytes()) if aux.is_file() else None
-    except (OSError, ElementTree.ParseError):
-        return None
-
-
 def _projected_beside(image: Any, root: Any) -> bool:
     """Whether the CRS of the image path ``image`` is projected: the ``SRS`` of its PAM file (``root``, parsed by
-    :func:`_pam_root`), else the ``.prj`` io reads beside it (``ortho.prj``, ``ortho.PRJ``, ``ortho.jpg.prj``)."""
+    :func:`~stepterrain.io._pam_root`), else the ``.prj`` io reads beside it (``ortho.prj``, ``ortho.PRJ``,
+    ``ortho.jpg.prj``)."""
     srs = (root.findtext("SRS") or "").strip() if root is not None else ""
     if not srs:
         try:
