@@ -148,8 +148,8 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--no-cull", action="store_true",
                    help="keep triangles outside the view (a closed mesh); with the camera and the clip metric")
     p.add_argument("--texture", type=_path, metavar="IMAGE",
-                   help="global plate-carree image (row 0 at 90N, column 0 at 180W; a GeoTIFF or world file "
-                        "georeferenced from 0 to 360 is shifted, one regional or projected refused) draped by "
+                   help="global plate-carree image (row 0 at 90N, column 0 at 180W; a GeoTIFF, .aux.xml or world "
+                        "file georeferenced from 0 to 360 is shifted, one regional or projected refused) draped by "
                         "latitude and longitude: "
                         "embedded as the mesh's texture in .glb/.gltf/.obj and drawn as a texture in the --png "
                         "render, as vertex colours in .ply/.3mf; default: colours by elevation")

@@ -541,8 +541,9 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-_MEMORY_BUDGET_HELP = ("largest output, DEM read or render a step may allocate: bytes or a size such as 8GiB, 500MB "
-                       "(default: the library's, 16 GiB); a run over it stops with exit status 2 before allocating")
+_MEMORY_BUDGET_HELP = ("largest output, DEM or image read or render a step may allocate: bytes or a size such as "
+                       "8GiB, 500MB (default: the library's, 16 GiB); a run over it stops with exit status 2 before "
+                       "allocating")
 
 #: What a refusal over the memory budget (stepterrain._compaction.check_budget) says, as a command-line user raises it.
 _CLI_BUDGET_HINT = "raise the budget (--memory-budget SIZE)"

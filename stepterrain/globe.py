@@ -52,7 +52,7 @@ from ._device import (
 )
 from .camera import _MAX_COORDINATE, Camera
 from .errors import DataFileError, InvalidInputError, OutputTooLargeError, counted
-from .io import _prj_beside, picture_uint8, world_file
+from .io import _check_read_budget, _pam_root, _prj_beside, picture_uint8, world_file
 from .kernels import bounds as bounds_kernels
 from .kernels import compaction as compaction_kernels
 from .kernels import cubesphere as cube_kernels
@@ -1546,6 +1546,9 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
     embedded, as PNG)."""
     kept = None
     if isinstance(image, (str, bytes)) or hasattr(image, "__fspath__"):
+        import os
+        from pathlib import Path
+
         from PIL import Image
 
         try:
@@ -1561,6 +1564,13 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
 
                 _tiff_as_stored(picture)  # its stored pixels, as a PNG's or JPEG's: Pillow turns a TIFF by its tag
                 shift = _plate_carree_shift(picture, image)  # from its header: refused before its pixels are read
+                # its (H, W, 3|4) pixels against the memory budget, from the header, as texture_lod checks an image
+                # before decoding it: a texture was decoded whole whatever the budget (--memory-budget 10MB decoded
+                # an 8000 x 4000 JPEG, 96 MB of pixels, 500 MB peak with the drape)
+                alpha = "A" in picture.getbands() or "transparency" in picture.info
+                _check_read_budget(Path(os.fsdecode(image)), (4 if alpha else 3, picture.height, picture.width),
+                                   np.dtype(np.uint8), "the texture",
+                                   hint="downsample it first (resampled to fewer pixels)")
                 if _kept_jpeg(picture):
                     picture.load()  # its pixels, and Pillow closes the file it opened
                     kept, image = picture, np.asarray(picture)
@@ -1588,16 +1598,23 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
 def _plate_carree_shift(picture: Any, path: Any) -> int:
     """Columns to roll a texture file by so that its column 0 starts at 180° W, as the drape reads every texture,
     from its georeferencing: a GeoTIFF's tags (ModelPixelScale 33550 and ModelTiepoint 33922, or
-    ModelTransformation 34264; GTModelTypeGeoKey and GTRasterTypeGeoKey in the GeoKeyDirectory 34735), else a world
-    file beside it (``.jgw``/``.pgw``/``.tfw``, ``.jpgw``..., ``.wld``; its CRS from a ``.prj``), as GDAL reads
-    them. Read from ``picture``'s header (a PIL image opened, not decoded) and the small files beside ``path``: no
-    pixels, and no rasterio (the optional ``[geo]`` extra). 0 for an image without georeferencing (plate carrée from
-    180° W, as documented) or one that starts there; a global one in longitudes 0..360 (or from any whole column)
-    is rolled. One whose georeferencing is no whole globe in degrees is refused before its pixels are read: a
-    projected CRS, a regional extent (a DEM, an orthophoto), a rotated or south-up grid; each was draped over the
-    whole globe from 180° W, without a word (a UTM orthophoto wrapped round the earth)."""
+    ModelTransformation 34264; GTModelTypeGeoKey and GTRasterTypeGeoKey in the GeoKeyDirectory 34735), GDAL's PAM
+    file beside it (``earth.png.aux.xml``: its GeoTransform and SRS, where ``gdal_translate -of PNG`` or ``-of
+    JPEG`` puts them), or a world file beside it (``.jgw``/``.pgw``/``.tfw``, ``.jpgw``..., ``.wld``; its CRS from
+    a ``.prj``), as GDAL reads them (the PAM file first, then a GeoTIFF's tags, then the world file). Read from
+    ``picture``'s header (a PIL image opened, not decoded) and the small files beside ``path``: no pixels, and no
+    rasterio (the optional ``[geo]`` extra). 0 for an image without georeferencing (plate carrée from 180° W, as
+    documented) or one that starts there; a global one in longitudes 0..360 (or from any whole column) is rolled.
+    One whose georeferencing is no whole globe in degrees is refused before its pixels are read: a projected CRS, a
+    regional extent (a DEM, an orthophoto), a rotated or south-up grid; each was draped over the whole globe from
+    180° W, without a word (a UTM orthophoto wrapped round the earth)."""
     name = f"texture {str(path)!r}"
-    found = _geotiff_transform(picture) if getattr(picture, "format", None) == "TIFF" else None
+    tags = _geotiff_transform(picture) if getattr(picture, "format", None) == "TIFF" else None
+    found = _aux_xml_transform(path)  # GDAL's PAM file first, before a GeoTIFF's tags too (GDAL_GEOREF_SOURCES)
+    if found is not None and tags is not None:  # projected by its PAM file's SRS, .prj or tags: refused alike
+        found = (found[0], found[1] or tags[1], found[2])
+    if found is None:
+        found = tags
     if found is None:
         found = _world_file_transform(path)
     if found is None:
@@ -1650,11 +1667,49 @@ def _geotiff_transform(picture: Any) -> tuple[tuple[float, ...], bool, str] | No
     return (a, b, c, d, e, f), geokeys.get(1024) in (1, 3), "a GeoTIFF"
 
 
+def _projected_beside(image: Any, root: Any) -> bool:
+    """Whether the CRS of the image path ``image`` is projected: the ``SRS`` of its PAM file (``root``, parsed by
+    :func:`~stepterrain.io._pam_root`), else the ``.prj`` io reads beside it (``ortho.prj``, ``ortho.PRJ``,
+    ``ortho.jpg.prj``)."""
+    srs = (root.findtext("SRS") or "").strip() if root is not None else ""
+    if not srs:
+        try:
+            prj_file = _prj_beside(image)
+            srs = "" if prj_file is None else prj_file.read_text(errors="replace")
+        except (OSError, ValueError):
+            srs = ""
+    return srs.lstrip().upper().startswith(("PROJCS", "PROJCRS", "PROJECTEDCRS"))
+
+
+def _aux_xml_transform(path: Any) -> tuple[tuple[float, ...], bool, str] | None:
+    """The geotransform in GDAL's PAM file beside the image ``path`` (``earth.png.aux.xml``: its ``GeoTransform``, the
+    six numbers c, a, b, f, d, e of the upper-left pixel's corner, as (a, b, c, d, e, f)), whether its ``SRS`` (else
+    the ``.prj`` beside the image) names a projected CRS, and "a PAM file 'earth.png.aux.xml'"; None without one, or
+    with one GDAL reads no geotransform from (none, not six numbers, or the identity, GDAL's default). A PNG or JPEG
+    that GDAL wrote keeps its georeferencing there alone (no world file): a regional or projected one, or a global
+    one in longitudes 0..360, was draped round the globe from 180° W, without a word."""
+    import os
+    import pathlib
+
+    image = pathlib.Path(os.fsdecode(path))
+    root = _pam_root(image)
+    text = root.findtext("GeoTransform") if root is not None else None
+    try:
+        c, a, b, f, d, e = (float(v) for v in (text or "").split(","))
+    except ValueError:  # none, or not six numbers
+        return None
+    if (c, a, b, f, d, e) == (0.0, 1.0, 0.0, 0.0, 0.0, 1.0):  # GDAL's default geotransform: no georeferencing
+        return None
+    return (a, b, c, d, e, f), _projected_beside(image, root), f"a PAM file {image.name + '.aux.xml'!r}"
+
+
 def _world_file_transform(path: Any) -> tuple[tuple[float, ...], bool, str] | None:
     """The geotransform of the world file beside the image ``path`` (:func:`~stepterrain.io.world_file`: the names
     GDAL looks for, ``.jgw`` for ``.jpg``, ``.jpgw``, ``.wld``; six numbers A, D, B, E, C, F, C and F at the
-    upper-left pixel's centre), whether the ``.prj`` beside it names a projected CRS, and the world file's name; None
-    without one (or one that is not six numbers: GDAL ignores it too)."""
+    upper-left pixel's centre), whether the ``SRS`` of the PAM file beside it (``ortho.png.aux.xml``, where
+    ``gdal_translate -co WORLDFILE=YES`` writes it), else its ``.prj``, names a projected CRS, and the world file's
+    name; None without one (or one that is not six numbers: GDAL ignores it too). (The PAM file's CRS was not read: a
+    UTM image's world file was refused as one "over longitudes 376000 to 376360".)"""
     import os
     import pathlib
 
@@ -1663,12 +1718,7 @@ def _world_file_transform(path: Any) -> tuple[tuple[float, ...], bool, str] | No
     if found is None:
         return None
     (a, d, b, e, c, f), side = found
-    try:  # the .prj io reads beside a world file (ortho.prj, ortho.PRJ, ortho.jpg.prj)
-        prj_file = _prj_beside(image)
-        prj = "" if prj_file is None else prj_file.read_text(errors="replace").lstrip().upper()
-    except (OSError, ValueError):
-        prj = ""
-    projected = prj.startswith(("PROJCS", "PROJCRS", "PROJECTEDCRS"))
+    projected = _projected_beside(image, _pam_root(image))
     corner = (a, b, c - (a + b) / 2, d, e, f - (d + e) / 2)  # the upper-left pixel's corner
     return corner, projected, f"a world file {side.name!r}"
 
@@ -1704,6 +1754,9 @@ def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trim
         ``mesh`` is not a trimesh.Trimesh, or the image is not (H, W, 3|4) with values in [0, 255].
     DataFileError
         The image file cannot be read.
+    OutputTooLargeError
+        The image file's pixels exceed the memory budget (:func:`stepterrain.set_memory_budget`), checked from its
+        header before it is decoded.
 
     Examples
     --------
@@ -1796,6 +1849,8 @@ def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint
     InvalidInputError
         The image is not (H, W, 3|4) or cannot be read; ``vertices`` not (V, 3) (a mesh: pass ``mesh.vertices``),
         not finite or at the centre.
+    OutputTooLargeError
+        The image file's pixels exceed the memory budget, checked from its header before it is decoded.
 
     Examples
     --------

@@ -1159,14 +1159,9 @@ def _refuse_png_scaling(file: Path) -> None:
     integers keeps the integers and writes them there, and the PNG's pixels, which Pillow reads, were taken as heights
     (decimetres as metres: 10 times too high) without a word. A GeoTIFF made from the PNG keeps them, and load_dem
     reads it scaled. An aux.xml that cannot be read or parsed is left to the georeferencing warning."""
-    from xml.etree import ElementTree
-
     aux = file.with_name(file.name + ".aux.xml")
-    if not aux.is_file():
-        return
-    try:
-        root = ElementTree.fromstring(aux.read_bytes())
-    except (OSError, ElementTree.ParseError):
+    root = _pam_root(file)
+    if root is None:
         return
     for band in root.iter("PAMRasterBand"):
         if band.get("band", "1").strip() != "1":  # a grey + alpha PNG's alpha band
@@ -1184,6 +1179,19 @@ def _refuse_png_scaling(file: Path) -> None:
                 f"does not read for a PNG: make it a GeoTIFF, which GDAL reads with them (`gdal_translate "
                 f"{srs}{file.name} {file.stem}.tif`)"
             )
+
+
+def _pam_root(image: Path) -> Any:
+    """The parsed XML (an ElementTree element) of GDAL's PAM file beside the local raster ``image``
+    (``earth.png.aux.xml``); None without one, or with one that cannot be read or parsed (GDAL reads nothing from
+    it either, and says nothing)."""
+    from xml.etree import ElementTree
+
+    aux = image.with_name(image.name + ".aux.xml")
+    try:
+        return ElementTree.fromstring(aux.read_bytes()) if aux.is_file() else None
+    except (OSError, ElementTree.ParseError):
+        return None
 
 
 def _warn_png_georeferencing(file: Path, tile: bool = False) -> None:

@@ -1847,3 +1847,161 @@ def test_a_texture_with_an_upper_case_extension_finds_its_lower_case_world_file(
         with pytest.raises(InvalidInputError, match=r"must be a global plate-carrée image .* world file "
                                                     r"'(alps|ALPS)\.pgw'"):
             drape_colors(directions, tmp_path / name)
+
+
+def test_a_texture_file_over_the_memory_budget_is_refused_before_it_is_decoded(budget, tmp_path, capsys, monkeypatch):
+    """The globe's texture files were decoded whole whatever the memory budget (an 8000 x 4000 JPEG: 96 MB of pixels,
+    and 500 MB peak for the drape, under ``--memory-budget 10MB``), while the texture command's image read checks its
+    pixels first (texture_lod's _check_read_budget). drape_colors and drape_texture refuse a file whose (H, W, 3|4)
+    pixels exceed the budget (counted as a raster read: _check_read_budget), from its header, before decoding it;
+    ``stepterrain globe --texture`` exits 2 naming it and --memory-budget, before the globe is built. Within the
+    budget it drapes as before."""
+    from PIL import Image
+
+    import stepterrain.globe as globe
+    from stepterrain.cli import main
+    from stepterrain.globe import drape_colors, drape_texture
+
+    picture = tmp_path / "earth.png"
+    Image.fromarray(np.zeros((100, 200, 3), np.uint8)).save(picture)
+    vertices = np.array([[EARTH_RADIUS, 0.0, 0.0]])
+    decoded = []
+    real_decode = globe.picture_uint8
+    monkeypatch.setattr(globe, "picture_uint8", lambda *a, **k: decoded.append(1) or real_decode(*a, **k))
+    need = 4 * 3 * 100 * 200  # its RGB cells as a raster read counts them (at least 4 bytes a cell: the drape's peak
+    budget(need - 1)  # is several times its pixels)
+    message = re.escape(f"reading {str(picture)!r} (the texture: 3 x 100 x 200 cells of uint8)")
+    for drape in (drape_colors, lambda _, image: drape_texture(trimesh_sphere(), image)):
+        with pytest.raises(OutputTooLargeError, match=message):
+            drape(vertices, picture)
+    assert not decoded  # refused from the header
+    budget(need)
+    assert drape_colors(vertices, picture).shape == (1, 4) and decoded
+
+    def built(*args, **kwargs):
+        raise AssertionError("the globe was built before the texture's budget was checked")
+
+    monkeypatch.setattr(globe.Globe, "from_latlon", built)
+    out = tmp_path / "g.ply"
+    code = main(["-q", "globe", "--face-size", "9", "--texture", str(picture), "-o", str(out),
+                 "--memory-budget", str(need - 1), "--device", "cpu"])
+    err = capsys.readouterr().err
+    assert code == 2 and "the texture: 3 x 100 x 200 cells of uint8" in err and "--memory-budget" in err, err
+    assert not out.exists()
+
+
+def trimesh_sphere():
+    import trimesh
+
+    return trimesh.creation.icosphere(subdivisions=1, radius=EARTH_RADIUS)
+
+
+def test_a_texture_georeferenced_by_its_aux_xml_is_draped_where_it_says_or_refused(tmp_path, capsys):
+    """GDAL writes a PNG's or JPEG's georeferencing into its PAM file, ``earth.png.aux.xml`` (``gdal_translate -of PNG``
+    writes no world file), and reads it back first. The globe read GeoTIFF tags and world files only: a regional PNG
+    or JPEG georeferenced so (an orthophoto of the Alps), a projected one, and a global one in longitudes 0..360 were
+    all draped round the whole earth from 180° W without a word (the last half a turn off), as GeoTIFFs were before.
+    Its geotransform and SRS are read now (the files written by GDAL through rasterio): the global one is put at
+    -180..180, the others refused by name (drape_colors, drape_texture and ``stepterrain globe --texture``). An
+    identity geotransform is GDAL's "none": the image stays plate carrée from 180° W."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    from stepterrain.cli import main
+    from stepterrain.globe import _texture_pixels, drape_colors, drape_texture
+
+    pixels = np.zeros((18, 36, 3), np.uint8)
+    pixels[:, 18:, 0] = 255  # red east of Greenwich, in -180..180 columns
+
+    def picture(name, data, transform, crs="EPSG:4326"):
+        path = tmp_path / name
+        with warnings.catch_warnings():  # "not a GeoTIFF" (the PNG and JPEG drivers keep it in the .aux.xml)
+            warnings.simplefilter("ignore")
+            with rasterio.open(path, "w", driver="PNG" if name.endswith(".png") else "JPEG", width=data.shape[1],
+                               height=data.shape[0], count=3, dtype="uint8", crs=crs, transform=transform) as ds:
+                ds.write(np.moveaxis(data, 2, 0))
+        assert (tmp_path / f"{name}.aux.xml").is_file() and not path.with_suffix(".pgw").exists()
+        return path
+
+    directions = np.array([[0.0, 1.0, 0.0], [0.0, -1.0, 0.0], [1.0, 1.0, 0.5], [-1.0, -1.0, -0.5]]) * EARTH_RADIUS
+    expected = drape_colors(directions, pixels)
+    east = picture("east.png", np.roll(pixels, 18, axis=1), Affine(10.0, 0.0, 0.0, 0.0, -10.0, 90.0))  # 0..360
+    np.testing.assert_array_equal(_texture_pixels(east), pixels)
+    np.testing.assert_array_equal(drape_colors(directions, east), expected)
+    plain = picture("plain.png", pixels, Affine.identity())  # GDAL's default geotransform: no georeferencing
+    np.testing.assert_array_equal(drape_colors(directions, plain), expected)
+    alps = picture("alps.png", pixels, Affine(0.1, 0.0, 5.0, 0.0, -0.1, 48.0))
+    alps_jpeg = picture("alps.jpg", pixels, Affine(0.1, 0.0, 5.0, 0.0, -0.1, 48.0))
+    utm = picture("utm.png", pixels, Affine(10.0, 0.0, 376000.0, 0.0, -10.0, 3807000.0), "EPSG:32611")
+    for path, why in ((alps, "over longitudes 5 to 8.6 and latitudes 46.2 to 48"),
+                      (alps_jpeg, "over longitudes 5 to 8.6 and latitudes 46.2 to 48"), (utm, "in a projected CRS")):
+        aux = f"{path.name}.aux.xml"
+        for drape in (drape_colors, lambda _, image: drape_texture(trimesh_sphere(), image)):
+            with pytest.raises(InvalidInputError, match=r"^texture .* must be a global plate-carrée image"
+                                                        rf".*got a PAM file {re.escape(repr(aux))} {why}"):
+                drape(directions, path)
+        out = tmp_path / "g.ply"
+        assert main(["-q", "globe", "--face-size", "9", "--texture", str(path), "-o", str(out), "--device", "cpu"]) == 2
+        assert "must be a global plate-carrée image" in capsys.readouterr().err and not out.exists()
+
+
+def test_a_world_file_texture_takes_its_crs_from_the_aux_xml_beside_it(tmp_path):
+    """``gdal_translate -of PNG -co WORLDFILE=YES`` writes the world file (``utm.wld``) and puts the CRS in the PAM
+    file (``utm.png.aux.xml``), not in a ``.prj``. The globe read a world file's CRS from a ``.prj`` alone: a UTM
+    image was refused as a regional one "over longitudes 376000 to 376360 and latitudes 3.80682e+06 to 3.807e+06",
+    metres named as degrees. It is named as projected now, with the reprojection to run."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    from stepterrain.globe import drape_colors
+
+    path = tmp_path / "utm.png"
+    with warnings.catch_warnings():  # "not a GeoTIFF"
+        warnings.simplefilter("ignore")
+        with rasterio.open(path, "w", driver="PNG", width=36, height=18, count=3, dtype="uint8", crs="EPSG:32611",
+                           transform=Affine(10.0, 0.0, 376000.0, 0.0, -10.0, 3807000.0), WORLDFILE="YES") as ds:
+            ds.write(np.zeros((3, 18, 36), np.uint8))
+    assert (tmp_path / "utm.wld").is_file() and not (tmp_path / "utm.prj").exists()
+    assert "<GeoTransform>" not in (tmp_path / "utm.png.aux.xml").read_text()  # its CRS alone
+    with pytest.raises(InvalidInputError, match=r"got a world file 'utm\.wld' in a projected CRS: reproject it"):
+        drape_colors(np.array([[EARTH_RADIUS, 0.0, 0.0]]), path)
+
+
+def test_a_geotiff_texture_is_placed_by_its_aux_xml_before_its_tags_as_gdal_reads_it(tmp_path):
+    """GDAL reads a GeoTIFF's georeferencing from its PAM file (``earth.tif.aux.xml``, where GDAL writes a
+    geotransform set on a file opened read-only) before its own tags (GDAL_GEOREF_SOURCES: PAM, then INTERNAL), as
+    rasterio, load_dem and the texture command read it. The globe read the tags first: a GeoTIFF whose tags say a
+    regional extent and whose .aux.xml the whole globe was refused as regional, and one whose .aux.xml puts it in
+    0..360 was draped half a turn off. Now its .aux.xml comes first; its tags' CRS still says whether it is
+    projected when the .aux.xml names none."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    from stepterrain.globe import _texture_pixels, drape_colors
+
+    pixels = np.zeros((18, 36, 3), np.uint8)
+    pixels[:, 18:, 0] = 255  # red east of Greenwich, in -180..180 columns
+    directions = np.array([[0.0, 1.0, 0.0], [0.0, -1.0, 0.0], [1.0, 1.0, 0.5], [-1.0, -1.0, -0.5]]) * EARTH_RADIUS
+    expected = drape_colors(directions, pixels)
+
+    def geotiff(name, data, tags, crs, aux):
+        path = tmp_path / name
+        with rasterio.open(path, "w", driver="GTiff", width=36, height=18, count=3, dtype="uint8", crs=crs,
+                           transform=tags) as ds:
+            ds.write(np.moveaxis(data, 2, 0))
+        (tmp_path / f"{name}.aux.xml").write_text(f"<PAMDataset><GeoTransform>{', '.join(map(str, aux))}"
+                                                  "</GeoTransform></PAMDataset>")
+        with rasterio.open(path) as ds:  # GDAL's own reading: the PAM file's geotransform, not the tags'
+            assert ds.transform.to_gdal() == aux
+        return path
+
+    regional = Affine(0.1, 0.0, 5.0, 0.0, -0.1, 48.0)
+    world = geotiff("world.tif", pixels, regional, "EPSG:4326", (-180.0, 10.0, 0.0, 90.0, 0.0, -10.0))
+    np.testing.assert_array_equal(drape_colors(directions, world), expected)
+    east = geotiff("east.tif", np.roll(pixels, 18, axis=1), Affine(10.0, 0.0, -180.0, 0.0, -10.0, 90.0), "EPSG:4326",
+                   (0.0, 10.0, 0.0, 90.0, 0.0, -10.0))
+    np.testing.assert_array_equal(_texture_pixels(east), pixels)
+    utm = geotiff("utm.tif", pixels, Affine(10.0, 0.0, 376000.0, 0.0, -10.0, 3807000.0), "EPSG:32611",
+                  (376000.0, 10.0, 0.0, 3807000.0, 0.0, -10.0))
+    with pytest.raises(InvalidInputError, match=r"got a PAM file 'utm\.tif\.aux\.xml' in a projected CRS"):
+        drape_colors(directions, utm)
