@@ -10,6 +10,11 @@ of ``kernels/solid.py`` (count -> scan -> emit, on the CPU or CUDA), the rest is
 
 from __future__ import annotations
 
+import gc
+import sys
+import threading
+import types
+import weakref
 from typing import Any
 
 import numpy as np
@@ -67,6 +72,120 @@ def release(mesh: trimesh.Trimesh) -> None:
     output pool (:func:`~stepterrain.set_output_pool_limit`), and until they return every call takes fresh memory. An
     array another object still shares (a PolyData's points) stays alive through that object alone."""
     mesh.__dict__.clear()
+
+
+#: Weak references to the latest meshes the library returned (:func:`track`), newest last.
+_RECENT: list[weakref.ref] = []
+#: How many :data:`_RECENT` keeps: a loop ``mesh = stepped(...)`` still holds the previous mesh while the next call
+#: runs, so the one before it is the first it has dropped.
+RECENT_MAX = 4
+#: The most objects :func:`_dropped_component` visits from a mesh before it gives up (a user's metadata may be big).
+COMPONENT_MAX = 20_000
+_RECENT_LOCK = threading.Lock()
+#: Not followed when looking for a mesh's own cycle: shared by everything, never part of one mesh's cycle.
+_SHARED = (type, types.ModuleType, types.FunctionType, types.BuiltinFunctionType, types.CodeType)
+
+
+class _Probe:
+    """A fresh object, held as each member is: its reference count calibrates :func:`_dropped_component`."""
+
+
+def track(mesh: trimesh.Trimesh) -> None:
+    """Remember ``mesh``, a Trimesh about to be returned to the caller, for :func:`reclaim_dropped` (weakly)."""
+    with _RECENT_LOCK:
+        _RECENT.append(weakref.ref(mesh))
+        del _RECENT[:-RECENT_MAX]
+
+
+def reclaim_dropped() -> None:
+    """Free now the meshes :func:`track` remembered that the caller has dropped, instead of when the cyclic collector
+    runs: their large arrays then serve this call (the output pool, :func:`~stepterrain.set_output_pool_limit`).
+
+    A ``trimesh.Trimesh`` refers to itself from ``__init__`` on: its ``visual``, ``ray`` (and the ``ray``'s cache's
+    ``id_function``, the mesh's bound ``__hash__``), ``permutate`` and ``nearest`` hold it, so a mesh the caller drops
+    is a reference cycle, and its vertices, faces and attributes wait for a collection (a re-stepping loop that never
+    calls ``gc.collect()`` took fresh memory, with its page faults, every call). A mesh is freed here only when
+    nothing outside its cycle refers to it or to any object of the cycle (:func:`_dropped_component`), the test the
+    cyclic collector makes: such a mesh nobody can reach any more, and emptying it (what the collector does) is
+    seen by no one. A mesh still held, or one whose ``visual`` or ``ray`` is, stays as it is."""
+    with _RECENT_LOCK:
+        refs = list(_RECENT)
+    done = {id(ref) for ref in refs if _reclaim(ref)}
+    if done:
+        with _RECENT_LOCK:
+            _RECENT[:] = [ref for ref in _RECENT if id(ref) not in done]
+
+
+def _reclaim(ref: weakref.ref) -> bool:
+    """Empty the mesh ``ref`` refers to if its cycle is unreachable (:func:`_dropped_component`); True when the mesh
+    is gone (freed now, or before)."""
+    members = _dropped_component(ref)
+    if members is None:
+        return ref() is None
+    for member in members:  # what the collector's tp_clear does: every reference out of the cycle goes
+        if not isinstance(member, types.MethodType) and isinstance(getattr(member, "__dict__", None), dict):
+            member.__dict__.clear()
+    return True
+
+
+def _dropped_component(ref: weakref.ref) -> list[Any] | None:
+    """The objects of the reference cycle through the mesh ``ref`` refers to (its strongly connected component among
+    the objects the collector tracks), if nothing outside them refers to any of them; None otherwise (the mesh is
+    gone, still reachable, or more than :data:`COMPONENT_MAX` objects away from its own).
+
+    The collector's test on a subset: an object's reference count minus the references from the other members is
+    what refers to it from outside, so all zero means no one outside can reach the component. Only references this
+    function itself holds are discounted, measured on a :class:`_Probe` held exactly as every member is (so the count
+    does not depend on how the interpreter counts its own stack); a reference this misses (an extension's object
+    that does not report it) only makes a mesh look held, never dropped."""
+    members = _component(ref)
+    if members is None:
+        return None
+    members, internal = members
+    members.append(_Probe())
+    counts = [sys.getrefcount(member) for member in members]
+    held_by_us = counts.pop()
+    members.pop()
+    if all(count - held_by_us == inside for count, inside in zip(counts, internal, strict=True)):
+        return members
+    return None
+
+
+def _component(ref: weakref.ref) -> tuple[list[Any], list[int]] | None:
+    """The strongly connected component of ``ref()`` among the objects the collector tracks and the number of
+    references each member gets from the other members (None when the mesh is gone or its graph too big)."""
+    root = ref()
+    if root is None:
+        return None
+    found: dict[int, Any] = {id(root): root}
+    edges: dict[int, list[int]] = {}
+    stack = [root]
+    del root
+    while stack:
+        obj = stack.pop()
+        out = edges[id(obj)] = []
+        for child in gc.get_referents(obj):
+            if gc.is_tracked(child) and not isinstance(child, _SHARED):
+                out.append(id(child))
+                if id(child) not in found:
+                    found[id(child)] = child
+                    stack.append(child)
+        if len(found) > COMPONENT_MAX:
+            return None
+    into: dict[int, list[int]] = {}
+    for source, targets in edges.items():
+        for target in targets:
+            into.setdefault(target, []).append(source)
+    start = id(ref())
+    back, stack_ids = {start}, [start]
+    while stack_ids:
+        for source in into.get(stack_ids.pop(), ()):
+            if source not in back:
+                back.add(source)
+                stack_ids.append(source)
+    members = [found[key] for key in back]
+    internal = [sum(target == key for source in back for target in edges[source]) for key in back]
+    return members, internal
 
 
 def exact_keys(xy: NDArray[np.float64]) -> NDArray[np.int64]:

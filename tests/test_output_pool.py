@@ -185,3 +185,91 @@ def test_a_loan_returned_inside_take_does_not_shift_the_block_taken():
     assert taken != int(smaller.ctypes.data), "a 10 MiB output laid over the 8 MiB block"
     assert taken == int(chosen.ctypes.data)
     assert all(b.nbytes >= 0 for b in pool._free) and pool.free_bytes <= pool.limit
+
+
+@pytest.fixture
+def no_collector():
+    """Python's automatic collection off (a loop between two collections), the remembered meshes forgotten."""
+    from stepterrain import mesh as mesh_helpers
+
+    gc.collect()
+    mesh_helpers._RECENT.clear()
+    gc.disable()
+    try:
+        yield
+    finally:
+        gc.enable()
+        mesh_helpers._RECENT.clear()
+
+
+def test_a_loop_that_never_collects_reuses_the_meshes_it_dropped(small_outputs, no_collector):
+    """``mesh = stepped(...)`` in a slider loop: each dropped Trimesh is a reference cycle (trimesh's visual, ray,
+    permutate and nearest hold the mesh), which kept its lent arrays until the collector ran, so every call took
+    fresh memory. A later call frees the meshes the caller dropped, and their memory serves it."""
+    import weakref
+
+    h = _heights(4, 64)
+    dropped, mesh = [], None
+    for k in range(6):
+        mesh = st.stepped(h, interval=1.0 + 0.25 * (k % 2))
+        dropped.append(weakref.ref(mesh))
+        if k == 0:
+            per_mesh = small_outputs._lent
+    assert [ref() is None for ref in dropped] == [True] * 4 + [False, False]  # the previous one is held while the
+    assert small_outputs._lent <= 2 * per_mesh  # last call runs; the others came back to the pool
+    np.testing.assert_array_equal(mesh.vertices, st.stepped(h, interval=1.25).vertices)
+
+
+def test_stepped_series_reuses_the_frames_the_caller_dropped(small_outputs, no_collector):
+    import weakref
+
+    frames = [_heights(seed, 48) for seed in range(6)]
+    refs = [weakref.ref(mesh) for mesh in st.stepped_series(frames, interval=1.0)]
+    assert sum(ref() is None for ref in refs) >= 3
+
+
+def _reachable(mesh, how):
+    """Something the caller keeps that reaches ``mesh`` (and no reference to ``mesh`` itself)."""
+    return {"visual": lambda: mesh.visual, "ray": lambda: mesh.ray, "method": lambda: mesh.copy,
+            "list": lambda: [mesh], "nearest": lambda: mesh.nearest}[how]()
+
+
+@pytest.mark.parametrize("how", ["mesh", "visual", "ray", "method", "list", "nearest"])
+def test_a_mesh_still_reachable_stays_whole_through_later_calls(small_outputs, no_collector, tmp_path, how):
+    h = _heights(6, 48)
+    mesh = st.stepped(h, interval=1.0, colors="terrain")
+    area = mesh.area  # cached
+    expected = (mesh.vertices.copy(), mesh.faces.copy(), mesh.visual.vertex_colors.copy(),
+                {k: v.copy() for k, v in mesh.face_attributes.items()}, dict(mesh.metadata))
+    keep = mesh if how == "mesh" else _reachable(mesh, how)
+    del mesh
+    for k in range(4):
+        st.stepped(_heights(10 + k, 48), interval=1.0, colors="terrain")
+    mesh = {"mesh": lambda: keep, "visual": lambda: keep.mesh, "ray": lambda: keep.mesh,
+            "method": lambda: keep.__self__, "list": lambda: keep[0], "nearest": lambda: keep._mesh}[how]()
+    vertices, faces, colors, attributes, metadata = expected
+    np.testing.assert_array_equal(mesh.vertices, vertices)
+    np.testing.assert_array_equal(mesh.faces, faces)
+    np.testing.assert_array_equal(mesh.visual.vertex_colors, colors)
+    assert mesh.face_attributes.keys() == attributes.keys()
+    for key, value in attributes.items():
+        np.testing.assert_array_equal(mesh.face_attributes[key], value)
+    assert mesh.metadata == metadata
+    assert mesh.visual.mesh is mesh and mesh.ray.mesh is mesh and mesh.area == area
+    copied = mesh.copy()
+    np.testing.assert_array_equal(copied.vertices, vertices)
+    mesh.export(tmp_path / "kept.ply")
+    assert (tmp_path / "kept.ply").stat().st_size > 0
+
+
+def test_an_array_kept_from_a_dropped_mesh_keeps_its_memory(small_outputs, no_collector):
+    """The mesh goes, but not the memory under an array the caller kept from it: no later call writes there."""
+    h = _heights(7, 64)
+    mesh = st.stepped(h, interval=1.0)
+    vertices, faces = mesh.vertices, mesh.faces
+    expected = vertices.copy(), faces.copy()
+    del mesh
+    for k in range(4):
+        st.stepped(_heights(20 + k, 64), interval=1.0)
+    np.testing.assert_array_equal(vertices, expected[0])
+    np.testing.assert_array_equal(faces, expected[1])
