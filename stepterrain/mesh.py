@@ -1,7 +1,9 @@
 """The mesh-level helpers every capability shares.
 
 ``close_solid`` turns a stepped (or any height-function) surface into a watertight solid; ``exact_keys``
-groups bit-identical rows (vertices sharing an xy); ``boundary_edges`` lists the edges used by one face only.
+groups bit-identical rows (vertices sharing an xy); ``boundary_edges`` lists the edges used by one face only;
+``track``/``reclaim_dropped`` free the meshes ``stepped`` returned once the caller drops them (a Trimesh is a
+reference cycle of trimesh's own, which only the cyclic collector frees otherwise).
 No Python loop over faces or vertices: the per-face work (the boundary, the fins, the base) runs in the Warp kernels
 of ``kernels/solid.py`` (count -> scan -> emit, on the CPU or CUDA), the rest is vectorised numpy.
 
