@@ -13,6 +13,7 @@ of ``kernels/solid.py`` (count -> scan -> emit, on the CPU or CUDA), the rest is
 from __future__ import annotations
 
 import gc
+import itertools
 import sys
 import threading
 import types
@@ -77,7 +78,7 @@ def release(mesh: trimesh.Trimesh) -> None:
 
 
 #: Weak references to the latest meshes the library returned (:func:`track`), newest last.
-_RECENT: list[weakref.ref] = []
+_RECENT: list[_Ref] = []
 #: How many :data:`_RECENT` keeps: a loop ``mesh = stepped(...)`` still holds the previous mesh while the next call
 #: runs, so the one before it is the first it has dropped.
 RECENT_MAX = 4
@@ -88,6 +89,14 @@ _RECENT_LOCK = threading.Lock()
 _SHARED = (type, types.ModuleType, types.FunctionType, types.BuiltinFunctionType, types.CodeType)
 
 
+class _Ref(weakref.ref):
+    """The library's own weak reference to a mesh it returned. A subclass: CPython hands every caller of
+    ``weakref.ref(obj)`` (no callback) one shared object, so with a plain ref a user's would be ours and
+    ``weakref.getweakrefcount`` could not tell that the user keeps one (:func:`_dropped_component`)."""
+
+    __slots__ = ()
+
+
 class _Probe:
     """A fresh object, held as each member is: its reference count calibrates :func:`_dropped_component`."""
 
@@ -95,7 +104,7 @@ class _Probe:
 def track(mesh: trimesh.Trimesh) -> None:
     """Remember ``mesh``, a Trimesh about to be returned to the caller, for :func:`reclaim_dropped` (weakly)."""
     with _RECENT_LOCK:
-        _RECENT.append(weakref.ref(mesh))
+        _RECENT.append(_Ref(mesh))
         del _RECENT[:-RECENT_MAX]
 
 
@@ -108,8 +117,14 @@ def reclaim_dropped() -> None:
     is a reference cycle, and its vertices, faces and attributes wait for a collection (a re-stepping loop that never
     calls ``gc.collect()`` took fresh memory, with its page faults, every call). A mesh is freed here only when
     nothing outside its cycle refers to it or to any object of the cycle (:func:`_dropped_component`), the test the
-    cyclic collector makes: such a mesh nobody can reach any more, and emptying it (what the collector does) is
-    seen by no one. A mesh still held, or one whose ``visual`` or ``ray`` is, stays as it is."""
+    cyclic collector makes, and when no one could see the difference from a collection: no weak reference but the
+    library's own names an object of the cycle (the collector clears those first) and none has a finalizer
+    (``__del__``, a generator: the collector runs those on the whole cycle first). Such a mesh nobody can reach any
+    more, and emptying it (what the collector does) is seen by no one. A mesh still held, or one whose ``visual`` or
+    ``ray`` is, stays as it is; so does every mesh on a free-threaded Python (no GIL: the check could not be made at
+    one instant)."""
+    if not getattr(sys, "_is_gil_enabled", lambda: True)():
+        return
     with _RECENT_LOCK:
         refs = list(_RECENT)
     done = {id(ref) for ref in refs if _reclaim(ref)}
@@ -118,7 +133,7 @@ def reclaim_dropped() -> None:
             _RECENT[:] = [ref for ref in _RECENT if id(ref) not in done]
 
 
-def _reclaim(ref: weakref.ref) -> bool:
+def _reclaim(ref: _Ref) -> bool:
     """Empty the mesh ``ref`` refers to if its cycle is unreachable (:func:`_dropped_component`); True when the mesh
     is gone (freed now, or before)."""
     members = _dropped_component(ref)
@@ -130,32 +145,50 @@ def _reclaim(ref: weakref.ref) -> bool:
     return True
 
 
-def _dropped_component(ref: weakref.ref) -> list[Any] | None:
+def _dropped_component(ref: _Ref) -> list[Any] | None:
     """The objects of the reference cycle through the mesh ``ref`` refers to (its strongly connected component among
     the objects the collector tracks), if nothing outside them refers to any of them; None otherwise (the mesh is
-    gone, still reachable, or more than :data:`COMPONENT_MAX` objects away from its own).
+    gone, still reachable, weakly referred to by someone else, in a cycle with a finalizer, or more than
+    :data:`COMPONENT_MAX` objects away from its own).
 
     The collector's test on a subset: an object's reference count minus the references from the other members is
-    what refers to it from outside, so all zero means no one outside can reach the component. Only references this
+    what refers to it from outside, so all zero means no one outside can reach the members. Only references this
     function itself holds are discounted, measured on a :class:`_Probe` held exactly as every member is (so the count
     does not depend on how the interpreter counts its own stack); a reference this misses (an extension's object
-    that does not report it) only makes a mesh look held, never dropped."""
+    that does not report it) only makes a mesh look held, never dropped.
+
+    The references between the members and every count are taken at one instant, in one call that runs no Python
+    code (``list`` over ``map``/``starmap`` of C functions: the GIL is not given up, no collection starts, so no
+    other thread, signal handler or finalizer runs in between): counted one by one, a holder that another thread
+    moves from one member to the next (``v = mesh.visual; del mesh``) could be missed at every count. Were the graph
+    walked by :func:`_component` stale by then, the check still holds for the members it names: none of them is
+    referred to from outside at that instant, so none can be reached after it."""
     members = _component(ref)
     if members is None:
         return None
-    members, internal = members
-    members.append(_Probe())
-    counts = [sys.getrefcount(member) for member in members]
-    held_by_us = counts.pop()
-    members.pop()
-    if all(count - held_by_us == inside for count, inside in zip(counts, internal, strict=True)):
-        return members
-    return None
+    held = (*members, _Probe())
+    del members
+    # one instant: the referents first (the only allocation that may start a collection happens before the walk),
+    # then the counts; the flat list of referents adds one reference per entry, hence the 2 * inside below
+    snapshot = list(itertools.chain(itertools.starmap(gc.get_referents, (held,)),
+                                    map(sys.getrefcount, held), map(weakref.getweakrefcount, held)))
+    referents, counts, weak = snapshot[0], snapshot[1:len(held) + 1], snapshot[len(held) + 1:]
+    inside: dict[int, int] = {}
+    for target in referents:
+        inside[id(target)] = inside.get(id(target), 0) + 1
+    del referents, snapshot
+    ours = counts[-1]  # the probe: referred to by nothing but this function
+    root = ref()
+    for member, count, weakrefs in zip(held[:-1], counts[:-1], weak[:-1], strict=True):
+        outside = count - ours - 2 * inside.get(id(member), 0)
+        if outside or weakrefs != (member is root) or hasattr(type(member), "__del__"):
+            return None
+    return list(held[:-1])
 
 
-def _component(ref: weakref.ref) -> tuple[list[Any], list[int]] | None:
-    """The strongly connected component of ``ref()`` among the objects the collector tracks and the number of
-    references each member gets from the other members (None when the mesh is gone or its graph too big)."""
+def _component(ref: _Ref) -> list[Any] | None:
+    """The strongly connected component of ``ref()`` among the objects the collector tracks (None when the mesh is
+    gone or its graph too big)."""
     root = ref()
     if root is None:
         return None
@@ -185,9 +218,7 @@ def _component(ref: weakref.ref) -> tuple[list[Any], list[int]] | None:
             if source not in back:
                 back.add(source)
                 stack_ids.append(source)
-    members = [found[key] for key in back]
-    internal = [sum(target == key for source in back for target in edges[source]) for key in back]
-    return members, internal
+    return [found[key] for key in back]
 
 
 def exact_keys(xy: NDArray[np.float64]) -> NDArray[np.int64]:

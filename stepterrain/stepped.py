@@ -1298,8 +1298,8 @@ def stepped(
     it), so a mesh you drop would wait for Python's cyclic garbage collector, often late: re-stepping a 512²
     terrain 60 times in a loop held about 1 GB. Each call therefore frees the meshes the last few calls returned
     that nothing outside their own cycle refers to any more (a mesh you keep, or whose ``visual`` or ``ray`` you
-    keep, is untouched), and their large arrays serve it (see :func:`set_output_pool_limit`): in a loop
-    ``mesh = stepped(...)``, the mesh before last.
+    keep, is untouched; one you hold a weak reference to is left to the collector), and their large arrays serve
+    it (see :func:`set_output_pool_limit`): in a loop ``mesh = stepped(...)``, the mesh before last.
 
     References
     ----------

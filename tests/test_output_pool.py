@@ -9,6 +9,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
+import trimesh
 
 import stepterrain as st
 import stepterrain.export
@@ -202,6 +203,14 @@ def no_collector():
         mesh_helpers._RECENT.clear()
 
 
+def _loan(mesh: trimesh.Trimesh) -> _device._Loan:
+    """The owner of the block under ``mesh.faces``: alive while the mesh (or an array on the block) is."""
+    owner = mesh.faces
+    while not isinstance(owner, _device._Loan):
+        owner = owner.base
+    return owner
+
+
 def test_a_loop_that_never_collects_reuses_the_meshes_it_dropped(small_outputs, no_collector):
     """``mesh = stepped(...)`` in a slider loop: each dropped Trimesh is a reference cycle (trimesh's visual, ray,
     permutate and nearest hold the mesh), which kept its lent arrays until the collector ran, so every call took
@@ -212,7 +221,7 @@ def test_a_loop_that_never_collects_reuses_the_meshes_it_dropped(small_outputs, 
     dropped, mesh = [], None
     for k in range(6):
         mesh = st.stepped(h, interval=1.0 + 0.25 * (k % 2))
-        dropped.append(weakref.ref(mesh))
+        dropped.append(weakref.ref(_loan(mesh)))  # not the mesh's: a weakref to a cycle leaves it to the collector
         if k == 0:
             per_mesh = small_outputs._lent
     assert [ref() is None for ref in dropped] == [True] * 4 + [False, False]  # the previous one is held while the
@@ -224,7 +233,7 @@ def test_stepped_series_reuses_the_frames_the_caller_dropped(small_outputs, no_c
     import weakref
 
     frames = [_heights(seed, 48) for seed in range(6)]
-    refs = [weakref.ref(mesh) for mesh in st.stepped_series(frames, interval=1.0)]
+    refs = [weakref.ref(_loan(mesh)) for mesh in st.stepped_series(frames, interval=1.0)]
     assert sum(ref() is None for ref in refs) >= 3
 
 
@@ -273,3 +282,92 @@ def test_an_array_kept_from_a_dropped_mesh_keeps_its_memory(small_outputs, no_co
         st.stepped(_heights(20 + k, 64), interval=1.0)
     np.testing.assert_array_equal(vertices, expected[0])
     np.testing.assert_array_equal(faces, expected[1])
+
+
+def test_a_dropped_mesh_a_weakref_still_names_is_never_seen_emptied(small_outputs, no_collector):
+    """The collector clears every weak reference to a cycle before it empties it; freeing a mesh here must not hand
+    a user's ``weakref.ref`` (the very object ``weakref.ref`` shares between callers) an emptied Trimesh. A list that
+    refers to itself and to the mesh keeps the mesh alive after its ``__dict__`` goes."""
+    import weakref
+
+    h = _heights(8, 48)
+    mesh = st.stepped(h, interval=1.0)
+    expected = mesh.vertices.copy()
+    ring: list = []
+    ring += [ring, mesh]
+    mesh.metadata["ring"] = ring
+    ref, cache = weakref.ref(mesh), weakref.WeakValueDictionary({"tile": mesh})
+    del mesh, ring
+    for k in range(4):
+        st.stepped(_heights(30 + k, 48), interval=1.0)
+    seen = ref()
+    assert seen is None or np.array_equal(seen.vertices, expected), "a weakref handed out an emptied mesh"
+    seen = cache.get("tile")
+    assert seen is None or np.array_equal(seen.vertices, expected)
+
+
+class _Owner:
+    """Refers back to its mesh and, when finalized, keeps it (``__del__`` may resurrect, PEP 442)."""
+
+    kept: list = []
+
+    def __init__(self, mesh):
+        self.mesh = mesh
+
+    def __del__(self):
+        _Owner.kept.append(getattr(self, "mesh", None))
+
+
+def test_a_finalizer_in_a_dropped_mesh_s_cycle_sees_it_whole(small_outputs, no_collector):
+    """The collector runs the finalizers of a cycle before it empties it, so a ``__del__`` sees (and may keep) the
+    mesh whole; a cycle with a finalizer is left to the collector."""
+    h = _heights(9, 48)
+    mesh = st.stepped(h, interval=1.0)
+    expected = mesh.vertices.copy()
+    mesh.metadata["owner"] = _Owner(mesh)
+    _Owner.kept.clear()
+    del mesh
+    for k in range(4):
+        st.stepped(_heights(40 + k, 48), interval=1.0)
+    gc.collect()
+    assert len(_Owner.kept) == 1 and _Owner.kept[0] is not None, "the finalizer found its mesh gone"
+    np.testing.assert_array_equal(_Owner.kept[0].vertices, expected)
+    _Owner.kept.clear()
+
+
+def test_a_reference_moving_between_members_while_they_are_counted_keeps_the_mesh(small_outputs, no_collector):
+    """Another thread may run between two reference counts of the check: here (a profile hook stands in for the
+    thread switch, deterministically) a holder keeps the mesh or its visual, always the one not being counted at the
+    moment. Counted one by one each looks unreferenced from outside, though one of them is held at every instant."""
+    import sys
+    import weakref
+
+    from stepterrain import mesh as mesh_helpers
+
+    h = _heights(11, 48)
+    mesh = st.stepped(h, interval=1.0)
+    expected = mesh.vertices.copy()
+    visual = mesh.visual
+    held = [visual]
+    del mesh, visual
+
+    def hook(frame, event, arg):
+        if event == "c_call" and arg is sys.getrefcount:
+            member = frame.f_locals.get("member")
+            whole, part = held[0] if isinstance(held[0], trimesh.Trimesh) else held[0].mesh, None
+            part = whole.visual
+            if member is whole:
+                held[0] = part
+            elif member is part:
+                held[0] = whole
+            del whole, part, member
+
+    sys.setprofile(hook)
+    try:
+        mesh_helpers.reclaim_dropped()
+    finally:
+        sys.setprofile(None)
+    kept = held[0] if isinstance(held[0], trimesh.Trimesh) else getattr(held[0], "mesh", None)
+    assert kept is not None, "the mesh was emptied while a holder could reach it"
+    np.testing.assert_array_equal(kept.vertices, expected)
+    assert weakref.getweakrefcount(kept) >= 1
