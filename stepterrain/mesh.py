@@ -85,6 +85,8 @@ RECENT_MAX = 4
 #: The most objects :func:`_dropped_component` visits from a mesh before it gives up (a user's metadata may be big).
 COMPONENT_MAX = 20_000
 _RECENT_LOCK = threading.Lock()
+#: ``Py_TPFLAGS_HEAPTYPE``: a class made by a ``class`` statement, whose ``__dict__`` slot is the interpreter's own.
+_HEAP_TYPE = 1 << 9
 #: Not followed when looking for a mesh's own cycle: shared by everything, never part of one mesh's cycle.
 _SHARED = (type, types.ModuleType, types.FunctionType, types.BuiltinFunctionType, types.CodeType)
 
@@ -140,9 +142,23 @@ def _reclaim(ref: _Ref) -> bool:
     if members is None:
         return ref() is None
     for member in members:  # what the collector's tp_clear does: every reference out of the cycle goes
-        if not isinstance(member, types.MethodType) and isinstance(getattr(member, "__dict__", None), dict):
-            member.__dict__.clear()
+        own = _own_dict(member)
+        if own is not None:
+            own.clear()
     return True
+
+
+def _own_dict(obj: Any) -> dict | None:
+    """``obj``'s own instance dictionary, read through the interpreter's ``__dict__`` slot of its type; None for an
+    object without one. Not ``obj.__dict__``: a bound method, a weak proxy (or a class's ``__dict__`` property)
+    answer with another object's, one a caller may keep, and no code of ``obj``'s runs here."""
+    for klass in type(obj).__mro__:
+        slot = vars(klass).get("__dict__")
+        if slot is not None:
+            generic = isinstance(slot, types.GetSetDescriptorType) and klass.__flags__ & _HEAP_TYPE  # a class's
+            own = slot.__get__(obj) if generic else None
+            return own if type(own) is dict else None
+    return None
 
 
 def _dropped_component(ref: _Ref) -> list[Any] | None:

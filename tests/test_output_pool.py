@@ -371,3 +371,31 @@ def test_a_reference_moving_between_members_while_they_are_counted_keeps_the_mes
     assert kept is not None, "the mesh was emptied while a holder could reach it"
     np.testing.assert_array_equal(kept.vertices, expected)
     assert weakref.getweakrefcount(kept) >= 1
+
+
+class _Holder:
+    """Refers to a mesh; its bound method is the callback of a weak proxy the mesh keeps."""
+
+    def __init__(self, mesh):
+        self.mesh = mesh
+
+    def gone(self, proxy):
+        pass
+
+
+def test_freeing_a_dropped_mesh_empties_only_objects_of_its_cycle(small_outputs, no_collector):
+    """A weak proxy in the mesh's cycle (through its callback) answers ``__dict__`` with its referent's, an object
+    the caller keeps: freeing the cycle must empty the cycle's own objects, never what a member forwards to."""
+    import weakref
+
+    class Settings:
+        pass
+
+    settings = Settings()
+    settings.scale = 2.5
+    mesh = st.stepped(_heights(12, 48), interval=1.0)
+    mesh.metadata["settings"] = weakref.proxy(settings, _Holder(mesh).gone)
+    del mesh
+    for k in range(4):
+        st.stepped(_heights(50 + k, 48), interval=1.0)
+    assert vars(settings) == {"scale": 2.5}, "a live object was emptied"
