@@ -174,8 +174,9 @@ def _dropped_component(ref: _Ref) -> list[Any] | None:
     that does not report it) only makes a mesh look held, never dropped.
 
     The references between the members and every count are taken at one instant, in one call that runs no Python
-    code (``list`` over ``map``/``starmap`` of C functions: the GIL is not given up, no collection starts, so no
-    other thread, signal handler or finalizer runs in between): counted one by one, a holder that another thread
+    code (``list`` over ``map``/``starmap`` of C functions: the GIL is not given up, and a collection, with the
+    finalizers it runs, can start only at the allocation before the walk, so no other thread, signal handler or
+    finalizer runs in between; CPython with a GIL): counted one by one, a holder that another thread
     moves from one member to the next (``v = mesh.visual; del mesh``) could be missed at every count. Were the graph
     walked by :func:`_component` stale by then, the check still holds for the members it names: none of them is
     referred to from outside at that instant, so none can be reached after it."""
