@@ -298,8 +298,9 @@ def restep(device: Any, cells: int = 512, repeat: int = 30) -> dict[str, float]:
     out["interval_arrays_ms"] = med(arrays_only)
 
     # The loop a user writes without collecting: ``mesh = stepped(...)`` drops the previous Trimesh, a reference
-    # cycle whose arrays go back to the output pool only when the cyclic collector runs (the rows above collect
-    # before each call, outside the timer); and what one full collection costs in this process
+    # cycle (trimesh's own) whose arrays go back to the output pool when a later call frees it
+    # (stepterrain.mesh.reclaim_dropped) or the cyclic collector runs (the rows above collect before each call,
+    # outside the timer); and what one full collection costs in this process
     gc.collect()
     kept, times = None, []
     for k in range(repeat):
@@ -474,7 +475,7 @@ def markdown(rows: list[Row], bw: dict[str, float], meta: dict[str, Any], restep
             f"| interval (20 ↔ 25 steps) | `stepped(terrain, interval=...)` to a trimesh | "
             f"{r['interval_mesh_ms']:.1f} ms | < {RESTEP_GOAL_MS:.0f} ms |",
             f"| interval (20 ↔ 25 steps) | the same in a loop that never calls `gc.collect()` (each dropped Trimesh "
-            f"keeps its arrays until the cyclic collector runs: fresh memory every call) | "
+            f"is a reference cycle: the next call frees the one before last, whose memory serves it) | "
             f"{r['interval_mesh_nogc_ms']:.1f} ms | < {RESTEP_GOAL_MS:.0f} ms |",
             f"| interval (20 ↔ 25 steps) | `step_arrays(..., gamma=1.0)` (numpy arrays, blended in the vertex pass) | "
             f"{r['interval_arrays_ms']:.1f} ms | < {RESTEP_GOAL_MS:.0f} ms |",

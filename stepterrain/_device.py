@@ -199,8 +199,9 @@ class _RecyclingPool:
                 touch_pages(fresh)
             return fresh
         # No collection here: a dropped trimesh is a reference cycle that frees its arrays when the collector
-        # runs, but collecting now would also move the meshes still in use (one being saved) to the oldest
-        # generation, which only a full collection frees (a loop of 1024² tiles then held 146 MB more per tile).
+        # runs (or stepped() frees it: mesh.reclaim_dropped), but collecting now would also move the meshes still in
+        # use (one being saved) to the oldest generation, which only a full collection frees (a loop of 1024² tiles
+        # then held 146 MB more per tile).
         block = self._take(nbytes)
         if block is None:  # room for a slightly larger call next time (pages never written cost nothing)
             block = np.empty(nbytes + nbytes // 8, dtype=np.uint8)
@@ -265,9 +266,11 @@ def set_output_pool_limit(nbytes: int) -> int:
     A stepped mesh's vertex and face arrays (from 8 MB) are lent from a pool: when the mesh is gone, its
     memory serves the next mesh of similar size instead of going back to the operating system, which saves
     the page faults of fresh memory (a 1024² batch tile is stepped and written in 10-13 % less time on a VM).
-    A dropped trimesh is freed when Python's cyclic collector runs (``del mesh; gc.collect()``). The price is
-    that up to ``nbytes`` stay with the process after the meshes are dropped; 0 keeps none (and frees what is
-    kept now).
+    A dropped trimesh is a reference cycle: the next ``stepped()`` call frees the meshes earlier calls returned once
+    nothing refers to them (no weak reference either); any other is freed when Python's cyclic collector runs
+    (``del mesh; gc.collect()``).
+    The price is that up to ``nbytes`` stay with the process after the meshes are dropped; 0 keeps none (and frees
+    what is kept now).
 
     Examples
     --------

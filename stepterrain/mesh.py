@@ -1,7 +1,9 @@
 """The mesh-level helpers every capability shares.
 
 ``close_solid`` turns a stepped (or any height-function) surface into a watertight solid; ``exact_keys``
-groups bit-identical rows (vertices sharing an xy); ``boundary_edges`` lists the edges used by one face only.
+groups bit-identical rows (vertices sharing an xy); ``boundary_edges`` lists the edges used by one face only;
+``track``/``reclaim_dropped`` free the meshes ``stepped`` returned once the caller drops them (a Trimesh is a
+reference cycle of trimesh's own, which only the cyclic collector frees otherwise).
 No Python loop over faces or vertices: the per-face work (the boundary, the fins, the base) runs in the Warp kernels
 of ``kernels/solid.py`` (count -> scan -> emit, on the CPU or CUDA), the rest is vectorised numpy.
 
@@ -10,6 +12,12 @@ of ``kernels/solid.py`` (count -> scan -> emit, on the CPU or CUDA), the rest is
 
 from __future__ import annotations
 
+import gc
+import itertools
+import sys
+import threading
+import types
+import weakref
 from typing import Any
 
 import numpy as np
@@ -67,6 +75,167 @@ def release(mesh: trimesh.Trimesh) -> None:
     output pool (:func:`~stepterrain.set_output_pool_limit`), and until they return every call takes fresh memory. An
     array another object still shares (a PolyData's points) stays alive through that object alone."""
     mesh.__dict__.clear()
+
+
+#: Weak references to the latest meshes the library returned (:func:`track`), newest last.
+_RECENT: list[_Ref] = []
+#: How many :data:`_RECENT` keeps: a loop ``mesh = stepped(...)`` still holds the previous mesh while the next call
+#: runs, so the one before it is the first it has dropped.
+RECENT_MAX = 4
+#: The most objects :func:`_dropped_component` visits from a mesh before it gives up (a user's metadata may be big).
+COMPONENT_MAX = 20_000
+_RECENT_LOCK = threading.Lock()
+#: ``Py_TPFLAGS_HEAPTYPE``: a class made by a ``class`` statement, whose ``__dict__`` slot is the interpreter's own.
+_HEAP_TYPE = 1 << 9
+#: Not followed when looking for a mesh's own cycle: shared by everything, never part of one mesh's cycle.
+_SHARED = (type, types.ModuleType, types.FunctionType, types.BuiltinFunctionType, types.CodeType)
+
+
+class _Ref(weakref.ref):
+    """The library's own weak reference to a mesh it returned. A subclass: CPython hands every caller of
+    ``weakref.ref(obj)`` (no callback) one shared object, so with a plain ref a user's would be ours and
+    ``weakref.getweakrefcount`` could not tell that the user keeps one (:func:`_dropped_component`)."""
+
+    __slots__ = ()
+
+
+class _Probe:
+    """A fresh object, held as each member is: its reference count calibrates :func:`_dropped_component`."""
+
+
+def track(mesh: trimesh.Trimesh) -> None:
+    """Remember ``mesh``, a Trimesh about to be returned to the caller, for :func:`reclaim_dropped` (weakly)."""
+    with _RECENT_LOCK:
+        _RECENT.append(_Ref(mesh))
+        del _RECENT[:-RECENT_MAX]
+
+
+def reclaim_dropped() -> None:
+    """Free now the meshes :func:`track` remembered that the caller has dropped, instead of when the cyclic collector
+    runs: their large arrays then serve this call (the output pool, :func:`~stepterrain.set_output_pool_limit`).
+
+    A ``trimesh.Trimesh`` refers to itself from ``__init__`` on: its ``visual``, ``ray`` (and the ``ray``'s cache's
+    ``id_function``, the mesh's bound ``__hash__``), ``permutate`` and ``nearest`` hold it, so a mesh the caller drops
+    is a reference cycle, and its vertices, faces and attributes wait for a collection (a re-stepping loop that never
+    calls ``gc.collect()`` took fresh memory, with its page faults, every call). A mesh is freed here only when
+    nothing outside its cycle refers to it or to any object of the cycle (:func:`_dropped_component`), the test the
+    cyclic collector makes, and when no one could see the difference from a collection: no weak reference but the
+    library's own names an object of the cycle (the collector clears those first) and none has a finalizer
+    (``__del__``, a generator: the collector runs those on the whole cycle first). Such a mesh nobody can reach any
+    more, and emptying it (what the collector does) is seen by no one. A mesh still held, or one whose ``visual`` or
+    ``ray`` is, stays as it is; so does every mesh on a free-threaded Python (no GIL: the check could not be made at
+    one instant)."""
+    if not getattr(sys, "_is_gil_enabled", lambda: True)():
+        return
+    with _RECENT_LOCK:
+        refs = list(_RECENT)
+    done = {id(ref) for ref in refs if _reclaim(ref)}
+    if done:
+        with _RECENT_LOCK:
+            _RECENT[:] = [ref for ref in _RECENT if id(ref) not in done]
+
+
+def _reclaim(ref: _Ref) -> bool:
+    """Empty the mesh ``ref`` refers to if its cycle is unreachable (:func:`_dropped_component`); True when the mesh
+    is gone (freed now, or before)."""
+    members = _dropped_component(ref)
+    if members is None:
+        return ref() is None
+    for member in members:  # what the collector's tp_clear does: every reference out of the cycle goes
+        own = _own_dict(member)
+        if own is not None:
+            own.clear()
+    return True
+
+
+def _own_dict(obj: Any) -> dict | None:
+    """``obj``'s own instance dictionary, read through the interpreter's ``__dict__`` slot of its type; None for an
+    object without one. Not ``obj.__dict__``: a bound method, a weak proxy (or a class's ``__dict__`` property)
+    answer with another object's, one a caller may keep, and no code of ``obj``'s runs here."""
+    for klass in type(obj).__mro__:
+        slot = vars(klass).get("__dict__")
+        if slot is not None:
+            generic = isinstance(slot, types.GetSetDescriptorType) and klass.__flags__ & _HEAP_TYPE  # a class's
+            own = slot.__get__(obj) if generic else None
+            return own if type(own) is dict else None
+    return None
+
+
+def _dropped_component(ref: _Ref) -> list[Any] | None:
+    """The objects of the reference cycle through the mesh ``ref`` refers to (its strongly connected component among
+    the objects the collector tracks), if nothing outside them refers to any of them; None otherwise (the mesh is
+    gone, still reachable, weakly referred to by someone else, in a cycle with a finalizer, or more than
+    :data:`COMPONENT_MAX` objects away from its own).
+
+    The collector's test on a subset: an object's reference count minus the references from the other members is
+    what refers to it from outside, so all zero means no one outside can reach the members. Only references this
+    function itself holds are discounted, measured on a :class:`_Probe` held exactly as every member is (so the count
+    does not depend on how the interpreter counts its own stack); a reference this misses (an extension's object
+    that does not report it) only makes a mesh look held, never dropped.
+
+    The references between the members and every count are taken at one instant, in one call that runs no Python
+    code (``list`` over ``map``/``starmap`` of C functions: the GIL is not given up, and a collection, with the
+    finalizers it runs, can start only at the allocation before the walk, so no other thread, signal handler or
+    finalizer runs in between; CPython with a GIL): counted one by one, a holder that another thread
+    moves from one member to the next (``v = mesh.visual; del mesh``) could be missed at every count. Were the graph
+    walked by :func:`_component` stale by then, the check still holds for the members it names: none of them is
+    referred to from outside at that instant, so none can be reached after it."""
+    members = _component(ref)
+    if members is None:
+        return None
+    held = (*members, _Probe())
+    del members
+    # one instant: the referents first (the only allocation that may start a collection happens before the walk),
+    # then the counts; the flat list of referents adds one reference per entry, hence the 2 * inside below
+    snapshot = list(itertools.chain(itertools.starmap(gc.get_referents, (held,)),
+                                    map(sys.getrefcount, held), map(weakref.getweakrefcount, held)))
+    referents, counts, weak = snapshot[0], snapshot[1:len(held) + 1], snapshot[len(held) + 1:]
+    inside: dict[int, int] = {}
+    for target in referents:
+        inside[id(target)] = inside.get(id(target), 0) + 1
+    del referents, snapshot
+    ours = counts[-1]  # the probe: referred to by nothing but this function
+    root = ref()
+    for member, count, weakrefs in zip(held[:-1], counts[:-1], weak[:-1], strict=True):
+        outside = count - ours - 2 * inside.get(id(member), 0)
+        if outside or weakrefs != (member is root) or hasattr(type(member), "__del__"):
+            return None
+    return list(held[:-1])
+
+
+def _component(ref: _Ref) -> list[Any] | None:
+    """The strongly connected component of ``ref()`` among the objects the collector tracks (None when the mesh is
+    gone or its graph too big)."""
+    root = ref()
+    if root is None:
+        return None
+    found: dict[int, Any] = {id(root): root}
+    edges: dict[int, list[int]] = {}
+    stack = [root]
+    del root
+    while stack:
+        obj = stack.pop()
+        out = edges[id(obj)] = []
+        for child in gc.get_referents(obj):
+            if gc.is_tracked(child) and not isinstance(child, _SHARED):
+                out.append(id(child))
+                if id(child) not in found:
+                    found[id(child)] = child
+                    stack.append(child)
+        if len(found) > COMPONENT_MAX:
+            return None
+    into: dict[int, list[int]] = {}
+    for source, targets in edges.items():
+        for target in targets:
+            into.setdefault(target, []).append(source)
+    start = id(ref())
+    back, stack_ids = {start}, [start]
+    while stack_ids:
+        for source in into.get(stack_ids.pop(), ()):
+            if source not in back:
+                back.add(source)
+                stack_ids.append(source)
+    return [found[key] for key in back]
 
 
 def exact_keys(xy: NDArray[np.float64]) -> NDArray[np.int64]:

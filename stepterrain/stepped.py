@@ -50,6 +50,7 @@ from ._device import (
 )
 from .errors import InvalidInputError, OutputTooLargeError, caller_stacklevel, counted
 from .kernels import stepped as stepped_kernels
+from .mesh import reclaim_dropped, track
 from .terrain import (
     FLOAT32_MAX,
     Terrain,
@@ -1295,10 +1296,12 @@ def stepped(
     crack-free: its boundary lies on the input's boundary, terraces face +z and walls face the lower terrace. Cost:
     O(nodes + edges + output) on the device, two host syncs.
 
-    A ``trimesh.Trimesh`` refers to itself, so a mesh you drop is freed only when Python's cyclic garbage
-    collector runs, often late: re-stepping a 512² terrain 60 times in a loop held about 1 GB. In long loops,
-    ``del`` the old mesh and call ``gc.collect()`` now and then (``stepterrain.batch`` frees each tile's mesh
-    itself); a freed mesh's large arrays then serve the next call (see :func:`set_output_pool_limit`).
+    A ``trimesh.Trimesh`` refers to itself (trimesh's ``visual``, ``ray``, ``permutate`` and ``nearest`` hold
+    it), so a mesh you drop would wait for Python's cyclic garbage collector, often late: re-stepping a 512²
+    terrain 60 times in a loop held about 1 GB. Each call therefore frees the meshes the last few calls returned
+    that nothing outside their own cycle refers to any more (a mesh you keep, or whose ``visual`` or ``ray`` you
+    keep, is untouched; one you hold a weak reference to is left to the collector), and their large arrays serve
+    it (see :func:`set_output_pool_limit`): in a loop ``mesh = stepped(...)``, the mesh before last.
 
     References
     ----------
@@ -1315,6 +1318,7 @@ def stepped(
     [0.0, 1.0, 2.0, 3.0]
     """
     check_flag(solid, "solid")
+    reclaim_dropped()  # the meshes earlier calls returned that the caller dropped: their memory serves this one
     t = as_terrain(terrain, spacing=spacing, origin=origin, borrow=True)  # lives only within this call
     dev = resolve_device(device)
     if memory_budget is not None:
@@ -1631,6 +1635,7 @@ def _assemble(
         mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=vertex_colors)
     elif carried is not None:
         mesh.visual = carried
+    track(mesh)  # freed by a later call once the caller drops it (reclaim_dropped), not only by the collector
     return mesh
 
 
@@ -1771,6 +1776,7 @@ def stepped_series(
         try:
             if t.visual is not None and colors is None:
                 _check_carried_visual(t)
+            reclaim_dropped()  # the frames the caller is done with: their memory serves this one
             arrays, vertices = _stepped_arrays(t, frame_values, gamma, colors, dev)
             mesh = _assemble(
                 t, arrays, vertices, frame_values, gamma=gamma, colors=colors, solid=False, floor=None,

@@ -9,6 +9,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
+import trimesh
 
 import stepterrain as st
 import stepterrain.export
@@ -185,3 +186,216 @@ def test_a_loan_returned_inside_take_does_not_shift_the_block_taken():
     assert taken != int(smaller.ctypes.data), "a 10 MiB output laid over the 8 MiB block"
     assert taken == int(chosen.ctypes.data)
     assert all(b.nbytes >= 0 for b in pool._free) and pool.free_bytes <= pool.limit
+
+
+@pytest.fixture
+def no_collector():
+    """Python's automatic collection off (a loop between two collections), the remembered meshes forgotten."""
+    from stepterrain import mesh as mesh_helpers
+
+    gc.collect()
+    mesh_helpers._RECENT.clear()
+    gc.disable()
+    try:
+        yield
+    finally:
+        gc.enable()
+        mesh_helpers._RECENT.clear()
+
+
+def _loan(mesh: trimesh.Trimesh) -> _device._Loan:
+    """The owner of the block under ``mesh.faces``: alive while the mesh (or an array on the block) is."""
+    owner = mesh.faces
+    while not isinstance(owner, _device._Loan):
+        owner = owner.base
+    return owner
+
+
+def test_a_loop_that_never_collects_reuses_the_meshes_it_dropped(small_outputs, no_collector):
+    """``mesh = stepped(...)`` in a slider loop: each dropped Trimesh is a reference cycle (trimesh's visual, ray,
+    permutate and nearest hold the mesh), which kept its lent arrays until the collector ran, so every call took
+    fresh memory. A later call frees the meshes the caller dropped, and their memory serves it."""
+    import weakref
+
+    h = _heights(4, 64)
+    dropped, mesh = [], None
+    for k in range(6):
+        mesh = st.stepped(h, interval=1.0 + 0.25 * (k % 2))
+        dropped.append(weakref.ref(_loan(mesh)))  # not the mesh's: a weakref to a cycle leaves it to the collector
+        if k == 0:
+            per_mesh = small_outputs._lent
+    assert [ref() is None for ref in dropped] == [True] * 4 + [False, False]  # the previous one is held while the
+    assert small_outputs._lent <= 2 * per_mesh  # last call runs; the others came back to the pool
+    np.testing.assert_array_equal(mesh.vertices, st.stepped(h, interval=1.25).vertices)
+
+
+def test_stepped_series_reuses_the_frames_the_caller_dropped(small_outputs, no_collector):
+    import weakref
+
+    frames = [_heights(seed, 48) for seed in range(6)]
+    refs = [weakref.ref(_loan(mesh)) for mesh in st.stepped_series(frames, interval=1.0)]
+    assert sum(ref() is None for ref in refs) >= 3
+
+
+def _reachable(mesh, how):
+    """Something the caller keeps that reaches ``mesh`` (and no reference to ``mesh`` itself)."""
+    return {"visual": lambda: mesh.visual, "ray": lambda: mesh.ray, "method": lambda: mesh.copy,
+            "list": lambda: [mesh], "nearest": lambda: mesh.nearest}[how]()
+
+
+@pytest.mark.parametrize("how", ["mesh", "visual", "ray", "method", "list", "nearest"])
+def test_a_mesh_still_reachable_stays_whole_through_later_calls(small_outputs, no_collector, tmp_path, how):
+    h = _heights(6, 48)
+    mesh = st.stepped(h, interval=1.0, colors="terrain")
+    area = mesh.area  # cached
+    expected = (mesh.vertices.copy(), mesh.faces.copy(), mesh.visual.vertex_colors.copy(),
+                {k: v.copy() for k, v in mesh.face_attributes.items()}, dict(mesh.metadata))
+    keep = mesh if how == "mesh" else _reachable(mesh, how)
+    del mesh
+    for k in range(4):
+        st.stepped(_heights(10 + k, 48), interval=1.0, colors="terrain")
+    mesh = {"mesh": lambda: keep, "visual": lambda: keep.mesh, "ray": lambda: keep.mesh,
+            "method": lambda: keep.__self__, "list": lambda: keep[0], "nearest": lambda: keep._mesh}[how]()
+    vertices, faces, colors, attributes, metadata = expected
+    np.testing.assert_array_equal(mesh.vertices, vertices)
+    np.testing.assert_array_equal(mesh.faces, faces)
+    np.testing.assert_array_equal(mesh.visual.vertex_colors, colors)
+    assert mesh.face_attributes.keys() == attributes.keys()
+    for key, value in attributes.items():
+        np.testing.assert_array_equal(mesh.face_attributes[key], value)
+    assert mesh.metadata == metadata
+    assert mesh.visual.mesh is mesh and mesh.ray.mesh is mesh and mesh.area == area
+    copied = mesh.copy()
+    np.testing.assert_array_equal(copied.vertices, vertices)
+    mesh.export(tmp_path / "kept.ply")
+    assert (tmp_path / "kept.ply").stat().st_size > 0
+
+
+def test_an_array_kept_from_a_dropped_mesh_keeps_its_memory(small_outputs, no_collector):
+    """The mesh goes, but not the memory under an array the caller kept from it: no later call writes there."""
+    h = _heights(7, 64)
+    mesh = st.stepped(h, interval=1.0)
+    vertices, faces = mesh.vertices, mesh.faces
+    expected = vertices.copy(), faces.copy()
+    del mesh
+    for k in range(4):
+        st.stepped(_heights(20 + k, 64), interval=1.0)
+    np.testing.assert_array_equal(vertices, expected[0])
+    np.testing.assert_array_equal(faces, expected[1])
+
+
+def test_a_dropped_mesh_a_weakref_still_names_is_never_seen_emptied(small_outputs, no_collector):
+    """The collector clears every weak reference to a cycle before it empties it; freeing a mesh here must not hand
+    a user's ``weakref.ref`` (the very object ``weakref.ref`` shares between callers) an emptied Trimesh. A list that
+    refers to itself and to the mesh keeps the mesh alive after its ``__dict__`` goes."""
+    import weakref
+
+    h = _heights(8, 48)
+    mesh = st.stepped(h, interval=1.0)
+    expected = mesh.vertices.copy()
+    ring: list = []
+    ring += [ring, mesh]
+    mesh.metadata["ring"] = ring
+    ref, cache = weakref.ref(mesh), weakref.WeakValueDictionary({"tile": mesh})
+    del mesh, ring
+    for k in range(4):
+        st.stepped(_heights(30 + k, 48), interval=1.0)
+    seen = ref()
+    assert seen is None or np.array_equal(seen.vertices, expected), "a weakref handed out an emptied mesh"
+    seen = cache.get("tile")
+    assert seen is None or np.array_equal(seen.vertices, expected)
+
+
+class _Owner:
+    """Refers back to its mesh and, when finalized, keeps it (``__del__`` may resurrect, PEP 442)."""
+
+    kept: list = []
+
+    def __init__(self, mesh):
+        self.mesh = mesh
+
+    def __del__(self):
+        _Owner.kept.append(getattr(self, "mesh", None))
+
+
+def test_a_finalizer_in_a_dropped_mesh_s_cycle_sees_it_whole(small_outputs, no_collector):
+    """The collector runs the finalizers of a cycle before it empties it, so a ``__del__`` sees (and may keep) the
+    mesh whole; a cycle with a finalizer is left to the collector."""
+    h = _heights(9, 48)
+    mesh = st.stepped(h, interval=1.0)
+    expected = mesh.vertices.copy()
+    mesh.metadata["owner"] = _Owner(mesh)
+    _Owner.kept.clear()
+    del mesh
+    for k in range(4):
+        st.stepped(_heights(40 + k, 48), interval=1.0)
+    gc.collect()
+    assert len(_Owner.kept) == 1 and _Owner.kept[0] is not None, "the finalizer found its mesh gone"
+    np.testing.assert_array_equal(_Owner.kept[0].vertices, expected)
+    _Owner.kept.clear()
+
+
+def test_a_reference_moving_between_members_while_they_are_counted_keeps_the_mesh(small_outputs, no_collector):
+    """Another thread may run between two reference counts of the check: here (a profile hook stands in for the
+    thread switch, deterministically) a holder keeps the mesh or its visual, always the one not being counted at the
+    moment. Counted one by one each looks unreferenced from outside, though one of them is held at every instant."""
+    import sys
+    import weakref
+
+    from stepterrain import mesh as mesh_helpers
+
+    h = _heights(11, 48)
+    mesh = st.stepped(h, interval=1.0)
+    expected = mesh.vertices.copy()
+    visual = mesh.visual
+    held = [visual]
+    del mesh, visual
+
+    def hook(frame, event, arg):
+        if event == "c_call" and arg is sys.getrefcount:
+            member = frame.f_locals.get("member")
+            whole, part = held[0] if isinstance(held[0], trimesh.Trimesh) else held[0].mesh, None
+            part = whole.visual
+            if member is whole:
+                held[0] = part
+            elif member is part:
+                held[0] = whole
+            del whole, part, member
+
+    sys.setprofile(hook)
+    try:
+        mesh_helpers.reclaim_dropped()
+    finally:
+        sys.setprofile(None)
+    kept = held[0] if isinstance(held[0], trimesh.Trimesh) else getattr(held[0], "mesh", None)
+    assert kept is not None, "the mesh was emptied while a holder could reach it"
+    np.testing.assert_array_equal(kept.vertices, expected)
+    assert weakref.getweakrefcount(kept) >= 1
+
+
+class _Holder:
+    """Refers to a mesh; its bound method is the callback of a weak proxy the mesh keeps."""
+
+    def __init__(self, mesh):
+        self.mesh = mesh
+
+    def gone(self, proxy):
+        pass
+
+
+def test_freeing_a_dropped_mesh_empties_only_objects_of_its_cycle(small_outputs, no_collector):
+    """A weak proxy in the mesh's cycle (through its callback) answers ``__dict__`` with its referent's, an object
+    the caller keeps: freeing the cycle must empty the cycle's own objects, never what a member forwards to."""
+    import weakref
+
+    class Settings:
+        pass
+
+    settings = Settings()
+    settings.scale = 2.5
+    mesh = st.stepped(_heights(12, 48), interval=1.0)
+    mesh.metadata["settings"] = weakref.proxy(settings, _Holder(mesh).gone)
+    del mesh
+    for k in range(4):
+        st.stepped(_heights(50 + k, 48), interval=1.0)
+    assert vars(settings) == {"scale": 2.5}, "a live object was emptied"
