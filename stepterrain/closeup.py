@@ -1094,7 +1094,7 @@ def _stepped_source(terrain: Terrain, cu: CloseUp, colors: str, device: wp.Devic
     return source
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class CloseUpLayer:
     """The culled, transformed geometry of one close-up (world coordinates, float64).
 
@@ -1105,6 +1105,8 @@ class CloseUpLayer:
     node has no gradient) or None.
     Everything but ``vertices`` and ``matrix`` depends on the ROI only and is shared, read-only, by the layers
     of every call with the same ROI objects (the cull is kept; only M is applied again).
+    Layers compare and hash by identity, as :class:`ROI` does (the generated field-wise ``==`` raised numpy's "truth
+    value ... is ambiguous" on their arrays, and ``hash`` "unhashable type").
     """
 
     index: int
@@ -1527,13 +1529,14 @@ def _world(local: NDArray[np.float32], ox: float, oy: float) -> NDArray[np.float
 
 
 # ------------------------------------------------------------------------------------------------ anchors
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class AnchorStrip:
     """One close-up's anchor fence (§II.D): vertices from V_O (t = 0) to M·V_O, t and opacity per vertex.
 
     ``vertices`` (V, 3) world; ``faces`` (F, 3); ``distance`` (V,) the normalized ‖V − V_O‖ in [0, 1];
     ``opacity`` (V,) the transfer function at ``distance``; ``color`` RGB in [0, 1]; ``rungs``: V = P·(rungs + 1)
     for P outline points, point i's vertices at i·(rungs + 1) + r; ``max_length``: D, the normalization.
+    Strips compare and hash by identity, as :class:`CloseUpLayer` does (they hold arrays too).
     """
 
     index: int

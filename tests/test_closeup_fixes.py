@@ -1800,3 +1800,26 @@ def test_cli_closeup_without_any_output_is_a_usage_error(tmp_path, capsys):
         "stepterrain closeup: error: give -o/--output OUT (the render .png, or the scene as a mesh), --png OUT.png "
         "(a render) or --gif OUT.gif|OUT.mp4 (a spinning animation), or several of them; got none\n")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_layers_and_anchor_strips_compare_and_hash_by_identity_as_rois_do():
+    """``CloseUpLayer`` and ``AnchorStrip`` were frozen dataclasses with the generated ``__eq__`` and ``__hash__`` over
+    their fields: ``layer == other`` and ``layer in [a, b]`` raised numpy's "truth value ... is ambiguous" from
+    comparing their arrays, and ``hash(layer)`` "unhashable type: 'numpy.ndarray'". They compare by identity now, as
+    :class:`ROI` and :class:`CloseUp` do (and the private ``texture_lod._InView`` and ``batch._Source``)."""
+    from stepterrain.batch import _Source
+    from stepterrain.texture_lod import _InView
+
+    t = terrain()
+    cus = [CloseUp(ROI.circle((1030.0, 2030.0), 12.0), scale=2.0, offset=(0.0, 0.0, 60.0)),
+           CloseUp(ROI.circle((1050.0, 2040.0), 8.0), scale=1.5, offset=(0.0, 0.0, 40.0))]
+    for a, b in (closeup_layers(t, cus, device="cpu"), anchor_strips(t, cus, device="cpu")):
+        again = type(a)(**{name: getattr(a, name) for name in a.__dataclass_fields__})  # same field values
+        assert a == a and a != b and not (a == b) and a != again
+        assert b in [a, b] and again not in [a, b]
+        assert len({a, b, a}) == 2 and {a: 1, b: 2}[b] == 2
+    source = _Source(np.zeros((2, 2), np.float32), (1.0, 1.0), (0.0, 0.0), None, "x")
+    view = _InView(1.0, np.zeros(2), np.zeros(2), np.eye(3), np.zeros(3))
+    for item in (source, view):
+        copy = type(item)(**{name: getattr(item, name) for name in item.__dataclass_fields__})
+        assert item == item and item != copy and item in [copy, item] and len({item, copy}) == 2
