@@ -2463,6 +2463,8 @@ def render_closeups(
                                 f"{type(timings).__name__}")
     image_texture = None if texture is None else _check_texture(texture, "texture", alpha=True)
     box = None if bounds is None else render._check_box(bounds, "bounds")  # before any work; text was taken
+    if box is not None and (isinstance(camera, str) or np.shape(camera) == (2,)):  # a fitted camera: not to a point
+        render._check_fitted_box(box, "bounds")
     view_angle = render._check_view_angle(view_angle)
     if renderer is not None:  # a pyvista Plotter raised AttributeError ('size') after the close-ups were culled
         if not isinstance(renderer, render.LayeredRenderer):

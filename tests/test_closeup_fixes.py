@@ -1823,3 +1823,52 @@ def test_layers_and_anchor_strips_compare_and_hash_by_identity_as_rois_do():
     for item in (source, view):
         copy = type(item)(**{name: getattr(item, name) for name in item.__dataclass_fields__})
         assert item == item and item != copy and item in [copy, item] and len({item, copy}) == 2
+
+
+@pytest.mark.parametrize("point", [(0.0, 0.0, 0.0), "centre"])
+def test_bounds_of_a_single_point_are_refused_by_name_without_a_numpy_warning(point):
+    """render_closeups(bounds=<a box of no size>) fitted its camera to the point: far from the overview's origin (the
+    point (0, 0, 0) under a UTM DEM) the eye fell on the point itself, numpy warned "invalid value encountered in
+    divide", and the error then said "the mesh would render 0 x 0 pixels", naming no ``bounds``. It is refused up
+    front by name, with the point got; render_mesh's ``bounds`` and LayeredRenderer.set_view's ``box`` alike, and
+    render_mesh names ``bounds`` too thin to see. An explicit camera position (it takes only the box's centre) still
+    accepts a point."""
+    import stepterrain as st
+
+    t = st.sample_dem()
+    xmin, xmax, ymin, ymax = t.extent
+    centre = ((xmin + xmax) / 2, (ymin + ymax) / 2, 500.0)
+    box = [centre, centre] if point == "centre" else [point, point]
+    cu = CloseUp(ROI.circle(centre[:2], (xmax - xmin) / 10), scale=2.0, offset=(0.0, 0.0, 60.0))
+    named = r"^bounds must be a box of some size for a fitted camera: .*; got the single point \("
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for camera in ("oblique", "top", (0.5, 0.6)):
+            with pytest.raises(InvalidInputError, match=named):
+                render_closeups(t, [cu], bounds=box, camera=camera, window_size=SIZE, device="cpu")
+            with pytest.raises(InvalidInputError, match=named):
+                render.render_mesh(t.mesh(), bounds=box, camera=camera, window_size=SIZE)
+
+
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_thin_bounds_are_named_and_a_point_still_centres_an_explicit_camera():
+    t = terrain()
+    column = [(1030.0, 2030.0, 0.0), (1030.0, 2030.0, 100.0)]  # no extent across: under a pixel wide
+    with pytest.raises(InvalidInputError, match=r"^bounds would render .* pixels: it spans 0 x 0 across and 100 tall"):
+        render.render_mesh(t.mesh(), bounds=column, window_size=SIZE)
+    point = [(1040.0, 2032.0, 50.0)] * 2
+    position = [(0.0, -150.0, 120.0), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0)]  # relative to the point
+    image = render_closeups(t, [one()], bounds=point, camera=position, window_size=SIZE, device="cpu")
+    assert (image != 255).any(axis=2).sum() > 100
+    renderer = render.LayeredRenderer(window_size=SIZE)
+    try:
+        mesh = t.mesh()
+        renderer.set_mesh("overview", mesh.vertices, mesh.faces)
+        far = [(-5e6, -5e6, 0.0)] * 2  # far from the overview: the eye fell on it (numpy's divide warning)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            with pytest.raises(InvalidInputError, match=r"^box must be a box of some size .* single point \(-5000000"):
+                renderer.set_view("oblique", far)
+        renderer.set_view(position, point)  # an explicit camera: the point is its centre
+    finally:
+        renderer.close()
