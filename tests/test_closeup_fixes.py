@@ -1872,3 +1872,27 @@ def test_thin_bounds_are_named_and_a_point_still_centres_an_explicit_camera():
         renderer.set_view(position, point)  # an explicit camera: the point is its centre
     finally:
         renderer.close()
+
+
+def test_a_stepped_closeup_over_the_budget_names_what_a_closeup_can_change():
+    """A stepped close-up (MPFR) whose window's stepped mesh went over the memory budget was refused with stepped()'s
+    advice, "or coarsen the isovalues", which no close-up option does (its isovalues are the whole terrain's at its
+    ``stepped`` interval); it names the close-up's interval, its ROI and the terrain now. closeup_layers'
+    ``memory_budget`` now reaches that stepped mesh too: it was checked against the global budget alone (a larger
+    memory_budget= was refused by the smaller global one, and a smaller one let it through)."""
+    from stepterrain import set_memory_budget
+    from stepterrain.terrain import Terrain
+
+    cu = CloseUp(ROI.circle((1040.0, 2032.0), 20.0), stepped=0.05)
+    with pytest.raises(OutputTooLargeError, match=r"^the stepped mesh .* over the memory budget of 100,000 bytes; "
+                       r"step the close-up at a larger interval \(CloseUp.stepped\) or give it a smaller ROI, or crop "
+                       r"or coarsen the terrain \(Terrain.crop, Terrain.coarsen\), or raise the budget") as caught:
+        closeup_layers(terrain(), [cu], memory_budget=100_000, device="cpu")
+    assert "isovalues" not in str(caught.value)
+    previous = set_memory_budget(100_000)
+    try:  # the call's own budget, larger than the global one, is the one that counts
+        (layer,) = closeup_layers(Terrain.from_heights(hills(), spacing=(2.0, 2.0), origin=(1000.0, 2000.0)), [cu],
+                                  memory_budget=1 << 30, device="cpu")
+    finally:
+        set_memory_budget(previous)
+    assert len(layer.faces) > 10_000 and (layer.source_faces == -1).all()
