@@ -295,9 +295,10 @@ def _virtual_from(path: str, cwd: str) -> str | None:
     return path[:head] + os.path.abspath(os.path.join(cwd, archive)) + path[head + len(archive):]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class _Source:
-    """Heights that frame and tile items slice: (H, W) or (T, H, W), with the raster's geometry."""
+    """Heights that frame and tile items slice: (H, W) or (T, H, W), with the raster's geometry. Compared and hashed
+    by identity (it holds an array)."""
 
     heights: NDArray[np.float32]
     spacing: tuple[float, float]

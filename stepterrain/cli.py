@@ -1215,7 +1215,12 @@ _LOOK_FROM = {"look from another direction (camera)": "look from another directi
 #: just a word: "gives 2000 levels"), per subcommand: the library's phrase and the command line's.
 _OPTION_PHRASES = {
     "steps": {"bring base closer": "bring --base closer", **_LOOK_FROM},
-    "closeup": _LOOK_FROM,
+    "closeup": {**_LOOK_FROM,
+                # closeup.STEPPED_CLOSEUP_HINT, of a --stepped close-up over the budget
+                "step the close-up at a larger interval (CloseUp.stepped) or give it a smaller ROI, or crop or coarsen "
+                "the terrain (Terrain.crop, Terrain.coarsen)": "step the close-up at a larger interval (--stepped) or "
+                "give it a smaller ROI (the r of --roi x,y,r or --roi-relative fx,fy,fr), or crop or coarsen the DEM "
+                "(--crop, --coarsen)"},
     "batch": {"bring base closer": "bring --base closer", **_LOOK_FROM,
               # batch._check_unreferenced's, in a failed item's line ("failed KEY: InvalidInputError: spacing ...")
               ": spacing applies to DEM files": ": --spacing applies to DEM files",

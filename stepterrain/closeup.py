@@ -32,7 +32,7 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import MAX_INT32 as _MAX_INT32
-from ._compaction import budget_value, check_budget, count_buffer, exclusive_offsets
+from ._compaction import SMALLER_HINT, budget_value, check_budget, count_buffer, exclusive_offsets
 from ._device import host_copy, launch, launch_chunked, resolve_device, to_device
 from ._memo import MISSING, Same, derived, keep, recall
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, OutputTooLargeError, counted
@@ -1065,8 +1065,17 @@ def _tin_window(terrain: Terrain, box: tuple[float, float, float, float]) -> Ter
     return window
 
 
-def _stepped_source(terrain: Terrain, cu: CloseUp, colors: str, device: wp.Device) -> _Source:
-    """MPFR: the stepped terrain (paper 000) of the ROI window, hypsometric colors, isovalues of the whole terrain."""
+#: What makes a stepped close-up smaller, in place of :func:`~stepterrain.stepped.stepped`'s advice ("coarsen the
+#: isovalues": no close-up option) when its window goes over the memory budget; the command line spells it with its
+#: options (cli._OPTION_PHRASES).
+STEPPED_CLOSEUP_HINT = ("step the close-up at a larger interval (CloseUp.stepped) or give it a smaller ROI, or crop or "
+                        "coarsen the terrain (Terrain.crop, Terrain.coarsen)")
+
+
+def _stepped_source(terrain: Terrain, cu: CloseUp, colors: str, device: wp.Device,
+                    memory_budget: int | None = None) -> _Source:
+    """MPFR: the stepped terrain (paper 000) of the ROI window, hypsometric colors, isovalues of the whole terrain;
+    refused over ``memory_budget`` (closeup_layers', else the global one) with :data:`STEPPED_CLOSEUP_HINT`."""
     from .stepped import isovalues, stepped
 
     values = isovalues(terrain.height_range, interval=cu.stepped)
@@ -1084,7 +1093,12 @@ def _stepped_source(terrain: Terrain, cu: CloseUp, colors: str, device: wp.Devic
         if window is None:  # no face under the ROI box: no geometry (closeup_layers names it)
             return _Source(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32), np.zeros(0, np.int64))
     table = _colors_for(np.asarray(values, np.float32), colors, float(values[0]), float(values[-1]))
-    mesh = stepped(window, levels=values, gamma=float(cu.gamma), colors=table, device=device)
+    try:
+        mesh = stepped(window, levels=values, gamma=float(cu.gamma), colors=table, memory_budget=memory_budget,
+                       device=device)
+    except OutputTooLargeError as exc:  # stepped's advice names what a stepped() caller can change
+        text = str(exc).replace(", or step it in tiles (stepterrain.batch)", "")
+        raise OutputTooLargeError(text.replace(SMALLER_HINT, STEPPED_CLOSEUP_HINT)) from None
     ox, oy = terrain.local_origin
     points = np.asarray(mesh.vertices, dtype=np.float64) - [ox, oy, 0.0]
     rgb = np.asarray(mesh.visual.vertex_colors)[:, :3].astype(np.uint8)
@@ -1094,7 +1108,7 @@ def _stepped_source(terrain: Terrain, cu: CloseUp, colors: str, device: wp.Devic
     return source
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class CloseUpLayer:
     """The culled, transformed geometry of one close-up (world coordinates, float64).
 
@@ -1105,6 +1119,8 @@ class CloseUpLayer:
     node has no gradient) or None.
     Everything but ``vertices`` and ``matrix`` depends on the ROI only and is shared, read-only, by the layers
     of every call with the same ROI objects (the cull is kept; only M is applied again).
+    Layers compare and hash by identity, as :class:`ROI` does (the generated field-wise ``==`` raised numpy's "truth
+    value ... is ambiguous" on their arrays, and ``hash`` "unhashable type").
     """
 
     index: int
@@ -1298,7 +1314,7 @@ def closeup_layers(
             cache[key] = src
         else:
             if cu.stepped is not None:
-                src = _stepped_source(t, cu, cu.cmap or colors, device)
+                src = _stepped_source(t, cu, cu.cmap or colors, device, memory_budget)
             elif t.kind == "grid":
                 src = _grid_source(t, cu.roi.box)
             else:
@@ -1527,13 +1543,14 @@ def _world(local: NDArray[np.float32], ox: float, oy: float) -> NDArray[np.float
 
 
 # ------------------------------------------------------------------------------------------------ anchors
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class AnchorStrip:
     """One close-up's anchor fence (§II.D): vertices from V_O (t = 0) to M·V_O, t and opacity per vertex.
 
     ``vertices`` (V, 3) world; ``faces`` (F, 3); ``distance`` (V,) the normalized ‖V − V_O‖ in [0, 1];
     ``opacity`` (V,) the transfer function at ``distance``; ``color`` RGB in [0, 1]; ``rungs``: V = P·(rungs + 1)
     for P outline points, point i's vertices at i·(rungs + 1) + r; ``max_length``: D, the normalization.
+    Strips compare and hash by identity, as :class:`CloseUpLayer` does (they hold arrays too).
     """
 
     index: int
@@ -2460,6 +2477,8 @@ def render_closeups(
                                 f"{type(timings).__name__}")
     image_texture = None if texture is None else _check_texture(texture, "texture", alpha=True)
     box = None if bounds is None else render._check_box(bounds, "bounds")  # before any work; text was taken
+    if box is not None and (isinstance(camera, str) or np.shape(camera) == (2,)):  # a fitted camera: not to a point
+        render._check_fitted_box(box, "bounds")
     view_angle = render._check_view_angle(view_angle)
     if renderer is not None:  # a pyvista Plotter raised AttributeError ('size') after the close-ups were culled
         if not isinstance(renderer, render.LayeredRenderer):

@@ -512,7 +512,8 @@ def render_mesh(
         Multi-sample anti-aliasing (off by default: reproducible, and faster on software OpenGL).
     bounds : (2, 3) array_like, optional
         A world-space box [(xmin, ymin, zmin), (xmax, ymax, zmax)] to frame instead of the mesh itself: the
-        same box for every frame of an animation keeps the camera still.
+        same box for every frame of an animation keeps the camera still. A fitted camera needs a box of some size
+        (a single point is refused); an explicit camera position takes only its centre.
     view_angle : float
         The camera's vertical field of view in degrees, in [1e-8, 179] (VTK's range; default 30); the horizontal
         one follows from the window's aspect. A fitted camera frames the bounds with it.
@@ -685,6 +686,8 @@ def _frame_mesh(
         lo, hi = vertices[finite].min(axis=0), vertices[finite].max(axis=0)
     else:
         lo, hi = _check_box(bounds, "bounds")
+        if isinstance(camera, str) or np.shape(camera) == (2,):
+            _check_fitted_box(np.array([lo, hi]), "bounds")
     centre = (lo + hi) / 2.0
     local = vertices - centre
     box = np.array([lo - centre, hi - centre])
@@ -695,7 +698,8 @@ def _frame_mesh(
     corners = _box_corners(box)
     position = _camera_position(camera, corners, width / height, view_angle)  # raises on a bad camera; 8 corners
     if isinstance(camera, str) or np.shape(camera) == (2,):  # a fitted camera: it frames the box's larger side
-        _check_visible(corners, position, (width, height), box, z_scale, view_angle, camera)
+        _check_visible(corners, position, (width, height), box, z_scale, view_angle, camera,
+                       "the mesh" if bounds is None else "bounds")
     return width, height, vertices, local, finite, box
 
 
@@ -726,14 +730,16 @@ def _eye_frame(points: NDArray[np.float64], position: Any
 
 
 def _check_visible(corners: NDArray[np.float64], position: Any, size: tuple[int, int], box: NDArray[np.float64],
-                   z_scale: float, view_angle: float = _VIEW_ANGLE, camera: CameraLike = "oblique") -> None:
+                   z_scale: float, view_angle: float = _VIEW_ANGLE, camera: CameraLike = "oblique",
+                   what: str = "the mesh") -> None:
     """An InvalidInputError when the fitted ``camera`` shows the framed box less than a pixel wide or tall: a mesh
     whose height range (times ``z_scale``) dwarfs its horizontal extent, or the reverse, rendered blank; or a box
-    smaller than :data:`_LEAST_EXTENT` (VTK drew it blank)."""
+    smaller than :data:`_LEAST_EXTENT` (VTK drew it blank). ``what``: the box's name in the message (``bounds``
+    where the caller gave the box)."""
     dx, dy, dz = (box[1] - box[0]).tolist()
     if 0 < max(dx, dy, dz) < _LEAST_EXTENT:
         raise InvalidInputError(
-            f"the mesh spans {dx:.3g} x {dy:.3g} across and {dz:.3g} tall (with z_scale={z_scale:g}): too small to "
+            f"{what} spans {dx:.3g} x {dy:.3g} across and {dz:.3g} tall (with z_scale={z_scale:g}): too small to "
             f"render (below {_LEAST_EXTENT:g}, VTK draws in single precision); scale its vertices up")
     px, py = _pixel_extent(corners, position, size, view_angle)
     if min(px, py) >= 1.0:
@@ -753,12 +759,23 @@ def _check_visible(corners: NDArray[np.float64], position: Any, size: tuple[int,
             hint = (f"; a z_scale near {across / tall:.3g}, as tall as it is wide, does not show it from this "
                     "camera either: look from another direction (camera) or give a larger window_size")
     raise InvalidInputError(
-        f"the mesh would render {px:.2g} x {py:.2g} pixels: it spans {dx:.3g} x {dy:.3g} across and {dz:.3g} tall "
+        f"{what} would render {px:.2g} x {py:.2g} pixels: it spans {dx:.3g} x {dy:.3g} across and {dz:.3g} tall "
         f"(with z_scale={z_scale:g}), too thin to see from a camera fitted to it{hint}"
     )
 
 
 _BOX = "[(xmin, ymin, zmin), (xmax, ymax, zmax)] with max >= min"
+
+
+def _check_fitted_box(box: NDArray[np.float64], name: str) -> None:
+    """An InvalidInputError naming ``name`` for a ``box`` (checked by :func:`_check_box`) that is a single point, to
+    which a camera is to be fitted: it has no size to frame (far from the renderer's origin its eye fell on the point
+    itself, and numpy warned "invalid value encountered in divide" before the error named "the mesh")."""
+    if np.array_equal(box[0], box[1]):
+        raise InvalidInputError(
+            f"{name} must be a box of some size for a fitted camera: [(xmin, ymin, zmin), (xmax, ymax, zmax)] with max "
+            f"> min along at least one axis; got the single point {tuple(box[0].tolist())}; give a larger box, or a "
+            "camera position [(eye), (focal point), (view up)] (relative to the box's centre)")
 
 
 def _check_box(value: Any, name: str) -> NDArray[np.float64]:
@@ -1695,12 +1712,17 @@ class LayeredRenderer:
         ``view_angle`` (degrees, as render_mesh's), its lights and clipping range. A
         fitted camera that would show the z-scaled box less than a pixel wide or tall (a ``z_scale`` far too large or
         small for the terrain) is an InvalidInputError, as in :func:`render_mesh`: such a render came out blank. The
-        near plane keeps off the meshes uploaded by then, as render_mesh's keeps off its mesh."""
+        near plane keeps off the meshes uploaded by then, as render_mesh's keeps off its mesh. A fitted camera needs a
+        ``box`` of some size (a single point is refused)."""
         self._check_open()
         if self._origin is None:
             raise InvalidInputError("set_view needs a mesh first (set_mesh)")
         view_angle = _check_view_angle(view_angle)
-        local = _check_box(box, "box") - self._origin
+        world = _check_box(box, "box")
+        fitted = isinstance(camera, str) or np.shape(camera) == (2,)
+        if fitted:  # a single point: refused by name (far from the origin the eye fell on it, numpy warned)
+            _check_fitted_box(world, "box")
+        local = world - self._origin
         local[:, 2] *= self.z_scale
         token = (_camera_token(camera), local.tobytes(), view_angle)
         if token == self._view_token:
@@ -1708,7 +1730,7 @@ class LayeredRenderer:
         width, height = self.size
         corners = _box_corners(local)
         position = _camera_position(camera, corners, width / height, view_angle)
-        if isinstance(camera, str) or np.shape(camera) == (2,):  # fitted: as render_mesh, a sliver is refused
+        if fitted:  # as render_mesh, a sliver is refused
             _check_visible(corners, position, (width, height), local, self.z_scale, view_angle, camera)
         else:  # an explicit position is relative to the centre of ``box``, as render_mesh's to that of its bounds: it
             # was taken relative to the first mesh's centre, another view wherever the box was not centred on it

@@ -1781,10 +1781,11 @@ def visual_geometric_error(patch: GeometryPatch, camera: Camera) -> float:
     return _geometric_error_in(patch, camera, _in_view(camera, patch.box))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class _InView:
     """B(N) in view in the camera's frame (:func:`_in_view`): the least depth of the corners of B(N) ∩ frustum, their
-    screen positions over the focal length (s, t), the camera's forward, right and up axes (rows), and p of §4."""
+    screen positions over the focal length (s, t), the camera's forward, right and up axes (rows), and p of §4. Compared
+    and hashed by identity (it holds arrays)."""
 
     depth: float
     s: NDArray[np.float64]

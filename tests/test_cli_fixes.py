@@ -2366,3 +2366,21 @@ def test_closeup_default_lift_clears_the_overview_seen_from_the_default_camera(t
     closeup_height = np.ptp(screen_y(closeup))
     gap = screen_y(closeup).min() - screen_y(overview).max()
     assert gap > 0.3 * closeup_height, f"the close-up clears the overview by {gap / closeup_height:.2f} of its height"
+
+
+def test_closeup_stepped_over_the_budget_names_the_closeup_options(tmp_path, capsys):
+    """closeup --stepped INTERVAL over --memory-budget was told to "coarsen the isovalues" (stepped()'s advice, no
+    closeup option) and to use Terrain.crop; it names --stepped, the ROI's radius, --crop/--coarsen and --memory-budget
+    now."""
+    from .test_closeup import hills
+
+    dem = tmp_path / "hills.npy"
+    np.save(dem, hills())
+    code, _, err = run(capsys, "closeup", dem, "--stepped", "0.05", "--roi-relative", "0.5,0.5,0.5",
+                       "--memory-budget", "1MiB", "-o", tmp_path / "out.ply")
+    assert code == 2, err
+    assert ("the stepped mesh" in err and "step the close-up at a larger interval (--stepped) or give it a smaller ROI "
+            "(the r of --roi x,y,r or --roi-relative fx,fy,fr), or crop or coarsen the DEM (--crop, --coarsen), or "
+            "raise the budget (--memory-budget SIZE)" in err), err
+    assert "isovalues" not in err and "Terrain." not in err and "CloseUp" not in err
+    assert not (tmp_path / "out.ply").exists()

@@ -1800,3 +1800,99 @@ def test_cli_closeup_without_any_output_is_a_usage_error(tmp_path, capsys):
         "stepterrain closeup: error: give -o/--output OUT (the render .png, or the scene as a mesh), --png OUT.png "
         "(a render) or --gif OUT.gif|OUT.mp4 (a spinning animation), or several of them; got none\n")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_layers_and_anchor_strips_compare_and_hash_by_identity_as_rois_do():
+    """``CloseUpLayer`` and ``AnchorStrip`` were frozen dataclasses with the generated ``__eq__`` and ``__hash__`` over
+    their fields: ``layer == other`` and ``layer in [a, b]`` raised numpy's "truth value ... is ambiguous" from
+    comparing their arrays, and ``hash(layer)`` "unhashable type: 'numpy.ndarray'". They compare by identity now, as
+    :class:`ROI` and :class:`CloseUp` do (and the private ``texture_lod._InView`` and ``batch._Source``)."""
+    from stepterrain.batch import _Source
+    from stepterrain.texture_lod import _InView
+
+    t = terrain()
+    cus = [CloseUp(ROI.circle((1030.0, 2030.0), 12.0), scale=2.0, offset=(0.0, 0.0, 60.0)),
+           CloseUp(ROI.circle((1050.0, 2040.0), 8.0), scale=1.5, offset=(0.0, 0.0, 40.0))]
+    for a, b in (closeup_layers(t, cus, device="cpu"), anchor_strips(t, cus, device="cpu")):
+        again = type(a)(**{name: getattr(a, name) for name in a.__dataclass_fields__})  # same field values
+        assert a == a and a != b and not (a == b) and a != again
+        assert b in [a, b] and again not in [a, b]
+        assert len({a, b, a}) == 2 and {a: 1, b: 2}[b] == 2
+    source = _Source(np.zeros((2, 2), np.float32), (1.0, 1.0), (0.0, 0.0), None, "x")
+    view = _InView(1.0, np.zeros(2), np.zeros(2), np.eye(3), np.zeros(3))
+    for item in (source, view):
+        copy = type(item)(**{name: getattr(item, name) for name in item.__dataclass_fields__})
+        assert item == item and item != copy and item in [copy, item] and len({item, copy}) == 2
+
+
+@pytest.mark.parametrize("point", [(0.0, 0.0, 0.0), "centre"])
+def test_bounds_of_a_single_point_are_refused_by_name_without_a_numpy_warning(point):
+    """render_closeups(bounds=<a box of no size>) fitted its camera to the point: far from the overview's origin (the
+    point (0, 0, 0) under a UTM DEM) the eye fell on the point itself, numpy warned "invalid value encountered in
+    divide", and the error then said "the mesh would render 0 x 0 pixels", naming no ``bounds``. It is refused up
+    front by name, with the point got; render_mesh's ``bounds`` and LayeredRenderer.set_view's ``box`` alike, and
+    render_mesh names ``bounds`` too thin to see. An explicit camera position (it takes only the box's centre) still
+    accepts a point."""
+    import stepterrain as st
+
+    t = st.sample_dem()
+    xmin, xmax, ymin, ymax = t.extent
+    centre = ((xmin + xmax) / 2, (ymin + ymax) / 2, 500.0)
+    box = [centre, centre] if point == "centre" else [point, point]
+    cu = CloseUp(ROI.circle(centre[:2], (xmax - xmin) / 10), scale=2.0, offset=(0.0, 0.0, 60.0))
+    named = r"^bounds must be a box of some size for a fitted camera: .*; got the single point \("
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for camera in ("oblique", "top", (0.5, 0.6)):
+            with pytest.raises(InvalidInputError, match=named):
+                render_closeups(t, [cu], bounds=box, camera=camera, window_size=SIZE, device="cpu")
+            with pytest.raises(InvalidInputError, match=named):
+                render.render_mesh(t.mesh(), bounds=box, camera=camera, window_size=SIZE)
+
+
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_thin_bounds_are_named_and_a_point_still_centres_an_explicit_camera():
+    t = terrain()
+    column = [(1030.0, 2030.0, 0.0), (1030.0, 2030.0, 100.0)]  # no extent across: under a pixel wide
+    with pytest.raises(InvalidInputError, match=r"^bounds would render .* pixels: it spans 0 x 0 across and 100 tall"):
+        render.render_mesh(t.mesh(), bounds=column, window_size=SIZE)
+    point = [(1040.0, 2032.0, 50.0)] * 2
+    position = [(0.0, -150.0, 120.0), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0)]  # relative to the point
+    image = render_closeups(t, [one()], bounds=point, camera=position, window_size=SIZE, device="cpu")
+    assert (image != 255).any(axis=2).sum() > 100
+    renderer = render.LayeredRenderer(window_size=SIZE)
+    try:
+        mesh = t.mesh()
+        renderer.set_mesh("overview", mesh.vertices, mesh.faces)
+        far = [(-5e6, -5e6, 0.0)] * 2  # far from the overview: the eye fell on it (numpy's divide warning)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            with pytest.raises(InvalidInputError, match=r"^box must be a box of some size .* single point \(-5000000"):
+                renderer.set_view("oblique", far)
+        renderer.set_view(position, point)  # an explicit camera: the point is its centre
+    finally:
+        renderer.close()
+
+
+def test_a_stepped_closeup_over_the_budget_names_what_a_closeup_can_change():
+    """A stepped close-up (MPFR) whose window's stepped mesh went over the memory budget was refused with stepped()'s
+    advice, "or coarsen the isovalues", which no close-up option does (its isovalues are the whole terrain's at its
+    ``stepped`` interval); it names the close-up's interval, its ROI and the terrain now. closeup_layers'
+    ``memory_budget`` now reaches that stepped mesh too: it was checked against the global budget alone (a larger
+    memory_budget= was refused by the smaller global one, and a smaller one let it through)."""
+    from stepterrain import set_memory_budget
+    from stepterrain.terrain import Terrain
+
+    cu = CloseUp(ROI.circle((1040.0, 2032.0), 20.0), stepped=0.05)
+    with pytest.raises(OutputTooLargeError, match=r"^the stepped mesh .* over the memory budget of 100,000 bytes; "
+                       r"step the close-up at a larger interval \(CloseUp.stepped\) or give it a smaller ROI, or crop "
+                       r"or coarsen the terrain \(Terrain.crop, Terrain.coarsen\), or raise the budget") as caught:
+        closeup_layers(terrain(), [cu], memory_budget=100_000, device="cpu")
+    assert "isovalues" not in str(caught.value)
+    previous = set_memory_budget(100_000)
+    try:  # the call's own budget, larger than the global one, is the one that counts
+        (layer,) = closeup_layers(Terrain.from_heights(hills(), spacing=(2.0, 2.0), origin=(1000.0, 2000.0)), [cu],
+                                  memory_budget=1 << 30, device="cpu")
+    finally:
+        set_memory_budget(previous)
+    assert len(layer.faces) > 10_000 and (layer.source_faces == -1).all()
