@@ -251,3 +251,17 @@ def test_the_descriptive_cli_defaults_in_the_table(dem, tmp_path, capsys, monkey
     assert cli_batch(tmp_path, capsys, monkeypatch, "-q")["batch"][1]["progress"] is False
     assert cli_batch(tmp_path, capsys, monkeypatch, "--format", ".stl")["batch"][1]["colors"] is None
     assert "unless `-q`" in rows["batch", "batch(progress=)"][4]
+
+
+def test_every_cli_option_in_the_table_states_its_default_in_its_help():
+    import argparse
+
+    from stepterrain import cli
+
+    commands = next(a for a in cli.build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices
+    for (command, _column), cells in table_rows().items():
+        option = first_code(cells[3])
+        if option == "-q":  # the progress lines: on unless -q, as its help says
+            continue
+        (action,) = [a for a in commands[command]._actions if option in a.option_strings]
+        assert "default" in action.help, (command, option, action.help)
