@@ -97,7 +97,8 @@ def add_parser(commands: Any) -> None:
     )
     _add_input_options(p)
     p.add_argument("--roi", type=_floats(3, "x,y,r"), action=_RoiAction, metavar="x,y,r",
-                   help="a close-up's ROI: centre and radius (half size) in world units; repeat for more")
+                   help="a close-up's ROI: centre and radius (half size) in world units; repeat for more (default, "
+                        "without --roi or --roi-relative: one at the DEM's centre, radius 0.12 of its shorter side)")
     p.add_argument("--roi-relative", type=_floats(3, "fx,fy,fr"), action=_RoiAction, metavar="fx,fy,fr",
                    help="ROI centre as fractions of the extent, radius as a fraction of its shorter side")
     p.add_argument("--shape", choices=("circle", "rectangle", "rounded"), default="circle",

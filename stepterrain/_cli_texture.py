@@ -107,7 +107,9 @@ def add_parser(commands: Any) -> None:
                         "there it aims --shadows only")
     p.add_argument("--z-factor", type=float, default=None, metavar="Z",
                    help="vertical exaggeration of the shading (default 1)")
-    p.add_argument("--shadows", action="store_true", help="self-shadowing by the full-resolution terrain")
+    p.add_argument("--shadows", action="store_true",
+                   help="self-shadowing by the full-resolution terrain (default off; the library's topographic_layer "
+                        "casts them by default, shadows=True)")
     p.add_argument("--shadow-strength", type=float, default=None, metavar="S",
                    help="with --shadows: how much a shadow darkens, in [0, 1] (default 0.6)")
     p.add_argument("--occlusion", type=float, default=0.0, metavar="W",

@@ -1920,9 +1920,11 @@ def batch(
     format : str
         Output extension: ``.glb`` ``.gltf`` ``.obj`` ``.ply`` ``.stl`` ``.3mf``.
     tile_size : int or (rows, cols)
-        Cells per tile when ``source`` is one raster.
+        Cells per tile when ``source`` is one raster (no default: needed for one; the CLI's ``batch --tile``
+        defaults to 256 for the embedded DEM).
     interval, levels, base, gamma, colors, solid, floor
-        As in :func:`~stepterrain.stepped` (``gamma`` a scalar, ``colors`` a colormap name). For series and
+        As in :func:`~stepterrain.stepped` (``gamma`` a scalar, ``colors`` a colormap name, default None: no
+        colours; the CLI's ``batch --colormap`` defaults to 'terrain', none for ``.stl``). For series and
         tiles the isovalues come from the whole source's height range, so every item shares them (tiles
         weld, frames keep their levels). A folder's files (or a list's) share them too: with ``colors``, ``solid``
         or neither ``interval`` nor ``levels``, every file is read once before the items run (one at a time, as its
@@ -1983,7 +1985,7 @@ def batch(
         lines (the command line prefixes them and spells library arguments as its options). A folder's files read
         for their shared height range (more than one) get a bar of their own first. Without ``interval`` and
         ``levels``, the interval chosen is said once on stderr (a line of its own, reworded alike) before the items
-        run.
+        run. Default False: no bar (the CLI's ``batch`` shows one unless ``-q``).
     metadata : mapping, optional
         Added to every output's glTF ``extras``: JSON values (str, number, bool, None, lists and dicts of those
         with string keys), numpy scalars and arrays included, as in :func:`~stepterrain.export.save_mesh`;

@@ -699,16 +699,20 @@ class CloseUp:
     rotation : (α, β), radians
         α tilts about the x axis, β turns about the vertical axis (the paper's y, our z); each within ±2π·1024.
     scale : s or (sx, sy, sz)
-        sx, sy > 0 scale the ROI's extent; sz >= 0 its heights (sz = 0: a flat close-up, Fig. 1).
+        sx, sy > 0 scale the ROI's extent; sz >= 0 its heights (sz = 0: a flat close-up, Fig. 1). Default 1: the
+        ROI's own size (the CLI's ``closeup --scale`` defaults to 1.5).
     offset : (dx, dy, dz), world units
-        Displacement of the close-up from its ROI (dz > 0 lifts it above the terrain).
+        Displacement of the close-up from its ROI (dz > 0 lifts it above the terrain). Default (0, 0, 0): in place,
+        on its ROI (the CLI's ``closeup --offset`` defaults to a lift of a fifth of the extent's longer side, at
+        least 0.3 of its north-south depth).
     color : matplotlib color, optional
         Ties close-up and ROI together (P2); default: the palette by position.
     active : bool
         Inactive close-ups draw their anchor as ``anchor.inactive`` says (Fig. 5).
     anchor : AnchorStyle
     spin : (turns per second, repetitions), optional
-        Automatic rotation about the vertical axis for animations (§III.B).
+        Automatic rotation about the vertical axis for animations (§III.B); default None: no spin (the CLI's
+        ``closeup --spin`` defaults to 0.25 turns per second).
     view : "overview" or "billboard"
         Overview-dependent (same camera as the overview) or overview-independent: an orthographic image
         from the fixed direction ``billboard_view`` (azimuth, elevation; radians, the elevation in [-π/2, π/2]),
@@ -2387,7 +2391,8 @@ def render_closeups(
         anchors together); an explicit position is relative to the centre of that box, as render_mesh's to the
         centre of its ``bounds``.
     z_scale : float
-        Vertical exaggeration of the render.
+        Vertical exaggeration of the render; default 1, true proportions (the CLI's ``closeup --z-scale``
+        defaults to 2).
     scalars, cmap
         The overview's data mapping: "height", "slope", "aspect" through ``cmap``, or None (uniform tan).
         Close-ups use it too unless they set their own (SPFR); stepped close-ups (MPFR) color their levels through
@@ -2745,7 +2750,8 @@ def animate_closeups(
     The camera frames the overview and every close-up at every frame's turn (the box swept by the spin), so the
     view stays still while the close-ups rotate. ``options`` go to :func:`render_closeups` (``z_scale``,
     ``scalars``, ``cmap``, ``camera``, ``bounds``, ...), all but those set per frame here: ``time``,
-    ``renderer`` and ``reuse_overview``. ``progress``: a tqdm bar of the frames on stderr. Every frame is kept
+    ``renderer`` and ``reuse_overview``. ``window_size`` defaults to 640 x 400 (the CLI's ``closeup --size``:
+    1280 x 720, as :func:`render_closeups`'). ``progress``: a tqdm bar of the frames on stderr. Every frame is kept
     (frames x width x height x 3 bytes, checked against :func:`stepterrain.set_memory_budget` before the first, as
     is the renderer's window).
     """

@@ -606,6 +606,7 @@ class Globe:
             descendants), so every node left out has e <= ε, but its distance from the mesh sums the steps of the
             levels between: it may exceed ε (the embedded relief at face size 129: within ε up to 500 m, up to
             2.7 km from the mesh at 2 km). :func:`adaptive_mesh`'s planar e is the true vertical error, a bound.
+            Default 0 (the CLI's ``globe --error`` defaults to 500).
         camera : Camera, optional
             Eye and frustum for the distance and clip metrics (ignored without one). The eye must lie above the
             terrain surface in its direction (radius plus the node heights interpolated there).

@@ -484,7 +484,8 @@ def render_mesh(
     window_size : (width, height)
         Image size in pixels: two whole numbers, each 8 to 16384.
     z_scale : float
-        Vertical exaggeration applied for the render only (the mesh is not modified).
+        Vertical exaggeration applied for the render only (the mesh is not modified); default 1, true
+        proportions (the CLI's ``--z-scale`` defaults to 2).
     camera : "oblique", "top", (azimuth, elevation) or [(eye), (focal point), (view up)]
         "oblique" is the fixed reproducible view from just west of south at 45° elevation; a pair gives the
         direction the camera looks from (radians, azimuth clockwise from north = +y), with the far side up in
@@ -1148,7 +1149,9 @@ def render_textured_mesh(
     average of the texels under each pixel, not as one of them. A PBR material's ``baseColorFactor`` multiplies the
     texture, in linear light, as glTF defines the base colour.
     ``lighting=False`` shows the texture unlit (a
-    topographic texture already carries its shading, paper 004 §7); True adds the key and fill lights.
+    topographic texture already carries its shading, paper 004 §7); True (the default) adds the key and fill
+    lights. ``z_scale`` defaults to 1, true proportions. The CLI's ``texture --png`` defaults differ: ``--z-scale 2``
+    and ``--lighting auto`` (lit only on the stepped terrain, or with ``--hillshade none`` and no ``--image``).
 
     A texture with some alpha below 255 (an alpha band, or a PNG's transparent colour) blends with what lies behind
     it, in depth order (depth peeling), as the mesh's GLB shows it; a material's glTF ``alphaMode`` is followed when

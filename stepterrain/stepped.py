@@ -1219,8 +1219,8 @@ def stepped(
         faces project one-to-one onto the xy plane.
     interval, levels, base
         Exactly one of ``interval`` (uniform isovalues ``base + k * interval`` covering the heights) or
-        ``levels`` (explicit, strictly increasing; non-uniform allowed). Heights outside the levels clamp
-        to the end levels.
+        ``levels`` (explicit, strictly increasing; non-uniform allowed), with no default (the CLI's ``steps``
+        picks a round ``--interval`` giving about 15 steps). Heights outside the levels clamp to the end levels.
     gamma : float, (H, W) / (N,) array, callable or Lens
         The blend of §3.3 in [0, 1]: 0 = original surface, 1 = fully stepped. An array gives one γ per
         terrain node (interpolated onto wall vertices with the crossing's β; NaN where no vertex reads it: a nodata
@@ -1233,6 +1233,7 @@ def stepped(
         'terrain' without its sea-blue first quarter, see :data:`LAND_START`) or one color per isovalue. By default
         the input's vertex colors or UVs (a TIN with a visual) are carried over, and a TIN's face colours onto the
         faces cut from each triangle; on a solid the skirt and base are grey, or take the UVs of the surface above them.
+        (The CLI's ``steps --colormap`` defaults to 'terrain': ``colors="terrain"`` here.)
     solid : bool
         Close the surface with side skirts and a flat base at ``floor`` (default: one interval below the
         lowest isovalue or the lower surface that γ < 1 gives under explicit ``levels``; with ``levels``, a

@@ -1101,7 +1101,8 @@ def topographic_layer(
 ) -> TextureLayer:
     """A topographic texture layer (§7): hillshade, self-shadowing and optional ambient occlusion.
 
-    The luminance is ``ambient + (1 − ambient) · shade``, shadows darken by ``shadow_strength`` (default 0.6;
+    The luminance is ``ambient + (1 − ambient) · shade``; ``shadows`` (default True: self-shadowing on, unlike the
+    CLI's opt-in ``texture --shadows``) darken by ``shadow_strength`` (default 0.6;
     refused with ``shadows=False``, where it would have no effect) and ``occlusion`` in [0, 1] mixes in
     horizon-based ambient occlusion (``1 − occlusion · (1 − ao)``). ``method`` is one of :data:`HILLSHADE_METHODS`
     (gdaldem's grey variants, as in :func:`hillshade`, which refuses the angles they ignore likewise), not a
