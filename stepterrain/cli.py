@@ -761,8 +761,9 @@ def _check_side_files(option: str, path: Path, sides: list[Path], inputs: dict[s
             if not given:
                 continue
             try:
-                same = Path(os.path.abspath(given)) == key or (key.exists() and Path(given).exists()
-                                                               and os.path.samefile(key, given))
+                # symbolic links resolved: an output named through a linked folder was replaced by the side file
+                same = (Path(os.path.abspath(given)) == key or os.path.realpath(given) == os.path.realpath(key)
+                        or (key.exists() and Path(given).exists() and os.path.samefile(key, given)))
             except OSError:
                 same = False
             if not same:

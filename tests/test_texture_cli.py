@@ -1308,3 +1308,13 @@ def test_cli_texture_outputs_through_a_symlink_are_one_file(tmp_path, small_dem,
     assert main(["texture", str(small_dem), "-o", str(out), "--png", str(png)]) == 2
     assert "--output and --png name the same file" in capsys.readouterr().err
     assert not out.exists() or out.stat().st_size == 0
+
+
+def test_cli_texture_obj_side_image_through_a_linked_folder_is_refused(tmp_path, small_dem, capsys):
+    """--mesh x.obj writes x_terrain_texture.png beside it: -o naming that file through a folder reached by a
+    symbolic link was written, then replaced by the OBJ's image (exit 0). Refused as the plain name is."""
+    (tmp_path / "linked").symlink_to(tmp_path, target_is_directory=True)
+    out = tmp_path / "linked" / "x_terrain_texture.png"
+    assert main(["texture", str(small_dem), "-o", str(out), "--mesh", str(tmp_path / "x.obj")]) == 2
+    assert "which is what --output names" in capsys.readouterr().err
+    assert not out.exists() and not (tmp_path / "x.obj").exists()
