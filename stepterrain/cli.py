@@ -691,9 +691,13 @@ def _check_outputs(inputs: dict[str, str | None] | None = None, /, **paths: Path
             continue
         name = "--" + option.replace("_", "-")
         key = Path(os.path.abspath(path))
-        if key in seen:
-            raise InvalidInputError(f"{seen[key]} and {name} name the same file {str(path)!r}; give each its own")
-        seen[key] = name
+        # symbolic links resolved: '-o t.png --png link.png' (link.png -> t.png), or a folder reached by a link, wrote
+        # both, the second replacing the first (the texture lost, exit 0)
+        resolved = Path(os.path.realpath(path))
+        if resolved in seen:
+            raise InvalidInputError(f"{seen[resolved]} and {name} name the same file {str(path)!r}; give each its "
+                                    "own")
+        seen[resolved] = name
         try:  # a name the system refuses to look up (a part over 255 bytes) raised a bare OSError naming no option
             for source, given in (inputs or {}).items():
                 if given and (Path(os.path.abspath(given)) == key
@@ -757,8 +761,9 @@ def _check_side_files(option: str, path: Path, sides: list[Path], inputs: dict[s
             if not given:
                 continue
             try:
-                same = Path(os.path.abspath(given)) == key or (key.exists() and Path(given).exists()
-                                                               and os.path.samefile(key, given))
+                # symbolic links resolved: an output named through a linked folder was replaced by the side file
+                same = (Path(os.path.abspath(given)) == key or os.path.realpath(given) == os.path.realpath(key)
+                        or (key.exists() and Path(given).exists() and os.path.samefile(key, given)))
             except OSError:
                 same = False
             if not same:

@@ -1290,3 +1290,31 @@ def test_image_layer_over_a_sliver_of_the_terrain_warns_at_the_callers_line():
         image_layer(coded_pixels(64, 64), terrain, extent=(xmin, xmin + 0.2 * width, ymin, ymax), device="cpu")
     with pytest.raises(InvalidInputError, match=r"does not overlap the terrain's \(376313"):
         image_layer(coded_pixels(64, 64), terrain, extent=(xmax, xmax + width, ymin, ymax), device="cpu")
+
+
+@pytest.mark.parametrize("alias", ["link to the file", "link to the folder"])
+def test_cli_texture_outputs_through_a_symlink_are_one_file(tmp_path, small_dem, capsys, alias):
+    """Two outputs that name one file through a symbolic link (a link to the -o file, or a folder reached by a
+    link) were both written: the render replaced the texture, exit 0, and the texture was lost. Refused before
+    any work, as two spellings of one path are."""
+    out = tmp_path / "t.png"
+    if alias == "link to the file":
+        out.write_bytes(b"")  # an existing file the link points at (the texture replaces it)
+        (tmp_path / "link.png").symlink_to(out)
+        png = tmp_path / "link.png"
+    else:
+        (tmp_path / "linked").symlink_to(tmp_path, target_is_directory=True)
+        png = tmp_path / "linked" / "t.png"
+    assert main(["texture", str(small_dem), "-o", str(out), "--png", str(png)]) == 2
+    assert "--output and --png name the same file" in capsys.readouterr().err
+    assert not out.exists() or out.stat().st_size == 0
+
+
+def test_cli_texture_obj_side_image_through_a_linked_folder_is_refused(tmp_path, small_dem, capsys):
+    """--mesh x.obj writes x_terrain_texture.png beside it: -o naming that file through a folder reached by a
+    symbolic link was written, then replaced by the OBJ's image (exit 0). Refused as the plain name is."""
+    (tmp_path / "linked").symlink_to(tmp_path, target_is_directory=True)
+    out = tmp_path / "linked" / "x_terrain_texture.png"
+    assert main(["texture", str(small_dem), "-o", str(out), "--mesh", str(tmp_path / "x.obj")]) == 2
+    assert "which is what --output names" in capsys.readouterr().err
+    assert not out.exists() and not (tmp_path / "x.obj").exists()
