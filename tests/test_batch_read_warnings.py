@@ -4,7 +4,8 @@ The files of a folder are read once for their shared height range (a solid's flo
 interval) and again as their items: each read warned. A float32 GeoTIFF whose voids hold the lowest float32 value
 without a declared nodata printed load_dem's "undeclared void" warning before the progress bar (the range pass) and
 again after it (the item's read, warned again in the caller's process), and the Python API recorded it twice. Every
-test here failed before the range pass's warnings were kept from being said again."""
+test here but the last failed before the range pass's warnings were kept from being said again; the last, before
+the solid floor's check stopped taking np.spacing of the float32 maximum (numpy's overflow warning, said next)."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ import pytest
 
 import stepterrain as st
 from stepterrain.batch import batch
+
 from .conftest import run_cli as run
 
 rasterio = pytest.importorskip("rasterio", reason="GeoTIFF tiles are written with rasterio")
@@ -80,3 +82,13 @@ def test_cli_says_the_void_warning_once(tmp_path, capsys):
                        "--scheduler", "serial", "-o", tmp_path / "out")  # fmt: skip
     assert code == 0, err
     assert err.count("t0.tif: 35 cells of band 1 hold -3.4028235e+38, the lowest float32 value") == 1, err
+
+
+def test_solid_floor_over_lowest_float32_heights_warns_no_overflow(tmp_path):
+    # the floor's check took np.spacing of the float32 maximum: numpy's "overflow encountered in spacing" warning,
+    # said by batch after the file's void warning (its solid's floor is given to every item)
+    terrain = st.Terrain.from_heights(np.where(np.arange(36).reshape(6, 6) < 3, LOWEST, 700.0).astype(np.float32))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        mesh = st.stepped(terrain, levels=LEVELS, gamma=0.5, solid=True, floor=-3e38)
+    assert mesh.is_watertight
