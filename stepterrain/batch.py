@@ -2278,6 +2278,9 @@ def batch(
         ranges = None  # the files' height ranges to record in the manifest (None: none, or a tiles or series run)
         identities = None
         kept: _Kept | None = None
+        # the warnings the files' range pass said (load_dem's of each file): their items' reads give them again, in
+        # a worker or from the kept read, and each was said twice, before and after the progress bar started
+        said: list[str] = []
         if src is None and items:  # a folder's or list's files: one height range, so one set of levels and one floor
             # (after the cheap checks and the output folder's, locked: every file is read, and a bad scheduler
             # address, an output_dir that is a file or one another run was writing was refused only after that)
@@ -2292,7 +2295,7 @@ def batch(
             try:
                 options, ranges, z_range = _files_levels(
                     items, options, None if interval is None else float(interval), levels, base, retries,
-                    bool(progress), recorded, identities, kept)  # fmt: skip
+                    bool(progress), recorded, identities, kept, said)  # fmt: skip
             except BaseException:
                 lock.release()
                 _remove_empty(made)  # nothing was written: leave no empty output folder behind
@@ -2314,7 +2317,7 @@ def batch(
             _say_interval(progress, float(interval), len(level_values or ()), z_range)  # type: ignore[arg-type]
         run = dict(scheduler=scheduler, workers=workers, retries=retries, resume=resume, timeout=timeout)
         return _run_locked(items, src, options, folder, made, lock, progress=progress, start=start, ranges=ranges,
-                           read=manifest, identities=identities, kept=kept, **run)
+                           read=manifest, identities=identities, kept=kept, said=said, **run)
     finally:
         lock.release()
 
@@ -2350,12 +2353,14 @@ def _run_locked(
     ranges: tuple[dict[str, Any], bool] | None = None,
     identities: Mapping[str, str] | None = None,
     kept: _Kept | None = None,
+    said: Iterable[str] = (),
 ) -> BatchReport:
     """:func:`batch` once the arguments are checked and the output folder is locked; ``ranges``: the files' height
     ranges to record in the manifest (:func:`_files_range`) and whether they differ from those it records;
     ``read``: :func:`_read_manifest` of the folder; ``identities``: the file items'
     :func:`_file_identities` (found here when not given); ``kept``: terrains the range pass read, by item key, for
-    the serial run's items."""
+    the serial run's items; ``said``: the messages of warnings said already (the files' range pass's), not said
+    again when an item's result gives them."""
     ext = options.ext
     outputs = [f"{item.key}{ext}" for item in items]
     _remove_partial(folder, outputs + [MANIFEST_NAME])
@@ -2424,7 +2429,7 @@ def _run_locked(
         level = caller_stacklevel()  # the caller's line, as save_mesh and load_dem point their warnings
         rounded: list[str] = []  # STL's float32 rounding, one message per tile of a UTM raster: said once below
         opened: list[str] = []  # and the .stl files that read back open (a solid's pinches at UTM), said once too
-        said: set[str] = set()  # a message many items give alike, once (the serial run's recording of each item
+        shown = set(said)  # a message many items give alike, once (the serial run's recording of each item
         # reset Python's registry of warnings already shown, so its "default" filter repeated it for every item)
         for result in stream:
             if result.error and hint != BUDGET_HINT and BUDGET_HINT in result.error:
@@ -2438,8 +2443,8 @@ def _run_locked(
                     rounded.append(message)
                 elif _STL_OPEN_RE.search(message):
                     opened.append(message)
-                elif message not in said:
-                    said.add(message)
+                elif message not in shown:
+                    shown.add(message)
                     warnings.warn(message, stacklevel=level)
             _tick(bar, result, reworded)
         if rounded:
@@ -2556,6 +2561,7 @@ def _levels_and_range(
 def _files_range(
     items: Sequence[BatchItem], options: _Options, retries: int, progress: bool,
     cached: Mapping[str, Any], identities: Mapping[str, str], kept: _Kept | None = None,
+    said: list[str] | None = None,
 ) -> tuple[tuple[tuple[float, float], str] | None, dict[str, Any]]:
     """The (min, max) of the heights a triangle uses over every file of a folder or list (each file's
     :attr:`~stepterrain.terrain.Terrain.height_range`, read as its item reads it: ``height_unit``, ``band``,
@@ -2569,7 +2575,9 @@ def _files_range(
     hiccup) is retried ``retries`` times, then raised: levels from the other files alone would differ from those of
     a run that read it. ``identities``: the files' :func:`_file_identities`. ``kept``:
     where the terrains read go, by item key, for items that run in this process after (:func:`_run_serial`), so
-    that a file is read once (the caller asks for it for one file only: not every file of a folder in memory)."""
+    that a file is read once (the caller asks for it for one file only: not every file of a folder in memory).
+    ``said``: the messages of the warnings the reads gave, each said once (:func:`_file_range`), go into it."""
+    said = [] if said is None else said
     keys = [_range_key(identities[item.key], options) for item in items]
     bar = None
     unread = sum(key not in cached for key in keys)
@@ -2584,7 +2592,7 @@ def _files_range(
             if key in cached:  # recorded by an earlier run: the same file, read alike
                 found = cached[key]
             else:
-                found = _file_range(item, options, retries, kept)
+                found = _file_range(item, options, retries, kept, said)
                 if bar is not None:
                     bar.update(1)
                 if found is ...:  # unreadable: its item fails with the reason; no range recorded
@@ -2601,26 +2609,29 @@ def _files_range(
     return (None if lowest == "" else ((lo, hi), lowest)), ranges
 
 
-def _file_range(item: BatchItem, options: _Options, retries: int, kept: _Kept | None = None) -> Any:
+def _file_range(item: BatchItem, options: _Options, retries: int, kept: _Kept | None = None,
+                said: list[str] | None = None) -> Any:
     """:func:`_files_range`'s read of one file: ``[min, max]`` of its heights a triangle uses, None for no surface,
     ``...`` for a file that cannot be read (its item fails with the reason); a transient OSError retried ``retries``
     times, then raised. The terrain read goes into ``kept`` (by the item's key) when given, with its read's warnings:
-    it is the item's, read as the item reads it."""
+    it is the item's, read as the item reads it. The read's warnings are said here (a read that failed included),
+    each message once: those ``said`` holds already are not, and those said go into it, so that the item's own read
+    (a worker's, warned again in this process by :func:`_run_locked`) does not say them a second time."""
     for attempt in range(retries + 1):
+        caught: list[warnings.WarningMessage] = []
         try:
-            if kept is None:
-                terrain = _item_terrain(item, None, options.height_unit, options.file_spacing, options.coarsen,
-                                        options.band, options.height_encoding)  # fmt: skip
-            else:  # the item's read: its warnings recorded for its result too, as run_item records its own read's
-                caught: list[warnings.WarningMessage] = []
-                try:
-                    with _RECORDING, warnings.catch_warnings(record=True) as caught:
-                        warnings.simplefilter("default")
-                        terrain = _item_terrain(item, None, options.height_unit, options.file_spacing,
-                                                options.coarsen, options.band, options.height_encoding)  # fmt: skip
-                finally:  # said here too (a read that failed included), as a file read for the range alone says them
-                    for w in caught:
-                        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+            try:  # recorded, as run_item records its item's read: its warnings are its result's too (kept)
+                with _RECORDING, warnings.catch_warnings(record=True) as caught:
+                    warnings.simplefilter("default")
+                    terrain = _item_terrain(item, None, options.height_unit, options.file_spacing,
+                                            options.coarsen, options.band, options.height_encoding)  # fmt: skip
+            finally:
+                for w in caught:
+                    if said is not None and str(w.message) in said:
+                        continue
+                    if said is not None:
+                        said.append(str(w.message))
+                    warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         except StepTerrainError as exc:  # its item fails with it (an unreadable file), as it fails there
             if _transient(exc) and attempt < retries:
                 continue
@@ -2640,7 +2651,7 @@ def _file_range(item: BatchItem, options: _Options, retries: int, kept: _Kept | 
 def _files_levels(
     items: Sequence[BatchItem], options: _Options, interval: float | None, levels: ArrayLike | None, base: float,
     retries: int, progress: bool, cached: Mapping[str, Any], identities: Mapping[str, str],
-    kept: _Kept | None = None,
+    kept: _Kept | None = None, said: list[str] | None = None,
 ) -> tuple[_Options, tuple[dict[str, Any], bool] | None, tuple[float, float] | None]:
     """``options`` with the levels and floor every file of a folder or list shares, as tiles of one raster share
     them (:func:`_levels_and_range`, :func:`_shared_floor`): the isovalues of ``interval`` over the height range of
@@ -2653,11 +2664,12 @@ def _files_levels(
     ``interval`` levels, a solid, or no interval yet; a file whose range the manifest records (``cached``, by
     :func:`_range_key`) is not read again. ``options`` as they are when no file has a surface (every item is
     empty). Also the files' ranges for the manifest and whether they differ from ``cached`` (None: none read), and
-    the height range of all files (None: none read, or no surface). ``identities``, ``kept``: :func:`_files_range`'s.
+    the height range of all files (None: none read, or no surface). ``identities``, ``kept``, ``said``:
+    :func:`_files_range`'s.
     """
     if not (options.solid or (options.colors is not None and levels is None) or (interval is None and levels is None)):
         return options, None, None  # explicit levels without a solid: every file has them already; no colours: none
-    found, ranges = _files_range(items, options, retries, progress, cached, identities, kept)
+    found, ranges = _files_range(items, options, retries, progress, cached, identities, kept, said)
     changed = dict(cached) != ranges  # a range added, dropped or changed
     if found is None:
         return options, (ranges, changed), None

@@ -1373,7 +1373,10 @@ def lowest_surface(h: float, values: NDArray[np.float32], gamma: float | None) -
     it before stepping; :func:`~stepterrain.mesh.close_solid` has the final word)."""
     h32 = np.float32(h)
     alpha = snapped_isovalue(h32, values)
-    margin = 4.0 * float(np.spacing(max(abs(h32), abs(alpha))))
+    top = max(abs(h32), abs(alpha))
+    with np.errstate(over="ignore"):  # np.spacing of the float32 maximum (a void of -3.4e38 read as a height) is
+        step = np.spacing(top)  # inf, with numpy's "overflow encountered in spacing" warning: the step below it
+    margin = 4.0 * float(top - np.nextafter(top, np.float32(0.0)) if np.isinf(step) else step)
     if gamma is None:
         return max(float(h32), float(alpha)), float(alpha), margin
     if gamma in (0.0, 1.0):  # (1 - γ) h + γ α is h or α, in float32 as the kernel computes it
