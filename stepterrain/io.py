@@ -3112,8 +3112,7 @@ def _heights_in_metres(
     if factor is None:
         raise DataFileError(
             f"cannot read {str(file)!r}: expected heights in a known length unit ({_KNOWN_UNITS}); got {unit!r} "
-            f"({named_by}); if they are lengths, name their unit: load_dem(..., height_unit='m') (or 'ft', ...; "
-            "the CLI's --height-unit m)"
+            f"({named_by}); if they are lengths, name their unit: height_unit='m' (or 'ft', ...)"
         )
     if factor != 1.0:  # scaled in float64, in place (the product was a second float64 copy)
         scaled = heights.astype(np.float64)

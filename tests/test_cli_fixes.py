@@ -2384,3 +2384,22 @@ def test_closeup_stepped_over_the_budget_names_the_closeup_options(tmp_path, cap
             "raise the budget (--memory-budget SIZE)" in err), err
     assert "isovalues" not in err and "Terrain." not in err and "CloseUp" not in err
     assert not (tmp_path / "out.ply").exists()
+
+
+@pytest.mark.parametrize("command", ["steps", "info"])
+def test_unknown_height_unit_refusal_names_the_option_cleanly(tmp_path, capsys, command):
+    """A GeoTIFF whose band names a unit off the list (here 'meters above sea level') was refused on the command
+    line with the library's advice half-spelled as an option: "name their unit: load_dem(..., --height-unit 'm')
+    (or 'ft', ...; the CLI's --height-unit m)", a Python call with an option inside it, the option said twice. The
+    refusal names --height-unit once, as an option the user can type, and the file's unit; with it the run works."""
+    from .test_io_fixes import write_unit_tif
+
+    tif = write_unit_tif(tmp_path / "msl.tif", "meters above sea level")
+    out = [] if command == "info" else ["--interval", "1", "-o", tmp_path / "x.ply"]
+    code, _, err = run(capsys, command, tif, *out)
+    assert code == 2, err
+    assert "got 'meters above sea level' (band 1's unit)" in err, err
+    assert "name their unit: --height-unit 'm' (or 'ft', ...)" in err, err
+    assert "load_dem(" not in err and "the CLI's" not in err and err.count("--height-unit") == 1, err
+    code, _, err = run(capsys, command, tif, "--height-unit", "m", *out)
+    assert code == 0, err
