@@ -634,6 +634,12 @@ def _add_info(commands: Any) -> None:
                               "none or one not known; not for a mesh")
     _add_band(p)
     _add_height_encoding(p)
+    # the spacing steps', closeup's and texture's --spacing places a grid with: their --crop takes the coordinates
+    # info prints, which it could not print for such a grid ("unrecognized arguments: --spacing 30")
+    p.add_argument("--spacing", type=_cell_size, metavar="D|dx,dy",
+                   help="the node spacing in metres of a DEM with no georeferencing (.npy, a PNG heightmap, a GeoTIFF "
+                        "without a geotransform), as the other commands' --spacing places it (their --crop takes "
+                        "the coordinates printed); not for a mesh")
     p.add_argument("--json", action="store_true", help="print JSON instead of aligned text")
     p.set_defaults(run=_run_info)
 
@@ -1070,12 +1076,16 @@ def _run_info(args: argparse.Namespace, progress: Progress) -> int:
         if args.height_encoding is not None:
             raise InvalidInputError(f"--height-encoding applies to an RGB PNG DEM; {args.file!r} is a mesh file; got "
                                     f"--height-encoding {args.height_encoding!r}")
+        if args.spacing is not None:
+            raise InvalidInputError(f"--spacing applies to a DEM with no georeferencing; {args.file!r} is a mesh "
+                                    f"file; got --spacing {','.join(f'{v:g}' for v in args.spacing)}")
         summary = _mesh_summary(Path(args.file))
     else:
         from .io import describe_dem
 
         try:
-            terrain = _load_input(args.file, args.height_unit, band=args.band, height_encoding=args.height_encoding)
+            terrain = _load_input(args.file, args.height_unit, spacing=args.spacing, band=args.band,
+                                  height_encoding=args.height_encoding)
         except InvalidInputError as exc:  # load_dem's refusal listed the DEM formats alone: info reads meshes too
             if "unknown DEM extension" not in str(exc):
                 raise
