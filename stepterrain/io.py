@@ -1499,8 +1499,8 @@ def _load_geotiff(
                                         "-outsize)")
             else:
                 _check_read_budget(file, shape, np.dtype(dataset.dtypes[band - 1]),
-                                   hint="crop or coarsen it first (load_dem's crop=, --crop on the command line, "
-                                        "reads only the crop's window; gdal_translate -outsize coarsens)")
+                                   hint="crop or coarsen it first (crop= (the CLI's --crop) reads only the crop's "
+                                        "window; gdal_translate -outsize coarsens)")
             # block by block: GDAL's one big read of a raw raster (.bil, .flt) cut short filled the missing rows with
             # zeros without an error (heights of 0 m); its block reads fail there, as a GeoTIFF's do
             with rasterio.Env(GDAL_ONE_BIG_READ="NO"):

@@ -2439,3 +2439,26 @@ def test_info_spacing_prints_the_coordinates_steps_crop_takes(tmp_path, capsys):
 
     code, _, err = run(capsys, "info", write_unit_tif(tmp_path / "utm.tif", "m"), "--spacing", "30")
     assert code == 2 and "--spacing applies to a DEM file with no georeferencing" in err, err
+
+
+def test_steps_over_the_memory_budget_names_options_not_python(tmp_path, capsys):
+    """Two budget refusals of steps spoke Python to a command-line user: a GeoTIFF over the budget said "crop or
+    coarsen it first (load_dem's --crop, --crop on the command line, reads only the crop's window", the library's
+    crop= rewritten into an option inside a Python name; a stepped solid over it said "crop or coarsen the input
+    (Terrain.crop, Terrain.coarsen; --crop, --coarsen) or coarsen the isovalues" (no option coarsens isovalues: a
+    larger --interval does). Both name the options alone now, and following the advice works."""
+    from .conftest import shared_file
+
+    tif = shared_file("big_tujunga_srtm_30m_utm11n.tif")  # 643 x 1197 int16: 1.5 MB
+    out = tmp_path / "x.ply"
+    code, _, err = run(capsys, "-q", "steps", tif, "--interval", "100", "-o", out, "--memory-budget", "1MB")
+    assert code == 2, err
+    assert "crop or coarsen it first (--crop reads only the crop's window; gdal_translate -outsize coarsens)" in err
+    assert "load_dem" not in err and "the CLI's" not in err, err
+    solid = ["--coarsen", "3", "--solid", "-o", tmp_path / "x.3mf", "--memory-budget", "60MB"]
+    code, _, err = run(capsys, "-q", "steps", tif, "--interval", "20", *solid)
+    assert code == 2, err
+    assert "crop or coarsen the DEM (--crop, --coarsen) or give a larger --interval (fewer --levels)" in err, err
+    assert "Terrain." not in err and "coarsen the isovalues" not in err, err
+    code, _, err = run(capsys, "-q", "steps", tif, "--interval", "500", *solid)  # a larger --interval: it fits
+    assert code == 0, err
