@@ -31,7 +31,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from ._compaction import budget_hint, get_memory_budget, set_memory_budget
+from ._compaction import SMALLER_HINT, budget_hint, get_memory_budget, set_memory_budget
 from .errors import DataFileError, InvalidInputError, StepTerrainError, counted
 from .export import _STL_OPEN_LOCAL, _STL_ROUNDING_LOCAL, MESH_EXTENSIONS, _special_file_kind, probe_writable
 from .stepped import TARGET_STEPS, _default_isovalues, colormap, colormap_samples, nice_interval
@@ -634,6 +634,12 @@ def _add_info(commands: Any) -> None:
                               "none or one not known; not for a mesh")
     _add_band(p)
     _add_height_encoding(p)
+    # the spacing steps', closeup's and texture's --spacing places a grid with: their --crop takes the coordinates
+    # info prints, which it could not print for such a grid ("unrecognized arguments: --spacing 30")
+    p.add_argument("--spacing", type=_cell_size, metavar="D|dx,dy",
+                   help="the node spacing in metres of a DEM with no georeferencing (.npy, a PNG heightmap, a GeoTIFF "
+                        "without a geotransform), as the other commands' --spacing places it (their --crop takes "
+                        "the coordinates printed); not for a mesh")
     p.add_argument("--json", action="store_true", help="print JSON instead of aligned text")
     p.set_defaults(run=_run_info)
 
@@ -1075,12 +1081,16 @@ def _run_info(args: argparse.Namespace, progress: Progress) -> int:
         if args.height_encoding is not None:
             raise InvalidInputError(f"--height-encoding applies to an RGB PNG DEM; {args.file!r} is a mesh file; got "
                                     f"--height-encoding {args.height_encoding!r}")
+        if args.spacing is not None:
+            raise InvalidInputError(f"--spacing applies to a DEM with no georeferencing; {args.file!r} is a mesh "
+                                    f"file; got --spacing {','.join(f'{v:g}' for v in args.spacing)}")
         summary = _mesh_summary(Path(args.file))
     else:
         from .io import describe_dem
 
         try:
-            terrain = _load_input(args.file, args.height_unit, band=args.band, height_encoding=args.height_encoding)
+            terrain = _load_input(args.file, args.height_unit, spacing=args.spacing, band=args.band,
+                                  height_encoding=args.height_encoding)
         except InvalidInputError as exc:  # load_dem's refusal listed the DEM formats alone: info reads meshes too
             if "unknown DEM extension" not in str(exc):
                 raise
@@ -1218,15 +1228,19 @@ _LOOK_FROM = {"look from another direction (camera)": "look from another directi
 
 #: Library arguments named as plain words in mid-sentence, which the general rule leaves alone (a plain word may be
 #: just a word: "gives 2000 levels"), per subcommand: the library's phrase and the command line's.
+#: SMALLER_HINT (a stepped mesh over the budget) as steps' and batch's options give it: it named the
+#: Terrain methods beside the options, and "coarsen the isovalues", which no option says (a larger --interval does).
+_SMALLER_OPTIONS = "crop or coarsen the DEM (--crop, --coarsen) or give a larger --interval (fewer --levels)"
+
 _OPTION_PHRASES = {
-    "steps": {"bring base closer": "bring --base closer", **_LOOK_FROM},
+    "steps": {"bring base closer": "bring --base closer", **_LOOK_FROM, SMALLER_HINT: _SMALLER_OPTIONS},
     "closeup": {**_LOOK_FROM,
                 # closeup.STEPPED_CLOSEUP_HINT, of a --stepped close-up over the budget
                 "step the close-up at a larger interval (CloseUp.stepped) or give it a smaller ROI, or crop or coarsen "
                 "the terrain (Terrain.crop, Terrain.coarsen)": "step the close-up at a larger interval (--stepped) or "
                 "give it a smaller ROI (the r of --roi x,y,r or --roi-relative fx,fy,fr), or crop or coarsen the DEM "
                 "(--crop, --coarsen)"},
-    "batch": {"bring base closer": "bring --base closer", **_LOOK_FROM,
+    "batch": {"bring base closer": "bring --base closer", **_LOOK_FROM, SMALLER_HINT: _SMALLER_OPTIONS,
               # batch._check_unreferenced's, in a failed item's line ("failed KEY: InvalidInputError: spacing ...")
               ": spacing applies to DEM files": ": --spacing applies to DEM files",
               "render no overview": "leave --png out",  # batch._check_overview's hint

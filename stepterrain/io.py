@@ -1499,8 +1499,8 @@ def _load_geotiff(
                                         "-outsize)")
             else:
                 _check_read_budget(file, shape, np.dtype(dataset.dtypes[band - 1]),
-                                   hint="crop or coarsen it first (load_dem's crop=, --crop on the command line, "
-                                        "reads only the crop's window; gdal_translate -outsize coarsens)")
+                                   hint="crop or coarsen it first (crop= (the CLI's --crop) reads only the crop's "
+                                        "window; gdal_translate -outsize coarsens)")
             # block by block: GDAL's one big read of a raw raster (.bil, .flt) cut short filled the missing rows with
             # zeros without an error (heights of 0 m); its block reads fail there, as a GeoTIFF's do
             with rasterio.Env(GDAL_ONE_BIG_READ="NO"):
@@ -3112,8 +3112,7 @@ def _heights_in_metres(
     if factor is None:
         raise DataFileError(
             f"cannot read {str(file)!r}: expected heights in a known length unit ({_KNOWN_UNITS}); got {unit!r} "
-            f"({named_by}); if they are lengths, name their unit: load_dem(..., height_unit='m') (or 'ft', ...; "
-            "the CLI's --height-unit m)"
+            f"({named_by}); if they are lengths, name their unit: height_unit='m' (or 'ft', ...)"
         )
     if factor != 1.0:  # scaled in float64, in place (the product was a second float64 copy)
         scaled = heights.astype(np.float64)

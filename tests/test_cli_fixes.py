@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import re
@@ -11,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import trimesh
 
 import stepterrain as st
 from stepterrain import cli
@@ -2384,3 +2386,79 @@ def test_closeup_stepped_over_the_budget_names_the_closeup_options(tmp_path, cap
             "raise the budget (--memory-budget SIZE)" in err), err
     assert "isovalues" not in err and "Terrain." not in err and "CloseUp" not in err
     assert not (tmp_path / "out.ply").exists()
+
+
+@pytest.mark.parametrize("command", ["steps", "info"])
+def test_unknown_height_unit_refusal_names_the_option_cleanly(tmp_path, capsys, command):
+    """A GeoTIFF whose band names a unit off the list (here 'meters above sea level') was refused on the command
+    line with the library's advice half-spelled as an option: "name their unit: load_dem(..., --height-unit 'm')
+    (or 'ft', ...; the CLI's --height-unit m)", a Python call with an option inside it, the option said twice. The
+    refusal names --height-unit once, as an option the user can type, and the file's unit; with it the run works."""
+    from .test_io_fixes import write_unit_tif
+
+    tif = write_unit_tif(tmp_path / "msl.tif", "meters above sea level")
+    out = [] if command == "info" else ["--interval", "1", "-o", tmp_path / "x.ply"]
+    code, _, err = run(capsys, command, tif, *out)
+    assert code == 2, err
+    assert "got 'meters above sea level' (band 1's unit)" in err, err
+    assert "name their unit: --height-unit 'm' (or 'ft', ...)" in err, err
+    assert "load_dem(" not in err and "the CLI's" not in err and err.count("--height-unit") == 1, err
+    code, _, err = run(capsys, command, tif, "--height-unit", "m", *out)
+    assert code == 0, err
+
+
+def test_info_spacing_prints_the_coordinates_steps_crop_takes(tmp_path, capsys):
+    """steps' --crop takes "the coordinates `stepterrain info` prints", but a .npy placed by --spacing 30 could not be
+    described so: info had no --spacing (exit 2, "unrecognized arguments") and printed the 1 m grid's extent, 30
+    times too small for the crop. info --spacing places it as steps does: a crop of the middle of the extent info
+    prints keeps the nodes steps meshes there; a mesh file or a georeferenced DEM is refused --spacing."""
+    heights = st.sample_dem().heights[:40, :60].astype(np.float32)
+    npy = tmp_path / "dem.npy"
+    np.save(npy, heights)
+    code, out, err = run(capsys, "info", npy, "--spacing", "30,20", "--json")
+    assert code == 0, err
+    summary = json.loads(out)
+    assert summary["spacing"] == [30.0, -20.0] and summary["shape"] == [40, 60]
+    xmin, xmax, ymin, ymax = summary["extent"]
+    assert (xmax - xmin, ymax - ymin) == (59 * 30.0, 39 * 20.0)
+    crop = (xmin + 0.25 * (xmax - xmin), xmin + 0.75 * (xmax - xmin), ymin + 0.25 * (ymax - ymin),
+            ymin + 0.75 * (ymax - ymin))
+    mesh_file = tmp_path / "crop.ply"
+    code, _, err = run(capsys, "steps", npy, "--spacing", "30,20", "--crop", ",".join(f"{v:.17g}" for v in crop),
+                       "--interval", "50", "-o", mesh_file, "-q")
+    assert code == 0, err
+    lo, hi = trimesh.load(mesh_file, process=False).bounds
+    nodes_x = xmin + 30.0 * np.arange(60)
+    nodes_y = ymin + 20.0 * np.arange(40)
+    kept_x = nodes_x[(nodes_x >= crop[0]) & (nodes_x <= crop[1])]
+    kept_y = nodes_y[(nodes_y >= crop[2]) & (nodes_y <= crop[3])]
+    np.testing.assert_allclose([lo[0], hi[0], lo[1], hi[1]], [kept_x[0], kept_x[-1], kept_y[0], kept_y[-1]])
+    code, _, err = run(capsys, "info", mesh_file, "--spacing", "30")
+    assert code == 2 and "--spacing applies to a DEM with no georeferencing" in err and "got --spacing 30" in err
+    from .test_io_fixes import write_unit_tif
+
+    code, _, err = run(capsys, "info", write_unit_tif(tmp_path / "utm.tif", "m"), "--spacing", "30")
+    assert code == 2 and "--spacing applies to a DEM file with no georeferencing" in err, err
+
+
+def test_steps_over_the_memory_budget_names_options_not_python(tmp_path, capsys):
+    """Two budget refusals of steps spoke Python to a command-line user: a GeoTIFF over the budget said "crop or
+    coarsen it first (load_dem's --crop, --crop on the command line, reads only the crop's window", the library's
+    crop= rewritten into an option inside a Python name; a stepped solid over it said "crop or coarsen the input
+    (Terrain.crop, Terrain.coarsen; --crop, --coarsen) or coarsen the isovalues" (no option coarsens isovalues: a
+    larger --interval does). Both name the options alone now, and following the advice works."""
+    from .conftest import shared_file
+
+    tif = shared_file("big_tujunga_srtm_30m_utm11n.tif")  # 643 x 1197 int16: 1.5 MB
+    out = tmp_path / "x.ply"
+    code, _, err = run(capsys, "-q", "steps", tif, "--interval", "100", "-o", out, "--memory-budget", "1MB")
+    assert code == 2, err
+    assert "crop or coarsen it first (--crop reads only the crop's window; gdal_translate -outsize coarsens)" in err
+    assert "load_dem" not in err and "the CLI's" not in err, err
+    solid = ["--coarsen", "3", "--solid", "-o", tmp_path / "x.3mf", "--memory-budget", "60MB"]
+    code, _, err = run(capsys, "-q", "steps", tif, "--interval", "20", *solid)
+    assert code == 2, err
+    assert "crop or coarsen the DEM (--crop, --coarsen) or give a larger --interval (fewer --levels)" in err, err
+    assert "Terrain." not in err and "coarsen the isovalues" not in err, err
+    code, _, err = run(capsys, "-q", "steps", tif, "--interval", "500", *solid)  # a larger --interval: it fits
+    assert code == 0, err

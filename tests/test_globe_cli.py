@@ -621,7 +621,7 @@ def test_globe_height_unit_names_a_unit_the_file_lacks_or_overrides(tmp_path, ca
         return np.linalg.norm(trimesh.load(out, process=False).vertices, axis=1)
 
     assert main(["-q", "globe", str(tmp_path / "odd.npz"), "--face-size", "9", "-o", str(tmp_path / "x.ply")]) == 2
-    assert "the CLI's --height-unit m" in capsys.readouterr().err  # which it now has
+    assert "name their unit: --height-unit 'm'" in capsys.readouterr().err  # which it now has
     expected = radii(tmp_path / "metres.npz")
     for source in ("odd.npz", "bare.npz", "odd.tif"):
         assert np.allclose(radii(tmp_path / source, "--height-unit", "ft"), expected, rtol=0.0, atol=1e-3), source

@@ -1511,8 +1511,8 @@ def test_load_dem_crop_checks_only_the_window_against_the_memory_budget(tmp_path
     previous = st.set_memory_budget(100_000)
     try:
         with pytest.raises(OutputTooLargeError, match=r"the raster: 643 x 1197 cells .* crop or coarsen it first "
-                                                      r"\(load_dem's crop=, --crop on the command line, reads only "
-                                                      r"the crop's window"):
+                                                      r"\(crop= \(the CLI's --crop\) reads only the crop's "
+                                                      r"window"):
             load_dem(path)
         got = load_dem(path, crop=extent)
         np.testing.assert_array_equal(got.heights, expected.heights)
