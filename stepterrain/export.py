@@ -146,7 +146,9 @@ def _temporary_stem(name: str) -> str:
     ``name`` (``'\\udcf6'`` for a Latin-1 ``\\xf6``) as ``_``: writers that hand the temporary's name to a C library as
     UTF-8 (PIL's TIFF writer, rasterio) raised UnicodeEncodeError for such a name, and for one cut inside a character
     (``os.fsdecode`` of its first bytes ended in a surrogate)."""
-    text = name if _utf8_name(name) == name else _utf8_name(name).replace("\ufffd", "_")
+    text = _utf8_name(name)
+    if text != name:
+        text = text.replace("\ufffd", "_")
     raw = text.encode("utf-8")
     room = _NAME_MAX - len(".") - len(".XXXXXXXX.tmp")
     return text if len(raw) <= room else raw[:room].decode("utf-8", "ignore")  # a character cut: dropped
