@@ -2190,7 +2190,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
 
 def _utf8_name(text: str) -> str:
     """``text`` as UTF-8 can hold it: a file name's undecodable byte (Python's ``'\\udcf6'`` for a Latin-1 ``\\xf6``
-    on a UTF-8 system, ``os.fsdecode``'s surrogate escape), or any other lone surrogate, as U+FFFD. A name so made
+    on a UTF-8 system, ``os.fsdecode``'s surrogate escape) as U+FFFD; in a name with any other lone surrogate (U+D800),
+    every surrogate as three U+FFFD (one per byte of its encoding). A name so made
     (a glTF node's, an OBJ's ``o`` line and its ``.mtl`` beside it) failed the write with a UnicodeEncodeError, or
     wrote glTF JSON holding a lone surrogate, which its specification and readers refuse."""
     try:

@@ -686,9 +686,10 @@ def _frame_mesh(
     if bounds is None:
         lo, hi = vertices[finite].min(axis=0), vertices[finite].max(axis=0)
     else:
-        lo, hi = _check_box(bounds, "bounds")
+        given = _check_box(bounds, "bounds")
         if _fitted_camera(camera):
-            _check_fitted_box(np.array([lo, hi]), "bounds")
+            _check_fitted_box(given, "bounds")
+        lo, hi = given
     centre = (lo + hi) / 2.0
     local = vertices - centre
     box = np.array([lo - centre, hi - centre])
