@@ -266,8 +266,8 @@ def set_output_pool_limit(nbytes: int) -> int:
     A stepped mesh's vertex and face arrays (from 8 MB) are lent from a pool: when the mesh is gone, its
     memory serves the next mesh of similar size instead of going back to the operating system, which saves
     the page faults of fresh memory (a 1024² batch tile is stepped and written in 10-13 % less time on a VM).
-    A dropped trimesh is a reference cycle: the next ``stepped()`` call frees the meshes earlier calls returned once
-    nothing refers to them (no weak reference either); any other is freed when Python's cyclic collector runs
+    A dropped trimesh is a reference cycle: the next ``stepped()`` call frees the meshes the last few calls returned
+    once nothing refers to them (no weak reference either); any other is freed when Python's cyclic collector runs
     (``del mesh; gc.collect()``).
     The price is that up to ``nbytes`` stay with the process after the meshes are dropped; 0 keeps none (and frees
     what is kept now).

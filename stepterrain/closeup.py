@@ -2482,7 +2482,7 @@ def render_closeups(
                                 f"{type(timings).__name__}")
     image_texture = None if texture is None else _check_texture(texture, "texture", alpha=True)
     box = None if bounds is None else render._check_box(bounds, "bounds")  # before any work; text was taken
-    if box is not None and (isinstance(camera, str) or np.shape(camera) == (2,)):  # a fitted camera: not to a point
+    if box is not None and render._fitted_camera(camera):  # a fitted camera: not to a point
         render._check_fitted_box(box, "bounds")
     view_angle = render._check_view_angle(view_angle)
     if renderer is not None:  # a pyvista Plotter raised AttributeError ('size') after the close-ups were culled
@@ -2545,7 +2545,7 @@ def render_closeups(
             mesh = t.mesh()
             rgb = _overview_rgb(t, mesh, scalars, cmap, image_texture)
             renderer.set_mesh("overview", mesh.vertices, mesh.faces, rgb=rgb, key=overview_key)
-        fitted = box is None and (isinstance(camera, str) or np.shape(camera) == (2,))
+        fitted = box is None and render._fitted_camera(camera)
         if box is None:
             boxes = [renderer.bounds_of("overview")]
             for k, strip in enumerate(strips):  # the close-ups where they are drawn (not their blended V_C)
@@ -2803,7 +2803,7 @@ def animate_closeups(
         zmin, zmax = t.height_range
         boxes.append(np.array([[xmin, ymin, zmin], [xmax, ymax, zmax]]))
         box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
-    if first_drawn is not None and (isinstance(camera, str) or np.shape(camera) == (2,)) and items:
+    if first_drawn is not None and render._fitted_camera(camera) and items:
         # the box fitted here, checked as render_closeups checks its own, before any frame
         z_scale = render._check_window((width, height), options.get("z_scale", 1.0))[2]
         view_angle = render._check_view_angle(options.get("view_angle", render._VIEW_ANGLE))

@@ -146,7 +146,9 @@ def _temporary_stem(name: str) -> str:
     ``name`` (``'\\udcf6'`` for a Latin-1 ``\\xf6``) as ``_``: writers that hand the temporary's name to a C library as
     UTF-8 (PIL's TIFF writer, rasterio) raised UnicodeEncodeError for such a name, and for one cut inside a character
     (``os.fsdecode`` of its first bytes ended in a surrogate)."""
-    text = name if _utf8_name(name) == name else _utf8_name(name).replace("\ufffd", "_")
+    text = _utf8_name(name)
+    if text != name:
+        text = text.replace("\ufffd", "_")
     raw = text.encode("utf-8")
     room = _NAME_MAX - len(".") - len(".XXXXXXXX.tmp")
     return text if len(raw) <= room else raw[:room].decode("utf-8", "ignore")  # a character cut: dropped
@@ -2188,7 +2190,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
 
 def _utf8_name(text: str) -> str:
     """``text`` as UTF-8 can hold it: a file name's undecodable byte (Python's ``'\\udcf6'`` for a Latin-1 ``\\xf6``
-    on a UTF-8 system, ``os.fsdecode``'s surrogate escape), or any other lone surrogate, as U+FFFD. A name so made
+    on a UTF-8 system, ``os.fsdecode``'s surrogate escape) as U+FFFD; in a name with any other lone surrogate (U+D800),
+    every surrogate as three U+FFFD (one per byte of its encoding). A name so made
     (a glTF node's, an OBJ's ``o`` line and its ``.mtl`` beside it) failed the write with a UnicodeEncodeError, or
     wrote glTF JSON holding a lone surrogate, which its specification and readers refuse."""
     try:

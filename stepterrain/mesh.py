@@ -82,7 +82,7 @@ _RECENT: list[_Ref] = []
 #: How many :data:`_RECENT` keeps: a loop ``mesh = stepped(...)`` still holds the previous mesh while the next call
 #: runs, so the one before it is the first it has dropped.
 RECENT_MAX = 4
-#: The most objects :func:`_dropped_component` visits from a mesh before it gives up (a user's metadata may be big).
+#: The most objects :func:`_component` visits from a mesh before it gives up (a user's metadata may be big).
 COMPONENT_MAX = 20_000
 _RECENT_LOCK = threading.Lock()
 #: ``Py_TPFLAGS_HEAPTYPE``: a class made by a ``class`` statement, whose ``__dict__`` slot is the interpreter's own.

@@ -686,9 +686,10 @@ def _frame_mesh(
     if bounds is None:
         lo, hi = vertices[finite].min(axis=0), vertices[finite].max(axis=0)
     else:
-        lo, hi = _check_box(bounds, "bounds")
-        if isinstance(camera, str) or np.shape(camera) == (2,):
-            _check_fitted_box(np.array([lo, hi]), "bounds")
+        given = _check_box(bounds, "bounds")
+        if _fitted_camera(camera):
+            _check_fitted_box(given, "bounds")
+        lo, hi = given
     centre = (lo + hi) / 2.0
     local = vertices - centre
     box = np.array([lo - centre, hi - centre])
@@ -698,7 +699,7 @@ def _frame_mesh(
     _check_reach(box, lo, hi, z_scale, "the mesh", f"the framed box {_fmt_box(lo, hi)} is too large", "its centre")
     corners = _box_corners(box)
     position = _camera_position(camera, corners, width / height, view_angle)  # raises on a bad camera; 8 corners
-    if isinstance(camera, str) or np.shape(camera) == (2,):  # a fitted camera: it frames the box's larger side
+    if _fitted_camera(camera):  # a fitted camera: it frames the box's larger side
         _check_visible(corners, position, (width, height), box, z_scale, view_angle, camera,
                        "the mesh" if bounds is None else "bounds")
     return width, height, vertices, local, finite, box
@@ -766,6 +767,18 @@ def _check_visible(corners: NDArray[np.float64], position: Any, size: tuple[int,
 
 
 _BOX = "[(xmin, ymin, zmin), (xmax, ymax, zmax)] with max >= min"
+
+
+def _fitted_camera(camera: Any) -> bool:
+    """Whether ``camera`` is fitted to the framed box (a name or (azimuth, elevation)), not an explicit position. A
+    ragged sequence is neither (``np.shape`` raised numpy's ValueError for it, ahead of :func:`_camera_position`,
+    which refuses it by name)."""
+    if isinstance(camera, str):
+        return True
+    try:
+        return np.shape(camera) == (2,)
+    except ValueError:
+        return False
 
 
 def _check_fitted_box(box: NDArray[np.float64], name: str) -> None:
@@ -1040,7 +1053,7 @@ def _fit_points(camera: CameraLike, local: NDArray[np.float64], finite: NDArray[
     stride = max(1, len(points) // 100_000)
     framed = points[::stride]
     position = _camera_position(camera, framed, aspect, view_angle)
-    if stride == 1 or not (isinstance(camera, str) or np.shape(camera) == (2,)):  # all framed, or not fitted
+    if stride == 1 or not _fitted_camera(camera):  # all framed, or not fitted
         return position
     for _ in range(8):
         outside = _outside_view(points, position, aspect, view_angle)
@@ -1722,7 +1735,7 @@ class LayeredRenderer:
             raise InvalidInputError("set_view needs a mesh first (set_mesh)")
         view_angle = _check_view_angle(view_angle)
         world = _check_box(box, "box")
-        fitted = isinstance(camera, str) or np.shape(camera) == (2,)
+        fitted = _fitted_camera(camera)
         if fitted:  # a single point: refused by name (far from the origin the eye fell on it, numpy warned)
             _check_fitted_box(world, "box")
         local = world - self._origin

@@ -1896,3 +1896,32 @@ def test_a_stepped_closeup_over_the_budget_names_what_a_closeup_can_change():
     finally:
         set_memory_budget(previous)
     assert len(layer.faces) > 10_000 and (layer.source_faces == -1).all()
+
+
+@pytest.mark.parametrize("camera", [[(0.0, 0.0, 5.0), (0.0, 0.0)], [(0.0, -150.0, 120.0), (0.0, 0.0, 0.0), (0.0, 1.0)]])
+def test_a_ragged_camera_beside_bounds_is_refused_by_name_not_by_numpy(camera):
+    """The check that ``bounds`` is no single point under a fitted camera asked ``np.shape(camera)`` before the camera
+    was checked: a ragged camera (an eye, focal point or view up of the wrong length) raised numpy's ValueError
+    ("inhomogeneous shape") from render_mesh and render_closeups instead of the InvalidInputError naming ``camera``
+    they raise without ``bounds``."""
+    t = terrain()
+    box = [(1020.0, 2020.0, 0.0), (1060.0, 2040.0, 100.0)]
+    with pytest.raises(InvalidInputError, match=r"^camera must be "):
+        render.render_mesh(t.mesh(), bounds=box, camera=camera, window_size=SIZE)
+    with pytest.raises(InvalidInputError, match=r"^camera must be "):
+        render_closeups(t, [one()], bounds=box, camera=camera, window_size=SIZE, device="cpu")
+
+
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_a_ragged_camera_is_refused_by_name_by_set_view():
+    """LayeredRenderer.set_view asked ``np.shape(camera)`` (is it fitted?) before checking the camera: numpy's
+    ValueError for a ragged one, not the InvalidInputError naming ``camera``."""
+    t = terrain()
+    renderer = render.LayeredRenderer(window_size=SIZE)
+    try:
+        mesh = t.mesh()
+        renderer.set_mesh("overview", mesh.vertices, mesh.faces)
+        with pytest.raises(InvalidInputError, match=r"^camera must be "):
+            renderer.set_view([(0.0, 0.0, 5.0), (0.0, 0.0)], [(1020.0, 2020.0, 0.0), (1060.0, 2040.0, 100.0)])
+    finally:
+        renderer.close()
