@@ -36,6 +36,8 @@ def dem_grid(size: int, terrain: Terrain | None = None) -> pv.ImageData:
     heights = terrain.heights[::step, ::step]
     if terrain.spacing[1] < 0:  # a north-up DEM: its rows south to north, as y grows with the grid's row index
         heights = heights[::-1]
+    if terrain.spacing[0] < 0:  # columns east to west (a GeoTIFF's negative pixel width): x grows with the column
+        heights = heights[:, ::-1]
     dx, dy = abs(terrain.spacing[0]) * step, abs(terrain.spacing[1]) * step
     grid = pv.ImageData(dimensions=(heights.shape[1], heights.shape[0], 1), spacing=(dx, dy, 1))
     grid["elevation"] = heights.reshape(-1)

@@ -373,7 +373,7 @@ def _render_lit(args: argparse.Namespace) -> bool:
     and read as one smooth surface: the steps showed only at the silhouette. ``--hillshade none`` without ``--image``
     leaves the colours unshaded; an orthophoto keeps its own light."""
     if args.lighting != "auto":
-        return bool(args.lighting == "on")
+        return args.lighting == "on"
     return args.interval is not None or (args.method == "none" and args.image is None)
 
 

@@ -1060,8 +1060,9 @@ def _reading(path: str | None, progress: Progress) -> bool:
     scripts read both); True when one was started."""
     if path is None or progress.quiet:
         return False
+    isatty = getattr(progress.stream, "isatty", None)  # None with stderr closed (2>&-): sys.stderr is None
     try:
-        if not progress.stream.isatty() or not os.path.isfile(path) or os.path.getsize(path) < _INFO_LOUD_BYTES:
+        if isatty is None or not isatty() or not os.path.isfile(path) or os.path.getsize(path) < _INFO_LOUD_BYTES:
             return False
     except (OSError, ValueError):  # a closed stream, a path the OS refuses: no line; the reader says what is wrong
         return False

@@ -390,6 +390,17 @@ def test_info_on_a_large_file_says_it_is_reading_on_a_terminal_only(dem, tmp_pat
     json.loads(info("--json")[1])
 
 
+def test_info_with_stderr_closed_still_prints_its_summary(dem, capsys, monkeypatch):
+    """With stderr closed (``stepterrain info dem.npy 2>&-``, a service without one: Python's sys.stderr is None),
+    the large-file check asked None whether it was a terminal: info died with an AttributeError, exit 1, and printed
+    no summary. No stream is no terminal: the summary is printed, exit 0."""
+    expected = run(capsys, "info", dem)
+    monkeypatch.setattr(cli, "_INFO_LOUD_BYTES", 0)  # every file a large one
+    monkeypatch.setattr("sys.stderr", None)
+    code = cli.main(["info", str(dem)])
+    assert (code, capsys.readouterr().out) == (0, expected[1])
+
+
 def test_info_counts_nonfinite_vertices_and_bounds_the_finite_ones(tmp_path, capsys):
     mesh = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, np.nan], [1, 1, 2]], [[0, 1, 2], [1, 3, 2]], process=False)
     path = tmp_path / "nan.ply"

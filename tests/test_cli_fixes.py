@@ -2316,7 +2316,6 @@ def test_steps_without_output_or_png_is_a_usage_error(tmp_path, capsys):
     assert [p.name for p in tmp_path.iterdir()] == ["dem.npy"]
 
 
-
 def test_closeup_default_roi_over_nodata_names_the_default_not_a_roi_option(tmp_path, capsys):
     """Without --roi or --roi-relative the one close-up sits at the DEM's centre; over nodata there (a lake, the sea
     of a coastal DEM) the refusal read '--roi/--roi-relative (close-up 1): ... make it larger or move it', naming

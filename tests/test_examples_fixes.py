@@ -274,3 +274,23 @@ def test_closeup_examples_refuse_a_size_below_two_nodes_by_name(name, size, tmp_
     argv = ["--size", size, "--window", "200", "150", "--output", str(tmp_path / "out.png"), "--device", "cpu"]
     assert_usage_error_writing_nothing(name, argv, f"--size must be 0 (the whole DEM) or at least 2 nodes; got {size}",
                                        tmp_path, capsys)
+
+
+def test_interactive_grid_of_a_dem_with_columns_east_to_west_is_not_mirrored():
+    """interactive.py's grid puts x growing with the column index: the rows of a north-up DEM (negative y spacing)
+    were turned south to north, but the columns of one running east to west (negative x spacing, as load_dem keeps a
+    GeoTIFF's negative pixel width) were not, and the terrain showed mirrored east-west. Each of the four sign
+    combinations gives the grid of the same terrain."""
+    from stepterrain import Terrain
+
+    example = load_example("interactive")
+    heights = np.random.default_rng(0).random((7, 9)).astype(np.float32)  # rows south to north, columns west to east
+    reference = np.asarray(example.dem_grid(9, Terrain.from_heights(heights, spacing=(30.0, 30.0)))["elevation"])
+    for flip_x in (False, True):
+        for flip_y in (False, True):
+            stored = heights[::-1] if flip_y else heights
+            stored = stored[:, ::-1] if flip_x else stored
+            spacing = (-30.0 if flip_x else 30.0, -30.0 if flip_y else 30.0)
+            grid = example.dem_grid(9, Terrain.from_heights(stored, spacing=spacing))
+            assert np.array_equal(np.asarray(grid["elevation"]), reference), spacing
+            assert grid.spacing[:2] == (30.0, 30.0)
