@@ -2134,8 +2134,9 @@ def _warn_void_values(file: Path, data: NDArray[Any], missing: NDArray[np.bool_]
     info = (np.finfo if kind == "f" else np.iinfo)(lowest_of)
     # fmin/fmax: NaN cells pass over; a float dtype's highest value marks voids as its lowest does (no height is
     # 3.4e+38 in any unit), an integer's (32767: 3276.7 m in decimetres, a 16-bit PNG's peak) is a height
-    ends = (("lowest", info.min, np.fmin), ("highest", info.max, np.fmax)) if kind == "f" else (("lowest", info.min,
-                                                                                                  np.minimum),)
+    ends = [("lowest", info.min, np.fmin if kind == "f" else np.minimum)]
+    if kind == "f":
+        ends.append(("highest", info.max, np.fmax))
     for end, extreme, reduce in ends:
         sentinel = data.dtype.type(extreme)
         if reduce.reduce(data, axis=None) == sentinel:
