@@ -29,6 +29,7 @@ import math
 import os
 import platform
 import re
+import shlex
 import sys
 import threading
 import time
@@ -1138,7 +1139,8 @@ def _warn_projected_crss(projected: Sequence[str], geographic: Mapping[str, int]
         f"the DEM files are in {len(named)} CRSs ({', '.join(named)}): each file's mesh lies in its own CRS's "
         "coordinates (a projected CRS's metres; files in degrees in local metres of their own, node (0, 0) at "
         "their mosaic's top-left node), so the meshes of one CRS neither line up nor weld with those of another: to "
-        f"step them as one surface, warp them to one CRS first (gdalwarp -t_srs {target} FILE OUT.tif)",
+        f"step them as one surface, warp them to one CRS first (gdalwarp -t_srs {shlex.quote(target)} FILE "
+        "OUT.tif)",  # quoted: a CRS without an EPSG code is named by its WKT
         stacklevel=caller_stacklevel(),
     )
 

@@ -2134,8 +2134,9 @@ def _warn_void_values(file: Path, data: NDArray[Any], missing: NDArray[np.bool_]
     info = (np.finfo if kind == "f" else np.iinfo)(lowest_of)
     # fmin/fmax: NaN cells pass over; a float dtype's highest value marks voids as its lowest does (no height is
     # 3.4e+38 in any unit), an integer's (32767: 3276.7 m in decimetres, a 16-bit PNG's peak) is a height
-    ends = (("lowest", info.min, np.fmin), ("highest", info.max, np.fmax)) if kind == "f" else (("lowest", info.min,
-                                                                                                  np.minimum),)
+    ends = [("lowest", info.min, np.fmin if kind == "f" else np.minimum)]
+    if kind == "f":
+        ends.append(("highest", info.max, np.fmax))
     for end, extreme, reduce in ends:
         sentinel = data.dtype.type(extreme)
         if reduce.reduce(data, axis=None) == sentinel:
@@ -2176,12 +2177,15 @@ def _declare_nodata(file: Path, value: str) -> str:
     """How to declare ``value`` (as written in full) the nodata of ``file``, by its format: ``gdal_edit.py`` for a
     GeoTIFF, ``gdal_translate`` to one for another GDAL raster or one GDAL reads through a virtual path (a local
     ``.gz`` or zip, ``/vsizip/``, a URL: gdal_edit.py cannot write inside an archive, and no ``dem.tif`` lies there
-    to edit), an .npz ``nodata`` otherwise (:func:`load_dem` and the CLI take no nodata of their own)."""
+    to edit), an .npz ``nodata`` otherwise (:func:`load_dem` and the CLI take no nodata of their own). The paths
+    are quoted for a shell ("my dem.tif")."""
     suffix = file.suffix.lower()
+    tif = shlex.quote(f"{file.stem}.tif")
     if isinstance(file, GdalPath):  # read from the path GDAL reads, written beside the working folder
-        return f"`gdal_translate -a_nodata {value} {shlex.quote(os.fspath(file))} {file.stem}.tif`"
-    return (f"`gdal_edit.py -a_nodata {value} {file.name}`" if suffix in (".tif", ".tiff") else
-            f"`gdal_translate -a_nodata {value} {file.name} {file.stem}.tif`" if suffix in GDAL_FORMATS else
+        return f"`gdal_translate -a_nodata {value} {shlex.quote(os.fspath(file))} {tif}`"
+    name = shlex.quote(file.name)
+    return (f"`gdal_edit.py -a_nodata {value} {name}`" if suffix in (".tif", ".tiff") else
+            f"`gdal_translate -a_nodata {value} {name} {tif}`" if suffix in GDAL_FORMATS else
             f"save a 'nodata' of {value} beside the heights" if suffix == ".npz" else
             f"save it as an .npz with a 'nodata' of {value}")
 

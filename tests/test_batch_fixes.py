@@ -2983,3 +2983,25 @@ def test_cli_batch_band_beyond_every_geotiffs_bands_exits_2_once(tmp_path, capsy
     err = capsys.readouterr().err
     assert [p.name for p in out.glob("*.glb")] == ["g2.glb"]
     assert err.count("failed g") == 2 and "band must be between 1 and 1" in err, err
+
+
+def test_projected_crss_warning_gives_a_gdalwarp_that_a_shell_runs_for_a_crs_without_an_epsg_code():
+    """The warning of files in several CRSs ends with the gdalwarp to join them, to the CRS most files are in. One
+    without an EPSG code is named by its WKT (quotes, spaces, brackets), which was pasted into the command as it is:
+    the shell split it into words and gdalwarp read no CRS. It is quoted now, so the command parses back to it."""
+    import shlex
+
+    pytest.importorskip("rasterio")
+    from rasterio.crs import CRS
+
+    from stepterrain.batch import _warn_projected_crss
+
+    custom = CRS.from_proj4("+proj=tmerc +lat_0=0 +lon_0=-117.7 +k=0.9996 +x_0=500000 +y_0=0 +datum=WGS84 +units=m")
+    assert custom.to_epsg() is None
+    wkt = custom.to_string()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        _warn_projected_crss([wkt, wkt, "EPSG:32611"], {})
+    (message,) = [str(w.message) for w in caught]
+    command = message[message.index("(gdalwarp ") + 1:-1]
+    assert shlex.split(command) == ["gdalwarp", "-t_srs", wkt, "FILE", "OUT.tif"], command

@@ -2289,3 +2289,32 @@ def test_a_raster_gdal_opened_under_a_hgt_name_keeps_gdal_s_read_failure(tmp_pat
     with pytest.raises(DataFileError, match=r"dem\.hgt.*IReadBlock failed") as caught:
         load_dem(cut)
     assert "rename" not in str(caught.value)
+
+
+def test_undeclared_void_hint_quotes_a_file_name_with_a_space(tmp_path):
+    """The hint of undeclared voids gives a command to run (`gdal_edit.py -a_nodata ... dem.tif`, or the
+    `gdal_translate` to a GeoTIFF for another GDAL format) with the file's name as it is: a name with a space, as
+    downloads are often named ("my dem.tif"), split into two words in the shell, and gdal_edit.py edited no file.
+    The names are quoted now, so the command parses back to the file and the GeoTIFF it writes."""
+    import shlex
+
+    pytest.importorskip("rasterio")
+    z = np.full((4, 5), 120.0, np.float32)
+    z[0, :2] = np.finfo(np.float32).min
+    asc = tmp_path / "my dem.asc"
+    asc.write_text("ncols 5\nnrows 4\nxllcorner 0\nyllcorner 0\ncellsize 30\n"
+                   + "".join(" ".join(f"{v:.9g}" for v in row) + "\n" for row in z))
+    import rasterio
+
+    with rasterio.open(tmp_path / "my dem.tif", "w", driver="GTiff", width=5, height=4, count=1, dtype="float32",
+                       crs="EPSG:32611", transform=rasterio.transform.Affine(30.0, 0, 0, 0, -30.0, 120.0)) as f:
+        f.write(z, 1)
+    expected = {"my dem.tif": ["gdal_edit.py", "-a_nodata", "-3.4028235e+38", "my dem.tif"],
+                "my dem.asc": ["gdal_translate", "-a_nodata", "-3.4028235e+38", "my dem.asc", "my dem.tif"]}
+    for name, words in expected.items():
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            load_dem(tmp_path / name)
+        message = next(str(w.message) for w in caught if "marks voids" in str(w.message))
+        hint = re.search(r"declare it \(`([^`]*)`\)", message)
+        assert hint and shlex.split(hint.group(1)) == words, message
