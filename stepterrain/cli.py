@@ -1366,12 +1366,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     terminated: SIGTERM, which ends the run as Ctrl-C does, its partial files removed; 129 for SIGHUP likewise).
 
     ``argv`` defaults to ``sys.argv[1:]``. Errors derived from :class:`~stepterrain.errors.StepTerrainError`
-    print one line on stderr, without a traceback.
+    print one line on stderr, without a traceback. With stderr closed (``2>&-``: Python's ``sys.stderr`` is None)
+    what it would print there is dropped, not written to stdout.
 
     One command at a time in a process: while it runs, its ``--memory-budget`` is the process's memory budget and
     its warning lines replace ``warnings.showwarning`` (both put back after), for every thread. Threads that serve
     requests call the library's functions instead (``memory_budget=`` gives a call its own budget).
     """
+    if sys.stderr is not None:
+        return _main(argv)
+    # stderr closed: print(file=None) writes to stdout, so the progress lines and errors landed in the command's
+    # output (`steps ... 2>&-` printed its stages on stdout; `info --json 2>&-` would be no JSON on an error)
+    with open(os.devnull, "w") as sink:
+        sys.stderr = sink
+        try:
+            return _main(argv)
+        finally:
+            sys.stderr = None
+
+
+def _main(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)

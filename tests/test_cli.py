@@ -575,3 +575,17 @@ def test_info_leaves_out_an_stl_headers_nul_padding(dem, tmp_path, capsys):
     out.write_bytes(b"\x00" * 80 + data[80:])
     code, text, err = run(capsys, "info", out, "--json")
     assert code == 0 and "meta.header" not in json.loads(text) and "\\u0000" not in text, text
+
+
+def test_steps_with_stderr_closed_prints_nothing_on_stdout(dem, tmp_path, capsys, monkeypatch):
+    """With stderr closed (``stepterrain steps ... 2>&-``: Python's sys.stderr is None) the progress lines went
+    to stdout (``print(file=None)`` writes there), mixed into what a script reads from the command, and the run died
+    after loading the DEM (exit 1, no mesh). Now what would go to stderr is dropped: stdout stays empty, the mesh is
+    written, an error still exits 2, and stderr is None again after."""
+    monkeypatch.setattr("sys.stderr", None)
+    assert cli.main(["steps", str(dem), "--interval", "50", "-o", str(tmp_path / "out.ply")]) == 0
+    assert capsys.readouterr().out == ""
+    assert (tmp_path / "out.ply").stat().st_size > 0
+    assert cli.main(["steps", str(dem), "--interval", "-1", "-o", str(tmp_path / "bad.ply")]) == 2
+    assert capsys.readouterr().out == ""
+    assert sys.stderr is None
