@@ -1609,15 +1609,20 @@ def _plate_carree_shift(picture: Any, path: Any) -> int:
     One whose georeferencing is no whole globe in degrees is refused before its pixels are read: a projected CRS, a
     regional extent (a DEM, an orthophoto), a rotated or south-up grid; each was draped over the whole globe from
     180° W, without a word (a UTM orthophoto wrapped round the earth)."""
+    import os
+    import pathlib
+
     name = f"texture {str(path)!r}"
+    image = pathlib.Path(os.fsdecode(path))
+    root = _pam_root(image)  # read once: its GeoTransform, and its SRS for a world file's CRS
     tags = _geotiff_transform(picture) if getattr(picture, "format", None) == "TIFF" else None
-    found = _aux_xml_transform(path)  # GDAL's PAM file first, before a GeoTIFF's tags too (GDAL_GEOREF_SOURCES)
+    found = _aux_xml_transform(image, root)  # GDAL's PAM file first, before a GeoTIFF's tags too (GDAL_GEOREF_SOURCES)
     if found is not None and tags is not None:  # projected by its PAM file's SRS, .prj or tags: refused alike
         found = (found[0], found[1] or tags[1], found[2])
     if found is None:
         found = tags
     if found is None:
-        found = _world_file_transform(path)
+        found = _world_file_transform(image, root)
     if found is None:
         return 0
     (a, b, west, d, e, north), projected, source = found
@@ -1682,18 +1687,14 @@ def _projected_beside(image: Any, root: Any) -> bool:
     return srs.lstrip().upper().startswith(("PROJCS", "PROJCRS", "PROJECTEDCRS"))
 
 
-def _aux_xml_transform(path: Any) -> tuple[tuple[float, ...], bool, str] | None:
-    """The geotransform in GDAL's PAM file beside the image ``path`` (``earth.png.aux.xml``: its ``GeoTransform``, the
-    six numbers c, a, b, f, d, e of the upper-left pixel's corner, as (a, b, c, d, e, f)), whether its ``SRS`` (else
-    the ``.prj`` beside the image) names a projected CRS, and "a PAM file 'earth.png.aux.xml'"; None without one, or
+def _aux_xml_transform(image: Any, root: Any) -> tuple[tuple[float, ...], bool, str] | None:
+    """The geotransform in GDAL's PAM file ``root`` beside the image path ``image`` (``earth.png.aux.xml``, parsed by
+    :func:`~stepterrain.io._pam_root`: its ``GeoTransform``, the six numbers c, a, b, f, d, e of the upper-left pixel's
+    corner, as (a, b, c, d, e, f)), whether its ``SRS`` (else the ``.prj`` beside the image) names a projected CRS,
+    and "a PAM file 'earth.png.aux.xml'"; None without one, or
     with one GDAL reads no geotransform from (none, not six numbers, or the identity, GDAL's default). A PNG or JPEG
     that GDAL wrote keeps its georeferencing there alone (no world file): a regional or projected one, or a global
     one in longitudes 0..360, was draped round the globe from 180° W, without a word."""
-    import os
-    import pathlib
-
-    image = pathlib.Path(os.fsdecode(path))
-    root = _pam_root(image)
     text = root.findtext("GeoTransform") if root is not None else None
     try:
         c, a, b, f, d, e = (float(v) for v in (text or "").split(","))
@@ -1704,22 +1705,19 @@ def _aux_xml_transform(path: Any) -> tuple[tuple[float, ...], bool, str] | None:
     return (a, b, c, d, e, f), _projected_beside(image, root), f"a PAM file {image.name + '.aux.xml'!r}"
 
 
-def _world_file_transform(path: Any) -> tuple[tuple[float, ...], bool, str] | None:
-    """The geotransform of the world file beside the image ``path`` (:func:`~stepterrain.io.world_file`: the names
+def _world_file_transform(image: Any, root: Any) -> tuple[tuple[float, ...], bool, str] | None:
+    """The geotransform of the world file beside the image path ``image`` (:func:`~stepterrain.io.world_file`: the names
     GDAL looks for, ``.jgw`` for ``.jpg``, ``.jpgw``, ``.wld``; six numbers A, D, B, E, C, F, C and F at the
     upper-left pixel's centre), whether the ``SRS`` of the PAM file beside it (``ortho.png.aux.xml``, where
     ``gdal_translate -co WORLDFILE=YES`` writes it), else its ``.prj``, names a projected CRS, and the world file's
     name; None without one (or one that is not six numbers: GDAL ignores it too). (The PAM file's CRS was not read: a
-    UTM image's world file was refused as one "over longitudes 376000 to 376360".)"""
-    import os
-    import pathlib
-
-    image = pathlib.Path(os.fsdecode(path))
+    UTM image's world file was refused as one "over longitudes 376000 to 376360".) ``root``: the PAM file, as
+    :func:`~stepterrain.io._pam_root` parsed it."""
     found = world_file(image)
     if found is None:
         return None
     (a, d, b, e, c, f), side = found
-    projected = _projected_beside(image, _pam_root(image))
+    projected = _projected_beside(image, root)
     corner = (a, b, c - (a + b) / 2, d, e, f - (d + e) / 2)  # the upper-left pixel's corner
     return corner, projected, f"a world file {side.name!r}"
 
