@@ -1129,11 +1129,8 @@ def _warn_projected_crss(projected: Sequence[str], geographic: Mapping[str, int]
     if not counts or len(counts) + len(geographic) < 2:
         return
 
-    def files(n: int) -> str:
-        return f"{n} file{'s' if n != 1 else ''}"
-
-    named = [f"{crs} ({files(n)})" for crs, n in counts.items()]
-    named += [f"{crs} ({files(n)} in degrees)" for crs, n in geographic.items()]
+    named = [f"{crs} ({counted(n, 'file')})" for crs, n in counts.items()]
+    named += [f"{crs} ({counted(n, 'file')} in degrees)" for crs, n in geographic.items()]
     target = max(counts, key=lambda crs: counts[crs])
     warnings.warn(
         f"the DEM files are in {len(named)} CRSs ({', '.join(named)}): each file's mesh lies in its own CRS's "
