@@ -1129,11 +1129,8 @@ def _warn_projected_crss(projected: Sequence[str], geographic: Mapping[str, int]
     if not counts or len(counts) + len(geographic) < 2:
         return
 
-    def files(n: int) -> str:
-        return f"{n} file{'s' if n != 1 else ''}"
-
-    named = [f"{crs} ({files(n)})" for crs, n in counts.items()]
-    named += [f"{crs} ({files(n)} in degrees)" for crs, n in geographic.items()]
+    named = [f"{crs} ({counted(n, 'file')})" for crs, n in counts.items()]
+    named += [f"{crs} ({counted(n, 'file')} in degrees)" for crs, n in geographic.items()]
     target = max(counts, key=lambda crs: counts[crs])
     warnings.warn(
         f"the DEM files are in {len(named)} CRSs ({', '.join(named)}): each file's mesh lies in its own CRS's "
@@ -2282,7 +2279,7 @@ def batch(
         kept: _Kept | None = None
         # the warnings the files' range pass said (load_dem's of each file): their items' reads give them again, in
         # a worker or from the kept read, and each was said twice, before and after the progress bar started
-        said: list[str] = []
+        said: set[str] = set()
         if src is None and items:  # a folder's or list's files: one height range, so one set of levels and one floor
             # (after the cheap checks and the output folder's, locked: every file is read, and a bad scheduler
             # address, an output_dir that is a file or one another run was writing was refused only after that)
@@ -2563,7 +2560,7 @@ def _levels_and_range(
 def _files_range(
     items: Sequence[BatchItem], options: _Options, retries: int, progress: bool,
     cached: Mapping[str, Any], identities: Mapping[str, str], kept: _Kept | None = None,
-    said: list[str] | None = None,
+    said: set[str] | None = None,
 ) -> tuple[tuple[tuple[float, float], str] | None, dict[str, Any]]:
     """The (min, max) of the heights a triangle uses over every file of a folder or list (each file's
     :attr:`~stepterrain.terrain.Terrain.height_range`, read as its item reads it: ``height_unit``, ``band``,
@@ -2579,7 +2576,7 @@ def _files_range(
     where the terrains read go, by item key, for items that run in this process after (:func:`_run_serial`), so
     that a file is read once (the caller asks for it for one file only: not every file of a folder in memory).
     ``said``: the messages of the warnings the reads gave, each said once (:func:`_file_range`), go into it."""
-    said = [] if said is None else said
+    said = set() if said is None else said
     keys = [_range_key(identities[item.key], options) for item in items]
     bar = None
     unread = sum(key not in cached for key in keys)
@@ -2594,7 +2591,7 @@ def _files_range(
             if key in cached:  # recorded by an earlier run: the same file, read alike
                 found = cached[key]
             else:
-                found = _file_range(item, options, retries, kept, said)
+                found = _file_range(item, options, retries, kept, said=said)
                 if bar is not None:
                     bar.update(1)
                 if found is ...:  # unreadable: its item fails with the reason; no range recorded
@@ -2611,8 +2608,8 @@ def _files_range(
     return (None if lowest == "" else ((lo, hi), lowest)), ranges
 
 
-def _file_range(item: BatchItem, options: _Options, retries: int, kept: _Kept | None = None,
-                said: list[str] | None = None) -> Any:
+def _file_range(item: BatchItem, options: _Options, retries: int, kept: _Kept | None = None, *,
+                said: set[str]) -> Any:
     """:func:`_files_range`'s read of one file: ``[min, max]`` of its heights a triangle uses, None for no surface,
     ``...`` for a file that cannot be read (its item fails with the reason); a transient OSError retried ``retries``
     times, then raised. The terrain read goes into ``kept`` (by the item's key) when given, with its read's warnings:
@@ -2629,10 +2626,9 @@ def _file_range(item: BatchItem, options: _Options, retries: int, kept: _Kept | 
                                             options.coarsen, options.band, options.height_encoding)  # fmt: skip
             finally:
                 for w in caught:
-                    if said is not None and str(w.message) in said:
+                    if str(w.message) in said:
                         continue
-                    if said is not None:
-                        said.append(str(w.message))
+                    said.add(str(w.message))
                     warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         except StepTerrainError as exc:  # its item fails with it (an unreadable file), as it fails there
             if _transient(exc) and attempt < retries:
@@ -2653,7 +2649,7 @@ def _file_range(item: BatchItem, options: _Options, retries: int, kept: _Kept | 
 def _files_levels(
     items: Sequence[BatchItem], options: _Options, interval: float | None, levels: ArrayLike | None, base: float,
     retries: int, progress: bool, cached: Mapping[str, Any], identities: Mapping[str, str],
-    kept: _Kept | None = None, said: list[str] | None = None,
+    kept: _Kept | None = None, said: set[str] | None = None,
 ) -> tuple[_Options, tuple[dict[str, Any], bool] | None, tuple[float, float] | None]:
     """``options`` with the levels and floor every file of a folder or list shares, as tiles of one raster share
     them (:func:`_levels_and_range`, :func:`_shared_floor`): the isovalues of ``interval`` over the height range of
