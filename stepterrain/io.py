@@ -2137,10 +2137,14 @@ def _warn_void_values(file: Path, data: NDArray[Any], missing: NDArray[np.bool_]
     ends = [("lowest", info.min, np.fmin if kind == "f" else np.minimum)]
     if kind == "f":
         ends.append(("highest", info.max, np.fmax))
+    extremes, reduced = [], []
     for end, extreme, reduce in ends:
         sentinel = data.dtype.type(extreme)
-        if reduce.reduce(data, axis=None) == sentinel:
+        reduced.append(reduce.reduce(data, axis=None))
+        extremes.append(sentinel)
+        if reduced[-1] == sentinel:
             _warn_void_value(file, data, missing, what, sentinel, f"the {end} {lowest_of} value")
+    _warn_common_nodata(file, data, missing, what, reduced[0], reduced[1] if len(reduced) > 1 else None, extremes)
 
 
 def _warn_void_value(
@@ -2164,6 +2168,90 @@ def _warn_void_value(
             f"file marks them: read as heights; if they are voids, declare it ({_declare_nodata(file, value)})",
             stacklevel=caller_stacklevel(),
         )
+
+
+#: Values that DEM files commonly hold in their voids besides a dtype's extremes (:func:`_warn_common_nodata`):
+#: -9999 (ESRI ASCII grids' and many GeoTIFFs' NODATA_value), -32767 and -32768 (int16 voids, SRTM's, here in
+#: another dtype: a float32 or int32 copy of an SRTM tile), -99999, 1e+20 (the _FillValue of CF/netCDF climate
+#: and ocean models), netCDF's default float fill 9.96921e+36 and Golden Software Surfer's blank 1.70141e+38.
+COMMON_NODATA: tuple[float, ...] = (-9999.0, -32767.0, -32768.0, -99999.0, 1e20, 9.969209968386869e36, 1.70141e38)
+
+#: How far outside the other cells' values a common nodata value must lie to be named a void: more than this share
+#: of their span (their highest less their lowest) beyond the nearest of them.
+_COMMON_NODATA_GAP = 0.25
+
+
+def _common_nodata_in(dtype: np.dtype[Any]) -> list[Any]:
+    """:data:`COMMON_NODATA` as ``dtype`` holds them: a signed integer of 16 bits or more those within its range
+    (not its own lowest value, which :func:`_warn_void_values` names), a float of 32 bits or more each rounded to it
+    (a float32 file's 1e+20 is 1.00000002e+20) and, in a wider float, also as a float32 value kept through a
+    widening copy; none for another dtype."""
+    values: list[Any] = []
+    if dtype.kind == "i" and dtype.itemsize >= 2:
+        info = np.iinfo(dtype)
+        values = [dtype.type(v) for v in COMMON_NODATA if v == int(v) and info.min < v <= info.max]
+    elif dtype.kind == "f" and dtype.itemsize >= 4:
+        for v in COMMON_NODATA:
+            values += [dtype.type(v), dtype.type(np.float32(v))]
+    return list(dict.fromkeys(values))
+
+
+def _warn_common_nodata(
+    file: Path, data: NDArray[Any], missing: NDArray[np.bool_] | None, what: str, lowest: Any, highest: Any,
+    extremes: Sequence[Any],
+) -> None:
+    """Warn, at the caller of :func:`load_dem`, when cells of ``data`` that ``missing`` does not mark hold one of
+    :data:`COMMON_NODATA` (-9999, -32768 in a float32 grid, 1e+20, ...) lying far outside the other cells' values:
+    below their lowest (or above their highest) by more than :data:`_COMMON_NODATA_GAP` of their span, or the only
+    values. A file whose nodata value was lost had them read as heights without a word: a pit 10 km deep in the
+    stepped terrain. Legitimate heights are not named: the Dead Sea's -430 m and ocean depths to -11000 m are no
+    such value, and a trench's cell of -9999 m lies among other depths, no gap apart. ``lowest`` and ``highest``: the
+    values' reductions, missing cells included (None: not reduced; an integer dtype holds no high one), which rule
+    out most grids without a further pass; ``extremes``: the dtype's own sentinels, warned of already and left out
+    of the other cells. Otherwise one pass, a block of rows at a time, counts each value's cells and the others'
+    range."""
+    candidates = [v for v in _common_nodata_in(data.dtype)
+                  if (v < 0 and lowest <= v) or (v > 0 and highest is not None and highest >= v)]
+    if not candidates:
+        return
+    counts = dict.fromkeys(candidates, 0)
+    low, high = math.inf, -math.inf
+    rows = max(1, (1 << 20) // max(1, data[0].size))
+    for start in range(0, data.shape[0], rows):
+        block = data[start:start + rows]
+        keep = np.isfinite(block) if data.dtype.kind == "f" else np.ones(block.shape, np.bool_)
+        if missing is not None:
+            keep &= ~missing[start:start + rows]
+        for value in candidates:
+            hit = block == value
+            hit &= keep
+            counts[value] += int(np.count_nonzero(hit))
+            keep &= ~hit
+        for value in extremes:
+            keep &= block != value
+        if keep.any():
+            kept = block[keep]
+            low, high = min(low, float(kept.min())), max(high, float(kept.max()))
+    present = [v for v in candidates if counts[v]]
+    # nearest the other values first: one that is not far from them is a height, and the next is measured from it
+    for side in (sorted((v for v in present if v < 0), reverse=True), sorted(v for v in present if v > 0)):
+        for value in side:
+            gap = (low - float(value)) if value < 0 else (float(value) - high)
+            if math.isfinite(low) and gap <= _COMMON_NODATA_GAP * (high - low):
+                if low <= float(value) <= high:
+                    continue
+                low, high = min(low, float(value)), max(high, float(value))  # a height: the others reach it
+                continue
+            count = counts[value]
+            where = (f"far {'below' if value < 0 else 'above'} the other cells' values ({low:.6g} to {high:.6g})"
+                     if math.isfinite(low) else "and no other cell holds a value")
+            text = _nodata_text(value, data.dtype)
+            warnings.warn(
+                f"{file.name}: {counted(count, 'cell')} of {what} {'holds' if count == 1 else 'hold'} {text}, a common "
+                f"nodata value, {where}, which marks voids, but no nodata value or mask of the file marks them: read "
+                f"as heights; if they are voids, declare it ({_declare_nodata(file, text)})",
+                stacklevel=caller_stacklevel(),
+            )
 
 
 def _nodata_text(value: Any, dtype: np.dtype[Any]) -> str:

@@ -92,3 +92,33 @@ def test_solid_floor_over_lowest_float32_heights_warns_no_overflow(tmp_path):
         warnings.simplefilter("error", RuntimeWarning)
         mesh = st.stepped(terrain, levels=LEVELS, gamma=0.5, solid=True, floor=-3e38)
     assert mesh.is_watertight
+
+
+def _minus_9999_tif(path: Path) -> Path:
+    """The embedded DEM (every 4th node) as an int16 GeoTIFF whose corner block holds -9999, no nodata declared
+    (load_dem names it as a common nodata value far below the heights)."""
+    from rasterio.transform import Affine
+
+    dem = st.sample_dem()
+    z = np.round(dem.heights[::4, ::4]).astype(np.int16)
+    z[:5, :7] = -9999
+    (dx, dy), (x0, y0) = dem.spacing, dem.origin
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with rasterio.open(path, "w", driver="GTiff", width=z.shape[1], height=z.shape[0], count=1, dtype="int16",
+                       crs=dem.crs, transform=Affine(4 * dx, 0.0, x0 - 2 * dx, 0.0, 4 * dy, y0 - 2 * dy)) as f:
+        f.write(z, 1)
+    return path
+
+
+def test_each_files_common_nodata_warning_once(tmp_path, capsys):
+    # the range pass and the item's read both named the -9999 voids; once per file, naming its file
+    for k in range(2):
+        _minus_9999_tif(tmp_path / "tiles" / f"t{k}.tif")
+    said = _recorded(tmp_path / "tiles", tmp_path / "out", scheduler="serial")
+    marker = "35 cells of band 1 hold -9999, a common nodata value"
+    assert sorted(m.split(":")[0] for m in said if marker in m) == ["t0.tif", "t1.tif"], said
+    code, _, err = run(capsys, "batch", tmp_path / "tiles", "--levels", "500,1000,1500,2000", "--solid",
+                       "--scheduler", "serial", "-o", tmp_path / "out2")  # fmt: skip
+    assert code == 0, err
+    assert err.count(f"t0.tif: {marker}") == 1 and err.count(f"t1.tif: {marker}") == 1, err
+    assert "gdal_edit.py -a_nodata -9999 t0.tif" in err
