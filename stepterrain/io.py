@@ -47,7 +47,8 @@ from .terrain import (
     unwrapped_longitudes,
 )
 
-__all__ = ["load_dem", "sample_dem", "describe_dem", "SUPPORTED_EXTENSIONS", "HEIGHT_ENCODINGS", "EARTH_RADIUS_M"]
+__all__ = ["load_dem", "sample_dem", "describe_dem", "SUPPORTED_EXTENSIONS", "HEIGHT_ENCODINGS", "EARTH_RADIUS_M",
+           "COMMON_NODATA"]
 
 #: Raster formats :func:`load_dem` reads through rasterio (GDAL), as it reads a GeoTIFF, by extension: the format's
 #: name for messages. Dispatch is by this list, not by trying GDAL on any file: a folder of tiles holds sidecars GDAL
@@ -287,7 +288,12 @@ def load_dem(
         of a float dtype (-3.4028235e+38 in float32, ArcGIS's NoData, or +3.4028235e+38, also kept in a float64
         grid), read as heights, counted and named with the nodata value to declare (a float64 grid's own extremes,
         -1.7976931348623157e+308, GDAL's and ArcGIS's Float64 NoData, lie beyond float32 and are refused, counted and
-        named likewise: see Raises); a grid georeferenced without a CRS (or with one PROJ cannot read, kept as
+        named likewise: see Raises); cells no nodata value or mask marks that hold one of :data:`COMMON_NODATA`
+        (-9999, -32767, -32768 in a wider dtype than int16, -99999, 1e+20, ...; a float32 value kept in a float64 grid
+        too) lying far outside the other cells' values (beyond their lowest or highest by more than a quarter of
+        their span, or no other value), read as heights, counted and named likewise with the other values' range
+        (legitimate heights do not warn: the Dead Sea's -430 m, ocean depths to -11000 m, a trench's cells of -9999 m
+        among other depths); a grid georeferenced without a CRS (or with one PROJ cannot read, kept as
         given: an .npz's ``crs="4326"``) whose coordinates look like degrees (nodes within x -180 to 360 and y -90 to
         90, heights spanning more than 100 times its width and height: read as metres, an SRTM tile was a needle
         centimetres wide), naming the CRS to give it.
