@@ -759,8 +759,6 @@ class Terrain:
                 f"({counted(int(repeated.sum()), 'such face')}): drop them first, e.g. "
                 "mesh.update_faces(mesh.faces[:, 0] != mesh.faces[:, 1]) and the like"
             )
-        if not np.all(np.isfinite(points[:, :2])):
-            raise InvalidInputError("terrain mesh vertices must have finite x and y; got NaN or inf")
         z_ok = np.isfinite(points[:, 2])
         too_large = np.flatnonzero(z_ok & (np.abs(points[:, 2]) > FLOAT32_MAX))
         too_large = too_large[np.isin(too_large, faces)]  # an unused vertex does not matter
@@ -773,6 +771,14 @@ class Terrain:
         faces = faces[valid]
         if len(faces) == 0:
             raise InvalidInputError("terrain mesh has no face with three finite heights")
+        # x and y of the points on a kept face only: a point on no face, or on faces dropped for a nodata height (a
+        # vertex written as NaN, NaN, NaN), is in no mesh, as its z is not checked either; the whole mesh was refused
+        xy_bad = np.flatnonzero(~np.isfinite(points[:, :2]).all(axis=1))
+        xy_bad = xy_bad[np.isin(xy_bad, faces)]
+        if xy_bad.size:
+            k = int(xy_bad[0])
+            raise InvalidInputError(f"terrain mesh vertices on a face with finite heights must have finite x and y; "
+                                    f"vertex {k} is {points[k].tolist()}")
         if crs:  # degrees or feet made metres, as a grid's (before any check of the points' extent or areas)
             from .io import points_as_metres  # io imports this module
 
@@ -1610,7 +1616,9 @@ def _box_pairs(lo: NDArray[np.float64], hi: NDArray[np.float64], queries: NDArra
     candidates = np.flatnonzero(others)
     anchors = anchor[candidates] if len(candidates) < len(xy) // 2 else None  # few: their points only
     points = xy if anchors is None else xy[anchors]
-    point_cell = np.clip(np.floor(points / width), -1, [side - 2, rows - 2])  # a stray point's too (no face's)
+    # a stray point's too (no face's; fmax takes a NaN x or y of one to -1, where np.clip kept it NaN and the int64
+    # key of it indexed the table far out of bounds)
+    point_cell = np.fmin(np.fmax(np.floor(points / width), -1.0), [side - 2, rows - 2])
     point_key = (point_cell.astype(np.int64) + 1) @ np.array([1, side])
     if side * rows <= 8 * len(anchor) + (1 << 20):
         table = np.zeros(side * rows, dtype=bool)
