@@ -71,3 +71,20 @@ def test_the_cli_lens_check_measures_to_the_points_the_steps_use(stray):
     strayed = trimesh.Trimesh(np.vstack([mesh.vertices, stray]), mesh.faces, process=False)
     expected = float(np.hypot(xy[:, 0] - 30.0, xy[:, 1] - 30.0).min())
     assert cli._nearest_node_distance(st.Terrain.from_mesh(strayed), 30.0, 30.0) == expected
+
+
+def test_stepped_series_names_the_frame_of_an_iterable_whose_heights_the_interval_does_not_fit():
+    """Frames from an iterable get isovalues of their own heights; a later frame whose heights the interval does not
+    fit (too fine for float32 there) was refused without naming the frame, after the frames before it had been
+    yielded: which of a thousand frames was it? The first frame's refusal stays as stepped() gives it."""
+    heights = np.asarray(st.sample_dem().heights, np.float64)[:16, :16]
+    frames = st.stepped_series(iter([heights, heights + 1.0, heights + 1e9]), interval=50.0)
+    assert len(next(frames).faces) and len(next(frames).faces)
+    with pytest.raises(st.InvalidInputError, match=r"^frames\[2\] \(heights 1e\+09 to 1e\+09\): interval=50.0 is too "
+                                                   r"small for float32 heights"):
+        next(frames)
+    with pytest.raises(st.InvalidInputError) as first:
+        next(st.stepped_series(iter([heights + 1e9]), interval=50.0))
+    with pytest.raises(st.InvalidInputError) as alone:
+        st.stepped(heights + 1e9, interval=50.0)
+    assert str(first.value) == str(alone.value)
