@@ -689,8 +689,10 @@ class Terrain:
                   ) -> Terrain:
         """A TIN from a ``trimesh.Trimesh`` whose faces project one-to-one onto the xy plane.
 
-        Faces touching a non-finite height are dropped (nodata); faces wound clockwise seen from above (the whole
-        mesh, or some of its faces: tiles from exporters of opposite conventions, merged) are turned up; points that
+        Faces touching a non-finite height are dropped (nodata), and a point on no kept face is in no mesh (its x, y
+        and z unchecked: an unreferenced vertex, a void written as NaN, NaN, NaN); faces wound clockwise seen from
+        above (the whole mesh, or some of its faces: tiles from exporters of opposite conventions, merged) are turned
+        up; points that
         coincide (the same x, y and z, and vertex colour or UV) are welded, so a triangle soup (an STL file) or a
         mesh of several parts (a glTF's primitives) steps as one welded surface, and its solid has no walls inside
         (a per-node γ array is read at the first of such points; vertex colours built apart from the mesh with fewer
