@@ -762,19 +762,19 @@ class Terrain:
                 "mesh.update_faces(mesh.faces[:, 0] != mesh.faces[:, 1]) and the like"
             )
         z_ok = np.isfinite(points[:, 2])
+        valid = z_ok[faces].all(axis=1)
+        faces = faces[valid]
+        if len(faces) == 0:
+            raise InvalidInputError("terrain mesh has no face with three finite heights")
+        # the points on a kept face only: a point on no face, or only on faces dropped for a nodata height (a vertex
+        # written as NaN, NaN, NaN), is in no mesh; the whole mesh was refused for its x or y, or its z beyond float32
         too_large = np.flatnonzero(z_ok & (np.abs(points[:, 2]) > FLOAT32_MAX))
-        too_large = too_large[np.isin(too_large, faces)]  # an unused vertex does not matter
+        too_large = too_large[np.isin(too_large, faces)]
         if too_large.size:  # the kernels get float32 heights
             k = int(too_large[0])
             raise InvalidInputError(
                 f"terrain mesh heights must fit in float32 (|z| < 3.4e+38); vertex {k} has z={float(points[k, 2])!r}"
             )
-        valid = z_ok[faces].all(axis=1)
-        faces = faces[valid]
-        if len(faces) == 0:
-            raise InvalidInputError("terrain mesh has no face with three finite heights")
-        # x and y of the points on a kept face only: a point on no face, or on faces dropped for a nodata height (a
-        # vertex written as NaN, NaN, NaN), is in no mesh, as its z is not checked either; the whole mesh was refused
         xy_bad = np.flatnonzero(~np.isfinite(points[:, :2]).all(axis=1))
         xy_bad = xy_bad[np.isin(xy_bad, faces)]
         if xy_bad.size:

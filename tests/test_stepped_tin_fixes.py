@@ -88,3 +88,21 @@ def test_stepped_series_names_the_frame_of_an_iterable_whose_heights_the_interva
     with pytest.raises(st.InvalidInputError) as alone:
         st.stepped(heights + 1e9, interval=50.0)
     assert str(first.value) == str(alone.value)
+
+
+def test_a_tin_point_only_on_faces_dropped_for_nodata_is_not_checked():
+    """A point whose every face is dropped for a nodata corner is in no mesh, as an unreferenced one: its z beyond
+    float32 (or its NaN x and y) refused the whole TIN. It steps as the TIN without that face, bit for bit; such a
+    height on a kept face is still refused, naming the vertex."""
+    mesh = _tin()
+    n = len(mesh.vertices)
+    plain = st.stepped(mesh, interval=50.0)
+    for extra in ([[5.0, 5.0, 1e300], [6.0, 5.0, np.nan]], [[np.nan, np.nan, 1e300], [np.nan, np.nan, np.nan]]):
+        points = np.vstack([mesh.vertices, extra])
+        faces = np.vstack([mesh.faces, [[0, n, n + 1]]])
+        steps = st.stepped(trimesh.Trimesh(points, faces, process=False), interval=50.0)
+        assert np.array_equal(steps.vertices, plain.vertices) and np.array_equal(steps.faces, plain.faces)
+    points = mesh.vertices.copy()
+    points[3, 2] = 1e300
+    with pytest.raises(st.InvalidInputError, match=r"must fit in float32 .*; vertex 3 has z=1e\+300"):
+        st.stepped(trimesh.Trimesh(points, mesh.faces, process=False), interval=50.0)
