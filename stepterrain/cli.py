@@ -815,14 +815,16 @@ def _kernel_cache_warm(device: Any) -> bool | None:
 
 
 def _nearest_node_distance(terrain: Any, x: float, y: float) -> float:
-    """Distance from (x, y) to the terrain's nearest node (a grid's nearest row and column, a TIN's nearest point)."""
+    """Distance from (x, y) to the terrain's nearest node (a grid's nearest row and column, a TIN's nearest point on a
+    kept face: a point on none is in no mesh, and one with a NaN x or y made the distance NaN)."""
     if terrain.kind == "grid":
         rows, cols = terrain.shape
         (dx, dy), (x0, y0) = terrain.spacing, terrain.origin
         col = min(max(round((x - x0) / dx), 0), cols - 1)
         row = min(max(round((y - y0) / dy), 0), rows - 1)
         return math.hypot(x - (x0 + col * dx), y - (y0 + row * dy))
-    return float(np.hypot(terrain.points[:, 0] - x, terrain.points[:, 1] - y).min())
+    used = terrain.points[terrain.point_used != 0]
+    return float(np.hypot(used[:, 0] - x, used[:, 1] - y).min())
 
 
 def _run_steps(args: argparse.Namespace, progress: Progress) -> int:

@@ -1774,9 +1774,16 @@ def stepped_series(
             height_range = t.height_range if values is None else None  # all nodata: an error, as in stepped()
         except InvalidInputError as exc:  # the frame's heights (spacing and origin were checked above)
             raise InvalidInputError(f"frames[{k}]: {exc}") from None
-        frame_values = (
-            values if height_range is None else isovalues(height_range, interval=interval, levels=levels, base=base)
-        )
+        frame_values = values
+        if height_range is not None:  # an iterable's frame: its own isovalues
+            try:
+                frame_values = isovalues(height_range, interval=interval, levels=levels, base=base)
+            except InvalidInputError as exc:  # what does not fit the arguments fails at the first frame, as for
+                # stepped(); a later frame fails for its own heights (an interval too fine for float32 there): named
+                if k == 0:
+                    raise
+                raise InvalidInputError(f"frames[{k}] (heights {height_range[0]:g} to {height_range[1]:g}): {exc}") \
+                    from None
         try:
             if t.visual is not None and colors is None:
                 _check_carried_visual(t)

@@ -689,8 +689,10 @@ class Terrain:
                   ) -> Terrain:
         """A TIN from a ``trimesh.Trimesh`` whose faces project one-to-one onto the xy plane.
 
-        Faces touching a non-finite height are dropped (nodata); faces wound clockwise seen from above (the whole
-        mesh, or some of its faces: tiles from exporters of opposite conventions, merged) are turned up; points that
+        Faces touching a non-finite height are dropped (nodata), and a point on no kept face is in no mesh (its x, y
+        and z unchecked: an unreferenced vertex, a void written as NaN, NaN, NaN); faces wound clockwise seen from
+        above (the whole mesh, or some of its faces: tiles from exporters of opposite conventions, merged) are turned
+        up; points that
         coincide (the same x, y and z, and vertex colour or UV) are welded, so a triangle soup (an STL file) or a
         mesh of several parts (a glTF's primitives) steps as one welded surface, and its solid has no walls inside
         (a per-node γ array is read at the first of such points; vertex colours built apart from the mesh with fewer
@@ -759,20 +761,26 @@ class Terrain:
                 f"({counted(int(repeated.sum()), 'such face')}): drop them first, e.g. "
                 "mesh.update_faces(mesh.faces[:, 0] != mesh.faces[:, 1]) and the like"
             )
-        if not np.all(np.isfinite(points[:, :2])):
-            raise InvalidInputError("terrain mesh vertices must have finite x and y; got NaN or inf")
         z_ok = np.isfinite(points[:, 2])
+        valid = z_ok[faces].all(axis=1)
+        faces = faces[valid]
+        if len(faces) == 0:
+            raise InvalidInputError("terrain mesh has no face with three finite heights")
+        # the points on a kept face only: a point on no face, or only on faces dropped for a nodata height (a vertex
+        # written as NaN, NaN, NaN), is in no mesh; the whole mesh was refused for its x or y, or its z beyond float32
         too_large = np.flatnonzero(z_ok & (np.abs(points[:, 2]) > FLOAT32_MAX))
-        too_large = too_large[np.isin(too_large, faces)]  # an unused vertex does not matter
+        too_large = too_large[np.isin(too_large, faces)]
         if too_large.size:  # the kernels get float32 heights
             k = int(too_large[0])
             raise InvalidInputError(
                 f"terrain mesh heights must fit in float32 (|z| < 3.4e+38); vertex {k} has z={float(points[k, 2])!r}"
             )
-        valid = z_ok[faces].all(axis=1)
-        faces = faces[valid]
-        if len(faces) == 0:
-            raise InvalidInputError("terrain mesh has no face with three finite heights")
+        xy_bad = np.flatnonzero(~np.isfinite(points[:, :2]).all(axis=1))
+        xy_bad = xy_bad[np.isin(xy_bad, faces)]
+        if xy_bad.size:
+            k = int(xy_bad[0])
+            raise InvalidInputError(f"terrain mesh vertices on a face with finite heights must have finite x and y; "
+                                    f"vertex {k} is {points[k].tolist()}")
         if crs:  # degrees or feet made metres, as a grid's (before any check of the points' extent or areas)
             from .io import points_as_metres  # io imports this module
 
@@ -1610,7 +1618,9 @@ def _box_pairs(lo: NDArray[np.float64], hi: NDArray[np.float64], queries: NDArra
     candidates = np.flatnonzero(others)
     anchors = anchor[candidates] if len(candidates) < len(xy) // 2 else None  # few: their points only
     points = xy if anchors is None else xy[anchors]
-    point_cell = np.clip(np.floor(points / width), -1, [side - 2, rows - 2])  # a stray point's too (no face's)
+    # a stray point's too (no face's; fmax takes a NaN x or y of one to -1, where np.clip kept it NaN and the int64
+    # key of it indexed the table far out of bounds)
+    point_cell = np.fmin(np.fmax(np.floor(points / width), -1.0), [side - 2, rows - 2])
     point_key = (point_cell.astype(np.int64) + 1) @ np.array([1, side])
     if side * rows <= 8 * len(anchor) + (1 << 20):
         table = np.zeros(side * rows, dtype=bool)
