@@ -924,7 +924,9 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
                 raise InvalidInputError(f"--lens-relative {fx:g},{fy:g},{fr:g} places the lens at ({cx:g}, {cy:g}) "
                                         f"with radius {radius:g}: expected fractions of the extent (0 to 1 across "
                                         "it) giving a finite centre and radius")
-        gamma = st.circular_lens(terrain, (cx, cy), radius, edge_width=args.lens_edge, outside=args.gamma)
+        with warnings.catch_warnings():  # a lens beside the terrain: said below, naming --lens and --lens-relative
+            warnings.filterwarnings("ignore", message="circular_lens: the lens at ")
+            gamma = st.circular_lens(terrain, (cx, cy), radius, edge_width=args.lens_edge, outside=args.gamma)
         progress.say(f"lens at ({cx:.1f}, {cy:.1f}), radius {radius:.1f}: original terrain inside, "
                      f"gamma {args.gamma:g} outside")
         reach = radius + (radius / 4.0 if args.lens_edge is None else args.lens_edge) / 2.0  # γ < --gamma within

@@ -175,6 +175,8 @@ def circular_lens(
     inside: float = 0.0,
     outside: float = 1.0,
     resolution: int = 512,
+    spacing: ArrayLike | None = None,
+    origin: ArrayLike | None = None,
 ) -> Lens:
     """A soft-edged circular lens: γ = ``inside`` within ``radius`` of ``center``, ``outside`` beyond.
 
@@ -184,6 +186,11 @@ def circular_lens(
     the terrain's extent; the whole extent where the lens misses the terrain), and γ beyond that square is
     ``outside``: a small lens on a large DEM is as smooth as a large one.
 
+    ``center`` and ``radius`` are in the terrain's xy coordinates: for a raw (H, W) array give the ``spacing`` and
+    ``origin`` that :func:`stepped` is given (a lens built over the unit-spaced array and applied to
+    ``stepped(h, spacing=(30, 30), ...)`` lies where the center names in unit cells, not metres). A lens that lies
+    wholly outside the terrain's extent warns (γ is ``outside`` everywhere: the lens changes nothing).
+
     Examples
     --------
     >>> import numpy as np, stepterrain as st
@@ -191,7 +198,7 @@ def circular_lens(
     >>> float(lens.mask.min()), float(lens.mask.max())
     (0.0, 1.0)
     """
-    t = as_terrain(terrain)
+    t = as_terrain(terrain, spacing=spacing, origin=origin)
     try:
         cx, cy = (as_number(c) for c in center)  # text ("12" unpacked to 1, 2) and bools are slips
     except (TypeError, ValueError) as exc:
@@ -212,6 +219,14 @@ def circular_lens(
     check_budget(LENS_TEXEL_BYTES * int(resolution) ** 2, f"a lens mask of resolution {int(resolution)}",
                  hint="lower the lens resolution")
     n = int(resolution)
+    ex0, ex1, ey0, ey1 = t.extent
+    if math.hypot(max(ex0 - cx, 0.0, cx - ex1), max(ey0 - cy, 0.0, cy - ey1)) >= radius + width / 2.0:
+        hint = (" (a raw array's coordinates are its column and row unless spacing=/origin= are given, as stepped "
+                "takes them)" if t.kind == "grid" and not isinstance(terrain, Terrain) and spacing is None
+                and origin is None else "")
+        warnings.warn(f"circular_lens: the lens at ({cx:.9g}, {cy:.9g}), radius {radius:.9g}, lies outside the "
+                      f"terrain's extent x {ex0:.9g} to {ex1:.9g}, y {ey0:.9g} to {ey1:.9g}: gamma is `outside` "
+                      f"({float(outside):g}) everywhere{hint}", stacklevel=caller_stacklevel())
     xmin, xmax, ymin, ymax = _lens_box(t.extent, (cx, cy), radius + width / 2.0, n)
     xs = np.linspace(xmin, xmax, n)
     ys = np.linspace(ymin, ymax, n)
