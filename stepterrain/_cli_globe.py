@@ -461,11 +461,14 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         if not args.no_camera:  # the eye the mesh was refined for (with --no-camera it only places a --png)
             metadata["eye_lat_lon_alt"] = [lat_deg, lon_deg, altitude]
         mesh.metadata.pop("node_entry", None)
-        # a view's glTF stored relative to the eye: relative to the centre of the mesh, which spans thousands of km
-        # (the coarse triangles at the view's border and on the far side), float32 moved the vertices under an eye
-        # 100 m up by 0.3 m; relative to the eye each is stored within float32's rounding of its own distance from it
+        # a view's glTF stored relative to the eye its mesh records (metadata["eye"]), as save_mesh's default takes
+        # it: relative to the centre of the mesh, which spans thousands of km (the coarse triangles at the view's
+        # border and on the far side), float32 moved the vertices under an eye 100 m up by 0.3 m; relative to the
+        # eye each is stored within float32's rounding of its own distance from it. An eye farther than one diagonal
+        # of the mesh's bounds keeps the centre: passed as origin whatever its distance, an eye 1e12 m out rounded
+        # the vertices by 32 km, one 1e29 m out put every vertex on one point
         written = export.save_mesh(textured if textured is not None and keeps_texture else mesh, out,
-                                   metadata=metadata, origin=None if args.no_camera else camera.eye)
+                                   metadata=metadata)
         progress.done(_size(written))
     if image is not None:
         progress.stage("write_png", f"writing {png}")

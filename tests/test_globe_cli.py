@@ -529,6 +529,25 @@ def test_globe_close_view_glb_is_stored_relative_to_the_eye(tmp_path):
     assert (error <= 2.0**-23 * (distance + 2.0)).all(), float((error / distance).max())
 
 
+@pytest.mark.parametrize("altitude", ["1e9", "1e12", "1e29"])
+def test_a_far_view_glb_is_not_stored_relative_to_its_far_eye(tmp_path, altitude):
+    """The CLI stored every view's GLB relative to its eye, however far: float32 positions about an eye 1e12 m away
+    round by up to 32 km (the globe's vertices read back from 6,331 to 6,409 km from the centre), and about one
+    1e29 m away all 1,538 vertices of a 17² globe became one point, every triangle of the file degenerate. Now the
+    eye the mesh records decides as save_mesh's own default does (the eye while within one diagonal of the mesh's
+    bounds, else the centre of its bounds): the far view's GLB is the PLY's mesh within float32's rounding of the
+    globe's own size, as the library's save_mesh of the same view writes it."""
+    glb, ply = tmp_path / "far.glb", tmp_path / "far.ply"
+    for out in (glb, ply):
+        assert main(["-q", "globe", "--face-size", "17", "--eye", f"46,9,{altitude}", "-o", str(out),
+                     "--device", "cpu"]) == 0
+    from stepterrain.export import read_mesh
+    stored, exact = read_mesh(glb).vertices, read_mesh(ply).vertices
+    assert stored.shape == exact.shape and len(np.unique(stored, axis=0)) == len(exact)
+    error = np.linalg.norm(stored - exact, axis=1)
+    assert error.max() <= 2.0**-23 * np.abs(exact).max(), float(error.max())
+
+
 def test_a_view_tilted_off_the_globe_names_the_view_options(tmp_path, capsys):
     """A view tilted past the globe's limb sees nothing, and the refusal said only "point the eye at the earth or
     pass --no-cull", naming neither --tilt nor how far the globe lies from straight down. It now names the --eye and
