@@ -2911,6 +2911,10 @@ _PLY_TYPES: dict[str, str] = {
 }
 #: The other element's own property names (:data:`_PLY_OWN` holds each element's): not written as a column either.
 _PLY_RESERVED = frozenset({"x", "y", "z", "vertex_indices"})
+#: Header words no column is named: trimesh's reader (read_mesh's) ends the header at a line holding the word
+#: ``end_header`` anywhere, so an attribute so named (``property int end_header``, and a bool one's flag comment) cut
+#: the header short, and the file was refused as "PLY is unexpected length".
+_PLY_KEYWORDS = frozenset({"end_header"})
 # An attribute is not written under a name readers take for something else (:data:`_PLY_OWN`: ``nx``, ``u``, ``s``
 # ... of a vertex, ``texcoord`` of a face): trimesh's reader and VTK's made such a column normals or texture
 # coordinates, read_mesh left it out, and a face attribute named ``texcoord`` made the file unreadable.
@@ -2933,7 +2937,7 @@ def _ply_parts(mesh: trimesh.Trimesh, bounds: Bounds) -> list[Any]:
         vertex_columns += [(name, rgba[:, k]) for k, name in enumerate(("red", "green", "blue", "alpha"))]
     booleans: dict[str, list[str]] = {"vertex": [], "face": []}  # columns written from bools, as uchar 0/1
     vertex_columns += _ply_columns(mesh.vertex_attributes, [name for name, _ in vertex_columns]
-                                  + list(_PLY_RESERVED | _PLY_OWN["vertex"]), booleans["vertex"])
+                                  + list(_PLY_RESERVED | _PLY_KEYWORDS | _PLY_OWN["vertex"]), booleans["vertex"])
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3).astype("<i4")
     face_columns: list[tuple[str, NDArray[Any]]] = []
     if mesh.visual.kind == "face" and len(faces) and len(mesh.visual.face_colors) == len(faces):
@@ -2941,7 +2945,8 @@ def _ply_parts(mesh: trimesh.Trimesh, bounds: Bounds) -> list[Any]:
         # dropped
         face_rgba = np.asarray(mesh.visual.face_colors, dtype=np.uint8)
         face_columns += [(name, face_rgba[:, k]) for k, name in enumerate(("red", "green", "blue", "alpha"))]
-    face_columns += _ply_columns(mesh.face_attributes, ["count", *_PLY_RESERVED, *_PLY_OWN["face"]], booleans["face"])
+    face_columns += _ply_columns(mesh.face_attributes, ["count", *_PLY_RESERVED, *_PLY_KEYWORDS, *_PLY_OWN["face"]],
+                                 booleans["face"])
 
     header = ["ply", "format binary_little_endian 1.0", "comment written by stepterrain"]
     header += [f"{_PLY_METADATA}{piece}" for piece in _metadata_pieces(mesh.metadata)]
@@ -3104,8 +3109,8 @@ def _ply_columns(
             columns += [(n, array[:, k]) for k, n in enumerate(names)]
     if renamed:
         warnings.warn("PLY property names must be distinct ASCII words other than the element's own (x, nx, u, s, "
-                      "red, texcoord, ...: readers take those for coordinates, normals, UVs or colours): wrote "
-                      f"{', '.join(renamed)}",
+                      "red, texcoord, ...: readers take those for coordinates, normals, UVs or colours) and "
+                      f"end_header (which ends the header for some readers): wrote {', '.join(renamed)}",
                       stacklevel=caller_stacklevel())
     return columns
 

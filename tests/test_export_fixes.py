@@ -421,6 +421,25 @@ def test_ply_attributes_with_names_that_are_no_ascii_word_are_written_renamed_wi
     np.testing.assert_array_equal(raw_vertex["x"].astype(np.float64), mesh.vertices[:, 0])
 
 
+
+@pytest.mark.parametrize("dtype", [np.int32, np.bool_])
+def test_a_ply_attribute_named_end_header_is_renamed_and_the_file_reads_back(tmp_path, dtype):
+    """A vertex or face attribute named ``end_header`` was written as ``property int end_header`` (a bool one also
+    named on the ``comment stepterrain-bool`` line): PLY readers that end the header at that word (trimesh's, so
+    read_mesh and ``stepterrain info``) took the header as ended there and refused the file ("PLY is unexpected
+    length"). It is written renamed, as the element's own names are, with the warning."""
+    mesh = trimesh.creation.box()
+    mesh.face_attributes["end_header"] = (np.arange(12) % 2).astype(dtype)
+    mesh.vertex_attributes["end_header"] = (np.arange(8) % 2).astype(dtype)
+    with pytest.warns(UserWarning, match="'end_header' as 'end_header_attr'"):
+        path = save_mesh(mesh, tmp_path / "m.ply")
+    back = read_mesh(path)
+    assert len(back.vertices) == 8 and len(back.faces) == 12
+    np.testing.assert_array_equal(back.face_attributes["end_header_attr"], mesh.face_attributes["end_header"])
+    np.testing.assert_array_equal(back.vertex_attributes["end_header_attr"], mesh.vertex_attributes["end_header"])
+    assert back.face_attributes["end_header_attr"].dtype == dtype
+    assert len(trimesh.load(path, process=False).faces) == 12
+
 def _image_or_mesh(path):
     if str(path).endswith(".png"):
         return save_image(np.zeros((4, 4, 3), np.uint8), path)
