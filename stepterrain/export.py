@@ -473,12 +473,13 @@ def save_mesh(
     ``PBRMaterial`` keeps what it sets (an unset metallicFactor becomes 0). A texture's alphaMode (unless its
     ``PBRMaterial`` sets one) follows its alpha: OPAQUE when every texel is opaque, MASK (alphaCutoff 0.5) when
     alpha is only 0 and 255 (a nodata hole: the mesh still writes depth, so terraces hide each other), BLEND when
-    some texel is partly transparent. A texture image opened from a JPEG file (``Image.open("photo.jpg")``) is
-    embedded (and an OBJ's side image written) as that file's bytes, unchanged, while its pixels are still the
-    file's (and it has no EXIF turn); one changed since, or decoded from bytes, is encoded as JPEG at quality 95
-    with full-resolution chroma (off by a few levels at most; Pillow's default, 75 with 4:2:0, by up to 119).
-    Other textures are lossless PNG. Vertex colours (sRGB bytes, as
-    matplotlib colormaps and images give them) are stored as glTF's ``COLOR_0`` requires, linear (float32; alpha as
+    some texel is partly transparent or the material's base colour (baseColorFactor, a plain material's diffuse) has
+    an alpha below 1, which multiplies every texel's. A texture image opened from a JPEG file
+    (``Image.open("photo.jpg")``) is embedded (and an OBJ's side image written) as that file's bytes, unchanged,
+    while its pixels are still the file's (and it has no EXIF turn); one changed since, or decoded from bytes, is
+    encoded as JPEG at quality 95 with full-resolution chroma (off by a few levels at most; Pillow's default, 75 with
+    4:2:0, by up to 119). Other textures are lossless PNG. Vertex colours (sRGB bytes, as matplotlib colormaps
+    and images give them) are stored as glTF's ``COLOR_0`` requires, linear (float32; alpha as
     it is): a viewer shows the colours of the other formats and of the renders. trimesh's reader, meeting the
     material, makes a ``TextureVisuals`` without UVs and keeps the linear values only as its
     ``vertex_attributes["color"]`` of a scene's geometry (``force="mesh"`` drops them); :func:`read_mesh` gives
@@ -3366,22 +3367,35 @@ def _textured_material(material: Any) -> Any:
     writes them."""
     if isinstance(material, trimesh.visual.material.SimpleMaterial):
         image = material.image
-        mode, cutoff = _texture_alpha_mode(image)
+        factor = None if image is not None else material.diffuse
+        mode, cutoff = _material_alpha_mode(image, factor)
         pbr = trimesh.visual.material.PBRMaterial(
-            name=material.name, baseColorTexture=image, baseColorFactor=None if image is not None else material.diffuse,
+            name=material.name, baseColorTexture=image, baseColorFactor=factor,
             metallicFactor=0.0, roughnessFactor=1.0, doubleSided=True, alphaMode=mode, alphaCutoff=cutoff)
         wrap = texture_wrap(material)
         if wrap is not None:  # the sampler the texture asks for (a globe's drape)
             pbr.wrap = wrap
         return pbr
     if isinstance(material, trimesh.visual.material.PBRMaterial):
-        mode, cutoff = _texture_alpha_mode(material.baseColorTexture)
+        mode, cutoff = _material_alpha_mode(material.baseColorTexture, material.baseColorFactor)
         unset_alpha = material.alphaMode is None and mode != "OPAQUE"
         if material.metallicFactor is None:  # the prepared copy's own material: changed in place
             material.metallicFactor = 0.0
         if unset_alpha:
             material.alphaMode, material.alphaCutoff = mode, cutoff
     return material
+
+
+def _material_alpha_mode(image: Any, factor: Any) -> tuple[str, float | None]:
+    """:func:`_texture_alpha_mode` of a base colour texture ``image`` (or None) under the base colour ``factor`` (RGBA
+    bytes, or None: white) that multiplies it (glTF 2.0 §3.9.2): "BLEND" when the factor's alpha is below 255, which
+    makes every texel partly transparent. A translucent factor (a PBRMaterial's baseColorFactor alpha 0.5, a plain
+    material's diffuse alpha) was written OPAQUE (its texture's mode, or none), and viewers ignored it where
+    render_mesh blends it, or MASK, which at cutoff 0.5 showed its texels of alpha 0.5 opaque."""
+    rgba = None if factor is None else np.asarray(factor).reshape(-1)
+    if rgba is not None and len(rgba) == 4 and float(rgba[3]) < 255:
+        return "BLEND", None
+    return _texture_alpha_mode(image)
 
 
 def _texture_alpha_mode(image: Any) -> tuple[str, float | None]:

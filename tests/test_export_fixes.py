@@ -862,6 +862,38 @@ def test_a_texture_with_transparent_texels_gets_an_alpha_mode_in_gltf_and_an_alp
     assert len(read_mesh(obj).faces) == len(mesh.faces)
 
 
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+@pytest.mark.parametrize(("texture", "expected"), [("opaque", "BLEND"), ("hole", "BLEND"), ("none", "BLEND"),
+                                                  ("simple", "BLEND"), ("set", "MASK"), ("factor opaque", "OPAQUE")])
+def test_a_material_colour_with_alpha_below_one_is_written_blended_to_gltf(tmp_path, ext, texture, expected):
+    """A material whose base colour is translucent (a PBRMaterial's baseColorFactor alpha 0.5 over an opaque texture, a
+    texture with a nodata hole or none; a SimpleMaterial's diffuse without an image) was written without an alphaMode
+    (glTF's default, OPAQUE) or with its texture's (MASK): viewers ignore the alpha under OPAQUE and show the texel of
+    alpha 0.5 (texel x factor) under MASK at cutoff 0.5 as opaque, where render_mesh blends it. It is BLEND, unless the
+    material sets an alphaMode itself; an opaque factor leaves the texture's mode."""
+    from trimesh.visual.material import PBRMaterial, SimpleMaterial
+
+    from . import gltf_validator
+
+    mesh, _ = _topographic_texture("hole" if texture == "hole" else "opaque", simple=False)
+    factor = [255, 255, 255, 255 if texture == "factor opaque" else 128]
+    image = mesh.visual.material.baseColorTexture
+    if texture == "simple":
+        material = SimpleMaterial(diffuse=[200, 120, 40, 128])
+    else:
+        material = PBRMaterial(baseColorTexture=None if texture == "none" else image, baseColorFactor=factor,
+                               alphaMode="MASK" if texture == "set" else None)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=mesh.visual.uv, material=material)
+    path = save_mesh(mesh, tmp_path / f"m{ext}")
+    (written,) = gltf_materials(path)
+    assert written.get("alphaMode", "OPAQUE") == expected
+    assert expected == "MASK" or written.get("alphaCutoff") is None  # no MASK cutoff left beside BLEND
+    if gltf_validator.available()[0]:
+        assert gltf_validator.problems(gltf_validator.validate([path])) == []
+    # the caller's material is left as it was
+    assert getattr(mesh.visual.material, "alphaMode", None) == ("MASK" if texture == "set" else None)
+
 def test_a_textured_obj_shows_its_texture_at_full_brightness_and_matte(tmp_path):
     """The .mtl of a draped mesh carried trimesh's default Kd 0.4 and Ks 0.4: the MTL model multiplies map_Kd by Kd
     (three.js's MTLLoader does), so the texture showed at 40 % brightness, and shiny. The glTF path was fixed for the
