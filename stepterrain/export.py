@@ -504,8 +504,8 @@ def save_mesh(
     meshes also write ``<stem>.mtl`` and their images ``<stem>_<material>.png`` (``.jpeg`` for an image opened from
     a JPEG) beside ``path`` (whitespace in the stem becomes ``_``: OBJ and MTL readers split file names on it; an
     image with transparent texels is also the MTL's dissolve, ``map_d -imfchan m``; its ``Kd`` is white and ``Ks``
-    black unless the material sets a base colour, so the texture shows at full brightness, matte), each
-    atomically, once the OBJ itself is complete; one that would
+    black unless the material sets a base colour, so the texture shows at full brightness, matte; a base colour's
+    alpha below 1 is its dissolve ``d``), each atomically, once the OBJ itself is complete; one that would
     replace an image :func:`save_image` wrote in this process, or a side file of another OBJ, is refused (a
     DataFileError) before any is written. The file appears complete or not at all: the mesh is
     written to a temporary file in the same folder and renamed, and an existing ``path`` is untouched
@@ -1640,12 +1640,29 @@ def _obj_material(mesh: trimesh.Trimesh, mtl_name: str) -> tuple[dict[str, bytes
     sidecars = {mtl_name: b"# written by stepterrain\n\n"}
     for file_name, data in files.items():
         if file_name.lower().endswith(".mtl"):
-            sidecars[mtl_name] += data
+            sidecars[mtl_name] += _with_dissolve(data, getattr(material, "diffuse", None))
         else:
             sidecars[file_name] = data
     uv = getattr(visual, "uv", None)  # one per vertex (_check_uv): each face corner's vt index is its vertex's
     uv = np.asarray(uv, dtype=np.float64) if uv is not None else None
     return sidecars, str(name), uv
+
+
+def _with_dissolve(mtl: bytes, diffuse: Any) -> bytes:
+    """The MTL text ``mtl`` (trimesh's ``to_obj``: Ka, Kd, Ks lines) with ``d <alpha>`` after its ``Kd`` line when the
+    ``diffuse`` colour (RGBA bytes: a PBRMaterial's baseColorFactor, a plain material's diffuse) has an alpha below
+    255: trimesh wrote its RGB alone, and a translucent material (as the glTF's alphaMode BLEND shows it) was opaque
+    in OBJ readers. MTL's dissolve multiplies its ``map_d``, as glTF's factor multiplies the texels' alpha."""
+    rgba = None if diffuse is None else np.asarray(diffuse).reshape(-1)
+    if rgba is None or len(rgba) != 4 or float(rgba[3]) >= 255:
+        return mtl
+    lines = mtl.decode("utf-8").split("\n")
+    out = []
+    for line in lines:
+        out.append(line)
+        if line.split(None, 1)[:1] == ["Kd"]:
+            out.append(f"d {float(rgba[3]) / 255.0:.8f}")
+    return "\n".join(out).encode("utf-8")
 
 
 #: The texture images of trimesh's materials: SimpleMaterial's one image, PBRMaterial's textures.

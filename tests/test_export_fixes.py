@@ -894,6 +894,29 @@ def test_a_material_colour_with_alpha_below_one_is_written_blended_to_gltf(tmp_p
     # the caller's material is left as it was
     assert getattr(mesh.visual.material, "alphaMode", None) == ("MASK" if texture == "set" else None)
 
+
+@pytest.mark.parametrize("texture", ["opaque", "hole", "none", "simple", "factor opaque"])
+def test_a_material_colour_with_alpha_below_one_is_the_mtl_dissolve(tmp_path, texture):
+    """The same translucent material in an OBJ: trimesh's MTL wrote its Kd (RGB) alone, so OBJ readers showed it
+    opaque. Its alpha is the MTL's dissolve ``d`` (which multiplies a ``map_d``, as glTF's factor the texels')."""
+    from trimesh.visual.material import PBRMaterial, SimpleMaterial
+
+    mesh, _ = _topographic_texture("hole" if texture == "hole" else "opaque", simple=False)
+    alpha = 255 if texture == "factor opaque" else 128
+    if texture == "simple":
+        material = SimpleMaterial(diffuse=[200, 120, 40, alpha])
+    else:
+        material = PBRMaterial(baseColorTexture=None if texture == "none" else mesh.visual.material.baseColorTexture,
+                               baseColorFactor=[255, 255, 255, alpha])
+    mesh.visual = trimesh.visual.TextureVisuals(uv=mesh.visual.uv, material=material)
+    obj = save_mesh(mesh, tmp_path / "m.obj")
+    mtl = (tmp_path / "m.mtl").read_text().splitlines()
+    dissolve = [line for line in mtl if line.split()[:1] == ["d"]]
+    assert dissolve == ([] if alpha == 255 else ["d 0.50196078"])
+    assert len([line for line in mtl if line.startswith("map_d ")]) == (texture == "hole")
+    back = read_mesh(obj)
+    assert len(back.faces) == len(mesh.faces) and back.visual.kind == "texture"
+
 def test_a_textured_obj_shows_its_texture_at_full_brightness_and_matte(tmp_path):
     """The .mtl of a draped mesh carried trimesh's default Kd 0.4 and Ks 0.4: the MTL model multiplies map_Kd by Kd
     (three.js's MTLLoader does), so the texture showed at 40 % brightness, and shiny. The glTF path was fixed for the
