@@ -167,7 +167,8 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
 
     A ``path`` that is a symbolic link is written through: the temporary file goes beside the file the link
     points to and replaces that file, so the link stays and shows the new content. A dangling link gets its
-    target created (missing folders too); a loop of links is refused.
+    target created (missing folders too), and so does a dangling link to a folder on the way; a loop of links is
+    refused.
 
     Raises
     ------
@@ -185,8 +186,8 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
                             "name of a file (written whole, then renamed into place)")
     folder = target.parent if str(target.parent) else Path(".")
     if not folder.exists():
-        try:
-            folder.mkdir(parents=True, exist_ok=True)
+        try:  # made where symbolic links lead: a dangling link (out -> /data/new) failed "File exists" (mkdir -p's)
+            Path(os.path.realpath(folder)).mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise DataFileError(f"cannot create the output folder {str(folder)!r}: "
                                 f"{unwritable_reason(exc, folder)}") from exc

@@ -422,6 +422,24 @@ def test_ply_attributes_with_names_that_are_no_ascii_word_are_written_renamed_wi
 
 
 
+
+@pytest.mark.parametrize("ext", [".glb", ".obj"])
+def test_a_folder_on_the_way_that_is_a_dangling_link_gets_its_target_made(tmp_path, ext):
+    """save_mesh(mesh, "out/a.glb") with ``out`` a symbolic link to a folder not made yet failed: "cannot create the
+    output folder 'out': File exists" (mkdir of the link's own name); a dangling link to the file itself already had
+    its target made. The folder is made where the link leads, the link kept, and a textured OBJ's side files go there
+    too."""
+    from .test_export_formats import textured
+
+    (tmp_path / "out").symlink_to(tmp_path / "new" / "meshes")
+    path = save_mesh(textured(), tmp_path / "out" / f"a{ext}")
+    assert (tmp_path / "out").is_symlink()
+    written = tmp_path / "new" / "meshes" / f"a{ext}"
+    assert written.is_file() and os.path.samefile(path, written)
+    back = read_mesh(written)
+    assert len(back.faces) == 50 and back.visual.kind == "texture"
+    assert not [p for p in (tmp_path / "new" / "meshes").iterdir() if p.name.endswith(".tmp")]
+
 @pytest.mark.parametrize("dtype", [np.int32, np.bool_])
 def test_a_ply_attribute_named_end_header_is_renamed_and_the_file_reads_back(tmp_path, dtype):
     """A vertex or face attribute named ``end_header`` was written as ``property int end_header`` (a bool one also
