@@ -715,7 +715,9 @@ def _check_outputs(inputs: dict[str, str | None] | None = None, /, **paths: Path
             special = _special_file_kind(key)
             if special is not None:  # refused by atomic_path too, but only once the work was done
                 raise DataFileError(f"{name} {str(path)!r} is a {special}, not a regular file; expected a file name")
-            folder = key.parent
+            # where symbolic links lead: a dangling link to a folder (out -> /data/new) is written through, and its
+            # target's nearest folder was never looked at (a missing or unwritable one failed after all the work)
+            folder = Path(os.path.realpath(key.parent))
             while not folder.exists() and folder != folder.parent:
                 folder = folder.parent
         except OSError as exc:

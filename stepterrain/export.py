@@ -167,7 +167,8 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
 
     A ``path`` that is a symbolic link is written through: the temporary file goes beside the file the link
     points to and replaces that file, so the link stays and shows the new content. A dangling link gets its
-    target created (missing folders too); a loop of links is refused.
+    target created (missing folders too), and so does a dangling link to a folder on the way; a loop of links is
+    refused.
 
     Raises
     ------
@@ -185,8 +186,8 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
                             "name of a file (written whole, then renamed into place)")
     folder = target.parent if str(target.parent) else Path(".")
     if not folder.exists():
-        try:
-            folder.mkdir(parents=True, exist_ok=True)
+        try:  # made where symbolic links lead: a dangling link (out -> /data/new) failed "File exists" (mkdir -p's)
+            Path(os.path.realpath(folder)).mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise DataFileError(f"cannot create the output folder {str(folder)!r}: "
                                 f"{unwritable_reason(exc, folder)}") from exc
@@ -473,12 +474,13 @@ def save_mesh(
     ``PBRMaterial`` keeps what it sets (an unset metallicFactor becomes 0). A texture's alphaMode (unless its
     ``PBRMaterial`` sets one) follows its alpha: OPAQUE when every texel is opaque, MASK (alphaCutoff 0.5) when
     alpha is only 0 and 255 (a nodata hole: the mesh still writes depth, so terraces hide each other), BLEND when
-    some texel is partly transparent. A texture image opened from a JPEG file (``Image.open("photo.jpg")``) is
-    embedded (and an OBJ's side image written) as that file's bytes, unchanged, while its pixels are still the
-    file's (and it has no EXIF turn); one changed since, or decoded from bytes, is encoded as JPEG at quality 95
-    with full-resolution chroma (off by a few levels at most; Pillow's default, 75 with 4:2:0, by up to 119).
-    Other textures are lossless PNG. Vertex colours (sRGB bytes, as
-    matplotlib colormaps and images give them) are stored as glTF's ``COLOR_0`` requires, linear (float32; alpha as
+    some texel is partly transparent or the material's base colour (baseColorFactor, a plain material's diffuse) has
+    an alpha below 1, which multiplies every texel's. A texture image opened from a JPEG file
+    (``Image.open("photo.jpg")``) is embedded (and an OBJ's side image written) as that file's bytes, unchanged,
+    while its pixels are still the file's (and it has no EXIF turn); one changed since, or decoded from bytes, is
+    encoded as JPEG at quality 95 with full-resolution chroma (off by a few levels at most; Pillow's default, 75 with
+    4:2:0, by up to 119). Other textures are lossless PNG. Vertex colours (sRGB bytes, as matplotlib colormaps
+    and images give them) are stored as glTF's ``COLOR_0`` requires, linear (float32; alpha as
     it is): a viewer shows the colours of the other formats and of the renders. trimesh's reader, meeting the
     material, makes a ``TextureVisuals`` without UVs and keeps the linear values only as its
     ``vertex_attributes["color"]`` of a scene's geometry (``force="mesh"`` drops them); :func:`read_mesh` gives
@@ -503,8 +505,8 @@ def save_mesh(
     meshes also write ``<stem>.mtl`` and their images ``<stem>_<material>.png`` (``.jpeg`` for an image opened from
     a JPEG) beside ``path`` (whitespace in the stem becomes ``_``: OBJ and MTL readers split file names on it; an
     image with transparent texels is also the MTL's dissolve, ``map_d -imfchan m``; its ``Kd`` is white and ``Ks``
-    black unless the material sets a base colour, so the texture shows at full brightness, matte), each
-    atomically, once the OBJ itself is complete; one that would
+    black unless the material sets a base colour, so the texture shows at full brightness, matte; a base colour's
+    alpha below 1 is its dissolve ``d``), each atomically, once the OBJ itself is complete; one that would
     replace an image :func:`save_image` wrote in this process, or a side file of another OBJ, is refused (a
     DataFileError) before any is written. The file appears complete or not at all: the mesh is
     written to a temporary file in the same folder and renamed, and an existing ``path`` is untouched
@@ -1639,12 +1641,29 @@ def _obj_material(mesh: trimesh.Trimesh, mtl_name: str) -> tuple[dict[str, bytes
     sidecars = {mtl_name: b"# written by stepterrain\n\n"}
     for file_name, data in files.items():
         if file_name.lower().endswith(".mtl"):
-            sidecars[mtl_name] += data
+            sidecars[mtl_name] += _with_dissolve(data, getattr(material, "diffuse", None))
         else:
             sidecars[file_name] = data
     uv = getattr(visual, "uv", None)  # one per vertex (_check_uv): each face corner's vt index is its vertex's
     uv = np.asarray(uv, dtype=np.float64) if uv is not None else None
     return sidecars, str(name), uv
+
+
+def _with_dissolve(mtl: bytes, diffuse: Any) -> bytes:
+    """The MTL text ``mtl`` (trimesh's ``to_obj``: Ka, Kd, Ks lines) with ``d <alpha>`` after its ``Kd`` line when the
+    ``diffuse`` colour (RGBA bytes: a PBRMaterial's baseColorFactor, a plain material's diffuse) has an alpha below
+    255: trimesh wrote its RGB alone, and a translucent material (as the glTF's alphaMode BLEND shows it) was opaque
+    in OBJ readers. MTL's dissolve multiplies its ``map_d``, as glTF's factor multiplies the texels' alpha."""
+    rgba = None if diffuse is None else np.asarray(diffuse).reshape(-1)
+    if rgba is None or len(rgba) != 4 or float(rgba[3]) >= 255:
+        return mtl
+    lines = mtl.decode("utf-8").split("\n")
+    out = []
+    for line in lines:
+        out.append(line)
+        if line.split(None, 1)[:1] == ["Kd"]:
+            out.append(f"d {float(rgba[3]) / 255.0:.8f}")
+    return "\n".join(out).encode("utf-8")
 
 
 #: The texture images of trimesh's materials: SimpleMaterial's one image, PBRMaterial's textures.
@@ -2911,6 +2930,10 @@ _PLY_TYPES: dict[str, str] = {
 }
 #: The other element's own property names (:data:`_PLY_OWN` holds each element's): not written as a column either.
 _PLY_RESERVED = frozenset({"x", "y", "z", "vertex_indices"})
+#: Header words no column is named: trimesh's reader (read_mesh's) ends the header at a line holding the word
+#: ``end_header`` anywhere, so an attribute so named (``property int end_header``, and a bool one's flag comment) cut
+#: the header short, and the file was refused as "PLY is unexpected length".
+_PLY_KEYWORDS = frozenset({"end_header"})
 # An attribute is not written under a name readers take for something else (:data:`_PLY_OWN`: ``nx``, ``u``, ``s``
 # ... of a vertex, ``texcoord`` of a face): trimesh's reader and VTK's made such a column normals or texture
 # coordinates, read_mesh left it out, and a face attribute named ``texcoord`` made the file unreadable.
@@ -2933,7 +2956,7 @@ def _ply_parts(mesh: trimesh.Trimesh, bounds: Bounds) -> list[Any]:
         vertex_columns += [(name, rgba[:, k]) for k, name in enumerate(("red", "green", "blue", "alpha"))]
     booleans: dict[str, list[str]] = {"vertex": [], "face": []}  # columns written from bools, as uchar 0/1
     vertex_columns += _ply_columns(mesh.vertex_attributes, [name for name, _ in vertex_columns]
-                                  + list(_PLY_RESERVED | _PLY_OWN["vertex"]), booleans["vertex"])
+                                  + list(_PLY_RESERVED | _PLY_KEYWORDS | _PLY_OWN["vertex"]), booleans["vertex"])
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3).astype("<i4")
     face_columns: list[tuple[str, NDArray[Any]]] = []
     if mesh.visual.kind == "face" and len(faces) and len(mesh.visual.face_colors) == len(faces):
@@ -2941,7 +2964,8 @@ def _ply_parts(mesh: trimesh.Trimesh, bounds: Bounds) -> list[Any]:
         # dropped
         face_rgba = np.asarray(mesh.visual.face_colors, dtype=np.uint8)
         face_columns += [(name, face_rgba[:, k]) for k, name in enumerate(("red", "green", "blue", "alpha"))]
-    face_columns += _ply_columns(mesh.face_attributes, ["count", *_PLY_RESERVED, *_PLY_OWN["face"]], booleans["face"])
+    face_columns += _ply_columns(mesh.face_attributes, ["count", *_PLY_RESERVED, *_PLY_KEYWORDS, *_PLY_OWN["face"]],
+                                 booleans["face"])
 
     header = ["ply", "format binary_little_endian 1.0", "comment written by stepterrain"]
     header += [f"{_PLY_METADATA}{piece}" for piece in _metadata_pieces(mesh.metadata)]
@@ -3104,8 +3128,8 @@ def _ply_columns(
             columns += [(n, array[:, k]) for k, n in enumerate(names)]
     if renamed:
         warnings.warn("PLY property names must be distinct ASCII words other than the element's own (x, nx, u, s, "
-                      "red, texcoord, ...: readers take those for coordinates, normals, UVs or colours): wrote "
-                      f"{', '.join(renamed)}",
+                      "red, texcoord, ...: readers take those for coordinates, normals, UVs or colours) and "
+                      f"end_header (which ends the header for some readers): wrote {', '.join(renamed)}",
                       stacklevel=caller_stacklevel())
     return columns
 
@@ -3361,22 +3385,35 @@ def _textured_material(material: Any) -> Any:
     writes them."""
     if isinstance(material, trimesh.visual.material.SimpleMaterial):
         image = material.image
-        mode, cutoff = _texture_alpha_mode(image)
+        factor = None if image is not None else material.diffuse
+        mode, cutoff = _material_alpha_mode(image, factor)
         pbr = trimesh.visual.material.PBRMaterial(
-            name=material.name, baseColorTexture=image, baseColorFactor=None if image is not None else material.diffuse,
+            name=material.name, baseColorTexture=image, baseColorFactor=factor,
             metallicFactor=0.0, roughnessFactor=1.0, doubleSided=True, alphaMode=mode, alphaCutoff=cutoff)
         wrap = texture_wrap(material)
         if wrap is not None:  # the sampler the texture asks for (a globe's drape)
             pbr.wrap = wrap
         return pbr
     if isinstance(material, trimesh.visual.material.PBRMaterial):
-        mode, cutoff = _texture_alpha_mode(material.baseColorTexture)
+        mode, cutoff = _material_alpha_mode(material.baseColorTexture, material.baseColorFactor)
         unset_alpha = material.alphaMode is None and mode != "OPAQUE"
         if material.metallicFactor is None:  # the prepared copy's own material: changed in place
             material.metallicFactor = 0.0
         if unset_alpha:
             material.alphaMode, material.alphaCutoff = mode, cutoff
     return material
+
+
+def _material_alpha_mode(image: Any, factor: Any) -> tuple[str, float | None]:
+    """:func:`_texture_alpha_mode` of a base colour texture ``image`` (or None) under the base colour ``factor`` (RGBA
+    bytes, or None: white) that multiplies it (glTF 2.0 §3.9.2): "BLEND" when the factor's alpha is below 255, which
+    makes every texel partly transparent. A translucent factor (a PBRMaterial's baseColorFactor alpha 0.5, a plain
+    material's diffuse alpha) was written OPAQUE (its texture's mode, or none), and viewers ignored it where
+    render_mesh blends it, or MASK, which at cutoff 0.5 showed its texels of alpha 0.5 opaque."""
+    rgba = None if factor is None else np.asarray(factor).reshape(-1)
+    if rgba is not None and len(rgba) == 4 and float(rgba[3]) < 255:
+        return "BLEND", None
+    return _texture_alpha_mode(image)
 
 
 def _texture_alpha_mode(image: Any) -> tuple[str, float | None]:

@@ -311,6 +311,25 @@ def test_an_unwritable_png_folder_fails_before_the_mesh_is_written(dem, tmp_path
         assert not (tmp_path / "out").exists()
 
 
+
+def test_an_output_folder_that_is_a_dangling_link_is_written_through_or_refused_before_any_work(dem, tmp_path, capsys,
+                                                                                                  monkeypatch):
+    """-o through a symbolic link to a folder that does not exist yet (out -> /data/new) failed after all the work,
+    "cannot create the output folder 'out': File exists" (the check walked past the link to its own folder); the
+    folder is now made where the link leads, as a dangling link to the file itself is, and one that cannot be made
+    there (under a file) is refused before any work."""
+    import stepterrain as st
+
+    (tmp_path / "out").symlink_to(tmp_path / "new" / "meshes")
+    code, _, err = run(capsys, "-q", "steps", dem, "--interval", "1", "-o", tmp_path / "out" / "a.glb")
+    assert code == 0, err
+    assert (tmp_path / "out").is_symlink() and (tmp_path / "new" / "meshes" / "a.glb").is_file()
+    (tmp_path / "file").write_text("x")
+    (tmp_path / "bad").symlink_to(tmp_path / "file" / "meshes")
+    monkeypatch.setattr(st, "stepped", lambda *a, **k: pytest.fail("stepped before the output was checked"))
+    code, _, err = run(capsys, "-q", "steps", dem, "--interval", "1", "-o", tmp_path / "bad" / "a.glb")
+    assert code == 2 and "--output" in err and "is not a folder" in err and len(err.strip().splitlines()) == 1
+
 def test_help_version_and_usage(capsys):
     code, out, _ = run(capsys, "--help")
     assert code == 0 and "steps" in out and "info" in out

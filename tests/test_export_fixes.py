@@ -421,6 +421,43 @@ def test_ply_attributes_with_names_that_are_no_ascii_word_are_written_renamed_wi
     np.testing.assert_array_equal(raw_vertex["x"].astype(np.float64), mesh.vertices[:, 0])
 
 
+
+
+@pytest.mark.parametrize("ext", [".glb", ".obj"])
+def test_a_folder_on_the_way_that_is_a_dangling_link_gets_its_target_made(tmp_path, ext):
+    """save_mesh(mesh, "out/a.glb") with ``out`` a symbolic link to a folder not made yet failed: "cannot create the
+    output folder 'out': File exists" (mkdir of the link's own name); a dangling link to the file itself already had
+    its target made. The folder is made where the link leads, the link kept, and a textured OBJ's side files go there
+    too."""
+    from .test_export_formats import textured
+
+    (tmp_path / "out").symlink_to(tmp_path / "new" / "meshes")
+    path = save_mesh(textured(), tmp_path / "out" / f"a{ext}")
+    assert (tmp_path / "out").is_symlink()
+    written = tmp_path / "new" / "meshes" / f"a{ext}"
+    assert written.is_file() and os.path.samefile(path, written)
+    back = read_mesh(written)
+    assert len(back.faces) == 50 and back.visual.kind == "texture"
+    assert not [p for p in (tmp_path / "new" / "meshes").iterdir() if p.name.endswith(".tmp")]
+
+@pytest.mark.parametrize("dtype", [np.int32, np.bool_])
+def test_a_ply_attribute_named_end_header_is_renamed_and_the_file_reads_back(tmp_path, dtype):
+    """A vertex or face attribute named ``end_header`` was written as ``property int end_header`` (a bool one also
+    named on the ``comment stepterrain-bool`` line): PLY readers that end the header at that word (trimesh's, so
+    read_mesh and ``stepterrain info``) took the header as ended there and refused the file ("PLY is unexpected
+    length"). It is written renamed, as the element's own names are, with the warning."""
+    mesh = trimesh.creation.box()
+    mesh.face_attributes["end_header"] = (np.arange(12) % 2).astype(dtype)
+    mesh.vertex_attributes["end_header"] = (np.arange(8) % 2).astype(dtype)
+    with pytest.warns(UserWarning, match="'end_header' as 'end_header_attr'"):
+        path = save_mesh(mesh, tmp_path / "m.ply")
+    back = read_mesh(path)
+    assert len(back.vertices) == 8 and len(back.faces) == 12
+    np.testing.assert_array_equal(back.face_attributes["end_header_attr"], mesh.face_attributes["end_header"])
+    np.testing.assert_array_equal(back.vertex_attributes["end_header_attr"], mesh.vertex_attributes["end_header"])
+    assert back.face_attributes["end_header_attr"].dtype == dtype
+    assert len(trimesh.load(path, process=False).faces) == 12
+
 def _image_or_mesh(path):
     if str(path).endswith(".png"):
         return save_image(np.zeros((4, 4, 3), np.uint8), path)
@@ -842,6 +879,61 @@ def test_a_texture_with_transparent_texels_gets_an_alpha_mode_in_gltf_and_an_alp
         np.testing.assert_array_equal(np.asarray(written.convert("RGBA"))[..., 3], texels)
     assert len(read_mesh(obj).faces) == len(mesh.faces)
 
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+@pytest.mark.parametrize(("texture", "expected"), [("opaque", "BLEND"), ("hole", "BLEND"), ("none", "BLEND"),
+                                                  ("simple", "BLEND"), ("set", "MASK"), ("factor opaque", "OPAQUE")])
+def test_a_material_colour_with_alpha_below_one_is_written_blended_to_gltf(tmp_path, ext, texture, expected):
+    """A material whose base colour is translucent (a PBRMaterial's baseColorFactor alpha 0.5 over an opaque texture, a
+    texture with a nodata hole or none; a SimpleMaterial's diffuse without an image) was written without an alphaMode
+    (glTF's default, OPAQUE) or with its texture's (MASK): viewers ignore the alpha under OPAQUE and show the texel of
+    alpha 0.5 (texel x factor) under MASK at cutoff 0.5 as opaque, where render_mesh blends it. It is BLEND, unless the
+    material sets an alphaMode itself; an opaque factor leaves the texture's mode."""
+    from trimesh.visual.material import PBRMaterial, SimpleMaterial
+
+    from . import gltf_validator
+
+    mesh, _ = _topographic_texture("hole" if texture == "hole" else "opaque", simple=False)
+    factor = [255, 255, 255, 255 if texture == "factor opaque" else 128]
+    image = mesh.visual.material.baseColorTexture
+    if texture == "simple":
+        material = SimpleMaterial(diffuse=[200, 120, 40, 128])
+    else:
+        material = PBRMaterial(baseColorTexture=None if texture == "none" else image, baseColorFactor=factor,
+                               alphaMode="MASK" if texture == "set" else None)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=mesh.visual.uv, material=material)
+    path = save_mesh(mesh, tmp_path / f"m{ext}")
+    (written,) = gltf_materials(path)
+    assert written.get("alphaMode", "OPAQUE") == expected
+    assert expected == "MASK" or written.get("alphaCutoff") is None  # no MASK cutoff left beside BLEND
+    if gltf_validator.available()[0]:
+        assert gltf_validator.problems(gltf_validator.validate([path])) == []
+    # the caller's material is left as it was
+    assert getattr(mesh.visual.material, "alphaMode", None) == ("MASK" if texture == "set" else None)
+
+
+@pytest.mark.parametrize("texture", ["opaque", "hole", "none", "simple", "factor opaque"])
+def test_a_material_colour_with_alpha_below_one_is_the_mtl_dissolve(tmp_path, texture):
+    """The same translucent material in an OBJ: trimesh's MTL wrote its Kd (RGB) alone, so OBJ readers showed it
+    opaque. Its alpha is the MTL's dissolve ``d`` (which multiplies a ``map_d``, as glTF's factor the texels')."""
+    from trimesh.visual.material import PBRMaterial, SimpleMaterial
+
+    mesh, _ = _topographic_texture("hole" if texture == "hole" else "opaque", simple=False)
+    alpha = 255 if texture == "factor opaque" else 128
+    if texture == "simple":
+        material = SimpleMaterial(diffuse=[200, 120, 40, alpha])
+    else:
+        material = PBRMaterial(baseColorTexture=None if texture == "none" else mesh.visual.material.baseColorTexture,
+                               baseColorFactor=[255, 255, 255, alpha])
+    mesh.visual = trimesh.visual.TextureVisuals(uv=mesh.visual.uv, material=material)
+    obj = save_mesh(mesh, tmp_path / "m.obj")
+    mtl = (tmp_path / "m.mtl").read_text().splitlines()
+    dissolve = [line for line in mtl if line.split()[:1] == ["d"]]
+    assert dissolve == ([] if alpha == 255 else ["d 0.50196078"])
+    assert len([line for line in mtl if line.startswith("map_d ")]) == (texture == "hole")
+    back = read_mesh(obj)
+    assert len(back.faces) == len(mesh.faces) and back.visual.kind == "texture"
 
 def test_a_textured_obj_shows_its_texture_at_full_brightness_and_matte(tmp_path):
     """The .mtl of a draped mesh carried trimesh's default Kd 0.4 and Ks 0.4: the MTL model multiplies map_Kd by Kd
