@@ -1222,8 +1222,10 @@ def _texture_source(mesh: trimesh.Trimesh) -> tuple[Any, Any, Any] | None:
     uv = getattr(visual, "uv", None)
     material = getattr(visual, "material", None)
     image = None
-    if material is not None:
-        image = getattr(material, "baseColorTexture", None) or getattr(material, "image", None)
+    if material is not None:  # "or" between them: an array's truth value raised numpy's ValueError (ambiguous)
+        image = getattr(material, "baseColorTexture", None)
+        if image is None:
+            image = getattr(material, "image", None)
     if uv is None or image is None or len(uv) != len(mesh.vertices):
         return None
     return uv, image, material

@@ -82,6 +82,29 @@ def test_a_texture_image_that_is_not_uint8_is_named(image):
         render.render_textured_mesh(textured(image), window_size=(32, 32), lighting=False)
 
 
+
+@needs_render
+@pytest.mark.parametrize("draw", ["render_textured_mesh", "render_mesh"])
+def test_a_pbr_material_with_an_array_texture_renders_it(draw):
+    """A PBRMaterial's baseColorTexture given as an array (glTF's material, as trimesh takes it) raised numpy's
+    "truth value of an array ... is ambiguous" ValueError from reading the texture, naming nothing; a bad one (uint16)
+    is named as a SimpleMaterial's is."""
+    def pbr(image):
+        mesh = textured(image)
+        mesh.visual = trimesh.visual.TextureVisuals(
+            uv=mesh.visual.uv, material=trimesh.visual.material.PBRMaterial(baseColorTexture=image))
+        return mesh
+
+    kwargs = {"lighting": False} if draw == "render_textured_mesh" else {}
+    image = getattr(render, draw)(pbr(np.full((4, 4, 3), (30, 140, 220), np.uint8)), window_size=(32, 32),
+                                  camera="top", **kwargs)
+    plain = getattr(render, draw)(textured(np.full((4, 4, 3), (30, 140, 220), np.uint8)), window_size=(32, 32),
+                                  camera="top", **kwargs)
+    np.testing.assert_array_equal(image, plain)  # drawn as the same texture on a SimpleMaterial
+    assert image[16, 16, 2] > image[16, 16, 1] > image[16, 16, 0]  # the texture's blue, not the plain tan
+    with pytest.raises(InvalidInputError, match=r"texture image must be .* uint8 array .*; got dtype uint16"):
+        getattr(render, draw)(pbr(np.full((4, 4, 3), 60000, np.uint16)), window_size=(32, 32), **kwargs)
+
 def test_a_float_pillow_texture_is_named():
     from PIL import Image
 
