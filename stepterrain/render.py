@@ -503,8 +503,8 @@ def render_mesh(
         A ``SimpleMaterial`` of trimesh's default grey (102, 102, 102) without an OBJ ``Kd`` is taken for no colour
         (trimesh gives a material without a diffuse that grey, and the two cannot be told apart): give such a grey as
         vertex colours, or as (102, 102, 103).
-        "level": faces colored by ``face_attributes["level"]`` (stepped meshes); "height": vertices colored by z.
-        Both use ``cmap``.
+        "level": faces colored by ``face_attributes["level"]`` (stepped meshes); "height": vertices colored by z, the
+        colormap spanning the heights of the vertices drawn (finite, used by a face). Both use ``cmap``.
     cmap : str
         Matplotlib colormap for ``scalars`` (with ``scalars=None`` unused, but it must still be a str).
     show_edges : bool
@@ -605,7 +605,11 @@ def render_mesh(
     elif scalars == "level":
         add_kwargs.update(scalars="level", cmap=cmap, preference="cell", show_scalar_bar=False)
     elif scalars == "height":
-        poly.point_data["height"] = vertices[:, 2].astype(np.float32)
+        # the colormap spans the heights drawn: a vertex no face uses (a mesh cut down with update_faces, a PLY's loose
+        # points) stretched it, as it no longer stretches the framing, and the drawn part took a sliver of its colours
+        heights = vertices[:, 2].astype(np.float32)
+        heights[~finite] = np.nan  # not drawn; NaN is left out of the range
+        poly.point_data["height"] = heights
         add_kwargs.update(scalars="height", cmap=cmap, show_scalar_bar=False)
     else:
         add_kwargs.update(color=_DEFAULT_COLOR)

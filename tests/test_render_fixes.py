@@ -1665,3 +1665,23 @@ def test_render_layers_merges_layers_given_as_flat_vertex_arrays():
     for k in (0, 1):
         np.testing.assert_array_equal(flat[k][0], rows[k][0])
         np.testing.assert_array_equal(flat[k][1], rows[k][1])
+
+
+@needs_render
+def test_height_colours_span_the_drawn_part_not_vertices_no_face_uses():
+    """scalars='height' took its colormap's range from every vertex: a mesh cut down to a part with update_faces (which
+    keeps every vertex) drew the part in a sliver of the colours, as the whole terrain's range stretched them (the
+    framing already left such vertices out)."""
+    mesh = st.stepped(st.sample_dem().coarsen(8), interval=100.0)
+    centre = mesh.triangles_center
+    low = centre[:, 2] < np.percentile(centre[:, 2], 30)  # the lowest 30 % of the faces: part of the height range
+    part = mesh.copy()
+    part.update_faces(low)
+    assert len(part.vertices) == len(mesh.vertices)  # the unused vertices are kept
+    alone = part.copy()
+    alone.remove_unreferenced_vertices()
+    kwargs = {"window_size": (96, 64), "scalars": "height", "camera": "top"}
+    image, reference = (render.render_mesh(m, **kwargs).astype(int) for m in (part, alone))
+    # renumbered vertices move a few edge pixels' rasterisation by a level or so; the stretched range moved a fifth of
+    # the picture by up to 220 levels
+    assert np.abs(image - reference).max() <= 8
