@@ -488,11 +488,12 @@ def render_mesh(
         proportions (the CLI's ``--z-scale`` defaults to 2).
     camera : "oblique", "top", (azimuth, elevation) or [(eye), (focal point), (view up)]
         "oblique" is the fixed reproducible view from just west of south at 45° elevation; a pair gives the
-        direction the camera looks from (radians, azimuth clockwise from north = +y), with the far side up in
-        the image at every elevation; "top" looks straight down, north (+y) up and east (+x) to the right. All
-        are fitted to the bounds. An explicit pyvista camera position is used as given, in the mesh's
-        coordinates minus the centre of ``bounds`` (the render recentres the mesh to keep UTM-sized coordinates
-        precise).
+        direction the camera looks from (radians, azimuth clockwise from north = +y), +z up in the image at every
+        elevation (seen from above the far side is up, from below, a negative elevation, the near side); "top"
+        looks straight down, north (+y) up and east (+x) to the right. All are fitted to the bounds. An explicit
+        pyvista camera position is used as given, in the mesh's coordinates minus the centre of ``bounds`` (else of
+        the box of the vertices drawn), z times ``z_scale`` (the render recentres the mesh to keep UTM-sized
+        coordinates precise).
     background : color
         Any pyvista color: a name, '#rrggbb', (r, g, b) floats in [0, 1] or whole numbers in 0-255 (whole numbers
         all 0 or 1, such as (1, 0, 0), are refused as ambiguous). Opaque: one with an alpha below 1 is refused (the
