@@ -558,8 +558,8 @@ def render_mesh(
         raise InvalidInputError(f"cmap must name a matplotlib colormap (e.g. 'terrain', 'viridis'); got {cmap!r}")
     view_angle = _check_view_angle(view_angle)
     mesh = mesh_argument(mesh)  # a pyvista PolyData (grid.stepterrain.stepped's) as its Trimesh
-    width, height, vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera, anti_aliasing,
-                                                              view_angle)
+    width, height, vertices, local, finite, box, position = _frame_mesh(mesh, window_size, z_scale, bounds, camera,
+                                                                        anti_aliasing, view_angle)
     source = _texture_source(mesh) if scalars is None else None
     size = (len(vertices), len(mesh.faces))  # the mesh's copies count too (_frame_mesh checked them uncoloured)
     if source is not None:  # its texels count too (only the window did: a 17000² texture took 4.6 GB), counted
@@ -624,8 +624,7 @@ def render_mesh(
                              texture=None if textured is None else textured[1].shape, mesh=size,
                              face_colors=face_rgb is not None)
     return _shoot(pv, poly, mesh_kwargs, local=local, faces=mesh.faces, finite=finite, box=box,
-                  framed_by_bounds=bounds is not None,
-                  camera=camera, size=(width, height), background=background, anti_aliasing=anti_aliasing,
+                  position=position, size=(width, height), background=background, anti_aliasing=anti_aliasing,
                   lighting=True, translucent=translucent, view_angle=view_angle)
 
 
@@ -664,13 +663,13 @@ def _fmt_box(lo: NDArray[np.float64], hi: NDArray[np.float64]) -> str:
 def _frame_mesh(
     mesh: trimesh.Trimesh, window_size: tuple[int, int], z_scale: float, bounds: ArrayLike | None,
     camera: CameraLike, anti_aliasing: bool = False, view_angle: float = _VIEW_ANGLE,
-) -> tuple[int, int, NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64]]:
+) -> tuple[int, int, NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64], Any]:
     """Check the arguments every render shares (before pyvista loads, so a bad one is named even where it
     is missing); return (width, height, vertices, local vertices recentred on the framed box with z scaled,
-    mask of the vertices drawn (finite and used by a face), local box). The window's memory is checked against the
-    budget first. The camera is fitted to the vertices drawn: those no face uses (trimesh's ``update_faces`` keeps
-    every vertex, a PLY may hold loose points) framed the whole of them, a mesh cut down to a part rendered as a small
-    patch in a picture framed for all of it."""
+    mask of the vertices drawn (finite and used by a face), local box, the render's pyvista camera position). The
+    window's memory is checked against the budget first. The camera is fitted to the vertices drawn: those no face
+    uses (trimesh's ``update_faces`` keeps every vertex, a PLY may hold loose points) framed the whole of them, a mesh
+    cut down to a part rendered as a small patch in a picture framed for all of it."""
     if not isinstance(mesh, trimesh.Trimesh):
         raise InvalidInputError(f"mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
     if len(mesh.faces) == 0:
@@ -704,10 +703,21 @@ def _frame_mesh(
     _check_reach(box, lo, hi, z_scale, "the mesh", f"the framed box {_fmt_box(lo, hi)} is too large", "its centre")
     corners = _box_corners(box)
     position = _camera_position(camera, corners, width / height, view_angle)  # raises on a bad camera; 8 corners
-    if _fitted_camera(camera):  # a fitted camera: it frames the box's larger side
+    fitted = _fitted_camera(camera)
+    if fitted:  # a fitted camera: it frames the box's larger side
         _check_visible(corners, position, (width, height), box, z_scale, view_angle, camera,
                        "the mesh" if bounds is None else "bounds")
-    return width, height, vertices, local, finite, box
+    if bounds is None:  # the camera the render takes: fitted to the vertices drawn themselves, not their box
+        position = _fit_points(camera, local, finite, width / height, view_angle)
+        if fitted:
+            # the surface within its box may show thinner than the box: the embedded DEM seen 11° up in an 8 x 500
+            # window spans 0.94 pixels (its box 1.5) and rendered blank, without a word. The extent of a strided
+            # subset is at most the whole's: the whole is projected only when that one is under a pixel
+            drawn = local[finite]
+            if min(_pixel_extent(drawn[::max(1, len(drawn) // 100_000)], position, (width, height),
+                                 view_angle)) < 1.0:
+                _check_visible(drawn, position, (width, height), box, z_scale, view_angle, camera, "the mesh")
+    return width, height, vertices, local, finite, box, position
 
 
 def _pixel_extent(points: NDArray[np.float64], position: Any, size: tuple[int, int],
@@ -978,13 +988,13 @@ def _check_render_budget(width: int, height: int, name: str = "window_size", *, 
 
 @_quietly
 def _shoot(pv: Any, poly: Any, mesh_kwargs: dict[str, Any], *, local: NDArray[np.float64], faces: ArrayLike,
-           finite: NDArray[np.bool_], box: NDArray[np.float64], framed_by_bounds: bool, camera: CameraLike,
+           finite: NDArray[np.bool_], box: NDArray[np.float64], position: Any,
            size: tuple[int, int], background: Any, anti_aliasing: bool, lighting: bool,
            translucent: bool = False, view_angle: float = _VIEW_ANGLE) -> NDArray[np.uint8]:
-    """One off-screen render of ``poly``: the fitted camera, the key and fill lights, a clipping range that
-    holds the whole mesh; returns the (H, W, 3) image. ``translucent``: its colours have alpha, blended in depth
-    order by depth peeling (without it the surface behind showed over the one in front); ``view_angle``: the
-    vertical field of view, degrees."""
+    """One off-screen render of ``poly``: the camera ``position`` (:func:`_frame_mesh`'s), the key and fill lights, a
+    clipping range that holds the whole mesh; returns the (H, W, 3) image. ``translucent``: its colours have alpha,
+    blended in depth order by depth peeling (without it the surface behind showed over the one in front);
+    ``view_angle``: the vertical field of view, degrees."""
     width, height = size
     plotter = pv.Plotter(off_screen=True, window_size=(width, height), lighting="none", theme=_default_theme(pv))
     try:
@@ -1002,8 +1012,6 @@ def _shoot(pv: Any, poly: Any, mesh_kwargs: dict[str, Any], *, local: NDArray[np
             plotter.enable_depth_peeling()
             if anti_aliasing:  # MSAA with depth peeling rendered blank (Mesa), without it out of depth order: SSAA
                 _ssaa_with_depth_peeling(plotter.renderer)
-        position = (_camera_position(camera, _box_corners(box), width / height, view_angle) if framed_by_bounds
-                    else _fit_points(camera, local, finite, width / height, view_angle))
         look_from = np.subtract(position[0], position[1])
         fill = (math.atan2(look_from[0], look_from[1]), _FILL_ELEVATION)
         if lighting:
@@ -1196,8 +1204,8 @@ def render_textured_mesh(
     lighting = check_flag(lighting, "lighting")
     anti_aliasing = check_flag(anti_aliasing, "anti_aliasing")
     view_angle = _check_view_angle(view_angle)
-    width, height, _vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera,
-                                                               anti_aliasing, view_angle)
+    width, height, _vertices, local, finite, box, position = _frame_mesh(mesh, window_size, z_scale, bounds, camera,
+                                                                         anti_aliasing, view_angle)
     # the texels counted from the texture's size before it is decoded (see render_mesh)
     _check_render_budget(width, height, anti_aliasing=anti_aliasing, texture=_texture_shape(source[1]))
     uv, picture = _decoded_texture(*source, check=lambda shape: _check_render_budget(
@@ -1215,8 +1223,7 @@ def render_textured_mesh(
                        ambient=_AMBIENT if lighting else 1.0, diffuse=_DIFFUSE if lighting else 0.0, specular=0.0,
                        lighting=lighting)
     return _shoot(pv, poly, mesh_kwargs, local=local, faces=mesh.faces, finite=finite, box=box,
-                  framed_by_bounds=bounds is not None,
-                  camera=camera, size=(width, height), background=background, anti_aliasing=anti_aliasing,
+                  position=position, size=(width, height), background=background, anti_aliasing=anti_aliasing,
                   lighting=lighting, translucent=translucent, view_angle=view_angle)
 
 

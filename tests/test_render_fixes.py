@@ -1685,3 +1685,15 @@ def test_height_colours_span_the_drawn_part_not_vertices_no_face_uses():
     # renumbered vertices move a few edge pixels' rasterisation by a level or so; the stretched range moved a fifth of
     # the picture by up to 220 levels
     assert np.abs(image - reference).max() <= 8
+
+
+@needs_render
+def test_a_fitted_camera_that_shows_the_surface_under_a_pixel_is_refused_not_blank():
+    """The visibility check measured the framed box's corners, not the surface drawn within it: the embedded DEM seen
+    11 degrees up in an 8 x 500 window spans 0.94 pixels (its box 1.5) and rendered blank, without a word."""
+    mesh = st.stepped(st.sample_dem().coarsen(8), interval=100.0)
+    with pytest.raises(InvalidInputError, match=r"the mesh would render 7.5 x 0.9\d? pixels: .* too thin to see"):
+        render.render_mesh(mesh, window_size=(8, 500), camera=(0.3, 0.2))
+    # twice as wide, it spans 1.9 pixels and is drawn
+    image = render.render_mesh(mesh, window_size=(16, 500), camera=(0.3, 0.2))
+    assert (image != 255).any(axis=-1).sum() > 0
