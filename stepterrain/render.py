@@ -496,7 +496,8 @@ def render_mesh(
         coordinates precise).
     background : color
         Any pyvista color: a name, '#rrggbb', (r, g, b) floats in [0, 1] or whole numbers in 0-255 (whole numbers
-        all 0 or 1, such as (1, 0, 0), are refused as ambiguous). Opaque: one with an alpha below 1 is refused (the
+        all 0 or 1, such as (1, 0, 0), are refused as ambiguous, as are whole numbers beside floats, such as
+        (1, 0.5, 0)). Opaque: one with an alpha below 1 is refused (the
         image has no alpha channel).
     scalars : None, "level" or "height"
         None: the mesh's texture or vertex colors if it has them, else its face colors, else its material's colour (a
@@ -831,7 +832,8 @@ def _check_background(pv: Any, background: Any) -> None:
     """A colour pyvista reads (a name, '#rrggbb', (r, g, b) in [0, 1] or 0-255), else an InvalidInputError:
     pyvista's own ValueError came from set_background, after the scene was built. Whole numbers that are all 0 or 1
     with a 1 among them ((1, 0, 0)) are refused as ambiguous: pyvista reads whole numbers as 0-255, so (1, 0, 0)
-    meant for red rendered black and (1, 1, 1) meant for white too."""
+    meant for red rendered black and (1, 1, 1) meant for white too; so are whole numbers other than 0 beside floats
+    among r, g, b, which pyvista reads channel by channel."""
     try:
         color = pv.Color(background)
     except (ValueError, TypeError):
@@ -848,6 +850,16 @@ def _check_background(pv: Any, background: Any) -> None:
             raise InvalidInputError(f"background {background!r} is ambiguous: whole numbers are read as 0-255 (so "
                                     "it would be nearly black); give floats in [0, 1] such as (1.0, 0.0, 0.0), or "
                                     "0-255 values")
+        # pyvista reads each channel by its own type, an int as 0-255 and a float as 0-1: (1, 0.5, 0) meant for orange
+        # rendered (1, 128, 0), green, and (1, 1, 1.0) meant for white a dark blue (numpy made floats of them all)
+        rgb = list(background)[:3] if isinstance(background, Sequence) else []
+        whole = [c for c in rgb if isinstance(c, (int, np.integer))]  # bools too: pyvista reads True as 1
+        if any(whole) and any(isinstance(c, (float, np.floating)) for c in rgb):
+            read = tuple(int(c) for c in color.int_rgb)
+            raise InvalidInputError(
+                f"background {background!r} is ambiguous: it mixes whole numbers, read as 0-255, with floats, read "
+                f"as 0-1 (it would be {read}); give all three as floats in [0, 1] such as (1.0, 0.5, 0.0), or all as "
+                "0-255 whole numbers")
 
 
 def _alpha_is_one(background: Any) -> bool:

@@ -336,9 +336,24 @@ def test_a_background_of_whole_zeros_and_ones_is_refused_as_ambiguous(background
         render.render_mesh(mesh, window_size=(32, 32), background=background)
 
 
+
+@pytest.mark.parametrize(("background", "read"), [((1, 0.5, 0), (1, 128, 0)), ([1, 1, 1.0], (1, 1, 255)),
+                                                  ((np.int64(255), 0.5, 0), (255, 128, 0))])
+def test_a_background_mixing_whole_numbers_and_floats_is_refused_as_ambiguous(background, read):
+    """pyvista reads each channel by its type, an int as 0-255 and a float as 0-1: (1, 0.5, 0) meant for orange rendered
+    a green (1, 128, 0) background, (1, 1, 1.0) meant for white a dark blue (numpy made floats of them all, which
+    passed the check of whole numbers)."""
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    with pytest.raises(InvalidInputError, match=rf"background .* is ambiguous: it mixes whole numbers.* would be "
+                                                rf"\({read[0]}, {read[1]}, {read[2]}\)"):
+        render.render_mesh(mesh, window_size=(32, 32), background=background)
+    with pytest.raises(InvalidInputError, match=r"background .* is ambiguous"):
+        render.LayeredRenderer(window_size=(32, 32), background=background)
+
 @needs_render
 @pytest.mark.parametrize(("background", "expected"), [((1.0, 0.0, 0.0), (255, 0, 0)), ((255, 0, 0), (255, 0, 0)),
-                                                      ((0, 0, 0), (0, 0, 0)), ("#00ff00", (0, 255, 0))])
+                                                      ((0, 0, 0), (0, 0, 0)), ("#00ff00", (0, 255, 0)),
+                                                      ((1.0, 0, 0), (255, 0, 0))])  # a whole 0 is 0 either way
 def test_the_background_colour_is_the_one_given(background, expected):
     mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
     image = render.render_mesh(mesh, window_size=(32, 32), background=background)
