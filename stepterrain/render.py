@@ -714,7 +714,7 @@ def _frame_mesh(
             # the surface within its box may show thinner than the box: the embedded DEM seen 11° up in an 8 x 500
             # window spans 0.94 pixels (its box 1.5) and rendered blank, without a word. The extent of a strided
             # subset is at most the whole's: the whole is projected only when that one is under a pixel
-            drawn = local[finite]
+            drawn = local if finite.all() else local[finite]
             if min(_pixel_extent(drawn[::max(1, len(drawn) // 100_000)], position, (width, height),
                                  view_angle)) < 1.0:
                 _check_visible(drawn, position, (width, height), box, z_scale, view_angle, camera, "the mesh")
