@@ -296,7 +296,19 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
     buffers, so exaggerating the PolyData's heights (``poly.points[:, 2] *= 3``) or setting its colours changed the
     Trimesh too, and what was saved from it afterwards. Only VTK's connectivity is ``mesh.faces``' buffer (VTK does
     not change it in place; a copy of it cost as much again as the conversion).
+
+    Raises
+    ------
+    InvalidInputError
+        ``mesh`` is not a ``trimesh.Trimesh`` (a Scene, a PointCloud, a PolyData already, None): trimesh's or
+        Python's AttributeError ("'Scene' object has no attribute 'faces'") came out of it, naming no argument.
     """
+    if not isinstance(mesh, trimesh.Trimesh):
+        hint = (" (trimesh.load gives one for a glTF/GLB: read the file with stepterrain.export.read_mesh(path), one "
+                "mesh, z up)" if isinstance(mesh, trimesh.Scene) else
+                " (it is one already)" if isinstance(mesh, pv.PolyData) else "")
+        raise InvalidInputError(f"mesh must be a trimesh.Trimesh; got {type(mesh).__module__}.{type(mesh).__name__}"
+                                f"{hint}")
     return _to_polydata(mesh, share=False)
 
 

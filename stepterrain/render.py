@@ -488,14 +488,16 @@ def render_mesh(
         proportions (the CLI's ``--z-scale`` defaults to 2).
     camera : "oblique", "top", (azimuth, elevation) or [(eye), (focal point), (view up)]
         "oblique" is the fixed reproducible view from just west of south at 45° elevation; a pair gives the
-        direction the camera looks from (radians, azimuth clockwise from north = +y), with the far side up in
-        the image at every elevation; "top" looks straight down, north (+y) up and east (+x) to the right. All
-        are fitted to the bounds. An explicit pyvista camera position is used as given, in the mesh's
-        coordinates minus the centre of ``bounds`` (the render recentres the mesh to keep UTM-sized coordinates
-        precise).
+        direction the camera looks from (radians, azimuth clockwise from north = +y), +z up in the image at every
+        elevation (seen from above the far side is up, from below, a negative elevation, the near side); "top"
+        looks straight down, north (+y) up and east (+x) to the right. All are fitted to the bounds. An explicit
+        pyvista camera position is used as given, in the mesh's coordinates minus the centre of ``bounds`` (else of
+        the box of the vertices drawn), z times ``z_scale`` (the render recentres the mesh to keep UTM-sized
+        coordinates precise).
     background : color
         Any pyvista color: a name, '#rrggbb', (r, g, b) floats in [0, 1] or whole numbers in 0-255 (whole numbers
-        all 0 or 1, such as (1, 0, 0), are refused as ambiguous). Opaque: one with an alpha below 1 is refused (the
+        all 0 or 1, such as (1, 0, 0), are refused as ambiguous, as are whole numbers beside floats, such as
+        (1, 0.5, 0)). Opaque: one with an alpha below 1 is refused (the
         image has no alpha channel).
     scalars : None, "level" or "height"
         None: the mesh's texture or vertex colors if it has them, else its face colors, else its material's colour (a
@@ -503,8 +505,8 @@ def render_mesh(
         A ``SimpleMaterial`` of trimesh's default grey (102, 102, 102) without an OBJ ``Kd`` is taken for no colour
         (trimesh gives a material without a diffuse that grey, and the two cannot be told apart): give such a grey as
         vertex colours, or as (102, 102, 103).
-        "level": faces colored by ``face_attributes["level"]`` (stepped meshes); "height": vertices colored by z.
-        Both use ``cmap``.
+        "level": faces colored by ``face_attributes["level"]`` (stepped meshes); "height": vertices colored by z, the
+        colormap spanning the heights of the vertices drawn (finite, used by a face). Both use ``cmap``.
     cmap : str
         Matplotlib colormap for ``scalars`` (with ``scalars=None`` unused, but it must still be a str).
     show_edges : bool
@@ -557,8 +559,8 @@ def render_mesh(
         raise InvalidInputError(f"cmap must name a matplotlib colormap (e.g. 'terrain', 'viridis'); got {cmap!r}")
     view_angle = _check_view_angle(view_angle)
     mesh = mesh_argument(mesh)  # a pyvista PolyData (grid.stepterrain.stepped's) as its Trimesh
-    width, height, vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera, anti_aliasing,
-                                                              view_angle)
+    width, height, vertices, local, finite, box, position = _frame_mesh(mesh, window_size, z_scale, bounds, camera,
+                                                                        anti_aliasing, view_angle)
     source = _texture_source(mesh) if scalars is None else None
     size = (len(vertices), len(mesh.faces))  # the mesh's copies count too (_frame_mesh checked them uncoloured)
     if source is not None:  # its texels count too (only the window did: a 17000² texture took 4.6 GB), counted
@@ -605,7 +607,11 @@ def render_mesh(
     elif scalars == "level":
         add_kwargs.update(scalars="level", cmap=cmap, preference="cell", show_scalar_bar=False)
     elif scalars == "height":
-        poly.point_data["height"] = vertices[:, 2].astype(np.float32)
+        # the colormap spans the heights drawn: a vertex no face uses (a mesh cut down with update_faces, a PLY's loose
+        # points) stretched it, as it no longer stretches the framing, and the drawn part took a sliver of its colours
+        heights = vertices[:, 2].astype(np.float32)
+        heights[~finite] = np.nan  # not drawn; NaN is left out of the range
+        poly.point_data["height"] = heights
         add_kwargs.update(scalars="height", cmap=cmap, show_scalar_bar=False)
     else:
         add_kwargs.update(color=_DEFAULT_COLOR)
@@ -619,8 +625,7 @@ def render_mesh(
                              texture=None if textured is None else textured[1].shape, mesh=size,
                              face_colors=face_rgb is not None)
     return _shoot(pv, poly, mesh_kwargs, local=local, faces=mesh.faces, finite=finite, box=box,
-                  framed_by_bounds=bounds is not None,
-                  camera=camera, size=(width, height), background=background, anti_aliasing=anti_aliasing,
+                  position=position, size=(width, height), background=background, anti_aliasing=anti_aliasing,
                   lighting=True, translucent=translucent, view_angle=view_angle)
 
 
@@ -659,13 +664,13 @@ def _fmt_box(lo: NDArray[np.float64], hi: NDArray[np.float64]) -> str:
 def _frame_mesh(
     mesh: trimesh.Trimesh, window_size: tuple[int, int], z_scale: float, bounds: ArrayLike | None,
     camera: CameraLike, anti_aliasing: bool = False, view_angle: float = _VIEW_ANGLE,
-) -> tuple[int, int, NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64]]:
+) -> tuple[int, int, NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64], Any]:
     """Check the arguments every render shares (before pyvista loads, so a bad one is named even where it
     is missing); return (width, height, vertices, local vertices recentred on the framed box with z scaled,
-    mask of the vertices drawn (finite and used by a face), local box). The window's memory is checked against the
-    budget first. The camera is fitted to the vertices drawn: those no face uses (trimesh's ``update_faces`` keeps
-    every vertex, a PLY may hold loose points) framed the whole of them, a mesh cut down to a part rendered as a small
-    patch in a picture framed for all of it."""
+    mask of the vertices drawn (finite and used by a face), local box, the render's pyvista camera position). The
+    window's memory is checked against the budget first. The camera is fitted to the vertices drawn: those no face
+    uses (trimesh's ``update_faces`` keeps every vertex, a PLY may hold loose points) framed the whole of them, a mesh
+    cut down to a part rendered as a small patch in a picture framed for all of it."""
     if not isinstance(mesh, trimesh.Trimesh):
         raise InvalidInputError(f"mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
     if len(mesh.faces) == 0:
@@ -699,10 +704,21 @@ def _frame_mesh(
     _check_reach(box, lo, hi, z_scale, "the mesh", f"the framed box {_fmt_box(lo, hi)} is too large", "its centre")
     corners = _box_corners(box)
     position = _camera_position(camera, corners, width / height, view_angle)  # raises on a bad camera; 8 corners
-    if _fitted_camera(camera):  # a fitted camera: it frames the box's larger side
+    fitted = _fitted_camera(camera)
+    if fitted:  # a fitted camera: it frames the box's larger side
         _check_visible(corners, position, (width, height), box, z_scale, view_angle, camera,
                        "the mesh" if bounds is None else "bounds")
-    return width, height, vertices, local, finite, box
+    if bounds is None:  # the camera the render takes: fitted to the vertices drawn themselves, not their box
+        position = _fit_points(camera, local, finite, width / height, view_angle)
+        if fitted:
+            # the surface within its box may show thinner than the box: the embedded DEM seen 11° up in an 8 x 500
+            # window spans 0.94 pixels (its box 1.5) and rendered blank, without a word. The extent of a strided
+            # subset is at most the whole's: the whole is projected only when that one is under a pixel
+            drawn = local if finite.all() else local[finite]
+            if min(_pixel_extent(drawn[::max(1, len(drawn) // 100_000)], position, (width, height),
+                                 view_angle)) < 1.0:
+                _check_visible(drawn, position, (width, height), box, z_scale, view_angle, camera, "the mesh")
+    return width, height, vertices, local, finite, box, position
 
 
 def _pixel_extent(points: NDArray[np.float64], position: Any, size: tuple[int, int],
@@ -816,7 +832,8 @@ def _check_background(pv: Any, background: Any) -> None:
     """A colour pyvista reads (a name, '#rrggbb', (r, g, b) in [0, 1] or 0-255), else an InvalidInputError:
     pyvista's own ValueError came from set_background, after the scene was built. Whole numbers that are all 0 or 1
     with a 1 among them ((1, 0, 0)) are refused as ambiguous: pyvista reads whole numbers as 0-255, so (1, 0, 0)
-    meant for red rendered black and (1, 1, 1) meant for white too."""
+    meant for red rendered black and (1, 1, 1) meant for white too; so are whole numbers other than 0 beside floats
+    among r, g, b, which pyvista reads channel by channel."""
     try:
         color = pv.Color(background)
     except (ValueError, TypeError):
@@ -833,6 +850,16 @@ def _check_background(pv: Any, background: Any) -> None:
             raise InvalidInputError(f"background {background!r} is ambiguous: whole numbers are read as 0-255 (so "
                                     "it would be nearly black); give floats in [0, 1] such as (1.0, 0.0, 0.0), or "
                                     "0-255 values")
+        # pyvista reads each channel by its own type, an int as 0-255 and a float as 0-1: (1, 0.5, 0) meant for orange
+        # rendered (1, 128, 0), green, and (1, 1, 1.0) meant for white a dark blue (numpy made floats of them all)
+        rgb = list(background)[:3] if isinstance(background, Sequence) else []
+        whole = [c for c in rgb if isinstance(c, (int, np.integer))]  # bools too: pyvista reads True as 1
+        if any(whole) and any(isinstance(c, (float, np.floating)) for c in rgb):
+            read = tuple(int(c) for c in color.int_rgb)
+            raise InvalidInputError(
+                f"background {background!r} is ambiguous: it mixes whole numbers, read as 0-255, with floats, read "
+                f"as 0-1 (it would be {read}); give all three as floats in [0, 1] such as (1.0, 0.5, 0.0), or all as "
+                "0-255 whole numbers")
 
 
 def _alpha_is_one(background: Any) -> bool:
@@ -973,13 +1000,13 @@ def _check_render_budget(width: int, height: int, name: str = "window_size", *, 
 
 @_quietly
 def _shoot(pv: Any, poly: Any, mesh_kwargs: dict[str, Any], *, local: NDArray[np.float64], faces: ArrayLike,
-           finite: NDArray[np.bool_], box: NDArray[np.float64], framed_by_bounds: bool, camera: CameraLike,
+           finite: NDArray[np.bool_], box: NDArray[np.float64], position: Any,
            size: tuple[int, int], background: Any, anti_aliasing: bool, lighting: bool,
            translucent: bool = False, view_angle: float = _VIEW_ANGLE) -> NDArray[np.uint8]:
-    """One off-screen render of ``poly``: the fitted camera, the key and fill lights, a clipping range that
-    holds the whole mesh; returns the (H, W, 3) image. ``translucent``: its colours have alpha, blended in depth
-    order by depth peeling (without it the surface behind showed over the one in front); ``view_angle``: the
-    vertical field of view, degrees."""
+    """One off-screen render of ``poly``: the camera ``position`` (:func:`_frame_mesh`'s), the key and fill lights, a
+    clipping range that holds the whole mesh; returns the (H, W, 3) image. ``translucent``: its colours have alpha,
+    blended in depth order by depth peeling (without it the surface behind showed over the one in front);
+    ``view_angle``: the vertical field of view, degrees."""
     width, height = size
     plotter = pv.Plotter(off_screen=True, window_size=(width, height), lighting="none", theme=_default_theme(pv))
     try:
@@ -997,8 +1024,6 @@ def _shoot(pv: Any, poly: Any, mesh_kwargs: dict[str, Any], *, local: NDArray[np
             plotter.enable_depth_peeling()
             if anti_aliasing:  # MSAA with depth peeling rendered blank (Mesa), without it out of depth order: SSAA
                 _ssaa_with_depth_peeling(plotter.renderer)
-        position = (_camera_position(camera, _box_corners(box), width / height, view_angle) if framed_by_bounds
-                    else _fit_points(camera, local, finite, width / height, view_angle))
         look_from = np.subtract(position[0], position[1])
         fill = (math.atan2(look_from[0], look_from[1]), _FILL_ELEVATION)
         if lighting:
@@ -1191,8 +1216,8 @@ def render_textured_mesh(
     lighting = check_flag(lighting, "lighting")
     anti_aliasing = check_flag(anti_aliasing, "anti_aliasing")
     view_angle = _check_view_angle(view_angle)
-    width, height, _vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera,
-                                                               anti_aliasing, view_angle)
+    width, height, _vertices, local, finite, box, position = _frame_mesh(mesh, window_size, z_scale, bounds, camera,
+                                                                         anti_aliasing, view_angle)
     # the texels counted from the texture's size before it is decoded (see render_mesh)
     _check_render_budget(width, height, anti_aliasing=anti_aliasing, texture=_texture_shape(source[1]))
     uv, picture = _decoded_texture(*source, check=lambda shape: _check_render_budget(
@@ -1210,8 +1235,7 @@ def render_textured_mesh(
                        ambient=_AMBIENT if lighting else 1.0, diffuse=_DIFFUSE if lighting else 0.0, specular=0.0,
                        lighting=lighting)
     return _shoot(pv, poly, mesh_kwargs, local=local, faces=mesh.faces, finite=finite, box=box,
-                  framed_by_bounds=bounds is not None,
-                  camera=camera, size=(width, height), background=background, anti_aliasing=anti_aliasing,
+                  position=position, size=(width, height), background=background, anti_aliasing=anti_aliasing,
                   lighting=lighting, translucent=translucent, view_angle=view_angle)
 
 
@@ -1222,8 +1246,10 @@ def _texture_source(mesh: trimesh.Trimesh) -> tuple[Any, Any, Any] | None:
     uv = getattr(visual, "uv", None)
     material = getattr(visual, "material", None)
     image = None
-    if material is not None:
-        image = getattr(material, "baseColorTexture", None) or getattr(material, "image", None)
+    if material is not None:  # "or" between them: an array's truth value raised numpy's ValueError (ambiguous)
+        image = getattr(material, "baseColorTexture", None)
+        if image is None:
+            image = getattr(material, "image", None)
     if uv is None or image is None or len(uv) != len(mesh.vertices):
         return None
     return uv, image, material

@@ -619,3 +619,16 @@ def test_a_stepped_polydata_gives_its_buffers_back_when_it_goes_without_a_collec
     finally:
         gc.enable()
     np.testing.assert_array_equal(points, expected.vertices)
+
+
+@pytest.mark.parametrize("kind", ["scene", "pointcloud", "polydata", "none"])
+def test_to_polydata_refuses_what_is_no_trimesh_by_name(kind):
+    """to_polydata of a Scene (trimesh.load's of a GLB), a PointCloud, a PolyData or None raised trimesh's or Python's
+    AttributeError ("'Scene' object has no attribute 'faces'"), naming no argument."""
+    tri = trimesh.Trimesh([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.5]], [[0, 1, 2]], process=False)
+    given = {"scene": trimesh.Scene(tri), "pointcloud": trimesh.PointCloud(tri.vertices),
+             "polydata": to_polydata(tri), "none": None}[kind]
+    with pytest.raises(InvalidInputError, match=r"mesh must be a trimesh\.Trimesh; got .*"
+                       + {"scene": "Scene.*read_mesh", "pointcloud": "PointCloud", "polydata": "PolyData",
+                          "none": "NoneType"}[kind]):
+        to_polydata(given)

@@ -82,6 +82,29 @@ def test_a_texture_image_that_is_not_uint8_is_named(image):
         render.render_textured_mesh(textured(image), window_size=(32, 32), lighting=False)
 
 
+
+@needs_render
+@pytest.mark.parametrize("draw", ["render_textured_mesh", "render_mesh"])
+def test_a_pbr_material_with_an_array_texture_renders_it(draw):
+    """A PBRMaterial's baseColorTexture given as an array (glTF's material, as trimesh takes it) raised numpy's
+    "truth value of an array ... is ambiguous" ValueError from reading the texture, naming nothing; a bad one (uint16)
+    is named as a SimpleMaterial's is."""
+    def pbr(image):
+        mesh = textured(image)
+        mesh.visual = trimesh.visual.TextureVisuals(
+            uv=mesh.visual.uv, material=trimesh.visual.material.PBRMaterial(baseColorTexture=image))
+        return mesh
+
+    kwargs = {"lighting": False} if draw == "render_textured_mesh" else {}
+    image = getattr(render, draw)(pbr(np.full((4, 4, 3), (30, 140, 220), np.uint8)), window_size=(32, 32),
+                                  camera="top", **kwargs)
+    plain = getattr(render, draw)(textured(np.full((4, 4, 3), (30, 140, 220), np.uint8)), window_size=(32, 32),
+                                  camera="top", **kwargs)
+    np.testing.assert_array_equal(image, plain)  # drawn as the same texture on a SimpleMaterial
+    assert image[16, 16, 2] > image[16, 16, 1] > image[16, 16, 0]  # the texture's blue, not the plain tan
+    with pytest.raises(InvalidInputError, match=r"texture image must be .* uint8 array .*; got dtype uint16"):
+        getattr(render, draw)(pbr(np.full((4, 4, 3), 60000, np.uint16)), window_size=(32, 32), **kwargs)
+
 def test_a_float_pillow_texture_is_named():
     from PIL import Image
 
@@ -313,9 +336,24 @@ def test_a_background_of_whole_zeros_and_ones_is_refused_as_ambiguous(background
         render.render_mesh(mesh, window_size=(32, 32), background=background)
 
 
+
+@pytest.mark.parametrize(("background", "read"), [((1, 0.5, 0), (1, 128, 0)), ([1, 1, 1.0], (1, 1, 255)),
+                                                  ((np.int64(255), 0.5, 0), (255, 128, 0))])
+def test_a_background_mixing_whole_numbers_and_floats_is_refused_as_ambiguous(background, read):
+    """pyvista reads each channel by its type, an int as 0-255 and a float as 0-1: (1, 0.5, 0) meant for orange rendered
+    a green (1, 128, 0) background, (1, 1, 1.0) meant for white a dark blue (numpy made floats of them all, which
+    passed the check of whole numbers)."""
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    with pytest.raises(InvalidInputError, match=rf"background .* is ambiguous: it mixes whole numbers.* would be "
+                                                rf"\({read[0]}, {read[1]}, {read[2]}\)"):
+        render.render_mesh(mesh, window_size=(32, 32), background=background)
+    with pytest.raises(InvalidInputError, match=r"background .* is ambiguous"):
+        render.LayeredRenderer(window_size=(32, 32), background=background)
+
 @needs_render
 @pytest.mark.parametrize(("background", "expected"), [((1.0, 0.0, 0.0), (255, 0, 0)), ((255, 0, 0), (255, 0, 0)),
-                                                      ((0, 0, 0), (0, 0, 0)), ("#00ff00", (0, 255, 0))])
+                                                      ((0, 0, 0), (0, 0, 0)), ("#00ff00", (0, 255, 0)),
+                                                      ((1.0, 0, 0), (255, 0, 0))])  # a whole 0 is 0 either way
 def test_the_background_colour_is_the_one_given(background, expected):
     mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
     image = render.render_mesh(mesh, window_size=(32, 32), background=background)
@@ -1642,3 +1680,35 @@ def test_render_layers_merges_layers_given_as_flat_vertex_arrays():
     for k in (0, 1):
         np.testing.assert_array_equal(flat[k][0], rows[k][0])
         np.testing.assert_array_equal(flat[k][1], rows[k][1])
+
+
+@needs_render
+def test_height_colours_span_the_drawn_part_not_vertices_no_face_uses():
+    """scalars='height' took its colormap's range from every vertex: a mesh cut down to a part with update_faces (which
+    keeps every vertex) drew the part in a sliver of the colours, as the whole terrain's range stretched them (the
+    framing already left such vertices out)."""
+    mesh = st.stepped(st.sample_dem().coarsen(8), interval=100.0)
+    centre = mesh.triangles_center
+    low = centre[:, 2] < np.percentile(centre[:, 2], 30)  # the lowest 30 % of the faces: part of the height range
+    part = mesh.copy()
+    part.update_faces(low)
+    assert len(part.vertices) == len(mesh.vertices)  # the unused vertices are kept
+    alone = part.copy()
+    alone.remove_unreferenced_vertices()
+    kwargs = {"window_size": (96, 64), "scalars": "height", "camera": "top"}
+    image, reference = (render.render_mesh(m, **kwargs).astype(int) for m in (part, alone))
+    # renumbered vertices move a few edge pixels' rasterisation by a level or so; the stretched range moved a fifth of
+    # the picture by up to 220 levels
+    assert np.abs(image - reference).max() <= 8
+
+
+@needs_render
+def test_a_fitted_camera_that_shows_the_surface_under_a_pixel_is_refused_not_blank():
+    """The visibility check measured the framed box's corners, not the surface drawn within it: the embedded DEM seen
+    11 degrees up in an 8 x 500 window spans 0.94 pixels (its box 1.5) and rendered blank, without a word."""
+    mesh = st.stepped(st.sample_dem().coarsen(8), interval=100.0)
+    with pytest.raises(InvalidInputError, match=r"the mesh would render 7.5 x 0.9\d? pixels: .* too thin to see"):
+        render.render_mesh(mesh, window_size=(8, 500), camera=(0.3, 0.2))
+    # twice as wide, it spans 1.9 pixels and is drawn
+    image = render.render_mesh(mesh, window_size=(16, 500), camera=(0.3, 0.2))
+    assert (image != 255).any(axis=-1).sum() > 0
