@@ -2281,6 +2281,33 @@ def test_the_contact_sheet_leaves_an_empty_frame_blank(tmp_path):
                        window_size=(100, 80), max_items=1)  # the empty frame first
 
 
+def test_the_contact_sheet_leaves_a_cell_too_thin_to_see_blank_not_the_whole_sheet(tmp_path):
+    """One item of a contact sheet too thin to see in its cell (a two-row strip of a file, seen from the top in a
+    50-pixel cell: 0.024 pixels tall) raised render_mesh's refusal after the whole run, and no sheet was written for
+    the other items. Its cell is left blank with a warning naming it; the others are drawn."""
+    from stepterrain import render
+    from stepterrain.batch import overview_image
+    from stepterrain.errors import InvalidInputError
+
+    ok, reason = render.offscreen_available()
+    if not ok:
+        pytest.skip(f"no off-screen OpenGL context: {reason}")
+    folder = tmp_path / "in"
+    folder.mkdir()
+    np.save(folder / "a.npy", np.add.outer(np.arange(20.0), np.arange(20.0) ** 1.5).astype(np.float32))
+    np.save(folder / "b.npy", np.stack([np.linspace(0.0, 0.01, 2000)] * 2).astype(np.float32))
+    report = batch(folder, tmp_path / "out", interval=2.0, scheduler="serial", format=".ply")
+    assert report.ok and len(report.done) == 2
+    with pytest.warns(UserWarning, match=r"^the overview's cell of b\.ply \(50 x 80 pixels\) is left blank: the mesh "
+                      r"would render 47 x 0\.024 pixels") as said:
+        sheet = overview_image(report, window_size=(100, 80), camera="top")
+    assert said[0].filename == __file__
+    drawn = (sheet < 250).any(axis=2)
+    assert drawn[:, :50].mean() > 0.05 and not drawn[:, 50:].any()
+    with pytest.raises(InvalidInputError, match="too thin to see"):  # the same item alone: refused as before
+        render.render_mesh(read_mesh(tmp_path / "out" / "b.ply"), window_size=(50, 80), camera="top")
+
+
 def test_a_folders_hidden_files_are_left_out_as_a_shell_glob_leaves_them(tmp_path):
     # a folder of tiles copied from macOS onto a FAT/exFAT drive holds an AppleDouble companion "._t.tif" beside every
     # "t.tif": each was an item that failed ("not recognized as being in a supported file format"), so a folder
