@@ -32,7 +32,7 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import MAX_INT32 as _MAX_INT32
-from ._compaction import SMALLER_HINT, budget_value, check_budget, count_buffer, exclusive_offsets
+from ._compaction import budget_value, check_budget, count_buffer, exclusive_offsets
 from ._device import host_copy, launch, launch_chunked, resolve_device, to_device
 from ._memo import MISSING, Same, derived, keep, recall
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, OutputTooLargeError, counted
@@ -1097,12 +1097,10 @@ def _stepped_source(terrain: Terrain, cu: CloseUp, colors: str, device: wp.Devic
         if window is None:  # no face under the ROI box: no geometry (closeup_layers names it)
             return _Source(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32), np.zeros(0, np.int64))
     table = _colors_for(np.asarray(values, np.float32), colors, float(values[0]), float(values[-1]))
-    try:
-        mesh = stepped(window, levels=values, gamma=float(cu.gamma), colors=table, memory_budget=memory_budget,
-                       device=device)
-    except OutputTooLargeError as exc:  # stepped's advice names what a stepped() caller can change
-        text = str(exc).replace(", or step it in tiles (stepterrain.batch)", "")
-        raise OutputTooLargeError(text.replace(SMALLER_HINT, STEPPED_CLOSEUP_HINT)) from None
+    # stepped's own advice ("coarsen the isovalues", "step it in tiles") names what a stepped() caller can change:
+    # the close-up's is given to it instead
+    mesh = stepped(window, levels=values, gamma=float(cu.gamma), colors=table, memory_budget=memory_budget,
+                   device=device, _budget_hint=STEPPED_CLOSEUP_HINT)
     ox, oy = terrain.local_origin
     points = np.asarray(mesh.vertices, dtype=np.float64) - [ox, oy, 0.0]
     rgb = np.asarray(mesh.visual.vertex_colors)[:, :3].astype(np.uint8)

@@ -1898,6 +1898,22 @@ def test_a_stepped_closeup_over_the_budget_names_what_a_closeup_can_change():
     assert len(layer.faces) > 10_000 and (layer.source_faces == -1).all()
 
 
+def test_a_stepped_closeup_past_int32_names_what_a_closeup_can_change(monkeypatch):
+    """The stepped close-up's own advice reaches every refusal of its window's stepped mesh, not only the budget's:
+    a grid past the int32 vertex slots one call indexes was advised "coarsen the isovalues, or step it in tiles
+    (stepterrain.batch)", neither a close-up option (the advice is now given to stepped(), not patched into its
+    message text)."""
+    import stepterrain.stepped as stepped_module
+
+    monkeypatch.setattr(stepped_module, "_MAX_INT32", 100)  # any window's 4 slots a node are past it
+    cu = CloseUp(ROI.circle((1040.0, 2032.0), 20.0), stepped=1.0)
+    with pytest.raises(OutputTooLargeError, match=r"int32 vertex slots .* one call can index; step the close-up at a "
+                       r"larger interval \(CloseUp.stepped\) or give it a smaller ROI, or crop or coarsen the terrain "
+                       r"\(Terrain.crop, Terrain.coarsen\)$") as caught:
+        closeup_layers(terrain(), [cu], device="cpu")
+    assert "isovalues" not in str(caught.value) and "tiles" not in str(caught.value)
+
+
 @pytest.mark.parametrize("camera", [[(0.0, 0.0, 5.0), (0.0, 0.0)], [(0.0, -150.0, 120.0), (0.0, 0.0, 0.0), (0.0, 1.0)]])
 def test_a_ragged_camera_beside_bounds_is_refused_by_name_not_by_numpy(camera):
     """The check that ``bounds`` is no single point under a fitted camera asked ``np.shape(camera)`` before the camera
