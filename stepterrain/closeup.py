@@ -2789,12 +2789,15 @@ def animate_closeups(
             layers = closeup_layers(t, items, time=float(time), colors=options.get("cmap", "terrain"),
                                     device=device)  # the stepped sources the frames use, kept for them
             drawn = {}
-            for k, (cu, layer) in enumerate(zip(items, layers, strict=True)):
+            # and the anchors, as render_closeups frames them: left out, the fence above a band's or a billboard's
+            # blended vertices (its top at M·V_O of the outline, beyond them) stood past the box, and a still
+            # close-up's animation was framed otherwise than its render_closeups picture
+            strips = anchor_strips(t, items, time=float(time), device=device)
+            for k, (cu, layer, strip) in enumerate(zip(items, layers, strips, strict=True)):
                 # where the close-up is drawn, as render_closeups frames it (its face split kept for the frames)
                 used = None if cu.anchor.band or cu.view == "billboard" else _content_split(t, layer, cu)[2]
                 bounds = drawn[k] = _drawn_bounds(layer, cu, used)
-                if bounds is not None:
-                    boxes.append(bounds)
+                boxes += [b for b in (bounds, render._finite_bounds(strip.vertices)) if b is not None]
             if first_drawn is None:  # times[0] = 0 comes first
                 first_drawn = drawn
         xmin, xmax, ymin, ymax = t.extent

@@ -1941,3 +1941,19 @@ def test_a_ragged_camera_is_refused_by_name_by_set_view():
             renderer.set_view([(0.0, 0.0, 5.0), (0.0, 0.0)], [(1020.0, 2020.0, 0.0), (1060.0, 2040.0, 100.0)])
     finally:
         renderer.close()
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+@pytest.mark.parametrize("kwargs", [{"anchor": AnchorStyle(band=True)}, {"view": "billboard"}])
+def test_an_animation_frames_the_anchors_as_render_closeups_does(kwargs):
+    """render_closeups fits its camera to the overview, the close-ups and their anchors; animate_closeups fitted its
+    box to the overview and the close-ups alone. A band's or a billboard's close-up is bounded by its blended
+    vertices, below its anchor's top (M·V_O of the outline): the fence stood past the animation's box, and the
+    animation of a close-up that does not spin was framed otherwise than its render_closeups picture."""
+    t = terrain()
+    cu = one(scale=3.0, **kwargs)
+    layer, strip = closeup_layers(t, [cu], device="cpu")[0], anchor_strips(t, [cu], device="cpu")[0]
+    assert strip.vertices[:, 0].max() > layer.vertices[:, 0].max()  # the fence reaches past the blended close-up
+    frame = animate_closeups(t, [cu], frames=1, window_size=SIZE, device="cpu")[0]
+    np.testing.assert_array_equal(frame, render_closeups(t, [cu], window_size=SIZE, device="cpu"))
