@@ -465,17 +465,30 @@ class ROI:
         (cx, cy), (w, h) = self.center, self.size
         return (cx - w / 2, cx + w / 2, cy - h / 2, cy + h / 2)
 
+    @property
+    def _margin(self) -> float:
+        """How far outside its box a point still lies on its rim: a few units in the last place of the box's
+        coordinates. The box is ``center ± size / 2``, rounded: a box built from a terrain's extent (its centre and
+        size; so are the generated masks' over a whole terrain) could lie one ulp inside it, and a whole rim row of
+        nodes fell outside (m = 0 under a hard-edged rectangle, the row left on the terrain below the close-up)."""
+        return 4.0 * float(np.spacing(max(abs(v) for v in self.box)))
+
     def factor(self, xy: ArrayLike) -> NDArray[np.float64]:
-        """The mask factor m at world points ``xy`` (N, 2): bilinear, 0 outside the box (NumPy, float64)."""
+        """The mask factor m at world points ``xy`` (N, 2): bilinear, 0 outside the box (NumPy, float64); a point on
+        the box's rim to its rounding (:attr:`_margin`) takes the rim's value."""
         p = _numbers(xy)  # [nan] when not numbers
         if p.size % 2 or np.isnan(p).any():  # a NaN point indexed the mask at -2^63 (an IndexError)
             raise InvalidInputError(f"ROI factor points must be (N, 2) numbers (x, y), not NaN; got {xy!r}")
         p = p.reshape(-1, 2)
         xmin, xmax, ymin, ymax = self.box
         rows, cols = self.mask.shape
-        u = (p[:, 0] - xmin) / (xmax - xmin)
-        v = (p[:, 1] - ymin) / (ymax - ymin)
-        inside = (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1)
+        margin = self._margin
+        with np.errstate(invalid="ignore", divide="ignore"):  # a box collapsed by rounding: NaN, outside
+            u = (p[:, 0] - xmin) / (xmax - xmin)
+            v = (p[:, 1] - ymin) / (ymax - ymin)
+        inside = ((p[:, 0] >= xmin - margin) & (p[:, 0] <= xmax + margin) & (p[:, 1] >= ymin - margin)
+                  & (p[:, 1] <= ymax + margin) & np.isfinite(u) & np.isfinite(v))
+        u, v = np.where(inside, u, 0.0), np.where(inside, v, 0.0)
         fx, fy = np.clip(u, 0, 1) * (cols - 1), np.clip(v, 0, 1) * (rows - 1)
         j0 = np.minimum(np.floor(fx).astype(np.int64), cols - 2)
         i0 = np.minimum(np.floor(fy).astype(np.int64), rows - 2)
@@ -1172,11 +1185,13 @@ def _layers_struct(closeups: Sequence[CloseUp], matrices: Sequence[NDArray[np.fl
         info = np.array([[s, *r.mask.shape] for s, r in zip(starts, rois, strict=True)],
                         dtype=np.int32).reshape(-1, 3)
         packed = np.concatenate([r.mask.reshape(-1) for r in rois]) if rois else np.zeros(1, np.float32)
-        return (wp.array(boxes, dtype=wp.vec4, device=device), wp.array(info, dtype=wp.vec3i, device=device),
+        margins = np.array([r._margin for r in rois], dtype=np.float32)
+        return (wp.array(boxes, dtype=wp.vec4, device=device), wp.array(margins, dtype=wp.float32, device=device),
+                wp.array(info, dtype=wp.vec3i, device=device),
                 wp.array(packed.astype(np.float32), dtype=wp.float32, device=device))
 
     key = (tuple(id(r) for r in rois), float(ox), float(oy), str(device))
-    layers.boxes, layers.mask_info, layers.masks = derived(_ROI_UPLOADS, key, rois, upload)
+    layers.boxes, layers.margins, layers.mask_info, layers.masks = derived(_ROI_UPLOADS, key, rois, upload)
     return layers
 
 

@@ -1957,3 +1957,25 @@ def test_an_animation_frames_the_anchors_as_render_closeups_does(kwargs):
     assert strip.vertices[:, 0].max() > layer.vertices[:, 0].max()  # the fence reaches past the blended close-up
     frame = animate_closeups(t, [cu], frames=1, window_size=SIZE, device="cpu")[0]
     np.testing.assert_array_equal(frame, render_closeups(t, [cu], window_size=SIZE, device="cpu"))
+
+
+def test_a_box_built_from_the_extent_holds_its_rim_rows_to_rounding():
+    """A ROI's box is ``center ± size / 2``, rounded: a hard rectangle built from a terrain's extent (its centre and
+    size), or a height band over a whole terrain (built the same way), could lie one ulp inside the extent. The nodes
+    of the rim row at the local origin then had m = 0 (float32 keeps the 1e-10 m there): left on the terrain under the
+    lifted close-up, its faces stretched up to it; a 2 x 2 grid lost half its nodes. Here the box lies 1.2e-10 m
+    inside the extent's west side (a lidar-like 0.1 m spacing at UTM coordinates)."""
+    from stepterrain.terrain import Terrain
+
+    h = np.add.outer(np.arange(45.0), np.arange(30.0)).astype(np.float32)
+    t = Terrain.from_heights(h, spacing=(0.1, -0.1), origin=(678916.7866872508, 8847681.58466728))
+    x0, x1, y0, y1 = t.extent
+    hard = ROI.rectangle(((x0 + x1) / 2, (y0 + y1) / 2), (x1 - x0, y1 - y0), edge_width=0)
+    band = ROI.height_band(t, -1.0, 1000.0)
+    for roi in (hard, band):
+        assert roi.box[0] > x0  # one ulp inside the extent, as rounded
+        (layer,) = closeup_layers(t, [CloseUp(roi, offset=(0.0, 0.0, 50.0))], device="cpu")
+        assert len(layer.faces) == 2 * 44 * 29 and (layer.mask_factor == 1).all()
+        np.testing.assert_array_equal(layer.vertices[:, 2], layer.original[:, 2] + 50.0)
+        west = np.column_stack([np.full(45, x0), y1 - 0.1 * np.arange(45)])
+        assert (roi.factor(west) == 1).all()
