@@ -2815,9 +2815,10 @@ def animate_closeups(
                 boxes += [b for b in (bounds, render._finite_bounds(strip.vertices)) if b is not None]
             if first_drawn is None:  # times[0] = 0 comes first
                 first_drawn = drawn
-        xmin, xmax, ymin, ymax = t.extent
-        zmin, zmax = t.height_range
-        boxes.append(np.array([[xmin, ymin, zmin], [xmax, ymax, zmax]]))
+        # the overview as render_closeups frames it, by its mesh's bounds: the extent held a DEM's nodata rim, and the
+        # animation was framed wider than the still render of the same close-ups
+        boxes.append(t.cached(("closeup", "overview-bounds"),
+                              lambda: render._finite_bounds(np.asarray(t.mesh().vertices, np.float64))))
         box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
     if first_drawn is not None and render._fitted_camera(camera) and items:
         # the box fitted here, checked as render_closeups checks its own, before any frame

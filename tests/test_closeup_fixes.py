@@ -1979,3 +1979,20 @@ def test_a_box_built_from_the_extent_holds_its_rim_rows_to_rounding():
         np.testing.assert_array_equal(layer.vertices[:, 2], layer.original[:, 2] + 50.0)
         west = np.column_stack([np.full(45, x0), y1 - 0.1 * np.arange(45)])
         assert (roi.factor(west) == 1).all()
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_an_animation_frames_the_overview_as_render_closeups_does():
+    """render_closeups frames the overview by its mesh; animate_closeups by the terrain's extent and height range,
+    which hold a DEM's nodata rim (a collar of NaN, common in clipped DEMs): the animation of a close-up that does
+    not spin was framed wider than its render_closeups picture."""
+    from stepterrain.terrain import Terrain
+
+    heights = hills().astype(np.float32)
+    heights[:, :8] = np.nan
+    heights[:5] = np.nan
+    t = Terrain.from_heights(heights, spacing=(2.0, 2.0), origin=(1000.0, 2000.0))
+    assert t.mesh().bounds[0, 0] > t.extent[0]  # the mesh starts past the nodata columns
+    frame = animate_closeups(t, [one()], frames=1, window_size=SIZE, device="cpu")[0]
+    np.testing.assert_array_equal(frame, render_closeups(t, [one()], window_size=SIZE, device="cpu"))
