@@ -2760,9 +2760,10 @@ def animate_closeups(
 ) -> list[NDArray[np.uint8]]:
     """Frames of the spinning close-ups (§III.B): frame i at time i / fps, one renderer and camera for all.
 
-    The camera frames the overview and every close-up at every frame's turn (the box swept by the spin), so the
-    view stays still while the close-ups rotate. ``options`` go to :func:`render_closeups` (``z_scale``,
-    ``scalars``, ``cmap``, ``camera``, ``bounds``, ...), all but those set per frame here: ``time``,
+    The camera frames the overview, every close-up and its anchor at every frame's turn (the box swept by the spin;
+    each part bounded as :func:`render_closeups` bounds it), so the view stays still while the close-ups rotate, and
+    a close-up that does not spin comes out as render_closeups draws it. ``options`` go to :func:`render_closeups`
+    (``z_scale``, ``scalars``, ``cmap``, ``camera``, ``bounds``, ...), all but those set per frame here: ``time``,
     ``renderer`` and ``reuse_overview``. ``window_size`` defaults to 640 x 400 (the CLI's ``closeup --size``:
     1280 x 720, as :func:`render_closeups`'). ``progress``: a tqdm bar of the frames on stderr. Every frame is kept
     (frames x width x height x 3 bytes, checked against :func:`stepterrain.set_memory_budget` before the first, as
