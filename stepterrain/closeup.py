@@ -624,6 +624,14 @@ def transfer_function(spec: str | ArrayLike) -> NDArray[np.float32]:
             raise InvalidInputError(f"anchor transparency must be one of {sorted(TRANSFER_PRESETS)} or an "
                                     f"opacity table; got {spec!r}")
         return np.asarray(TRANSFER_PRESETS[spec], dtype=np.float32)
+    try:
+        shape = np.shape(spec)
+    except ValueError:  # ragged rows: refused by _numbers below
+        shape = ()
+    if len(shape) > 1 and max(shape, default=0) != np.prod(shape):  # (t, opacity) pairs were flattened into a table
+        raise InvalidInputError(f"anchor transparency table must be (K,) opacities, spread evenly over t in [0, 1]; "
+                                f"got an array of shape {shape} (pairs of t and opacity? give the opacities at K "
+                                "evenly spaced t)")
     table = _numbers(spec)  # [nan] when not numbers (["0", "1"], bools): refused below
     if table.size < 1 or not np.all(np.isfinite(table)) or table.min() < 0 or table.max() > 1:
         raise InvalidInputError(f"anchor transparency table must hold opacities in [0, 1]; got {spec!r}")

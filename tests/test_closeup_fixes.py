@@ -1996,3 +1996,13 @@ def test_an_animation_frames_the_overview_as_render_closeups_does():
     assert t.mesh().bounds[0, 0] > t.extent[0]  # the mesh starts past the nodata columns
     frame = animate_closeups(t, [one()], frames=1, window_size=SIZE, device="cpu")[0]
     np.testing.assert_array_equal(frame, render_closeups(t, [one()], window_size=SIZE, device="cpu"))
+
+
+def test_an_anchor_table_of_t_and_opacity_pairs_is_refused_not_flattened():
+    """An anchor's opacity table is K opacities at evenly spaced t; a table of (t, opacity) control points, (3, 2),
+    was flattened into six opacities (0, 0.85, 0.5, 0, 1, 0.85): an anchor that flickers along its rungs, drawn
+    without a word. A single row or column is still a table."""
+    pairs = [[0.0, 0.85], [0.5, 0.0], [1.0, 0.85]]
+    with pytest.raises(InvalidInputError, match=r"^anchor transparency table must be \(K,\) .* shape \(3, 2\)"):
+        AnchorStyle(pairs)
+    assert AnchorStyle([[0.85, 0.0]]).table.tolist() == AnchorStyle([0.85, 0.0]).table.tolist()
