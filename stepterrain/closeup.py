@@ -477,8 +477,14 @@ class ROI:
         """The mask factor m at world points ``xy`` (N, 2): bilinear, 0 outside the box (NumPy, float64); a point on
         the box's rim to its rounding (:attr:`_margin`) takes the rim's value."""
         p = _numbers(xy)  # [nan] when not numbers
-        if p.size % 2 or np.isnan(p).any():  # a NaN point indexed the mask at -2^63 (an IndexError)
-            raise InvalidInputError(f"ROI factor points must be (N, 2) numbers (x, y), not NaN; got {xy!r}")
+        try:
+            shape = np.shape(xy)
+        except ValueError:  # ragged rows: [nan] above
+            shape = ()
+        # a NaN point indexed the mask at -2^63 (an IndexError); (2, N) rows of x and of y were read as N pairs
+        if p.size % 2 or np.isnan(p).any() or (len(shape) > 1 and shape[-1] != 2):
+            raise InvalidInputError(f"ROI factor points must be (N, 2) numbers (x, y), not NaN; got "
+                                    f"{f'shape {shape}' if len(shape) > 1 else repr(xy)}")
         p = p.reshape(-1, 2)
         xmin, xmax, ymin, ymax = self.box
         rows, cols = self.mask.shape

@@ -2006,3 +2006,13 @@ def test_an_anchor_table_of_t_and_opacity_pairs_is_refused_not_flattened():
     with pytest.raises(InvalidInputError, match=r"^anchor transparency table must be \(K,\) .* shape \(3, 2\)"):
         AnchorStyle(pairs)
     assert AnchorStyle([[0.85, 0.0]]).table.tolist() == AnchorStyle([0.85, 0.0]).table.tolist()
+
+
+def test_roi_factor_refuses_rows_of_x_and_of_y():
+    """ROI.factor takes (N, 2) points; np.array([xs, ys]), (2, N), was read as N pairs (x0, x1), (x2, x3), ...: the mask
+    at points nobody asked for, without a word."""
+    roi = ROI.circle((0.0, 0.0), 10.0)
+    xs, ys = np.array([0.0, 9.0, 20.0]), np.array([0.0, 0.0, 0.0])
+    with pytest.raises(InvalidInputError, match=r"^ROI factor points must be \(N, 2\) .* shape \(2, 3\)"):
+        roi.factor(np.array([xs, ys]))
+    assert roi.factor(np.column_stack([xs, ys]))[[0, 2]].tolist() == [1.0, 0.0]
