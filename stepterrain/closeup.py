@@ -32,7 +32,7 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import MAX_INT32 as _MAX_INT32
-from ._compaction import SMALLER_HINT, budget_value, check_budget, count_buffer, exclusive_offsets
+from ._compaction import budget_value, check_budget, count_buffer, exclusive_offsets
 from ._device import host_copy, launch, launch_chunked, resolve_device, to_device
 from ._memo import MISSING, Same, derived, keep, recall
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, OutputTooLargeError, counted
@@ -465,17 +465,36 @@ class ROI:
         (cx, cy), (w, h) = self.center, self.size
         return (cx - w / 2, cx + w / 2, cy - h / 2, cy + h / 2)
 
+    @property
+    def _margin(self) -> float:
+        """How far outside its box a point still lies on its rim: a few units in the last place of the box's
+        coordinates. The box is ``center ± size / 2``, rounded: a box built from a terrain's extent (its centre and
+        size; so are the generated masks' over a whole terrain) could lie one ulp inside it, and a whole rim row of
+        nodes fell outside (m = 0 under a hard-edged rectangle, the row left on the terrain below the close-up)."""
+        return 4.0 * float(np.spacing(max(abs(v) for v in self.box)))
+
     def factor(self, xy: ArrayLike) -> NDArray[np.float64]:
-        """The mask factor m at world points ``xy`` (N, 2): bilinear, 0 outside the box (NumPy, float64)."""
+        """The mask factor m at world points ``xy`` (N, 2): bilinear, 0 outside the box (NumPy, float64); a point on
+        the box's rim to its rounding (:attr:`_margin`) takes the rim's value."""
         p = _numbers(xy)  # [nan] when not numbers
-        if p.size % 2 or np.isnan(p).any():  # a NaN point indexed the mask at -2^63 (an IndexError)
-            raise InvalidInputError(f"ROI factor points must be (N, 2) numbers (x, y), not NaN; got {xy!r}")
+        try:
+            shape = np.shape(xy)
+        except ValueError:  # ragged rows: [nan] above
+            shape = ()
+        # a NaN point indexed the mask at -2^63 (an IndexError); (2, N) rows of x and of y were read as N pairs
+        if p.size % 2 or np.isnan(p).any() or (len(shape) > 1 and shape[-1] != 2):
+            raise InvalidInputError(f"ROI factor points must be (N, 2) numbers (x, y), not NaN; got "
+                                    f"{f'shape {shape}' if len(shape) > 1 else repr(xy)}")
         p = p.reshape(-1, 2)
         xmin, xmax, ymin, ymax = self.box
         rows, cols = self.mask.shape
-        u = (p[:, 0] - xmin) / (xmax - xmin)
-        v = (p[:, 1] - ymin) / (ymax - ymin)
-        inside = (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1)
+        margin = self._margin
+        with np.errstate(invalid="ignore", divide="ignore"):  # a box collapsed by rounding: NaN, outside
+            u = (p[:, 0] - xmin) / (xmax - xmin)
+            v = (p[:, 1] - ymin) / (ymax - ymin)
+        inside = ((p[:, 0] >= xmin - margin) & (p[:, 0] <= xmax + margin) & (p[:, 1] >= ymin - margin)
+                  & (p[:, 1] <= ymax + margin) & np.isfinite(u) & np.isfinite(v))
+        u, v = np.where(inside, u, 0.0), np.where(inside, v, 0.0)
         fx, fy = np.clip(u, 0, 1) * (cols - 1), np.clip(v, 0, 1) * (rows - 1)
         j0 = np.minimum(np.floor(fx).astype(np.int64), cols - 2)
         i0 = np.minimum(np.floor(fy).astype(np.int64), rows - 2)
@@ -611,6 +630,14 @@ def transfer_function(spec: str | ArrayLike) -> NDArray[np.float32]:
             raise InvalidInputError(f"anchor transparency must be one of {sorted(TRANSFER_PRESETS)} or an "
                                     f"opacity table; got {spec!r}")
         return np.asarray(TRANSFER_PRESETS[spec], dtype=np.float32)
+    try:
+        shape = np.shape(spec)
+    except ValueError:  # ragged rows: refused by _numbers below
+        shape = ()
+    if len(shape) > 1 and max(shape, default=0) != np.prod(shape):  # (t, opacity) pairs were flattened into a table
+        raise InvalidInputError(f"anchor transparency table must be (K,) opacities, spread evenly over t in [0, 1]; "
+                                f"got an array of shape {shape} (pairs of t and opacity? give the opacities at K "
+                                "evenly spaced t)")
     table = _numbers(spec)  # [nan] when not numbers (["0", "1"], bools): refused below
     if table.size < 1 or not np.all(np.isfinite(table)) or table.min() < 0 or table.max() > 1:
         raise InvalidInputError(f"anchor transparency table must hold opacities in [0, 1]; got {spec!r}")
@@ -1097,12 +1124,10 @@ def _stepped_source(terrain: Terrain, cu: CloseUp, colors: str, device: wp.Devic
         if window is None:  # no face under the ROI box: no geometry (closeup_layers names it)
             return _Source(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32), np.zeros(0, np.int64))
     table = _colors_for(np.asarray(values, np.float32), colors, float(values[0]), float(values[-1]))
-    try:
-        mesh = stepped(window, levels=values, gamma=float(cu.gamma), colors=table, memory_budget=memory_budget,
-                       device=device)
-    except OutputTooLargeError as exc:  # stepped's advice names what a stepped() caller can change
-        text = str(exc).replace(", or step it in tiles (stepterrain.batch)", "")
-        raise OutputTooLargeError(text.replace(SMALLER_HINT, STEPPED_CLOSEUP_HINT)) from None
+    # stepped's own advice ("coarsen the isovalues", "step it in tiles") names what a stepped() caller can change:
+    # the close-up's is given to it instead
+    mesh = stepped(window, levels=values, gamma=float(cu.gamma), colors=table, memory_budget=memory_budget,
+                   device=device, _budget_hint=STEPPED_CLOSEUP_HINT)
     ox, oy = terrain.local_origin
     points = np.asarray(mesh.vertices, dtype=np.float64) - [ox, oy, 0.0]
     rgb = np.asarray(mesh.visual.vertex_colors)[:, :3].astype(np.uint8)
@@ -1174,11 +1199,13 @@ def _layers_struct(closeups: Sequence[CloseUp], matrices: Sequence[NDArray[np.fl
         info = np.array([[s, *r.mask.shape] for s, r in zip(starts, rois, strict=True)],
                         dtype=np.int32).reshape(-1, 3)
         packed = np.concatenate([r.mask.reshape(-1) for r in rois]) if rois else np.zeros(1, np.float32)
-        return (wp.array(boxes, dtype=wp.vec4, device=device), wp.array(info, dtype=wp.vec3i, device=device),
+        margins = np.array([r._margin for r in rois], dtype=np.float32)
+        return (wp.array(boxes, dtype=wp.vec4, device=device), wp.array(margins, dtype=wp.float32, device=device),
+                wp.array(info, dtype=wp.vec3i, device=device),
                 wp.array(packed.astype(np.float32), dtype=wp.float32, device=device))
 
     key = (tuple(id(r) for r in rois), float(ox), float(oy), str(device))
-    layers.boxes, layers.mask_info, layers.masks = derived(_ROI_UPLOADS, key, rois, upload)
+    layers.boxes, layers.margins, layers.mask_info, layers.masks = derived(_ROI_UPLOADS, key, rois, upload)
     return layers
 
 
@@ -2747,9 +2774,10 @@ def animate_closeups(
 ) -> list[NDArray[np.uint8]]:
     """Frames of the spinning close-ups (§III.B): frame i at time i / fps, one renderer and camera for all.
 
-    The camera frames the overview and every close-up at every frame's turn (the box swept by the spin), so the
-    view stays still while the close-ups rotate. ``options`` go to :func:`render_closeups` (``z_scale``,
-    ``scalars``, ``cmap``, ``camera``, ``bounds``, ...), all but those set per frame here: ``time``,
+    The camera frames the overview, every close-up and its anchor at every frame's turn (the box swept by the spin;
+    each part bounded as :func:`render_closeups` bounds it), so the view stays still while the close-ups rotate, and
+    a close-up that does not spin comes out as render_closeups draws it. ``options`` go to :func:`render_closeups`
+    (``z_scale``, ``scalars``, ``cmap``, ``camera``, ``bounds``, ...), all but those set per frame here: ``time``,
     ``renderer`` and ``reuse_overview``. ``window_size`` defaults to 640 x 400 (the CLI's ``closeup --size``:
     1280 x 720, as :func:`render_closeups`'). ``progress``: a tqdm bar of the frames on stderr. Every frame is kept
     (frames x width x height x 3 bytes, checked against :func:`stepterrain.set_memory_budget` before the first, as
@@ -2791,17 +2819,21 @@ def animate_closeups(
             layers = closeup_layers(t, items, time=float(time), colors=options.get("cmap", "terrain"),
                                     device=device)  # the stepped sources the frames use, kept for them
             drawn = {}
-            for k, (cu, layer) in enumerate(zip(items, layers, strict=True)):
+            # and the anchors, as render_closeups frames them: left out, the fence above a band's or a billboard's
+            # blended vertices (its top at M·V_O of the outline, beyond them) stood past the box, and a still
+            # close-up's animation was framed otherwise than its render_closeups picture
+            strips = anchor_strips(t, items, time=float(time), device=device)
+            for k, (cu, layer, strip) in enumerate(zip(items, layers, strips, strict=True)):
                 # where the close-up is drawn, as render_closeups frames it (its face split kept for the frames)
                 used = None if cu.anchor.band or cu.view == "billboard" else _content_split(t, layer, cu)[2]
                 bounds = drawn[k] = _drawn_bounds(layer, cu, used)
-                if bounds is not None:
-                    boxes.append(bounds)
+                boxes += [b for b in (bounds, render._finite_bounds(strip.vertices)) if b is not None]
             if first_drawn is None:  # times[0] = 0 comes first
                 first_drawn = drawn
-        xmin, xmax, ymin, ymax = t.extent
-        zmin, zmax = t.height_range
-        boxes.append(np.array([[xmin, ymin, zmin], [xmax, ymax, zmax]]))
+        # the overview as render_closeups frames it, by its mesh's bounds: the extent held a DEM's nodata rim, and the
+        # animation was framed wider than the still render of the same close-ups
+        boxes.append(t.cached(("closeup", "overview-bounds"),
+                              lambda: render._finite_bounds(np.asarray(t.mesh().vertices, np.float64))))
         box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
     if first_drawn is not None and render._fitted_camera(camera) and items:
         # the box fitted here, checked as render_closeups checks its own, before any frame

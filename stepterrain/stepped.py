@@ -73,6 +73,9 @@ __all__ = ["stepped", "stepped_series", "isovalues", "nice_interval", "Lens", "c
 
 MAX_LEVELS = 1_000_000
 
+#: The further advice of a grid too large for one call's int32 indices (after :data:`SMALLER_HINT`).
+_TILES_HINT = ", or step it in tiles (stepterrain.batch)"
+
 # bytes per output vertex / face while a mesh is being built (device work arrays + the numpy result)
 _VERTEX_BYTES = 12 + 4 + 24
 _SOURCE_BYTES = 8 + 4
@@ -666,6 +669,7 @@ def step_arrays(
     extra_vertex_bytes: int = 0,
     want_face_sources: bool = False,
     solid_boundary: int | None = None,
+    hint: str | None = None,
 ) -> StepArrays:
     """Run the vertex and face count -> scan -> emit passes; see kernels/stepped.py for the conventions.
 
@@ -678,7 +682,10 @@ def step_arrays(
     triangle's faces lie at its offset of the face scan), for face colours carried over.
     ``solid_boundary``: for a solid, the most boundary edges its surface can have (:func:`solid_boundary_edges`);
     the solid's skirt and base (:func:`solid_bytes`) are then checked against the budget with the surface.
+    ``hint``: what makes the output smaller, in a refusal over the budget or int32's reach, in place of
+    :data:`SMALLER_HINT` and the tiles of stepterrain.batch (a caller whose own options do it: a stepped close-up).
     """
+    smaller = SMALLER_HINT + _TILES_HINT if hint is None else hint
     iso = _isovalue_struct(values, device)
     grid = terrain.kind == "grid"
     topo: Any = _grid_struct(terrain, device) if grid else _tin_struct(terrain, device)
@@ -703,7 +710,7 @@ def step_arrays(
         if n_slots > _MAX_INT32:  # the kernels index slot 4·n (+ 0..3) in int32: past it count_grid wrote out of bounds
             raise OutputTooLargeError(
                 f"a grid of {topo.rows} x {topo.cols} nodes needs {n_slots:,} int32 vertex slots (4 a node), more "
-                f"than the {_MAX_INT32:,} one call can index; {SMALLER_HINT}, or step it in tiles (stepterrain.batch)"
+                f"than the {_MAX_INT32:,} one call can index; {smaller}"
             )
         n_chunks = chunked_threads(n_nodes, device)
         local = scratch("stepped.vertices.local", n_slots, wp.int32, device, streamed=True)
@@ -715,7 +722,7 @@ def step_arrays(
         bases, vertex_count = exclusive_offsets(totals, "stepped.vertices")
         offsets = stepped_kernels.Offsets()
         offsets.local, offsets.bases, offsets.shift = local, bases, chunk_shift(device) + 2  # 4 slots a node
-        _check_vertex_total(totals, n_nodes, n_slots, len(values))
+        _check_vertex_total(totals, n_nodes, n_slots, len(values), hint)
         launch_chunked(
             stepped_kernels.count_deferred_grid_faces,
             n=n_nodes,
@@ -742,7 +749,7 @@ def step_arrays(
         launch_chunked(stepped_kernels.count_tin_vertices, n=n_slots, inputs=[topo, iso, twins, peers],
                        outputs=[counts], device=device)  # fmt: skip
         offsets, vertex_count = exclusive_offsets(counts, "stepped.vertices")
-        _check_vertex_total(counts, n_nodes, n_slots, len(values))
+        _check_vertex_total(counts, n_nodes, n_slots, len(values), hint)
         # pass 2: faces (terraces and walls per triangle), counted against the vertex offsets
         face_counts = count_buffer("stepped.faces", n_cells, device)
         launch_chunked(
@@ -755,20 +762,20 @@ def step_arrays(
         face_offsets, face_count = exclusive_offsets(face_counts, "stepped.faces")
     want_face_sources = want_face_sources and not grid
     # per triangle and band a polygon of at most 5 vertices (3 terraces), 2 wall faces per threshold
-    _check_int32_total(face_counts, (2 if grid else 1) * n_cells * 5 * len(values), "faces")
+    _check_int32_total(face_counts, (2 if grid else 1) * n_cells * 5 * len(values), "faces", hint)
 
     vertex_bytes = _VERTEX_BYTES + (_SOURCE_BYTES if want_sources else 0) + int(extra_vertex_bytes)
     face_bytes = _FACE_BYTES + (_FACE_SOURCE_BYTES if want_face_sources else 0)
     surface_bytes = vertex_count * vertex_bytes + face_count * face_bytes
     if solid_boundary is None:
         check_budget(surface_bytes, f"the stepped mesh ({vertex_count:,} vertices, {face_count:,} faces)",
-                     memory_budget)
+                     memory_budget, hint=SMALLER_HINT if hint is None else hint)
     else:
         check_budget(
             surface_bytes + solid_bytes(vertex_count, face_count, solid_boundary),
             f"the stepped solid (a surface of {vertex_count:,} vertices and {face_count:,} faces, up to "
             f"{solid_boundary:,} boundary edges for its skirt, and its base)",
-            memory_budget,
+            memory_budget, hint=SMALLER_HINT if hint is None else hint,
         )
     face_sources = None
     if want_face_sources:
@@ -874,21 +881,22 @@ def solid_bytes(vertex_count: int, face_count: int, boundary_edges: int) -> int:
     return vertices * _SOLID_VERTEX_BYTES + faces * _SOLID_FACE_BYTES + work
 
 
-def _check_vertex_total(counts: wp.array, n_nodes: int, n_slots: int, n_levels: int) -> None:
+def _check_vertex_total(counts: wp.array, n_nodes: int, n_slots: int, n_levels: int, hint: str | None = None) -> None:
     # at most 2 per node and 2 per crossed threshold per edge
-    _check_int32_total(counts, 2 * n_nodes + 2 * (n_levels - 1) * (n_slots - n_nodes), "vertices")
+    _check_int32_total(counts, 2 * n_nodes + 2 * (n_levels - 1) * (n_slots - n_nodes), "vertices", hint)
 
 
-def _check_int32_total(counts: wp.array, bound: int, what: str) -> None:
+def _check_int32_total(counts: wp.array, bound: int, what: str, hint: str | None = None) -> None:
     """Refuse a count pass whose int32 scan may have wrapped: where ``bound`` (the most the counts can add up
-    to) exceeds int32, they are summed in int64 on the host, and a total beyond int32 raises with its size."""
+    to) exceeds int32, they are summed in int64 on the host, and a total beyond int32 raises with its size and
+    ``hint`` (default :data:`SMALLER_HINT`)."""
     if bound <= _MAX_INT32:
         return
     total = int(host_copy(counts).sum(dtype=np.int64))
     if total > _MAX_INT32:
         raise OutputTooLargeError(
             f"the stepped mesh would have {total:,} {what}, more than the {_MAX_INT32:,} one call can index; "
-            + SMALLER_HINT
+            + (SMALLER_HINT if hint is None else hint)
         )
 
 
@@ -1045,8 +1053,8 @@ def _direct_blend(gamma: GammaLike, colors: Any) -> dict[str, Any]:
 
 
 def _stepped_arrays(t: Terrain, values: NDArray[np.float32], gamma: GammaLike, colors: Any, device: wp.Device,
-                    memory_budget: int | None = None,
-                    solid: bool = False) -> tuple[StepArrays, NDArray[np.float64]]:
+                    memory_budget: int | None = None, solid: bool = False,
+                    hint: str | None = None) -> tuple[StepArrays, NDArray[np.float64]]:
     """The passes of :func:`stepped` and :func:`stepped_series`: the arrays and the blended world vertices (a
     scalar γ blended in the vertex pass, any other by :func:`blend`); the colours, and a ``solid``'s skirt and base,
     counted against the budget."""
@@ -1055,7 +1063,7 @@ def _stepped_arrays(t: Terrain, values: NDArray[np.float32], gamma: GammaLike, c
     arrays = step_arrays(t, values, device=device, want_sources=_needs_sources(t, gamma, colors),
                          memory_budget=memory_budget, extra_vertex_bytes=0 if colors is None else _COLOR_BYTES,
                          want_face_sources=colors is None and t.face_index is not None,
-                         solid_boundary=solid_boundary_edges(t, values) if solid else None,
+                         solid_boundary=solid_boundary_edges(t, values) if solid else None, hint=hint,
                          **_direct_blend(gamma, colors))  # fmt: skip
     vertices = arrays.vertices if arrays.vertices is not None else blend(t, arrays, gamma, device=device)
     return arrays, vertices
@@ -1224,6 +1232,7 @@ def stepped(
     origin: ArrayLike | None = None,
     memory_budget: int | None = None,
     device: wp.DeviceLike = None,
+    _budget_hint: str | None = None,
 ) -> trimesh.Trimesh:
     """Stepped terrain: quantize heights to isovalues and tessellate every triangle into terraces and walls.
 
@@ -1349,7 +1358,8 @@ def stepped(
         if welded is not t and colors is None:
             _warn_seams_welded(t, welded)
         t = _off_thresholds(welded, values)
-    arrays, vertices = _stepped_arrays(t, values, gamma, colors, dev, memory_budget, solid)
+    # _budget_hint (private): a caller's own advice in a refusal over the budget (closeup: its interval and ROI)
+    arrays, vertices = _stepped_arrays(t, values, gamma, colors, dev, memory_budget, solid, _budget_hint)
     # a TIN's CRS and source: Terrain.from_mesh reads them from its metadata, _assemble records them
     return _assemble(
         t, arrays, vertices, values, gamma=gamma, colors=colors, solid=solid, floor=floor, interval=interval,

@@ -1898,6 +1898,22 @@ def test_a_stepped_closeup_over_the_budget_names_what_a_closeup_can_change():
     assert len(layer.faces) > 10_000 and (layer.source_faces == -1).all()
 
 
+def test_a_stepped_closeup_past_int32_names_what_a_closeup_can_change(monkeypatch):
+    """The stepped close-up's own advice reaches every refusal of its window's stepped mesh, not only the budget's:
+    a grid past the int32 vertex slots one call indexes was advised "coarsen the isovalues, or step it in tiles
+    (stepterrain.batch)", neither a close-up option (the advice is now given to stepped(), not patched into its
+    message text)."""
+    import stepterrain.stepped as stepped_module
+
+    monkeypatch.setattr(stepped_module, "_MAX_INT32", 100)  # any window's 4 slots a node are past it
+    cu = CloseUp(ROI.circle((1040.0, 2032.0), 20.0), stepped=1.0)
+    with pytest.raises(OutputTooLargeError, match=r"int32 vertex slots .* one call can index; step the close-up at a "
+                       r"larger interval \(CloseUp.stepped\) or give it a smaller ROI, or crop or coarsen the terrain "
+                       r"\(Terrain.crop, Terrain.coarsen\)$") as caught:
+        closeup_layers(terrain(), [cu], device="cpu")
+    assert "isovalues" not in str(caught.value) and "tiles" not in str(caught.value)
+
+
 @pytest.mark.parametrize("camera", [[(0.0, 0.0, 5.0), (0.0, 0.0)], [(0.0, -150.0, 120.0), (0.0, 0.0, 0.0), (0.0, 1.0)]])
 def test_a_ragged_camera_beside_bounds_is_refused_by_name_not_by_numpy(camera):
     """The check that ``bounds`` is no single point under a fitted camera asked ``np.shape(camera)`` before the camera
@@ -1925,3 +1941,78 @@ def test_a_ragged_camera_is_refused_by_name_by_set_view():
             renderer.set_view([(0.0, 0.0, 5.0), (0.0, 0.0)], [(1020.0, 2020.0, 0.0), (1060.0, 2040.0, 100.0)])
     finally:
         renderer.close()
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+@pytest.mark.parametrize("kwargs", [{"anchor": AnchorStyle(band=True)}, {"view": "billboard"}])
+def test_an_animation_frames_the_anchors_as_render_closeups_does(kwargs):
+    """render_closeups fits its camera to the overview, the close-ups and their anchors; animate_closeups fitted its
+    box to the overview and the close-ups alone. A band's or a billboard's close-up is bounded by its blended
+    vertices, below its anchor's top (M·V_O of the outline): the fence stood past the animation's box, and the
+    animation of a close-up that does not spin was framed otherwise than its render_closeups picture."""
+    t = terrain()
+    cu = one(scale=3.0, **kwargs)
+    layer, strip = closeup_layers(t, [cu], device="cpu")[0], anchor_strips(t, [cu], device="cpu")[0]
+    assert strip.vertices[:, 0].max() > layer.vertices[:, 0].max()  # the fence reaches past the blended close-up
+    frame = animate_closeups(t, [cu], frames=1, window_size=SIZE, device="cpu")[0]
+    np.testing.assert_array_equal(frame, render_closeups(t, [cu], window_size=SIZE, device="cpu"))
+
+
+def test_a_box_built_from_the_extent_holds_its_rim_rows_to_rounding():
+    """A ROI's box is ``center ± size / 2``, rounded: a hard rectangle built from a terrain's extent (its centre and
+    size), or a height band over a whole terrain (built the same way), could lie one ulp inside the extent. The nodes
+    of the rim row at the local origin then had m = 0 (float32 keeps the 1e-10 m there): left on the terrain under the
+    lifted close-up, its faces stretched up to it; a 2 x 2 grid lost half its nodes. Here the box lies 1.2e-10 m
+    inside the extent's west side (a lidar-like 0.1 m spacing at UTM coordinates)."""
+    from stepterrain.terrain import Terrain
+
+    h = np.add.outer(np.arange(45.0), np.arange(30.0)).astype(np.float32)
+    t = Terrain.from_heights(h, spacing=(0.1, -0.1), origin=(678916.7866872508, 8847681.58466728))
+    x0, x1, y0, y1 = t.extent
+    hard = ROI.rectangle(((x0 + x1) / 2, (y0 + y1) / 2), (x1 - x0, y1 - y0), edge_width=0)
+    band = ROI.height_band(t, -1.0, 1000.0)
+    for roi in (hard, band):
+        assert roi.box[0] > x0  # one ulp inside the extent, as rounded
+        (layer,) = closeup_layers(t, [CloseUp(roi, offset=(0.0, 0.0, 50.0))], device="cpu")
+        assert len(layer.faces) == 2 * 44 * 29 and (layer.mask_factor == 1).all()
+        np.testing.assert_array_equal(layer.vertices[:, 2], layer.original[:, 2] + 50.0)
+        west = np.column_stack([np.full(45, x0), y1 - 0.1 * np.arange(45)])
+        assert (roi.factor(west) == 1).all()
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_an_animation_frames_the_overview_as_render_closeups_does():
+    """render_closeups frames the overview by its mesh; animate_closeups by the terrain's extent and height range,
+    which hold a DEM's nodata rim (a collar of NaN, common in clipped DEMs): the animation of a close-up that does
+    not spin was framed wider than its render_closeups picture."""
+    from stepterrain.terrain import Terrain
+
+    heights = hills().astype(np.float32)
+    heights[:, :8] = np.nan
+    heights[:5] = np.nan
+    t = Terrain.from_heights(heights, spacing=(2.0, 2.0), origin=(1000.0, 2000.0))
+    assert t.mesh().bounds[0, 0] > t.extent[0]  # the mesh starts past the nodata columns
+    frame = animate_closeups(t, [one()], frames=1, window_size=SIZE, device="cpu")[0]
+    np.testing.assert_array_equal(frame, render_closeups(t, [one()], window_size=SIZE, device="cpu"))
+
+
+def test_an_anchor_table_of_t_and_opacity_pairs_is_refused_not_flattened():
+    """An anchor's opacity table is K opacities at evenly spaced t; a table of (t, opacity) control points, (3, 2),
+    was flattened into six opacities (0, 0.85, 0.5, 0, 1, 0.85): an anchor that flickers along its rungs, drawn
+    without a word. A single row or column is still a table."""
+    pairs = [[0.0, 0.85], [0.5, 0.0], [1.0, 0.85]]
+    with pytest.raises(InvalidInputError, match=r"^anchor transparency table must be \(K,\) .* shape \(3, 2\)"):
+        AnchorStyle(pairs)
+    assert AnchorStyle([[0.85, 0.0]]).table.tolist() == AnchorStyle([0.85, 0.0]).table.tolist()
+
+
+def test_roi_factor_refuses_rows_of_x_and_of_y():
+    """ROI.factor takes (N, 2) points; np.array([xs, ys]), (2, N), was read as N pairs (x0, x1), (x2, x3), ...: the mask
+    at points nobody asked for, without a word."""
+    roi = ROI.circle((0.0, 0.0), 10.0)
+    xs, ys = np.array([0.0, 9.0, 20.0]), np.array([0.0, 0.0, 0.0])
+    with pytest.raises(InvalidInputError, match=r"^ROI factor points must be \(N, 2\) .* shape \(2, 3\)"):
+        roi.factor(np.array([xs, ys]))
+    assert roi.factor(np.column_stack([xs, ys]))[[0, 2]].tolist() == [1.0, 0.0]
