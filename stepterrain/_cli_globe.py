@@ -10,7 +10,7 @@ import argparse
 import math
 import zipfile
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -50,6 +50,25 @@ from .io import (
 )
 
 _EARTH_RADIUS = 6_371_000.0  # --radius's default (globe.EARTH_RADIUS, not imported before the command runs)
+
+
+class _Body(NamedTuple):
+    """The body an INPUT's CRS names when it is not the earth (Mars, the Moon): the ``radius`` (m) of the sphere its
+    degrees became metres on in load_dem (its ellipsoid's mean radius a·(1 - f/3), to the 10 digits load_dem's local
+    CRS states) and its ellipsoid's ``name``."""
+
+    radius: float
+    name: str
+
+
+def _crs_body(crs: str | None) -> _Body | None:
+    """The body a geographic (or projected) ``crs`` names when it is not the earth's (io._geographic_body: an
+    ellipsoid whose semi-major axis is more than 1 % off WGS 84's), else None: no CRS, an earth one, or none rasterio
+    can read."""
+    from .io import _geographic_body
+
+    body = _geographic_body(crs)
+    return None if body.earth else _Body(float(f"{body.radius:.10g}"), body.name)
 
 
 def _drape_side_files(out: Path, jpeg: bool) -> list[Path]:
@@ -121,7 +140,10 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--face-size", type=int, default=257, metavar="N",
                    help="nodes per cube face edge, 2^k+1 (default 257; the paper uses 1025)")
     p.add_argument("--exaggeration", type=float, default=1.0, metavar="X", help="vertical exaggeration (default 1)")
-    p.add_argument("--radius", type=float, default=_EARTH_RADIUS, metavar="M", help="sphere radius in metres")
+    p.add_argument("--radius", type=float, default=None, metavar="M",
+                   help="sphere radius in metres (default: the mean radius a(1 - f/3) of the body the INPUT's CRS "
+                        "names when it is not the earth, Mars or the Moon: IAU_2015:49900, a GEOGCS of Mars 2000; "
+                        "else the earth's, 6371000)")
     p.add_argument("--error", type=float, default=500.0, metavar="E",
                    help="metres of error tolerated at the eye's altitude (grows with distance squared); "
                         "0 = full resolution where visible (default 500)")
@@ -164,9 +186,10 @@ def add_parser(commands: Any) -> None:
     p.set_defaults(run=_run_globe)
 
 
-def _load_grid(path: str, height_unit: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The (lat, lon, elevation) of a global grid INPUT, its heights in metres: in ``height_unit`` (--height-unit)
-    when given, else in the unit the file names (as load_dem reads it)."""
+def _load_grid(path: str, height_unit: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, _Body | None]:
+    """The (lat, lon, elevation, body) of a global grid INPUT, its heights in metres: in ``height_unit``
+    (--height-unit) when given, else in the unit the file names (as load_dem reads it); ``body`` the body its CRS
+    (a raster's, an .npz's 'crs') names when it is not the earth (:func:`_crs_body`), else None."""
     virtual = gdal_path(path)  # a /vsizip/... path or a URL: read by GDAL, as load_dem reads it
     if virtual is not None and virtual.suffix.lower() not in GDAL_FORMATS:
         raise InvalidInputError(_virtual_refusal(virtual))
@@ -230,19 +253,22 @@ def _load_grid(path: str, height_unit: str | None = None) -> tuple[np.ndarray, n
     if unit is not None and elevation.dtype.kind in "iuf":  # (other dtypes: Globe.from_latlon names them)
         named_by = "--height-unit" if height_unit else "its 'units'" if "units" in texts else f"its CRS {crs}"
         elevation, _ = _heights_in_metres(elevation, unit, file, named_by, factor)
-    return lat, lon, elevation
+    return lat, lon, elevation, _crs_body(crs)
 
 
-def _load_geotiff_grid(file: Path, height_unit: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A global GeoTIFF (or any raster of io.GDAL_FORMATS) in a geographic CRS as (lat, lon, elevation): the heights
-    as load_dem reads them (nodata, an internal mask, scale and offset, a height unit, a .prj; missing cells as NaN,
-    which the globe refuses: fill them first), and the node degrees of its rows and columns from the degrees it read
-    (stored order: north-first for a north-up file, longitudes 0..360 or -180..180 as the file has them). It was
-    refused as not an .npz: a GIS user's global grid (ETOPO, GEBCO) is a GeoTIFF. load_dem's warning that its local
-    metres err far from the equator is left out: the globe reads degrees."""
+def _load_geotiff_grid(
+    file: Path, height_unit: str | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, _Body | None]:
+    """A global GeoTIFF (or any raster of io.GDAL_FORMATS) in a geographic CRS as (lat, lon, elevation, body): the
+    heights as load_dem reads them (nodata, an internal mask, scale and offset, a height unit, a .prj; missing cells
+    as NaN, which the globe refuses: fill them first), and the node degrees of its rows and columns from the degrees
+    it read (stored order: north-first for a north-up file, longitudes 0..360 or -180..180 as the file has them). It
+    was refused as not an .npz: a GIS user's global grid (ETOPO, GEBCO) is a GeoTIFF. load_dem's warning that its
+    local metres err far from the equator is left out: the globe reads degrees. ``body``: the body of another CRS than
+    the earth's (Mars, the Moon), its radius the sphere load_dem made its degrees metres on, else None."""
     import warnings
 
-    from .io import _lonlat_grid, _spherical_eqc, load_dem
+    from .io import EARTH_RADIUS_M, _lonlat_grid, _spherical_eqc, load_dem, raster_header
 
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=r".* degrees read as local metres with one spacing")
@@ -253,11 +279,16 @@ def _load_geotiff_grid(file: Path, height_unit: str | None = None) -> tuple[np.n
     if eqc is None or step is None or terrain.origin != (0.0, 0.0):
         raise InvalidInputError(f"INPUT {str(file)!r} must be a raster in a geographic CRS (degrees: EPSG:4326); got "
                                 f"CRS {terrain.crs or 'none'}; gdalwarp -t_srs EPSG:4326 makes it one")
-    _, _, lat_0, lon_0, _, _ = eqc  # node (0, 0), the origin of load_dem's local metres
+    radius, _, lat_0, lon_0, _, _ = eqc  # node (0, 0), the origin of load_dem's local metres
     rows, cols = terrain.shape
     lat = lat_0 + step[1] * np.arange(rows, dtype=np.float64)
     lon = lon_0 + step[0] * np.arange(cols, dtype=np.float64)
-    return lat, lon, terrain.heights
+    body = None
+    if abs(radius / EARTH_RADIUS_M - 1.0) > 0.01:  # another body's sphere (Mars: R = 3389526.667, not 6371008.8)
+        header = raster_header(file)  # its ellipsoid's name, from the CRS load_dem read
+        named = _crs_body(header[0]) if header is not None else None
+        body = _Body(radius, named.name if named is not None else "its")
+    return lat, lon, terrain.heights, body
 
 
 def _check_globe_numbers(args: argparse.Namespace) -> None:
@@ -269,7 +300,8 @@ def _check_globe_numbers(args: argparse.Namespace) -> None:
     from .globe import _error_value, _exaggeration_value, _face_cells, _radius_value
 
     _face_cells(args.face_size, "--face-size")  # from_latlon's checks, by the options' names
-    _radius_value(args.radius, "--radius")
+    if args.radius is not None:  # (else the earth's, or the radius of the body the INPUT's CRS names)
+        _radius_value(args.radius, "--radius")
     _exaggeration_value(args.exaggeration, "--exaggeration")
     try:
         _error_value(args.error)
@@ -285,6 +317,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         METRICS,
         Globe,
         _drape_texture,
+        _radius_value,
         _texture_image,
         drape_colors,
         elevation_colors,
@@ -342,27 +375,39 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError(f"--texture colours the mesh and the --png render; an .stl --output holds no colours: "
                                 f"got --texture {args.texture!r} with --output {args.output!r} and no --png")
     _check_outputs({"INPUT": args.input, "--texture": args.texture}, output=out, png=png)
-    radius = args.radius  # positive, within float32 positions: _check_globe_numbers
-    # the default eye 3R above 30N 10E: R the --radius (a fixed 3 earth radii showed a larger planet as a patch of
-    # its surface and a smaller one as a speck, not the whole globe the help promises)
-    lat_deg, lon_deg, altitude = args.eye if args.eye is not None else (30.0, 10.0, 3 * radius)
+    # positive, within float32 positions (_check_globe_numbers); without --radius the earth's until an INPUT's CRS
+    # names another body (Mars, the Moon: its radius, once the INPUT is read)
+    radius = args.radius if args.radius is not None else _EARTH_RADIUS
+    lat_deg, lon_deg = args.eye[:2] if args.eye is not None else (30.0, 10.0)
     if not (-90.0 <= lat_deg <= 90.0):
         raise InvalidInputError(f"--eye latitude must lie in [-90, 90]; got {lat_deg}")
     if not (-360.0 <= lon_deg <= 360.0):  # look_from's bound, which named the library's 'longitude'
         raise InvalidInputError(f"--eye longitude must lie in [-360, 360] degrees; got {lon_deg:g}")
-    # any altitude above the terrain there, below the sphere too (the Dead Sea lies 430 m under it): the library
-    # refuses an eye below the terrain, named by --eye below. The CLI's own "altitude > 0" refused such views; an
-    # eye at or beyond the centre is below any terrain (every node lies outside the centre), refused here alike
-    if radius + altitude <= 0:
-        raise InvalidInputError(f"--eye {lat_deg:g},{lon_deg:g},{altitude:g} lies below the terrain there (the "
-                                f"altitude is metres above the sphere of --radius): the eye at or beyond the planet's "
-                                f"centre (altitude <= -{radius:g} m, the --radius)")
-    if radius + altitude > _MAX_COORDINATE:  # look_from's bound on the eye, which named the library's 'radius'
-        where = "--eye altitude" if altitude > _MAX_COORDINATE and args.eye is not None else \
-            "--radius + the --eye altitude"
-        default = "" if args.eye is not None else " (the default --eye, 3 x --radius)"
-        raise InvalidInputError(f"{where} must keep the eye within {_MAX_COORDINATE:g} m of the centre; got "
-                                f"--radius {args.radius:g} + altitude {altitude:g} m{default}")
+
+    def eye_altitude(radius: float, sphere: str) -> float:
+        """The --eye altitude above the sphere of ``radius`` (named ``sphere`` in the messages), checked: the default
+        eye 3R above 30N 10E: R the sphere's radius (a fixed 3 earth radii showed a larger planet as a patch of its
+        surface and a smaller one as a speck, not the whole globe the help promises). Any altitude above the terrain
+        there, below the sphere too (the Dead Sea lies 430 m under it): the library refuses an eye below the
+        terrain, named by --eye below. The CLI's own "altitude > 0" refused such views; an eye at or beyond the
+        centre is below any terrain (every node lies outside the centre), refused here alike."""
+        altitude = args.eye[2] if args.eye is not None else 3 * radius
+        the = "the " if sphere.startswith("--") else ""
+        if radius + altitude <= 0:
+            raise InvalidInputError(f"--eye {lat_deg:g},{lon_deg:g},{altitude:g} lies below the terrain there (the "
+                                    f"altitude is metres above the sphere of {sphere}): the eye at or beyond the "
+                                    f"planet's centre (altitude <= -{radius:g} m, {the}{sphere})")
+        if radius + altitude > _MAX_COORDINATE:  # look_from's bound on the eye, which named the library's 'radius'
+            where = "--eye altitude" if altitude > _MAX_COORDINATE and args.eye is not None else \
+                f"{sphere} + the --eye altitude"
+            default = "" if args.eye is not None else f" (the default --eye, 3 x {sphere})"
+            raise InvalidInputError(f"{where} must keep the eye within {_MAX_COORDINATE:g} m of the centre; got "
+                                    f"{sphere} {radius:g} + altitude {altitude:g} m{default}")
+        return altitude
+
+    # before the work, on the earth's sphere without --radius: an INPUT of a smaller body (Mars, the Moon) is checked
+    # again once read, on its own
+    altitude = eye_altitude(radius, "--radius")
     if not (0.0 <= args.tilt < 90.0):
         raise InvalidInputError(f"--tilt must lie in [0, 90) degrees; got {args.tilt}")
     lo, hi = render._VIEW_ANGLE_RANGE  # VTK's: the --png render's camera takes no other
@@ -385,24 +430,33 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
                                     smaller_texture="a smaller --texture image (resampled to fewer pixels)")
 
     progress.stage("load", f"loading {args.input or 'the embedded ETOPO 2022 relief (20 arc-minutes)'}")
-    lat, lon, elevation = _load_grid(args.input, args.height_unit) if args.input else load_global_relief()
+    lat, lon, elevation, body = _load_grid(args.input, args.height_unit) if args.input else \
+        (*load_global_relief(), None)
     progress.done(f"{elevation.shape[0]} x {elevation.shape[1]} lat/lon grid,")
+    on, sphere = "", "--radius"
+    if args.radius is None and body is not None:  # Mars, the Moon: meshed on the earth's sphere (Mars 1.88 x too big)
+        sphere = "the radius of INPUT's CRS"
+        radius = _radius_value(body.radius, sphere)
+        named = f" {body.name!r}" if body.name.lower() not in ("", "its", "unknown") else ""
+        on = (f" on a sphere of radius {radius:.10g} m (the mean radius of INPUT's CRS's ellipsoid{named}, not the "
+              "earth's; --radius to change)")
+        altitude = eye_altitude(radius, sphere)
 
-    progress.stage("build", f"resampling onto 6 x {args.face_size}^2 nodes and building the hierarchy")
-    globe = Globe.from_latlon(elevation, lat, lon, face_size=args.face_size, radius=args.radius,
+    progress.stage("build", f"resampling onto 6 x {args.face_size}^2 nodes{on} and building the hierarchy")
+    globe = Globe.from_latlon(elevation, lat, lon, face_size=args.face_size, radius=radius,
                               exaggeration=args.exaggeration, device=args.device)
     progress.done(f"on {globe.device},")
 
     aspect = args.size[0] / args.size[1]
     camera = look_from(lat_deg, lon_deg, altitude, tilt=args.tilt, heading=args.heading, aspect=aspect,
                        fov=math.radians(args.view_angle),
-                       radius=args.radius, max_radius=globe.radius + float(globe.heights.max()))
+                       radius=radius, max_radius=globe.radius + float(globe.heights.max()))
     if not args.no_camera or png is not None:  # the eye meshes or renders: above the terrain there, named by --eye
         try:
             globe._check_eye(camera.eye)
         except InvalidInputError as exc:
             raise InvalidInputError(f"--eye {lat_deg:g},{lon_deg:g},{altitude:g} lies below the terrain there (the "
-                                    f"altitude is metres above the sphere of --radius): {exc}") from None
+                                    f"altitude is metres above the sphere of {sphere}): {exc}") from None
     shapes = f"{bounds}s, " if shaped else ""
     progress.stage("mesh", f"refining: error {args.error:g}, {shapes}metrics {','.join(metrics)}")
     mesh = globe.mesh(error=args.error, camera=None if args.no_camera else camera, bounds=bounds,
@@ -456,6 +510,8 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
             "metrics": ",".join(metrics),
             "exaggeration": args.exaggeration,
         }
+        if radius != _EARTH_RADIUS:  # the sphere's radius: --radius's, or that of the body INPUT's CRS names
+            metadata["radius"] = radius
         if shaped:  # the bounding shapes the distance and clip metrics measured
             metadata["bounds"] = bounds
         if not args.no_camera:  # the eye the mesh was refined for (with --no-camera it only places a --png)

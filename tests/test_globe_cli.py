@@ -651,3 +651,73 @@ def test_globe_height_unit_names_a_unit_the_file_lacks_or_overrides(tmp_path, ca
         == 2
     assert "argument --height-unit: expected a length unit" in capsys.readouterr().err
     assert not (tmp_path / "e.ply").exists() and not (tmp_path / "y.ply").exists()
+
+
+#: Mars 2000 as GDAL writes a MOLA/HRSC DEM's CRS (Esri's GEOGCS): its ellipsoid a = 3396190 m, 1/f = 169.894...
+_MARS_2000 = ('GEOGCS["Mars 2000",DATUM["D_Mars_2000",SPHEROID["Mars_2000_IAU_IAG",3396190,169.894447223612]],'
+              'PRIMEM["Reference_Meridian",0],UNIT["degree",0.0174532925199433]]')
+
+
+@pytest.mark.parametrize("crs, radius", [
+    (_MARS_2000, 3396190.0 * (1.0 - 1.0 / (3.0 * 169.894447223612))),  # its mean radius a·(1 - f/3)
+    ("IAU_2015:49900", 3396190.0),  # Mars (2015) sphere
+    ("IAU_2015:30100", 1737400.0),  # Moon (2015) sphere: a LOLA DEM
+    ("EPSG:4326", 6371000.0),  # the earth's: as before (globe.EARTH_RADIUS)
+])
+def test_a_globe_of_another_body_is_meshed_on_the_sphere_its_crs_names(tmp_path, capsys, crs, radius):
+    """``stepterrain globe mars_mola.tif`` meshed a Mars (or Moon) DEM on the earth's sphere, R = 6371000 m, unless
+    --radius was given: Mars 1.88 times too large for its heights, and the default eye 3 earth radii up. Without
+    --radius the sphere is now the one load_dem makes the file's degrees metres on (its CRS's ellipsoid's mean
+    radius, to the 10 digits load_dem's CRS states), the progress line and the mesh's metadata say which; an .npz's
+    'crs' counts too; --radius still rules; an earth CRS keeps 6371000 m, with nothing said."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    from stepterrain.export import read_mesh
+
+    radius = float(f"{radius:.10g}")
+    tif = tmp_path / "body.tif"
+    with rasterio.open(tif, "w", driver="GTiff", width=36, height=18, count=1, dtype="float32", crs=crs,
+                       transform=Affine(10.0, 0.0, -180.0, 0.0, -10.0, 90.0)) as ds:
+        ds.write(np.zeros((18, 36), np.float32), 1)
+        wkt = ds.crs.to_wkt()
+    npz = tmp_path / "body.npz"
+    np.savez(npz, elevation=np.zeros((18, 36), np.float32), lat=np.linspace(85.0, -85.0, 18),
+             lon=np.linspace(-175.0, 175.0, 36), crs=np.array(wkt))
+    for source in (tif, npz):
+        out = tmp_path / f"{source.stem}.glb"
+        assert main(["globe", str(source), "--face-size", "9", "--error", "0", "-o", str(out), "--device",
+                     "cpu"]) == 0
+        said = capsys.readouterr().err
+        mesh = read_mesh(out)
+        np.testing.assert_allclose(np.linalg.norm(mesh.vertices, axis=1), radius, rtol=1e-6)  # float32 positions
+        assert mesh.metadata["eye_lat_lon_alt"] == [30.0, 10.0, 3 * radius]  # the default eye: 3 R up
+        if radius == 6371000.0:
+            assert "radius" not in mesh.metadata and "on a sphere" not in said
+        else:
+            assert mesh.metadata["radius"] == radius
+            assert f"nodes on a sphere of radius {radius:.10g} m (the mean radius of INPUT's CRS's ellipsoid" in said
+    given = tmp_path / "given.ply"
+    assert main(["-q", "globe", str(tif), "--face-size", "9", "--no-camera", "--radius", "1000000", "-o",
+                 str(given), "--device", "cpu"]) == 0
+    np.testing.assert_allclose(np.linalg.norm(trimesh.load(given, process=False).vertices, axis=1), 1e6, rtol=1e-6)
+
+
+def test_an_eye_beyond_the_centre_of_another_body_is_refused_by_its_radius(tmp_path, capsys):
+    """An --eye altitude below the centre of the body an INPUT's CRS names (Mars: 3396190 m) but above the earth's was
+    taken as an eye inside the earth's sphere; it is refused as beyond the centre of the sphere the globe is meshed
+    on, naming that sphere (no --radius was given)."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    tif = tmp_path / "mars.tif"
+    with rasterio.open(tif, "w", driver="GTiff", width=36, height=18, count=1, dtype="float32", crs="IAU_2015:49900",
+                       transform=Affine(10.0, 0.0, -180.0, 0.0, -10.0, 90.0)) as ds:
+        ds.write(np.zeros((18, 36), np.float32), 1)
+    out = tmp_path / "g.ply"
+    assert main(["-q", "globe", str(tif), "--face-size", "9", "--eye", "0,0,-4e6", "-o", str(out)]) == 2
+    assert capsys.readouterr().err == (
+        "stepterrain globe: error: --eye 0,0,-4e+06 lies below the terrain there (the altitude is metres above the "
+        "sphere of the radius of INPUT's CRS): the eye at or beyond the planet's centre (altitude <= -3.39619e+06 m, "
+        "the radius of INPUT's CRS)\n")
+    assert not out.exists()
