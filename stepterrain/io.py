@@ -2214,8 +2214,9 @@ def _warn_common_nodata(
     such value, and a trench's cell of -9999 m lies among other depths, no gap apart. ``lowest`` and ``highest``: the
     values' reductions, missing cells included (None: not reduced; an integer dtype holds no high one), which rule
     out most grids without a further pass; ``extremes``: the dtype's own sentinels, warned of already and left out
-    of the other cells. Otherwise one pass, a block of rows at a time, counts each value's cells and the others'
-    range."""
+    of the other cells. Otherwise a pass of comparisons, a block of rows at a time, looks for their cells that
+    ``missing`` does not mark (none where the file declares the value its nodata), and only where some are found a
+    second counts each value's cells and the others' range."""
     candidates = [v for v in _common_nodata_in(data.dtype)
                   if (v < 0 and lowest <= v) or (v > 0 and highest is not None and highest >= v)]
     if not candidates:
