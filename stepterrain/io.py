@@ -2214,15 +2214,22 @@ def _warn_common_nodata(
     such value, and a trench's cell of -9999 m lies among other depths, no gap apart. ``lowest`` and ``highest``: the
     values' reductions, missing cells included (None: not reduced; an integer dtype holds no high one), which rule
     out most grids without a further pass; ``extremes``: the dtype's own sentinels, warned of already and left out
-    of the other cells. Otherwise one pass, a block of rows at a time, counts each value's cells and the others'
-    range."""
+    of the other cells. Otherwise a pass of comparisons, a block of rows at a time, looks for their cells that
+    ``missing`` does not mark (none where the file declares the value its nodata), and only where some are found a
+    second counts each value's cells and the others' range."""
     candidates = [v for v in _common_nodata_in(data.dtype)
                   if (v < 0 and lowest <= v) or (v > 0 and highest is not None and highest >= v)]
     if not candidates:
         return
+    rows = max(1, (1 << 20) // max(1, data[0].size))
+    # first their cells that nothing marks: none in a file whose declared nodata is the value (a GeoTIFF's -9999, an
+    # SRTM tile's -32768 with -32767 and -9999 above it), where the pass below over the other cells' range cost a
+    # third more on load_dem's read (0.07 s on 16M float32 cells); np.greater of booleans: hit and not marked
+    if not any(_unmarked_hit(data[start:start + rows], None if missing is None else missing[start:start + rows],
+                             candidates) for start in range(0, data.shape[0], rows)):
+        return
     counts = dict.fromkeys(candidates, 0)
     low, high = math.inf, -math.inf
-    rows = max(1, (1 << 20) // max(1, data[0].size))
     for start in range(0, data.shape[0], rows):
         block = data[start:start + rows]
         keep = np.isfinite(block) if data.dtype.kind == "f" else np.ones(block.shape, np.bool_)
@@ -2258,6 +2265,17 @@ def _warn_common_nodata(
                 f"as heights; if they are voids, declare it ({_declare_nodata(file, text)})",
                 stacklevel=caller_stacklevel(),
             )
+
+
+def _unmarked_hit(block: NDArray[Any], marked: NDArray[np.bool_] | None, values: Sequence[Any]) -> bool:
+    """Whether a cell of ``block`` that ``marked`` (of its shape, or None) does not mark holds one of ``values``."""
+    for value in values:
+        hit = block == value
+        if marked is not None:
+            np.greater(hit, marked, out=hit)
+        if hit.any():
+            return True
+    return False
 
 
 def _nodata_text(value: Any, dtype: np.dtype[Any]) -> str:

@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st_h
 
 import stepterrain as st
 from stepterrain.io import load_dem
@@ -160,3 +162,32 @@ def test_cli_says_the_common_nodata_warning_once(tmp_path, capsys):
     assert code == 0, err
     assert err.count("dem.tif: 20 cells of band 1 hold -9999, a common nodata value") == 1, err
     assert "gdal_edit.py -a_nodata -9999 dem.tif" in err
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st_h.integers(0, 2**31 - 1), dtype=st_h.sampled_from(["int16", "int32", "float32", "float64"]))
+def test_cells_a_mask_marks_are_as_if_they_held_no_value(seed, dtype):
+    # the check first looks only for candidate cells no mask marks, and skips the range pass where there are none:
+    # a mask over cells (a declared nodata, an .npz mask) names the same values as those cells holding no value
+    # (NaN in a float copy of the grid), or the cells' removal (the marked rows of an integer grid cut off)
+    from stepterrain.io import _warn_void_values
+
+    rng = np.random.default_rng(seed)
+    z = np.round(_real(24, 30) - 1000.0 * rng.integers(0, 12)).astype(dtype)
+    values = [-9999, -32767, -99999 if dtype != "int16" else -32767]
+    for value in values:  # voids in whole rows, some marked, some not
+        rows = rng.choice(24, size=int(rng.integers(0, 4)), replace=False)
+        z[rows] = value
+    marked = np.zeros(z.shape, bool)
+    marked[rng.choice(24, size=int(rng.integers(0, 12)), replace=False)] = True
+
+    def said(data, missing):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            _warn_void_values(Path("x.npy"), data, missing, "array")
+        return [str(w.message) for w in caught if "common nodata value" in str(w.message)]
+
+    masked = said(z, marked)
+    assert masked == said(z[~marked.all(axis=1)], None)
+    if dtype.startswith("float"):
+        assert masked == said(np.where(marked, np.nan, z).astype(dtype), None)
