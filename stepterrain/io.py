@@ -644,9 +644,14 @@ def sample_dem() -> Terrain:
     >>> t.spacing, t.crs, t.height_range
     ((30.0, -30.0), 'EPSG:32611', (315.0, 2295.0))
     """
+    return _sample_dem()
+
+
+def _sample_dem(nodata: float | Sequence[float] | None = None) -> Terrain:
+    """:func:`sample_dem`, with :func:`load_dem`'s ``nodata`` (the CLI's ``--nodata`` without an INPUT)."""
     resource = importlib.resources.files("stepterrain") / "data" / _SAMPLE_NAME
     with importlib.resources.as_file(resource) as file:
-        return load_dem(file)
+        return read_dem(file, nodata=nodata)
 
 
 def describe_dem(terrain: Terrain) -> dict[str, Any]:
