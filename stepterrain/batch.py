@@ -702,7 +702,7 @@ def _item_terrain(item: BatchItem, source: _Source | None, height_unit: str | No
         # a file of nodata only (a tile of sea cut from a coastal raster) is read, all NaN: an empty item, as a tile
         # of one raster is, not refused as not elevation data as load_dem refuses it
         terrain = read_dem(item.path, height_unit=height_unit, band=1 if band is None else band,  # type: ignore[arg-type]
-                           nodata_only=True, height_encoding=height_encoding, nodata=nodata)
+                           nodata_only=True, height_encoding=height_encoding, nodata=nodata or None)
         if spacing is not None:
             _check_unreferenced(terrain.crs, terrain.spacing, terrain.origin, str(item.path))
             terrain = Terrain.from_heights(terrain.heights, spacing=spacing, source=terrain.source,

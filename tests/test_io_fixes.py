@@ -1667,7 +1667,8 @@ def test_the_lowest_value_of_a_signed_or_float_dtype_unmarked_by_nodata_is_named
         "value or mask of the file marks them: read as heights; if they are voids, declare it (save it as an .npz with "
         "a 'nodata' of -3.4028235e+38, or pass nodata=-3.4028235e+38)"]
     np.savez(tmp_path / "other.npz", elevation=z, nodata=-9999)  # another nodata value: the -32768 cells unmarked
-    assert told(tmp_path / "other.npz")[1][0].endswith("(save a 'nodata' of -32768 beside the heights, or pass nodata=-32768)")
+    assert told(tmp_path / "other.npz")[1][0].endswith(
+        "(save a 'nodata' of -32768 beside the heights, or pass nodata=-32768)")
     np.savez(tmp_path / "masked.npz", elevation=z, mask=z == -32768)
     assert told(tmp_path / "masked.npz")[1] == []
     Image.fromarray(np.where(z < 0, 65535, z).astype(np.uint16)).save(tmp_path / "peak.png")
@@ -1751,7 +1752,8 @@ def test_float64_nodata_beyond_float32_undeclared_is_refused_naming_the_void_and
         assert code == 2 and err.rstrip().endswith(f"{told}{option})") and "Traceback" not in err
     assert not (tmp_path / "out.ply").exists()
     np.save(tmp_path / "voids.npy", z)
-    with pytest.raises(DataFileError, match=re.escape(f"(save it as an .npz with a 'nodata' of {value}, or pass nodata={value})")):
+    with pytest.raises(DataFileError,
+                       match=re.escape(f"(save it as an .npz with a 'nodata' of {value}, or pass nodata={value})")):
         load_dem(tmp_path / "voids.npy")
     with rasterio.open(path, "r+") as dataset:  # as the hint's gdal_edit.py does
         dataset.nodata = float(value)
@@ -1790,7 +1792,8 @@ def test_the_highest_float32_value_undeclared_warns_as_the_lowest_does(tmp_path,
     terrain, messages = told(path)
     assert messages == [f"top.tif: {n} cells of band 1 hold 3.4028235e+38, the highest float32 value, which marks "
                         "voids, but no nodata value or mask of the file marks them: read as heights; if they are "
-                        "voids, declare it (`gdal_edit.py -a_nodata 3.4028235e+38 top.tif`, or pass nodata=3.4028235e+38)"]
+                        "voids, declare it (`gdal_edit.py -a_nodata 3.4028235e+38 top.tif`, or pass "
+                        "nodata=3.4028235e+38)"]
     np.testing.assert_array_equal(terrain.heights, z)  # still read as stored
     np.save(tmp_path / "wide.npy", z.astype(np.float64))
     assert told(tmp_path / "wide.npy")[1] == [
