@@ -342,7 +342,8 @@ def plan_items(
     height_encoding: str | None = None,
     nodata: float | Sequence[float] | None = None,
 ) -> tuple[list[BatchItem], _Source | None]:
-    """The items :func:`batch` would run for ``source`` (see there), and the in-memory source they slice. A GeoTIFF
+    """The items :func:`batch` would run for ``source`` (see there; ``nodata``: its files', read here for a series or
+    a raster to tile), and the in-memory source they slice. A GeoTIFF
     (or another GDAL raster) cut into tiles is read only in the window of ``crop`` (load_dem's ``crop``: its nodes
     are those :meth:`Terrain.crop` keeps); other sources ignore it (:func:`batch` crops them after).
 
@@ -523,7 +524,9 @@ def load_series(path: str | os.PathLike[str],
     an ``.npz`` series with a ``transform`` or other georeferencing keys (``crs``, ``dx``/``dy``,
     ``spacing``/``origin``, ``x``/``y``, ``lat``/``lon``, ...): a series is meshed unreferenced, as 1 m cells at
     (0, 0), and those keys were ignored without a word. An ``.npz``'s ``units`` converts the heights to metres as
-    :func:`~stepterrain.io.load_dem` converts them (a unit it does not know is a DataFileError)."""
+    :func:`~stepterrain.io.load_dem` converts them (a unit it does not know is a DataFileError). ``nodata``:
+    value(s) marking missing cells besides the file's own, as load_dem's ``nodata`` (compared in the stored dtype;
+    not a real number: an InvalidInputError)."""
     from .io import (
         _heights_in_metres,
         _npz_text,
