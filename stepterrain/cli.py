@@ -249,11 +249,6 @@ def _add_band(p: argparse.ArgumentParser) -> None:
                         "from (default 1, as GDAL's tools read it); .npy, .npz and PNG hold one band")
 
 
-#: argparse's test of an argument that is a negative number, not an option (Python 3.11-3.13's ``-\d+|-\d*\.\d+``):
-#: another value that starts with "-" (-1e+20, -3.4028235e+38) must join its option with "=".
-_ARGPARSE_NEGATIVE = re.compile(r"^-\d+$|^-\d*\.\d+$")
-
-
 def _nodata_values(text: str) -> list[float]:
     """A ``--nodata``: one number or several, comma-separated (``-9999,-32768``), checked before any file is read."""
     values = []
@@ -272,8 +267,7 @@ def _add_nodata(p: argparse.ArgumentParser, what: str = "the INPUT") -> None:
                    help=f"value(s) marking missing cells of {what} besides its own nodata value and mask, as "
                         "`gdal_edit.py -a_nodata V` would declare them: compared with the values as stored (a "
                         "GeoTIFF band's before its scale and offset, in its dtype); repeat it or give a "
-                        "comma-separated list; join a value argparse takes for an option with '=': "
-                        "--nodata=-3.4028235e+38 (default: none, the file's own nodata only)")
+                        "comma-separated list: --nodata -9999,-32768 (default: none, the file's own nodata only)")
 
 
 def _height_encoding(text: str) -> str:
@@ -1324,10 +1318,6 @@ def _names_as_options(message: str, options: dict[str, str]) -> str:
         name, equals, value = match.groups()
         if name not in options or (equals is None and "_" not in name):
             return match.group(0)
-        if equals and value == "-":  # a value argparse takes for an option (-1e+20) joins it with "="
-            token = re.match(r"[^\s;,)`]*", match.string[match.end():])
-            if token and not _ARGPARSE_NEGATIVE.match(token.group(0)):
-                return options[name] + "="
         return options[name] + (" " if equals and value else "")
 
     # the library's pointer to the option, now that the option is named: "give --tile (the CLI's --tile)" said it twice
