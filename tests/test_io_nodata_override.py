@@ -308,3 +308,19 @@ def test_cli_batch_nodata(tmp_path, capsys):
     code, _, err = run(capsys, "batch", "--nodata", "315", "--scheduler", "serial", "--tile", "512",
                        "--format", ".ply", "-o", tmp_path / "embedded")  # fmt: skip
     assert code == 0, err
+
+
+@pytest.mark.parametrize("command", ["steps", "closeup", "texture", "info", "batch", "globe"])
+def test_every_dem_reading_subcommand_has_nodata_with_its_default(capsys, command):
+    code, out, _ = run(capsys, command, "--help")
+    assert code == 0
+    text = " ".join(out.split())
+    assert "--nodata V[,V...]" in text and "(default: none, the file's own nodata only)" in text
+
+
+def test_cli_texture_takes_nodata(tmp_path, capsys):
+    path, _ = _voided_npy(tmp_path / "dem.npy")
+    code, _, err = run(capsys, "texture", path, "-o", tmp_path / "t.png")
+    assert code == 0 and "or pass --nodata -9999)" in err, err  # the hint as texture's option
+    code, _, err = run(capsys, "texture", path, "--nodata", "-9999", "-o", tmp_path / "t.png")
+    assert code == 0 and "marks voids" not in err, err
