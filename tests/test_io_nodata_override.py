@@ -295,6 +295,19 @@ def test_batch_nodata_refused_for_an_array_and_applied_to_a_series(tmp_path):
     np.save(tmp_path / "series.npy", stack)
     series = load_series(tmp_path / "series.npy", nodata=VOID)
     assert np.isnan(series).sum() == 1 and np.isnan(series[1, 0, 0])
+    report = batch(str(tmp_path / "series.npy"), str(tmp_path / "frames"), format=".glb", scheduler="serial",
+                   nodata=VOID)
+    from .test_export import glb_json
+
+    assert report.ok and all(min(glb_json(Path(r.path))["meshes"][0]["extras"]["isovalues"]) > 0 for r in report.done)
+    # one raster cut into tiles: read with it once, before the tiles are cut
+    z = _real(4).astype(np.float32)
+    z[:4, :4] = VOID
+    np.save(tmp_path / "one.npy", z)
+    report = batch(str(tmp_path / "one.npy"), str(tmp_path / "tiles"), format=".glb", tile_size=64,
+                   scheduler="serial", nodata=VOID)
+    extras = [glb_json(Path(r.path))["meshes"][0]["extras"] for r in report.done]
+    assert report.ok and len(extras) > 1 and all(min(e["isovalues"]) > 0 and e["nodata"] == [VOID] for e in extras)
 
 
 def test_cli_batch_nodata(tmp_path, capsys):
