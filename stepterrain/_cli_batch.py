@@ -84,6 +84,7 @@ def add_parser(commands: Any) -> None:
         _add_device,
         _add_height_encoding,
         _add_height_unit,
+        _add_nodata,
         _cell_size,
         _coarsen_factor,
         _floats,
@@ -111,6 +112,7 @@ def add_parser(commands: Any) -> None:
     _add_height_unit(p)
     _add_band(p)
     _add_height_encoding(p)
+    _add_nodata(p, "every DEM file (or the embedded DEM), the shared levels' height range read with it too")
     p.add_argument("--spacing", type=_cell_size, metavar="D|dx,dy",
                    help="the node spacing in metres of DEM files with no georeferencing (.npy, a PNG heightmap, a "
                         "GeoTIFF without a geotransform), each read as 1 m cells otherwise; rows run north to south; "
@@ -257,7 +259,7 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
             what = _counted(len(files), "DEM file") + (f" ({files[0]}; --tile N cuts it)" if len(files) == 1 else "")
     else:  # the embedded DEM, which refuses a --height-unit
         source = _load_input(None, args.height_unit, spacing=args.spacing, band=args.band,  # and --spacing, --band
-                             height_encoding=args.height_encoding)
+                             height_encoding=args.height_encoding, nodata=args.nodata)  # --nodata: read with it
         args.spacing = None
         what = "the embedded Big Tujunga DEM"
     tile = args.tile if args.tile is not None else (256 if not args.input else None)
@@ -280,10 +282,12 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
         # folder (or by its absolute path) keeps its complete tiles instead of redoing them all
         metadata={"generator": "stepterrain batch"} if source_folder is not None or listed else {  # each file's
             "generator": "stepterrain batch",
-            "input": _absolute(args.input) if args.input else "embedded Big Tujunga DEM"},
+            "input": _absolute(args.input) if args.input else "embedded Big Tujunga DEM",
+            # the embedded DEM's --nodata, applied as it was read (batch records a file source's itself)
+            **({"nodata": [float(v) for v in args.nodata]} if args.nodata and not args.input else {})},
         height_unit=args.height_unit, spacing=args.spacing, crop=args.crop, coarsen=args.coarsen, device=args.device,
         band=args.band, overview_size=None if png is None else args.size,  # its render checked before the items run
-        height_encoding=args.height_encoding,
+        height_encoding=args.height_encoding, nodata=args.nodata if args.input else None,
     )  # fmt: skip
     progress.done(f"{len(report.done)} written, {len(report.skipped)} complete already, {len(report.failed)} failed")
     # a folder's georeferencing is known only item by item (tiles and series are checked up front, and a floor

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import math
 import zipfile
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -20,6 +21,7 @@ from .cli import (
     Progress,
     _add_device,
     _add_height_unit,
+    _add_nodata,
     _check_outputs,
     _check_side_files,
     _check_size,
@@ -43,6 +45,7 @@ from .io import (
     _virtual_refusal,
     dem_path,
     equals_nodata,
+    given_nodata,
     npz_missing,
     npz_nodata,
     open_npz,
@@ -137,6 +140,7 @@ def add_parser(commands: Any) -> None:
     _add_height_unit(p, help="the INPUT heights' length unit (m, ft, US survey foot, km, cm, ...), for a file that "
                              "names none or one not known (an .npz 'units', a raster band's unit); heights become "
                              "metres (default: the unit the file names, else as stored)")
+    _add_nodata(p, "the INPUT, refused as its own nodata is (fill them first)")
     p.add_argument("--face-size", type=int, default=257, metavar="N",
                    help="nodes per cube face edge, 2^k+1 (default 257; the paper uses 1025)")
     p.add_argument("--exaggeration", type=float, default=1.0, metavar="X", help="vertical exaggeration (default 1)")
@@ -186,13 +190,16 @@ def add_parser(commands: Any) -> None:
     p.set_defaults(run=_run_globe)
 
 
-def _load_grid(path: str, height_unit: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, _Body | None]:
+def _load_grid(path: str, height_unit: str | None = None, nodata: Sequence[float] | None = None
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, _Body | None]:
     """The (lat, lon, elevation, body) of a global grid INPUT, its heights in metres: in ``height_unit``
-    (--height-unit) when given, else in the unit the file names (as load_dem reads it); ``body`` the body its CRS
+    (--height-unit) when given, else in the unit the file names (as load_dem reads it); cells of ``nodata``
+    (--nodata) missing besides the file's own, as load_dem reads them (and refused alike); ``body`` the body its CRS
     (a raster's, an .npz's 'crs') names when it is not the earth (:func:`_crs_body`), else None."""
     virtual = gdal_path(path)  # a /vsizip/... path or a URL: read by GDAL, as load_dem reads it
     if virtual is not None and virtual.suffix.lower() not in GDAL_FORMATS:
         raise InvalidInputError(_virtual_refusal(virtual))
+    nodata_given = tuple(nodata or ())
     file = Path(path) if virtual is None else virtual
     if virtual is None and not file.exists():
         raise DataFileError(f"INPUT {path!r} does not exist")
@@ -201,7 +208,7 @@ def _load_grid(path: str, height_unit: str | None = None) -> tuple[np.ndarray, n
     if file.suffix.lower() in (".zip", ".gz"):  # a zip or gzip of one raster (an SRTM download), as load_dem reads
         file = dem_path(file)  # it (a .gz of an .npz refused: gunzip it)
     if file.suffix.lower() in GDAL_FORMATS:  # a GeoTIFF, .asc, .hgt, .img, .vrt, ...: as load_dem reads them
-        return _load_geotiff_grid(file, height_unit)
+        return _load_geotiff_grid(file, height_unit, nodata)
     if file.suffix.lower() != ".npz":
         raise InvalidInputError(f"INPUT must be a .npz with elevation, lat and lon arrays, or a raster in degrees "
                                 f"({' '.join(GDAL_FORMATS)}, or a .zip or .gz of one); got {path!r}")
@@ -240,6 +247,11 @@ def _load_grid(path: str, height_unit: str | None = None) -> tuple[np.ndarray, n
             hits = equals_nodata(elevation, nodata)
         missing = hits if missing is None else hits | missing
         marked_by.insert(0, f"nodata {nodata:g}")
+    if nodata_given and elevation.dtype.kind in "iuf":  # --nodata, compared as the file's own nodata is
+        hits = given_nodata(elevation, nodata_given)
+        if hits is not None and hits.any():
+            missing = hits if missing is None else hits | missing
+            marked_by.insert(0, f"--nodata {','.join(f'{v:g}' for v in nodata_given)}")
     if missing is not None and missing.any():
         row, col = np.argwhere(missing)[0]
         cells = _counted(int(missing.sum()), "nodata cell")
@@ -257,22 +269,23 @@ def _load_grid(path: str, height_unit: str | None = None) -> tuple[np.ndarray, n
 
 
 def _load_geotiff_grid(
-    file: Path, height_unit: str | None = None,
+    file: Path, height_unit: str | None = None, nodata: Sequence[float] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, _Body | None]:
     """A global GeoTIFF (or any raster of io.GDAL_FORMATS) in a geographic CRS as (lat, lon, elevation, body): the
-    heights as load_dem reads them (nodata, an internal mask, scale and offset, a height unit, a .prj; missing cells
-    as NaN, which the globe refuses: fill them first), and the node degrees of its rows and columns from the degrees
-    it read (stored order: north-first for a north-up file, longitudes 0..360 or -180..180 as the file has them). It
-    was refused as not an .npz: a GIS user's global grid (ETOPO, GEBCO) is a GeoTIFF. load_dem's warning that its
-    local metres err far from the equator is left out: the globe reads degrees. ``body``: the body of another CRS than
-    the earth's (Mars, the Moon), its radius the sphere load_dem made its degrees metres on, else None."""
+    heights as load_dem reads them (nodata, ``nodata`` besides, an internal mask, scale and offset, a height unit, a
+    .prj; missing cells as NaN, which the globe refuses: fill them first), and the node degrees of its rows and
+    columns from the degrees it read (stored order: north-first for a north-up file, longitudes 0..360 or -180..180
+    as the file has them). It was refused as not an .npz: a GIS user's global grid (ETOPO, GEBCO) is a GeoTIFF.
+    load_dem's warning that its local metres err far from the equator is left out: the globe reads degrees.
+    ``body``: the body of another CRS than the earth's (Mars, the Moon), its radius the sphere load_dem made its
+    degrees metres on, else None."""
     import warnings
 
     from .io import EARTH_RADIUS_M, _lonlat_grid, _spherical_eqc, load_dem, raster_header
 
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=r".* degrees read as local metres with one spacing")
-        terrain = load_dem(file, height_unit=height_unit)
+        terrain = load_dem(file, height_unit=height_unit, nodata=nodata)
     eqc = _spherical_eqc(terrain.crs)
     lonlat = _lonlat_grid(terrain)  # describe_dem's lonlat_step, without its passes over the heights
     step = lonlat[1] if lonlat else None
@@ -331,6 +344,9 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     if args.height_unit is not None and not args.input:
         raise InvalidInputError(f"--height-unit applies to an INPUT file; the embedded ETOPO 2022 relief is in metres; "
                                 f"got {args.height_unit!r}")
+    if args.nodata is not None and not args.input:
+        raise InvalidInputError(f"--nodata applies to an INPUT file; the embedded ETOPO 2022 relief has a height "
+                                f"everywhere; got --nodata {','.join(f'{v:g}' for v in args.nodata)}")
     metrics = tuple(m.strip() for m in (args.metrics if args.metrics is not None else ",".join(METRICS)).split(","))
     if "" in metrics:  # '' or 'geometric,,clip': a metric left out, not fewer metrics
         raise InvalidInputError(f"--metrics must be names among geometric, distance, clip separated by commas; "
@@ -430,7 +446,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
                                     smaller_texture="a smaller --texture image (resampled to fewer pixels)")
 
     progress.stage("load", f"loading {args.input or 'the embedded ETOPO 2022 relief (20 arc-minutes)'}")
-    lat, lon, elevation, body = _load_grid(args.input, args.height_unit) if args.input else \
+    lat, lon, elevation, body = _load_grid(args.input, args.height_unit, args.nodata) if args.input else \
         (*load_global_relief(), None)
     progress.done(f"{elevation.shape[0]} x {elevation.shape[1]} lat/lon grid,")
     on, sphere = "", "--radius"

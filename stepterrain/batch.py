@@ -257,6 +257,9 @@ class _Options:
     #: the RGB encoding of PNG terrain tiles (:func:`~stepterrain.io.load_dem`'s ``height_encoding``); out of the repr
     #: as ``height_unit`` (:func:`_fingerprints` adds it when set)
     height_encoding: str | None = dataclasses.field(default=None, repr=False)
+    #: the values marking the DEM files' missing cells besides their own nodata (:func:`~stepterrain.io.load_dem`'s
+    #: ``nodata``); out of the repr as ``height_unit`` (the metadata's ``nodata`` records it for the fingerprint)
+    nodata: tuple[float, ...] = dataclasses.field(default=(), repr=False)
     #: the caller's working folder, set for dask workers (:func:`_run_dask`): a relative output folder or DEM file
     #: is resolved against it on a worker that runs in another folder (:func:`_on_worker`); out of the repr
     cwd: str | None = dataclasses.field(default=None, repr=False)
@@ -337,8 +340,10 @@ def plan_items(
     band: int | None = None,
     crop: ArrayLike | None = None,
     height_encoding: str | None = None,
+    nodata: float | Sequence[float] | None = None,
 ) -> tuple[list[BatchItem], _Source | None]:
-    """The items :func:`batch` would run for ``source`` (see there), and the in-memory source they slice. A GeoTIFF
+    """The items :func:`batch` would run for ``source`` (see there; ``nodata``: its files', read here for a series or
+    a raster to tile), and the in-memory source they slice. A GeoTIFF
     (or another GDAL raster) cut into tiles is read only in the window of ``crop`` (load_dem's ``crop``: its nodes
     are those :meth:`Terrain.crop` keeps); other sources ignore it (:func:`batch` crops them after).
 
@@ -387,7 +392,7 @@ def plan_items(
         from .io import read_dem
 
         if tile_size is None:
-            series = load_series(path) if path.suffix.lower() in (".npy", ".npz") else None
+            series = load_series(path, nodata) if path.suffix.lower() in (".npy", ".npz") else None
             if series is not None:
                 if height_unit is not None:
                     raise InvalidInputError(
@@ -413,11 +418,12 @@ def plan_items(
             # a GDAL raster's crop: its window only (other files are cropped by _reshaped_source)
             window = crop if path.suffix.lower() in GDAL_FORMATS else None
             terrain = read_dem(path, height_unit=height_unit, band=1 if band is None else band, crop=window,
-                               refuse=lambda whole: _check_crop(whole, crop), height_encoding=height_encoding)
+                               refuse=lambda whole: _check_crop(whole, crop), height_encoding=height_encoding,
+                               nodata=nodata)
         except DataFileError:
             # a (T, H, W) series file with tile_size said "cannot read ...: expected a 2-D (H, W) elevation grid",
             # as if the file were broken; a series in memory says what the option is for
-            series = _series_or_none(path)
+            series = _series_or_none(path, nodata)
             if series is not None:
                 raise InvalidInputError(
                     f"tile_size applies to one (H, W) raster; got a (T, H, W) series {series.shape} in "
@@ -503,7 +509,8 @@ def _unmatched_glob(path: Path) -> str:
             if any(ch in path.name for ch in "*?[") else "")
 
 
-def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
+def load_series(path: str | os.PathLike[str],
+                nodata: float | Sequence[float] | None = None) -> NDArray[np.float32] | None:
     """A (T, H, W) float32 stack from a ``.npy`` or ``.npz`` file (one 3-D array), or ``None`` if it holds 2-D.
 
     The file is read as :func:`~stepterrain.io.load_dem` reads a 2-D one: in an ``.npz`` the key it reads
@@ -517,10 +524,13 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
     an ``.npz`` series with a ``transform`` or other georeferencing keys (``crs``, ``dx``/``dy``,
     ``spacing``/``origin``, ``x``/``y``, ``lat``/``lon``, ...): a series is meshed unreferenced, as 1 m cells at
     (0, 0), and those keys were ignored without a word. An ``.npz``'s ``units`` converts the heights to metres as
-    :func:`~stepterrain.io.load_dem` converts them (a unit it does not know is a DataFileError)."""
+    :func:`~stepterrain.io.load_dem` converts them (a unit it does not know is a DataFileError). ``nodata``:
+    value(s) marking missing cells besides the file's own, as load_dem's ``nodata`` (compared in the stored dtype;
+    not a real number: an InvalidInputError)."""
     from .io import (
         _heights_in_metres,
         _npz_text,
+        check_nodata,
         nodata_as_nan,
         npz_georeference_keys,
         npz_missing,
@@ -530,6 +540,7 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
         refuse_npz_scaling,
     )
 
+    given = check_nodata(nodata)
     file = Path(os.fspath(path))
     loaded = read_npy(file, mmap_mode="r") if file.suffix.lower() == ".npy" else read_npz(file)
     missing = None
@@ -556,7 +567,7 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
                             "expected real heights with H, W >= 2")
     if not isinstance(loaded, np.ndarray):  # a mask's cells were read as heights (0 or -32768 pits) in every frame
         missing = npz_missing(loaded, key, file, series=True)
-    heights = nodata_as_nan(stack, file, what, nodata, missing)  # as load_dem reads a 2-D file
+    heights = nodata_as_nan(stack, file, what, nodata, missing, given=given)  # as load_dem reads a 2-D file
     if not isinstance(loaded, np.ndarray):  # 'units' = "ft" was meshed as metres, 3.3 times too high
         heights, _ = _heights_in_metres(heights, _npz_text(loaded, "units", file), file, "its 'units'")
     return heights
@@ -575,12 +586,12 @@ def _series_key(arrays: Mapping[str, Any]) -> str | None:
     return key
 
 
-def _series_or_none(path: Path) -> NDArray[np.float32] | None:
+def _series_or_none(path: Path, nodata: float | Sequence[float] | None = None) -> NDArray[np.float32] | None:
     """The (T, H, W) series in an .npy or .npz file that load_dem refused, else None (not a series, or no good)."""
     if path.suffix.lower() not in (".npy", ".npz"):
         return None
     try:
-        return load_series(path)
+        return load_series(path, nodata)
     except DataFileError:
         return None
 
@@ -686,14 +697,15 @@ def _tile_items(shape: tuple[int, ...], tile_size: int | tuple[int, int]) -> lis
 # ---------------------------------------------------------------------------------------------- one item
 def _item_terrain(item: BatchItem, source: _Source | None, height_unit: str | None = None,
                   spacing: tuple[float, float] | None = None, coarsen: int | None = None,
-                  band: int | None = None, height_encoding: str | None = None) -> Terrain:
+                  band: int | None = None, height_encoding: str | None = None,
+                  nodata: Sequence[float] = ()) -> Terrain:
     if item.kind == "file":
         from .io import read_dem
 
         # a file of nodata only (a tile of sea cut from a coastal raster) is read, all NaN: an empty item, as a tile
         # of one raster is, not refused as not elevation data as load_dem refuses it
         terrain = read_dem(item.path, height_unit=height_unit, band=1 if band is None else band,  # type: ignore[arg-type]
-                           nodata_only=True, height_encoding=height_encoding)
+                           nodata_only=True, height_encoding=height_encoding, nodata=nodata or None)
         if spacing is not None:
             _check_unreferenced(terrain.crs, terrain.spacing, terrain.origin, str(item.path))
             terrain = Terrain.from_heights(terrain.heights, spacing=spacing, source=terrain.source,
@@ -1003,7 +1015,7 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
     try:
         if terrain is None:
             terrain = _item_terrain(read, source, options.height_unit, options.file_spacing, options.coarsen,
-                                    options.band, options.height_encoding)  # fmt: skip
+                                    options.band, options.height_encoding, options.nodata)  # fmt: skip
         frame = dict(options.frames).get(item.key)
         if frame is not None:
             terrain = _in_frame(terrain, frame)
@@ -1446,6 +1458,8 @@ def _range_key(identity: str, options: _Options) -> str:
             None if options.file_spacing is None else list(options.file_spacing)]  # fmt: skip
     if options.height_encoding is not None:  # the keys of runs without it unchanged
         read.append(options.height_encoding)
+    if options.nodata:  # the cells read as missing: another height range (the keys of runs without it unchanged)
+        read.append(["nodata", list(options.nodata)])
     return hashlib.blake2b(json.dumps([identity, read]).encode(), digest_size=16).hexdigest()
 
 
@@ -1896,6 +1910,7 @@ def batch(
     device: wp.DeviceLike = None,
     overview_size: tuple[int, int] | None = None,
     height_encoding: str | None = None,
+    nodata: float | Sequence[float] | None = None,
 ) -> BatchReport:
     """Step many terrains, one mesh file each, on dask.distributed (or serially).
 
@@ -2007,6 +2022,11 @@ def batch(
         The RGB encoding of PNG terrain tiles among the DEM files, as :func:`~stepterrain.io.load_dem` takes it:
         ``"terrain-rgb"`` or ``"terrarium"`` (a file that is no PNG refuses it: its item fails, naming it). Recorded
         as ``height_encoding`` in every output's metadata. Not for arrays, Terrains or (T, H, W) series.
+    nodata : float or sequence of floats, optional
+        Value(s) marking missing cells of every DEM file (a folder, a list, one raster file cut into tiles, or a
+        (T, H, W) series file) besides each file's own nodata and mask, as :func:`~stepterrain.io.load_dem` takes
+        it (compared with the values as stored); the shared levels' height range is read with it too. Recorded as
+        ``nodata`` (a list) in every output's metadata. Not for arrays or Terrains (their NaN are missing).
     device : warp device, optional
         Where each worker runs the kernels (default: Warp's default device on that worker): a name ("cpu",
         "cuda:0") or a ``warp.Device``. With ``scheduler="serial"`` the items run in this process, so an unknown or
@@ -2164,6 +2184,17 @@ def batch(
                 f"band applies to DEM files (a GeoTIFF's bands), read by load_dem; got a {type(source).__name__} "
                 f"source, which holds one band; got band={band}"
             )
+    if nodata is not None:
+        from .io import check_nodata
+
+        given = check_nodata(nodata)
+        if not _of_files(source):
+            raise InvalidInputError(
+                f"nodata applies to DEM files, read by load_dem; got a {type(source).__name__} source (its NaN "
+                f"heights are its missing cells); got nodata={nodata!r}"
+            )
+    else:
+        given = ()
     if height_encoding is not None:
         from .io import check_height_encoding
 
@@ -2186,7 +2217,7 @@ def batch(
     windowed = crop is not None and spacing is None and tile_size is not None and isinstance(
         source, (str, os.PathLike)) and Path(os.fspath(source)).suffix.lower() in GDAL_FORMATS
     items, src = plan_items(source, tile_size=tile_size, height_unit=height_unit, band=band,
-                            crop=crop if windowed else None, height_encoding=height_encoding)
+                            crop=crop if windowed else None, height_encoding=height_encoding, nodata=given or None)
     own = _LIBRARY_KEYS | {key for item in items[:1] for key in _item_metadata(item)}
     if taken := sorted(set(extras) & own):  # the library's value replaced the caller's without a word, or the
         raise InvalidInputError(  # caller's the mesh's own (isovalues, gamma, CRS)
@@ -2200,6 +2231,8 @@ def batch(
         recorded["band"] = band
     if height_encoding is not None:  # the colours the files' heights were decoded from
         recorded["height_encoding"] = height_encoding
+    if given:  # the values read as missing besides the files' own nodata
+        recorded["nodata"] = list(given)
     if origin is not None and (files or src is None or not isinstance(source, np.ndarray | list | tuple)):
         raise InvalidInputError("origin applies to an array source; a file, a folder or a Terrain has its own")
     if spacing is not None and files:  # a file without georeferencing: load_dem's 1 m cells, rows north to south
@@ -2262,7 +2295,8 @@ def batch(
         floor=None if floor is None else float(floor), ext=ext, device=None if device is None else str(device),
         metadata=tuple(sorted({**extras, **recorded}.items())), height_unit=height_unit,
         file_spacing=file_spacing, coarsen=coarsen if src is None else None,  # a source's: coarsened already
-        band=band, height_encoding=height_encoding, several_files=sum(item.kind == "file" for item in items) > 1,
+        band=band, height_encoding=height_encoding, nodata=given,
+        several_files=sum(item.kind == "file" for item in items) > 1,
     )  # fmt: skip
     if interval is not None:  # the isovalues are base + k * interval: both recorded (a long list keeps its ends only)
         steps = (("interval", float(interval)), ("base", float(base)))
@@ -2623,7 +2657,8 @@ def _file_range(item: BatchItem, options: _Options, retries: int, kept: _Kept | 
                 with _RECORDING, warnings.catch_warnings(record=True) as caught:
                     warnings.simplefilter("default")
                     terrain = _item_terrain(item, None, options.height_unit, options.file_spacing,
-                                            options.coarsen, options.band, options.height_encoding)  # fmt: skip
+                                            options.coarsen, options.band, options.height_encoding,
+                                            options.nodata)  # fmt: skip
             finally:
                 for w in caught:
                     if str(w.message) in said:

@@ -249,6 +249,27 @@ def _add_band(p: argparse.ArgumentParser) -> None:
                         "from (default 1, as GDAL's tools read it); .npy, .npz and PNG hold one band")
 
 
+def _nodata_values(text: str) -> list[float]:
+    """A ``--nodata``: one number or several, comma-separated (``-9999,-32768``), checked before any file is read."""
+    values = []
+    for part in text.split(","):
+        try:
+            values.append(float(part))
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"expected a number or comma-separated numbers (the values of missing cells); got {text!r}") from None
+    return values
+
+
+def _add_nodata(p: argparse.ArgumentParser, what: str = "the INPUT") -> None:
+    """``--nodata``: load_dem's ``nodata``, values marking missing cells of ``what`` besides its own nodata."""
+    p.add_argument("--nodata", type=_nodata_values, action="extend", default=None, metavar="V[,V...]",
+                   help=f"value(s) marking missing cells of {what} besides its own nodata value and mask, as "
+                        "`gdal_edit.py -a_nodata V` would declare them: compared with the values as stored (a "
+                        "GeoTIFF band's before its scale and offset, in its dtype); repeat it or give a "
+                        "comma-separated list: --nodata -9999,-32768 (default: none, the file's own nodata only)")
+
+
 def _height_encoding(text: str) -> str:
     """A ``--height-encoding``: one of load_dem's :data:`~stepterrain.io.HEIGHT_ENCODINGS`, checked before any file
     is read."""
@@ -315,6 +336,7 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
     _add_height_unit(p)
     _add_band(p)
     _add_height_encoding(p)
+    _add_nodata(p, "the INPUT (or the embedded DEM)")
     p.add_argument("--spacing", type=_cell_size, metavar="D|dx,dy",
                    help="the node spacing in metres of an INPUT with no georeferencing (.npy, a PNG heightmap, a "
                         "GeoTIFF without a geotransform), read as 1 m otherwise; rows run north to south")
@@ -329,13 +351,14 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
 
 def _load_input(path: str | None, height_unit: str | None, *, spacing: Sequence[float] | None = None,
                 crop: Sequence[float] | None = None, coarsen: int | None = None, band: int | None = None,
-                height_encoding: str | None = None) -> Any:
-    """The DEM at ``path`` (``--height-unit``, ``--band`` and ``--height-encoding`` applied), else the embedded one
-    (where a unit, a band or an encoding is refused); then ``--spacing`` (a grid load_dem could not place),
+                height_encoding: str | None = None, nodata: Sequence[float] | None = None) -> Any:
+    """The DEM at ``path`` (``--height-unit``, ``--band``, ``--height-encoding`` and ``--nodata`` applied), else the
+    embedded one (where a unit, a band or an encoding is refused; ``--nodata`` applies to it as to a file); then
+    ``--spacing`` (a grid load_dem could not place),
     ``--crop`` (:meth:`Terrain.crop`) and ``--coarsen`` (:meth:`Terrain.coarsen`, block means). A file's ``--crop``
     without ``--spacing`` is load_dem's ``crop``: a GeoTIFF's (or another GDAL raster's) window is all that is read (a
     crop of a file over the memory budget), the same nodes."""
-    from .io import own_placement, read_dem, sample_dem
+    from .io import _sample_dem, own_placement, read_dem
 
     def refuse(whole: Any) -> None:
         assert crop is not None
@@ -345,7 +368,7 @@ def _load_input(path: str | None, height_unit: str | None, *, spacing: Sequence[
     if path:  # load_dem, with --crop unless --spacing must place the grid first
         terrain = read_dem(path, band=1 if band is None else band, height_unit=height_unit,
                            crop=crop if spacing is None else None, option="--crop", refuse=refuse,
-                           height_encoding=height_encoding)
+                           height_encoding=height_encoding, nodata=nodata)
         if spacing is None:
             crop = None  # done
     elif height_unit is not None:
@@ -357,7 +380,7 @@ def _load_input(path: str | None, height_unit: str | None, *, spacing: Sequence[
         raise InvalidInputError(f"--height-encoding applies to an RGB PNG INPUT; the embedded DEM holds heights; "
                                 f"got {height_encoding!r}")
     else:
-        terrain = sample_dem()
+        terrain = _sample_dem(nodata)
     if spacing is not None:
         placed = own_placement(terrain.crs, terrain.spacing, terrain.origin)
         if placed is not None:
@@ -419,7 +442,7 @@ def _refuse_gdal_order(terrain: Any, crop: Sequence[float]) -> None:
 def _input_terrain(args: argparse.Namespace) -> Any:
     """The INPUT DEM of a subcommand with :func:`_add_input_options`, its options applied (:func:`_load_input`)."""
     return _load_input(args.input, args.height_unit, spacing=args.spacing, crop=args.crop, coarsen=args.coarsen,
-                       band=args.band, height_encoding=args.height_encoding)
+                       band=args.band, height_encoding=args.height_encoding, nodata=args.nodata)
 
 
 def _add_device(p: argparse.ArgumentParser, where: str = "") -> None:
@@ -438,6 +461,8 @@ def _input_metadata(args: argparse.Namespace) -> dict[str, Any]:
         metadata["band"] = int(args.band)
     if args.height_encoding is not None:  # the colours its heights were decoded from
         metadata["height_encoding"] = args.height_encoding
+    if args.nodata is not None:  # the values read as missing besides the file's own nodata
+        metadata["nodata"] = [float(v) for v in args.nodata]
     if args.spacing is not None:
         # the DEM's (dx, dy) as Terrain.spacing, `info` and a heightfield mesh's own metadata give it: rows run north
         # to south, dy negative (--spacing 30 recorded (30, 30), and replaced a draped mesh's (30, -30))
@@ -634,6 +659,7 @@ def _add_info(commands: Any) -> None:
                               "none or one not known; not for a mesh")
     _add_band(p)
     _add_height_encoding(p)
+    _add_nodata(p, "a DEM (or the embedded one); not for a mesh")
     # the spacing steps', closeup's and texture's --spacing places a grid with: their --crop takes the coordinates
     # info prints, which it could not print for such a grid ("unrecognized arguments: --spacing 30")
     p.add_argument("--spacing", type=_cell_size, metavar="D|dx,dy",
@@ -1088,6 +1114,9 @@ def _run_info(args: argparse.Namespace, progress: Progress) -> int:
         if args.height_encoding is not None:
             raise InvalidInputError(f"--height-encoding applies to an RGB PNG DEM; {args.file!r} is a mesh file; got "
                                     f"--height-encoding {args.height_encoding!r}")
+        if args.nodata is not None:
+            raise InvalidInputError(f"--nodata applies to a DEM; {args.file!r} is a mesh file; got --nodata "
+                                    f"{','.join(f'{v:g}' for v in args.nodata)}")
         if args.spacing is not None:
             raise InvalidInputError(f"--spacing applies to a DEM with no georeferencing; {args.file!r} is a mesh "
                                     f"file; got --spacing {','.join(f'{v:g}' for v in args.spacing)}")
@@ -1097,7 +1126,7 @@ def _run_info(args: argparse.Namespace, progress: Progress) -> int:
 
         try:
             terrain = _load_input(args.file, args.height_unit, spacing=args.spacing, band=args.band,
-                                  height_encoding=args.height_encoding)
+                                  height_encoding=args.height_encoding, nodata=args.nodata)
         except InvalidInputError as exc:  # load_dem's refusal listed the DEM formats alone: info reads meshes too
             if "unknown DEM extension" not in str(exc):
                 raise

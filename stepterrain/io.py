@@ -109,6 +109,10 @@ _NPY_MAGIC = b"\x93NUMPY"
 #: Whether :func:`nodata_as_nan` reads a grid of nodata only as all NaN instead of refusing it: set by
 #: :func:`read_dem`'s ``nodata_only`` for its own read (this thread or task only).
 _NODATA_ONLY: contextvars.ContextVar[bool] = contextvars.ContextVar("stepterrain_nodata_only", default=False)
+#: :func:`load_dem`'s ``nodata``: the values the caller marks missing besides the file's own nodata and mask, set by
+#: :func:`read_dem` for its own read (this thread or task only; see :func:`check_nodata`).
+_GIVEN_NODATA: contextvars.ContextVar[tuple[float, ...]] = contextvars.ContextVar("stepterrain_given_nodata",
+                                                                                  default=())
 _ZIP_MAGIC = b"PK\x03\x04"
 _EMPTY_ZIP_MAGIC = b"PK\x05\x06"  # a zip with no members starts at its end-of-directory record: np.savez()
 _GEOGRAPHIC_CODES = frozenset({"EPSG:4326", "EPSG:4269", "EPSG:4258", "EPSG:4979", "OGC:CRS84", "CRS:84"})
@@ -142,6 +146,7 @@ _KNOWN_UNITS = "m, km, dm, cm, mm, ft (international foot), US survey foot"
 def load_dem(
     path: str | os.PathLike[str], *, band: int = 1, height_unit: str | None = None,
     crop: Sequence[float] | None = None, height_encoding: str | None = None,
+    nodata: float | Sequence[float] | None = None,
 ) -> Terrain:
     """Read an elevation raster into a :class:`Terrain`, choosing the reader by file extension.
 
@@ -222,6 +227,17 @@ def load_dem(
         the CRS of a ``.prj`` beside it (``EPSG:3857`` for a web-map tile, whose scale warning follows); without one
         it is unreferenced, as a greyscale PNG is. Without ``height_encoding`` an RGB PNG is refused (the message
         names the encodings); with it a greyscale or 16-bit-per-channel PNG, or a file that is no local PNG, is.
+    nodata : float or sequence of floats, optional
+        Value(s) marking missing cells besides the file's own nodata value and mask, which still apply (the CLI's
+        ``--nodata``): for a file whose nodata value was lost or never declared (``nodata=-9999``, or
+        ``nodata=(-9999, -32768)``), as ``gdal_edit.py -a_nodata`` would declare it, without editing the file.
+        Compared, as GDAL compares a nodata value, with the values as stored: a GeoTIFF band's before its scale and
+        offset, exactly, in the band's own dtype (a float32 band's cells with the float32 rounding of the value, an
+        integer band's with the value itself: 0.5 marks no cell of one); a PNG's grey values as Pillow reads them
+        (0-255, 0-65535), an RGB terrain tile's decoded heights (Terrarium's void, black, is -32768). Its cells are
+        NaN and no warning of an undeclared nodata (see Warns) names that value; a value that no cell holds changes
+        nothing. NaN and ±inf are accepted and change nothing (non-finite cells are nodata anyway). Not a real
+        number (a string, a bool) is refused.
 
     Returns
     -------
@@ -306,7 +322,8 @@ def load_dem(
         ``.npy``/``.npz``/``.png``, or another extension, says what GDAL is asked to read), ``band`` not a valid band
         number, ``height_encoding`` not one of :data:`HEIGHT_ENCODINGS` (the message lists them) or given for a file
         that is no local PNG or with a ``height_unit`` other than the metre,
-        ``height_unit`` not a known length unit (the message lists them), or a ``crop`` that
+        ``height_unit`` not a known length unit (the message lists them), ``nodata`` not a real number nor a
+        sequence of them, or a ``crop`` that
         :meth:`Terrain.crop <stepterrain.terrain.Terrain.crop>` refuses (its message after ``crop:``).
     DataFileError
         The file does not exist, cannot be read (a GDAL raster whose path is not UTF-8, as GDAL takes names; a
@@ -363,25 +380,55 @@ def load_dem(
     >>> st.load_dem(path, crop=(1.0, 2.0, -2.0, -1.0)).heights.tolist()
     [[5.0, 6.0], [9.0, 10.0]]
     """
-    return read_dem(path, band=band, height_unit=height_unit, crop=crop, height_encoding=height_encoding)
+    return read_dem(path, band=band, height_unit=height_unit, crop=crop, height_encoding=height_encoding,
+                    nodata=nodata)
 
 
 def read_dem(
     path: str | os.PathLike[str], *, band: int = 1, height_unit: str | None = None,
     crop: Sequence[float] | None = None, option: str = "crop", refuse: Callable[[Terrain], None] | None = None,
-    nodata_only: bool = False, height_encoding: str | None = None,
+    nodata_only: bool = False, height_encoding: str | None = None, nodata: float | Sequence[float] | None = None,
 ) -> Terrain:
     """:func:`load_dem`, its ``crop`` refusals named ``option`` (the CLI's "--crop") and, with ``crop``, ``refuse``
     called with the whole grid before it is cropped (for a GeoTIFF, a
     :meth:`~stepterrain.terrain.Terrain._geometry_only`: geometry and CRS, no heights), to refuse a crop the
     caller's own way before any pixel of it is read. ``nodata_only``: a grid of nodata only is read (all heights
     NaN, placed as any other) instead of refused as not elevation data: a batch's tile file of sea off a coast, an
-    empty item (:mod:`stepterrain.batch`)."""
+    empty item (:mod:`stepterrain.batch`). ``nodata``: :func:`load_dem`'s, checked first (:func:`check_nodata`)."""
+    given = check_nodata(nodata)
     token = _NODATA_ONLY.set(nodata_only)
+    given_token = _GIVEN_NODATA.set(given)
     try:
         return _read_dem(path, band, height_unit, crop, option, refuse, height_encoding)
     finally:
+        _GIVEN_NODATA.reset(given_token)
         _NODATA_ONLY.reset(token)
+
+
+def check_nodata(nodata: Any, name: str = "nodata") -> tuple[float, ...]:
+    """:func:`load_dem`'s ``nodata`` (``name`` in the message: the CLI's ``--nodata``) as a tuple of floats: () for
+    None, one real number (a Python or NumPy int or float; a 0-d or 1-D array) or a sequence of them. A string, a
+    bool, a complex or another object is an InvalidInputError naming ``name``, what it expects and what it got: a
+    ``nodata="-9999"`` compared with no cell, silently. NaN and ±inf are kept (they match no finite cell; non-finite
+    cells are nodata anyway)."""
+    if nodata is None:
+        return ()
+    expected = f"{name} must be a real number or a sequence of real numbers (the values of missing cells)"
+    values = list(nodata) if isinstance(nodata, (list, tuple)) or (
+        isinstance(nodata, np.ndarray) and nodata.ndim == 1) else [nodata]
+    if not values:
+        raise InvalidInputError(f"{expected}, or None for none; got an empty {type(nodata).__name__}")
+    out = []
+    for value in values:
+        if isinstance(value, np.ndarray) and value.ndim == 0:
+            value = value[()]
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+            raise InvalidInputError(f"{expected}; got {value!r} of type {type(value).__name__}")
+        try:
+            out.append(float(value))
+        except OverflowError:  # an int beyond float64 (10**400): no cell of any dtype holds it
+            raise InvalidInputError(f"{expected} within float64; got {value!r}") from None
+    return tuple(dict.fromkeys(out))
 
 
 def _read_dem(
@@ -597,9 +644,14 @@ def sample_dem() -> Terrain:
     >>> t.spacing, t.crs, t.height_range
     ((30.0, -30.0), 'EPSG:32611', (315.0, 2295.0))
     """
+    return _sample_dem()
+
+
+def _sample_dem(nodata: float | Sequence[float] | None = None) -> Terrain:
+    """:func:`sample_dem`, with :func:`load_dem`'s ``nodata`` (the CLI's ``--nodata`` without an INPUT)."""
     resource = importlib.resources.files("stepterrain") / "data" / _SAMPLE_NAME
     with importlib.resources.as_file(resource) as file:
-        return load_dem(file)
+        return read_dem(file, nodata=nodata)
 
 
 def describe_dem(terrain: Terrain) -> dict[str, Any]:
@@ -1530,6 +1582,11 @@ def _load_geotiff(
     if unmasked is not None:
         mask = unmasked if mask is np.ma.nomask else np.logical_or(mask, unmasked, out=unmasked)
     del unmasked
+    # load_dem's nodata, compared with the values as stored, as the file's own nodata is (GDAL's convention)
+    given = given_nodata(masked.data, _GIVEN_NODATA.get(), None if mask is np.ma.nomask else mask)
+    if given is not None:
+        mask = given
+    del given
     _warn_void_values(file, masked.data, None if mask is np.ma.nomask else mask, f"band {band}")
     stored = None
     if scale != 1.0 or offset != 0.0:  # stored values -> heights, GDAL's convention: value * scale + offset
@@ -1544,7 +1601,8 @@ def _load_geotiff(
         np.copyto(array, np.nan, where=mask)
     del mask
     try:
-        heights = _elevation(array, file, f"band {band}", warn_voids=False, stored=stored)  # warned above, as stored
+        # warned above, and its given nodata applied, as stored
+        heights = _elevation(array, file, f"band {band}", warn_voids=False, stored=stored, given=())
     except Exception:
         if window is not None and not np.isfinite(array).any():  # as Terrain.crop refuses it
             raise InvalidInputError(f"{option}: {crop_of_nodata(bounds, array.shape)}") from None
@@ -1760,6 +1818,21 @@ def equals_nodata(array: NDArray[Any], nodata: float) -> NDArray[np.bool_]:
     rounded to a float32 band's value); a nodata beyond the dtype (inf there) matches no finite cell: call under
     ``np.errstate(over="ignore")``."""
     return array == (array.dtype.type(nodata) if array.dtype.kind == "f" else nodata)
+
+
+def given_nodata(
+    array: NDArray[Any], given: Sequence[float], hits: NDArray[np.bool_] | None = None,
+) -> NDArray[np.bool_] | None:
+    """``hits`` (None: no cell) with the cells of ``array`` equal to one of ``given`` (:func:`load_dem`'s ``nodata``,
+    compared as :func:`equals_nodata` compares a file's) marked too; non-finite values are passed over (NaN matches
+    no cell, and an inf cell is nodata anyway). In place where ``hits`` is an array."""
+    for value in given:
+        if not math.isfinite(value):
+            continue
+        with np.errstate(over="ignore"):  # a value beyond the dtype (1e40 in float32) is inf there: no finite cell
+            hit = equals_nodata(array, value)
+        hits = hit if hits is None else np.logical_or(hits, hit, out=hits if hits.flags.writeable else None)
+    return hits
 
 
 def _missing_beyond_gdal_mask(
@@ -2102,10 +2175,12 @@ def npz_missing(
 def _elevation(
     array: NDArray[Any], file: Path, what: str, nodata: float | None = None,
     missing: NDArray[np.bool_] | None = None, *, warn_voids: bool = True, stored: _Stored | None = None,
+    given: Sequence[float] | None = None,
 ) -> NDArray[np.float32]:
     """Check that ``array`` is an (H, W) real grid of at least 2 x 2 nodes; float32 with NaN nodata
     (non-finite values, cells equal to ``nodata``, compared in the array's own dtype, and cells True in
-    ``missing``, of the array's shape). ``warn_voids`` and ``stored``: see :func:`nodata_as_nan`."""
+    ``missing``, of the array's shape). ``warn_voids``, ``stored`` and ``given`` (None: :func:`read_dem`'s
+    ``nodata``): see :func:`nodata_as_nan`."""
     where = f"cannot read {str(file)!r}"
     if array.dtype == np.bool_ or array.dtype.kind not in "iuf":
         raise DataFileError(
@@ -2119,7 +2194,8 @@ def _elevation(
         raise DataFileError(
             f"{where}: expected an elevation grid of at least 2 x 2 nodes; got {what} of shape {array.shape}"
         )
-    return nodata_as_nan(array, file, what, nodata, missing, warn_voids=warn_voids, stored=stored)
+    return nodata_as_nan(array, file, what, nodata, missing, warn_voids=warn_voids, stored=stored,
+                         given=_GIVEN_NODATA.get() if given is None else given)
 
 
 def _warn_void_values(file: Path, data: NDArray[Any], missing: NDArray[np.bool_] | None, what: str) -> None:
@@ -2289,17 +2365,18 @@ def _declare_nodata(file: Path, value: str) -> str:
     """How to declare ``value`` (as written in full) the nodata of ``file``, by its format: ``gdal_edit.py`` for a
     GeoTIFF, ``gdal_translate`` to one for another GDAL raster or one GDAL reads through a virtual path (a local
     ``.gz`` or zip, ``/vsizip/``, a URL: gdal_edit.py cannot write inside an archive, and no ``dem.tif`` lies there
-    to edit), an .npz ``nodata`` otherwise (:func:`load_dem` and the CLI take no nodata of their own). The paths
-    are quoted for a shell ("my dem.tif")."""
+    to edit), an .npz ``nodata`` otherwise; then, for this read alone, :func:`load_dem`'s ``nodata`` (the CLI spells
+    ``nodata=-9999`` as its ``--nodata``). The paths are quoted for a shell ("my dem.tif")."""
     suffix = file.suffix.lower()
     tif = shlex.quote(f"{file.stem}.tif")
+    given = f", or pass nodata={value}"
     if isinstance(file, GdalPath):  # read from the path GDAL reads, written beside the working folder
-        return f"`gdal_translate -a_nodata {value} {shlex.quote(os.fspath(file))} {tif}`"
+        return f"`gdal_translate -a_nodata {value} {shlex.quote(os.fspath(file))} {tif}`{given}"
     name = shlex.quote(file.name)
     return (f"`gdal_edit.py -a_nodata {value} {name}`" if suffix in (".tif", ".tiff") else
             f"`gdal_translate -a_nodata {value} {name} {tif}`" if suffix in GDAL_FORMATS else
             f"save a 'nodata' of {value} beside the heights" if suffix == ".npz" else
-            f"save it as an .npz with a 'nodata' of {value}")
+            f"save it as an .npz with a 'nodata' of {value}") + given
 
 
 #: A GeoTIFF band's stored dtype, scale and offset, where its heights were scaled (:func:`_undeclared_sentinel`).
@@ -2348,6 +2425,7 @@ def _undeclared_sentinel(
 def nodata_as_nan(
     array: NDArray[Any], file: Path, what: str, nodata: float | None = None,
     missing: NDArray[np.bool_] | None = None, *, warn_voids: bool = True, stored: _Stored | None = None,
+    given: Sequence[float] = (),
 ) -> NDArray[np.float32]:
     """Real ``array`` (any shape: a (T, H, W) series too) as C-contiguous float32 with NaN nodata: non-finite
     values, cells equal to ``nodata`` (compared in the array's own dtype) and cells True in ``missing`` (a boolean
@@ -2356,11 +2434,14 @@ def nodata_as_nan(
     DataFileError naming ``file`` and ``what``. A read-only array (a memory map) is read into memory.
     ``warn_voids``: :func:`_warn_void_values` on ``array`` (False where the caller warned on the values as stored: a
     GeoTIFF's band, before its scale and offset). ``stored``: a scaled band's stored dtype, scale and offset, by
-    which a refusal of values beyond float32 names them as stored (:func:`_undeclared_sentinel`)."""
+    which a refusal of values beyond float32 names them as stored (:func:`_undeclared_sentinel`). ``given``: the
+    caller's nodata values (:func:`load_dem`'s ``nodata``), compared as ``nodata`` is, missing too (no warning nor
+    refusal names them)."""
     hits = None
     if nodata is not None:
         with np.errstate(over="ignore"):  # a nodata beyond the dtype (1e40, -99999 in float16) is inf: no finite cell
             hits = equals_nodata(array, nodata)
+    hits = given_nodata(array, given, hits)
     if missing is not None:
         hits = missing.copy() if hits is None else np.logical_or(hits, missing, out=hits)
     if warn_voids:

@@ -77,7 +77,8 @@ def test_an_undeclared_common_nodata_value_far_from_the_heights_is_named_with_th
         terrain, told = _told(tmp_path / name)
         assert [str(w.message) for w in told] == [
             f"{name}: {n} cells of {what} hold {text}, a common nodata value, {where}, which marks voids, but no "
-            f"nodata value or mask of the file marks them: read as heights; if they are voids, declare it ({fix})"]
+            f"nodata value or mask of the file marks them: read as heights; if they are voids, declare it ({fix}, or "
+            f"pass nodata={text})"]
         assert told[0].filename == __file__  # said at load_dem's caller
         np.testing.assert_array_equal(terrain.heights, z.astype(np.float32))  # still read as stored, as GDAL does
     # the value named, declared as the hint says, marks exactly those cells, and nothing warns

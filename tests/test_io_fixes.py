@@ -1644,7 +1644,7 @@ def test_the_lowest_value_of_a_signed_or_float_dtype_unmarked_by_nodata_is_named
     terrain, messages, caught = told(geotiff("voids.tif", z))
     assert messages == ["voids.tif: 2 cells of band 1 hold -32768, the lowest int16 value, which marks voids, but no "
                         "nodata value or mask of the file marks them: read as heights; if they are voids, declare it "
-                        "(`gdal_edit.py -a_nodata -32768 voids.tif`)"]
+                        "(`gdal_edit.py -a_nodata -32768 voids.tif`, or pass nodata=-32768)"]
     assert caught[0].filename == __file__
     np.testing.assert_array_equal(terrain.heights, z.astype(np.float32))  # read as stored, as documented
     assert told(geotiff("window.tif", z), crop=(500000, 500050, 3999900, 4000000))[1] == []  # a window without them
@@ -1658,15 +1658,17 @@ def test_the_lowest_value_of_a_signed_or_float_dtype_unmarked_by_nodata_is_named
     terrain, messages, _ = told(geotiff("undeclared.tif", f))
     assert messages == ["undeclared.tif: 2 cells of band 1 hold -3.4028235e+38, the lowest float32 value, which marks "
                         "voids, but no nodata value or mask of the file marks them: read as heights; if they are "
-                        "voids, declare it (`gdal_edit.py -a_nodata -3.4028235e+38 undeclared.tif`)"]
+                        "voids, declare it (`gdal_edit.py -a_nodata -3.4028235e+38 undeclared.tif`, or pass "
+                        "nodata=-3.4028235e+38)"]
     np.testing.assert_array_equal(terrain.heights, f)
     np.save(tmp_path / "lowest.npy", f)
     assert told(tmp_path / "lowest.npy")[1] == [
         "lowest.npy: 2 cells of array hold -3.4028235e+38, the lowest float32 value, which marks voids, but no nodata "
         "value or mask of the file marks them: read as heights; if they are voids, declare it (save it as an .npz with "
-        "a 'nodata' of -3.4028235e+38)"]
+        "a 'nodata' of -3.4028235e+38, or pass nodata=-3.4028235e+38)"]
     np.savez(tmp_path / "other.npz", elevation=z, nodata=-9999)  # another nodata value: the -32768 cells unmarked
-    assert told(tmp_path / "other.npz")[1][0].endswith("(save a 'nodata' of -32768 beside the heights)")
+    assert told(tmp_path / "other.npz")[1][0].endswith(
+        "(save a 'nodata' of -32768 beside the heights, or pass nodata=-32768)")
     np.savez(tmp_path / "masked.npz", elevation=z, mask=z == -32768)
     assert told(tmp_path / "masked.npz")[1] == []
     Image.fromarray(np.where(z < 0, 65535, z).astype(np.uint16)).save(tmp_path / "peak.png")
@@ -1702,7 +1704,7 @@ def test_float32_nodata_kept_in_a_float64_grid_is_named_as_a_likely_void(tmp_pat
         assert [str(w.message) for w in caught if "marks voids" in str(w.message)] == [
             f"{name}: {n_voids} cells of {what} hold {value}, the lowest float32 value (stored as float64), which "
             f"marks voids, but no nodata value or mask of the file marks them: read as heights; if they are voids, "
-            f"declare it ({hint})"]
+            f"declare it ({hint}, or pass nodata={value})"]
         np.testing.assert_array_equal(terrain.heights, z.astype(np.float32))  # still read as stored
     # the value named marks exactly those cells once declared, as the hint says
     np.savez(tmp_path / "declared.npz", elevation=z, nodata=float(value))
@@ -1736,18 +1738,20 @@ def test_float64_nodata_beyond_float32_undeclared_is_refused_naming_the_void_and
     value = repr(float(sentinel))
     extreme = "lowest" if sentinel < 0 else "highest"
     told = (f"in {int(voids.sum())} cells: the {extreme} float64 value, which marks voids, but no nodata value or "
-            f"mask of the file marks them; if they are voids, declare it (`gdal_edit.py -a_nodata {value} voids.tif`)")
+            f"mask of the file marks them; if they are voids, declare it (`gdal_edit.py -a_nodata {value} voids.tif`, "
+            f"or pass ")
     with pytest.raises(DataFileError, match=r"band 1 holds heights beyond float32") as caught:
         load_dem(path)
     i, j = np.argwhere(voids)[0]
-    assert str(caught.value).endswith(f"; got {value} at index ({i}, {j}), {told}")
+    assert str(caught.value).endswith(f"; got {value} at index ({i}, {j}), {told}nodata={value})")
     for command in ("info", "steps"):
         code = cli.main([command, str(path), "-o", str(tmp_path / "out.ply")][: 2 if command == "info" else 4])
         err = capsys.readouterr().err
-        assert code == 2 and err.rstrip().endswith(told) and "Traceback" not in err
+        assert code == 2 and err.rstrip().endswith(f"{told}--nodata {value})") and "Traceback" not in err
     assert not (tmp_path / "out.ply").exists()
     np.save(tmp_path / "voids.npy", z)
-    with pytest.raises(DataFileError, match=re.escape(f"(save it as an .npz with a 'nodata' of {value})")):
+    with pytest.raises(DataFileError,
+                       match=re.escape(f"(save it as an .npz with a 'nodata' of {value}, or pass nodata={value})")):
         load_dem(tmp_path / "voids.npy")
     with rasterio.open(path, "r+") as dataset:  # as the hint's gdal_edit.py does
         dataset.nodata = float(value)
@@ -1786,13 +1790,15 @@ def test_the_highest_float32_value_undeclared_warns_as_the_lowest_does(tmp_path,
     terrain, messages = told(path)
     assert messages == [f"top.tif: {n} cells of band 1 hold 3.4028235e+38, the highest float32 value, which marks "
                         "voids, but no nodata value or mask of the file marks them: read as heights; if they are "
-                        "voids, declare it (`gdal_edit.py -a_nodata 3.4028235e+38 top.tif`)"]
+                        "voids, declare it (`gdal_edit.py -a_nodata 3.4028235e+38 top.tif`, or pass "
+                        "nodata=3.4028235e+38)"]
     np.testing.assert_array_equal(terrain.heights, z)  # still read as stored
     np.save(tmp_path / "wide.npy", z.astype(np.float64))
     assert told(tmp_path / "wide.npy")[1] == [
         f"wide.npy: {n} cells of array hold 3.4028234663852886e+38, the highest float32 value (stored as float64), "
         "which marks voids, but no nodata value or mask of the file marks them: read as heights; if they are voids, "
-        "declare it (save it as an .npz with a 'nodata' of 3.4028234663852886e+38)"]
+        "declare it (save it as an .npz with a 'nodata' of 3.4028234663852886e+38, or pass "
+        "nodata=3.4028234663852886e+38)"]
     assert cli.main(["info", str(path)]) == 0
     out, err = capsys.readouterr()
     assert "the highest float32 value" in err and "height_range" in out and "nodata_count      0" in out
@@ -1819,7 +1825,7 @@ def test_a_lone_value_beyond_float32_is_refused_without_a_void_hint(tmp_path):
     with pytest.raises(DataFileError, match=re.escape(
             "got 1e+39 at index (1, 2), in 2 cells (and 1 other cell beyond float32): one value repeated beyond "
             "float32, no height: a mark of voids, but no nodata value or mask of the file marks them; if they "
-            "are voids, declare it (save a 'nodata' of 1e+39 beside the heights)")):
+            "are voids, declare it (save a 'nodata' of 1e+39 beside the heights, or pass nodata=1e+39)")):
         load_dem(tmp_path / "big.npz")
 
 
@@ -1903,7 +1909,7 @@ def test_undeclared_float64_void_under_a_band_scale_is_named_by_its_stored_value
     with pytest.raises(DataFileError, match=re.escape(
             f"in {int(voids.sum())} cells: the lowest float64 value as stored, which marks voids, but no nodata value "
             f"or mask of the file marks them; if they are voids, declare it (`gdal_edit.py -a_nodata {value} "
-            "scaled.tif`)")):
+            f"scaled.tif`, or pass nodata={value})")):
         load_dem(path)
     with rasterio.open(path, "r+") as dataset:
         dataset.nodata = float(value)
@@ -2317,5 +2323,5 @@ def test_undeclared_void_hint_quotes_a_file_name_with_a_space(tmp_path):
             warnings.simplefilter("always")
             load_dem(tmp_path / name)
         message = next(str(w.message) for w in caught if "marks voids" in str(w.message))
-        hint = re.search(r"declare it \(`([^`]*)`\)", message)
+        hint = re.search(r"declare it \(`([^`]*)`, or pass nodata=-3.4028235e\+38\)", message)
         assert hint and shlex.split(hint.group(1)) == words, message
