@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import shlex
 import zipfile
 from collections.abc import Sequence
 from pathlib import Path
@@ -292,6 +293,13 @@ def _load_geotiff_grid(
     if eqc is None or step is None or terrain.origin != (0.0, 0.0):
         raise InvalidInputError(f"INPUT {str(file)!r} must be a raster in a geographic CRS (degrees: EPSG:4326); got "
                                 f"CRS {terrain.crs or 'none'}; gdalwarp -t_srs EPSG:4326 makes it one")
+    if terrain.has_nodata:  # refused by Globe.from_latlon as "elevation has 1 NaN or infinite value", naming no
+        # INPUT and hiding that the file's own nodata cells were the NaN
+        missing = terrain.nodata_mask
+        row, col = np.argwhere(missing)[0]
+        raise InvalidInputError(f"INPUT {str(file)!r} has {_counted(int(missing.sum()), 'nodata cell')} (first at row "
+                                f"{row}, column {col}); a global grid cannot have holes: fill them first, e.g. "
+                                f"gdal_fillnodata.py {shlex.quote(str(file))} filled.tif, and give filled.tif")
     radius, _, lat_0, lon_0, _, _ = eqc  # node (0, 0), the origin of load_dem's local metres
     rows, cols = terrain.shape
     lat = lat_0 + step[1] * np.arange(rows, dtype=np.float64)

@@ -12,7 +12,8 @@ from typing import Any
 
 from .errors import DataFileError, InvalidInputError
 
-__all__ = ["as_path", "require_regular_file", "gdal_path", "GdalPath", "URL_FILE_SYSTEMS", "local_archive"]
+__all__ = ["as_path", "refuse_folder_name", "require_regular_file", "gdal_path", "GdalPath", "URL_FILE_SYSTEMS",
+           "local_archive"]
 
 
 def as_path(value: Any, name: str) -> Path:
@@ -21,6 +22,25 @@ def as_path(value: Any, name: str) -> Path:
         return Path(os.fspath(value))
     except TypeError as exc:
         raise InvalidInputError(f"{name} must be a str or os.PathLike; got {type(value).__name__}") from exc
+
+
+def refuse_folder_name(path: str, name: str) -> None:
+    """Raise InvalidInputError, naming the argument ``name``, when the output file name ``path`` ends the way only a
+    folder's does: in a folder separator (``x.glb/``) or in ``.`` or ``..`` (``x.glb/.``). pathlib drops a trailing
+    separator and a ``.`` (``Path("x.glb/") == Path("x.glb")``), so a writer given ``x.glb/``, meant as a folder,
+    wrote a file named ``x.glb``."""
+    separators = tuple(sep for sep in (os.sep, os.altsep) if sep)
+    split = re.compile("|".join(map(re.escape, separators)))
+    last = split.split(path)[-1]
+    ending = path[-1] if path.endswith(separators) else last if last in (".", "..") else None
+    if ending is None:
+        return
+    file = path
+    while file.endswith(separators) or split.split(file)[-1] == ".":  # 'x.glb/', 'x.glb/.', 'x.glb//' -> 'x.glb'
+        file = file[:-1]
+    meant = f"{file!r} to write that file, or " if file and not file.endswith(separators) and ending != ".." else ""
+    raise InvalidInputError(f"{name} {path!r} ends in {ending!r}, so it names a folder; expected a file name "
+                            f"({meant}the name of a file inside that folder)")
 
 
 def require_regular_file(file: Path, missing: str, irregular: str) -> None:

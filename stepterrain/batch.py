@@ -1484,7 +1484,11 @@ def _check_output_dir(output_dir: str | os.PathLike[str]) -> tuple[Path, list[Pa
     try:  # a name too long for the file system (ENAMETOOLONG) raised os.stat's bare OSError from exists()
         if folder.exists() and not folder.is_dir():
             raise DataFileError(f"output_dir {str(folder)!r} exists and is not a folder")
-        for path in (folder, *folder.parents):
+        # made where symbolic links lead, as export.atomic_path makes a file's: a dangling link to a folder
+        # (out -> /data/new, or one on the way) was refused "cannot create the output folder 'out': File exists"
+        # (mkdir of the link's own name)
+        resolved = Path(os.path.realpath(folder))
+        for path in (resolved, *resolved.parents):
             if path.exists():
                 break
             made.append(path)
@@ -1493,7 +1497,7 @@ def _check_output_dir(output_dir: str | os.PathLike[str]) -> tuple[Path, list[Pa
             raise
         raise DataFileError(f"cannot create the output folder {str(folder)!r}: {exc.strerror or exc}") from exc
     try:
-        folder.mkdir(parents=True, exist_ok=True)
+        resolved.mkdir(parents=True, exist_ok=True)
     except OSError as exc:  # unwritable_reason: /proc said "No such file or directory" of itself
         raise DataFileError(f"cannot create the output folder {str(folder)!r}: "
                             f"{unwritable_reason(exc, folder)}") from exc

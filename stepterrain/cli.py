@@ -32,6 +32,7 @@ from typing import Any, TextIO
 import numpy as np
 
 from ._compaction import SMALLER_HINT, budget_hint, get_memory_budget, set_memory_budget
+from ._files import refuse_folder_name
 from .errors import DataFileError, InvalidInputError, StepTerrainError, counted
 from .export import _STL_OPEN_LOCAL, _STL_ROUNDING_LOCAL, MESH_EXTENSIONS, _special_file_kind, probe_writable
 from .stepped import TARGET_STEPS, _default_isovalues, colormap, colormap_samples, nice_interval
@@ -680,6 +681,7 @@ def _isovalue_base(args: argparse.Namespace) -> float:
 
 
 def _check_output(path: str, extensions: Sequence[str], what: str) -> Path:
+    refuse_folder_name(path, what)  # 'x.glb/' (a folder meant) was written as the file x.glb: Path drops the '/'
     out = Path(path)
     if out.suffix.lower() not in extensions:
         # 'steps -o render.png' (closeup's and texture's --output take a .png): the picture has an option of its own

@@ -41,7 +41,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import check_budget
 from ._device import recycled_empty
-from ._files import as_path, require_regular_file
+from ._files import as_path, refuse_folder_name, require_regular_file
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, caller_stacklevel, counted
 from .mesh import mesh_argument
 from .terrain import FLOAT32_MAX, as_array, finite_number, real_numbers
@@ -2152,7 +2152,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         take (a length of 0), and a glTF without a scene, whose scene holds no node or whose
         ``scene`` names none, each said so.
     """
-    file = _target(path)
+    file = _target(path, output=False)
     require_regular_file(file, "mesh file", "mesh file")
     try:
         if file.suffix.lower() == ".3mf" and zipfile.is_zipfile(file):
@@ -2829,12 +2829,16 @@ def _3mf_rgba(text: str) -> tuple[int, int, int, int]:
 
 
 # ---------------------------------------------------------------------------------------------- helpers
-def _target(path: str | os.PathLike[str]) -> Path:
+def _target(path: str | os.PathLike[str], *, output: bool = True) -> Path:
     """``path`` as a Path, else an :class:`InvalidInputError`: not a str or path-like, or holding a NUL character
-    (which no file name can: tempfile's ValueError "embedded null byte" came out of the write)."""
+    (which no file name can: tempfile's ValueError "embedded null byte" came out of the write). An ``output`` path
+    that ends in a folder separator (``x.glb/``) or ``.`` is refused too: pathlib drops those, and a file ``x.glb``
+    was written where a folder was meant."""
     target = as_path(path, "path")
     if "\x00" in str(target):
         raise InvalidInputError(f"path must be a file name without NUL characters; got {str(target)!r}")
+    if output:
+        refuse_folder_name(os.fspath(path), "path")
     return target
 
 

@@ -22,7 +22,7 @@ import trimesh
 import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import InvalidInputError, MissingDependencyError, caller_stacklevel
+from .errors import InvalidInputError, MissingDependencyError, caller_stacklevel, counted
 from .terrain import Terrain, finite_or_nan, float32_heights, grid_faces
 
 __all__ = ["StepTerrainAccessor", "to_polydata", "from_polydata", "ELEVATION_NAMES", "RGBA_ALIAS"]
@@ -418,19 +418,32 @@ def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:
     ------
     InvalidInputError
         ``poly`` is not a PolyData, or holds cells other than triangles (vertices, lines, strips, polygons of
-        more corners: ``poly.triangulate()`` makes triangles of them).
+        more corners: ``poly.triangulate()`` makes triangles of the strips and polygons; vertices and lines beside
+        faces are removed first, ``poly.remove_cells(range(poly.n_verts + poly.n_lines))``; points alone, or
+        lines, have no face to triangulate: ``poly.delaunay_2d()`` makes a TIN of them).
     """
     from pyvista.core.dataobject import USER_DICT_KEY
 
     if not isinstance(poly, pv.PolyData):
         raise InvalidInputError(f"{name} must be a pyvista.PolyData; got {type(poly).__name__}")
     if poly.n_cells and not poly.is_all_triangles:
-        others = {"vertex cells": poly.n_verts, "lines": poly.n_lines, "strips": poly.n_strips,
-                  "polygons of 4 or more corners": int((np.diff(poly.GetPolys().GetOffsetsArray()) != 3).sum())
-                  if poly.GetNumberOfPolys() else 0}  # fmt: skip
-        found = ", ".join(f"{n} {kind}" for kind, n in others.items() if n)
-        raise InvalidInputError(f"{name} must be a PolyData of triangles only; got {found} (make triangles of "
-                                f"them with {name}.triangulate())")
+        polygons = int((np.diff(poly.GetPolys().GetOffsetsArray()) != 3).sum()) if poly.GetNumberOfPolys() else 0
+        others = {("vertex cell", None): poly.n_verts, ("line", None): poly.n_lines, ("strip", None): poly.n_strips,
+                  ("polygon of 4 or more corners", "polygons of 4 or more corners"): polygons}  # fmt: skip
+        found = ", ".join(counted(n, *kind) for kind, n in others.items() if n)  # "1 lines" said before
+        if not poly.GetNumberOfPolys() and not poly.n_strips:
+            # points (pv.PolyData(points) makes a vertex cell of each) or lines: no face for triangulate(), which
+            # drops vertex cells and lines and returned an empty mesh; a TIN of their points is what steps
+            raise InvalidInputError(f"{name} must be a PolyData of triangles only; got {found} and no faces, so "
+                                    f"{name}.triangulate() makes nothing of it; {name}.delaunay_2d() makes a TIN "
+                                    "(triangles) of its points")
+        if not poly.n_verts and not poly.n_lines:
+            raise InvalidInputError(f"{name} must be a PolyData of triangles only; got {found} ({name}.triangulate() "
+                                    "makes triangles of them)")
+        # triangulate() drops vertex cells but keeps lines beside faces that are all triangles (VTK's triangle
+        # filter): VTK numbers the vertex cells and lines first, so removing those ids leaves the faces alone
+        raise InvalidInputError(f"{name} must be a PolyData of triangles only; got {found} ({name}.remove_cells(range("
+                                f"{name}.n_verts + {name}.n_lines)).triangulate() keeps its faces alone, as triangles)")
     vertices = np.array(poly.points, dtype=np.float64)
     faces = np.array(poly.regular_faces, dtype=np.int64) if poly.n_cells else np.zeros((0, 3), np.int64)
     point_data, cell_data = poly.point_data, poly.cell_data

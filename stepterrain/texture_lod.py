@@ -688,7 +688,9 @@ class ImagePyramid:
         owned = given is None
         try:
             folder = Path(tempfile.mkdtemp(prefix="stepterrain-pyramid-")) if given is None else given
-            folder.mkdir(parents=True, exist_ok=True)
+            # made where symbolic links lead, as export.atomic_path makes a file's folder: a dangling link (levels ->
+            # /scratch/new) was refused "File exists" (mkdir of the link's own name)
+            Path(os.path.realpath(folder)).mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise DataFileError(f"cannot create the pyramid storage folder {str(storage)!r}: {exc}") from exc
         dev = resolve_device(device)

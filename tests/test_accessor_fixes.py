@@ -199,7 +199,8 @@ def test_render_and_drape_take_the_accessors_polydata_and_refuse_other_cells_nam
     assert np.array_equal(render.render_mesh(poly, **kwargs), render.render_mesh(mesh, **kwargs))
     layer = TextureLayer("luminance", np.linspace(0, 1, 20).reshape(4, 5), (500.0, 680.0, 900.0, 1050.0))
     assert np.array_equal(st.drape(poly, layer).visual.uv, st.drape(mesh, layer).visual.uv)
-    with pytest.raises(InvalidInputError, match=r"triangles only; got 1 polygons of 4 or more.*mesh\.triangulate\(\)"):
+    with pytest.raises(InvalidInputError, match=r"triangles only; got 1 polygon of 4 or more corners "
+                                                r"\(mesh\.triangulate\(\)"):  # (was "1 polygons")
         render.render_mesh(pv.Plane(i_resolution=1, j_resolution=1), **kwargs)
     with pytest.raises(InvalidInputError, match=r"pyvista\.ImageData.*extract_surface\(\)\.triangulate\(\)"):
         render.render_mesh(pv.ImageData(dimensions=(3, 3, 1)), **kwargs)
@@ -632,3 +633,38 @@ def test_to_polydata_refuses_what_is_no_trimesh_by_name(kind):
                        + {"scene": "Scene.*read_mesh", "pointcloud": "PointCloud", "polydata": "PolyData",
                           "none": "NoneType"}[kind]):
         to_polydata(given)
+
+
+def test_from_polydata_of_points_or_lines_names_delaunay_2d_and_counts_in_the_singular():
+    """A PolyData of points (pv.PolyData(points) makes a vertex cell of each) was refused with "make triangles of
+    them with mesh.triangulate()", which drops vertex cells and lines and gives an empty mesh; such a PolyData is
+    refused naming delaunay_2d(), whose TIN converts. Counts of one were plural ("got 1 lines")."""
+    from stepterrain.pyvista_accessor import from_polydata
+
+    rng = np.random.default_rng(5)
+    points = pv.PolyData(np.column_stack([rng.random((30, 2)) * 100.0, rng.random(30) * 10.0]))
+    lines = pv.MultipleLines([(0.0, 0.0, 0.0), (10.0, 0.0, 1.0), (10.0, 10.0, 2.0)])  # one polyline (a contour)
+    for poly, found in ((points, "30 vertex cells"), (lines, "1 line"),
+                        (points.merge(lines), "30 vertex cells, 1 line")):
+        with pytest.raises(InvalidInputError) as caught:
+            from_polydata(poly)
+        assert str(caught.value) == (f"mesh must be a PolyData of triangles only; got {found} and no faces, so "
+                                     "mesh.triangulate() makes nothing of it; mesh.delaunay_2d() makes a TIN "
+                                     "(triangles) of its points")
+        assert poly.triangulate().n_cells == 0  # what the old advice gave
+        tin = from_polydata(poly.delaunay_2d())  # what the new one gives: a TIN over the points' convex hull
+        assert len(tin.faces) > 0 and tin.area > 0
+    # faces besides: triangulate() kept a line beside triangles (VTK's filter), and the vertex cells and lines are
+    # numbered first, so the advice removes them, then makes triangles of the rest
+    sphere, quad = pv.Sphere(), pv.Plane(i_resolution=1, j_resolution=1)
+    for mixed, found in ((sphere.merge(lines), "1 line"), (quad.merge(points), "30 vertex cells, 1 polygon of 4"),
+                         (quad.merge(points).merge(lines), "30 vertex cells, 1 line, 1 polygon of 4")):
+        with pytest.raises(InvalidInputError, match=rf"got {found}.*\(mesh\.remove_cells\(range\(mesh\.n_verts \+ "
+                                                    r"mesh\.n_lines\)\)\.triangulate\(\) keeps its faces alone"):
+            from_polydata(mixed)
+        fixed = from_polydata(mixed.remove_cells(range(mixed.n_verts + mixed.n_lines)).triangulate())
+        assert len(fixed.faces) == (sphere.n_cells if mixed.n_points > 100 else 2)
+    assert sphere.merge(lines).triangulate().n_lines == 1  # the old advice left the line
+    with pytest.raises(InvalidInputError, match=r"got 2 polygons of 4 or more corners \(mesh\.triangulate\(\) makes "
+                                                r"triangles of them\)$"):
+        from_polydata(pv.Plane(i_resolution=2, j_resolution=1))

@@ -3032,3 +3032,39 @@ def test_projected_crss_warning_gives_a_gdalwarp_that_a_shell_runs_for_a_crs_wit
     (message,) = [str(w.message) for w in caught]
     command = message[message.index("(gdalwarp ") + 1:-1]
     assert shlex.split(command) == ["gdalwarp", "-t_srs", wkt, "FILE", "OUT.tif"], command
+
+
+@pytest.mark.parametrize("on_the_way", [False, True])
+def test_an_output_dir_that_is_a_dangling_symbolic_link_is_made_where_the_link_leads(tmp_path, on_the_way):
+    """An output_dir that is a dangling symbolic link to a folder (out -> new/tiles), or lies below one
+    (out/tiles, out -> new), was refused "cannot create the output folder 'out': File exists" (mkdir of the link's
+    own name); export.atomic_path writes a file through such a link. The folder is made where the link leads."""
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    link = tmp_path / "out"
+    link.symlink_to(tmp_path / "new" / ("" if on_the_way else "tiles"))
+    output_dir = link / "tiles" if on_the_way else link
+    report = batch(z, output_dir, tile_size=4, interval=2.0, scheduler="serial")
+    assert report.ok and len(report.done) == 4
+    assert link.is_symlink() and (tmp_path / "new" / "tiles").is_dir()
+    assert sorted(p.name for p in (tmp_path / "new" / "tiles").glob("*.glb")) == sorted(
+        p.name for p in output_dir.glob("*.glb")) and len(list(output_dir.glob("*.glb"))) == 4
+    assert len(read_mesh(output_dir / "tile_r0_c0.glb").faces) > 0
+
+
+def test_a_failed_run_into_a_dangling_link_takes_away_the_folders_it_made_there(tmp_path):
+    """The folders made where a dangling link leads are this run's: a run that fails before writing anything (an
+    unreachable scheduler) takes them away again, leaving the link dangling as it was."""
+    import socket
+
+    pytest.importorskip("distributed", reason="needs dask.distributed")
+    from stepterrain.errors import SchedulerError
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    link = tmp_path / "out"
+    link.symlink_to(tmp_path / "new" / "tiles")
+    with pytest.raises(SchedulerError, match="cannot reach the dask scheduler"):
+        batch(np.zeros((5, 5)), link, tile_size=2, interval=1.0, scheduler=f"tcp://127.0.0.1:{port}",
+              connect_timeout=1.0)
+    assert link.is_symlink() and not (tmp_path / "new").exists()

@@ -608,3 +608,19 @@ def test_steps_with_stderr_closed_prints_nothing_on_stdout(dem, tmp_path, capsys
     assert cli.main(["steps", str(dem), "--interval", "-1", "-o", str(tmp_path / "bad.ply")]) == 2
     assert capsys.readouterr().out == ""
     assert sys.stderr is None
+
+
+@pytest.mark.parametrize(("option", "name"), [("-o", "a.glb"), ("--png", "a.png")])
+def test_an_output_ending_in_a_folder_separator_is_refused_before_any_work(dem, tmp_path, capsys, monkeypatch,
+                                                                              option, name):
+    """'steps -o x.glb/' (a folder meant) wrote a file named x.glb: Path drops the trailing '/'. It is refused
+    naming the option, before any work, and nothing is written."""
+    import stepterrain as st
+
+    monkeypatch.setattr(st, "stepped", lambda *a, **k: pytest.fail("stepped before the output was checked"))
+    monkeypatch.setattr(render, "require_offscreen", lambda: "simulated")
+    given = str(tmp_path / name) + "/"
+    code, _, err = run(capsys, "-q", "steps", dem, "--interval", "1", option, given)
+    assert code == 2, err
+    assert f"{'--output' if option == '-o' else '--png'} {given!r} ends in '/', so it names a folder" in err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / name).exists()

@@ -2409,3 +2409,22 @@ def test_an_archive_whose_name_is_not_utf8_is_read_as_under_a_plain_name(tmp_pat
     np.testing.assert_array_equal(got.vertices, expected.vertices)
     np.testing.assert_array_equal(got.faces, expected.faces)
     assert got.metadata.get("name") == expected.metadata.get("name")
+
+
+@pytest.mark.parametrize("ending", ["/", "/.", "//"])
+def test_an_output_path_ending_in_a_folder_separator_is_refused_not_written_as_a_file(tmp_path, ending):
+    """save_mesh(m, "x.glb/") (a folder meant) wrote a file named x.glb: pathlib drops a trailing separator (and a
+    trailing "."). Such a path is refused naming it, and nothing is written; the writers sharing the path check
+    (save_image, save_animation) refuse it too."""
+    from stepterrain.closeup import save_animation
+
+    mesh = trimesh.creation.box()
+    for write, name, data in ((save_mesh, "x.glb", mesh), (save_image, "x.png", np.zeros((4, 4, 3), np.uint8)),
+                              (save_animation, "x.gif", np.zeros((2, 4, 4, 3), np.uint8))):
+        path = str(tmp_path / name) + ending
+        with pytest.raises(InvalidInputError, match=r"^path '.*x\.(glb|png|gif)/\.?/?' ends in '[/.]', so it names "
+                                                    r"a folder; expected a file name \('.*x\.(glb|png|gif)' to write"):
+            write(data, path)
+        assert not (tmp_path / name).exists()
+    save_mesh(mesh, tmp_path / "x.glb")  # a file name still writes (a Path cannot end in a separator)
+    assert len(read_mesh(str(tmp_path / "x.glb")).faces) == 12

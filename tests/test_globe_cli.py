@@ -81,9 +81,11 @@ def test_globe_from_a_geotiff_in_degrees(tmp_path, capsys):
     projected = geotiff("utm.tif", z, Affine(30.0, 0.0, 500000.0, 0.0, -30.0, 4000000.0), crs="EPSG:32611")
     holes = z.copy()
     holes[3, 4] = -32768
+    holes_tif = geotiff("holes.tif", holes, Affine(10.0, 0.0, 0.0, 0.0, -10.0, 90.0), nodata=-32768)
+    # the nodata cells: named as the INPUT's, with what to do (was "elevation has 1 NaN or infinite value", the
+    # array's words, naming no INPUT; see test_globe_of_a_raster_with_nodata_cells_names_the_input_and_the_fix)
     for path, message in [(projected, "must be a raster in a geographic CRS (degrees: EPSG:4326); got CRS EPSG:32611"),
-                          (geotiff("holes.tif", holes, Affine(10.0, 0.0, 0.0, 0.0, -10.0, 90.0), nodata=-32768),
-                           "elevation has 1 NaN or infinite value (first at row 3, column 4)")]:
+                          (holes_tif, f"INPUT {str(holes_tif)!r} has 1 nodata cell (first at row 3, column 4)")]:
         assert main(["globe", str(path), "--face-size", "9", "-o", str(tmp_path / "x.glb")]) == 2
         assert message in capsys.readouterr().err
     assert not (tmp_path / "x.glb").exists()
@@ -721,3 +723,29 @@ def test_an_eye_beyond_the_centre_of_another_body_is_refused_by_its_radius(tmp_p
         "sphere of the radius of INPUT's CRS): the eye at or beyond the planet's centre (altitude <= -3.39619e+06 m, "
         "the radius of INPUT's CRS)\n")
     assert not out.exists()
+
+
+def test_globe_of_a_raster_with_nodata_cells_names_the_input_and_the_fix(tmp_path, capsys):
+    """A global raster with nodata cells was refused as "elevation has 1 NaN or infinite value (first at row 5,
+    column 7); fill them first": the words of an array, naming neither the INPUT nor that its nodata cells were the
+    NaN. The refusal names the INPUT, counts its nodata cells and gives a gdal_fillnodata.py command for the INPUT
+    as given (quoted for the shell: a name with a blank), before any mesh is written."""
+    import shlex
+
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    z = (np.add.outer(np.arange(18), np.arange(36)) % 50 * 100).astype(np.float32)
+    z[5, 7] = z[6, 30] = -9999.0
+    path = tmp_path / "my grid.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=36, height=18, count=1, dtype="float32", crs="EPSG:4326",
+                       transform=Affine(10.0, 0.0, -180.0, 0.0, -10.0, 90.0), nodata=-9999.0) as ds:
+        ds.write(z, 1)
+    out = tmp_path / "x.glb"
+    assert main(["-q", "globe", str(path), "--face-size", "9", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"stepterrain globe: error: INPUT {str(path)!r} has 2 nodata cells (first at row 5, column "
+                          "7); a global grid cannot have holes: fill them first, e.g. gdal_fillnodata.py "), err
+    command = err[err.index("gdal_fillnodata.py"):err.index(", and give")]
+    assert shlex.split(command) == ["gdal_fillnodata.py", str(path), "filled.tif"]
+    assert "NaN" not in err and len(err.strip().splitlines()) == 1 and not out.exists()

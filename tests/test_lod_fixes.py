@@ -1172,3 +1172,18 @@ def test_a_pyramid_of_a_tiff_cut_short_names_gdals_reason_not_a_failed_write(tmp
     with pytest.raises(DataFileError, match=r"^cannot read '.*short\.tif' as an image: short\.tif, band \d: ") as cut:
         ImagePyramid.build(tmp_path / "short.tif", device="cpu")
     assert "previous exception" not in str(cut.value) and "pyramid level" not in str(cut.value)
+
+
+def test_a_storage_folder_that_is_a_dangling_symbolic_link_is_made_where_the_link_leads(tmp_path):
+    """A storage folder given as a dangling symbolic link (levels -> scratch/new) was refused "cannot create the
+    pyramid storage folder ...: File exists" (mkdir of the link's own name), as export.atomic_path's output folders
+    were; it is made where the link leads and the level files are written there."""
+    link = tmp_path / "levels"
+    link.symlink_to(tmp_path / "scratch" / "new")
+    image = np.arange(16 * 16 * 3, dtype=np.uint8).reshape(16, 16, 3)
+    with ImagePyramid.build(image, storage=link, device="cpu") as pyramid:
+        with ImagePyramid.build(image, storage=tmp_path / "plain", device="cpu") as reference:
+            assert len(pyramid.levels) == len(reference.levels) > 1
+            assert all(np.array_equal(a, b) for a, b in zip(pyramid.levels, reference.levels, strict=True))
+        assert link.is_symlink() and sorted(p.name for p in (tmp_path / "scratch" / "new").iterdir()) == sorted(
+            p.name for p in (tmp_path / "plain").iterdir()) != []
