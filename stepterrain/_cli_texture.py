@@ -485,6 +485,8 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
                                   ("--occlusion", args.occlusion, {"lo": 0.0, "hi": 1.0})):
         if value is not None:
             finite_number(value, option, **bounds)
+    # a mistyped name was refused only once the DEM was loaded and shaded (shadows, occlusion: minutes on a large one)
+    _colormap(args.colormap)
     if args.method == "none":  # no hillshade: what only shapes the hillshade would come out the same whatever it was
         _check_unshaded(args)
     # the library refuses an angle its method ignores, as this does: only the angles given are passed on
