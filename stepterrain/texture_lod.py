@@ -681,8 +681,9 @@ class ImagePyramid:
             source, backing, changeable, georeferencing = None, None, False, tiff.georeferencing
             height, width, channels = tiff.shape
         extent, crs, placed_by_file = _placement(image, extent, crs, georeferencing, (height, width))
-        if isinstance(band_bytes, bool) or not isinstance(band_bytes, int) or band_bytes < 1:
+        if isinstance(band_bytes, bool) or not isinstance(band_bytes, (int, np.integer)) or band_bytes < 1:
             raise InvalidInputError(f"band_bytes must be a positive int; got {band_bytes!r}")
+        band_bytes = int(band_bytes)  # a NumPy integer too (as a level, a lens' resolution): refused before
         anisotropic = check_flag(anisotropic, "anisotropic")
         given = _storage_folder(storage)
         owned = given is None
@@ -1128,8 +1129,9 @@ class PatchQuadtree:
         t = as_terrain(terrain, spacing=spacing, origin=origin)
         if t.kind != "grid":
             raise InvalidInputError("PatchQuadtree needs a regular heightfield")
-        if isinstance(leaf_size, bool) or not isinstance(leaf_size, int) or leaf_size < 2:
+        if isinstance(leaf_size, bool) or not isinstance(leaf_size, (int, np.integer)) or leaf_size < 2:
             raise InvalidInputError(f"leaf_size must be an int >= 2; got {leaf_size!r}")
+        leaf_size = int(leaf_size)  # a NumPy integer too (as a level, a lens' resolution): refused before
         self.terrain = t
         rows, cols = t.heights.shape
         cells = max(rows, cols) - 1
@@ -1374,8 +1376,10 @@ class TextureTree:
             raise InvalidInputError(f"pyramid must be an ImagePyramid; got {type(pyramid).__name__}")
         if not isinstance(quadtree, PatchQuadtree):
             raise InvalidInputError(f"quadtree must be a PatchQuadtree; got {type(quadtree).__name__}")
-        if isinstance(max_texture_size, bool) or not isinstance(max_texture_size, int) or max_texture_size < 1:
+        if (isinstance(max_texture_size, bool) or not isinstance(max_texture_size, (int, np.integer))
+                or max_texture_size < 1):
             raise InvalidInputError(f"max_texture_size must be a positive int; got {max_texture_size!r}")
+        max_texture_size = int(max_texture_size)  # a NumPy integer too (as a level, a lens' resolution): refused before
         pyramid = _placed(pyramid, quadtree.terrain)
         self.pyramid = pyramid
         self.quadtree = quadtree
@@ -1891,10 +1895,12 @@ class TextureCache:
 
     def __init__(self, budget: int = 256 * 1024**2, loader: Callable[[TexturePatch], Any] | None = None,
                  workers: int = 1) -> None:
-        if isinstance(budget, bool) or not isinstance(budget, int) or budget < 1:
+        # a NumPy integer too (as a pyramid level, a lens' resolution): refused before
+        if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1:
             raise InvalidInputError(f"budget must be a positive int of bytes; got {budget!r}")
-        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
             raise InvalidInputError(f"workers must be a positive int of threads; got {workers!r}")
+        budget, workers = int(budget), int(workers)
         if loader is not None and not callable(loader):
             raise InvalidInputError(f"loader must be a function of a TexturePatch; got {type(loader).__name__}")
         self.budget = budget

@@ -24,3 +24,34 @@ def test_cli_texture_unknown_colormap_is_refused_before_the_dem_is_loaded(tmp_pa
     err = capsys.readouterr().err
     assert code == 2 and "--colormap must name a matplotlib colormap" in err and "'terain'" in err, err
     assert not out.exists()
+
+
+def test_lod_sizes_take_numpy_integers():
+    """max_texture_size, leaf_size, a cache's budget and workers, and band_bytes refused a NumPy integer
+    (``2 ** np.arange(...)``, a size read from an array's shape arithmetic) as "must be a positive int; got
+    np.int64(64)", while the pyramid's level, a lens' resolution and the occlusion's directions take one. Taken as the
+    int they are, with the results of the Python ints; a bool and a non-integer are still refused by name."""
+    from stepterrain.errors import InvalidInputError
+    from stepterrain.texture_lod import ImagePyramid, PatchQuadtree, TextureCache, TextureTree
+
+    heights = np.random.default_rng(1).random((33, 41)) * 50
+    image = np.random.default_rng(2).integers(0, 256, (64, 80, 3), dtype=np.uint8)
+    trees = []
+    for cast in (int, np.int64, np.int32):
+        quadtree = PatchQuadtree(heights, leaf_size=cast(8))
+        with ImagePyramid.build(image, extent=quadtree.root.domain, band_bytes=cast(4096), device="cpu") as pyramid:
+            tree = TextureTree(pyramid, quadtree, max_texture_size=cast(16))
+            trees.append([(p.level, p.window) for p in tree.patches()])
+            assert all(type(v) is int for p in tree.patches() for v in p.window)
+            assert type(tree.max_texture_size) is int and type(quadtree.depth) is int
+        cache = TextureCache(budget=cast(1 << 20), workers=cast(2))
+        assert type(cache.budget) is int
+        cache.close()
+    assert trees[0] == trees[1] == trees[2]
+    for bad in (True, 8.0, np.float64(8.0), "8"):
+        with pytest.raises(InvalidInputError, match="leaf_size"):
+            PatchQuadtree(heights, leaf_size=bad)
+        with pytest.raises(InvalidInputError, match="budget"):
+            TextureCache(budget=bad)
+    with ImagePyramid.build(image, device="cpu") as pyramid, pytest.raises(InvalidInputError, match="max_texture_size"):
+        TextureTree(pyramid, PatchQuadtree(heights), max_texture_size=np.bool_(True))
