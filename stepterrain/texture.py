@@ -1879,6 +1879,14 @@ def _lens_args(center: ArrayLike, radius: float, resolution: int, edge: float) -
     # the disc image covers the lens' bounding square plus one texel of border (outside value) on each side
     pad = radius * 2.0 / (resolution - 2)
     extent = (c[0] - radius - pad, c[0] + radius + pad, c[1] - radius - pad, c[1] + radius + pad)
+    # a radius below float64's resolution at the centre: the extent collapsed (refused as a bad "extent", an argument
+    # the caller never gave) or rounded to another size (a lens of another radius, silently)
+    size = 2.0 * (radius + pad)
+    if not all(math.isfinite(v) for v in extent) or any(
+            abs((hi - lo) - size) > 1e-6 * size for lo, hi in ((extent[0], extent[1]), (extent[2], extent[3]))):
+        raise InvalidInputError(f"radius must be large enough to place the lens' {int(resolution)} texels a side at "
+                                f"center in float64 (and the lens finite); got radius {radius:g} at center "
+                                f"({c[0]:g}, {c[1]:g})")
     return extent, int(resolution), edge
 
 

@@ -55,3 +55,21 @@ def test_lod_sizes_take_numpy_integers():
             TextureCache(budget=bad)
     with ImagePyramid.build(image, device="cpu") as pyramid, pytest.raises(InvalidInputError, match="max_texture_size"):
         TextureTree(pyramid, PatchQuadtree(heights), max_texture_size=np.bool_(True))
+
+
+@pytest.mark.parametrize("center, radius", [((1e300, 0.0), 1.0), ((0.0, 1e17), 1.0), ((1e16, 5.0), 1.0),
+                                            ((0.0, 0.0), 1.7e308)])
+@pytest.mark.parametrize("make", ["thematic_lens", "highlight_lens"])
+def test_lens_too_small_for_its_centre_is_refused_naming_radius_and_center(center, radius, make):
+    """A lens whose radius float64 cannot resolve at its centre was refused as "extent must be finite (xmin, xmax,
+    ...)", an argument the caller never gave, or (1e16: the extent rounded to 4 units wide) made as a lens of twice
+    the radius, silently; a radius beyond float64 likewise (an infinite extent). Now refused naming radius and
+    center; one float64 resolves is made with its exact size."""
+    from stepterrain import texture
+    from stepterrain.errors import InvalidInputError
+
+    with pytest.raises(InvalidInputError, match=r"radius must be large enough .* center"):
+        getattr(texture, make)(center, radius)
+    lens = getattr(texture, make)((1e7, 4e6), 2.0, resolution=16)
+    xmin, xmax, ymin, ymax = lens.extent
+    assert abs((xmax - xmin) - 2 * (2.0 + 4.0 / 14)) < 1e-8 and abs((ymax - ymin) - (xmax - xmin)) < 1e-8
