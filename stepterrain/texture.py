@@ -870,9 +870,10 @@ class TextureLayer:
     north edge (ymax), column 0 the west edge; it is kept as given (a numpy memmap stays on disk), and its RGBA is
     cached only when the array is read-only (and not masked), so in-place edits show.
     ``extent``: (xmin, xmax, ymin, ymax) in world units, the outer edges of the pixels. ``matrix``: the 3 × 3
-    texture matrix taking world (x, y, 1) to texel (column, row, 1) (texel centres at integers); ``None``
-    derives it from the extent. Moving a layer (a lens) changes only the matrix (:meth:`moved`). ``border``:
-    what lies outside the image: "transparent" (partial coverage, §4) or "edge" (the edge texels repeat).
+    texture matrix taking world (x, y, 1) to texel (column, row, 1) (affine: last row (0, 0, 1); texel centres at
+    integers); ``None`` derives it from the extent. Moving a layer (a lens) changes only the matrix
+    (:meth:`moved`). ``border``: what lies outside the image: "transparent" (partial coverage, §4) or "edge" (the
+    edge texels repeat).
     """
 
     kind: LayerKind
@@ -918,6 +919,12 @@ class TextureLayer:
             if not _invertible(matrix):  # blend, weighted_add, ... invert it (texel -> world): a LinAlgError
                 raise InvalidInputError(f"matrix must be an invertible 3 x 3 texture matrix (world -> texel); got "
                                         f"{matrix.tolist()}")
+            if not np.array_equal(matrix[2], (0.0, 0.0, 1.0)):
+                # the kernels, texture_uv and the coverage test read texel (column, row) as its first two rows and
+                # never divide by the third: 2 * M (the same map in homogeneous coordinates) sampled texels twice as
+                # far, a perspective row was dropped, both silently
+                raise InvalidInputError(f"matrix must be an affine texture matrix, its last row (0, 0, 1) (world (x, "
+                                        f"y, 1) -> texel (column, row, 1)); got last row {matrix[2].tolist()}")
         object.__setattr__(self, "matrix", matrix)
         if not _is_name(self.border, ("transparent", "edge")):
             raise InvalidInputError(f"border must be 'transparent' or 'edge'; got {self.border!r}")

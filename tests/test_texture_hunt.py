@@ -73,3 +73,25 @@ def test_lens_too_small_for_its_centre_is_refused_naming_radius_and_center(cente
     lens = getattr(texture, make)((1e7, 4e6), 2.0, resolution=16)
     xmin, xmax, ymin, ymax = lens.extent
     assert abs((xmax - xmin) - 2 * (2.0 + 4.0 / 14)) < 1e-8 and abs((ymax - ymin) - (xmax - xmin)) < 1e-8
+
+
+@pytest.mark.parametrize("last_row", [(0.0, 0.0, 2.0), (0.01, 0.0, 1.0), (0.0, -1e-9, 1.0)])
+def test_a_texture_matrix_that_is_not_affine_is_refused(last_row):
+    """The layer operations, texture_uv and the coverage test read a texel's (column, row) as the matrix's first
+    two rows and never divide by the third: 2 * M (the same map in homogeneous coordinates) sampled the image twice
+    as far out (weighted_add of it with weight 1 over black was off by up to 0.9), and a perspective last row was
+    dropped, both without a word. Refused, naming matrix; the layer's own affine matrix is taken as before."""
+    from stepterrain.errors import InvalidInputError
+    from stepterrain.texture import TextureLayer, weighted_add
+
+    image = np.random.default_rng(0).random((4, 6))
+    extent = (0.0, 6.0, 0.0, 4.0)
+    own = TextureLayer("luminance", image, extent)
+    matrix = own.matrix.copy()
+    matrix[2] = last_row
+    with pytest.raises(InvalidInputError, match=r"matrix must be an affine texture matrix, its last row \(0, 0, 1\)"):
+        TextureLayer("luminance", image, extent, matrix=matrix)
+    same = TextureLayer("luminance", image, extent, matrix=own.matrix.copy())
+    black = TextureLayer("thematic", np.zeros((4, 6, 3)), extent)
+    out = weighted_add([black, same], [1.0, 1.0], device="cpu").rgba()[..., 0]
+    np.testing.assert_allclose(out, image, atol=1e-6)
