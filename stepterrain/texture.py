@@ -363,9 +363,10 @@ def _colours(value: ArrayLike | None, name: str, default: tuple[float, ...], man
         raise InvalidInputError(f"{name} must be {what}; got {len(rows)} colours")
     colours = []
     for row in rows:
-        try:
-            c = np.asarray(row, dtype=np.float64)
-        except (TypeError, ValueError, OverflowError):  # OverflowError: an int beyond float64 (10**400)
+        try:  # real_numbers: np.asarray(row, dtype=float) took ("1", "0", "0") and (True, 0, 0) as numbers, and a
+            # masked component as the value under its mask
+            c = real_numbers(row, name, f"{what} of numbers in [0, 1]")
+        except InvalidInputError:
             raise InvalidInputError(f"{name} must be {what} of numbers in [0, 1]; got {raw!r}") from None
         if c.shape not in ((3,), (4,)):
             raise InvalidInputError(f"{name} must be {what}; got {raw!r}")

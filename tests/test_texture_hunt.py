@@ -95,3 +95,25 @@ def test_a_texture_matrix_that_is_not_affine_is_refused(last_row):
     black = TextureLayer("thematic", np.zeros((4, 6, 3)), extent)
     out = weighted_add([black, same], [1.0, 1.0], device="cpu").rgba()[..., 0]
     np.testing.assert_allclose(out, image, atol=1e-6)
+
+
+@pytest.mark.parametrize("colour", [(True, 0, 0), ("1", "0", "0"), [(0.2, 0.2, 0.2), (1, np.True_, 0)],
+                                    np.ma.masked_array([1.0, 0.0, 0.0], mask=[True, False, False])])
+@pytest.mark.parametrize("option", ["shadow_color", "highlight_color", "accent_color"])
+def test_maplibre_colours_of_text_bools_or_masked_components_are_refused(option, colour):
+    """hillshade's MapLibre colours went through np.asarray(row, dtype=float64): (True, 0, 0) and ("1", "0", "0")
+    were read as red and a masked component as the value under its mask, where every other colour of the library
+    (a layer's background, contour_layer's color) refuses them. Refused, naming the option."""
+    from stepterrain.errors import InvalidInputError
+    from stepterrain.texture import hillshade
+
+    heights = np.random.default_rng(0).random((4, 5)) * 10
+    if option == "accent_color" and isinstance(colour, list):  # one colour only: its bad one
+        colour = colour[1]
+    many = isinstance(colour, list)
+    method = "maplibre-multidirectional" if many else "maplibre-standard"
+    extra = {"azimuth": [1.0, 2.0]} if many else {}
+    with pytest.raises(InvalidInputError, match=option):
+        hillshade(heights, method=method, device="cpu", **{option: colour}, **extra)
+    ok = hillshade(heights, method=method, device="cpu", **{option: (1.0, 0.0, 0.0)}, **extra)
+    assert np.isfinite(ok).all()
