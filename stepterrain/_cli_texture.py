@@ -617,6 +617,9 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
                 else terrain.mesh())
         draped = tx._draped(base, composite, image if over_white is None else over_white, white, _DRAPE_MATERIAL)
         progress.done(f"{_counted(len(draped.faces), 'face')}")
+        if len(draped.faces) == 0 and png is None:  # as steps says it (a --png refuses an empty mesh): the --mesh was
+            # written empty without a word (a line "0 faces" on the progress only, none with -q)
+            warnings.warn("the mesh is empty: no triangle of the input has three finite heights", stacklevel=1)
         if png is not None:
             progress.stage("render", f"rendering {args.size[0]}x{args.size[1]} off-screen")
             shot = render.render_textured_mesh(draped, window_size=args.size, z_scale=args.z_scale,

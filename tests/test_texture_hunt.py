@@ -117,3 +117,23 @@ def test_maplibre_colours_of_text_bools_or_masked_components_are_refused(option,
         hillshade(heights, method=method, device="cpu", **{option: colour}, **extra)
     ok = hillshade(heights, method=method, device="cpu", **{option: (1.0, 0.0, 0.0)}, **extra)
     assert np.isfinite(ok).all()
+
+
+@pytest.mark.parametrize("interval", [None, "1"])
+def test_cli_texture_empty_mesh_is_warned_about(tmp_path, capsys, interval):
+    """A DEM with no triangle of three finite heights (one finite node) made an empty --mesh, written without a word
+    (a progress line "0 faces" only, nothing with -q), where steps warns "the mesh is empty". Warned the same way;
+    the texture and the mesh are still written, as steps writes its empty mesh."""
+    heights = np.full((6, 7), np.nan)
+    heights[2, 3] = 5.0
+    dem, out, mesh = tmp_path / "dem.npy", tmp_path / "t.tif", tmp_path / "t.glb"
+    np.save(dem, heights)
+    code = main(["texture", str(dem), "-q", "-o", str(out), "--mesh", str(mesh), "--device", "cpu"]
+                + (["--interval", interval] if interval else []))
+    err = capsys.readouterr().err
+    assert code == 0 and "warning: the mesh is empty: no triangle of the input has three finite heights" in err, err
+    assert out.exists() and mesh.exists()
+    full = np.random.default_rng(0).random((6, 7)) * 10
+    np.save(dem, full)
+    assert main(["texture", str(dem), "-q", "--mesh", str(mesh), "--device", "cpu"]) == 0
+    assert "empty" not in capsys.readouterr().err
