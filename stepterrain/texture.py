@@ -1025,7 +1025,8 @@ class TextureLayer:
 
     @property
     def frame(self) -> tuple[Extent, tuple[int, int]]:
-        """(extent, shape): the pixel grid results of operations on this layer are computed on."""
+        """(extent, shape): the layer's extent and image shape, the pixel grid results of operations on it (as their
+        first layer) are computed on; those on a layer :meth:`moved` lie where its texels moved to."""
         return self.extent, self.shape
 
 
@@ -1535,8 +1536,30 @@ def _composed_pair(shading: TextureLayer, colours: TextureLayer | None, picture:
     return _result(host, target), (_result(over_host, over_target) if both else None)
 
 
-def _finish(out: wp.array, like: TextureLayer, name: str) -> TextureLayer:
-    return TextureLayer("thematic", host_copy(out), like.extent, border="transparent", name=name)
+def _finish(out: wp.array, extent: Extent, name: str) -> TextureLayer:
+    return TextureLayer("thematic", host_copy(out), extent, border="transparent", name=name)
+
+
+def _result_frame(layer: TextureLayer) -> tuple[Extent, tuple[int, int]]:
+    """(extent, shape): the pixel grid an operation computes on when ``layer`` is its first layer: the layer's own
+    texels where its texture matrix puts them. That is its :attr:`~TextureLayer.frame` unless it was moved
+    (:meth:`TextureLayer.moved`: a lens following a point), then the extent its texels lie over (its matrix north-up
+    and axis-aligned; a rotated, sheared or mirrored one is resampled onto its extent): resampled onto its unmoved
+    extent, a lens moved by more than its radius came out as its rim alone."""
+    extent, shape = layer.frame
+    if np.array_equal(layer.matrix, _affine(extent, shape)):
+        return extent, shape
+    inverse = np.linalg.inv(layer.matrix)  # texel (column, row, 1) -> world (x, y, 1)
+    if inverse[0, 1] != 0 or inverse[1, 0] != 0 or not (inverse[0, 0] > 0 and inverse[1, 1] < 0):
+        return extent, shape
+    rows, cols = shape
+    own = (inverse[0, 2] - 0.5 * inverse[0, 0], inverse[0, 2] + (cols - 0.5) * inverse[0, 0],
+           inverse[1, 2] + (rows - 0.5) * inverse[1, 1], inverse[1, 2] - 0.5 * inverse[1, 1])
+    try:
+        own = _check_extent(own)
+    except InvalidInputError:  # moved past float64's range: left where it was, as before
+        return extent, shape
+    return (own, shape) if _invertible(_affine(own, shape)) else (extent, shape)
 
 
 def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | ArrayLike | None = None, *,
@@ -1592,12 +1615,12 @@ def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | 
         w = _as_layer(_named("weights", TextureLayer, "visibility", array, a.extent, matrix=a.matrix)
                       if array.shape == a.shape else array, a, "weights")
     dev = resolve_device(device)
-    extent, shape = a.frame
+    extent, shape = _result_frame(a)
     out = wp.empty(shape, dtype=wp.vec4, device=dev)
     launch(texture_kernels.blend_layers, dim=shape[0] * shape[1],
            inputs=[_sampled(a, extent, shape, dev, "a"), _sampled(b, extent, shape, dev, "b"),
                    _sampled(w, extent, shape, dev, "weights"), 1 if weights is None else 0], outputs=[out], device=dev)
-    return _finish(out, a, "blend")
+    return _finish(out, extent, "blend")
 
 
 def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[float], *,
@@ -1634,14 +1657,14 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
     first = _as_layer(layers[0], None, "layers[0]")
     others = [_as_layer(layer, first, f"layers[{k + 1}]") for k, layer in enumerate(layers[1:])]
     dev = resolve_device(device)
-    extent, shape = first.frame
+    extent, shape = _result_frame(first)
     total = _sampled(first, extent, shape, dev, "layers[0]")
     zero = wp.zeros(shape, dtype=wp.vec4, device=dev) if not others else None
     if zero is not None:
         out = wp.empty(shape, dtype=wp.vec4, device=dev)
         launch(texture_kernels.add_layers, dim=shape[0] * shape[1], inputs=[total, zero, checked[0], 0.0, 1],
                outputs=[out], device=dev)
-        return _finish(out, first, "add")
+        return _finish(out, extent, "add")
     if math.fsum(abs(w) for w in checked) > FLOAT32_MAX / 2:
         # float32 partial sums could overflow: 3e38 + 3e38 − 3e38 − 3e38 became inf − 3e38 = inf, clamped to 1 (in
         # another order 0); in float64 every product is exact, no partial sum overflows, and the compensation keeps
@@ -1655,7 +1678,7 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
                    inputs=[wide, error, sampled, float(np.float32(checked[k]))], outputs=[wide, error], device=dev)
         out = wp.empty(shape, dtype=wp.vec4, device=dev)
         launch(texture_kernels.clamp_wide, dim=shape[0] * shape[1], inputs=[wide, error], outputs=[out], device=dev)
-        return _finish(out, first, "add")
+        return _finish(out, extent, "add")
     weight_total = checked[0]
     for k, layer in enumerate(others):
         out = wp.empty(shape, dtype=wp.vec4, device=dev)
@@ -1665,7 +1688,7 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
                        1 if k == len(others) - 1 else 0],
                outputs=[out], device=dev)
         total, weight_total = out, 1.0
-    return _finish(total, first, "add")
+    return _finish(total, extent, "add")
 
 
 def modulate(a: TextureLayer, *others: TextureLayer | ArrayLike, device: wp.DeviceLike = None) -> TextureLayer:
@@ -1686,7 +1709,7 @@ def modulate(a: TextureLayer, *others: TextureLayer | ArrayLike, device: wp.Devi
     if not others:
         raise InvalidInputError("modulate needs at least two layers")
     dev = resolve_device(device)
-    extent, shape = a.frame
+    extent, shape = _result_frame(a)
     current = _sampled(a, extent, shape, dev, "a")
     for k, other in enumerate(others):
         layer = _as_layer(other, a, f"layer {k + 2}")
@@ -1694,7 +1717,7 @@ def modulate(a: TextureLayer, *others: TextureLayer | ArrayLike, device: wp.Devi
         launch(texture_kernels.modulate_layers, dim=shape[0] * shape[1],
                inputs=[current, _sampled(layer, extent, shape, dev, f"layer {k + 2}")], outputs=[out], device=dev)
         current = out
-    return _finish(current, a, "modulate")
+    return _finish(current, extent, "modulate")
 
 
 def adjust(
@@ -1766,7 +1789,7 @@ def adjust(
     launch(texture_kernels.adjust_layer, dim=shape[0] * shape[1], inputs=[frame, image, params], outputs=[out],
            device=dev)
     if own is None:
-        return _finish(out, layer, "adjust")
+        return _finish(out, layer.extent, "adjust")
     return TextureLayer("thematic", host_copy(out), extent, matrix=layer.matrix, border=layer.border, name="adjust")
 
 
@@ -1993,13 +2016,13 @@ class TextureAnimation:
         a, b, alpha = self.at(t)
         k = next(i for i, layer in enumerate(self.layers) if layer is a)
         dev = resolve_device(device)
-        extent, shape = a.frame
+        extent, shape = _result_frame(a)
         out = wp.empty(shape, dtype=wp.vec4, device=dev)
         launch(texture_kernels.interpolate_layers, dim=shape[0] * shape[1],
                inputs=[_sampled(a, extent, shape, dev, f"layers[{k}]"),
                        _sampled(b, extent, shape, dev, f"layers[{min(k + 1, len(self.layers) - 1)}]"), alpha],
                outputs=[out], device=dev)
-        return _finish(out, a, "frame")
+        return _finish(out, extent, "frame")
 
 
 # ---------------------------------------------------------------------------------------------- draping

@@ -137,3 +137,43 @@ def test_cli_texture_empty_mesh_is_warned_about(tmp_path, capsys, interval):
     np.save(dem, full)
     assert main(["texture", str(dem), "-q", "--mesh", str(mesh), "--device", "cpu"]) == 0
     assert "empty" not in capsys.readouterr().err
+
+
+def _world_value(layer, x, y):
+    """The layer's RGBA at world (x, y), nearest texel through its texture matrix (None outside its image)."""
+    u, v, _ = layer.matrix @ [x, y, 1.0]
+    r, c = int(round(v)), int(round(u))
+    rows, cols = layer.shape
+    return layer.rgba()[r, c] if 0 <= r < rows and 0 <= c < cols else None
+
+
+@pytest.mark.parametrize("offset", [(5.0, -3.0), (100.0, 0.0), (-40.0, 250.0)])
+def test_operations_on_a_moved_first_layer_keep_its_texels_where_they_moved(offset):
+    """A moved layer (a lens following a point, TextureLayer.moved: only its texture matrix changes) as the first
+    layer of blend, weighted_add, modulate or a TextureAnimation key was resampled onto its unmoved extent: the result
+    kept the part of it still over that extent, so a lens moved by more than its radius came out as its rim alone
+    (a highlight lens' frame had no hot spot: 1 - strength everywhere), and blend with weights given as an array
+    (placed by the layer's matrix) was refused as covering none of the extent. The result now lies on the moved
+    layer's own texels (as adjust's does), its values those of the operation at the same world points."""
+    from stepterrain.texture import TextureAnimation, blend, highlight_lens, modulate, thematic_lens, weighted_add
+
+    dx, dy = offset
+    weak, strong = (highlight_lens((0.0, 0.0), 10.0, strength=s, resolution=32) for s in (0.2, 0.8))
+    keys = [weak.moved(dx, dy), strong.moved(dx, dy)]
+    frame = TextureAnimation(keys, (0.0, 1.0)).frame(0.5, device="cpu")
+    centre = _world_value(frame, dx, dy)
+    assert centre is not None and np.allclose(centre, (1.0, 1.0, 1.0, 1.0), atol=1e-6), centre  # the hot spot
+    rim = _world_value(frame, dx + 10.5, dy)
+    assert rim is not None and np.allclose(rim[:3], 0.5, atol=1e-6)  # (0.8 + 0.2) / 2 beyond the radius
+    moved = weak.moved(dx, dy)
+    half = np.full(moved.shape, 0.5, np.float32)
+    results = {"modulate": modulate(moved, half, device="cpu"),
+               "weighted_add": weighted_add([moved], [0.5], device="cpu"),
+               "blend": blend(moved, np.zeros((*moved.shape, 3)), half, device="cpu")}
+    for name, out in results.items():
+        got = _world_value(out, dx, dy)
+        assert got is not None and np.allclose(got[:3], 0.5, atol=1e-6), (name, got)
+    lens = thematic_lens((0.0, 0.0), 10.0, resolution=32).moved(dx, dy)
+    out = weighted_add([lens], [1.0], device="cpu")
+    assert np.allclose(_world_value(out, dx, dy), (1.0, 1.0, 1.0, 1.0), atol=1e-6)
+    assert out.shape == lens.shape
