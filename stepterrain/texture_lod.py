@@ -1910,6 +1910,7 @@ class TextureCache:
         self._failed: OrderedDict[int, tuple[TexturePatch, Exception]] = OrderedDict()  # not yet raised
         self._lock = threading.Lock()
         self._executor = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="stepterrain-texture")
+        self._closed = False
         self.bytes_loaded = 0
         self.evictions = 0
 
@@ -1932,6 +1933,10 @@ class TextureCache:
         with self._lock:
             if id(patch) in self._loaded or id(patch) in self._pending:
                 return
+            if self._closed:  # its threads are gone: the executor's RuntimeError ("cannot schedule new futures after
+                # shutdown") came out of request, load_now and render_with_textures
+                raise InvalidInputError("the TextureCache is closed (by close()), so it loads no more patches; make a "
+                                        "new TextureCache (its loaded patches are still handed out by get)")
             self._pending[id(patch)] = self._executor.submit(self._load, patch)
 
     def load_now(self, patch: TexturePatch) -> Any:
@@ -1990,6 +1995,9 @@ class TextureCache:
                 self._pending.pop(id(patch), None)
 
     def close(self) -> None:
+        """Stop the loading threads (after the loads under way); a later request is refused."""
+        with self._lock:
+            self._closed = True
         self._executor.shutdown(wait=True)
 
 

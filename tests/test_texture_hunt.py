@@ -177,3 +177,26 @@ def test_operations_on_a_moved_first_layer_keep_its_texels_where_they_moved(offs
     out = weighted_add([lens], [1.0], device="cpu")
     assert np.allclose(_world_value(out, dx, dy), (1.0, 1.0, 1.0, 1.0), atol=1e-6)
     assert out.shape == lens.shape
+
+
+def test_a_closed_texture_cache_refuses_requests_by_name():
+    """TextureCache.close() shut its thread pool down; a later request (by render_with_textures, load_now) raised
+    concurrent.futures' RuntimeError "cannot schedule new futures after shutdown". Refused as an InvalidInputError
+    naming the closed cache; the patches it loaded before are still handed out."""
+    from stepterrain import Camera
+    from stepterrain.errors import InvalidInputError
+    from stepterrain.texture_lod import ImagePyramid, PatchQuadtree, TextureCache, TextureTree, render_with_textures
+
+    quadtree = PatchQuadtree(np.zeros((17, 17)), leaf_size=8)
+    with ImagePyramid.build(np.full((32, 32, 3), 90, np.uint8), extent=quadtree.root.domain, device="cpu") as pyramid:
+        tree = TextureTree(pyramid, quadtree, max_texture_size=16)
+        cache = TextureCache()
+        root = cache.load_now(tree.root)
+        cache.close()
+        camera = Camera((8, -30, 20), (8, 8, 0))
+        with pytest.raises(InvalidInputError, match="the TextureCache is closed"):
+            render_with_textures(quadtree.root, [tree.root], camera, cache=cache)
+        with pytest.raises(InvalidInputError, match="the TextureCache is closed"):
+            cache.load_now(next(p for p in tree.patches() if p is not tree.root))
+        assert cache.load_now(tree.root) is root and cache.is_loaded(tree.root)
+        cache.close()  # twice: nothing more
