@@ -1433,11 +1433,17 @@ def is_georeferenced(image: str | os.PathLike[str]) -> bool:
     """Whether the image file ``image`` places itself: a GeoTIFF, or a JPEG or PNG with a world file (``.jgw``,
     ``.pgw``, ``.wld``) or ``.aux.xml`` beside it, whose geotransform (read with rasterio) is not the identity, as
     :meth:`ImagePyramid.build` reads its extent from it. False for a PNG or JPEG without one, a plain TIFF, or
-    without rasterio."""
+    without rasterio. A path that is no file (missing, a folder) raises a :class:`DataFileError`, as
+    :meth:`ImagePyramid.build` does (it answered False: "not georeferenced" of a mistyped name), and a value that is
+    no path an :class:`InvalidInputError` (Path()'s TypeError)."""
+    if not isinstance(image, (str, os.PathLike)):
+        raise InvalidInputError(f"image must be the path of an image file; got {type(image).__name__}")
     path = Path(image)
-    found = (_read_tiff(path, lambda dataset: not dataset.transform.is_identity, any_format=True) if path.is_file()
-             else None)
-    return bool(found)
+    if path.is_dir():
+        raise DataFileError(f"image file {str(image)!r} is a folder; expected an image file")
+    if not path.is_file():
+        raise DataFileError(f"image file {str(image)!r} does not exist")
+    return bool(_read_tiff(path, lambda dataset: not dataset.transform.is_identity, any_format=True))
 
 
 class _WindowedTiff:

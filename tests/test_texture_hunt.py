@@ -200,3 +200,25 @@ def test_a_closed_texture_cache_refuses_requests_by_name():
             cache.load_now(next(p for p in tree.patches() if p is not tree.root))
         assert cache.load_now(tree.root) is root and cache.is_loaded(tree.root)
         cache.close()  # twice: nothing more
+
+
+def test_is_georeferenced_refuses_what_is_no_image_file(tmp_path):
+    """is_georeferenced answered False for a missing file or a folder (a mistyped name read as "not georeferenced",
+    so a caller went on to pass an extent for it) and raised Path()'s TypeError for a number. Now a DataFileError
+    naming the path, as ImagePyramid.build refuses them, and an InvalidInputError; a real image is answered."""
+    from PIL import Image
+
+    from stepterrain.errors import DataFileError, InvalidInputError
+    from stepterrain.texture_lod import is_georeferenced
+
+    with pytest.raises(DataFileError, match="does not exist"):
+        is_georeferenced(tmp_path / "ortho.tif")
+    with pytest.raises(DataFileError, match="is a folder"):
+        is_georeferenced(tmp_path)
+    with pytest.raises(InvalidInputError, match="image must be the path of an image file"):
+        is_georeferenced(5)
+    plain = tmp_path / "plain.png"
+    Image.fromarray(np.zeros((4, 5, 3), np.uint8)).save(plain)
+    assert is_georeferenced(plain) is False
+    (tmp_path / "plain.pgw").write_text("10\n0\n0\n-10\n1000\n2000\n")
+    assert is_georeferenced(str(plain)) is True
