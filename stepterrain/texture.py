@@ -1322,6 +1322,12 @@ def contour_layer(
         raise InvalidInputError(f"index_every must be a whole number >= 0 (0: no index lines); got {index_every!r}")
     if index_every > np.iinfo(np.int32).max:
         raise InvalidInputError(f"index_every must be below 2**31; got {index_every!r}")
+    period = interval * int(index_every) if index_every > 0 else interval
+    if values.size == 0 and math.isfinite(period) and abs(base) >= period:
+        # the same levels and index lines from a base within one period (math.fmod is exact): the kernel's
+        # (h - base) / interval lost the heights' fraction of an interval to a base far from them (1e17 over 100 m
+        # drew lines anywhere, 1e20 made every texel a line)
+        base = math.fmod(base, period)
     if texel_size is None:
         extent, shape = terrain_extent(t), t.heights.shape
     else:

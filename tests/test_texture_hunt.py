@@ -222,3 +222,23 @@ def test_is_georeferenced_refuses_what_is_no_image_file(tmp_path):
     assert is_georeferenced(plain) is False
     (tmp_path / "plain.pgw").write_text("10\n0\n0\n-10\n1000\n2000\n")
     assert is_georeferenced(str(plain)) is True
+
+
+@pytest.mark.parametrize("base, index_every", [(1e12, 5), (1e17, 5), (-1e20, 5), (1e20, 0), (2.5e15 + 50.0, 0)])
+def test_contour_base_far_from_the_heights_draws_the_same_lines(base, index_every):
+    """contour_layer's lines base + k * interval went wrong for a base far from the heights: the kernel's
+    (h - base) / interval in float64 lost the heights' fraction of the interval (base 1e17 over 100 m lines drew
+    lines off their levels, 1e20 made every texel a line; at 1e12 the index lines changed). A base a whole number of
+    periods (interval, times index_every with index lines) away draws the same lines."""
+    import math
+
+    from stepterrain import sample_dem
+    from stepterrain.texture import contour_layer
+
+    dem = sample_dem()
+    period = 100.0 * index_every if index_every else 100.0
+    near = math.fmod(base, period)  # exact: the same levels and index lines
+    want = contour_layer(dem, interval=100.0, base=near, index_every=index_every, device="cpu").image
+    got = contour_layer(dem, interval=100.0, base=base, index_every=index_every, device="cpu").image
+    assert 0.05 < want[..., 3].mean() < 0.5
+    np.testing.assert_allclose(got, want, atol=1e-5)
