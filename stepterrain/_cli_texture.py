@@ -485,6 +485,8 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
                                   ("--occlusion", args.occlusion, {"lo": 0.0, "hi": 1.0})):
         if value is not None:
             finite_number(value, option, **bounds)
+    # a mistyped name was refused only once the DEM was loaded and shaded (shadows, occlusion: minutes on a large one)
+    _colormap(args.colormap)
     if args.method == "none":  # no hillshade: what only shapes the hillshade would come out the same whatever it was
         _check_unshaded(args)
     # the library refuses an angle its method ignores, as this does: only the angles given are passed on
@@ -615,6 +617,9 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
                 else terrain.mesh())
         draped = tx._draped(base, composite, image if over_white is None else over_white, white, _DRAPE_MATERIAL)
         progress.done(f"{_counted(len(draped.faces), 'face')}")
+        if len(draped.faces) == 0 and png is None:  # as steps says it (a --png refuses an empty mesh): the --mesh was
+            # written empty without a word (a line "0 faces" on the progress only, none with -q)
+            warnings.warn("the mesh is empty: no triangle of the input has three finite heights", stacklevel=1)
         if png is not None:
             progress.stage("render", f"rendering {args.size[0]}x{args.size[1]} off-screen")
             shot = render.render_textured_mesh(draped, window_size=args.size, z_scale=args.z_scale,

@@ -363,9 +363,10 @@ def _colours(value: ArrayLike | None, name: str, default: tuple[float, ...], man
         raise InvalidInputError(f"{name} must be {what}; got {len(rows)} colours")
     colours = []
     for row in rows:
-        try:
-            c = np.asarray(row, dtype=np.float64)
-        except (TypeError, ValueError, OverflowError):  # OverflowError: an int beyond float64 (10**400)
+        try:  # real_numbers: np.asarray(row, dtype=float) took ("1", "0", "0") and (True, 0, 0) as numbers, and a
+            # masked component as the value under its mask
+            c = real_numbers(row, name, f"{what} of numbers in [0, 1]")
+        except InvalidInputError:
             raise InvalidInputError(f"{name} must be {what} of numbers in [0, 1]; got {raw!r}") from None
         if c.shape not in ((3,), (4,)):
             raise InvalidInputError(f"{name} must be {what}; got {raw!r}")
@@ -870,9 +871,10 @@ class TextureLayer:
     north edge (ymax), column 0 the west edge; it is kept as given (a numpy memmap stays on disk), and its RGBA is
     cached only when the array is read-only (and not masked), so in-place edits show.
     ``extent``: (xmin, xmax, ymin, ymax) in world units, the outer edges of the pixels. ``matrix``: the 3 × 3
-    texture matrix taking world (x, y, 1) to texel (column, row, 1) (texel centres at integers); ``None``
-    derives it from the extent. Moving a layer (a lens) changes only the matrix (:meth:`moved`). ``border``:
-    what lies outside the image: "transparent" (partial coverage, §4) or "edge" (the edge texels repeat).
+    texture matrix taking world (x, y, 1) to texel (column, row, 1) (affine: last row (0, 0, 1); texel centres at
+    integers); ``None`` derives it from the extent. Moving a layer (a lens) changes only the matrix
+    (:meth:`moved`). ``border``: what lies outside the image: "transparent" (partial coverage, §4) or "edge" (the
+    edge texels repeat).
     """
 
     kind: LayerKind
@@ -918,6 +920,12 @@ class TextureLayer:
             if not _invertible(matrix):  # blend, weighted_add, ... invert it (texel -> world): a LinAlgError
                 raise InvalidInputError(f"matrix must be an invertible 3 x 3 texture matrix (world -> texel); got "
                                         f"{matrix.tolist()}")
+            if not np.array_equal(matrix[2], (0.0, 0.0, 1.0)):
+                # the kernels, texture_uv and the coverage test read texel (column, row) as its first two rows and
+                # never divide by the third: 2 * M (the same map in homogeneous coordinates) sampled texels twice as
+                # far, a perspective row was dropped, both silently
+                raise InvalidInputError(f"matrix must be an affine texture matrix, its last row (0, 0, 1) (world (x, "
+                                        f"y, 1) -> texel (column, row, 1)); got last row {matrix[2].tolist()}")
         object.__setattr__(self, "matrix", matrix)
         if not _is_name(self.border, ("transparent", "edge")):
             raise InvalidInputError(f"border must be 'transparent' or 'edge'; got {self.border!r}")
@@ -1017,7 +1025,8 @@ class TextureLayer:
 
     @property
     def frame(self) -> tuple[Extent, tuple[int, int]]:
-        """(extent, shape): the pixel grid results of operations on this layer are computed on."""
+        """(extent, shape): the layer's extent and image shape, the pixel grid results of operations on it (as their
+        first layer) are computed on; those on a layer :meth:`moved` lie where its texels moved to."""
         return self.extent, self.shape
 
 
@@ -1313,6 +1322,12 @@ def contour_layer(
         raise InvalidInputError(f"index_every must be a whole number >= 0 (0: no index lines); got {index_every!r}")
     if index_every > np.iinfo(np.int32).max:
         raise InvalidInputError(f"index_every must be below 2**31; got {index_every!r}")
+    period = interval * int(index_every) if index_every > 0 else interval
+    if values.size == 0 and math.isfinite(period) and abs(base) >= period:
+        # the same levels and index lines from a base within one period (math.fmod is exact): the kernel's
+        # (h - base) / interval lost the heights' fraction of an interval to a base far from them (1e17 over 100 m
+        # drew lines anywhere, 1e20 made every texel a line)
+        base = math.fmod(base, period)
     if texel_size is None:
         extent, shape = terrain_extent(t), t.heights.shape
     else:
@@ -1527,8 +1542,30 @@ def _composed_pair(shading: TextureLayer, colours: TextureLayer | None, picture:
     return _result(host, target), (_result(over_host, over_target) if both else None)
 
 
-def _finish(out: wp.array, like: TextureLayer, name: str) -> TextureLayer:
-    return TextureLayer("thematic", host_copy(out), like.extent, border="transparent", name=name)
+def _finish(out: wp.array, extent: Extent, name: str) -> TextureLayer:
+    return TextureLayer("thematic", host_copy(out), extent, border="transparent", name=name)
+
+
+def _result_frame(layer: TextureLayer) -> tuple[Extent, tuple[int, int]]:
+    """(extent, shape): the pixel grid an operation computes on when ``layer`` is its first layer: the layer's own
+    texels where its texture matrix puts them. That is its :attr:`~TextureLayer.frame` unless it was moved
+    (:meth:`TextureLayer.moved`: a lens following a point), then the extent its texels lie over (its matrix north-up
+    and axis-aligned; a rotated, sheared or mirrored one is resampled onto its extent): resampled onto its unmoved
+    extent, a lens moved by more than its radius came out as its rim alone."""
+    extent, shape = layer.frame
+    if np.array_equal(layer.matrix, _affine(extent, shape)):
+        return extent, shape
+    inverse = np.linalg.inv(layer.matrix)  # texel (column, row, 1) -> world (x, y, 1)
+    if inverse[0, 1] != 0 or inverse[1, 0] != 0 or not (inverse[0, 0] > 0 and inverse[1, 1] < 0):
+        return extent, shape
+    rows, cols = shape
+    own = (inverse[0, 2] - 0.5 * inverse[0, 0], inverse[0, 2] + (cols - 0.5) * inverse[0, 0],
+           inverse[1, 2] + (rows - 0.5) * inverse[1, 1], inverse[1, 2] - 0.5 * inverse[1, 1])
+    try:
+        own = _check_extent(own)
+    except InvalidInputError:  # moved past float64's range: left where it was, as before
+        return extent, shape
+    return (own, shape) if _invertible(_affine(own, shape)) else (extent, shape)
 
 
 def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | ArrayLike | None = None, *,
@@ -1584,12 +1621,12 @@ def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | 
         w = _as_layer(_named("weights", TextureLayer, "visibility", array, a.extent, matrix=a.matrix)
                       if array.shape == a.shape else array, a, "weights")
     dev = resolve_device(device)
-    extent, shape = a.frame
+    extent, shape = _result_frame(a)
     out = wp.empty(shape, dtype=wp.vec4, device=dev)
     launch(texture_kernels.blend_layers, dim=shape[0] * shape[1],
            inputs=[_sampled(a, extent, shape, dev, "a"), _sampled(b, extent, shape, dev, "b"),
                    _sampled(w, extent, shape, dev, "weights"), 1 if weights is None else 0], outputs=[out], device=dev)
-    return _finish(out, a, "blend")
+    return _finish(out, extent, "blend")
 
 
 def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[float], *,
@@ -1626,14 +1663,14 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
     first = _as_layer(layers[0], None, "layers[0]")
     others = [_as_layer(layer, first, f"layers[{k + 1}]") for k, layer in enumerate(layers[1:])]
     dev = resolve_device(device)
-    extent, shape = first.frame
+    extent, shape = _result_frame(first)
     total = _sampled(first, extent, shape, dev, "layers[0]")
     zero = wp.zeros(shape, dtype=wp.vec4, device=dev) if not others else None
     if zero is not None:
         out = wp.empty(shape, dtype=wp.vec4, device=dev)
         launch(texture_kernels.add_layers, dim=shape[0] * shape[1], inputs=[total, zero, checked[0], 0.0, 1],
                outputs=[out], device=dev)
-        return _finish(out, first, "add")
+        return _finish(out, extent, "add")
     if math.fsum(abs(w) for w in checked) > FLOAT32_MAX / 2:
         # float32 partial sums could overflow: 3e38 + 3e38 − 3e38 − 3e38 became inf − 3e38 = inf, clamped to 1 (in
         # another order 0); in float64 every product is exact, no partial sum overflows, and the compensation keeps
@@ -1647,7 +1684,7 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
                    inputs=[wide, error, sampled, float(np.float32(checked[k]))], outputs=[wide, error], device=dev)
         out = wp.empty(shape, dtype=wp.vec4, device=dev)
         launch(texture_kernels.clamp_wide, dim=shape[0] * shape[1], inputs=[wide, error], outputs=[out], device=dev)
-        return _finish(out, first, "add")
+        return _finish(out, extent, "add")
     weight_total = checked[0]
     for k, layer in enumerate(others):
         out = wp.empty(shape, dtype=wp.vec4, device=dev)
@@ -1657,7 +1694,7 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
                        1 if k == len(others) - 1 else 0],
                outputs=[out], device=dev)
         total, weight_total = out, 1.0
-    return _finish(total, first, "add")
+    return _finish(total, extent, "add")
 
 
 def modulate(a: TextureLayer, *others: TextureLayer | ArrayLike, device: wp.DeviceLike = None) -> TextureLayer:
@@ -1678,7 +1715,7 @@ def modulate(a: TextureLayer, *others: TextureLayer | ArrayLike, device: wp.Devi
     if not others:
         raise InvalidInputError("modulate needs at least two layers")
     dev = resolve_device(device)
-    extent, shape = a.frame
+    extent, shape = _result_frame(a)
     current = _sampled(a, extent, shape, dev, "a")
     for k, other in enumerate(others):
         layer = _as_layer(other, a, f"layer {k + 2}")
@@ -1686,7 +1723,7 @@ def modulate(a: TextureLayer, *others: TextureLayer | ArrayLike, device: wp.Devi
         launch(texture_kernels.modulate_layers, dim=shape[0] * shape[1],
                inputs=[current, _sampled(layer, extent, shape, dev, f"layer {k + 2}")], outputs=[out], device=dev)
         current = out
-    return _finish(current, a, "modulate")
+    return _finish(current, extent, "modulate")
 
 
 def adjust(
@@ -1758,7 +1795,7 @@ def adjust(
     launch(texture_kernels.adjust_layer, dim=shape[0] * shape[1], inputs=[frame, image, params], outputs=[out],
            device=dev)
     if own is None:
-        return _finish(out, layer, "adjust")
+        return _finish(out, layer.extent, "adjust")
     return TextureLayer("thematic", host_copy(out), extent, matrix=layer.matrix, border=layer.border, name="adjust")
 
 
@@ -1879,6 +1916,14 @@ def _lens_args(center: ArrayLike, radius: float, resolution: int, edge: float) -
     # the disc image covers the lens' bounding square plus one texel of border (outside value) on each side
     pad = radius * 2.0 / (resolution - 2)
     extent = (c[0] - radius - pad, c[0] + radius + pad, c[1] - radius - pad, c[1] + radius + pad)
+    # a radius below float64's resolution at the centre: the extent collapsed (refused as a bad "extent", an argument
+    # the caller never gave) or rounded to another size (a lens of another radius, silently)
+    size = 2.0 * (radius + pad)
+    if not all(math.isfinite(v) for v in extent) or any(
+            abs((hi - lo) - size) > 1e-6 * size for lo, hi in ((extent[0], extent[1]), (extent[2], extent[3]))):
+        raise InvalidInputError(f"radius must be large enough to place the lens' {int(resolution)} texels a side at "
+                                f"center in float64 (and the lens finite); got radius {radius:g} at center "
+                                f"({c[0]:g}, {c[1]:g})")
     return extent, int(resolution), edge
 
 
@@ -1977,13 +2022,13 @@ class TextureAnimation:
         a, b, alpha = self.at(t)
         k = next(i for i, layer in enumerate(self.layers) if layer is a)
         dev = resolve_device(device)
-        extent, shape = a.frame
+        extent, shape = _result_frame(a)
         out = wp.empty(shape, dtype=wp.vec4, device=dev)
         launch(texture_kernels.interpolate_layers, dim=shape[0] * shape[1],
                inputs=[_sampled(a, extent, shape, dev, f"layers[{k}]"),
                        _sampled(b, extent, shape, dev, f"layers[{min(k + 1, len(self.layers) - 1)}]"), alpha],
                outputs=[out], device=dev)
-        return _finish(out, a, "frame")
+        return _finish(out, extent, "frame")
 
 
 # ---------------------------------------------------------------------------------------------- draping

@@ -681,8 +681,9 @@ class ImagePyramid:
             source, backing, changeable, georeferencing = None, None, False, tiff.georeferencing
             height, width, channels = tiff.shape
         extent, crs, placed_by_file = _placement(image, extent, crs, georeferencing, (height, width))
-        if isinstance(band_bytes, bool) or not isinstance(band_bytes, int) or band_bytes < 1:
+        if isinstance(band_bytes, bool) or not isinstance(band_bytes, (int, np.integer)) or band_bytes < 1:
             raise InvalidInputError(f"band_bytes must be a positive int; got {band_bytes!r}")
+        band_bytes = int(band_bytes)  # a NumPy integer too (as a level, a lens' resolution): refused before
         anisotropic = check_flag(anisotropic, "anisotropic")
         given = _storage_folder(storage)
         owned = given is None
@@ -1130,8 +1131,9 @@ class PatchQuadtree:
         t = as_terrain(terrain, spacing=spacing, origin=origin)
         if t.kind != "grid":
             raise InvalidInputError("PatchQuadtree needs a regular heightfield")
-        if isinstance(leaf_size, bool) or not isinstance(leaf_size, int) or leaf_size < 2:
+        if isinstance(leaf_size, bool) or not isinstance(leaf_size, (int, np.integer)) or leaf_size < 2:
             raise InvalidInputError(f"leaf_size must be an int >= 2; got {leaf_size!r}")
+        leaf_size = int(leaf_size)  # a NumPy integer too (as a level, a lens' resolution): refused before
         self.terrain = t
         rows, cols = t.heights.shape
         cells = max(rows, cols) - 1
@@ -1376,8 +1378,10 @@ class TextureTree:
             raise InvalidInputError(f"pyramid must be an ImagePyramid; got {type(pyramid).__name__}")
         if not isinstance(quadtree, PatchQuadtree):
             raise InvalidInputError(f"quadtree must be a PatchQuadtree; got {type(quadtree).__name__}")
-        if isinstance(max_texture_size, bool) or not isinstance(max_texture_size, int) or max_texture_size < 1:
+        if (isinstance(max_texture_size, bool) or not isinstance(max_texture_size, (int, np.integer))
+                or max_texture_size < 1):
             raise InvalidInputError(f"max_texture_size must be a positive int; got {max_texture_size!r}")
+        max_texture_size = int(max_texture_size)  # a NumPy integer too (as a level, a lens' resolution): refused before
         pyramid = _placed(pyramid, quadtree.terrain)
         self.pyramid = pyramid
         self.quadtree = quadtree
@@ -1431,11 +1435,17 @@ def is_georeferenced(image: str | os.PathLike[str]) -> bool:
     """Whether the image file ``image`` places itself: a GeoTIFF, or a JPEG or PNG with a world file (``.jgw``,
     ``.pgw``, ``.wld``) or ``.aux.xml`` beside it, whose geotransform (read with rasterio) is not the identity, as
     :meth:`ImagePyramid.build` reads its extent from it. False for a PNG or JPEG without one, a plain TIFF, or
-    without rasterio."""
+    without rasterio. A path that is no file (missing, a folder) raises a :class:`DataFileError`, as
+    :meth:`ImagePyramid.build` does (it answered False: "not georeferenced" of a mistyped name), and a value that is
+    no path an :class:`InvalidInputError` (Path()'s TypeError)."""
+    if not isinstance(image, (str, os.PathLike)):
+        raise InvalidInputError(f"image must be the path of an image file; got {type(image).__name__}")
     path = Path(image)
-    found = (_read_tiff(path, lambda dataset: not dataset.transform.is_identity, any_format=True) if path.is_file()
-             else None)
-    return bool(found)
+    if path.is_dir():
+        raise DataFileError(f"image file {str(image)!r} is a folder; expected an image file")
+    if not path.is_file():
+        raise DataFileError(f"image file {str(image)!r} does not exist")
+    return bool(_read_tiff(path, lambda dataset: not dataset.transform.is_identity, any_format=True))
 
 
 class _WindowedTiff:
@@ -1893,10 +1903,12 @@ class TextureCache:
 
     def __init__(self, budget: int = 256 * 1024**2, loader: Callable[[TexturePatch], Any] | None = None,
                  workers: int = 1) -> None:
-        if isinstance(budget, bool) or not isinstance(budget, int) or budget < 1:
+        # a NumPy integer too (as a pyramid level, a lens' resolution): refused before
+        if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1:
             raise InvalidInputError(f"budget must be a positive int of bytes; got {budget!r}")
-        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
             raise InvalidInputError(f"workers must be a positive int of threads; got {workers!r}")
+        budget, workers = int(budget), int(workers)
         if loader is not None and not callable(loader):
             raise InvalidInputError(f"loader must be a function of a TexturePatch; got {type(loader).__name__}")
         self.budget = budget
@@ -1906,6 +1918,7 @@ class TextureCache:
         self._failed: OrderedDict[int, tuple[TexturePatch, Exception]] = OrderedDict()  # not yet raised
         self._lock = threading.Lock()
         self._executor = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="stepterrain-texture")
+        self._closed = False
         self.bytes_loaded = 0
         self.evictions = 0
 
@@ -1928,6 +1941,10 @@ class TextureCache:
         with self._lock:
             if id(patch) in self._loaded or id(patch) in self._pending:
                 return
+            if self._closed:  # its threads are gone: the executor's RuntimeError ("cannot schedule new futures after
+                # shutdown") came out of request, load_now and render_with_textures
+                raise InvalidInputError("the TextureCache is closed (by close()), so it loads no more patches; make a "
+                                        "new TextureCache (its loaded patches are still handed out by get)")
             self._pending[id(patch)] = self._executor.submit(self._load, patch)
 
     def load_now(self, patch: TexturePatch) -> Any:
@@ -1986,6 +2003,9 @@ class TextureCache:
                 self._pending.pop(id(patch), None)
 
     def close(self) -> None:
+        """Stop the loading threads (after the loads under way); a later request is refused."""
+        with self._lock:
+            self._closed = True
         self._executor.shutdown(wait=True)
 
 

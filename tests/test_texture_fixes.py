@@ -1023,7 +1023,7 @@ def test_a_contour_layer_over_the_memory_budget_is_refused_before_it_is_allocate
     (0.4, 3.0, 0.3, 3),
     (3.0, 1.0, -2.0, 1),
     (2e29, 2e29, 0.0, 2),  # wider than the far-line skip handles (level_distance caps at 1e30): never skipped
-    (1.0, 2.0, -2.0**54, 4),  # line numbers k past 2^51: the index test's divisions, not its reciprocal
+    (1.0, 2.0, -2.0**54, 4),  # a base 2^52 lines away: the same lines as from the base a whole period from it
     (1.0, 2.0, 0.0, 2**31 - 1),
 ])
 def test_contour_lines_on_a_ramp_follow_the_documented_coverage(width, index_width, base, every):
@@ -1038,7 +1038,10 @@ def test_contour_lines_on_a_ramp_follow_the_documented_coverage(width, index_wid
                           color=(0.2, 0.4, 0.6, 0.9), index_color=(0.1, 0.1, 0.1, 0.7), index_every=every,
                           device="cpu")
     h = heights[2, 1:-1].astype(np.float64)  # interior texels: the central difference is 0.75
-    q = (h - base) / 4.0
+    # the levels base + k * 4 and their index lines from the base nearest 0 a whole period (4 * every) away: from
+    # -2^54 itself (h - base) / 4 lost the heights' fraction of a level (every height rounded onto one)
+    near = math.fmod(base, 4.0 * every) if abs(base) >= 4.0 * every else base
+    q = (h - near) / 4.0
     k = np.floor(q)
     alpha = np.zeros_like(h)
     for line, gap in ((k, (q - k) * 4.0), (k + 1.0, (k + 1.0 - q) * 4.0)):
