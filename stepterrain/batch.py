@@ -3123,7 +3123,8 @@ def overview_image(
     ``mosaic`` (default: when the items are tiles of one raster, not the files of a folder whatever their names)
     renders the outputs together in world coordinates, each
     tile tinted a little differently so the seams show; otherwise up to 16 items are rendered side by side, in
-    cells sharing the window (an empty item's, a frame or file of nodata only, stays blank). The picture is
+    cells sharing the window (an empty item's, a frame or file of nodata only, stays blank; so does, with a warning,
+    one too thin to see in its cell, unless no item is drawn: then render_mesh's refusal is raised). The picture is
     ``window_size`` (H = its height, W = its width) either way.
     At most ``max_items`` outputs are read (the first, in item order: a mosaic of more tiles shows only part of the
     raster, with a warning saying so), after the window is checked against the memory budget (an
@@ -3178,6 +3179,7 @@ def overview_image(
     xs = [c * width // cols for c in range(cols + 1)]
     ys = [r * height // rows for r in range(rows + 1)]
     sheet = np.full((height, width, 3), 255, np.uint8)
+    thin: list[tuple[str, int, int, InvalidInputError]] = []  # items too thin to see in their cells
     for k, mesh in enumerate(meshes):
         if len(mesh.faces) == 0:  # an empty item (a frame or file of nodata only): its cell stays blank (it failed
             # the sheet)
@@ -3190,14 +3192,17 @@ def overview_image(
         except InvalidInputError as exc:  # one item too thin to see in its cell (a strip of a file seen from above)
             if "too thin to see" not in str(exc):  # lost the whole sheet, after the run, for one cell
                 raise
-            warnings.warn(f"the overview's cell of {Path(paths[k]).name} ({w} x {h} pixels) is left blank: {exc}",
-                          stacklevel=2)
+            thin.append((Path(paths[k]).name, w, h, exc))
             continue
         if picture.shape[:2] != (h, w):
             from PIL import Image
 
             picture = np.asarray(Image.fromarray(picture).resize((w, h), Image.Resampling.LANCZOS))
         sheet[ys[r] : ys[r + 1], xs[c] : xs[c + 1]] = picture
+    if thin and len(thin) == sum(1 for mesh in meshes if len(mesh.faces)):  # nothing drawn: a blank picture
+        raise thin[0][3]
+    for name, w, h, exc in thin:
+        warnings.warn(f"the overview's cell of {name} ({w} x {h} pixels) is left blank: {exc}", stacklevel=2)
     return sheet
 
 
