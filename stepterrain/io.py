@@ -1816,7 +1816,13 @@ def shared_degree_frame(
 def equals_nodata(array: NDArray[Any], nodata: float) -> NDArray[np.bool_]:
     """Where ``array`` equals ``nodata``, compared in the array's own dtype as GDAL compares it (a float nodata
     rounded to a float32 band's value); a nodata beyond the dtype (inf there) matches no finite cell: call under
-    ``np.errstate(over="ignore")``."""
+    ``np.errstate(over="ignore")``. An integer array matches a whole number within its dtype only, compared as an
+    integer: numpy 1.x's value-based casting compared ``uint8 == 100.01`` in float16, where it is 100."""
+    if array.dtype.kind in "iu":
+        value, info = float(nodata), np.iinfo(array.dtype)
+        if not (value.is_integer() and info.min <= value <= info.max):  # a fraction or beyond the dtype: no cell
+            return np.zeros(array.shape, dtype=bool)
+        return array == array.dtype.type(int(value))
     return array == (array.dtype.type(nodata) if array.dtype.kind == "f" else nodata)
 
 

@@ -337,3 +337,18 @@ def test_cli_texture_takes_nodata(tmp_path, capsys):
     assert code == 0 and "or pass --nodata -9999)" in err, err  # the hint as texture's option
     code, _, err = run(capsys, "texture", path, "--nodata", "-9999", "-o", tmp_path / "t.png")
     assert code == 0 and "marks voids" not in err, err
+
+
+@pytest.mark.parametrize("dtype", ["uint8", "int16", "uint16", "int32", "int64"])
+def test_an_integer_band_matches_a_whole_nodata_within_its_dtype_only(dtype):
+    """equals_nodata on an integer band: a fraction (100.01) or a value beyond the dtype marks no cell, a whole number
+    marks exactly its cells (numpy 1.x compared ``uint8 == 100.01`` in float16, where 100.01 is 100)."""
+    from stepterrain.io import equals_nodata
+
+    a = np.array([[0, 100, 101], [100, 7, 127]], dtype=dtype)
+    np.testing.assert_array_equal(equals_nodata(a, 100.0), a == 100)
+    np.testing.assert_array_equal(equals_nodata(a, 100), a == 100)
+    assert not equals_nodata(a, 100.01).any() and not equals_nodata(a, 99.99).any()
+    assert not equals_nodata(a, float(np.iinfo(a.dtype).max) + 1.0).any()
+    assert not equals_nodata(a, float(np.iinfo(a.dtype).min) - 1.0).any()
+    assert equals_nodata(a, 100.0).dtype == bool and equals_nodata(a, 0.5).shape == a.shape
