@@ -141,7 +141,8 @@ def add_parser(commands: Any) -> None:
     _add_height_unit(p, help="the INPUT heights' length unit (m, ft, US survey foot, km, cm, ...), for a file that "
                              "names none or one not known (an .npz 'units', a raster band's unit); heights become "
                              "metres (default: the unit the file names, else as stored)")
-    _add_nodata(p, "the INPUT, refused as its own nodata is (fill them first)")
+    _add_nodata(p, "the INPUT", "the globe refuses such cells as it refuses the file's own nodata: fill "
+                                  "them first")
     p.add_argument("--face-size", type=int, default=257, metavar="N",
                    help="nodes per cube face edge, 2^k+1 (default 257; the paper uses 1025)")
     p.add_argument("--exaggeration", type=float, default=1.0, metavar="X", help="vertical exaggeration (default 1)")

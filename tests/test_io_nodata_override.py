@@ -337,3 +337,20 @@ def test_cli_texture_takes_nodata(tmp_path, capsys):
     assert code == 0 and "or pass --nodata -9999)" in err, err  # the hint as texture's option
     code, _, err = run(capsys, "texture", path, "--nodata", "-9999", "-o", tmp_path / "t.png")
     assert code == 0 and "marks voids" not in err, err
+
+
+@pytest.mark.parametrize("command, subject, note", [
+    ("steps", "the INPUT (or the embedded DEM)", ""), ("closeup", "the INPUT (or the embedded DEM)", ""),
+    ("texture", "the INPUT (or the embedded DEM)", ""), ("info", "a DEM (or the embedded one)", "not for a mesh"),
+    ("batch", "every DEM file (or the embedded DEM)", "the shared levels' height range is read with it too"),
+    ("globe", "the INPUT", "fill them first"),
+])
+def test_nodata_help_says_whose_cells_it_marks_besides_their_own_nodata(capsys, command, subject, note):
+    # the subcommand's own note was put between the subject and "besides its own nodata": info's read "not for a
+    # mesh besides its own nodata value and mask", globe's "refused as its own nodata is (fill them first) besides
+    # its own nodata value and mask"
+    code, out, _ = run(capsys, command, "--help")
+    assert code == 0
+    text = " ".join(out.split())
+    assert f"value(s) marking missing cells of {subject} besides its own nodata value and mask," in text
+    assert note in text.split("--nodata V[,V...]")[-1]  # the subcommand's own word on them kept
