@@ -112,7 +112,7 @@ def add_parser(commands: Any) -> None:
     _add_height_unit(p)
     _add_band(p)
     _add_height_encoding(p)
-    _add_nodata(p, "every DEM file (or the embedded DEM), the shared levels' height range read with it too")
+    _add_nodata(p, "every DEM file (or the embedded DEM)", "the shared levels' height range is read with it too")
     p.add_argument("--spacing", type=_cell_size, metavar="D|dx,dy",
                    help="the node spacing in metres of DEM files with no georeferencing (.npy, a PNG heightmap, a "
                         "GeoTIFF without a geotransform), each read as 1 m cells otherwise; rows run north to south; "

@@ -141,7 +141,8 @@ def add_parser(commands: Any) -> None:
     _add_height_unit(p, help="the INPUT heights' length unit (m, ft, US survey foot, km, cm, ...), for a file that "
                              "names none or one not known (an .npz 'units', a raster band's unit); heights become "
                              "metres (default: the unit the file names, else as stored)")
-    _add_nodata(p, "the INPUT, refused as its own nodata is (fill them first)")
+    _add_nodata(p, "the INPUT", "the globe refuses such cells as it refuses the file's own nodata: fill "
+                                  "them first")
     p.add_argument("--face-size", type=int, default=257, metavar="N",
                    help="nodes per cube face edge, 2^k+1 (default 257; the paper uses 1025)")
     p.add_argument("--exaggeration", type=float, default=1.0, metavar="X", help="vertical exaggeration (default 1)")
@@ -297,9 +298,24 @@ def _load_geotiff_grid(
         # INPUT and hiding that the file's own nodata cells were the NaN
         missing = terrain.nodata_mask
         row, col = np.argwhere(missing)[0]
-        raise InvalidInputError(f"INPUT {str(file)!r} has {_counted(int(missing.sum()), 'nodata cell')} (first at row "
-                                f"{row}, column {col}); a global grid cannot have holes: fill them first, e.g. "
-                                f"gdal_fillnodata.py {shlex.quote(str(file))} filled.tif, and give filled.tif")
+        count = int(missing.sum())
+        del terrain, missing
+        quoted = shlex.quote(str(file))
+        fix = f"fill them first, e.g. gdal_fillnodata.py {quoted} filled.tif, and give filled.tif"
+        given = [v for v in (nodata or ()) if math.isfinite(v)]
+        own = _own_nodata_count(file, height_unit) if given else count
+        if own != count:  # cells --nodata marks: gdal_fillnodata.py fills only a declared nodata (filled.tif kept
+            # them, and was refused again)
+            values = ",".join(f"{v:.17g}" for v in given)
+            where = f"; --nodata {values} marks cells the file does not declare nodata"
+            fix = (f"fill them first, e.g. gdal_translate -a_nodata {given[0]:.17g} {quoted} declared.tif, then "
+                   "gdal_fillnodata.py declared.tif filled.tif, and give filled.tif" if len(given) == 1 and own == 0
+                   else "fill them first (gdal_fillnodata.py fills only the nodata value a file declares, one per "
+                   "band: give those cells that value first)")
+        else:
+            where = ""
+        raise InvalidInputError(f"INPUT {str(file)!r} has {_counted(count, 'nodata cell')} (first at row {row}, "
+                                f"column {col}{where}); a global grid cannot have holes: {fix}")
     radius, _, lat_0, lon_0, _, _ = eqc  # node (0, 0), the origin of load_dem's local metres
     rows, cols = terrain.shape
     lat = lat_0 + step[1] * np.arange(rows, dtype=np.float64)
@@ -310,6 +326,23 @@ def _load_geotiff_grid(
         named = _crs_body(header[0]) if header is not None else None
         body = _Body(radius, named.name if named is not None else "its")
     return lat, lon, terrain.heights, body
+
+
+def _own_nodata_count(file: Path, height_unit: str | None) -> int | None:
+    """The nodata cells of the raster ``file`` as load_dem reads it without ``--nodata`` (its own nodata and mask),
+    read again for a refusal's advice; None where it cannot be read so (a float64 grid's lowest value, which only
+    --nodata lifts)."""
+    import warnings
+
+    from .errors import StepTerrainError
+    from .io import load_dem
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return int(load_dem(file, height_unit=height_unit).nodata_mask.sum())
+    except StepTerrainError:
+        return None
 
 
 def _check_globe_numbers(args: argparse.Namespace) -> None:

@@ -262,13 +262,16 @@ def _nodata_values(text: str) -> list[float]:
     return values
 
 
-def _add_nodata(p: argparse.ArgumentParser, what: str = "the INPUT") -> None:
-    """``--nodata``: load_dem's ``nodata``, values marking missing cells of ``what`` besides its own nodata."""
+def _add_nodata(p: argparse.ArgumentParser, what: str = "the INPUT", note: str = "") -> None:
+    """``--nodata``: load_dem's ``nodata``, values marking missing cells of ``what`` besides its own nodata; ``note``:
+    the subcommand's own word on them, after the forms (placed after ``what``, it read "a DEM; not for a mesh besides
+    its own nodata value")."""
     p.add_argument("--nodata", type=_nodata_values, action="extend", default=None, metavar="V[,V...]",
                    help=f"value(s) marking missing cells of {what} besides its own nodata value and mask, as "
                         "`gdal_edit.py -a_nodata V` would declare them: compared with the values as stored (a "
                         "GeoTIFF band's before its scale and offset, in its dtype); repeat it or give a "
-                        "comma-separated list: --nodata -9999,-32768 (default: none, the file's own nodata only)")
+                        f"comma-separated list: --nodata -9999,-32768{'; ' + note if note else ''} (default: none, "
+                        "the file's own nodata only)")
 
 
 def _height_encoding(text: str) -> str:
@@ -660,7 +663,7 @@ def _add_info(commands: Any) -> None:
                               "none or one not known; not for a mesh")
     _add_band(p)
     _add_height_encoding(p)
-    _add_nodata(p, "a DEM (or the embedded one); not for a mesh")
+    _add_nodata(p, "a DEM (or the embedded one)", "not for a mesh")
     # the spacing steps', closeup's and texture's --spacing places a grid with: their --crop takes the coordinates
     # info prints, which it could not print for such a grid ("unrecognized arguments: --spacing 30")
     p.add_argument("--spacing", type=_cell_size, metavar="D|dx,dy",

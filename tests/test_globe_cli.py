@@ -749,3 +749,30 @@ def test_globe_of_a_raster_with_nodata_cells_names_the_input_and_the_fix(tmp_pat
     command = err[err.index("gdal_fillnodata.py"):err.index(", and give")]
     assert shlex.split(command) == ["gdal_fillnodata.py", str(path), "filled.tif"]
     assert "NaN" not in err and len(err.strip().splitlines()) == 1 and not out.exists()
+
+
+def test_globe_nodata_refusal_of_cells_only_nodata_marks_gives_a_fix_that_fills_them(tmp_path, capsys):
+    """Cells --nodata marks (a -9999 GDAL does not know as the file's nodata) were refused with the advice
+    ``gdal_fillnodata.py grid.tif filled.tif``, which fills only a declared nodata: filled.tif kept its -9999 cells,
+    and was refused again. The advice declares --nodata's value first, then fills that file."""
+    import shlex
+
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    z = (np.add.outer(np.arange(18), np.arange(36)) % 50 * 100).astype(np.float32)
+    z[5, 7] = -9999.0
+    path = tmp_path / "my grid.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=36, height=18, count=1, dtype="float32", crs="EPSG:4326",
+                       transform=Affine(10.0, 0.0, -180.0, 0.0, -10.0, 90.0)) as ds:  # no nodata declared
+        ds.write(z, 1)
+    out = tmp_path / "x.glb"
+    assert main(["-q", "globe", str(path), "--nodata", "-9999", "--face-size", "9", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"stepterrain globe: error: INPUT {str(path)!r} has 1 nodata cell (first at row 5, column "
+                          "7; --nodata -9999 marks cells the file does not declare nodata); "), err
+    declare = err[err.index("gdal_translate"):err.index(", then")]
+    assert shlex.split(declare) == ["gdal_translate", "-a_nodata", "-9999", str(path), "declared.tif"]
+    fill = err[err.index("then gdal_fillnodata.py") + 5:err.index(", and give")]
+    assert shlex.split(fill) == ["gdal_fillnodata.py", "declared.tif", "filled.tif"]
+    assert len(err.strip().splitlines()) == 1 and not out.exists()

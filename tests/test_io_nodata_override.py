@@ -352,3 +352,20 @@ def test_an_integer_band_matches_a_whole_nodata_within_its_dtype_only(dtype):
     assert not equals_nodata(a, float(np.iinfo(a.dtype).max) + 1.0).any()
     assert not equals_nodata(a, float(np.iinfo(a.dtype).min) - 1.0).any()
     assert equals_nodata(a, 100.0).dtype == bool and equals_nodata(a, 0.5).shape == a.shape
+
+
+@pytest.mark.parametrize("command, subject, note", [
+    ("steps", "the INPUT (or the embedded DEM)", ""), ("closeup", "the INPUT (or the embedded DEM)", ""),
+    ("texture", "the INPUT (or the embedded DEM)", ""), ("info", "a DEM (or the embedded one)", "not for a mesh"),
+    ("batch", "every DEM file (or the embedded DEM)", "the shared levels' height range is read with it too"),
+    ("globe", "the INPUT", "fill them first"),
+])
+def test_nodata_help_says_whose_cells_it_marks_besides_their_own_nodata(capsys, command, subject, note):
+    # the subcommand's own note was put between the subject and "besides its own nodata": info's read "not for a
+    # mesh besides its own nodata value and mask", globe's "refused as its own nodata is (fill them first) besides
+    # its own nodata value and mask"
+    code, out, _ = run(capsys, command, "--help")
+    assert code == 0
+    text = " ".join(out.split())
+    assert f"value(s) marking missing cells of {subject} besides its own nodata value and mask," in text
+    assert note in text.split("--nodata V[,V...]")[-1]  # the subcommand's own word on them kept
