@@ -1085,6 +1085,26 @@ def test_contour_lines_from_a_far_base_lie_on_its_levels_when_the_period_is_not_
     assert (layer.image[2, 1:-1, 3] == 0).any() and (layer.image[2, 1:-1, 3] > 0.5).any()
 
 
+def test_contour_index_lines_past_2_51_lines_from_the_base():
+    """Line numbers k past 2^51 take index_lines' division (is_index_line), not its reciprocal: the case of
+    test_contour_lines_on_a_ramp_follow_the_documented_coverage that reached it (base -2^54) is now reduced to a base
+    near 0, so heights 2^53 and up (k = 2^51 + j * 2^28 at interval 4, float32 and float64 exact) keep it run. Every
+    texel lies on its line k (the next, k + 1, as close in texels on this slope): the index colour, more opaque,
+    where 3 divides k or k + 1, worked out in Python's integers."""
+    from stepterrain.texture import contour_layer
+
+    j = np.arange(40)
+    row = (2.0**53 + j * 2.0**30).astype(np.float32)
+    assert np.array_equal(row.astype(np.float64), 2.0**53 + j * 2.0**30)
+    layer = contour_layer(np.tile(row, (5, 1)), interval=4.0, index_every=3, color=(0.2, 0.4, 0.6, 0.5),
+                          index_color=(0.1, 0.1, 0.1, 1.0), device="cpu")
+    k = [(2**53 + int(n) * 2**30) // 4 for n in j[1:-1]]
+    want = np.array([line % 3 == 0 or (line + 1) % 3 == 0 for line in k])
+    assert want.any() and not want.all()
+    np.testing.assert_array_equal(layer.image[2, 1:-1, 3] == 1.0, want)
+    np.testing.assert_allclose(layer.image[2, 1:-1, 3][~want], 0.5, atol=1e-6)
+
+
 def test_contour_lines_shift_with_heights_and_base_together():
     """Heights and base moved together by an amount float32 and float64 keep exact draw the same texels: a base
     within reach of the heights is used as given. It was taken a period (7.3 * 3) at a time towards 0 whenever it
