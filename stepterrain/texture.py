@@ -1027,7 +1027,8 @@ class TextureLayer:
     @property
     def frame(self) -> tuple[Extent, tuple[int, int]]:
         """(extent, shape): the layer's extent and image shape, the pixel grid results of operations on it (as their
-        first layer) are computed on; those on a layer :meth:`moved` lie where its texels moved to."""
+        first layer) are computed on; those on a layer :meth:`moved` lie where its texels moved to (a north-up,
+        axis-aligned texture matrix; a rotated, sheared or mirrored one is resampled onto this extent)."""
         return self.extent, self.shape
 
 
