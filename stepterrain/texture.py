@@ -22,6 +22,7 @@ import math
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from fractions import Fraction
 from typing import Any, Literal
 
 import numpy as np
@@ -1026,7 +1027,8 @@ class TextureLayer:
     @property
     def frame(self) -> tuple[Extent, tuple[int, int]]:
         """(extent, shape): the layer's extent and image shape, the pixel grid results of operations on it (as their
-        first layer) are computed on; those on a layer :meth:`moved` lie where its texels moved to."""
+        first layer) are computed on; those on a layer :meth:`moved` lie where its texels moved to (a north-up,
+        axis-aligned texture matrix; a rotated, sheared or mirrored one is resampled onto this extent)."""
         return self.extent, self.shape
 
 
@@ -1322,12 +1324,16 @@ def contour_layer(
         raise InvalidInputError(f"index_every must be a whole number >= 0 (0: no index lines); got {index_every!r}")
     if index_every > np.iinfo(np.int32).max:
         raise InvalidInputError(f"index_every must be below 2**31; got {index_every!r}")
-    period = interval * int(index_every) if index_every > 0 else interval
-    if values.size == 0 and math.isfinite(period) and abs(base) >= period:
-        # the same levels and index lines from a base within one period (math.fmod is exact): the kernel's
-        # (h - base) / interval lost the heights' fraction of an interval to a base far from them (1e17 over 100 m
-        # drew lines anywhere, 1e20 made every texel a line)
-        base = math.fmod(base, period)
+    if values.size == 0 and abs(base) > interval * 2.0**29:
+        # the same levels and index lines from a base a whole number of periods (interval, times index_every with
+        # index lines) nearer 0: the kernel's (h - base) / interval lost the heights' fraction of an interval to a
+        # base far from them (1e17 over 100 m drew lines anywhere, 1e20 made every texel a line). Reduced exactly
+        # (math.fmod by interval * index_every rounded in float64 moved every level by up to ulp(base): 0.85 of an
+        # interval of 7.3 at 1e17), rounded once. A base within 2^29 intervals is used as given ((h - base) /
+        # interval resolves 2^-24 of an interval there, as fine as the float32 line distance): the reduced one's
+        # rounding put a height exactly on a level just below it, another line drawn (the same texels as before)
+        period = Fraction(interval) * (int(index_every) if index_every > 0 else 1)
+        base = float(Fraction(base) - math.trunc(Fraction(base) / period) * period)
     if texel_size is None:
         extent, shape = terrain_extent(t), t.heights.shape
     else:

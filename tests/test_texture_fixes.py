@@ -1056,6 +1056,73 @@ def test_contour_lines_on_a_ramp_follow_the_documented_coverage(width, index_wid
         assert (layer.image[2, 1:-1, 3] == 0).any()  # texels far from any line: the skip ran
 
 
+@pytest.mark.parametrize("base, interval, every", [(-1e17, 7.3, 3), (1e16, 3.3, 9), (-1e17, 3.7, 0)])
+def test_contour_lines_from_a_far_base_lie_on_its_levels_when_the_period_is_not_a_float(base, interval, every):
+    """A base far from the heights is taken a whole number of periods (interval * index_every) nearer: that period
+    rounded in float64 (7.3 * 3) and math.fmod reduced by the rounded one, moving every level by up to ulp(base)
+    (0.85 of an interval at 1e17: lines off their levels, index lines among the others). The reference is exact:
+    each texel's line numbers (h - base) / interval in rational arithmetic."""
+    from fractions import Fraction
+
+    from stepterrain.texture import contour_layer
+
+    heights = np.tile((0.75 * np.arange(90)).astype(np.float32), (5, 1))
+    layer = contour_layer(heights, interval=interval, base=base, width=1.0, index_width=2.0, index_every=every,
+                          color=(0.2, 0.4, 0.6, 0.9), index_color=(0.1, 0.1, 0.1, 0.7), device="cpu")
+    alpha = []
+    for h in heights[2, 1:-1]:  # interior texels: the central difference is 0.75
+        q = (Fraction(float(h)) - Fraction(base)) / Fraction(interval)
+        k = math.floor(q)
+        best = np.float32(0.0)
+        for line, gap in ((k, (q - k) * Fraction(interval)), (k + 1, (k + 1 - q) * Fraction(interval))):
+            index = every > 0 and line % every == 0
+            half = np.float32(1.0 if index else 0.5)
+            d = np.float32(float(gap) / 0.75)
+            cover = np.clip(min(d + half, np.float32(0.5)) - max(d - half, np.float32(-0.5)), 0, 1)
+            best = max(best, cover * np.float32(0.7 if index else 0.9))
+        alpha.append(best)
+    np.testing.assert_allclose(layer.image[2, 1:-1, 3], alpha, atol=1e-5)
+    assert (layer.image[2, 1:-1, 3] == 0).any() and (layer.image[2, 1:-1, 3] > 0.5).any()
+
+
+def test_contour_index_lines_past_2_51_lines_from_the_base():
+    """Line numbers k past 2^51 take index_lines' division (is_index_line), not its reciprocal: the case of
+    test_contour_lines_on_a_ramp_follow_the_documented_coverage that reached it (base -2^54) is now reduced to a base
+    near 0, so heights 2^53 and up (k = 2^51 + j * 2^28 at interval 4, float32 and float64 exact) keep it run. Every
+    texel lies on its line k (the next, k + 1, as close in texels on this slope): the index colour, more opaque,
+    where 3 divides k or k + 1, worked out in Python's integers."""
+    from stepterrain.texture import contour_layer
+
+    j = np.arange(40)
+    row = (2.0**53 + j * 2.0**30).astype(np.float32)
+    assert np.array_equal(row.astype(np.float64), 2.0**53 + j * 2.0**30)
+    layer = contour_layer(np.tile(row, (5, 1)), interval=4.0, index_every=3, color=(0.2, 0.4, 0.6, 0.5),
+                          index_color=(0.1, 0.1, 0.1, 1.0), device="cpu")
+    k = [(2**53 + int(n) * 2**30) // 4 for n in j[1:-1]]
+    want = np.array([line % 3 == 0 or (line + 1) % 3 == 0 for line in k])
+    assert want.any() and not want.all()
+    np.testing.assert_array_equal(layer.image[2, 1:-1, 3] == 1.0, want)
+    np.testing.assert_allclose(layer.image[2, 1:-1, 3][~want], 0.5, atol=1e-6)
+
+
+def test_contour_lines_shift_with_heights_and_base_together():
+    """Heights and base moved together by an amount float32 and float64 keep exact draw the same texels: a base
+    within reach of the heights is used as given. It was taken a period (7.3 * 3) at a time towards 0 whenever it
+    was a period from 0, and the rounding of that reduced base put a height exactly on a level (1198 m, base
+    1234.5 m) just below it: the line below was drawn instead of the one above, an index line's colour over 710
+    texels of the sample DEM."""
+    from stepterrain import sample_dem
+    from stepterrain.texture import contour_layer
+
+    heights = np.asarray(sample_dem().heights, dtype=np.float32)
+    shifted = heights - np.float32(1234.5)  # whole metres minus 1234.5: exact
+    assert np.array_equal(shifted.astype(np.float64), heights.astype(np.float64) - 1234.5)
+    given = contour_layer(heights, interval=7.3, base=1234.5, index_every=3, device="cpu").image
+    moved = contour_layer(shifted, interval=7.3, base=0.0, index_every=3, device="cpu").image
+    assert 0.05 < given[..., 3].mean() < 0.95
+    np.testing.assert_array_equal(given, moved)
+
+
 @pytest.mark.parametrize("combine_with", ["blend", "modulate", "weighted_add"])
 def test_a_layer_over_another_extent_is_resampled_at_any_pixel_size(combine_with):
     """Whether a layer is already the pixel grid it combines on was an absolute test of the texture matrices (1e-9),
