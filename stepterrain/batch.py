@@ -753,6 +753,35 @@ def _tile_off_thresholds(item: BatchItem, source: _Source, terrain: Terrain, opt
                                 source=terrain.source)  # fmt: skip
 
 
+def _tile_borders_on_grid(mesh: Any, item: BatchItem, source: _Source, terrain: Terrain) -> Any:
+    """``mesh`` (a tile stepped from ``terrain``) with the vertices on its last node column and row at the whole
+    raster's x = x0 + c dx and y = y0 + r dy, the float64 values the neighbouring tiles' origins have there.
+
+    :func:`~stepterrain.stepped` places a node at its terrain's origin plus the float32 local coordinate
+    ``float32(j) * float32(dx)``: exact for a spacing such as 30 m, but for one such as 70.827 m (a raster in
+    degrees as local metres) the tile's last column landed up to half a float32 step of the tile's extent (0.27 mm
+    for 200 cells) off its right neighbour's first column, which lies at that neighbour's origin: the tiles'
+    shared vertices differed in x (and y), in .ply by those bits, in .glb by a float32 step, and did not weld. Every
+    vertex of those columns (nodes, wall crossings on the border's edges, a solid's skirt) has exactly that local
+    coordinate, so those are moved, by at most that rounding; the first column and row lie at the origin already.
+    """
+    (r0, r1), (c0, c1) = item.rows, item.cols
+    (dx, dy), (x0, y0) = source.spacing, source.origin
+    vertices = np.array(mesh.vertices, dtype=np.float64)
+    moved = False
+    for axis, first, last, step, start, origin in ((0, c0, c1, dx, x0, terrain.origin[0]),
+                                                   (1, r0, r1, dy, y0, terrain.origin[1])):
+        local = np.float32(last - 1 - first) * np.float32(step)  # the kernel's float32 node coordinate
+        computed = origin + np.float64(local)
+        exact = start + (last - 1) * step  # as _item_terrain places the neighbour's origin
+        if computed != exact:
+            vertices[vertices[:, axis] == computed, axis] = exact
+            moved = True
+    if moved:
+        mesh.vertices = vertices
+    return mesh
+
+
 def _check_unreferenced(crs: str | None, spacing: tuple[float, float], origin: tuple[float, float], name: str) -> None:
     """An InvalidInputError naming ``spacing=`` when a DEM file places its nodes itself (load_dem reads a file
     without georeferencing as 1 m cells at (0, 0), rows north to south: io.own_placement)."""
@@ -1023,6 +1052,8 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
                 terrain, interval=options.interval, levels=options.levels, base=options.base, gamma=options.gamma,
                 colors=options.colors, solid=options.solid, floor=options.floor, device=options.device,
             )  # fmt: skip
+            if item.kind == "tile" and source is not None:
+                mesh = _tile_borders_on_grid(mesh, item, source, terrain)
         with replacing_without_flush():  # a tile a crash empties fails the manifest's size check: redone, not lost
             save_mesh(mesh, written, metadata=metadata, shared_bounds=None if source is None else source.bounds)
         n_faces, n_vertices = len(mesh.faces), len(mesh.vertices)

@@ -16,6 +16,8 @@ from stepterrain.batch import MANIFEST_NAME, batch
 from stepterrain.export import read_mesh
 from stepterrain.mesh import boundary_edges
 
+from .conftest import shared_file
+
 
 def test_a_rerun_removes_the_partial_temporary_files_a_killed_run_left(tmp_path):
     # a run killed while writing left its hidden temporary file (16 MB of a 174 MB tile, say) beside the outputs,
@@ -3032,3 +3034,37 @@ def test_projected_crss_warning_gives_a_gdalwarp_that_a_shell_runs_for_a_crs_wit
     (message,) = [str(w.message) for w in caught]
     command = message[message.index("(gdalwarp ") + 1:-1]
     assert shlex.split(command) == ["gdalwarp", "-t_srs", wkt, "FILE", "OUT.tif"], command
+
+
+@pytest.mark.parametrize("fmt", [".ply", ".glb"])
+@pytest.mark.parametrize("solid", [False, True])
+def test_tiles_of_a_raster_with_an_inexact_spacing_share_their_border_vertices_bit_for_bit(tmp_path, fmt, solid):
+    # Found by reading back the tiles of the Front Range DEM (3 arc-seconds as local metres: dx = 70.827 m): a node
+    # sat at its tile's origin plus float32(j) * float32(dx), so a tile's last column lay up to half a float32 step
+    # of the tile's extent off its right neighbour's first column (its origin, x0 + c dx): 0.27 mm in .ply, a float32
+    # step in .glb, on every seam; a spacing of 30 m (the embedded DEM) is exact in float32 and hid it
+    from stepterrain.io import load_dem
+
+    terrain = load_dem(shared_file("front_range_srtmgl3_3arcsec.npz"))
+    (dx, dy), (x0, y0) = terrain.spacing, terrain.origin
+    assert dy < 0 < dx
+    assert float(np.float32(dx)) != dx  # the point: a spacing float32 does not hold
+    rows, cols = 200, 200  # 16 tiles, their seams up to 13 km out
+    crop = (x0, x0 + (cols - 1) * dx, y0 + (rows - 1) * dy, y0)
+    # heights are whole metres: thresholds at x.8 hold none (a height on one makes a zero-width terrace, which a
+    # tile stepped alone draws only on its own side)
+    report = batch(terrain, tmp_path, tile_size=(60, 70), crop=crop, interval=25.0, base=0.3, solid=solid,
+                   format=fmt, scheduler="serial")  # fmt: skip
+    assert report.ok and len(report.done) == 4 * 3
+    meshes = {r.key: np.asarray(read_mesh(r.path).vertices, np.float64) for r in report.done}  # world coordinates
+    for key, vertices in meshes.items():
+        r, c = (int(n) for n in re.fullmatch(r"tile_r(\d)_c(\d)", key).groups())
+        # a tile's last column (x grows with it) and last row (dy < 0: y falls) against its neighbour's first
+        for axis, neighbour, side in ((0, f"tile_r{r}_c{c + 1}", 1), (1, f"tile_r{r + 1}_c{c}", -1)):
+            if neighbour not in meshes:
+                continue
+            other = meshes[neighbour]
+            line, theirs_line = side * (side * vertices[:, axis]).max(), side * (side * other[:, axis]).min()
+            assert line == theirs_line, f"{key} / {neighbour}: seam at {line!r} and {theirs_line!r}"
+            mine, theirs = vertices[vertices[:, axis] == line], other[other[:, axis] == line]
+            assert set(map(tuple, mine)) == set(map(tuple, theirs)), (key, neighbour)
