@@ -765,19 +765,42 @@ def _tile_borders_on_grid(mesh: Any, item: BatchItem, source: _Source, terrain: 
     vertex of those columns (nodes, wall crossings on the border's edges, a solid's skirt) has exactly that local
     coordinate, so those are moved, by at most that rounding; the first column and row lie at the origin already.
     """
-    (r0, r1), (c0, c1) = item.rows, item.cols
+    (_, r1), (_, c1) = item.rows, item.cols
     (dx, dy), (x0, y0) = source.spacing, source.origin
-    vertices = np.array(mesh.vertices, dtype=np.float64)
-    moved = False
-    for axis, first, last, step, start, origin in ((0, c0, c1, dx, x0, terrain.origin[0]),
-                                                   (1, r0, r1, dy, y0, terrain.origin[1])):
-        local = np.float32(last - 1 - first) * np.float32(step)  # the kernel's float32 node coordinate
-        computed = origin + np.float64(local)
-        exact = start + (last - 1) * step  # as _item_terrain places the neighbour's origin
-        if computed != exact:
-            vertices[vertices[:, axis] == computed, axis] = exact
-            moved = True
-    if moved:
+    return _last_nodes_at(mesh, terrain, (x0 + (c1 - 1) * dx, y0 + (r1 - 1) * dy))  # as _item_terrain places them
+
+
+def _frame_borders_on_grid(mesh: Any, terrain: Terrain, frame: _Frame) -> Any:
+    """``mesh`` (a file in degrees stepped in its folder's shared ``frame``, :func:`_in_frame`) with the vertices on
+    its last node column and row where :func:`~stepterrain.io.shared_degree_frame` puts the first column and row of
+    the file beside it, ``dx * k`` (``k`` a whole number of the mosaic's nodes), as :func:`_tile_borders_on_grid`
+    does for tiles: neighbouring SRTM tiles' seams lay up to half a float32 step of a file's extent apart (0.12 mm
+    for 60 cells of 70.6 m). A file off the mosaic's lattice (another resolution, a coarsened one) is left as is."""
+    if terrain.spacing != frame.spacing:
+        return mesh
+    exact = []
+    for origin, step, n in zip(frame.origin, frame.spacing, terrain.heights.shape[::-1], strict=True):
+        k = origin / step
+        if k != round(k):
+            return mesh
+        exact.append(step * float(round(k) + n - 1))
+    return _last_nodes_at(mesh, terrain, (exact[0], exact[1]))
+
+
+def _last_nodes_at(mesh: Any, terrain: Terrain, exact: tuple[float, float]) -> Any:
+    """``mesh`` (stepped from the grid ``terrain``) with the vertices :func:`~stepterrain.stepped` put on the grid's
+    last node column (x: its origin plus ``float32(j) * float32(dx)``, as the kernel computes it) at ``exact[0]``,
+    and those on its last row at ``exact[1]``."""
+    rows, cols = terrain.heights.shape
+    vertices = None
+    for axis, n in ((0, cols), (1, rows)):
+        local = np.float32(n - 1) * np.float32(terrain.spacing[axis])  # the kernel's float32 node coordinate
+        computed = terrain.origin[axis] + np.float64(local)
+        if computed != exact[axis]:
+            if vertices is None:
+                vertices = np.array(mesh.vertices, dtype=np.float64)
+            vertices[vertices[:, axis] == computed, axis] = exact[axis]
+    if vertices is not None:
         mesh.vertices = vertices
     return mesh
 
@@ -1054,6 +1077,8 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
             )  # fmt: skip
             if item.kind == "tile" and source is not None:
                 mesh = _tile_borders_on_grid(mesh, item, source, terrain)
+            elif frame is not None:
+                mesh = _frame_borders_on_grid(mesh, terrain, frame)
         with replacing_without_flush():  # a tile a crash empties fails the manifest's size check: redone, not lost
             save_mesh(mesh, written, metadata=metadata, shared_bounds=None if source is None else source.bounds)
         n_faces, n_vertices = len(mesh.faces), len(mesh.vertices)

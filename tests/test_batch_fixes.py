@@ -3068,3 +3068,37 @@ def test_tiles_of_a_raster_with_an_inexact_spacing_share_their_border_vertices_b
             assert line == theirs_line, f"{key} / {neighbour}: seam at {line!r} and {theirs_line!r}"
             mine, theirs = vertices[vertices[:, axis] == line], other[other[:, axis] == line]
             assert set(map(tuple, mine)) == set(map(tuple, theirs)), (key, neighbour)
+
+
+def test_geotiff_tiles_in_degrees_share_their_border_vertices_bit_for_bit(tmp_path):
+    fmt = ".ply"  # float64 as written (a .glb's float32 happened to round both seams alike here)
+    # Found by cutting the Front Range GeoTIFF (3 arc-seconds, EPSG:4326) into three tiles sharing their border
+    # nodes, as SRTM tiles do, and reading back a folder run's meshes: the files are placed in the local metres of
+    # their mosaic (dx = 70.63 m, a file's node (0, 0) at dx * k), but a file's last column lay at its origin plus
+    # float32(j) * float32(dx), 0.5 mm off its east neighbour's first column (and its last row off its south
+    # neighbour's first row): no seam shared a vertex
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFF tiles are written with rasterio")
+    from rasterio.transform import Affine
+    from rasterio.windows import Window
+
+    folder = tmp_path / "tiles"
+    folder.mkdir()
+    with rasterio.open(shared_file("front_range_srtmgl3_3arcsec.tif")) as ds:
+        assert ds.crs.is_geographic
+        profile = {k: v for k, v in ds.profile.items() if k not in ("blockxsize", "blockysize", "tiled")}
+        for name, (c0, r0) in {"a": (100, 100), "b": (280, 100), "c": (100, 250)}.items():
+            g = ds.transform  # the window's own (rasterio's window_transform warns of its Affine `*`)
+            moved = Affine(g.a, g.b, g.c + c0 * g.a, g.d, g.e, g.f + r0 * g.e)
+            with rasterio.open(folder / f"{name}.tif", "w", **{**profile, "width": 181, "height": 151,
+                                                                  "transform": moved}) as f:
+                f.write(ds.read(1, window=Window(c0, r0, 181, 151)), 1)
+    # heights are whole metres: thresholds at x.8 hold none (a height on one draws a zero-width terrace on one side)
+    report = batch(folder, tmp_path / "out", interval=20.0, base=0.3, format=fmt, scheduler="serial")
+    assert report.ok and len(report.done) == 3
+    a, b, c = (np.asarray(read_mesh(tmp_path / "out" / f"{k}{fmt}").vertices, np.float64) for k in "abc")
+    for (first, second), axis, side in (((a, b), 0, 1), ((a, c), 1, -1)):  # east: x grows; south: y falls
+        line, other_line = side * (side * first[:, axis]).max(), side * (side * second[:, axis]).min()
+        assert line == other_line, f"seam at {line!r} and {other_line!r}"
+        mine, theirs = first[first[:, axis] == line], second[second[:, axis] == line]
+        assert len(mine) >= min(first.shape[0], 151 if axis == 0 else 181)  # every border node, and wall crossings
+        assert set(map(tuple, mine)) == set(map(tuple, theirs))
