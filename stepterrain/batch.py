@@ -765,6 +765,58 @@ def _tile_off_thresholds(item: BatchItem, source: _Source, terrain: Terrain, opt
                                 source=terrain.source)  # fmt: skip
 
 
+def _tile_borders_on_grid(mesh: Any, item: BatchItem, source: _Source, terrain: Terrain) -> Any:
+    """``mesh`` (a tile stepped from ``terrain``) with the vertices on its last node column and row at the whole
+    raster's x = x0 + c dx and y = y0 + r dy, the float64 values the neighbouring tiles' origins have there.
+
+    :func:`~stepterrain.stepped` places a node at its terrain's origin plus the float32 local coordinate
+    ``float32(j) * float32(dx)``: exact for a spacing such as 30 m, but for one such as 70.827 m (a raster in
+    degrees as local metres) the tile's last column landed up to half a float32 step of the tile's extent (0.27 mm
+    for 200 cells) off its right neighbour's first column, which lies at that neighbour's origin: the tiles'
+    shared vertices differed in x (and y), in .ply by those bits, in .glb by a float32 step, and did not weld. Every
+    vertex of those columns (nodes, wall crossings on the border's edges, a solid's skirt) has exactly that local
+    coordinate, so those are moved, by at most that rounding; the first column and row lie at the origin already.
+    """
+    (_, r1), (_, c1) = item.rows, item.cols
+    (dx, dy), (x0, y0) = source.spacing, source.origin
+    return _last_nodes_at(mesh, terrain, (x0 + (c1 - 1) * dx, y0 + (r1 - 1) * dy))  # as _item_terrain places them
+
+
+def _frame_borders_on_grid(mesh: Any, terrain: Terrain, frame: _Frame) -> Any:
+    """``mesh`` (a file in degrees stepped in its folder's shared ``frame``, :func:`_in_frame`) with the vertices on
+    its last node column and row where :func:`~stepterrain.io.shared_degree_frame` puts the first column and row of
+    the file beside it, ``dx * k`` (``k`` a whole number of the mosaic's nodes), as :func:`_tile_borders_on_grid`
+    does for tiles: neighbouring SRTM tiles' seams lay up to half a float32 step of a file's extent apart (0.12 mm
+    for 60 cells of 70.6 m). A file off the mosaic's lattice (another resolution, a coarsened one) is left as is."""
+    if terrain.spacing != frame.spacing:
+        return mesh
+    exact = []
+    for origin, step, n in zip(frame.origin, frame.spacing, terrain.heights.shape[::-1], strict=True):
+        k = origin / step
+        if k != round(k):
+            return mesh
+        exact.append(step * float(round(k) + n - 1))
+    return _last_nodes_at(mesh, terrain, (exact[0], exact[1]))
+
+
+def _last_nodes_at(mesh: Any, terrain: Terrain, exact: tuple[float, float]) -> Any:
+    """``mesh`` (stepped from the grid ``terrain``) with the vertices :func:`~stepterrain.stepped` put on the grid's
+    last node column (x: its origin plus ``float32(j) * float32(dx)``, as the kernel computes it) at ``exact[0]``,
+    and those on its last row at ``exact[1]``."""
+    rows, cols = terrain.heights.shape
+    vertices = None
+    for axis, n in ((0, cols), (1, rows)):
+        local = np.float32(n - 1) * np.float32(terrain.spacing[axis])  # the kernel's float32 node coordinate
+        computed = terrain.origin[axis] + np.float64(local)
+        if computed != exact[axis]:
+            if vertices is None:
+                vertices = np.array(mesh.vertices, dtype=np.float64)
+            vertices[vertices[:, axis] == computed, axis] = exact[axis]
+    if vertices is not None:
+        mesh.vertices = vertices
+    return mesh
+
+
 def _check_unreferenced(crs: str | None, spacing: tuple[float, float], origin: tuple[float, float], name: str) -> None:
     """An InvalidInputError naming ``spacing=`` when a DEM file places its nodes itself (load_dem reads a file
     without georeferencing as 1 m cells at (0, 0), rows north to south: io.own_placement)."""
@@ -1035,6 +1087,10 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
                 terrain, interval=options.interval, levels=options.levels, base=options.base, gamma=options.gamma,
                 colors=options.colors, solid=options.solid, floor=options.floor, device=options.device,
             )  # fmt: skip
+            if item.kind == "tile" and source is not None:
+                mesh = _tile_borders_on_grid(mesh, item, source, terrain)
+            elif frame is not None:
+                mesh = _frame_borders_on_grid(mesh, terrain, frame)
         with replacing_without_flush():  # a tile a crash empties fails the manifest's size check: redone, not lost
             save_mesh(mesh, written, metadata=metadata, shared_bounds=None if source is None else source.bounds)
         n_faces, n_vertices = len(mesh.faces), len(mesh.vertices)
@@ -2104,7 +2160,10 @@ def batch(
     so a killed run leaves complete outputs or none and a rerun redoes only what is missing (removing the temporary
     files the killed run left half-written). Tiles are written with the whole raster's bounds as
     :func:`~stepterrain.export.save_mesh`'s ``shared_bounds`` (one glTF node translation, one PLY coordinate type for
-    all), so a vertex two tiles share is stored as the same bits in both and the tiles weld exactly; glTF's float32
+    all), and a tile's vertices on its last node column and row lie at the whole raster's x0 + c dx and y0 + r dy, as
+    its neighbour's first (not at the tile's origin plus a float32 offset: a spacing such as 70.827 m left the seams
+    a fraction of a millimetre apart; files in degrees placed in their mosaic alike), so a vertex two tiles share is
+    stored as the same bits in both and the tiles weld exactly; glTF's float32
     positions are then relative to the centre of the raster's bounds (about 8 mm resolution 100 km from it). A tile,
     frame or file of a folder with no triangle of three finite heights (sea off a coast, a tile file of sea cut from a
     coastal raster, all nodata, which :func:`~stepterrain.io.load_dem` refuses on its own as not elevation data) is

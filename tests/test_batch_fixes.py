@@ -16,6 +16,8 @@ from stepterrain.batch import MANIFEST_NAME, batch
 from stepterrain.export import read_mesh
 from stepterrain.mesh import boundary_edges
 
+from .conftest import shared_file
+
 
 def test_a_rerun_removes_the_partial_temporary_files_a_killed_run_left(tmp_path):
     # a run killed while writing left its hidden temporary file (16 MB of a 174 MB tile, say) beside the outputs,
@@ -3068,3 +3070,71 @@ def test_a_failed_run_into_a_dangling_link_takes_away_the_folders_it_made_there(
         batch(np.zeros((5, 5)), link, tile_size=2, interval=1.0, scheduler=f"tcp://127.0.0.1:{port}",
               connect_timeout=1.0)
     assert link.is_symlink() and not (tmp_path / "new").exists()
+
+
+@pytest.mark.parametrize("fmt", [".ply", ".glb"])
+@pytest.mark.parametrize("solid", [False, True])
+def test_tiles_of_a_raster_with_an_inexact_spacing_share_their_border_vertices_bit_for_bit(tmp_path, fmt, solid):
+    # Found by reading back the tiles of the Front Range DEM (3 arc-seconds as local metres: dx = 70.827 m): a node
+    # sat at its tile's origin plus float32(j) * float32(dx), so a tile's last column lay up to half a float32 step
+    # of the tile's extent off its right neighbour's first column (its origin, x0 + c dx): 0.27 mm in .ply, a float32
+    # step in .glb, on every seam; a spacing of 30 m (the embedded DEM) is exact in float32 and hid it
+    from stepterrain.io import load_dem
+
+    terrain = load_dem(shared_file("front_range_srtmgl3_3arcsec.npz"))
+    (dx, dy), (x0, y0) = terrain.spacing, terrain.origin
+    assert dy < 0 < dx
+    assert float(np.float32(dx)) != dx  # the point: a spacing float32 does not hold
+    rows, cols = 200, 200  # 16 tiles, their seams up to 13 km out
+    crop = (x0, x0 + (cols - 1) * dx, y0 + (rows - 1) * dy, y0)
+    # heights are whole metres: thresholds at x.8 hold none (a height on one makes a zero-width terrace, which a
+    # tile stepped alone draws only on its own side)
+    report = batch(terrain, tmp_path, tile_size=(60, 70), crop=crop, interval=25.0, base=0.3, solid=solid,
+                   format=fmt, scheduler="serial")  # fmt: skip
+    assert report.ok and len(report.done) == 4 * 3
+    meshes = {r.key: np.asarray(read_mesh(r.path).vertices, np.float64) for r in report.done}  # world coordinates
+    for key, vertices in meshes.items():
+        r, c = (int(n) for n in re.fullmatch(r"tile_r(\d)_c(\d)", key).groups())
+        # a tile's last column (x grows with it) and last row (dy < 0: y falls) against its neighbour's first
+        for axis, neighbour, side in ((0, f"tile_r{r}_c{c + 1}", 1), (1, f"tile_r{r + 1}_c{c}", -1)):
+            if neighbour not in meshes:
+                continue
+            other = meshes[neighbour]
+            line, theirs_line = side * (side * vertices[:, axis]).max(), side * (side * other[:, axis]).min()
+            assert line == theirs_line, f"{key} / {neighbour}: seam at {line!r} and {theirs_line!r}"
+            mine, theirs = vertices[vertices[:, axis] == line], other[other[:, axis] == line]
+            assert set(map(tuple, mine)) == set(map(tuple, theirs)), (key, neighbour)
+
+
+def test_geotiff_tiles_in_degrees_share_their_border_vertices_bit_for_bit(tmp_path):
+    fmt = ".ply"  # float64 as written (a .glb's float32 happened to round both seams alike here)
+    # Found by cutting the Front Range GeoTIFF (3 arc-seconds, EPSG:4326) into three tiles sharing their border
+    # nodes, as SRTM tiles do, and reading back a folder run's meshes: the files are placed in the local metres of
+    # their mosaic (dx = 70.63 m, a file's node (0, 0) at dx * k), but a file's last column lay at its origin plus
+    # float32(j) * float32(dx), 0.5 mm off its east neighbour's first column (and its last row off its south
+    # neighbour's first row): no seam shared a vertex
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFF tiles are written with rasterio")
+    from rasterio.transform import Affine
+    from rasterio.windows import Window
+
+    folder = tmp_path / "tiles"
+    folder.mkdir()
+    with rasterio.open(shared_file("front_range_srtmgl3_3arcsec.tif")) as ds:
+        assert ds.crs.is_geographic
+        profile = {k: v for k, v in ds.profile.items() if k not in ("blockxsize", "blockysize", "tiled")}
+        for name, (c0, r0) in {"a": (100, 100), "b": (280, 100), "c": (100, 250)}.items():
+            g = ds.transform  # the window's own (rasterio's window_transform warns of its Affine `*`)
+            moved = Affine(g.a, g.b, g.c + c0 * g.a, g.d, g.e, g.f + r0 * g.e)
+            with rasterio.open(folder / f"{name}.tif", "w", **{**profile, "width": 181, "height": 151,
+                                                                  "transform": moved}) as f:
+                f.write(ds.read(1, window=Window(c0, r0, 181, 151)), 1)
+    # heights are whole metres: thresholds at x.8 hold none (a height on one draws a zero-width terrace on one side)
+    report = batch(folder, tmp_path / "out", interval=20.0, base=0.3, format=fmt, scheduler="serial")
+    assert report.ok and len(report.done) == 3
+    a, b, c = (np.asarray(read_mesh(tmp_path / "out" / f"{k}{fmt}").vertices, np.float64) for k in "abc")
+    for (first, second), axis, side in (((a, b), 0, 1), ((a, c), 1, -1)):  # east: x grows; south: y falls
+        line, other_line = side * (side * first[:, axis]).max(), side * (side * second[:, axis]).min()
+        assert line == other_line, f"seam at {line!r} and {other_line!r}"
+        mine, theirs = first[first[:, axis] == line], second[second[:, axis] == line]
+        assert len(mine) >= min(first.shape[0], 151 if axis == 0 else 181)  # every border node, and wall crossings
+        assert set(map(tuple, mine)) == set(map(tuple, theirs))
