@@ -2037,3 +2037,17 @@ def test_the_kernel_holds_the_far_rim_rows_to_float32_rounding(shape, spacing, o
         (layer,) = closeup_layers(t, [CloseUp(roi, offset=(0.0, 0.0, 50.0))], device="cpu")
         assert len(layer.mask_factor) == h.size and (layer.mask_factor == 1).all()
         np.testing.assert_array_equal(layer.vertices[:, 2], layer.original[:, 2] + 50.0)
+
+
+def test_a_box_collapsed_in_float32_lifts_no_node_beside_it():
+    """A ROI narrower than a float32 ulp of its local coordinates collapses to one value in the kernel: a node one ulp
+    beside it, within the kernel's rounding margin, gave u = ±inf, which was clamped onto the mask's edge (m = 1 under a
+    hard rectangle) where ROI.factor, which leaves non-finite u out, gives 0."""
+    from stepterrain.terrain import Terrain
+
+    t = Terrain.from_heights(np.zeros((5, 3001), np.float32), spacing=(1.0, 1.0), origin=(0.0, 0.0))
+    roi = ROI.rectangle((3000.0 - 1.5e-4, 2.0), (1e-5, 1e-5), edge_width=0)
+    assert np.float32(roi.box[0] - 0.0) == np.float32(roi.box[1] - 0.0) != 3000.0  # collapsed, one ulp from the node
+    assert (roi.factor(t.mesh().vertices[:, :2]) == 0).all()  # no node lies on the box
+    with pytest.raises(InvalidInputError, match=r"^closeups\[0\]: ROI box .* holds no terrain"):
+        closeup_layers(t, [CloseUp(roi, offset=(0.0, 0.0, 50.0))], device="cpu")  # the node beside it was lifted
