@@ -31,7 +31,7 @@ class CloseUpLayers:
 
     matrices: wp.array[wp.mat44]
     boxes: wp.array[wp.vec4]  # (x0, y0, x1, y1) of the ROI box in local coordinates, x1 > x0, y1 > y0
-    margins: wp.array[wp.float32]  # how far outside its box a point still lies on it (float64 rounding of the box)
+    margins: wp.array[wp.float32]  # how far outside its box a point still lies on it (rounding of box and points)
     mask_info: wp.array[wp.vec3i]  # (offset into masks, rows, cols), rows and cols >= 2
     masks: wp.array[wp.float32]
 
@@ -46,10 +46,12 @@ class TransferFunctions:
 
 @wp.func
 def mask_factor(p: wp.vec3, k: wp.int32, layers: CloseUpLayers) -> wp.float32:
-    """Bilinear lookup of close-up k's mask at p's xy; 0 outside the ROI box (and where u or v is NaN: a box that
-    collapses to one float32 value gives 0 / 0 on its edge, which the comparisons must not let through to the
-    int32 texel index, as ``ROI.factor`` takes it). A point within ``layers.margins[k]`` outside the box lies on
-    its rim (the world box's float64 rounding, which float32 keeps next to the local origin), as in ``ROI.factor``."""
+    """Bilinear lookup of close-up k's mask at p's xy; 0 outside the ROI box (and where u or v is not finite: a box
+    that collapses to one float32 value gives 0 / 0 on its edge and ±inf beside it, which the comparisons must not
+    let through to the int32 texel index, as ``ROI.factor`` takes it). A point within ``layers.margins[k]`` outside
+    the box lies on its rim, as in ``ROI.factor``: the world box's float64 rounding (which float32 keeps next to the
+    local origin) and the float32 rounding of the local box and of the points (the far rim's node and box side round
+    apart)."""
     box = layers.boxes[k]
     margin = layers.margins[k]
     if not (p[0] >= box[0] - margin and p[0] <= box[2] + margin and p[1] >= box[1] - margin
@@ -57,7 +59,7 @@ def mask_factor(p: wp.vec3, k: wp.int32, layers: CloseUpLayers) -> wp.float32:
         return 0.0
     u = (p[0] - box[0]) / (box[2] - box[0])
     v = (p[1] - box[1]) / (box[3] - box[1])
-    if wp.isnan(u) or wp.isnan(v):
+    if not (wp.isfinite(u) and wp.isfinite(v)):  # 0 / 0 on a collapsed box's edge, ±inf beside it (as ROI.factor)
         return 0.0
     u = wp.clamp(u, 0.0, 1.0)
     v = wp.clamp(v, 0.0, 1.0)

@@ -496,8 +496,8 @@ def render_mesh(
         coordinates precise).
     background : color
         Any pyvista color: a name, '#rrggbb', (r, g, b) floats in [0, 1] or whole numbers in 0-255 (whole numbers
-        all 0 or 1, such as (1, 0, 0), are refused as ambiguous, as are whole numbers beside floats, such as
-        (1, 0.5, 0)). Opaque: one with an alpha below 1 is refused (the
+        all 0 or 1, such as (1, 0, 0), are refused as ambiguous, as are whole numbers other than 0 beside floats,
+        such as (1, 0.5, 0); (0, 0.5, 1.0) is taken). Opaque: one with an alpha below 1 is refused (the
         image has no alpha channel).
     scalars : None, "level" or "height"
         None: the mesh's texture or vertex colors if it has them, else its face colors, else its material's colour (a

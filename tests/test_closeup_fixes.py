@@ -2016,3 +2016,41 @@ def test_roi_factor_refuses_rows_of_x_and_of_y():
     with pytest.raises(InvalidInputError, match=r"^ROI factor points must be \(N, 2\) .* shape \(2, 3\)"):
         roi.factor(np.array([xs, ys]))
     assert roi.factor(np.column_stack([xs, ys]))[[0, 2]].tolist() == [1.0, 0.0]
+
+
+@pytest.mark.parametrize(("shape", "spacing", "origin"),
+                         [((28, 15), 0.10066220055414109, (470094.29585065856, 5911159.964824296)),
+                          ((7, 25), 0.06243220249655396, (366654.8085450701, 8721352.384978961))])
+def test_the_kernel_holds_the_far_rim_rows_to_float32_rounding(shape, spacing, origin):
+    """The kernel's margin was the world box's float64 rounding (1e-9 m), but it compares float32 local coordinates:
+    the far rim's node (j·dx) and box side (x1 − ox) round to float32 apart, one float32 ulp (2e-7 m here), and the
+    whole south rim row of a box built from the extent had m = 0 (left on the terrain under the lifted close-up),
+    though ROI.factor gives it 1."""
+    from stepterrain.terrain import Terrain
+
+    h = (np.add.outer(np.arange(float(shape[0])), np.arange(float(shape[1]))) * 0.37).astype(np.float32)
+    t = Terrain.from_heights(h, spacing=(spacing, -spacing), origin=origin)
+    x0, x1, y0, y1 = t.extent
+    hard = ROI.rectangle(((x0 + x1) / 2, (y0 + y1) / 2), (x1 - x0, y1 - y0), edge_width=0)
+    for roi in (hard, ROI.height_band(t, -1.0, 1000.0)):
+        assert (roi.factor(t.mesh().vertices[:, :2]) == 1).all()  # NumPy's float64 factor: every node on the box
+        (layer,) = closeup_layers(t, [CloseUp(roi, offset=(0.0, 0.0, 50.0))], device="cpu")
+        assert len(layer.mask_factor) == h.size and (layer.mask_factor == 1).all()
+        np.testing.assert_allclose(layer.vertices[:, 2], layer.original[:, 2] + 50.0, atol=1e-4)  # float32
+        # a stepped close-up's rim vertices too (their float32 positions lay as far outside: 1.6 % of them lost)
+        (layer,) = closeup_layers(t, [CloseUp(roi, offset=(0.0, 0.0, 50.0), stepped=1.0)], device="cpu")
+        assert len(layer.faces) > 0 and (layer.mask_factor == 1).all()
+
+
+def test_a_box_collapsed_in_float32_lifts_no_node_beside_it():
+    """A ROI narrower than a float32 ulp of its local coordinates collapses to one value in the kernel: a node one ulp
+    beside it, within the kernel's rounding margin, gave u = ±inf, which was clamped onto the mask's edge (m = 1 under a
+    hard rectangle) where ROI.factor, which leaves non-finite u out, gives 0."""
+    from stepterrain.terrain import Terrain
+
+    t = Terrain.from_heights(np.zeros((5, 3001), np.float32), spacing=(1.0, 1.0), origin=(0.0, 0.0))
+    roi = ROI.rectangle((3000.0 - 1.5e-4, 2.0), (1e-5, 1e-5), edge_width=0)
+    assert np.float32(roi.box[0] - 0.0) == np.float32(roi.box[1] - 0.0) != 3000.0  # collapsed, one ulp from the node
+    assert (roi.factor(t.mesh().vertices[:, :2]) == 0).all()  # no node lies on the box
+    with pytest.raises(InvalidInputError, match=r"^closeups\[0\]: ROI box .* holds no terrain"):
+        closeup_layers(t, [CloseUp(roi, offset=(0.0, 0.0, 50.0))], device="cpu")  # the node beside it was lifted
