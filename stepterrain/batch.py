@@ -227,6 +227,9 @@ class _Frame:
     origin: tuple[float, float]
     crs: str | None
     source: str
+    #: the file's (rows, cols) as its header gives them, for :func:`_seams_moved`; out of the repr, which the
+    #: fingerprint hashes, so that it stays the one of runs made before it existed
+    shape: tuple[int, int] | None = dataclasses.field(default=None, repr=False)
 
 
 @dataclass(frozen=True)
@@ -777,9 +780,15 @@ def _tile_borders_on_grid(mesh: Any, item: BatchItem, source: _Source, terrain: 
     vertex of those columns (nodes, wall crossings on the border's edges, a solid's skirt) has exactly that local
     coordinate, so those are moved, by at most that rounding; the first column and row lie at the origin already.
     """
+    return _last_nodes_at(mesh, terrain, _tile_last_nodes(item, source))
+
+
+def _tile_last_nodes(item: BatchItem, source: _Source) -> tuple[float, float]:
+    """The whole raster's x of a tile's last node column and y of its last row, x0 + c dx and y0 + r dy: where
+    :func:`_item_terrain` puts its right and lower neighbours' origins."""
     (_, r1), (_, c1) = item.rows, item.cols
     (dx, dy), (x0, y0) = source.spacing, source.origin
-    return _last_nodes_at(mesh, terrain, (x0 + (c1 - 1) * dx, y0 + (r1 - 1) * dy))  # as _item_terrain places them
+    return x0 + (c1 - 1) * dx, y0 + (r1 - 1) * dy
 
 
 def _frame_borders_on_grid(mesh: Any, terrain: Terrain, frame: _Frame) -> Any:
@@ -790,24 +799,59 @@ def _frame_borders_on_grid(mesh: Any, terrain: Terrain, frame: _Frame) -> Any:
     for 60 cells of 70.6 m). A file off the mosaic's lattice (another resolution, a coarsened one) is left as is."""
     if terrain.spacing != frame.spacing:
         return mesh
+    exact = _frame_last_nodes(frame, terrain.heights.shape)
+    return mesh if exact is None else _last_nodes_at(mesh, terrain, exact)
+
+
+def _frame_last_nodes(frame: _Frame, shape: tuple[int, ...]) -> tuple[float, float] | None:
+    """Where :func:`_frame_borders_on_grid` puts the last node column and row of a file of ``shape`` (rows, cols) at
+    ``frame``'s spacing: ``dx * (k + cols - 1)``, ``dy * (k + rows - 1)``; None for a file off the mosaic's lattice."""
     exact = []
-    for origin, step, n in zip(frame.origin, frame.spacing, terrain.heights.shape[::-1], strict=True):
+    for origin, step, n in zip(frame.origin, frame.spacing, shape[::-1], strict=True):
         k = origin / step
         if k != round(k):
-            return mesh
+            return None
         exact.append(step * float(round(k) + n - 1))
-    return _last_nodes_at(mesh, terrain, (exact[0], exact[1]))
+    return exact[0], exact[1]
+
+
+def _stepped_last_nodes(origin: tuple[float, float], spacing: tuple[float, float],
+                        shape: tuple[int, ...]) -> tuple[float, float]:
+    """The x of the last node column and the y of the last node row of a grid of ``shape`` (rows, cols) as
+    :func:`~stepterrain.stepped` places them: its origin plus the float32 local coordinate
+    ``float32(n - 1) * float32(dx)``."""
+    rows, cols = shape
+    return tuple(origin[axis] + np.float64(np.float32(n - 1) * np.float32(spacing[axis]))  # type: ignore[return-value]
+                 for axis, n in ((0, cols), (1, rows)))  # fmt: skip
+
+
+def _seams_moved(item: BatchItem, source: _Source | None, options: _Options) -> bool:
+    """Whether :func:`_run_item` moves ``item``'s last node column or row onto its neighbour's first
+    (:func:`_tile_borders_on_grid`, :func:`_frame_borders_on_grid`), from its placement alone, before it is stepped:
+    a tile or a file of a mosaic in degrees whose spacing float32 does not hold (70.827 m), not one at 30 m, a
+    series' frame or a file in its own frame. Such an item's fingerprint holds a mark (:func:`_fingerprints`), so
+    that a resumed run made before its seams were moved redoes it, and only it."""
+    if item.kind == "tile" and source is not None:
+        (r0, r1), (c0, c1) = item.rows, item.cols
+        (dx, dy), (x0, y0) = source.spacing, source.origin
+        stepped_at = _stepped_last_nodes((x0 + c0 * dx, y0 + r0 * dy), source.spacing, (r1 - r0, c1 - c0))
+        return stepped_at != _tile_last_nodes(item, source)
+    frame = dict(options.frames).get(item.key) if item.kind == "file" else None
+    # a coarsened file lies off the mosaic's spacing (_in_frame: its own times N), which _frame_borders_on_grid leaves
+    if frame is None or frame.shape is None or options.coarsen not in (None, 1):
+        return False
+    exact = _frame_last_nodes(frame, frame.shape)
+    return exact is not None and _stepped_last_nodes(frame.origin, frame.spacing, frame.shape) != exact
 
 
 def _last_nodes_at(mesh: Any, terrain: Terrain, exact: tuple[float, float]) -> Any:
     """``mesh`` (stepped from the grid ``terrain``) with the vertices :func:`~stepterrain.stepped` put on the grid's
     last node column (x: its origin plus ``float32(j) * float32(dx)``, as the kernel computes it) at ``exact[0]``,
     and those on its last row at ``exact[1]``."""
-    rows, cols = terrain.heights.shape
     vertices = None
-    for axis, n in ((0, cols), (1, rows)):
-        local = np.float32(n - 1) * np.float32(terrain.spacing[axis])  # the kernel's float32 node coordinate
-        computed = terrain.origin[axis] + np.float64(local)
+    stepped_at = _stepped_last_nodes(terrain.origin, terrain.spacing, terrain.heights.shape)
+    for axis in (0, 1):
+        computed = stepped_at[axis]
         if computed != exact[axis]:
             if vertices is None:
                 vertices = np.array(mesh.vertices, dtype=np.float64)
@@ -1161,9 +1205,10 @@ def _degree_frames(items: Sequence[BatchItem]) -> tuple[tuple[str, _Frame], ...]
             _warn_antimeridian(crs, group, placed=False)
             continue
         _warn_antimeridian(crs, group, placed=True)
-        for (item, _, _), spacing_own, (spacing, origin) in zip(group, own, placed, strict=True):
+        for (item, _, shape), spacing_own, (spacing, origin) in zip(group, own, placed, strict=True):
             name = Path(str(item.path)).name
-            frames.append((item.key, _Frame(spacing_own, spacing, origin, frame_crs, f"{name}, placed in {source}")))
+            frames.append((item.key, _Frame(spacing_own, spacing, origin, frame_crs, f"{name}, placed in {source}",
+                                            shape=(int(shape[0]), int(shape[1])))))  # fmt: skip
         placed_in.append(f"{crs} ({len(group)} files)")
     if len(placed_in) > 1:  # each frame's node (0, 0) at its own mosaic's top-left node: the meshes overlap
         warnings.warn(
@@ -1332,6 +1377,10 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
             block = source.heights[item.index] if item.kind == "frame" else source.heights[
                 max(r0 - ring, 0):r1 + ring, max(c0 - ring, 0):c1 + ring]  # fmt: skip
             h.update(np.ascontiguousarray(block).tobytes())
+        if _seams_moved(item, source, options):
+            # its last node column or row moved onto its neighbour's first: an item written before that was done has
+            # seams the new neighbours' do not meet, so it is redone; the other items keep their fingerprints
+            h.update(b"|seams on the lattice")
         out[item.key] = h.hexdigest()
     return out
 
@@ -2163,7 +2212,10 @@ def batch(
     all), and a tile's vertices on its last node column and row lie at the whole raster's x0 + c dx and y0 + r dy, as
     its neighbour's first (not at the tile's origin plus a float32 offset: a spacing such as 70.827 m left the seams
     a fraction of a millimetre apart; files in degrees placed in their mosaic alike), so a vertex two tiles share is
-    stored as the same bits in both and the tiles weld exactly; glTF's float32
+    stored as the same bits in both and the tiles weld exactly (such a tile, or file, whose seam this moves has a
+    fingerprint of its own, :func:`_seams_moved`: resuming a run made before the seams were moved redoes those items,
+    not a mix of old and new seams, and skips the rest, tiles at 30 m say; one whose last column is nodata, or an
+    empty one, is redone too, unchanged); glTF's float32
     positions are then relative to the centre of the raster's bounds (about 8 mm resolution 100 km from it). A tile,
     frame or file of a folder with no triangle of three finite heights (sea off a coast, a tile file of sea cut from a
     coastal raster, all nodata, which :func:`~stepterrain.io.load_dem` refuses on its own as not elevation data) is

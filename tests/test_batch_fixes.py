@@ -3114,21 +3114,8 @@ def test_geotiff_tiles_in_degrees_share_their_border_vertices_bit_for_bit(tmp_pa
     # their mosaic (dx = 70.63 m, a file's node (0, 0) at dx * k), but a file's last column lay at its origin plus
     # float32(j) * float32(dx), 0.5 mm off its east neighbour's first column (and its last row off its south
     # neighbour's first row): no seam shared a vertex
-    rasterio = pytest.importorskip("rasterio", reason="GeoTIFF tiles are written with rasterio")
-    from rasterio.transform import Affine
-    from rasterio.windows import Window
-
     folder = tmp_path / "tiles"
-    folder.mkdir()
-    with rasterio.open(shared_file("front_range_srtmgl3_3arcsec.tif")) as ds:
-        assert ds.crs.is_geographic
-        profile = {k: v for k, v in ds.profile.items() if k not in ("blockxsize", "blockysize", "tiled")}
-        for name, (c0, r0) in {"a": (100, 100), "b": (280, 100), "c": (100, 250)}.items():
-            g = ds.transform  # the window's own (rasterio's window_transform warns of its Affine `*`)
-            moved = Affine(g.a, g.b, g.c + c0 * g.a, g.d, g.e, g.f + r0 * g.e)
-            with rasterio.open(folder / f"{name}.tif", "w", **{**profile, "width": 181, "height": 151,
-                                                                  "transform": moved}) as f:
-                f.write(ds.read(1, window=Window(c0, r0, 181, 151)), 1)
+    _write_degree_tiles(folder)
     # heights are whole metres: thresholds at x.8 hold none (a height on one draws a zero-width terrace on one side)
     report = batch(folder, tmp_path / "out", interval=20.0, base=0.3, format=fmt, scheduler="serial")
     assert report.ok and len(report.done) == 3
@@ -3139,3 +3126,75 @@ def test_geotiff_tiles_in_degrees_share_their_border_vertices_bit_for_bit(tmp_pa
         mine, theirs = first[first[:, axis] == line], second[second[:, axis] == line]
         assert len(mine) >= min(first.shape[0], 151 if axis == 0 else 181)  # every border node, and wall crossings
         assert set(map(tuple, mine)) == set(map(tuple, theirs))
+
+
+def _write_degree_tiles(folder: Path) -> None:
+    """Three GeoTIFFs cut from the Front Range one (3 arc-seconds, EPSG:4326), sharing their border nodes as SRTM
+    tiles do: b east of a, c south of it."""
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFF tiles are written with rasterio")
+    from rasterio.transform import Affine
+    from rasterio.windows import Window
+
+    folder.mkdir()
+    with rasterio.open(shared_file("front_range_srtmgl3_3arcsec.tif")) as ds:
+        assert ds.crs.is_geographic
+        profile = {k: v for k, v in ds.profile.items() if k not in ("blockxsize", "blockysize", "tiled")}
+        for name, (c0, r0) in {"a": (100, 100), "b": (280, 100), "c": (100, 250)}.items():
+            g = ds.transform  # the window's own (rasterio's window_transform warns of its Affine `*`)
+            moved = Affine(g.a, g.b, g.c + c0 * g.a, g.d, g.e, g.f + r0 * g.e)
+            with rasterio.open(folder / f"{name}.tif", "w", **{**profile, "width": 181, "height": 151,
+                                                                  "transform": moved}) as f:
+                f.write(ds.read(1, window=Window(c0, r0, 181, 151)), 1)
+
+
+@pytest.mark.parametrize("case", ["inexact tiles", "exact tiles", "files in degrees"])
+def test_a_run_resumed_from_before_the_seam_fix_redoes_exactly_the_items_whose_seams_moved(tmp_path, monkeypatch,
+                                                                                           case):
+    # Tiles (and files in degrees) now put their last node column and row on their neighbour's first; their
+    # fingerprints did not change with that, so resuming a run made before it at an inexact spacing (70.827 m) skipped
+    # its old tiles, unwelded, beside newly written neighbours: a mix that did not weld. Those items' fingerprints now
+    # differ, the others' (an exact spacing: 30 m) do not, so a big finished run is not redone.
+    import stepterrain as st
+    import stepterrain.batch as batch_mod
+    from stepterrain.io import load_dem
+
+    fmt = ".ply"  # float64 as written: a moved seam changes the file
+    if case == "files in degrees":
+        _write_degree_tiles(tmp_path / "tiles")
+        source, kwargs = tmp_path / "tiles", {"interval": 20.0, "base": 0.3}
+    elif case == "inexact tiles":
+        terrain = load_dem(shared_file("front_range_srtmgl3_3arcsec.npz"))
+        (dx, dy), (x0, y0) = terrain.spacing, terrain.origin
+        assert float(np.float32(dx)) != dx
+        crop = (x0, x0 + 199 * dx, y0 + 199 * dy, y0)
+        source, kwargs = terrain, {"tile_size": (60, 70), "crop": crop, "interval": 25.0, "base": 0.3}
+    else:
+        source = st.sample_dem()
+        assert all(float(np.float32(d)) == d for d in source.spacing)  # 30 m: float32 holds it
+        kwargs = {"tile_size": 64, "interval": 50.0}
+    kwargs.update(format=fmt, scheduler="serial")
+
+    def vertices(folder: Path) -> dict[str, np.ndarray]:
+        return {p.stem: np.asarray(read_mesh(p).vertices, np.float64) for p in sorted(folder.glob(f"*{fmt}"))}
+
+    # the previous version's run: no seam moved, and the fingerprint as it defined it (no mark for moved seams)
+    with monkeypatch.context() as m:
+        m.setattr(batch_mod, "_last_nodes_at", lambda mesh, terrain, exact: mesh)
+        m.setattr(batch_mod, "_seams_moved", lambda item, source, options: False)
+        old = batch(source, tmp_path / "out", **kwargs)
+    assert old.ok and old.done and not old.skipped
+    before = vertices(tmp_path / "out")
+    fresh = batch(source, tmp_path / "fresh", **kwargs)  # this version's outputs, written afresh
+    after = vertices(tmp_path / "fresh")
+    changed = {key for key in after if not np.array_equal(after[key], before[key])}
+    if case == "exact tiles":
+        assert not changed
+    else:
+        assert changed  # the fix moves something here
+
+    resumed = batch(source, tmp_path / "out", **kwargs)
+    assert resumed.ok
+    assert {r.key for r in resumed.done} == changed  # exactly the items whose output the fix changes are redone
+    assert {r.key for r in resumed.skipped} == {r.key for r in fresh.done} - changed
+    now = vertices(tmp_path / "out")
+    assert now.keys() == after.keys() and all(np.array_equal(now[k], after[k]) for k in now)  # as a fresh run's
