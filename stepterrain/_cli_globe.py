@@ -44,6 +44,7 @@ from .io import (
     _npz_text,
     _vertical_unit,
     _virtual_refusal,
+    _warn_void_values,
     dem_path,
     equals_nodata,
     given_nodata,
@@ -135,8 +136,8 @@ def add_parser(commands: Any) -> None:
                         "an optional units names, as load_dem reads it; cells equal to an optional nodata value, "
                         "or marked by a boolean mask or valid, are refused: fill them first), or a raster in degrees "
                         "(a GeoTIFF or any other load_dem reads: .asc .hgt .img .vrt ..., a GDAL virtual path or URL "
-                        "to one, /vsizip/srtm.zip/N46E007.hgt, or a .zip or gzip of one, dem.tif.gz; EPSG:4326; nodata "
-                        "refused as well); "
+                        "to one, /vsizip/srtm.zip/N46E007.hgt, or a .zip or gzip of one, dem.tif.gz; EPSG:4326, or "
+                        "Mars's or the Moon's degrees, meshed on that body's sphere; nodata refused as well); "
                         "default: the embedded ETOPO 2022 20'")
     _add_height_unit(p, help="the INPUT heights' length unit (m, ft, US survey foot, km, cm, ...), for a file that "
                              "names none or one not known (an .npz 'units', a raster band's unit); heights become "
@@ -148,8 +149,8 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--exaggeration", type=float, default=1.0, metavar="X", help="vertical exaggeration (default 1)")
     p.add_argument("--radius", type=float, default=None, metavar="M",
                    help="sphere radius in metres (default: the mean radius a(1 - f/3) of the body the INPUT's CRS "
-                        "names when it is not the earth, Mars or the Moon: IAU_2015:49900, a GEOGCS of Mars 2000; "
-                        "else the earth's, 6371000)")
+                        "names when it is not the earth (Mars: IAU_2015:49900, a GEOGCS of Mars 2000; the Moon: "
+                        "IAU_2015:30100); else the earth's, 6371000)")
     p.add_argument("--error", type=float, default=500.0, metavar="E",
                    help="metres of error tolerated at the eye's altitude (grows with distance squared); "
                         "0 = full resolution where visible (default 500)")
@@ -260,6 +261,8 @@ def _load_grid(path: str, height_unit: str | None = None, nodata: Sequence[float
         raise InvalidInputError(f"{path!r}: 'elevation' has {cells} ({', '.join(marked_by)}; first at row {row}, "
                                 f"column {col}); the globe needs a height everywhere: fill "
                                 "them first (e.g. from neighbours)")
+    if elevation.dtype.kind in "iuf":  # undeclared voids (-32768, -9999, ...) warned of as load_dem warns of a raster's
+        _warn_void_values(file, elevation, None, "'elevation'")  # (they were meshed silently: pits 10 to 33 km deep)
     # --height-unit overrides the file's unit, as load_dem's height_unit does (an unknown one was refused with a
     # pointer to a --height-unit the globe lacked)
     crs = _npz_text(texts, "crs", file)

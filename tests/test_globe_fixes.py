@@ -2005,3 +2005,28 @@ def test_a_geotiff_texture_is_placed_by_its_aux_xml_before_its_tags_as_gdal_read
                   (376000.0, 10.0, 0.0, 3807000.0, 0.0, -10.0))
     with pytest.raises(InvalidInputError, match=r"got a PAM file 'utm\.tif\.aux\.xml' in a projected CRS"):
         drape_colors(directions, utm)
+
+
+@pytest.mark.parametrize(("dtype", "void"), [(np.int16, -32768), (np.float32, -9999)])
+def test_the_cli_warns_of_undeclared_void_values_of_a_global_npz_as_load_dem_does(tmp_path, capsys, dtype, void):
+    """A global .npz's cells of -32768 (int16's lowest) or -9999 (a common nodata value) far below its other heights,
+    with no 'nodata' declaring them, were meshed as pits 10 to 33 km deep without a word, while the same cells of a
+    raster INPUT (read by load_dem) and of every other subcommand's DEM are warned of. They are warned of now, naming
+    the value and --nodata; once declared they are refused as missing, and a grid without them does not warn."""
+    from stepterrain.cli import main
+
+    elevation = np.full((180, 360), 100, dtype)
+    elevation[::2] = 500
+    elevation[3, 7] = elevation[100, 200] = void
+    grid, out = tmp_path / "grid.npz", tmp_path / "g.ply"
+    np.savez(grid, elevation=elevation, lat=LAT1, lon=LON1)
+    argv = ["globe", str(grid), "--face-size", "9", "--no-camera", "-o", str(out), "--device", "cpu", "-q"]
+    assert main(argv) == 0 and out.exists()
+    err = capsys.readouterr().err
+    assert f"warning: grid.npz: 2 cells of 'elevation' hold {void}" in err and f"--nodata {void}" in err, err
+    assert main([*argv, f"--nodata={void}"]) == 2
+    assert "'elevation' has 2 nodata cells" in capsys.readouterr().err
+    elevation[elevation == void] = 0
+    np.savez(grid, elevation=elevation, lat=LAT1, lon=LON1)
+    assert main(argv) == 0
+    assert "warning" not in capsys.readouterr().err
