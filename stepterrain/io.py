@@ -2249,13 +2249,21 @@ def _warn_void_value(
     if count:
         # float64 cells equal the float32 value only as written in full, which a nodata of them must match exactly
         wide = data.dtype.kind == "f" and data.dtype.itemsize > 4
-        value = _nodata_text(sentinel, data.dtype)
-        warnings.warn(
-            f"{file.name}: {counted(count, 'cell')} of {what} {'holds' if count == 1 else 'hold'} {value}, {named}"
-            f"{f' (stored as {data.dtype})' if wide else ''}, which marks voids, but no nodata value or mask of the "
-            f"file marks them: read as heights; if they are voids, declare it ({_declare_nodata(file, value)})",
-            stacklevel=caller_stacklevel(),
-        )
+        _warn_undeclared_voids(file, count, what, _nodata_text(sentinel, data.dtype),
+                               f"{named}{f' (stored as {data.dtype})' if wide else ''}")
+
+
+def _warn_undeclared_voids(file: Path, count: int, what: str, text: str, described: str) -> None:
+    """Warn, at the caller of :func:`load_dem`, that ``count`` cells of ``what`` hold the value ``text`` (as a nodata
+    to declare), ``described`` ("the lowest float32 value"), which no nodata value or mask of ``file`` marks: how to
+    declare it (:func:`_declare_nodata`). The one wording of :func:`_warn_void_value` and
+    :func:`_warn_common_nodata`."""
+    warnings.warn(
+        f"{file.name}: {counted(count, 'cell')} of {what} {'holds' if count == 1 else 'hold'} {text}, {described}, "
+        "which marks voids, but no nodata value or mask of the file marks them: read as heights; if they are voids, "
+        f"declare it ({_declare_nodata(file, text)})",
+        stacklevel=caller_stacklevel(),
+    )
 
 
 #: Values that DEM files commonly hold in their voids besides a dtype's extremes (:func:`_warn_common_nodata`):
@@ -2337,16 +2345,10 @@ def _warn_common_nodata(
                     continue
                 low, high = min(low, float(value)), max(high, float(value))  # a height: the others reach it
                 continue
-            count = counts[value]
             where = (f"far {'below' if value < 0 else 'above'} the other cells' values ({low:.6g} to {high:.6g})"
                      if math.isfinite(low) else "and no other cell holds a value")
-            text = _nodata_text(value, data.dtype)
-            warnings.warn(
-                f"{file.name}: {counted(count, 'cell')} of {what} {'holds' if count == 1 else 'hold'} {text}, a common "
-                f"nodata value, {where}, which marks voids, but no nodata value or mask of the file marks them: read "
-                f"as heights; if they are voids, declare it ({_declare_nodata(file, text)})",
-                stacklevel=caller_stacklevel(),
-            )
+            _warn_undeclared_voids(file, counts[value], what, _nodata_text(value, data.dtype),
+                                   f"a common nodata value, {where}")
 
 
 def _unmarked_hit(block: NDArray[Any], marked: NDArray[np.bool_] | None, values: Sequence[Any]) -> bool:
