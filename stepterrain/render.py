@@ -688,11 +688,12 @@ def _frame_mesh(
     finite &= used
     if not finite.any():
         raise InvalidInputError("mesh has no finite vertex used by a face")
+    fitted = _fitted_camera(camera)  # a name or (azimuth, elevation), not an explicit position
     if bounds is None:
         lo, hi = vertices[finite].min(axis=0), vertices[finite].max(axis=0)
     else:
         given = _check_box(bounds, "bounds")
-        if _fitted_camera(camera):
+        if fitted:
             _check_fitted_box(given, "bounds")
         lo, hi = given
     centre = (lo + hi) / 2.0
@@ -704,20 +705,18 @@ def _frame_mesh(
     _check_reach(box, lo, hi, z_scale, "the mesh", f"the framed box {_fmt_box(lo, hi)} is too large", "its centre")
     corners = _box_corners(box)
     position = _camera_position(camera, corners, width / height, view_angle)  # raises on a bad camera; 8 corners
-    fitted = _fitted_camera(camera)
     if fitted:  # a fitted camera: it frames the box's larger side
         _check_visible(corners, position, (width, height), box, z_scale, view_angle, camera,
                        "the mesh" if bounds is None else "bounds")
-    if bounds is None:  # the camera the render takes: fitted to the vertices drawn themselves, not their box
-        position = _fit_points(camera, local, finite, width / height, view_angle)
-        if fitted:
-            # the surface within its box may show thinner than the box: the embedded DEM seen 11° up in an 8 x 500
-            # window spans 0.94 pixels (its box 1.5) and rendered blank, without a word. The extent of a strided
-            # subset is at most the whole's: the whole is projected only when that one is under a pixel
-            drawn = local if finite.all() else local[finite]
-            if min(_pixel_extent(drawn[::max(1, len(drawn) // 100_000)], position, (width, height),
-                                 view_angle)) < 1.0:
-                _check_visible(drawn, position, (width, height), box, z_scale, view_angle, camera, "the mesh")
+    if bounds is None and fitted:  # the camera the render takes: fitted to the vertices drawn themselves, not their
+        # box (an explicit position is the one above, as given)
+        drawn = local if finite.all() else local[finite]
+        position = _fit_points(camera, drawn, width / height, view_angle)
+        # the surface within its box may show thinner than the box: the embedded DEM seen 11° up in an 8 x 500
+        # window spans 0.94 pixels (its box 1.5) and rendered blank, without a word. The extent of a strided
+        # subset is at most the whole's: the whole is projected only when that one is under a pixel
+        if min(_pixel_extent(drawn[::max(1, len(drawn) // 100_000)], position, (width, height), view_angle)) < 1.0:
+            _check_visible(drawn, position, (width, height), box, z_scale, view_angle, camera, "the mesh")
     return width, height, vertices, local, finite, box, position
 
 
@@ -1069,16 +1068,15 @@ def _box_corners(box: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.array([[x, y, z] for x in box[:, 0] for y in box[:, 1] for z in box[:, 2]])
 
 
-def _fit_points(camera: CameraLike, local: NDArray[np.float64], finite: NDArray[np.bool_], aspect: float,
+def _fit_points(camera: CameraLike, points: NDArray[np.float64], aspect: float,
                 view_angle: float) -> list[tuple[float, ...]]:
-    """:func:`_camera_position` framing the vertices of ``local`` drawn (``finite``) themselves (not their box): fitted
-    to at most ~100k of them, evenly strided, then to those the fit left outside the view, until none is (the strided
-    ones alone missed a tower or a mast of a few vertices, cut off at the picture's edge)."""
-    points = local[finite]
+    """:func:`_camera_position` of a fitted ``camera`` framing the vertices drawn, ``points``, themselves (not their
+    box): fitted to at most ~100k of them, evenly strided, then to those the fit left outside the view, until none is
+    (the strided ones alone missed a tower or a mast of a few vertices, cut off at the picture's edge)."""
     stride = max(1, len(points) // 100_000)
     framed = points[::stride]
     position = _camera_position(camera, framed, aspect, view_angle)
-    if stride == 1 or not _fitted_camera(camera):  # all framed, or not fitted
+    if stride == 1:  # all framed
         return position
     for _ in range(8):
         outside = _outside_view(points, position, aspect, view_angle)
