@@ -686,6 +686,7 @@ def step_arrays(
     :data:`SMALLER_HINT` and the tiles of stepterrain.batch (a caller whose own options do it: a stepped close-up).
     """
     smaller = SMALLER_HINT + _TILES_HINT if hint is None else hint
+    budget_hint = SMALLER_HINT if hint is None else hint  # the memory budget's refusal (without the tiles)
     iso = _isovalue_struct(values, device)
     grid = terrain.kind == "grid"
     topo: Any = _grid_struct(terrain, device) if grid else _tin_struct(terrain, device)
@@ -769,13 +770,13 @@ def step_arrays(
     surface_bytes = vertex_count * vertex_bytes + face_count * face_bytes
     if solid_boundary is None:
         check_budget(surface_bytes, f"the stepped mesh ({vertex_count:,} vertices, {face_count:,} faces)",
-                     memory_budget, hint=SMALLER_HINT if hint is None else hint)
+                     memory_budget, hint=budget_hint)
     else:
         check_budget(
             surface_bytes + solid_bytes(vertex_count, face_count, solid_boundary),
             f"the stepped solid (a surface of {vertex_count:,} vertices and {face_count:,} faces, up to "
             f"{solid_boundary:,} boundary edges for its skirt, and its base)",
-            memory_budget, hint=SMALLER_HINT if hint is None else hint,
+            memory_budget, hint=budget_hint,
         )
     face_sources = None
     if want_face_sources:
