@@ -2240,13 +2240,9 @@ def _trimesh_read(load: Callable[..., Any], file: Path, **kwargs: Any) -> Any:
     codec can't encode character '\\udcf6' ... surrogates not allowed"). It is read from the open file then, its side
     files (an OBJ's material and textures, a glTF's buffers) found beside it as before, and named as its name reads
     with the undecodable bytes as U+FFFD (``metadata["name"]``, which every writer can store)."""
-    try:
-        file.name.encode("utf-8")
-    except UnicodeEncodeError:
-        pass
-    else:
-        return load(file, **kwargs)
     name = _utf8_name(file.name)
+    if name == file.name:
+        return load(file, **kwargs)
     resolver = trimesh.resolvers.FilePathResolver(str(file))  # the folder, for side files
     resolver.file_name = name  # an OBJ's geometry is named by it
     # typed as trimesh types a path: an h\xf6he.tar.gz is a "tar.gz" (its last suffix, "gz", trimesh does not read)
