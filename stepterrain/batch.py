@@ -1366,7 +1366,6 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
         shared += f"|height_encoding={options.height_encoding!r}"
     head = json.dumps([shared, _source_identity(source)], sort_keys=True).encode()
     out = {}
-    frames = dict(options.frames)
     if identities is None:
         identities = _file_identities(items)
     for item in items:  # per item, not per cell: hashing is vectorised over each item's bytes
@@ -1377,8 +1376,9 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
                  .encode())  # fmt: skip
         if item.kind == "file":
             h.update(identities[item.key].encode())
-            if item.key in frames:  # placed by the other files too: redone when their mosaic's frame moves it
-                h.update(repr(frames[item.key]).encode())
+            frame = options.frame_of(item.key)
+            if frame is not None:  # placed by the other files too: redone when their mosaic's frame moves it
+                h.update(repr(frame).encode())
         elif source is not None:
             ring = int(options.solid)  # a solid tile's τ reads the ring of nodes around it (_tile_off_thresholds)
             (r0, r1), (c0, c1) = (item.rows, item.cols) if item.kind == "tile" else ((0, 0), (0, 0))
