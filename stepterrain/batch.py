@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import errno
+import functools
 import gc
 import hashlib
 import json
@@ -272,6 +273,15 @@ class _Options:
     #: by item key, the DEM files in degrees placed in the local metres of their mosaic (:func:`_degree_frames`), a
     #: frame that depends on the other files; out of the repr (:func:`_fingerprints` adds each item's own)
     frames: tuple[tuple[str, _Frame], ...] = dataclasses.field(default=(), repr=False)
+
+    def frame_of(self, key: str) -> _Frame | None:
+        """The frame of the item ``key`` (:attr:`frames`), None for an item in its own: looked up in a dict made once,
+        not one made per item (a batch of N files made N dicts of N entries)."""
+        return self._frames_by_key.get(key)
+
+    @functools.cached_property
+    def _frames_by_key(self) -> dict[str, _Frame]:
+        return dict(self.frames)
 
 
 def _on_worker(path: str, cwd: str | None) -> str:
@@ -836,7 +846,7 @@ def _seams_moved(item: BatchItem, source: _Source | None, options: _Options) -> 
         (dx, dy), (x0, y0) = source.spacing, source.origin
         stepped_at = _stepped_last_nodes((x0 + c0 * dx, y0 + r0 * dy), source.spacing, (r1 - r0, c1 - c0))
         return stepped_at != _tile_last_nodes(item, source)
-    frame = dict(options.frames).get(item.key) if item.kind == "file" else None
+    frame = options.frame_of(item.key) if item.kind == "file" else None
     # a coarsened file lies off the mosaic's spacing (_in_frame: its own times N), which _frame_borders_on_grid leaves
     if frame is None or frame.shape is None or options.coarsen not in (None, 1):
         return False
@@ -1110,7 +1120,7 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
         if terrain is None:
             terrain = _item_terrain(read, source, options.height_unit, options.file_spacing, options.coarsen,
                                     options.band, options.height_encoding, options.nodata)  # fmt: skip
-        frame = dict(options.frames).get(item.key)
+        frame = options.frame_of(item.key)
         if frame is not None:
             terrain = _in_frame(terrain, frame)
         elif options.several_files and item.kind == "file":
@@ -1356,7 +1366,6 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
         shared += f"|height_encoding={options.height_encoding!r}"
     head = json.dumps([shared, _source_identity(source)], sort_keys=True).encode()
     out = {}
-    frames = dict(options.frames)
     if identities is None:
         identities = _file_identities(items)
     for item in items:  # per item, not per cell: hashing is vectorised over each item's bytes
@@ -1367,8 +1376,9 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
                  .encode())  # fmt: skip
         if item.kind == "file":
             h.update(identities[item.key].encode())
-            if item.key in frames:  # placed by the other files too: redone when their mosaic's frame moves it
-                h.update(repr(frames[item.key]).encode())
+            frame = options.frame_of(item.key)
+            if frame is not None:  # placed by the other files too: redone when their mosaic's frame moves it
+                h.update(repr(frame).encode())
         elif source is not None:
             ring = int(options.solid)  # a solid tile's τ reads the ring of nodes around it (_tile_off_thresholds)
             (r0, r1), (c0, c1) = (item.rows, item.cols) if item.kind == "tile" else ((0, 0), (0, 0))

@@ -1654,16 +1654,25 @@ def _with_dissolve(mtl: bytes, diffuse: Any) -> bytes:
     ``diffuse`` colour (RGBA bytes: a PBRMaterial's baseColorFactor, a plain material's diffuse) has an alpha below
     255: trimesh wrote its RGB alone, and a translucent material (as the glTF's alphaMode BLEND shows it) was opaque
     in OBJ readers. MTL's dissolve multiplies its ``map_d``, as glTF's factor multiplies the texels' alpha."""
-    rgba = None if diffuse is None else np.asarray(diffuse).reshape(-1)
-    if rgba is None or len(rgba) != 4 or float(rgba[3]) >= 255:
+    alpha = _colour_alpha(diffuse)
+    if alpha is None:
         return mtl
     lines = mtl.decode("utf-8").split("\n")
     out = []
     for line in lines:
         out.append(line)
         if line.split(None, 1)[:1] == ["Kd"]:
-            out.append(f"d {float(rgba[3]) / 255.0:.8f}")
+            out.append(f"d {alpha / 255.0:.8f}")
     return "\n".join(out).encode("utf-8")
+
+
+def _colour_alpha(colour: Any) -> float | None:
+    """The alpha of ``colour`` (RGBA bytes: a base colour factor, a material's diffuse) when it is below 255; None for
+    an opaque one, one of another length, or None (:func:`_with_dissolve`, :func:`_material_alpha_mode`)."""
+    rgba = None if colour is None else np.asarray(colour).reshape(-1)
+    if rgba is None or len(rgba) != 4 or float(rgba[3]) >= 255:
+        return None
+    return float(rgba[3])
 
 
 #: The texture images of trimesh's materials: SimpleMaterial's one image, PBRMaterial's textures.
@@ -2231,13 +2240,9 @@ def _trimesh_read(load: Callable[..., Any], file: Path, **kwargs: Any) -> Any:
     codec can't encode character '\\udcf6' ... surrogates not allowed"). It is read from the open file then, its side
     files (an OBJ's material and textures, a glTF's buffers) found beside it as before, and named as its name reads
     with the undecodable bytes as U+FFFD (``metadata["name"]``, which every writer can store)."""
-    try:
-        file.name.encode("utf-8")
-    except UnicodeEncodeError:
-        pass
-    else:
-        return load(file, **kwargs)
     name = _utf8_name(file.name)
+    if name == file.name:
+        return load(file, **kwargs)
     resolver = trimesh.resolvers.FilePathResolver(str(file))  # the folder, for side files
     resolver.file_name = name  # an OBJ's geometry is named by it
     # typed as trimesh types a path: an h\xf6he.tar.gz is a "tar.gz" (its last suffix, "gz", trimesh does not read)
@@ -3414,8 +3419,7 @@ def _material_alpha_mode(image: Any, factor: Any) -> tuple[str, float | None]:
     makes every texel partly transparent. A translucent factor (a PBRMaterial's baseColorFactor alpha 0.5, a plain
     material's diffuse alpha) was written OPAQUE (its texture's mode, or none), and viewers ignored it where
     render_mesh blends it, or MASK, which at cutoff 0.5 showed its texels of alpha 0.5 opaque."""
-    rgba = None if factor is None else np.asarray(factor).reshape(-1)
-    if rgba is not None and len(rgba) == 4 and float(rgba[3]) < 255:
+    if _colour_alpha(factor) is not None:
         return "BLEND", None
     return _texture_alpha_mode(image)
 
