@@ -54,6 +54,7 @@ from .mesh import reclaim_dropped, track
 from .terrain import (
     FLOAT32_MAX,
     Terrain,
+    _first_bool,
     _pair,
     as_array,
     as_number,
@@ -1149,6 +1150,16 @@ def _level_colors(colors: Any, n_levels: int) -> NDArray[np.uint8]:
             f"colors must be a colormap name or one RGB(A) row per isovalue, shape ({n_levels}, 3|4); "
             f"got shape {table.shape}"
         )
+    # np.asarray dropped a masked array's mask (the values under it coloured their levels) and made a bool beside
+    # numbers 1 ([1, True, 0] a near-black green): refused, as every other numeric argument refuses them
+    masked = np.ma.getmaskarray(colors) if np.ma.isMaskedArray(colors) else None
+    if masked is not None and masked.any():
+        raise InvalidInputError(f"colors must be numbers (0-1 floats or 0-255 integers); got a masked entry at index "
+                                f"{first_index(masked)}")
+    at = _first_bool(colors) if isinstance(colors, (list, tuple)) else None
+    if at is not None:
+        raise InvalidInputError(f"colors must be numbers (0-1 floats or 0-255 integers); got a bool ({at[1]!r}) at "
+                                f"index {at[0]}")
     if np.issubdtype(table.dtype, np.floating):
         if not np.all(np.isfinite(table)) or table.min() < 0 or table.max() > 1:
             raise InvalidInputError(f"float colors must lie in [0, 1]; got values from {table.min()} to {table.max()}")
@@ -1350,6 +1361,8 @@ def stepped(
     if memory_budget is not None:
         budget_value(memory_budget)  # before any work
     values = isovalues(t.height_range, interval=interval, levels=levels, base=base)
+    if colors is not None:  # before the passes (a few rows): a colormap misnamed or a row short was refused only
+        _level_colors(colors, len(values))  # after the whole terrain had been stepped
     if t.visual is not None and colors is None:
         _check_carried_visual(t)
     if solid and floor is not None:

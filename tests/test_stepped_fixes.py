@@ -1498,3 +1498,41 @@ def test_lenses_compare_and_hash_by_identity_as_rois_do():
     h = np.random.default_rng(0).random((6, 7)) * 10
     np.testing.assert_array_equal(st.stepped(h, interval=2.0, gamma=a).vertices,
                                   st.stepped(h, interval=2.0, gamma=0.0).vertices)
+
+
+def test_colors_refuse_a_masked_entry_and_a_bool_instead_of_reading_under_them():
+    """``colors`` was the one numeric argument read with ``np.asarray`` alone: a masked array's masked entries lent
+    the values under the mask to their levels (0.9 under the mask coloured its level 230 grey, without a word) and a
+    bool beside numbers was 1 ([1, True, 0] a near-black green), where heights, levels, γ and the lens mask refuse
+    both. Both are refused now, naming colors and the index; a masked array with nothing masked colours as its data."""
+    heights = np.add.outer(np.arange(5.0), np.arange(5.0))  # 0..8: levels 0, 4, 8 at interval 4
+    data = np.array([[0.2, 0.4, 0.6], [0.9, 0.9, 0.9], [0.1, 0.5, 1.0]])
+    plain = st.stepped(heights, interval=4.0, colors=data)
+    mask = np.zeros(data.shape, bool)
+    mask[1, 2] = True
+    with pytest.raises(st.InvalidInputError, match=r"colors must be numbers .*; got a masked entry at index \(1, 2\)"):
+        st.stepped(heights, interval=4.0, colors=np.ma.masked_array(data, mask=mask))
+    unmasked = st.stepped(heights, interval=4.0, colors=np.ma.masked_array(data, mask=np.zeros(data.shape, bool)))
+    np.testing.assert_array_equal(unmasked.visual.vertex_colors, plain.visual.vertex_colors)
+    with pytest.raises(st.InvalidInputError, match=r"colors must be numbers .*; got a bool \(True\) at index \(2, 1\)"):
+        st.stepped(heights, interval=4.0, colors=[[255, 0, 0], [0, 255, 0], [0, True, 0]])
+    ints = st.stepped(heights, interval=4.0, colors=[[255, 0, 0], [0, 255, 0], [0, 1, 0]])  # numbers: as they were
+    assert ints.visual.vertex_colors[:, :3].max() == 255
+
+
+def test_colors_that_do_not_fit_are_refused_before_the_terrain_is_stepped(monkeypatch):
+    """A misnamed colormap or a colours table with a row per isovalue too few was refused only in the assembly,
+    after every pass over the terrain had run (a large DEM stepped in full to be told 'viridss' is no colormap); it
+    is checked with the isovalues now, before the passes, as a solid's floor is."""
+    heights = np.add.outer(np.arange(5.0), np.arange(5.0))
+
+    def no_passes(*args, **kwargs):
+        raise AssertionError("the terrain was stepped before colors was checked")
+
+    monkeypatch.setattr(stepped_module, "step_arrays", no_passes)
+    with pytest.raises(st.InvalidInputError, match=r"colors must name a matplotlib colormap"):
+        st.stepped(heights, interval=4.0, colors="viridss")
+    with pytest.raises(st.InvalidInputError, match=r"shape \(3, 3\|4\); got shape \(2, 3\)"):
+        st.stepped(heights, interval=4.0, colors=np.zeros((2, 3)))
+    with pytest.raises(AssertionError, match="stepped before"):  # colors that fit go on to the passes
+        st.stepped(heights, interval=4.0, colors="viridis")
