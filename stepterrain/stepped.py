@@ -56,6 +56,7 @@ from .terrain import (
     Terrain,
     _first_bool,
     _pair,
+    _used_span,
     as_array,
     as_number,
     as_terrain,
@@ -67,7 +68,6 @@ from .terrain import (
     real_numbers,
     unmasked,
     unshared,
-    used_height_range,
 )
 
 __all__ = ["stepped", "stepped_series", "isovalues", "nice_interval", "Lens", "circular_lens", "GammaLike"]
@@ -1705,6 +1705,35 @@ def _solid_visual(carried: Any, vertices: NDArray[np.float64], source: NDArray[n
     return trimesh.visual.TextureVisuals(uv=np.concatenate([uv, uv[above[keys[n:]]]]), material=carried.material)
 
 
+def _stack_ranges(stack: NDArray[Any]) -> tuple[float | None, float | None, tuple[float, float] | None,
+                                                NDArray[np.bool_], NDArray[np.bool_]]:
+    """Of a (T, H, W) stack, frame by frame: (lo, hi) of its finite heights (None, None when it has none), the range
+    of the heights a triangle with three finite heights uses in some frame (:func:`used_height_range` of the stack;
+    the finite range where no triangle has three; None without a finite height), and per frame whether it holds an
+    infinity or a finite value beyond float32 (``bad``) and whether it holds no finite height (``empty``). A frame at
+    a time: the whole stack's finite mask and the copy of its finite heights held as much memory as the stack again
+    (a memory-mapped series was read into memory whole before its first frame)."""
+    n = len(stack)
+    bad, empty = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+    lo = hi = used_lo = used_hi = None
+    for k in range(n):
+        frame = np.asarray(stack[k])
+        finite = np.isfinite(frame)
+        whole = bool(finite.all())
+        if not whole and not finite.any():
+            empty[k] = True
+            continue
+        values = frame if whole else frame[finite]
+        f_lo, f_hi = float(values.min()), float(values.max())
+        lo, hi = (f_lo, f_hi) if lo is None else (min(lo, f_lo), max(hi, f_hi))
+        bad[k] = (not whole and bool(np.isinf(frame).any())) or max(-f_lo, f_hi) > FLOAT32_MAX
+        span, any_used = _used_span(frame)
+        if any_used and span is not None:
+            used_lo, used_hi = (span if used_lo is None else (min(used_lo, span[0]), max(used_hi, span[1])))
+    used = (lo, hi) if used_lo is None or lo is None else (used_lo, used_hi)
+    return lo, hi, (None if lo is None else used), bad, empty
+
+
 def stepped_series(
     frames: ArrayLike | Iterable[ArrayLike],
     *,
@@ -1728,7 +1757,9 @@ def stepped_series(
     their geometry agrees but level indices and colours are counted per frame; pass ``levels=`` (or one array)
     for colours that agree over the series. An iterable may also yield :class:`Terrain` objects or trimesh TINs,
     taken as :func:`stepped` takes them (their own spacing and origin; ``spacing``/``origin`` apply to raw arrays
-    only, (1, 1) and (0, 0) when not given).
+    only, (1, 1) and (0, 0) when not given). A stack is read a frame at a time (its height range too): a memory-mapped
+    one (``np.load(path, mmap_mode="r")``) has each frame's float32 copy checked against the memory budget, as
+    :func:`stepped` checks a mapped frame's.
 
     Examples
     --------
@@ -1753,28 +1784,21 @@ def stepped_series(
     if isinstance(frames, wp.array):  # a (T, H, W) warp array is a stack too: it was refused as "not iterable"
         frames = frames.numpy()
     if isinstance(frames, np.ndarray) or (hasattr(frames, "shape") and hasattr(frames, "__array__")):
-        stack = np.asarray(unmasked(frames))
+        # a memory map stays one: each frame's Terrain checks its float32 copy against the memory budget, as stepped()
+        # of a mapped frame does (np.asarray made it a plain array, read in full)
+        stack = frames if isinstance(frames, np.memmap) else np.asarray(unmasked(frames))
         if stack.ndim != 3:
             raise InvalidInputError(f"frames must be a (T, H, W) stack; got shape {stack.shape}")
         if len(stack) == 0:  # it said "frames hold no finite height"
             raise InvalidInputError(f"frames must hold at least one frame; got shape {stack.shape}")
         if not is_real_dtype(stack.dtype):
             raise InvalidInputError(f"frames must be a real-valued (T, H, W) stack; got dtype {stack.dtype}")
-        finite_mask = np.isfinite(stack)
-        finite = stack[finite_mask]
-        if finite.size == 0:
+        lo, hi, used, bad, empty = _stack_ranges(stack)
+        if lo is None:
             raise InvalidInputError("frames hold no finite height")
-        lo, hi = float(finite.min()), float(finite.max())
         # frames whose heights their Terrain refuses (an infinity, a finite value beyond float32), refused here before
         # the first frame as the docstring says: they were refused only when reached, after the frames before them,
         # and a value beyond float32 reached isovalues() first, whose error blamed the interval and named no frame
-        bad = np.zeros(len(stack), dtype=bool)
-        if finite.size != stack.size:
-            bad |= np.isinf(stack).any(axis=(1, 2))
-        if max(-lo, hi) > FLOAT32_MAX:
-            with np.errstate(invalid="ignore"):
-                bad |= (np.abs(stack) > FLOAT32_MAX).any(axis=(1, 2))
-        empty = ~finite_mask.any(axis=(1, 2))
         first = np.flatnonzero(bad | empty)
         if first.size:
             k = int(first[0])
@@ -1786,7 +1810,6 @@ def stepped_series(
                 raise InvalidInputError(f"frames[{k}]: {exc}") from None
         # the isovalues span the heights a triangle uses, as each frame's Terrain.height_range (a node on none is in
         # no mesh): a lone pixel in a void moved every frame's levels and colours; without nodata, the finite range
-        used = (lo, hi) if finite.size == stack.size else used_height_range(stack)
         # of the float32 heights every frame is stepped from (its Terrain's): a float64 height 1e-9 above an
         # isovalue, which float32 rounds onto it, added a level no vertex reaches (other colours and level indices
         # than stepped() of the frame). Rounding is monotone, so the range rounded is the float32 heights' range;

@@ -608,9 +608,9 @@ def test_a_stack_without_nodata_takes_no_pass_over_its_triangles_for_its_range(m
     _, src = plan_items(tmp_path / "series.npy")
     assert list(_shared_levels(src, 5.0, None, 0.0)) == expected[0]
     assert calls == []
-    stack[1, 4, 4] = np.nan  # nodata: the triangles decide
+    stack[1, 4, 4] = np.nan  # nodata: the triangles decide, of that frame alone (the range is taken frame by frame)
     next(st.stepped_series(stack, interval=5.0))
-    assert calls == [stack.shape]
+    assert calls == [stack.shape[1:]]
 
 
 def test_heights_of_subnormal_scale_step_without_an_overflow_warning():
@@ -1536,3 +1536,59 @@ def test_colors_that_do_not_fit_are_refused_before_the_terrain_is_stepped(monkey
         st.stepped(heights, interval=4.0, colors=np.zeros((2, 3)))
     with pytest.raises(AssertionError, match="stepped before"):  # colors that fit go on to the passes
         st.stepped(heights, interval=4.0, colors="viridis")
+
+
+def test_a_stacks_range_is_taken_frame_by_frame_not_in_copies_of_the_whole_stack():
+    """stepped_series of a (T, H, W) stack took its height range from a finite mask of the whole stack and a copy of
+    all its finite heights (``stack[np.isfinite(stack)]``): as much memory again as the stack, float64 for a float64
+    one, before the first frame was stepped, and a memory-mapped series was read into memory whole there. The range
+    is taken a frame at a time now; the isovalues (and so every mesh) are the same."""
+    import tracemalloc
+
+    rng = np.random.default_rng(4)
+    stack = rng.normal(100.0, 20.0, (48, 64, 64))  # float64: 1.5 MiB
+    stack[5, 10:20, 10:20] = np.nan
+    stack[7, 3, 3] = np.nan  # nodata: the triangles' range, frame by frame
+    expected = [st.stepped(frame, interval=25.0, device="cpu") for frame in stack[:2]]
+
+    def peak_of(call):
+        tracemalloc.start()
+        try:
+            result = call()
+            return result, tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+
+    _, stepping = peak_of(lambda: st.stepped(stack[0], interval=25.0, device="cpu"))  # the frame's own work
+    series = st.stepped_series(stack, interval=25.0, device="cpu")
+    first, peak = peak_of(lambda: next(series))
+    assert peak - stepping < stack.nbytes / 4, f"{peak - stepping:,} bytes more than stepping the frame alone, " \
+        f"for a stack of {stack.nbytes:,}"
+    for mesh, want in zip([first, next(series)], expected, strict=True):
+        np.testing.assert_array_equal(mesh.vertices, want.vertices)
+        np.testing.assert_array_equal(mesh.faces, want.faces)
+    values = [m.metadata["isovalues"] for m in st.stepped_series(stack, interval=25.0, device="cpu")]
+    finite = stack[np.isfinite(stack)]
+    assert values[0] == st.isovalues((finite.min(), finite.max()), interval=25.0).tolist()
+    assert all(v == values[0] for v in values)
+
+
+def test_a_memory_mapped_stack_is_budgeted_frame_by_frame_as_stepped_budgets_a_mapped_frame(tmp_path):
+    """stepped(mapped[0]) refuses a memory-mapped frame whose float32 copy exceeds the memory budget before reading
+    it; stepped_series(mapped) made the map a plain array and read every frame (and the whole map for its range),
+    refused only later for the size of the first mesh. Each frame of a mapped stack is budgeted as stepped() budgets
+    it now; a mapped stack within the budget steps as the array does."""
+    path = tmp_path / "series.npy"
+    stack = np.random.default_rng(5).normal(100.0, 20.0, (3, 40, 30))
+    np.save(path, stack)
+    mapped = np.load(path, mmap_mode="r")
+    previous = st.set_memory_budget(4_000)  # under one frame's 4,800 bytes as float32
+    try:
+        with pytest.raises(st.OutputTooLargeError, match=r"memory-mapped array of shape \(40, 30\), float64"):
+            next(st.stepped_series(mapped, interval=25.0, device="cpu"))
+    finally:
+        st.set_memory_budget(previous)
+    for got, want in zip(st.stepped_series(mapped, interval=25.0, device="cpu"),
+                         st.stepped_series(stack, interval=25.0, device="cpu"), strict=True):
+        np.testing.assert_array_equal(got.vertices, want.vertices)
+        np.testing.assert_array_equal(got.faces, want.faces)
