@@ -1727,7 +1727,8 @@ def _stack_ranges(stack: NDArray[Any]) -> tuple[float | None, float | None, tupl
         f_lo, f_hi = float(values.min()), float(values.max())
         lo, hi = (f_lo, f_hi) if lo is None else (min(lo, f_lo), max(hi, f_hi))
         bad[k] = (not whole and bool(np.isinf(frame).any())) or max(-f_lo, f_hi) > FLOAT32_MAX
-        span, any_used = _used_span(frame)
+        # without nodata every node of a grid of 2 x 2 or more is a triangle's: its range, no second pass
+        span, any_used = ((f_lo, f_hi), min(frame.shape) >= 2) if whole else _used_span(frame)
         if any_used and span is not None:
             used_lo, used_hi = (span if used_lo is None else (min(used_lo, span[0]), max(used_hi, span[1])))
     used = (lo, hi) if used_lo is None or lo is None else (used_lo, used_hi)
