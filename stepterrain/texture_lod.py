@@ -20,6 +20,7 @@ import contextlib
 import math
 import mmap
 import os
+import re
 import shutil
 import tempfile
 import threading
@@ -607,7 +608,9 @@ class ImagePyramid:
         storage : folder, optional
             Where the level files go (default: a new temporary folder, deleted by :meth:`close`). They are written
             under temporary names and renamed into place when all are complete, so a failed build leaves the
-            folder's earlier files as they were, and a pyramid built there before keeps its levels.
+            folder's earlier files as they were, and a pyramid built there before keeps its levels; a complete
+            build then removes the level files there it did not write (an earlier pyramid's: of a larger image, or
+            its anisotropic levels, or level_0.u8 of another image), so the folder holds this pyramid's alone.
         anisotropic : bool
             Also store the anisotropic levels (kx, ky): width halved kx times, height ky times (a rip-map),
             used against blurring at grazing angles (§3.2.1).
@@ -727,6 +730,7 @@ class ImagePyramid:
             staged.commit()  # the files under their own names, mapped from there (a later build replaces the names)
             levels = [staged.reopen(level) for level in levels]
             aniso = {key: staged.reopen(level) for key, level in aniso.items()}
+            staged.remove_stale(keep=[_memmap_backing(levels[0])])  # an earlier, other pyramid's files there
         except BaseException:
             staged.discard()
             if owned:
@@ -1032,6 +1036,10 @@ def _source_window(window: tuple[int, int, int, int], src_shape: tuple[int, int]
             (c0 * n_cols) // m_cols, min(n_cols, -((-c1 * n_cols) // m_cols)))
 
 
+#: The name of a level file :meth:`ImagePyramid.build` writes in its storage: level_K.u8, or level_KX_KY.u8 (rip-map).
+_LEVEL_FILE = re.compile(r"level_\d+(?:_\d+)?\.u8")
+
+
 class _StagedFiles:
     """The level files of one build, written under temporary names in ``folder`` (``.level_1.u8.<random>.tmp``)
     and renamed to their own names (``level_1.u8``) together by :meth:`commit`, or removed by :meth:`discard`."""
@@ -1063,6 +1071,27 @@ class _StagedFiles:
         if final is None:
             return level
         return np.memmap(final, dtype=np.uint8, mode="r", shape=level.shape)
+
+    def remove_stale(self, keep: Sequence[str | None] = ()) -> None:
+        """Remove the level files (``level_K.u8``, ``level_KX_KY.u8``) in the folder that this build did not write
+        (after :meth:`commit`): an earlier pyramid's there, of a larger image or with anisotropic levels, stayed
+        beside this one's under the same names (level_0.u8 of another image beside this one's levels 1+). A file
+        in ``keep`` (the file this pyramid's level 0 maps) stays; an earlier pyramid still open keeps its maps of
+        the files removed (POSIX); one that cannot be removed (mapped on Windows) is left."""
+        kept = {os.path.realpath(path) for path in keep if path}
+        written = set(self.temporary)
+        try:
+            names = os.listdir(self.folder)
+        except OSError:
+            return
+        for name in names:
+            if name in written or not _LEVEL_FILE.fullmatch(name):
+                continue
+            path = self.folder / name
+            if os.path.realpath(path) in kept:
+                continue
+            with contextlib.suppress(OSError):
+                os.unlink(path)
 
     def discard(self) -> None:
         for temporary in self.temporary.values():

@@ -1187,3 +1187,41 @@ def test_a_storage_folder_that_is_a_dangling_symbolic_link_is_made_where_the_lin
             assert all(np.array_equal(a, b) for a, b in zip(pyramid.levels, reference.levels, strict=True))
         assert link.is_symlink() and sorted(p.name for p in (tmp_path / "scratch" / "new").iterdir()) == sorted(
             p.name for p in (tmp_path / "plain").iterdir()) != []
+
+
+def test_a_build_into_a_storage_folder_leaves_only_its_own_level_files_there(tmp_path):
+    """A build into a storage folder holding an earlier pyramid's level files replaced only the names it wrote: a
+    5 x 6 image built where a 40 x 40 one was built with anisotropic levels (and level 0 copied from a writeable
+    memmap) left 46 of the 49 files of the other image there beside its 3, level_0.u8 and level_4.u8 to level_6.u8
+    among them: a folder that reads as one pyramid of two images (and keeps the larger's bytes on disk). The files it
+    did not write are removed; the earlier pyramid, still open, keeps its levels (its maps), and a level 0 mapped
+    from the folder's level_0.u8 keeps that file."""
+    storage = tmp_path / "levels"
+    rng = np.random.default_rng(7)
+    first_image = rng.integers(0, 256, (40, 40, 3), dtype=np.uint8)
+    np.save(tmp_path / "first.npy", first_image)
+    first = ImagePyramid.build(np.load(tmp_path / "first.npy", mmap_mode="r+"), storage=storage, anisotropic=True,
+                               device="cpu")  # a writeable memmap: level 0 copied into storage, level_0.u8
+    expected = [np.array(level) for level in first.levels]
+    expected_rip = {key: np.array(level) for key, level in first.anisotropic.items()}
+    assert (storage / "level_0.u8").is_file() and (storage / "level_6.u8").is_file()
+    second_image = rng.integers(0, 256, (5, 6, 3), dtype=np.uint8)
+    with ImagePyramid.build(second_image, storage=storage, device="cpu") as second:
+        assert sorted(p.name for p in storage.iterdir()) == ["level_1.u8", "level_2.u8", "level_3.u8"]
+        for k in range(1, len(second.levels)):  # what the folder holds is this pyramid's levels
+            np.testing.assert_array_equal(
+                np.fromfile(storage / f"level_{k}.u8", np.uint8).reshape(second.levels[k].shape), second.levels[k])
+        np.testing.assert_array_equal(second.levels[1], reduce_rounded_reference(second_image))
+    for level, copy in zip(first.levels, expected, strict=True):  # the first, still open, reads its own levels
+        np.testing.assert_array_equal(level, copy)
+    for key, level in first.anisotropic.items():
+        np.testing.assert_array_equal(level, expected_rip[key])
+    first.close()
+
+    # a pyramid whose level 0 is a map of the folder's level_0.u8 keeps that file
+    third = ImagePyramid.build(np.load(tmp_path / "first.npy", mmap_mode="r+"), storage=storage, device="cpu")
+    with ImagePyramid.build(third.levels[0], storage=storage, device="cpu") as fourth:
+        assert (storage / "level_0.u8").is_file()
+        np.testing.assert_array_equal(fourth.levels[0], first_image)
+        assert sorted(p.name for p in storage.iterdir()) == [f"level_{k}.u8" for k in range(7)]
+    third.close()
