@@ -26,6 +26,7 @@ import tempfile
 import threading
 import uuid
 import warnings
+import weakref
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -523,7 +524,8 @@ class ImagePyramid:
     array the caller can still edit (writeable, or a view of one) is copied first, read-only (a writeable memmap into
     ``storage`` as ``level_0.u8``), so editing it after :meth:`build` leaves the pyramid's levels in agreement (the
     image as it was then). Use as a context manager, or :meth:`close`, to delete a
-    temporary storage folder; a closed pyramid refuses to be read (an :class:`InvalidInputError`).
+    temporary storage folder (a pyramid never closed deletes it when it is garbage collected, or at the interpreter's
+    exit); a closed pyramid refuses to be read (an :class:`InvalidInputError`).
     """
 
     def __init__(self, levels: list[NDArray[np.uint8]], extent: Extent, storage: str | os.PathLike[str] | None,
@@ -532,7 +534,8 @@ class ImagePyramid:
         """Wrap levels already built (:meth:`build` is the usual constructor), e.g. reopened from a ``storage``
         folder with ``numpy.memmap``: ``levels`` from the image (level 0) down to 1 x 1, each (h, w, C) uint8 of
         the sizes :func:`pyramid_shapes` gives; ``anisotropic`` the rip-map levels by (kx, ky); ``owned``:
-        :meth:`close` deletes ``storage``; ``crs`` the extent's CRS. The levels are used as given, not copied
+        :meth:`close` deletes ``storage`` (so does the pyramid's garbage collection, if never closed); ``crs`` the
+        extent's CRS. The levels are used as given, not copied
         (:meth:`build` copies an image the caller can still edit). A bad argument raises an
         :class:`InvalidInputError` naming it."""
         expected = "a list of (H, W, C) uint8 arrays from the image (level 0) down to 1 x 1"
@@ -568,6 +571,10 @@ class ImagePyramid:
         self.storage = folder
         self._anisotropic = anisotropic or {}
         self._owned = owned
+        # an owned folder goes with the pyramid, closed or not (as tempfile.TemporaryDirectory's): one never closed,
+        # as the module's typical use builds it, stayed in the temporary folder for good, a third of its image's
+        # bytes each time (its maps, still held, keep their pages where the system allows removing a mapped file)
+        self._finalizer = weakref.finalize(self, shutil.rmtree, str(folder), ignore_errors=True) if owned else None
         self._closed = False
         self._georeferenced = False  # build() placed it by its file's georeferencing (image_layer asks, not reopens)
 
@@ -606,7 +613,8 @@ class ImagePyramid:
             places an image in degrees (EPSG:4326, ...) on a DEM that load_dem read from degrees (of the same body)
             into local metres exactly, through the linear map of those metres.
         storage : folder, optional
-            Where the level files go (default: a new temporary folder, deleted by :meth:`close`). They are written
+            Where the level files go (default: a new temporary folder, deleted by :meth:`close`, or when the
+            pyramid is garbage collected unclosed). They are written
             under temporary names and renamed into place when all are complete, so a failed build leaves the
             folder's earlier files as they were, and a pyramid built there before keeps its levels; a complete
             build then removes the level files there it did not write (an earlier pyramid's: of a larger image, or
@@ -783,7 +791,7 @@ class ImagePyramid:
         self._levels = []
         self._anisotropic = {}
         if self._owned:
-            shutil.rmtree(self.storage, ignore_errors=True)
+            self._finalizer()  # shutil.rmtree of the folder, once
             self._owned = False
 
     def _level(self, level: Any) -> NDArray[np.uint8]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 import re
 import warnings
 
@@ -1225,3 +1226,43 @@ def test_a_build_into_a_storage_folder_leaves_only_its_own_level_files_there(tmp
         np.testing.assert_array_equal(fourth.levels[0], first_image)
         assert sorted(p.name for p in storage.iterdir()) == [f"level_{k}.u8" for k in range(7)]
     third.close()
+
+
+def test_a_pyramid_never_closed_leaves_no_temporary_folder_behind(tmp_path):
+    """A pyramid built without storage (a temporary folder) deleted it only in close(): the module's typical use,
+    ``pyramid = ImagePyramid.build("big.npy", ...)`` with no close, left stepterrain-pyramid-* in the temporary folder
+    for good, a third of the image's bytes each time. It goes with the pyramid now (garbage collected, or at the
+    interpreter's exit), as a tempfile.TemporaryDirectory's; the levels a caller still holds stay readable, and a
+    storage folder the caller gave is kept."""
+    import gc
+    import subprocess
+    import sys
+
+    image = np.random.default_rng(3).integers(0, 256, (33, 20, 3), dtype=np.uint8)
+    pyramid = ImagePyramid.build(image, device="cpu")
+    folder = pyramid.storage
+    held = pyramid.levels
+    expected = [np.array(level) for level in held]
+    assert folder.is_dir()
+    del pyramid
+    gc.collect()
+    assert not folder.exists()
+    for level, copy in zip(held, expected, strict=True):  # the maps outlive their files
+        np.testing.assert_array_equal(level, copy)
+    del held
+
+    kept = ImagePyramid.build(image, storage=tmp_path / "levels", device="cpu")
+    del kept
+    gc.collect()
+    assert sorted(p.name for p in (tmp_path / "levels").iterdir()) == [f"level_{k}.u8" for k in range(1, 7)]
+
+    closed = ImagePyramid.build(image, device="cpu")
+    closed.close()
+    assert not closed.storage.exists()
+    closed.close()  # twice: nothing to do
+
+    script = ("import numpy as np\nfrom stepterrain.texture_lod import ImagePyramid\n"
+              "p = ImagePyramid.build(np.zeros((9, 9, 3), np.uint8), device='cpu')\nprint(p.storage)\n")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300, check=True)
+    left = done.stdout.strip().splitlines()[-1]
+    assert left and not os.path.exists(left), left
