@@ -698,11 +698,15 @@ class ImagePyramid:
         anisotropic = check_flag(anisotropic, "anisotropic")
         given = _storage_folder(storage)
         owned = given is None
+        made: list[Path] = []  # the folders this build made for a given storage, removed again if it fails
         try:
             folder = Path(tempfile.mkdtemp(prefix="stepterrain-pyramid-")) if given is None else given
             # made where symbolic links lead, as export.atomic_path makes a file's folder: a dangling link (levels ->
             # /scratch/new) was refused "File exists" (mkdir of the link's own name)
-            Path(os.path.realpath(folder)).mkdir(parents=True, exist_ok=True)
+            real = Path(os.path.realpath(folder))
+            if given is not None:
+                made = [p for p in (real, *real.parents) if not p.exists()]
+            real.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise DataFileError(f"cannot create the pyramid storage folder {str(storage)!r}: {exc}") from exc
         dev = resolve_device(device)
@@ -743,6 +747,11 @@ class ImagePyramid:
             staged.discard()
             if owned:
                 shutil.rmtree(folder, ignore_errors=True)
+            for path in made:  # deepest first: a failed build left the storage folder it made, empty, behind
+                try:
+                    path.rmdir()
+                except OSError:  # not empty (something else wrote there meanwhile), or gone: left as it is
+                    break
             raise
         pyramid = cls(levels, extent, folder, aniso, owned, crs)
         pyramid._georeferenced = placed_by_file

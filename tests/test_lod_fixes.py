@@ -1266,3 +1266,28 @@ def test_a_pyramid_never_closed_leaves_no_temporary_folder_behind(tmp_path):
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300, check=True)
     left = done.stdout.strip().splitlines()[-1]
     assert left and not os.path.exists(left), left
+
+
+def test_a_failed_build_removes_the_storage_folders_it_made(tmp_path, monkeypatch):
+    """A build into a storage folder that did not exist made it (and its missing parents), and a build that failed
+    (disk full at a level, interrupted) left them behind, empty: an output folder of nothing. They are removed
+    again; a folder that existed before is kept, as are its files."""
+    from stepterrain import texture_lod
+
+    def failing(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    image = np.zeros((9, 9, 3), np.uint8)
+    monkeypatch.setattr(texture_lod, "_reduce_file", failing)
+    with pytest.raises(OSError, match="No space"):
+        ImagePyramid.build(image, storage=tmp_path / "new" / "deeper" / "levels", device="cpu")
+    assert list(tmp_path.iterdir()) == []
+    existing = tmp_path / "kept"
+    existing.mkdir()
+    with pytest.raises(OSError, match="No space"):
+        ImagePyramid.build(image, storage=existing, device="cpu")
+    assert existing.is_dir() and list(existing.iterdir()) == []
+    monkeypatch.undo()
+    with ImagePyramid.build(image, storage=tmp_path / "made" / "levels", device="cpu") as pyramid:  # kept when built
+        assert sorted(p.name for p in pyramid.storage.iterdir()) == ["level_1.u8", "level_2.u8", "level_3.u8",
+                                                                     "level_4.u8"]
