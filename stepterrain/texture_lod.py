@@ -616,7 +616,7 @@ class ImagePyramid:
             Where the level files go (default: a new temporary folder, deleted by :meth:`close`, or when the
             pyramid is garbage collected unclosed). They are written
             under temporary names and renamed into place when all are complete, so a failed build leaves the
-            folder's earlier files as they were, and a pyramid built there before keeps its levels; a complete
+            folder's earlier files as they were (and removes the folder if it made it), and a pyramid built there before keeps its levels; a complete
             build then removes the level files there it did not write (an earlier pyramid's: of a larger image, or
             its anisotropic levels, or level_0.u8 of another image), so the folder holds this pyramid's alone.
         anisotropic : bool
