@@ -166,6 +166,9 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--png", type=_path, metavar="OUT.png",
                    help="also render an overview: the welded tiles, or a contact sheet of up to 16 items")
     p.add_argument("--size", type=_window, default=None, metavar="WxH", help="--png size (default 1280x800)")
+    p.add_argument("--z-scale", type=float, default=None, metavar="S",
+                   help="vertical exaggeration of the overview render only, with --png (default 2; the meshes are "
+                        "written as they are)")
     _add_camera(p, "the overview render, with --png (each cell of a contact sheet alike)")
     p.set_defaults(run=functools.partial(_run_batch, sub=p))  # its failure lines spell library arguments as p's options
 
@@ -214,8 +217,10 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
         raise InvalidInputError(f"--workers applies only to the default LocalCluster, not with --scheduler; got "
                                 f"--workers {args.workers} with --scheduler {args.scheduler}")
     workers = 2 if args.workers is None else args.workers
-    render_options = _given(args, {"size": (1280, 800), "camera": "oblique"})
+    render_options = _given(args, {"size": (1280, 800), "z_scale": 2.0, "camera": "oblique"})
     _check_size(args.size, renders=png is not None)
+    if not (math.isfinite(args.z_scale) and args.z_scale > 0):
+        raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
     if png is None:  # (after its value, which is named first) it was ignored
         _refuse_unused(render_options, "--png (the overview render)", "without --png")
     _check_outputs({"INPUT" if len(files) == 1 else f"INPUT {k + 1}": f for k, f in enumerate(files)}, png=png)
@@ -331,7 +336,7 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
         from .export import _save_image
 
         progress.stage("render", f"rendering an overview {args.size[0]}x{args.size[1]}")
-        image = overview_image(report, window_size=args.size, camera=args.camera)
+        image = overview_image(report, window_size=args.size, z_scale=args.z_scale, camera=args.camera)
         _save_image(image, png, reused=False)  # no mesh takes its bytes
         progress.done(str(png))
     return 0 if report.ok else 1

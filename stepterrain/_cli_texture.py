@@ -640,9 +640,15 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
                            **_georeference(normals_out, tx.terrain_extent(terrain), terrain.crs))
         progress.say(f"wrote {normals_out} ({_size(normals_out)})")
     if draped is not None and mesh_out is not None:
-        metadata = {"generator": "stepterrain texture", **_input_metadata(args),
-                    "method": args.method, "azimuth_deg": args.azimuth, "altitude_deg": args.altitude,
-                    "shadows": bool(args.shadows)}
+        metadata = {"generator": "stepterrain texture", **_input_metadata(args), "method": args.method}
+        # the light's angles only where they shaped the texture: --hillshade none (no shading) recorded the default
+        # light 315 / 45, multidirectional (four fixed lights) its azimuth and igor its altitude, none of them used
+        # unless --shadows aimed the shadows with them
+        if args.shadows or args.method not in ("multidirectional", "none"):
+            metadata["azimuth_deg"] = args.azimuth
+        if args.shadows or args.method not in ("igor", "none"):
+            metadata["altitude_deg"] = args.altitude
+        metadata["shadows"] = bool(args.shadows)
         if args.image is not None:
             metadata["image"] = str(args.image)
         if args.texel_size is not None:

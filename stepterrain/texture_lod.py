@@ -20,11 +20,13 @@ import contextlib
 import math
 import mmap
 import os
+import re
 import shutil
 import tempfile
 import threading
 import uuid
 import warnings
+import weakref
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -522,7 +524,8 @@ class ImagePyramid:
     array the caller can still edit (writeable, or a view of one) is copied first, read-only (a writeable memmap into
     ``storage`` as ``level_0.u8``), so editing it after :meth:`build` leaves the pyramid's levels in agreement (the
     image as it was then). Use as a context manager, or :meth:`close`, to delete a
-    temporary storage folder; a closed pyramid refuses to be read (an :class:`InvalidInputError`).
+    temporary storage folder (a pyramid never closed deletes it when it is garbage collected, or at the interpreter's
+    exit); a closed pyramid refuses to be read (an :class:`InvalidInputError`).
     """
 
     def __init__(self, levels: list[NDArray[np.uint8]], extent: Extent, storage: str | os.PathLike[str] | None,
@@ -531,7 +534,8 @@ class ImagePyramid:
         """Wrap levels already built (:meth:`build` is the usual constructor), e.g. reopened from a ``storage``
         folder with ``numpy.memmap``: ``levels`` from the image (level 0) down to 1 x 1, each (h, w, C) uint8 of
         the sizes :func:`pyramid_shapes` gives; ``anisotropic`` the rip-map levels by (kx, ky); ``owned``:
-        :meth:`close` deletes ``storage``; ``crs`` the extent's CRS. The levels are used as given, not copied
+        :meth:`close` deletes ``storage`` (so does the pyramid's garbage collection, if never closed); ``crs`` the
+        extent's CRS. The levels are used as given, not copied
         (:meth:`build` copies an image the caller can still edit). A bad argument raises an
         :class:`InvalidInputError` naming it."""
         expected = "a list of (H, W, C) uint8 arrays from the image (level 0) down to 1 x 1"
@@ -567,6 +571,10 @@ class ImagePyramid:
         self.storage = folder
         self._anisotropic = anisotropic or {}
         self._owned = owned
+        # an owned folder goes with the pyramid, closed or not (as tempfile.TemporaryDirectory's): one never closed,
+        # as the module's typical use builds it, stayed in the temporary folder for good, a third of its image's
+        # bytes each time (its maps, still held, keep their pages where the system allows removing a mapped file)
+        self._finalizer = weakref.finalize(self, shutil.rmtree, str(folder), ignore_errors=True) if owned else None
         self._closed = False
         self._georeferenced = False  # build() placed it by its file's georeferencing (image_layer asks, not reopens)
 
@@ -605,9 +613,12 @@ class ImagePyramid:
             places an image in degrees (EPSG:4326, ...) on a DEM that load_dem read from degrees (of the same body)
             into local metres exactly, through the linear map of those metres.
         storage : folder, optional
-            Where the level files go (default: a new temporary folder, deleted by :meth:`close`). They are written
+            Where the level files go (default: a new temporary folder, deleted by :meth:`close`, or when the
+            pyramid is garbage collected unclosed). They are written
             under temporary names and renamed into place when all are complete, so a failed build leaves the
-            folder's earlier files as they were, and a pyramid built there before keeps its levels.
+            folder's earlier files as they were (and removes the folder if it made it), and a pyramid built there before keeps its levels; a complete
+            build then removes the level files there it did not write (an earlier pyramid's: of a larger image, or
+            its anisotropic levels, or level_0.u8 of another image), so the folder holds this pyramid's alone.
         anisotropic : bool
             Also store the anisotropic levels (kx, ky): width halved kx times, height ky times (a rip-map),
             used against blurring at grazing angles (§3.2.1).
@@ -687,11 +698,15 @@ class ImagePyramid:
         anisotropic = check_flag(anisotropic, "anisotropic")
         given = _storage_folder(storage)
         owned = given is None
+        made: list[Path] = []  # the folders this build made for a given storage, removed again if it fails
         try:
             folder = Path(tempfile.mkdtemp(prefix="stepterrain-pyramid-")) if given is None else given
             # made where symbolic links lead, as export.atomic_path makes a file's folder: a dangling link (levels ->
             # /scratch/new) was refused "File exists" (mkdir of the link's own name)
-            Path(os.path.realpath(folder)).mkdir(parents=True, exist_ok=True)
+            real = Path(os.path.realpath(folder))
+            if given is not None:
+                made = [p for p in (real, *real.parents) if not p.exists()]
+            real.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise DataFileError(f"cannot create the pyramid storage folder {str(storage)!r}: {exc}") from exc
         dev = resolve_device(device)
@@ -727,10 +742,16 @@ class ImagePyramid:
             staged.commit()  # the files under their own names, mapped from there (a later build replaces the names)
             levels = [staged.reopen(level) for level in levels]
             aniso = {key: staged.reopen(level) for key, level in aniso.items()}
+            staged.remove_stale(keep=[_memmap_backing(levels[0])])  # an earlier, other pyramid's files there
         except BaseException:
             staged.discard()
             if owned:
                 shutil.rmtree(folder, ignore_errors=True)
+            for path in made:  # deepest first: a failed build left the storage folder it made, empty, behind
+                try:
+                    path.rmdir()
+                except OSError:  # not empty (something else wrote there meanwhile), or gone: left as it is
+                    break
             raise
         pyramid = cls(levels, extent, folder, aniso, owned, crs)
         pyramid._georeferenced = placed_by_file
@@ -779,7 +800,7 @@ class ImagePyramid:
         self._levels = []
         self._anisotropic = {}
         if self._owned:
-            shutil.rmtree(self.storage, ignore_errors=True)
+            self._finalizer()  # shutil.rmtree of the folder, once
             self._owned = False
 
     def _level(self, level: Any) -> NDArray[np.uint8]:
@@ -1032,6 +1053,10 @@ def _source_window(window: tuple[int, int, int, int], src_shape: tuple[int, int]
             (c0 * n_cols) // m_cols, min(n_cols, -((-c1 * n_cols) // m_cols)))
 
 
+#: The name of a level file :meth:`ImagePyramid.build` writes in its storage: level_K.u8, or level_KX_KY.u8 (rip-map).
+_LEVEL_FILE = re.compile(r"level_\d+(?:_\d+)?\.u8")
+
+
 class _StagedFiles:
     """The level files of one build, written under temporary names in ``folder`` (``.level_1.u8.<random>.tmp``)
     and renamed to their own names (``level_1.u8``) together by :meth:`commit`, or removed by :meth:`discard`."""
@@ -1063,6 +1088,27 @@ class _StagedFiles:
         if final is None:
             return level
         return np.memmap(final, dtype=np.uint8, mode="r", shape=level.shape)
+
+    def remove_stale(self, keep: Sequence[str | None] = ()) -> None:
+        """Remove the level files (``level_K.u8``, ``level_KX_KY.u8``) in the folder that this build did not write
+        (after :meth:`commit`): an earlier pyramid's there, of a larger image or with anisotropic levels, stayed
+        beside this one's under the same names (level_0.u8 of another image beside this one's levels 1+). A file
+        in ``keep`` (the file this pyramid's level 0 maps) stays; an earlier pyramid still open keeps its maps of
+        the files removed (POSIX); one that cannot be removed (mapped on Windows) is left."""
+        kept = {os.path.realpath(path) for path in keep if path}
+        written = set(self.temporary)
+        try:
+            names = os.listdir(self.folder)
+        except OSError:
+            return
+        for name in names:
+            if name in written or not _LEVEL_FILE.fullmatch(name):
+                continue
+            path = self.folder / name
+            if os.path.realpath(path) in kept:
+                continue
+            with contextlib.suppress(OSError):
+                os.unlink(path)
 
     def discard(self) -> None:
         for temporary in self.temporary.values():

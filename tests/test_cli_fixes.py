@@ -1246,6 +1246,8 @@ def test_an_unknown_device_names_leaving_the_option_out_not_none(tmp_path, capsy
      "--png (the render of the draped mesh)", "it without --png"),
     ("batch", ["--scheduler", "serial", "-o", "{tmp}/out", "--size", "64x48"], "--size applies",
      "--png (the overview render)", "it without --png"),
+    ("batch", ["--scheduler", "serial", "-o", "{tmp}/out", "--z-scale", "5"], "--z-scale applies",
+     "--png (the overview render)", "it without --png"),
     ("closeup", ["-o", "{tmp}/s.ply", "--z-scale", "5"], "--z-scale applies",
      "a render (a .png --output, --png or --gif)", "it with the mesh --output '{tmp}/s.ply' alone"),
 ])
@@ -2461,3 +2463,33 @@ def test_steps_over_the_memory_budget_names_options_not_python(tmp_path, capsys)
     assert "Terrain." not in err and "coarsen the isovalues" not in err, err
     code, _, err = run(capsys, "-q", "steps", tif, "--interval", "500", *solid)  # a larger --interval: it fits
     assert code == 0, err
+
+
+@needs_render
+def test_batch_overview_warning_of_a_cell_too_tall_to_see_names_an_option_batch_has(tmp_path, capsys):
+    """``batch --png`` leaves a contact-sheet cell too thin to see blank with a warning quoting render_mesh's
+    refusal, "(with z_scale=2) ... a z_scale near 0.0004 makes it as tall as it is wide": advice no batch user could
+    follow, as ``stepterrain batch`` had no --z-scale (the overview always rendered at 2). It has one now, for the
+    overview alone: the warning names it, and the value it suggests draws the cell."""
+    folder = tmp_path / "in"
+    folder.mkdir()
+    np.save(folder / "a.npy", np.add.outer(np.arange(20.0), np.arange(20.0) ** 1.5).astype(np.float32))
+    np.save(folder / "b.npy", np.stack([np.linspace(0.0, 5000.0, 3)] * 3).astype(np.float32))  # a spike: a top
+    # view of it at z_scale 2, fitted to its height, sees 2 x 2 across as a fraction of a pixel
+    png = tmp_path / "sheet.png"
+    argv = ["batch", folder, "-o", tmp_path / "out", "--interval", "2", "--scheduler", "serial", "--format", ".ply",
+            "--png", png, "--size", "100x80", "--camera", "top"]
+    code, _, err = run(capsys, "-q", *argv)
+    assert code == 0, err
+    said = re.search(r"the overview's cell of b\.ply \(50 x 80 pixels\) is left blank: .*\(with --z-scale 2\), too "
+                     r"thin to see .*; a --z-scale near (\S+) makes it as tall as it is wide", err)
+    assert said is not None, err
+    assert "z_scale" not in err, err
+    from PIL import Image
+
+    drawn = (np.asarray(Image.open(png))[..., :3] < 250).any(axis=2)
+    assert drawn[:, :50].mean() > 0.05 and not drawn[:, 50:].any()
+    code, _, err = run(capsys, "-q", *argv, "--z-scale", said.group(1))  # the advice, followed
+    assert code == 0 and "b.ply" not in err, err
+    drawn = (np.asarray(Image.open(png))[..., :3] < 250).any(axis=2)
+    assert drawn[:, 50:].mean() > 0.02, drawn[:, 50:].mean()

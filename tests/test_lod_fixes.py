@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 import re
 import warnings
 
@@ -1187,3 +1188,106 @@ def test_a_storage_folder_that_is_a_dangling_symbolic_link_is_made_where_the_lin
             assert all(np.array_equal(a, b) for a, b in zip(pyramid.levels, reference.levels, strict=True))
         assert link.is_symlink() and sorted(p.name for p in (tmp_path / "scratch" / "new").iterdir()) == sorted(
             p.name for p in (tmp_path / "plain").iterdir()) != []
+
+
+def test_a_build_into_a_storage_folder_leaves_only_its_own_level_files_there(tmp_path):
+    """A build into a storage folder holding an earlier pyramid's level files replaced only the names it wrote: a
+    5 x 6 image built where a 40 x 40 one was built with anisotropic levels (and level 0 copied from a writeable
+    memmap) left 46 of the 49 files of the other image there beside its 3, level_0.u8 and level_4.u8 to level_6.u8
+    among them: a folder that reads as one pyramid of two images (and keeps the larger's bytes on disk). The files it
+    did not write are removed; the earlier pyramid, still open, keeps its levels (its maps), and a level 0 mapped
+    from the folder's level_0.u8 keeps that file."""
+    storage = tmp_path / "levels"
+    rng = np.random.default_rng(7)
+    first_image = rng.integers(0, 256, (40, 40, 3), dtype=np.uint8)
+    np.save(tmp_path / "first.npy", first_image)
+    first = ImagePyramid.build(np.load(tmp_path / "first.npy", mmap_mode="r+"), storage=storage, anisotropic=True,
+                               device="cpu")  # a writeable memmap: level 0 copied into storage, level_0.u8
+    expected = [np.array(level) for level in first.levels]
+    expected_rip = {key: np.array(level) for key, level in first.anisotropic.items()}
+    assert (storage / "level_0.u8").is_file() and (storage / "level_6.u8").is_file()
+    second_image = rng.integers(0, 256, (5, 6, 3), dtype=np.uint8)
+    with ImagePyramid.build(second_image, storage=storage, device="cpu") as second:
+        assert sorted(p.name for p in storage.iterdir()) == ["level_1.u8", "level_2.u8", "level_3.u8"]
+        for k in range(1, len(second.levels)):  # what the folder holds is this pyramid's levels
+            np.testing.assert_array_equal(
+                np.fromfile(storage / f"level_{k}.u8", np.uint8).reshape(second.levels[k].shape), second.levels[k])
+        np.testing.assert_array_equal(second.levels[1], reduce_rounded_reference(second_image))
+    for level, copy in zip(first.levels, expected, strict=True):  # the first, still open, reads its own levels
+        np.testing.assert_array_equal(level, copy)
+    for key, level in first.anisotropic.items():
+        np.testing.assert_array_equal(level, expected_rip[key])
+    first.close()
+
+    # a pyramid whose level 0 is a map of the folder's level_0.u8 keeps that file
+    third = ImagePyramid.build(np.load(tmp_path / "first.npy", mmap_mode="r+"), storage=storage, device="cpu")
+    with ImagePyramid.build(third.levels[0], storage=storage, device="cpu") as fourth:
+        assert (storage / "level_0.u8").is_file()
+        np.testing.assert_array_equal(fourth.levels[0], first_image)
+        assert sorted(p.name for p in storage.iterdir()) == [f"level_{k}.u8" for k in range(7)]
+    third.close()
+
+
+def test_a_pyramid_never_closed_leaves_no_temporary_folder_behind(tmp_path):
+    """A pyramid built without storage (a temporary folder) deleted it only in close(): the module's typical use,
+    ``pyramid = ImagePyramid.build("big.npy", ...)`` with no close, left stepterrain-pyramid-* in the temporary folder
+    for good, a third of the image's bytes each time. It goes with the pyramid now (garbage collected, or at the
+    interpreter's exit), as a tempfile.TemporaryDirectory's; the levels a caller still holds stay readable, and a
+    storage folder the caller gave is kept."""
+    import gc
+    import subprocess
+    import sys
+
+    image = np.random.default_rng(3).integers(0, 256, (33, 20, 3), dtype=np.uint8)
+    pyramid = ImagePyramid.build(image, device="cpu")
+    folder = pyramid.storage
+    held = pyramid.levels
+    expected = [np.array(level) for level in held]
+    assert folder.is_dir()
+    del pyramid
+    gc.collect()
+    assert not folder.exists()
+    for level, copy in zip(held, expected, strict=True):  # the maps outlive their files
+        np.testing.assert_array_equal(level, copy)
+    del held
+
+    kept = ImagePyramid.build(image, storage=tmp_path / "levels", device="cpu")
+    del kept
+    gc.collect()
+    assert sorted(p.name for p in (tmp_path / "levels").iterdir()) == [f"level_{k}.u8" for k in range(1, 7)]
+
+    closed = ImagePyramid.build(image, device="cpu")
+    closed.close()
+    assert not closed.storage.exists()
+    closed.close()  # twice: nothing to do
+
+    script = ("import numpy as np\nfrom stepterrain.texture_lod import ImagePyramid\n"
+              "p = ImagePyramid.build(np.zeros((9, 9, 3), np.uint8), device='cpu')\nprint(p.storage)\n")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300, check=True)
+    left = done.stdout.strip().splitlines()[-1]
+    assert left and not os.path.exists(left), left
+
+
+def test_a_failed_build_removes_the_storage_folders_it_made(tmp_path, monkeypatch):
+    """A build into a storage folder that did not exist made it (and its missing parents), and a build that failed
+    (disk full at a level, interrupted) left them behind, empty: an output folder of nothing. They are removed
+    again; a folder that existed before is kept, as are its files."""
+    from stepterrain import texture_lod
+
+    def failing(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    image = np.zeros((9, 9, 3), np.uint8)
+    monkeypatch.setattr(texture_lod, "_reduce_file", failing)
+    with pytest.raises(OSError, match="No space"):
+        ImagePyramid.build(image, storage=tmp_path / "new" / "deeper" / "levels", device="cpu")
+    assert list(tmp_path.iterdir()) == []
+    existing = tmp_path / "kept"
+    existing.mkdir()
+    with pytest.raises(OSError, match="No space"):
+        ImagePyramid.build(image, storage=existing, device="cpu")
+    assert existing.is_dir() and list(existing.iterdir()) == []
+    monkeypatch.undo()
+    with ImagePyramid.build(image, storage=tmp_path / "made" / "levels", device="cpu") as pyramid:  # kept when built
+        assert sorted(p.name for p in pyramid.storage.iterdir()) == ["level_1.u8", "level_2.u8", "level_3.u8",
+                                                                     "level_4.u8"]

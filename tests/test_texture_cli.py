@@ -317,6 +317,35 @@ def test_cli_texture_of_a_method_that_ignores_an_angle_passes_only_the_angles_gi
     np.testing.assert_array_equal(read_png(out)[..., 0], layer.to_uint8(background=(1.0, 1.0, 1.0))[..., 0])
 
 
+@pytest.mark.parametrize("method", ["standard", "multidirectional", "combined", "igor", "none"])
+@pytest.mark.parametrize("shadows", [False, True])
+def test_cli_texture_mesh_metadata_records_only_the_light_angles_that_shaped_it(tmp_path, small_dem, method, shadows):
+    """A draped mesh's metadata recorded azimuth_deg 315 and altitude_deg 45 whatever the shading: --hillshade none
+    (no light at all), multidirectional (four fixed lights: no azimuth) and igor (no altitude) said a light shaded the
+    texture that none did. An angle is recorded where the library takes it, as the hillshade refuses one its method
+    ignores; --shadows aims the shadows with both."""
+    from stepterrain import texture as tx
+    from stepterrain.export import read_mesh
+    from stepterrain.io import load_dem
+
+    terrain = load_dem(small_dem)
+    used = set()
+    for key, angle in (("azimuth_deg", "azimuth"), ("altitude_deg", "altitude")):
+        try:
+            tx.topographic_layer(terrain, method=method, shadows=shadows, device="cpu", **{angle: 0.5})
+        except InvalidInputError as exc:
+            assert "has no effect" in str(exc), exc
+        else:
+            used.add(key)
+    mesh = tmp_path / "t.ply"
+    assert main(["texture", str(small_dem), "--hillshade", method, *(["--shadows"] if shadows else []), "--mesh",
+                 str(mesh), "--device", "cpu", "-q"]) == 0
+    metadata = read_mesh(mesh).metadata
+    assert {key for key in ("azimuth_deg", "altitude_deg") if key in metadata} == used
+    assert metadata["method"] == method and metadata["shadows"] is shadows
+    assert metadata.get("azimuth_deg", 315.0) == 315.0 and metadata.get("altitude_deg", 45.0) == 45.0
+
+
 # ------------------------------------------------------------------------------------------ --image
 TUJUNGA = "big_tujunga_srtm_30m_utm11n.tif"
 
