@@ -320,6 +320,10 @@ def _camera_position(
         if spec.shape != (2,) or not np.all(np.isfinite(spec)):
             raise InvalidInputError(f"camera must be 'oblique', 'top', (azimuth, elevation) in radians or "
                                     f"[(eye), (focal point), (view up)]; got {camera!r}")
+        if abs(float(spec[1])) > math.pi / 2:  # clipped to +-89.9 degrees: camera=(190, 45), degrees for radians,
+            # rendered the top view without a word (--camera refuses an EL beyond +-90 degrees alike)
+            raise InvalidInputError(f"camera's elevation must lie in [-π/2, π/2] radians (-90 to 90 degrees, "
+                                    f"math.radians(degrees)); got {camera!r}, elevation {float(spec[1]):g}")
         azimuth, elevation = float(spec[0]), float(np.clip(spec[1], -math.radians(89.9), math.radians(89.9)))
     view_dir = _direction(azimuth, elevation)
     if abs(elevation) < math.radians(89.0):
@@ -488,8 +492,9 @@ def render_mesh(
         proportions (the CLI's ``--z-scale`` defaults to 2).
     camera : "oblique", "top", (azimuth, elevation) or [(eye), (focal point), (view up)]
         "oblique" is the fixed reproducible view from just west of south at 45° elevation; a pair gives the
-        direction the camera looks from (radians, azimuth clockwise from north = +y), +z up in the image at every
-        elevation (seen from above the far side is up, from below, a negative elevation, the near side); "top"
+        direction the camera looks from (radians, azimuth clockwise from north = +y, elevation in [-π/2, π/2]: one
+        beyond is refused, as degrees given for radians), +z up in the image at every elevation (seen from above the
+        far side is up, from below, a negative elevation, the near side); "top"
         looks straight down, north (+y) up and east (+x) to the right. All are fitted to the bounds. An explicit
         pyvista camera position is used as given, in the mesh's coordinates minus the centre of ``bounds`` (else of
         the box of the vertices drawn), z times ``z_scale`` (the render recentres the mesh to keep UTM-sized

@@ -1712,3 +1712,21 @@ def test_a_fitted_camera_that_shows_the_surface_under_a_pixel_is_refused_not_bla
     # twice as wide, it spans 1.9 pixels and is drawn
     image = render.render_mesh(mesh, window_size=(16, 500), camera=(0.3, 0.2))
     assert (image != 255).any(axis=-1).sum() > 0
+
+
+@pytest.mark.parametrize("camera", [(190.0, 45.0), (0.0, 3.0), (0.0, -1.6), [0.5, 1e9]])
+def test_a_camera_elevation_beyond_a_quarter_turn_is_named_not_clipped_to_the_top_view(camera):
+    """An (azimuth, elevation) pair's elevation beyond ±π/2 radians was clipped to ±89.9 degrees: camera=(190, 45),
+    degrees given for radians, rendered the view straight down without a word (the CLI's --camera refuses an EL beyond
+    ±90 degrees). It is named, before anything renders."""
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    with pytest.raises(InvalidInputError, match=r"camera's elevation must lie in \[-π/2, π/2\] radians.*; got "):
+        render.render_mesh(mesh, window_size=(32, 32), camera=camera)
+
+
+@needs_render
+def test_a_camera_elevation_of_exactly_a_quarter_turn_still_looks_straight_down():
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    for elevation in (np.pi / 2, -np.pi / 2):
+        image = render.render_mesh(mesh, window_size=(32, 32), camera=(np.pi, elevation))
+        assert (image != 255).any()
