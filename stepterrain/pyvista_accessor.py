@@ -406,8 +406,9 @@ def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:
     :func:`~stepterrain.render.render_mesh` and :func:`~stepterrain.texture.drape` call on a PolyData given to them.
 
     Points and faces are copied as they are (float64, int64). The point data ``colors_rgba`` (else ``RGBA``, else
-    ``RGB``, as VTK's PLY and OBJ readers name colours, else active scalars named ``*_rgb``/``*_rgba``), uint8 with 3
-    or 4 columns, become the vertex colours (pv.to_trimesh leaves them as a plain vertex attribute, so they were not
+    ``RGB``, as VTK's PLY and OBJ readers name colours, else active scalars named ``*_rgb``/``*_rgba``), 3
+    or 4 columns of uint8, or of other whole numbers in [0, 255] or floats in [0, 1] (as pyvista plots them), become
+    the vertex colours (pv.to_trimesh leaves them as a plain vertex attribute, so they were not
     written nor drawn); without them, cell data found so (a PLY's face colours, :func:`to_polydata`'s of a mesh
     coloured by face) become the face colours. Other point data become vertex attributes (normals and texture
     coordinates aside: a PolyData holds no texture image, drape it instead). Other cell data become face
@@ -479,11 +480,34 @@ def _colours(data: Any) -> tuple[NDArray[np.uint8] | None, set[str]]:
     if colour_name is None:
         return None, set()
     values = np.asarray(data[colour_name])
-    if values.dtype != np.uint8 or values.ndim != 2 or values.shape[1] not in (3, 4):
+    if values.ndim != 2 or values.shape[1] not in (3, 4):
+        return None, set()
+    colours = _uint8_colours(values)
+    if colours is None:
         return None, set()
     # "RGBA" and its alias share one buffer (to_polydata): neither is an attribute besides
     same = {n for n in (RGBA_ALIAS, "RGBA") if n in data and np.array_equal(np.asarray(data[n]), values)}
-    return values.copy(), {colour_name} | same
+    return colours, {colour_name} | same
+
+
+def _uint8_colours(values: NDArray[Any]) -> NDArray[np.uint8] | None:
+    """Colour rows as uint8 (a copy), read as VTK's direct colour mode reads them (pyvista plots an array named
+    ``*_rgb``/``*_rgba`` so): floats in [0, 1], whole numbers in [0, 255]; None for anything else (NaN, floats
+    beyond 1, negative numbers, bools), left a plain attribute. Only uint8 was taken: ``poly["colors_rgba"] =``
+    floats, shown as colours by ``poly.plot()``, rendered in plain tan through render_mesh and were saved
+    uncoloured."""
+    if values.dtype == np.uint8:
+        return values.copy()
+    if values.dtype.kind in "iu":
+        if values.size and (values.min() < 0 or values.max() > 255):
+            return None
+        return values.astype(np.uint8)
+    if values.dtype.kind == "f":
+        with np.errstate(invalid="ignore"):
+            if not (np.isfinite(values).all() and (values >= 0).all() and (values <= 1).all()):
+                return None
+        return np.rint(values.astype(np.float64) * 255.0).astype(np.uint8)
+    return None
 
 
 def _uniform_step(coords: NDArray[np.float64]) -> float | None:

@@ -668,3 +668,33 @@ def test_from_polydata_of_points_or_lines_names_delaunay_2d_and_counts_in_the_si
     with pytest.raises(InvalidInputError, match=r"got 2 polygons of 4 or more corners \(mesh\.triangulate\(\) makes "
                                                 r"triangles of them\)$"):
         from_polydata(pv.Plane(i_resolution=2, j_resolution=1))
+
+
+@pytest.mark.parametrize("kind", ["point", "cell"])
+@pytest.mark.parametrize("name", [RGBA_ALIAS, "RGBA", "RGB", "height_rgb"])
+def test_from_polydata_takes_float_and_wide_integer_colours_as_pyvista_plots_them(kind, name):
+    """from_polydata took colours of uint8 only: poly["colors_rgba"] = floats in [0, 1] (which poly.plot() shows as
+    colours, VTK's direct colour mode) stayed a plain attribute, so render_mesh(poly) drew the plain tan and save_mesh
+    wrote it uncoloured; int64 colours in [0, 255] (np.array of Python ints) alike. Floats in [0, 1] and whole numbers
+    in [0, 255] are the colours (uint8, rounded); anything else stays an attribute."""
+    from stepterrain.pyvista_accessor import from_polydata
+
+    poly = pv.Sphere(theta_resolution=8, phi_resolution=6)
+    count = poly.n_points if kind == "point" else poly.n_cells
+    columns = 3 if name.endswith(("RGB", "_rgb")) else 4
+    expected = np.random.default_rng(5).integers(0, 256, (count, columns), dtype=np.uint8)
+    data = poly.point_data if kind == "point" else poly.cell_data
+    for values in (expected / 255.0, expected.astype(np.float32) / 255, expected.astype(np.int64)):
+        data[name] = values
+        data.active_scalars_name = name
+        back = from_polydata(poly)
+        assert back.visual.kind == ("vertex" if kind == "point" else "face")
+        colours = back.visual.vertex_colors if kind == "point" else back.visual.face_colors
+        assert np.array_equal(colours[:, :columns], expected)
+        assert name not in back.vertex_attributes and name not in back.face_attributes
+    for values in (expected / 255.0 * 2.0, -expected.astype(np.int64) - 1, np.full((count, columns), np.nan)):
+        data[name] = values  # not colours: a plain attribute, as before
+        back = from_polydata(poly)
+        assert back.visual.kind is None
+        assert np.array_equal((back.vertex_attributes if kind == "point" else back.face_attributes)[name], values,
+                              equal_nan=True)
