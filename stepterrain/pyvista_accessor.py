@@ -219,9 +219,10 @@ class StepTerrainAccessor:
         Returns
         -------
         pyvista.PolyData
-            As :func:`to_polydata` makes it: triangles; cell data ``level`` (int32) and ``wall`` (bool as uint8);
-            point data ``RGBA`` (uint8) when ``colors`` is given, sharing its buffer with the active scalars
-            ``colors_rgba`` (a name pyvista plots as colours: ``steps.plot()`` shows them);
+            As :func:`to_polydata` makes it: triangles; cell data ``level`` (int32) and ``wall`` (bool: uint8 in
+            VTK, read as bool, as pyvista keeps bools); point data ``RGBA`` (uint8) when ``colors`` is given,
+            sharing its buffer with the active scalars ``colors_rgba`` (a name pyvista plots as colours:
+            ``steps.plot()`` shows them);
             ``field_data["isovalues"]``; the mesh metadata (source, CRS, γ, isovalues, floor) in ``user_dict``.
             :func:`~stepterrain.export.save_mesh`, :func:`~stepterrain.render.render_mesh` and
             :func:`~stepterrain.texture.drape` take it as it is (see :func:`from_polydata`).
@@ -281,10 +282,10 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
 
     ``pv.wrap`` of a Trimesh drops its vertex colours (pyvista carries vertex attributes only); this keeps them as
     point data ``RGBA`` (uint8), also the active scalars ``colors_rgba`` (plotted as colours); colours by face go to
-    cell data so. Face attributes become cell data and vertex attributes point data (bools as uint8, half floats as
-    float32; numbers and strings, anything else left out with a warning naming it, as are complex numbers of
-    several components), a textured mesh's UVs (one per
-    vertex) the active texture coordinates (its image is not data of a PolyData: plot with
+    cell data so. Face attributes become cell data and vertex attributes point data (bools as pyvista keeps them,
+    uint8 in VTK read back as bool, half floats as float32; numbers and strings, anything else left out with a warning
+    naming it, as are complex numbers of several components), a textured mesh's UVs (one per vertex) the active
+    texture coordinates (its image is not data of a PolyData: plot with
     ``texture=np.asarray(image)``, the image being ``mesh.visual.material.baseColorTexture``, or ``.image`` for
     a globe's ``drape_texture``), ``isovalues`` a float64 ``field_data`` array, and every metadata item that is JSON
     (values as :func:`~stepterrain.export.save_mesh` writes them to glTF extras) goes to
@@ -391,10 +392,11 @@ _DATA_KINDS = "biufcUS"
 
 
 def _vtk_values(array: NDArray[Any], own: Any) -> NDArray[Any]:
-    """``array`` as VTK takes it: bools as uint8 (VTK has no bool arrays), half floats as float32 (VTK has no float16:
-    its TypeError "Could not find a suitable VTK type for float16" came out of to_polydata), else ``own(array)``."""
-    if array.dtype == bool:
-        return array.astype(np.uint8)
+    """``array`` as VTK takes it: half floats as float32 (VTK has no float16: its TypeError "Could not find a suitable
+    VTK type for float16" came out of to_polydata), else ``own(array)``. Bools go to pyvista as they are: it stores
+    them as uint8 (VTK has no bool arrays) and reads them back as bool; cast to uint8 here, they came back from
+    :func:`from_polydata` as 0/1 numbers (``wall`` aside), so a mask face attribute indexed rows 0 and 1 instead of
+    selecting faces."""
     if array.dtype == np.float16:
         return array.astype(np.float32)
     return own(array)
