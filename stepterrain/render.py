@@ -714,8 +714,11 @@ def _frame_mesh(
     if fitted:  # a fitted camera: it frames the box's larger side
         _check_visible(corners, position, (width, height), box, z_scale, view_angle, camera,
                        "the mesh" if bounds is None else "bounds")
-    else:
-        _check_in_view(local[finite], position, width / height, view_angle, centre, z_scale, camera)
+    else:  # the box of the vertices drawn (the framed box itself without bounds), no copy of them
+        drawn = box if bounds is None else np.array([
+            np.min(local, axis=0, where=finite[:, None], initial=np.inf),
+            np.max(local, axis=0, where=finite[:, None], initial=-np.inf)])
+        _check_in_view(drawn, position, width / height, view_angle, centre, z_scale, camera)
     if bounds is None and fitted:  # the camera the render takes: fitted to the vertices drawn themselves, not their
         # box (an explicit position is the one above, as given)
         drawn = local if finite.all() else local[finite]
@@ -730,9 +733,10 @@ def _frame_mesh(
 
 def _check_in_view(drawn: NDArray[np.float64], position: Any, aspect: float, view_angle: float,
                    centre: NDArray[np.float64], z_scale: float, camera: Any) -> None:
-    """An InvalidInputError when the explicit pyvista camera ``position`` sees none of the box of the vertices
-    ``drawn`` (recentred on ``centre``, z times ``z_scale``): the render came back blank without a word, most often
-    for a position given in the mesh's own (world) coordinates, where the render takes them less ``centre``.
+    """An InvalidInputError when the explicit pyvista camera ``position`` sees none of the box ``drawn`` (2, 3) of
+    the vertices drawn (recentred on ``centre``, z times ``z_scale``): the render came back blank without a word,
+    most often for a position given in the mesh's own (world) coordinates, where the render takes them less
+    ``centre``.
     Conservative, as :meth:`~stepterrain.camera.Camera.box_visible`: a box that lies outside one plane of the view
     (the eye's, or a side of the view's pyramid) misses it; one that may touch the view passes."""
 
@@ -744,7 +748,7 @@ def _check_in_view(drawn: NDArray[np.float64], position: Any, aspect: float, vie
             normals = [forward] + [forward * tan - sign * axis for axis, tan in ((right, tan_v * aspect),
                                                                                   (true_up, tan_v))
                                    for sign in (1.0, -1.0)]
-            lo, hi = drawn.min(axis=0), drawn.max(axis=0)
+            lo, hi = drawn
             # inside a plane: (p - eye) . normal >= 0; the box corner farthest along the normal decides
             reach = [float((np.where(n >= 0, hi, lo) - eye) @ n) for n in normals]
         return all(math.isfinite(r) for r in reach) and min(reach) < 0.0

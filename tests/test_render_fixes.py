@@ -1747,6 +1747,11 @@ def test_an_explicit_camera_that_sees_none_of_the_mesh_is_named_not_rendered_bla
     away = [(0.0, -30000.0, 20000.0), (0.0, -60000.0, 30000.0), (0.0, 0.0, 1.0)]
     with pytest.raises(InvalidInputError, match=r"sees none of the mesh .*; got \[\(0\.0, -30000\.0"):
         render.render_mesh(mesh, window_size=(32, 24), camera=away)
+    # with bounds, the vertices drawn decide: a box east of the mesh, looked at from its own east side, away from it
+    lo, hi = mesh.bounds
+    east = [lo + [1e5, 0.0, 0.0], hi + [1e5, 0.0, 0.0]]
+    with pytest.raises(InvalidInputError, match=r"sees none of the mesh"):
+        render.render_mesh(mesh, window_size=(32, 24), bounds=east, camera=[(1e4, 0, 0), (2e4, 0, 0), (0, 0, 1)])
     textured = trimesh.Trimesh(VERTICES, FACES, process=False, visual=trimesh.visual.TextureVisuals(
         uv=VERTICES[:, :2] / 10.0, image=Image.fromarray(np.full((4, 4, 3), 200, np.uint8))))
     with pytest.raises(InvalidInputError, match=r"sees none of the mesh"):
