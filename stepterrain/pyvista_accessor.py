@@ -219,9 +219,10 @@ class StepTerrainAccessor:
         Returns
         -------
         pyvista.PolyData
-            As :func:`to_polydata` makes it: triangles; cell data ``level`` (int32) and ``wall`` (bool as uint8);
-            point data ``RGBA`` (uint8) when ``colors`` is given, sharing its buffer with the active scalars
-            ``colors_rgba`` (a name pyvista plots as colours: ``steps.plot()`` shows them);
+            As :func:`to_polydata` makes it: triangles; cell data ``level`` (int32) and ``wall`` (bool: uint8 in
+            VTK, read as bool, as pyvista keeps bools); point data ``RGBA`` (uint8) when ``colors`` is given,
+            sharing its buffer with the active scalars ``colors_rgba`` (a name pyvista plots as colours:
+            ``steps.plot()`` shows them);
             ``field_data["isovalues"]``; the mesh metadata (source, CRS, γ, isovalues, floor) in ``user_dict``.
             :func:`~stepterrain.export.save_mesh`, :func:`~stepterrain.render.render_mesh` and
             :func:`~stepterrain.texture.drape` take it as it is (see :func:`from_polydata`).
@@ -281,10 +282,10 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
 
     ``pv.wrap`` of a Trimesh drops its vertex colours (pyvista carries vertex attributes only); this keeps them as
     point data ``RGBA`` (uint8), also the active scalars ``colors_rgba`` (plotted as colours); colours by face go to
-    cell data so. Face attributes become cell data and vertex attributes point data (bools as uint8, half floats as
-    float32; numbers and strings, anything else left out with a warning naming it, as are complex numbers of
-    several components), a textured mesh's UVs (one per
-    vertex) the active texture coordinates (its image is not data of a PolyData: plot with
+    cell data so. Face attributes become cell data and vertex attributes point data (bools as pyvista keeps them,
+    uint8 in VTK read back as bool, half floats as float32; numbers and strings, anything else left out with a warning
+    naming it, as are complex numbers of several components), a textured mesh's UVs (one per vertex) the active
+    texture coordinates (its image is not data of a PolyData: plot with
     ``texture=np.asarray(image)``, the image being ``mesh.visual.material.baseColorTexture``, or ``.image`` for
     a globe's ``drape_texture``), ``isovalues`` a float64 ``field_data`` array, and every metadata item that is JSON
     (values as :func:`~stepterrain.export.save_mesh` writes them to glTF extras) goes to
@@ -391,10 +392,11 @@ _DATA_KINDS = "biufcUS"
 
 
 def _vtk_values(array: NDArray[Any], own: Any) -> NDArray[Any]:
-    """``array`` as VTK takes it: bools as uint8 (VTK has no bool arrays), half floats as float32 (VTK has no float16:
-    its TypeError "Could not find a suitable VTK type for float16" came out of to_polydata), else ``own(array)``."""
-    if array.dtype == bool:
-        return array.astype(np.uint8)
+    """``array`` as VTK takes it: half floats as float32 (VTK has no float16: its TypeError "Could not find a suitable
+    VTK type for float16" came out of to_polydata), else ``own(array)``. Bools go to pyvista as they are: it stores
+    them as uint8 (VTK has no bool arrays) and reads them back as bool; cast to uint8 here, they came back from
+    :func:`from_polydata` as 0/1 numbers (``wall`` aside), so a mask face attribute indexed rows 0 and 1 instead of
+    selecting faces."""
     if array.dtype == np.float16:
         return array.astype(np.float32)
     return own(array)
@@ -406,8 +408,9 @@ def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:
     :func:`~stepterrain.render.render_mesh` and :func:`~stepterrain.texture.drape` call on a PolyData given to them.
 
     Points and faces are copied as they are (float64, int64). The point data ``colors_rgba`` (else ``RGBA``, else
-    ``RGB``, as VTK's PLY and OBJ readers name colours, else active scalars named ``*_rgb``/``*_rgba``), uint8 with 3
-    or 4 columns, become the vertex colours (pv.to_trimesh leaves them as a plain vertex attribute, so they were not
+    ``RGB``, as VTK's PLY and OBJ readers name colours, else active scalars named ``*_rgb``/``*_rgba``), 3
+    or 4 columns of uint8, or of other whole numbers in [0, 255] or floats in [0, 1] (as pyvista plots them), become
+    the vertex colours (pv.to_trimesh leaves them as a plain vertex attribute, so they were not
     written nor drawn); without them, cell data found so (a PLY's face colours, :func:`to_polydata`'s of a mesh
     coloured by face) become the face colours. Other point data become vertex attributes (normals and texture
     coordinates aside: a PolyData holds no texture image, drape it instead). Other cell data become face
@@ -479,11 +482,34 @@ def _colours(data: Any) -> tuple[NDArray[np.uint8] | None, set[str]]:
     if colour_name is None:
         return None, set()
     values = np.asarray(data[colour_name])
-    if values.dtype != np.uint8 or values.ndim != 2 or values.shape[1] not in (3, 4):
+    if values.ndim != 2 or values.shape[1] not in (3, 4):
+        return None, set()
+    colours = _uint8_colours(values)
+    if colours is None:
         return None, set()
     # "RGBA" and its alias share one buffer (to_polydata): neither is an attribute besides
     same = {n for n in (RGBA_ALIAS, "RGBA") if n in data and np.array_equal(np.asarray(data[n]), values)}
-    return values.copy(), {colour_name} | same
+    return colours, {colour_name} | same
+
+
+def _uint8_colours(values: NDArray[Any]) -> NDArray[np.uint8] | None:
+    """Colour rows as uint8 (a copy), read as VTK's direct colour mode reads them (pyvista plots an array named
+    ``*_rgb``/``*_rgba`` so): floats in [0, 1], whole numbers in [0, 255]; None for anything else (NaN, floats
+    beyond 1, negative numbers, bools), left a plain attribute. Only uint8 was taken: ``poly["colors_rgba"] =``
+    floats, shown as colours by ``poly.plot()``, rendered in plain tan through render_mesh and were saved
+    uncoloured."""
+    if values.dtype == np.uint8:
+        return values.copy()
+    if values.dtype.kind in "iu":
+        if values.size and (values.min() < 0 or values.max() > 255):
+            return None
+        return values.astype(np.uint8)
+    if values.dtype.kind == "f":
+        with np.errstate(invalid="ignore"):
+            if not (np.isfinite(values).all() and (values >= 0).all() and (values <= 1).all()):
+                return None
+        return np.rint(values.astype(np.float64) * 255.0).astype(np.uint8)
+    return None
 
 
 def _uniform_step(coords: NDArray[np.float64]) -> float | None:

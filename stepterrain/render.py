@@ -320,6 +320,10 @@ def _camera_position(
         if spec.shape != (2,) or not np.all(np.isfinite(spec)):
             raise InvalidInputError(f"camera must be 'oblique', 'top', (azimuth, elevation) in radians or "
                                     f"[(eye), (focal point), (view up)]; got {camera!r}")
+        if abs(float(spec[1])) > math.pi / 2:  # clipped to +-89.9 degrees: camera=(190, 45), degrees for radians,
+            # rendered the top view without a word (--camera refuses an EL beyond +-90 degrees alike)
+            raise InvalidInputError(f"camera's elevation must lie in [-π/2, π/2] radians (-90 to 90 degrees, "
+                                    f"math.radians(degrees)); got {camera!r}, elevation {float(spec[1]):g}")
         azimuth, elevation = float(spec[0]), float(np.clip(spec[1], -math.radians(89.9), math.radians(89.9)))
     view_dir = _direction(azimuth, elevation)
     if abs(elevation) < math.radians(89.0):
@@ -488,12 +492,14 @@ def render_mesh(
         proportions (the CLI's ``--z-scale`` defaults to 2).
     camera : "oblique", "top", (azimuth, elevation) or [(eye), (focal point), (view up)]
         "oblique" is the fixed reproducible view from just west of south at 45° elevation; a pair gives the
-        direction the camera looks from (radians, azimuth clockwise from north = +y), +z up in the image at every
-        elevation (seen from above the far side is up, from below, a negative elevation, the near side); "top"
+        direction the camera looks from (radians, azimuth clockwise from north = +y, elevation in [-π/2, π/2]: one
+        beyond is refused, as degrees given for radians), +z up in the image at every elevation (seen from above the
+        far side is up, from below, a negative elevation, the near side); "top"
         looks straight down, north (+y) up and east (+x) to the right. All are fitted to the bounds. An explicit
         pyvista camera position is used as given, in the mesh's coordinates minus the centre of ``bounds`` (else of
         the box of the vertices drawn), z times ``z_scale`` (the render recentres the mesh to keep UTM-sized
-        coordinates precise).
+        coordinates precise); one that sees none of the mesh (given in the mesh's own coordinates, or looking away)
+        is refused, as it rendered blank.
     background : color
         Any pyvista color: a name, '#rrggbb', (r, g, b) floats in [0, 1] or whole numbers in 0-255 (whole numbers
         all 0 or 1, such as (1, 0, 0), are refused as ambiguous, as are whole numbers other than 0 beside floats,
@@ -708,6 +714,11 @@ def _frame_mesh(
     if fitted:  # a fitted camera: it frames the box's larger side
         _check_visible(corners, position, (width, height), box, z_scale, view_angle, camera,
                        "the mesh" if bounds is None else "bounds")
+    else:  # the box of the vertices drawn (the framed box itself without bounds), no copy of them
+        drawn = box if bounds is None else np.array([
+            np.min(local, axis=0, where=finite[:, None], initial=np.inf),
+            np.max(local, axis=0, where=finite[:, None], initial=-np.inf)])
+        _check_in_view(drawn, position, width / height, view_angle, centre, z_scale, camera)
     if bounds is None and fitted:  # the camera the render takes: fitted to the vertices drawn themselves, not their
         # box (an explicit position is the one above, as given)
         drawn = local if finite.all() else local[finite]
@@ -718,6 +729,41 @@ def _frame_mesh(
         if min(_pixel_extent(drawn[::max(1, len(drawn) // 100_000)], position, (width, height), view_angle)) < 1.0:
             _check_visible(drawn, position, (width, height), box, z_scale, view_angle, camera, "the mesh")
     return width, height, vertices, local, finite, box, position
+
+
+def _check_in_view(drawn: NDArray[np.float64], position: Any, aspect: float, view_angle: float,
+                   centre: NDArray[np.float64], z_scale: float, camera: Any) -> None:
+    """An InvalidInputError when the explicit pyvista camera ``position`` sees none of the box ``drawn`` (2, 3) of
+    the vertices drawn (recentred on ``centre``, z times ``z_scale``): the render came back blank without a word,
+    most often for a position given in the mesh's own (world) coordinates, where the render takes them less
+    ``centre``.
+    Conservative, as :meth:`~stepterrain.camera.Camera.box_visible`: a box that lies outside one plane of the view
+    (the eye's, or a side of the view's pyramid) misses it; one that may touch the view passes."""
+
+    def misses(eye: NDArray[np.float64], focal: NDArray[np.float64], up: NDArray[np.float64]) -> bool:
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            forward = (focal - eye) / np.linalg.norm(focal - eye)
+            right, true_up = _screen_axes(forward, up)
+            tan_v = math.tan(math.radians(view_angle) / 2.0)
+            normals = [forward] + [forward * tan - sign * axis for axis, tan in ((right, tan_v * aspect),
+                                                                                  (true_up, tan_v))
+                                   for sign in (1.0, -1.0)]
+            lo, hi = drawn
+            # inside a plane: (p - eye) . normal >= 0; the box corner farthest along the normal decides
+            reach = [float((np.where(n >= 0, hi, lo) - eye) @ n) for n in normals]
+        return all(math.isfinite(r) for r in reach) and min(reach) < 0.0
+
+    eye, focal, up = (np.asarray(v, dtype=np.float64) for v in position)
+    if not misses(eye, focal, up):
+        return
+    scale = np.array([1.0, 1.0, z_scale])  # given in the mesh's own (world) coordinates, as the render takes them?
+    world = not misses((eye - centre) * scale, (focal - centre) * scale, up)
+    hint = (f"; it looks given in the mesh's own coordinates: less {tuple(float(v) for v in centre)}, z then times "
+            "z_scale, it sees the mesh" if world else "")
+    raise InvalidInputError(
+        f"camera [(eye), (focal point), (view up)] sees none of the mesh (it would render blank): the position is "
+        f"taken in the mesh's coordinates less the centre of the framed box, {tuple(float(v) for v in centre)}, z "
+        f"times z_scale={z_scale:g}{hint}; got {camera!r}")
 
 
 def _pixel_extent(points: NDArray[np.float64], position: Any, size: tuple[int, int],

@@ -668,3 +668,64 @@ def test_from_polydata_of_points_or_lines_names_delaunay_2d_and_counts_in_the_si
     with pytest.raises(InvalidInputError, match=r"got 2 polygons of 4 or more corners \(mesh\.triangulate\(\) makes "
                                                 r"triangles of them\)$"):
         from_polydata(pv.Plane(i_resolution=2, j_resolution=1))
+
+
+@pytest.mark.parametrize("kind", ["point", "cell"])
+@pytest.mark.parametrize("name", [RGBA_ALIAS, "RGBA", "RGB", "height_rgb"])
+def test_from_polydata_takes_float_and_wide_integer_colours_as_pyvista_plots_them(kind, name):
+    """from_polydata took colours of uint8 only: poly["colors_rgba"] = floats in [0, 1] (which poly.plot() shows as
+    colours, VTK's direct colour mode) stayed a plain attribute, so render_mesh(poly) drew the plain tan and save_mesh
+    wrote it uncoloured; int64 colours in [0, 255] (np.array of Python ints) alike. Floats in [0, 1] and whole numbers
+    in [0, 255] are the colours (uint8, rounded); anything else stays an attribute."""
+    from stepterrain.pyvista_accessor import from_polydata
+
+    poly = pv.Sphere(theta_resolution=8, phi_resolution=6)
+    count = poly.n_points if kind == "point" else poly.n_cells
+    columns = 3 if name.endswith(("RGB", "_rgb")) else 4
+    expected = np.random.default_rng(5).integers(0, 256, (count, columns), dtype=np.uint8)
+    data = poly.point_data if kind == "point" else poly.cell_data
+    for values in (expected / 255.0, expected.astype(np.float32) / 255, expected.astype(np.int64)):
+        data[name] = values
+        data.active_scalars_name = name
+        back = from_polydata(poly)
+        assert back.visual.kind == ("vertex" if kind == "point" else "face")
+        colours = back.visual.vertex_colors if kind == "point" else back.visual.face_colors
+        assert np.array_equal(colours[:, :columns], expected)
+        assert name not in back.vertex_attributes and name not in back.face_attributes
+    for values in (expected / 255.0 * 2.0, -expected.astype(np.int64) - 1, np.full((count, columns), np.nan)):
+        data[name] = values  # not colours: a plain attribute, as before
+        back = from_polydata(poly)
+        assert back.visual.kind is None
+        assert np.array_equal((back.vertex_attributes if kind == "point" else back.face_attributes)[name], values,
+                              equal_nan=True)
+
+
+def test_bool_attributes_and_metadata_arrays_come_back_from_pyvista_as_bools():
+    """to_polydata cast bool attributes to uint8 itself, so from_polydata gave every one but ``wall`` back as 0/1
+    numbers: a mask face attribute, ``mesh.faces[back.face_attributes["mask"]]``, indexed rows 0 and 1 instead of
+    selecting the masked faces. Bools go to pyvista as they are (uint8 in VTK, read back as bool), in both ways."""
+    from stepterrain.pyvista_accessor import from_polydata, to_polydata
+
+    _, steps = _coloured_steps()
+    mesh = steps.copy()
+    rng = np.random.default_rng(6)
+    mask = rng.random(len(mesh.faces)) < 0.3
+    mesh.face_attributes["mask"] = mask
+    mesh.face_attributes["flags"] = rng.random((len(mesh.faces), 2)) < 0.5
+    mesh.vertex_attributes["seen"] = rng.random(len(mesh.vertices)) < 0.5
+    mesh.metadata["node_mask"] = rng.random(5000) < 0.5  # too long for user_dict: a field_data array
+    poly = to_polydata(mesh)
+    assert poly.cell_data["mask"].dtype == bool and poly.cell_data["wall"].dtype == bool
+    assert poly.cell_data.GetArray("mask").GetDataTypeAsString() == "unsigned char"  # VTK's own type
+    back = from_polydata(poly)
+    for name in ("mask", "flags", "wall"):
+        assert back.face_attributes[name].dtype == bool
+        assert np.array_equal(back.face_attributes[name], mesh.face_attributes[name])
+    assert back.vertex_attributes["seen"].dtype == bool
+    assert np.array_equal(back.vertex_attributes["seen"], mesh.vertex_attributes["seen"])
+    assert back.metadata["node_mask"].dtype == bool and np.array_equal(back.metadata["node_mask"],
+                                                                        mesh.metadata["node_mask"])
+    assert np.array_equal(back.faces[back.face_attributes["mask"]], mesh.faces[mask])
+    stepped_poly = pv.ImageData(dimensions=(6, 5, 1))
+    stepped_poly["elevation"] = np.arange(30.0)
+    assert stepped_poly.stepterrain.stepped(interval=4.0).cell_data["wall"].dtype == bool  # the accessor's, shared

@@ -19,6 +19,8 @@ from .conftest import needs_render
 
 VERTICES = np.array([[0, 0, 0], [10, 0, 0], [0, 10, 0], [10, 10, 5]], float)
 FACES = np.array([[0, 1, 2], [1, 3, 2]])
+#: An elevation of 89.9 degrees, where an elevation beyond a quarter turn (35, meant as any view) was clipped to.
+TOP = float(np.radians(89.9))
 
 
 @pytest.mark.parametrize("camera", [
@@ -1505,9 +1507,9 @@ def test_render_layers_drops_the_layers_of_an_earlier_call_it_no_longer_draws():
     def frames(renderer, layers_of_frames):
         renderer.set_mesh("overview", *ground)
         for n, layers in enumerate(layers_of_frames):
-            renderer.set_view((30.0 + n, 35.0), box)
+            renderer.set_view((30.0 + n, TOP), box)
             renderer.render_layers("closeup", {k: (v, f, {}) for k, (v, f) in layers.items()}, merge=False)
-        renderer.set_view((40.0, 35.0), box)
+        renderer.set_view((40.0, TOP), box)
         return renderer._plotter.camera.clipping_range
 
     with render.LayeredRenderer(window_size=(64, 48)) as fresh:
@@ -1526,7 +1528,7 @@ def test_render_layers_drops_the_layers_of_an_earlier_call_it_no_longer_draws():
     try:
         with render.LayeredRenderer(window_size=(64, 48)) as renderer:
             renderer.set_mesh("overview", *ground)
-            renderer.set_view((30.0, 35.0), box)
+            renderer.set_view((30.0, TOP), box)
             renderer.render_layers("closeup", {0: (*near_layer, {}), 1: (*big, {})}, merge=False)
             renderer.render_layers("closeup", {0: (*big, {})}, merge=False)  # refused while layer 1 stayed
             assert sorted(renderer._actors) == ["closeup:0", "overview"]
@@ -1543,7 +1545,7 @@ def test_render_layers_drops_only_its_own_prefixs_earlier_layers():
     with render.LayeredRenderer(window_size=(64, 48)) as renderer:
         renderer.set_mesh("overview", *ground)
         renderer.set_mesh("closeup_user", *_grid(4, 12.0, 2.0))
-        renderer.set_view((30.0, 35.0), [[0, 0, 0], [20, 20, 5]])
+        renderer.set_view((30.0, TOP), [[0, 0, 0], [20, 20, 5]])
         user = renderer.render(["closeup_user"])
         both = {0: (*layer, {}), 1: (*_grid(4, 1.0, 3.0), {})}
         anchors = renderer.render_layers("anchor", both, merge=False)
@@ -1565,7 +1567,7 @@ def test_render_layers_names_cannot_collide_across_prefixes():
     ground = _grid(20, 0.0, 0.0)
     with render.LayeredRenderer(window_size=(64, 48)) as renderer:
         renderer.set_mesh("overview", *ground)
-        renderer.set_view((30.0, 35.0), [[0, 0, 0], [20, 20, 5]])
+        renderer.set_view((30.0, TOP), [[0, 0, 0], [20, 20, 5]])
         many = {k: (*_grid(3, 1.0 + k, 2.0), {}) for k in range(11)}
         renderer.render_layers("cu", many, merge=False)
         other = renderer.render_layers("cu1", {0: (*_grid(5, 8.0, 3.0), {})}, merge=False)
@@ -1583,7 +1585,7 @@ def test_render_layers_names_cannot_collide_across_prefixes():
 def test_render_layers_names_a_bad_prefix(prefix):
     with render.LayeredRenderer(window_size=(64, 48)) as renderer:
         renderer.set_mesh("overview", *_grid(20, 0.0, 0.0))
-        renderer.set_view((30.0, 35.0), [[0, 0, 0], [20, 20, 5]])
+        renderer.set_view((30.0, TOP), [[0, 0, 0], [20, 20, 5]])
         with pytest.raises(InvalidInputError, match=r"render_layers prefix must be a str without ':' .*; got "):
             renderer.render_layers(prefix, {0: (*_grid(3, 1.0, 2.0), {})}, merge=False)
 
@@ -1605,7 +1607,7 @@ def test_render_layers_names_a_bad_layer(layers, message):
     actor for two layers)."""
     with render.LayeredRenderer(window_size=(64, 48)) as renderer:
         renderer.set_mesh("overview", *_grid(20, 0.0, 0.0))
-        renderer.set_view((30.0, 35.0), [[0, 0, 0], [20, 20, 5]])
+        renderer.set_view((30.0, TOP), [[0, 0, 0], [20, 20, 5]])
         with pytest.raises(InvalidInputError, match=message):
             renderer.render_layers("cu", layers)
 
@@ -1616,7 +1618,7 @@ def test_layered_renderer_names_a_bad_flag(call):
     """reuse="no", merge="no", crop="no" are true to Python: the option was switched on without a word."""
     with render.LayeredRenderer(window_size=(64, 48)) as renderer:
         renderer.set_mesh("overview", *_grid(20, 0.0, 0.0))
-        renderer.set_view((30.0, 35.0), [[0, 0, 0], [20, 20, 5]])
+        renderer.set_view((30.0, TOP), [[0, 0, 0], [20, 20, 5]])
         name = call.split()[-1] if " " in call else "reuse"
         with pytest.raises(InvalidInputError, match=rf"{name} must be True or False; got 'no'"):
             if call == "render":
@@ -1630,7 +1632,7 @@ def test_layered_renderer_screen_rect_and_bounds_of_name_bad_input():
     """screen_rect("x") raised numpy's ValueError, bounds_of an unknown name a bare KeyError."""
     with render.LayeredRenderer(window_size=(64, 48)) as renderer:
         renderer.set_mesh("overview", *_grid(20, 0.0, 0.0))
-        renderer.set_view((30.0, 35.0), [[0, 0, 0], [20, 20, 5]])
+        renderer.set_view((30.0, TOP), [[0, 0, 0], [20, 20, 5]])
         with pytest.raises(InvalidInputError, match=r"vertices must be \(N, 3\) world points"):
             renderer.screen_rect("x")
         with pytest.raises(InvalidInputError, match=r"no layer named 'zz'; have \['overview'\]"):
@@ -1651,7 +1653,7 @@ def test_reused_passes_of_earlier_views_and_many_rects_are_not_kept():
     with render.LayeredRenderer(window_size=(320, 240)) as renderer:
         renderer.set_mesh("a", vertices, faces)
         for n in range(50):
-            renderer.set_view((30.0 + n, 35.0), [[0, 0, 0], [20, 20, 1]])
+            renderer.set_view((30.0 + n, TOP), [[0, 0, 0], [20, 20, 1]])
             rect = renderer.screen_rect(vertices[:60] + [n * 0.1, 0, 0])
             renderer.render(["a"], reuse=True, rect=rect)
         assert len(renderer._passes) == 1
@@ -1673,7 +1675,7 @@ def test_render_layers_merges_layers_given_as_flat_vertex_arrays():
     near, far = _grid(3, 1.0, 2.0), _grid(3, 12.0, 2.0)
     with render.LayeredRenderer(window_size=(64, 48)) as renderer:
         renderer.set_mesh("overview", *_grid(20, 0.0, 0.0))
-        renderer.set_view((30.0, 35.0), [[0, 0, 0], [20, 20, 5]])
+        renderer.set_view((30.0, TOP), [[0, 0, 0], [20, 20, 5]])
         rows = renderer.render_layers("cu", {0: (*near, {}), 1: (*far, {})})
         assert any(name.startswith("cu:merged") for name in renderer._actors)  # one pass for both
         flat = renderer.render_layers("cu", {0: (near[0].ravel(), near[1], {}), 1: (far[0].ravel(), far[1], {})})
@@ -1712,3 +1714,54 @@ def test_a_fitted_camera_that_shows_the_surface_under_a_pixel_is_refused_not_bla
     # twice as wide, it spans 1.9 pixels and is drawn
     image = render.render_mesh(mesh, window_size=(16, 500), camera=(0.3, 0.2))
     assert (image != 255).any(axis=-1).sum() > 0
+
+
+@pytest.mark.parametrize("camera", [(190.0, 45.0), (0.0, 3.0), (0.0, -1.6), [0.5, 1e9]])
+def test_a_camera_elevation_beyond_a_quarter_turn_is_named_not_clipped_to_the_top_view(camera):
+    """An (azimuth, elevation) pair's elevation beyond ±π/2 radians was clipped to ±89.9 degrees: camera=(190, 45),
+    degrees given for radians, rendered the view straight down without a word (the CLI's --camera refuses an EL beyond
+    ±90 degrees). It is named, before anything renders."""
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    with pytest.raises(InvalidInputError, match=r"camera's elevation must lie in \[-π/2, π/2\] radians.*; got "):
+        render.render_mesh(mesh, window_size=(32, 32), camera=camera)
+
+
+@needs_render
+def test_a_camera_elevation_of_exactly_a_quarter_turn_still_looks_straight_down():
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    for elevation in (np.pi / 2, -np.pi / 2):
+        image = render.render_mesh(mesh, window_size=(32, 32), camera=(np.pi, elevation))
+        assert (image != 255).any()
+
+
+def test_an_explicit_camera_that_sees_none_of_the_mesh_is_named_not_rendered_blank():
+    """An explicit camera position is taken in the mesh's coordinates less the centre of the framed box: one given in
+    the mesh's own (UTM) coordinates, or looking away from it, rendered a blank image without a word. It is named,
+    with the centre to take off where that makes it see the mesh; one that sees the mesh still renders."""
+    mesh = st.stepped(st.sample_dem(), interval=200.0)
+    centre = mesh.bounds.mean(axis=0)
+    world = [tuple((centre + [0.0, -30000.0, 20000.0]).tolist()), tuple(centre.tolist()), (0.0, 0.0, 1.0)]
+    with pytest.raises(InvalidInputError, match=r"camera \[\(eye\), \(focal point\), \(view up\)\] sees none of the "
+                                                r"mesh .*it looks given in the mesh's own coordinates: less \(394268"):
+        render.render_mesh(mesh, window_size=(32, 24), camera=world)
+    away = [(0.0, -30000.0, 20000.0), (0.0, -60000.0, 30000.0), (0.0, 0.0, 1.0)]
+    with pytest.raises(InvalidInputError, match=r"sees none of the mesh .*; got \[\(0\.0, -30000\.0"):
+        render.render_mesh(mesh, window_size=(32, 24), camera=away)
+    # with bounds, the vertices drawn decide: a box east of the mesh, looked at from its own east side, away from it
+    lo, hi = mesh.bounds
+    east = [lo + [1e5, 0.0, 0.0], hi + [1e5, 0.0, 0.0]]
+    with pytest.raises(InvalidInputError, match=r"sees none of the mesh"):
+        render.render_mesh(mesh, window_size=(32, 24), bounds=east, camera=[(1e4, 0, 0), (2e4, 0, 0), (0, 0, 1)])
+    textured = trimesh.Trimesh(VERTICES, FACES, process=False, visual=trimesh.visual.TextureVisuals(
+        uv=VERTICES[:, :2] / 10.0, image=Image.fromarray(np.full((4, 4, 3), 200, np.uint8))))
+    with pytest.raises(InvalidInputError, match=r"sees none of the mesh"):
+        render.render_textured_mesh(textured, window_size=(32, 24), camera=[(0, -20, 20), (0, -40, 30), (0, 0, 1)])
+
+
+@needs_render
+def test_an_explicit_camera_that_sees_part_of_the_mesh_still_renders():
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)  # local box x, y in [-5, 5], z in [-2.5, 2.5]
+    inside = [(0.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)]  # the eye within the box, looking along it
+    edge = [(0.0, -20.0, 0.0), (30.0, 0.0, 0.0), (0.0, 0.0, 1.0)]  # the mesh at the left edge of a wide view
+    for camera in (inside, edge):
+        assert (render.render_mesh(mesh, window_size=(32, 32), camera=camera, view_angle=90.0) != 255).any()
