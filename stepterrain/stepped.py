@@ -1344,6 +1344,8 @@ def stepped(
     [0.0, 1.0, 2.0, 3.0]
     """
     check_flag(solid, "solid")
+    if floor is not None and not solid:  # before any work: the budget's or a kernel's refusal came first
+        raise InvalidInputError("floor applies only with solid=True")
     reclaim_dropped()  # the meshes earlier calls returned that the caller dropped: their memory serves this one
     t = as_terrain(terrain, spacing=spacing, origin=origin, borrow=True)  # lives only within this call
     dev = resolve_device(device)
@@ -1652,8 +1654,6 @@ def _assemble(
         if carried is not None:
             carried = _solid_visual(carried, vertices, source, kept, extra)
         metadata["floor"] = floor_z
-    elif floor is not None:
-        raise InvalidInputError("floor applies only with solid=True")
     mesh = trimesh.Trimesh(
         vertices,
         faces,
