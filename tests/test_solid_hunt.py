@@ -4,7 +4,7 @@ bug found.
 * ``stepped(..., floor=...)`` without ``solid=True`` was refused only after the whole terrain was stepped, so a
   refusal from the stepping (the memory budget's) named something else and the misplaced ``floor`` went unsaid.
 * A solid's default floor (no ``floor`` given) one interval (or a tenth of the levels' span, at least 0.1) below the
-  lowest point was below float32's resolution of large heights (an interval of 2 at 1e8, a single level at 1e6 and
+  lowest point was below float32's resolution of large heights (an interval of 2 at 1e8, a single level at 4e6 and
   more): the base lay on the lowest terrace in float32 (.glb, .stl: no thickness there), or, below float64's (1e16,
   1e20), on it in float64 too, and close_solid refused "floor must lie below ..." for a floor the caller never gave.
 
