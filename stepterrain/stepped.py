@@ -1273,12 +1273,13 @@ def stepped(
     solid : bool
         Close the surface with side skirts and a flat base at ``floor`` (default: one interval below the
         lowest isovalue or the lower surface that γ < 1 gives under explicit ``levels``; with ``levels``, a
-        tenth of their span, at least 0.1): a watertight, consistently wound volume for 3D printing, also where
-        heights sit on a threshold (they are stepped from a little above it: see Notes), and over a TIN's seams (points
-        kept apart for their vertex colours or UVs are welded by position, taking the first copy's: one colour or UV
-        per vertex, so the faces beside a seam blend the colours or smear the texture, with a warning). A ``floor``
-        not below the surface's lowest point is refused; where the heights tell that point (a TIN, a grid without
-        nodata: the lowest height blended with its isovalue), before stepping.
+        tenth of their span, at least 0.1; at least one float32 step: :func:`default_floor`): a watertight,
+        consistently wound volume for 3D printing, also where heights sit on a threshold (they are stepped from a
+        little above it: see Notes), and over a TIN's seams (points kept apart for their vertex colours or UVs are
+        welded by position, taking the first copy's: one colour or UV per vertex, so the faces beside a seam blend
+        the colours or smear the texture, with a warning). A ``floor`` not below the surface's lowest point is
+        refused; where the heights tell that point (a TIN, a grid without nodata: the lowest height blended with its
+        isovalue), before stepping.
     spacing, origin : (dx, dy), (x0, y0)
         Grid geometry when ``terrain`` is a raw array (default (1, 1) and (0, 0)).
     memory_budget : int, optional
@@ -1355,6 +1356,8 @@ def stepped(
     [0.0, 1.0, 2.0, 3.0]
     """
     check_flag(solid, "solid")
+    if floor is not None and not solid:  # before any work: the budget's or a kernel's refusal came first
+        raise InvalidInputError("floor applies only with solid=True")
     reclaim_dropped()  # the meshes earlier calls returned that the caller dropped: their memory serves this one
     t = as_terrain(terrain, spacing=spacing, origin=origin, borrow=True)  # lives only within this call
     dev = resolve_device(device)
@@ -1426,9 +1429,14 @@ def lowest_surface(h: float, values: NDArray[np.float32], gamma: float | None) -
 def default_floor(values: NDArray[np.float32], lowest_vertex: float, interval: float | None) -> float:
     """A solid's default base height: one ``interval`` below the lowest isovalue α_0 or the lowest surface vertex
     ``lowest_vertex``, whichever is lower (with explicit levels and γ < 1, heights under α_0 pull the surface below
-    it); without an interval a tenth of the levels' span (at least 0.1) below it, and at most down to -3.4e38.
-    :func:`stepped` closes a solid there; :func:`~stepterrain.batch.batch` closes every tile or frame at the one its
-    whole source gives."""
+    it); without an interval a tenth of the levels' span (at least 0.1) below it; at least one float32 step below
+    it, and at most down to -3.4e38. :func:`stepped` closes a solid there; :func:`~stepterrain.batch.batch` closes
+    every tile or frame at the one its whole source gives.
+
+    The float32 step: where the interval or the tenth is below float32's (or float64's) resolution of the heights
+    (a single level at 1e16, an interval of 2 at 1e8 or 1e20), the floor came out on the lowest point in float32
+    (the base on the lowest terrace in a .glb or .stl: a solid of no thickness there) or in float64, and
+    :func:`~stepterrain.mesh.close_solid` refused the floor the caller never gave."""
     lowest = min(float(values[0]), lowest_vertex)
     if interval:
         floor = lowest - float(interval)
@@ -1438,6 +1446,10 @@ def default_floor(values: NDArray[np.float32], lowest_vertex: float, interval: f
         if not math.isfinite(span):
             span = float(values[-1]) - float(values[0])
         floor = lowest - max(span, 1.0) * 0.1
+    with np.errstate(over="ignore"):  # a float32 value under lowest's float32 value (-inf under -3.4e38)
+        below = np.nextafter(np.float32(lowest), np.float32(-np.inf))
+    if np.isfinite(below):
+        floor = min(floor, float(below))
     if floor < -FLOAT32_MAX < lowest:  # a tenth of such a span reaches beyond float32: its lowest value
         floor = -FLOAT32_MAX
     return floor
@@ -1665,8 +1677,6 @@ def _assemble(
         if carried is not None:
             carried = _solid_visual(carried, vertices, source, kept, extra)
         metadata["floor"] = floor_z
-    elif floor is not None:
-        raise InvalidInputError("floor applies only with solid=True")
     mesh = trimesh.Trimesh(
         vertices,
         faces,
