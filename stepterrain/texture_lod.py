@@ -500,6 +500,16 @@ def _memmap_backing(array: NDArray[Any]) -> str | None:
     return array.filename
 
 
+def _mapped_file(array: Any) -> str | None:
+    """The file ``array`` maps, whatever its layout: its own memmap's, or its base's for a view (a slice of channels,
+    ``np.asarray`` of a memmap), else None."""
+    while isinstance(array, np.ndarray):
+        if isinstance(array, np.memmap) and array.filename:
+            return array.filename
+        array = array.base
+    return None
+
+
 def _storage_folder(storage: Any) -> Path | None:
     """``storage`` as a Path (None stays None), else an InvalidInputError: pathlib raised a TypeError for 5, and
     read "" as the working directory."""
@@ -614,11 +624,12 @@ class ImagePyramid:
             into local metres exactly, through the linear map of those metres.
         storage : folder, optional
             Where the level files go (default: a new temporary folder, deleted by :meth:`close`, or when the
-            pyramid is garbage collected unclosed). They are written
-            under temporary names and renamed into place when all are complete, so a failed build leaves the
-            folder's earlier files as they were (and removes the folder if it made it), and a pyramid built there before keeps its levels; a complete
-            build then removes the level files there it did not write (an earlier pyramid's: of a larger image, or
-            its anisotropic levels, or level_0.u8 of another image), so the folder holds this pyramid's alone.
+            pyramid is garbage collected unclosed). They are written under temporary names and renamed into place
+            when all are complete, so a failed build leaves the folder's earlier files as they were (and removes
+            the folder if it made it), and a pyramid built there before keeps its levels; a complete build then
+            removes the level files there it did not write (an earlier pyramid's: of a larger image, or its
+            anisotropic levels, or level_0.u8 of another image), so the folder holds this pyramid's alone; the
+            file the image itself maps (a level of the folder, reopened) stays.
         anisotropic : bool
             Also store the anisotropic levels (kx, ky): width halved kx times, height ky times (a rip-map),
             used against blurring at grazing angles (§3.2.1).
@@ -742,7 +753,9 @@ class ImagePyramid:
             staged.commit()  # the files under their own names, mapped from there (a later build replaces the names)
             levels = [staged.reopen(level) for level in levels]
             aniso = {key: staged.reopen(level) for key, level in aniso.items()}
-            staged.remove_stale(keep=[_memmap_backing(levels[0])])  # an earlier, other pyramid's files there
+            # an earlier, other pyramid's files there, but not the file level 0 maps (the caller's image, read
+            # there in any layout: a C-contiguous memmap's alone was known, and a view's file deleted under it)
+            staged.remove_stale(keep=[_mapped_file(levels[0])])
         except BaseException:
             staged.discard()
             if owned:

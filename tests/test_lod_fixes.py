@@ -1291,3 +1291,30 @@ def test_a_failed_build_removes_the_storage_folders_it_made(tmp_path, monkeypatc
     with ImagePyramid.build(image, storage=tmp_path / "made" / "levels", device="cpu") as pyramid:  # kept when built
         assert sorted(p.name for p in pyramid.storage.iterdir()) == ["level_1.u8", "level_2.u8", "level_3.u8",
                                                                      "level_4.u8"]
+
+
+@pytest.mark.parametrize("view", ["channels", "asarray"])
+def test_a_build_keeps_the_level_file_its_image_maps_through_a_view(tmp_path, view):
+    """A build into a storage folder removes the level files there it did not write, but keeps the one its image
+    maps (level 0 reopened from the folder's level_0.u8). It knew that file only from a C-contiguous np.memmap: the
+    same image as a view, its RGB of an RGBA level (``[:, :, :3]``, not contiguous) or ``np.asarray`` of the map (a
+    plain ndarray over it), was built from and its file deleted, the caller's image gone from disk once the pyramid
+    (whose map outlived the file) was closed. The file stays, byte for byte, and the folder holds the new levels."""
+    storage = tmp_path / "levels"
+    image = np.random.default_rng(11).integers(0, 256, (40, 40, 4), dtype=np.uint8)
+    np.save(tmp_path / "image.npy", image)
+    ImagePyramid.build(np.load(tmp_path / "image.npy", mmap_mode="r+"), storage=storage, device="cpu").close()
+    level_0 = storage / "level_0.u8"
+    assert np.array_equal(np.fromfile(level_0, np.uint8).reshape(image.shape), image)
+    mapped = np.memmap(level_0, dtype=np.uint8, mode="r", shape=image.shape)
+    source = mapped[:, :, :3] if view == "channels" else np.asarray(mapped)
+    with ImagePyramid.build(source, storage=storage, device="cpu") as pyramid:
+        np.testing.assert_array_equal(pyramid.levels[0], source)
+        np.testing.assert_array_equal(pyramid.levels[1], reduce_rounded_reference(np.array(source)))
+        for k in range(1, len(pyramid.levels)):  # the folder's levels are this pyramid's
+            np.testing.assert_array_equal(np.fromfile(storage / f"level_{k}.u8", np.uint8)
+                                          .reshape(pyramid.levels[k].shape), pyramid.levels[k])
+    del mapped, source
+    assert level_0.is_file()
+    np.testing.assert_array_equal(np.fromfile(level_0, np.uint8).reshape(image.shape), image)
+    assert sorted(p.name for p in storage.iterdir()) == [f"level_{k}.u8" for k in range(7)]
