@@ -1818,6 +1818,8 @@ def stepped_series(
         # within float32 (heights beyond it were refused above)
         used = tuple(float(np.float32(v)) for v in (used or (lo, hi)))
         values = isovalues(used, interval=interval, levels=levels, base=base)
+        if colors is not None:  # before the first frame's passes, as stepped() checks them: every frame shares them
+            _level_colors(colors, len(values))
         iterable: Iterable[ArrayLike] = stack
     else:
         values = None

@@ -1668,3 +1668,25 @@ def test_a_stack_frame_of_nodata_and_an_infinity_is_refused_for_the_infinity_as_
     nodata = np.stack([good, np.full((3, 3), np.nan)])  # all NaN, no infinity: refused as before
     with pytest.raises(st.InvalidInputError, match=r"^frames\[1\]: terrain has no finite height \(all nodata\)$"):
         next(st.stepped_series(nodata, interval=1.0, device="cpu"))
+
+
+def test_a_stacks_colors_that_do_not_fit_are_refused_before_its_first_frame_is_stepped(monkeypatch):
+    """stepped() checks ``colors`` with the isovalues, before the passes (4293c7c); stepped_series of a (T, H, W)
+    stack, whose frames share one list of isovalues known before the first frame, still stepped that frame in full
+    before a misnamed colormap or a table a row short was refused. Both are refused before any pass now, with the
+    message the first frame gave; colors that fit go on to the passes."""
+    stack = np.stack([np.add.outer(np.arange(5.0), np.arange(5.0))] * 3)  # levels 0, 4, 8 at interval 4
+    with pytest.raises(st.InvalidInputError, match=r"shape \(3, 3\|4\); got shape \(2, 3\)") as before:
+        next(st.stepped_series(stack, interval=4.0, colors=np.zeros((2, 3)), device="cpu"))
+
+    def no_passes(*args, **kwargs):
+        raise AssertionError("a frame was stepped before colors was checked")
+
+    monkeypatch.setattr(stepped_module, "step_arrays", no_passes)
+    with pytest.raises(st.InvalidInputError, match=r"colors must name a matplotlib colormap"):
+        next(st.stepped_series(stack, interval=4.0, colors="viridss", device="cpu"))
+    with pytest.raises(st.InvalidInputError) as got:
+        next(st.stepped_series(stack, interval=4.0, colors=np.zeros((2, 3)), device="cpu"))
+    assert str(got.value) == str(before.value)
+    with pytest.raises(AssertionError, match="stepped before"):  # colors that fit go on to the passes
+        next(st.stepped_series(stack, interval=4.0, colors=np.zeros((3, 3)), device="cpu"))
