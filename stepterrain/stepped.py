@@ -1730,8 +1730,9 @@ def _stack_ranges(stack: NDArray[Any]) -> tuple[float | None, float | None, tupl
         frame = np.asarray(stack[k])
         finite = np.isfinite(frame)
         whole = bool(finite.all())
-        if not whole and not finite.any():
+        if not frame.size or (not whole and not finite.any()):  # a frame of no node is all() finite: none is
             empty[k] = True
+            bad[k] = bool(np.isinf(frame).any())  # NaN and an infinity: refused for the infinity, as stepped() does
             continue
         values = frame if whole else frame[finite]
         f_lo, f_hi = float(values.min()), float(values.max())
@@ -1805,7 +1806,7 @@ def stepped_series(
         if not is_real_dtype(stack.dtype):
             raise InvalidInputError(f"frames must be a real-valued (T, H, W) stack; got dtype {stack.dtype}")
         lo, hi, used, bad, empty = _stack_ranges(stack)
-        if lo is None:
+        if lo is None and not bad.any():  # an infinity is named below, as stepped() of its frame names it
             raise InvalidInputError("frames hold no finite height")
         # frames whose heights their Terrain refuses (an infinity, a finite value beyond float32), refused here before
         # the first frame as the docstring says: they were refused only when reached, after the frames before them,
@@ -1813,7 +1814,7 @@ def stepped_series(
         first = np.flatnonzero(bad | empty)
         if first.size:
             k = int(first[0])
-            if empty[k]:  # its mesh would be empty: stepped() and a list of frames refuse such a frame
+            if empty[k] and not bad[k]:  # its mesh would be empty: stepped() and a list of frames refuse such a frame
                 raise InvalidInputError(f"frames[{k}]: terrain has no finite height (all nodata)")
             try:
                 Terrain.from_heights(stack[k])
@@ -1827,6 +1828,8 @@ def stepped_series(
         # within float32 (heights beyond it were refused above)
         used = tuple(float(np.float32(v)) for v in (used or (lo, hi)))
         values = isovalues(used, interval=interval, levels=levels, base=base)
+        if colors is not None:  # before the first frame's passes, as stepped() checks them: every frame shares them
+            _level_colors(colors, len(values))
         iterable: Iterable[ArrayLike] = stack
     else:
         values = None

@@ -3198,3 +3198,54 @@ def test_a_run_resumed_from_before_the_seam_fix_redoes_exactly_the_items_whose_s
     assert {r.key for r in resumed.skipped} == {r.key for r in fresh.done} - changed
     now = vertices(tmp_path / "out")
     assert now.keys() == after.keys() and all(np.array_equal(now[k], after[k]) for k in now)  # as a fresh run's
+
+
+def test_a_series_shared_levels_and_floor_are_read_frame_by_frame_not_over_the_whole_series(tmp_path):
+    """batch's shared levels of a (T, H, W) series file (no known range: a series file's source has none) took
+    used_height_range of the whole series, and a solid's shared floor lowest_used_height of it: the series' finite
+    mask and its triangles' masks, 1.25 times a float32 series' memory again (40 MiB for a 32 x 512 x 512 one),
+    before the first frame, as stepped_series did for a stack. Both go frame by frame now (stepped's
+    ``_stack_ranges``; each frame's used span), with the same levels and floor as the whole-series computation."""
+    import tracemalloc
+
+    from stepterrain.batch import _floor_under, _shared_floor, _shared_levels, _Source, plan_items
+    from stepterrain.stepped import isovalues
+    from stepterrain.terrain import lowest_used_height, used_height_range
+
+    rng = np.random.default_rng(11)
+    series = rng.normal(100.0, 20.0, (16, 128, 128)).astype(np.float32)  # 1 MiB
+    series[2, 30:60, 40:90] = np.nan
+    series[5][np.add.outer(np.arange(128), np.arange(128)) % 3 != 0] = np.nan  # no triangle in that frame: its
+    series[5, 0, 0] = -500.0  # finite nodes are on none; one far below the rest moves neither levels nor floor
+    np.save(tmp_path / "series.npy", series)
+    _, src = plan_items(tmp_path / "series.npy")
+    assert src.height_range is None
+
+    def peak_of(call):
+        tracemalloc.start()
+        try:
+            return call(), tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+
+    levels, peak = peak_of(lambda: _shared_levels(src, 10.0, None, 0.0))
+    assert peak < series.nbytes / 4, f"{peak:,} bytes for the levels of a series of {series.nbytes:,}"
+    assert levels == tuple(isovalues(used_height_range(series), interval=10.0).tolist())
+    assert -500.0 < levels[0]
+    floor, peak = peak_of(lambda: _shared_floor(src, levels, 0.5, 10.0))
+    assert peak < series.nbytes / 4, f"{peak:,} bytes for the floor of a series of {series.nbytes:,}"
+    assert floor == _floor_under(lowest_used_height(series), levels, 0.5, 10.0)
+    # small series of every kind of frame against the whole-series computation: no nodata, nodata, no triangle,
+    # nodata only, rows of one node
+    for seed in range(40):
+        rng = np.random.default_rng(seed)
+        shape = (int(rng.integers(1, 4)), int(rng.integers(1, 5)), int(rng.integers(1, 5)))
+        heights = rng.normal(0.0, 10.0, shape).astype(np.float32)
+        heights[rng.random(shape) < rng.choice([0.0, 0.3, 0.7, 1.0])] = np.nan
+        if not np.isfinite(heights).any():
+            continue
+        src = _Source(heights, (1.0, 1.0), (0.0, 0.0), None, "series")
+        assert _shared_levels(src, 1.0, None, 0.0) == tuple(isovalues(used_height_range(heights),
+                                                                      interval=1.0).tolist()), seed
+        assert _shared_floor(src, (-50.0, 50.0), 1.0, 1.0) == _floor_under(lowest_used_height(heights),
+                                                                          (-50.0, 50.0), 1.0, 1.0), seed

@@ -1592,3 +1592,101 @@ def test_a_memory_mapped_stack_is_budgeted_frame_by_frame_as_stepped_budgets_a_m
                          st.stepped_series(stack, interval=25.0, device="cpu"), strict=True):
         np.testing.assert_array_equal(got.vertices, want.vertices)
         np.testing.assert_array_equal(got.faces, want.faces)
+
+
+def _whole_stack_ranges(stack):
+    """The whole-stack computation ``_stack_ranges`` replaced (9dd5c0d): a finite mask and a copy of all finite
+    heights, the triangles of every frame at once; None without a finite height."""
+    finite_mask = np.isfinite(stack)
+    finite = stack[finite_mask]
+    if finite.size == 0:
+        return None
+    lo, hi = float(finite.min()), float(finite.max())
+    bad = np.isinf(stack).any(axis=(1, 2))
+    with np.errstate(invalid="ignore"):
+        bad |= (np.abs(stack.astype(np.float64)) > st.terrain.FLOAT32_MAX).any(axis=(1, 2))
+    used = (lo, hi) if finite.size == stack.size else st.terrain.used_height_range(stack)
+    return lo, hi, used, bad, ~finite_mask.any(axis=(1, 2))
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st_.integers(0, 2**31 - 1), shape=st_.tuples(st_.integers(1, 3), st_.integers(0, 4), st_.integers(0, 4)),
+       dtype=st_.sampled_from(["float64", "float32", "float16", "int64", "uint64", "int8"]),
+       fortran=st_.booleans())
+def test_a_stacks_frame_by_frame_ranges_are_the_whole_stacks(seed, shape, dtype, fortran):
+    """``_stack_ranges`` (stepped_series' height range of a stack, a frame at a time) against the whole-stack
+    computation it replaced, over NaN, infinities, values beyond float32, integer extremes, float16 and frames of
+    1 x N or of no node at all: the same (lo, hi), used range and frames refused. A frame of no node (an (T, 0, W)
+    stack) is ``finite.all()`` and raised numpy's "zero-size array to reduction operation minimum"."""
+    rng = np.random.default_rng(seed)
+    if np.dtype(dtype).kind == "f":
+        stack = rng.normal(0.0, 10.0, shape)
+        stack[rng.random(shape) < rng.random()] = np.nan
+        stack[rng.random(shape) < 0.05] = np.inf * rng.choice([-1, 1])
+        if dtype == "float64":
+            stack[rng.random(shape) < 0.05] = 1e39 * rng.choice([-1, 1])
+        stack = stack.astype(dtype)
+    else:
+        info = np.iinfo(dtype)
+        stack = rng.integers(info.min, info.max, shape, dtype=dtype, endpoint=True)
+    stack = np.asfortranarray(stack) if fortran else stack
+    want = _whole_stack_ranges(stack)
+    lo, hi, used, bad, empty = stepped_module._stack_ranges(stack)
+    if want is None:
+        assert (lo, hi, used) == (None, None, None)
+        assert empty.all()
+        return
+    assert (lo, hi, used) == want[:3]
+    np.testing.assert_array_equal(empty, want[4])
+    np.testing.assert_array_equal(bad, want[3])
+
+
+@pytest.mark.parametrize("shape", [(2, 0, 5), (3, 5, 0), (1, 0, 0)])
+def test_a_stack_of_frames_with_no_node_is_refused_not_a_numpy_error(shape, tmp_path):
+    """A (T, 0, W) stack: each frame of no node is ``finite.all()``, and ``_stack_ranges`` took the min of its empty
+    heights (numpy's ValueError "zero-size array to reduction operation minimum"); the whole-stack computation before
+    it, and now, refuse it as holding no finite height, a memory-mapped one too."""
+    np.save(tmp_path / "empty.npy", np.zeros(shape))
+    for frames in (np.zeros(shape), np.load(tmp_path / "empty.npy", mmap_mode="r")):
+        with pytest.raises(st.InvalidInputError, match=r"^frames hold no finite height$"):
+            next(st.stepped_series(frames, interval=1.0, device="cpu"))
+
+
+def test_a_stack_frame_of_nodata_and_an_infinity_is_refused_for_the_infinity_as_stepped_refuses_it():
+    """A frame holding NaN and an infinity but no finite height: stepped() of it, and a list of such frames, name the
+    infinity; a stack of them said "terrain has no finite height (all nodata)" (and a stack of only such frames "frames
+    hold no finite height"), as if the infinity were nodata. Both name the infinity and the frame now."""
+    frame = np.full((3, 3), np.nan)
+    frame[1, 2] = -np.inf
+    with pytest.raises(st.InvalidInputError, match=r"infinite value at index \(1, 2\)") as alone:
+        st.stepped(frame, interval=1.0, device="cpu")
+    good = np.arange(9.0).reshape(3, 3)
+    for stack, k in ((np.stack([good, frame]), 1), (np.stack([frame, frame]), 0)):
+        with pytest.raises(st.InvalidInputError, match=rf"^frames\[{k}\]: ") as got:
+            next(st.stepped_series(stack, interval=1.0, device="cpu"))
+        assert str(got.value) == f"frames[{k}]: {alone.value}"
+    nodata = np.stack([good, np.full((3, 3), np.nan)])  # all NaN, no infinity: refused as before
+    with pytest.raises(st.InvalidInputError, match=r"^frames\[1\]: terrain has no finite height \(all nodata\)$"):
+        next(st.stepped_series(nodata, interval=1.0, device="cpu"))
+
+
+def test_a_stacks_colors_that_do_not_fit_are_refused_before_its_first_frame_is_stepped(monkeypatch):
+    """stepped() checks ``colors`` with the isovalues, before the passes (4293c7c); stepped_series of a (T, H, W)
+    stack, whose frames share one list of isovalues known before the first frame, still stepped that frame in full
+    before a misnamed colormap or a table a row short was refused. Both are refused before any pass now, with the
+    message the first frame gave; colors that fit go on to the passes."""
+    stack = np.stack([np.add.outer(np.arange(5.0), np.arange(5.0))] * 3)  # levels 0, 4, 8 at interval 4
+    with pytest.raises(st.InvalidInputError, match=r"shape \(3, 3\|4\); got shape \(2, 3\)") as before:
+        next(st.stepped_series(stack, interval=4.0, colors=np.zeros((2, 3)), device="cpu"))
+
+    def no_passes(*args, **kwargs):
+        raise AssertionError("a frame was stepped before colors was checked")
+
+    monkeypatch.setattr(stepped_module, "step_arrays", no_passes)
+    with pytest.raises(st.InvalidInputError, match=r"colors must name a matplotlib colormap"):
+        next(st.stepped_series(stack, interval=4.0, colors="viridss", device="cpu"))
+    with pytest.raises(st.InvalidInputError) as got:
+        next(st.stepped_series(stack, interval=4.0, colors=np.zeros((2, 3)), device="cpu"))
+    assert str(got.value) == str(before.value)
+    with pytest.raises(AssertionError, match="stepped before"):  # colors that fit go on to the passes
+        next(st.stepped_series(stack, interval=4.0, colors=np.zeros((3, 3)), device="cpu"))
