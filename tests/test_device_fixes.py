@@ -133,3 +133,15 @@ def test_warps_native_lines_before_a_failed_start_reach_stderr(monkeypatch, capf
     assert "cannot load the kernel cache at /nowhere" in err
     assert "NVIDIA CUDA driver" not in err
     assert "fd 2 restored" in err
+
+
+def test_boundary_edges_refuses_a_bad_device_with_no_faces_too():
+    """An empty face list returned its empty answer before the device was looked at: a misspelt device passed
+    silently, to fail only once a mesh had faces."""
+    from stepterrain.errors import DeviceError
+    from stepterrain.mesh import boundary_edges
+
+    assert boundary_edges(np.zeros((0, 3), np.int64), device="cpu").shape == (0, 2)
+    for faces in (np.zeros((0, 3), np.int64), np.array([[0, 1, 2]])):
+        with pytest.raises(DeviceError, match="device"):
+            boundary_edges(faces, device="gpu")
