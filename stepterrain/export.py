@@ -176,7 +176,13 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         The folder cannot be created or written, ``path`` is a folder, a named pipe, a device or a loop of
         symbolic links, an existing file the writer may not write (read-only, as ``open()`` refuses it), or the
         finished file cannot be flushed to disk or moved onto ``path``.
+    InvalidInputError
+        ``path`` ends the way only a folder's name does (``out.glb/``, ``out/.``): a Path drops the ending, and a
+        file ``out.glb`` was written where a folder was meant (see :func:`~stepterrain._files.refuse_folder_name`).
     """
+    text = os.fspath(path)
+    if isinstance(text, str):
+        refuse_folder_name(text, "path")
     target = _link_target(Path(path))
     special = _special_file_kind(target, folders=True)  # one stat of the target for both refusals
     if special == "folder":  # refused before the content is made: os.replace refused it only after (EISDIR)

@@ -16,7 +16,7 @@ from PIL import Image
 import stepterrain as st
 from stepterrain import cli
 from stepterrain.errors import DataFileError, InvalidInputError
-from stepterrain.export import read_mesh, save_image, save_mesh
+from stepterrain.export import atomic_path, read_mesh, save_image, save_mesh
 
 
 @pytest.mark.skipif(not hasattr(os, "symlink"), reason="needs symbolic links")
@@ -2428,3 +2428,17 @@ def test_an_output_path_ending_in_a_folder_separator_is_refused_not_written_as_a
         assert not (tmp_path / name).exists()
     save_mesh(mesh, tmp_path / "x.glb")  # a file name still writes (a Path cannot end in a separator)
     assert len(read_mesh(str(tmp_path / "x.glb")).faces) == 12
+
+
+@pytest.mark.parametrize("ending", ["/", "/.", "//"])
+def test_atomic_path_refuses_a_name_that_ends_as_a_folders_does(tmp_path, ending):
+    """``atomic_path("out.glb/")`` (a folder meant) wrote a file ``out.glb``: Path drops the trailing separator. It is
+    refused as save_mesh refuses it, before anything is made."""
+    target = f"{tmp_path / 'out.glb'}{ending}"
+    with pytest.raises(InvalidInputError, match=r"path .* names a folder"):
+        with atomic_path(target) as tmp:
+            tmp.write_bytes(b"content")
+    assert os.listdir(tmp_path) == []
+    with atomic_path(tmp_path / "out.glb") as tmp:  # the same name as a Path, without the ending, is a file
+        tmp.write_bytes(b"content")
+    assert (tmp_path / "out.glb").read_bytes() == b"content"
