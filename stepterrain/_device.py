@@ -78,29 +78,41 @@ def _init_filtering_stderr() -> None:
     """``wp.init()`` with the native "CUDA driver not found" line dropped on machines without a GPU.
 
     Warp's native library writes it straight to file descriptor 2, past Python's logging and
-    ``wp.config.log_level``; every other line it writes is passed through unchanged.
+    ``wp.config.log_level``; every other line it writes is passed through unchanged, also when ``wp.init()``
+    raises (its native error lines explain the exception). Without a stderr to filter (``sys.stderr`` None, as
+    under pythonw or a service; no file descriptor 2) or a temporary file to capture into (no writable temporary
+    folder), ``wp.init()`` runs unfiltered: ``sys.stderr.flush()`` on None raised AttributeError, and a failed
+    TemporaryFile its OSError, from every stepterrain call that needs a device.
     """
+    stderr = sys.stderr
     try:
-        sys.stderr.flush()
-        saved = os.dup(2)
-    except (OSError, ValueError):  # no real stderr (embedded interpreters): nothing to filter
+        if stderr is None:
+            raise ValueError("no sys.stderr")
+        stderr.flush()
+        capture = tempfile.TemporaryFile(mode="w+b")
+    except (OSError, ValueError, AttributeError):  # nothing to filter, or nowhere to capture it
         wp.init()
         return
-    with tempfile.TemporaryFile(mode="w+b") as capture:
+    with capture:
+        try:
+            saved = os.dup(2)
+        except OSError:  # no file descriptor 2 (embedded interpreters)
+            wp.init()
+            return
         os.dup2(capture.fileno(), 2)
         try:
             wp.init()
         finally:
             os.dup2(saved, 2)
             os.close(saved)
-        capture.seek(0)
-        kept = [
-            line
-            for line in capture.read().decode(errors="replace").splitlines(keepends=True)
-            if "NVIDIA CUDA driver" not in line
-        ]
-    if kept:
-        sys.stderr.write("".join(kept))
+            capture.seek(0)
+            kept = [
+                line
+                for line in capture.read().decode(errors="replace").splitlines(keepends=True)
+                if "NVIDIA CUDA driver" not in line
+            ]
+            if kept:
+                stderr.write("".join(kept))
 
 
 def resolve_device(device: wp.DeviceLike = None, *arrays: Any) -> wp.Device:

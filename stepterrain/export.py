@@ -176,7 +176,13 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         The folder cannot be created or written, ``path`` is a folder, a named pipe, a device or a loop of
         symbolic links, an existing file the writer may not write (read-only, as ``open()`` refuses it), or the
         finished file cannot be flushed to disk or moved onto ``path``.
+    InvalidInputError
+        ``path`` ends the way only a folder's name does (``out.glb/``, ``out/.``): a Path drops the ending, and a
+        file ``out.glb`` was written where a folder was meant (see :func:`~stepterrain._files.refuse_folder_name`).
     """
+    text = os.fspath(path)
+    if isinstance(text, str):
+        refuse_folder_name(text, "path")
     target = _link_target(Path(path))
     special = _special_file_kind(target, folders=True)  # one stat of the target for both refusals
     if special == "folder":  # refused before the content is made: os.replace refused it only after (EISDIR)
@@ -1006,7 +1012,9 @@ def save_image(
         DEM it was computed from. A PNG has no place for it.
     crs : str, optional
         The GeoTIFF's coordinate reference system, anything rasterio reads ("EPSG:32611", a PROJ string,
-        WKT): a terrain's ``crs``. Needs ``extent``.
+        WKT): a terrain's ``crs``. Needs ``extent``. One that GeoTIFF's keys cannot hold (a rotated pole,
+        ``+proj=ob_tran``) goes into ``<path>.aux.xml`` beside it, which GDAL reads with the image; an image written
+        over one removes the ``.aux.xml`` it has no use for.
 
     Returns
     -------
@@ -1121,14 +1129,36 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
         "compress": "deflate", **({"alpha": "YES"} if bands == 4 else {}),
     }  # fmt: skip
     _check_owner([target], target)
-    with atomic_path(target) as tmp:
+    # what GeoTIFF's keys cannot hold (an ob_tran CRS) GDAL writes to <file>.aux.xml, which it reads back with the
+    # file: written beside the temporary file, it stayed there under the temporary's name, and the image's CRS was
+    # lost. It goes beside the image (the file a link names, as an OBJ's side files), replaced only once the image is
+    # complete; an old one the new image has none for is removed, as GDAL removes it when it makes the file (else
+    # it gave the new image the old one's CRS)
+    own_aux = _link_target(target)
+    own_aux = own_aux.with_name(own_aux.name + ".aux.xml")
+    wrote_aux = False
+    with atomic_path(target) as tmp, contextlib.ExitStack() as side_file:
+        aux = tmp.with_name(tmp.name + ".aux.xml")
         try:
             with rasterio.open(tmp, "w", **profile) as dataset:
                 dataset.write(np.moveaxis(array, 2, 0))
+            if os.path.exists(aux):  # (False for a name too long to hold: GDAL could not write one either)
+                side_file.enter_context(atomic_path(own_aux)).write_bytes(aux.read_bytes())
+                wrote_aux = True
         except (OSError, rasterio.errors.RasterioError) as exc:
             from .io import gdal_reason  # GDAL's words (No space left on device), not "See previous exception"
 
             raise DataFileError(f"cannot write {str(target)!r}: {gdal_reason(exc)}") from exc
+        finally:
+            with contextlib.suppress(OSError):
+                aux.unlink()
+    if not wrote_aux:
+        try:
+            os.unlink(own_aux)
+        except OSError as exc:
+            if exc.errno not in (errno.ENOENT, errno.ENAMETOOLONG):  # (none, or a name too long for one)
+                raise DataFileError(f"cannot remove {str(own_aux)!r}, whose metadata GDAL would read with the new "
+                                    f"{str(target)!r}: {exc.strerror}") from exc
     _record_owner([target], target)
     return target
 

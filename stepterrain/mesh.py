@@ -393,6 +393,7 @@ def boundary_edges(faces: NDArray[np.int64], device: wp.DeviceLike = None) -> ND
     those among the corners at one of its ends (kernels/solid.py: a vertex -> corner table built without a sort,
     then count -> scan -> emit over the faces). ``device``: where the kernels run (the CPU by default)."""
     faces = _face_indices(faces)
+    device = _device_of(device)  # before the empty answer: a misspelt device passed with no faces, to fail later
     if len(faces) == 0:
         return np.zeros((0, 2), np.int64)
     if faces.min() < 0:
@@ -400,7 +401,6 @@ def boundary_edges(faces: NDArray[np.int64], device: wp.DeviceLike = None) -> ND
     if faces.max() > MAX_INT32 - 3:  # _boundary's corner table has n + 2 = largest index + 3 entries, an int32 shape
         raise OutputTooLargeError(f"faces: the kernels index vertices up to {MAX_INT32 - 3:,} with int32; got "
                                   f"{int(faces.max()):,}")
-    device = _device_of(device)
     return _boundary(_flat_faces(faces, device), int(faces.max()) + 1, device)
 
 

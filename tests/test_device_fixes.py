@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import sys
+import tempfile
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -75,3 +78,70 @@ def test_resolve_device_names_a_bad_device_beside_input_arrays(device):
     with pytest.raises(DeviceError, match="device"):
         device_module.resolve_device(device, array)
     assert str(device_module.resolve_device("cpu", array)) == "cpu"  # the arrays' own device is still accepted
+
+
+def _fake_init(calls, native="", error=None):
+    """A stand-in for ``wp.init`` that writes ``native`` straight to file descriptor 2, as Warp's native library
+    does, then raises ``error`` (if any)."""
+
+    def init():
+        calls.append(True)
+        if native:
+            os.write(2, native.encode())
+        if error is not None:
+            raise error
+
+    return init
+
+
+def test_warp_starts_where_sys_stderr_is_none(monkeypatch):
+    """pythonw and services run with ``sys.stderr`` None: ``sys.stderr.flush()`` raised AttributeError from every
+    call that resolves a device, so no stepterrain function worked there."""
+    calls: list[bool] = []
+    monkeypatch.setattr(device_module.wp, "init", _fake_init(calls))
+    monkeypatch.setattr(sys, "stderr", None)
+    device_module._init_filtering_stderr()
+    assert calls == [True]
+
+
+def test_warp_starts_unfiltered_without_a_temporary_folder(monkeypatch):
+    """No writable temporary folder (a read-only container): TemporaryFile's OSError went out of every call that
+    resolves a device (and leaked the duplicate of file descriptor 2); Warp starts unfiltered instead."""
+    def no_temporary(*args, **kwargs):
+        raise FileNotFoundError(2, "No usable temporary directory found")
+
+    calls: list[bool] = []
+    monkeypatch.setattr(device_module.wp, "init", _fake_init(calls))
+    monkeypatch.setattr(tempfile, "TemporaryFile", no_temporary)
+    before = len(os.listdir("/proc/self/fd")) if os.path.isdir("/proc/self/fd") else None
+    device_module._init_filtering_stderr()
+    assert calls == [True]
+    if before is not None:
+        assert len(os.listdir("/proc/self/fd")) == before
+
+
+def test_warps_native_lines_before_a_failed_start_reach_stderr(monkeypatch, capfd):
+    """The lines Warp's native library wrote before ``wp.init()`` raised (the reason it failed) were captured and
+    dropped with the exception; only the CUDA-driver notice is filtered, and file descriptor 2 is back."""
+    calls: list[bool] = []
+    native = "Warp NVIDIA CUDA driver not found\nWarp error: cannot load the kernel cache at /nowhere\n"
+    monkeypatch.setattr(device_module.wp, "init", _fake_init(calls, native, RuntimeError("Warp failed to start")))
+    with pytest.raises(RuntimeError, match="failed to start"):
+        device_module._init_filtering_stderr()
+    os.write(2, b"fd 2 restored\n")
+    err = capfd.readouterr().err
+    assert "cannot load the kernel cache at /nowhere" in err
+    assert "NVIDIA CUDA driver" not in err
+    assert "fd 2 restored" in err
+
+
+def test_boundary_edges_refuses_a_bad_device_with_no_faces_too():
+    """An empty face list returned its empty answer before the device was looked at: a misspelt device passed
+    silently, to fail only once a mesh had faces."""
+    from stepterrain.errors import DeviceError
+    from stepterrain.mesh import boundary_edges
+
+    assert boundary_edges(np.zeros((0, 3), np.int64), device="cpu").shape == (0, 2)
+    for faces in (np.zeros((0, 3), np.int64), np.array([[0, 1, 2]])):
+        with pytest.raises(DeviceError, match="device"):
+            boundary_edges(faces, device="gpu")

@@ -16,7 +16,7 @@ from PIL import Image
 import stepterrain as st
 from stepterrain import cli
 from stepterrain.errors import DataFileError, InvalidInputError
-from stepterrain.export import read_mesh, save_image, save_mesh
+from stepterrain.export import atomic_path, read_mesh, save_image, save_mesh
 
 
 @pytest.mark.skipif(not hasattr(os, "symlink"), reason="needs symbolic links")
@@ -2428,3 +2428,38 @@ def test_an_output_path_ending_in_a_folder_separator_is_refused_not_written_as_a
         assert not (tmp_path / name).exists()
     save_mesh(mesh, tmp_path / "x.glb")  # a file name still writes (a Path cannot end in a separator)
     assert len(read_mesh(str(tmp_path / "x.glb")).faces) == 12
+
+
+@pytest.mark.parametrize("ending", ["/", "/.", "//"])
+def test_atomic_path_refuses_a_name_that_ends_as_a_folders_does(tmp_path, ending):
+    """``atomic_path("out.glb/")`` (a folder meant) wrote a file ``out.glb``: Path drops the trailing separator. It is
+    refused as save_mesh refuses it, before anything is made."""
+    target = f"{tmp_path / 'out.glb'}{ending}"
+    with pytest.raises(InvalidInputError, match=r"path .* names a folder"):
+        with atomic_path(target) as tmp:
+            tmp.write_bytes(b"content")
+    assert os.listdir(tmp_path) == []
+    with atomic_path(tmp_path / "out.glb") as tmp:  # the same name as a Path, without the ending, is a file
+        tmp.write_bytes(b"content")
+    assert (tmp_path / "out.glb").read_bytes() == b"content"
+
+
+def test_a_geotiff_crs_that_geotiff_keys_cannot_hold_is_kept_beside_it_and_no_temporary_file_stays(tmp_path):
+    """An ob_tran CRS does not fit GeoTIFF's keys: GDAL wrote it to ``<temporary>.aux.xml``, which stayed in the folder
+    under the temporary's name while the image came out without a CRS. It is now ``<image>.aux.xml``, which GDAL reads
+    with the image; and a later image of a CRS the keys hold removes it (it gave the new image the old CRS)."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.crs import CRS
+
+    rotated = "+proj=ob_tran +o_proj=longlat +o_lon_p=0 +o_lat_p=30 +lon_0=0"
+    image = np.random.default_rng(3).integers(0, 256, (6, 9, 3), dtype=np.uint8)
+    path = tmp_path / "rotated.tif"
+    save_image(image, path, extent=(0.0, 9.0, 0.0, 6.0), crs=rotated)
+    assert sorted(os.listdir(tmp_path)) == ["rotated.tif", "rotated.tif.aux.xml"]
+    with rasterio.open(path) as dataset:
+        assert dataset.crs is not None and dataset.crs == CRS.from_user_input(rotated)
+        assert np.array_equal(np.moveaxis(dataset.read(), 0, 2), image)
+    save_image(image, path, extent=(0.0, 9.0, 0.0, 6.0), crs="EPSG:4326")
+    assert sorted(os.listdir(tmp_path)) == ["rotated.tif"]
+    with rasterio.open(path) as dataset:
+        assert dataset.crs == CRS.from_epsg(4326)
