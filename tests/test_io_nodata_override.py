@@ -220,6 +220,20 @@ def test_cli_info_nodata_forms(tmp_path, capsys):
     assert code == 2 and "--nodata" in err and "'void'" in err
 
 
+@pytest.mark.parametrize("given", ["1e400", "-1e400", "-9999,1e999", "1e-400"])
+def test_cli_nodata_beyond_float64_is_refused_naming_it(tmp_path, capsys, given):
+    """--nodata 1e400 parsed to inf (which marks no cell: the value given was dropped, silently) and 1e-400 to 0.0
+    (which marks every cell at height 0), while load_dem refuses nodata=10**400; now --nodata refuses both, as
+    load_dem does, naming the option and the value. inf and nan as written stay accepted."""
+    path, _ = _voided_npy(tmp_path / "dem.npy")
+    code, out, err = run(capsys, "info", path, "--json", "--nodata", given)
+    assert code == 2 and out == "" and "argument --nodata: expected numbers within float64" in err, err
+    assert repr(given.split(",")[-1]) in err and "Traceback" not in err
+    for fine in ("inf", "-inf", "nan", "5e-324", "-9999,inf"):
+        code, out, err = run(capsys, "info", path, "--json", "--nodata", fine)
+        assert code == 0, (fine, err)
+
+
 def test_cli_steps_and_the_embedded_dem_take_nodata(tmp_path, capsys):
     path, n = _voided_npy(tmp_path / "dem.npy")
     out = tmp_path / "out.ply"
