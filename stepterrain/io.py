@@ -167,8 +167,9 @@ def load_dem(
         NumPy masked array: ``np.savez(..., elevation=m.data, mask=m.mask)``) and ``valid`` (True = present) of the
         heights' shape (or 0-d, for every cell: ``m.mask`` is a 0-d False when no cell is masked), either or both),
         ``.png`` (8- or 16-bit greyscale heightmap, values are heights, a 2- or
-        4-bit one's scaled to 0-255 as Pillow reads them; a transparent grey value (tRNS) or, in 8-bit grey +
-        alpha, alpha 0 marks missing cells, as GDAL reads them; 16-bit grey + alpha is refused: Pillow reads it as
+        4-bit one's scaled to 0-255 as Pillow reads them; a transparent grey value (tRNS), else the grey band's
+        ``NoDataValue`` in GDAL's ``dem.png.aux.xml`` beside it, and, in 8-bit grey + alpha, alpha 0 mark missing
+        cells, as GDAL reads them; 16-bit grey + alpha is refused: Pillow reads it as
         8 bits; an RGB(A) web-map terrain tile with ``height_encoding``, below),
         ``.tif``/``.tiff`` (GeoTIFF, needs rasterio) or another raster GDAL reads, through rasterio as a GeoTIFF is
         read (its georeferencing, CRS, nodata, scale and offset, unit, a .prj beside it, ``band`` and ``crop``
@@ -1199,7 +1200,9 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
             low_bits = re.fullmatch(r"L;([24])", str(image.tile[0][3])) if image.tile else None
             array = np.array(image)
             transparent = image.info.get("transparency")  # a grey PNG's tRNS value, GDAL's nodata for PNG
-    nodata = transparent if isinstance(transparent, int) and not isinstance(transparent, bool) else None
+    nodata: float | None = (
+        transparent if isinstance(transparent, int) and not isinstance(transparent, bool) else _png_pam_nodata(file)
+    )
     if nodata is not None and low_bits:  # the tRNS value in the samples' 0-255 scale (tRNS 15 of 4 bits is 255)
         nodata *= 255 // (2 ** int(low_bits.group(1)) - 1)
     if mode == "LA":  # grey + alpha: a transparent cell (alpha 0) is missing, as GDAL reads alpha as the mask
@@ -1209,6 +1212,27 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
     heights, unit = _heights_in_metres(heights, height_unit, file, "height_unit")
     _warn_png_georeferencing(file)
     return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None, height_unit=unit)
+
+
+def _png_pam_nodata(file: Path) -> float | None:
+    """The nodata value of the PNG heightmap ``file``'s grey band in GDAL's PAM file beside it (``dem.png.aux.xml``,
+    ``<NoDataValue>`` of ``PAMRasterBand`` 1), which GDAL reads where the PNG has no transparent grey value (tRNS,
+    which it takes first): ``gdal_translate -of PNG`` writes it there for a grey + alpha PNG, which has no tRNS, and a
+    PNG's nodata set by hand or another tool lies there. Pillow reads no such file: the cells at that value were
+    heights (a 9999 m spike, a 0 m pit) where GDAL and every GIS masked them. None without one, or with one that is
+    no number (GDAL's is then no nodata either)."""
+    root = _pam_root(file)
+    if root is None:
+        return None
+    for band in root.iter("PAMRasterBand"):
+        if band.get("band", "1").strip() != "1":  # a grey + alpha PNG's alpha band
+            continue
+        text = band.findtext("NoDataValue")
+        try:
+            return float(text) if text is not None and text.strip() else None
+        except ValueError:
+            return None
+    return None
 
 
 def _refuse_png_scaling(file: Path) -> None:

@@ -2325,3 +2325,66 @@ def test_undeclared_void_hint_quotes_a_file_name_with_a_space(tmp_path):
         message = next(str(w.message) for w in caught if "marks voids" in str(w.message))
         hint = re.search(r"declare it \(`([^`]*)`, or pass nodata=-3.4028235e\+38\)", message)
         assert hint and shlex.split(hint.group(1)) == words, message
+
+
+def _pam_nodata(png, value):
+    png.with_name(png.name + ".aux.xml").write_text(
+        f"<PAMDataset>\n  <PAMRasterBand band=\"1\">\n    <NoDataValue>{value}</NoDataValue>\n  </PAMRasterBand>\n"
+        "</PAMDataset>\n")
+
+
+def test_a_png_heightmaps_nodata_in_its_aux_xml_marks_its_voids(tmp_path):
+    """A PNG heightmap's nodata value in GDAL's PAM file beside it (dem.png.aux.xml, <NoDataValue>: `gdal_translate
+    -of PNG` writes it there for a grey + alpha PNG, which holds no tRNS, and a nodata set by hand or by another tool
+    lies there) is read by GDAL and every GIS, but Pillow reads no such file: the voids were heights (9999 m spikes)
+    without a word. Now they are nodata, as GDAL masks them; a tRNS value, which GDAL takes first, still wins."""
+    heights = np.round(load_dem(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.npz").heights[:40, :50]).astype(np.uint16)
+    voids = np.zeros(heights.shape, bool)
+    voids[3:6, 7:12] = voids[30, 40] = True
+    png = tmp_path / "dem.png"
+    Image.fromarray(np.where(voids, 9999, heights).astype(np.uint16)).save(png)
+    _pam_nodata(png, "9999")
+    terrain = load_dem(png)
+    np.testing.assert_array_equal(np.isnan(terrain.heights), voids)
+    np.testing.assert_array_equal(terrain.heights[~voids], heights[~voids].astype(np.float32))
+    if _has_rasterio():  # as GDAL masks them
+        import rasterio
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # rasterio's NotGeoreferencedWarning
+            with rasterio.open(png) as src:
+                np.testing.assert_array_equal(np.ma.getmaskarray(src.read(1, masked=True)), voids)
+    _pam_nodata(png, "not a number")  # no nodata, to GDAL either
+    assert not np.isnan(load_dem(png).heights).any()
+    # a tRNS value is the PNG's own nodata, which GDAL takes before the aux.xml's
+    Image.fromarray(np.where(voids, 9999, heights).astype(np.uint16)).save(png, transparency=int(heights[0, 0]))
+    _pam_nodata(png, "9999")
+    np.testing.assert_array_equal(np.isnan(load_dem(png).heights), heights == heights[0, 0])
+
+
+def test_a_grey_and_alpha_png_from_gdal_translate_keeps_its_nodata(tmp_path):
+    """`gdal_translate -of PNG` of a grey + alpha raster with a nodata value writes an 8-bit LA PNG and the nodata
+    to its aux.xml (a PNG with alpha holds no tRNS): the alpha was read, the nodata cells (opaque) came out as
+    heights of 0 m. Both mark missing cells now, as a GeoTIFF's nodata and alpha band do."""
+    pytest.importorskip("rasterio")
+    import rasterio
+    import rasterio.shutil
+    from rasterio.enums import ColorInterp
+
+    heights = np.clip(load_dem(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.npz").heights[:30, :40] / 8, 1, 255)
+    grey = np.round(heights).astype(np.uint8)
+    grey[2:4, 5:9] = 0  # nodata
+    alpha = np.full(grey.shape, 255, np.uint8)
+    alpha[20:25, 30:33] = 0  # transparent
+    tif, png = tmp_path / "src.tif", tmp_path / "dem.png"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # rasterio's NotGeoreferencedWarning
+        with rasterio.open(tif, "w", driver="GTiff", width=40, height=30, count=2, dtype="uint8", nodata=0,
+                           alpha="YES") as out:
+            out.write(np.stack([grey, alpha]))
+            out.colorinterp = [ColorInterp.gray, ColorInterp.alpha]
+        rasterio.shutil.copy(tif, png, driver="PNG")  # GDAL's CreateCopy, as gdal_translate -of PNG
+    assert "<NoDataValue>" in png.with_name("dem.png.aux.xml").read_text()
+    terrain = load_dem(png)
+    np.testing.assert_array_equal(np.isnan(terrain.heights), (grey == 0) | (alpha == 0))
+    np.testing.assert_array_equal(np.isnan(terrain.heights), np.isnan(load_dem(tif).heights))  # as the GeoTIFF
