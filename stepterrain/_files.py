@@ -152,6 +152,10 @@ def local_archive(file: GdalPath) -> str | None:
         if not text.startswith(prefix):
             continue
         rest = text[len(prefix):]
+        if rest.startswith("{"):  # GDAL's braces around the archive's path: /vsizip/{/vsizip//data/a.zip/b.zip}/c.tif
+            end = rest.find("}")
+            rest = rest[1:end] if end > 0 else ""
+            return None if not rest or rest.startswith("/vsi") else rest  # one reached through another file system
         if rest.startswith("/vsi"):
             return None
         lowered = rest.lower()

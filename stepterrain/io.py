@@ -607,11 +607,23 @@ def check_gzip(file: GdalPath) -> None:
 
 def _virtual_refusal(file: GdalPath) -> str:
     """Why :func:`load_dem` refuses the GDAL virtual path or URL ``file``: an extension GDAL is not asked to read."""
-    ext = file.suffix.lower()
+    ext, gdal, example = file.suffix.lower(), os.fspath(file), f"<name>{next(iter(GDAL_FORMATS))}"
     if ext in SUPPORTED_EXTENSIONS:  # .npy .npz .png: read by NumPy and Pillow from local files only
         why = f"{ext} files are read from a local file only"
     elif ext == ".zip":
-        why = f"name the file inside the zip: '{str(file)}/<name>{next(iter(GDAL_FORMATS))}'"
+        # a zip reached through another file system (a URL, /vsis3/, /vsitar/) is opened by /vsizip/ chained to it:
+        # its path with the member's name after it ('https://host/srtm.zip/<name>.tif') asked the server (or the
+        # tar) for a file of that name, which is not there; a zip inside a zip, in braces (GDAL splits at the first
+        # '.zip/')
+        if not gdal.startswith("/vsizip/"):
+            inside = f"/vsizip/{gdal}/{example}"
+        elif ".zip/" in gdal[len("/vsizip/"):].lower():
+            inside = f"/vsizip/{{{gdal}}}/{example}"
+        else:  # the zip itself (/vsizip//data/srtm.zip)
+            inside = f"{str(file)}/{example}"
+        why = f"name the file inside the zip: '{inside}'"
+    elif ext == ".gz" and not gdal.startswith("/vsigzip/") and PurePath(file.stem).suffix.lower() in GZIP_FORMATS:
+        why = f"read a gzip file through /vsigzip/: '/vsigzip/{gdal}'"  # a URL's dem.tif.gz, as a local one is
     else:
         why = f"unknown DEM extension {file.suffix or '(none)'!r} of {file.name!r}"
     return (f"cannot read {str(file)!r}: a GDAL virtual path (/vsizip/, /vsigzip/, /vsicurl/, ...) or a URL "
