@@ -426,9 +426,13 @@ def check_nodata(nodata: Any, name: str = "nodata") -> tuple[float, ...]:
         if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
             raise InvalidInputError(f"{expected}; got {value!r} of type {type(value).__name__}")
         try:
-            out.append(float(value))
+            number = float(value)
         except OverflowError:  # an int beyond float64 (10**400): no cell of any dtype holds it
             raise InvalidInputError(f"{expected} within float64; got {value!r}") from None
+        if isinstance(value, np.floating) and np.isfinite(value) and (math.isinf(number) or (number == 0.0) != (
+                value == 0)):  # a long double beyond float64 became inf (marking nothing) or 0 (marking 0 m cells)
+            raise InvalidInputError(f"{expected} within float64; got {value!r}, which float64 rounds to {number:g}")
+        out.append(number)
     return tuple(dict.fromkeys(out))
 
 

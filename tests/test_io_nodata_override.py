@@ -189,6 +189,21 @@ def test_a_nodata_that_is_not_a_real_number_is_refused_naming_it(tmp_path, bad):
         load_dem(tmp_path / "dem.npy", nodata=bad)
 
 
+@pytest.mark.skipif(np.finfo(np.longdouble).max <= np.finfo(np.float64).max, reason="long double is float64 here")
+@pytest.mark.parametrize("exponent", [400, -400])
+def test_a_long_double_nodata_beyond_float64_is_refused_naming_it(tmp_path, exponent):
+    """nodata=np.longdouble(10)**400 became inf (marking no cell: the value given was dropped, silently) and
+    np.longdouble(10)**-400 became 0.0 (marking every cell at 0 m missing), while nodata=10**400 is refused as
+    beyond float64: both are refused so now, naming nodata."""
+    z = _real()
+    z[:3] = 0.0
+    np.save(tmp_path / "dem.npy", z)
+    with pytest.raises(InvalidInputError, match=r"^nodata must be a real number.* within float64; got "):
+        load_dem(tmp_path / "dem.npy", nodata=np.longdouble(10) ** exponent)
+    np.testing.assert_array_equal(np.isnan(load_dem(tmp_path / "dem.npy", nodata=np.longdouble(-0.0)).heights),
+                                  z == 0)  # a long double zero is 0
+
+
 @pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
 def test_a_non_finite_nodata_changes_nothing(tmp_path, value):
     z = _real().astype(np.float32)
