@@ -617,12 +617,12 @@ def _virtual_refusal(file: GdalPath) -> str:
     elif ext == ".zip":
         # a zip reached through another file system (a URL, /vsis3/, /vsitar/) is opened by /vsizip/ chained to it:
         # its path with the member's name after it ('https://host/srtm.zip/<name>.tif') asked the server (or the
-        # tar) for a file of that name, which is not there; a zip inside a zip, in braces (GDAL splits at the first
-        # '.zip/')
-        if not gdal.startswith("/vsizip/"):
-            inside = f"/vsizip/{gdal}/{example}"
-        elif ".zip/" in gdal[len("/vsizip/"):].lower():
+        # tar) for a file of that name, which is not there; a zip inside a zip, or one of a URL with a query (a
+        # signed URL: no '.zip/' in it), in braces (GDAL splits the path at its first '.zip/')
+        if "?" in gdal or (gdal.startswith("/vsizip/") and ".zip/" in gdal[len("/vsizip/"):].lower()):
             inside = f"/vsizip/{{{gdal}}}/{example}"
+        elif not gdal.startswith("/vsizip/"):
+            inside = f"/vsizip/{gdal}/{example}"
         else:  # the zip itself (/vsizip//data/srtm.zip)
             inside = f"{str(file)}/{example}"
         why = f"name the file inside the zip: '{inside}'"
@@ -2029,7 +2029,9 @@ def _zipped_prj(path: GdalPath) -> tuple[str, str] | None:
     archive_path = local_archive(path) if gdal.startswith("/vsizip/") else None
     if archive_path is None or not os.path.isfile(archive_path):
         return None
-    member = PurePosixPath(gdal[len("/vsizip/") + len(archive_path):].lstrip("/"))
+    after = gdal[len("/vsizip/"):]  # the archive's path, in GDAL's braces or not, then the member's
+    member = PurePosixPath((after[after.find("}") + 1:] if after.startswith("{") else after[len(archive_path):])
+                           .lstrip("/"))
     try:
         with zipfile.ZipFile(archive_path) as archive:
             names = set(archive.namelist())

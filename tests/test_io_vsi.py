@@ -157,6 +157,9 @@ def test_a_zip_or_gzip_behind_another_file_system_is_refused_naming_a_path_that_
         _same(st.load_dem(hinted.replace("<name>", "dem")), reference)
     assert advice("https://example.org/srtm.zip").group(1) == "/vsizip//vsicurl/https://example.org/srtm.zip/<name>.tif"
     assert advice("s3://bucket/dem.tif.gz").group(2) == "/vsigzip//vsis3/bucket/dem.tif.gz"
+    signed = advice("https://example.org/srtm.zip?sig=1").group(1)  # no '.zip/' for GDAL to split at: in braces
+    assert signed == "/vsizip/{/vsicurl/https://example.org/srtm.zip?sig=1}/<name>.tif"
+    assert gdal_path(signed.replace("<name>", "dem")).name == "dem.tif"  # read as the member, not refused as a zip
     assert advice(f"/vsizip/{tiles / 'one.zip'}").group(1) == f"/vsizip/{tiles / 'one.zip'}/<name>.tif"  # as before
 
 
@@ -181,6 +184,33 @@ def test_a_braced_archive_path_is_resolved_for_a_worker_and_its_fingerprint(tile
     assert _on_worker(nested, str(tiles)) == nested
     _same(st.load_dem(_on_worker(nested, str(tiles))), reference)
     _same(st.load_dem(_on_worker("/vsizip/{one.zip}/dem.tif", str(tiles))), reference)
+    # a signed URL's zip, as the refusal names it: read as its member (its name was the URL's, 'a.zip', refused)
+    signed = gdal_path("/vsizip/{/vsicurl/https://example.org/a.zip?sig=1}/N46E007.hgt")
+    assert (signed.name, os.fspath(signed)) == ("N46E007.hgt", "/vsizip/{/vsicurl/https://example.org/a.zip?sig=1}"
+                                                               "/N46E007.hgt")
+
+
+def test_a_braced_zip_path_reads_the_prj_beside_its_tiff_in_the_zip(tmp_path):
+    """A world-file TIFF's .prj inside a zip gives its CRS (GDAL reads none for a TIFF): named with GDAL's braces,
+    /vsizip/{site.zip}/dem.tif, the member was looked up as '}/dem.tif' and the CRS was lost (feet read as metres)."""
+    from rasterio.crs import CRS
+
+    z = (np.arange(12.0).reshape(3, 4) * 10 + 3000).astype(np.int16)
+    tif = tmp_path / "dem.tif"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # rasterio's NotGeoreferencedWarning for the bare TIFF
+        with rasterio.open(tif, "w", driver="GTiff", width=4, height=3, count=1, dtype="int16") as ds:
+            ds.write(z, 1)
+    tif.with_suffix(".tfw").write_text("100.0\n0.0\n0.0\n-100.0\n6400050.0\n1899950.0\n")
+    tif.with_suffix(".prj").write_text(CRS.from_epsg(2229).to_wkt())
+    with zipfile.ZipFile(tmp_path / "site.zip", "w") as archive:
+        for name in ("dem.tif", "dem.tfw", "dem.prj"):
+            archive.write(tmp_path / name, name)
+    with pytest.warns(UserWarning, match="EPSG:2229 is in US survey foot units"):
+        local = st.load_dem(tif)
+    for given in (f"/vsizip/{tmp_path / 'site.zip'}/dem.tif", f"/vsizip/{{{tmp_path / 'site.zip'}}}/dem.tif"):
+        with pytest.warns(UserWarning, match="EPSG:2229 is in US survey foot units"):
+            _same(st.load_dem(given), local)
 
 
 def test_url_is_read_by_gdal_and_an_unreachable_one_is_a_data_file_error(monkeypatch):
