@@ -2059,7 +2059,8 @@ def _refuse_warped_georeferencing(file: Path, gcps: tuple[Any, Any], rpcs: Any) 
     raise DataFileError(
         f"cannot read {str(file)!r}: expected a GeoTIFF on a regular grid (a geotransform); got one referenced "
         f"only by {what}, which load_dem does not warp; resample it to a regular grid first, e.g. "
-        f"`gdalwarp -r bilinear{' -rpc' if not points else ''} -t_srs EPSG:<code> {name} {file.stem}_grid.tif`"
+        f"`gdalwarp -r bilinear{' -rpc' if not points else ''} -dstalpha -t_srs EPSG:<code> {name} "
+        f"{file.stem}_grid.tif` (-dstalpha marks the cells outside the scene missing: without it they are 0 m)"
     )
 
 
@@ -2641,11 +2642,15 @@ def _placement(
             f"{tuple(float(v) for v in geotransform)}"
         )
     if not _negligible_rotation(row_x, col_y, dx, dy, shape):
+        # -dstalpha: the corners of the north-up grid outside the rotated one are missing; without it (and without a
+        # nodata value of the file's) gdalwarp filled them with 0, heights of 0 m read back without a word
+        warp = (f"`gdalwarp -dstalpha {shlex.quote(file.name)} {shlex.quote(file.stem + '_north_up.tif')}`"
+                if file.suffix.lower() in GDAL_FORMATS else "`gdalwarp -dstalpha`")
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a north-up grid; got a rotated geotransform "
             f"{tuple(float(v) for v in geotransform)} (its rotation terms move nodes by more than "
-            f"{_ROTATION_TOLERANCE:g} of a cell over {shape[0]} x {shape[1]} nodes; `gdalwarp` makes "
-            "it north-up)"
+            f"{_ROTATION_TOLERANCE:g} of a cell over {shape[0]} x {shape[1]} nodes; {warp} makes "
+            "it north-up, the cells outside the rotated grid missing)"
         )
     if dx == 0.0 or dy == 0.0:
         raise DataFileError(f"cannot read {str(file)!r}: geotransform has a zero pixel size ({dx}, {dy})")
@@ -3165,7 +3170,10 @@ def _reprojection_hint(
         return "reproject it to a projected CRS of its region first, or mesh a global grid on the globe " \
                "(stepterrain globe)"
     if file.suffix.lower() in GDAL_FORMATS:
-        return f"reproject it first: `gdalwarp -r bilinear -t_srs {code} {file.name} {file.stem}_m.tif`, {target}"
+        # -dstalpha: the cells of the projected grid outside the file's (the corners round a polar wedge) missing;
+        # without it (and a nodata value of the file's) gdalwarp filled them with 0, cliffs to 0 m without a word
+        return (f"reproject it first: `gdalwarp -r bilinear -dstalpha -t_srs {code} {shlex.quote(file.name)} "
+                f"{shlex.quote(file.stem + '_m.tif')}`, {target}")
     return f"reproject it first, e.g. to {target}" + ("" if target.startswith(code) else f", {code}")
 
 

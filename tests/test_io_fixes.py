@@ -614,8 +614,8 @@ def test_a_geographic_geotiff_warns_at_the_callers_line_and_front_range_is_withi
     with rasterio.open(path, "w", **profile) as ds:
         ds.write(np.zeros((40, 4), np.float32), 1)
     with pytest.warns(UserWarning, match=r"tall\.tif: EPSG:4326 degrees read as local metres.*node latitudes 60\.125 "
-                                         r"to 69\.875 \(9\.75 degrees\).*gdalwarp -r bilinear -t_srs EPSG:32632 "
-                                         r"tall\.tif tall_m\.tif") as caught:
+                                         r"to 69\.875 \(9\.75 degrees\).*gdalwarp -r bilinear -dstalpha -t_srs "
+                                         r"EPSG:32632 tall\.tif tall_m\.tif") as caught:
         load_dem(path)
     assert caught[0].filename == __file__
     front_range = SHARED_DATA / "front_range_srtmgl3_3arcsec.tif"
@@ -2388,3 +2388,56 @@ def test_a_grey_and_alpha_png_from_gdal_translate_keeps_its_nodata(tmp_path):
     terrain = load_dem(png)
     np.testing.assert_array_equal(np.isnan(terrain.heights), (grey == 0) | (alpha == 0))
     np.testing.assert_array_equal(np.isnan(terrain.heights), np.isnan(load_dem(tif).heights))  # as the GeoTIFF
+
+
+def _run_the_hinted_gdalwarp(message, folder):
+    """The `gdalwarp ...` command ``message`` gives, run in ``folder`` (skipped without gdal-bin)."""
+    import shlex
+    import shutil
+    import subprocess
+
+    if shutil.which("gdalwarp") is None:
+        pytest.skip("gdalwarp (gdal-bin) is not installed")
+    command = re.search(r"`(gdalwarp [^`]*)`", message).group(1)
+    subprocess.run([*shlex.split(command), "-q"], cwd=folder, check=True, capture_output=True)
+    return shlex.split(command)[-1]
+
+
+def test_the_gdalwarp_a_rotated_grid_is_refused_with_leaves_no_0_m_corners(tmp_path):
+    """A rotated GeoTIFF is refused with the gdalwarp that makes it north-up: run as said, `gdalwarp dem.tif`,
+    the corners of the north-up grid outside the rotated one were filled with 0 (the file has no nodata value) and
+    read back as heights of 0 m, cliffs to sea level round a mountain DEM, without a word. The command now adds
+    -dstalpha: those corners are missing, and every height read is one of the file's."""
+    rasterio = pytest.importorskip("rasterio")
+    heights = load_dem(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.npz").heights[:40, :50].astype(np.float32)
+    transform = rasterio.Affine.translation(385000.0, 3800000.0) * rasterio.Affine.rotation(10.0) \
+        * rasterio.Affine.scale(30.0, -30.0)
+    with rasterio.open(tmp_path / "rotated.tif", "w", driver="GTiff", width=50, height=40, count=1, dtype="float32",
+                       crs="EPSG:32611", transform=transform) as out:
+        out.write(heights, 1)
+    with pytest.raises(DataFileError, match=r"rotated geotransform") as caught:
+        load_dem(tmp_path / "rotated.tif")
+    north_up = load_dem(tmp_path / _run_the_hinted_gdalwarp(str(caught.value), tmp_path))
+    assert north_up.has_nodata and north_up.spacing == pytest.approx((30.0, -30.0))
+    assert np.nanmin(north_up.heights) >= heights.min()  # no 0 m corner
+
+
+def test_the_gdalwarp_of_a_polar_grid_in_degrees_leaves_no_0_m_corners(tmp_path):
+    """A grid in degrees near a pole is warned of with the gdalwarp to a polar stereographic projection: run as
+    said, the corners round the projected wedge were 0 (the file has no nodata value): a quarter of the grid at 0 m,
+    read back without a word. The command now adds -dstalpha: they are missing."""
+    rasterio = pytest.importorskip("rasterio")
+    heights = np.round(load_dem(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.npz").heights[::8, ::8]).astype(np.float32)
+    rows, cols = heights.shape
+    with rasterio.open(tmp_path / "arctic.tif", "w", driver="GTiff", width=cols, height=rows, count=1,
+                       dtype="float32", crs="EPSG:4326",
+                       transform=rasterio.Affine(20.0 / cols, 0.0, 0.0, 0.0, -10.0 / rows, 80.0)) as out:
+        out.write(heights, 1)
+    with pytest.warns(UserWarning, match=r"polar stereographic") as caught:
+        load_dem(tmp_path / "arctic.tif")
+    message = next(str(w.message) for w in caught if "polar stereographic" in str(w.message))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # its metres err by 2.9 % over 10 degrees of latitude: warned, not tested here
+        projected = load_dem(tmp_path / _run_the_hinted_gdalwarp(message, tmp_path))
+    assert projected.has_nodata and "Polar_Stereographic" in projected.crs
+    assert np.nanmin(projected.heights) >= np.nanmin(heights)  # no 0 m corner
