@@ -2410,8 +2410,8 @@ def test_the_gdalwarp_a_rotated_grid_is_refused_with_leaves_no_0_m_corners(tmp_p
     -dstalpha: those corners are missing, and every height read is one of the file's."""
     rasterio = pytest.importorskip("rasterio")
     heights = load_dem(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.npz").heights[:40, :50].astype(np.float32)
-    transform = rasterio.Affine.translation(385000.0, 3800000.0) * rasterio.Affine.rotation(10.0) \
-        * rasterio.Affine.scale(30.0, -30.0)
+    transform = rasterio.Affine.translation(385000.0, 3800000.0) @ rasterio.Affine.rotation(10.0) \
+        @ rasterio.Affine.scale(30.0, -30.0)
     with rasterio.open(tmp_path / "rotated.tif", "w", driver="GTiff", width=50, height=40, count=1, dtype="float32",
                        crs="EPSG:32611", transform=transform) as out:
         out.write(heights, 1)
