@@ -3164,6 +3164,12 @@ def _reprojection_hint(
         code = f"'+proj=stere +lat_0={90 if centre > 0 else -90} +lat_ts={centre:.1f} +lon_0={lon_0:.1f} " \
                "+datum=WGS84 +units=m'"
         target = "a polar stereographic projection true at its middle latitude"
+        if current is not None and _polar_stereographic_near(current, 90.0 if centre > 0 else -90.0, centre):
+            # the grid is in that projection already (the CRS this hint gave it): warped again, it warned again,
+            # naming the same gdalwarp; a polar grid over some 8 degrees of latitude errs by over 1 % in any one
+            return (f"no one projection keeps a grid over {high - low:.3g} degrees of latitude within "
+                    f"{100 * _LOCAL_METRES_TOLERANCE:g} %, and {current} is the polar stereographic projection true "
+                    "at its middle latitude already: mesh it in smaller parts for truer metres")
     else:
         code = target = ""
     if not code:
@@ -3175,6 +3181,18 @@ def _reprojection_hint(
         return (f"reproject it first: `gdalwarp -r bilinear -dstalpha -t_srs {code} {shlex.quote(file.name)} "
                 f"{shlex.quote(file.stem + '_m.tif')}`, {target}")
     return f"reproject it first, e.g. to {target}" + ("" if target.startswith(code) else f", {code}")
+
+
+def _polar_stereographic_near(crs: str, pole: float, latitude: float) -> bool:
+    """Whether ``crs`` is a polar stereographic projection about ``pole`` (90 or -90) true within a degree of
+    ``latitude``: what :func:`_reprojection_hint` would advise for a grid there."""
+    crs_obj = _crs_object(crs)
+    try:
+        params = crs_obj.to_dict() if crs_obj is not None else {}
+        return bool(params.get("proj") == "stere" and float(params.get("lat_0", 0.0)) == pole
+                    and abs(float(params.get("lat_ts", pole)) - latitude) <= 1.0)
+    except Exception:  # noqa: BLE001 - a CRS PROJ cannot describe as parameters: not that projection
+        return False
 
 
 _PARSED_CRS: dict[str, Any] = {}  # CRS string -> rasterio CRS: a batch reads many files in one CRS
