@@ -110,6 +110,8 @@ def gdal_path(text: str) -> GdalPath | None:
     Another URL scheme is refused (a DataFileError naming it and those read), and so is a ``file://`` URL (naming
     the local path to give)."""
     if text.startswith("/vsi"):
+        if "}" in text:  # GDAL's braces round an archive's path (/vsizip/{/vsicurl/https://h/a.zip?sig=1}/dem.tif):
+            return _made(text, text.rsplit("}", 1)[1] or text)  # named by the member after them, not the URL's query
         return _made(text, text.split("/vsicurl/", 1)[-1])  # a URL's own path, for its name
     found = _URL.fullmatch(text)
     if found is None:
@@ -152,6 +154,10 @@ def local_archive(file: GdalPath) -> str | None:
         if not text.startswith(prefix):
             continue
         rest = text[len(prefix):]
+        if rest.startswith("{"):  # GDAL's braces around the archive's path: /vsizip/{/vsizip//data/a.zip/b.zip}/c.tif
+            end = rest.find("}")
+            rest = rest[1:end] if end > 0 else ""
+            return None if not rest or rest.startswith("/vsi") else rest  # one reached through another file system
         if rest.startswith("/vsi"):
             return None
         lowered = rest.lower()

@@ -310,6 +310,7 @@ def _virtual_from(path: str, cwd: str) -> str | None:
     if archive is None or os.path.isabs(archive):
         return path
     head = path.index("/", 1) + 1  # after the file system's prefix (/vsizip/), where local_archive found the archive
+    head += path[head:head + 1] == "{"  # within GDAL's braces round it (/vsizip/{t.zip}/a.tif)
     return path[:head] + os.path.abspath(os.path.join(cwd, archive)) + path[head + len(archive):]
 
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import decimal
 import json
 import math
 import os
@@ -255,10 +256,18 @@ def _nodata_values(text: str) -> list[float]:
     values = []
     for part in text.split(","):
         try:
-            values.append(float(part))
+            value = float(part)
         except ValueError:
             raise argparse.ArgumentTypeError(
                 f"expected a number or comma-separated numbers (the values of missing cells); got {text!r}") from None
+        exact = decimal.Decimal(part.strip())  # float() took it, so Decimal does: the value as written
+        if exact.is_finite() and (math.isinf(value) or (value == 0.0 and exact != 0)):
+            # float() rounds 1e400 to inf (which marks no cell: the value given is lost, silently) and 1e-400 to 0
+            # (which marks every cell at height 0): load_dem refuses nodata=10**400 as beyond float64; so does this
+            raise argparse.ArgumentTypeError(
+                f"expected numbers within float64 (magnitudes from about 4.9e-324 to 1.8e+308, or 0, inf, nan: the "
+                f"values of missing cells); got {part.strip()!r} in {text!r}, which float64 rounds to {value:g}")
+        values.append(value)
     return values
 
 

@@ -167,8 +167,9 @@ def load_dem(
         NumPy masked array: ``np.savez(..., elevation=m.data, mask=m.mask)``) and ``valid`` (True = present) of the
         heights' shape (or 0-d, for every cell: ``m.mask`` is a 0-d False when no cell is masked), either or both),
         ``.png`` (8- or 16-bit greyscale heightmap, values are heights, a 2- or
-        4-bit one's scaled to 0-255 as Pillow reads them; a transparent grey value (tRNS) or, in 8-bit grey +
-        alpha, alpha 0 marks missing cells, as GDAL reads them; 16-bit grey + alpha is refused: Pillow reads it as
+        4-bit one's scaled to 0-255 as Pillow reads them; a transparent grey value (tRNS), else the grey band's
+        ``NoDataValue`` in GDAL's ``dem.png.aux.xml`` beside it, and, in 8-bit grey + alpha, alpha 0 mark missing
+        cells, as GDAL reads them; 16-bit grey + alpha is refused: Pillow reads it as
         8 bits; an RGB(A) web-map terrain tile with ``height_encoding``, below),
         ``.tif``/``.tiff`` (GeoTIFF, needs rasterio) or another raster GDAL reads, through rasterio as a GeoTIFF is
         read (its georeferencing, CRS, nodata, scale and offset, unit, a .prj beside it, ``band`` and ``crop``
@@ -425,9 +426,13 @@ def check_nodata(nodata: Any, name: str = "nodata") -> tuple[float, ...]:
         if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
             raise InvalidInputError(f"{expected}; got {value!r} of type {type(value).__name__}")
         try:
-            out.append(float(value))
+            number = float(value)
         except OverflowError:  # an int beyond float64 (10**400): no cell of any dtype holds it
             raise InvalidInputError(f"{expected} within float64; got {value!r}") from None
+        if isinstance(value, np.floating) and np.isfinite(value) and (math.isinf(number) or (number == 0.0) != (
+                value == 0)):  # a long double beyond float64 became inf (marking nothing) or 0 (marking 0 m cells)
+            raise InvalidInputError(f"{expected} within float64; got {value!r}, which float64 rounds to {number:g}")
+        out.append(number)
     return tuple(dict.fromkeys(out))
 
 
@@ -606,11 +611,23 @@ def check_gzip(file: GdalPath) -> None:
 
 def _virtual_refusal(file: GdalPath) -> str:
     """Why :func:`load_dem` refuses the GDAL virtual path or URL ``file``: an extension GDAL is not asked to read."""
-    ext = file.suffix.lower()
+    ext, gdal, example = file.suffix.lower(), os.fspath(file), f"<name>{next(iter(GDAL_FORMATS))}"
     if ext in SUPPORTED_EXTENSIONS:  # .npy .npz .png: read by NumPy and Pillow from local files only
         why = f"{ext} files are read from a local file only"
     elif ext == ".zip":
-        why = f"name the file inside the zip: '{str(file)}/<name>{next(iter(GDAL_FORMATS))}'"
+        # a zip reached through another file system (a URL, /vsis3/, /vsitar/) is opened by /vsizip/ chained to it:
+        # its path with the member's name after it ('https://host/srtm.zip/<name>.tif') asked the server (or the
+        # tar) for a file of that name, which is not there; a zip inside a zip, or one of a URL with a query (a
+        # signed URL: no '.zip/' in it), in braces (GDAL splits the path at its first '.zip/')
+        if "?" in gdal or (gdal.startswith("/vsizip/") and ".zip/" in gdal[len("/vsizip/"):].lower()):
+            inside = f"/vsizip/{{{gdal}}}/{example}"
+        elif not gdal.startswith("/vsizip/"):
+            inside = f"/vsizip/{gdal}/{example}"
+        else:  # the zip itself (/vsizip//data/srtm.zip)
+            inside = f"{str(file)}/{example}"
+        why = f"name the file inside the zip: '{inside}'"
+    elif ext == ".gz" and not gdal.startswith("/vsigzip/") and PurePath(file.stem).suffix.lower() in GZIP_FORMATS:
+        why = f"read a gzip file through /vsigzip/: '/vsigzip/{gdal}'"  # a URL's dem.tif.gz, as a local one is
     else:
         why = f"unknown DEM extension {file.suffix or '(none)'!r} of {file.name!r}"
     return (f"cannot read {str(file)!r}: a GDAL virtual path (/vsizip/, /vsigzip/, /vsicurl/, ...) or a URL "
@@ -1199,7 +1216,9 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
             low_bits = re.fullmatch(r"L;([24])", str(image.tile[0][3])) if image.tile else None
             array = np.array(image)
             transparent = image.info.get("transparency")  # a grey PNG's tRNS value, GDAL's nodata for PNG
-    nodata = transparent if isinstance(transparent, int) and not isinstance(transparent, bool) else None
+    nodata: float | None = (
+        transparent if isinstance(transparent, int) and not isinstance(transparent, bool) else _png_pam_nodata(file)
+    )
     if nodata is not None and low_bits:  # the tRNS value in the samples' 0-255 scale (tRNS 15 of 4 bits is 255)
         nodata *= 255 // (2 ** int(low_bits.group(1)) - 1)
     if mode == "LA":  # grey + alpha: a transparent cell (alpha 0) is missing, as GDAL reads alpha as the mask
@@ -1209,6 +1228,27 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
     heights, unit = _heights_in_metres(heights, height_unit, file, "height_unit")
     _warn_png_georeferencing(file)
     return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None, height_unit=unit)
+
+
+def _png_pam_nodata(file: Path) -> float | None:
+    """The nodata value of the PNG heightmap ``file``'s grey band in GDAL's PAM file beside it (``dem.png.aux.xml``,
+    ``<NoDataValue>`` of ``PAMRasterBand`` 1), which GDAL reads where the PNG has no transparent grey value (tRNS,
+    which it takes first): ``gdal_translate -of PNG`` writes it there for a grey + alpha PNG, which has no tRNS, and a
+    PNG's nodata set by hand or another tool lies there. Pillow reads no such file: the cells at that value were
+    heights (a 9999 m spike, a 0 m pit) where GDAL and every GIS masked them. None without one, or with one that is
+    no number (GDAL's is then no nodata either)."""
+    root = _pam_root(file)
+    if root is None:
+        return None
+    for band in root.iter("PAMRasterBand"):
+        if band.get("band", "1").strip() != "1":  # a grey + alpha PNG's alpha band
+            continue
+        text = band.findtext("NoDataValue")
+        try:
+            return float(text) if text is not None and text.strip() else None
+        except ValueError:
+            return None
+    return None
 
 
 def _refuse_png_scaling(file: Path) -> None:
@@ -1989,7 +2029,9 @@ def _zipped_prj(path: GdalPath) -> tuple[str, str] | None:
     archive_path = local_archive(path) if gdal.startswith("/vsizip/") else None
     if archive_path is None or not os.path.isfile(archive_path):
         return None
-    member = PurePosixPath(gdal[len("/vsizip/") + len(archive_path):].lstrip("/"))
+    after = gdal[len("/vsizip/"):]  # the archive's path, in GDAL's braces or not, then the member's
+    member = PurePosixPath((after[after.find("}") + 1:] if after.startswith("{") else after[len(archive_path):])
+                           .lstrip("/"))
     try:
         with zipfile.ZipFile(archive_path) as archive:
             names = set(archive.namelist())
@@ -2017,7 +2059,8 @@ def _refuse_warped_georeferencing(file: Path, gcps: tuple[Any, Any], rpcs: Any) 
     raise DataFileError(
         f"cannot read {str(file)!r}: expected a GeoTIFF on a regular grid (a geotransform); got one referenced "
         f"only by {what}, which load_dem does not warp; resample it to a regular grid first, e.g. "
-        f"`gdalwarp -r bilinear{' -rpc' if not points else ''} -t_srs EPSG:<code> {name} {file.stem}_grid.tif`"
+        f"`gdalwarp -r bilinear{' -rpc' if not points else ''} -dstalpha -t_srs EPSG:<code> {name} "
+        f"{file.stem}_grid.tif` (-dstalpha marks the cells outside the scene missing: without it they are 0 m)"
     )
 
 
@@ -2599,11 +2642,15 @@ def _placement(
             f"{tuple(float(v) for v in geotransform)}"
         )
     if not _negligible_rotation(row_x, col_y, dx, dy, shape):
+        # -dstalpha: the corners of the north-up grid outside the rotated one are missing; without it (and without a
+        # nodata value of the file's) gdalwarp filled them with 0, heights of 0 m read back without a word
+        warp = (f"`gdalwarp -dstalpha {shlex.quote(file.name)} {shlex.quote(file.stem + '_north_up.tif')}`"
+                if file.suffix.lower() in GDAL_FORMATS else "`gdalwarp -dstalpha`")
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a north-up grid; got a rotated geotransform "
             f"{tuple(float(v) for v in geotransform)} (its rotation terms move nodes by more than "
-            f"{_ROTATION_TOLERANCE:g} of a cell over {shape[0]} x {shape[1]} nodes; `gdalwarp` makes "
-            "it north-up)"
+            f"{_ROTATION_TOLERANCE:g} of a cell over {shape[0]} x {shape[1]} nodes; {warp} makes "
+            "it north-up, the cells outside the rotated grid missing)"
         )
     if dx == 0.0 or dy == 0.0:
         raise DataFileError(f"cannot read {str(file)!r}: geotransform has a zero pixel size ({dx}, {dy})")
@@ -3117,14 +3164,35 @@ def _reprojection_hint(
         code = f"'+proj=stere +lat_0={90 if centre > 0 else -90} +lat_ts={centre:.1f} +lon_0={lon_0:.1f} " \
                "+datum=WGS84 +units=m'"
         target = "a polar stereographic projection true at its middle latitude"
+        if current is not None and _polar_stereographic_near(current, 90.0 if centre > 0 else -90.0, centre):
+            # the grid is in that projection already (the CRS this hint gave it): warped again, it warned again,
+            # naming the same gdalwarp; a polar grid over some 8 degrees of latitude errs by over 1 % in any one
+            return (f"no one projection keeps a grid over {high - low:.3g} degrees of latitude within "
+                    f"{100 * _LOCAL_METRES_TOLERANCE:g} %, and {current} is the polar stereographic projection true "
+                    "at its middle latitude already: mesh it in smaller parts for truer metres")
     else:
         code = target = ""
     if not code:
         return "reproject it to a projected CRS of its region first, or mesh a global grid on the globe " \
                "(stepterrain globe)"
     if file.suffix.lower() in GDAL_FORMATS:
-        return f"reproject it first: `gdalwarp -r bilinear -t_srs {code} {file.name} {file.stem}_m.tif`, {target}"
+        # -dstalpha: the cells of the projected grid outside the file's (the corners round a polar wedge) missing;
+        # without it (and a nodata value of the file's) gdalwarp filled them with 0, cliffs to 0 m without a word
+        return (f"reproject it first: `gdalwarp -r bilinear -dstalpha -t_srs {code} {shlex.quote(file.name)} "
+                f"{shlex.quote(file.stem + '_m.tif')}`, {target}")
     return f"reproject it first, e.g. to {target}" + ("" if target.startswith(code) else f", {code}")
+
+
+def _polar_stereographic_near(crs: str, pole: float, latitude: float) -> bool:
+    """Whether ``crs`` is a polar stereographic projection about ``pole`` (90 or -90) true within a degree of
+    ``latitude``: what :func:`_reprojection_hint` would advise for a grid there."""
+    crs_obj = _crs_object(crs)
+    try:
+        params = crs_obj.to_dict() if crs_obj is not None else {}
+        return bool(params.get("proj") == "stere" and float(params.get("lat_0", 0.0)) == pole
+                    and abs(float(params.get("lat_ts", pole)) - latitude) <= 1.0)
+    except Exception:  # noqa: BLE001 - a CRS PROJ cannot describe as parameters: not that projection
+        return False
 
 
 _PARSED_CRS: dict[str, Any] = {}  # CRS string -> rasterio CRS: a batch reads many files in one CRS

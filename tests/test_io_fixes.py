@@ -614,8 +614,8 @@ def test_a_geographic_geotiff_warns_at_the_callers_line_and_front_range_is_withi
     with rasterio.open(path, "w", **profile) as ds:
         ds.write(np.zeros((40, 4), np.float32), 1)
     with pytest.warns(UserWarning, match=r"tall\.tif: EPSG:4326 degrees read as local metres.*node latitudes 60\.125 "
-                                         r"to 69\.875 \(9\.75 degrees\).*gdalwarp -r bilinear -t_srs EPSG:32632 "
-                                         r"tall\.tif tall_m\.tif") as caught:
+                                         r"to 69\.875 \(9\.75 degrees\).*gdalwarp -r bilinear -dstalpha -t_srs "
+                                         r"EPSG:32632 tall\.tif tall_m\.tif") as caught:
         load_dem(path)
     assert caught[0].filename == __file__
     front_range = SHARED_DATA / "front_range_srtmgl3_3arcsec.tif"
@@ -2325,3 +2325,122 @@ def test_undeclared_void_hint_quotes_a_file_name_with_a_space(tmp_path):
         message = next(str(w.message) for w in caught if "marks voids" in str(w.message))
         hint = re.search(r"declare it \(`([^`]*)`, or pass nodata=-3.4028235e\+38\)", message)
         assert hint and shlex.split(hint.group(1)) == words, message
+
+
+def _pam_nodata(png, value):
+    png.with_name(png.name + ".aux.xml").write_text(
+        f"<PAMDataset>\n  <PAMRasterBand band=\"1\">\n    <NoDataValue>{value}</NoDataValue>\n  </PAMRasterBand>\n"
+        "</PAMDataset>\n")
+
+
+def test_a_png_heightmaps_nodata_in_its_aux_xml_marks_its_voids(tmp_path):
+    """A PNG heightmap's nodata value in GDAL's PAM file beside it (dem.png.aux.xml, <NoDataValue>: `gdal_translate
+    -of PNG` writes it there for a grey + alpha PNG, which holds no tRNS, and a nodata set by hand or by another tool
+    lies there) is read by GDAL and every GIS, but Pillow reads no such file: the voids were heights (9999 m spikes)
+    without a word. Now they are nodata, as GDAL masks them; a tRNS value, which GDAL takes first, still wins."""
+    heights = np.round(load_dem(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.npz").heights[:40, :50]).astype(np.uint16)
+    voids = np.zeros(heights.shape, bool)
+    voids[3:6, 7:12] = voids[30, 40] = True
+    png = tmp_path / "dem.png"
+    Image.fromarray(np.where(voids, 9999, heights).astype(np.uint16)).save(png)
+    _pam_nodata(png, "9999")
+    terrain = load_dem(png)
+    np.testing.assert_array_equal(np.isnan(terrain.heights), voids)
+    np.testing.assert_array_equal(terrain.heights[~voids], heights[~voids].astype(np.float32))
+    if _has_rasterio():  # as GDAL masks them
+        import rasterio
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # rasterio's NotGeoreferencedWarning
+            with rasterio.open(png) as src:
+                np.testing.assert_array_equal(np.ma.getmaskarray(src.read(1, masked=True)), voids)
+    _pam_nodata(png, "not a number")  # no nodata, to GDAL either
+    assert not np.isnan(load_dem(png).heights).any()
+    # a tRNS value is the PNG's own nodata, which GDAL takes before the aux.xml's
+    Image.fromarray(np.where(voids, 9999, heights).astype(np.uint16)).save(png, transparency=int(heights[0, 0]))
+    _pam_nodata(png, "9999")
+    np.testing.assert_array_equal(np.isnan(load_dem(png).heights), heights == heights[0, 0])
+
+
+def test_a_grey_and_alpha_png_from_gdal_translate_keeps_its_nodata(tmp_path):
+    """`gdal_translate -of PNG` of a grey + alpha raster with a nodata value writes an 8-bit LA PNG and the nodata
+    to its aux.xml (a PNG with alpha holds no tRNS): the alpha was read, the nodata cells (opaque) came out as
+    heights of 0 m. Both mark missing cells now, as a GeoTIFF's nodata and alpha band do."""
+    pytest.importorskip("rasterio")
+    import rasterio
+    import rasterio.shutil
+    from rasterio.enums import ColorInterp
+
+    heights = np.clip(load_dem(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.npz").heights[:30, :40] / 8, 1, 255)
+    grey = np.round(heights).astype(np.uint8)
+    grey[2:4, 5:9] = 0  # nodata
+    alpha = np.full(grey.shape, 255, np.uint8)
+    alpha[20:25, 30:33] = 0  # transparent
+    tif, png = tmp_path / "src.tif", tmp_path / "dem.png"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # rasterio's NotGeoreferencedWarning
+        with rasterio.open(tif, "w", driver="GTiff", width=40, height=30, count=2, dtype="uint8", nodata=0,
+                           alpha="YES") as out:
+            out.write(np.stack([grey, alpha]))
+            out.colorinterp = [ColorInterp.gray, ColorInterp.alpha]
+        rasterio.shutil.copy(tif, png, driver="PNG")  # GDAL's CreateCopy, as gdal_translate -of PNG
+    assert "<NoDataValue>" in png.with_name("dem.png.aux.xml").read_text()
+    terrain = load_dem(png)
+    np.testing.assert_array_equal(np.isnan(terrain.heights), (grey == 0) | (alpha == 0))
+    np.testing.assert_array_equal(np.isnan(terrain.heights), np.isnan(load_dem(tif).heights))  # as the GeoTIFF
+
+
+def _run_the_hinted_gdalwarp(message, folder):
+    """The `gdalwarp ...` command ``message`` gives, run in ``folder`` (skipped without gdal-bin)."""
+    import shlex
+    import shutil
+    import subprocess
+
+    if shutil.which("gdalwarp") is None:
+        pytest.skip("gdalwarp (gdal-bin) is not installed")
+    command = re.search(r"`(gdalwarp [^`]*)`", message).group(1)
+    subprocess.run([*shlex.split(command), "-q"], cwd=folder, check=True, capture_output=True)
+    return shlex.split(command)[-1]
+
+
+def test_the_gdalwarp_a_rotated_grid_is_refused_with_leaves_no_0_m_corners(tmp_path):
+    """A rotated GeoTIFF is refused with the gdalwarp that makes it north-up: run as said, `gdalwarp dem.tif`,
+    the corners of the north-up grid outside the rotated one were filled with 0 (the file has no nodata value) and
+    read back as heights of 0 m, cliffs to sea level round a mountain DEM, without a word. The command now adds
+    -dstalpha: those corners are missing, and every height read is one of the file's."""
+    rasterio = pytest.importorskip("rasterio")
+    heights = load_dem(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.npz").heights[:40, :50].astype(np.float32)
+    transform = rasterio.Affine.translation(385000.0, 3800000.0) @ rasterio.Affine.rotation(10.0) \
+        @ rasterio.Affine.scale(30.0, -30.0)
+    with rasterio.open(tmp_path / "rotated.tif", "w", driver="GTiff", width=50, height=40, count=1, dtype="float32",
+                       crs="EPSG:32611", transform=transform) as out:
+        out.write(heights, 1)
+    with pytest.raises(DataFileError, match=r"rotated geotransform") as caught:
+        load_dem(tmp_path / "rotated.tif")
+    north_up = load_dem(tmp_path / _run_the_hinted_gdalwarp(str(caught.value), tmp_path))
+    assert north_up.has_nodata and north_up.spacing == pytest.approx((30.0, -30.0))
+    assert np.nanmin(north_up.heights) >= heights.min()  # no 0 m corner
+
+
+def test_the_gdalwarp_of_a_polar_grid_in_degrees_leaves_no_0_m_corners(tmp_path):
+    """A grid in degrees near a pole is warned of with the gdalwarp to a polar stereographic projection: run as
+    said, the corners round the projected wedge were 0 (the file has no nodata value): a quarter of the grid at 0 m,
+    read back without a word. The command now adds -dstalpha: they are missing."""
+    rasterio = pytest.importorskip("rasterio")
+    heights = np.round(load_dem(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.npz").heights[::8, ::8]).astype(np.float32)
+    rows, cols = heights.shape
+    with rasterio.open(tmp_path / "arctic.tif", "w", driver="GTiff", width=cols, height=rows, count=1,
+                       dtype="float32", crs="EPSG:4326",
+                       transform=rasterio.Affine(20.0 / cols, 0.0, 0.0, 0.0, -10.0 / rows, 80.0)) as out:
+        out.write(heights, 1)
+    with pytest.warns(UserWarning, match=r"polar stereographic") as caught:
+        load_dem(tmp_path / "arctic.tif")
+    message = next(str(w.message) for w in caught if "polar stereographic" in str(w.message))
+    with pytest.warns(UserWarning, match=r"errs against WGS 84") as caught:
+        projected = load_dem(tmp_path / _run_the_hinted_gdalwarp(message, tmp_path))
+    assert projected.has_nodata and "Polar_Stereographic" in projected.crs
+    assert np.nanmin(projected.heights) >= np.nanmin(heights)  # no 0 m corner
+    # its metres err by 2.9 % over 10 degrees of latitude, in the projection it was advised: that same gdalwarp was
+    # advised again (warped again, it warned again), which no projection helps
+    again = next(str(w.message) for w in caught if "errs against WGS 84" in str(w.message))
+    assert "gdalwarp" not in again and "no one projection keeps a grid over 10.4 degrees of latitude" in again, again

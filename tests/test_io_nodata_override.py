@@ -189,6 +189,21 @@ def test_a_nodata_that_is_not_a_real_number_is_refused_naming_it(tmp_path, bad):
         load_dem(tmp_path / "dem.npy", nodata=bad)
 
 
+@pytest.mark.skipif(np.finfo(np.longdouble).max <= np.finfo(np.float64).max, reason="long double is float64 here")
+@pytest.mark.parametrize("exponent", [400, -400])
+def test_a_long_double_nodata_beyond_float64_is_refused_naming_it(tmp_path, exponent):
+    """nodata=np.longdouble(10)**400 became inf (marking no cell: the value given was dropped, silently) and
+    np.longdouble(10)**-400 became 0.0 (marking every cell at 0 m missing), while nodata=10**400 is refused as
+    beyond float64: both are refused so now, naming nodata."""
+    z = _real()
+    z[:3] = 0.0
+    np.save(tmp_path / "dem.npy", z)
+    with pytest.raises(InvalidInputError, match=r"^nodata must be a real number.* within float64; got "):
+        load_dem(tmp_path / "dem.npy", nodata=np.longdouble(10) ** exponent)
+    np.testing.assert_array_equal(np.isnan(load_dem(tmp_path / "dem.npy", nodata=np.longdouble(-0.0)).heights),
+                                  z == 0)  # a long double zero is 0
+
+
 @pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
 def test_a_non_finite_nodata_changes_nothing(tmp_path, value):
     z = _real().astype(np.float32)
@@ -218,6 +233,20 @@ def test_cli_info_nodata_forms(tmp_path, capsys):
         assert json.loads(out)["nodata_count"] == n and "marks voids" not in err, given
     code, out, err = run(capsys, "info", path, "--nodata", "void")
     assert code == 2 and "--nodata" in err and "'void'" in err
+
+
+@pytest.mark.parametrize("given", ["1e400", "-1e400", "-9999,1e999", "1e-400"])
+def test_cli_nodata_beyond_float64_is_refused_naming_it(tmp_path, capsys, given):
+    """--nodata 1e400 parsed to inf (which marks no cell: the value given was dropped, silently) and 1e-400 to 0.0
+    (which marks every cell at height 0), while load_dem refuses nodata=10**400; now --nodata refuses both, as
+    load_dem does, naming the option and the value. inf and nan as written stay accepted."""
+    path, _ = _voided_npy(tmp_path / "dem.npy")
+    code, out, err = run(capsys, "info", path, "--json", "--nodata", given)
+    assert code == 2 and out == "" and "argument --nodata: expected numbers within float64" in err, err
+    assert repr(given.split(",")[-1]) in err and "Traceback" not in err
+    for fine in ("inf", "-inf", "nan", "5e-324", "-9999,inf"):
+        code, out, err = run(capsys, "info", path, "--json", "--nodata", fine)
+        assert code == 0, (fine, err)
 
 
 def test_cli_steps_and_the_embedded_dem_take_nodata(tmp_path, capsys):

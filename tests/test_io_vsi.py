@@ -125,6 +125,94 @@ def test_zip_of_several_rasters_or_none_and_a_missing_inner_file_are_refused(til
         st.load_dem(f"/vsizip/{tiles / 'one.zip'}/dem.npy")
 
 
+def test_a_zip_or_gzip_behind_another_file_system_is_refused_naming_a_path_that_reads_it(tiles, tmp_path):
+    """A zip named by a URL or through another file system (/vsis3/, /vsitar/) was refused with the advice to name
+    the file inside it as '<that path>/dem.tif': https://host/srtm.zip/dem.tif, which asks the server for a file of
+    that name (GDAL opens a zip's member only through /vsizip/ chained to the zip's path), and a .tif.gz URL was "an
+    unknown extension '.gz'". The advice is the chained path now, /vsizip//vsicurl/https://... (a zip in a zip in
+    GDAL's braces) and /vsigzip//vsicurl/...: here, through a local tar, the paths it names read the DEM."""
+    import tarfile
+
+    reference = st.load_dem(tiles / "dem.tif")
+    pack = tmp_path / "pack.tar"
+    with tarfile.open(pack, "w") as archive:
+        archive.add(tiles / "one.zip", "one.zip")
+        archive.add(tiles / "dem.tif.gz", "dem.tif.gz")
+    with zipfile.ZipFile(tmp_path / "outer.zip", "w") as archive:
+        archive.write(tiles / "one.zip", "one.zip")
+
+    def advice(path):
+        with pytest.raises(InvalidInputError) as caught:
+            st.load_dem(path)
+        return re.search(r"name the file inside the zip: '([^']*)'|through /vsigzip/: '([^']*)'$", str(caught.value))
+
+    outer = tmp_path / "outer.zip"
+    for given, hinted in [
+        (f"/vsitar/{pack}/one.zip", f"/vsizip//vsitar/{pack}/one.zip/<name>.tif"),
+        (f"/vsizip/{outer}/one.zip", f"/vsizip/{{/vsizip/{outer}/one.zip}}/<name>.tif"),
+        (f"/vsitar/{pack}/dem.tif.gz", f"/vsigzip//vsitar/{pack}/dem.tif.gz"),
+    ]:
+        found = advice(given)
+        assert found and (found.group(1) or found.group(2)) == hinted, (given, found)
+        _same(st.load_dem(hinted.replace("<name>", "dem")), reference)
+    assert advice("https://example.org/srtm.zip").group(1) == "/vsizip//vsicurl/https://example.org/srtm.zip/<name>.tif"
+    assert advice("s3://bucket/dem.tif.gz").group(2) == "/vsigzip//vsis3/bucket/dem.tif.gz"
+    signed = advice("https://example.org/srtm.zip?sig=1").group(1)  # no '.zip/' for GDAL to split at: in braces
+    assert signed == "/vsizip/{/vsicurl/https://example.org/srtm.zip?sig=1}/<name>.tif"
+    assert gdal_path(signed.replace("<name>", "dem")).name == "dem.tif"  # read as the member, not refused as a zip
+    assert advice(f"/vsizip/{tiles / 'one.zip'}").group(1) == f"/vsizip/{tiles / 'one.zip'}/<name>.tif"  # as before
+
+
+def test_a_braced_archive_path_is_resolved_for_a_worker_and_its_fingerprint(tiles, tmp_path, monkeypatch):
+    """GDAL's braces round an archive's path (/vsizip/{one.zip}/dem.tif; a zip in a zip,
+    /vsizip/{/vsizip//data/outer.zip/one.zip}/dem.tif) were read as part of a local archive's name: a worker in
+    another folder was given /vsizip//caller/{/vsizip/.../dem.tif, which names nothing, and the fingerprint stat'ed a
+    file '{/vsizip/...' that is not there. A braced local archive is resolved as an unbraced one is; one reached
+    through another file system is left as given."""
+    from stepterrain._files import local_archive
+    from stepterrain.batch import _on_worker
+
+    reference = st.load_dem(tiles / "dem.tif")
+    with zipfile.ZipFile(tmp_path / "outer.zip", "w") as archive:
+        archive.write(tiles / "one.zip", "one.zip")
+    nested = f"/vsizip/{{/vsizip/{tmp_path / 'outer.zip'}/one.zip}}/dem.tif"
+    assert local_archive(gdal_path(nested)) is None
+    assert local_archive(gdal_path(f"/vsizip/{{{tiles / 'one.zip'}}}/dem.tif")) == str(tiles / "one.zip")
+    elsewhere = tmp_path / "worker"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    assert _on_worker(nested, str(tiles)) == nested
+    _same(st.load_dem(_on_worker(nested, str(tiles))), reference)
+    _same(st.load_dem(_on_worker("/vsizip/{one.zip}/dem.tif", str(tiles))), reference)
+    # a signed URL's zip, as the refusal names it: read as its member (its name was the URL's, 'a.zip', refused)
+    signed = gdal_path("/vsizip/{/vsicurl/https://example.org/a.zip?sig=1}/N46E007.hgt")
+    assert (signed.name, os.fspath(signed)) == ("N46E007.hgt", "/vsizip/{/vsicurl/https://example.org/a.zip?sig=1}"
+                                                               "/N46E007.hgt")
+
+
+def test_a_braced_zip_path_reads_the_prj_beside_its_tiff_in_the_zip(tmp_path):
+    """A world-file TIFF's .prj inside a zip gives its CRS (GDAL reads none for a TIFF): named with GDAL's braces,
+    /vsizip/{site.zip}/dem.tif, the member was looked up as '}/dem.tif' and the CRS was lost (feet read as metres)."""
+    from rasterio.crs import CRS
+
+    z = (np.arange(12.0).reshape(3, 4) * 10 + 3000).astype(np.int16)
+    tif = tmp_path / "dem.tif"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # rasterio's NotGeoreferencedWarning for the bare TIFF
+        with rasterio.open(tif, "w", driver="GTiff", width=4, height=3, count=1, dtype="int16") as ds:
+            ds.write(z, 1)
+    tif.with_suffix(".tfw").write_text("100.0\n0.0\n0.0\n-100.0\n6400050.0\n1899950.0\n")
+    tif.with_suffix(".prj").write_text(CRS.from_epsg(2229).to_wkt())
+    with zipfile.ZipFile(tmp_path / "site.zip", "w") as archive:
+        for name in ("dem.tif", "dem.tfw", "dem.prj"):
+            archive.write(tmp_path / name, name)
+    with pytest.warns(UserWarning, match="EPSG:2229 is in US survey foot units"):
+        local = st.load_dem(tif)
+    for given in (f"/vsizip/{tmp_path / 'site.zip'}/dem.tif", f"/vsizip/{{{tmp_path / 'site.zip'}}}/dem.tif"):
+        with pytest.warns(UserWarning, match="EPSG:2229 is in US survey foot units"):
+            _same(st.load_dem(given), local)
+
+
 def test_url_is_read_by_gdal_and_an_unreachable_one_is_a_data_file_error(monkeypatch):
     assert os.fspath(gdal_path("https://example.org/dem/cog.tif?sig=1")) == "/vsicurl/https://example.org/dem/cog.tif?sig=1"
     assert gdal_path("https://example.org/dem/cog.tif?sig=1").name == "cog.tif"
