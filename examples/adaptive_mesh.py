@@ -75,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    terrain = crop(args.size, example_dem(args.dem))
+    terrain = crop(args.size, example_dem(args.dem, args.nodata))
     panels = []
     for error in args.errors:
         mesh = adaptive_mesh(terrain, error=error, device=args.device)

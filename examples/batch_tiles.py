@@ -46,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    dem = example_dem(args.dem)
+    dem = example_dem(args.dem, args.nodata)
     step = max(1, dem.shape[1] // args.size)
     terrain = Terrain.from_heights(dem.heights[::step, ::step], spacing=(dem.spacing[0] * step, dem.spacing[1] * step),
                                    origin=dem.origin, crs=dem.crs, source=dem.source)  # fmt: skip

@@ -53,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    terrain = example_dem(args.dem)
+    terrain = example_dem(args.dem, args.nodata)
     if args.size:
         rows, cols = terrain.shape
         dx, dy = terrain.spacing

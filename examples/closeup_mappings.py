@@ -67,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    terrain = example_dem(args.dem)
+    terrain = example_dem(args.dem, args.nodata)
     if args.size:
         rows, cols = terrain.shape
         i0, j0 = max(0, (rows - args.size) // 2), max(0, (cols - args.size) // 2)

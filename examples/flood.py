@@ -90,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
-    terrain = crop_sample(args.size, example_dem(args.dem))
+    terrain = crop_sample(args.size, example_dem(args.dem, args.nodata))
     rows, cols = terrain.shape
     if args.mp4 and (rows % 2 or cols % 2):  # before any work: the GIF and PNG were written, then the MP4 stretched
         raise InvalidInputError(f"--mp4 needs frames of an even width and height (H.264 codes 2 x 2 colour blocks; "

@@ -156,7 +156,8 @@ def main(argv: list[str] | None = None) -> int:
 def run(args: argparse.Namespace) -> int:
     if not args.interactive:  # headless: EGL or OSMesa as the library's renders pick it (VTK tried X first)
         require_offscreen()
-    grid = dem_grid(args.size, example_dem(args.dem))  # before the window: a file it cannot read opens none
+    # before the window: a file it cannot read opens none
+    grid = dem_grid(args.size, example_dem(args.dem, args.nodata))
     plotter = pv.Plotter(off_screen=not args.interactive, window_size=tuple(args.window))
     plotter.set_background("white")
     build(plotter, grid, device=args.device)

@@ -55,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    terrain = crop_sample(args.size, example_dem(args.dem))
+    terrain = crop_sample(args.size, example_dem(args.dem, args.nodata))
     lo, hi = terrain.height_range
     interval = nice_interval((lo, hi), target=12)
     levels = st.isovalues((lo, hi), interval=interval)

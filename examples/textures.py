@@ -82,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
-    terrain = crop_sample(args.size, example_dem(args.dem))
+    terrain = crop_sample(args.size, example_dem(args.dem, args.nodata))
     topo = topographic_layer(terrain, azimuth=math.radians(315), altitude=math.radians(30), shadows=True,
                              shadow_strength=0.5, occlusion=0.25, device=args.device)
     hyps, slopes = colour_layers(terrain)

@@ -148,19 +148,31 @@ def usage_errors(parser: argparse.ArgumentParser) -> Iterator[None]:
 
 def add_dem_option(parser: argparse.ArgumentParser) -> None:
     """``--dem PATH`` for scripts' own argparse mains (examples/): a DEM file to use instead of the embedded one,
-    loaded by :func:`example_dem` (within :func:`usage_errors`: a file it cannot read is a usage error)."""
+    loaded by :func:`example_dem` (within :func:`usage_errors`: a file it cannot read is a usage error); and
+    ``--nodata V[,V...]``, load_dem's ``nodata`` for it (the CLI's own ``--nodata``, parsed the same way: the parser
+    takes a value starting with a minus and a digit as a value, as the CLI's do)."""
     parser.add_argument("--dem", type=_path, default=None, metavar="PATH",
                         help="a DEM file to use instead of the embedded Big Tujunga DEM (any format load_dem reads: "
                              ".tif, .npy, .asc, .hgt, ...; heights in metres, a .npy's cells 1 m apart); --size crops "
                              "it as it crops the embedded one")
+    _add_nodata(parser, "the --dem file (or the embedded DEM)")
+    # as _Parser: '--nodata -9999,-32768' (the form its help shows) and '-1e20' are values, not unknown options
+    parser._negative_number_matcher = _NEGATIVE_NUMBER
 
 
-def example_dem(path: str | os.PathLike[str] | None) -> Terrain:
-    """``--dem``'s terrain (:func:`add_dem_option`): :func:`~stepterrain.load_dem` of ``path``, or the embedded Big
-    Tujunga DEM (:func:`~stepterrain.sample_dem`) when it is None."""
+def example_dem(path: str | os.PathLike[str] | None, nodata: Sequence[float] | None = None) -> Terrain:
+    """``--dem``'s terrain (:func:`add_dem_option`): :func:`~stepterrain.load_dem` of ``path`` with ``--nodata``'s
+    ``nodata``, or the embedded Big Tujunga DEM (:func:`~stepterrain.sample_dem`) when it is None (``--nodata``
+    applied to it as the CLI applies it without an INPUT)."""
     import stepterrain as st
 
-    return st.sample_dem() if path is None else st.load_dem(path)
+    if path is not None:
+        return st.load_dem(path, nodata=nodata)
+    if nodata is None:
+        return st.sample_dem()
+    from .io import _sample_dem
+
+    return _sample_dem(nodata)
 
 
 def _floats(count: int | None, what: str) -> Callable[[str], tuple[float, ...]]:

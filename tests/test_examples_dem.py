@@ -153,3 +153,69 @@ def test_an_unreadable_dem_is_a_usage_error_writing_nothing(name, tmp_path, caps
         err = capsys.readouterr().err
         assert "error: " in err and dem.name in err and "Traceback" not in err
         assert list(out.iterdir()) == []
+
+
+@pytest.fixture
+def holed_dems(user_dem):
+    """``user_dem`` with a hole of 5 x 7 cells: (its NaN version, its -9999 version: a .npy has no nodata value of its
+    own, so --nodata -9999 is how a user says what its -9999 cells are)."""
+    heights = np.load(user_dem)
+    heights[5:10, 5:12] = np.nan
+    nan_file = user_dem.with_name("holes_nan.npy")
+    np.save(nan_file, heights)
+    sentinel = user_dem.with_name("holes_9999.npy")
+    np.save(sentinel, np.where(np.isnan(heights), np.float32(-9999.0), heights))
+    return nan_file, sentinel
+
+
+@pytest.mark.parametrize("name", sorted(RUNS))
+def test_an_example_reads_a_dem_file_with_nodata(name, holed_dems, monkeypatch, tmp_path, capsys):
+    """--dem had no --nodata (the CLI's --nodata V[,V...], load_dem's nodata): a file whose voids are -9999 without a
+    nodata value of its own was read as heights of -9999 m (a cliff 9 km deep; the interval picked for it), and
+    `--nodata -9999` was an unrecognised argument. Now every example with --dem takes it, parsed as the CLI parses it
+    (repeatable, comma-separated), and passes it to load_dem: the picture is the one of the file with NaN holes."""
+    nan_file, sentinel = holed_dems
+    calls = []
+    load = st.load_dem
+    monkeypatch.setattr(st, "load_dem", lambda path, **kw: calls.append((Path(path), kw)) or load(path, **kw))
+    argv, _ = RUNS[name]
+    outcomes = []
+    for dem, extra in ((nan_file, []), (sentinel, ["--nodata", "-32768,-9999"]), (sentinel, ["--nodata=-9999"])):
+        out = tmp_path / f"{dem.stem}{len(outcomes)}.png"
+        try:
+            code = load_example(name).main([*argv, "--dem", str(dem), *extra, "--output", str(out)])
+        except SystemExit as exc:  # adaptive_mesh's RTIN refuses holes: the same usage error for both files
+            code = exc.code
+        err = capsys.readouterr().err
+        outcomes.append((code, read_png(out) if code == 0 else err.splitlines()[-1]))
+    assert [c[1].get("nodata") for c in calls] == [None, [-32768.0, -9999.0], [-9999.0]]
+    assert outcomes[0][0] in (0, 2)
+    for code, result in outcomes[1:]:
+        assert code == outcomes[0][0]
+        if code == 0:
+            np.testing.assert_array_equal(result, outcomes[0][1])
+        else:
+            assert result == outcomes[0][1] and "NaN" in result
+
+
+def test_nodata_applies_to_the_embedded_dem():
+    """Without --dem, --nodata applies to the embedded DEM as the CLI's --nodata applies to it without an INPUT."""
+    from stepterrain.cli import example_dem
+
+    plain = example_dem(None)
+    low = example_dem(None, [315.0])
+    assert not plain.has_nodata and low.has_nodata
+    np.testing.assert_array_equal(low.nodata_mask, plain.heights == 315.0)
+
+
+@pytest.mark.parametrize("value", ["abc", "1,,2", ""])
+def test_a_bad_nodata_is_a_usage_error_naming_it(value, tmp_path, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    example = load_example("stepped_terrain")
+    with pytest.raises(SystemExit) as exit_info:
+        example.main(["--size", "8", "--nodata", value, "--output", str(out / "x.png")])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "--nodata" in err and "expected a number" in err and "Traceback" not in err
+    assert list(out.iterdir()) == []
