@@ -104,7 +104,8 @@ def run(args: argparse.Namespace) -> int:
             "--size")
     lo, hi = terrain.height_range
     h = terrain.heights
-    hyps = matplotlib.colormaps["terrain"](0.25 + 0.75 * (h - lo) / max(hi - lo, 1e-9))[..., :3].astype(np.float32)
+    # RGBA: the colormap's colour for NaN is transparent (its RGB alone drew a --dem file's voids as black ground)
+    hyps = matplotlib.colormaps["terrain"](0.25 + 0.75 * (h - lo) / max(hi - lo, 1e-9)).astype(np.float32)
     shaded = modulate(terrain_layer(terrain, hyps),
                       topographic_layer(terrain, azimuth=math.radians(315), altitude=math.radians(35),
                                         shadows=True, shadow_strength=0.5, device=args.device),

@@ -55,13 +55,15 @@ def crop_sample(size: int, dem: st.Terrain | None = None) -> st.Terrain:
 
 
 def colour_layers(terrain: st.Terrain) -> tuple[np.ndarray, np.ndarray]:
-    """(hypsometric RGB by height, slope classes RGB) per node, float32 in [0, 1]."""
+    """(hypsometric RGBA by height, slope classes RGBA) per node, float32 in [0, 1]: opaque, but transparent at nodata
+    (the colormaps' colour for NaN; its RGB alone, black, drew a --dem file's voids as black ground in the texture
+    panel) and, for the slopes, beside it (no gradient there; the hypsometric colour shows through)."""
     h = terrain.heights
     lo, hi = terrain.height_range
-    hyps = matplotlib.colormaps["terrain"](0.25 + 0.75 * (h - lo) / max(hi - lo, 1e-9))[..., :3]
+    hyps = matplotlib.colormaps["terrain"](0.25 + 0.75 * (h - lo) / max(hi - lo, 1e-9))
     gy, gx = np.gradient(h, abs(terrain.spacing[1]), abs(terrain.spacing[0]))
     slope = np.degrees(np.arctan(np.hypot(gx, gy)))
-    classes = matplotlib.colormaps["magma_r"](np.clip(slope / 45.0, 0, 1))[..., :3]
+    classes = matplotlib.colormaps["magma_r"](np.clip(slope / 45.0, 0, 1))
     return hyps.astype(np.float32), classes.astype(np.float32)
 
 

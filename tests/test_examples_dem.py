@@ -219,3 +219,50 @@ def test_a_bad_nodata_is_a_usage_error_naming_it(value, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "--nodata" in err and "expected a number" in err and "Traceback" not in err
     assert list(out.iterdir()) == []
+
+
+@pytest.fixture
+def centre_hole(tmp_path):
+    """A 30 x 30 crop of the embedded DEM (1 m cells) with NaN in its centre 10 x 10 cells, and that hole's mask."""
+    heights = (st.sample_dem().heights[500:530, 600:630] / 30.0).astype(np.float32)
+    heights[10:20, 10:20] = np.nan
+    path = tmp_path / "hole.npy"
+    np.save(path, heights)
+    return path, np.isnan(heights)
+
+
+def test_flood_draws_nodata_as_background_not_black_ground(centre_hole, tmp_path, capsys):
+    """flood's hypsometric layer kept the colormap's RGB only: its colour for NaN, (0, 0, 0, 0), became opaque black,
+    so a --dem file's voids were drawn as black ground in every frame. Now they are transparent: white, as the
+    background around the terrain is, and the ground around them is not."""
+    path, hole = centre_hole
+    out = tmp_path / "flood.png"
+    assert load_example("flood").main(["--size", "30", "--frames", "2", "--keyframes", "2", "--device", "cpu",
+                                       "--dem", str(path), "--output", str(out)]) == 0
+    image = read_png(out)
+    assert image.shape[:2] == hole.shape  # one pixel a node, north up as the .npy's rows
+    assert (image[hole] == 255).all()
+    assert (image[~hole] < 250).any(axis=1).all()
+    import imageio.v3 as iio
+
+    for frame in iio.imread(out.with_suffix(".gif"), index=None):
+        assert (frame[..., :3][hole] == 255).all()
+
+
+def test_textures_draws_nodata_as_background_in_the_texture_panel(centre_hole, tmp_path, capsys):
+    """textures' hypsometric and slope layers kept the colormaps' RGB only: a --dem file's voids were opaque black in
+    the texture panel (the 3-D view has a hole there). Now transparent: the panel is white there, as around it."""
+    path, hole = centre_hole
+    example = load_example("textures")
+    hyps, slopes = example.colour_layers(example.crop_sample(30, st.load_dem(path)))
+    np.testing.assert_array_equal(hyps[..., 3] == 0, hole)  # opaque elsewhere
+    assert (slopes[..., 3][hole] == 0).all()
+    out = tmp_path / "textures.png"
+    assert example.main(["--size", "30", "--panel", "96", "72", "--device", "cpu", "--dem", str(path),
+                         "--output", str(out)]) == 0
+    panel = read_png(out)[:, :96]
+    # the 30 x 30 texture is scaled 2.4 times into the 96 x 72 panel, 12 pixels from its left: the hole's cells
+    # 10:20 are pixels 24:48 down and 36:60 across; their inner part is background white (but for the resampling's
+    # ringing, a few levels; it was 0)
+    assert (panel[26:46, 38:58] >= 240).all()
+    assert (panel[4:20, 16:32] < 250).any(axis=2).all()
