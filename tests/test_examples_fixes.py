@@ -328,3 +328,21 @@ def test_adaptive_mesh_example_measures_its_error_on_a_dem_in_local_metres(size)
         reference[p[inside, 0].astype(int), p[inside, 1].astype(int)] = w[inside] @ z
     assert not np.isnan(reference).any()
     assert worst == pytest.approx(np.abs(reference - terrain.heights).max(), abs=1e-6)
+
+
+@pytest.mark.parametrize("relief", [0.8, 12.0, 100.0])
+def test_closeup_mappings_steps_a_dem_of_little_relief(relief):
+    """The stepped close-up's interval was max(1, range / 20 rounded to tens): a --dem file of under 20 m relief (a
+    floodplain, or heights in km) got 1 m, one flat terrace or two; 100 m of relief got 1 m too (5 rounds to 0): 100
+    steps. Now a round interval giving about 20 steps, as stepped_terrain's and textures' are picked; the embedded
+    DEM's 100 m is kept."""
+    import stepterrain as st
+
+    example = load_example("closeup_mappings")
+    dem = st.sample_dem()
+    assert example.closeups(dem)[0].stepped == 100.0
+    heights = dem.heights[200:330, 300:460]
+    heights = (heights - heights.min()) / np.ptp(heights) * relief
+    terrain = st.Terrain.from_heights(heights, spacing=(30.0, -30.0))
+    stepped = example.closeups(terrain)[0]
+    assert 10 <= relief / stepped.stepped <= 40
