@@ -346,3 +346,16 @@ def test_closeup_mappings_steps_a_dem_of_little_relief(relief):
     terrain = st.Terrain.from_heights(heights, spacing=(30.0, -30.0))
     stepped = example.closeups(terrain)[0]
     assert 10 <= relief / stepped.stepped <= 40
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["--size", "10"], "--size must be 2^k + 1 nodes"),
+    (["--size", "1"], "--size must be 2^k + 1 nodes"),
+    (["--far-error", "-1"], "--far-error must be a finite number >= 0"),
+    (["--close-error", "nan"], "--close-error must be a finite number >= 0"),
+])
+def test_globe_example_names_its_own_option_in_a_refusal(argv, message, tmp_path, capsys):
+    """globe.py passed --size, --far-error and --close-error to the library unchecked, whose refusals named its own
+    arguments: "face_size must be 2^k + 1", and "error must be a finite number" for either error option."""
+    assert_usage_error_writing_nothing("globe", [*argv, "--panel", "64", "48", "--device", "cpu", "--output",
+                                                 str(tmp_path / "g.png")], message, tmp_path, capsys)
