@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 import stepterrain as st
-from stepterrain.cli import add_dem_option, example_dem, usage_errors
+from stepterrain.cli import add_dem_option, check_example_outputs, example_dem, usage_errors
 from stepterrain.export import save_image
 from stepterrain.globe import adaptive_mesh
 from stepterrain.render import render_mesh
@@ -80,6 +80,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.size < 2:  # 0 raised a ZeroDivisionError in the crop; below 2 is no grid
         parser.error(f"--size must be at least 2 nodes; got {args.size}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
+        check_example_outputs({"--output": args.output}, args.dem)  # before any work
         return run(args)
 
 

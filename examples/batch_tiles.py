@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 
 from stepterrain.batch import batch, overview_image
-from stepterrain.cli import add_dem_option, example_dem, usage_errors
+from stepterrain.cli import add_dem_option, check_example_outputs, example_dem, usage_errors
 from stepterrain.export import IMAGE_EXTENSIONS, save_image
 from stepterrain.terrain import Terrain
 
@@ -42,6 +42,7 @@ def main(argv: list[str] | None = None) -> int:
     if Path(args.output).suffix.lower() not in IMAGE_EXTENSIONS:  # found after the tiles were written, beside it
         parser.error(f"--output must end in {', '.join(IMAGE_EXTENSIONS)}, the tiles go beside it; got {args.output!r}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
+        check_example_outputs({"--output": args.output}, args.dem)  # before any work
         return run(args)
 
 

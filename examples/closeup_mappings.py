@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 
 import stepterrain as st
-from stepterrain.cli import add_dem_option, example_dem, nice_interval, usage_errors
+from stepterrain.cli import add_dem_option, check_example_outputs, example_dem, nice_interval, usage_errors
 from stepterrain.closeup import ROI, AnchorStyle, CloseUp, animate_closeups, render_closeups, save_animation
 from stepterrain.render import save_png
 
@@ -65,6 +65,7 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--window of an MP4 must have an even width and height (H.264 codes 2 x 2 colour blocks; "
                          f"a GIF takes any size); got {args.window[0]}x{args.window[1]}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
+        check_example_outputs({"--output": args.output, "--gif": args.gif}, args.dem)  # before any work
         return run(args)
 
 

@@ -23,7 +23,7 @@ import matplotlib
 import numpy as np
 
 from stepterrain import get_memory_budget
-from stepterrain.cli import add_dem_option, example_dem, usage_errors
+from stepterrain.cli import add_dem_option, check_example_outputs, example_dem, usage_errors
 from stepterrain.closeup import save_animation
 from stepterrain.errors import InvalidInputError, MissingDependencyError, OutputTooLargeError
 from stepterrain.export import atomic_path, save_image
@@ -85,6 +85,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.output.suffix.lower() != ".png":  # the GIF goes beside it: --output x.gif wrote the GIF, then failed
         parser.error(f"--output must end in .png (the GIF is written beside it); got {str(args.output)!r}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
+        # before any work: a folder named as the PNG was refused after the GIF was written
+        check_example_outputs({"--output": args.output, "the GIF beside --output": args.output.with_suffix(".gif"),
+                               "the MP4 beside --output": args.output.with_suffix(".mp4") if args.mp4 else None},
+                              args.dem)
         return run(args)
 
 

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stepterrain.cli import usage_errors
+from stepterrain.cli import check_example_outputs, usage_errors
 from stepterrain.export import save_image
 from stepterrain.globe import EARTH_RADIUS, Globe, elevation_colors, look_from, render_view
 
@@ -68,6 +68,7 @@ def main(argv: list[str] | None = None) -> int:
         if not (math.isfinite(error) and error >= 0):
             parser.error(f"{option} must be a finite number >= 0 (metres); got {error}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
+        check_example_outputs({"--output": args.output})  # before any work
         return run(args)
 
 

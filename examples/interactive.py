@@ -23,7 +23,7 @@ import numpy as np
 import pyvista as pv
 
 from stepterrain import Terrain, circular_lens, sample_dem
-from stepterrain.cli import add_dem_option, example_dem, usage_errors
+from stepterrain.cli import add_dem_option, check_example_outputs, example_dem, usage_errors
 from stepterrain.export import IMAGE_EXTENSIONS, save_image
 from stepterrain.render import require_offscreen
 
@@ -150,6 +150,7 @@ def main(argv: list[str] | None = None) -> int:
     if not args.interactive and Path(args.output).suffix.lower() not in IMAGE_EXTENSIONS:  # refused after the render
         parser.error(f"--output must end in {', '.join(IMAGE_EXTENSIONS)}; got {args.output!r}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
+        check_example_outputs({"--output": None if args.interactive else args.output}, args.dem)  # before any work
         return run(args)
 
 

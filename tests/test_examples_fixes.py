@@ -359,3 +359,70 @@ def test_globe_example_names_its_own_option_in_a_refusal(argv, message, tmp_path
     arguments: "face_size must be 2^k + 1", and "error must be a finite number" for either error option."""
     assert_usage_error_writing_nothing("globe", [*argv, "--panel", "64", "48", "--device", "cpu", "--output",
                                                  str(tmp_path / "g.png")], message, tmp_path, capsys)
+
+
+#: each example at a tiny size, but for --output
+TINY = {
+    "stepped_terrain": ["--size", "8", "--panel", "64", "48"],
+    "textures": ["--size", "8", "--panel", "64", "48"],
+    "adaptive_mesh": ["--size", "8", "--panel", "64", "48"],
+    "flood": ["--size", "8", "--frames", "2", "--keyframes", "2"],
+    "batch_tiles": ["--size", "12", "--tile", "4", "--scheduler", "serial", "--window", "64", "48"],
+    "closeup_anchors": ["--size", "20", "--window", "256", "144"],
+    "closeup_mappings": ["--size", "20", "--window", "192", "108"],
+    "interactive": ["--size", "8", "--window", "64", "48"],
+    "globe": ["--size", "3", "--panel", "64", "48"],
+    "dynamic_peaks": ["--size", "8", "--frames", "2", "--window", "64", "48"],
+}
+
+
+@needs_render
+@pytest.mark.parametrize("target", ["folder", "under_a_file"])
+@pytest.mark.parametrize("name", sorted(TINY))
+def test_examples_refuse_an_output_they_cannot_write_before_any_work(name, target, tmp_path, capsys):
+    """--output naming a folder (out.png/) or a file in a "folder" that is a file: dynamic_peaks stepped every frame
+    and then ended in a FileExistsError traceback (its GIF's mkdir); flood wrote its GIF and then failed on the PNG,
+    batch_tiles wrote every tile and then failed on the overview: a failed command left files behind. The others
+    refused it only after all the work. Now every example checks its outputs first, as the CLI does: a usage error
+    (exit 2) naming --output, no traceback, nothing written."""
+    (tmp_path / "out.png").mkdir()
+    (tmp_path / "file").write_text("a file")
+    output = tmp_path / "out.png" if target == "folder" else tmp_path / "file" / "x.png"
+    before = sorted(tmp_path.rglob("*"))
+    example = load_example(name)
+    with pytest.raises(SystemExit) as exit_info:
+        example.main([*TINY[name], "--device", "cpu", "--output", str(output)])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "error: --output" in err and "Traceback" not in err
+    assert sorted(tmp_path.rglob("*")) == before
+
+
+@needs_render
+def test_an_example_refuses_to_write_over_its_dem_file(tmp_path, capsys):
+    """--dem heights.png --output heights.png (a 16-bit heightmap as the DEM) replaced the user's DEM with the
+    picture, exit 0. Now refused before any work, the DEM kept."""
+    from PIL import Image
+
+    import stepterrain as st
+
+    heights = (st.sample_dem().heights[500:530, 600:640]).astype(np.uint16)
+    dem = tmp_path / "heights.png"
+    Image.fromarray(heights).save(dem)
+    data = dem.read_bytes()
+    example = load_example("stepped_terrain")
+    with pytest.raises(SystemExit) as exit_info:
+        example.main([*TINY["stepped_terrain"], "--device", "cpu", "--dem", str(dem), "--output", str(dem)])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "--output" in err and "is the --dem file" in err
+    assert dem.read_bytes() == data
+
+
+@needs_render
+def test_closeup_mappings_refuses_a_gif_named_as_its_output(tmp_path, capsys):
+    """--gif x.gif --output x.gif wrote the PNG as x.gif and then replaced it by the animation: one file of two."""
+    out = tmp_path / "x.gif"
+    assert_usage_error_writing_nothing("closeup_mappings", [*TINY["closeup_mappings"], "--device", "cpu", "--frames",
+                                                            "2", "--gif", str(out), "--output", str(out)],
+                                       "name the same file", tmp_path, capsys)
