@@ -92,7 +92,7 @@ class SteppedScene:
 def build(plotter: pv.Plotter, grid: pv.ImageData, *, device: str | None = None) -> SteppedScene:
     """Add the stepped terrain, two sliders and the lens sphere to ``plotter``."""
     lo, hi = float(np.nanmin(grid["elevation"])), float(np.nanmax(grid["elevation"]))  # a DEM's nodata is NaN
-    span = hi - lo
+    span = hi - lo or 1.0  # a flat DEM: 1 m (a span of 0 gave interval 0, refused by the library, and no slider range)
     xmin, xmax, ymin, ymax, _, _ = grid.bounds
     radius = 0.2 * min(xmax - xmin, ymax - ymin)
     scene = SteppedScene(plotter, grid, interval=round(span / 15, -1) or span / 15, gamma=1.0, lens_radius=radius,

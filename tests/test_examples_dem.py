@@ -266,3 +266,18 @@ def test_textures_draws_nodata_as_background_in_the_texture_panel(centre_hole, t
     # ringing, a few levels; it was 0)
     assert (panel[26:46, 38:58] >= 240).all()
     assert (panel[4:20, 16:32] < 250).any(axis=2).all()
+
+
+def test_interactive_shows_a_flat_dem(tmp_path, capsys):
+    """interactive.py's first interval and slider range come from the heights' span: a flat --dem file (a lake, a
+    level pad; or one whose every kept node is the same) gave interval 0, and the example ended with "interval must
+    be a positive finite number; got 0.0", an option it has not. It shows the flat terrain now, as the other
+    examples do."""
+    path = tmp_path / "flat.npy"
+    np.save(path, np.full((30, 40), 7.0, np.float32))
+    out = tmp_path / "flat.png"
+    argv, shape = RUNS["interactive"]
+    assert load_example("interactive").main([*argv, "--dem", str(path), "--output", str(out)]) == 0
+    image = read_png(out)
+    assert image.shape[:2] == shape
+    assert (image[shape[0] // 3:] != 255).any(axis=2).mean() > 0.2  # below the sliders: the terrain, not white
