@@ -426,3 +426,18 @@ def test_closeup_mappings_refuses_a_gif_named_as_its_output(tmp_path, capsys):
     assert_usage_error_writing_nothing("closeup_mappings", [*TINY["closeup_mappings"], "--device", "cpu", "--frames",
                                                             "2", "--gif", str(out), "--output", str(out)],
                                        "name the same file", tmp_path, capsys)
+
+
+def test_batch_tiles_names_its_tiles_folder_when_a_file_is_in_its_way(tmp_path, capsys):
+    """A file named as the tiles folder beside --output (x_tiles for x.png) was refused by batch as "output_dir
+    '.../x_tiles' exists and is not a folder": an argument the example has not. Now the refusal says what that folder
+    is and which option placed it; the file is kept."""
+    (tmp_path / "x_tiles").write_text("not tiles")
+    example = load_example("batch_tiles")
+    with pytest.raises(SystemExit) as exit_info:
+        example.main([*TINY["batch_tiles"], "--device", "cpu", "--output", str(tmp_path / "x.png")])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "the tiles folder beside --output" in err and "output_dir" not in err and "Traceback" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x_tiles"]
+    assert (tmp_path / "x_tiles").read_text() == "not tiles"
