@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 import stepterrain as st
-from stepterrain.cli import add_dem_option, example_dem, usage_errors
+from stepterrain.cli import add_dem_option, check_example_outputs, example_dem, usage_errors
 from stepterrain.export import save_image
 from stepterrain.globe import adaptive_mesh
 from stepterrain.render import render_mesh
@@ -38,14 +38,23 @@ def crop(size: int, dem: st.Terrain | None = None) -> st.Terrain:
 
 
 def true_error(mesh, terrain: st.Terrain) -> float:
-    """The largest |z - mesh(x, y)| over every grid node (linear interpolation on the mesh's triangles)."""
+    """The largest |z - mesh(x, y)| over every grid node (linear interpolation on the mesh's triangles).
+
+    Measured in node indices (column, row), where the mesh's vertices, all at grid nodes, are whole numbers: an
+    affine map keeps linear interpolation as it is. In metres, a last row or column a rounding beyond the mesh's
+    outer vertices (j * dx against x0 + j * dx - x0: 64 nodes of a 3" DEM's local metres) was outside every
+    triangle, masked, and the panel read "max nan m"."""
     import matplotlib.tri as mtri
 
     (dx, dy), (x0, y0) = terrain.spacing, terrain.origin
-    v = np.asarray(mesh.vertices) - [x0, y0, 0.0]  # relative to node (0, 0): no UTM millions in the interpolation
-    interp = mtri.LinearTriInterpolator(mtri.Triangulation(v[:, 0], v[:, 1], np.asarray(mesh.faces)), v[:, 2])
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    col, row = np.round((v[:, 0] - x0) / dx), np.round((v[:, 1] - y0) / dy)
+    interp = mtri.LinearTriInterpolator(mtri.Triangulation(col, row, np.asarray(mesh.faces)), v[:, 2])
     i, j = np.mgrid[0 : terrain.shape[0], 0 : terrain.shape[1]]
-    return float(np.abs(np.asarray(interp(j * dx, i * dy)) - terrain.heights).max())
+    z = interp(j.astype(np.float64), i.astype(np.float64))
+    if np.ma.is_masked(z):  # a node outside every triangle: no error to measure there, not a NaN to print
+        raise AssertionError(f"{np.ma.count_masked(z)} grid nodes lie outside the mesh")
+    return float(np.abs(np.ma.getdata(z) - terrain.heights).max())
 
 
 def label(image: np.ndarray, text: str) -> np.ndarray:
@@ -71,11 +80,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.size < 2:  # 0 raised a ZeroDivisionError in the crop; below 2 is no grid
         parser.error(f"--size must be at least 2 nodes; got {args.size}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
+        check_example_outputs({"--output": args.output}, args.dem)  # before any work
         return run(args)
 
 
 def run(args: argparse.Namespace) -> int:
-    terrain = crop(args.size, example_dem(args.dem))
+    terrain = crop(args.size, example_dem(args.dem, args.nodata))
     panels = []
     for error in args.errors:
         mesh = adaptive_mesh(terrain, error=error, device=args.device)

@@ -15,9 +15,15 @@ import sys
 from pathlib import Path
 
 from stepterrain.batch import batch, overview_image
-from stepterrain.cli import add_dem_option, example_dem, usage_errors
+from stepterrain.cli import add_dem_option, check_example_outputs, example_dem, usage_errors
 from stepterrain.export import IMAGE_EXTENSIONS, save_image
 from stepterrain.terrain import Terrain
+
+
+def tiles_folder(output: str | Path) -> Path:
+    """The folder the tiles go into, beside the picture ``output``: ``out/batch.png`` -> ``out/batch_tiles``."""
+    output = Path(output)
+    return output.with_name(f"{output.stem}_tiles")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -41,17 +47,22 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--window must be W H of 8 to 16384 pixels each; got {' '.join(map(str, args.window))}")
     if Path(args.output).suffix.lower() not in IMAGE_EXTENSIONS:  # found after the tiles were written, beside it
         parser.error(f"--output must end in {', '.join(IMAGE_EXTENSIONS)}, the tiles go beside it; got {args.output!r}")
+    tiles = tiles_folder(args.output)
+    if tiles.exists() and not tiles.is_dir():  # batch's refusal named its own argument: "output_dir '...' exists"
+        parser.error(f"the tiles folder beside --output, {str(tiles)!r}, exists and is not a folder; move that file "
+                     "or give --output another name")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
+        check_example_outputs({"--output": args.output}, args.dem)  # before any work
         return run(args)
 
 
 def run(args: argparse.Namespace) -> int:
-    dem = example_dem(args.dem)
+    dem = example_dem(args.dem, args.nodata)
     step = max(1, dem.shape[1] // args.size)
     terrain = Terrain.from_heights(dem.heights[::step, ::step], spacing=(dem.spacing[0] * step, dem.spacing[1] * step),
                                    origin=dem.origin, crs=dem.crs, source=dem.source)  # fmt: skip
     output = Path(args.output)
-    tiles = output.with_name(f"{output.stem}_tiles")
+    tiles = tiles_folder(output)
     # base 0.5: no integer SRTM height sits on a threshold, so no node gets a twin vertex (solids need no such shift)
     report = batch(terrain, tiles, tile_size=args.tile, interval=args.interval, base=0.5, colors="terrain",
                    scheduler=args.scheduler, workers=args.workers, device=args.device,

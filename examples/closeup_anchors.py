@@ -14,7 +14,7 @@ import argparse
 import sys
 
 import stepterrain as st
-from stepterrain.cli import add_dem_option, example_dem, usage_errors
+from stepterrain.cli import add_dem_option, check_example_outputs, example_dem, usage_errors
 from stepterrain.closeup import ROI, AnchorStyle, CloseUp, render_closeups
 from stepterrain.render import save_png
 
@@ -49,11 +49,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.size < 0 or args.size == 1:  # cropped to nothing or one node: the library named no option
         parser.error(f"--size must be 0 (the whole DEM) or at least 2 nodes; got {args.size}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
+        check_example_outputs({"--output": args.output}, args.dem)  # before any work
         return run(args)
 
 
 def run(args: argparse.Namespace) -> int:
-    terrain = example_dem(args.dem)
+    terrain = example_dem(args.dem, args.nodata)
     if args.size:
         rows, cols = terrain.shape
         dx, dy = terrain.spacing

@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 
 import stepterrain as st
-from stepterrain.cli import add_dem_option, example_dem, usage_errors
+from stepterrain.cli import add_dem_option, check_example_outputs, example_dem, nice_interval, usage_errors
 from stepterrain.closeup import ROI, AnchorStyle, CloseUp, animate_closeups, render_closeups, save_animation
 from stepterrain.render import save_png
 
@@ -27,7 +27,9 @@ def closeups(terrain: st.Terrain) -> list[CloseUp]:
     w, h = xmax - xmin, ymax - ymin
     r = 0.12 * min(w, h)
     lift = 0.25 * max(w, h)
-    interval = max(1.0, round((terrain.height_range[1] - terrain.height_range[0]) / 20, -1))
+    # about 20 steps, a round interval (100 m for the embedded DEM): max(1, range / 20 rounded to tens) gave a DEM
+    # of under 20 m relief one flat terrace, and one of 100 m (5, rounded to 0) 100 steps of 1 m
+    interval = nice_interval(terrain.height_range, target=20)
     stepped = CloseUp(ROI.circle((xmin + 0.3 * w, ymin + 0.45 * h), r), scale=(1.6, 1.6, 2.0),
                       offset=(-0.05 * w, 0.0, lift), rotation=(0.0, math.radians(20)), stepped=interval,
                       color="#d62728", anchor=AnchorStyle("linear"), spin=(0.25, 1))
@@ -63,11 +65,12 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--window of an MP4 must have an even width and height (H.264 codes 2 x 2 colour blocks; "
                          f"a GIF takes any size); got {args.window[0]}x{args.window[1]}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
+        check_example_outputs({"--output": args.output, "--gif": args.gif}, args.dem)  # before any work
         return run(args)
 
 
 def run(args: argparse.Namespace) -> int:
-    terrain = example_dem(args.dem)
+    terrain = example_dem(args.dem, args.nodata)
     if args.size:
         rows, cols = terrain.shape
         i0, j0 = max(0, (rows - args.size) // 2), max(0, (cols - args.size) // 2)

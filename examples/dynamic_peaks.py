@@ -20,7 +20,7 @@ import imageio.v3 as iio
 import numpy as np
 
 import stepterrain as st
-from stepterrain.cli import usage_errors
+from stepterrain.cli import check_example_outputs, usage_errors
 from stepterrain.export import atomic_path
 from stepterrain.render import render_mesh, save_png
 
@@ -71,6 +71,8 @@ def main(argv: list[str] | None = None) -> int:
                      f"hold {held / 2**20:,.1f} MiB, over the memory budget of {st.get_memory_budget() / 2**20:,.1f} "
                      "MiB; give fewer frames or a smaller --size or --window")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
+        # before any work: a folder of that name, or a file where a folder goes, refused after every frame
+        check_example_outputs({"--output": args.output, "the GIF beside --output": args.output.with_suffix(".gif")})
         return run(args)
 
 

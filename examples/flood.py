@@ -23,7 +23,7 @@ import matplotlib
 import numpy as np
 
 from stepterrain import get_memory_budget
-from stepterrain.cli import add_dem_option, example_dem, usage_errors
+from stepterrain.cli import add_dem_option, check_example_outputs, example_dem, usage_errors
 from stepterrain.closeup import save_animation
 from stepterrain.errors import InvalidInputError, MissingDependencyError, OutputTooLargeError
 from stepterrain.export import atomic_path, save_image
@@ -85,12 +85,16 @@ def main(argv: list[str] | None = None) -> int:
     if args.output.suffix.lower() != ".png":  # the GIF goes beside it: --output x.gif wrote the GIF, then failed
         parser.error(f"--output must end in .png (the GIF is written beside it); got {str(args.output)!r}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
+        # before any work: a folder named as the PNG was refused after the GIF was written
+        check_example_outputs({"--output": args.output, "the GIF beside --output": args.output.with_suffix(".gif"),
+                               "the MP4 beside --output": args.output.with_suffix(".mp4") if args.mp4 else None},
+                              args.dem)
         return run(args)
 
 
 def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
-    terrain = crop_sample(args.size, example_dem(args.dem))
+    terrain = crop_sample(args.size, example_dem(args.dem, args.nodata))
     rows, cols = terrain.shape
     if args.mp4 and (rows % 2 or cols % 2):  # before any work: the GIF and PNG were written, then the MP4 stretched
         raise InvalidInputError(f"--mp4 needs frames of an even width and height (H.264 codes 2 x 2 colour blocks; "
@@ -104,7 +108,8 @@ def run(args: argparse.Namespace) -> int:
             "--size")
     lo, hi = terrain.height_range
     h = terrain.heights
-    hyps = matplotlib.colormaps["terrain"](0.25 + 0.75 * (h - lo) / max(hi - lo, 1e-9))[..., :3].astype(np.float32)
+    # RGBA: the colormap's colour for NaN is transparent (its RGB alone drew a --dem file's voids as black ground)
+    hyps = matplotlib.colormaps["terrain"](0.25 + 0.75 * (h - lo) / max(hi - lo, 1e-9)).astype(np.float32)
     shaded = modulate(terrain_layer(terrain, hyps),
                       topographic_layer(terrain, azimuth=math.radians(315), altitude=math.radians(35),
                                         shadows=True, shadow_strength=0.5, device=args.device),

@@ -17,13 +17,14 @@ Each panel is labelled with its triangle count (the paper reports spheres needin
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from stepterrain.cli import usage_errors
+from stepterrain.cli import check_example_outputs, usage_errors
 from stepterrain.export import save_image
 from stepterrain.globe import EARTH_RADIUS, Globe, elevation_colors, look_from, render_view
 
@@ -60,7 +61,14 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not all(8 <= side <= 16384 for side in args.panel):  # 0 0 raised a ZeroDivisionError in the camera's aspect
         parser.error(f"--panel must be W H of 8 to 16384 pixels each; got {' '.join(map(str, args.panel))}")
+    # the library's refusals named its own arguments, face_size and error (which of the two errors?)
+    if args.size < 3 or (args.size - 1) & (args.size - 2):
+        parser.error(f"--size must be 2^k + 1 nodes with k >= 1 (3, 5, 9, ..., 513, 1025); got {args.size}")
+    for option, error in (("--far-error", args.far_error), ("--close-error", args.close_error)):
+        if not (math.isfinite(error) and error >= 0):
+            parser.error(f"{option} must be a finite number >= 0 (metres); got {error}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
+        check_example_outputs({"--output": args.output})  # before any work
         return run(args)
 
 

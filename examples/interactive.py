@@ -23,7 +23,7 @@ import numpy as np
 import pyvista as pv
 
 from stepterrain import Terrain, circular_lens, sample_dem
-from stepterrain.cli import add_dem_option, example_dem, usage_errors
+from stepterrain.cli import add_dem_option, check_example_outputs, example_dem, usage_errors
 from stepterrain.export import IMAGE_EXTENSIONS, save_image
 from stepterrain.render import require_offscreen
 
@@ -92,7 +92,7 @@ class SteppedScene:
 def build(plotter: pv.Plotter, grid: pv.ImageData, *, device: str | None = None) -> SteppedScene:
     """Add the stepped terrain, two sliders and the lens sphere to ``plotter``."""
     lo, hi = float(np.nanmin(grid["elevation"])), float(np.nanmax(grid["elevation"]))  # a DEM's nodata is NaN
-    span = hi - lo
+    span = hi - lo or 1.0  # a flat DEM: 1 m (a span of 0 gave interval 0, refused by the library, and no slider range)
     xmin, xmax, ymin, ymax, _, _ = grid.bounds
     radius = 0.2 * min(xmax - xmin, ymax - ymin)
     scene = SteppedScene(plotter, grid, interval=round(span / 15, -1) or span / 15, gamma=1.0, lens_radius=radius,
@@ -150,13 +150,15 @@ def main(argv: list[str] | None = None) -> int:
     if not args.interactive and Path(args.output).suffix.lower() not in IMAGE_EXTENSIONS:  # refused after the render
         parser.error(f"--output must end in {', '.join(IMAGE_EXTENSIONS)}; got {args.output!r}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
+        check_example_outputs({"--output": None if args.interactive else args.output}, args.dem)  # before any work
         return run(args)
 
 
 def run(args: argparse.Namespace) -> int:
     if not args.interactive:  # headless: EGL or OSMesa as the library's renders pick it (VTK tried X first)
         require_offscreen()
-    grid = dem_grid(args.size, example_dem(args.dem))  # before the window: a file it cannot read opens none
+    # before the window: a file it cannot read opens none
+    grid = dem_grid(args.size, example_dem(args.dem, args.nodata))
     plotter = pv.Plotter(off_screen=not args.interactive, window_size=tuple(args.window))
     plotter.set_background("white")
     build(plotter, grid, device=args.device)

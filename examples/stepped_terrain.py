@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 import stepterrain as st
-from stepterrain.cli import add_dem_option, example_dem, nice_interval, usage_errors
+from stepterrain.cli import add_dem_option, check_example_outputs, example_dem, nice_interval, usage_errors
 from stepterrain.render import render_mesh, save_png
 
 
@@ -51,11 +51,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.size < 2:  # 0 raised a ZeroDivisionError in the crop; below 2 is no grid
         parser.error(f"--size must be at least 2 nodes; got {args.size}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
+        check_example_outputs({"--output": args.output}, args.dem)  # before any work
         return run(args)
 
 
 def run(args: argparse.Namespace) -> int:
-    terrain = crop_sample(args.size, example_dem(args.dem))
+    terrain = crop_sample(args.size, example_dem(args.dem, args.nodata))
     lo, hi = terrain.height_range
     interval = nice_interval((lo, hi), target=12)
     levels = st.isovalues((lo, hi), interval=interval)

@@ -28,7 +28,7 @@ import matplotlib
 import numpy as np
 
 import stepterrain as st
-from stepterrain.cli import add_dem_option, example_dem, nice_interval, usage_errors
+from stepterrain.cli import add_dem_option, check_example_outputs, example_dem, nice_interval, usage_errors
 from stepterrain.render import render_textured_mesh, save_png
 from stepterrain.texture import (
     Pipeline,
@@ -55,13 +55,15 @@ def crop_sample(size: int, dem: st.Terrain | None = None) -> st.Terrain:
 
 
 def colour_layers(terrain: st.Terrain) -> tuple[np.ndarray, np.ndarray]:
-    """(hypsometric RGB by height, slope classes RGB) per node, float32 in [0, 1]."""
+    """(hypsometric RGBA by height, slope classes RGBA) per node, float32 in [0, 1]: opaque, but transparent at nodata
+    (the colormaps' colour for NaN; its RGB alone, black, drew a --dem file's voids as black ground in the texture
+    panel) and, for the slopes, beside it (no gradient there; the hypsometric colour shows through)."""
     h = terrain.heights
     lo, hi = terrain.height_range
-    hyps = matplotlib.colormaps["terrain"](0.25 + 0.75 * (h - lo) / max(hi - lo, 1e-9))[..., :3]
+    hyps = matplotlib.colormaps["terrain"](0.25 + 0.75 * (h - lo) / max(hi - lo, 1e-9))
     gy, gx = np.gradient(h, abs(terrain.spacing[1]), abs(terrain.spacing[0]))
     slope = np.degrees(np.arctan(np.hypot(gx, gy)))
-    classes = matplotlib.colormaps["magma_r"](np.clip(slope / 45.0, 0, 1))[..., :3]
+    classes = matplotlib.colormaps["magma_r"](np.clip(slope / 45.0, 0, 1))
     return hyps.astype(np.float32), classes.astype(np.float32)
 
 
@@ -77,12 +79,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.size < 2:  # 0 raised a ZeroDivisionError in the crop; below 2 is no grid
         parser.error(f"--size must be at least 2 nodes; got {args.size}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
+        check_example_outputs({"--output": args.output}, args.dem)  # before any work
         return run(args)
 
 
 def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
-    terrain = crop_sample(args.size, example_dem(args.dem))
+    terrain = crop_sample(args.size, example_dem(args.dem, args.nodata))
     topo = topographic_layer(terrain, azimuth=math.radians(315), altitude=math.radians(30), shadows=True,
                              shadow_strength=0.5, occlusion=0.25, device=args.device)
     hyps, slopes = colour_layers(terrain)

@@ -149,19 +149,42 @@ def usage_errors(parser: argparse.ArgumentParser) -> Iterator[None]:
 
 def add_dem_option(parser: argparse.ArgumentParser) -> None:
     """``--dem PATH`` for scripts' own argparse mains (examples/): a DEM file to use instead of the embedded one,
-    loaded by :func:`example_dem` (within :func:`usage_errors`: a file it cannot read is a usage error)."""
+    loaded by :func:`example_dem` (within :func:`usage_errors`: a file it cannot read is a usage error); and
+    ``--nodata V[,V...]``, load_dem's ``nodata`` for it (the CLI's own ``--nodata``, parsed the same way: the parser
+    takes a value starting with a minus and a digit as a value, as the CLI's do)."""
     parser.add_argument("--dem", type=_path, default=None, metavar="PATH",
                         help="a DEM file to use instead of the embedded Big Tujunga DEM (any format load_dem reads: "
                              ".tif, .npy, .asc, .hgt, ...; heights in metres, a .npy's cells 1 m apart); --size crops "
                              "it as it crops the embedded one")
+    _add_nodata(parser, "the --dem file (or the embedded DEM)")
+    # as _Parser: '--nodata -9999,-32768' (the form its help shows) and '-1e20' are values, not unknown options
+    parser._negative_number_matcher = _NEGATIVE_NUMBER
 
 
-def example_dem(path: str | os.PathLike[str] | None) -> Terrain:
-    """``--dem``'s terrain (:func:`add_dem_option`): :func:`~stepterrain.load_dem` of ``path``, or the embedded Big
-    Tujunga DEM (:func:`~stepterrain.sample_dem`) when it is None."""
+def example_dem(path: str | os.PathLike[str] | None, nodata: Sequence[float] | None = None) -> Terrain:
+    """``--dem``'s terrain (:func:`add_dem_option`): :func:`~stepterrain.load_dem` of ``path`` with ``--nodata``'s
+    ``nodata``, or the embedded Big Tujunga DEM (:func:`~stepterrain.sample_dem`) when it is None (``--nodata``
+    applied to it as the CLI applies it without an INPUT)."""
     import stepterrain as st
 
-    return st.sample_dem() if path is None else st.load_dem(path)
+    if path is not None:
+        return st.load_dem(path, nodata=nodata)
+    if nodata is None:
+        return st.sample_dem()
+    from .io import _sample_dem
+
+    return _sample_dem(nodata)
+
+
+def check_example_outputs(outputs: dict[str, str | os.PathLike[str] | None], dem: str | None = None) -> None:
+    """For scripts' own argparse mains (examples/), within :func:`usage_errors`, before any work: the files they will
+    write (``outputs``: what each is called in a message, ``"--output"`` or ``"the GIF beside --output"``, -> its
+    path; None: not written) checked as the CLI checks its outputs (``_check_outputs``): none is a folder, a file in
+    a folder that is a file or not writable, another of them, or the ``--dem`` file ``dem`` (replaced by the write).
+    A failed check wrote the first output and refused the next, or failed after all the work."""
+    names = {f"out{k}": name for k, name in enumerate(outputs)}
+    paths = {f"out{k}": None if path is None else Path(path) for k, path in enumerate(outputs.values())}
+    _check_outputs({"--dem": dem}, names, **paths)
 
 
 def _floats(count: int | None, what: str) -> Callable[[str], tuple[float, ...]]:
@@ -725,17 +748,19 @@ def _mesh_and_png(output: str | None, png: str | None, *, extensions: Sequence[s
             _check_output(png, (".png",), "--png") if png else None)
 
 
-def _check_outputs(inputs: dict[str, str | None] | None = None, /, **paths: Path | None) -> None:
+def _check_outputs(inputs: dict[str, str | None] | None = None, names: dict[str, str] | None = None, /,
+                   **paths: Path | None) -> None:
     """Refuse, before any work, output options that name the same file (the second write would replace the
     first), an input file (``inputs``: option name -> path, e.g. ``{"INPUT": args.input}``; the write would
     replace the input) or a file that cannot be written (the path is a folder, a named pipe, a device or a
     read-only file, or its nearest existing folder is a file or not writable): a command with several outputs would
-    otherwise write the first and fail on the next. Creates nothing."""
+    otherwise write the first and fail on the next. Creates nothing. An output is named ``--option`` for its keyword
+    ``option``, or ``names[option]`` (a file with no option of its own: "the GIF beside --output")."""
     seen: dict[Path, str] = {}
     for option, path in paths.items():
         if path is None:
             continue
-        name = "--" + option.replace("_", "-")
+        name = (names or {}).get(option) or "--" + option.replace("_", "-")
         key = Path(os.path.abspath(path))
         # symbolic links resolved: '-o t.png --png link.png' (link.png -> t.png), or a folder reached by a link, wrote
         # both, the second replacing the first (the texture lost, exit 0)

@@ -62,7 +62,7 @@ EXAMPLE_BAD_ARGUMENTS = [
      "--frames must be at least 1"),  # wrote the PNG, then failed
     ("dynamic_peaks", ["--size", "16", "--frames", "2", "--output", "{tmp}/a.gif"], "--output must end in .png"),
     ("flood", ["--size", "0", "--frames", "2", "--keyframes", "2"], "--size must be at least 2"),
-    ("globe", ["--size", "16"], "face_size must be 2^k + 1"),
+    ("globe", ["--size", "16"], "--size must be 2^k + 1"),  # named the library's face_size
     ("interactive", ["--size", "16", "--device", "cuda:7"], "device='cuda:7'"),
     ("stepped_terrain", ["--size", "16", "--device", "cuda:7"], "device='cuda:7'"),
     ("textures", ["--size", "0"], "--size must be at least 2"),

@@ -153,3 +153,131 @@ def test_an_unreadable_dem_is_a_usage_error_writing_nothing(name, tmp_path, caps
         err = capsys.readouterr().err
         assert "error: " in err and dem.name in err and "Traceback" not in err
         assert list(out.iterdir()) == []
+
+
+@pytest.fixture
+def holed_dems(user_dem):
+    """``user_dem`` with a hole of 5 x 7 cells: (its NaN version, its -9999 version: a .npy has no nodata value of its
+    own, so --nodata -9999 is how a user says what its -9999 cells are)."""
+    heights = np.load(user_dem)
+    heights[5:10, 5:12] = np.nan
+    nan_file = user_dem.with_name("holes_nan.npy")
+    np.save(nan_file, heights)
+    sentinel = user_dem.with_name("holes_9999.npy")
+    np.save(sentinel, np.where(np.isnan(heights), np.float32(-9999.0), heights))
+    return nan_file, sentinel
+
+
+@pytest.mark.parametrize("name", sorted(RUNS))
+def test_an_example_reads_a_dem_file_with_nodata(name, holed_dems, monkeypatch, tmp_path, capsys):
+    """--dem had no --nodata (the CLI's --nodata V[,V...], load_dem's nodata): a file whose voids are -9999 without a
+    nodata value of its own was read as heights of -9999 m (a cliff 9 km deep; the interval picked for it), and
+    `--nodata -9999` was an unrecognised argument. Now every example with --dem takes it, parsed as the CLI parses it
+    (repeatable, comma-separated), and passes it to load_dem: the picture is the one of the file with NaN holes."""
+    nan_file, sentinel = holed_dems
+    calls = []
+    load = st.load_dem
+    monkeypatch.setattr(st, "load_dem", lambda path, **kw: calls.append((Path(path), kw)) or load(path, **kw))
+    argv, _ = RUNS[name]
+    outcomes = []
+    for dem, extra in ((nan_file, []), (sentinel, ["--nodata", "-32768,-9999"]), (sentinel, ["--nodata=-9999"])):
+        out = tmp_path / f"{dem.stem}{len(outcomes)}.png"
+        try:
+            code = load_example(name).main([*argv, "--dem", str(dem), *extra, "--output", str(out)])
+        except SystemExit as exc:  # adaptive_mesh's RTIN refuses holes: the same usage error for both files
+            code = exc.code
+        err = capsys.readouterr().err
+        outcomes.append((code, read_png(out) if code == 0 else err.splitlines()[-1]))
+    assert [c[1].get("nodata") for c in calls] == [None, [-32768.0, -9999.0], [-9999.0]]
+    assert outcomes[0][0] in (0, 2)
+    for code, result in outcomes[1:]:
+        assert code == outcomes[0][0]
+        if code == 0:
+            np.testing.assert_array_equal(result, outcomes[0][1])
+        else:
+            assert result == outcomes[0][1] and "NaN" in result
+
+
+def test_nodata_applies_to_the_embedded_dem():
+    """Without --dem, --nodata applies to the embedded DEM as the CLI's --nodata applies to it without an INPUT."""
+    from stepterrain.cli import example_dem
+
+    plain = example_dem(None)
+    low = example_dem(None, [315.0])
+    assert not plain.has_nodata and low.has_nodata
+    np.testing.assert_array_equal(low.nodata_mask, plain.heights == 315.0)
+
+
+@pytest.mark.parametrize("value", ["abc", "1,,2", ""])
+def test_a_bad_nodata_is_a_usage_error_naming_it(value, tmp_path, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    example = load_example("stepped_terrain")
+    with pytest.raises(SystemExit) as exit_info:
+        example.main(["--size", "8", "--nodata", value, "--output", str(out / "x.png")])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "--nodata" in err and "expected a number" in err and "Traceback" not in err
+    assert list(out.iterdir()) == []
+
+
+@pytest.fixture
+def centre_hole(tmp_path):
+    """A 30 x 30 crop of the embedded DEM (1 m cells) with NaN in its centre 10 x 10 cells, and that hole's mask."""
+    heights = (st.sample_dem().heights[500:530, 600:630] / 30.0).astype(np.float32)
+    heights[10:20, 10:20] = np.nan
+    path = tmp_path / "hole.npy"
+    np.save(path, heights)
+    return path, np.isnan(heights)
+
+
+def test_flood_draws_nodata_as_background_not_black_ground(centre_hole, tmp_path, capsys):
+    """flood's hypsometric layer kept the colormap's RGB only: its colour for NaN, (0, 0, 0, 0), became opaque black,
+    so a --dem file's voids were drawn as black ground in every frame. Now they are transparent: white, as the
+    background around the terrain is, and the ground around them is not."""
+    path, hole = centre_hole
+    out = tmp_path / "flood.png"
+    assert load_example("flood").main(["--size", "30", "--frames", "2", "--keyframes", "2", "--device", "cpu",
+                                       "--dem", str(path), "--output", str(out)]) == 0
+    image = read_png(out)
+    assert image.shape[:2] == hole.shape  # one pixel a node, north up as the .npy's rows
+    assert (image[hole] == 255).all()
+    assert (image[~hole] < 250).any(axis=1).all()
+    import imageio.v3 as iio
+
+    for frame in iio.imread(out.with_suffix(".gif"), index=None):
+        assert (frame[..., :3][hole] == 255).all()
+
+
+def test_textures_draws_nodata_as_background_in_the_texture_panel(centre_hole, tmp_path, capsys):
+    """textures' hypsometric and slope layers kept the colormaps' RGB only: a --dem file's voids were opaque black in
+    the texture panel (the 3-D view has a hole there). Now transparent: the panel is white there, as around it."""
+    path, hole = centre_hole
+    example = load_example("textures")
+    hyps, slopes = example.colour_layers(example.crop_sample(30, st.load_dem(path)))
+    np.testing.assert_array_equal(hyps[..., 3] == 0, hole)  # opaque elsewhere
+    assert (slopes[..., 3][hole] == 0).all()
+    out = tmp_path / "textures.png"
+    assert example.main(["--size", "30", "--panel", "96", "72", "--device", "cpu", "--dem", str(path),
+                         "--output", str(out)]) == 0
+    panel = read_png(out)[:, :96]
+    # the 30 x 30 texture is scaled 2.4 times into the 96 x 72 panel, 12 pixels from its left: the hole's cells
+    # 10:20 are pixels 24:48 down and 36:60 across; their inner part is background white (but for the resampling's
+    # ringing, a few levels; it was 0)
+    assert (panel[26:46, 38:58] >= 240).all()
+    assert (panel[4:20, 16:32] < 250).any(axis=2).all()
+
+
+def test_interactive_shows_a_flat_dem(tmp_path, capsys):
+    """interactive.py's first interval and slider range come from the heights' span: a flat --dem file (a lake, a
+    level pad; or one whose every kept node is the same) gave interval 0, and the example ended with "interval must
+    be a positive finite number; got 0.0", an option it has not. It shows the flat terrain now, as the other
+    examples do."""
+    path = tmp_path / "flat.npy"
+    np.save(path, np.full((30, 40), 7.0, np.float32))
+    out = tmp_path / "flat.png"
+    argv, shape = RUNS["interactive"]
+    assert load_example("interactive").main([*argv, "--dem", str(path), "--output", str(out)]) == 0
+    image = read_png(out)
+    assert image.shape[:2] == shape
+    assert (image[shape[0] // 3:] != 255).any(axis=2).mean() > 0.2  # below the sliders: the terrain, not white

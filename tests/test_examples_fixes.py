@@ -294,3 +294,150 @@ def test_interactive_grid_of_a_dem_with_columns_east_to_west_is_not_mirrored():
             grid = example.dem_grid(9, Terrain.from_heights(stored, spacing=spacing))
             assert np.array_equal(np.asarray(grid["elevation"]), reference), spacing
             assert grid.spacing[:2] == (30.0, 30.0)
+
+
+@pytest.mark.parametrize("size", [64, 100])
+def test_adaptive_mesh_example_measures_its_error_on_a_dem_in_local_metres(size):
+    """true_error interpolated the mesh at j * dx, i * dy, the mesh's vertices at x0 + j * dx - x0: for a 3" DEM read
+    into local metres (spacing 779.097..., -1019.288...), its last row of nodes lay a rounding outside the mesh, was
+    masked, and the panel printed "max nan m". Measured in node indices now: finite, within the bound, and equal to
+    the largest |z - mesh| found by an independent barycentric interpolation on every triangle."""
+    import stepterrain as st
+
+    from .conftest import shared_file
+
+    example = load_example("adaptive_mesh")
+    terrain = example.crop(size, st.load_dem(shared_file("front_range_srtmgl3_3arcsec.tif")))
+    mesh = st.adaptive_mesh(terrain, error=10.0, device="cpu")
+    worst = example.true_error(mesh, terrain)
+    assert 0.0 < worst <= 10.0 + 1e-3
+    # the reference: each triangle's nodes by barycentric coordinates in node indices
+    (dx, dy), (x0, y0) = terrain.spacing, terrain.origin
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    ij = np.column_stack([np.round((v[:, 1] - y0) / dy), np.round((v[:, 0] - x0) / dx)])
+    reference = np.full(terrain.shape, np.nan)
+    for face in np.asarray(mesh.faces):
+        (a, b, c), z = ij[face], v[face, 2]
+        lo, hi = ij[face].min(axis=0).astype(int), ij[face].max(axis=0).astype(int)
+        i, j = np.mgrid[lo[0]: hi[0] + 1, lo[1]: hi[1] + 1]
+        p = np.stack([i.ravel(), j.ravel()], axis=1).astype(float)
+        m = np.array([b - a, c - a]).T
+        uv = np.linalg.solve(m, (p - a).T).T
+        w = np.column_stack([1 - uv.sum(axis=1), uv])
+        inside = (w >= -1e-9).all(axis=1)
+        reference[p[inside, 0].astype(int), p[inside, 1].astype(int)] = w[inside] @ z
+    assert not np.isnan(reference).any()
+    assert worst == pytest.approx(np.abs(reference - terrain.heights).max(), abs=1e-6)
+
+
+@pytest.mark.parametrize("relief", [0.8, 12.0, 100.0])
+def test_closeup_mappings_steps_a_dem_of_little_relief(relief):
+    """The stepped close-up's interval was max(1, range / 20 rounded to tens): a --dem file of under 20 m relief (a
+    floodplain, or heights in km) got 1 m, one flat terrace or two; 100 m of relief got 1 m too (5 rounds to 0): 100
+    steps. Now a round interval giving about 20 steps, as stepped_terrain's and textures' are picked; the embedded
+    DEM's 100 m is kept."""
+    import stepterrain as st
+
+    example = load_example("closeup_mappings")
+    dem = st.sample_dem()
+    assert example.closeups(dem)[0].stepped == 100.0
+    heights = dem.heights[200:330, 300:460]
+    heights = (heights - heights.min()) / np.ptp(heights) * relief
+    terrain = st.Terrain.from_heights(heights, spacing=(30.0, -30.0))
+    stepped = example.closeups(terrain)[0]
+    assert 10 <= relief / stepped.stepped <= 40
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["--size", "10"], "--size must be 2^k + 1 nodes"),
+    (["--size", "1"], "--size must be 2^k + 1 nodes"),
+    (["--far-error", "-1"], "--far-error must be a finite number >= 0"),
+    (["--close-error", "nan"], "--close-error must be a finite number >= 0"),
+])
+def test_globe_example_names_its_own_option_in_a_refusal(argv, message, tmp_path, capsys):
+    """globe.py passed --size, --far-error and --close-error to the library unchecked, whose refusals named its own
+    arguments: "face_size must be 2^k + 1", and "error must be a finite number" for either error option."""
+    assert_usage_error_writing_nothing("globe", [*argv, "--panel", "64", "48", "--device", "cpu", "--output",
+                                                 str(tmp_path / "g.png")], message, tmp_path, capsys)
+
+
+#: each example at a tiny size, but for --output
+TINY = {
+    "stepped_terrain": ["--size", "8", "--panel", "64", "48"],
+    "textures": ["--size", "8", "--panel", "64", "48"],
+    "adaptive_mesh": ["--size", "8", "--panel", "64", "48"],
+    "flood": ["--size", "8", "--frames", "2", "--keyframes", "2"],
+    "batch_tiles": ["--size", "12", "--tile", "4", "--scheduler", "serial", "--window", "64", "48"],
+    "closeup_anchors": ["--size", "20", "--window", "256", "144"],
+    "closeup_mappings": ["--size", "20", "--window", "192", "108"],
+    "interactive": ["--size", "8", "--window", "64", "48"],
+    "globe": ["--size", "3", "--panel", "64", "48"],
+    "dynamic_peaks": ["--size", "8", "--frames", "2", "--window", "64", "48"],
+}
+
+
+@needs_render
+@pytest.mark.parametrize("target", ["folder", "under_a_file"])
+@pytest.mark.parametrize("name", sorted(TINY))
+def test_examples_refuse_an_output_they_cannot_write_before_any_work(name, target, tmp_path, capsys):
+    """--output naming a folder (out.png/) or a file in a "folder" that is a file: dynamic_peaks stepped every frame
+    and then ended in a FileExistsError traceback (its GIF's mkdir); flood wrote its GIF and then failed on the PNG,
+    batch_tiles wrote every tile and then failed on the overview: a failed command left files behind. The others
+    refused it only after all the work. Now every example checks its outputs first, as the CLI does: a usage error
+    (exit 2) naming --output, no traceback, nothing written."""
+    (tmp_path / "out.png").mkdir()
+    (tmp_path / "file").write_text("a file")
+    output = tmp_path / "out.png" if target == "folder" else tmp_path / "file" / "x.png"
+    before = sorted(tmp_path.rglob("*"))
+    example = load_example(name)
+    with pytest.raises(SystemExit) as exit_info:
+        example.main([*TINY[name], "--device", "cpu", "--output", str(output)])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "error: --output" in err and "Traceback" not in err
+    assert sorted(tmp_path.rglob("*")) == before
+
+
+@needs_render
+def test_an_example_refuses_to_write_over_its_dem_file(tmp_path, capsys):
+    """--dem heights.png --output heights.png (a 16-bit heightmap as the DEM) replaced the user's DEM with the
+    picture, exit 0. Now refused before any work, the DEM kept."""
+    from PIL import Image
+
+    import stepterrain as st
+
+    heights = (st.sample_dem().heights[500:530, 600:640]).astype(np.uint16)
+    dem = tmp_path / "heights.png"
+    Image.fromarray(heights).save(dem)
+    data = dem.read_bytes()
+    example = load_example("stepped_terrain")
+    with pytest.raises(SystemExit) as exit_info:
+        example.main([*TINY["stepped_terrain"], "--device", "cpu", "--dem", str(dem), "--output", str(dem)])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "--output" in err and "is the --dem file" in err
+    assert dem.read_bytes() == data
+
+
+@needs_render
+def test_closeup_mappings_refuses_a_gif_named_as_its_output(tmp_path, capsys):
+    """--gif x.gif --output x.gif wrote the PNG as x.gif and then replaced it by the animation: one file of two."""
+    out = tmp_path / "x.gif"
+    assert_usage_error_writing_nothing("closeup_mappings", [*TINY["closeup_mappings"], "--device", "cpu", "--frames",
+                                                            "2", "--gif", str(out), "--output", str(out)],
+                                       "name the same file", tmp_path, capsys)
+
+
+def test_batch_tiles_names_its_tiles_folder_when_a_file_is_in_its_way(tmp_path, capsys):
+    """A file named as the tiles folder beside --output (x_tiles for x.png) was refused by batch as "output_dir
+    '.../x_tiles' exists and is not a folder": an argument the example has not. Now the refusal says what that folder
+    is and which option placed it; the file is kept."""
+    (tmp_path / "x_tiles").write_text("not tiles")
+    example = load_example("batch_tiles")
+    with pytest.raises(SystemExit) as exit_info:
+        example.main([*TINY["batch_tiles"], "--device", "cpu", "--output", str(tmp_path / "x.png")])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "the tiles folder beside --output" in err and "output_dir" not in err and "Traceback" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x_tiles"]
+    assert (tmp_path / "x_tiles").read_text() == "not tiles"
