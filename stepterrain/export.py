@@ -1147,7 +1147,9 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
                     with rasterio.open(tmp, "w", **profile) as dataset:
                         dataset.write(np.moveaxis(array, 2, 0))
                     if os.path.exists(aux):  # (False for a name too long to hold: GDAL could not write one either)
-                        side_file.enter_context(atomic_path(own_aux)).write_bytes(aux.read_bytes())
+                        side = side_file.enter_context(atomic_path(own_aux))
+                        side.write_bytes(aux.read_bytes())
+                        _replacing_like(side, own_aux)  # the old one is set aside before atomic_path renames it
                 except (OSError, rasterio.errors.RasterioError) as exc:
                     from .io import gdal_reason  # GDAL's words (No space left on device), not "See previous exception"
 
@@ -1167,6 +1169,20 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
     _record_owner([target], target)
     return target
 
+
+def _replacing_like(tmp: Path, old_path: Path) -> None:
+    """What :func:`atomic_path` does to ``tmp`` before renaming it over an existing ``old_path`` (flushed to disk, the
+    old file's owner and mode), done before ``old_path`` is set aside (:func:`_set_aside`), after which atomic_path
+    finds no file to replace; nothing where there is none."""
+    try:
+        old = os.stat(old_path)
+    except OSError:
+        return
+    _flush_if_replacing(tmp, True)
+    with contextlib.suppress(OSError):
+        _keep_owner(tmp, old)  # before chmod: a change of owner clears set-id bits
+    with contextlib.suppress(OSError):
+        os.chmod(tmp, stat.S_IMODE(old.st_mode))
 
 def _set_aside(side: Path, image: Path) -> Path | None:
     """Rename the side file ``side`` of ``image`` (a GeoTIFF's ``.aux.xml``) to a new temporary name beside it and

@@ -2514,3 +2514,18 @@ def test_a_geotiffs_aux_xml_never_pairs_with_the_other_image_and_a_failed_write_
         assert dataset.crs == CRS.from_user_input(new_crs)
         assert np.array_equal(np.moveaxis(dataset.read(), 0, 2), new)
     assert sorted(os.listdir(tmp_path)) == sorted(["layer.tif"] + (["layer.tif.aux.xml"] if aux.exists() else []))
+
+
+def test_a_geotiffs_new_aux_xml_keeps_the_old_ones_mode(tmp_path):
+    """A GeoTIFF's ``.aux.xml`` written over one keeps its mode (a private 0o600 one stays private), as atomic_path
+    keeps a replaced file's: the old one is set aside before the rename, which then found no file to take it from."""
+    pytest.importorskip("rasterio")
+    image = np.zeros((4, 5, 3), np.uint8)
+    path = tmp_path / "private.tif"
+    save_image(image, path, extent=(0.0, 5.0, 0.0, 4.0), crs=_ROTATED)
+    os.chmod(path, 0o600)
+    os.chmod(tmp_path / "private.tif.aux.xml", 0o600)
+    save_image(image, path, extent=(0.0, 5.0, 0.0, 4.0), crs=_ROTATED_45)
+    assert stat.S_IMODE(os.stat(path).st_mode) == 0o600
+    assert stat.S_IMODE(os.stat(tmp_path / "private.tif.aux.xml").st_mode) == 0o600
+    assert "\"o_lat_p\",45" in (tmp_path / "private.tif.aux.xml").read_text()
