@@ -1131,36 +1131,80 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
     _check_owner([target], target)
     # what GeoTIFF's keys cannot hold (an ob_tran CRS) GDAL writes to <file>.aux.xml, which it reads back with the
     # file: written beside the temporary file, it stayed there under the temporary's name, and the image's CRS was
-    # lost. It goes beside the image (the file a link names, as an OBJ's side files), replaced only once the image is
-    # complete; an old one the new image has none for is removed, as GDAL removes it when it makes the file (else
-    # it gave the new image the old one's CRS)
+    # lost. It goes beside the image (the file a link names, as an OBJ's side files). An old one goes aside just before
+    # the image is put in place (GDAL removes it when it makes the file: else the new image had the old one's CRS) and
+    # the new one after: a reader sees either image with its own side file or none, never the other's, and a failed
+    # write puts the old one back beside the old image (the new one, put in place first, stayed beside it for good)
     own_aux = _link_target(target)
     own_aux = own_aux.with_name(own_aux.name + ".aux.xml")
-    wrote_aux = False
-    with atomic_path(target) as tmp, contextlib.ExitStack() as side_file:
-        aux = tmp.with_name(tmp.name + ".aux.xml")
-        try:
-            with rasterio.open(tmp, "w", **profile) as dataset:
-                dataset.write(np.moveaxis(array, 2, 0))
-            if os.path.exists(aux):  # (False for a name too long to hold: GDAL could not write one either)
-                side_file.enter_context(atomic_path(own_aux)).write_bytes(aux.read_bytes())
-                wrote_aux = True
-        except (OSError, rasterio.errors.RasterioError) as exc:
-            from .io import gdal_reason  # GDAL's words (No space left on device), not "See previous exception"
+    aside: Path | None = None
+    placed = False
+    try:
+        with contextlib.ExitStack() as side_file:  # its exit, the new side file's rename, follows the image's
+            with atomic_path(target) as tmp:
+                aux = tmp.with_name(tmp.name + ".aux.xml")
+                try:
+                    with rasterio.open(tmp, "w", **profile) as dataset:
+                        dataset.write(np.moveaxis(array, 2, 0))
+                    if os.path.exists(aux):  # (False for a name too long to hold: GDAL could not write one either)
+                        side = side_file.enter_context(atomic_path(own_aux))
+                        side.write_bytes(aux.read_bytes())
+                        _replacing_like(side, own_aux)  # the old one is set aside before atomic_path renames it
+                except (OSError, rasterio.errors.RasterioError) as exc:
+                    from .io import gdal_reason  # GDAL's words (No space left on device), not "See previous exception"
 
-            raise DataFileError(f"cannot write {str(target)!r}: {gdal_reason(exc)}") from exc
-        finally:
+                    raise DataFileError(f"cannot write {str(target)!r}: {gdal_reason(exc)}") from exc
+                finally:
+                    with contextlib.suppress(OSError):
+                        aux.unlink()
+                aside = _set_aside(own_aux, target)
+            placed = True
+    finally:
+        if aside is not None:
             with contextlib.suppress(OSError):
-                aux.unlink()
-    if not wrote_aux:
-        try:
-            os.unlink(own_aux)
-        except OSError as exc:
-            if exc.errno not in (errno.ENOENT, errno.ENAMETOOLONG):  # (none, or a name too long for one)
-                raise DataFileError(f"cannot remove {str(own_aux)!r}, whose metadata GDAL would read with the new "
-                                    f"{str(target)!r}: {exc.strerror}") from exc
+                if placed:
+                    os.unlink(aside)
+                else:
+                    os.replace(aside, own_aux)
     _record_owner([target], target)
     return target
+
+
+def _replacing_like(tmp: Path, old_path: Path) -> None:
+    """What :func:`atomic_path` does to ``tmp`` before renaming it over an existing ``old_path`` (flushed to disk, the
+    old file's owner and mode), done before ``old_path`` is set aside (:func:`_set_aside`), after which atomic_path
+    finds no file to replace; nothing where there is none."""
+    try:
+        old = os.stat(old_path)
+    except OSError:
+        return
+    _flush_if_replacing(tmp, True)
+    with contextlib.suppress(OSError):
+        _keep_owner(tmp, old)  # before chmod: a change of owner clears set-id bits
+    with contextlib.suppress(OSError):
+        os.chmod(tmp, stat.S_IMODE(old.st_mode))
+
+def _set_aside(side: Path, image: Path) -> Path | None:
+    """Rename the side file ``side`` of ``image`` (a GeoTIFF's ``.aux.xml``) to a new temporary name beside it and
+    return that name; None where there is none (or its name is too long to be one). See :func:`_save_geotiff`."""
+    try:
+        os.lstat(side)
+    except OSError as exc:
+        if exc.errno in (errno.ENOENT, errno.ENAMETOOLONG):
+            return None
+        raise DataFileError(f"cannot remove {str(side)!r}, whose metadata GDAL would read with the new "
+                            f"{str(image)!r}: {exc.strerror}") from exc
+    aside = None
+    try:
+        aside = _new_temporary(side.parent, side.name)
+        os.replace(side, aside)
+    except OSError as exc:
+        if aside is not None:
+            with contextlib.suppress(OSError):
+                aside.unlink()
+        raise DataFileError(f"cannot remove {str(side)!r}, whose metadata GDAL would read with the new "
+                            f"{str(image)!r}: {exc.strerror}") from exc
+    return aside
 
 
 def _check_owner(paths: Iterable[Path], owner: Path) -> None:

@@ -4,6 +4,7 @@ its fix)."""
 from __future__ import annotations
 
 import dataclasses
+import errno
 import json
 import os
 import stat
@@ -2463,3 +2464,68 @@ def test_a_geotiff_crs_that_geotiff_keys_cannot_hold_is_kept_beside_it_and_no_te
     assert sorted(os.listdir(tmp_path)) == ["rotated.tif"]
     with rasterio.open(path) as dataset:
         assert dataset.crs == CRS.from_epsg(4326)
+
+
+_ROTATED = "+proj=ob_tran +o_proj=longlat +o_lon_p=0 +o_lat_p=30 +lon_0=0"
+_ROTATED_45 = "+proj=ob_tran +o_proj=longlat +o_lon_p=0 +o_lat_p=45 +lon_0=0"
+
+
+@pytest.mark.parametrize(("old_crs", "new_crs"), [("EPSG:4326", _ROTATED), (_ROTATED, "EPSG:4326"),
+                                                  (_ROTATED, _ROTATED_45)])
+def test_a_geotiffs_aux_xml_never_pairs_with_the_other_image_and_a_failed_write_leaves_the_old_pair(
+        tmp_path, monkeypatch, old_crs, new_crs):
+    """The new ``.aux.xml`` was put in place before the image, and an old one removed only after: at the image's
+    rename the old image stood with the new CRS file (or the new image with the old one), and an image whose rename
+    then failed stayed for good with the CRS of the write that failed. The old side file now goes aside before the
+    image's rename (back in place if it fails) and the new one follows the image."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.crs import CRS
+
+    old = np.full((6, 9, 3), 40, np.uint8)
+    new = np.full((6, 9, 3), 200, np.uint8)
+    path = tmp_path / "layer.tif"
+    aux = tmp_path / "layer.tif.aux.xml"
+    save_image(old, path, extent=(0.0, 9.0, 0.0, 6.0), crs=old_crs)
+    old_aux = aux.read_bytes() if aux.exists() else None
+    real_replace = os.replace
+    seen: list[bool] = []
+
+    def replace(src, dst, **kwargs):
+        if os.fspath(dst) == str(path):
+            seen.append(aux.exists())  # the side file beside the image at the moment the image changes
+            if fail:
+                raise OSError(errno.EIO, "Input/output error")
+        return real_replace(src, dst, **kwargs)
+
+    monkeypatch.setattr(os, "replace", replace)
+    fail = True
+    with pytest.raises(DataFileError, match="Input/output error"):
+        save_image(new, path, extent=(0.0, 9.0, 0.0, 6.0), crs=new_crs)
+    assert seen == [False]  # neither the old image's side file nor the new one's beside it
+    assert (aux.read_bytes() if aux.exists() else None) == old_aux
+    assert sorted(os.listdir(tmp_path)) == sorted(["layer.tif"] + (["layer.tif.aux.xml"] if old_aux else []))
+    with rasterio.open(path) as dataset:
+        assert dataset.crs == CRS.from_user_input(old_crs)
+        assert np.array_equal(np.moveaxis(dataset.read(), 0, 2), old)
+    fail = False
+    save_image(new, path, extent=(0.0, 9.0, 0.0, 6.0), crs=new_crs)
+    assert seen == [False, False]
+    with rasterio.open(path) as dataset:
+        assert dataset.crs == CRS.from_user_input(new_crs)
+        assert np.array_equal(np.moveaxis(dataset.read(), 0, 2), new)
+    assert sorted(os.listdir(tmp_path)) == sorted(["layer.tif"] + (["layer.tif.aux.xml"] if aux.exists() else []))
+
+
+def test_a_geotiffs_new_aux_xml_keeps_the_old_ones_mode(tmp_path):
+    """A GeoTIFF's ``.aux.xml`` written over one keeps its mode (a private 0o600 one stays private), as atomic_path
+    keeps a replaced file's: the old one is set aside before the rename, which then found no file to take it from."""
+    pytest.importorskip("rasterio")
+    image = np.zeros((4, 5, 3), np.uint8)
+    path = tmp_path / "private.tif"
+    save_image(image, path, extent=(0.0, 5.0, 0.0, 4.0), crs=_ROTATED)
+    os.chmod(path, 0o600)
+    os.chmod(tmp_path / "private.tif.aux.xml", 0o600)
+    save_image(image, path, extent=(0.0, 5.0, 0.0, 4.0), crs=_ROTATED_45)
+    assert stat.S_IMODE(os.stat(path).st_mode) == 0o600
+    assert stat.S_IMODE(os.stat(tmp_path / "private.tif.aux.xml").st_mode) == 0o600
+    assert "\"o_lat_p\",45" in (tmp_path / "private.tif.aux.xml").read_text()
