@@ -49,6 +49,9 @@ _DIFFUSE = 0.9
 #: The fixed oblique view: camera azimuth (clockwise from north, radians; 180° = looking from the south
 #: towards the north) and elevation above the horizon.
 _OBLIQUE = (math.radians(190.0), math.radians(45.0))
+#: The largest elevation of a camera's (azimuth, elevation) pair: π/2 as float32 rounds it, 4e-8 above float64's π/2
+#: (np.float32(np.pi / 2), np.radians(np.float32(90)) look straight down as np.pi / 2 does: they were refused).
+_QUARTER_TURN = float(np.float32(math.pi / 2))
 #: A fitted camera's margin: its eye lies this many times as far from the framed box's centre as the nearest eye
 #: that sees all of it.
 _FRAME_MARGIN = 1.06
@@ -320,7 +323,7 @@ def _camera_position(
         if spec.shape != (2,) or not np.all(np.isfinite(spec)):
             raise InvalidInputError(f"camera must be 'oblique', 'top', (azimuth, elevation) in radians or "
                                     f"[(eye), (focal point), (view up)]; got {camera!r}")
-        if abs(float(spec[1])) > math.pi / 2:  # clipped to +-89.9 degrees: camera=(190, 45), degrees for radians,
+        if abs(float(spec[1])) > _QUARTER_TURN:  # clipped to +-89.9 degrees: camera=(190, 45), degrees for radians,
             # rendered the top view without a word (--camera refuses an EL beyond +-90 degrees alike)
             raise InvalidInputError(f"camera's elevation must lie in [-π/2, π/2] radians (-90 to 90 degrees, "
                                     f"math.radians(degrees)); got {camera!r}, elevation {float(spec[1]):g}")

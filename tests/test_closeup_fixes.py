@@ -229,6 +229,19 @@ def test_a_closeup_angle_beyond_its_range_is_refused(options, message):
     assert CloseUp(roi, rotation=(-6433.0, 6433.0), billboard_view=(6433.0, -1.5)).rotation == (-6433.0, 6433.0)
 
 
+def test_a_float32_quarter_turn_billboard_view_is_taken_not_refused():
+    """π/2 in float32 (np.float32(np.pi / 2), 4e-8 above float64's π/2) was refused as an elevation outside
+    [-π/2, π/2], where float64's π/2 is taken; render's camera takes it alike. The next float32 beyond is refused."""
+    roi = ROI.circle((0.0, 0.0), 1.0)
+    for sign in (1.0, -1.0):
+        quarter = np.float32(sign * np.pi / 2)
+        assert CloseUp(roi, billboard_view=(np.pi, quarter)).billboard_view == (np.pi, float(quarter))
+        render._camera_position(CloseUp(roi, billboard_view=(np.pi, quarter)).billboard_view,
+                                np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]), 1.0)
+        with pytest.raises(InvalidInputError, match=r"billboard_view must be .*elevation in \[-π/2, π/2\]"):
+            CloseUp(roi, billboard_view=(np.pi, np.nextafter(quarter, np.float32(sign * np.inf))))
+
+
 @pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
 @pytest.mark.parametrize("z_scale", [1e30, 1e6])
 def test_a_z_scale_that_renders_a_sliver_is_refused(z_scale):

@@ -1734,6 +1734,23 @@ def test_a_camera_elevation_of_exactly_a_quarter_turn_still_looks_straight_down(
         assert (image != 255).any()
 
 
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_a_float32_quarter_turn_elevation_is_the_view_straight_down_not_refused(sign):
+    """π/2 in float32 (np.float32(np.pi / 2), np.radians(np.float32(90)), a float32 camera array) is 4e-8 above
+    float64's π/2: the check for degrees given for radians refused it ("elevation 1.5708", which reads as π/2) where
+    float64's π/2 looks straight down (up, for -π/2). It frames the mesh as float64's quarter turn does."""
+    corners = np.array([[-1.0, -2.0, -0.5], [1.0, 2.0, 0.5]])
+    expected = render._camera_position((np.pi, sign * np.pi / 2), corners, 1.5)
+    for elevation in (np.float32(sign * np.pi / 2), np.radians(np.float32(sign * 90.0))):
+        assert render._camera_position((np.pi, elevation), corners, 1.5) == expected
+    assert render._camera_position(np.array([np.pi, sign * np.pi / 2], np.float32), corners, 1.5) == \
+        render._camera_position((float(np.float32(np.pi)), sign * np.pi / 2), corners, 1.5)
+    # the next float32 beyond is a camera past the vertical: refused
+    beyond = np.nextafter(np.float32(sign * np.pi / 2), np.float32(sign * np.inf))
+    with pytest.raises(InvalidInputError, match=r"camera's elevation must lie in \[-π/2, π/2\] radians"):
+        render._camera_position((np.pi, beyond), corners, 1.5)
+
+
 def test_an_explicit_camera_that_sees_none_of_the_mesh_is_named_not_rendered_blank():
     """An explicit camera position is taken in the mesh's coordinates less the centre of the framed box: one given in
     the mesh's own (UTM) coordinates, or looking away from it, rendered a blank image without a word. It is named,
