@@ -334,8 +334,11 @@ def refine_cone(
             alpha_sc = sin_cos(alpha)
             have_unit = 1
             d = eye_distance_cone_unit(p_hat, p_len, h, alpha_sc, v_hat, v_len)
-            if weighted <= error * d * d:  # (d = 0, the eye inside the shape: μ_dist = ∞, refine)
-                return 0
+            # d = 0, the eye inside the shape: μ_dist = ∞, refine (as the spheres' HUGE), also where μ · ℓ²
+            # underflowed to 0 (ℓ below 1e-154): 0 <= ε · 0 kept the node the eye is in unrefined
+            if d > wp.float64(0.0):
+                if weighted <= error * d * d:
+                    return 0
     if flags[2] != 0:
         if have_unit == 0:
             p_hat = p / p_len

@@ -165,8 +165,15 @@ _MAX_POSITION = float(np.finfo(np.float32).max) / 4
 
 
 def _radius_value(radius: Any, name: str = "radius") -> float:
-    """A positive ``radius`` within float32 node positions (:data:`_MAX_POSITION`)."""
+    """A positive ``radius`` within float32 node positions (:data:`_MAX_POSITION`), at least a normal float32: the
+    bounding shapes and the metrics (paper 003 §6-§7) read the float32 positions, which below it lose their precision
+    (subnormal) or become 0 (radius 1e-50: every node at the centre, the cones' axes NaN, the clip test keeping the
+    whole globe in view)."""
     radius = _positive(radius, name)
+    tiny = float(np.finfo(np.float32).tiny)
+    if radius < tiny:
+        raise InvalidInputError(f"{name} must be at least {tiny:.3g} m (a normal float32, as the node positions are "
+                                f"stored); got {radius:g}")
     if radius > _MAX_POSITION:
         raise InvalidInputError(f"{name} must be at most {_MAX_POSITION:.2g} m (float32 node positions); got "
                                 f"{radius:g}")
@@ -430,7 +437,7 @@ class Globe:
         face_size : int
             Nodes per face edge, 2^k + 1 (the paper uses 1025), at most 16385 (int32 node entries).
         radius : float
-            Sphere radius R in metres (> 0).
+            Sphere radius R in metres, from float32's smallest normal (1.18e-38) to 8.5e37 (float32 node positions).
         exaggeration : float
             Vertical exaggeration (> 0): node radius R + exaggeration · z.
         device : Warp device, optional
@@ -443,7 +450,8 @@ class Globe:
         ------
         InvalidInputError
             Bad face size, grid shape, axes not monotone / regular / global, a closing longitude column that
-            differs from the first, NaN, infinite or masked elevation, radius or exaggeration not positive.
+            differs from the first, NaN, infinite or masked elevation, radius or exaggeration not positive (or
+            beyond float32 node positions).
         OutputTooLargeError
             The node arrays and three float32 copies of the grid (12 bytes a cell) would exceed the memory budget
             (checked before allocating them).

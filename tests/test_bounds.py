@@ -334,3 +334,19 @@ def test_property_camera_frustum_corners_lie_on_their_planes_and_project_to_the_
         values = out @ planes[:, :3].T + planes[:, 3]
         assert (values[:, index] > 0).all(), f"plane {index}'s normal points inwards"
         assert (np.delete(values, index, axis=1) <= tol).all()
+
+
+@pytest.mark.parametrize("scale", [1.0, 1e-100, 1e-200, 1e-300])
+@pytest.mark.parametrize("cone", [0, 1])
+def test_a_shape_holding_the_eye_refines_whatever_the_distance_scale(cone, scale):
+    """§7.2: d(v, B) = 0 with the eye inside the shape, μ_dist = 1 / d² = ∞: the node refines whenever μ_geo > 0, as
+    the spheres' HUGE makes it. The cones compared μ · ℓ² <= ε · d² and kept the node unrefined once μ · ℓ² underflowed
+    to 0 (ℓ below about 1e-162 here, a positive distance_scale that Globe.mesh takes): 0 <= ε · 0. A node beside the
+    eye, 9000 km from it, stays unrefined (ℓ <= 1 m), as the paper's metric has it (μ_dist = (ℓ / d)² ≈ 0)."""
+    eye = np.array([0.0, 0.0, R + 1.0])
+    centres = np.array([[0.0, 0.0, R], [R, 0.0, 0.0]], dtype=np.float32)  # the eye 1 m above the first; far from both
+    params = np.array([[100.0, 100.0, 1e-3]] * 2, dtype=np.float32)  # (r, h, α): the first shape holds the eye
+    errors = np.array([5.0, 5.0], dtype=np.float32)
+    got = _refine(eye, np.zeros((0, 4)), (1, 1, 0, cone), scale, 1e-3, errors, centres, params)
+    assert got[0] == 1, f"the {'cone' if cone else 'sphere'} holding the eye did not refine at distance_scale {scale}"
+    assert got[1] == 0  # μ = 5 (ℓ / 9e6 m)² <= 1e-3

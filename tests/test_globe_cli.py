@@ -156,6 +156,8 @@ def test_globe_bad_input_exits_2(tmp_path, capsys, argv, message):
     (["--face-size", "100"], "--face-size must be 2^k + 1 with k >= 1 (3, 5, 9, ..., 1025); got 100"),
     (["--radius", "-1"], "--radius must be a positive finite number; got -1.0"),
     (["--radius", "1e39"], "--radius must be at most 8.5e+37 m (float32 node positions); got 1e+39"),
+    (["--radius", "1e-50"], "--radius must be at least 1.18e-38 m (a normal float32, as the node positions are "
+                            "stored); got 1e-50"),
     (["--exaggeration", "0"], "--exaggeration must be a positive finite number; got 0.0"),
     (["--exaggeration", "1e-40"], "--exaggeration must be at least 1.18e-38 (a normal float32, as the kernels take "
                                   "it); got 1e-40"),

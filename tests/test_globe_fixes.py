@@ -2030,3 +2030,29 @@ def test_the_cli_warns_of_undeclared_void_values_of_a_global_npz_as_load_dem_doe
     np.savez(grid, elevation=elevation, lat=LAT1, lon=LON1)
     assert main(argv) == 0
     assert "warning" not in capsys.readouterr().err
+
+
+def test_a_radius_below_float32s_normal_range_is_refused_and_the_smallest_taken_meshes_as_radius_1():
+    """The bounding shapes and metrics (paper 003 §6-§7) read the float32 node positions: radius 1e-50 made them all
+    0 (every node at the centre, the cones' axes 0 / 0), and the clip test kept the whole globe in view (at face size
+    9, 768 triangles where 120 are in it) without a word; a subnormal radius (1e-41) gave another mesh (466 triangles
+    where radius 1 gives 468). Refused now, naming the radius; the smallest radius taken, float32's smallest normal,
+    meshes as radius 1 does (the same faces, vertices to scale)."""
+    lat, lon = np.linspace(85.0, -85.0, 18), np.linspace(-175.0, 175.0, 36)
+    z = np.random.default_rng(0).uniform(-0.3, 0.3, (18, 36))
+    for radius in (1e-50, 1e-41):
+        with pytest.raises(InvalidInputError, match=r"^radius must be at least 1\.18e-38 m \(a normal float32, as the "
+                                                     r"node positions are stored\); got 1e-(50|41)$"):
+            Globe.from_latlon(z * radius, lat, lon, face_size=17, radius=radius, device="cpu")
+    meshes = []
+    for radius in (1.0, float(np.finfo(np.float32).tiny)):
+        g = Globe.from_latlon(z * radius, lat, lon, face_size=17, radius=radius, device="cpu")
+        cam = Camera(eye=(3 * radius, 0.2 * radius, 0.1 * radius), target=(0, 0, 0), up=(0, 0, 1), fov=0.3,
+                     aspect=1.0, near=1e-3 * radius, far=10 * radius)
+        for bounds in ("cone", "sphere"):
+            m = g.mesh(error=1e-3 * radius, camera=cam, bounds=bounds)
+            meshes.append((m.faces, m.vertices / radius))
+    for (faces, vertices), (want_faces, want_vertices) in zip(meshes[2:], meshes[:2], strict=True):  # cone, sphere
+        assert len(want_faces) < 12 * 16**2  # the clip test culls
+        np.testing.assert_array_equal(faces, want_faces)
+        np.testing.assert_allclose(vertices, want_vertices, rtol=0, atol=1e-6)
