@@ -1,0 +1,55 @@
+"""Fixes found by an audit of the benchmark harness (benchmarks/run_*.py): crashes on documented options, reports that
+print another command line than the one run. The scripts are loaded from their files, as ``python benchmarks/X.py``
+runs them (``benchmarks/`` first on ``sys.path``), and stopped before any timed work."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+BENCH = ROOT / "benchmarks"
+
+
+def _script(name: str, monkeypatch: pytest.MonkeyPatch):
+    monkeypatch.syspath_prepend(str(BENCH))  # the scripts import ``machine`` as their own folder's module
+    spec = importlib.util.spec_from_file_location(f"bench_harness_{name}", BENCH / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+class _RanOn(Exception):
+    """Raised by a stubbed first step: the script got past its argument checks."""
+
+
+@pytest.mark.parametrize("counts", [["1", "2"], ["4"], ["0", "5"], ["0", "-1"]])
+def test_run_closeup_rejects_counts_it_cannot_report(monkeypatch, counts):
+    """``run_closeup.py --counts 1 2`` (any list without 0) rendered every configuration, then crashed with a TypeError
+    (``base['best']`` of the missing 0-close-up frame, every ratio's denominator) after minutes; ``--counts 5`` timed 4
+    close-ups (there are four ROI spots) and labelled them 5. Both are now usage errors, before any work."""
+    module = _script("run_closeup", monkeypatch)
+
+    def stop(*_args, **_kwargs):
+        raise _RanOn
+
+    monkeypatch.setattr(module, "load_terrain", stop)
+    with pytest.raises(SystemExit) as exit_info:
+        module.main(["--counts", *counts, "--all-cores"])
+    assert exit_info.value.code == 2
+
+
+def test_run_closeup_accepts_its_documented_counts(monkeypatch):
+    """The default and README's counts still run on (to the first step, stubbed here)."""
+    module = _script("run_closeup", monkeypatch)
+
+    def stop(*_args, **_kwargs):
+        raise _RanOn
+
+    monkeypatch.setattr(module, "load_terrain", stop)
+    for argv in (["--all-cores"], ["--counts", "0", "4", "--all-cores"]):
+        with pytest.raises(_RanOn):
+            module.main(argv)
