@@ -199,12 +199,13 @@ BENCHES = {"stepped": bench_stepped, "restep": bench_restep, "globe": bench_glob
            "closeup": bench_closeup}
 
 
-def markdown(rows: list[list[str]], devices: list[str], args: argparse.Namespace, started: str) -> str:
+def markdown(rows: list[list[str]], devices: list[str], args: argparse.Namespace, started: str,
+             argv: list[str] | None = None) -> str:
     import warp as wp
 
     names = {d: wp.get_device(d).name for d in devices}
     lines = [
-        f"Measured {started} with `python benchmarks/run_cuda.py {' '.join(sys.argv[1:])}`",
+        f"Measured {started} with `python benchmarks/run_cuda.py {' '.join(sys.argv[1:] if argv is None else argv)}`",
         "",
         f"CPU {cpu_model()}, {os.cpu_count()} cores, Python {platform.python_version()}, NumPy {np.__version__}, "
         f"Warp {wp.__version__}; devices: " + ", ".join(f"`{d}` ({names[d]})" for d in devices)
@@ -241,7 +242,7 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[list[str]] = []
     for name in args.benches:
         BENCHES[name](devices, args.repeat, rows)
-    text = markdown(rows, devices, args, started)
+    text = markdown(rows, devices, args, started, argv)
     print(text)
     if args.output:
         args.output.write_text(text)

@@ -5,7 +5,6 @@ runs them (``benchmarks/`` first on ``sys.path``), and stopped before any timed 
 from __future__ import annotations
 
 import importlib.util
-import sys
 from pathlib import Path
 
 import pytest
@@ -53,3 +52,24 @@ def test_run_closeup_accepts_its_documented_counts(monkeypatch):
     for argv in (["--all-cores"], ["--counts", "0", "4", "--all-cores"]):
         with pytest.raises(_RanOn):
             module.main(argv)
+
+
+def test_run_texture_reports_the_command_it_was_given(monkeypatch, capsys):
+    """``run_texture.main(argv)`` printed ``sys.argv`` (here pytest's) as its command, not ``argv``: the report's
+    "Command:" line, which RESULTS.md sections quote, named another run than the one measured."""
+    module = _script("run_texture", monkeypatch)
+    argv = ["--cases", "contours", "--contour-size", "32", "--repeat", "1", "--all-cores"]
+    assert module.main(argv) == 0
+    out = capsys.readouterr().out
+    assert f"Command: `python benchmarks/run_texture.py {' '.join(argv)}`" in out
+    assert "### Contour lines on a 32² DEM" in out
+
+
+def test_run_cuda_reports_the_command_it_was_given(monkeypatch, capsys):
+    """``run_cuda.main(argv)`` printed ``sys.argv`` as its command, as run_texture did."""
+    module = _script("run_cuda", monkeypatch)
+    argv = ["--devices", "cpu", "--benches", "closeup", "--repeat", "1"]
+    assert module.main(argv) == 0
+    out = capsys.readouterr().out
+    assert f"with `python benchmarks/run_cuda.py {' '.join(argv)}`" in out
+    assert "| close-up layers per frame, 4 ROIs on 1025²" in out
