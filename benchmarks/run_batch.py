@@ -334,6 +334,9 @@ def main(argv: list[str] | None = None) -> int:
                 faces = sum(r.faces for r in report.done)
                 cpu[contender].append(sum(r.cpu_seconds for r in report.done))
             print(f"{contender}: {times[contender][-1]:.1f} s", file=sys.stderr, flush=True)
+            written = len(list(out.glob(f"*{args.format}")))
+            if written != len(files):  # a contender that skipped tiles would look fast
+                raise SystemExit(f"{contender} wrote {written} {args.format} files for {len(files)} tiles")
             shutil.rmtree(out, ignore_errors=True)
     load_after = os.getloadavg()
 

@@ -15,7 +15,10 @@ from other people's load, CPU time much less).
    time at equal requested error, the TRUE max vertical error of each, triangles at equal true error.
 
     python benchmarks/run_globe.py --output benchmarks/globe_results.md
-    python benchmarks/run_globe.py --face-size 257 --quick        # a smoke run in ~1 min
+    python benchmarks/run_globe.py --face-size 257 --quick --plots /tmp/globe   # a smoke run in ~1 min
+
+The plots go to ``benchmarks/`` by default, over the committed ``globe_shapes.png`` and ``globe_triangles.png``:
+give a smoke run its own ``--plots`` folder.
 """
 
 from __future__ import annotations
