@@ -96,3 +96,20 @@ def test_run_globe_gives_pymartini_as_many_runs_as_ours(monkeypatch):
     module.preprocessing(33, 4, lines)
     assert repeats == [4, 4]
     assert any("pymartini `Martini(33)`" in line for line in lines)
+
+
+def test_pytest_benchmarks_collects_the_bench_modules_only():
+    """benchmarks/README.md's ``pytest benchmarks -k small --benchmark-enable`` failed at collection:
+    ``--doctest-modules`` (the project's addopts) imported every script of the folder, and ``globe_ab.py`` parsed
+    pytest's ``sys.argv`` as its own (``int('small')``) at import, after pinning the process to one core where it got
+    that far. benchmarks/conftest.py now lets pytest collect ``bench_*.py`` only."""
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-m", "pytest", "benchmarks", "-k", "small", "--collect-only", "-q"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=300, check=False)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    collected = [line for line in proc.stdout.splitlines() if "::" in line]
+    assert collected and all(line.startswith(("benchmarks/bench_stepped.py::", "benchmarks/bench_texture.py::"))
+                             for line in collected)
+    assert any("small-257" in line for line in collected)
