@@ -276,11 +276,15 @@ def layers_scaling(terrain, repeat: int) -> list[dict]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=3)
-    parser.add_argument("--counts", type=int, nargs="+", default=[0, 1, 2, 3, 4])
+    parser.add_argument("--counts", type=int, nargs="+", default=[0, 1, 2, 3, 4],
+                        help="close-up counts to time (0-4; must include 0: every ratio is to the 0-close-up frame)")
     parser.add_argument("--skip-full", action="store_true", help="skip the whole-terrain-per-close-up contender")
     parser.add_argument("--all-cores", action="store_true")
     parser.add_argument("--output", default=None, help="write the markdown report here")
     args = parser.parse_args(argv)
+    if 0 not in args.counts or not all(0 <= c <= 4 for c in args.counts):
+        parser.error(f"--counts: expected counts from 0 to 4 including 0 (the ratios are to the 0-close-up frame), "
+                     f"got {args.counts}")
     pinned = "all cores"
     if not args.all_cores and hasattr(os, "sched_setaffinity"):
         core = min(os.sched_getaffinity(0))

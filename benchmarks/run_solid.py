@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import subprocess
 import sys
 import time
 from collections.abc import Callable
@@ -31,6 +32,7 @@ if str(_HERE.parent) not in sys.path:
 import warp as wp  # noqa: E402
 
 import stepterrain as st  # noqa: E402
+from benchmarks.machine import cpu_model  # noqa: E402
 from stepterrain import stepped as stepped_module  # noqa: E402
 from stepterrain.mesh import close_solid  # noqa: E402
 from stepterrain.terrain import as_terrain  # noqa: E402
@@ -98,6 +100,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--device", default="cpu", help="Warp device of the kernels (default cpu)")
     args = parser.parse_args(argv)
     device = wp.get_device(args.device)
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=_HERE, capture_output=True, text=True,
+                            check=False).stdout.strip() or "unknown"
+    print(f"command: `python benchmarks/run_solid.py {' '.join(sys.argv[1:] if argv is None else argv)}`; "
+          f"commit {commit}; {cpu_model()}")
     print(f"device {device}, repeat {args.repeat}, {st.get_cpu_threads()} CPU threads")
     print("| case | faces | contender | median s | best s | NumPy / Warp (median) |")
     print("|---|---:|---|---:|---:|---:|")

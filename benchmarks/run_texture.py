@@ -263,9 +263,10 @@ def machine() -> str:
             f"warp-lang {warp.__version__}")
 
 
-def report(hs: dict | None, pyr: dict | None, args: argparse.Namespace, contours: dict | None = None) -> str:
+def report(hs: dict | None, pyr: dict | None, args: argparse.Namespace, contours: dict | None = None,
+           argv: list[str] | None = None) -> str:
     lines = [f"## Textures (issue 5 §7) — {_dt.datetime.now(_dt.timezone.utc):%Y-%m-%d %H:%M} UTC", "",
-             f"Command: `python benchmarks/run_texture.py {' '.join(sys.argv[1:])}`", "",
+             f"Command: `python benchmarks/run_texture.py {' '.join(sys.argv[1:] if argv is None else argv)}`", "",
              f"- **Machine**: {machine()}. "
              + ("Pinned to one core (sched_setaffinity; gdaldem under `taskset -c 0`)." if not args.all_cores
                 else "All cores."),
@@ -365,7 +366,7 @@ def main(argv: list[str] | None = None) -> int:
         if "pyramid" in args.cases else None
     contours = bench_contours(args.contour_size, args.contour_interval, args.repeat) \
         if "contours" in args.cases else None
-    text = report(hs, pyr, args, contours)
+    text = report(hs, pyr, args, contours, argv)
     print(text)
     if args.output:
         args.output.write_text(text)

@@ -1,0 +1,17 @@
+"""Collect only the pytest-benchmark modules ``bench_*.py`` from this folder.
+
+The project's ``addopts`` include ``--doctest-modules``, which imports every ``.py`` file of a folder named on the
+command line: ``pytest benchmarks -k small`` imported the scripts as well, and ``globe_ab.py`` reads ``sys.argv`` (here
+pytest's) and pins its process to one core at import, which broke the collection. The scripts are run as
+``python benchmarks/NAME.py``, never collected.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def pytest_ignore_collect(collection_path: Path, config) -> bool | None:
+    if collection_path.suffix == ".py" and collection_path.parent == Path(__file__).parent:
+        return not collection_path.name.startswith("bench_") and collection_path.name != "conftest.py"
+    return None
