@@ -111,7 +111,8 @@ def gdal_path(text: str) -> GdalPath | None:
     the local path to give)."""
     if text.startswith("/vsi"):
         if "}" in text:  # GDAL's braces round an archive's path (/vsizip/{/vsicurl/https://h/a.zip?sig=1}/dem.tif):
-            return _made(text, text.rsplit("}", 1)[1] or text)  # named by the member after them, not the URL's query
+            # named by the member after them, not the URL's query; by the archive in them without one
+            return _made(text, text.rsplit("}", 1)[1] or text[:-1])
         return _made(text, text.split("/vsicurl/", 1)[-1])  # a URL's own path, for its name
     found = _URL.fullmatch(text)
     if found is None:
