@@ -1416,7 +1416,7 @@ _GEOTIFF_SIDECARS: tuple[str, ...] = (
     "{stem}.hdr", "{stem}.stx", "{stem}.blw", "{stem}.rrd",  # a .bil/.flt's header and statistics, an .img's overviews
 )
 #: Files beside a PNG that load_dem reads with it: the world file and .prj that place a terrain tile
-#: (``height_encoding``), and the .aux.xml whose scale it refuses for a greyscale heightmap
+#: (``height_encoding``), and the .aux.xml whose nodata it reads and scale it refuses for a greyscale heightmap
 _PNG_SIDECARS: tuple[str, ...] = (
     "{stem}.pgw", "{stem}.pngw", "{stem}.wld", "{stem}.prj", "{name}.prj", "{name}.aux.xml",
 )
