@@ -183,6 +183,16 @@ def test_a_zip_opened_by_vsizip_without_its_member_is_refused_naming_a_path_that
     _same(st.load_dem(advice(f"/vsizip/{{{one}}}").replace("<name>", "dem")), st.load_dem(tiles / "dem.tif"))
 
 
+def test_a_brace_in_a_vsicurl_urls_query_is_no_archives():
+    """A /vsicurl/ URL whose query holds a brace (a token, ?t={abc}&x=1) was named by what followed the last brace,
+    '&x=1', as if the brace closed GDAL's braces round an archive (/vsizip/{...}/dem.tif), and refused as an unknown
+    extension, while the same URL given as https://... read as cog.tif. Only braces right after an archive's file
+    system round an archive's path."""
+    for given in ("/vsicurl/https://example.org/dem/cog.tif?t={abc}&x=1", "https://example.org/dem/cog.tif?t={abc}&x=1"):
+        assert gdal_path(given).name == "cog.tif", given
+    assert gdal_path("/vsizip/{/vsicurl/https://example.org/a.zip?t={abc}&x=1}/dem.tif").name == "dem.tif"
+
+
 def test_a_braced_archive_path_is_resolved_for_a_worker_and_its_fingerprint(tiles, tmp_path, monkeypatch):
     """GDAL's braces round an archive's path (/vsizip/{one.zip}/dem.tif; a zip in a zip,
     /vsizip/{/vsizip//data/outer.zip/one.zip}/dem.tif) were read as part of a local archive's name: a worker in
