@@ -295,8 +295,11 @@ def _load_geotiff_grid(
     lonlat = _lonlat_grid(terrain)  # describe_dem's lonlat_step, without its passes over the heights
     step = lonlat[1] if lonlat else None
     if eqc is None or step is None or terrain.origin != (0.0, 0.0):
+        # -dstalpha: the cells of the grid in degrees outside the file's are missing (refused below, to fill); without
+        # it (and a nodata value of the file's) gdalwarp filled them with 0, a globe of 0 m there without a word
+        warp = f"gdalwarp -dstalpha -t_srs EPSG:4326 {shlex.quote(str(file))} {shlex.quote(file.stem + '_4326.tif')}"
         raise InvalidInputError(f"INPUT {str(file)!r} must be a raster in a geographic CRS (degrees: EPSG:4326); got "
-                                f"CRS {terrain.crs or 'none'}; gdalwarp -t_srs EPSG:4326 makes it one")
+                                f"CRS {terrain.crs or 'none'}; {warp} makes it one")
     if terrain.has_nodata:  # refused by Globe.from_latlon as "elevation has 1 NaN or infinite value", naming no
         # INPUT and hiding that the file's own nodata cells were the NaN
         missing = terrain.nodata_mask

@@ -110,8 +110,11 @@ def gdal_path(text: str) -> GdalPath | None:
     Another URL scheme is refused (a DataFileError naming it and those read), and so is a ``file://`` URL (naming
     the local path to give)."""
     if text.startswith("/vsi"):
-        if "}" in text:  # GDAL's braces round an archive's path (/vsizip/{/vsicurl/https://h/a.zip?sig=1}/dem.tif):
-            return _made(text, text.rsplit("}", 1)[1] or text)  # named by the member after them, not the URL's query
+        if re.match(r"/vsi\w+/\{.*\}", text):
+            # GDAL's braces round an archive's path (/vsizip/{/vsicurl/https://h/a.zip?sig=1}/dem.tif): named by the
+            # member after them, not the URL's query; by the archive in them without one. A brace in a URL's query
+            # (/vsicurl/https://h/dem.tif?t={a}&x=1) rounds no archive: that is dem.tif, below
+            return _made(text, text.rsplit("}", 1)[1] or text[:-1])
         return _made(text, text.split("/vsicurl/", 1)[-1])  # a URL's own path, for its name
     found = _URL.fullmatch(text)
     if found is None:

@@ -1225,7 +1225,8 @@ def _degree_frames(items: Sequence[BatchItem]) -> tuple[tuple[str, _Frame], ...]
             f"the DEM files in degrees are in {len(placed_in)} geographic CRSs ({', '.join(placed_in)}): each CRS's "
             "files are placed in the local metres of their own mosaic (node (0, 0) at its top-left node), so the "
             "meshes of one CRS neither line up nor weld with those of another: to step them as one surface, warp "
-            "them to one CRS first (gdalwarp -t_srs EPSG:4326)",
+            "them to one CRS first (gdalwarp -dstalpha -t_srs EPSG:4326; -dstalpha marks the cells outside the files "
+            "missing, which it filled with 0 m)",
             stacklevel=caller_stacklevel(),
         )
     return tuple(frames)
@@ -1259,8 +1260,8 @@ def _warn_projected_crss(projected: Sequence[str], geographic: Mapping[str, int]
         f"the DEM files are in {len(named)} CRSs ({', '.join(named)}): each file's mesh lies in its own CRS's "
         "coordinates (a projected CRS's metres; files in degrees in local metres of their own, node (0, 0) at "
         "their mosaic's top-left node), so the meshes of one CRS neither line up nor weld with those of another: to "
-        f"step them as one surface, warp them to one CRS first (gdalwarp -t_srs {shlex.quote(target)} FILE "
-        "OUT.tif)",  # quoted: a CRS without an EPSG code is named by its WKT
+        f"step them as one surface, warp them to one CRS first (gdalwarp -dstalpha -t_srs {shlex.quote(target)} "
+        "FILE OUT.tif)",  # quoted: a CRS without an EPSG code is named by its WKT
         stacklevel=caller_stacklevel(),
     )
 
@@ -1305,7 +1306,7 @@ def _warn_antimeridian(crs: str, group: Sequence[tuple[BatchItem, Sequence[float
     warnings.warn(
         f"the DEM files in degrees {named(spans[:split])} and {named(spans[split:])} in {crs} lie either side of "
         f"{seam}, or in two longitude conventions (-180 to 180 and 0 to 360): {how}; to step them as one surface, "
-        f"give each file longitudes {convention} first (gdalwarp -t_srs '+proj=longlat +datum=WGS84 "
+        f"give each file longitudes {convention} first (gdalwarp -dstalpha -t_srs '+proj=longlat +datum=WGS84 "
         f"+lon_wrap={wrap:g}'), or step each side as a folder of its own",
         stacklevel=caller_stacklevel(),
     )
@@ -1345,7 +1346,8 @@ def _warn_own_local_metres(terrain: Terrain, coarsen: int | None = None) -> None
             "up nor weld where neighbours share their border nodes: to step them as one surface, convert them to "
             "GeoTIFFs (gdal_translate), or mosaic them (gdalbuildvrt tiles.vrt "
             "FILES) and cut the .vrt into tiles of tile_size cells, or warp them into one "
-            "projected raster (gdalwarp -t_srs EPSG:... FILES dem.tif) and cut that (files reprojected one by one lie "
+            "projected raster (gdalwarp -dstalpha -t_srs EPSG:... FILES dem.tif; -dstalpha marks the cells between "
+            "and around the files missing, which it filled with 0 m) and cut that (files reprojected one by one lie "
             "in place but share no nodes with their neighbours)",
             stacklevel=2,
         )
@@ -1414,7 +1416,7 @@ _GEOTIFF_SIDECARS: tuple[str, ...] = (
     "{stem}.hdr", "{stem}.stx", "{stem}.blw", "{stem}.rrd",  # a .bil/.flt's header and statistics, an .img's overviews
 )
 #: Files beside a PNG that load_dem reads with it: the world file and .prj that place a terrain tile
-#: (``height_encoding``), and the .aux.xml whose scale it refuses for a greyscale heightmap
+#: (``height_encoding``), and the .aux.xml whose nodata it reads and scale it refuses for a greyscale heightmap
 _PNG_SIDECARS: tuple[str, ...] = (
     "{stem}.pgw", "{stem}.pngw", "{stem}.wld", "{stem}.prj", "{name}.prj", "{name}.aux.xml",
 )

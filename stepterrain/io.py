@@ -619,12 +619,13 @@ def _virtual_refusal(file: GdalPath) -> str:
         # its path with the member's name after it ('https://host/srtm.zip/<name>.tif') asked the server (or the
         # tar) for a file of that name, which is not there; a zip inside a zip, or one of a URL with a query (a
         # signed URL: no '.zip/' in it), in braces (GDAL splits the path at its first '.zip/')
-        if "?" in gdal or (gdal.startswith("/vsizip/") and ".zip/" in gdal[len("/vsizip/"):].lower()):
-            inside = f"/vsizip/{{{gdal}}}/{example}"
-        elif not gdal.startswith("/vsizip/"):
-            inside = f"/vsizip/{gdal}/{example}"
-        else:  # the zip itself (/vsizip//data/srtm.zip)
-            inside = f"{str(file)}/{example}"
+        rest = gdal[len("/vsizip/"):] if gdal.startswith("/vsizip/") else None
+        if rest is None or ".zip/" in rest.lower() or (rest.startswith("{") and not rest.endswith("}")):
+            archive = gdal  # reached through another file system, or a member of a zip: a zip in a zip
+        else:  # the zip itself, opened by /vsizip/ already (/vsizip//data/srtm.zip, /vsizip/{/vsicurl/...?sig=1})
+            archive = rest[1:-1] if rest.startswith("{") else rest
+        braces = "?" in archive or archive.startswith("/vsizip/")
+        inside = f"/vsizip/{{{archive}}}/{example}" if braces else f"/vsizip/{archive}/{example}"
         why = f"name the file inside the zip: '{inside}'"
     elif ext == ".gz" and not gdal.startswith("/vsigzip/") and PurePath(file.stem).suffix.lower() in GZIP_FORMATS:
         why = f"read a gzip file through /vsigzip/: '/vsigzip/{gdal}'"  # a URL's dem.tif.gz, as a local one is

@@ -2538,7 +2538,7 @@ def test_dem_files_in_degrees_left_each_in_its_own_frame_are_warned_of_once(tmp_
     assert len(said) == 1 and "neither line up nor weld" in said[0] and "gdalbuildvrt" in said[0]
     # its other remedy warps the files into one raster: each reprojected alone (gdalwarp -t_srs of one file) lies in
     # place, but on a grid of its own, sharing no nodes with its neighbours, so their meshes would not weld either
-    assert "gdalwarp -t_srs EPSG:... FILES dem.tif" in said[0] and "one by one" in said[0]
+    assert "gdalwarp -dstalpha -t_srs EPSG:... FILES dem.tif" in said[0] and "one by one" in said[0]
     assert run([tmp_path / "t1.npz"], "one_out") == []
 
 
@@ -2628,7 +2628,7 @@ def test_dem_files_in_two_projected_crss_are_warned_not_to_line_up(tmp_path):
     warp("se", "EPSG:32610")
     found = said(tmp_path / "utm")
     assert len(found) == 1 and "EPSG:32611 (3 files)" in found[0] and "EPSG:32610 (1 file)" in found[0], found
-    assert "gdalwarp -t_srs EPSG:32611" in found[0], found
+    assert "gdalwarp -dstalpha -t_srs EPSG:32611" in found[0], found
     # as warned: the zone 10 tile's mesh lies hundreds of kilometres east of its zone 11 neighbours'
     sw, se = read_mesh(tmp_path / "out_utm" / "sw.glb"), read_mesh(tmp_path / "out_utm" / "se.glb")
     assert se.bounds[0, 0] - sw.bounds[1, 0] > 100e3
@@ -3034,7 +3034,82 @@ def test_projected_crss_warning_gives_a_gdalwarp_that_a_shell_runs_for_a_crs_wit
         _warn_projected_crss([wkt, wkt, "EPSG:32611"], {})
     (message,) = [str(w.message) for w in caught]
     command = message[message.index("(gdalwarp ") + 1:-1]
-    assert shlex.split(command) == ["gdalwarp", "-t_srs", wkt, "FILE", "OUT.tif"], command
+    assert shlex.split(command) == ["gdalwarp", "-dstalpha", "-t_srs", wkt, "FILE", "OUT.tif"], command
+
+
+def _utm_tile(path, heights, crs, west, north):
+    """A float32 GeoTIFF of ``heights`` on 30 m cells in ``crs``, its top-left corner at (west, north), no nodata."""
+    import rasterio
+
+    rows, cols = heights.shape
+    with rasterio.open(path, "w", driver="GTiff", width=cols, height=rows, count=1, dtype="float32", crs=crs,
+                       transform=rasterio.Affine(30.0, 0.0, west, 0.0, -30.0, north)) as out:
+        out.write(heights.astype(np.float32), 1)
+    return path
+
+
+def _run_gdalwarp(words, folder):
+    """Run the gdalwarp command ``words`` (a list) in ``folder`` (skipped without gdal-bin)."""
+    if shutil.which("gdalwarp") is None:
+        pytest.skip("gdalwarp (gdal-bin) is not installed")
+    subprocess.run([*words, "-q"], cwd=folder, check=True, capture_output=True)
+
+
+def test_the_gdalwarp_the_projected_crss_warning_gives_leaves_no_0_m_corners(tmp_path):
+    """The warning of files in several projected CRSs gives the gdalwarp that puts a file in the CRS most are in. Run
+    as said, `gdalwarp -t_srs EPSG:32611 FILE OUT.tif`, the corners of the grid in EPSG:32611 outside the file's
+    (rotated some 5 degrees, from the next UTM zone) were filled with 0 (the file has no nodata value) and read back
+    as heights of 0 m, cliffs to sea level round a mountain tile, without a word. It says -dstalpha now (as
+    load_dem's own gdalwarp hints do): those corners are missing, and every height read is one of the file's."""
+    import shlex
+
+    pytest.importorskip("rasterio")
+    from stepterrain.batch import _warn_projected_crss
+    from stepterrain.io import load_dem
+
+    heights = load_dem(shared_file("big_tujunga_srtm_30m_utm11n.npz")).heights[:60, :80]
+    _utm_tile(tmp_path / "east.tif", heights, "EPSG:32612", 200000.0, 3800000.0)  # the west of zone 12
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        _warn_projected_crss(["EPSG:32611", "EPSG:32611", "EPSG:32612"], {})
+    (message,) = [str(w.message) for w in caught]
+    words = shlex.split(message[message.index("(gdalwarp ") + 1:-1])
+    _run_gdalwarp([{"FILE": "east.tif"}.get(w, w) for w in words], tmp_path)
+    warped = load_dem(tmp_path / "OUT.tif")
+    assert "32611" in warped.crs or "zone 11N" in warped.crs, warped.crs
+    assert warped.has_nodata and np.nanmin(warped.heights) >= np.nanmin(heights) - 1.0  # no 0 m corner
+
+
+def test_the_gdalwarp_of_files_in_degrees_into_one_raster_leaves_no_0_m_cells_between_them(tmp_path):
+    """The warning of files in degrees each in a frame of its own gives the gdalwarp that warps them into one
+    projected raster. Run as said, the cells of that raster that no file covers (round the files, rotated by the
+    projection, and in a gap between two) were filled with 0 and read back as heights of 0 m. It says -dstalpha
+    now: they are missing."""
+    import shlex
+
+    rasterio = pytest.importorskip("rasterio")
+    from stepterrain.io import load_dem
+
+    heights = load_dem(shared_file("big_tujunga_srtm_30m_utm11n.npz")).heights[:40, :40]
+    for i, west in enumerate((-117.9, -117.85)):  # 0.01 degrees apart: a gap between them
+        with rasterio.open(tmp_path / f"t{i}.tif", "w", driver="GTiff", width=40, height=40, count=1,
+                           dtype="float32", crs="EPSG:4326",
+                           transform=rasterio.Affine(0.001, 0.0, west, 0.0, -0.001, 34.3)) as out:
+            out.write(heights.astype(np.float32), 1)
+        np.savez(tmp_path / f"t{i}.npz", elevation=heights, transform=np.array([west, 0.001, 0.0, 34.3, 0.0, -0.001]),
+                 crs="EPSG:4326")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        report = batch([tmp_path / "t0.npz", tmp_path / "t1.npz"], tmp_path / "out", interval=100.0,
+                       scheduler="serial")
+    assert report.ok, report.summary()
+    (message,) = [str(w.message) for w in caught if "FILES dem.tif" in str(w.message)]
+    command = re.search(r"\((gdalwarp [^;)]*)", message).group(1)
+    named = {"EPSG:...": "EPSG:32611", "FILES": ["t0.tif", "t1.tif"]}
+    words = [v for w in shlex.split(command) for v in np.atleast_1d(named.get(w, w)).tolist()]
+    _run_gdalwarp(words, tmp_path)
+    warped = load_dem(tmp_path / "dem.tif")
+    assert warped.has_nodata and np.nanmin(warped.heights) >= np.nanmin(heights) - 1.0  # no 0 m cell
 
 
 @pytest.mark.parametrize("on_the_way", [False, True])

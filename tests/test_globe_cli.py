@@ -778,3 +778,33 @@ def test_globe_nodata_refusal_of_cells_only_nodata_marks_gives_a_fix_that_fills_
     fill = err[err.index("then gdal_fillnodata.py") + 5:err.index(", and give")]
     assert shlex.split(fill) == ["gdal_fillnodata.py", "declared.tif", "filled.tif"]
     assert len(err.strip().splitlines()) == 1 and not out.exists()
+
+
+def test_the_gdalwarp_a_projected_globe_input_is_refused_with_leaves_no_0_m_cells(tmp_path, capsys, monkeypatch):
+    """A raster in a projected CRS is refused by `stepterrain globe` with the gdalwarp that puts it in degrees. As
+    said, `gdalwarp -t_srs EPSG:4326`, the cells of the grid in degrees outside the file's (the corners round a UTM
+    grid, turned a few degrees) were filled with 0 (the file has no nodata value), and the globe meshed them as
+    heights of 0 m without a word. It says -dstalpha now, and names the files: those cells are missing, and the
+    globe refuses them as holes to fill, naming the INPUT."""
+    import shlex
+    import shutil
+    import subprocess
+
+    rasterio = pytest.importorskip("rasterio")
+    from stepterrain.io import load_dem
+
+    if shutil.which("gdalwarp") is None:
+        pytest.skip("gdalwarp (gdal-bin) is not installed")
+    heights = (np.add.outer(np.arange(40.0), np.arange(50.0)) * 10.0 + 500.0).astype(np.float32)
+    with rasterio.open(tmp_path / "utm.tif", "w", driver="GTiff", width=50, height=40, count=1, dtype="float32",
+                       crs="EPSG:32611", transform=rasterio.Affine(30.0, 0.0, 700000.0, 0.0, -30.0, 4000000.0)) as out:
+        out.write(heights, 1)
+    monkeypatch.chdir(tmp_path)
+    assert main(["globe", "utm.tif", "--face-size", "9", "-o", "x.glb"]) == 2
+    command = shlex.split(re.search(r"(gdalwarp .*) makes it one", capsys.readouterr().err).group(1))
+    subprocess.run([*command, "-q"], check=True, capture_output=True)
+    warped = load_dem(command[-1])
+    assert warped.has_nodata and np.nanmin(warped.heights) >= heights.min()  # no 0 m cell
+    assert main(["globe", command[-1], "--face-size", "9", "-o", "x.glb"]) == 2
+    assert f"INPUT {command[-1]!r} has " in capsys.readouterr().err  # holes to fill, not a globe of 0 m there
+    assert not (tmp_path / "x.glb").exists()

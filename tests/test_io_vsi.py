@@ -163,6 +163,36 @@ def test_a_zip_or_gzip_behind_another_file_system_is_refused_naming_a_path_that_
     assert advice(f"/vsizip/{tiles / 'one.zip'}").group(1) == f"/vsizip/{tiles / 'one.zip'}/<name>.tif"  # as before
 
 
+def test_a_zip_opened_by_vsizip_without_its_member_is_refused_naming_a_path_that_reads_it(tiles):
+    """A zip given to /vsizip/ without the member to read was refused with a path that reads nothing when the zip
+    was a signed URL's (/vsizip//vsicurl/https://host/a.zip?sig=1, or in GDAL's braces, as the refusal of the URL
+    itself advises): the advice wrapped it in a further /vsizip/{...}, a zip inside the zip; and a local zip in braces
+    (/vsizip/{/data/one.zip}) was named 'one.zip}', refused as "unknown DEM extension '.zip}'". Each is advised the
+    zip's own path with the member after it now, which reads the DEM for the local one."""
+    one = tiles / "one.zip"
+
+    def advice(path):
+        with pytest.raises(InvalidInputError) as caught:
+            st.load_dem(path)
+        return re.search(r"name the file inside the zip: '([^']*)'", str(caught.value)).group(1)
+
+    signed = "/vsizip/{/vsicurl/https://example.org/a.zip?sig=1}/<name>.tif"
+    assert advice("/vsizip//vsicurl/https://example.org/a.zip?sig=1") == signed
+    assert advice("/vsizip/{/vsicurl/https://example.org/a.zip?sig=1}") == signed
+    assert advice(f"/vsizip/{{{one}}}") == f"/vsizip/{one}/<name>.tif"
+    _same(st.load_dem(advice(f"/vsizip/{{{one}}}").replace("<name>", "dem")), st.load_dem(tiles / "dem.tif"))
+
+
+def test_a_brace_in_a_vsicurl_urls_query_is_no_archives():
+    """A /vsicurl/ URL whose query holds a brace (a token, ?t={abc}&x=1) was named by what followed the last brace,
+    '&x=1', as if the brace closed GDAL's braces round an archive (/vsizip/{...}/dem.tif), and refused as an unknown
+    extension, while the same URL given as https://... read as cog.tif. Only braces right after an archive's file
+    system round an archive's path."""
+    for given in ("/vsicurl/https://example.org/dem/cog.tif?t={abc}&x=1", "https://example.org/dem/cog.tif?t={abc}&x=1"):
+        assert gdal_path(given).name == "cog.tif", given
+    assert gdal_path("/vsizip/{/vsicurl/https://example.org/a.zip?t={abc}&x=1}/dem.tif").name == "dem.tif"
+
+
 def test_a_braced_archive_path_is_resolved_for_a_worker_and_its_fingerprint(tiles, tmp_path, monkeypatch):
     """GDAL's braces round an archive's path (/vsizip/{one.zip}/dem.tif; a zip in a zip,
     /vsizip/{/vsizip//data/outer.zip/one.zip}/dem.tif) were read as part of a local archive's name: a worker in
