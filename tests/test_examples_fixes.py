@@ -351,6 +351,7 @@ def test_closeup_mappings_steps_a_dem_of_little_relief(relief):
 @pytest.mark.parametrize(("argv", "message"), [
     (["--size", "10"], "--size must be 2^k + 1 nodes"),
     (["--size", "1"], "--size must be 2^k + 1 nodes"),
+    (["--size", "32769"], "--size must be 2^k + 1 nodes"),  # 2^15 + 1: the library's "face_size must be at most"
     (["--far-error", "-1"], "--far-error must be a finite number >= 0"),
     (["--close-error", "nan"], "--close-error must be a finite number >= 0"),
 ])
