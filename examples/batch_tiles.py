@@ -48,7 +48,12 @@ def main(argv: list[str] | None = None) -> int:
     if Path(args.output).suffix.lower() not in IMAGE_EXTENSIONS:  # found after the tiles were written, beside it
         parser.error(f"--output must end in {', '.join(IMAGE_EXTENSIONS)}, the tiles go beside it; got {args.output!r}")
     tiles = tiles_folder(args.output)
-    if tiles.exists() and not tiles.is_dir():  # batch's refusal named its own argument: "output_dir '...' exists"
+    try:  # a name the system refuses to look up (x_tiles over 255 bytes, x.png not) raised a bare OSError traceback
+        in_the_way = tiles.exists() and not tiles.is_dir()
+    except OSError as exc:
+        parser.error(f"the tiles folder beside --output, {str(tiles)!r}, cannot be made: {exc.strerror or exc}; give "
+                     "--output a shorter name")
+    if in_the_way:  # batch's refusal named its own argument: "output_dir '...' exists"
         parser.error(f"the tiles folder beside --output, {str(tiles)!r}, exists and is not a folder; move that file "
                      "or give --output another name")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback

@@ -62,8 +62,10 @@ def main(argv: list[str] | None = None) -> int:
     if not all(8 <= side <= 16384 for side in args.panel):  # 0 0 raised a ZeroDivisionError in the camera's aspect
         parser.error(f"--panel must be W H of 8 to 16384 pixels each; got {' '.join(map(str, args.panel))}")
     # the library's refusals named its own arguments, face_size and error (which of the two errors?)
-    if args.size < 3 or (args.size - 1) & (args.size - 2):
-        parser.error(f"--size must be 2^k + 1 nodes with k >= 1 (3, 5, 9, ..., 513, 1025); got {args.size}")
+    # at most 16385: the library's int32 node entries (globe._MAX_CELLS + 1); above it, it named face_size
+    if args.size < 3 or (args.size - 1) & (args.size - 2) or args.size > 16385:
+        parser.error(f"--size must be 2^k + 1 nodes with k >= 1, at most 16385 (3, 5, 9, ..., 513, 1025); "
+                     f"got {args.size}")
     for option, error in (("--far-error", args.far_error), ("--close-error", args.close_error)):
         if not (math.isfinite(error) and error >= 0):
             parser.error(f"{option} must be a finite number >= 0 (metres); got {error}")

@@ -351,6 +351,7 @@ def test_closeup_mappings_steps_a_dem_of_little_relief(relief):
 @pytest.mark.parametrize(("argv", "message"), [
     (["--size", "10"], "--size must be 2^k + 1 nodes"),
     (["--size", "1"], "--size must be 2^k + 1 nodes"),
+    (["--size", "32769"], "--size must be 2^k + 1 nodes"),  # 2^15 + 1: the library's "face_size must be at most"
     (["--far-error", "-1"], "--far-error must be a finite number >= 0"),
     (["--close-error", "nan"], "--close-error must be a finite number >= 0"),
 ])
@@ -441,3 +442,14 @@ def test_batch_tiles_names_its_tiles_folder_when_a_file_is_in_its_way(tmp_path, 
     assert "the tiles folder beside --output" in err and "output_dir" not in err and "Traceback" not in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["x_tiles"]
     assert (tmp_path / "x_tiles").read_text() == "not tiles"
+
+
+def test_batch_tiles_refuses_a_tiles_folder_name_too_long_by_name(tmp_path, capsys):
+    """--output of a 250-byte name (a name the system takes) puts the tiles folder at 256 bytes (x_tiles), over the
+    255 a folder's name may have: looking for a file in its way ended in an OSError traceback (File name too long),
+    where batch had refused it as a usage error. Now a usage error naming the tiles folder and --output, nothing
+    written."""
+    output = tmp_path / ("a" * 250 + ".png")
+    assert_usage_error_writing_nothing("batch_tiles", [*TINY["batch_tiles"], "--device", "cpu", "--output",
+                                                       str(output)], "the tiles folder beside --output", tmp_path,
+                                       capsys)
