@@ -380,6 +380,12 @@ def _face_indices(faces: Any) -> NDArray[np.int64]:
             raise InvalidInputError(f"faces must hold whole vertex indices; got {float(array[at])} at {at}")
     elif array.size and array.dtype.kind not in "iu":  # bools, text, objects
         raise InvalidInputError(f"faces must be an (F, 3) integer array of vertex indices; got dtype {array.dtype}")
+    if array.size and array.dtype.kind in "fu" and array.max() >= 2.0**63:  # int64's cast wrapped them round to
+        at = tuple(int(k) for k in np.unravel_index(int(np.argmax(array)), array.shape))  # -2^63, named as such
+        raise OutputTooLargeError(f"faces: the kernels index vertices up to {MAX_INT32 - 3:,} with int32; got "
+                                  f"{array[at]} at {at}")
+    if array.size == 0 and array.ndim == 1:  # an empty list: no faces, as the docstring says (not shape (0,))
+        array = array.reshape(0, 3)
     array = array.astype(np.int64, copy=False)
     if array.ndim != 2 or array.shape[1] != 3:  # the kernels read the faces as flat rows of three
         raise InvalidInputError(f"faces must be an (F, 3) array of vertex indices; got shape {array.shape}")

@@ -11,6 +11,7 @@ from hypothesis.extra.numpy import arrays
 
 import stepterrain.mesh as mesh_module
 from stepterrain import _device
+from stepterrain.errors import OutputTooLargeError
 from stepterrain.mesh import boundary_edges, exact_keys
 from tests.reference_solid import _repeated_rows  # close_solid finds fins with kernels now (test_solid_kernels)
 
@@ -106,3 +107,20 @@ def test_exact_keys_group_bit_identical_rows(xy):
 def test_repeated_rows_equal_the_unique_reference(rows):
     _, inverse, counts = np.unique(rows, axis=0, return_inverse=True, return_counts=True)
     np.testing.assert_array_equal(_repeated_rows(rows), counts[inverse.reshape(-1)] > 1)
+
+
+@pytest.mark.parametrize("faces", [np.array([[2**63 + 5, 0, 1]], np.uint64), np.array([[1e20, 0, 1]]),
+                                   np.array([[0, 1, 2.0**63]])])
+def test_boundary_edges_name_an_index_beyond_int64_as_given(faces):
+    # cast to int64 they wrapped round to -2^63 (numpy's RuntimeWarning): "faces must hold vertex indices >= 0; got
+    # -9223372036854775808", an index the caller never gave
+    with pytest.raises(OutputTooLargeError, match="faces") as caught:
+        boundary_edges(faces)
+    assert "-9223372036854775" not in str(caught.value)
+    assert str(faces.max())[:6] in str(caught.value)
+
+
+def test_boundary_edges_of_an_empty_list_is_no_edge():
+    # _face_indices' docstring: an empty list (numpy's float64, shape (0,)) is no faces; it raised "got shape (0,)"
+    assert boundary_edges([]).shape == (0, 2)
+    np.testing.assert_array_equal(boundary_edges([]), boundary_edges(np.zeros((0, 3), np.int64)))
