@@ -380,6 +380,9 @@ def _face_indices(faces: Any) -> NDArray[np.int64]:
             raise InvalidInputError(f"faces must hold whole vertex indices; got {float(array[at])} at {at}")
     elif array.size and array.dtype.kind not in "iu":  # bools, text, objects
         raise InvalidInputError(f"faces must be an (F, 3) integer array of vertex indices; got dtype {array.dtype}")
+    if array.size and array.dtype.kind == "f" and array.min() < 0:  # -1e20: the cast to int64 named -2^63
+        at = tuple(int(k) for k in np.unravel_index(int(np.argmin(array)), array.shape))
+        raise InvalidInputError(f"faces must hold vertex indices >= 0; got {float(array[at])} at {at}")
     if array.size and array.dtype.kind in "fu" and array.max() >= 2.0**63:  # int64's cast wrapped them round to
         at = tuple(int(k) for k in np.unravel_index(int(np.argmax(array)), array.shape))  # -2^63, named as such
         raise OutputTooLargeError(f"faces: the kernels index vertices up to {MAX_INT32 - 3:,} with int32; got "

@@ -11,7 +11,7 @@ from hypothesis.extra.numpy import arrays
 
 import stepterrain.mesh as mesh_module
 from stepterrain import _device
-from stepterrain.errors import OutputTooLargeError
+from stepterrain.errors import InvalidInputError, OutputTooLargeError
 from stepterrain.mesh import boundary_edges, exact_keys
 from tests.reference_solid import _repeated_rows  # close_solid finds fins with kernels now (test_solid_kernels)
 
@@ -124,3 +124,12 @@ def test_boundary_edges_of_an_empty_list_is_no_edge():
     # _face_indices' docstring: an empty list (numpy's float64, shape (0,)) is no faces; it raised "got shape (0,)"
     assert boundary_edges([]).shape == (0, 2)
     np.testing.assert_array_equal(boundary_edges([]), boundary_edges(np.zeros((0, 3), np.int64)))
+
+
+def test_boundary_edges_name_a_negative_float_index_beyond_int64_as_given():
+    # -1e20 cast to int64 is -2^63: "got -9223372036854775808", an index the caller never gave
+    with pytest.raises(InvalidInputError, match=">= 0") as caught:
+        boundary_edges(np.array([[0.0, 1.0, -1e20]]))
+    assert "-1e+20" in str(caught.value) and "-9223372036854775" not in str(caught.value)
+    with pytest.raises(InvalidInputError, match="got -1$"):  # an int's message as before
+        boundary_edges(np.array([[0, 1, -1]]))
