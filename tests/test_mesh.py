@@ -133,3 +133,12 @@ def test_boundary_edges_name_a_negative_float_index_beyond_int64_as_given():
     assert "-1e+20" in str(caught.value) and "-9223372036854775" not in str(caught.value)
     with pytest.raises(InvalidInputError, match="got -1$"):  # an int's message as before
         boundary_edges(np.array([[0, 1, -1]]))
+
+
+def test_close_solid_names_a_face_index_beyond_int64_as_given():
+    # the uint64 index wrapped to a negative int64: "got indices -9223372036854775803 .. 2", never given
+    vertices = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]])
+    faces = np.array([[0, 1, 2**63 + 5]], np.uint64)
+    with pytest.raises(InvalidInputError, match=r"faces must index the 3 vertices \(0 \.\. 2\); got "
+                                                r"9223372036854775813 at \(0, 2\)"):
+        mesh_module.close_solid(vertices, faces, np.ones(1, bool), 0.0)
