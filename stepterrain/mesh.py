@@ -368,10 +368,12 @@ def _boundary(faces: wp.array, n: int, device: wp.Device) -> NDArray[np.int64]:
     return edges.numpy().reshape(total, 2)
 
 
-def _face_indices(faces: Any) -> NDArray[np.int64]:
+def _face_indices(faces: Any, n_vertices: int | None = None) -> NDArray[np.int64]:
     """``faces`` as an (F, 3) int64 array, else an :class:`InvalidInputError`: integers as they are, floats where
     each is a whole number (faces read back from a text file, as before), other floats (1.5 was truncated to another
-    vertex without a word, NaN named as index -2^63) and bools refused. An empty list (numpy's float64) is no faces."""
+    vertex without a word, NaN named as index -2^63) and bools refused. An empty list (numpy's float64) is no faces.
+    An index beyond int64 (uint64, a float) is named as given: an InvalidInputError naming the ``n_vertices`` where
+    they are known (close_solid's), else the kernels' OutputTooLargeError (boundary_edges')."""
     array = np.asarray(faces)
     if array.size and array.dtype.kind == "f":
         whole = np.isfinite(array) & (array == np.trunc(array))
@@ -380,6 +382,18 @@ def _face_indices(faces: Any) -> NDArray[np.int64]:
             raise InvalidInputError(f"faces must hold whole vertex indices; got {float(array[at])} at {at}")
     elif array.size and array.dtype.kind not in "iu":  # bools, text, objects
         raise InvalidInputError(f"faces must be an (F, 3) integer array of vertex indices; got dtype {array.dtype}")
+    if array.size and array.dtype.kind == "f" and array.min() < 0:  # -1e20: the cast to int64 named -2^63
+        at = tuple(int(k) for k in np.unravel_index(int(np.argmin(array)), array.shape))
+        raise InvalidInputError(f"faces must hold vertex indices >= 0; got {float(array[at])} at {at}")
+    if array.size and array.dtype.kind in "fu" and array.max() >= 2.0**63:  # int64's cast wrapped them round to
+        at = tuple(int(k) for k in np.unravel_index(int(np.argmax(array)), array.shape))  # -2^63, named as such
+        if n_vertices is not None:
+            raise InvalidInputError(f"faces must index the {n_vertices} vertices (0 .. {n_vertices - 1}); got "
+                                    f"{array[at]} at {at}")
+        raise OutputTooLargeError(f"faces: the kernels index vertices up to {MAX_INT32 - 3:,} with int32; got "
+                                  f"{array[at]} at {at}")
+    if array.size == 0 and array.ndim == 1:  # an empty list: no faces, as the docstring says (not shape (0,))
+        array = array.reshape(0, 3)
     array = array.astype(np.int64, copy=False)
     if array.ndim != 2 or array.shape[1] != 3:  # the kernels read the faces as flat rows of three
         raise InvalidInputError(f"faces must be an (F, 3) array of vertex indices; got shape {array.shape}")
@@ -527,7 +541,7 @@ def close_solid(
     of each column's smallest surface vertex.
     """
     vertices = real_numbers(vertices, "vertices", "an (N, 3) array of x, y, z")
-    faces = _face_indices(faces)
+    faces = _face_indices(faces, len(vertices) if vertices.ndim else None)
     if vertices.ndim != 2 or vertices.shape[1] != 3:  # the kernels read them as flat rows of three
         raise InvalidInputError(f"vertices must be an (N, 3) array of x, y, z; got shape {vertices.shape}")
     if len(vertices) == 0:

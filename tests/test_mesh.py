@@ -9,8 +9,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as hst
 from hypothesis.extra.numpy import arrays
 
+import stepterrain as st
 import stepterrain.mesh as mesh_module
 from stepterrain import _device
+from stepterrain.errors import InvalidInputError, OutputTooLargeError
 from stepterrain.mesh import boundary_edges, exact_keys
 from tests.reference_solid import _repeated_rows  # close_solid finds fins with kernels now (test_solid_kernels)
 
@@ -106,3 +108,73 @@ def test_exact_keys_group_bit_identical_rows(xy):
 def test_repeated_rows_equal_the_unique_reference(rows):
     _, inverse, counts = np.unique(rows, axis=0, return_inverse=True, return_counts=True)
     np.testing.assert_array_equal(_repeated_rows(rows), counts[inverse.reshape(-1)] > 1)
+
+
+@pytest.mark.parametrize("faces", [np.array([[2**63 + 5, 0, 1]], np.uint64), np.array([[1e20, 0, 1]]),
+                                   np.array([[0, 1, 2.0**63]])])
+def test_boundary_edges_name_an_index_beyond_int64_as_given(faces):
+    # cast to int64 they wrapped round to -2^63 (numpy's RuntimeWarning): "faces must hold vertex indices >= 0; got
+    # -9223372036854775808", an index the caller never gave
+    with pytest.raises(OutputTooLargeError, match="faces") as caught:
+        boundary_edges(faces)
+    assert "-9223372036854775" not in str(caught.value)
+    assert str(faces.max())[:6] in str(caught.value)
+
+
+def test_boundary_edges_of_an_empty_list_is_no_edge():
+    # _face_indices' docstring: an empty list (numpy's float64, shape (0,)) is no faces; it raised "got shape (0,)"
+    assert boundary_edges([]).shape == (0, 2)
+    np.testing.assert_array_equal(boundary_edges([]), boundary_edges(np.zeros((0, 3), np.int64)))
+
+
+def test_boundary_edges_name_a_negative_float_index_beyond_int64_as_given():
+    # -1e20 cast to int64 is -2^63: "got -9223372036854775808", an index the caller never gave
+    with pytest.raises(InvalidInputError, match=">= 0") as caught:
+        boundary_edges(np.array([[0.0, 1.0, -1e20]]))
+    assert "-1e+20" in str(caught.value) and "-9223372036854775" not in str(caught.value)
+    with pytest.raises(InvalidInputError, match="got -1$"):  # an int's message as before
+        boundary_edges(np.array([[0, 1, -1]]))
+
+
+def test_close_solid_names_a_face_index_beyond_int64_as_given():
+    # the uint64 index wrapped to a negative int64: "got indices -9223372036854775803 .. 2", never given
+    vertices = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]])
+    faces = np.array([[0, 1, 2**63 + 5]], np.uint64)
+    with pytest.raises(InvalidInputError, match=r"faces must index the 3 vertices \(0 \.\. 2\); got "
+                                                r"9223372036854775813 at \(0, 2\)"):
+        mesh_module.close_solid(vertices, faces, np.ones(1, bool), 0.0)
+
+
+def _heightfield_reference(heights, dx, dy, x0, y0):
+    """heightfield_mesh's contract in plain NumPy: node k = (x0 + j dx, y0 + i dy, float32 height), two triangles a
+    cell, each turned counter-clockwise seen from +z, none on a NaN node; the faces as sorted node triples."""
+    rows, cols = heights.shape
+    i, j = np.divmod(np.arange(rows * cols), cols)
+    nodes = np.column_stack([x0 + j * dx, y0 + i * dy, heights.astype(np.float32).astype(np.float64).reshape(-1)])
+    triangles = []
+    for r in range(rows - 1):
+        for c in range(cols - 1):
+            a, b, d, e = r * cols + c, r * cols + c + 1, (r + 1) * cols + c, (r + 1) * cols + c + 1
+            triangles += [(a, b, e), (a, e, d)]
+    triangles = np.array(triangles).reshape(-1, 3)
+    triangles = triangles[np.isfinite(nodes[triangles, 2]).all(axis=1)]
+    return nodes, {tuple(sorted(t)) for t in triangles.tolist()}
+
+
+@settings(max_examples=40, deadline=None)
+@given(arrays(np.float64, hst.tuples(hst.integers(2, 6), hst.integers(2, 6)),
+              elements=hst.one_of(hst.floats(-50, 50), hst.just(np.nan))),
+       hst.sampled_from([1.0, -1.0]), hst.sampled_from([1.0, -1.0]), hst.booleans())
+def test_heightfield_mesh_equals_the_numpy_reference(heights, sx, sy, utm):
+    """Vertex k is node k (its node_index with nodata), the faces are the reference's, every one counter-clockwise
+    seen from +z (negative spacings swap the winding), and no face touches a NaN node."""
+    dx, dy, origin = 30.0 * sx, 20.0 * sy, (500000.0, 4100000.0) if utm else (0.0, 0.0)
+    mesh = st.heightfield_mesh(heights[:, ::-1] if utm else heights, spacing=(dx, dy), origin=origin)
+    nodes, faces = _heightfield_reference(heights[:, ::-1] if utm else heights, dx, dy, *origin)
+    node = mesh.metadata.get("node_index", np.arange(len(nodes)))
+    np.testing.assert_array_equal(mesh.vertices, nodes[node])
+    assert {tuple(sorted(t)) for t in node[mesh.faces].tolist()} == faces
+    corners = mesh.vertices[mesh.faces]
+    u, v = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    assert (u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0] > 0).all()
+    assert np.isfinite(mesh.vertices).all()
