@@ -139,18 +139,19 @@ def unwritable_reason(error: OSError, folder: Path) -> str:
 _NAME_MAX = 255
 
 
-def _temporary_stem(name: str) -> str:
+def _temporary_stem(name: str, reserve: int = 0) -> str:
     """``name`` for :func:`atomic_path`'s temporary ``.<name>.XXXXXXXX.tmp``, cut to fit :data:`_NAME_MAX` bytes: a
     target name of 242 to 255 bytes is valid, but its temporary name was not (ENAMETOOLONG), and the write was
     refused as "cannot write in the output folder". The stem is UTF-8, cut between characters, an undecodable byte of
     ``name`` (``'\\udcf6'`` for a Latin-1 ``\\xf6``) as ``_``: writers that hand the temporary's name to a C library as
     UTF-8 (PIL's TIFF writer, rasterio) raised UnicodeEncodeError for such a name, and for one cut inside a character
-    (``os.fsdecode`` of its first bytes ended in a surrogate)."""
+    (``os.fsdecode`` of its first bytes ended in a surrogate). ``reserve`` bytes more are left free, for a side file
+    named after the temporary (GDAL's ``<temporary>.aux.xml``, see :func:`_save_geotiff`)."""
     text = _utf8_name(name)
     if text != name:
         text = text.replace("\ufffd", "_")
     raw = text.encode("utf-8")
-    room = _NAME_MAX - len(".") - len(".XXXXXXXX.tmp")
+    room = _NAME_MAX - len(".") - len(".XXXXXXXX.tmp") - reserve
     return text if len(raw) <= room else raw[:room].decode("utf-8", "ignore")  # a character cut: dropped
 
 
@@ -305,12 +306,13 @@ _TEMPORARY_FLAGS = (os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLL
                     | getattr(os, "O_BINARY", 0))
 
 
-def _new_temporary(folder: Path, name: str) -> Path:
+def _new_temporary(folder: Path, name: str, reserve: int = 0) -> Path:
     """A new empty file ``.<name>.XXXXXXXX.tmp`` (8 random characters) in ``folder``, made as ``open()`` makes a file:
     0o666 less the umask in force, or what the folder's default ACL gives. (mkstemp's 0o600 widened to the umask's
     mode, read once per process, kept the first write's umask: after ``os.umask(0o077)`` new files still came out
-    0o644.) ``O_EXCL`` makes two processes writing the same target take different names."""
-    stem = _temporary_stem(name)
+    0o644.) ``O_EXCL`` makes two processes writing the same target take different names. ``name`` is cut to leave
+    ``reserve`` bytes free (see :func:`_temporary_stem`)."""
+    stem = _temporary_stem(name, reserve)
     for _ in range(100):
         tmp = folder / f".{stem}.{secrets.token_hex(4)}.tmp"
         try:
@@ -1030,8 +1032,9 @@ def save_image(
     MissingDependencyError
         A GeoTIFF without rasterio installed.
     DataFileError
-        The target folder cannot be created or written, or ``path`` is a side file (material or texture
-        image) of a textured OBJ :func:`save_mesh` wrote in this process, which the image would replace.
+        The target folder cannot be created or written, ``path`` is a side file (material or texture
+        image) of a textured OBJ :func:`save_mesh` wrote in this process, which the image would replace, or
+        ``crs`` needs the side file ``<path>.aux.xml`` and its name is over 255 bytes (the image's over 247).
 
     Notes
     -----
@@ -1134,7 +1137,11 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
     # lost. It goes beside the image (the file a link names, as an OBJ's side files). An old one goes aside just before
     # the image is put in place (GDAL removes it when it makes the file: else the new image had the old one's CRS) and
     # the new one after: a reader sees either image with its own side file or none, never the other's, and a failed
-    # write puts the old one back beside the old image (the new one, put in place first, stayed beside it for good)
+    # write puts the old one back beside the old image (the new one, put in place first, stayed beside it for good).
+    # GDAL names its side file after the file it writes: for a target name of 234 bytes or more the temporary's name
+    # plus ".aux.xml" was over the 255 bytes a name may have, GDAL wrote no side file, and the CRS was lost without a
+    # word, where "<name>.aux.xml" fits up to 247 bytes. GDAL then writes to a shorter temporary, renamed onto tmp,
+    # and a CRS that needs a side file the image's name leaves no room for is refused before the image is put in place
     own_aux = _link_target(target)
     own_aux = own_aux.with_name(own_aux.name + ".aux.xml")
     aside: Path | None = None
@@ -1142,14 +1149,31 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
     try:
         with contextlib.ExitStack() as side_file:  # its exit, the new side file's rename, follows the image's
             with atomic_path(target) as tmp:
-                aux = tmp.with_name(tmp.name + ".aux.xml")
+                written = tmp
                 try:
-                    with rasterio.open(tmp, "w", **profile) as dataset:
+                    if len(os.fsencode(tmp.name + ".aux.xml")) > _NAME_MAX:
+                        written = _new_temporary(tmp.parent, tmp.name, reserve=len(".aux.xml"))
+                except OSError as exc:
+                    raise DataFileError(f"cannot write in the output folder {str(tmp.parent)!r}: "
+                                        f"{unwritable_reason(exc, tmp.parent)}") from exc
+                aux = written.with_name(written.name + ".aux.xml")
+                try:
+                    with rasterio.open(written, "w", **profile) as dataset:
                         dataset.write(np.moveaxis(array, 2, 0))
-                    if os.path.exists(aux):  # (False for a name too long to hold: GDAL could not write one either)
+                    if written != tmp:
+                        os.replace(written, tmp)
+                    if os.path.exists(aux):
+                        if len(os.fsencode(own_aux.name)) > _NAME_MAX:
+                            raise DataFileError(
+                                f"cannot write {str(target)!r} with its crs: GeoTIFF's keys cannot hold that CRS, and "
+                                f"GDAL keeps it in the side file {own_aux.name!r}, whose name of "
+                                f"{len(os.fsencode(own_aux.name))} bytes is over the {_NAME_MAX} a file name may "
+                                f"have; give the image a name of at most {_NAME_MAX - len('.aux.xml')} bytes")
                         side = side_file.enter_context(atomic_path(own_aux))
                         side.write_bytes(aux.read_bytes())
                         _replacing_like(side, own_aux)  # the old one is set aside before atomic_path renames it
+                except DataFileError:  # (an OSError: its own words, not wrapped in another "cannot write")
+                    raise
                 except (OSError, rasterio.errors.RasterioError) as exc:
                     from .io import gdal_reason  # GDAL's words (No space left on device), not "See previous exception"
 
@@ -1157,6 +1181,9 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
                 finally:
                     with contextlib.suppress(OSError):
                         aux.unlink()
+                    if written != tmp:  # (gone when renamed onto tmp)
+                        with contextlib.suppress(OSError):
+                            written.unlink()
                 aside = _set_aside(own_aux, target)
             placed = True
     finally:

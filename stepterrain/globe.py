@@ -1636,8 +1636,8 @@ def _plate_carree_shift(picture: Any, path: Any) -> int:
     (a, b, west, d, e, north), projected, source = found
     if projected:
         raise InvalidInputError(f"{name} must be a global plate-carrée image (longitude and latitude in degrees); got "
-                                f"{source} in a projected CRS: reproject it first (`gdalwarp -t_srs EPSG:4326 "
-                                "-te -180 -90 180 90 ...`)")
+                                f"{source} in a projected CRS: reproject it first (`gdalwarp -dstalpha -t_srs "
+                                "EPSG:4326 -te -180 -90 180 90 ...`)")
     width, height = picture.size
     if not (a > 0 and e < 0 and b == 0 and d == 0):
         raise InvalidInputError(f"{name} must be a global plate-carrée image, north-up (row 0 at 90N); got {source} "

@@ -128,7 +128,7 @@ def _georeferenced_extent(image: Any, found: tuple[Any, tuple[int, int], str | N
         raise InvalidInputError(
             f"image {str(image)!r} is georeferenced with a rotated geotransform {tuple(transform)[:6]} (its rotation "
             f"terms move pixels by more than {_ROTATION_TOLERANCE:g} of a pixel over {shape[0]} x {shape[1]} "
-            "pixels); a pyramid's extent is north-up: `gdalwarp` makes the image north-up, or pass "
+            "pixels); a pyramid's extent is north-up: `gdalwarp -dstalpha` makes the image north-up, or pass "
             "extent=(xmin, xmax, ymin, ymax) for it as it is")
     left, right = transform.c, transform.c + transform.a * shape[1]  # the bounds without the noise terms
     top, bottom = transform.f, transform.f + transform.e * shape[0]
@@ -1389,7 +1389,7 @@ def _placed(pyramid: ImagePyramid, terrain: Terrain) -> ImagePyramid:
     if pyramid.crs is None or terrain.crs is None or _same_crs(pyramid.crs, terrain.crs):
         return pyramid
     image_crs, terrain_crs = _horizontal_crs(pyramid.crs), _horizontal_crs(terrain.crs)
-    hint = f"reproject the image to the terrain's CRS first (`gdalwarp -t_srs '{terrain_crs}' ...`)"
+    hint = f"reproject the image to the terrain's CRS first (`gdalwarp -dstalpha -t_srs '{terrain_crs}' ...`)"
     local = _spherical_eqc(terrain.crs)
     if local is not None and _is_geographic(image_crs):
         radius, x_radius, _, lon_0, x_0, _ = local
@@ -1398,7 +1398,7 @@ def _placed(pyramid: ImagePyramid, terrain: Terrain) -> ImagePyramid:
             raise InvalidInputError(
                 f"the image is in CRS {image_crs!r}, whose longitude axis increases westwards, so its extent "
                 f"{pyramid.extent} (column 0 at xmin) runs east to west; give the image north-up and east-right "
-                "in a CRS whose longitudes increase eastwards (e.g. `gdalwarp -t_srs EPSG:4326`)")
+                "in a CRS whose longitudes increase eastwards (e.g. `gdalwarp -dstalpha -t_srs EPSG:4326`)")
         if abs(body.radius / radius - 1.0) <= 0.01:  # the same body (the earth: any earth ellipsoid, as load_dem)
             xmin, xmax, ymin, ymax = pyramid.extent
             lons = [body.meridian + v * body.degrees for v in (xmin, xmax)]

@@ -2529,3 +2529,47 @@ def test_a_geotiffs_new_aux_xml_keeps_the_old_ones_mode(tmp_path):
     assert stat.S_IMODE(os.stat(path).st_mode) == 0o600
     assert stat.S_IMODE(os.stat(tmp_path / "private.tif.aux.xml").st_mode) == 0o600
     assert "\"o_lat_p\",45" in (tmp_path / "private.tif.aux.xml").read_text()
+
+
+@pytest.mark.parametrize("stem", ["a" * 230, "a" * 237, "a" * 243, "\u00f6" * 118])
+def test_a_geotiffs_aux_xml_is_written_for_a_long_name_whose_temporary_name_leaves_no_room_for_it(tmp_path, stem):
+    """GDAL names the side file holding a CRS GeoTIFF's keys cannot hold after the file it writes: for a target name of
+    234 to 247 bytes ``.<name>.XXXXXXXX.tmp.aux.xml`` was over 255 bytes, GDAL wrote no side file, and the image came
+    out without its CRS, without a word, although ``<name>.aux.xml`` fits. GDAL now writes to a shorter temporary."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.crs import CRS
+
+    image = np.random.default_rng(5).integers(0, 256, (4, 6, 3), dtype=np.uint8)
+    path = tmp_path / f"{stem}.tif"
+    assert 234 <= len(os.fsencode(path.name)) <= 247
+    save_image(image, path, extent=(0.0, 6.0, 0.0, 4.0), crs=_ROTATED)
+    assert sorted(os.listdir(tmp_path)) == sorted([path.name, path.name + ".aux.xml"])  # no temporary stays
+    with rasterio.open(path) as dataset:
+        assert dataset.crs == CRS.from_user_input(_ROTATED)
+        assert np.array_equal(np.moveaxis(dataset.read(), 0, 2), image)
+    save_image(image, path, extent=(0.0, 6.0, 0.0, 4.0), crs="EPSG:4326")  # one the keys hold: the side file goes
+    assert os.listdir(tmp_path) == [path.name]
+    with rasterio.open(path) as dataset:
+        assert dataset.crs == CRS.from_epsg(4326)
+
+
+@pytest.mark.parametrize("length", [248, 255])
+def test_a_geotiff_whose_crs_needs_a_side_file_its_name_leaves_no_room_for_is_refused_and_the_old_one_kept(
+        tmp_path, length):
+    """A CRS GeoTIFF's keys cannot hold goes into ``<name>.aux.xml``, over 255 bytes for a name of 248 bytes or more:
+    the image was written without it (its CRS lost, without a word). It is refused, naming the side file and the
+    longest name that takes one, and the image there before stays as it was; a CRS the keys hold is still written."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.crs import CRS
+
+    path = tmp_path / ("a" * (length - 4) + ".tif")
+    old = np.full((4, 6, 3), 40, np.uint8)
+    save_image(old, path, extent=(0.0, 6.0, 0.0, 4.0), crs="EPSG:4326")
+    with pytest.raises(DataFileError, match=rf"cannot write '.*\.tif' with its crs: GeoTIFF's keys cannot hold that "
+                                            rf"CRS, and GDAL keeps it in the side file 'a+\.tif\.aux\.xml', whose name "
+                                            rf"of {length + 8} bytes is over the 255 .* at most 247 bytes"):
+        save_image(np.full((4, 6, 3), 200, np.uint8), path, extent=(0.0, 6.0, 0.0, 4.0), crs=_ROTATED)
+    assert os.listdir(tmp_path) == [path.name]
+    with rasterio.open(path) as dataset:
+        assert dataset.crs == CRS.from_epsg(4326)
+        assert np.array_equal(np.moveaxis(dataset.read(), 0, 2), old)

@@ -2056,3 +2056,46 @@ def test_a_radius_below_float32s_normal_range_is_refused_and_the_smallest_taken_
         assert len(want_faces) < 12 * 16**2  # the clip test culls
         np.testing.assert_array_equal(faces, want_faces)
         np.testing.assert_allclose(vertices, want_vertices, rtol=0, atol=1e-6)
+
+
+def test_the_gdalwarp_a_projected_texture_is_refused_with_leaves_the_poles_transparent_not_black(tmp_path):
+    """A global texture in a projected CRS (a Web Mercator world map, to 85.05 degrees) is refused with the gdalwarp
+    that puts it in degrees over the whole globe. Run as said, `gdalwarp -t_srs EPSG:4326 -te -180 -90 180 90`, the
+    polar caps beyond the map were filled with opaque black and draped as black caps. It says -dstalpha now: the
+    drape reads that alpha band, the caps are transparent, and all that is opaque is the map's colour."""
+    import shlex
+    import shutil
+    import subprocess
+
+    rasterio = pytest.importorskip("rasterio")
+    from PIL import Image
+    from rasterio.transform import Affine
+
+    from stepterrain.globe import drape_colors
+
+    from .conftest import shared_file
+
+    if shutil.which("gdalwarp") is None:
+        pytest.skip("gdalwarp (gdal-bin) is not installed")
+    with Image.open(shared_file("earth_day_bluemarble_3840x1920.tif")) as picture:
+        pixels = np.asarray(picture.convert("RGB"))[::16, ::16]  # 240 x 120, none of it black
+    assert pixels.max(axis=2).min() > 0
+    edge = 20037508.342789244  # the Web Mercator square, to 85.05 degrees
+    with rasterio.open(tmp_path / "mercator.tif", "w", driver="GTiff", width=240, height=240, count=3, dtype="uint8",
+                       crs="EPSG:3857", transform=Affine(2 * edge / 240, 0.0, -edge, 0.0, -2 * edge / 240, edge),
+                       photometric="RGB") as out:
+        out.write(np.moveaxis(np.asarray(Image.fromarray(pixels).resize((240, 240))), 2, 0))
+    with pytest.raises(InvalidInputError, match="in a projected CRS: reproject it first") as refused:
+        drape_colors(np.array([[EARTH_RADIUS, 0.0, 0.0]]), str(tmp_path / "mercator.tif"))
+    command = re.search(r"\(`(gdalwarp[^`]*)`\)", str(refused.value)).group(1)
+    words = [w for w in shlex.split(command) if w != "..."]
+    subprocess.run([*words, "-q", "mercator.tif", "degrees.tif"], cwd=tmp_path, check=True, capture_output=True)
+    lat, lon = np.meshgrid(np.radians(np.linspace(-89.5, 89.5, 180)), np.radians(np.linspace(-179.5, 179.5, 360)),
+                           indexing="ij")
+    directions = np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)], axis=-1)
+    colors = drape_colors(directions.reshape(-1, 3) * EARTH_RADIUS, str(tmp_path / "degrees.tif")).reshape(180, 360, 4)
+    caps = np.abs(np.degrees(lat)) > 86.0
+    assert (colors[caps][:, 3] == 0).all(), "the polar caps beyond the map are opaque"
+    assert (colors[np.abs(np.degrees(lat)) < 84.0][:, 3] == 255).all()
+    opaque = colors[..., 3] == 255
+    assert not (colors[opaque][:, :3] == 0).all(axis=1).any(), "opaque black where the map has no data"

@@ -549,8 +549,8 @@ def test_cli_texture_image_keeps_the_dems_nodata_transparent_and_renders(tmp_pat
                  "pyramid's row 0 is the north edge and column 0 the west edge: write the image north-up, or give "
                  "--image-extent xmin,xmax,ymin,ymax for it as it is"),
     ("rotated", "rotated geotransform (30.0, 2.0, 376313.0, 2.0, -30.0, 3807917.0) (its rotation terms move pixels "
-                "by more than 1e-06 of a pixel over 64 x 64 pixels); a pyramid's extent is north-up: `gdalwarp` makes "
-                "the image north-up, or give --image-extent xmin,xmax,ymin,ymax for it as it is"),
+                "by more than 1e-06 of a pixel over 64 x 64 pixels); a pyramid's extent is north-up: `gdalwarp "
+                "-dstalpha` makes the image north-up, or give --image-extent xmin,xmax,ymin,ymax for it as it is"),
     ("over the budget", "reading '{image}' (the image's window: 3 x 643 x 1197 cells of uint8)"),  # a PNG: its window
 ])
 def test_cli_texture_image_is_refused_clearly(tmp_path, capsys, case, match):
@@ -998,7 +998,8 @@ def test_cli_texture_image_world_file_crs_rules(tmp_path, capsys):
     rotated.parent.mkdir()
     write_world_image(rotated, coded_pixels(60, 80), placed @ Affine.rotation(5), crs.to_wkt())
     err = refused(source, rotated)
-    assert "rotated geotransform" in err and "`gdalwarp` makes the image north-up, or give --image-extent" in err
+    assert "rotated geotransform" in err
+    assert "`gdalwarp -dstalpha` makes the image north-up, or give --image-extent" in err
 
 
 def _one_at_a_time(topo, colours, picture, extent, shape, background):

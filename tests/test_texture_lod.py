@@ -724,7 +724,8 @@ def test_texture_tree_refuses_an_image_in_another_crs_than_the_terrain():
     with ImagePyramid.build(marble, device="cpu") as pyramid:
         assert pyramid.crs == "EPSG:4326"
         with pytest.raises(InvalidInputError, match=r"^the image is in CRS 'EPSG:4326' but the terrain is in "
-                                                    r"'EPSG:32611' \(mismatched CRS.*gdalwarp -t_srs 'EPSG:32611'"):
+                                                    r"'EPSG:32611' \(mismatched CRS.*gdalwarp -dstalpha -t_srs "
+                                                    r"'EPSG:32611'"):
             TextureTree(pyramid, PatchQuadtree(tujunga))
         placed = TextureTree(pyramid, PatchQuadtree(front_range))
         assert placed.pyramid.crs == front_range.crs and placed.pyramid.levels is pyramid.levels
@@ -955,3 +956,85 @@ def test_image_layer_texel_size_reads_the_finer_level_asked_for():
     for bad in (0, -1.0, float("nan"), "x"):
         with pytest.raises(InvalidInputError, match="texel_size must be"):
             image_layer(pixels, terrain, extent=extent, device="cpu", texel_size=bad)
+
+
+def _blue_marble_tif(path, crs, transform, rows=slice(700, 764), cols=slice(1500, 1596)):
+    """A GeoTIFF of an RGB crop of the Blue Marble (no pixel of it black: (0, 0, 0) can only be a warp's fill) with
+    ``crs`` and ``transform``; its pixels."""
+    import rasterio
+    from PIL import Image
+
+    from .reference_texture import find_shared
+
+    with Image.open(find_shared("earth_day_bluemarble_3840x1920.tif")) as picture:
+        pixels = np.asarray(picture.convert("RGB"))[rows, cols]
+    assert pixels.max(axis=2).min() > 0
+    with rasterio.open(path, "w", driver="GTiff", width=pixels.shape[1], height=pixels.shape[0], count=3,
+                       dtype="uint8", crs=crs, transform=transform, photometric="RGB") as out:
+        out.write(np.moveaxis(pixels, 2, 0))
+    return pixels
+
+
+def _run_hint(command, source, target, folder):
+    """Run the gdalwarp ``command`` of a message (its ``...`` dropped) on ``source``, writing ``target``."""
+    import shlex
+    import shutil
+
+    if shutil.which("gdalwarp") is None:
+        pytest.skip("gdalwarp (gdal-bin) is not installed")
+    words = [w for w in shlex.split(command) if w != "..."]
+    subprocess.run([*words, "-q", str(source), str(target)], cwd=folder, check=True, capture_output=True)
+
+
+def _assert_no_black_fill(level, source):
+    """The warped ``level``: where the source had no data it is transparent (alpha 0), not opaque black, and what
+    is opaque holds the source's colours."""
+    assert level.shape[2] == 4, "no alpha: the area outside the source is opaque"
+    opaque = level[..., 3] == 255
+    assert (level[..., 3] == 0).any() and opaque.any()
+    assert not (level[opaque][:, :3] == 0).all(axis=1).any(), "opaque black fill where the source had no data"
+    assert set(map(tuple, level[opaque][:, :3])) <= set(map(tuple, source.reshape(-1, 3)))  # nearest: its pixels
+
+
+def test_the_gdalwarp_a_rotated_image_is_refused_with_leaves_it_transparent_outside_not_black(tmp_path):
+    """An image with a rotated geotransform is refused with the gdalwarp that makes it north-up. Run as said,
+    `gdalwarp`, the corners of the north-up grid outside the rotated image were filled with opaque black (the
+    image has no nodata), draped as a black frame round the orthophoto. It says -dstalpha now: the pyramid reads
+    that alpha band, and the corners are transparent (the layers under them show)."""
+    pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    turn = math.radians(30.0)
+    pixels = _blue_marble_tif(tmp_path / "rotated.tif", "EPSG:32611", Affine(
+        30.0 * math.cos(turn), 30.0 * math.sin(turn), 400000.0, 30.0 * math.sin(turn), -30.0 * math.cos(turn),
+        3800000.0))
+    with pytest.raises(InvalidInputError, match="rotated geotransform") as refused:
+        ImagePyramid.build(tmp_path / "rotated.tif", device="cpu")
+    command = re.search(r"`(gdalwarp[^`]*)` makes the image north-up", str(refused.value)).group(1)
+    _run_hint(command, "rotated.tif", "north_up.tif", tmp_path)
+    with ImagePyramid.build(tmp_path / "north_up.tif", device="cpu") as pyramid:
+        _assert_no_black_fill(np.asarray(pyramid.levels[0]), pixels)
+
+
+def test_the_gdalwarp_an_image_in_another_crs_is_refused_with_leaves_it_transparent_outside_not_black(tmp_path):
+    """An image in another CRS than the terrain's is refused with the gdalwarp that reprojects it. Run as said,
+    `gdalwarp -t_srs 'EPSG:32611'`, the corners of the grid in EPSG:32611 outside the image (from the west of zone
+    12, turned some 5 degrees) were filled with opaque black, a black frame draped on the terrain. It says -dstalpha
+    now: those corners read transparent."""
+    pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    import stepterrain as st
+
+    from .reference_texture import find_shared
+
+    tujunga = st.load_dem(find_shared("big_tujunga_srtm_30m_utm11n.tif"))
+    pixels = _blue_marble_tif(tmp_path / "east.tif", "EPSG:32612", Affine(30.0, 0.0, 200000.0, 0.0, -30.0, 3800000.0))
+    with ImagePyramid.build(tmp_path / "east.tif", device="cpu") as pyramid:
+        with pytest.raises(InvalidInputError, match="mismatched CRS") as refused:
+            TextureTree(pyramid, PatchQuadtree(tujunga))
+    command = re.search(r"\(`(gdalwarp[^`]*)`\)", str(refused.value)).group(1)
+    _run_hint(command, "east.tif", "zone_11.tif", tmp_path)
+    with ImagePyramid.build(tmp_path / "zone_11.tif", device="cpu") as pyramid:
+        assert "32611" in pyramid.crs or "zone 11N" in pyramid.crs, pyramid.crs
+        _assert_no_black_fill(np.asarray(pyramid.levels[0]), pixels)
