@@ -121,3 +121,18 @@ def test_pytest_benchmarks_collects_the_bench_modules_only():
     assert collected and all(line.startswith(("benchmarks/bench_stepped.py::", "benchmarks/bench_texture.py::"))
                              for line in collected)
     assert any("small-257" in line for line in collected)
+
+
+def test_pytest_benchmarks_still_honours_ignore():
+    """benchmarks/conftest.py answered False ("collect it") for ``bench_*.py``, and pytest takes the first answer of
+    ``pytest_ignore_collect``: ``pytest benchmarks --ignore=benchmarks/bench_texture.py`` (or ``--ignore-glob``)
+    collected bench_texture.py all the same. It now answers only for the scripts it leaves out."""
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-m", "pytest", "benchmarks", "-k", "small", "--collect-only", "-q",
+                           "--ignore=benchmarks/bench_texture.py"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=300, check=False)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    collected = [line for line in proc.stdout.splitlines() if "::" in line]
+    assert collected and all(line.startswith("benchmarks/bench_stepped.py::") for line in collected), collected
