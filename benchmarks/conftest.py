@@ -12,6 +12,10 @@ from pathlib import Path
 
 
 def pytest_ignore_collect(collection_path: Path, config) -> bool | None:
-    if collection_path.suffix == ".py" and collection_path.parent == Path(__file__).parent:
-        return not collection_path.name.startswith("bench_") and collection_path.name != "conftest.py"
+    """True for this folder's scripts; None (pytest decides) for the rest: the hook takes the first answer, and a
+    False would also override ``--ignore``, ``--ignore-glob`` and ``collect_ignore`` for ``bench_*.py``."""
+    here = Path(__file__).parent
+    if collection_path.suffix == ".py" and collection_path.parent == here and collection_path.name != "conftest.py":
+        if not collection_path.name.startswith("bench_"):
+            return True
     return None

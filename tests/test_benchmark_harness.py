@@ -57,7 +57,11 @@ def test_run_closeup_accepts_its_documented_counts(monkeypatch):
 def test_run_texture_reports_the_command_it_was_given(monkeypatch, capsys):
     """``run_texture.main(argv)`` printed ``sys.argv`` (here pytest's) as its command, not ``argv``: the report's
     "Command:" line, which RESULTS.md sections quote, named another run than the one measured."""
+    from .conftest import shared_file
+
+    dem = shared_file("big_tujunga_srtm_30m_utm11n.npz")  # skips without shared/data, as the tests do
     module = _script("run_texture", monkeypatch)
+    monkeypatch.setattr(module, "find_dem", lambda: dem)  # the tests' shared/data (STEPTERRAIN_SHARED_DATA too)
     argv = ["--cases", "contours", "--contour-size", "32", "--repeat", "1", "--all-cores"]
     assert module.main(argv) == 0
     out = capsys.readouterr().out
@@ -83,8 +87,12 @@ def test_run_cuda_reports_the_command_it_was_given(monkeypatch, capsys):
 def test_run_globe_gives_pymartini_as_many_runs_as_ours(monkeypatch):
     """Preprocessing reported the best of ``--repeat`` runs of ``Globe.from_latlon`` against the best of ``--repeat //
     2`` of pymartini's set-up: a best of fewer runs is a slower best, a bias in our favour. Both get ``--repeat``."""
+    from .conftest import shared_file
+
     pytest.importorskip("pymartini")
+    relief = shared_file("global_relief.npz")  # skips without shared/data, as the tests do
     module = _script("run_globe", monkeypatch)
+    monkeypatch.setattr(module, "DATA_DIRS", [relief.parent])
     real_best, repeats = module.best, []
 
     def counting(fn, repeat):
@@ -113,3 +121,18 @@ def test_pytest_benchmarks_collects_the_bench_modules_only():
     assert collected and all(line.startswith(("benchmarks/bench_stepped.py::", "benchmarks/bench_texture.py::"))
                              for line in collected)
     assert any("small-257" in line for line in collected)
+
+
+def test_pytest_benchmarks_still_honours_ignore():
+    """benchmarks/conftest.py answered False ("collect it") for ``bench_*.py``, and pytest takes the first answer of
+    ``pytest_ignore_collect``: ``pytest benchmarks --ignore=benchmarks/bench_texture.py`` (or ``--ignore-glob``)
+    collected bench_texture.py all the same. It now answers only for the scripts it leaves out."""
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-m", "pytest", "benchmarks", "-k", "small", "--collect-only", "-q",
+                           "--ignore=benchmarks/bench_texture.py"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=300, check=False)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    collected = [line for line in proc.stdout.splitlines() if "::" in line]
+    assert collected and all(line.startswith("benchmarks/bench_stepped.py::") for line in collected), collected
