@@ -751,6 +751,8 @@ def _check_outputs(inputs: dict[str, str | None] | None = None, /, **paths: Path
             folder = Path(os.path.realpath(key.parent))
             while not folder.exists() and folder != folder.parent:
                 folder = folder.parent
+        except DataFileError:  # the refusals above, whole ("cannot be written: --png 'x' is a folder" said it twice)
+            raise
         except OSError as exc:
             raise DataFileError(f"{name} {str(path)!r} cannot be written: {exc.strerror or exc}") from exc
         if not folder.is_dir():

@@ -2493,3 +2493,23 @@ def test_batch_overview_warning_of_a_cell_too_tall_to_see_names_an_option_batch_
     assert code == 0 and "b.ply" not in err, err
     drawn = (np.asarray(Image.open(png))[..., :3] < 250).any(axis=2)
     assert drawn[:, 50:].mean() > 0.02, drawn[:, 50:].mean()
+
+
+@pytest.mark.parametrize("kind", ["folder", "fifo"])
+def test_steps_output_that_is_a_folder_or_a_pipe_is_refused_in_one_plain_sentence(tmp_path, capsys, kind):
+    """``_check_outputs``' own refusals (DataFileError, an OSError) were caught by its ``except OSError`` and wrapped:
+    "--output 'x.glb' cannot be written: --output 'x.glb' is a folder; expected a file name"."""
+    target = tmp_path / "x.glb"
+    if kind == "folder":
+        target.mkdir()
+    else:
+        if not hasattr(os, "mkfifo"):
+            pytest.skip("no named pipes here")
+        os.mkfifo(target)
+    np.save(tmp_path / "d.npy", np.add.outer(np.arange(6.0), np.arange(7.0)).astype(np.float32))
+    code, _, err = run(capsys, "-q", "steps", tmp_path / "d.npy", "--interval", "2", "-o", target)
+    assert code == 2, err
+    line = err.strip()
+    expected = "is a folder; expected a file name" if kind == "folder" else "is a named pipe, not a regular file"
+    assert line.startswith(f"stepterrain steps: error: --output {str(target)!r} {expected}"), line
+    assert line.count("--output") == 1 and "cannot be written" not in line, line
