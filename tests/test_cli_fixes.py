@@ -843,6 +843,9 @@ def test_steps_warns_when_the_lens_changes_nothing(lens, why, tmp_path, capsys):
     # the lens reaches 2e-7 m into the extent, between the mask's samples: every sample is --gamma
     (("--lens", "61.9999998,-20,3", "--lens-edge", "0"), "reaches only 2e-07 into the terrain's extent"),
     (("--lens", "30,-20,5", "--gamma", "1e-50"), None),  # γ 1e-50 is float32 0: the original surface, lens or not
+    # a lens inside the extent, smaller than the mask's samples: it was told to "move it inside"
+    (("--lens", "30.5,-20.5,1e-300", "--lens-edge", "0"), "lies inside the terrain's extent x 0 to 59, y -39 to 0, but "
+                                                        "is smaller than its mask resolves; give a larger radius"),
 ])
 def test_steps_lens_over_the_terrain_that_changes_nothing_is_no_unbound_local(options, why, tmp_path, capsys):
     """A lens overlapping the terrain's extent whose mask still held --gamma everywhere (a sliver of it between the
