@@ -618,8 +618,9 @@ def scale_for_print(mesh: trimesh.Trimesh, size: float, *, z_scale: float = 1.0)
     ------
     InvalidInputError
         ``size`` or ``z_scale`` is not a positive finite number, the scaled model would not fit in float32 (STL's
-        coordinates), or ``mesh`` is not a mesh, has no faces, faces indexing beyond its vertices, non-finite
-        vertices or no horizontal extent (all its vertices on one vertical line).
+        coordinates) or would have coordinates below its least normal number (about 1.2e-38), or ``mesh`` is not a
+        mesh, has no faces, faces indexing beyond its vertices, non-finite vertices or no horizontal extent (all its
+        vertices on one vertical line).
 
     Examples
     --------
