@@ -2516,3 +2516,12 @@ def test_steps_output_that_is_a_folder_or_a_pipe_is_refused_in_one_plain_sentenc
     expected = "is a folder; expected a file name" if kind == "folder" else "is a named pipe, not a regular file"
     assert line.startswith(f"stepterrain steps: error: --output {str(target)!r} {expected}"), line
     assert line.count("--output") == 1 and "cannot be written" not in line, line
+
+
+def test_memory_budget_of_one_byte_is_said_in_the_singular(tmp_path, capsys):
+    """``--memory-budget 1`` (the least it takes) was refused "over the memory budget of 1 bytes"."""
+    np.save(tmp_path / "d.npy", np.add.outer(np.arange(6.0), np.arange(7.0)).astype(np.float32))
+    code, out, err = run(capsys, "info", tmp_path / "d.npy", "--memory-budget", "1")
+    assert code == 2 and out == "", err
+    assert "over the memory budget of 1 byte;" in err and "1 bytes" not in err, err
+    assert "would need 168 bytes" in err, err  # 6 x 7 float32 cells: more than one, plural
