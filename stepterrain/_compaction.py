@@ -107,7 +107,9 @@ def _size_text(nbytes: int) -> str:
     of resolution 10**400 asks for 10**800 bytes) as a power of ten: the division raised OverflowError."""
     if nbytes >= 2**1000:
         return f"over 10^{len(str(int(nbytes) // 1024**2)) - 1} MiB"
-    return f"{nbytes / 1024**2:,.1f} MiB" if nbytes >= 0.1 * 1024**2 else f"{int(nbytes):,} bytes"
+    if nbytes >= 0.1 * 1024**2:
+        return f"{nbytes / 1024**2:,.1f} MiB"
+    return f"{int(nbytes):,} byte{'' if int(nbytes) == 1 else 's'}"  # --memory-budget 1: "of 1 bytes"
 
 
 def count_buffer(name: str, n: int, device: wp.Device) -> wp.array:

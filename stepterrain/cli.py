@@ -785,6 +785,8 @@ def _check_outputs(inputs: dict[str, str | None] | None = None, names: dict[str,
             folder = Path(os.path.realpath(key.parent))
             while not folder.exists() and folder != folder.parent:
                 folder = folder.parent
+        except DataFileError:  # the refusals above, whole ("cannot be written: --png 'x' is a folder" said it twice)
+            raise
         except OSError as exc:
             raise DataFileError(f"{name} {str(path)!r} cannot be written: {exc.strerror or exc}") from exc
         if not folder.is_dir():
@@ -1008,10 +1010,13 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
                 why = (f"lies outside the terrain's extent x {xmin:.9g} to {xmax:.9g}, y {ymin:.9g} to {ymax:.9g} "
                        f"(--lens takes world coordinates{crs}; --lens-relative fractions of the extent)"
                        + degrees_hint(terrain, (cx - radius, cx + radius, cy - radius, cy + radius)))
-            else:  # a sliver of it overlaps the extent, between the mask's samples (the run ended in UnboundLocalError)
+            elif outside > 0:  # a sliver of it overlaps the extent, between the mask's samples (UnboundLocalError)
                 why = (f"reaches only {radius - outside:.3g} into the terrain's extent x {xmin:.9g} to {xmax:.9g}, "
                        f"y {ymin:.9g} to {ymax:.9g}, less than its mask resolves; move it inside or give a larger "
                        "radius")
+            else:  # centred on the terrain, too small to show: "move it inside" was advice for a lens already inside
+                why = (f"lies inside the terrain's extent x {xmin:.9g} to {xmax:.9g}, y {ymin:.9g} to {ymax:.9g}, "
+                       "but is smaller than its mask resolves; give a larger radius")
             warnings.warn(f"the lens at ({cx:.9g}, {cy:.9g}), radius {radius:.9g}, changes nothing: it {why}",
                           stacklevel=1)
         elif stepping and _nearest_node_distance(terrain, cx, cy) >= reach:

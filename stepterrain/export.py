@@ -626,8 +626,9 @@ def scale_for_print(mesh: trimesh.Trimesh, size: float, *, z_scale: float = 1.0)
     ------
     InvalidInputError
         ``size`` or ``z_scale`` is not a positive finite number, the scaled model would not fit in float32 (STL's
-        coordinates), or ``mesh`` is not a mesh, has no faces, faces indexing beyond its vertices, non-finite
-        vertices or no horizontal extent (all its vertices on one vertical line).
+        coordinates) or would have coordinates below its least normal number (about 1.2e-38), or ``mesh`` is not a
+        mesh, has no faces, faces indexing beyond its vertices, non-finite vertices or no horizontal extent (all its
+        vertices on one vertical line).
 
     Examples
     --------
@@ -639,6 +640,10 @@ def scale_for_print(mesh: trimesh.Trimesh, size: float, *, z_scale: float = 1.0)
     ([150.0, 70.3125], True)
     """
     return _scaled_for_print(mesh_argument(mesh), size, z_scale, copy=True)
+
+
+#: float32's least normal number (about 1.2e-38): a print model's coordinates below it underflow in STL and glTF.
+_FLOAT32_TINY = float(np.finfo(np.float32).tiny)
 
 
 def _scaled_for_print(mesh: trimesh.Trimesh, size: Any, z_scale: Any, *, copy: bool,
@@ -672,13 +677,23 @@ def _scaled_for_print(mesh: trimesh.Trimesh, size: Any, z_scale: Any, *, copy: b
                                 f"vertices of its faces all at x = {float(lo[0])!r}, y = {float(lo[1])!r}")
     scale = size / extent
     factors = np.array([scale, scale, scale * z_scale])
-    top = float(((hi - lo) * factors).max())
+    with np.errstate(over="ignore"):  # an overflow is refused below: numpy's RuntimeWarning said it first, unasked
+        top = float(((hi - lo) * factors).max())
     if not top < FLOAT32_MAX:
         raise InvalidInputError(f"the model scaled to {names[0]} {size:g} with {names[1]} {z_scale:g} reaches {top:g}, "
                                 f"beyond float32 (|x| < {FLOAT32_MAX:.2g}, STL's coordinates); give a smaller "
                                 f"{names[0]} or {names[1]}")
+    moved = (vertices - lo) * factors
+    # float32 (STL's and glTF's coordinates) underflows below its least normal number: size=1e-300 wrote an .stl of
+    # no face and a .glb of every vertex at 0 (exit 0), 1e-40 an .stl missing faces
+    least = min(float(column[column > 0].min(initial=np.inf)) for column in moved.T)  # a column at a time
+    if least < _FLOAT32_TINY:
+        raise InvalidInputError(f"the model scaled to {names[0]} {size:g} with {names[1]} {z_scale:g} has coordinates "
+                                f"down to {least:g}, below float32's least normal number ({_FLOAT32_TINY:.2g}, STL's "
+                                f"coordinates), where its vertices lose their precision or become 0; give a larger "
+                                f"{names[0]} or {names[1]}")
     scaled = mesh.copy() if copy else mesh
-    scaled.vertices = (vertices - lo) * factors
+    scaled.vertices = moved
     # the copy's own (deep-copied) metadata: the input's lists (isovalues) were shared, an edit of one the other's
     metadata = {key: value for key, value in scaled.metadata.items() if key not in _WORLD_METADATA}
     metadata["print"] = {"size": size, "scale": scale, "z_scale": z_scale, "origin": [float(v) for v in lo]}

@@ -843,6 +843,9 @@ def test_steps_warns_when_the_lens_changes_nothing(lens, why, tmp_path, capsys):
     # the lens reaches 2e-7 m into the extent, between the mask's samples: every sample is --gamma
     (("--lens", "61.9999998,-20,3", "--lens-edge", "0"), "reaches only 2e-07 into the terrain's extent"),
     (("--lens", "30,-20,5", "--gamma", "1e-50"), None),  # γ 1e-50 is float32 0: the original surface, lens or not
+    # a lens inside the extent, smaller than the mask's samples: it was told to "move it inside"
+    (("--lens", "30.5,-20.5,1e-300", "--lens-edge", "0"), "lies inside the terrain's extent x 0 to 59, y -39 to 0, but "
+                                                        "is smaller than its mask resolves; give a larger radius"),
 ])
 def test_steps_lens_over_the_terrain_that_changes_nothing_is_no_unbound_local(options, why, tmp_path, capsys):
     """A lens overlapping the terrain's extent whose mask still held --gamma everywhere (a sliver of it between the
@@ -2493,3 +2496,32 @@ def test_batch_overview_warning_of_a_cell_too_tall_to_see_names_an_option_batch_
     assert code == 0 and "b.ply" not in err, err
     drawn = (np.asarray(Image.open(png))[..., :3] < 250).any(axis=2)
     assert drawn[:, 50:].mean() > 0.02, drawn[:, 50:].mean()
+
+
+@pytest.mark.parametrize("kind", ["folder", "fifo"])
+def test_steps_output_that_is_a_folder_or_a_pipe_is_refused_in_one_plain_sentence(tmp_path, capsys, kind):
+    """``_check_outputs``' own refusals (DataFileError, an OSError) were caught by its ``except OSError`` and wrapped:
+    "--output 'x.glb' cannot be written: --output 'x.glb' is a folder; expected a file name"."""
+    target = tmp_path / "x.glb"
+    if kind == "folder":
+        target.mkdir()
+    else:
+        if not hasattr(os, "mkfifo"):
+            pytest.skip("no named pipes here")
+        os.mkfifo(target)
+    np.save(tmp_path / "d.npy", np.add.outer(np.arange(6.0), np.arange(7.0)).astype(np.float32))
+    code, _, err = run(capsys, "-q", "steps", tmp_path / "d.npy", "--interval", "2", "-o", target)
+    assert code == 2, err
+    line = err.strip()
+    expected = "is a folder; expected a file name" if kind == "folder" else "is a named pipe, not a regular file"
+    assert line.startswith(f"stepterrain steps: error: --output {str(target)!r} {expected}"), line
+    assert line.count("--output") == 1 and "cannot be written" not in line, line
+
+
+def test_memory_budget_of_one_byte_is_said_in_the_singular(tmp_path, capsys):
+    """``--memory-budget 1`` (the least it takes) was refused "over the memory budget of 1 bytes"."""
+    np.save(tmp_path / "d.npy", np.add.outer(np.arange(6.0), np.arange(7.0)).astype(np.float32))
+    code, out, err = run(capsys, "info", tmp_path / "d.npy", "--memory-budget", "1")
+    assert code == 2 and out == "", err
+    assert "over the memory budget of 1 byte;" in err and "1 bytes" not in err, err
+    assert "would need 168 bytes" in err, err  # 6 x 7 float32 cells: more than one, plural

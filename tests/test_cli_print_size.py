@@ -151,3 +151,35 @@ def test_steps_print_size_to_gltf_warns_that_its_unit_is_the_metre(tmp_path, cap
     code, _, err = run(capsys, "steps", "--crop", crop, "--interval", "100", "--solid", "--print-size", "150",
                        "-o", tmp_path / "model.3mf")
     assert code == 0 and "warning" not in err, err
+
+
+@pytest.mark.parametrize("ext", [".stl", ".glb"])
+@pytest.mark.parametrize("options", [("--print-size", "1e-300"), ("--print-size", "1e-40"),
+                                     ("--print-size", "150", "--print-z-scale", "1e-300")])
+def test_steps_print_size_that_underflows_float32_is_refused_writing_nothing(tmp_path, capsys, ext, options):
+    """A model scaled below float32's least normal number (STL's and glTF's coordinates) lost its faces or its
+    vertices: --print-size 1e-300 wrote an .stl of no face and a .glb with every vertex at 0, exit 0."""
+    out = tmp_path / f"model{ext}"
+    code, _, err = run(capsys, "steps", "--crop", ",".join(f"{v:g}" for v in CROP), "--interval", "100", "--solid",
+                       *options, "-o", out)
+    assert code == 2, err
+    assert "below float32's least normal number" in err and "give a larger --print-size or --print-z-scale" in err
+    assert not out.exists()
+
+
+def test_steps_print_size_that_overflows_float32_says_so_in_one_error_without_numpys_warning(tmp_path, capsys):
+    out = tmp_path / "model.stl"
+    code, _, err = run(capsys, "steps", "--crop", ",".join(f"{v:g}" for v in CROP), "--interval", "100", "--solid",
+                       "--print-size", "1e308", "--print-z-scale", "100", "-o", out)
+    assert code == 2, err
+    assert "beyond float32" in err and "overflow encountered" not in err
+    assert not out.exists()
+
+
+def test_steps_print_size_tiny_but_within_float32_keeps_every_face(tmp_path, capsys):
+    out = tmp_path / "model.stl"
+    code, _, err = run(capsys, "steps", "--crop", ",".join(f"{v:g}" for v in CROP), "--interval", "100", "--solid",
+                       "--print-size", "1e-20", "-o", out)
+    assert code == 0, err
+    solid = st.stepped(st.sample_dem().crop(CROP), interval=100.0, solid=True)
+    assert len(trimesh.load(out, process=False).faces) == len(solid.faces)

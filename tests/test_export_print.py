@@ -129,6 +129,8 @@ def test_print_models_of_random_utm_solids_keep_their_invariants(rows, cols, see
     ({"size": 150.0, "z_scale": 0.0}, "z_scale must be positive; got 0"),
     ({"size": 150.0, "z_scale": float("nan")}, "z_scale must be finite; got nan"),
     ({"size": 1e30, "z_scale": 1e30}, "beyond float32"),
+    ({"size": 1e-300}, "below float32.s least normal number"),
+    ({"size": 150.0, "z_scale": 1e-300}, "below float32.s least normal number"),
 ])
 def test_bad_print_size_or_z_scale_is_refused_naming_it(solid, kwargs, match):
     with pytest.raises(InvalidInputError, match=match):
