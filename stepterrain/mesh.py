@@ -415,7 +415,12 @@ def boundary_edges(faces: NDArray[np.int64], device: wp.DeviceLike = None) -> ND
     if faces.max() > MAX_INT32 - 3:  # _boundary's corner table has n + 2 = largest index + 3 entries, an int32 shape
         raise OutputTooLargeError(f"faces: the kernels index vertices up to {MAX_INT32 - 3:,} with int32; got "
                                   f"{int(faces.max()):,}")
-    return _boundary(_flat_faces(faces, device), int(faces.max()) + 1, device)
+    n = int(faces.max()) + 1
+    if n > 3 * len(faces):  # sparse indices: the corner table by the largest index would be mostly empty (one face
+        # [0, 1, 2**30] took 4 GiB), so it is by the vertices used, numbered in order (the same edges, in face order)
+        used, compact = np.unique(faces, return_inverse=True)
+        return used[_boundary(_flat_faces(compact.reshape(faces.shape), device), len(used), device)]
+    return _boundary(_flat_faces(faces, device), n, device)
 
 
 def _fins(faces: wp.array, walls: NDArray[np.int64], n: int, device: wp.Device) -> NDArray[np.bool_]:
