@@ -405,7 +405,9 @@ def boundary_edges(faces: NDArray[np.int64], device: wp.DeviceLike = None) -> ND
 
     An edge is on the boundary when exactly one half-edge of the mesh has its undirected key; the kernels count
     those among the corners at one of its ends (kernels/solid.py: a vertex -> corner table built without a sort,
-    then count -> scan -> emit over the faces). ``device``: where the kernels run (the CPU by default)."""
+    then count -> scan -> emit over the faces; faces whose largest index is over 3 per face, as a few faces of a large
+    mesh, number the vertices they use first, with np.unique's sort). ``device``: where the kernels run (the CPU by
+    default)."""
     faces = _face_indices(faces)
     device = _device_of(device)  # before the empty answer: a misspelt device passed with no faces, to fail later
     if len(faces) == 0:
