@@ -405,7 +405,9 @@ def boundary_edges(faces: NDArray[np.int64], device: wp.DeviceLike = None) -> ND
 
     An edge is on the boundary when exactly one half-edge of the mesh has its undirected key; the kernels count
     those among the corners at one of its ends (kernels/solid.py: a vertex -> corner table built without a sort,
-    then count -> scan -> emit over the faces). ``device``: where the kernels run (the CPU by default)."""
+    then count -> scan -> emit over the faces; faces whose largest index is over 3 per face, as a few faces of a large
+    mesh, number the vertices they use first, with np.unique's sort). ``device``: where the kernels run (the CPU by
+    default)."""
     faces = _face_indices(faces)
     device = _device_of(device)  # before the empty answer: a misspelt device passed with no faces, to fail later
     if len(faces) == 0:
@@ -415,7 +417,12 @@ def boundary_edges(faces: NDArray[np.int64], device: wp.DeviceLike = None) -> ND
     if faces.max() > MAX_INT32 - 3:  # _boundary's corner table has n + 2 = largest index + 3 entries, an int32 shape
         raise OutputTooLargeError(f"faces: the kernels index vertices up to {MAX_INT32 - 3:,} with int32; got "
                                   f"{int(faces.max()):,}")
-    return _boundary(_flat_faces(faces, device), int(faces.max()) + 1, device)
+    n = int(faces.max()) + 1
+    if n > 3 * len(faces):  # sparse indices: the corner table by the largest index would be mostly empty (one face
+        # [0, 1, 2**30] took 4 GiB), so it is by the vertices used, numbered in order (the same edges, in face order)
+        used, compact = np.unique(faces, return_inverse=True)
+        return used[_boundary(_flat_faces(compact.reshape(faces.shape), device), len(used), device)]
+    return _boundary(_flat_faces(faces, device), n, device)
 
 
 def _fins(faces: wp.array, walls: NDArray[np.int64], n: int, device: wp.Device) -> NDArray[np.bool_]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import warp as wp
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as hst
 from hypothesis.extra.numpy import arrays
 
@@ -119,6 +119,28 @@ def test_boundary_edges_name_an_index_beyond_int64_as_given(faces):
         boundary_edges(faces)
     assert "-9223372036854775" not in str(caught.value)
     assert str(faces.max())[:6] in str(caught.value)
+
+
+@settings(max_examples=30, deadline=None)
+@given(hst.lists(hst.integers(0, mesh_module.MAX_INT32 - 3), min_size=3, max_size=12, unique=True),
+       hst.lists(hst.tuples(*[hst.integers(0, 11)] * 3), min_size=1, max_size=20))
+@example(pool=[0, 1, 2**30], picks=[(0, 1, 2)])
+def test_boundary_edges_of_sparse_indices_size_their_work_by_the_faces(pool, picks):
+    # the corner table was sized by the largest index: one face [0, 1, 2**30] allocated 4 GiB (n + 2 int32, twice)
+    faces = np.array(pool, np.int64)[np.array(picks) % len(pool)]
+    largest = []
+    real_empty = mesh_module._empty
+
+    def empty(n, *args, **kwargs):
+        largest.append(n)
+        assert n <= 6 * len(faces) + 8, f"a work array of {n} elements for {len(faces)} faces"
+        return real_empty(n, *args, **kwargs)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(mesh_module, "_empty", empty)
+        edges = boundary_edges(faces)
+    np.testing.assert_array_equal(edges, boundary_reference(faces))
+    assert edges.dtype == np.int64 and largest
 
 
 def test_boundary_edges_of_an_empty_list_is_no_edge():
