@@ -176,7 +176,8 @@ def example_dem(path: str | os.PathLike[str] | None, nodata: Sequence[float] | N
     return _sample_dem(nodata)
 
 
-def check_example_outputs(outputs: dict[str, str | os.PathLike[str] | None], dem: str | None = None) -> None:
+def check_example_outputs(outputs: dict[str, str | os.PathLike[str] | None],
+                          dem: str | os.PathLike[str] | None = None) -> None:
     """For scripts' own argparse mains (examples/), within :func:`usage_errors`, before any work: the files they will
     write (``outputs``: what each is called in a message, ``"--output"`` or ``"the GIF beside --output"``, -> its
     path; None: not written) checked as the CLI checks its outputs (``_check_outputs``): none is a folder, a file in
@@ -748,7 +749,8 @@ def _mesh_and_png(output: str | None, png: str | None, *, extensions: Sequence[s
             _check_output(png, (".png",), "--png") if png else None)
 
 
-def _check_outputs(inputs: dict[str, str | None] | None = None, names: dict[str, str] | None = None, /,
+def _check_outputs(inputs: dict[str, str | os.PathLike[str] | None] | None = None,
+                   names: dict[str, str] | None = None, /,
                    **paths: Path | None) -> None:
     """Refuse, before any work, output options that name the same file (the second write would replace the
     first), an input file (``inputs``: option name -> path, e.g. ``{"INPUT": args.input}``; the write would
