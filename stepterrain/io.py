@@ -1446,6 +1446,45 @@ def world_file(image: Path, *, strict: bool = False) -> tuple[tuple[float, ...],
     return None
 
 
+def fill_transparent(pixels: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    """The straight-alpha texture ``pixels`` ((H, W, 2) grey + alpha or (H, W, 4) RGBA uint8) with the colour of
+    each fully transparent texel (alpha 0) replaced by that of the opaque texels near it, by pull-push (a pyramid of
+    2 x 2 sums weighted by alpha, each texel of no weight taking its coarser level's colour); the alpha and every
+    texel of some alpha are kept. ``pixels`` itself when no texel is transparent, or every one is. A texture sampler
+    (bilinear, mipmaps: a glTF viewer's, VTK's) filters straight colour and alpha apart, so a transparent texel's
+    colour, meaningless (the magenta or black under the polar caps `gdalwarp -dstalpha` leaves transparent), showed
+    in the opaque texels' edge, and in whole coarser mipmaps, as a fringe of that colour."""
+    alpha = pixels[..., -1]
+    hole = alpha == 0
+    if not hole.any() or hole.all():
+        return pixels
+    check_budget(6 * pixels[..., :-1].size * 4 + 8 * alpha.size, f"the colour pyramid filling the transparent "
+                 f"texels of a {pixels.shape[1]} x {pixels.shape[0]} texture", hint="give a smaller texture")
+    weight = alpha.astype(np.float32)
+    colour = pixels[..., :-1] * weight[..., None]
+    levels: list[tuple[NDArray[np.float32], NDArray[np.float32]]] = []
+    while colour.shape[0] > 1 or colour.shape[1] > 1:  # pull: 2 x 2 sums, an odd side padded with no weight
+        h, w = colour.shape[:2]
+        pad = ((0, h % 2), (0, w % 2))
+        colour = np.pad(colour, pad + ((0, 0),))
+        weight = np.pad(weight, pad)
+        colour = colour[0::2, 0::2] + colour[1::2, 0::2] + colour[0::2, 1::2] + colour[1::2, 1::2]
+        weight = weight[0::2, 0::2] + weight[1::2, 0::2] + weight[0::2, 1::2] + weight[1::2, 1::2]
+        levels.append((colour, weight))
+    filled = levels[-1][0] / levels[-1][1][..., None]  # the coarsest: one texel, of some weight
+    for colour, weight in reversed(levels[:-1]):  # push: a texel of no weight takes its coarser texel's colour
+        h, w = weight.shape
+        coarser = np.repeat(np.repeat(filled, 2, axis=0), 2, axis=1)[:h, :w]
+        some = weight > 0
+        filled = coarser
+        filled[some] = colour[some] / weight[some][:, None]
+    h, w = hole.shape
+    coarser = np.repeat(np.repeat(filled, 2, axis=0), 2, axis=1)[:h, :w]
+    out = pixels.copy()
+    out[..., :-1][hole] = np.clip(np.round(coarser[hole]), 0, 255).astype(np.uint8)
+    return out
+
+
 def picture_uint8(picture: Any, what: str, *, alpha: bool = False) -> NDArray[np.uint8]:
     """An opened Pillow image as an (H, W, 3) uint8 array, (H, W, 4) with ``alpha`` when it has an alpha band (a
     premultiplied one, modes ``RGBa`` and ``La``, un-premultiplied as RGBA and LA) or a transparent colour (a
