@@ -1909,6 +1909,16 @@ def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint
     covered = alpha[:, 0] > 0
     weighted = sum(w * texel[:, :3] for w, texel in zip(weights, texels, strict=True))
     rgb[covered] = weighted[covered] / alpha[covered]
+    if not covered.all():  # a vertex among transparent texels: their colour (garbage, the magenta under a -dstalpha
+        # nodata cap) blended into the opaque vertices' across its faces, in a render and in a viewer of its GLB; it
+        # takes the colour of the opaque texels near it
+        from .io import fill_transparent
+
+        filled = fill_transparent(pixels)
+        bare = ~covered
+        near = [filled[y[bare], x[bare], :3].astype(np.float64)
+                for y, x in ((y0, x0), (y0, x1), (y0 + 1, x0), (y0 + 1, x1))]
+        rgb[bare] = sum(w[bare] * texel for w, texel in zip(corners, near, strict=True))
     return np.column_stack([np.round(rgb).astype(np.uint8), np.round(alpha[:, 0]).astype(np.uint8)])
 
 

@@ -54,6 +54,23 @@ def test_fill_transparent_keeps_alpha_and_opaque_texels_and_takes_colours_from_t
         assert (filled >= lo).all() and (filled <= hi).all()
 
 
+@settings(max_examples=10, deadline=None)
+@given(h=hst.integers(1, 23), w=hst.integers(1, 23), band=hst.integers(1, 40), seed=hst.integers(0, 2**31))
+def test_fill_transparent_in_bands_of_rows_is_the_whole_fill(h, w, band, seed):
+    import stepterrain.io as st_io
+
+    rng = np.random.default_rng(seed)
+    pixels = rng.integers(0, 256, (h, w, 4), dtype=np.uint8)
+    pixels[..., 3] = np.where(rng.random((h, w)) < 0.7, 0, pixels[..., 3])
+    whole = fill_transparent(pixels)
+    before = st_io._FILL_BAND_TEXELS
+    st_io._FILL_BAND_TEXELS = band
+    try:
+        np.testing.assert_array_equal(fill_transparent(pixels), whole)
+    finally:
+        st_io._FILL_BAND_TEXELS = before
+
+
 def test_fill_transparent_fills_from_the_nearby_opaque_colour():
     img = _world()
     img[15:45, :, :3] = (200, 10, 10)  # the northern half red, the southern green
@@ -97,4 +114,18 @@ def test_render_view_does_not_show_the_colour_under_alpha_0(globe_mesh, latitude
     camera = globe.look_from(latitude, 0.0, altitude)
     garbage, clean = (globe.render_view(globe.drape_texture(globe_mesh, _world(colour)), camera, window_size=(160, 100))
                       for colour in (MAGENTA, GREEN))
+    np.testing.assert_array_equal(garbage, clean)
+
+
+def test_drape_colors_gives_transparent_vertices_the_nearby_opaque_colour(globe_mesh):
+    """A vertex among transparent texels kept their colour (magenta), which its faces blended into their opaque
+    corners' colour in a render and in a viewer of the GLB (COLOR_0 with alphaMode BLEND)."""
+    colours = globe.drape_colors(globe_mesh.vertices, _world())
+    assert (colours[:, 3] == 0).any() and (colours[:, 3] == 255).any()
+    np.testing.assert_array_equal(colours[:, :3], np.broadcast_to(GREEN, (len(colours), 3)))
+    coloured = [globe_mesh.copy() for _ in range(2)]
+    for mesh, colour in zip(coloured, (MAGENTA, GREEN), strict=True):
+        mesh.visual.vertex_colors = globe.drape_colors(globe_mesh.vertices, _world(colour))
+    camera = globe.look_from(0.0, 0.0, 2e7)
+    garbage, clean = (globe.render_view(mesh, camera, window_size=(160, 100)) for mesh in coloured)
     np.testing.assert_array_equal(garbage, clean)
