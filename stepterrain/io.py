@@ -1466,7 +1466,7 @@ def fill_transparent(pixels: NDArray[np.uint8]) -> NDArray[np.uint8]:
     h, w, channels = pixels.shape
     check_budget(pixels.nbytes + 6 * channels * ((h + 1) // 2) * ((w + 1) // 2) * 4, f"the colour pyramid filling "
                  f"the transparent texels of a {w} x {h} texture", hint="give a smaller texture")
-    band = 2 * max(1, _FILL_BAND_TEXELS // max(w, 1))  # rows of the full-size level at a time (even: whole 2 x 2 blocks)
+    band = 2 * max(1, _FILL_BAND_TEXELS // max(w, 1))  # full-size rows at a time (even: whole 2 x 2 blocks)
 
     def halved(colour: NDArray[np.float32], weight: NDArray[np.float32]) -> tuple[NDArray[np.float32], ...]:
         pad = ((0, colour.shape[0] % 2), (0, colour.shape[1] % 2))
