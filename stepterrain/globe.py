@@ -1743,7 +1743,8 @@ def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trim
     draped by latitude and longitude), for GLB/glTF/OBJ export with the image embedded: the path of an RGB JPEG
     embeds the file's own bytes (the image is used as it is: see :func:`~stepterrain.export.save_mesh`'s Notes),
     any other image its pixels, as PNG (its alpha kept: an (H, W, 4) array's, a file's alpha band or transparent
-    colour).
+    colour; the GLB/glTF/OBJ and a render give its transparent texels the colour of the opaque ones near them, see
+    :func:`~stepterrain.io.fill_transparent`).
 
     Each vertex gets u = (λ + 180°) / 360°, v = (φ + 90°) / 180° from its direction (row 0 of the image at
     90° N, column 0 at 180° W; v up, as trimesh stores UVs). A face across the antimeridian gets copies of
@@ -1849,7 +1850,8 @@ def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint
     georeferenced as the whole globe in degrees, 0..360 too, is placed by it, other georeferencing refused),
     bilinear at each vertex's direction (paper 003 §5.3: a global texture draped by latitude and longitude). An
     (H, W, 4) image's alpha is kept (bilinear; its colour is weighted by alpha, so that transparent texels' colour
-    does not darken the opaque ones' next to them), an RGB image's is 255.
+    does not darken the opaque ones' next to them; a vertex of alpha 0 gets the colour of the opaque texels near it,
+    :func:`~stepterrain.io.fill_transparent`, which its faces blend with their opaque corners'), an RGB image's is 255.
 
     Raises
     ------
