@@ -3392,14 +3392,27 @@ def _encoded_textures(material: Any) -> None:
         image = getattr(material, slot, None)
         if not isinstance(image, Image.Image):
             continue
-        setattr(material, slot, _encoded_image(image))
+        fill = slot == "baseColorTexture" and getattr(material, "alphaMode", None) in ("MASK", "BLEND")
+        setattr(material, slot, _encoded_image(image, fill=fill))
 
 
-def _encoded_image(image: Any) -> _EncodedImage:
+def _encoded_image(image: Any, *, fill: bool = True) -> _EncodedImage:
     """A PIL image as an :class:`_EncodedImage`: one opened from a JPEG as JPEG bytes (:func:`_jpeg_data`), any other
-    as PNG bytes (:func:`_png_data`)."""
+    as PNG bytes (:func:`_png_data`), with ``fill`` the colour of its transparent texels (alpha 0) that of the opaque
+    ones near them (:func:`~stepterrain.io.fill_transparent`): a viewer's bilinear filter and mipmaps blend straight
+    colour, and the garbage under a texture's transparent texels (`gdalwarp -dstalpha`'s nodata) showed as a fringe
+    of that colour along the edge of its opaque ones (magenta under a world map's transparent polar caps)."""
     if image.format == "JPEG":
         return _EncodedImage(_jpeg_data(image), "JPEG")
+    if fill and image.mode in ("RGBA", "LA"):
+        from PIL import Image
+
+        from .io import fill_transparent
+
+        pixels = np.asarray(image)
+        filled = fill_transparent(pixels)
+        if filled is not pixels:
+            image = Image.fromarray(filled, image.mode)
     return _EncodedImage(_png_data(image), "PNG")
 
 

@@ -1743,7 +1743,8 @@ def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trim
     draped by latitude and longitude), for GLB/glTF/OBJ export with the image embedded: the path of an RGB JPEG
     embeds the file's own bytes (the image is used as it is: see :func:`~stepterrain.export.save_mesh`'s Notes),
     any other image its pixels, as PNG (its alpha kept: an (H, W, 4) array's, a file's alpha band or transparent
-    colour).
+    colour; the GLB/glTF/OBJ and a render give its transparent texels the colour of the opaque ones near them, see
+    :func:`~stepterrain.io.fill_transparent`).
 
     Each vertex gets u = (λ + 180°) / 360°, v = (φ + 90°) / 180° from its direction (row 0 of the image at
     90° N, column 0 at 180° W; v up, as trimesh stores UVs). A face across the antimeridian gets copies of
@@ -1849,7 +1850,8 @@ def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint
     georeferenced as the whole globe in degrees, 0..360 too, is placed by it, other georeferencing refused),
     bilinear at each vertex's direction (paper 003 §5.3: a global texture draped by latitude and longitude). An
     (H, W, 4) image's alpha is kept (bilinear; its colour is weighted by alpha, so that transparent texels' colour
-    does not darken the opaque ones' next to them), an RGB image's is 255.
+    does not darken the opaque ones' next to them; a vertex of alpha 0 gets the colour of the opaque texels near it,
+    :func:`~stepterrain.io.fill_transparent`, which its faces blend with their opaque corners'), an RGB image's is 255.
 
     Raises
     ------
@@ -1909,6 +1911,16 @@ def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint
     covered = alpha[:, 0] > 0
     weighted = sum(w * texel[:, :3] for w, texel in zip(weights, texels, strict=True))
     rgb[covered] = weighted[covered] / alpha[covered]
+    if not covered.all():  # a vertex among transparent texels: their colour (garbage, the magenta under a -dstalpha
+        # nodata cap) blended into the opaque vertices' across its faces, in a render and in a viewer of its GLB; it
+        # takes the colour of the opaque texels near it
+        from .io import fill_transparent
+
+        filled = fill_transparent(pixels)
+        bare = ~covered
+        near = [filled[y[bare], x[bare], :3].astype(np.float64)
+                for y, x in ((y0, x0), (y0, x1), (y0 + 1, x0), (y0 + 1, x1))]
+        rgb[bare] = sum(w[bare] * texel for w, texel in zip(corners, near, strict=True))
     return np.column_stack([np.round(rgb).astype(np.uint8), np.round(alpha[:, 0]).astype(np.uint8)])
 
 

@@ -1446,6 +1446,57 @@ def world_file(image: Path, *, strict: bool = False) -> tuple[tuple[float, ...],
     return None
 
 
+#: Texels of the full-size level :func:`fill_transparent` reads and writes at a time (half as many rows).
+_FILL_BAND_TEXELS = 1 << 22
+
+
+def fill_transparent(pixels: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    """The straight-alpha texture ``pixels`` ((H, W, 2) grey + alpha or (H, W, 4) RGBA uint8) with the colour of
+    each fully transparent texel (alpha 0) replaced by that of the opaque texels near it, by pull-push (a pyramid of
+    2 x 2 sums weighted by alpha, each texel of no weight taking its coarser level's colour); the alpha and every
+    texel of some alpha are kept. ``pixels`` itself when no texel is transparent, or every one is. A texture sampler
+    (bilinear, mipmaps: a glTF viewer's, VTK's) filters straight colour and alpha apart, so a transparent texel's
+    colour, meaningless (the magenta or black under the polar caps `gdalwarp -dstalpha` leaves transparent), showed
+    in the opaque texels' edge, and in whole coarser mipmaps, as a fringe of that colour. The full-size level is
+    read and written in bands of rows: the float32 pyramid from level 1 on holds a third of the texels."""
+    alpha = pixels[..., -1]
+    hole = alpha == 0
+    if not hole.any() or hole.all():
+        return pixels
+    h, w, channels = pixels.shape
+    check_budget(pixels.nbytes + 6 * channels * ((h + 1) // 2) * ((w + 1) // 2) * 4, f"the colour pyramid filling "
+                 f"the transparent texels of a {w} x {h} texture", hint="give a smaller texture")
+    band = 2 * max(1, _FILL_BAND_TEXELS // max(w, 1))  # full-size rows at a time (even: whole 2 x 2 blocks)
+
+    def halved(colour: NDArray[np.float32], weight: NDArray[np.float32]) -> tuple[NDArray[np.float32], ...]:
+        pad = ((0, colour.shape[0] % 2), (0, colour.shape[1] % 2))
+        colour, weight = np.pad(colour, pad + ((0, 0),)), np.pad(weight, pad)
+        return (colour[0::2, 0::2] + colour[1::2, 0::2] + colour[0::2, 1::2] + colour[1::2, 1::2],
+                weight[0::2, 0::2] + weight[1::2, 0::2] + weight[0::2, 1::2] + weight[1::2, 1::2])
+
+    parts = []
+    for r in range(0, h, band):  # pull, level 0 -> 1 in bands
+        weight = pixels[r:r + band, :, -1].astype(np.float32)
+        parts.append(halved(pixels[r:r + band, :, :-1] * weight[..., None], weight))
+    levels = [(np.concatenate([c for c, _ in parts]), np.concatenate([a for _, a in parts]))]
+    del parts
+    while levels[-1][1].shape != (1, 1):  # pull: 2 x 2 sums, an odd side padded with no weight
+        levels.append(halved(*levels[-1]))
+    filled = levels[-1][0] / levels[-1][1][..., None]  # the coarsest: one texel, of some weight
+    for colour, weight in reversed(levels[:-1]):  # push: a texel of no weight takes its coarser texel's colour
+        rows, cols = weight.shape
+        coarser = np.repeat(np.repeat(filled, 2, axis=0), 2, axis=1)[:rows, :cols]
+        some = weight > 0
+        coarser[some] = colour[some] / weight[some][:, None]
+        filled = coarser
+    out = pixels.copy()
+    for r in range(0, h, band):  # push, level 1 -> 0 in bands
+        gap = hole[r:r + band]
+        coarser = np.repeat(np.repeat(filled[r // 2:(r + band) // 2], 2, axis=0), 2, axis=1)[:len(gap), :w]
+        out[r:r + band, :, :-1][gap] = np.clip(np.round(coarser[gap]), 0, 255).astype(np.uint8)
+    return out
+
+
 def picture_uint8(picture: Any, what: str, *, alpha: bool = False) -> NDArray[np.uint8]:
     """An opened Pillow image as an (H, W, 3) uint8 array, (H, W, 4) with ``alpha`` when it has an alpha band (a
     premultiplied one, modes ``RGBa`` and ``La``, un-premultiplied as RGBA and LA) or a transparent colour (a

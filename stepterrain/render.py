@@ -1436,7 +1436,11 @@ def _texture_alpha(picture: NDArray[np.uint8], material: Any) -> NDArray[np.uint
         alpha = picture[..., 3]
     if mode == "OPAQUE" or not alpha.size or int(alpha.min()) == 255:
         return np.ascontiguousarray(picture[..., :3])
-    return picture
+    from .io import fill_transparent
+
+    # VTK interpolates straight colour and alpha apart: a transparent texel's colour (garbage under a `gdalwarp
+    # -dstalpha` nodata area, magenta) tinted the opaque texels' edge, and all of a view magnified across it
+    return fill_transparent(picture)
 
 
 def _texture_picture(image: Any) -> NDArray[np.uint8]:

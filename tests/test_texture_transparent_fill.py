@@ -1,0 +1,131 @@
+"""The colour under a texture's transparent texels (alpha 0: `gdalwarp -dstalpha`'s nodata, the polar caps of a Web
+Mercator world map warped to EPSG:4326) is garbage; samplers filter straight colour and alpha apart, so it must not
+reach a render or an exported texture (:func:`stepterrain.io.fill_transparent`)."""
+
+from __future__ import annotations
+
+import io
+import json
+import struct
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as hst
+from PIL import Image
+
+from stepterrain import export, globe
+from stepterrain.io import fill_transparent
+
+MAGENTA = (255, 0, 255)
+GREEN = (30, 120, 60)
+
+
+def _world(garbage: tuple[int, int, int] = MAGENTA) -> np.ndarray:
+    """A 180 x 90 plate-carrée RGBA world, opaque green, its polar caps (beyond 60°) transparent over ``garbage``."""
+    img = np.zeros((90, 180, 4), np.uint8)
+    img[..., :3], img[..., 3] = GREEN, 255
+    for cap in (slice(0, 15), slice(75, 90)):
+        img[cap, :, :3], img[cap, :, 3] = garbage, 0
+    return img
+
+
+@pytest.fixture(scope="module")
+def globe_mesh():
+    lat = np.linspace(89.5, -89.5, 180)
+    lon = np.linspace(-179.5, 179.5, 360)
+    return globe.Globe.from_latlon(np.zeros((180, 360)), lat, lon, face_size=9, device="cpu").mesh()
+
+
+@settings(max_examples=25, deadline=None)
+@given(h=hst.integers(1, 9), w=hst.integers(1, 9), channels=hst.sampled_from([2, 4]), seed=hst.integers(0, 2**31))
+def test_fill_transparent_keeps_alpha_and_opaque_texels_and_takes_colours_from_them(h, w, channels, seed):
+    rng = np.random.default_rng(seed)
+    pixels = rng.integers(0, 256, (h, w, channels), dtype=np.uint8)
+    pixels[..., -1] = np.where(rng.random((h, w)) < 0.5, 0, pixels[..., -1])
+    out = fill_transparent(pixels)
+    assert out.shape == pixels.shape and out.dtype == np.uint8
+    np.testing.assert_array_equal(out[..., -1], pixels[..., -1])
+    some = pixels[..., -1] > 0
+    np.testing.assert_array_equal(out[some], pixels[some])
+    if some.any() and not some.all():  # each filled colour a weighted mean of the texels of some alpha
+        lo, hi = pixels[some][:, :-1].min(axis=0), pixels[some][:, :-1].max(axis=0)
+        filled = out[~some][:, :-1]
+        assert (filled >= lo).all() and (filled <= hi).all()
+
+
+@settings(max_examples=10, deadline=None)
+@given(h=hst.integers(1, 23), w=hst.integers(1, 23), band=hst.integers(1, 40), seed=hst.integers(0, 2**31))
+def test_fill_transparent_in_bands_of_rows_is_the_whole_fill(h, w, band, seed):
+    import stepterrain.io as st_io
+
+    rng = np.random.default_rng(seed)
+    pixels = rng.integers(0, 256, (h, w, 4), dtype=np.uint8)
+    pixels[..., 3] = np.where(rng.random((h, w)) < 0.7, 0, pixels[..., 3])
+    whole = fill_transparent(pixels)
+    before = st_io._FILL_BAND_TEXELS
+    st_io._FILL_BAND_TEXELS = band
+    try:
+        np.testing.assert_array_equal(fill_transparent(pixels), whole)
+    finally:
+        st_io._FILL_BAND_TEXELS = before
+
+
+def test_fill_transparent_fills_from_the_nearby_opaque_colour():
+    img = _world()
+    img[15:45, :, :3] = (200, 10, 10)  # the northern half red, the southern green
+    out = fill_transparent(img)
+    np.testing.assert_array_equal(out[:15, :, :3], np.broadcast_to((200, 10, 10), (15, 180, 3)))
+    np.testing.assert_array_equal(out[75:, :, :3], np.broadcast_to(GREEN, (15, 180, 3)))
+
+
+def _glb_texture(path) -> tuple[np.ndarray, dict]:
+    data = path.read_bytes()
+    n = struct.unpack("<I", data[12:16])[0]
+    doc = json.loads(data[20:20 + n])
+    view = doc["bufferViews"][doc["images"][0]["bufferView"]]
+    start = 20 + n + 8 + view.get("byteOffset", 0)
+    return np.asarray(Image.open(io.BytesIO(data[start:start + view["byteLength"]])).convert("RGBA")), doc
+
+
+def test_glb_texture_holds_no_garbage_colour_under_alpha_0(globe_mesh, tmp_path):
+    img = _world()
+    export.save_mesh(globe.drape_texture(globe_mesh, img), tmp_path / "g.glb")
+    texture, doc = _glb_texture(tmp_path / "g.glb")
+    assert doc["materials"][0]["alphaMode"] == "MASK"
+    np.testing.assert_array_equal(texture[..., 3], img[..., 3])
+    np.testing.assert_array_equal(texture[15:75], img[15:75])
+    # a viewer's bilinear filter and mipmaps blend these into the opaque edge: the caps hold the opaque colour now
+    np.testing.assert_array_equal(texture[..., :3], np.broadcast_to(GREEN, texture.shape[:2] + (3,)))
+
+
+def test_obj_texture_holds_no_garbage_colour_under_alpha_0(globe_mesh, tmp_path):
+    export.save_mesh(globe.drape_texture(globe_mesh, _world()), tmp_path / "g.obj")
+    pngs = [p for p in tmp_path.iterdir() if p.suffix == ".png"]
+    assert len(pngs) == 1
+    texture = np.asarray(Image.open(pngs[0]).convert("RGBA"))
+    assert (texture[..., 3] == 0).any()
+    np.testing.assert_array_equal(texture[..., :3], np.broadcast_to(GREEN, texture.shape[:2] + (3,)))
+
+
+@pytest.mark.parametrize("latitude, altitude", [(60.0, 3e5), (0.0, 2e7)])
+def test_render_view_does_not_show_the_colour_under_alpha_0(globe_mesh, latitude, altitude):
+    """A view across the caps' edge was tinted magenta (the whole of a close one: VTK interpolates straight colour)."""
+    camera = globe.look_from(latitude, 0.0, altitude)
+    garbage, clean = (globe.render_view(globe.drape_texture(globe_mesh, _world(colour)), camera, window_size=(160, 100))
+                      for colour in (MAGENTA, GREEN))
+    np.testing.assert_array_equal(garbage, clean)
+
+
+def test_drape_colors_gives_transparent_vertices_the_nearby_opaque_colour(globe_mesh):
+    """A vertex among transparent texels kept their colour (magenta), which its faces blended into their opaque
+    corners' colour in a render and in a viewer of the GLB (COLOR_0 with alphaMode BLEND)."""
+    colours = globe.drape_colors(globe_mesh.vertices, _world())
+    assert (colours[:, 3] == 0).any() and (colours[:, 3] == 255).any()
+    np.testing.assert_array_equal(colours[:, :3], np.broadcast_to(GREEN, (len(colours), 3)))
+    coloured = [globe_mesh.copy() for _ in range(2)]
+    for mesh, colour in zip(coloured, (MAGENTA, GREEN), strict=True):
+        mesh.visual.vertex_colors = globe.drape_colors(globe_mesh.vertices, _world(colour))
+    camera = globe.look_from(0.0, 0.0, 2e7)
+    garbage, clean = (globe.render_view(mesh, camera, window_size=(160, 100)) for mesh in coloured)
+    np.testing.assert_array_equal(garbage, clean)
