@@ -708,6 +708,7 @@ class ImagePyramid:
         band_bytes = int(band_bytes)  # a NumPy integer too (as a level, a lens' resolution): refused before
         anisotropic = check_flag(anisotropic, "anisotropic")
         given = _storage_folder(storage)
+        dev = resolve_device(device)  # before a folder is made: a bad device left it (and a temporary one) behind
         owned = given is None
         made: list[Path] = []  # the folders this build made for a given storage, removed again if it fails
         try:
@@ -720,7 +721,6 @@ class ImagePyramid:
             real.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise DataFileError(f"cannot create the pyramid storage folder {str(storage)!r}: {exc}") from exc
-        dev = resolve_device(device)
         shapes = pyramid_shapes(height, width)
         # every level file is written under a temporary name and renamed into place once all are complete: writing
         # over the files of an earlier pyramid in the same storage changed its levels under it (its maps showed the

@@ -1318,3 +1318,21 @@ def test_a_build_keeps_the_level_file_its_image_maps_through_a_view(tmp_path, vi
     assert level_0.is_file()
     np.testing.assert_array_equal(np.fromfile(level_0, np.uint8).reshape(image.shape), image)
     assert sorted(p.name for p in storage.iterdir()) == [f"level_{k}.u8" for k in range(7)]
+
+
+def test_a_build_refused_for_its_device_makes_no_storage_folder(tmp_path, monkeypatch):
+    """A bad ``device`` was resolved after the storage folder was made, outside the build's clean-up: the refused
+    build left the storage folder it made (and a temporary one, without ``storage``) behind, empty."""
+    import tempfile
+
+    from stepterrain.errors import DeviceError
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
+    (tmp_path / "tmp").mkdir()
+    image = np.zeros((9, 9, 3), np.uint8)
+    with pytest.raises(DeviceError):
+        ImagePyramid.build(image, storage=tmp_path / "new" / "levels", device="cuda:99")
+    with pytest.raises(DeviceError):
+        ImagePyramid.build(image, device="cuda:99")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tmp"]
+    assert list((tmp_path / "tmp").iterdir()) == []
