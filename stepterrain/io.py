@@ -3150,7 +3150,8 @@ def _reprojection_hint(
     """How to reproject a grid whose node longitudes run over ``lons`` and latitudes from ``low`` to ``high`` to true
     metres: its UTM zone when it fits one (unless that is ``current``, the grid's own CRS), a polar stereographic
     projection true at its middle latitude near a pole (EPSG:3413 and EPSG:3031, true at 70° N and 71° S, err by 3 %
-    at the poles and 4 % at 60°), else a projected CRS of its region."""
+    at the poles and 4 % at 60°; where ``current`` is that projection already, advice to mesh the grid in smaller
+    parts), else a projected CRS of its region."""
     centre, centre_lon = 0.5 * (low + high), 0.5 * (lons[0] + lons[1])
     if not earth:  # another body (Mars, the Moon): no EPSG projection of it
         code = target = ""
