@@ -289,7 +289,8 @@ def load_dem(
     UserWarning
         At the caller's line: a geographic grid whose local metres err by more than 1 % against WGS 84 in some row
         (east-west or north-south scale, or cell area; the message names the error, the node latitudes and a
-        projected CRS to reproject it to, e.g. ``gdalwarp -t_srs EPSG:32613``); a grid in a projected CRS, whose
+        projected CRS to reproject it to, e.g. ``gdalwarp -r bilinear -dstalpha -t_srs EPSG:32613``, -dstalpha
+        marking the cells outside the grid missing); a grid in a projected CRS, whose
         metres are read as stored, that errs by more than 1 % in the same sense somewhere (x or y scale, or cell
         area, sheared too): a Mercator one (EPSG:3857, the CRS of web map and terrain tiles; EPSG:3395, ...) away
         from the equator (its metres are ground metres times about 1/cos φ: 1.41 at 45°), a continent-wide Albers or
