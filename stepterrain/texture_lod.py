@@ -583,8 +583,10 @@ class ImagePyramid:
         self._owned = owned
         # an owned folder goes with the pyramid, closed or not (as tempfile.TemporaryDirectory's): one never closed,
         # as the module's typical use builds it, stayed in the temporary folder for good, a third of its image's
-        # bytes each time (its maps, still held, keep their pages where the system allows removing a mapped file)
-        self._finalizer = weakref.finalize(self, shutil.rmtree, str(folder), ignore_errors=True) if owned else None
+        # bytes each time (its maps, still held, keep their pages where the system allows removing a mapped file).
+        # Made absolute now: a relative storage, removed after a chdir, was another folder of that name
+        self._finalizer = (weakref.finalize(self, shutil.rmtree, os.path.abspath(folder), ignore_errors=True)
+                           if owned else None)
         self._closed = False
         self._georeferenced = False  # build() placed it by its file's georeferencing (image_layer asks, not reopens)
 
