@@ -621,11 +621,13 @@ def _virtual_refusal(file: GdalPath) -> str:
         # tar) for a file of that name, which is not there; a zip inside a zip, or one of a URL with a query (a
         # signed URL: no '.zip/' in it), in braces (GDAL splits the path at its first '.zip/')
         rest = gdal[len("/vsizip/"):] if gdal.startswith("/vsizip/") else None
-        if rest is None or ".zip/" in rest.lower() or (rest.startswith("{") and not rest.endswith("}")):
+        if rest is not None and rest.startswith("{") and rest.endswith("}"):  # the zip itself, in braces, whatever
+            archive = rest[1:-1]  # they hold (/vsizip/{/vsicurl/...?sig=1}, a zip in a zip /vsizip/{/vsizip//a/b.zip})
+        elif rest is None or ".zip/" in rest.lower() or rest.startswith("{"):
             archive = gdal  # reached through another file system, or a member of a zip: a zip in a zip
-        else:  # the zip itself, opened by /vsizip/ already (/vsizip//data/srtm.zip, /vsizip/{/vsicurl/...?sig=1})
-            archive = rest[1:-1] if rest.startswith("{") else rest
-        braces = "?" in archive or archive.startswith("/vsizip/")
+        else:  # the zip itself, opened by /vsizip/ already (/vsizip//data/srtm.zip)
+            archive = rest
+        braces = "?" in archive or ".zip/" in archive.lower() or archive.startswith("/vsizip/")
         inside = f"/vsizip/{{{archive}}}/{example}" if braces else f"/vsizip/{archive}/{example}"
         why = f"name the file inside the zip: '{inside}'"
     elif ext == ".gz" and not gdal.startswith("/vsigzip/") and PurePath(file.stem).suffix.lower() in GZIP_FORMATS:
