@@ -1240,7 +1240,7 @@ def _png_pam_nodata(file: Path) -> float | None:
     which it takes first): ``gdal_translate -of PNG`` writes it there for a grey + alpha PNG, which has no tRNS, and a
     PNG's nodata set by hand or another tool lies there. Pillow reads no such file: the cells at that value were
     heights (a 9999 m spike, a 0 m pit) where GDAL and every GIS masked them. None without one, or with one that is
-    no number (GDAL's is then no nodata either)."""
+    no number (a malformed file: GDAL reads the number its text starts with, ``abc`` as 0, which is not followed)."""
     root = _pam_root(file)
     if root is None:
         return None
