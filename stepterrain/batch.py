@@ -1226,7 +1226,7 @@ def _degree_frames(items: Sequence[BatchItem]) -> tuple[tuple[str, _Frame], ...]
             "files are placed in the local metres of their own mosaic (node (0, 0) at its top-left node), so the "
             "meshes of one CRS neither line up nor weld with those of another: to step them as one surface, warp "
             "them to one CRS first (gdalwarp -dstalpha -t_srs EPSG:4326; -dstalpha marks the cells outside the files "
-            "missing, which it filled with 0 m)",
+            "missing: without it, and without a nodata value of the files, they are 0 m)",
             stacklevel=caller_stacklevel(),
         )
     return tuple(frames)
@@ -1347,8 +1347,8 @@ def _warn_own_local_metres(terrain: Terrain, coarsen: int | None = None) -> None
             "GeoTIFFs (gdal_translate), or mosaic them (gdalbuildvrt tiles.vrt "
             "FILES) and cut the .vrt into tiles of tile_size cells, or warp them into one "
             "projected raster (gdalwarp -dstalpha -t_srs EPSG:... FILES dem.tif; -dstalpha marks the cells between "
-            "and around the files missing, which it filled with 0 m) and cut that (files reprojected one by one lie "
-            "in place but share no nodes with their neighbours)",
+            "and around the files missing: without it, and without a nodata value of the files, they are 0 m) and "
+            "cut that (files reprojected one by one lie in place but share no nodes with their neighbours)",
             stacklevel=2,
         )
 

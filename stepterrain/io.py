@@ -289,7 +289,8 @@ def load_dem(
     UserWarning
         At the caller's line: a geographic grid whose local metres err by more than 1 % against WGS 84 in some row
         (east-west or north-south scale, or cell area; the message names the error, the node latitudes and a
-        projected CRS to reproject it to, e.g. ``gdalwarp -t_srs EPSG:32613``); a grid in a projected CRS, whose
+        projected CRS to reproject it to, e.g. ``gdalwarp -r bilinear -dstalpha -t_srs EPSG:32613``, -dstalpha
+        marking the cells outside the grid missing); a grid in a projected CRS, whose
         metres are read as stored, that errs by more than 1 % in the same sense somewhere (x or y scale, or cell
         area, sheared too): a Mercator one (EPSG:3857, the CRS of web map and terrain tiles; EPSG:3395, ...) away
         from the equator (its metres are ground metres times about 1/cos φ: 1.41 at 45°), a continent-wide Albers or
@@ -620,11 +621,13 @@ def _virtual_refusal(file: GdalPath) -> str:
         # tar) for a file of that name, which is not there; a zip inside a zip, or one of a URL with a query (a
         # signed URL: no '.zip/' in it), in braces (GDAL splits the path at its first '.zip/')
         rest = gdal[len("/vsizip/"):] if gdal.startswith("/vsizip/") else None
-        if rest is None or ".zip/" in rest.lower() or (rest.startswith("{") and not rest.endswith("}")):
+        if rest is not None and rest.startswith("{") and rest.endswith("}"):  # the zip itself, in braces, whatever
+            archive = rest[1:-1]  # they hold (/vsizip/{/vsicurl/...?sig=1}, a zip in a zip /vsizip/{/vsizip//a/b.zip})
+        elif rest is None or ".zip/" in rest.lower() or rest.startswith("{"):
             archive = gdal  # reached through another file system, or a member of a zip: a zip in a zip
-        else:  # the zip itself, opened by /vsizip/ already (/vsizip//data/srtm.zip, /vsizip/{/vsicurl/...?sig=1})
-            archive = rest[1:-1] if rest.startswith("{") else rest
-        braces = "?" in archive or archive.startswith("/vsizip/")
+        else:  # the zip itself, opened by /vsizip/ already (/vsizip//data/srtm.zip)
+            archive = rest
+        braces = "?" in archive or ".zip/" in archive.lower() or archive.startswith("/vsizip/")
         inside = f"/vsizip/{{{archive}}}/{example}" if braces else f"/vsizip/{archive}/{example}"
         why = f"name the file inside the zip: '{inside}'"
     elif ext == ".gz" and not gdal.startswith("/vsigzip/") and PurePath(file.stem).suffix.lower() in GZIP_FORMATS:
@@ -1237,7 +1240,7 @@ def _png_pam_nodata(file: Path) -> float | None:
     which it takes first): ``gdal_translate -of PNG`` writes it there for a grey + alpha PNG, which has no tRNS, and a
     PNG's nodata set by hand or another tool lies there. Pillow reads no such file: the cells at that value were
     heights (a 9999 m spike, a 0 m pit) where GDAL and every GIS masked them. None without one, or with one that is
-    no number (GDAL's is then no nodata either)."""
+    no number (a malformed file: GDAL reads the number its text starts with, ``abc`` as 0, which is not followed)."""
     root = _pam_root(file)
     if root is None:
         return None
@@ -3201,7 +3204,8 @@ def _reprojection_hint(
     """How to reproject a grid whose node longitudes run over ``lons`` and latitudes from ``low`` to ``high`` to true
     metres: its UTM zone when it fits one (unless that is ``current``, the grid's own CRS), a polar stereographic
     projection true at its middle latitude near a pole (EPSG:3413 and EPSG:3031, true at 70° N and 71° S, err by 3 %
-    at the poles and 4 % at 60°), else a projected CRS of its region."""
+    at the poles and 4 % at 60°; where ``current`` is that projection already, advice to mesh the grid in smaller
+    parts), else a projected CRS of its region."""
     centre, centre_lon = 0.5 * (low + high), 0.5 * (lons[0] + lons[1])
     if not earth:  # another body (Mars, the Moon): no EPSG projection of it
         code = target = ""

@@ -2094,7 +2094,8 @@ class LayeredRenderer:
                          view: tuple[float, float], anchor_points: ArrayLike, *, axis: ArrayLike | None = None
                          ) -> tuple[NDArray[np.uint8], NDArray[np.bool_], NDArray[np.float32]]:
         """An overview-independent close-up (paper 001 §II.C): an orthographic render from the fixed direction
-        ``view`` (azimuth, elevation) pasted over the screen box of ``anchor_points`` (N, 3).
+        ``view`` (azimuth, elevation; radians, the elevation in [-π/2, π/2]) pasted over the screen box of
+        ``anchor_points`` (N, 3).
 
         ``vertices``, ``faces`` and ``rgb`` (or None: the default tan) as for :meth:`set_mesh`; as there, a NaN
         vertex is left out of the framing (its faces are not drawn). Returns the full-window color, coverage and
@@ -2119,6 +2120,9 @@ class LayeredRenderer:
         if rgb is not None:
             rgb = _layer_rgb(rgb, len(vertices), "rgb")
         direction = real_vector(view, "view", "(azimuth, elevation) in radians, finite", 2)  # it named "camera"
+        if abs(float(direction[1])) > _QUARTER_TURN:  # refused by _camera_position too, naming its "camera"
+            raise InvalidInputError(f"view's elevation must lie in [-π/2, π/2] radians (-90 to 90 degrees, "
+                                    f"math.radians(degrees)); got {view!r}, elevation {float(direction[1]):g}")
         anchor_points = _layer_rows(anchor_points, "anchor_points", "(N, 3) world points")
         spin_axis = None if axis is None else real_vector(axis, "axis", "finite (x, y)", 2)
         width, height = self.size

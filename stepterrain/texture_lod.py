@@ -583,8 +583,10 @@ class ImagePyramid:
         self._owned = owned
         # an owned folder goes with the pyramid, closed or not (as tempfile.TemporaryDirectory's): one never closed,
         # as the module's typical use builds it, stayed in the temporary folder for good, a third of its image's
-        # bytes each time (its maps, still held, keep their pages where the system allows removing a mapped file)
-        self._finalizer = weakref.finalize(self, shutil.rmtree, str(folder), ignore_errors=True) if owned else None
+        # bytes each time (its maps, still held, keep their pages where the system allows removing a mapped file).
+        # Made absolute now: a relative storage, removed after a chdir, was another folder of that name
+        self._finalizer = (weakref.finalize(self, shutil.rmtree, os.path.abspath(folder), ignore_errors=True)
+                           if owned else None)
         self._closed = False
         self._georeferenced = False  # build() placed it by its file's georeferencing (image_layer asks, not reopens)
 
@@ -708,6 +710,7 @@ class ImagePyramid:
         band_bytes = int(band_bytes)  # a NumPy integer too (as a level, a lens' resolution): refused before
         anisotropic = check_flag(anisotropic, "anisotropic")
         given = _storage_folder(storage)
+        dev = resolve_device(device)  # before a folder is made: a bad device left it (and a temporary one) behind
         owned = given is None
         made: list[Path] = []  # the folders this build made for a given storage, removed again if it fails
         try:
@@ -720,7 +723,6 @@ class ImagePyramid:
             real.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise DataFileError(f"cannot create the pyramid storage folder {str(storage)!r}: {exc}") from exc
-        dev = resolve_device(device)
         shapes = pyramid_shapes(height, width)
         # every level file is written under a temporary name and renamed into place once all are complete: writing
         # over the files of an earlier pyramid in the same storage changed its levels under it (its maps showed the

@@ -468,3 +468,25 @@ def test_a_zipped_world_file_tiff_takes_its_crs_from_the_prj_in_the_zip(tmp_path
     _, broken_zip = world_zip("broken", 30.0, 5e5, -30.0, 4e6, ("dem.prj", "not a CRS"))
     with pytest.raises(DataFileError, match=r"dem\.prj' beside DEM '.*dem\.tif' is not a CRS"):
         st.load_dem(broken_zip)
+
+
+def test_a_braced_zip_in_a_zip_without_its_member_is_advised_a_path_that_reads_it(tiles, tmp_path):
+    """A zip in a zip already opened in GDAL's braces without the member to read (/vsizip/{/vsizip//d/outer.zip/
+    one.zip}) was advised /vsizip/{/vsizip/{...}}/<name>.tif, a zip inside that zip, which reads nothing: its '.zip/'
+    was taken for a member's path before the braces were seen. It is advised the braced zip with the member after
+    it, which reads the DEM; an unbraced zip-in-zip path is still wrapped in braces (GDAL splits at the first
+    '.zip/')."""
+    with zipfile.ZipFile(tmp_path / "outer.zip", "w") as archive:
+        archive.write(tiles / "one.zip", "one.zip")
+    inner = f"/vsizip/{tmp_path / 'outer.zip'}/one.zip"
+
+    def advice(path):
+        with pytest.raises(InvalidInputError) as caught:
+            st.load_dem(path)
+        return re.search(r"name the file inside the zip: '([^']*)'", str(caught.value)).group(1)
+
+    assert advice(f"/vsizip/{{{inner}}}") == f"/vsizip/{{{inner}}}/<name>.tif"
+    assert advice(inner) == f"/vsizip/{{{inner}}}/<name>.tif"
+    _same(st.load_dem(advice(f"/vsizip/{{{inner}}}").replace("<name>", "dem")), st.load_dem(tiles / "dem.tif"))
+    remote = "/vsicurl/https://example.org/x.zip/y.zip"
+    assert advice(f"/vsizip/{{{remote}}}") == f"/vsizip/{{{remote}}}/<name>.tif"

@@ -1318,3 +1318,37 @@ def test_a_build_keeps_the_level_file_its_image_maps_through_a_view(tmp_path, vi
     assert level_0.is_file()
     np.testing.assert_array_equal(np.fromfile(level_0, np.uint8).reshape(image.shape), image)
     assert sorted(p.name for p in storage.iterdir()) == [f"level_{k}.u8" for k in range(7)]
+
+
+def test_a_build_refused_for_its_device_makes_no_storage_folder(tmp_path, monkeypatch):
+    """A bad ``device`` was resolved after the storage folder was made, outside the build's clean-up: the refused
+    build left the storage folder it made (and a temporary one, without ``storage``) behind, empty."""
+    import tempfile
+
+    from stepterrain.errors import DeviceError
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
+    (tmp_path / "tmp").mkdir()
+    image = np.zeros((9, 9, 3), np.uint8)
+    with pytest.raises(DeviceError):
+        ImagePyramid.build(image, storage=tmp_path / "new" / "levels", device="cuda:99")
+    with pytest.raises(DeviceError):
+        ImagePyramid.build(image, device="cuda:99")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tmp"]
+    assert list((tmp_path / "tmp").iterdir()) == []
+
+
+def test_an_owned_relative_storage_is_deleted_where_it_was_given(tmp_path, monkeypatch):
+    """``owned=True`` with a relative ``storage``: close() (and the garbage collection's clean-up) removed the
+    folder of that name in the working directory of the moment, after a chdir another folder, not the pyramid's."""
+    image = np.zeros((4, 4, 3), np.uint8)
+    (tmp_path / "a" / "levels").mkdir(parents=True)
+    (tmp_path / "b" / "levels").mkdir(parents=True)
+    (tmp_path / "b" / "levels" / "keep.txt").write_text("not the pyramid's")
+    monkeypatch.chdir(tmp_path / "a")
+    levels = [image, image[:2, :2].copy(), image[:1, :1].copy()]
+    pyramid = ImagePyramid(levels, (0.0, 1.0, 0.0, 1.0), "levels", owned=True)
+    monkeypatch.chdir(tmp_path / "b")
+    pyramid.close()
+    assert (tmp_path / "b" / "levels" / "keep.txt").is_file()
+    assert not (tmp_path / "a" / "levels").exists()

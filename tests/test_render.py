@@ -406,6 +406,8 @@ def billboard(**changes):
          r"anchor_points must be \(N, 3\) world points; got shape \(3, 2\)"),
         (billboard(view=(np.nan, 1.0)), r"view must be \(azimuth, elevation\) in radians, finite; got \(nan, 1.0\)"),
         (billboard(view="top"), r"view must be \(azimuth, elevation\) in radians, finite; got 'top'"),
+        (billboard(view=(0.0, 2.0)),  # named 'camera' (render_mesh's) by the pair's check, not the argument given
+         r"view's elevation must lie in \[-π/2, π/2\] radians .*; got \(0.0, 2.0\)"),
     ],
 )
 def test_layered_renderer_billboard_names_bad_arguments(args, match):
