@@ -1460,9 +1460,9 @@ def fill_transparent(pixels: NDArray[np.uint8]) -> NDArray[np.uint8]:
     in the opaque texels' edge, and in whole coarser mipmaps, as a fringe of that colour. The full-size level is
     read and written in bands of rows: the float32 pyramid from level 1 on holds a third of the texels."""
     alpha = pixels[..., -1]
-    hole = alpha == 0
-    if not hole.any() or hole.all():
+    if not alpha.size or alpha.min() > 0 or alpha.max() == 0:  # before the mask of holes: none for an opaque texture
         return pixels
+    hole = alpha == 0
     h, w, channels = pixels.shape
     check_budget(pixels.nbytes + 6 * channels * ((h + 1) // 2) * ((w + 1) // 2) * 4, f"the colour pyramid filling "
                  f"the transparent texels of a {w} x {h} texture", hint="give a smaller texture")
