@@ -1463,35 +1463,42 @@ def fill_transparent(pixels: NDArray[np.uint8]) -> NDArray[np.uint8]:
     in the opaque texels' edge, and in whole coarser mipmaps, as a fringe of that colour. The full-size level is
     read and written in bands of rows: the float32 pyramid from level 1 on holds a third of the texels."""
     alpha = pixels[..., -1]
-    hole = alpha == 0
-    if not hole.any() or hole.all():
+    if not alpha.size or alpha.min() > 0 or alpha.max() == 0:  # before the mask of holes: none for an opaque texture
         return pixels
+    hole = alpha == 0
     h, w, channels = pixels.shape
     check_budget(pixels.nbytes + 6 * channels * ((h + 1) // 2) * ((w + 1) // 2) * 4, f"the colour pyramid filling "
                  f"the transparent texels of a {w} x {h} texture", hint="give a smaller texture")
     band = 2 * max(1, _FILL_BAND_TEXELS // max(w, 1))  # full-size rows at a time (even: whole 2 x 2 blocks)
 
     def halved(colour: NDArray[np.float32], weight: NDArray[np.float32]) -> tuple[NDArray[np.float32], ...]:
-        pad = ((0, colour.shape[0] % 2), (0, colour.shape[1] % 2))
-        colour, weight = np.pad(colour, pad + ((0, 0),)), np.pad(weight, pad)
+        if colour.shape[0] % 2 or colour.shape[1] % 2:  # an odd side padded with no weight (np.pad copies)
+            pad = ((0, colour.shape[0] % 2), (0, colour.shape[1] % 2))
+            colour, weight = np.pad(colour, pad + ((0, 0),)), np.pad(weight, pad)
         return (colour[0::2, 0::2] + colour[1::2, 0::2] + colour[0::2, 1::2] + colour[1::2, 1::2],
                 weight[0::2, 0::2] + weight[1::2, 0::2] + weight[0::2, 1::2] + weight[1::2, 1::2])
 
-    parts = []
+    # level 1 written band by band into arrays of its size (the bands' list concatenated held it twice)
+    level = (np.empty(((h + 1) // 2, (w + 1) // 2, channels - 1), np.float32),
+             np.empty(((h + 1) // 2, (w + 1) // 2), np.float32))
     for r in range(0, h, band):  # pull, level 0 -> 1 in bands
         weight = pixels[r:r + band, :, -1].astype(np.float32)
-        parts.append(halved(pixels[r:r + band, :, :-1] * weight[..., None], weight))
-    levels = [(np.concatenate([c for c, _ in parts]), np.concatenate([a for _, a in parts]))]
-    del parts
-    while levels[-1][1].shape != (1, 1):  # pull: 2 x 2 sums, an odd side padded with no weight
+        colour, weight = halved(pixels[r:r + band, :, :-1] * weight[..., None], weight)
+        level[0][r // 2:r // 2 + len(weight)], level[1][r // 2:r // 2 + len(weight)] = colour, weight
+    levels = [level]
+    del level, colour, weight
+    while levels[-1][1].shape != (1, 1):  # pull: 2 x 2 sums
         levels.append(halved(*levels[-1]))
     filled = levels[-1][0] / levels[-1][1][..., None]  # the coarsest: one texel, of some weight
-    for colour, weight in reversed(levels[:-1]):  # push: a texel of no weight takes its coarser texel's colour
+    del levels[-1]
+    while levels:  # push: a texel of no weight takes its coarser texel's colour (each level let go once pushed)
+        colour, weight = levels.pop()
         rows, cols = weight.shape
         coarser = np.repeat(np.repeat(filled, 2, axis=0), 2, axis=1)[:rows, :cols]
-        some = weight > 0
-        coarser[some] = colour[some] / weight[some][:, None]
+        # in place: the boolean gathers (colour[some], weight[some], their quotient) each took a level's size
+        np.divide(colour, weight[..., None], out=coarser, where=(weight > 0)[..., None])
         filled = coarser
+        del colour, weight
     out = pixels.copy()
     for r in range(0, h, band):  # push, level 1 -> 0 in bands
         gap = hole[r:r + band]
