@@ -113,8 +113,10 @@ def gdal_path(text: str) -> GdalPath | None:
         if re.match(r"/vsi\w+/\{.*\}", text):
             # GDAL's braces round an archive's path (/vsizip/{/vsicurl/https://h/a.zip?sig=1}/dem.tif): named by the
             # member after them, not the URL's query; by the archive in them without one. A brace in a URL's query
-            # (/vsicurl/https://h/dem.tif?t={a}&x=1) rounds no archive: that is dem.tif, below
-            return _made(text, text.rsplit("}", 1)[1] or text[:-1])
+            # (/vsicurl/https://h/dem.tif?t={a}&x=1) rounds no archive: that is dem.tif, below. A trailing slash
+            # (/vsizip/{/data/a.zip}/) names no member: the archive, as without it
+            braced, member = text.rsplit("}", 1)
+            return _made(text, member if member.strip("/") else braced)
         return _made(text, text.split("/vsicurl/", 1)[-1])  # a URL's own path, for its name
     found = _URL.fullmatch(text)
     if found is None:

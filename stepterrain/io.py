@@ -620,11 +620,12 @@ def _virtual_refusal(file: GdalPath) -> str:
         # its path with the member's name after it ('https://host/srtm.zip/<name>.tif') asked the server (or the
         # tar) for a file of that name, which is not there; a zip inside a zip, or one of a URL with a query (a
         # signed URL: no '.zip/' in it), in braces (GDAL splits the path at its first '.zip/')
-        rest = gdal[len("/vsizip/"):] if gdal.startswith("/vsizip/") else None
+        own = gdal.rstrip("/")  # a trailing slash names no member (/vsizip//data/srtm.zip/): the zip, as without it
+        rest = own[len("/vsizip/"):] if own.startswith("/vsizip/") else None
         if rest is not None and rest.startswith("{") and rest.endswith("}"):  # the zip itself, in braces, whatever
             archive = rest[1:-1]  # they hold (/vsizip/{/vsicurl/...?sig=1}, a zip in a zip /vsizip/{/vsizip//a/b.zip})
         elif rest is None or ".zip/" in rest.lower() or rest.startswith("{"):
-            archive = gdal  # reached through another file system, or a member of a zip: a zip in a zip
+            archive = own  # reached through another file system, or a member of a zip: a zip in a zip
         else:  # the zip itself, opened by /vsizip/ already (/vsizip//data/srtm.zip)
             archive = rest
         braces = "?" in archive or ".zip/" in archive.lower() or archive.startswith("/vsizip/")

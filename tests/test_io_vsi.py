@@ -183,6 +183,28 @@ def test_a_zip_opened_by_vsizip_without_its_member_is_refused_naming_a_path_that
     _same(st.load_dem(advice(f"/vsizip/{{{one}}}").replace("<name>", "dem")), st.load_dem(tiles / "dem.tif"))
 
 
+def test_a_zip_opened_by_vsizip_with_a_trailing_slash_is_advised_as_without_it(tiles):
+    """A zip given to /vsizip/ with a trailing slash and no member was refused as "unknown DEM extension '(none)' of
+    ''" in GDAL's braces (/vsizip/{/data/one.zip}/: named by the empty member after them), and advised a zip inside
+    the zip without them (/vsizip/{/vsizip//data/one.zip/}/<name>.tif: its '.zip/' taken for a member's path). Both
+    are advised the path /vsizip//data/one.zip is, which reads the DEM."""
+    one = tiles / "one.zip"
+    reference = st.load_dem(tiles / "dem.tif")
+
+    def advice(path):
+        with pytest.raises(InvalidInputError) as caught:
+            st.load_dem(path)
+        found = re.search(r"name the file inside the zip: '([^']*)'", str(caught.value))
+        assert found, str(caught.value)
+        return found.group(1)
+
+    expected = advice(f"/vsizip/{one}")
+    assert expected == f"/vsizip/{one}/<name>.tif"
+    for given in (f"/vsizip/{{{one}}}/", f"/vsizip/{one}/", f"/vsizip/{{{one}}}//"):
+        assert advice(given) == expected, given
+    _same(st.load_dem(expected.replace("<name>", "dem")), reference)
+
+
 def test_a_brace_in_a_vsicurl_urls_query_is_no_archives():
     """A /vsicurl/ URL whose query holds a brace (a token, ?t={abc}&x=1) was named by what followed the last brace,
     '&x=1', as if the brace closed GDAL's braces round an archive (/vsizip/{...}/dem.tif), and refused as an unknown
