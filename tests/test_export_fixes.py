@@ -2516,6 +2516,43 @@ def test_a_geotiffs_aux_xml_never_pairs_with_the_other_image_and_a_failed_write_
     assert sorted(os.listdir(tmp_path)) == sorted(["layer.tif"] + (["layer.tif.aux.xml"] if aux.exists() else []))
 
 
+@pytest.mark.parametrize("where", ["lstat", "temporary", "rename"])
+def test_a_geotiffs_old_aux_xml_that_cannot_be_set_aside_is_a_data_file_error_and_the_old_pair_stays(
+        tmp_path, monkeypatch, where):
+    """Setting the old ``.aux.xml`` aside before the image's rename may fail (its folder's entry unreadable, no room
+    for a temporary name, the rename refused): a DataFileError naming the side file and the image, as atomic_path
+    words its write failures, with the old image and its side file as they were and no temporary file left."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.crs import CRS
+
+    import stepterrain.export as export
+
+    old = np.full((6, 9, 3), 40, np.uint8)
+    path = tmp_path / "layer.tif"
+    aux = tmp_path / "layer.tif.aux.xml"
+    save_image(old, path, extent=(0.0, 9.0, 0.0, 6.0), crs=_ROTATED)
+    before = {name: (tmp_path / name).read_bytes() for name in os.listdir(tmp_path)}
+    assert sorted(before) == ["layer.tif", "layer.tif.aux.xml"]
+    owner, name, hit = {"lstat": (os, "lstat", lambda p, *a: os.fspath(p) == str(aux)),
+                        "temporary": (export, "_new_temporary", lambda folder, n, *a: n == aux.name),
+                        "rename": (os, "replace", lambda src, dst: os.fspath(src) == str(aux))}[where]
+    real = getattr(owner, name)
+
+    def failing(*args, **kwargs):
+        if hit(*args):
+            raise OSError(errno.EIO, "Input/output error")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(owner, name, failing)
+    with pytest.raises(DataFileError, match=r"cannot remove '.*layer\.tif\.aux\.xml'.*'.*layer\.tif': Input/output"):
+        save_image(np.full((6, 9, 3), 200, np.uint8), path, extent=(0.0, 9.0, 0.0, 6.0), crs="EPSG:4326")
+    monkeypatch.undo()
+    assert {name: (tmp_path / name).read_bytes() for name in os.listdir(tmp_path)} == before
+    with rasterio.open(path) as dataset:
+        assert dataset.crs == CRS.from_user_input(_ROTATED)
+        assert np.array_equal(np.moveaxis(dataset.read(), 0, 2), old)
+
+
 def test_a_geotiffs_new_aux_xml_keeps_the_old_ones_mode(tmp_path):
     """A GeoTIFF's ``.aux.xml`` written over one keeps its mode (a private 0o600 one stays private), as atomic_path
     keeps a replaced file's: the old one is set aside before the rename, which then found no file to take it from."""
