@@ -2046,9 +2046,9 @@ class TextureCache:
             data = self.loader(patch)
             size = int(getattr(data, "nbytes", patch.nbytes))
             if size > self.budget:  # it was kept anyway, alone: the bytes held went past the budget
-                raise OutputTooLargeError(f"its data takes {size} bytes, more than the cache's budget of "
-                                          f"{self.budget} bytes (raise budget or lower the TextureTree's "
-                                          "max_texture_size)")
+                raise OutputTooLargeError(f"its data takes {size} bytes, more than the cache's budget of "  # size > 1
+                                          f"{self.budget} byte{'' if self.budget == 1 else 's'} (raise budget or "
+                                          "lower the TextureTree's max_texture_size)")
             with self._lock:
                 self._loaded[id(patch)] = (patch, data, size)
                 self.bytes_loaded += size

@@ -941,6 +941,25 @@ def test_a_texture_cache_never_holds_more_than_its_budget_even_for_one_patch_lar
         cache.close()
 
 
+def test_a_texture_cache_of_a_one_byte_budget_says_1_byte():
+    """``TextureCache(budget=1)`` (the least it takes) refused a patch as "more than the cache's budget of 1 bytes"."""
+    from stepterrain.errors import OutputTooLargeError
+    from stepterrain.texture_lod import TextureCache
+
+    from .test_texture_lod import lod_setup
+
+    quadtree, tree, pyramid, camera = lod_setup()
+    with pyramid:
+        patch = min((m for m in tree.patches() if m.nbytes > 1), key=lambda m: m.nbytes)
+        cache = TextureCache(budget=1)
+        with pytest.raises(OutputTooLargeError, match=rf"takes {patch.nbytes} bytes, more than the cache's budget of "
+                                                      r"1 byte \(") as caught:
+            cache.load_now(patch)
+        assert "1 bytes" not in str(caught.value)
+        assert cache.bytes_loaded == 0 and not cache.is_loaded(patch)
+        cache.close()
+
+
 @pytest.mark.parametrize("pitch", [30.0, 45.0, 60.0])
 def test_a_view_from_above_the_terrain_refines_the_patches_in_view(pitch):
     """γ(N) and τ(N, M) took the point of B(N) nearest to the eye, not (as §4 says) the nearest one inside the view
