@@ -139,12 +139,17 @@ def _counted(count: int, noun: str, plural: str | None = None) -> str:
 @contextlib.contextmanager
 def usage_errors(parser: argparse.ArgumentParser) -> Iterator[None]:
     """Within: a value the library refuses (a :class:`~stepterrain.errors.StepTerrainError`: no GPU for
-    ``--device cuda``, a window too small) becomes ``parser.error``, one line and exit 2, not a traceback. For
-    scripts' own argparse mains (examples/)."""
-    try:
-        yield
-    except StepTerrainError as exc:
-        parser.error(str(exc))
+    ``--device cuda``, a window too small) becomes ``parser.error``, one line and exit 2, not a traceback; and the
+    library's warnings print as the ``stepterrain`` command's do (:func:`_warning_line`): one ``PROG: warning:``
+    line, without Python's source line, the library arguments they name spelled as ``parser``'s options (load_dem's
+    ``pass nodata=-32768`` for ``--dem``'s file: ``pass --nodata -32768``). For scripts' own argparse mains
+    (examples/)."""
+    with warnings.catch_warnings():  # restored on exit, as the CLI's main() restores its own
+        warnings.showwarning = _warning_line(parser.prog, parser)
+        try:
+            yield
+        except StepTerrainError as exc:
+            parser.error(str(exc))
 
 
 def add_dem_option(parser: argparse.ArgumentParser) -> None:
@@ -1425,14 +1430,14 @@ def _leading_as_option(message: str, sub: argparse.ArgumentParser, command: str)
     return option + " " + _names_as_options(rest[len(aside):] if rest.startswith(aside) else rest, options)
 
 
-def _warning_line(command: str, sub: argparse.ArgumentParser | None = None) -> Any:
-    """A ``warnings.showwarning`` that prints the library's warnings as one ``stepterrain CMD: warning:`` line
-    (no source line) on stderr, the library arguments they name spelled as ``sub``'s options (:func:`_as_option`:
-    ``pass height_unit='ft'`` -> ``pass --height-unit 'ft'``); a progress bar on screen (batch's) is cleared first
-    and drawn again below it."""
+def _warning_line(prog: str, sub: argparse.ArgumentParser | None = None) -> Any:
+    """A ``warnings.showwarning`` that prints the library's warnings as one ``PROG: warning:`` line (``stepterrain
+    CMD: warning:``; an example's ``flood.py: warning:``, as its parser's errors begin), no source line, on stderr,
+    the library arguments they name spelled as ``sub``'s options (:func:`_as_option`: ``pass height_unit='ft'`` ->
+    ``pass --height-unit 'ft'``); a progress bar on screen (batch's) is cleared first and drawn again below it."""
 
     def show(message: Any, category: Any, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
-        text = f"stepterrain {command}: warning: {_as_option(str(message), sub)}"
+        text = f"{prog}: warning: {_as_option(str(message), sub)}"
         if "tqdm" in sys.modules:  # else the line was appended to the bar's line
             sys.modules["tqdm"].tqdm.write(text, file=sys.stderr)
             sys.stderr.flush()
@@ -1487,7 +1492,7 @@ def _main(argv: Sequence[str] | None) -> int:
             set_memory_budget(args.memory_budget)
         with warnings.catch_warnings():
             # restored on exit by catch_warnings
-            warnings.showwarning = _warning_line(args.command, _subcommand(parser, args.command))
+            warnings.showwarning = _warning_line(f"stepterrain {args.command}", _subcommand(parser, args.command))
             # before any input is read (a large DEM loaded first), unless the work runs on another machine: batch
             # --scheduler tcp://... --device cuda from a login node without a GPU was refused for lacking one
             if getattr(args, "device", None) is not None and getattr(args, "scheduler", None) in (None, "serial"):

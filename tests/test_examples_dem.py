@@ -4,6 +4,8 @@ usage error (exit 2) that writes nothing."""
 
 from __future__ import annotations
 
+import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -281,3 +283,38 @@ def test_interactive_shows_a_flat_dem(tmp_path, capsys):
     image = read_png(out)
     assert image.shape[:2] == shape
     assert (image[shape[0] // 3:] != 255).any(axis=2).mean() > 0.2  # below the sliders: the terrain, not white
+
+
+@pytest.mark.parametrize("name", ["stepped_terrain", "batch_tiles"])
+def test_an_undeclared_nodata_warning_names_the_examples_nodata_option(name, tmp_path, capsys):
+    """load_dem's warning of an undeclared common nodata value (-32768 voids in an int32 GeoTIFF) told an example's
+    user to "pass nodata=-32768", with Python's ``UserWarning`` and the example's source line: a Python caller's
+    advice. It names the example's --nodata now and prints as the stepterrain command's warnings do, one
+    ``PROG: warning:`` line; the library's own warning, and Python's warning machinery after the run, are as before."""
+    rasterio = pytest.importorskip("rasterio")
+    dem = st.sample_dem()
+    z = np.round(dem.heights[500:530, 600:640]).astype(np.int32)
+    z[5:9, 10:16] = -32768  # 24 voids
+    path = tmp_path / "dem.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=40, height=30, count=1, dtype="int32", crs=dem.crs,
+                       transform=rasterio.transform.Affine(30.0, 0.0, 380000.0, 0.0, -30.0, 3800000.0)) as dst:
+        dst.write(z, 1)
+    advice = "declare it (`gdal_edit.py -a_nodata -32768 dem.tif`, or pass "
+    with pytest.warns(UserWarning, match=r"dem.tif: 24 cells of band 1 hold -32768, .*, or pass nodata=-32768\)$"):
+        st.load_dem(path)  # the library's words, for a Python caller
+    argv, _ = RUNS[name]
+    shown = warnings.showwarning
+    example = load_example(name)
+    assert example.main([*argv, "--dem", str(path), "--output", str(tmp_path / "a.png")]) == 0
+    assert warnings.showwarning is shown
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if "-32768" in line]
+    assert len(lines) == 1, err
+    # as its parser's errors begin: its prog (argparse's, from sys.argv[0]), then the library's words
+    prog = Path(sys.argv[0]).name
+    assert lines[0].startswith(f"{prog}: warning: dem.tif: 24 cells of band 1 hold -32768, a common nodata value")
+    assert lines[0].endswith(advice + "--nodata -32768)"), lines[0]
+    assert "UserWarning" not in err and "nodata=" not in err and "example_dem(" not in err, err  # no source line
+    # the advice followed: the voids are voids, and nothing is said of them
+    assert example.main([*argv, "--dem", str(path), "--nodata", "-32768", "--output", str(tmp_path / "b.png")]) == 0
+    assert "-32768" not in capsys.readouterr().err
