@@ -30,6 +30,10 @@ _MAX_COORDINATE = 1e30  # eye, target and up: their products (norms, crosses) st
 #: for a 45-degree fov), and within them the side planes' normals stay finite: at 1e300 their norm overflowed to
 #: inf, the normals came out zero and nothing was clipped at the sides; at 1e307 the default viewport overflowed.
 ASPECT_RANGE = (1e-6, 1e6)
+#: The largest elevation of a camera's (azimuth, elevation) pair or a billboard's view: π/2 as float32 rounds it,
+#: 4e-8 above float64's π/2 (np.float32(np.pi / 2), np.radians(np.float32(90)) look straight down as np.pi / 2
+#: does: they were refused).
+QUARTER_TURN = float(np.float32(math.pi / 2))
 
 
 @dataclass(frozen=True)

@@ -35,6 +35,7 @@ from ._compaction import MAX_INT32 as _MAX_INT32
 from ._compaction import budget_value, check_budget, count_buffer, exclusive_offsets
 from ._device import host_copy, launch, launch_chunked, resolve_device, to_device
 from ._memo import MISSING, Same, derived, keep, recall
+from .camera import QUARTER_TURN
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, OutputTooLargeError, counted
 from .io import degrees_hint
 from .kernels import closeup as closeup_kernels
@@ -105,8 +106,6 @@ _MAX_OFFSET = 1e12
 #: largest |angle| of a close-up's rotation and billboard azimuth, radians (1024 turns): 1e308 was taken, and a spin
 #: added to an angle that large was lost to rounding (the animation stood still); a larger value is likely degrees
 _MAX_ANGLE = 2 * math.pi * 1024
-#: The largest billboard elevation: π/2 as float32 rounds it (np.float32(np.pi / 2) is 4e-8 above float64's π/2)
-_QUARTER_TURN = float(np.float32(math.pi / 2))
 
 
 def _finite(value: Any, name: str) -> float:
@@ -822,7 +821,7 @@ class CloseUp:
         if not is_name(self.view, ("overview", "billboard")):
             raise InvalidInputError(f"close-up view must be 'overview' or 'billboard'; got {self.view!r}")
         bv = real_vector(self.billboard_view, "billboard_view", "finite (azimuth, elevation)", 2)
-        if abs(bv[0]) > _MAX_ANGLE or not abs(bv[1]) <= _QUARTER_TURN:
+        if abs(bv[0]) > _MAX_ANGLE or not abs(bv[1]) <= QUARTER_TURN:
             raise InvalidInputError(f"billboard_view must be (azimuth, elevation) in radians, the azimuth within "
                                     f"±{_MAX_ANGLE:.6g} (1024 turns) and the elevation in [-π/2, π/2]; got "
                                     f"{tuple(bv.tolist())}")

@@ -29,6 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._compaction import check_budget
 from ._memo import derived
 from ._signals import signals_held
+from .camera import QUARTER_TURN
 from .errors import InvalidInputError, MissingDependencyError, counted
 from .mesh import mesh_argument
 from .terrain import check_flag, finite_or_nan, is_name, number_or_nan, real_numbers, real_vector
@@ -49,9 +50,6 @@ _DIFFUSE = 0.9
 #: The fixed oblique view: camera azimuth (clockwise from north, radians; 180° = looking from the south
 #: towards the north) and elevation above the horizon.
 _OBLIQUE = (math.radians(190.0), math.radians(45.0))
-#: The largest elevation of a camera's (azimuth, elevation) pair: π/2 as float32 rounds it, 4e-8 above float64's π/2
-#: (np.float32(np.pi / 2), np.radians(np.float32(90)) look straight down as np.pi / 2 does: they were refused).
-_QUARTER_TURN = float(np.float32(math.pi / 2))
 #: A fitted camera's margin: its eye lies this many times as far from the framed box's centre as the nearest eye
 #: that sees all of it.
 _FRAME_MARGIN = 1.06
@@ -323,7 +321,7 @@ def _camera_position(
         if spec.shape != (2,) or not np.all(np.isfinite(spec)):
             raise InvalidInputError(f"camera must be 'oblique', 'top', (azimuth, elevation) in radians or "
                                     f"[(eye), (focal point), (view up)]; got {camera!r}")
-        if abs(float(spec[1])) > _QUARTER_TURN:  # clipped to +-89.9 degrees: camera=(190, 45), degrees for radians,
+        if abs(float(spec[1])) > QUARTER_TURN:  # clipped to +-89.9 degrees: camera=(190, 45), degrees for radians,
             # rendered the top view without a word (--camera refuses an EL beyond +-90 degrees alike)
             raise InvalidInputError(f"camera's elevation must lie in [-π/2, π/2] radians (-90 to 90 degrees, "
                                     f"math.radians(degrees)); got {camera!r}, elevation {float(spec[1]):g}")
@@ -2120,7 +2118,7 @@ class LayeredRenderer:
         if rgb is not None:
             rgb = _layer_rgb(rgb, len(vertices), "rgb")
         direction = real_vector(view, "view", "(azimuth, elevation) in radians, finite", 2)  # it named "camera"
-        if abs(float(direction[1])) > _QUARTER_TURN:  # refused by _camera_position too, naming its "camera"
+        if abs(float(direction[1])) > QUARTER_TURN:  # refused by _camera_position too, naming its "camera"
             raise InvalidInputError(f"view's elevation must lie in [-π/2, π/2] radians (-90 to 90 degrees, "
                                     f"math.radians(degrees)); got {view!r}, elevation {float(direction[1]):g}")
         anchor_points = _layer_rows(anchor_points, "anchor_points", "(N, 3) world points")
