@@ -442,6 +442,10 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     # names another body (Mars, the Moon: its radius, once the INPUT is read)
     radius = args.radius if args.radius is not None else _EARTH_RADIUS
     lat_deg, lon_deg = args.eye[:2] if args.eye is not None else (30.0, 10.0)
+    # the eye places the camera and the --png render: with --no-camera, no --png and no --eye (refused below as
+    # unused) nothing looks from it, and the default one, 3 radii up, was refused past the camera's bound (--radius
+    # 1e35 --no-camera, a radius the library takes)
+    eye_used = not args.no_camera or png is not None or args.eye is not None
     if not (-90.0 <= lat_deg <= 90.0):
         raise InvalidInputError(f"--eye latitude must lie in [-90, 90]; got {lat_deg}")
     if not (-360.0 <= lon_deg <= 360.0):  # look_from's bound, which named the library's 'longitude'
@@ -460,7 +464,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
             raise InvalidInputError(f"--eye {lat_deg:g},{lon_deg:g},{altitude:g} lies below the terrain there (the "
                                     f"altitude is metres above the sphere of {sphere}): the eye at or beyond the "
                                     f"planet's centre (altitude <= -{radius:g} m, {the}{sphere})")
-        if radius + altitude > _MAX_COORDINATE:  # look_from's bound on the eye, which named the library's 'radius'
+        if radius + altitude > _MAX_COORDINATE and eye_used:  # look_from's bound, which named the library's 'radius'
             where = "--eye altitude" if altitude > _MAX_COORDINATE and args.eye is not None else \
                 f"{sphere} + the --eye altitude"
             default = "" if args.eye is not None else f" (the default --eye, 3 x {sphere})"
@@ -513,8 +517,8 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     aspect = args.size[0] / args.size[1]
     camera = look_from(lat_deg, lon_deg, altitude, tilt=args.tilt, heading=args.heading, aspect=aspect,
                        fov=math.radians(args.view_angle),
-                       radius=radius, max_radius=globe.radius + float(globe.heights.max()))
-    if not args.no_camera or png is not None:  # the eye meshes or renders: above the terrain there, named by --eye
+                       radius=radius, max_radius=globe.radius + float(globe.heights.max())) if eye_used else None
+    if camera is not None:  # the eye meshes or renders: above the terrain there, named by --eye
         try:
             globe._check_eye(camera.eye)
         except InvalidInputError as exc:
@@ -525,9 +529,10 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     mesh = globe.mesh(error=args.error, camera=None if args.no_camera else camera, bounds=bounds,
                       metrics=metrics, cull=not args.no_cull)
     progress.done(f"{_counted(len(mesh.faces), 'triangle')}, {_counted(len(mesh.vertices), 'vertex', 'vertices')}")
-    if len(mesh.faces) == 0:  # an eye above the terrain looking down sees it: the --tilt looks past the limb
-        # the sphere through the highest node lies within asin(top / |eye|) of straight down, and the view's lowest
-        # edge half the --view-angle below its centre: a --tilt below their sum sees (a part of) that sphere
+    if len(mesh.faces) == 0 and camera is not None:  # an eye above the terrain looking down sees it: the --tilt
+        # looks past the limb; the sphere through the highest node lies within asin(top / |eye|) of straight down,
+        # and the view's lowest edge half the --view-angle below its centre: a --tilt below their sum sees (a part
+        # of) that sphere
         top = globe.radius + float(globe.heights.max())
         limb = math.degrees(math.asin(min(1.0, top / float(np.linalg.norm(camera.eye)))))
         lowest = args.tilt - args.view_angle / 2

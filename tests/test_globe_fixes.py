@@ -373,6 +373,27 @@ def test_an_eye_beyond_the_camera_bound_names_the_options(tmp_path, capsys, argv
     assert not out.exists()
 
 
+def test_a_huge_radius_without_the_camera_is_not_refused_for_the_unused_default_eye(tmp_path, capsys):
+    """--radius 1e35 --no-camera (no --png): the library takes radii up to 8.5e37 m, and nothing places an eye (the
+    mesh is refined by the geometric error alone, nothing is rendered), yet the CLI refused it for the default eye
+    3 radii up, beyond the camera's 1e30 m bound ("(the default --eye, 3 x --radius)"). With the camera or a --png
+    the eye is needed and still refused (test_an_eye_beyond_the_camera_bound_names_the_options)."""
+    import trimesh
+
+    from stepterrain.cli import main
+
+    out = tmp_path / "g.ply"
+    assert main(["-q", "globe", "--radius", "1e35", "--no-camera", "--error", "0", "--face-size", "5", "-o", str(out),
+                 "--device", "cpu"]) == 0, capsys.readouterr().err
+    mesh = trimesh.load(out, process=False)
+    assert len(mesh.faces) == 12 * 4**2 and mesh.is_watertight
+    np.testing.assert_allclose(np.linalg.norm(mesh.vertices, axis=1), 1e35, rtol=1e-6)
+    png = tmp_path / "g.png"  # a render needs the eye: refused, before anything is loaded or written
+    assert main(["-q", "globe", "--radius", "1e35", "--no-camera", "--png", str(png), "--face-size", "5"]) == 2
+    assert "(the default --eye, 3 x --radius)" in capsys.readouterr().err
+    assert not png.exists()
+
+
 @pytest.mark.parametrize("value", ["inf", "-inf", "nan"])
 @pytest.mark.parametrize("option", ["--exaggeration", "--radius", "--error", "--tilt", "--heading"])
 def test_every_float_globe_option_names_itself_for_a_non_finite_value(tmp_path, capsys, option, value):
