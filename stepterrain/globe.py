@@ -383,10 +383,11 @@ class Globe:
             # deepest trench's -8396 m for an eye 11 km under the Himalaya, where the terrain is +4821 m)
             surface = self.radius + self._height_under(np.asarray(eye, dtype=np.float64) / distance)
         if distance <= max(surface, 0.0):
+            d = _printed_apart(distance, surface)
             raise InvalidInputError(f"camera eye {eye} lies inside the planet, below the terrain surface in its "
-                                    f"direction: |eye| = {distance:.1f} m, the surface there {surface:.1f} m from the "
-                                    f"centre (radius {self.radius:.1f} m, terrain {surface - self.radius:+.1f} m); "
-                                    "raise the eye")
+                                    f"direction: |eye| = {distance:.{d}f} m, the surface there {surface:.{d}f} m from "
+                                    f"the centre (radius {self.radius:.{d}f} m, terrain {surface - self.radius:+.{d}f} "
+                                    "m); raise the eye")
 
     def _height_under(self, direction: NDArray[np.float64]) -> float:
         """The exaggerated terrain height at a unit ``direction``: the nodes of the grid cell around it, interpolated
@@ -747,6 +748,18 @@ def _dense_entries(grid: Any) -> int:
     return _written_rows(grid) * grid.n
 
 
+def _printed_apart(below: float, above: float) -> int:
+    """Decimals for an eye's refusal: one where that prints ``below`` (the eye) and ``above`` (the surface) apart, else
+    as many as tell them apart (up to 17 significant digits; equal numbers, one). 0.1 m printed an eye 1 cm under the
+    earth's surface as the surface, and every number of a unit globe as 1.0 or 0.0."""
+    decimals = 1
+    while below != above and f"{below:.{decimals}f}" == f"{above:.{decimals}f}" and decimals < 340:
+        if decimals >= 17 - math.floor(math.log10(max(abs(below), abs(above)))):  # past float64's digits
+            break
+        decimals += 1
+    return decimals
+
+
 def _cell_surface(z00: float, z01: float, z10: float, z11: float, u: float, v: float) -> float:
     """The height at (u along rows, v along columns) in a grid cell of corner heights z00, z01 (next column), z10
     (next row), z11: interpolated over each of the cell's two triangulations, the lower of the two (the
@@ -773,9 +786,10 @@ def _check_planar_eye(eye: tuple[float, float, float], z: NDArray[np.float32], s
     cell = z[i0 : i0 + 2, j0 : j0 + 2].astype(np.float64)
     surface = _cell_surface(cell[0, 0], cell[0, 1], cell[1, 0], cell[1, 1], fi - i0, fj - j0)
     if ez <= surface:
+        d = _printed_apart(ez, surface)
         raise InvalidInputError(f"camera eye {tuple(eye)} lies below the terrain surface: at (x, y) = ({ex:.1f}, "
-                                f"{ey:.1f}) the surface is at z = {surface:.1f} m, the eye at z = {ez:.1f} m; raise "
-                                "the eye (or move it off the grid's rectangle)")
+                                f"{ey:.1f}) the surface is at z = {surface:.{d}f} m, the eye at z = {ez:.{d}f} m; "
+                                "raise the eye (or move it off the grid's rectangle)")
 
 
 def _planar_grid(z: NDArray[np.float32], spacing: tuple[float, float], valid: tuple[int, int], *, shapes: bool,

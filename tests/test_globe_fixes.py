@@ -2120,3 +2120,39 @@ def test_the_gdalwarp_a_projected_texture_is_refused_with_leaves_the_poles_trans
     assert (colors[np.abs(np.degrees(lat)) < 84.0][:, 3] == 255).all()
     opaque = colors[..., 3] == 255
     assert not (colors[opaque][:, :3] == 0).all(axis=1).any(), "opaque black where the map has no data"
+
+
+@pytest.mark.parametrize("radius", [1.0, 6371000.0, 1e-20])
+def test_an_eye_refused_just_under_the_surface_is_printed_apart_from_it(radius):
+    """The refusal of an eye inside the planet printed |eye| and the surface to 0.1 m: on a globe of radius 1 (a unit
+    sphere, heights scaled alike) an eye a millimetre under a peak read "|eye| = 1.0 m, the surface there 1.0 m from
+    the centre (radius 1.0 m, terrain +0.0 m)", and on the earth an eye 1 cm under the surface read two equal
+    numbers too. The numbers get the decimals that tell them apart (one where that suffices, as before); each is the
+    value it names."""
+    globe = Globe.from_latlon(np.full((18, 36), 0.01 * radius), np.linspace(85.0, -85.0, 18),
+                              np.linspace(-175.0, 175.0, 36), face_size=9, radius=radius, device="cpu")
+    surface = radius + globe._height_under(np.array([1.0, 0.0, 0.0]))
+    eye = surface - 1e-5 * radius if radius != 6371000.0 else surface - 0.01
+    with pytest.raises(InvalidInputError) as caught:
+        globe.mesh(camera=Camera(eye=(eye, 0.0, 0.0), target=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0)))
+    found = re.search(r"\|eye\| = (\S+) m, the surface there (\S+) m from the centre \(radius (\S+) m, terrain (\S+) "
+                      r"m\)", str(caught.value))
+    assert found, str(caught.value)
+    printed_eye, printed_surface, printed_radius, printed_terrain = (float(v) for v in found.groups())
+    assert printed_eye < printed_surface, str(caught.value)
+    assert printed_eye == pytest.approx(eye, rel=1e-6) and printed_surface == pytest.approx(surface, rel=1e-6)
+    assert printed_radius == pytest.approx(radius, rel=1e-6)
+    assert printed_terrain == pytest.approx(surface - radius, rel=1e-3)
+
+
+def test_a_planar_eye_refused_just_under_the_surface_is_printed_apart_from_it():
+    """adaptive_mesh's refusal printed the surface and the eye to 0.1 m: a 1 mm model's eye 0.2 mm under it read
+    "the surface is at z = 0.0 m, the eye at z = 0.0 m"."""
+    z = np.full((5, 5), 0.001)
+    eye = (0.002, 0.002, 0.0008)
+    camera = Camera(eye=eye, target=(0.002, 0.002, 0.0), up=(0.0, 1.0, 0.0), near=1e-5, far=1.0)
+    with pytest.raises(InvalidInputError) as caught:
+        adaptive_mesh(z, error=1e-5, spacing=0.001, camera=camera, device="cpu")
+    found = re.search(r"the surface is at z = (\S+) m, the eye at z = (\S+) m;", str(caught.value))
+    assert found, str(caught.value)
+    assert float(found.group(1)) == pytest.approx(0.001) and float(found.group(2)) == pytest.approx(0.0008)
