@@ -154,7 +154,9 @@ def _by_frame(heights: Any) -> bool:
     array (a memory map too; not a masked one, whose reductions skip its mask) of (T, H, W) or more axes with some
     node. Its whole finite and triangle masks held 1.25 times a float32 stack's memory again, and a memory-mapped
     stack was read whole before its first frame; a frame's masks are a quarter of the frame's memory each. Each
-    frame's (min, max) combined is the whole stack's: the results are those of the whole-stack pass."""
+    frame's (min, max) combined is the whole stack's: the values of the whole-stack pass, the sign of a zero extreme
+    that of the first frame holding it (as stepped_series' ``_stack_ranges`` takes it; the whole-stack pass's depended
+    on numpy's loop: float16 kept the first of -0.0 and 0.0, float64 the last)."""
     return (isinstance(heights, np.ndarray) and not np.ma.isMaskedArray(heights) and heights.ndim >= 3
             and heights.size > 0)
 

@@ -228,7 +228,8 @@ def _used_values(heights: NDArray) -> tuple[NDArray, NDArray]:
     ``heights`` (an (H, W) grid or a (..., H, W) stack), in the input's dtype: each frame's faces from
     :func:`grid_tin` (its own triangulation, finite faces only), the nodes they name by np.unique."""
     frames = np.asarray(heights).reshape((-1, *np.shape(heights)[-2:]))
-    used = [frame.reshape(-1)[np.unique(grid_tin(frame)[1])] for frame in frames]
+    with np.errstate(over="ignore"):  # grid_tin's float32 points; its faces are those of the heights as given
+        used = [frame.reshape(-1)[np.unique(grid_tin(frame)[1])] for frame in frames]
     finite = frames[np.isfinite(frames)]
     return np.concatenate(used) if used else finite[:0], finite
 
