@@ -226,10 +226,15 @@ def step_reference(
 def _used_values(heights: NDArray) -> tuple[NDArray, NDArray]:
     """(heights of the nodes a triangle with three finite heights uses, finite heights) over every (H, W) frame of
     ``heights`` (an (H, W) grid or a (..., H, W) stack), in the input's dtype: each frame's faces from
-    :func:`grid_tin` (its own triangulation, finite faces only), the nodes they name by np.unique."""
+    :func:`grid_tin` (its own triangulation, finite faces only), the nodes they name."""
     frames = np.asarray(heights).reshape((-1, *np.shape(heights)[-2:]))
-    with np.errstate(over="ignore"):  # grid_tin's float32 points; its faces are those of the heights as given
-        used = [frame.reshape(-1)[np.unique(grid_tin(frame)[1])] for frame in frames]
+    used = []
+    for frame in frames:
+        with np.errstate(over="ignore"):  # grid_tin's float32 points; its faces are those of the heights as given
+            faces = grid_tin(frame)[1]
+        named = np.zeros(frame.size, bool)
+        named[faces.reshape(-1)] = True
+        used.append(frame.reshape(-1)[named])
     finite = frames[np.isfinite(frames)]
     return np.concatenate(used) if used else finite[:0], finite
 

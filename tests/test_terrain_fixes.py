@@ -1371,7 +1371,7 @@ def test_a_memory_mapped_stacks_used_range_and_lowest_used_height_take_a_frames_
 
     from stepterrain.terrain import lowest_used_height, used_height_range
 
-    from .reference import lowest_used_height_reference, used_height_range_reference
+    from .reference import used_height_range_reference
 
     shape = (32, 512, 512)
     path = tmp_path / "series.npy"
@@ -1388,14 +1388,15 @@ def test_a_memory_mapped_stacks_used_range_and_lowest_used_height_take_a_frames_
     del out
     mapped = np.load(path, mmap_mode="r")
     frame_bytes = mapped[0].nbytes
+    got = []
     for call in (used_height_range, lowest_used_height):
         tracemalloc.start()
         try:
-            got = call(mapped)
+            got.append(call(mapped))
             peak = tracemalloc.get_traced_memory()[1]
         finally:
             tracemalloc.stop()
         assert peak < 2 * frame_bytes, f"{call.__name__}: {peak:,} bytes for a stack of {mapped.nbytes:,}"
-        want = (used_height_range_reference if call is used_height_range else lowest_used_height_reference)(mapped)
-        assert got == want
-    assert used_height_range(mapped)[0] > -1e4
+    want = used_height_range_reference(mapped)  # some frame has a triangle: its low is the lowest used height
+    assert got == [want, want[0]]
+    assert want[0] > -1e4
