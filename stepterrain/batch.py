@@ -76,7 +76,6 @@ from .terrain import (
     FLOAT32_MAX,
     Terrain,
     _described,
-    _used_span,
     check_flag,
     check_mapped,
     finite_number,
@@ -2702,14 +2701,13 @@ def _levels_and_range(
     without it and ``levels`` the default one for that range."""
     if src is None:
         return None, None, interval
-    from .stepped import _default_isovalues, _stack_ranges, isovalues
+    from .stepped import _default_isovalues, isovalues
 
     if src.height_range is not None:  # found by the source's checks: no further pass, no copy
         lo, hi = src.height_range
     else:  # nodata (or a series file): the range of the nodes a triangle uses, as stepped() takes it; a series'
-        # frame by frame, as stepped_series takes a stack's (the whole series' finite and triangle masks held 1.25
-        # times a float32 series' memory again, 40 MiB for a 32 x 512 x 512 one)
-        used = _stack_ranges(src.heights)[2] if src.heights.ndim == 3 else used_height_range(src.heights)
+        # frame by frame (used_height_range reads a stack so), as stepped_series takes a stack's
+        used = used_height_range(src.heights)
         if used is None:
             raise InvalidInputError(f"source {src.name!r} holds no finite height")
         lo, hi = used
@@ -2863,18 +2861,7 @@ def _shared_floor(src: _Source, values: tuple[float, ...], gamma: float, interva
     stepped surface. Each tile or frame stepped alone put its floor under its *own* lowest vertex, and without the
     interval (the items get the shared levels) a tenth of the span down: tiles that did not meet at their base, and
     under a floor other than the whole raster's. None when no triangle has three finite heights."""
-    return _floor_under(_lowest_used(src), values, gamma, interval)
-
-
-def _lowest_used(src: _Source) -> float | None:
-    """:func:`~stepterrain.terrain.lowest_used_height` of the whole source; of a series frame by frame (its
-    :func:`~stepterrain.terrain._used_span`, no mask for a frame without nodata): the whole series' finite and
-    triangle masks held 1.25 times a float32 series' memory again."""
-    heights = src.heights
-    if heights.ndim != 3 or (src.height_range is not None and min(heights.shape[-2:]) >= 2):
-        return lowest_used_height(heights, src.height_range)
-    lows = [span[0] for span, any_used in map(_used_span, heights) if any_used and span is not None]
-    return min(lows) if lows else None
+    return _floor_under(lowest_used_height(src.heights, src.height_range), values, gamma, interval)
 
 
 def _floor_under(h: float | None, values: tuple[float, ...], gamma: float, interval: float | None) -> float | None:
@@ -2899,7 +2886,7 @@ def _check_floor(src: _Source, values: tuple[float, ...], gamma: float, floor: f
     uses, α(h) the isovalue it snaps to (monotone in h, so no vertex lies lower); tiles share their border nodes,
     so their triangles are the raster's. The floor ``close_solid`` checks per item, known here at once.
     """
-    _check_floor_over(_lowest_used(src), src.name, values, gamma, floor)
+    _check_floor_over(lowest_used_height(src.heights, src.height_range), src.name, values, gamma, floor)
 
 
 def _check_floor_over(h: float | None, name: str, values: tuple[float, ...], gamma: float, floor: float) -> None:

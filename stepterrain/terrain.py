@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import numbers
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import InitVar, dataclass, field, replace
 from typing import Any, Literal
 
@@ -109,9 +109,13 @@ def lowest_used_height(heights: NDArray[Any], height_range: tuple[float, float] 
     """The lowest height of a grid node (or of a (T, H, W) stack's) that a triangle with three finite heights uses;
     None when no triangle has. Nodes beside nodata that no such triangle uses are in no stepped mesh.
     ``height_range``: the heights' (min, max) when they hold no nodata, known to the caller: on a grid of at least
-    2 x 2 every node is then a triangle's, and its min is the answer without a pass."""
+    2 x 2 every node is then a triangle's, and its min is the answer without a pass. A stack is read a frame at a
+    time (:func:`_by_frame`): a memory map is not read into memory whole."""
     if height_range is not None and min(heights.shape[-2:]) >= 2:
         return float(height_range[0])
+    if _by_frame(heights):  # a frame's masks at a time: the stack's held as much memory as a float32 stack again
+        lows = [low for low in map(lowest_used_height, _frames(heights)) if low is not None]
+        return min(lows) if lows else None
     used = used_nodes(np.isfinite(heights))
     if not used.any():
         return None
@@ -121,14 +125,17 @@ def lowest_used_height(heights: NDArray[Any], height_range: tuple[float, float] 
 def used_height_range(heights: NDArray[Any]) -> tuple[float, float] | None:
     """(min, max) of the grid nodes (of a (T, H, W) stack's frames) that a triangle with three finite heights uses;
     of the finite heights where no triangle has three (a mesh without faces); None when no height is finite.
-    :attr:`Terrain.height_range` of a grid with nodata: a node on no triangle is in no stepped mesh."""
+    :attr:`Terrain.height_range` of a grid with nodata: a node on no triangle is in no stepped mesh. A stack is read a
+    frame at a time (:func:`_by_frame`), as :func:`~stepterrain.stepped_series` reads it."""
     return _used_span(heights)[0]
 
 
 def _used_span(heights: NDArray[Any]) -> tuple[tuple[float, float] | None, bool]:
     """(:func:`used_height_range`, whether a triangle with three finite heights uses some node) in one pass over
     the triangles: :class:`Terrain` keeps both, so that a solid's floor check asks the grid's triangles no second
-    time."""
+    time. A stack a frame at a time (:func:`_by_frame`)."""
+    if _by_frame(heights):
+        return _stack_span(heights)
     finite = np.isfinite(heights)
     if finite.all():  # every node is a triangle's (or, under 2 x 2, none is: the finite heights): no masks
         return (float(heights.min()), float(heights.max())), min(heights.shape[-2:]) >= 2
@@ -140,6 +147,41 @@ def _used_span(heights: NDArray[Any]) -> tuple[tuple[float, float] | None, bool]
             return None, False
     return ((float(np.min(heights, where=used, initial=np.inf)), float(np.max(heights, where=used, initial=-np.inf))),
             any_used)
+
+
+def _by_frame(heights: Any) -> bool:
+    """Whether :func:`used_height_range` and :func:`lowest_used_height` take ``heights`` a frame at a time: a numpy
+    array (a memory map too; not a masked one, whose reductions skip its mask) of (T, H, W) or more axes with some
+    node. Its whole finite and triangle masks held 1.25 times a float32 stack's memory again, and a memory-mapped
+    stack was read whole before its first frame; a frame's masks are a quarter of the frame's memory each. Each
+    frame's (min, max) combined is the whole stack's: the values of the whole-stack pass, the sign of a zero extreme
+    that of the first frame holding it (as stepped_series' ``_stack_ranges`` takes it; the whole-stack pass's depended
+    on numpy's loop: float16 kept the first of -0.0 and 0.0, float64 the last)."""
+    return (isinstance(heights, np.ndarray) and not np.ma.isMaskedArray(heights) and heights.ndim >= 3
+            and heights.size > 0)
+
+
+def _frames(heights: NDArray[Any]) -> Iterator[NDArray[Any]]:
+    """The (H, W) frames of a stack of ``heights`` (..., H, W), one at a time (views: a memory map's frame is read
+    when it is reduced)."""
+    for index in np.ndindex(heights.shape[:-2]):
+        yield heights[index]
+
+
+def _stack_span(heights: NDArray[Any]) -> tuple[tuple[float, float] | None, bool]:
+    """:func:`_used_span` of a stack from its frames' (:func:`_by_frame`): the range of the nodes a triangle uses in
+    some frame; where no frame has such a triangle, every frame's span is its finite range, and theirs is the stack's
+    finite range."""
+    used: list[tuple[float, float]] = []
+    finite: list[tuple[float, float]] = []
+    for frame in _frames(heights):
+        span, any_used = _used_span(frame)
+        if span is not None:
+            (used if any_used else finite).append(span)
+    spans = used or finite
+    if not spans:
+        return None, False
+    return (min(lo for lo, _ in spans), max(hi for _, hi in spans)), bool(used)
 
 
 def _min_max(values: NDArray[Any]) -> tuple[float, ...]:

@@ -221,3 +221,35 @@ def step_reference(
     else:
         all_faces, level, wall = np.zeros((0, 3), np.int64), np.zeros(0, np.int64), np.zeros(0, bool)
     return ReferenceResult(pts, zs, keys, all_faces, level, wall)
+
+
+def _used_values(heights: NDArray) -> tuple[NDArray, NDArray]:
+    """(heights of the nodes a triangle with three finite heights uses, finite heights) over every (H, W) frame of
+    ``heights`` (an (H, W) grid or a (..., H, W) stack), in the input's dtype: each frame's faces from
+    :func:`grid_tin` (its own triangulation, finite faces only), the nodes they name."""
+    frames = np.asarray(heights).reshape((-1, *np.shape(heights)[-2:]))
+    used = []
+    for frame in frames:
+        with np.errstate(over="ignore"):  # grid_tin's float32 points; its faces are those of the heights as given
+            faces = grid_tin(frame)[1]
+        named = np.zeros(frame.size, bool)
+        named[faces.reshape(-1)] = True
+        used.append(frame.reshape(-1)[named])
+    finite = frames[np.isfinite(frames)]
+    return np.concatenate(used) if used else finite[:0], finite
+
+
+def used_height_range_reference(heights: NDArray) -> tuple[float, float] | None:
+    """``terrain.used_height_range``, written with the whole grid or stack at once: (min, max) of the heights a
+    triangle with three finite heights uses in some frame; of the finite heights where no triangle has three; None
+    when no height is finite."""
+    used, finite = _used_values(heights)
+    values = used if used.size else finite
+    return (float(values.min()), float(values.max())) if values.size else None
+
+
+def lowest_used_height_reference(heights: NDArray) -> float | None:
+    """``terrain.lowest_used_height`` without a known range: the lowest height a triangle with three finite heights
+    uses in some frame; None when no triangle has three."""
+    used = _used_values(heights)[0]
+    return float(used.min()) if used.size else None

@@ -3279,13 +3279,15 @@ def test_a_series_shared_levels_and_floor_are_read_frame_by_frame_not_over_the_w
     """batch's shared levels of a (T, H, W) series file (no known range: a series file's source has none) took
     used_height_range of the whole series, and a solid's shared floor lowest_used_height of it: the series' finite
     mask and its triangles' masks, 1.25 times a float32 series' memory again (40 MiB for a 32 x 512 x 512 one),
-    before the first frame, as stepped_series did for a stack. Both go frame by frame now (stepped's
-    ``_stack_ranges``; each frame's used span), with the same levels and floor as the whole-series computation."""
+    before the first frame, as stepped_series did for a stack. Both go frame by frame now (used_height_range and
+    lowest_used_height read a stack so), with the levels and floor of the whole series at once in plain NumPy
+    (tests/reference.py)."""
     import tracemalloc
 
     from stepterrain.batch import _floor_under, _shared_floor, _shared_levels, _Source, plan_items
     from stepterrain.stepped import isovalues
-    from stepterrain.terrain import lowest_used_height, used_height_range
+
+    from .reference import lowest_used_height_reference, used_height_range_reference
 
     rng = np.random.default_rng(11)
     series = rng.normal(100.0, 20.0, (16, 128, 128)).astype(np.float32)  # 1 MiB
@@ -3305,11 +3307,11 @@ def test_a_series_shared_levels_and_floor_are_read_frame_by_frame_not_over_the_w
 
     levels, peak = peak_of(lambda: _shared_levels(src, 10.0, None, 0.0))
     assert peak < series.nbytes / 4, f"{peak:,} bytes for the levels of a series of {series.nbytes:,}"
-    assert levels == tuple(isovalues(used_height_range(series), interval=10.0).tolist())
+    assert levels == tuple(isovalues(used_height_range_reference(series), interval=10.0).tolist())
     assert -500.0 < levels[0]
     floor, peak = peak_of(lambda: _shared_floor(src, levels, 0.5, 10.0))
     assert peak < series.nbytes / 4, f"{peak:,} bytes for the floor of a series of {series.nbytes:,}"
-    assert floor == _floor_under(lowest_used_height(series), levels, 0.5, 10.0)
+    assert floor == _floor_under(lowest_used_height_reference(series), levels, 0.5, 10.0)
     # small series of every kind of frame against the whole-series computation: no nodata, nodata, no triangle,
     # nodata only, rows of one node
     for seed in range(40):
@@ -3320,7 +3322,7 @@ def test_a_series_shared_levels_and_floor_are_read_frame_by_frame_not_over_the_w
         if not np.isfinite(heights).any():
             continue
         src = _Source(heights, (1.0, 1.0), (0.0, 0.0), None, "series")
-        assert _shared_levels(src, 1.0, None, 0.0) == tuple(isovalues(used_height_range(heights),
+        assert _shared_levels(src, 1.0, None, 0.0) == tuple(isovalues(used_height_range_reference(heights),
                                                                       interval=1.0).tolist()), seed
-        assert _shared_floor(src, (-50.0, 50.0), 1.0, 1.0) == _floor_under(lowest_used_height(heights),
+        assert _shared_floor(src, (-50.0, 50.0), 1.0, 1.0) == _floor_under(lowest_used_height_reference(heights),
                                                                           (-50.0, 50.0), 1.0, 1.0), seed

@@ -1596,7 +1596,10 @@ def test_a_memory_mapped_stack_is_budgeted_frame_by_frame_as_stepped_budgets_a_m
 
 def _whole_stack_ranges(stack):
     """The whole-stack computation ``_stack_ranges`` replaced (9dd5c0d): a finite mask and a copy of all finite
-    heights, the triangles of every frame at once; None without a finite height."""
+    heights, the triangles of every frame at once (tests/reference.py's, in plain NumPy: used_height_range reads a
+    stack a frame at a time now); None without a finite height."""
+    from .reference import used_height_range_reference
+
     finite_mask = np.isfinite(stack)
     finite = stack[finite_mask]
     if finite.size == 0:
@@ -1605,7 +1608,7 @@ def _whole_stack_ranges(stack):
     bad = np.isinf(stack).any(axis=(1, 2))
     with np.errstate(invalid="ignore"):
         bad |= (np.abs(stack.astype(np.float64)) > st.terrain.FLOAT32_MAX).any(axis=(1, 2))
-    used = (lo, hi) if finite.size == stack.size else st.terrain.used_height_range(stack)
+    used = (lo, hi) if finite.size == stack.size else used_height_range_reference(stack)
     return lo, hi, used, bad, ~finite_mask.any(axis=(1, 2))
 
 

@@ -1319,3 +1319,84 @@ def test_a_terrains_repr_is_one_short_line_naming_it():
                                                process=False))
     assert repr(tin) == "Terrain(kind='tin', points=4, faces=2, heights=(0, 2), nodata=False)"
     assert "array" not in repr(dem) + text + repr(tin)
+
+
+_SPECIAL = st_.sampled_from([np.nan, np.inf, -np.inf, 0.0, -0.0])
+
+
+@settings(max_examples=80, deadline=None)
+@given(data=st_.data(), dtype=st_.sampled_from(["float16", "float32", "float64"]),
+       shape=st_.tuples(st_.integers(1, 4), st_.integers(1, 5), st_.integers(1, 5)), mapped=st_.booleans())
+def test_a_stacks_used_range_and_lowest_used_height_go_frame_by_frame_with_the_whole_stacks_values(
+        data, dtype, shape, mapped, tmp_path_factory):
+    """used_height_range and lowest_used_height of a (T, H, W) stack (a memory map too) against the whole stack at
+    once in plain NumPy (tests/reference.py), over NaN, infinities, signed zeros, frames all NaN or without a
+    triangle (1 x N), float16/32/64: they took the whole stack's finite and triangle masks at once (1.25 times a
+    float32 stack's memory again) and go a frame at a time now, with the same values; and with the very floats
+    (the sign of a zero too) of stepped_series' own frame-by-frame range (``_stack_ranges``), which batch's series
+    levels took before."""
+    from hypothesis.extra.numpy import arrays
+
+    from stepterrain.stepped import _stack_ranges
+    from stepterrain.terrain import lowest_used_height, used_height_range
+
+    from .reference import lowest_used_height_reference, used_height_range_reference
+
+    values = st_.one_of(_SPECIAL, st_.floats(-1e4, 1e4, width=16 if dtype == "float16" else 32))
+    stack = data.draw(arrays(dtype, shape, elements=values))
+    for k in data.draw(st_.sets(st_.integers(0, shape[0] - 1), max_size=2)):
+        stack[k] = np.nan
+    if mapped:
+        path = tmp_path_factory.mktemp("stack") / "stack.npy"
+        np.save(path, stack)
+        stack = np.load(path, mmap_mode="r")
+    got, want = used_height_range(stack), used_height_range_reference(stack)
+    assert got == want
+    assert got is None or all(type(v) is float for v in got)
+    low = lowest_used_height(stack)
+    assert low == lowest_used_height_reference(stack)
+    assert low is None or type(low) is float
+    same = _stack_ranges(stack)[2]
+    assert (None if got is None else np.array(got).tobytes()) == (None if same is None else np.array(same).tobytes())
+    if shape[-2] >= 2 and shape[-1] >= 2 and np.isfinite(stack).all():  # a known range: no pass
+        assert lowest_used_height(stack, (-1.0, 1.0)) == -1.0
+
+
+def test_a_memory_mapped_stacks_used_range_and_lowest_used_height_take_a_frames_memory_not_the_stacks(tmp_path):
+    """used_height_range and lowest_used_height of a memory-mapped (T, H, W) stack (np.load(mmap_mode="r"), a
+    32 x 512 x 512 float32 series of 32 MiB) took the whole stack's finite mask (8 MiB) and triangle masks at once:
+    more than the stack's memory again, read in full before any answer. A frame at a time now: a frame's masks, less
+    than twice a frame's memory (1 MiB), with the values of the whole stack at once (tests/reference.py)."""
+    import tracemalloc
+
+    from stepterrain.terrain import lowest_used_height, used_height_range
+
+    from .reference import used_height_range_reference
+
+    shape = (32, 512, 512)
+    path = tmp_path / "series.npy"
+    out = np.lib.format.open_memmap(path, mode="w+", dtype=np.float32, shape=shape)
+    rng = np.random.default_rng(3)
+    for k in range(shape[0]):
+        frame = rng.normal(100.0, 20.0, shape[1:]).astype(np.float32)
+        frame[rng.integers(0, 400):][:, rng.integers(0, 400):][:100, :100] = np.nan  # a void
+        out[k] = frame
+    out[7] = np.nan  # nodata only
+    out[9, 1::2] = np.nan  # every other row: no triangle; its finite nodes, one far below the rest, are on none
+    out[9, 0, 0] = -1e4
+    out.flush()
+    del out
+    mapped = np.load(path, mmap_mode="r")
+    frame_bytes = mapped[0].nbytes
+    got = []
+    for call in (used_height_range, lowest_used_height):
+        tracemalloc.start()
+        try:
+            got.append(call(mapped))
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        assert peak < 2 * frame_bytes, f"{call.__name__}: {peak:,} bytes for a stack of {mapped.nbytes:,}"
+    want = used_height_range_reference(mapped)  # some frame has a triangle: its low is the lowest used height
+    assert got == [want, want[0]]
+    assert want[0] > -1e4
