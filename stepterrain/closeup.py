@@ -21,6 +21,7 @@ import hashlib
 import inspect
 import math
 import os
+import warnings
 from collections.abc import MutableMapping, Sequence
 from dataclasses import KW_ONLY, dataclass, field, replace
 from pathlib import Path
@@ -2421,7 +2422,8 @@ def render_closeups(
     camera : "oblique", "top", (azimuth, elevation) or a pyvista camera position
         As in :func:`stepterrain.render.render_mesh`, fitted to ``bounds`` (default: overview, close-ups and
         anchors together); an explicit position is relative to the centre of that box, as render_mesh's to the
-        centre of its ``bounds``.
+        centre of its ``bounds``; one that sees none of the overview, close-ups and anchors gives a warning (the image
+        is the background alone), not an error as in render_mesh: a camera path may look away for a frame.
     z_scale : float
         Vertical exaggeration of the render; default 1, true proportions (the CLI's ``closeup --z-scale``
         defaults to 2).
@@ -2586,6 +2588,8 @@ def render_closeups(
         renderer.set_view(camera, box, view_angle=view_angle)
         if fitted and items:
             _check_framed(t, items, drawn, box, camera, (width, height), renderer.z_scale, view_angle)
+        elif not render._fitted_camera(camera):
+            _warn_unseen(renderer, camera, drawn, strips)
         base, base_depth = renderer.render(["overview"], reuse=reuse_overview)
         # each layer comes back cut to its screen box: read-backs and compositing follow its size on screen
         anchor_images = renderer.render_layers("anchor", anchors, merge=merge_passes, crop=True)
@@ -2620,6 +2624,22 @@ def render_closeups(
     finally:
         if own:
             renderer.close()
+
+
+def _warn_unseen(renderer: Any, camera: Any, drawn: dict[int, Any], strips: Sequence[AnchorStrip]) -> None:
+    """A warning when the explicit ``camera`` position set on ``renderer`` sees none of the overview, the close-ups
+    (``drawn``: their bounds where drawn) and their anchors: the image is the background alone. It came back so
+    without a word (render_mesh refuses such a camera); a warning, not an error, as a camera path (a fly-through,
+    frame by frame on one renderer) may look away for a frame. The message names no frame: Python shows it once
+    per camera."""
+    from .render import _finite_bounds
+
+    parts = [renderer.bounds_of("overview")] + [b for b in drawn.values() if b is not None]
+    parts += [b for b in (_finite_bounds(strip.vertices) for strip in strips) if b is not None]
+    if all(renderer._misses(b) for b in parts):
+        warnings.warn(f"camera [(eye), (focal point), (view up)] sees none of the overview, its close-ups and "
+                      f"anchors: the image is the background alone (the position is taken relative to the centre of "
+                      f"the framed box, z times z_scale); got {camera!r}", stacklevel=3)
 
 
 def _check_framed(t: Terrain, items: Sequence[CloseUp], drawn: dict[int, Any], box: NDArray[np.float64],
