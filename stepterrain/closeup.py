@@ -2518,7 +2518,7 @@ def render_closeups(
     box = None if bounds is None else render._check_box(bounds, "bounds")  # before any work; text was taken
     if box is not None and render._fitted_camera(camera):  # a fitted camera: not to a point
         render._check_fitted_box(box, "bounds")
-    view_angle = render._check_view_angle(view_angle)
+    view_angle = _check_view(width, height, camera, z_scale, background, view_angle)
     if renderer is not None:  # a pyvista Plotter raised AttributeError ('size') after the close-ups were culled
         if not isinstance(renderer, render.LayeredRenderer):
             raise InvalidInputError(f"renderer must be a stepterrain.render.LayeredRenderer (or None); got "
@@ -2624,6 +2624,21 @@ def render_closeups(
     finally:
         if own:
             renderer.close()
+
+
+def _check_view(width: int, height: int, camera: Any, z_scale: Any, background: Any, view_angle: Any) -> float:
+    """The render's ``view_angle`` (degrees), once ``camera``, ``z_scale``, ``background`` and ``view_angle`` are
+    checked as the renderer and its :meth:`~stepterrain.render.LayeredRenderer.set_view` check them, else their
+    InvalidInputError: those came after the close-ups and anchors were transformed and culled (and in
+    :func:`animate_closeups` after the box was fitted over every turn of the spin)."""
+    from . import render
+
+    view_angle = render._check_view_angle(view_angle)
+    render._check_window((width, height), z_scale)
+    render._check_background(render._import_pyvista(), background)
+    # a name, angles or a position: refused as set_view refuses them (the box it frames comes later)
+    render._camera_position(camera, np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]), width / height, view_angle)
+    return view_angle
 
 
 def _warn_unseen(renderer: Any, camera: Any, drawn: dict[int, Any], strips: Sequence[AnchorStrip]) -> None:
@@ -2833,6 +2848,14 @@ def animate_closeups(
         raise InvalidInputError(f"fps must be large enough that frame {int(frames) - 1}'s time (frame / fps seconds) "
                                 f"is finite; got {fps:g}")
     times = np.arange(frames) / fps
+    # render_closeups' checks of the frames' options, before the close-ups are transformed for every turn of the spin
+    # below: they came at the first frame, after that work
+    _check_scalars(options.get("scalars", "height"))
+    _check_cmap(options.get("cmap", "terrain"))
+    if options.get("texture") is not None:
+        _check_texture(options["texture"], "texture", alpha=True)
+    _check_view(width, height, options.get("camera", "oblique"), options.get("z_scale", 1.0),
+                options.get("background", "white"), options.get("view_angle", render._VIEW_ANGLE))
     box = options.pop("bounds", None)
     camera = options.get("camera", "oblique")
     first_drawn: dict[int, Any] | None = None  # frame 0's close-ups where drawn, when the box is fitted here

@@ -2091,3 +2091,34 @@ def test_an_explicit_camera_that_sees_nothing_warns_and_one_that_sees_a_closeup_
         warnings.simplefilter("error")
         image = render_closeups(t, [one()], window_size=SIZE, camera=up, bounds=box, device="cpu")
     assert (image < 250).any(axis=2).mean() > 0.1  # the close-up's underside and its anchor, seen from below
+
+
+@pytest.mark.parametrize("animate", [False, True])
+@pytest.mark.parametrize(("option", "value", "message"), [
+    ("background", "notacolor", r"^background must be a colour"),
+    ("z_scale", -1.0, r"^z_scale must be a positive finite number; got -1"),
+    ("camera", "sideways", r"^camera must be 'oblique', 'top', .*; got 'sideways'"),
+    ("camera", (0.0, 100.0), r"^camera's elevation must lie in \[-π/2, π/2\]"),
+    ("camera", [(0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0)], r"needs an eye apart from its focal point"),
+    ("view_angle", 0.0, r"^view_angle must be a vertical field of view"),
+    ("scalars", "foo", r"^scalars must be None, 'height'"),
+])
+def test_bad_view_options_are_refused_before_the_closeups_are_transformed(monkeypatch, animate, option, value,
+                                                                          message):
+    """The background, z_scale and camera were checked by the renderer, after the close-ups and anchors were
+    transformed and culled; animate_closeups checked those and its scalars, cmap and view_angle at its first frame,
+    after fitting the box over every turn of the spin (the close-ups transformed for each)."""
+    pytest.importorskip("pyvista")
+    import stepterrain.closeup as closeup_module
+
+    def work(*args, **kwargs):
+        raise AssertionError("the close-ups were transformed before the options were checked")
+
+    monkeypatch.setattr(closeup_module, "closeup_layers", work)
+    monkeypatch.setattr(closeup_module, "anchor_strips", work)
+    cu = one(spin=(0.5, 1)) if animate else one()
+    with pytest.raises(InvalidInputError, match=message):
+        if animate:
+            animate_closeups(terrain(), [cu], frames=3, window_size=SIZE, device="cpu", **{option: value})
+        else:
+            render_closeups(terrain(), [cu], window_size=SIZE, device="cpu", **{option: value})
