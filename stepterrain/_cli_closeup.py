@@ -265,6 +265,10 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
             raise InvalidInputError(f"--scale must be s or sx,sy,sz; got {','.join(f'{v:g}' for v in s)}")
         _closeup_scale(s, "--scale")  # CloseUp's own check, named as the option
     _per_closeup(args.offset, n_rois, None, "--offset")
+    for p in args.offset or []:  # CloseUp's bound (float32 positions; finite: _floats): it came after the DEM was read
+        if max(abs(v) for v in p) > _MAX_OFFSET:
+            raise InvalidInputError(f"--offset must be finite (dx, dy, dz) metres, each within ±{_MAX_OFFSET:g}; got "
+                                    f"{tuple(float(v) for v in p)}")
     rotations = _per_closeup(rotations_deg, n_rois, (0.0, 0.0), "--rotation")
     colors = _per_closeup(args.color, n_rois, None, "--color")
     steps = _per_closeup(args.stepped, n_rois, None, "--stepped")
