@@ -279,6 +279,8 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     for _x, _y, r in args.roi or []:  # closeup's ROI size bound: float32 positions (finite: _floats)
         if not 0 < r <= _MAX_OFFSET:
             raise InvalidInputError(f"--roi radius must lie in (0, {_MAX_OFFSET:g}]; got {r:g}")
+        if args.edge is not None and args.edge > r:  # as below, for a radius known before the DEM is read
+            raise InvalidInputError(f"--edge must be at most the ROI radius {r:g}; got {args.edge:g}")
     if (picture is not None or anim is not None) and n_rois > max_closeups(args.size):
         raise InvalidInputError(f"--size {args.size[0]}x{args.size[1]} holds at most "
                                 f"{_counted(max_closeups(args.size), 'close-up')} (one per {_MIN_PIXELS_PER_CLOSEUP}x"
