@@ -2102,6 +2102,8 @@ def test_an_explicit_camera_that_sees_nothing_warns_and_one_that_sees_a_closeup_
     ("camera", [(0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0)], r"needs an eye apart from its focal point"),
     ("view_angle", 0.0, r"^view_angle must be a vertical field of view"),
     ("scalars", "foo", r"^scalars must be None, 'height'"),
+    ("cmap", "nosuchcmap", r"^cmap must name a matplotlib colormap"),
+    ("texture", np.zeros((1, 4, 3), np.uint8), r"^texture must be an \(h, w, 3\|4\) image"),
 ])
 def test_bad_view_options_are_refused_before_the_closeups_are_transformed(monkeypatch, animate, option, value,
                                                                           message):
