@@ -265,6 +265,10 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
             raise InvalidInputError(f"--scale must be s or sx,sy,sz; got {','.join(f'{v:g}' for v in s)}")
         _closeup_scale(s, "--scale")  # CloseUp's own check, named as the option
     _per_closeup(args.offset, n_rois, None, "--offset")
+    for p in args.offset or []:  # CloseUp's bound (float32 positions; finite: _floats): it came after the DEM was read
+        if max(abs(v) for v in p) > _MAX_OFFSET:
+            raise InvalidInputError(f"--offset must be finite (dx, dy, dz) metres, each within ±{_MAX_OFFSET:g}; got "
+                                    f"{tuple(float(v) for v in p)}")
     rotations = _per_closeup(rotations_deg, n_rois, (0.0, 0.0), "--rotation")
     colors = _per_closeup(args.color, n_rois, None, "--color")
     steps = _per_closeup(args.stepped, n_rois, None, "--stepped")
@@ -275,6 +279,8 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     for _x, _y, r in args.roi or []:  # closeup's ROI size bound: float32 positions (finite: _floats)
         if not 0 < r <= _MAX_OFFSET:
             raise InvalidInputError(f"--roi radius must lie in (0, {_MAX_OFFSET:g}]; got {r:g}")
+        if args.edge is not None and args.edge > r:  # as below, for a radius known before the DEM is read
+            raise InvalidInputError(f"--edge must be at most the ROI radius {r:g}; got {args.edge:g}")
     if (picture is not None or anim is not None) and n_rois > max_closeups(args.size):
         raise InvalidInputError(f"--size {args.size[0]}x{args.size[1]} holds at most "
                                 f"{_counted(max_closeups(args.size), 'close-up')} (one per {_MIN_PIXELS_PER_CLOSEUP}x"

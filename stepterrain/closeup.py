@@ -21,6 +21,7 @@ import hashlib
 import inspect
 import math
 import os
+import warnings
 from collections.abc import MutableMapping, Sequence
 from dataclasses import KW_ONLY, dataclass, field, replace
 from pathlib import Path
@@ -2421,7 +2422,8 @@ def render_closeups(
     camera : "oblique", "top", (azimuth, elevation) or a pyvista camera position
         As in :func:`stepterrain.render.render_mesh`, fitted to ``bounds`` (default: overview, close-ups and
         anchors together); an explicit position is relative to the centre of that box, as render_mesh's to the
-        centre of its ``bounds``.
+        centre of its ``bounds``; one that sees none of the overview, close-ups and anchors gives a warning (the image
+        is the background alone), not an error as in render_mesh: a camera path may look away for a frame.
     z_scale : float
         Vertical exaggeration of the render; default 1, true proportions (the CLI's ``closeup --z-scale``
         defaults to 2).
@@ -2516,7 +2518,7 @@ def render_closeups(
     box = None if bounds is None else render._check_box(bounds, "bounds")  # before any work; text was taken
     if box is not None and render._fitted_camera(camera):  # a fitted camera: not to a point
         render._check_fitted_box(box, "bounds")
-    view_angle = render._check_view_angle(view_angle)
+    view_angle = _check_view(width, height, camera, z_scale, background, view_angle)
     if renderer is not None:  # a pyvista Plotter raised AttributeError ('size') after the close-ups were culled
         if not isinstance(renderer, render.LayeredRenderer):
             raise InvalidInputError(f"renderer must be a stepterrain.render.LayeredRenderer (or None); got "
@@ -2586,6 +2588,8 @@ def render_closeups(
         renderer.set_view(camera, box, view_angle=view_angle)
         if fitted and items:
             _check_framed(t, items, drawn, box, camera, (width, height), renderer.z_scale, view_angle)
+        elif not render._fitted_camera(camera):
+            _warn_unseen(renderer, camera, drawn, strips)
         base, base_depth = renderer.render(["overview"], reuse=reuse_overview)
         # each layer comes back cut to its screen box: read-backs and compositing follow its size on screen
         anchor_images = renderer.render_layers("anchor", anchors, merge=merge_passes, crop=True)
@@ -2620,6 +2624,37 @@ def render_closeups(
     finally:
         if own:
             renderer.close()
+
+
+def _check_view(width: int, height: int, camera: Any, z_scale: Any, background: Any, view_angle: Any) -> float:
+    """The render's ``view_angle`` (degrees), once ``camera``, ``z_scale``, ``background`` and ``view_angle`` are
+    checked as the renderer and its :meth:`~stepterrain.render.LayeredRenderer.set_view` check them, else their
+    InvalidInputError: those came after the close-ups and anchors were transformed and culled (and in
+    :func:`animate_closeups` after the box was fitted over every turn of the spin)."""
+    from . import render
+
+    view_angle = render._check_view_angle(view_angle)
+    render._check_window((width, height), z_scale)
+    render._check_background(render._import_pyvista(), background)
+    # a name, angles or a position: refused as set_view refuses them (the box it frames comes later)
+    render._camera_position(camera, np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]), width / height, view_angle)
+    return view_angle
+
+
+def _warn_unseen(renderer: Any, camera: Any, drawn: dict[int, Any], strips: Sequence[AnchorStrip]) -> None:
+    """A warning when the explicit ``camera`` position set on ``renderer`` sees none of the overview, the close-ups
+    (``drawn``: their bounds where drawn) and their anchors: the image is the background alone. It came back so
+    without a word (render_mesh refuses such a camera); a warning, not an error, as a camera path (a fly-through,
+    frame by frame on one renderer) may look away for a frame. The message names no frame: Python shows it once
+    per camera."""
+    from .render import _finite_bounds
+
+    parts = [renderer.bounds_of("overview")] + [b for b in drawn.values() if b is not None]
+    parts += [b for b in (_finite_bounds(strip.vertices) for strip in strips) if b is not None]
+    if all(renderer._misses(b) for b in parts):
+        warnings.warn(f"camera [(eye), (focal point), (view up)] sees none of the overview, its close-ups and "
+                      f"anchors: the image is the background alone (the position is taken relative to the centre of "
+                      f"the framed box, z times z_scale); got {camera!r}", stacklevel=3)
 
 
 def _check_framed(t: Terrain, items: Sequence[CloseUp], drawn: dict[int, Any], box: NDArray[np.float64],
@@ -2813,6 +2848,14 @@ def animate_closeups(
         raise InvalidInputError(f"fps must be large enough that frame {int(frames) - 1}'s time (frame / fps seconds) "
                                 f"is finite; got {fps:g}")
     times = np.arange(frames) / fps
+    # render_closeups' checks of the frames' options, before the close-ups are transformed for every turn of the spin
+    # below: they came at the first frame, after that work
+    _check_scalars(options.get("scalars", "height"))
+    _check_cmap(options.get("cmap", "terrain"))
+    if options.get("texture") is not None:
+        _check_texture(options["texture"], "texture", alpha=True)
+    _check_view(width, height, options.get("camera", "oblique"), options.get("z_scale", 1.0),
+                options.get("background", "white"), options.get("view_angle", render._VIEW_ANGLE))
     box = options.pop("bounds", None)
     camera = options.get("camera", "oblique")
     first_drawn: dict[int, Any] | None = None  # frame 0's close-ups where drawn, when the box is fitted here

@@ -732,33 +732,37 @@ def _frame_mesh(
     return width, height, vertices, local, finite, box, position
 
 
+def _misses_view(box: NDArray[np.float64], position: Any, aspect: float, view_angle: float) -> bool:
+    """Whether the pyvista camera ``position`` [(eye), (focal point), (view up)] with the vertical field of view
+    ``view_angle`` (degrees) and ``aspect`` (width / height) sees none of ``box`` (2, 3), in the camera's coordinates.
+    Conservative, as :meth:`~stepterrain.camera.Camera.box_visible`: a box that lies outside one plane of the view
+    (the eye's, or a side of the view's pyramid) misses it; one that may touch the view does not."""
+    eye, focal, up = (np.asarray(v, dtype=np.float64) for v in position)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        forward = (focal - eye) / np.linalg.norm(focal - eye)
+        right, true_up = _screen_axes(forward, up)
+        tan_v = math.tan(math.radians(view_angle) / 2.0)
+        normals = [forward] + [forward * tan - sign * axis for axis, tan in ((right, tan_v * aspect),
+                                                                              (true_up, tan_v))
+                               for sign in (1.0, -1.0)]
+        lo, hi = np.asarray(box, dtype=np.float64)
+        # inside a plane: (p - eye) . normal >= 0; the box corner farthest along the normal decides
+        reach = [float((np.where(n >= 0, hi, lo) - eye) @ n) for n in normals]
+    return all(math.isfinite(r) for r in reach) and min(reach) < 0.0
+
+
 def _check_in_view(drawn: NDArray[np.float64], position: Any, aspect: float, view_angle: float,
                    centre: NDArray[np.float64], z_scale: float, camera: Any) -> None:
     """An InvalidInputError when the explicit pyvista camera ``position`` sees none of the box ``drawn`` (2, 3) of
     the vertices drawn (recentred on ``centre``, z times ``z_scale``): the render came back blank without a word,
     most often for a position given in the mesh's own (world) coordinates, where the render takes them less
     ``centre``.
-    Conservative, as :meth:`~stepterrain.camera.Camera.box_visible`: a box that lies outside one plane of the view
-    (the eye's, or a side of the view's pyramid) misses it; one that may touch the view passes."""
-
-    def misses(eye: NDArray[np.float64], focal: NDArray[np.float64], up: NDArray[np.float64]) -> bool:
-        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            forward = (focal - eye) / np.linalg.norm(focal - eye)
-            right, true_up = _screen_axes(forward, up)
-            tan_v = math.tan(math.radians(view_angle) / 2.0)
-            normals = [forward] + [forward * tan - sign * axis for axis, tan in ((right, tan_v * aspect),
-                                                                                  (true_up, tan_v))
-                                   for sign in (1.0, -1.0)]
-            lo, hi = drawn
-            # inside a plane: (p - eye) . normal >= 0; the box corner farthest along the normal decides
-            reach = [float((np.where(n >= 0, hi, lo) - eye) @ n) for n in normals]
-        return all(math.isfinite(r) for r in reach) and min(reach) < 0.0
-
+    Conservative, as :func:`_misses_view`."""
     eye, focal, up = (np.asarray(v, dtype=np.float64) for v in position)
-    if not misses(eye, focal, up):
+    if not _misses_view(drawn, (eye, focal, up), aspect, view_angle):
         return
     scale = np.array([1.0, 1.0, z_scale])  # given in the mesh's own (world) coordinates, as the render takes them?
-    world = not misses((eye - centre) * scale, (focal - centre) * scale, up)
+    world = not _misses_view(drawn, ((eye - centre) * scale, (focal - centre) * scale, up), aspect, view_angle)
     hint = (f"; it looks given in the mesh's own coordinates: less {tuple(float(v) for v in centre)}, z then times "
             "z_scale, it sees the mesh" if world else "")
     raise InvalidInputError(
@@ -1696,6 +1700,13 @@ class LayeredRenderer:
         local = np.asarray(vertices, dtype=np.float64) - self._origin
         local[:, 2] *= self.z_scale
         return local
+
+    def _misses(self, box: ArrayLike) -> bool:
+        """Whether the camera of :meth:`set_view` sees none of the world ``box`` (2, 3), as :func:`_misses_view`
+        (conservative: a box that may touch the view is seen)."""
+        width, height = self.size
+        return _misses_view(self._local(np.asarray(box, dtype=np.float64)), self._plotter.camera_position,
+                            width / height, float(self._plotter.camera.view_angle))
 
     @_quietly
     def set_mesh(self, name: str, vertices: ArrayLike, faces: ArrayLike, *, rgb: ArrayLike | None = None,

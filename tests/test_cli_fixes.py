@@ -418,15 +418,18 @@ def test_a_texture_draped_on_an_stl_mesh_is_refused_before_the_dem_is_read(tmp_p
     (["closeup", "--scale", "1e30"], "--scale must be at most 1e+06; got (1e+30, 1e+30, 1e+30)"),
     (["closeup", "--scale", "1,2"], "--scale must be s or sx,sy,sz; got 1,2"),
     (["closeup", "--offset", "1,1,1", "--offset", "2,2,2"], "--offset must be given once or once per ROI (1); got 2"),
+    (["closeup", "--offset", "0,0,1e13"], "--offset must be finite (dx, dy, dz) metres, each within ±1e+12; got "
+                                          "(0.0, 0.0, 10000000000000.0)"),
     (["closeup", "--stepped", "-1"], "--stepped must be a finite number >= 0 (0: a continuous close-up); got -1"),
     (["closeup", "--roi", "1,2,-1"], "--roi radius must lie in (0, 1e+12]; got -1"),
+    (["closeup", "--roi", "1,2,5", "--edge", "6"], "--edge must be at most the ROI radius 5; got 6"),
 ])
 def test_option_values_refused_whatever_the_dem_are_refused_before_it_is_read(tmp_path, capsys, monkeypatch, argv,
                                                                               message):
     """steps --interval -1 / --base nan / a --lens radius or --lens-edge, texture --z-factor 0 / --shadow-strength /
-    --occlusion, closeup --scale / --offset counts / --stepped / a --roi radius: values refused whatever the DEM
-    were refused only once it had been read (a large GeoTIFF: minutes), by the library or a check after the load.
-    Refused before now, with the same messages; the DEM is read once the value is fine."""
+    --occlusion, closeup --scale / --offset counts and bound / --stepped / a --roi radius and its --edge: values
+    refused whatever the DEM were refused only once it had been read (a large GeoTIFF: minutes), by the library or a
+    check after the load. Refused before now, with the same messages; the DEM is read once the value is fine."""
     from stepterrain import _cli_texture
     from stepterrain import cli as cli_module
 

@@ -2067,3 +2067,60 @@ def test_a_box_collapsed_in_float32_lifts_no_node_beside_it():
     assert (roi.factor(t.mesh().vertices[:, :2]) == 0).all()  # no node lies on the box
     with pytest.raises(InvalidInputError, match=r"^closeups\[0\]: ROI box .* holds no terrain"):
         closeup_layers(t, [CloseUp(roi, offset=(0.0, 0.0, 50.0))], device="cpu")  # the node beside it was lifted
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_an_explicit_camera_that_sees_nothing_warns_and_one_that_sees_a_closeup_does_not():
+    """An explicit camera position looking away from the overview, its close-ups and anchors rendered the background
+    alone without a word (render_mesh refuses such a camera). A camera path may look away for a frame, so it is a
+    warning, not an error; a camera that sees only a close-up and its anchor (not the overview) is not warned of."""
+    t = terrain()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the fitted camera: no warning
+        assert (render_closeups(t, [one()], window_size=SIZE, device="cpu") < 250).any()
+    away = [(0.0, -300.0, 200.0), (0.0, -600.0, 300.0), (0.0, 0.0, 1.0)]  # behind the eye, looking further off
+    with pytest.warns(UserWarning, match=r"^camera .* sees none of the overview, its close-ups and anchors: the image "
+                                         r"is the background alone .*; got \[\(0\.0, -300\.0, 200\.0\)"):
+        image = render_closeups(t, [one()], window_size=SIZE, camera=away, device="cpu")
+    assert (image == 255).all()  # white: nothing drawn, as warned
+    # from above the overview (z 90 > its top 71.5), looking up at the lifted close-up: the overview is behind the eye
+    box = np.array([[1039.0, 2029.0, 89.0], [1041.0, 2031.0, 91.0]])  # the position is relative to its centre
+    up = [(0.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, 1.0, 0.0)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        image = render_closeups(t, [one()], window_size=SIZE, camera=up, bounds=box, device="cpu")
+    assert (image < 250).any(axis=2).mean() > 0.1  # the close-up's underside and its anchor, seen from below
+
+
+@pytest.mark.parametrize("animate", [False, True])
+@pytest.mark.parametrize(("option", "value", "message"), [
+    ("background", "notacolor", r"^background must be a colour"),
+    ("z_scale", -1.0, r"^z_scale must be a positive finite number; got -1"),
+    ("camera", "sideways", r"^camera must be 'oblique', 'top', .*; got 'sideways'"),
+    ("camera", (0.0, 100.0), r"^camera's elevation must lie in \[-π/2, π/2\]"),
+    ("camera", [(0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0)], r"needs an eye apart from its focal point"),
+    ("view_angle", 0.0, r"^view_angle must be a vertical field of view"),
+    ("scalars", "foo", r"^scalars must be None, 'height'"),
+    ("cmap", "nosuchcmap", r"^cmap must name a matplotlib colormap"),
+    ("texture", np.zeros((1, 4, 3), np.uint8), r"^texture must be an \(h, w, 3\|4\) image"),
+])
+def test_bad_view_options_are_refused_before_the_closeups_are_transformed(monkeypatch, animate, option, value,
+                                                                          message):
+    """The background, z_scale and camera were checked by the renderer, after the close-ups and anchors were
+    transformed and culled; animate_closeups checked those and its scalars, cmap and view_angle at its first frame,
+    after fitting the box over every turn of the spin (the close-ups transformed for each)."""
+    pytest.importorskip("pyvista")
+    import stepterrain.closeup as closeup_module
+
+    def work(*args, **kwargs):
+        raise AssertionError("the close-ups were transformed before the options were checked")
+
+    monkeypatch.setattr(closeup_module, "closeup_layers", work)
+    monkeypatch.setattr(closeup_module, "anchor_strips", work)
+    cu = one(spin=(0.5, 1)) if animate else one()
+    with pytest.raises(InvalidInputError, match=message):
+        if animate:
+            animate_closeups(terrain(), [cu], frames=3, window_size=SIZE, device="cpu", **{option: value})
+        else:
+            render_closeups(terrain(), [cu], window_size=SIZE, device="cpu", **{option: value})
