@@ -178,10 +178,12 @@ def load_dem(
         it, none without one), ``.hgt`` (SRTM tile, placed by its name ``N34W119.hgt``, -32768 voids as nodata),
         ``.img`` (ERDAS Imagine), ``.vrt`` (GDAL virtual raster, its sources read where it names them), ``.bil``
         and ``.flt`` (ESRI band-interleaved and float grids, with their ``.hdr``), ``.dem`` (USGS DEM) and
-        ``.dt0``/``.dt1``/``.dt2`` (DTED): :data:`GDAL_FORMATS`. Another GDAL format (netCDF, ...) is refused as an
-        unknown extension: ``gdal_translate -of GTiff`` converts it. These are read through GDAL's virtual file
-        systems too, as GDAL tools take them, by the extension of the file named inside (a ``.hgt`` in a zip is
-        placed by its name, its -32768 voids nodata, as the plain tile): ``/vsizip/srtm.zip/N46E007.hgt``
+        ``.dt0``/``.dt1``/``.dt2`` (DTED): :data:`GDAL_FORMATS`. Another GDAL format (netCDF ``.nc``, a Surfer
+        ``.grd``, an ``.xyz`` grid, ...) is refused as an unknown extension, the message giving the ``gdal_translate
+        -of GTiff`` that converts it (a local ``.tar``/``.tgz``: the ``/vsitar/`` path of a file inside). These are
+        read through GDAL's virtual file systems too, as GDAL tools take them, by the extension of the file named
+        inside (a ``.hgt`` in a zip is placed by its name, its -32768 voids nodata, as the plain tile):
+        ``/vsizip/srtm.zip/N46E007.hgt``
         (``/vsizip//abs/tiles.zip/dem.tif`` for an absolute path), ``/vsigzip/dem.tif.gz``, ``/vsitar/...``,
         ``/vsicurl/https://...`` and a URL, mapped as rasterio maps it (``https://``/``http://``/``ftp://`` to
         ``/vsicurl/``, ``s3://`` to ``/vsis3/``, ``gs://`` to ``/vsigs/``, ``az://`` to ``/vsiaz/``, ...: GDAL's
@@ -459,7 +461,7 @@ def _read_dem(
                                 f"({', '.join(SUPPORTED_EXTENSIONS)})")
         raise InvalidInputError(
             f"cannot read {str(file)!r}: unknown DEM extension {file.suffix or '(none)'!r}; "
-            f"supported: {', '.join(SUPPORTED_EXTENSIONS)}"
+            f"supported: {', '.join(SUPPORTED_EXTENSIONS)}{_unknown_extension_hint(file)}"
         )
     else:
         require_regular_file(file, "DEM file", "DEM path")
@@ -494,6 +496,32 @@ def _read_dem(
         return terrain.crop(crop)
     except InvalidInputError as exc:
         raise InvalidInputError(f"{option}: {exc}") from None
+
+
+#: Rasters GDAL reads (by its drivers' own extensions) that :func:`load_dem` does not: their refusal gives the
+#: ``gdal_translate`` that writes a GeoTIFF of them. Elevation grids, not every image GDAL opens (a .jpg, a .pdf).
+_CONVERTIBLE_FORMATS: dict[str, str] = {
+    ".nc": "a netCDF grid", ".grd": "a grid (Surfer, GMT, NWT or R raster)", ".xyz": "an XYZ ASCII grid",
+    ".sdat": "a SAGA grid", ".rst": "an Idrisi raster", ".ers": "an ER Mapper raster", ".bt": "a VTP binary terrain",
+    ".ter": "a Terragen heightfield", ".hf2": "an HF2 heightfield", ".jp2": "a JPEG 2000 raster",
+    ".grb": "a GRIB grid", ".grb2": "a GRIB grid", ".grib2": "a GRIB grid", ".bag": "a BAG bathymetry grid",
+    ".gtx": "a vertical-datum grid (GTX)", ".sigdem": "a SIGDEM grid", ".rsw": "an RMF raster",
+    ".kea": "a KEA raster", ".gpkg": "a GeoPackage raster", ".envi": "an ENVI raster",
+}
+
+
+def _unknown_extension_hint(file: Path) -> str:
+    """The way on for :func:`load_dem`'s refusal of the local ``file`` of an unknown extension: a tar archive's
+    ``/vsitar/`` path (as a ``.tar.gz``'s refusal gives it, :func:`gzip_member`), a raster GDAL reads in another format
+    (:data:`_CONVERTIBLE_FORMATS`: netCDF, a Surfer grid) the ``gdal_translate`` to a GeoTIFF; "" otherwise."""
+    ext = file.suffix.lower()
+    if ext in (".tar", ".tgz"):
+        return f"; a tar archive: name the file inside it, '/vsitar/{file}/<name>.tif'"
+    if ext in _CONVERTIBLE_FORMATS:
+        quoted = shlex.quote(os.fspath(file))
+        return (f"; {_CONVERTIBLE_FORMATS[ext]}, which GDAL reads: convert it to a GeoTIFF first, "
+                f"`gdal_translate -of GTiff {quoted} {shlex.quote(file.stem + '.tif')}`")
+    return ""
 
 
 def dem_path(path: str | os.PathLike[str]) -> Path:

@@ -1,0 +1,60 @@
+"""load_dem's DEM input: refusals that give the way on (a netCDF or Surfer grid's gdal_translate, a tar's /vsitar/
+path), a PNG's .aux.xml nodata text read as GDAL reads it, and the command line's --nodata values."""
+
+from __future__ import annotations
+
+import shlex
+import tarfile
+import warnings
+
+import numpy as np
+import pytest
+
+import stepterrain as st
+from stepterrain.errors import InvalidInputError
+
+from .reference_texture import find_shared
+
+
+@pytest.mark.parametrize(("name", "driver"), [("dem.nc", "netCDF"), ("dem.grd", "GSBG"), ("my dem.xyz", "XYZ")])
+def test_a_gdal_raster_of_another_format_is_refused_with_the_gdal_translate_that_converts_it(tmp_path, name, driver):
+    """A netCDF grid, a Surfer .grd or an XYZ grid (rasters GDAL reads, that load_dem does not) was refused as
+    "unknown DEM extension '.nc'; supported: ..." alone, though load_dem's docs say `gdal_translate -of GTiff`
+    converts it. The refusal gives that command, the path quoted for a shell; the GeoTIFF it writes reads."""
+    pytest.importorskip("rasterio")
+    import rasterio.shutil
+
+    source = find_shared("big_tujunga_srtm_30m_utm11n.tif")
+    path = tmp_path / name
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rasterio.shutil.copy(source, path, driver=driver)
+    with pytest.raises(InvalidInputError, match=r"unknown DEM extension") as caught:
+        st.load_dem(path)
+    command = str(caught.value).split("`")[1]
+    words = shlex.split(command)
+    assert words[:3] == ["gdal_translate", "-of", "GTiff"] and words[3] == str(path), command
+    assert words[4] == path.stem + ".tif", command
+    converted = tmp_path / words[4]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rasterio.shutil.copy(words[3], converted, driver=words[2])  # what the command does
+    np.testing.assert_allclose(st.load_dem(converted).heights, st.load_dem(source).heights, rtol=1e-6)
+
+
+@pytest.mark.parametrize("suffix", [".tar", ".tgz"])
+def test_a_local_tar_is_refused_naming_its_vsitar_path(tmp_path, suffix):
+    """A local ``tiles.tar`` was refused as an unknown extension without a word of the ``/vsitar/`` path GDAL reads
+    its files through (a ``.tar.gz``'s refusal gave it). It names it now, and that path reads."""
+    pytest.importorskip("rasterio")
+    source = find_shared("big_tujunga_srtm_30m_utm11n.tif")
+    archive = tmp_path / f"tiles{suffix}"
+    with tarfile.open(archive, "w:gz" if suffix == ".tgz" else "w") as tar:
+        tar.add(source, arcname="dem.tif")
+    with pytest.raises(InvalidInputError, match=r"unknown DEM extension") as caught:
+        st.load_dem(archive)
+    message = str(caught.value)
+    hint = f"'/vsitar/{archive}/<name>.tif'"
+    assert hint in message, message
+    read = st.load_dem(hint.strip("'").replace("<name>", "dem"))
+    np.testing.assert_array_equal(read.heights, st.load_dem(source).heights)
