@@ -169,7 +169,8 @@ def load_dem(
         ``.png`` (8- or 16-bit greyscale heightmap, values are heights, a 2- or
         4-bit one's scaled to 0-255 as Pillow reads them; a transparent grey value (tRNS), else the grey band's
         ``NoDataValue`` in GDAL's ``dem.png.aux.xml`` beside it, and, in 8-bit grey + alpha, alpha 0 mark missing
-        cells, as GDAL reads them; 16-bit grey + alpha is refused: Pillow reads it as
+        cells, as GDAL reads them (the NoDataValue text as C's strtod reads it, ``7abc`` as 7, ``abc`` as 0, with a
+        warning; a fraction, ``7.5``, cut to the integer band's 7); 16-bit grey + alpha is refused: Pillow reads it as
         8 bits; an RGB(A) web-map terrain tile with ``height_encoding``, below),
         ``.tif``/``.tiff`` (GeoTIFF, needs rasterio) or another raster GDAL reads, through rasterio as a GeoTIFF is
         read (its georeferencing, CRS, nodata, scale and offset, unit, a .prj beside it, ``band`` and ``crop``
@@ -303,7 +304,8 @@ def load_dem(
         message names the worst node and its scales. Also: a grid converted to metres whose heights' unit is not named;
         a GeoTIFF CRS ignored for want of a geotransform; a greyscale PNG's world file (``.pgw``, ``.wld``) or
         ``.aux.xml`` geotransform, or a terrain tile's ``.aux.xml`` one, which is not read (the message gives the
-        ``gdal_translate`` to a GeoTIFF, or a tile's to a world file, that keeps it); cells no nodata value or mask
+        ``gdal_translate`` to a GeoTIFF, or a tile's to a world file, that keeps it); a PNG's ``.aux.xml`` NoDataValue
+        that is no number (``7abc``, ``abc``), naming the value it was read as; cells no nodata value or mask
         marks that hold the lowest value of a signed integer (-32768 in int16, SRTM's void) or the lowest or highest
         of a float dtype (-3.4028235e+38 in float32, ArcGIS's NoData, or +3.4028235e+38, also kept in a float64
         grid), read as heights, counted and named with the nodata value to declare (a float64 grid's own extremes,
@@ -1250,7 +1252,8 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
             array = np.array(image)
             transparent = image.info.get("transparency")  # a grey PNG's tRNS value, GDAL's nodata for PNG
     nodata: float | None = (
-        transparent if isinstance(transparent, int) and not isinstance(transparent, bool) else _png_pam_nodata(file)
+        transparent if isinstance(transparent, int) and not isinstance(transparent, bool)
+        else _png_pam_nodata(file, 255 if mode in ("L", "LA") else 65535)
     )
     if nodata is not None and low_bits:  # the tRNS value in the samples' 0-255 scale (tRNS 15 of 4 bits is 255)
         nodata *= 255 // (2 ** int(low_bits.group(1)) - 1)
@@ -1263,13 +1266,18 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
     return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None, height_unit=unit)
 
 
-def _png_pam_nodata(file: Path) -> float | None:
+def _png_pam_nodata(file: Path, top: int) -> float | None:
     """The nodata value of the PNG heightmap ``file``'s grey band in GDAL's PAM file beside it (``dem.png.aux.xml``,
     ``<NoDataValue>`` of ``PAMRasterBand`` 1), which GDAL reads where the PNG has no transparent grey value (tRNS,
     which it takes first): ``gdal_translate -of PNG`` writes it there for a grey + alpha PNG, which has no tRNS, and a
     PNG's nodata set by hand or another tool lies there. Pillow reads no such file: the cells at that value were
-    heights (a 9999 m spike, a 0 m pit) where GDAL and every GIS masked them. None without one, or with one that is
-    no number (a malformed file: GDAL reads the number its text starts with, ``abc`` as 0, which is not followed)."""
+    heights (a 9999 m spike, a 0 m pit) where GDAL and every GIS masked them. None without one (or an empty one).
+
+    Read as GDAL reads it, checked against GDAL 3.10 (rasterio's masks) on 8- and 16-bit PNGs: the text as C's
+    ``strtod`` reads it (:func:`_c_atof`: ``7abc`` and ``1_0`` as the number they start with, 7 and 1, ``0x7`` as 0,
+    a text that starts with no number, ``abc``, as 0, with a warning naming what it was read as), then, the band
+    being of integers from 0 to ``top`` (255 for 8 bits, 65535 for 16), a value within that range cut to its whole
+    part as GDAL casts it (``7.5`` masks the cells at 7), one outside it (``-0.5``, ``255.5`` of 8 bits) none."""
     root = _pam_root(file)
     if root is None:
         return None
@@ -1277,11 +1285,38 @@ def _png_pam_nodata(file: Path) -> float | None:
         if band.get("band", "1").strip() != "1":  # a grey + alpha PNG's alpha band
             continue
         text = band.findtext("NoDataValue")
-        try:
-            return float(text) if text is not None and text.strip() else None
-        except ValueError:
+        if text is None or not text.strip():
             return None
+        value, whole = _c_atof(text)
+        if not whole:
+            warnings.warn(
+                f"{file.name}: the NoDataValue {text.strip()!r} in {file.name}.aux.xml is not a number; read as "
+                f"{value:g}, as GDAL reads it (the number the text starts with, else 0): its cells at {value:g} are "
+                f"nodata; write the nodata value as a number there",
+                stacklevel=caller_stacklevel(),
+            )
+        if not math.isfinite(value) or not 0 <= value <= top:
+            return None  # no cell of the band holds it
+        return float(math.trunc(value))
     return None
+
+
+#: A decimal number as C's ``strtod`` reads one from the start of a text (after white space).
+_C_NUMBER = re.compile(r"\s*([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)")
+
+
+def _c_atof(text: str) -> tuple[float, bool]:
+    """``text`` read as a number the way GDAL's ``CPLAtof`` (C's ``strtod``) reads a nodata text: the decimal number it
+    starts with, after white space (``7abc`` -> 7, ``1_0`` -> 1, ``0x7`` -> 0, ``7 8`` -> 7), ``nan``/``inf``
+    (``infinity``, any case, a sign before inf) as themselves, and 0 for a text that starts with no number (``abc``);
+    with whether that was the whole text (white space aside)."""
+    stripped = text.strip()
+    if re.fullmatch(r"[+-]?(inf|infinity)|nan", stripped, re.IGNORECASE):
+        return float(stripped), True
+    match = _C_NUMBER.match(text)
+    if match is None:
+        return 0.0, False
+    return float(match.group(1)), match.group(1) == stripped
 
 
 def _refuse_png_scaling(file: Path) -> None:

@@ -58,3 +58,38 @@ def test_a_local_tar_is_refused_naming_its_vsitar_path(tmp_path, suffix):
     assert hint in message, message
     read = st.load_dem(hint.strip("'").replace("<name>", "dem"))
     np.testing.assert_array_equal(read.heights, st.load_dem(source).heights)
+
+
+@pytest.mark.parametrize("bits", [8, 16])
+@pytest.mark.parametrize(("text", "malformed"), [
+    ("7.5", False), ("7.6", False), ("0x7", True), ("7abc", True), ("1_0", True), ("abc", True), ("  7 ", False),
+    ("-0.5", False), ("255.9", False), ("nan", False), ("+.7e1", False), ("7 8", True), ("1e-400", False),
+])
+def test_a_png_aux_xml_nodata_text_is_read_as_gdal_reads_it(tmp_path, bits, text, malformed):
+    """A PNG heightmap's .aux.xml <NoDataValue> text was read by Python's float(): ``7.5`` masked no cell of the
+    integer band (GDAL masks those at 7, casting it to the band's type), ``0x7``/``7abc``/``abc`` were no nodata
+    (GDAL reads the number the text starts with, as C's strtod, else 0: cells at 0 / 7 / 0 masked) and ``1_0`` was
+    10 (GDAL: 1). Each now masks the cells GDAL masks (checked here against rasterio's mask of the same file), and a
+    text that is no number warns, naming what it was read as."""
+    rasterio = pytest.importorskip("rasterio")
+    from PIL import Image
+
+    dtype = np.uint8 if bits == 8 else np.uint16
+    values = np.array([[0, 1, 7, 8], [10, 255, 3, 4], [256, 7, 0, 9]]) % (256 if bits == 8 else 65536)
+    png = tmp_path / "dem.png"
+    Image.fromarray(values.astype(dtype)).save(png)
+    png.with_name("dem.png.aux.xml").write_text(
+        f"<PAMDataset>\n  <PAMRasterBand band=\"1\">\n    <NoDataValue>{text}</NoDataValue>\n  </PAMRasterBand>\n"
+        "</PAMDataset>\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with rasterio.open(png) as src:
+            gdal_missing = src.read_masks(1) == 0
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        heights = st.load_dem(png).heights
+    np.testing.assert_array_equal(np.isnan(heights), gdal_missing, err_msg=text)
+    messages = [str(w.message) for w in caught if "NoDataValue" in str(w.message)]
+    assert len(messages) == malformed, messages
+    if malformed:
+        assert f"NoDataValue {text.strip()!r} in dem.png.aux.xml is not a number; read as " in messages[0]
