@@ -284,6 +284,10 @@ def _nodata_values(text: str) -> list[float]:
     """A ``--nodata``: one number or several, comma-separated (``-9999,-32768``), checked before any file is read."""
     values = []
     for part in text.split(","):
+        if "_" in part:  # float() reads '1_0' as 10 (digit grouping); GDAL's -a_nodata 1_0 declares 1 (strtod)
+            raise argparse.ArgumentTypeError(
+                f"expected a number or comma-separated numbers (the values of missing cells), without underscores "
+                f"(digit grouping: 1_0 is 10 to Python, 1 to GDAL's -a_nodata); got {part.strip()!r} in {text!r}")
         try:
             value = float(part)
         except ValueError:
@@ -504,7 +508,10 @@ def _input_metadata(args: argparse.Namespace) -> dict[str, Any]:
     if args.height_encoding is not None:  # the colours its heights were decoded from
         metadata["height_encoding"] = args.height_encoding
     if args.nodata is not None:  # the values read as missing besides the file's own nodata
-        metadata["nodata"] = [float(v) for v in args.nodata]
+        from .io import recorded_nodata
+
+        if recorded_nodata(args.nodata):
+            metadata["nodata"] = recorded_nodata(args.nodata)
     if args.spacing is not None:
         # the DEM's (dx, dy) as Terrain.spacing, `info` and a heightfield mesh's own metadata give it: rows run north
         # to south, dy negative (--spacing 30 recorded (30, 30), and replaced a draped mesh's (30, -30))

@@ -441,6 +441,13 @@ def check_nodata(nodata: Any, name: str = "nodata") -> tuple[float, ...]:
     return tuple(dict.fromkeys(out))
 
 
+def recorded_nodata(nodata: Sequence[float]) -> list[float]:
+    """The ``nodata`` values (:func:`check_nodata`'s, the CLI's ``--nodata``) an output's metadata records: the finite
+    ones, as floats. NaN and ±inf mark no cell (non-finite cells are nodata anyway), and JSON, having neither, wrote
+    them as null: ``--nodata nan`` recorded ``[null]``, which reads as "no nodata value"."""
+    return [float(v) for v in nodata if math.isfinite(v)]
+
+
 def _read_dem(
     path: str | os.PathLike[str], band: int, height_unit: str | None, crop: Sequence[float] | None, option: str,
     refuse: Callable[[Terrain], None] | None, height_encoding: str | None = None,

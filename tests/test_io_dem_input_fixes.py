@@ -3,6 +3,7 @@ path), a PNG's .aux.xml nodata text read as GDAL reads it, and the command line'
 
 from __future__ import annotations
 
+import json
 import shlex
 import tarfile
 import warnings
@@ -93,3 +94,46 @@ def test_a_png_aux_xml_nodata_text_is_read_as_gdal_reads_it(tmp_path, bits, text
     assert len(messages) == malformed, messages
     if malformed:
         assert f"NoDataValue {text.strip()!r} in dem.png.aux.xml is not a number; read as " in messages[0]
+
+
+def test_cli_nodata_underscore_is_refused(tmp_path, capsys):
+    """``--nodata 1_0`` was read as 10 (Python's float() takes digit-grouping underscores), though GDAL's
+    ``-a_nodata 1_0`` declares 1 (strtod stops at the underscore): which cells it marks depended on the tool. Refused
+    now, naming the value; ``10`` and ``1.0`` as written read."""
+    from .conftest import run_cli as run
+
+    z = np.arange(20, dtype=np.float32).reshape(4, 5)
+    np.save(tmp_path / "dem.npy", z)
+    for given in ("1_0", "-9999,1_0", "1__0"):
+        code, out, err = run(capsys, "info", tmp_path / "dem.npy", "--json", "--nodata", given)
+        assert code == 2 and out == "" and "argument --nodata:" in err and "'1_" in err, (given, err)
+        assert "underscore" in err, err
+    for given, count in (("10", 1), ("1.0", 1), ("1,10", 2)):
+        code, out, err = run(capsys, "info", tmp_path / "dem.npy", "--json", "--nodata", given)
+        assert code == 0 and json.loads(out)["nodata_count"] == count, (given, err)
+
+
+def test_non_finite_nodata_is_left_out_of_the_outputs_metadata(tmp_path, capsys):
+    """``--nodata nan,-9999`` (and batch's ``nodata=(nan, -9999)``) recorded ``"nodata": [null, -9999.0]`` in the
+    mesh's metadata (JSON has no NaN: written as null), and ``--nodata nan`` ``[null]``, which reads as "no nodata
+    value". NaN and inf mark no cell (non-finite cells are nodata anyway), so only the finite values are recorded, and
+    no ``nodata`` key when none is."""
+    from stepterrain.batch import batch
+    from stepterrain.export import read_mesh
+
+    from .conftest import run_cli as run
+
+    z = find_shared("big_tujunga_srtm_30m_utm11n.npz")
+    heights = np.load(z)["elevation"][:40, :50].astype(np.float32)
+    heights[3, 4] = -9999
+    np.save(tmp_path / "dem.npy", heights)
+    for given, recorded in (("nan,-9999", [-9999.0]), ("-inf,-9999,inf", [-9999.0]), ("nan", None)):
+        out = tmp_path / "out.ply"
+        code, _, err = run(capsys, "steps", tmp_path / "dem.npy", f"--nodata={given}", "--interval", "200", "-o", out)
+        assert code == 0, err
+        assert read_mesh(out).metadata.get("nodata") == recorded, given
+    (tmp_path / "tiles").mkdir()
+    np.save(tmp_path / "tiles" / "a.npy", heights)
+    report = batch(str(tmp_path / "tiles"), str(tmp_path / "meshes"), format=".ply", scheduler="serial",
+                   nodata=(np.nan, -9999.0))
+    assert report.ok and [read_mesh(r.path).metadata.get("nodata") for r in report.done] == [[-9999.0]]
