@@ -142,14 +142,14 @@ def usage_errors(parser: argparse.ArgumentParser) -> Iterator[None]:
     ``--device cuda``, a window too small) becomes ``parser.error``, one line and exit 2, not a traceback; and the
     library's warnings print as the ``stepterrain`` command's do (:func:`_warning_line`): one ``PROG: warning:``
     line, without Python's source line, the library arguments they name spelled as ``parser``'s options (load_dem's
-    ``pass nodata=-32768`` for ``--dem``'s file: ``pass --nodata -32768``). For scripts' own argparse mains
-    (examples/)."""
+    ``pass nodata=-32768`` for ``--dem``'s file: ``pass --nodata -32768``), in its errors as in its warnings
+    (:func:`_as_option`). For scripts' own argparse mains (examples/)."""
     with warnings.catch_warnings():  # restored on exit, as the CLI's main() restores its own
         warnings.showwarning = _warning_line(parser.prog, parser)
         try:
             yield
-        except StepTerrainError as exc:
-            parser.error(str(exc))
+        except StepTerrainError as exc:  # its advice as parser's options, as its warnings' (nodata= -> --nodata)
+            parser.error(_as_option(str(exc), parser))
 
 
 def add_dem_option(parser: argparse.ArgumentParser) -> None:
