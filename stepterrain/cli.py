@@ -337,9 +337,10 @@ def _add_height_encoding(p: argparse.ArgumentParser) -> None:
 
 
 def _positive_int(text: str) -> int:
-    """A count option (``--coarsen``): a whole number >= 1, refused by argparse before any file is read."""
+    """A count option (``--band``, ``--coarsen``): a whole number >= 1, refused by argparse before any file is read;
+    in ASCII digits, without underscores (int() reads '1_0' as 10: a file's band 10, "got --band 10" of a 1_0)."""
     try:
-        value = int(text)
+        value = int(text) if text.isascii() and "_" not in text else 0
     except ValueError:
         value = 0
     if value < 1:

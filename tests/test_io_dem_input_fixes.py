@@ -137,3 +137,24 @@ def test_non_finite_nodata_is_left_out_of_the_outputs_metadata(tmp_path, capsys)
     report = batch(str(tmp_path / "tiles"), str(tmp_path / "meshes"), format=".ply", scheduler="serial",
                    nodata=(np.nan, -9999.0))
     assert report.ok and [read_mesh(r.path).metadata.get("nodata") for r in report.done] == [[-9999.0]]
+
+
+def test_cli_band_and_coarsen_refuse_underscores(tmp_path, capsys):
+    """``--band 1_0`` read band 10 (int() takes digit-grouping underscores), refused for a 3-band file as "got --band
+    10", a value not typed; ``--coarsen 1_0`` coarsened by 10. Both are refused by argparse now, quoting the text."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    from .conftest import run_cli as run
+
+    z = np.arange(3 * 20 * 30, dtype=np.float32).reshape(3, 20, 30)
+    path = tmp_path / "bands.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=30, height=20, count=3, dtype="float32", crs="EPSG:32611",
+                       transform=Affine(30, 0, 380000, 0, -30, 3800000)) as dataset:
+        dataset.write(z)
+    for command, option, rest in (("info", "--band", ["--json"]), ("steps", "--coarsen", ["-o", tmp_path / "out.ply"])):
+        code, out, err = run(capsys, command, path, f"{option}=1_0", *rest)
+        assert code == 2 and f"argument {option}: expected a " in err and "'1_0'" in err, err
+    assert not (tmp_path / "out.ply").exists()
+    code, out, err = run(capsys, "info", path, "--json", "--band=2")
+    assert code == 0 and json.loads(out)["height_range"][0] == 600.0, err
