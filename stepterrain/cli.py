@@ -284,10 +284,12 @@ def _nodata_values(text: str) -> list[float]:
     """A ``--nodata``: one number or several, comma-separated (``-9999,-32768``), checked before any file is read."""
     values = []
     for part in text.split(","):
-        if "_" in part:  # float() reads '1_0' as 10 (digit grouping); GDAL's -a_nodata 1_0 declares 1 (strtod)
+        if "_" in part or not part.isascii():  # float() reads '1_0' as 10 (digit grouping) and '٣' as 3; GDAL's
+            # -a_nodata (strtod) declares 1 and 0
             raise argparse.ArgumentTypeError(
-                f"expected a number or comma-separated numbers (the values of missing cells), without underscores "
-                f"(digit grouping: 1_0 is 10 to Python, 1 to GDAL's -a_nodata); got {part.strip()!r} in {text!r}")
+                f"expected a number or comma-separated numbers (the values of missing cells) in ASCII digits, without "
+                f"underscores (digit grouping: 1_0 is 10 to Python, 1 to GDAL's -a_nodata); got {part.strip()!r} in "
+                f"{text!r}")
         try:
             value = float(part)
         except ValueError:
