@@ -63,8 +63,9 @@ EXAMPLE_BAD_ARGUMENTS = [
     ("dynamic_peaks", ["--size", "16", "--frames", "2", "--output", "{tmp}/a.gif"], "--output must end in .png"),
     ("flood", ["--size", "0", "--frames", "2", "--keyframes", "2"], "--size must be at least 2"),
     ("globe", ["--size", "16"], "--size must be 2^k + 1"),  # named the library's face_size
-    ("interactive", ["--size", "16", "--device", "cuda:7"], "device='cuda:7'"),
-    ("stepped_terrain", ["--size", "16", "--device", "cuda:7"], "device='cuda:7'"),
+    # the library's device='cuda:7' as the example's option, as the stepterrain command's errors spell it
+    ("interactive", ["--size", "16", "--device", "cuda:7"], "--device 'cuda:7' needs a CUDA GPU"),
+    ("stepped_terrain", ["--size", "16", "--device", "cuda:7"], "--device 'cuda:7' needs a CUDA GPU"),
     ("textures", ["--size", "0"], "--size must be at least 2"),
 ]
 
