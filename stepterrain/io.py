@@ -169,7 +169,7 @@ def load_dem(
         ``.png`` (8- or 16-bit greyscale heightmap, values are heights, a 2- or
         4-bit one's scaled to 0-255 as Pillow reads them; a transparent grey value (tRNS), else the grey band's
         ``NoDataValue`` in GDAL's ``dem.png.aux.xml`` beside it, and, in 8-bit grey + alpha, alpha 0 mark missing
-        cells, as GDAL reads them (the NoDataValue text as C's strtod reads it, ``7abc`` as 7, ``abc`` as 0, with a
+        cells, as GDAL reads them (the NoDataValue text as GDAL's CPLAtof reads it, ``7abc`` as 7, ``abc`` as 0, with a
         warning; a fraction, ``7.5``, cut to the integer band's 7); 16-bit grey + alpha is refused: Pillow reads it as
         8 bits; an RGB(A) web-map terrain tile with ``height_encoding``, below),
         ``.tif``/``.tiff`` (GeoTIFF, needs rasterio) or another raster GDAL reads, through rasterio as a GeoTIFF is
@@ -1280,11 +1280,12 @@ def _png_pam_nodata(file: Path, top: int) -> float | None:
     PNG's nodata set by hand or another tool lies there. Pillow reads no such file: the cells at that value were
     heights (a 9999 m spike, a 0 m pit) where GDAL and every GIS masked them. None without one (or an empty one).
 
-    Read as GDAL reads it, checked against GDAL 3.10 (rasterio's masks) on 8- and 16-bit PNGs: the text as C's
-    ``strtod`` reads it (:func:`_c_atof`: ``7abc`` and ``1_0`` as the number they start with, 7 and 1, ``0x7`` as 0,
-    a text that starts with no number, ``abc``, as 0, with a warning naming what it was read as), then, the band
-    being of integers from 0 to ``top`` (255 for 8 bits, 65535 for 16), a value within that range cut to its whole
-    part as GDAL casts it (``7.5`` masks the cells at 7), one outside it (``-0.5``, ``255.5`` of 8 bits) none."""
+    Read as GDAL reads it, checked against GDAL 3.10 (rasterio's masks) on 8- and 16-bit PNGs: the text as its
+    ``CPLAtof`` reads it (:func:`_c_atof`: ``7abc`` and ``1_0`` as the number they start with, 7 and 1, ``0x7`` as 0,
+    a text that starts with no number, ``abc`` or ``NAN``, as 0, with a warning naming what it was read as; its
+    spellings of NaN and infinity, ``nan`` or ``1.#QNAN``, as such), then, the band being of integers from 0 to
+    ``top`` (255 for 8 bits, 65535 for 16), a value within that range cut to its whole part as GDAL casts it (``7.5``
+    masks the cells at 7), one outside it (``-0.5``, ``255.5`` of 8 bits, NaN) none."""
     root = _pam_root(file)
     if root is None:
         return None
@@ -1295,35 +1296,51 @@ def _png_pam_nodata(file: Path, top: int) -> float | None:
         if text is None or not text.strip():
             return None
         value, whole = _c_atof(text)
+        if not math.isfinite(value) or not 0 <= value <= top:
+            return None  # no cell of the band holds it (1.#QNAN junk: GDAL's NaN, masking none, said nothing of)
         if not whole:
             warnings.warn(
                 f"{file.name}: the NoDataValue {text.strip()!r} in {file.name}.aux.xml is not a number; read as "
-                f"{value:g}, as GDAL reads it (the number the text starts with, else 0): its cells at {value:g} are "
-                f"nodata; write the nodata value as a number there",
+                f"{value:g}, as GDAL reads it (the number the text starts with, else 0): its cells at "
+                f"{math.trunc(value):d} are nodata; write the nodata value as a number there",
                 stacklevel=caller_stacklevel(),
             )
-        if not math.isfinite(value) or not 0 <= value <= top:
-            return None  # no cell of the band holds it
         return float(math.trunc(value))
     return None
 
 
-#: A decimal number as C's ``strtod`` reads one from the start of a text (after white space).
-_C_NUMBER = re.compile(r"\s*([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)")
+#: C's ``isspace``, the white space GDAL skips before a number (Python's ``str.strip`` and ``\s`` take Unicode's too:
+#: a no-break space before 7 is no number to GDAL)
+_C_SPACE = " \t\n\v\f\r"
+#: A decimal number as GDAL reads one from the start of a text (fast_float's: ASCII digits, no hex, no '+')
+_C_NUMBER = re.compile(r"-?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
+#: GDAL's own spellings of NaN and infinity, read before a '+' is skipped: MSVC's (which GDAL built with it wrote) by
+#: the text's start, ``1.#INF`` in any case, the rest case-sensitive
+_GDAL_PREFIXES = (("-1.#QNAN", math.nan), ("-1.#IND", math.nan), ("-1.#INF", -math.inf), ("1.#QNAN", math.nan),
+                  ("1.#SNAN", math.nan), ("1.#INF", math.inf))
+#: ... and as the whole text only, after a '+' (``NAN``, ``INFINITY``, ``-nan`` and ``inf `` are 0 to it)
+_GDAL_WORDS = {"inf": math.inf, "INF": math.inf, "Inf": math.inf, "Infinity": math.inf, "-inf": -math.inf,
+               "-INF": -math.inf, "-Inf": -math.inf, "-Infinity": -math.inf, "nan": math.nan, "NaN": math.nan}
 
 
 def _c_atof(text: str) -> tuple[float, bool]:
-    """``text`` read as a number the way GDAL's ``CPLAtof`` (C's ``strtod``) reads a nodata text: the decimal number it
-    starts with, after white space (``7abc`` -> 7, ``1_0`` -> 1, ``0x7`` -> 0, ``7 8`` -> 7), ``nan``/``inf``
-    (``infinity``, any case, a sign before inf) as themselves, and 0 for a text that starts with no number (``abc``);
-    with whether that was the whole text (white space aside)."""
-    stripped = text.strip()
-    if re.fullmatch(r"[+-]?(inf|infinity)|nan", stripped, re.IGNORECASE):
-        return float(stripped), True
-    match = _C_NUMBER.match(text)
+    """``text`` read as a number the way GDAL's ``CPLAtof`` reads a nodata text (``CPLStrtod``; checked against GDAL
+    3.10 for each rule here): after C's white space, its spellings of NaN and infinity (:data:`_GDAL_PREFIXES`,
+    :data:`_GDAL_WORDS`), else, one '+' skipped, the decimal number the text starts with (``7abc`` -> 7, ``1_0`` -> 1,
+    ``0x7`` -> 0, ``7 8`` -> 7, ``+-7`` -> -7), else 0 (``abc``, ``NAN``); with whether that was the whole text (white
+    space aside)."""
+    start = text.lstrip(_C_SPACE)
+    rest = start.rstrip(_C_SPACE)
+    for prefix, special in _GDAL_PREFIXES:
+        if start.startswith(prefix) or (prefix.endswith("INF") and start.upper().startswith(prefix)):
+            return special, rest == prefix or rest.upper() == prefix
+    unsigned = start[1:] if start.startswith("+") else start
+    if unsigned in _GDAL_WORDS:
+        return _GDAL_WORDS[unsigned], True
+    match = _C_NUMBER.match(unsigned)
     if match is None:
         return 0.0, False
-    return float(match.group(1)), match.group(1) == stripped
+    return float(match.group(0)), match.group(0) == unsigned.rstrip(_C_SPACE)
 
 
 def _refuse_png_scaling(file: Path) -> None:

@@ -65,6 +65,12 @@ def test_a_local_tar_is_refused_naming_its_vsitar_path(tmp_path, suffix):
 @pytest.mark.parametrize(("text", "malformed"), [
     ("7.5", False), ("7.6", False), ("0x7", True), ("7abc", True), ("1_0", True), ("abc", True), ("  7 ", False),
     ("-0.5", False), ("255.9", False), ("nan", False), ("+.7e1", False), ("7 8", True), ("1e-400", False),
+    # GDAL's (CPLStrtod's) own spellings: MSVC's NaN and infinity (which old GDAL wrote), by prefix, NaN, inf and
+    # Infinity as the whole text only (NAN, INFINITY, 'inf ' are 0 to it), one '+' skipped before a sign; white space
+    # and digits in ASCII only (an Arabic-Indic 3 or a no-break space before 7 is 0 to it)
+    ("1.#QNAN", False), ("-1.#IND", False), ("1.#INF", False), ("1.#SNAN junk", False), ("NaN", False),
+    ("Infinity", False), ("NAN", True), ("INFINITY", True), ("inf ", True), ("+-7", False), ("\u0663", True),
+    ("\u00a07", True),
 ])
 def test_a_png_aux_xml_nodata_text_is_read_as_gdal_reads_it(tmp_path, bits, text, malformed):
     """A PNG heightmap's .aux.xml <NoDataValue> text was read by Python's float(): ``7.5`` masked no cell of the
@@ -81,7 +87,7 @@ def test_a_png_aux_xml_nodata_text_is_read_as_gdal_reads_it(tmp_path, bits, text
     Image.fromarray(values.astype(dtype)).save(png)
     png.with_name("dem.png.aux.xml").write_text(
         f"<PAMDataset>\n  <PAMRasterBand band=\"1\">\n    <NoDataValue>{text}</NoDataValue>\n  </PAMRasterBand>\n"
-        "</PAMDataset>\n")
+        "</PAMDataset>\n", encoding="utf-8")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         with rasterio.open(png) as src:
