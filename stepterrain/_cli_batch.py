@@ -277,6 +277,8 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
     def failure_line(line: str) -> str:  # the bar's line of a failed item, as the summary's below
         return f"stepterrain: {_as_option(line, sub)}"
 
+    from .io import recorded_nodata
+
     report = batch(
         source, args.output, format=args.format, tile_size=tile, interval=args.interval, levels=args.levels,
         base=base, gamma=args.gamma, colors=None if args.colormap.lower() == "none" else args.colormap,
@@ -289,7 +291,8 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
             "generator": "stepterrain batch",
             "input": _absolute(args.input) if args.input else "embedded Big Tujunga DEM",
             # the embedded DEM's --nodata, applied as it was read (batch records a file source's itself)
-            **({"nodata": [float(v) for v in args.nodata]} if args.nodata and not args.input else {})},
+            **({"nodata": recorded_nodata(args.nodata)} if recorded_nodata(args.nodata or ()) and not args.input
+               else {})},
         height_unit=args.height_unit, spacing=args.spacing, crop=args.crop, coarsen=args.coarsen, device=args.device,
         band=args.band, overview_size=None if png is None else args.size,  # its render checked before the items run
         height_encoding=args.height_encoding, nodata=args.nodata if args.input else None,

@@ -71,7 +71,7 @@ from .export import (
     save_mesh,
     unwritable_reason,
 )
-from .io import GDAL_FORMATS, GZIP_FORMATS, SUPPORTED_EXTENSIONS
+from .io import GDAL_FORMATS, GZIP_FORMATS, SUPPORTED_EXTENSIONS, recorded_nodata
 from .terrain import (
     FLOAT32_MAX,
     Terrain,
@@ -2146,7 +2146,8 @@ def batch(
         Value(s) marking missing cells of every DEM file (a folder, a list, one raster file cut into tiles, or a
         (T, H, W) series file) besides each file's own nodata and mask, as :func:`~stepterrain.io.load_dem` takes
         it (compared with the values as stored); the shared levels' height range is read with it too. Recorded as
-        ``nodata`` (a list) in every output's metadata. Not for arrays or Terrains (their NaN are missing).
+        ``nodata`` (a list of its finite values: NaN and inf mark no cell) in every output's metadata. Not for
+        arrays or Terrains (their NaN are missing).
     device : warp device, optional
         Where each worker runs the kernels (default: Warp's default device on that worker): a name ("cpu",
         "cuda:0") or a ``warp.Device``. With ``scheduler="serial"`` the items run in this process, so an unknown or
@@ -2357,8 +2358,8 @@ def batch(
         recorded["band"] = band
     if height_encoding is not None:  # the colours the files' heights were decoded from
         recorded["height_encoding"] = height_encoding
-    if given:  # the values read as missing besides the files' own nodata
-        recorded["nodata"] = list(given)
+    if recorded_nodata(given):  # the values read as missing besides the files' own nodata
+        recorded["nodata"] = recorded_nodata(given)
     if origin is not None and (files or src is None or not isinstance(source, np.ndarray | list | tuple)):
         raise InvalidInputError("origin applies to an array source; a file, a folder or a Terrain has its own")
     if spacing is not None and files:  # a file without georeferencing: load_dem's 1 m cells, rows north to south

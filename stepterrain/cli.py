@@ -142,14 +142,14 @@ def usage_errors(parser: argparse.ArgumentParser) -> Iterator[None]:
     ``--device cuda``, a window too small) becomes ``parser.error``, one line and exit 2, not a traceback; and the
     library's warnings print as the ``stepterrain`` command's do (:func:`_warning_line`): one ``PROG: warning:``
     line, without Python's source line, the library arguments they name spelled as ``parser``'s options (load_dem's
-    ``pass nodata=-32768`` for ``--dem``'s file: ``pass --nodata -32768``). For scripts' own argparse mains
-    (examples/)."""
+    ``pass nodata=-32768`` for ``--dem``'s file: ``pass --nodata -32768``), in its errors as in its warnings
+    (:func:`_as_option`). For scripts' own argparse mains (examples/)."""
     with warnings.catch_warnings():  # restored on exit, as the CLI's main() restores its own
         warnings.showwarning = _warning_line(parser.prog, parser)
         try:
             yield
-        except StepTerrainError as exc:
-            parser.error(str(exc))
+        except StepTerrainError as exc:  # its advice as parser's options, as its warnings' (nodata= -> --nodata)
+            parser.error(_as_option(str(exc), parser))
 
 
 def add_dem_option(parser: argparse.ArgumentParser) -> None:
@@ -284,6 +284,12 @@ def _nodata_values(text: str) -> list[float]:
     """A ``--nodata``: one number or several, comma-separated (``-9999,-32768``), checked before any file is read."""
     values = []
     for part in text.split(","):
+        if "_" in part or not part.isascii():  # float() reads '1_0' as 10 (digit grouping) and '٣' as 3; GDAL's
+            # -a_nodata (strtod) declares 1 and 0
+            raise argparse.ArgumentTypeError(
+                f"expected a number or comma-separated numbers (the values of missing cells) in ASCII digits, without "
+                f"underscores (digit grouping: 1_0 is 10 to Python, 1 to GDAL's -a_nodata); got {part.strip()!r} in "
+                f"{text!r}")
         try:
             value = float(part)
         except ValueError:
@@ -333,9 +339,10 @@ def _add_height_encoding(p: argparse.ArgumentParser) -> None:
 
 
 def _positive_int(text: str) -> int:
-    """A count option (``--coarsen``): a whole number >= 1, refused by argparse before any file is read."""
+    """A count option (``--band``, ``--coarsen``): a whole number >= 1, refused by argparse before any file is read;
+    in ASCII digits, without underscores (int() reads '1_0' as 10: a file's band 10, "got --band 10" of a 1_0)."""
     try:
-        value = int(text)
+        value = int(text) if text.isascii() and "_" not in text else 0
     except ValueError:
         value = 0
     if value < 1:
@@ -504,7 +511,10 @@ def _input_metadata(args: argparse.Namespace) -> dict[str, Any]:
     if args.height_encoding is not None:  # the colours its heights were decoded from
         metadata["height_encoding"] = args.height_encoding
     if args.nodata is not None:  # the values read as missing besides the file's own nodata
-        metadata["nodata"] = [float(v) for v in args.nodata]
+        from .io import recorded_nodata
+
+        if recorded_nodata(args.nodata):
+            metadata["nodata"] = recorded_nodata(args.nodata)
     if args.spacing is not None:
         # the DEM's (dx, dy) as Terrain.spacing, `info` and a heightfield mesh's own metadata give it: rows run north
         # to south, dy negative (--spacing 30 recorded (30, 30), and replaced a draped mesh's (30, -30))

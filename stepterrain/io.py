@@ -169,7 +169,8 @@ def load_dem(
         ``.png`` (8- or 16-bit greyscale heightmap, values are heights, a 2- or
         4-bit one's scaled to 0-255 as Pillow reads them; a transparent grey value (tRNS), else the grey band's
         ``NoDataValue`` in GDAL's ``dem.png.aux.xml`` beside it, and, in 8-bit grey + alpha, alpha 0 mark missing
-        cells, as GDAL reads them; 16-bit grey + alpha is refused: Pillow reads it as
+        cells, as GDAL reads them (the NoDataValue text as GDAL's CPLAtof reads it, ``7abc`` as 7, ``abc`` as 0, with a
+        warning; a fraction, ``7.5``, cut to the integer band's 7); 16-bit grey + alpha is refused: Pillow reads it as
         8 bits; an RGB(A) web-map terrain tile with ``height_encoding``, below),
         ``.tif``/``.tiff`` (GeoTIFF, needs rasterio) or another raster GDAL reads, through rasterio as a GeoTIFF is
         read (its georeferencing, CRS, nodata, scale and offset, unit, a .prj beside it, ``band`` and ``crop``
@@ -178,10 +179,12 @@ def load_dem(
         it, none without one), ``.hgt`` (SRTM tile, placed by its name ``N34W119.hgt``, -32768 voids as nodata),
         ``.img`` (ERDAS Imagine), ``.vrt`` (GDAL virtual raster, its sources read where it names them), ``.bil``
         and ``.flt`` (ESRI band-interleaved and float grids, with their ``.hdr``), ``.dem`` (USGS DEM) and
-        ``.dt0``/``.dt1``/``.dt2`` (DTED): :data:`GDAL_FORMATS`. Another GDAL format (netCDF, ...) is refused as an
-        unknown extension: ``gdal_translate -of GTiff`` converts it. These are read through GDAL's virtual file
-        systems too, as GDAL tools take them, by the extension of the file named inside (a ``.hgt`` in a zip is
-        placed by its name, its -32768 voids nodata, as the plain tile): ``/vsizip/srtm.zip/N46E007.hgt``
+        ``.dt0``/``.dt1``/``.dt2`` (DTED): :data:`GDAL_FORMATS`. Another GDAL format (netCDF ``.nc``, a Surfer
+        ``.grd``, an ``.xyz`` grid, ...) is refused as an unknown extension, the message giving the ``gdal_translate
+        -of GTiff`` that converts it (a local ``.tar``/``.tgz``: the ``/vsitar/`` path of a file inside). These are
+        read through GDAL's virtual file systems too, as GDAL tools take them, by the extension of the file named
+        inside (a ``.hgt`` in a zip is placed by its name, its -32768 voids nodata, as the plain tile):
+        ``/vsizip/srtm.zip/N46E007.hgt``
         (``/vsizip//abs/tiles.zip/dem.tif`` for an absolute path), ``/vsigzip/dem.tif.gz``, ``/vsitar/...``,
         ``/vsicurl/https://...`` and a URL, mapped as rasterio maps it (``https://``/``http://``/``ftp://`` to
         ``/vsicurl/``, ``s3://`` to ``/vsis3/``, ``gs://`` to ``/vsigs/``, ``az://`` to ``/vsiaz/``, ...: GDAL's
@@ -301,7 +304,8 @@ def load_dem(
         message names the worst node and its scales. Also: a grid converted to metres whose heights' unit is not named;
         a GeoTIFF CRS ignored for want of a geotransform; a greyscale PNG's world file (``.pgw``, ``.wld``) or
         ``.aux.xml`` geotransform, or a terrain tile's ``.aux.xml`` one, which is not read (the message gives the
-        ``gdal_translate`` to a GeoTIFF, or a tile's to a world file, that keeps it); cells no nodata value or mask
+        ``gdal_translate`` to a GeoTIFF, or a tile's to a world file, that keeps it); a PNG's ``.aux.xml`` NoDataValue
+        that is no number (``7abc``, ``abc``), naming the value it was read as; cells no nodata value or mask
         marks that hold the lowest value of a signed integer (-32768 in int16, SRTM's void) or the lowest or highest
         of a float dtype (-3.4028235e+38 in float32, ArcGIS's NoData, or +3.4028235e+38, also kept in a float64
         grid), read as heights, counted and named with the nodata value to declare (a float64 grid's own extremes,
@@ -437,6 +441,13 @@ def check_nodata(nodata: Any, name: str = "nodata") -> tuple[float, ...]:
     return tuple(dict.fromkeys(out))
 
 
+def recorded_nodata(nodata: Sequence[float]) -> list[float]:
+    """The ``nodata`` values (:func:`check_nodata`'s, the CLI's ``--nodata``) an output's metadata records: the finite
+    ones, as floats. NaN and ±inf mark no cell (non-finite cells are nodata anyway), and JSON, having neither, wrote
+    them as null: ``--nodata nan`` recorded ``[null]``, which reads as "no nodata value"."""
+    return [float(v) for v in nodata if math.isfinite(v)]
+
+
 def _read_dem(
     path: str | os.PathLike[str], band: int, height_unit: str | None, crop: Sequence[float] | None, option: str,
     refuse: Callable[[Terrain], None] | None, height_encoding: str | None = None,
@@ -459,7 +470,7 @@ def _read_dem(
                                 f"({', '.join(SUPPORTED_EXTENSIONS)})")
         raise InvalidInputError(
             f"cannot read {str(file)!r}: unknown DEM extension {file.suffix or '(none)'!r}; "
-            f"supported: {', '.join(SUPPORTED_EXTENSIONS)}"
+            f"supported: {', '.join(SUPPORTED_EXTENSIONS)}{_unknown_extension_hint(file)}"
         )
     else:
         require_regular_file(file, "DEM file", "DEM path")
@@ -494,6 +505,32 @@ def _read_dem(
         return terrain.crop(crop)
     except InvalidInputError as exc:
         raise InvalidInputError(f"{option}: {exc}") from None
+
+
+#: Rasters GDAL reads (by its drivers' own extensions) that :func:`load_dem` does not: their refusal gives the
+#: ``gdal_translate`` that writes a GeoTIFF of them. Elevation grids, not every image GDAL opens (a .jpg, a .pdf).
+_CONVERTIBLE_FORMATS: dict[str, str] = {
+    ".nc": "a netCDF grid", ".grd": "a grid (Surfer, GMT, NWT or R raster)", ".xyz": "an XYZ ASCII grid",
+    ".sdat": "a SAGA grid", ".rst": "an Idrisi raster", ".ers": "an ER Mapper raster", ".bt": "a VTP binary terrain",
+    ".ter": "a Terragen heightfield", ".hf2": "an HF2 heightfield", ".jp2": "a JPEG 2000 raster",
+    ".grb": "a GRIB grid", ".grb2": "a GRIB grid", ".grib2": "a GRIB grid", ".bag": "a BAG bathymetry grid",
+    ".gtx": "a vertical-datum grid (GTX)", ".sigdem": "a SIGDEM grid", ".rsw": "an RMF raster",
+    ".kea": "a KEA raster", ".gpkg": "a GeoPackage raster", ".envi": "an ENVI raster",
+}
+
+
+def _unknown_extension_hint(file: Path) -> str:
+    """The way on for :func:`load_dem`'s refusal of the local ``file`` of an unknown extension: a tar archive's
+    ``/vsitar/`` path (as a ``.tar.gz``'s refusal gives it, :func:`gzip_member`), a raster GDAL reads in another format
+    (:data:`_CONVERTIBLE_FORMATS`: netCDF, a Surfer grid) the ``gdal_translate`` to a GeoTIFF; "" otherwise."""
+    ext = file.suffix.lower()
+    if ext in (".tar", ".tgz"):
+        return f"; a tar archive: name the file inside it, '/vsitar/{file}/<name>.tif'"
+    if ext in _CONVERTIBLE_FORMATS:
+        quoted = shlex.quote(os.fspath(file))
+        return (f"; {_CONVERTIBLE_FORMATS[ext]}, which GDAL reads: convert it to a GeoTIFF first, "
+                f"`gdal_translate -of GTiff {quoted} {shlex.quote(file.stem + '.tif')}`")
+    return ""
 
 
 def dem_path(path: str | os.PathLike[str]) -> Path:
@@ -1222,7 +1259,8 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
             array = np.array(image)
             transparent = image.info.get("transparency")  # a grey PNG's tRNS value, GDAL's nodata for PNG
     nodata: float | None = (
-        transparent if isinstance(transparent, int) and not isinstance(transparent, bool) else _png_pam_nodata(file)
+        transparent if isinstance(transparent, int) and not isinstance(transparent, bool)
+        else _png_pam_nodata(file, 255 if mode in ("L", "LA") else 65535)
     )
     if nodata is not None and low_bits:  # the tRNS value in the samples' 0-255 scale (tRNS 15 of 4 bits is 255)
         nodata *= 255 // (2 ** int(low_bits.group(1)) - 1)
@@ -1235,13 +1273,19 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
     return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None, height_unit=unit)
 
 
-def _png_pam_nodata(file: Path) -> float | None:
+def _png_pam_nodata(file: Path, top: int) -> float | None:
     """The nodata value of the PNG heightmap ``file``'s grey band in GDAL's PAM file beside it (``dem.png.aux.xml``,
     ``<NoDataValue>`` of ``PAMRasterBand`` 1), which GDAL reads where the PNG has no transparent grey value (tRNS,
     which it takes first): ``gdal_translate -of PNG`` writes it there for a grey + alpha PNG, which has no tRNS, and a
     PNG's nodata set by hand or another tool lies there. Pillow reads no such file: the cells at that value were
-    heights (a 9999 m spike, a 0 m pit) where GDAL and every GIS masked them. None without one, or with one that is
-    no number (a malformed file: GDAL reads the number its text starts with, ``abc`` as 0, which is not followed)."""
+    heights (a 9999 m spike, a 0 m pit) where GDAL and every GIS masked them. None without one (or an empty one).
+
+    Read as GDAL reads it, checked against GDAL 3.10 (rasterio's masks) on 8- and 16-bit PNGs: the text as its
+    ``CPLAtof`` reads it (:func:`_c_atof`: ``7abc`` and ``1_0`` as the number they start with, 7 and 1, ``0x7`` as 0,
+    a text that starts with no number, ``abc`` or ``NAN``, as 0, with a warning naming what it was read as; its
+    spellings of NaN and infinity, ``nan`` or ``1.#QNAN``, as such), then, the band being of integers from 0 to
+    ``top`` (255 for 8 bits, 65535 for 16), a value within that range cut to its whole part as GDAL casts it (``7.5``
+    masks the cells at 7), one outside it (``-0.5``, ``255.5`` of 8 bits, NaN) none."""
     root = _pam_root(file)
     if root is None:
         return None
@@ -1249,11 +1293,54 @@ def _png_pam_nodata(file: Path) -> float | None:
         if band.get("band", "1").strip() != "1":  # a grey + alpha PNG's alpha band
             continue
         text = band.findtext("NoDataValue")
-        try:
-            return float(text) if text is not None and text.strip() else None
-        except ValueError:
+        if text is None or not text.strip():
             return None
+        value, whole = _c_atof(text)
+        if not math.isfinite(value) or not 0 <= value <= top:
+            return None  # no cell of the band holds it (1.#QNAN junk: GDAL's NaN, masking none, said nothing of)
+        if not whole:
+            warnings.warn(
+                f"{file.name}: the NoDataValue {text.strip()!r} in {file.name}.aux.xml is not a number; read as "
+                f"{value:g}, as GDAL reads it (the number the text starts with, else 0): its cells at "
+                f"{math.trunc(value):d} are nodata; write the nodata value as a number there",
+                stacklevel=caller_stacklevel(),
+            )
+        return float(math.trunc(value))
     return None
+
+
+#: C's ``isspace``, the white space GDAL skips before a number (Python's ``str.strip`` and ``\s`` take Unicode's too:
+#: a no-break space before 7 is no number to GDAL)
+_C_SPACE = " \t\n\v\f\r"
+#: A decimal number as GDAL reads one from the start of a text (fast_float's: ASCII digits, no hex, no '+')
+_C_NUMBER = re.compile(r"-?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
+#: GDAL's own spellings of NaN and infinity, read before a '+' is skipped: MSVC's (which GDAL built with it wrote) by
+#: the text's start, ``1.#INF`` in any case, the rest case-sensitive
+_GDAL_PREFIXES = (("-1.#QNAN", math.nan), ("-1.#IND", math.nan), ("-1.#INF", -math.inf), ("1.#QNAN", math.nan),
+                  ("1.#SNAN", math.nan), ("1.#INF", math.inf))
+#: ... and as the whole text only, after a '+' (``NAN``, ``INFINITY``, ``-nan`` and ``inf `` are 0 to it)
+_GDAL_WORDS = {"inf": math.inf, "INF": math.inf, "Inf": math.inf, "Infinity": math.inf, "-inf": -math.inf,
+               "-INF": -math.inf, "-Inf": -math.inf, "-Infinity": -math.inf, "nan": math.nan, "NaN": math.nan}
+
+
+def _c_atof(text: str) -> tuple[float, bool]:
+    """``text`` read as a number the way GDAL's ``CPLAtof`` reads a nodata text (``CPLStrtod``; checked against GDAL
+    3.10 for each rule here): after C's white space, its spellings of NaN and infinity (:data:`_GDAL_PREFIXES`,
+    :data:`_GDAL_WORDS`), else, one '+' skipped, the decimal number the text starts with (``7abc`` -> 7, ``1_0`` -> 1,
+    ``0x7`` -> 0, ``7 8`` -> 7, ``+-7`` -> -7), else 0 (``abc``, ``NAN``); with whether that was the whole text (white
+    space aside)."""
+    start = text.lstrip(_C_SPACE)
+    rest = start.rstrip(_C_SPACE)
+    for prefix, special in _GDAL_PREFIXES:
+        if start.startswith(prefix) or (prefix.endswith("INF") and start.upper().startswith(prefix)):
+            return special, rest == prefix or rest.upper() == prefix
+    unsigned = start[1:] if start.startswith("+") else start
+    if unsigned in _GDAL_WORDS:
+        return _GDAL_WORDS[unsigned], True
+    match = _C_NUMBER.match(unsigned)
+    if match is None:
+        return 0.0, False
+    return float(match.group(0)), match.group(0) == unsigned.rstrip(_C_SPACE)
 
 
 def _refuse_png_scaling(file: Path) -> None:

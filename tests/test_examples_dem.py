@@ -318,3 +318,25 @@ def test_an_undeclared_nodata_warning_names_the_examples_nodata_option(name, tmp
     # the advice followed: the voids are voids, and nothing is said of them
     assert example.main([*argv, "--dem", str(path), "--nodata", "-32768", "--output", str(tmp_path / "b.png")]) == 0
     assert "-32768" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name", ["stepped_terrain", "batch_tiles"])
+def test_an_examples_error_names_its_nodata_option(name, tmp_path, capsys):
+    """An example's usage error (usage_errors) kept the library's spelling of the advice, "or pass
+    nodata=-1.7976931348623157e+308" of a float64 .npy whose voids are float64's lowest value, where its warnings say
+    "--nodata" already (and the stepterrain command's errors do): now its errors name the example's --nodata too, and
+    the advice followed reads the file."""
+    dem = st.sample_dem()
+    z = dem.heights[500:530, 600:640].astype(np.float64)
+    z[5:9, 10:16] = np.finfo(np.float64).min  # 24 voids, beyond float32
+    path = tmp_path / "dem.npy"
+    np.save(path, z)
+    argv, _ = RUNS[name]
+    example = load_example(name)
+    with pytest.raises(SystemExit) as exit_info:
+        example.main([*argv, "--dem", str(path), "--output", str(tmp_path / "a.png")])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "or pass --nodata -1.7976931348623157e+308)" in err and "nodata=" not in err, err
+    assert example.main([*argv, "--dem", str(path), "--nodata", "-1.7976931348623157e+308",
+                         "--output", str(tmp_path / "b.png")]) == 0

@@ -2354,8 +2354,9 @@ def test_a_png_heightmaps_nodata_in_its_aux_xml_marks_its_voids(tmp_path):
             warnings.simplefilter("ignore")  # rasterio's NotGeoreferencedWarning
             with rasterio.open(png) as src:
                 np.testing.assert_array_equal(np.ma.getmaskarray(src.read(1, masked=True)), voids)
-    _pam_nodata(png, "not a number")  # no nodata, to GDAL either
-    assert not np.isnan(load_dem(png).heights).any()
+    _pam_nodata(png, "not a number")  # read as 0, as GDAL reads it (strtod), with a warning: no cell here is 0
+    with pytest.warns(UserWarning, match="'not a number' in dem.png.aux.xml is not a number; read as 0"):
+        assert not np.isnan(load_dem(png).heights).any()
     # a tRNS value is the PNG's own nodata, which GDAL takes before the aux.xml's
     Image.fromarray(np.where(voids, 9999, heights).astype(np.uint16)).save(png, transparency=int(heights[0, 0]))
     _pam_nodata(png, "9999")
