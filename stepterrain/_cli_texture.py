@@ -433,6 +433,44 @@ def _contour_options(args: argparse.Namespace) -> dict[str, Any] | None:
     return options
 
 
+def _texture_metadata(args: argparse.Namespace, coloured: bool, contours: dict[str, Any] | None,
+                      grid: tuple[Any, tuple[int, int]]) -> dict[str, Any]:
+    """The options that shaped the texture, with the values it was made with (defaults included), for the draped
+    mesh's metadata beside ``method`` and the light's angles: ``--z-factor`` where the relief was shaded (a hillshade,
+    ``--shadows``, ``--occlusion``), ``--shadow-strength`` with ``--shadows``, ``--occlusion`` and ``--colormap`` (the
+    colormap's name, or 'none'), ``--image`` with ``--image-extent`` where one placed it, the texel size of the
+    texture's ``grid`` (extent, (rows, cols)) in x and y (``--texel-size`` cut the extent into whole texels no larger
+    than it: not the value given), and ``--contours`` with the width, colour and index lines drawn. They were left
+    out (a texture shaded by z 3 and occlusion 0.5 recorded as one of the defaults), and ``texel_size`` recorded
+    the value given."""
+    metadata: dict[str, Any] = {"shadows": bool(args.shadows)}
+    if args.method != "none" or args.shadows or args.occlusion > 0:  # (--hillshade none alone: no relief used)
+        metadata["z_factor"] = float(args.z_factor)
+    if args.shadows:
+        metadata["shadow_strength"] = float(args.shadow_strength)
+    metadata["occlusion"] = float(args.occlusion)
+    found = _colormap(args.colormap) if coloured else None
+    metadata["colormap"] = found[0].name if found is not None else "none"
+    if args.image is not None:
+        metadata["image"] = str(args.image)
+        if args.image_extent is not None:
+            metadata["image_extent"] = [float(v) for v in args.image_extent]
+    (xmin, xmax, ymin, ymax), (rows, cols) = grid
+    metadata["texel_size"] = [(xmax - xmin) / cols, (ymax - ymin) / rows]
+    if contours is not None:
+        import inspect
+
+        from .texture import _contour_colour, contour_layer
+
+        drawn = {name: contours.get(name, parameter.default)  # contour_layer's defaults where an option was not given
+                 for name, parameter in inspect.signature(contour_layer).parameters.items()}
+        metadata["contours"] = float(drawn["interval"])
+        metadata["contour_width"] = float(drawn["width"])
+        metadata["contour_color"] = list(_contour_colour(drawn["color"], "--contour-color"))
+        metadata["contour_index"] = int(drawn["index_every"])
+    return metadata
+
+
 def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     from . import export, render
     from . import texture as tx
@@ -648,13 +686,8 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
             metadata["azimuth_deg"] = args.azimuth
         if args.shadows or args.method not in ("igor", "none"):
             metadata["altitude_deg"] = args.altitude
-        metadata["shadows"] = bool(args.shadows)
-        if args.image is not None:
-            metadata["image"] = str(args.image)
-        if args.texel_size is not None:
-            metadata["texel_size"] = args.texel_size
-        if args.contours is not None:
-            metadata["contours"] = args.contours
+        metadata.update(_texture_metadata(args, colors is not None, contour_options,
+                                          (composite.extent, image.shape[:2])))
         export.save_mesh(draped if textured_mesh else _texture_colours(draped), mesh_out, metadata=metadata)
         progress.say(f"wrote {mesh_out} ({_size(mesh_out)})")
     if shot is not None:
