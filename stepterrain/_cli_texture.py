@@ -231,6 +231,19 @@ def _check_texel_size(terrain: Any, texel: float, textured_gpu: str | None,
     return extent, (rows, cols)
 
 
+def _check_node_texture(terrain: Any) -> None:
+    """The texture of one texel per DEM node (no ``--texel-size``) once the DEM is loaded, before any work: its
+    layers' RGBA, which the compose reads (:meth:`~stepterrain.texture.TextureLayer.rgba`, checked there against the
+    memory budget as its largest piece), within the budget. A DEM within the budget whose texture was not was refused
+    only once its hillshade, shadows and occlusion had been computed (minutes on a large DEM)."""
+    from ._compaction import check_budget
+    from .texture import _RGBA_BYTES
+
+    rows, cols = terrain.shape
+    check_budget(_RGBA_BYTES * rows * cols, f"the {cols} x {rows} texel texture (one texel per DEM node, while it is "
+                 "composed)", hint="give --coarsen N or a --crop")
+
+
 def _is_tiff(path: Path | None) -> bool:
     return path is not None and path.suffix.lower() in (".tif", ".tiff")
 
@@ -563,6 +576,8 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
             ("--png", png is not None)) if wanted]
         grid = _check_texel_size(terrain, args.texel_size, " and ".join(textured) or None,
                                  contours=args.contours is not None)
+    else:
+        _check_node_texture(terrain)
     if png is not None:  # the render holds the texture too, one texel per node or --texel-size's, and its copies of
         # the mesh draped: the DEM's surface (at least that, stepped by --interval): before any work
         render._check_render_budget(args.size[0], args.size[1], "--size",

@@ -593,7 +593,7 @@ def test_cli_texture_image_keeps_the_dems_nodata_transparent_and_renders(tmp_pat
     ("rotated", "rotated geotransform (30.0, 2.0, 376313.0, 2.0, -30.0, 3807917.0) (its rotation terms move pixels "
                 "by more than 1e-06 of a pixel over 64 x 64 pixels); a pyramid's extent is north-up: `gdalwarp "
                 "-dstalpha` makes the image north-up, or give --image-extent xmin,xmax,ymin,ymax for it as it is"),
-    ("over the budget", "reading '{image}' (the image's window: 3 x 643 x 1197 cells of uint8)"),  # a PNG: its window
+    ("over the budget", "reading '{image}' (the image's window: 3 x 1222 x 2275 cells of uint8)"),  # a PNG: its window
 ])
 def test_cli_texture_image_is_refused_clearly(tmp_path, capsys, case, match):
     """Each refusal exits 2 before writing anything, naming the option and what it got; what the image file alone
@@ -608,11 +608,15 @@ def test_cli_texture_image_is_refused_clearly(tmp_path, capsys, case, match):
     argv = ["--image", str(image)]
     if case == "not an image":
         image.write_text("not an image\n")
-    elif case in ("png without extent", "off the dem", "over the budget", "bad extent"):
+    elif case in ("png without extent", "off the dem", "bad extent"):
         Image.fromarray(coded_pixels(643, 1197)).save(image)
+    elif case == "over the budget":  # pixels of 15.8 m over the 30 m DEM, read as they are: their window's 33 MB past
+        # the budget, which the DEM's own texture (16 MiB at one texel a node, checked first) is within
+        Image.fromarray(coded_pixels(1222, 2275)).save(image)
+    if case in ("png without extent", "off the dem", "over the budget", "bad extent"):
         argv += {"png without extent": [], "off the dem": ["--image-extent=0,100,0,100"],
                  "bad extent": ["--image-extent=10,0,0,100"],
-                 "over the budget": ["--image-extent=376313,412223,3788627,3807917", "--memory-budget", "6MB"]}[case]
+                 "over the budget": ["--image-extent=376313,412223,3788627,3807917", "--memory-budget", "25MB"]}[case]
     elif case == "extent without image":
         argv = ["--image-extent=0,100,0,100"]
     elif case == "crs mismatch":

@@ -242,3 +242,30 @@ def test_contour_base_far_from_the_heights_draws_the_same_lines(base, index_ever
     got = contour_layer(dem, interval=100.0, base=base, index_every=index_every, device="cpu").image
     assert 0.05 < want[..., 3].mean() < 0.5
     np.testing.assert_allclose(got, want, atol=1e-5)
+
+
+@pytest.mark.parametrize("options", [[], ["--shadows", "--occlusion", "0.5"], ["--contours", "20"]])
+def test_cli_texture_over_the_memory_budget_is_refused_before_the_shading(tmp_path, capsys, monkeypatch, options):
+    """A texture of one texel per DEM node whose layers' RGBA (22 bytes a node while it is checked) exceeds
+    --memory-budget, the DEM itself within it, was refused only once its hillshade, shadows and occlusion were computed
+    (minutes on a large DEM: the topographic layer's RGBA is checked as the texture is composed), as --texel-size's
+    texture is not: now once the DEM is loaded, before any work. A budget that holds it still writes the texture."""
+    from stepterrain import texture as tx
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((40, 50)).astype(np.float32) * 100)  # 8,000 bytes; RGBA 44,000
+    out = tmp_path / "t.png"
+    shade = tx.topographic_layer
+
+    def no_shading(*args, **kwargs):
+        raise AssertionError("the texture was shaded before the memory budget was checked")
+
+    monkeypatch.setattr(tx, "topographic_layer", no_shading)
+    code = main(["texture", str(dem), *options, "-o", str(out), "--device", "cpu", "--memory-budget", "30000"])
+    err = capsys.readouterr().err
+    assert code == 2 and "50 x 40 texel texture" in err and "over the memory budget of 30,000 bytes" in err, err
+    assert "--coarsen" in err and not out.exists()
+    monkeypatch.setattr(tx, "topographic_layer", shade)
+    assert main(["texture", str(dem), *options, "-o", str(out), "--device", "cpu", "-q", "--memory-budget",
+                 str(tx._RGBA_BYTES * 40 * 50)]) == 0
+    assert out.exists()
