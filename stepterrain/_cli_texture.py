@@ -206,7 +206,12 @@ def _check_texel_size(terrain: Any, texel: float, textured_gpu: str | None,
     (``textured_gpu`` names it), a GPU's texture size."""
     from ._compaction import check_budget
     from .io import _lonlat_grid
-    from .texture import _CONTOUR_TEXEL_BYTES, _coarser_than_nodes, _texel_grid  # the grid contour_layer draws on
+    from .texture import (  # the grid contour_layer draws on
+        _CONTOUR_TEXEL_BYTES,
+        _coarser_than_nodes,
+        _texel_grid,
+        _texels,
+    )
 
     sx, sy = abs(float(terrain.spacing[0])), abs(float(terrain.spacing[1]))
     # square texels no coarser than the nodes either way: a geographic DEM's x and y spacings differ, and a texel of
@@ -222,12 +227,12 @@ def _check_texel_size(terrain: Any, texel: float, textured_gpu: str | None,
                   f"{sx:g} x {sy:g} m), not in degrees (or --crop the DEM)")
     extent, (rows, cols) = _texel_grid(terrain, texel, "--texel-size")
     check_budget((_COMPOSE_BYTES_PER_TEXEL + (_CONTOUR_TEXEL_BYTES if contours else 0)) * rows * cols,
-                 f"the {cols} x {rows} texel texture of --texel-size {texel:g} (while it is composed and "
-                 "written)", hint=larger)
+                 f"the {_texels(cols)} x {_texels(rows)} texel texture of --texel-size {texel:g} (while it is "
+                 "composed and written)", hint=larger)
     if textured_gpu is not None and max(rows, cols) > _GPU_TEXTURE_LIMIT:
-        raise InvalidInputError(f"--texel-size {texel:g} makes a {cols} x {rows} texel texture, over the "
-                                f"{_GPU_TEXTURE_LIMIT} texels a side GPUs load as one texture, for {textured_gpu}: "
-                                f"{larger}, or write the texture with -o alone")
+        raise InvalidInputError(f"--texel-size {texel:g} makes a {_texels(cols)} x {_texels(rows)} texel texture, "
+                                f"over the {_GPU_TEXTURE_LIMIT} texels a side GPUs load as one texture, for "
+                                f"{textured_gpu}: {larger}, or write the texture with -o alone")
     return extent, (rows, cols)
 
 

@@ -269,3 +269,23 @@ def test_cli_texture_over_the_memory_budget_is_refused_before_the_shading(tmp_pa
     assert main(["texture", str(dem), *options, "-o", str(out), "--device", "cpu", "-q", "--memory-budget",
                  str(tx._RGBA_BYTES * 40 * 50)]) == 0
     assert out.exists()
+
+
+def test_a_texel_size_of_astronomically_many_texels_is_refused_in_a_readable_line(tmp_path, capsys):
+    """--texel-size 1e-300 (and contour_layer's texel_size) was refused naming its texel counts digit by digit: a
+    300-digit number each way, an error line of 950 characters. Counts past 10^12 are written in floating point."""
+    from stepterrain import texture as tx
+    from stepterrain.errors import OutputTooLargeError
+
+    heights = np.random.default_rng(0).random((40, 50)).astype(np.float32) * 100
+    dem = tmp_path / "dem.npy"
+    np.save(dem, heights)
+    assert main(["texture", str(dem), "--texel-size", "1e-300", "-o", str(tmp_path / "t.png"), "--device", "cpu"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "the 5e+301 x 4e+301 texel texture of --texel-size 1e-300" in err and len(err) < 400, err
+    with pytest.raises(OutputTooLargeError, match=r"the 5e\+301 x 4e\+301 float32 RGBA contour layer") as info:
+        tx.contour_layer(heights, interval=10.0, texel_size=1e-300, device="cpu")
+    assert len(str(info.value)) < 400, info.value
+    # counts a budget can hold keep their digits
+    assert main(["texture", str(dem), "--texel-size", "0.001", "-o", str(tmp_path / "t.png"), "--device", "cpu"]) == 2
+    assert "the 50000 x 40000 texel texture" in capsys.readouterr().err
