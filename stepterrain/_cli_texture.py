@@ -592,6 +592,15 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
                                     mesh=_surface_size(terrain), at_least=args.interval is not None,
                                     mesh_hint=("give a larger --interval, " if args.interval is not None else "give ")
                                     + "--coarsen N or a --crop, or leave --png out")
+    if mesh_out is not None or png is not None:  # what the drape stage refuses of the mesh, known from the DEM: refused
+        # there, after the texture's hillshade, shadows and occlusion
+        from .stepped import isovalues
+        from .terrain import check_heightfield_budget
+
+        if args.interval is not None:  # the isovalues stepped() takes (too many levels), the steps command's check
+            isovalues(terrain.height_range, interval=args.interval)
+        else:
+            check_heightfield_budget(terrain)  # terrain.mesh()'s
     picture = None
     if args.image is not None:
         from .texture_lod import image_layer

@@ -289,3 +289,35 @@ def test_a_texel_size_of_astronomically_many_texels_is_refused_in_a_readable_lin
     # counts a budget can hold keep their digits
     assert main(["texture", str(dem), "--texel-size", "0.001", "-o", str(tmp_path / "t.png"), "--device", "cpu"]) == 2
     assert "the 50000 x 40000 texel texture" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("case", ["interval", "heightfield"])
+def test_cli_texture_drape_that_cannot_be_made_is_refused_before_the_shading(tmp_path, capsys, monkeypatch, case):
+    """--mesh on the stepped terrain of an --interval giving more levels than stepped takes, or on a heightfield mesh
+    over --memory-budget (the DEM and its texture within it), was refused only in the drape stage, once the texture's
+    hillshade, shadows and occlusion had been computed (minutes on a large DEM): now once the DEM is loaded, as steps
+    refuses its --interval, with the same error."""
+    from stepterrain import texture as tx
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((40, 50)).astype(np.float32) * 100)
+    mesh = tmp_path / "m.glb"
+    options = {"interval": ["--interval", "1e-5"], "heightfield": ["--memory-budget", "100000"]}[case]
+    shade = tx.topographic_layer
+
+    def no_shading(*args, **kwargs):
+        raise AssertionError("the texture was shaded before its drape was checked")
+
+    monkeypatch.setattr(tx, "topographic_layer", no_shading)
+    code = main(["texture", str(dem), "--shadows", "--occlusion", "0.5", *options, "--mesh", str(mesh), "--device",
+                 "cpu"])
+    err = capsys.readouterr().err
+    expected = {"interval": "levels; at most 1,000,000 are supported",
+                "heightfield": "the heightfield mesh of a 40 x 50 grid would need"}[case]
+    assert code == 2 and expected in err and "Traceback" not in err, err
+    assert not mesh.exists()
+    # what the checks let through is draped as before
+    monkeypatch.setattr(tx, "topographic_layer", shade)
+    fine = {"interval": ["--interval", "10"], "heightfield": ["--memory-budget", "400000"]}[case]
+    assert main(["texture", str(dem), "--shadows", *fine, "--mesh", str(mesh), "--device", "cpu", "-q"]) == 0
+    assert mesh.exists()
