@@ -601,6 +601,10 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
             isovalues(terrain.height_range, interval=args.interval)
         else:
             check_heightfield_budget(terrain)  # terrain.mesh()'s
+    if mesh_out is not None:  # save_mesh's writer: the draped mesh has the DEM's surface at least (exactly, unstepped)
+        vertices, faces = _surface_size(terrain)
+        export._check_write_counts(vertices, faces, mesh_out.suffix.lower(), mesh_out, textured=textured_mesh,
+                                   at_least=args.interval is not None)
     picture = None
     if args.image is not None:
         from .texture_lod import image_layer

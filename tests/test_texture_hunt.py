@@ -321,3 +321,41 @@ def test_cli_texture_drape_that_cannot_be_made_is_refused_before_the_shading(tmp
     fine = {"interval": ["--interval", "10"], "heightfield": ["--memory-budget", "400000"]}[case]
     assert main(["texture", str(dem), "--shadows", *fine, "--mesh", str(mesh), "--device", "cpu", "-q"]) == 0
     assert mesh.exists()
+
+
+@pytest.mark.parametrize("suffix", [".glb", ".ply"])
+@pytest.mark.parametrize("interval", [None, "10"])
+def test_cli_texture_mesh_that_cannot_be_written_is_refused_before_the_shading(tmp_path, capsys, monkeypatch, suffix,
+                                                                                interval):
+    """A --mesh whose writing needs more than --memory-budget (GLB's textured vertices, 120 bytes each, and PLY's
+    coloured ones: more than the heightfield mesh itself) was refused by save_mesh, after the texture was shaded and
+    draped. The DEM's surface, which the draped mesh has at least (exactly, on the heightfield), is now checked
+    against the writer's budget once the DEM is loaded; what fits is written as before."""
+    from stepterrain import export
+    from stepterrain import texture as tx
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((40, 50)).astype(np.float32) * 100)
+    mesh = tmp_path / f"m{suffix}"
+    per_vertex, per_face = export._WRITE_BYTES[suffix]
+    per_vertex += export._TEXTURE_WRITE_BYTES.get(suffix, 0)
+    need = per_vertex * 40 * 50 + per_face * 2 * 39 * 49  # the heightfield's vertices and faces
+    budget = need - 1
+    assert budget > 144 * 40 * 50  # terrain.mesh()'s own budget holds it
+    shade = tx.topographic_layer
+
+    def no_shading(*args, **kwargs):
+        raise AssertionError("the texture was shaded before the --mesh's writing was checked")
+
+    monkeypatch.setattr(tx, "topographic_layer", no_shading)
+    options = [] if interval is None else ["--interval", interval]
+    code = main(["texture", str(dem), "--shadows", *options, "--mesh", str(mesh), "--memory-budget", str(budget),
+                 "--device", "cpu"])
+    err = capsys.readouterr().err
+    assert code == 2 and f"writing '{mesh}' ({suffix}, a mesh of " in err and "3,822 faces" in err, err
+    assert not mesh.exists()
+    if interval is None:  # exactly the heightfield's: a byte more writes it
+        monkeypatch.setattr(tx, "topographic_layer", shade)
+        assert main(["texture", str(dem), "--shadows", "--mesh", str(mesh), "--memory-budget", str(need + 40000),
+                     "--device", "cpu", "-q"]) == 0
+        assert mesh.exists()
