@@ -456,11 +456,11 @@ def _texture_metadata(args: argparse.Namespace, coloured: bool, contours: dict[s
     """The options that shaped the texture, with the values it was made with (defaults included), for the draped
     mesh's metadata beside ``method`` and the light's angles: ``--z-factor`` where the relief was shaded (a hillshade,
     ``--shadows``, ``--occlusion``), ``--shadow-strength`` with ``--shadows``, ``--occlusion`` and ``--colormap`` (the
-    colormap's name, or 'none'), ``--image`` with ``--image-extent`` where one placed it, the texel size of the
-    texture's ``grid`` (extent, (rows, cols)) in x and y (``--texel-size`` cut the extent into whole texels no larger
-    than it: not the value given), and ``--contours`` with the width, colour and index lines drawn. They were left
-    out (a texture shaded by z 3 and occlusion 0.5 recorded as one of the defaults), and ``texel_size`` recorded
-    the value given."""
+    colormap's name, or 'none'), ``--image`` with ``--image-extent`` where one placed it, ``--texel-size`` as given
+    (``texel_size``, a number, where it was given) and ``texel_size_used``, the texel size of the texture's ``grid``
+    (extent, (rows, cols)) in x and y (``--texel-size`` cut the extent into whole texels no larger than it; one texel
+    per node without it), and ``--contours`` with the width, colour and index lines drawn. They were left out (a
+    texture shaded by z 3 and occlusion 0.5 recorded as one of the defaults)."""
     metadata: dict[str, Any] = {"shadows": bool(args.shadows)}
     if args.method != "none" or args.shadows or args.occlusion > 0:  # (--hillshade none alone: no relief used)
         metadata["z_factor"] = float(args.z_factor)
@@ -473,8 +473,10 @@ def _texture_metadata(args: argparse.Namespace, coloured: bool, contours: dict[s
         metadata["image"] = str(args.image)
         if args.image_extent is not None:
             metadata["image_extent"] = [float(v) for v in args.image_extent]
+    if args.texel_size is not None:  # the number given, as recorded before (scripts read it as one)
+        metadata["texel_size"] = float(args.texel_size)
     (xmin, xmax, ymin, ymax), (rows, cols) = grid
-    metadata["texel_size"] = [(xmax - xmin) / cols, (ymax - ymin) / rows]
+    metadata["texel_size_used"] = [(xmax - xmin) / cols, (ymax - ymin) / rows]
     if contours is not None:
         import inspect
 

@@ -346,12 +346,12 @@ def test_cli_texture_mesh_metadata_records_only_the_light_angles_that_shaped_it(
     assert metadata.get("azimuth_deg", 315.0) == 315.0 and metadata.get("altitude_deg", 45.0) == 45.0
 
 
-
 def test_cli_texture_mesh_metadata_records_every_option_that_shaped_the_texture(tmp_path, small_dem):
     """A draped mesh's metadata left out --z-factor, --shadow-strength, --occlusion, --colormap and --image-extent (a
-    texture shaded by z 2, occlusion 0.3 in viridis recorded as the default one) and recorded --texel-size as given,
-    not the texel size of the grid the texture was cut into (whole texels no larger than it). Every option that shaped
-    the texture is recorded with the value used, defaults included; the texel size is the texture image's own."""
+    texture shaded by z 2, occlusion 0.3 in viridis recorded as the default one) and recorded --texel-size as given
+    only, not the texel size of the grid the texture was cut into (whole texels no larger than it). Every option
+    that shaped the texture is recorded with the value used, defaults included; ``texel_size`` stays the number given
+    (scripts read it as one) and ``texel_size_used`` is the texture image's own (x, y) texel."""
     from PIL import Image
 
     from stepterrain.export import read_mesh
@@ -370,8 +370,9 @@ def test_cli_texture_mesh_metadata_records_every_option_that_shaped_the_texture(
     # the npy's unit spacing: a 50 x 40 texture extent (half a cell beyond the nodes), cut into 167 x 134 texels
     cols, rows = draped.visual.material.baseColorTexture.size
     assert (cols, rows) == (167, 134)
-    np.testing.assert_allclose(metadata["texel_size"], [50.0 / cols, 40.0 / rows], rtol=1e-12)
-    assert metadata["texel_size"][0] < 0.3 and metadata["texel_size"][1] < 0.3
+    np.testing.assert_allclose(metadata["texel_size_used"], [50.0 / cols, 40.0 / rows], rtol=1e-12)
+    assert metadata["texel_size_used"][0] < 0.3 and metadata["texel_size_used"][1] < 0.3
+    assert metadata["texel_size"] == 0.3  # the number given, as before (a script reading it as one keeps working)
     assert (metadata["contours"], metadata["contour_width"], metadata["contour_index"]) == (20.0, 1.5, 5)
     np.testing.assert_allclose(metadata["contour_color"], [0.55, 0.32, 0.14, 1.0])
 
@@ -381,8 +382,8 @@ def test_cli_texture_mesh_metadata_records_every_option_that_shaped_the_texture(
     assert main(["texture", str(small_dem), "--mesh", str(plain), "--device", "cpu", "-q"]) == 0
     metadata = read_mesh(plain).metadata
     assert (metadata["z_factor"], metadata["occlusion"], metadata["colormap"]) == (1.0, 0.0, "terrain")
-    assert metadata["texel_size"] == [1.0, 1.0]
-    assert not {"shadow_strength", "image_extent", "contours", "contour_width"} & set(metadata)
+    assert metadata["texel_size_used"] == [1.0, 1.0]  # one texel per node; no --texel-size given: none recorded
+    assert not {"shadow_strength", "image_extent", "contours", "contour_width", "texel_size"} & set(metadata)
     assert main(["texture", str(small_dem), "--hillshade", "none", "--colormap", "None", "--image", str(png),
                  "--image-extent=-1,50,-40,1", "--mesh", str(plain), "--device", "cpu", "-q"]) == 0
     metadata = read_mesh(plain).metadata
