@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st_
 
 from stepterrain.cli import main
 
@@ -365,3 +367,27 @@ def test_cli_texture_mesh_that_cannot_be_written_is_refused_before_the_shading(t
     assert main(["texture", str(dem), "--shadows", *options, "--mesh", str(mesh), "--memory-budget", str(need),
                  "--device", "cpu", "-q"]) == 0
     assert mesh.exists()
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st_.integers(0, 2**32 - 1), ties=st_.booleans(), holes=st_.floats(0.0, 0.5), flat=st_.booleans(),
+       interval=st_.sampled_from([5.0, 10.0, 25.0, 200.0]))
+def test_a_stepped_mesh_has_at_least_the_dems_surface(seed, ties, holes, flat, interval):
+    """texture --mesh --interval (and steps --png) refuse before stepping by the DEM's surface (grid_surface_counts:
+    a vertex per node a triangle with three finite heights uses, a face per such triangle), the fewest the stepped
+    mesh has: a lower bound, which must never exceed the stepped mesh's counts, or a write that fits would be
+    refused. Heights on the levels, flat patches and nodata holes included."""
+    import stepterrain as st
+    from stepterrain.terrain import grid_surface_counts
+
+    rng = np.random.default_rng(seed)
+    heights = (rng.random((12, 15)) * 100).astype(np.float32)
+    if ties:  # many heights exactly on a level
+        heights = np.round(heights / interval) * interval
+    if flat:
+        heights[2:10, 3:12] = 40.0
+    heights[rng.random(heights.shape) < holes] = np.nan
+    terrain = st.Terrain.from_heights(heights)
+    mesh = st.stepped(terrain, interval=interval, device="cpu")
+    vertices, faces = grid_surface_counts(terrain.heights, terrain.has_nodata)
+    assert len(mesh.vertices) >= vertices and len(mesh.faces) >= faces
