@@ -206,7 +206,12 @@ def _check_texel_size(terrain: Any, texel: float, textured_gpu: str | None,
     (``textured_gpu`` names it), a GPU's texture size."""
     from ._compaction import check_budget
     from .io import _lonlat_grid
-    from .texture import _CONTOUR_TEXEL_BYTES, _coarser_than_nodes, _texel_grid  # the grid contour_layer draws on
+    from .texture import (  # the grid contour_layer draws on
+        _CONTOUR_TEXEL_BYTES,
+        _coarser_than_nodes,
+        _texel_grid,
+        _texels,
+    )
 
     sx, sy = abs(float(terrain.spacing[0])), abs(float(terrain.spacing[1]))
     # square texels no coarser than the nodes either way: a geographic DEM's x and y spacings differ, and a texel of
@@ -222,13 +227,26 @@ def _check_texel_size(terrain: Any, texel: float, textured_gpu: str | None,
                   f"{sx:g} x {sy:g} m), not in degrees (or --crop the DEM)")
     extent, (rows, cols) = _texel_grid(terrain, texel, "--texel-size")
     check_budget((_COMPOSE_BYTES_PER_TEXEL + (_CONTOUR_TEXEL_BYTES if contours else 0)) * rows * cols,
-                 f"the {cols} x {rows} texel texture of --texel-size {texel:g} (while it is composed and "
-                 "written)", hint=larger)
+                 f"the {_texels(cols)} x {_texels(rows)} texel texture of --texel-size {texel:g} (while it is "
+                 "composed and written)", hint=larger)
     if textured_gpu is not None and max(rows, cols) > _GPU_TEXTURE_LIMIT:
-        raise InvalidInputError(f"--texel-size {texel:g} makes a {cols} x {rows} texel texture, over the "
-                                f"{_GPU_TEXTURE_LIMIT} texels a side GPUs load as one texture, for {textured_gpu}: "
-                                f"{larger}, or write the texture with -o alone")
+        raise InvalidInputError(f"--texel-size {texel:g} makes a {_texels(cols)} x {_texels(rows)} texel texture, "
+                                f"over the {_GPU_TEXTURE_LIMIT} texels a side GPUs load as one texture, for "
+                                f"{textured_gpu}: {larger}, or write the texture with -o alone")
     return extent, (rows, cols)
+
+
+def _check_node_texture(terrain: Any) -> None:
+    """The texture of one texel per DEM node (no ``--texel-size``) once the DEM is loaded, before any work: its
+    layers' RGBA, which the compose reads (:meth:`~stepterrain.texture.TextureLayer.rgba`, checked there against the
+    memory budget as its largest piece), within the budget. A DEM within the budget whose texture was not was refused
+    only once its hillshade, shadows and occlusion had been computed (minutes on a large DEM)."""
+    from ._compaction import check_budget
+    from .texture import _RGBA_BYTES
+
+    rows, cols = terrain.shape
+    check_budget(_RGBA_BYTES * rows * cols, f"the {cols} x {rows} texel texture (one texel per DEM node, while it is "
+                 "composed)", hint="give --coarsen N or a --crop")
 
 
 def _is_tiff(path: Path | None) -> bool:
@@ -433,6 +451,46 @@ def _contour_options(args: argparse.Namespace) -> dict[str, Any] | None:
     return options
 
 
+def _texture_metadata(args: argparse.Namespace, coloured: bool, contours: dict[str, Any] | None,
+                      grid: tuple[Any, tuple[int, int]]) -> dict[str, Any]:
+    """The options that shaped the texture, with the values it was made with (defaults included), for the draped
+    mesh's metadata beside ``method`` and the light's angles: ``--z-factor`` where the relief was shaded (a hillshade,
+    ``--shadows``, ``--occlusion``), ``--shadow-strength`` with ``--shadows``, ``--occlusion`` and ``--colormap`` (the
+    colormap's name, or 'none'), ``--image`` with ``--image-extent`` where one placed it, ``--texel-size`` as given
+    (``texel_size``, a number, where it was given) and ``texel_size_used``, the texel size of the texture's ``grid``
+    (extent, (rows, cols)) in x and y (``--texel-size`` cut the extent into whole texels no larger than it; one texel
+    per node without it), and ``--contours`` with the width, colour and index lines drawn. They were left out (a
+    texture shaded by z 3 and occlusion 0.5 recorded as one of the defaults)."""
+    metadata: dict[str, Any] = {"shadows": bool(args.shadows)}
+    if args.method != "none" or args.shadows or args.occlusion > 0:  # (--hillshade none alone: no relief used)
+        metadata["z_factor"] = float(args.z_factor)
+    if args.shadows:
+        metadata["shadow_strength"] = float(args.shadow_strength)
+    metadata["occlusion"] = float(args.occlusion)
+    found = _colormap(args.colormap) if coloured else None
+    metadata["colormap"] = found[0].name if found is not None else "none"
+    if args.image is not None:
+        metadata["image"] = str(args.image)
+        if args.image_extent is not None:
+            metadata["image_extent"] = [float(v) for v in args.image_extent]
+    if args.texel_size is not None:  # the number given, as recorded before (scripts read it as one)
+        metadata["texel_size"] = float(args.texel_size)
+    (xmin, xmax, ymin, ymax), (rows, cols) = grid
+    metadata["texel_size_used"] = [(xmax - xmin) / cols, (ymax - ymin) / rows]
+    if contours is not None:
+        import inspect
+
+        from .texture import _contour_colour, contour_layer
+
+        drawn = {name: contours.get(name, parameter.default)  # contour_layer's defaults where an option was not given
+                 for name, parameter in inspect.signature(contour_layer).parameters.items()}
+        metadata["contours"] = float(drawn["interval"])
+        metadata["contour_width"] = float(drawn["width"])
+        metadata["contour_color"] = list(_contour_colour(drawn["color"], "--contour-color"))
+        metadata["contour_index"] = int(drawn["index_every"])
+    return metadata
+
+
 def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     from . import export, render
     from . import texture as tx
@@ -525,6 +583,8 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
             ("--png", png is not None)) if wanted]
         grid = _check_texel_size(terrain, args.texel_size, " and ".join(textured) or None,
                                  contours=args.contours is not None)
+    else:
+        _check_node_texture(terrain)
     if png is not None:  # the render holds the texture too, one texel per node or --texel-size's, and its copies of
         # the mesh draped: the DEM's surface (at least that, stepped by --interval): before any work
         render._check_render_budget(args.size[0], args.size[1], "--size",
@@ -534,6 +594,19 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
                                     mesh=_surface_size(terrain), at_least=args.interval is not None,
                                     mesh_hint=("give a larger --interval, " if args.interval is not None else "give ")
                                     + "--coarsen N or a --crop, or leave --png out")
+    if mesh_out is not None or png is not None:  # what the drape stage refuses of the mesh, known from the DEM: refused
+        # there, after the texture's hillshade, shadows and occlusion
+        from .stepped import isovalues
+        from .terrain import check_heightfield_budget
+
+        if args.interval is not None:  # the isovalues stepped() takes (too many levels), the steps command's check
+            isovalues(terrain.height_range, interval=args.interval)
+        else:
+            check_heightfield_budget(terrain)  # terrain.mesh()'s
+    if mesh_out is not None:  # save_mesh's writer: the draped mesh has the DEM's surface at least (exactly, unstepped)
+        vertices, faces = _surface_size(terrain)
+        export._check_write_counts(vertices, faces, mesh_out.suffix.lower(), mesh_out, textured=textured_mesh,
+                                   at_least=args.interval is not None)
     picture = None
     if args.image is not None:
         from .texture_lod import image_layer
@@ -648,13 +721,8 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
             metadata["azimuth_deg"] = args.azimuth
         if args.shadows or args.method not in ("igor", "none"):
             metadata["altitude_deg"] = args.altitude
-        metadata["shadows"] = bool(args.shadows)
-        if args.image is not None:
-            metadata["image"] = str(args.image)
-        if args.texel_size is not None:
-            metadata["texel_size"] = args.texel_size
-        if args.contours is not None:
-            metadata["contours"] = args.contours
+        metadata.update(_texture_metadata(args, colors is not None, contour_options,
+                                          (composite.extent, image.shape[:2])))
         export.save_mesh(draped if textured_mesh else _texture_colours(draped), mesh_out, metadata=metadata)
         progress.say(f"wrote {mesh_out} ({_size(mesh_out)})")
     if shot is not None:

@@ -728,8 +728,14 @@ _TEXTURE_WRITE_BYTES: dict[str, int] = {".glb": 96, ".gltf": 96, ".obj": 40}
 def _check_write_budget(mesh: trimesh.Trimesh, ext: str, target: Path) -> None:
     """An :class:`OutputTooLargeError` before any work when writing ``mesh`` as ``ext`` would take more than the
     memory budget (:data:`_WRITE_BYTES`): nothing was checked, and the writers' copies grew with the mesh."""
-    n_vertices, n_faces = len(mesh.vertices), len(mesh.faces)
-    face_colors, textured = mesh.visual.kind == "face", mesh.visual.kind == "texture"
+    _check_write_counts(len(mesh.vertices), len(mesh.faces), ext, target, face_colors=mesh.visual.kind == "face",
+                        textured=mesh.visual.kind == "texture")
+
+
+def _check_write_counts(n_vertices: int, n_faces: int, ext: str, target: Path, *, face_colors: bool = False,
+                        textured: bool = False, at_least: bool = False) -> None:
+    """:func:`_check_write_budget` of a mesh of ``n_vertices`` and ``n_faces`` (``at_least`` that many: a mesh not yet
+    made, e.g. a drape, named "at least"), before the mesh is made."""
 
     def need(e: str) -> int:
         per_vertex, per_face = _WRITE_BYTES[e]
@@ -739,7 +745,8 @@ def _check_write_budget(mesh: trimesh.Trimesh, ext: str, target: Path) -> None:
 
     less = sorted((e for e in _WRITE_BYTES if need(e) < need(ext)), key=need)
     check_budget(need(ext),
-                 f"writing {str(target)!r} ({ext}, a mesh of {counted(n_faces, 'face', grouped=True)} and "
+                 f"writing {str(target)!r} ({ext}, a mesh of {'at least ' if at_least else ''}"
+                 f"{counted(n_faces, 'face', grouped=True)} and "
                  f"{counted(n_vertices, 'vertex', 'vertices', grouped=True)}"
                  + (" with face colours)" if face_colors else ")"),
                  hint="write a mesh of fewer faces (a larger interval, a coarsened or cropped DEM, tiles)"

@@ -1759,6 +1759,15 @@ def grid_faces(rows: int, cols: int, flip: bool = False) -> NDArray[np.int64]:
     return faces[:, [0, 2, 1]] if flip else faces
 
 
+def check_heightfield_budget(t: Terrain) -> None:
+    """The memory budget check of :func:`heightfield_mesh` for the grid terrain ``t``, for a caller to make before
+    the work that precedes the mesh (``stepterrain texture --mesh`` shades the texture first)."""
+    rows, cols = t.heights.shape
+    per_node = _HEIGHTFIELD_NODE_BYTES + (_HEIGHTFIELD_NODATA_BYTES if t.has_nodata else 0)
+    check_budget(per_node * rows * cols, f"the heightfield mesh of a {rows} x {cols} grid",
+                 hint="crop or coarsen the terrain (Terrain.crop, Terrain.coarsen; --crop, --coarsen)")
+
+
 def heightfield_mesh(
     heights: ArrayLike | Terrain,
     *,
@@ -1814,10 +1823,8 @@ def heightfield_mesh(
     else:
         t = Terrain.from_heights(heights, spacing=(1.0, 1.0) if spacing is None else spacing,
                                  origin=(0.0, 0.0) if origin is None else origin)
+    check_heightfield_budget(t)
     rows, cols = t.heights.shape
-    per_node = _HEIGHTFIELD_NODE_BYTES + (_HEIGHTFIELD_NODATA_BYTES if t.has_nodata else 0)
-    check_budget(per_node * rows * cols, f"the heightfield mesh of a {rows} x {cols} grid",
-                 hint="crop or coarsen the terrain (Terrain.crop, Terrain.coarsen; --crop, --coarsen)")
     dx, dy = t.spacing
     faces = grid_faces(rows, cols, flip=dx * dy < 0)
     j, i = np.meshgrid(np.arange(cols), np.arange(rows))

@@ -1185,6 +1185,12 @@ def _texel_grid(t: Terrain, texel_size: float, name: str = "texel_size") -> tupl
     return extent, (rows, cols)
 
 
+def _texels(count: int) -> str:
+    """A texel count as an error names it: its digits, or past 10^12 (a texel size of 1e-300 makes 300-digit counts,
+    an error line of 950 characters) in floating point, ``5e+301``."""
+    return str(count) if count < 10**12 else f"{float(count):.4g}"
+
+
 def _texel_sampling(t: Terrain, extent: Extent, shape: tuple[int, int]) -> texture_kernels.TexelSampling:
     """Where the texel centres of the north-up pixel grid (extent, shape) fall among the terrain's nodes."""
     rows, cols = shape
@@ -1344,7 +1350,8 @@ def contour_layer(
                                     f"is one texel per node): it makes the texture finer; got {texel_size:g}")
         extent, shape = _texel_grid(t, texel_size)
     rows, cols = (int(n) for n in shape)
-    check_budget(_CONTOUR_TEXEL_BYTES * rows * cols, f"the {cols} x {rows} float32 RGBA contour layer",
+    check_budget(_CONTOUR_TEXEL_BYTES * rows * cols,
+                 f"the {_texels(cols)} x {_texels(rows)} float32 RGBA contour layer",
                  hint="give a larger texel_size (or crop the terrain)")
     dev = resolve_device(device)
     style = texture_kernels.ContourStyle()

@@ -346,6 +346,49 @@ def test_cli_texture_mesh_metadata_records_only_the_light_angles_that_shaped_it(
     assert metadata.get("azimuth_deg", 315.0) == 315.0 and metadata.get("altitude_deg", 45.0) == 45.0
 
 
+def test_cli_texture_mesh_metadata_records_every_option_that_shaped_the_texture(tmp_path, small_dem):
+    """A draped mesh's metadata left out --z-factor, --shadow-strength, --occlusion, --colormap and --image-extent (a
+    texture shaded by z 2, occlusion 0.3 in viridis recorded as the default one) and recorded --texel-size as given
+    only, not the texel size of the grid the texture was cut into (whole texels no larger than it). Every option
+    that shaped the texture is recorded with the value used, defaults included; ``texel_size`` stays the number given
+    (scripts read it as one) and ``texel_size_used`` is the texture image's own (x, y) texel."""
+    from PIL import Image
+
+    from stepterrain.export import read_mesh
+
+    png = tmp_path / "photo.png"
+    Image.fromarray(np.full((8, 10, 3), 200, np.uint8)).save(png)
+    mesh = tmp_path / "t.glb"
+    assert main(["texture", str(small_dem), "--shadows", "--shadow-strength", "0.4", "--occlusion", "0.3",
+                 "--z-factor", "2", "--colormap", "viridis", "--image", str(png), "--image-extent=-1,50,-40,1",
+                 "--texel-size", "0.3", "--contours", "20", "--contour-width", "1.5", "--mesh", str(mesh),
+                 "--device", "cpu", "-q"]) == 0
+    draped = read_mesh(mesh)
+    metadata = draped.metadata
+    assert (metadata["z_factor"], metadata["shadow_strength"], metadata["occlusion"]) == (2.0, 0.4, 0.3)
+    assert metadata["colormap"] == "viridis" and metadata["image_extent"] == [-1.0, 50.0, -40.0, 1.0]
+    # the npy's unit spacing: a 50 x 40 texture extent (half a cell beyond the nodes), cut into 167 x 134 texels
+    cols, rows = draped.visual.material.baseColorTexture.size
+    assert (cols, rows) == (167, 134)
+    np.testing.assert_allclose(metadata["texel_size_used"], [50.0 / cols, 40.0 / rows], rtol=1e-12)
+    assert metadata["texel_size_used"][0] < 0.3 and metadata["texel_size_used"][1] < 0.3
+    assert metadata["texel_size"] == 0.3  # the number given, as before (a script reading it as one keeps working)
+    assert (metadata["contours"], metadata["contour_width"], metadata["contour_index"]) == (20.0, 1.5, 5)
+    np.testing.assert_allclose(metadata["contour_color"], [0.55, 0.32, 0.14, 1.0])
+
+    # the defaults, recorded as used; what shaped nothing is not recorded (no shadows: no strength; no relief used by
+    # --hillshade none without --shadows or --occlusion: no z factor)
+    plain = tmp_path / "plain.ply"
+    assert main(["texture", str(small_dem), "--mesh", str(plain), "--device", "cpu", "-q"]) == 0
+    metadata = read_mesh(plain).metadata
+    assert (metadata["z_factor"], metadata["occlusion"], metadata["colormap"]) == (1.0, 0.0, "terrain")
+    assert metadata["texel_size_used"] == [1.0, 1.0]  # one texel per node; no --texel-size given: none recorded
+    assert not {"shadow_strength", "image_extent", "contours", "contour_width", "texel_size"} & set(metadata)
+    assert main(["texture", str(small_dem), "--hillshade", "none", "--colormap", "None", "--image", str(png),
+                 "--image-extent=-1,50,-40,1", "--mesh", str(plain), "--device", "cpu", "-q"]) == 0
+    metadata = read_mesh(plain).metadata
+    assert "z_factor" not in metadata and metadata["colormap"] == "none" and metadata["occlusion"] == 0.0
+
 # ------------------------------------------------------------------------------------------ --image
 TUJUNGA = "big_tujunga_srtm_30m_utm11n.tif"
 
@@ -551,7 +594,7 @@ def test_cli_texture_image_keeps_the_dems_nodata_transparent_and_renders(tmp_pat
     ("rotated", "rotated geotransform (30.0, 2.0, 376313.0, 2.0, -30.0, 3807917.0) (its rotation terms move pixels "
                 "by more than 1e-06 of a pixel over 64 x 64 pixels); a pyramid's extent is north-up: `gdalwarp "
                 "-dstalpha` makes the image north-up, or give --image-extent xmin,xmax,ymin,ymax for it as it is"),
-    ("over the budget", "reading '{image}' (the image's window: 3 x 643 x 1197 cells of uint8)"),  # a PNG: its window
+    ("over the budget", "reading '{image}' (the image's window: 3 x 1222 x 2275 cells of uint8)"),  # a PNG: its window
 ])
 def test_cli_texture_image_is_refused_clearly(tmp_path, capsys, case, match):
     """Each refusal exits 2 before writing anything, naming the option and what it got; what the image file alone
@@ -566,11 +609,15 @@ def test_cli_texture_image_is_refused_clearly(tmp_path, capsys, case, match):
     argv = ["--image", str(image)]
     if case == "not an image":
         image.write_text("not an image\n")
-    elif case in ("png without extent", "off the dem", "over the budget", "bad extent"):
+    elif case in ("png without extent", "off the dem", "bad extent"):
         Image.fromarray(coded_pixels(643, 1197)).save(image)
+    elif case == "over the budget":  # pixels of 15.8 m over the 30 m DEM, read as they are: their window's 33 MB past
+        # the budget, which the DEM's own texture (16 MiB at one texel a node, checked first) is within
+        Image.fromarray(coded_pixels(1222, 2275)).save(image)
+    if case in ("png without extent", "off the dem", "over the budget", "bad extent"):
         argv += {"png without extent": [], "off the dem": ["--image-extent=0,100,0,100"],
                  "bad extent": ["--image-extent=10,0,0,100"],
-                 "over the budget": ["--image-extent=376313,412223,3788627,3807917", "--memory-budget", "6MB"]}[case]
+                 "over the budget": ["--image-extent=376313,412223,3788627,3807917", "--memory-budget", "25MB"]}[case]
     elif case == "extent without image":
         argv = ["--image-extent=0,100,0,100"]
     elif case == "crs mismatch":

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st_
 
 from stepterrain.cli import main
 
@@ -242,3 +244,150 @@ def test_contour_base_far_from_the_heights_draws_the_same_lines(base, index_ever
     got = contour_layer(dem, interval=100.0, base=base, index_every=index_every, device="cpu").image
     assert 0.05 < want[..., 3].mean() < 0.5
     np.testing.assert_allclose(got, want, atol=1e-5)
+
+
+@pytest.mark.parametrize("options", [[], ["--shadows", "--occlusion", "0.5"], ["--contours", "20"]])
+def test_cli_texture_over_the_memory_budget_is_refused_before_the_shading(tmp_path, capsys, monkeypatch, options):
+    """A texture of one texel per DEM node whose layers' RGBA (22 bytes a node while it is checked) exceeds
+    --memory-budget, the DEM itself within it, was refused only once its hillshade, shadows and occlusion were computed
+    (minutes on a large DEM: the topographic layer's RGBA is checked as the texture is composed), as --texel-size's
+    texture is not: now once the DEM is loaded, before any work. A budget that holds it still writes the texture."""
+    from stepterrain import texture as tx
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((40, 50)).astype(np.float32) * 100)  # 8,000 bytes; RGBA 44,000
+    out = tmp_path / "t.png"
+    shade = tx.topographic_layer
+
+    def no_shading(*args, **kwargs):
+        raise AssertionError("the texture was shaded before the memory budget was checked")
+
+    monkeypatch.setattr(tx, "topographic_layer", no_shading)
+    code = main(["texture", str(dem), *options, "-o", str(out), "--device", "cpu", "--memory-budget", "30000"])
+    err = capsys.readouterr().err
+    assert code == 2 and "50 x 40 texel texture" in err and "over the memory budget of 30,000 bytes" in err, err
+    assert "--coarsen" in err and not out.exists()
+    monkeypatch.setattr(tx, "topographic_layer", shade)
+    assert main(["texture", str(dem), *options, "-o", str(out), "--device", "cpu", "-q", "--memory-budget",
+                 str(tx._RGBA_BYTES * 40 * 50)]) == 0
+    assert out.exists()
+
+
+def test_a_texel_size_of_astronomically_many_texels_is_refused_in_a_readable_line(tmp_path, capsys):
+    """--texel-size 1e-300 (and contour_layer's texel_size) was refused naming its texel counts digit by digit: a
+    300-digit number each way, an error line of 950 characters. Counts past 10^12 are written in floating point."""
+    from stepterrain import texture as tx
+    from stepterrain.errors import OutputTooLargeError
+
+    heights = np.random.default_rng(0).random((40, 50)).astype(np.float32) * 100
+    dem = tmp_path / "dem.npy"
+    np.save(dem, heights)
+    assert main(["texture", str(dem), "--texel-size", "1e-300", "-o", str(tmp_path / "t.png"), "--device", "cpu"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "the 5e+301 x 4e+301 texel texture of --texel-size 1e-300" in err and len(err) < 400, err
+    with pytest.raises(OutputTooLargeError, match=r"the 5e\+301 x 4e\+301 float32 RGBA contour layer") as info:
+        tx.contour_layer(heights, interval=10.0, texel_size=1e-300, device="cpu")
+    assert len(str(info.value)) < 400, info.value
+    # counts a budget can hold keep their digits
+    assert main(["texture", str(dem), "--texel-size", "0.001", "-o", str(tmp_path / "t.png"), "--device", "cpu"]) == 2
+    assert "the 50000 x 40000 texel texture" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("case", ["interval", "heightfield"])
+def test_cli_texture_drape_that_cannot_be_made_is_refused_before_the_shading(tmp_path, capsys, monkeypatch, case):
+    """--mesh on the stepped terrain of an --interval giving more levels than stepped takes, or on a heightfield mesh
+    over --memory-budget (the DEM and its texture within it), was refused only in the drape stage, once the texture's
+    hillshade, shadows and occlusion had been computed (minutes on a large DEM): now once the DEM is loaded, as steps
+    refuses its --interval, with the same error."""
+    from stepterrain import texture as tx
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((40, 50)).astype(np.float32) * 100)
+    mesh = tmp_path / "m.glb"
+    options = {"interval": ["--interval", "1e-5"], "heightfield": ["--memory-budget", "100000"]}[case]
+    shade = tx.topographic_layer
+
+    def no_shading(*args, **kwargs):
+        raise AssertionError("the texture was shaded before its drape was checked")
+
+    monkeypatch.setattr(tx, "topographic_layer", no_shading)
+    code = main(["texture", str(dem), "--shadows", "--occlusion", "0.5", *options, "--mesh", str(mesh), "--device",
+                 "cpu"])
+    err = capsys.readouterr().err
+    expected = {"interval": "levels; at most 1,000,000 are supported",
+                "heightfield": "the heightfield mesh of a 40 x 50 grid would need"}[case]
+    assert code == 2 and expected in err and "Traceback" not in err, err
+    assert not mesh.exists()
+    # what the checks let through is draped as before
+    monkeypatch.setattr(tx, "topographic_layer", shade)
+    fine = {"interval": ["--interval", "10"], "heightfield": ["--memory-budget", "400000"]}[case]
+    assert main(["texture", str(dem), "--shadows", *fine, "--mesh", str(mesh), "--device", "cpu", "-q"]) == 0
+    assert mesh.exists()
+
+
+@pytest.mark.parametrize("suffix", [".glb", ".ply"])
+@pytest.mark.parametrize("interval", [None, "10"])
+def test_cli_texture_mesh_that_cannot_be_written_is_refused_before_the_shading(tmp_path, capsys, monkeypatch, suffix,
+                                                                                interval):
+    """A --mesh whose writing needs more than --memory-budget (GLB's textured vertices, 120 bytes each, and PLY's
+    coloured ones: more than the heightfield mesh itself) was refused by save_mesh, after the texture was shaded and
+    draped. The DEM's surface, which the draped mesh has at least (exactly, on the heightfield), is now checked
+    against the writer's budget once the DEM is loaded; what fits is written as before."""
+    from stepterrain import export
+    from stepterrain import texture as tx
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((40, 50)).astype(np.float32) * 100)
+    mesh = tmp_path / f"m{suffix}"
+    per_vertex, per_face = export._WRITE_BYTES[suffix]
+    per_vertex += export._TEXTURE_WRITE_BYTES.get(suffix, 0)
+    need = per_vertex * 40 * 50 + per_face * 2 * 39 * 49  # the heightfield's vertices and faces
+    budget = need - 1
+    assert budget > 144 * 40 * 50  # terrain.mesh()'s own budget holds it
+    shade = tx.topographic_layer
+
+    def no_shading(*args, **kwargs):
+        raise AssertionError("the texture was shaded before the --mesh's writing was checked")
+
+    monkeypatch.setattr(tx, "topographic_layer", no_shading)
+    options = [] if interval is None else ["--interval", interval]
+    code = main(["texture", str(dem), "--shadows", *options, "--mesh", str(mesh), "--memory-budget", str(budget),
+                 "--device", "cpu"])
+    err = capsys.readouterr().err
+    assert code == 2 and f"writing '{mesh}' ({suffix}, a mesh of " in err and "3,822 faces" in err, err
+    assert not mesh.exists()
+    # what save_mesh writes within the budget is not refused early: a budget of exactly the draped mesh's own need
+    # (the heightfield's, or the stepped mesh's, more than the DEM's surface) writes it
+    monkeypatch.setattr(tx, "topographic_layer", shade)
+    if interval is not None:
+        import stepterrain as st
+
+        stepped = st.stepped(np.load(dem), interval=float(interval), device="cpu")
+        need = per_vertex * len(stepped.vertices) + per_face * len(stepped.faces)
+    assert main(["texture", str(dem), "--shadows", *options, "--mesh", str(mesh), "--memory-budget", str(need),
+                 "--device", "cpu", "-q"]) == 0
+    assert mesh.exists()
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st_.integers(0, 2**32 - 1), ties=st_.booleans(), holes=st_.floats(0.0, 0.5), flat=st_.booleans(),
+       interval=st_.sampled_from([5.0, 10.0, 25.0, 200.0]))
+def test_a_stepped_mesh_has_at_least_the_dems_surface(seed, ties, holes, flat, interval):
+    """texture --mesh --interval (and steps --png) refuse before stepping by the DEM's surface (grid_surface_counts:
+    a vertex per node a triangle with three finite heights uses, a face per such triangle), the fewest the stepped
+    mesh has: a lower bound, which must never exceed the stepped mesh's counts, or a write that fits would be
+    refused. Heights on the levels, flat patches and nodata holes included."""
+    import stepterrain as st
+    from stepterrain.terrain import grid_surface_counts
+
+    rng = np.random.default_rng(seed)
+    heights = (rng.random((12, 15)) * 100).astype(np.float32)
+    if ties:  # many heights exactly on a level
+        heights = np.round(heights / interval) * interval
+    if flat:
+        heights[2:10, 3:12] = 40.0
+    heights[rng.random(heights.shape) < holes] = np.nan
+    terrain = st.Terrain.from_heights(heights)
+    mesh = st.stepped(terrain, interval=interval, device="cpu")
+    vertices, faces = grid_surface_counts(terrain.heights, terrain.has_nodata)
+    assert len(mesh.vertices) >= vertices and len(mesh.faces) >= faces
