@@ -3404,6 +3404,13 @@ def _encoded_image(image: Any, *, fill: bool = True) -> _EncodedImage:
     of that colour along the edge of its opaque ones (magenta under a world map's transparent polar caps)."""
     if image.format == "JPEG":
         return _EncodedImage(_jpeg_data(image), "JPEG")
+    if fill and image.mode in _TRANSPARENT_COLOUR_MODES and "transparency" in image.info:
+        # a palette's transparent index or an L or RGB PNG's transparent colour (tRNS): alpha without an alpha band,
+        # whose texels of alpha 0 hold that one colour (magenta, say), which viewers filter into their opaque
+        # neighbours' edge as they do an RGBA texture's garbage; written as LA or RGBA, filled, when some texel is it
+        with_alpha = image.convert(_TRANSPARENT_COLOUR_MODES[image.mode])
+        if _has_alpha_hole(with_alpha):
+            image = with_alpha
     # the alpha's extrema read by Pillow first: an opaque texture (the common case, every OBJ side image's) is not
     # copied whole into a NumPy array (a 21600 x 10800's 0.9 GB, and 0.2 GB for the mask of its holes) to find none
     if fill and image.mode in ("RGBA", "LA") and _has_alpha_hole(image):
@@ -3416,6 +3423,12 @@ def _encoded_image(image: Any, *, fill: bool = True) -> _EncodedImage:
         if filled is not pixels:
             image = Image.fromarray(filled, image.mode)
     return _EncodedImage(_png_data(image), "PNG")
+
+
+#: PIL modes whose PNG holds alpha as a transparent colour (``info["transparency"]``: a palette's transparent index
+#: or alpha per entry, an L or RGB image's transparent grey or colour), and the mode with an alpha band each is
+#: filled in (:func:`_encoded_image`).
+_TRANSPARENT_COLOUR_MODES = {"P": "RGBA", "L": "LA", "RGB": "RGBA", "1": "LA"}
 
 
 def _has_alpha_hole(image: Any) -> bool:
