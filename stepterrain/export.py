@@ -3393,17 +3393,24 @@ def _encoded_textures(material: Any) -> None:
         if not isinstance(image, Image.Image):
             continue
         fill = slot == "baseColorTexture" and getattr(material, "alphaMode", None) in ("MASK", "BLEND")
-        setattr(material, slot, _encoded_image(image, fill=fill))
+        setattr(material, slot, _encoded_image(image, fill=fill, profile=False))
 
 
-def _encoded_image(image: Any, *, fill: bool = True) -> _EncodedImage:
+def _encoded_image(image: Any, *, fill: bool = True, profile: bool = True) -> _EncodedImage:
     """A PIL image as an :class:`_EncodedImage`: one opened from a JPEG as JPEG bytes (:func:`_jpeg_data`), any other
     as PNG bytes (:func:`_png_data`), with ``fill`` the colour of its transparent texels (alpha 0) that of the opaque
     ones near them (:func:`~stepterrain.io.fill_transparent`): a viewer's bilinear filter and mipmaps blend straight
     colour, and the garbage under a texture's transparent texels (`gdalwarp -dstalpha`'s nodata) showed as a fringe
-    of that colour along the edge of its opaque ones (magenta under a world map's transparent polar caps)."""
+    of that colour along the edge of its opaque ones (magenta under a world map's transparent polar caps).
+
+    The PNG keeps the image's ICC profile with ``profile`` (an OBJ's side image: the filled texels' colours are
+    those of opaque ones in the same colour space, and the filled image lost it), and carries none without (a glTF's
+    texture: glTF 2.0 §3.8.3 says images SHOULD NOT embed ICC profiles, which clients MUST ignore, and the Khronos
+    validator warns of a PNG with an iCCP chunk, IMAGE_FEATURES_UNSUPPORTED). A JPEG's bytes are kept as they are:
+    the validator takes its ICC profile."""
     if image.format == "JPEG":
         return _EncodedImage(_jpeg_data(image), "JPEG")
+    icc = image.info.get("icc_profile") if profile else None
     if fill and image.mode in _TRANSPARENT_COLOUR_MODES and "transparency" in image.info:
         # a palette's transparent index or an L or RGB PNG's transparent colour (tRNS): alpha without an alpha band,
         # whose texels of alpha 0 hold that one colour (magenta, say), which viewers filter into their opaque
@@ -3422,7 +3429,7 @@ def _encoded_image(image: Any, *, fill: bool = True) -> _EncodedImage:
         filled = fill_transparent(pixels)
         if filled is not pixels:
             image = Image.fromarray(filled, image.mode)
-    return _EncodedImage(_png_data(image), "PNG")
+    return _EncodedImage(_png_data(image, icc), "PNG")
 
 
 #: PIL modes whose PNG holds alpha as a transparent colour (``info["transparency"]``: a palette's transparent index
@@ -3438,14 +3445,15 @@ def _has_alpha_hole(image: Any) -> bool:
     return low == 0 < high
 
 
-def _png_data(image: Any) -> bytes:
-    """A PIL image as PNG bytes, as :func:`save_image` writes it (:func:`_png_options`): the bytes of the large PNG it
-    last wrote when that holds the same pixels (:func:`_written_png`), else encoded here."""
+def _png_data(image: Any, icc_profile: bytes | None = None) -> bytes:
+    """A PIL image as PNG bytes, as :func:`save_image` writes it (:func:`_png_options`), with the ICC profile
+    ``icc_profile`` or none (whatever the image's ``info`` holds): the bytes of the large PNG it last wrote when
+    that holds the same pixels (:func:`_written_png`), else encoded here."""
     options = _png_options(image)
-    data = _written_png(image) if options else None
+    data = _written_png(image) if options and icc_profile is None else None
     if data is None:
         buffer = io.BytesIO()
-        image.save(buffer, format="PNG", **options)
+        image.save(buffer, format="PNG", icc_profile=icc_profile, **options)
         data = buffer.getvalue()
     return data
 

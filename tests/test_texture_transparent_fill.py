@@ -240,3 +240,35 @@ def test_a_transparent_colour_no_texel_uses_is_written_as_it_is(tmp_path):
     with Image.open(tmp_path / "box_material_0.png") as written:
         assert written.mode == "P"
         np.testing.assert_array_equal(np.asarray(written), index)
+
+
+@pytest.mark.parametrize("holes", [False, True])
+def test_a_textures_icc_profile_is_dropped_in_gltf_and_kept_in_an_objs_side_image(tmp_path, holes):
+    """glTF 2.0 §3.8.3 says images SHOULD NOT embed ICC profiles (clients MUST ignore them), and the Khronos validator
+    warns of a PNG that carries some (IMAGE_FEATURES_UNSUPPORTED): an ICC-tagged PNG texture went into the GLB with
+    its profile, where one with transparent texels (filled, so re-encoded) lost it. The GLB's PNG now never carries
+    one; an OBJ's side image, an image file like any other, keeps it whether filled or not."""
+    from PIL import ImageCms
+
+    from . import gltf_validator
+
+    profile = ImageCms.ImageCmsProfile(ImageCms.createProfile("sRGB")).tobytes()
+    pixels = _world()
+    if not holes:
+        pixels[..., 3] = 255
+    Image.fromarray(pixels, "RGBA").save(tmp_path / "texture.png", icc_profile=profile)
+    mesh = _textured_box(Image.open(tmp_path / "texture.png"))
+    export.save_mesh(mesh, tmp_path / "box.glb")
+    export.save_mesh(mesh, tmp_path / "box.obj")
+    data = (tmp_path / "box.glb").read_bytes()
+    n = struct.unpack("<I", data[12:16])[0]
+    doc = json.loads(data[20:20 + n])
+    view = doc["bufferViews"][doc["images"][0]["bufferView"]]
+    start = 20 + n + 8 + view.get("byteOffset", 0)
+    with Image.open(io.BytesIO(data[start:start + view["byteLength"]])) as embedded:
+        assert "icc_profile" not in embedded.info
+    with Image.open(tmp_path / "box_material_0.png") as side:
+        assert side.info.get("icc_profile") == profile
+        assert (np.asarray(side)[..., :3] == MAGENTA).all(axis=-1).any() == (not holes)  # opaque caps, or filled
+    if gltf_validator.available()[0]:
+        assert gltf_validator.problems(gltf_validator.validate([tmp_path / "box.glb"])) == []
