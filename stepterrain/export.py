@@ -1031,7 +1031,8 @@ def save_image(
         The GeoTIFF's coordinate reference system, anything rasterio reads ("EPSG:32611", a PROJ string,
         WKT): a terrain's ``crs``. Needs ``extent``. One that GeoTIFF's keys cannot hold (a rotated pole,
         ``+proj=ob_tran``) goes into ``<path>.aux.xml`` beside it, which GDAL reads with the image; an image written
-        over one removes the ``.aux.xml`` it has no use for.
+        over one removes the ``.aux.xml`` it has no use for. So does a PNG or plain TIFF: an old ``<path>.aux.xml``
+        (an earlier GeoTIFF's, GDAL's of a PNG it wrote) would give it the old image's CRS, placement and nodata.
 
     Returns
     -------
@@ -1102,17 +1103,34 @@ def _save_image(image: ArrayLike, path: str | os.PathLike[str], *, extent: Any =
     picture = Image.fromarray(pixels)  # uint8 (H, W, 3|4) -> RGB or RGBA
     _check_owner([target], target)
     stamp, options = None, _png_options(picture)
-    with atomic_path(target) as tmp:
-        try:
-            if suffix == ".png":
-                picture.save(tmp, format="PNG", **options)
-            else:
-                picture.save(tmp, format="TIFF", compression="tiff_deflate")
-        except OSError as exc:
-            raise DataFileError(f"cannot write {str(target)!r}: {exc}") from exc
-        if suffix == ".png" and reused and options:  # a large one: a glTF of it takes its bytes
+    # an old <image>.aux.xml (GDAL's side file of an earlier GeoTIFF or GDAL write of this name: CRS, geotransform,
+    # nodata) stayed, and GDAL read the new image with it; it goes aside just before the image's rename, as a
+    # GeoTIFF's does (_save_geotiff), and is removed once the image is in place (back if the rename fails)
+    own_aux = _link_target(target)
+    own_aux = own_aux.with_name(own_aux.name + ".aux.xml")
+    aside: Path | None = None
+    placed = False
+    try:
+        with atomic_path(target) as tmp:
+            try:
+                if suffix == ".png":
+                    picture.save(tmp, format="PNG", **options)
+                else:
+                    picture.save(tmp, format="TIFF", compression="tiff_deflate")
+            except OSError as exc:
+                raise DataFileError(f"cannot write {str(target)!r}: {exc}") from exc
+            if suffix == ".png" and reused and options:  # a large one: a glTF of it takes its bytes
+                with contextlib.suppress(OSError):
+                    stamp = _file_stamp(tmp)  # the bytes written, before the rename (see _LAST_PNG)
+            aside = _set_aside(own_aux, target)
+        placed = True
+    finally:
+        if aside is not None:
             with contextlib.suppress(OSError):
-                stamp = _file_stamp(tmp)  # the bytes written, before the rename (see _LAST_PNG)
+                if placed:
+                    os.unlink(aside)
+                else:
+                    os.replace(aside, own_aux)
     _record_owner([target], target)
     if stamp is not None:
         _LAST_PNG[:] = [(_pixels_digest(picture, pixels), target.absolute(), stamp)]

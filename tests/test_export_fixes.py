@@ -2610,3 +2610,57 @@ def test_a_geotiff_whose_crs_needs_a_side_file_its_name_leaves_no_room_for_is_re
     with rasterio.open(path) as dataset:
         assert dataset.crs == CRS.from_epsg(4326)
         assert np.array_equal(np.moveaxis(dataset.read(), 0, 2), old)
+
+
+def _gdal_pair(path, old: np.ndarray) -> bytes:
+    """``old`` written at ``path`` (PNG or TIFF) by GDAL with a CRS, a geotransform and a nodata value, which GDAL
+    keeps for a PNG (and for a TIFF's ob_tran CRS) in ``<path>.aux.xml``; that side file's bytes."""
+    rasterio = pytest.importorskip("rasterio")
+
+    driver = "PNG" if path.suffix == ".png" else "GTiff"
+    crs = "EPSG:4326" if driver == "PNG" else _ROTATED
+    with rasterio.open(path, "w", driver=driver, width=old.shape[1], height=old.shape[0], count=3, dtype="uint8",
+                       crs=crs, transform=rasterio.Affine(0.5, 0, 5, 0, -0.5, 50), nodata=40) as dataset:
+        dataset.write(np.moveaxis(old, 2, 0))
+    aux = path.with_name(path.name + ".aux.xml")
+    assert aux.exists()
+    return aux.read_bytes()
+
+
+@pytest.mark.parametrize("name", ["layer.png", "layer.tif"])
+def test_an_image_written_without_extent_removes_the_old_aux_xml_gdal_would_pair_with_it(tmp_path, monkeypatch,
+                                                                                          name):
+    """A PNG or plain TIFF written over a GDAL-written image (a GeoTIFF whose CRS went into ``.aux.xml``, a PNG whose
+    CRS, geotransform and nodata did) left that side file in place, and GDAL read the new image with the old one's
+    CRS, placement and nodata. It goes, as a GeoTIFF's old side file goes (and as GDAL removes it when it makes a
+    file): set aside just before the image's rename, and back beside the old image when the rename fails."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.errors import NotGeoreferencedWarning
+
+    path = tmp_path / name
+    aux = tmp_path / (name + ".aux.xml")
+    old = np.full((6, 9, 3), 40, np.uint8)
+    old_aux = _gdal_pair(path, old)
+    old_image = path.read_bytes()
+    new = np.full((6, 9, 3), 200, np.uint8)
+    real_replace = os.replace
+    seen: list[bool] = []
+
+    def replace(src, dst, **kwargs):
+        if os.fspath(dst) == str(path):
+            seen.append(aux.exists())
+            raise OSError(errno.EIO, "Input/output error")
+        return real_replace(src, dst, **kwargs)
+
+    monkeypatch.setattr(os, "replace", replace)
+    with pytest.raises(DataFileError, match="Input/output error"):
+        save_image(new, path)
+    monkeypatch.undo()
+    assert seen == [False]  # the old side file was not beside either image when the image changed
+    assert sorted(os.listdir(tmp_path)) == sorted([name, aux.name])
+    assert path.read_bytes() == old_image and aux.read_bytes() == old_aux
+    save_image(new, path)
+    assert os.listdir(tmp_path) == [name]
+    with pytest.warns(NotGeoreferencedWarning), rasterio.open(path) as dataset:
+        assert dataset.crs is None and dataset.transform.is_identity and dataset.nodata is None
+        assert np.array_equal(np.moveaxis(dataset.read(), 0, 2), new)
