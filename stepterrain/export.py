@@ -370,7 +370,9 @@ def save_mesh(
         (:func:`~stepterrain.pyvista_accessor.from_polydata`: colours, level/wall, metadata kept). ``face_attributes``
         (e.g. ``level``, ``wall`` of :func:`~stepterrain.stepped`) and ``vertex_attributes`` (numeric (N,) or (N, k)
         arrays) are kept by ``.ply`` only, as properties of its face and vertex elements (a bool as uchar 0/1, named
-        in a header comment so that :func:`read_mesh` gives it back as bool); glTF, OBJ, STL and 3MF drop them.
+        in a header comment so that :func:`read_mesh` gives it back as bool; a 64-bit integer as int or uint when
+        it fits 32 bits, else as double, with a warning when that rounds values beyond 2**53); glTF, OBJ, STL and
+        3MF drop them.
         Vertex colours (RGBA bytes) are kept by ``.glb``/``.gltf``, ``.ply`` and ``.3mf``, by ``.obj`` without their
         alpha (its ``v x y z r g b`` lines hold RGB), and dropped by ``.stl``. Face colours are kept by ``.ply``
         (the face element's red, green, blue, alpha) and ``.3mf`` (each triangle's colour); ``.glb``/``.gltf`` and
@@ -3254,6 +3256,7 @@ def _ply_columns(
             word = "a_" + word
         array = _ply_compatible(np.asarray(values))
         array = array.astype(array.dtype.newbyteorder("<"), copy=False)
+        _warn_rounded_integers(np.asarray(values), array, name)
         names = [word] if array.ndim == 1 else [f"{word}_{k}" for k in range(array.shape[1])]
         suffix, tries = "", 0
         while any(n + suffix in used for n in names):  # _attr, _attr2, _attr3 ...
@@ -3275,6 +3278,24 @@ def _ply_columns(
                       f"end_header (which ends the header for some readers): wrote {', '.join(renamed)}",
                       stacklevel=caller_stacklevel())
     return columns
+
+
+def _warn_rounded_integers(values: NDArray[Any], written: NDArray[Any], name: Any) -> None:
+    """A warning when the 64-bit integer attribute ``values`` is ``written`` as double (:func:`_ply_compatible`: PLY
+    has no 64-bit integer type) and some of them lie beyond 2**53, where doubles do not hold every integer: they
+    came back changed (2**53 + 1 as 2**53) without a word."""
+    if values.dtype.kind not in "iu" or written.dtype.kind != "f" or not values.size:
+        return
+    beyond = values > 2**53 if values.dtype.kind == "u" else (values > 2**53) | (values < -(2**53))
+    if not beyond.any():
+        return
+    with np.errstate(invalid="ignore"):  # 2**63 - 1 is written as 2**63, beyond int64: changed, whatever its cast
+        changed = int(np.count_nonzero(written[beyond].astype(values.dtype) != values[beyond]))
+    if changed:
+        warnings.warn(f"PLY has no 64-bit integer type: attribute {name!r} ({values.dtype}, beyond 32 bits) is written "
+                      f"as double, which holds integers exactly only within ±2**53; {changed} of its {values.size} "
+                      "values are rounded (read back changed): give them as two 32-bit columns, or write them "
+                      "elsewhere", stacklevel=caller_stacklevel())
 
 
 #: What a ``metadata`` value may be, in the message that refuses another.

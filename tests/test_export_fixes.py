@@ -2664,3 +2664,30 @@ def test_an_image_written_without_extent_removes_the_old_aux_xml_gdal_would_pair
     with pytest.warns(NotGeoreferencedWarning), rasterio.open(path) as dataset:
         assert dataset.crs is None and dataset.transform.is_identity and dataset.nodata is None
         assert np.array_equal(np.moveaxis(dataset.read(), 0, 2), new)
+
+
+@pytest.mark.parametrize("dtype", [np.int64, np.uint64])
+@pytest.mark.parametrize("element", ["vertex", "face"])
+def test_a_ply_64_bit_integer_attribute_that_double_rounds_is_warned_of(tmp_path, dtype, element):
+    """PLY has no 64-bit integer type: a 64-bit attribute beyond 32 bits is written as double, which holds integers
+    exactly only up to 2**53. Beyond that its values came back changed without a word (an ID of 2**53 + 1 read as
+    2**53); the write now warns, naming the attribute and how many values it rounds. One within 2**53 is exact and
+    written without a warning."""
+    import warnings
+
+    mesh = trimesh.creation.icosphere(subdivisions=1)
+    count = len(mesh.vertices) if element == "vertex" else len(mesh.faces)
+    attributes = mesh.vertex_attributes if element == "vertex" else mesh.face_attributes
+    exact = np.arange(count, dtype=dtype) + dtype(2**52)
+    attributes["ids"] = exact
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        back = read_mesh(save_mesh(mesh, tmp_path / "exact.ply"))
+    got = (back.vertex_attributes if element == "vertex" else back.face_attributes)["ids"]
+    assert np.array_equal(got.astype(dtype), exact)
+    rounded = exact + dtype(2**53)  # odd values round to even doubles
+    attributes["ids"] = rounded
+    with pytest.warns(UserWarning, match=rf"'ids' .*2\*\*53.* {count // 2} of its {count} values"):
+        back = read_mesh(save_mesh(mesh, tmp_path / "rounded.ply"))
+    got = (back.vertex_attributes if element == "vertex" else back.face_attributes)["ids"]
+    assert (got.astype(dtype) != rounded).sum() == count // 2
