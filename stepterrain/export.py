@@ -439,7 +439,8 @@ def save_mesh(
         JSON (a set, bytes, an object; the message names its key) or a key that is not a string, or a texture
         written (``.glb``, ``.gltf``, ``.obj``) has texture coordinates that are not one finite (u, v) per vertex, an
         image without texture coordinates, an image given as an array that is not (H, W), (H, W, 3) or (H, W, 4)
-        uint8, or a palette image whose palette lacks colours its pixels use (``Image.new("P", ...)``'s is empty).
+        uint8, a palette image whose palette lacks colours its pixels use (``Image.new("P", ...)``'s is empty), or
+        an image of no pixels.
     DataFileError
         The target folder cannot be created or written, or a textured OBJ's side file would replace another
         output this process wrote (see Notes).
@@ -1834,8 +1835,8 @@ def _pil_textures(material: Any) -> None:
     stays a JPEG. A CMYK (or other non-RGB colour space) image is converted to RGB, and a palette one with alpha
     (PA) to RGBA: PNG cannot hold them (a DataFileError, as if the file were at fault) and a CMYK JPEG is no glTF
     texture. An image of 32-bit integers or floats (mode I or F: a GeoTIFF of heights opened as the texture) is
-    refused, before any file is made: it was the same DataFileError, once the folder was made. So is a palette image
-    whose palette lacks colours its pixels use (:func:`_palette_shortfall`)."""
+    refused, before any file is made: it was the same DataFileError, once the folder was made. So are a palette image
+    whose palette lacks colours its pixels use (:func:`_palette_shortfall`) and an image of no pixels."""
     from PIL import Image
 
     slots = next((names for kind, names in _TEXTURE_SLOTS if isinstance(material, kind)), ())
@@ -1843,6 +1844,8 @@ def _pil_textures(material: Any) -> None:
         image = getattr(material, slot, None)
         if image is None:
             continue
+        if isinstance(image, Image.Image):
+            _check_texture_pixels(image, slot)
         if not isinstance(image, Image.Image):
             array = np.asarray(image)
             if array.ndim == 3 and array.shape[2] == 1:
@@ -1853,6 +1856,7 @@ def _pil_textures(material: Any) -> None:
                     f"array; got {type(image).__name__} of dtype {array.dtype} and shape {array.shape}"
                 )
             image = Image.fromarray(np.ascontiguousarray(array))
+            _check_texture_pixels(image, slot)
         elif image.mode in ("P", "PA") and (shortfall := _palette_shortfall(image)) is not None:
             colours, top = shortfall
             raise InvalidInputError(
@@ -1874,6 +1878,15 @@ def _pil_textures(material: Any) -> None:
         else:
             continue
         setattr(material, slot, image)
+
+
+def _check_texture_pixels(image: Any, slot: str) -> None:
+    """An InvalidInputError naming its ``slot`` for a PIL texture ``image`` with a side of 0 pixels
+    (:func:`_pil_textures`): Pillow's writer raised a bare ValueError ("cannot write empty image") once the folder
+    was made."""
+    if 0 in image.size:
+        raise InvalidInputError(f"mesh texture image ({slot}) must have at least 1 x 1 pixels; got {image.width} x "
+                                f"{image.height}")
 
 
 def _palette_shortfall(image: Any) -> tuple[int, int] | None:

@@ -2691,3 +2691,19 @@ def test_a_ply_64_bit_integer_attribute_that_double_rounds_is_warned_of(tmp_path
         back = read_mesh(save_mesh(mesh, tmp_path / "rounded.ply"))
     got = (back.vertex_attributes if element == "vertex" else back.face_attributes)["ids"]
     assert (got.astype(dtype) != rounded).sum() == count // 2
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf", ".obj"])
+@pytest.mark.parametrize("make", [lambda: Image.new("RGB", (0, 5)), lambda: np.zeros((4, 0, 3), np.uint8)],
+                         ids=["pil", "array"])
+def test_a_texture_image_of_no_pixels_is_refused_by_name_before_any_file_is_made(tmp_path, ext, make):
+    """A texture image with a side of 0 pixels (a PIL image, or a (0, W, 3) uint8 array, which the array check took)
+    raised Pillow's bare ValueError ("cannot write empty image") from inside the writer, after the folder was made.
+    It is an InvalidInputError naming the image and its size, before anything is written."""
+    mesh = trimesh.creation.box()
+    uv = np.random.default_rng(0).random((len(mesh.vertices), 2))
+    mesh.visual = trimesh.visual.TextureVisuals(uv=uv, image=make())
+    with pytest.raises(InvalidInputError, match=r"mesh texture image \(image\) must have at least 1 x 1 pixels; got "
+                                                r"(0 x 5|0 x 4)"):
+        save_mesh(mesh, tmp_path / "out" / f"t{ext}")
+    assert list(tmp_path.iterdir()) == []
