@@ -370,7 +370,9 @@ def save_mesh(
         (:func:`~stepterrain.pyvista_accessor.from_polydata`: colours, level/wall, metadata kept). ``face_attributes``
         (e.g. ``level``, ``wall`` of :func:`~stepterrain.stepped`) and ``vertex_attributes`` (numeric (N,) or (N, k)
         arrays) are kept by ``.ply`` only, as properties of its face and vertex elements (a bool as uchar 0/1, named
-        in a header comment so that :func:`read_mesh` gives it back as bool); glTF, OBJ, STL and 3MF drop them.
+        in a header comment so that :func:`read_mesh` gives it back as bool; a 64-bit integer as int or uint when
+        it fits 32 bits, else as double, with a warning when that rounds values beyond 2**53); glTF, OBJ, STL and
+        3MF drop them.
         Vertex colours (RGBA bytes) are kept by ``.glb``/``.gltf``, ``.ply`` and ``.3mf``, by ``.obj`` without their
         alpha (its ``v x y z r g b`` lines hold RGB), and dropped by ``.stl``. Face colours are kept by ``.ply``
         (the face element's red, green, blue, alpha) and ``.3mf`` (each triangle's colour); ``.glb``/``.gltf`` and
@@ -437,7 +439,8 @@ def save_mesh(
         JSON (a set, bytes, an object; the message names its key) or a key that is not a string, or a texture
         written (``.glb``, ``.gltf``, ``.obj``) has texture coordinates that are not one finite (u, v) per vertex, an
         image without texture coordinates, an image given as an array that is not (H, W), (H, W, 3) or (H, W, 4)
-        uint8, or a palette image whose palette lacks colours its pixels use (``Image.new("P", ...)``'s is empty).
+        uint8, a palette image whose palette lacks colours its pixels use (``Image.new("P", ...)``'s is empty), or
+        an image of no pixels.
     DataFileError
         The target folder cannot be created or written, or a textured OBJ's side file would replace another
         output this process wrote (see Notes).
@@ -1038,7 +1041,8 @@ def save_image(
         The GeoTIFF's coordinate reference system, anything rasterio reads ("EPSG:32611", a PROJ string,
         WKT): a terrain's ``crs``. Needs ``extent``. One that GeoTIFF's keys cannot hold (a rotated pole,
         ``+proj=ob_tran``) goes into ``<path>.aux.xml`` beside it, which GDAL reads with the image; an image written
-        over one removes the ``.aux.xml`` it has no use for.
+        over one removes the ``.aux.xml`` it has no use for. So does a PNG or plain TIFF: an old ``<path>.aux.xml``
+        (an earlier GeoTIFF's, GDAL's of a PNG it wrote) would give it the old image's CRS, placement and nodata.
 
     Returns
     -------
@@ -1109,17 +1113,34 @@ def _save_image(image: ArrayLike, path: str | os.PathLike[str], *, extent: Any =
     picture = Image.fromarray(pixels)  # uint8 (H, W, 3|4) -> RGB or RGBA
     _check_owner([target], target)
     stamp, options = None, _png_options(picture)
-    with atomic_path(target) as tmp:
-        try:
-            if suffix == ".png":
-                picture.save(tmp, format="PNG", **options)
-            else:
-                picture.save(tmp, format="TIFF", compression="tiff_deflate")
-        except OSError as exc:
-            raise DataFileError(f"cannot write {str(target)!r}: {exc}") from exc
-        if suffix == ".png" and reused and options:  # a large one: a glTF of it takes its bytes
+    # an old <image>.aux.xml (GDAL's side file of an earlier GeoTIFF or GDAL write of this name: CRS, geotransform,
+    # nodata) stayed, and GDAL read the new image with it; it goes aside just before the image's rename, as a
+    # GeoTIFF's does (_save_geotiff), and is removed once the image is in place (back if the rename fails)
+    own_aux = _link_target(target)
+    own_aux = own_aux.with_name(own_aux.name + ".aux.xml")
+    aside: Path | None = None
+    placed = False
+    try:
+        with atomic_path(target) as tmp:
+            try:
+                if suffix == ".png":
+                    picture.save(tmp, format="PNG", **options)
+                else:
+                    picture.save(tmp, format="TIFF", compression="tiff_deflate")
+            except OSError as exc:
+                raise DataFileError(f"cannot write {str(target)!r}: {exc}") from exc
+            if suffix == ".png" and reused and options:  # a large one: a glTF of it takes its bytes
+                with contextlib.suppress(OSError):
+                    stamp = _file_stamp(tmp)  # the bytes written, before the rename (see _LAST_PNG)
+            aside = _set_aside(own_aux, target)
+        placed = True
+    finally:
+        if aside is not None:
             with contextlib.suppress(OSError):
-                stamp = _file_stamp(tmp)  # the bytes written, before the rename (see _LAST_PNG)
+                if placed:
+                    os.unlink(aside)
+                else:
+                    os.replace(aside, own_aux)
     _record_owner([target], target)
     if stamp is not None:
         _LAST_PNG[:] = [(_pixels_digest(picture, pixels), target.absolute(), stamp)]
@@ -1821,8 +1842,8 @@ def _pil_textures(material: Any) -> None:
     stays a JPEG. A CMYK (or other non-RGB colour space) image is converted to RGB, and a palette one with alpha
     (PA) to RGBA: PNG cannot hold them (a DataFileError, as if the file were at fault) and a CMYK JPEG is no glTF
     texture. An image of 32-bit integers or floats (mode I or F: a GeoTIFF of heights opened as the texture) is
-    refused, before any file is made: it was the same DataFileError, once the folder was made. So is a palette image
-    whose palette lacks colours its pixels use (:func:`_palette_shortfall`)."""
+    refused, before any file is made: it was the same DataFileError, once the folder was made. So are a palette image
+    whose palette lacks colours its pixels use (:func:`_palette_shortfall`) and an image of no pixels."""
     from PIL import Image
 
     slots = next((names for kind, names in _TEXTURE_SLOTS if isinstance(material, kind)), ())
@@ -1830,6 +1851,8 @@ def _pil_textures(material: Any) -> None:
         image = getattr(material, slot, None)
         if image is None:
             continue
+        if isinstance(image, Image.Image):
+            _check_texture_pixels(image, slot)
         if not isinstance(image, Image.Image):
             array = np.asarray(image)
             if array.ndim == 3 and array.shape[2] == 1:
@@ -1840,6 +1863,7 @@ def _pil_textures(material: Any) -> None:
                     f"array; got {type(image).__name__} of dtype {array.dtype} and shape {array.shape}"
                 )
             image = Image.fromarray(np.ascontiguousarray(array))
+            _check_texture_pixels(image, slot)
         elif image.mode in ("P", "PA") and (shortfall := _palette_shortfall(image)) is not None:
             colours, top = shortfall
             raise InvalidInputError(
@@ -1861,6 +1885,15 @@ def _pil_textures(material: Any) -> None:
         else:
             continue
         setattr(material, slot, image)
+
+
+def _check_texture_pixels(image: Any, slot: str) -> None:
+    """An InvalidInputError naming its ``slot`` for a PIL texture ``image`` with a side of 0 pixels
+    (:func:`_pil_textures`): Pillow's writer raised a bare ValueError ("cannot write empty image") once the folder
+    was made."""
+    if 0 in image.size:
+        raise InvalidInputError(f"mesh texture image ({slot}) must have at least 1 x 1 pixels; got {image.width} x "
+                                f"{image.height}")
 
 
 def _palette_shortfall(image: Any) -> tuple[int, int] | None:
@@ -3243,6 +3276,7 @@ def _ply_columns(
             word = "a_" + word
         array = _ply_compatible(np.asarray(values))
         array = array.astype(array.dtype.newbyteorder("<"), copy=False)
+        _warn_rounded_integers(np.asarray(values), array, name)
         names = [word] if array.ndim == 1 else [f"{word}_{k}" for k in range(array.shape[1])]
         suffix, tries = "", 0
         while any(n + suffix in used for n in names):  # _attr, _attr2, _attr3 ...
@@ -3264,6 +3298,24 @@ def _ply_columns(
                       f"end_header (which ends the header for some readers): wrote {', '.join(renamed)}",
                       stacklevel=caller_stacklevel())
     return columns
+
+
+def _warn_rounded_integers(values: NDArray[Any], written: NDArray[Any], name: Any) -> None:
+    """A warning when the 64-bit integer attribute ``values`` is ``written`` as double (:func:`_ply_compatible`: PLY
+    has no 64-bit integer type) and some of them lie beyond 2**53, where doubles do not hold every integer: they
+    came back changed (2**53 + 1 as 2**53) without a word."""
+    if values.dtype.kind not in "iu" or written.dtype.kind != "f" or not values.size:
+        return
+    beyond = values > 2**53 if values.dtype.kind == "u" else (values > 2**53) | (values < -(2**53))
+    if not beyond.any():
+        return
+    with np.errstate(invalid="ignore"):  # 2**63 - 1 is written as 2**63, beyond int64: changed, whatever its cast
+        changed = int(np.count_nonzero(written[beyond].astype(values.dtype) != values[beyond]))
+    if changed:
+        warnings.warn(f"PLY has no 64-bit integer type: attribute {name!r} ({values.dtype}, beyond 32 bits) is written "
+                      f"as double, which holds integers exactly only within ±2**53; {changed} of its {values.size} "
+                      "values are rounded (read back changed): give them as two 32-bit columns, or write them "
+                      "elsewhere", stacklevel=caller_stacklevel())
 
 
 #: What a ``metadata`` value may be, in the message that refuses another.
@@ -3400,17 +3452,31 @@ def _encoded_textures(material: Any) -> None:
         if not isinstance(image, Image.Image):
             continue
         fill = slot == "baseColorTexture" and getattr(material, "alphaMode", None) in ("MASK", "BLEND")
-        setattr(material, slot, _encoded_image(image, fill=fill))
+        setattr(material, slot, _encoded_image(image, fill=fill, profile=False))
 
 
-def _encoded_image(image: Any, *, fill: bool = True) -> _EncodedImage:
+def _encoded_image(image: Any, *, fill: bool = True, profile: bool = True) -> _EncodedImage:
     """A PIL image as an :class:`_EncodedImage`: one opened from a JPEG as JPEG bytes (:func:`_jpeg_data`), any other
     as PNG bytes (:func:`_png_data`), with ``fill`` the colour of its transparent texels (alpha 0) that of the opaque
     ones near them (:func:`~stepterrain.io.fill_transparent`): a viewer's bilinear filter and mipmaps blend straight
     colour, and the garbage under a texture's transparent texels (`gdalwarp -dstalpha`'s nodata) showed as a fringe
-    of that colour along the edge of its opaque ones (magenta under a world map's transparent polar caps)."""
+    of that colour along the edge of its opaque ones (magenta under a world map's transparent polar caps).
+
+    The PNG keeps the image's ICC profile with ``profile`` (an OBJ's side image: the filled texels' colours are
+    those of opaque ones in the same colour space, and the filled image lost it), and carries none without (a glTF's
+    texture: glTF 2.0 §3.8.3 says images SHOULD NOT embed ICC profiles, which clients MUST ignore, and the Khronos
+    validator warns of a PNG with an iCCP chunk, IMAGE_FEATURES_UNSUPPORTED). A JPEG's bytes are kept as they are:
+    the validator takes its ICC profile."""
     if image.format == "JPEG":
         return _EncodedImage(_jpeg_data(image), "JPEG")
+    icc = image.info.get("icc_profile") if profile else None
+    if fill and image.mode in _TRANSPARENT_COLOUR_MODES and "transparency" in image.info:
+        # a palette's transparent index or an L or RGB PNG's transparent colour (tRNS): alpha without an alpha band,
+        # whose texels of alpha 0 hold that one colour (magenta, say), which viewers filter into their opaque
+        # neighbours' edge as they do an RGBA texture's garbage; written as LA or RGBA, filled, when some texel is it
+        with_alpha = image.convert(_TRANSPARENT_COLOUR_MODES[image.mode])
+        if _has_alpha_hole(with_alpha):
+            image = with_alpha
     # the alpha's extrema read by Pillow first: an opaque texture (the common case, every OBJ side image's) is not
     # copied whole into a NumPy array (a 21600 x 10800's 0.9 GB, and 0.2 GB for the mask of its holes) to find none
     if fill and image.mode in ("RGBA", "LA") and _has_alpha_hole(image):
@@ -3422,7 +3488,13 @@ def _encoded_image(image: Any, *, fill: bool = True) -> _EncodedImage:
         filled = fill_transparent(pixels)
         if filled is not pixels:
             image = Image.fromarray(filled, image.mode)
-    return _EncodedImage(_png_data(image), "PNG")
+    return _EncodedImage(_png_data(image, icc), "PNG")
+
+
+#: PIL modes whose PNG holds alpha as a transparent colour (``info["transparency"]``: a palette's transparent index
+#: or alpha per entry, an L or RGB image's transparent grey or colour), and the mode with an alpha band each is
+#: filled in (:func:`_encoded_image`).
+_TRANSPARENT_COLOUR_MODES = {"P": "RGBA", "L": "LA", "RGB": "RGBA", "1": "LA"}
 
 
 def _has_alpha_hole(image: Any) -> bool:
@@ -3432,14 +3504,15 @@ def _has_alpha_hole(image: Any) -> bool:
     return low == 0 < high
 
 
-def _png_data(image: Any) -> bytes:
-    """A PIL image as PNG bytes, as :func:`save_image` writes it (:func:`_png_options`): the bytes of the large PNG it
-    last wrote when that holds the same pixels (:func:`_written_png`), else encoded here."""
+def _png_data(image: Any, icc_profile: bytes | None = None) -> bytes:
+    """A PIL image as PNG bytes, as :func:`save_image` writes it (:func:`_png_options`), with the ICC profile
+    ``icc_profile`` or none (whatever the image's ``info`` holds): the bytes of the large PNG it last wrote when
+    that holds the same pixels (:func:`_written_png`), else encoded here."""
     options = _png_options(image)
-    data = _written_png(image) if options else None
+    data = _written_png(image) if options and icc_profile is None else None
     if data is None:
         buffer = io.BytesIO()
-        image.save(buffer, format="PNG", **options)
+        image.save(buffer, format="PNG", icc_profile=icc_profile, **options)
         data = buffer.getvalue()
     return data
 

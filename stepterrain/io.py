@@ -1598,7 +1598,7 @@ def fill_transparent(pixels: NDArray[np.uint8]) -> NDArray[np.uint8]:
 def picture_uint8(picture: Any, what: str, *, alpha: bool = False) -> NDArray[np.uint8]:
     """An opened Pillow image as an (H, W, 3) uint8 array, (H, W, 4) with ``alpha`` when it has an alpha band (a
     premultiplied one, modes ``RGBa`` and ``La``, un-premultiplied as RGBA and LA) or a transparent colour (a
-    palette's, an L or RGB PNG's tRNS: Pillow's ``info["transparency"]``).
+    palette's, an L, RGB or 1-bit PNG's tRNS: Pillow's ``info["transparency"]``).
 
     A 16-bit greyscale image (modes ``I;16*``, and ``I`` within 0-65535) is scaled by its full range (value / 257,
     as Pillow reads 16-bit RGB): Pillow's own conversion to RGB saturates every value above 255, which draped a
@@ -1614,9 +1614,9 @@ def picture_uint8(picture: Any, what: str, *, alpha: bool = False) -> NDArray[np
         return np.repeat(np.round(gray / 257.0).astype(np.uint8)[..., None], 3, axis=2)
     if mode in _PREMULTIPLIED:  # alpha band "a": RGBa kept no alpha (converted to RGB), La raised Pillow's ValueError
         picture = picture.convert(_PREMULTIPLIED[mode])  # un-premultiplied, as RGBA and LA are
-    elif alpha and mode in ("P", "L", "RGB") and "transparency" in picture.info:
-        # a palette's or a PNG's transparent colour (tRNS) is alpha without an alpha band: converted to RGB, its
-        # pixels came out opaque in whatever colour they hold
+    elif alpha and mode in ("P", "L", "RGB", "1") and "transparency" in picture.info:
+        # a palette's or a PNG's transparent colour (tRNS; a 1-bit one's too) is alpha without an alpha band:
+        # converted to RGB, its pixels came out opaque in whatever colour they hold
         picture = picture.convert("RGBA")
     return np.asarray(picture.convert("RGBA" if alpha and "A" in picture.getbands() else "RGB"))
 

@@ -1454,7 +1454,7 @@ def _texture_picture(image: Any) -> NDArray[np.uint8]:
 
     what = "the mesh's texture image"
     if hasattr(image, "convert") and hasattr(image, "mode"):  # a Pillow image
-        if "transparency" in getattr(image, "info", {}) and image.mode in ("P", "L", "RGB"):
+        if "transparency" in getattr(image, "info", {}) and image.mode in ("P", "L", "RGB", "1"):
             image = image.convert("RGBA")  # a palette's or a PNG's transparent colour (tRNS)
         return np.ascontiguousarray(picture_uint8(image, what, alpha=True))
     array = np.asarray(image)

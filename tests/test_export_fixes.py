@@ -2610,3 +2610,100 @@ def test_a_geotiff_whose_crs_needs_a_side_file_its_name_leaves_no_room_for_is_re
     with rasterio.open(path) as dataset:
         assert dataset.crs == CRS.from_epsg(4326)
         assert np.array_equal(np.moveaxis(dataset.read(), 0, 2), old)
+
+
+def _gdal_pair(path, old: np.ndarray) -> bytes:
+    """``old`` written at ``path`` (PNG or TIFF) by GDAL with a CRS, a geotransform and a nodata value, which GDAL
+    keeps for a PNG (and for a TIFF's ob_tran CRS) in ``<path>.aux.xml``; that side file's bytes."""
+    rasterio = pytest.importorskip("rasterio")
+
+    driver = "PNG" if path.suffix == ".png" else "GTiff"
+    crs = "EPSG:4326" if driver == "PNG" else _ROTATED
+    with rasterio.open(path, "w", driver=driver, width=old.shape[1], height=old.shape[0], count=3, dtype="uint8",
+                       crs=crs, transform=rasterio.Affine(0.5, 0, 5, 0, -0.5, 50), nodata=40) as dataset:
+        dataset.write(np.moveaxis(old, 2, 0))
+    aux = path.with_name(path.name + ".aux.xml")
+    assert aux.exists()
+    return aux.read_bytes()
+
+
+@pytest.mark.parametrize("name", ["layer.png", "layer.tif"])
+def test_an_image_written_without_extent_removes_the_old_aux_xml_gdal_would_pair_with_it(tmp_path, monkeypatch,
+                                                                                          name):
+    """A PNG or plain TIFF written over a GDAL-written image (a GeoTIFF whose CRS went into ``.aux.xml``, a PNG whose
+    CRS, geotransform and nodata did) left that side file in place, and GDAL read the new image with the old one's
+    CRS, placement and nodata. It goes, as a GeoTIFF's old side file goes (and as GDAL removes it when it makes a
+    file): set aside just before the image's rename, and back beside the old image when the rename fails."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.errors import NotGeoreferencedWarning
+
+    path = tmp_path / name
+    aux = tmp_path / (name + ".aux.xml")
+    old = np.full((6, 9, 3), 40, np.uint8)
+    old_aux = _gdal_pair(path, old)
+    old_image = path.read_bytes()
+    new = np.full((6, 9, 3), 200, np.uint8)
+    real_replace = os.replace
+    seen: list[bool] = []
+
+    def replace(src, dst, **kwargs):
+        if os.fspath(dst) == str(path):
+            seen.append(aux.exists())
+            raise OSError(errno.EIO, "Input/output error")
+        return real_replace(src, dst, **kwargs)
+
+    monkeypatch.setattr(os, "replace", replace)
+    with pytest.raises(DataFileError, match="Input/output error"):
+        save_image(new, path)
+    monkeypatch.undo()
+    assert seen == [False]  # the old side file was not beside either image when the image changed
+    assert sorted(os.listdir(tmp_path)) == sorted([name, aux.name])
+    assert path.read_bytes() == old_image and aux.read_bytes() == old_aux
+    save_image(new, path)
+    assert os.listdir(tmp_path) == [name]
+    with pytest.warns(NotGeoreferencedWarning), rasterio.open(path) as dataset:
+        assert dataset.crs is None and dataset.transform.is_identity and dataset.nodata is None
+        assert np.array_equal(np.moveaxis(dataset.read(), 0, 2), new)
+
+
+@pytest.mark.parametrize("dtype", [np.int64, np.uint64])
+@pytest.mark.parametrize("element", ["vertex", "face"])
+def test_a_ply_64_bit_integer_attribute_that_double_rounds_is_warned_of(tmp_path, dtype, element):
+    """PLY has no 64-bit integer type: a 64-bit attribute beyond 32 bits is written as double, which holds integers
+    exactly only up to 2**53. Beyond that its values came back changed without a word (an ID of 2**53 + 1 read as
+    2**53); the write now warns, naming the attribute and how many values it rounds. One within 2**53 is exact and
+    written without a warning."""
+    import warnings
+
+    mesh = trimesh.creation.icosphere(subdivisions=1)
+    count = len(mesh.vertices) if element == "vertex" else len(mesh.faces)
+    attributes = mesh.vertex_attributes if element == "vertex" else mesh.face_attributes
+    exact = np.arange(count, dtype=dtype) + dtype(2**52)
+    attributes["ids"] = exact
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        back = read_mesh(save_mesh(mesh, tmp_path / "exact.ply"))
+    got = (back.vertex_attributes if element == "vertex" else back.face_attributes)["ids"]
+    assert np.array_equal(got.astype(dtype), exact)
+    rounded = exact + dtype(2**53)  # odd values round to even doubles
+    attributes["ids"] = rounded
+    with pytest.warns(UserWarning, match=rf"'ids' .*2\*\*53.* {count // 2} of its {count} values"):
+        back = read_mesh(save_mesh(mesh, tmp_path / "rounded.ply"))
+    got = (back.vertex_attributes if element == "vertex" else back.face_attributes)["ids"]
+    assert (got.astype(dtype) != rounded).sum() == count // 2
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf", ".obj"])
+@pytest.mark.parametrize("make", [lambda: Image.new("RGB", (0, 5)), lambda: np.zeros((4, 0, 3), np.uint8)],
+                         ids=["pil", "array"])
+def test_a_texture_image_of_no_pixels_is_refused_by_name_before_any_file_is_made(tmp_path, ext, make):
+    """A texture image with a side of 0 pixels (a PIL image, or a (0, W, 3) uint8 array, which the array check took)
+    raised Pillow's bare ValueError ("cannot write empty image") from inside the writer, after the folder was made.
+    It is an InvalidInputError naming the image and its size, before anything is written."""
+    mesh = trimesh.creation.box()
+    uv = np.random.default_rng(0).random((len(mesh.vertices), 2))
+    mesh.visual = trimesh.visual.TextureVisuals(uv=uv, image=make())
+    with pytest.raises(InvalidInputError, match=r"mesh texture image \(image\) must have at least 1 x 1 pixels; got "
+                                                r"(0 x 5|0 x 4)"):
+        save_mesh(mesh, tmp_path / "out" / f"t{ext}")
+    assert list(tmp_path.iterdir()) == []

@@ -2445,3 +2445,23 @@ def test_the_gdalwarp_of_a_polar_grid_in_degrees_leaves_no_0_m_corners(tmp_path)
     # advised again (warped again, it warned again), which no projection helps
     again = next(str(w.message) for w in caught if "errs against WGS 84" in str(w.message))
     assert "gdalwarp" not in again and "no one projection keeps a grid over 10.4 degrees of latitude" in again, again
+
+
+def test_a_one_bit_pngs_transparent_colour_is_read_as_alpha(tmp_path):
+    """A 1-bit PNG whose transparent colour is a tRNS chunk (Pillow mode "1", info["transparency"]) was read as RGB by
+    picture_uint8(alpha=True) (a palette, L or RGB one became RGBA): a texture draped from it showed its transparent
+    pixels opaque black, where the GLB (alphaMode MASK) hid them. Its alpha is Pillow's RGBA conversion's now."""
+    from stepterrain import globe
+    from stepterrain.io import picture_uint8
+
+    bits = np.zeros((4, 6), bool)
+    bits[1:3, 2:5] = True
+    Image.fromarray(bits).save(tmp_path / "mask.png", transparency=0)
+    with Image.open(tmp_path / "mask.png") as picture:
+        assert picture.mode == "1" and picture.info["transparency"] == 0
+        expected = np.asarray(picture.convert("RGBA"))
+        got = picture_uint8(picture, "mask", alpha=True)
+    assert got.shape == (4, 6, 4)
+    np.testing.assert_array_equal(got, expected)
+    np.testing.assert_array_equal(got[..., 3], np.where(bits, 255, 0))
+    np.testing.assert_array_equal(globe._texture_pixels(tmp_path / "mask.png"), expected)

@@ -684,7 +684,15 @@ def test_cli_texture_glb_takes_the_written_pngs_bytes_instead_of_deflating_the_t
     textured.visual.material.baseColorTexture = keyed
     sizes.clear()
     export.save_mesh(textured, tmp_path / "keyed.glb")
-    assert sizes == [(150, 120)] and b"tRNS" in (tmp_path / "keyed.glb").read_bytes()
+    assert sizes == [(150, 120)] and out.read_bytes() not in (tmp_path / "keyed.glb").read_bytes()
+    # its transparent colour kept as alpha (written as RGBA, the colour under it filled: see
+    # test_texture_transparent_fill), the other texels as they are
+    keyed_back = trimesh.load(tmp_path / "keyed.glb", force="mesh").visual.material.baseColorTexture
+    keyed_back = np.asarray(keyed_back.convert("RGBA"))
+    hidden = (texture == texture[0, 0]).all(axis=-1)
+    assert hidden.any() and not hidden.all()
+    np.testing.assert_array_equal(keyed_back[..., 3], np.where(hidden, 0, 255))
+    np.testing.assert_array_equal(keyed_back[~hidden][:, :3], texture[~hidden])
     export._LAST_PNG.clear()  # a texture no PNG holds: deflated once for the GLB, with Z_RLE
     sizes.clear()
     textured = trimesh.load(glb, force="mesh")

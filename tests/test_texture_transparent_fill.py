@@ -10,6 +10,7 @@ import struct
 
 import numpy as np
 import pytest
+import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as hst
 from PIL import Image
@@ -178,3 +179,96 @@ def test_fill_transparent_memory_peak(monkeypatch):
     assert peak < 3.4 * pixels.nbytes, peak / pixels.nbytes
     np.testing.assert_array_equal(out[96:-96], pixels[96:-96])
     assert (out[:96, :, 3] == 0).all()
+
+
+def _textured_box(image) -> trimesh.Trimesh:
+    mesh = trimesh.creation.box()
+    mesh.visual = trimesh.visual.TextureVisuals(uv=mesh.vertices[:, :2] + 0.5, image=image)
+    return mesh
+
+
+def _transparent_colour_png(path, kind: str):
+    """A PNG of ``_world``'s layout (green, the caps transparent over magenta) whose alpha is a transparent colour
+    (tRNS), no alpha band: ``kind`` "P" a palette with a transparent index, "P bytes" a palette with an alpha per
+    entry (one half transparent), "L" and "RGB" a transparent grey or colour."""
+    caps = _world()[..., 3] == 0
+    if kind.startswith("P"):
+        index = np.where(caps, 0, 1).astype(np.uint8)
+        index[45:, ::2] = np.where(caps[45:, ::2], 0, 2)
+        picture = Image.fromarray(index, "P")
+        picture.putpalette([*MAGENTA, *GREEN, 200, 10, 10] + [0] * (253 * 3))
+        picture.save(path, transparency=0 if kind == "P" else bytes([0, 255, 128]))
+    elif kind == "L":
+        Image.fromarray(np.where(caps, 7, 90).astype(np.uint8), "L").save(path, transparency=7)
+    else:
+        Image.fromarray(_world()[..., :3]).save(path, transparency=MAGENTA)
+    picture = Image.open(path)
+    assert picture.mode == kind.split()[0] and "transparency" in picture.info
+    return picture
+
+
+@pytest.mark.parametrize("kind", ["P", "P bytes", "L", "RGB"])
+@pytest.mark.parametrize("ext", [".glb", ".obj"])
+def test_a_transparent_colours_texels_hold_the_nearby_opaque_colour_in_an_exported_texture(tmp_path, kind, ext):
+    """A palette PNG with a transparent index (or an L or RGB one with a transparent colour, tRNS) is a texture with
+    alpha (alphaMode MASK, map_d), and a render fills the colour under its transparent texels, but save_mesh wrote it
+    as it was: a viewer's filtering blended the transparent index's colour (magenta) into the opaque texels' edge.
+    It is written as RGBA (LA) with that colour filled, as an RGBA texture is; the alpha is the file's."""
+    picture = _transparent_colour_png(tmp_path / "texture.png", kind)
+    source = np.asarray(picture.convert("RGBA"))
+    export.save_mesh(_textured_box(picture), tmp_path / f"box{ext}")
+    if ext == ".glb":
+        texture, doc = _glb_texture(tmp_path / "box.glb")
+        assert doc["materials"][0]["alphaMode"] == ("BLEND" if kind == "P bytes" else "MASK")
+    else:
+        texture = np.asarray(Image.open(tmp_path / "box_material_0.png").convert("RGBA"))
+        assert "map_d -imfchan m box_material_0.png" in (tmp_path / "box.mtl").read_text()
+    np.testing.assert_array_equal(texture[..., 3], source[..., 3])
+    some = source[..., 3] > 0
+    np.testing.assert_array_equal(texture[some], source[some])
+    np.testing.assert_array_equal(texture, fill_transparent(source))
+    assert not (texture[~some][:, :3] == source[~some][:, :3]).all(axis=1).any()  # no texel kept its hidden colour
+
+
+def test_a_transparent_colour_no_texel_uses_is_written_as_it_is(tmp_path):
+    """A palette image whose transparent index no pixel uses has nothing to fill: its PNG stays a palette one."""
+    index = np.ones((8, 8), np.uint8)
+    picture = Image.fromarray(index, "P")
+    picture.putpalette([*MAGENTA, *GREEN] + [0] * (254 * 3))
+    picture.save(tmp_path / "texture.png", transparency=0)
+    export.save_mesh(_textured_box(Image.open(tmp_path / "texture.png")), tmp_path / "box.obj")
+    with Image.open(tmp_path / "box_material_0.png") as written:
+        assert written.mode == "P"
+        np.testing.assert_array_equal(np.asarray(written), index)
+
+
+@pytest.mark.parametrize("holes", [False, True])
+def test_a_textures_icc_profile_is_dropped_in_gltf_and_kept_in_an_objs_side_image(tmp_path, holes):
+    """glTF 2.0 §3.8.3 says images SHOULD NOT embed ICC profiles (clients MUST ignore them), and the Khronos validator
+    warns of a PNG that carries some (IMAGE_FEATURES_UNSUPPORTED): an ICC-tagged PNG texture went into the GLB with
+    its profile, where one with transparent texels (filled, so re-encoded) lost it. The GLB's PNG now never carries
+    one; an OBJ's side image, an image file like any other, keeps it whether filled or not."""
+    from PIL import ImageCms
+
+    from . import gltf_validator
+
+    profile = ImageCms.ImageCmsProfile(ImageCms.createProfile("sRGB")).tobytes()
+    pixels = _world()
+    if not holes:
+        pixels[..., 3] = 255
+    Image.fromarray(pixels, "RGBA").save(tmp_path / "texture.png", icc_profile=profile)
+    mesh = _textured_box(Image.open(tmp_path / "texture.png"))
+    export.save_mesh(mesh, tmp_path / "box.glb")
+    export.save_mesh(mesh, tmp_path / "box.obj")
+    data = (tmp_path / "box.glb").read_bytes()
+    n = struct.unpack("<I", data[12:16])[0]
+    doc = json.loads(data[20:20 + n])
+    view = doc["bufferViews"][doc["images"][0]["bufferView"]]
+    start = 20 + n + 8 + view.get("byteOffset", 0)
+    with Image.open(io.BytesIO(data[start:start + view["byteLength"]])) as embedded:
+        assert "icc_profile" not in embedded.info
+    with Image.open(tmp_path / "box_material_0.png") as side:
+        assert side.info.get("icc_profile") == profile
+        assert (np.asarray(side)[..., :3] == MAGENTA).all(axis=-1).any() == (not holes)  # opaque caps, or filled
+    if gltf_validator.available()[0]:
+        assert gltf_validator.problems(gltf_validator.validate([tmp_path / "box.glb"])) == []
