@@ -139,3 +139,56 @@ def test_a_lens_is_the_input_surface_inside_and_exact_isovalues_outside():
     np.testing.assert_array_equal(mesh.vertices[outside], at_one.vertices[outside])
     values = isovalues(t.height_range, interval=20.0).astype(np.float64)
     assert np.isin(mesh.vertices[outside, 2], values).all()
+
+
+@settings(max_examples=20, deadline=None)
+@given(
+    heights=arrays(np.float32, st_.tuples(st_.integers(2, 6), st_.integers(2, 6)),
+                   elements=st_.sampled_from([-1.0, 0.0, 0.5, 1.0, 2.25, 3.0, 6.0, 9.5, np.nan])),
+    gamma=st_.sampled_from([1.0, 0.0, 0.35]),
+    uniform=st_.booleans(),
+    solid=st_.booleans(),
+)
+def test_face_levels_and_level_colours_agree_with_the_geometry(heights, gamma, uniform, solid):
+    """§3.1-3.2: a terrace lies on the isovalue of its ``level`` and a wall spans ``level`` to ``level + 1`` (at γ = 1),
+    each vertex takes the colour row of the isovalue it steps to, whatever γ (γ moves heights, not levels), a solid's
+    skirt and base are level -1 and grey; the mesh from an interval equals the one from the same isovalues given as
+    ``levels``, bit for bit."""
+    assume(np.isfinite(heights).sum() >= 3)
+    t = st.Terrain.from_heights(heights)
+    points, faces = grid_tin(t.heights, t.spacing)
+    assume(len(faces) > 0 and np.ptp(t.heights[np.isfinite(t.heights)]) > 0)
+    if uniform:
+        values = isovalues(t.height_range, interval=2.0)
+    else:
+        values = np.array([-0.5, 0.25, 1.0, 4.0, 4.5, 8.0], np.float32)
+    table = np.column_stack([np.arange(len(values)) * 40 % 256, np.arange(len(values)) * 7, np.full(len(values), 9)])
+    kwargs = {"interval": 2.0} if uniform else {"levels": values}
+    mesh = st.stepped(t, gamma=gamma, colors=table.astype(np.uint8), solid=solid, **kwargs)
+    stepped_at_one = st.stepped(t, colors=table.astype(np.uint8), solid=solid, **kwargs)
+    np.testing.assert_array_equal(mesh.faces, stepped_at_one.faces)
+    np.testing.assert_array_equal(mesh.face_attributes["level"], stepped_at_one.face_attributes["level"])
+    np.testing.assert_array_equal(mesh.visual.vertex_colors, stepped_at_one.visual.vertex_colors)
+    level = stepped_at_one.face_attributes["level"]
+    wall = stepped_at_one.face_attributes["wall"]
+    z = stepped_at_one.vertices[stepped_at_one.faces, 2]
+    surface = level >= 0
+    assert not (wall & ~surface).any()
+    terrace = surface & ~wall
+    v = values.astype(np.float64)
+    np.testing.assert_array_equal(z[terrace], np.repeat(v[level[terrace]][:, None], 3, axis=1))
+    lower, upper = v[level[wall]][:, None], v[np.minimum(level[wall] + 1, len(v) - 1)][:, None]
+    assert ((z[wall] == lower) | (z[wall] == upper)).all()
+    assert ((z[wall] == lower).any(axis=1) & (z[wall] == upper).any(axis=1)).all()
+    colours = stepped_at_one.visual.vertex_colors
+    on_surface = np.zeros(len(stepped_at_one.vertices), bool)
+    on_surface[stepped_at_one.faces[surface].reshape(-1)] = True
+    rows = np.searchsorted(v, stepped_at_one.vertices[on_surface, 2])
+    np.testing.assert_array_equal(colours[on_surface, :3], table[rows])
+    if solid:
+        assert stepped_at_one.is_watertight and mesh.is_watertight
+        np.testing.assert_array_equal(colours[~on_surface], np.tile([96, 96, 96, 255], ((~on_surface).sum(), 1)))
+    given = st.stepped(t, gamma=gamma, levels=isovalues(t.height_range, interval=2.0))  # (a solid's default floor
+    by_interval = st.stepped(t, gamma=gamma, interval=2.0)  # differs: an interval below, a tenth of the levels' span)
+    np.testing.assert_array_equal(given.vertices, by_interval.vertices)
+    np.testing.assert_array_equal(given.faces, by_interval.faces)
