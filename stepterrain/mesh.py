@@ -17,6 +17,7 @@ import itertools
 import sys
 import threading
 import types
+import warnings
 import weakref
 from typing import Any
 
@@ -36,7 +37,7 @@ from ._device import (
     to_device,
     to_numpy,
 )
-from .errors import InvalidInputError, OutputTooLargeError, counted
+from .errors import InvalidInputError, OutputTooLargeError, caller_stacklevel, counted
 from .kernels import solid as kernels
 from .terrain import FLOAT32_MAX, finite_number, real_numbers
 
@@ -505,6 +506,24 @@ def _columns(vertices: NDArray[np.float64], fan: NDArray[np.float64] | None, pai
     return ids.numpy(), ids32, read_int32(starts, n - 1)  # the leaders' count
 
 
+#: Faces per chunk of :func:`_projected_area` (its work arrays: a few MB, not a copy of the surface per coordinate).
+AREA_CHUNK = 1 << 16
+
+
+def _projected_area(vertices: NDArray[np.float64], faces: NDArray[np.int64]) -> float:
+    """Twice the signed area of the surface's projection on the xy plane: the faces' (b - a) × (c - a) summed, in
+    chunks of :data:`AREA_CHUNK` faces; positive where the surface is wound counter-clockwise seen from +z (normals
+    up, as the step kernels emit it), negative where clockwise. A wall's face adds exactly 0 (two corners on one xy)."""
+    total = 0.0
+    for start in range(0, len(faces), AREA_CHUNK):
+        f = faces[start:start + AREA_CHUNK]
+        a = vertices[f[:, 0], :2]
+        b = vertices[f[:, 1], :2] - a
+        c = vertices[f[:, 2], :2] - a
+        total += float(np.sum(b[:, 0] * c[:, 1] - b[:, 1] * c[:, 0]))
+    return total
+
+
 def close_solid(
     vertices: NDArray[np.float64],
     faces: NDArray[np.int64],
@@ -544,6 +563,11 @@ def close_solid(
     Returns the new vertices (the surface's first, then the base), the faces (kept input faces first, then the
     added ones), the mask of input faces kept, the number of faces added, and per surface vertex the input vertex
     it is or copies (``len(source)`` surface vertices: per-vertex data such as colours follows them through it).
+    The solid faces outward (its volume positive) either way the surface is wound: a surface wound clockwise seen
+    from +z (its signed projected area negative, e.g. a TIN's faces flipped) is closed as given and every face of
+    its solid reversed (``faces[:, ::-1]``, its kept surface faces too), with a warning. Walls (faces not in
+    ``terrace_mask``) must still be laid out as the step kernels emit them (a stepped surface through trimesh's
+    ``invert`` is not: invert it back first).
     The base vertices follow the surface's order: one per column (the surface vertices that share it), in the order
     of each column's smallest surface vertex.
     """
@@ -569,6 +593,14 @@ def close_solid(
     if terrace_mask.dtype != np.bool_ or terrace_mask.shape != (len(faces),):  # the kernels read one byte a face
         raise InvalidInputError(f"terrace_mask must be a bool array of one flag per face ({len(faces)}); got "
                                 f"{terrace_mask.dtype} of shape {terrace_mask.shape}")
+    # wound clockwise seen from +z (a TIN's faces flipped): the skirts and base follow the surface's winding, so its
+    # solid came out inside out (watertight and consistently wound, but its volume negative, its normals inward)
+    clockwise = _projected_area(vertices, faces) < 0.0
+    if clockwise:
+        warnings.warn(f"faces: the surface is wound clockwise seen from +z (its normals point down; "
+                      f"{counted(len(faces), 'face')}); close_solid reverses every face of its solid so that the "
+                      "solid faces outward (its volume positive, the surface's faces in it reversed)",
+                      stacklevel=caller_stacklevel())
     kept = np.ones(len(faces), bool)
     source = np.arange(len(vertices))
     walls = np.flatnonzero(~terrace_mask)
@@ -598,6 +630,13 @@ def close_solid(
     zmin = float(vertices[:, 2].min()) if len(vertices) else 0.0
     if floor >= zmin:
         raise InvalidInputError(f"floor must lie below the lowest surface height {zmin}; got {floor}")
+    with np.errstate(over="ignore"):  # a surface beyond float32 (its float32 bound inf): the floor lies below it
+        low32 = np.float32(zmin)
+    if np.float32(floor) >= low32:  # the base on the lowest point in an .stl or a .glb, on the GPU: no thickness there
+        below = float(np.nextafter(low32, np.float32(-np.inf)))
+        raise InvalidInputError(f"floor must lie below the lowest surface height {zmin} in float32 too (an .stl or a "
+                                f".glb stores float32 positions: at most {below:.9g}); got {floor}, which rounds to "
+                                f"{float(np.float32(floor)):.9g} in float32")
     edges = _boundary(flat, len(vertices), device)
     vertices, faces, fan, copied = _split_pinches(vertices, faces, edges, terrace_mask)
     split = len(copied) > 0
@@ -663,6 +702,8 @@ def close_solid(
     skirts[m:m + p] = np.stack([b[plain], a[plain], A[plain]], axis=1)
     skirts[m + p:m + p + h] = np.stack([b[has_x], a[has_x], x[has_x]], axis=1)
     skirts[m + p + h:] = np.stack([b[has_x], x[has_x], A[has_x]], axis=1)
+    if clockwise:  # the closed mesh is wound consistently, inward: every face reversed, as trimesh's invert does
+        out_faces[:, [0, 2]] = out_faces[:, [2, 0]]
     return out_vertices, out_faces, kept, n_skirts + n_base, source
 
 

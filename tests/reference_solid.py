@@ -1,7 +1,8 @@
 """NumPy reference of :func:`stepterrain.mesh.close_solid` and its helpers, as they were before the Warp kernels
 (``kernels/solid.py``): close_solid, boundary_edges, exact_keys, _wall_pairs, _repeated_rows and _split_pinches,
-verbatim. Tests compare the kernels' results with these bit for bit; ``benchmarks/run_solid.py`` times them as what
-a NumPy user would otherwise have.
+verbatim (close_solid with two rules added since: a clockwise surface reversed, a floor on the lowest point in
+float32 refused). Tests compare the kernels' results with these bit for bit; ``benchmarks/run_solid.py`` times them
+as what a NumPy user would otherwise have.
 """
 
 from __future__ import annotations
@@ -94,6 +95,11 @@ def close_solid(
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
+    # added since: a surface wound clockwise seen from +z (its projected area negative) gets every face of its solid
+    # reversed at the end, as trimesh's invert does, so that the solid faces outward (inside out before)
+    corners = vertices[faces][:, :, :2] if len(faces) else np.zeros((0, 3, 2))
+    ab, ac = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    clockwise = np.sum(ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0]) < 0.0
     kept = np.ones(len(faces), bool)
     source = np.arange(len(vertices))
     walls = np.flatnonzero(~np.asarray(terrace_mask))
@@ -121,6 +127,13 @@ def close_solid(
     zmin = float(vertices[:, 2].min()) if len(vertices) else 0.0
     if floor >= zmin:
         raise InvalidInputError(f"floor must lie below the lowest surface height {zmin}; got {floor}")
+    with np.errstate(over="ignore"):  # added since: nor on it in float32 (an .stl's, a .glb's positions)
+        low32 = np.float32(zmin)
+    if np.float32(floor) >= low32:
+        below = float(np.nextafter(low32, np.float32(-np.inf)))
+        raise InvalidInputError(f"floor must lie below the lowest surface height {zmin} in float32 too (an .stl or a "
+                                f".glb stores float32 positions: at most {below:.9g}); got {floor}, which rounds to "
+                                f"{float(np.float32(floor)):.9g} in float32")
     edges = boundary_edges(faces)
     vertices, faces, fan, copied = _split_pinches(vertices, faces, edges, terrace_mask)
     split = len(copied) > 0
@@ -169,7 +182,9 @@ def close_solid(
     skirts.append(np.stack([b[has_x], a[has_x], x[has_x]], axis=1))
     skirts.append(np.stack([b[has_x], x[has_x], A[has_x]], axis=1))
     added = np.concatenate(skirts + [base_faces], axis=0)
-    return np.concatenate([vertices, base_vertices]), np.concatenate([faces, added]), kept, len(added), source
+    out_faces = np.concatenate([faces, added])
+    return (np.concatenate([vertices, base_vertices]), out_faces[:, ::-1] if clockwise else out_faces, kept, len(added),
+            source)
 
 
 def _wall_pairs(faces: NDArray[np.int64], terrace_mask: NDArray[np.bool_], n: int) -> NDArray[np.int64]:
