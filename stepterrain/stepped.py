@@ -1277,7 +1277,8 @@ def stepped(
         consistently wound volume for 3D printing, also where heights sit on a threshold (they are stepped from a
         little above it: see Notes), and over a TIN's seams (points kept apart for their vertex colours or UVs are
         welded by position, taking the first copy's: one colour or UV per vertex, so the faces beside a seam blend
-        the colours or smear the texture, with a warning). A ``floor`` not below the surface's lowest point is
+        the colours or smear the texture, with a warning). A ``floor`` not below the surface's lowest point (in
+        float32 too: a floor that rounds onto it leaves the solid no thickness there in an .stl or a .glb) is
         refused; where the heights tell that point (a TIN, a grid without nodata: the lowest height blended with its
         isovalue), before stepping.
     spacing, origin : (dx, dy), (x0, y0)
