@@ -506,22 +506,19 @@ def _columns(vertices: NDArray[np.float64], fan: NDArray[np.float64] | None, pai
     return ids.numpy(), ids32, read_int32(starts, n - 1)  # the leaders' count
 
 
-#: Faces per chunk of :func:`_projected_area` (its work arrays: a few MB, not a copy of the surface per coordinate).
-AREA_CHUNK = 1 << 16
-
-
-def _projected_area(vertices: NDArray[np.float64], faces: NDArray[np.int64]) -> float:
-    """Twice the signed area of the surface's projection on the xy plane: the faces' (b - a) × (c - a) summed, in
-    chunks of :data:`AREA_CHUNK` faces; positive where the surface is wound counter-clockwise seen from +z (normals
-    up, as the step kernels emit it), negative where clockwise. A wall's face adds exactly 0 (two corners on one xy)."""
-    total = 0.0
-    for start in range(0, len(faces), AREA_CHUNK):
-        f = faces[start:start + AREA_CHUNK]
-        a = vertices[f[:, 0], :2]
-        b = vertices[f[:, 1], :2] - a
-        c = vertices[f[:, 2], :2] - a
-        total += float(np.sum(b[:, 0] * c[:, 1] - b[:, 1] * c[:, 0]))
-    return total
+def _projected_area(vertices: NDArray[np.float64], edges: NDArray[np.int64]) -> float:
+    """Twice the signed area of the surface's projection on the xy plane, from its boundary ``edges`` (Green's
+    theorem, the shoelace sum of (a - o) × (b - o) over each boundary edge (a, b), o its first vertex): the faces'
+    (b - a) × (c - a) summed, where the surface is wound consistently (each interior edge's two half-edges cancel),
+    in O(boundary) where the faces' sum took 0.1-0.4 s at 3 M faces. Positive where the surface is wound
+    counter-clockwise seen from +z (normals up, as the step kernels emit it), negative where clockwise; 0 without a
+    boundary. A vertical edge (a wall's side) adds exactly 0."""
+    if len(edges) == 0:
+        return 0.0
+    o = vertices[edges[0, 0], :2]
+    a = vertices[edges[:, 0], :2] - o
+    b = vertices[edges[:, 1], :2] - o
+    return float(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]))
 
 
 def close_solid(
@@ -564,10 +561,10 @@ def close_solid(
     added ones), the mask of input faces kept, the number of faces added, and per surface vertex the input vertex
     it is or copies (``len(source)`` surface vertices: per-vertex data such as colours follows them through it).
     The solid faces outward (its volume positive) either way the surface is wound: a surface wound clockwise seen
-    from +z (its signed projected area negative, e.g. a TIN's faces flipped) is closed as given and every face of
-    its solid reversed (``faces[:, ::-1]``, its kept surface faces too), with a warning. Walls (faces not in
-    ``terrace_mask``) must still be laid out as the step kernels emit them (a stepped surface through trimesh's
-    ``invert`` is not: invert it back first).
+    from +z (its signed projected area, from its boundary, negative: e.g. a TIN's faces flipped) is closed as given
+    and every face of its solid reversed (``faces[:, ::-1]``, its kept surface faces too), with a warning. Walls
+    (faces not in ``terrace_mask``) must still be laid out as the step kernels emit them (a stepped surface through
+    trimesh's ``invert`` is not: invert it back first).
     The base vertices follow the surface's order: one per column (the surface vertices that share it), in the order
     of each column's smallest surface vertex.
     """
@@ -593,14 +590,6 @@ def close_solid(
     if terrace_mask.dtype != np.bool_ or terrace_mask.shape != (len(faces),):  # the kernels read one byte a face
         raise InvalidInputError(f"terrace_mask must be a bool array of one flag per face ({len(faces)}); got "
                                 f"{terrace_mask.dtype} of shape {terrace_mask.shape}")
-    # wound clockwise seen from +z (a TIN's faces flipped): the skirts and base follow the surface's winding, so its
-    # solid came out inside out (watertight and consistently wound, but its volume negative, its normals inward)
-    clockwise = _projected_area(vertices, faces) < 0.0
-    if clockwise:
-        warnings.warn(f"faces: the surface is wound clockwise seen from +z (its normals point down; "
-                      f"{counted(len(faces), 'face')}); close_solid reverses every face of its solid so that the "
-                      "solid faces outward (its volume positive, the surface's faces in it reversed)",
-                      stacklevel=caller_stacklevel())
     kept = np.ones(len(faces), bool)
     source = np.arange(len(vertices))
     walls = np.flatnonzero(~terrace_mask)
@@ -638,6 +627,14 @@ def close_solid(
                                 f".glb stores float32 positions: at most {below:.9g}); got {floor}, which rounds to "
                                 f"{float(np.float32(floor)):.9g} in float32")
     edges = _boundary(flat, len(vertices), device)
+    # wound clockwise seen from +z (a TIN's faces flipped): the skirts and base follow the surface's winding, so its
+    # solid came out inside out (watertight and consistently wound, but its volume negative, its normals inward)
+    clockwise = _projected_area(vertices, edges) < 0.0
+    if clockwise:
+        warnings.warn(f"faces: the surface is wound clockwise seen from +z (its normals point down; "
+                      f"{counted(len(faces), 'face')}); close_solid reverses every face of its solid so that the "
+                      "solid faces outward (its volume positive, the surface's faces in it reversed)",
+                      stacklevel=caller_stacklevel())
     vertices, faces, fan, copied = _split_pinches(vertices, faces, edges, terrace_mask)
     split = len(copied) > 0
     if split:

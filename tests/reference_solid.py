@@ -95,11 +95,6 @@ def close_solid(
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
-    # added since: a surface wound clockwise seen from +z (its projected area negative) gets every face of its solid
-    # reversed at the end, as trimesh's invert does, so that the solid faces outward (inside out before)
-    corners = vertices[faces][:, :, :2] if len(faces) else np.zeros((0, 3, 2))
-    ab, ac = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
-    clockwise = np.sum(ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0]) < 0.0
     kept = np.ones(len(faces), bool)
     source = np.arange(len(vertices))
     walls = np.flatnonzero(~np.asarray(terrace_mask))
@@ -135,6 +130,12 @@ def close_solid(
                                 f".glb stores float32 positions: at most {below:.9g}); got {floor}, which rounds to "
                                 f"{float(np.float32(floor)):.9g} in float32")
     edges = boundary_edges(faces)
+    # added since: a surface wound clockwise seen from +z (its projected area, the shoelace sum over its boundary,
+    # negative) gets every face of its solid reversed at the end, as trimesh's invert does, so that the solid faces
+    # outward (inside out before)
+    o = vertices[edges[0, 0], :2] if len(edges) else np.zeros(2)
+    a, b = vertices[edges[:, 0], :2] - o, vertices[edges[:, 1], :2] - o
+    clockwise = np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]) < 0.0
     vertices, faces, fan, copied = _split_pinches(vertices, faces, edges, terrace_mask)
     split = len(copied) > 0
     if split:

@@ -100,3 +100,24 @@ def test_floor_on_the_lowest_point_in_float32_is_refused(lowest):
     solid_vertices, _, *_ = close_solid(vertices, faces, np.ones(len(faces), bool), highest)
     base = solid_vertices[:, 2] == highest
     assert base.any() and (solid_vertices[~base, 2].astype(np.float32) > np.float32(highest)).all()
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=hs.integers(0, 2**31 - 1), n=hs.integers(3, 60), offset=hs.sampled_from([0.0, 3.7e5, 5.2e6]),
+       clockwise=hs.booleans(), holes=hs.integers(0, 5))
+def test_the_boundary_area_is_the_faces_area(seed, n, offset, clockwise, holes):
+    """close_solid reads the surface's winding from its boundary (the shoelace sum, O(boundary)): equal to the
+    faces' signed projected area summed in NumPy, with holes (faces left out) and at UTM-sized coordinates."""
+    from stepterrain.mesh import _projected_area, boundary_edges
+
+    vertices, faces = _tin(seed, n)
+    vertices[:, :2] += offset
+    faces = np.delete(faces, np.random.default_rng(seed).integers(0, len(faces), holes), axis=0) if len(faces) > holes \
+        else faces
+    if clockwise:
+        faces = faces[:, ::-1]
+    a, b, c = (vertices[faces[:, k], :2] for k in range(3))
+    want = float(np.sum((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])))
+    got = _projected_area(vertices, boundary_edges(faces))
+    assert got == pytest.approx(want, rel=1e-9, abs=1e-6 * (1.0 + offset))
+    assert (got < 0) == clockwise
