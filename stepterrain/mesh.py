@@ -564,7 +564,9 @@ def close_solid(
     from +z (its signed projected area, from its boundary, negative: e.g. a TIN's faces flipped) is closed as given
     and every face of its solid reversed (``faces[:, ::-1]``, its kept surface faces too), with a warning. Walls
     (faces not in ``terrace_mask``) must still be laid out as the step kernels emit them (a stepped surface through
-    trimesh's ``invert`` is not: invert it back first).
+    trimesh's ``invert`` is not: invert it back first). The winding is the whole boundary's: a surface whose parts
+    (disconnected pieces) are wound opposite ways is turned by the sign of their total area, so the parts wound
+    the other way come out inside out (wind them alike first).
     The base vertices follow the surface's order: one per column (the surface vertices that share it), in the order
     of each column's smallest surface vertex.
     """
