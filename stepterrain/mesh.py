@@ -561,15 +561,20 @@ def close_solid(
     added ones), the mask of input faces kept, the number of faces added, and per surface vertex the input vertex
     it is or copies (``len(source)`` surface vertices: per-vertex data such as colours follows them through it).
     The solid faces outward (its volume positive) either way the surface is wound: a surface wound clockwise seen
-    from +z (its signed projected area, from its boundary, negative: e.g. a TIN's faces flipped) is closed as given
-    and every face of its solid reversed (``faces[:, ::-1]``, its kept surface faces too), with a warning. Walls
-    (faces not in ``terrace_mask``) must still be laid out as the step kernels emit them (a stepped surface through
-    trimesh's ``invert`` is not: invert it back first). The winding is the whole boundary's: a surface whose parts
-    (disconnected pieces) are wound opposite ways is turned by the sign of their total area, so the parts wound
-    the other way come out inside out (wind them alike first).
+    from +z (its signed projected area, from its boundary, negative: e.g. a TIN's faces flipped, a stepped surface
+    through trimesh's ``invert``) is closed with every face reversed (``faces[:, ::-1]``: the solid of the surface
+    wound counter-clockwise, bit for bit), with a warning. The winding is the whole boundary's: a surface whose
+    parts (disconnected pieces) are wound opposite ways is turned by the sign of their total area, so the parts
+    wound the other way come out inside out (wind them alike first).
     The base vertices follow the surface's order: one per column (the surface vertices that share it), in the order
     of each column's smallest surface vertex.
     """
+    return _close_solid(vertices, faces, terrace_mask, floor, device, turn=True)
+
+
+def _close_solid(vertices: Any, faces: Any, terrace_mask: Any, floor: float, device: wp.DeviceLike, turn: bool
+                 ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.bool_], int, NDArray[np.int64]]:
+    """:func:`close_solid`; ``turn``: a clockwise surface is closed again with its faces reversed (once)."""
     vertices = real_numbers(vertices, "vertices", "an (N, 3) array of x, y, z")
     faces = _face_indices(faces, len(vertices) if vertices.ndim else None)
     if vertices.ndim != 2 or vertices.shape[1] != 3:  # the kernels read them as flat rows of three
@@ -592,6 +597,7 @@ def close_solid(
     if terrace_mask.dtype != np.bool_ or terrace_mask.shape != (len(faces),):  # the kernels read one byte a face
         raise InvalidInputError(f"terrace_mask must be a bool array of one flag per face ({len(faces)}); got "
                                 f"{terrace_mask.dtype} of shape {terrace_mask.shape}")
+    given = vertices, faces, terrace_mask  # a clockwise surface is closed again from them, its faces reversed
     kept = np.ones(len(faces), bool)
     source = np.arange(len(vertices))
     walls = np.flatnonzero(~terrace_mask)
@@ -631,12 +637,14 @@ def close_solid(
     edges = _boundary(flat, len(vertices), device)
     # wound clockwise seen from +z (a TIN's faces flipped): the skirts and base follow the surface's winding, so its
     # solid came out inside out (watertight and consistently wound, but its volume negative, its normals inward)
-    clockwise = _projected_area(vertices, edges) < 0.0
-    if clockwise:
+    if turn and _projected_area(vertices, edges) < 0.0:
         warnings.warn(f"faces: the surface is wound clockwise seen from +z (its normals point down; "
-                      f"{counted(len(faces), 'face')}); close_solid reverses every face of its solid so that the "
+                      f"{counted(len(faces), 'face')}); close_solid closes it with every face reversed, so that the "
                       "solid faces outward (its volume positive, the surface's faces in it reversed)",
                       stacklevel=caller_stacklevel())
+        # closed again from the given faces reversed: the fins and the walls' pairs are read from the step kernels'
+        # layout, which a stepped surface through trimesh's invert has reversed (its solid leaked)
+        return _close_solid(given[0], np.ascontiguousarray(given[1][:, ::-1]), given[2], floor, device, turn=False)
     vertices, faces, fan, copied = _split_pinches(vertices, faces, edges, terrace_mask)
     split = len(copied) > 0
     if split:
@@ -701,8 +709,6 @@ def close_solid(
     skirts[m:m + p] = np.stack([b[plain], a[plain], A[plain]], axis=1)
     skirts[m + p:m + p + h] = np.stack([b[has_x], a[has_x], x[has_x]], axis=1)
     skirts[m + p + h:] = np.stack([b[has_x], x[has_x], A[has_x]], axis=1)
-    if clockwise:  # the closed mesh is wound consistently, inward: every face reversed, as trimesh's invert does
-        out_faces[:, [0, 2]] = out_faces[:, [2, 0]]
     return out_vertices, out_faces, kept, n_skirts + n_base, source
 
 

@@ -420,7 +420,10 @@ def test_hashed_buckets_that_all_collide_equal_the_reference(case, monkeypatch):
     monkeypatch.setattr(mesh_module, "launch_chunked", colliding)
     monkeypatch.setattr(mesh_module, "LARGE_BUCKET", 0)
     got = _assert_same(*_bucket_case(case))
-    assert got is not None and len(collided) == 2
+    # the pass that closed it hashed both (a clockwise surface, as these hand-made ones are, is closed again with its
+    # faces reversed: its fins hashed in the first pass too)
+    assert got is not None and collided[-2:] == ["hash_fin_keys", "hash_column_keys"]
+    assert len(collided) == (3 if case in ("smallest", "hub", "fan") else 2)
     assert got[2].all() == (case in ("smallest", "hub"))  # no fin where the quads differ in one vertex
 
 

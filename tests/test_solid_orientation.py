@@ -17,6 +17,7 @@ import warnings
 import numpy as np
 import pytest
 import trimesh
+import warp as wp
 from hypothesis import given, settings
 from hypothesis import strategies as hs
 from scipy.spatial import Delaunay
@@ -70,10 +71,35 @@ def test_random_tins_close_outward_both_ways(seed, n, floor):
         assert mesh.volume > 0.0
         assert mesh.volume == pytest.approx(want, rel=1e-9)
     np.testing.assert_array_equal(cw_v.view(np.uint64), ccw_v.view(np.uint64))
-    np.testing.assert_array_equal(cw_f[:len(faces)], faces)  # the surface's faces reversed back, the solid's own
+    np.testing.assert_array_equal(cw_f, ccw_f)  # closed with its faces reversed: the counter-clockwise one's solid
     np.testing.assert_array_equal(cw_kept, ccw_kept)
     np.testing.assert_array_equal(cw_source, ccw_source)
     assert cw_added == ccw_added
+
+
+@pytest.mark.parametrize("interval", [20.0, 7.0])
+def test_a_stepped_surface_through_invert_closes_watertight(interval):
+    """A stepped surface with its faces reversed (trimesh's ``invert``), its terrace mask as it was: its solid was
+    reversed after closing, but the fins and the walls' pairs are read from the step kernels' layout (u_top, v_top,
+    v_bottom), (u_top, v_bottom, u_bottom), which the reversal scrambles: the solid leaked (not watertight), with a
+    warning that said it faced outward. Closed with its faces reversed back, it is the stepped surface's solid."""
+    from stepterrain import stepped as stepped_module
+    from stepterrain.terrain import as_terrain
+
+    t = as_terrain(st.sample_dem().heights[:30, :30])
+    arrays, vertices = stepped_module._stepped_arrays(t, st.isovalues(t.height_range, interval=interval), 0.0, None,
+                                                      wp.get_device("cpu"))
+    faces, terrace = arrays.faces.astype(np.int64), ~arrays.face_walls
+    assert (~terrace).sum() > 0  # walls
+    floor = float(vertices[:, 2].min()) - 10.0
+    want = close_solid(vertices, faces, terrace, floor)
+    with pytest.warns(UserWarning, match="faces: the surface is wound clockwise seen from"):
+        got = close_solid(vertices, np.ascontiguousarray(faces[:, ::-1]), terrace, floor)
+    mesh = trimesh.Trimesh(got[0], got[1], process=False)
+    assert mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0.0
+    np.testing.assert_array_equal(got[0].view(np.uint64), want[0].view(np.uint64))
+    for g, w in zip(got[1:], want[1:], strict=True):
+        np.testing.assert_array_equal(g, w)
 
 
 def test_counter_clockwise_surfaces_are_left_alone():
