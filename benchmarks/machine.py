@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import os
 import platform
 import subprocess
@@ -26,3 +27,15 @@ def pin_to_one_core() -> str:
     core = min(os.sched_getaffinity(0))
     os.sched_setaffinity(0, {core})
     return f"pinned to CPU {core}"
+
+
+def repeat_count(text: str) -> int:
+    """The ``type`` of the run_*.py scripts' ``--repeat``: a whole number of runs, at least 1 (``--repeat 0`` timed
+    nothing and crashed on the best or median of no run, after the set-up)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number of runs (at least 1); got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected at least 1 run; got {value}")
+    return value

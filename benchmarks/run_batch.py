@@ -44,7 +44,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from machine import cpu_model  # noqa: E402  (benchmarks/ is the script folder)
+from machine import cpu_model, repeat_count  # noqa: E402  (benchmarks/ is the script folder)
 
 _HERE = Path(__file__).resolve().parent
 if str(_HERE.parent) not in sys.path:
@@ -288,7 +288,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--tiles", type=int, default=64, help="number of tiles, a square (default 64)")
     parser.add_argument("--tile", type=int, default=1024, help="cells per tile side (default 1024)")
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--repeat", type=int, default=2, help="runs per contender; the best is reported")
+    parser.add_argument("--repeat", type=repeat_count, default=2, help="runs per contender; the best is reported")
     parser.add_argument("--format", default=".glb")
     parser.add_argument("--contenders", nargs="+", default=["loop", "loop_1_core", "process_pool", "dask"],
                         choices=["loop", "loop_1_core", "process_pool", "split_pinned", "dask"])

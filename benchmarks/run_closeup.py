@@ -45,7 +45,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from machine import cpu_model  # noqa: E402  (benchmarks/ is the script folder)
+from machine import cpu_model, repeat_count  # noqa: E402  (benchmarks/ is the script folder)
 
 _HERE = Path(__file__).resolve().parent
 if str(_HERE.parent) not in sys.path:
@@ -275,7 +275,7 @@ def layers_scaling(terrain, repeat: int) -> list[dict]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--repeat", type=repeat_count, default=3)
     parser.add_argument("--counts", type=int, nargs="+", default=[0, 1, 2, 3, 4],
                         help="close-up counts to time (0-4; must include 0: every ratio is to the 0-close-up frame)")
     parser.add_argument("--skip-full", action="store_true", help="skip the whole-terrain-per-close-up contender")

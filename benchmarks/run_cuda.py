@@ -43,7 +43,7 @@ if str(_HERE.parent) not in sys.path:
     sys.path.insert(0, str(_HERE.parent))
 
 from benchmarks import baselines  # noqa: E402
-from benchmarks.machine import cpu_model  # noqa: E402
+from benchmarks.machine import cpu_model, repeat_count  # noqa: E402
 
 
 def timed(fn: Callable[[], Any], device: str, repeat: int) -> tuple[float, Any]:
@@ -123,7 +123,7 @@ def bench_restep(devices: list[str], repeat: int, rows: list[list[str]]) -> None
     for dev in devices:
         out = restep(wp.get_device(dev), 512, repeat=max(repeat, 10))
         rows.append([f"re-step 512² ({out['faces']:,} faces)", dev, f"{out['interval_mesh_ms']:.2f}",
-                     f"{out['interval_arrays_ms']:.2f} (arrays)", f"new γ {out['gamma_ms']:.2f} ms"])
+                     f"{out['interval_arrays_ms']:.2f} (arrays); new γ {out['gamma_ms']:.2f} ms", ""])
         print(rows[-1], flush=True)
 
 
@@ -237,14 +237,15 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--devices", nargs="+", help="Warp devices (default: cpu and every CUDA device)")
     parser.add_argument("--benches", nargs="+", default=list(BENCHES), choices=list(BENCHES))
-    parser.add_argument("--repeat", type=int, default=5)
+    parser.add_argument("--repeat", type=repeat_count, default=5)
     parser.add_argument("--output", type=Path, help="also write the markdown table here")
     args = parser.parse_args(argv)
 
     import warp as wp
 
-    wp.config.quiet = True
-    wp.init()
+    from stepterrain._device import init_warp
+
+    init_warp()  # quietly, as the package does (wp.config.quiet, set here before, is gone from Warp >= 1.12)
     devices = args.devices or ["cpu"] + [str(d) for d in wp.get_cuda_devices()]
     started = _dt.datetime.now().astimezone().strftime("%Y-%m-%d %H:%M %Z")
     rows: list[list[str]] = []

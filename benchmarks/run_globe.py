@@ -41,6 +41,8 @@ _ROOT = _HERE.parent
 if str(_ROOT) not in sys.path:
     sys.path.insert(0, str(_ROOT))
 
+from benchmarks.machine import repeat_count  # noqa: E402
+
 DATA_DIRS = [Path(p) for p in [os.environ.get("STEPTERRAIN_SHARED_DATA")] if p] + [
     _ROOT.parent / "shared" / "data", _ROOT.parents[1] / "shared" / "data"]
 
@@ -397,7 +399,7 @@ def planar(repeat: int, lines: list[str]) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--face-size", type=int, default=1025)
-    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--repeat", type=repeat_count, default=3)
     parser.add_argument("--all-cores", action="store_true", help="do not pin to one core")
     parser.add_argument("--quick", action="store_true", help="skip the planar comparison and the renders")
     parser.add_argument("--output", type=Path, help="also write the markdown report here")

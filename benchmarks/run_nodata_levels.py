@@ -24,7 +24,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from machine import pin_to_one_core  # benchmarks/ is the script folder (standard library only)
+from machine import pin_to_one_core, repeat_count  # benchmarks/ is the script folder (standard library only)
 
 
 def best_seconds(run: Callable[[], object], repeat: int) -> float:
@@ -37,7 +37,7 @@ def best_seconds(run: Callable[[], object], repeat: int) -> float:
     return min(times)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("root", nargs="?", default=".", help="the tree to import stepterrain from")
     parser.add_argument("--size", type=int, default=512,
@@ -45,15 +45,13 @@ def main() -> None:
     parser.add_argument("--intervals", type=float, nargs="+", default=[50.0, 1.0, 0.2], help="metres between levels")
     parser.add_argument("--stepped-size", type=int, default=256, help="nodes a side for stepped() (0: skip)")
     parser.add_argument("--stepped-interval", type=float, default=1.0)
-    parser.add_argument("--repeat", type=int, default=3)
-    args = parser.parse_args()
+    parser.add_argument("--repeat", type=repeat_count, default=3)
+    args = parser.parse_args(argv)
     root = Path(args.root).resolve()
     sys.path.insert(0, str(root))
     pin_to_one_core()
     import numpy as np
     import warp as wp
-
-    wp.config.quiet = True
     from stepterrain.kernels import stepped as stepped_kernels
 
     import stepterrain as st

@@ -32,7 +32,7 @@ if str(_HERE.parent) not in sys.path:
 import warp as wp  # noqa: E402
 
 import stepterrain as st  # noqa: E402
-from benchmarks.machine import cpu_model  # noqa: E402
+from benchmarks.machine import cpu_model, repeat_count  # noqa: E402
 from stepterrain import stepped as stepped_module  # noqa: E402
 from stepterrain.mesh import close_solid  # noqa: E402
 from stepterrain.terrain import as_terrain  # noqa: E402
@@ -96,7 +96,7 @@ def _times(fn: Callable[[], Any], repeat: int) -> list[float]:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--cases", nargs="+", choices=CASES, default=list(CASES))
-    parser.add_argument("--repeat", type=int, default=5, help="timed runs per contender (default 5)")
+    parser.add_argument("--repeat", type=repeat_count, default=5, help="timed runs per contender (default 5)")
     parser.add_argument("--device", default="cpu", help="Warp device of the kernels (default cpu)")
     args = parser.parse_args(argv)
     device = wp.get_device(args.device)

@@ -47,7 +47,7 @@ if str(_HERE.parent) not in sys.path:
     sys.path.insert(0, str(_HERE.parent))
 
 from benchmarks import baselines  # noqa: E402
-from benchmarks.machine import cpu_model, pin_to_one_core  # noqa: E402
+from benchmarks.machine import cpu_model, pin_to_one_core, repeat_count  # noqa: E402
 
 CONTENDERS = ("warp", "vtk_banded", "vtk_clip_per_band", "numpy_ref")
 BASELINES = ("vtk_banded", "numpy_ref", "vtk_clip_per_band")
@@ -546,7 +546,7 @@ def main(argv: list[str] | None = None) -> int:
         help=f"real DEMs at native size ({', '.join(baselines.REAL_DEMS)}; 'none' for none)",
     )
     parser.add_argument("--contenders", nargs="+", default=list(CONTENDERS), choices=CONTENDERS)
-    parser.add_argument("--repeat", type=int, default=3, help="timed runs per contender and case")
+    parser.add_argument("--repeat", type=repeat_count, default=3, help="timed runs per contender and case")
     parser.add_argument("--slow-seconds", type=float, default=10.0,
                         help=f"a contender whose run takes longer runs at most {SLOW_REPEAT} times")  # fmt: skip
     parser.add_argument(

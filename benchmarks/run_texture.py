@@ -34,7 +34,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from machine import cpu_model  # noqa: E402  (benchmarks/ is the script folder)
+from machine import cpu_model, repeat_count  # noqa: E402  (benchmarks/ is the script folder)
 
 _HERE = Path(__file__).resolve().parent
 if str(_HERE.parent) not in sys.path:
@@ -47,11 +47,15 @@ CONTOUR_INDEX_EVERY = 5  # both contenders draw every 5th line as an index line,
 
 
 def find_dem() -> Path:
-    for parent in [_HERE, *_HERE.parents]:
-        path = parent / "shared" / "data" / "big_tujunga_srtm_30m_utm11n.npz"
-        if path.exists():
-            return path
-    sys.exit("shared/data/big_tujunga_srtm_30m_utm11n.npz not found above benchmarks/")
+    """The real DEM: in ``STEPTERRAIN_SHARED_DATA`` first (as the other run_*.py scripts and the tests look), else in
+    a ``shared/data`` above benchmarks/ (a worktree's is further up)."""
+    name = "big_tujunga_srtm_30m_utm11n.npz"
+    env = os.environ.get("STEPTERRAIN_SHARED_DATA")
+    folders = ([Path(env)] if env else []) + [parent / "shared" / "data" for parent in [_HERE, *_HERE.parents]]
+    for folder in folders:
+        if (folder / name).exists():
+            return folder / name
+    sys.exit(f"{name} not found in $STEPTERRAIN_SHARED_DATA ({env or 'unset'}) nor in a shared/data above benchmarks/")
 
 
 def tiled_dem(size: int) -> np.ndarray:
@@ -345,7 +349,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--dem-size", type=int, default=4096)
     parser.add_argument("--image", type=int, nargs=2, default=(16384, 8192), metavar=("W", "H"))
-    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--repeat", type=repeat_count, default=3)
     parser.add_argument("--all-cores", action="store_true")
     parser.add_argument("--output", type=Path)
     parser.add_argument("--cases", nargs="+", choices=("hillshade", "pyramid", "contours"),

@@ -18,9 +18,7 @@ from pathlib import Path
 def main(root: str) -> None:
     sys.path.insert(0, str(Path(root).resolve()))
     import numpy as np
-    import warp as wp
 
-    wp.config.quiet = True
     import stepterrain as st
     from stepterrain import kernels
     from stepterrain import texture as tx

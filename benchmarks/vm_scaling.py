@@ -45,9 +45,6 @@ def work(kind: str) -> float:
                 np.copyto(b, a)
     else:
         sys.path.insert(0, str(_HERE.parent))
-        import warp as wp
-
-        wp.config.quiet = True
         import stepterrain as st
         from benchmarks import baselines
         from stepterrain.export import save_mesh

@@ -1,7 +1,8 @@
 """NumPy reference of :func:`stepterrain.mesh.close_solid` and its helpers, as they were before the Warp kernels
 (``kernels/solid.py``): close_solid, boundary_edges, exact_keys, _wall_pairs, _repeated_rows and _split_pinches,
-verbatim. Tests compare the kernels' results with these bit for bit; ``benchmarks/run_solid.py`` times them as what
-a NumPy user would otherwise have.
+verbatim (close_solid with two rules added since: a clockwise surface closed with its faces reversed, a floor on the
+lowest point in float32 refused). Tests compare the kernels' results with these bit for bit;
+``benchmarks/run_solid.py`` times them as what a NumPy user would otherwise have.
 """
 
 from __future__ import annotations
@@ -69,6 +70,7 @@ def close_solid(
     faces: NDArray[np.int64],
     terrace_mask: NDArray[np.bool_],
     floor: float,
+    turn: bool = True,
 ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.bool_], int, NDArray[np.int64]]:
     """Close a height-function surface into a watertight solid with side skirts and a flat base at ``floor``.
 
@@ -94,6 +96,7 @@ def close_solid(
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
+    given = vertices, faces, terrace_mask
     kept = np.ones(len(faces), bool)
     source = np.arange(len(vertices))
     walls = np.flatnonzero(~np.asarray(terrace_mask))
@@ -121,7 +124,21 @@ def close_solid(
     zmin = float(vertices[:, 2].min()) if len(vertices) else 0.0
     if floor >= zmin:
         raise InvalidInputError(f"floor must lie below the lowest surface height {zmin}; got {floor}")
+    with np.errstate(over="ignore"):  # added since: nor on it in float32 (an .stl's, a .glb's positions)
+        low32 = np.float32(zmin)
+    if np.float32(floor) >= low32:
+        below = float(np.nextafter(low32, np.float32(-np.inf)))
+        raise InvalidInputError(f"floor must lie below the lowest surface height {zmin} in float32 too (an .stl or a "
+                                f".glb stores float32 positions: at most {below:.9g}); got {floor}, which rounds to "
+                                f"{float(np.float32(floor)):.9g} in float32")
     edges = boundary_edges(faces)
+    # added since: a surface wound clockwise seen from +z (its projected area, the shoelace sum over its boundary,
+    # negative) is closed again with its faces reversed (once: ``turn``), so that the solid faces outward (inside out
+    # before)
+    o = vertices[edges[0, 0], :2] if len(edges) else np.zeros(2)
+    a, b = vertices[edges[:, 0], :2] - o, vertices[edges[:, 1], :2] - o
+    if turn and np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]) < 0.0:
+        return close_solid(given[0], given[1][:, ::-1], given[2], floor, turn=False)
     vertices, faces, fan, copied = _split_pinches(vertices, faces, edges, terrace_mask)
     split = len(copied) > 0
     if split:

@@ -462,6 +462,25 @@ def test_floor_above_the_surface_is_refused_before_any_work(tmp_path, gamma, low
         assert min(load(r.path).bounds[0][2] for r in report.done) == pytest.approx(lowest - 1e-3)
 
 
+@pytest.mark.parametrize(("gamma", "lowest"), [(1.0, 0.0), (0.5, 0.125), (0.0, 0.25)])
+def test_floor_on_the_lowest_point_in_float32_is_refused_before_any_work(tmp_path, gamma, lowest):
+    """A floor below the lowest point in float64 but on it in float32 passed the check up front, and close_solid
+    refused it in the item that holds that point (no thickness in an .stl or a .glb): refused once, up front, by
+    close_solid's rule, naming the float32 floor below, which is taken."""
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)) + 0.25
+    floor = float(np.nextafter(lowest, -np.inf)) if lowest else -1e-300
+    assert floor < lowest and np.float32(floor) == np.float32(lowest)
+    highest = float(np.nextafter(np.float32(lowest), np.float32(-np.inf)))
+    match = (re.escape(f"floor (the CLI's --floor) must lie below the lowest point {lowest:g} of the stepped surface")
+             + ".* in float32 too .*" + re.escape(f"at most {highest:.9g}); got {floor!r}"))
+    with pytest.raises(InvalidInputError, match=match):
+        batch(z, tmp_path / "out", tile_size=4, interval=2.0, gamma=gamma, solid=True, floor=floor, scheduler="serial")
+    assert not (tmp_path / "out").exists()
+    report = batch(z, tmp_path / "ok", tile_size=4, interval=2.0, gamma=gamma, solid=True, floor=highest,
+                   format=".stl", scheduler="serial")
+    assert report.ok and len(report.done) == 4, report.summary()
+
+
 def test_floor_check_reuses_the_height_range_the_source_checks_found(monkeypatch):
     """_check_floor took an isfinite pass and built a mask of the nodes that triangles use, over every height, to
     find the lowest such height: without nodata that is every node of a grid of at least 2 x 2, and the source's

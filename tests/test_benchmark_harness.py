@@ -5,6 +5,7 @@ runs them (``benchmarks/`` first on ``sys.path``), and stopped before any timed 
 from __future__ import annotations
 
 import importlib.util
+import sys
 from pathlib import Path
 
 import pytest
@@ -17,6 +18,7 @@ def _script(name: str, monkeypatch: pytest.MonkeyPatch):
     monkeypatch.syspath_prepend(str(BENCH))  # the scripts import ``machine`` as their own folder's module
     spec = importlib.util.spec_from_file_location(f"bench_harness_{name}", BENCH / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, spec.name, module)  # as a script's __main__ is: its dataclasses look it up
     spec.loader.exec_module(module)
     return module
 
@@ -136,3 +138,64 @@ def test_pytest_benchmarks_still_honours_ignore():
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     collected = [line for line in proc.stdout.splitlines() if "::" in line]
     assert collected and all(line.startswith("benchmarks/bench_stepped.py::") for line in collected), collected
+
+
+_REPEAT_SCRIPTS = ["run_batch", "run_closeup", "run_cuda", "run_globe", "run_nodata_levels", "run_solid", "run_stepped",
+                   "run_texture"]
+
+
+@pytest.mark.parametrize("name", _REPEAT_SCRIPTS)
+@pytest.mark.parametrize("repeat", ["0", "-2", "two"])
+def test_run_scripts_refuse_a_repeat_below_one(monkeypatch, capsys, name, repeat):
+    """``--repeat 0`` set every contender up (a DEM read, a terrain stepped) and then crashed on the best or median of
+    no run (``min()`` of an empty list, ``statistics.median``); it is a usage error now, before any work, in each
+    run_*.py script (machine.repeat_count)."""
+    try:
+        module = _script(name, monkeypatch)
+    except ImportError as exc:  # a contender the script imports at the top
+        pytest.skip(f"{name}: {exc}")
+    with pytest.raises(SystemExit) as exit_info:
+        module.main(["--repeat", repeat])
+    assert exit_info.value.code == 2
+    assert "argument --repeat: expected" in capsys.readouterr().err
+
+
+def test_run_scripts_accept_a_repeat_of_one():
+    """The type's other side: 1 and more are runs."""
+    sys.path.insert(0, str(BENCH))
+    try:
+        from machine import repeat_count
+    finally:
+        sys.path.remove(str(BENCH))
+    assert [repeat_count(text) for text in ("1", "7")] == [1, 7]
+
+
+def test_run_texture_finds_the_dem_in_stepterrain_shared_data(monkeypatch, tmp_path):
+    """``run_texture.find_dem`` looked only in a shared/data above benchmarks/ and ignored ``STEPTERRAIN_SHARED_DATA``
+    (which the other scripts and the tests honour): the folder it names comes first."""
+    (tmp_path / "big_tujunga_srtm_30m_utm11n.npz").write_bytes(b"")
+    module = _script("run_texture", monkeypatch)
+    monkeypatch.setenv("STEPTERRAIN_SHARED_DATA", str(tmp_path))
+    assert module.find_dem() == tmp_path / "big_tujunga_srtm_30m_utm11n.npz"
+
+
+def test_run_cuda_restep_row_gets_its_ratio(monkeypatch):
+    """run_cuda's re-step row held "new γ ... ms" in its check column, so the report gave the other devices no ratio to
+    the first (every other pipeline has one): the γ time moved to "also", the ratio is there."""
+    import types
+
+    import warp as wp
+
+    module = _script("run_cuda", monkeypatch)
+    from benchmarks import run_stepped
+
+    timings = {"cpu": 40.0, "cuda:0": 4.0}
+    monkeypatch.setattr(run_stepped, "restep", lambda device, cells, repeat: {
+        "faces": 1000, "interval_mesh_ms": timings[device.name], "interval_arrays_ms": timings[device.name] / 2,
+        "gamma_ms": 1.0})
+    monkeypatch.setattr(wp, "get_device", lambda name: types.SimpleNamespace(name=str(name)))
+    rows: list[list[str]] = []
+    module.bench_restep(["cpu", "cuda:0"], 1, rows)
+    text = module.markdown(rows, ["cpu", "cuda:0"], types.SimpleNamespace(repeat=1), "now", ["--benches", "restep"])
+    row = next(line for line in text.splitlines() if line.startswith("| re-step 512²") and "cuda:0" in line)
+    assert "10.0x faster than `cpu`" in row and "new γ 1.00 ms" in row

@@ -28,6 +28,10 @@ from tests.conftest import shared_file
 
 CPU = wp.get_device("cpu")
 
+# random and hand-made surfaces come wound either way: close_solid's warning on a clockwise one (its solid reversed,
+# as the reference reverses it: test_solid_orientation.py checks the warning) is expected here, not news
+pytestmark = pytest.mark.filterwarnings("ignore:faces. the surface is wound clockwise seen from [+]z:UserWarning")
+
 
 def _surface(terrain, interval=None, levels=None, gamma=1.0, nudged=True):
     """The stepped surface close_solid gets: vertices, faces, terrace mask and the default floor (``nudged``: the
@@ -416,7 +420,10 @@ def test_hashed_buckets_that_all_collide_equal_the_reference(case, monkeypatch):
     monkeypatch.setattr(mesh_module, "launch_chunked", colliding)
     monkeypatch.setattr(mesh_module, "LARGE_BUCKET", 0)
     got = _assert_same(*_bucket_case(case))
-    assert got is not None and len(collided) == 2
+    # the pass that closed it hashed both (a clockwise surface, as these hand-made ones are, is closed again with its
+    # faces reversed: its fins hashed in the first pass too)
+    assert got is not None and collided[-2:] == ["hash_fin_keys", "hash_column_keys"]
+    assert len(collided) == (3 if case in ("smallest", "hub", "fan") else 2)
     assert got[2].all() == (case in ("smallest", "hub"))  # no fin where the quads differ in one vertex
 
 

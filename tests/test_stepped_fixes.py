@@ -359,10 +359,37 @@ def test_the_early_floor_refusal_never_refuses_a_floor_the_solid_takes(heights, 
             refused = True
         else:
             refused = False
-    assert refused == (floor >= surface.vertices[:, 2].min())  # the final word: close_solid's
+    lowest = surface.vertices[:, 2].min()
+    # the final word: close_solid's (a floor on the lowest point in float32 too: no thickness in an .stl or a .glb)
+    assert refused == (floor >= lowest or np.float32(floor) >= np.float32(lowest))
     assert refused or not early  # never a floor the solid takes
     if offset >= 0 and not isinstance(g, np.ndarray) and g in (0.0, 1.0):
         assert early  # γ 0 or 1: the lowest point is known exactly, so every such floor is refused before stepping
+    if not isinstance(g, np.ndarray) and g in (0.0, 1.0):
+        assert early == refused  # and so is one that rounds onto it in float32 (close_solid's rule, before stepping)
+
+
+@pytest.mark.parametrize("gamma", [0.0, 1.0])
+def test_a_floor_on_the_lowest_point_in_float32_is_refused_before_stepping(monkeypatch, gamma):
+    """A floor one float64 step below the lowest surface point lies on it in float32: close_solid refuses it after
+    stepping (no thickness in an .stl or a .glb), so the check before stepping refuses it too, by the same rule,
+    naming the float32 floor below (the check only applied float64's ``floor >= lowest``: the terrain was stepped,
+    with its warnings, only to be refused). At γ 0 and 1, where the check knows the lowest point exactly (in between
+    it leaves the last few float32 steps to close_solid)."""
+    heights = np.array([[15.0, 22.0, 41.0], [33.0, 27.0, 58.0], [19.0, 44.0, 36.0]], np.float32)
+    lowest = float(st.stepped(heights, interval=10.0, gamma=gamma, device="cpu").vertices[:, 2].min())
+    floor = float(np.nextafter(lowest, -np.inf))
+    assert floor < lowest and np.float32(floor) == np.float32(lowest)
+    stepped_calls = []
+    real = stepped_module._stepped_arrays
+    monkeypatch.setattr(stepped_module, "_stepped_arrays", lambda *a, **k: stepped_calls.append(1) or real(*a, **k))
+    with pytest.raises(st.InvalidInputError, match=r"^floor must lie below the lowest surface height .* in float32 "
+                       rf"too .* at most {float(np.nextafter(np.float32(lowest), np.float32(-np.inf))):.9g}\)"):
+        st.stepped(heights, interval=10.0, gamma=gamma, solid=True, floor=floor, device="cpu")
+    assert stepped_calls == []
+    highest = float(np.nextafter(np.float32(lowest), np.float32(-np.inf)))  # the floor it names is taken
+    mesh = st.stepped(heights, interval=10.0, gamma=gamma, solid=True, floor=highest, device="cpu")
+    assert mesh.is_watertight and mesh.vertices[:, 2].min() == highest
 
 
 class _Unreadable:
