@@ -119,7 +119,7 @@ def lowest_used_height(heights: NDArray[Any], height_range: tuple[float, float] 
     used = used_nodes(np.isfinite(heights))
     if not used.any():
         return None
-    if heights.dtype.kind in "biu":  # every node finite, so on a grid with a triangle every node is one's; and
+    if np.asarray(heights).dtype.kind in "biu":  # every node finite, so on a grid with a triangle every node is one's; and
         return float(heights.min())  # initial=np.inf cannot be cast to an integer dtype (numpy's OverflowError)
     return float(np.min(heights, where=used, initial=np.inf))
 

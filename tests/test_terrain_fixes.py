@@ -1434,3 +1434,13 @@ def test_lowest_used_height_of_the_sample_dem_in_whole_metres():
     grid = np.round(np.asarray(st.sample_dem().heights, np.float64)).astype(np.int16)
     assert lowest_used_height(grid) == float(grid.min())
     assert lowest_used_height(np.stack([grid + 7, grid])) == float(grid.min())
+
+
+def test_lowest_used_height_takes_nested_lists_of_floats_and_integers():
+    """Nested lists (no ``dtype``) were read as numpy reads them before the integer path was added: the integer
+    check reads the list's dtype through numpy, not an attribute a list lacks."""
+    from stepterrain.terrain import lowest_used_height
+
+    assert lowest_used_height([[1.0, 2.0], [3.0, 4.0]]) == 1.0
+    assert lowest_used_height([[5, 2], [3, 4]]) == 2.0
+    assert lowest_used_height([[np.nan, 2.0], [3.0, 4.0]]) == 2.0
