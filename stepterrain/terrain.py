@@ -119,8 +119,8 @@ def lowest_used_height(heights: NDArray[Any], height_range: tuple[float, float] 
     used = used_nodes(np.isfinite(heights))
     if not used.any():
         return None
-    if np.asarray(heights).dtype.kind in "biu":  # every node finite, so on a grid with a triangle every node is one's; and
-        return float(heights.min())  # initial=np.inf cannot be cast to an integer dtype (numpy's OverflowError)
+    if np.asarray(heights).dtype.kind in "biu":  # every node finite: on a grid with a triangle every node is one's;
+        return float(np.min(heights))  # initial=np.inf cannot be cast to an integer dtype (numpy's OverflowError)
     return float(np.min(heights, where=used, initial=np.inf))
 
 
