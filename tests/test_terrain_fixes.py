@@ -1443,4 +1443,5 @@ def test_lowest_used_height_takes_nested_lists_of_floats_and_integers():
 
     assert lowest_used_height([[1.0, 2.0], [3.0, 4.0]]) == 1.0
     assert lowest_used_height([[5, 2], [3, 4]]) == 2.0
-    assert lowest_used_height([[np.nan, 2.0], [3.0, 4.0]]) == 2.0
+    rows = [[np.nan, 2.0, 5.0], [3.0, 4.0, 6.0]]
+    assert lowest_used_height(rows) == lowest_used_height(np.array(rows))
