@@ -110,7 +110,7 @@ def lowest_used_height(heights: NDArray[Any], height_range: tuple[float, float] 
     None when no triangle has. Nodes beside nodata that no such triangle uses are in no stepped mesh.
     ``height_range``: the heights' (min, max) when they hold no nodata, known to the caller: on a grid of at least
     2 x 2 every node is then a triangle's, and its min is the answer without a pass. A stack is read a frame at a
-    time (:func:`_by_frame`): a memory map is not read into memory whole."""
+    time (:func:`_by_frame`): a memory map is not read into memory whole. Integer heights give a float too."""
     if height_range is not None and min(heights.shape[-2:]) >= 2:
         return float(height_range[0])
     if _by_frame(heights):  # a frame's masks at a time: the stack's held as much memory as a float32 stack again
@@ -119,6 +119,8 @@ def lowest_used_height(heights: NDArray[Any], height_range: tuple[float, float] 
     used = used_nodes(np.isfinite(heights))
     if not used.any():
         return None
+    if np.asarray(heights).dtype.kind in "biu":  # every node finite: on a grid with a triangle every node is one's;
+        return float(np.min(heights))  # initial=np.inf cannot be cast to an integer dtype (numpy's OverflowError)
     return float(np.min(heights, where=used, initial=np.inf))
 
 

@@ -1400,3 +1400,48 @@ def test_a_memory_mapped_stacks_used_range_and_lowest_used_height_take_a_frames_
     want = used_height_range_reference(mapped)  # some frame has a triangle: its low is the lowest used height
     assert got == [want, want[0]]
     assert want[0] > -1e4
+
+
+@settings(max_examples=25, deadline=None)
+@given(data=st_.data(), dtype=st_.sampled_from(["int8", "int16", "uint16", "int32", "int64", "uint8"]),
+       shape=st_.one_of(st_.tuples(st_.integers(1, 4), st_.integers(1, 5)),
+                        st_.tuples(st_.integers(1, 3), st_.integers(1, 4), st_.integers(1, 5))))
+def test_lowest_used_height_of_integer_heights_is_their_float_low(data, dtype, shape):
+    """lowest_used_height of an integer grid or (T, H, W) stack without a known range raised numpy's
+    ``OverflowError: cannot convert float infinity to integer`` (``np.min(..., initial=np.inf)`` cast to the integer
+    dtype); it is the float lowest height of a node a triangle uses (tests/reference.py on a float64 copy), None
+    without a triangle (a 1 x N grid), as used_height_range of the same integers already gave."""
+    from hypothesis.extra.numpy import arrays
+
+    from stepterrain.terrain import lowest_used_height, used_height_range
+
+    from .reference import lowest_used_height_reference
+
+    info = np.iinfo(dtype)
+    heights = data.draw(arrays(dtype, shape, elements=st_.integers(int(info.min), int(info.max))))
+    low = lowest_used_height(heights)
+    assert low == lowest_used_height_reference(heights.astype(np.float64))
+    assert low is None or type(low) is float
+    if low is not None:
+        assert low == used_height_range(heights)[0]
+
+
+def test_lowest_used_height_of_the_sample_dem_in_whole_metres():
+    """The sample DEM rounded to int16 metres (as many DEMs are stored), a grid and a two-frame stack: the lowest
+    height as a float, where numpy's OverflowError came from ``initial=np.inf``."""
+    from stepterrain.terrain import lowest_used_height
+
+    grid = np.round(np.asarray(st.sample_dem().heights, np.float64)).astype(np.int16)
+    assert lowest_used_height(grid) == float(grid.min())
+    assert lowest_used_height(np.stack([grid + 7, grid])) == float(grid.min())
+
+
+def test_lowest_used_height_takes_nested_lists_of_floats_and_integers():
+    """Nested lists (no ``dtype``) were read as numpy reads them before the integer path was added: the integer
+    check reads the list's dtype through numpy, not an attribute a list lacks."""
+    from stepterrain.terrain import lowest_used_height
+
+    assert lowest_used_height([[1.0, 2.0], [3.0, 4.0]]) == 1.0
+    assert lowest_used_height([[5, 2], [3, 4]]) == 2.0
+    rows = [[np.nan, 2.0, 5.0], [3.0, 4.0, 6.0]]
+    assert lowest_used_height(rows) == lowest_used_height(np.array(rows))
