@@ -453,3 +453,27 @@ def test_batch_tiles_refuses_a_tiles_folder_name_too_long_by_name(tmp_path, caps
     assert_usage_error_writing_nothing("batch_tiles", [*TINY["batch_tiles"], "--device", "cpu", "--output",
                                                        str(output)], "the tiles folder beside --output", tmp_path,
                                        capsys)
+
+
+def test_batch_tiles_steps_a_dem_of_little_relief_by_default(tmp_path, monkeypatch, capsys):
+    """batch_tiles.py stepped every DEM at a fixed 100 m by default: a --dem of 4 m relief (a patch of the embedded
+    DEM's heights / 100) came out as one flat terrace in every tile, with a warning. By default it now leaves the
+    interval to the library (nice_interval of the DEM's range, 100 m for the embedded DEM, as before)."""
+    import trimesh
+
+    import stepterrain as st
+
+    example = load_example("batch_tiles")
+    monkeypatch.setattr(example, "overview_image", lambda report, **kw: np.zeros((8, 8, 3), np.uint8))  # no render
+    dem = tmp_path / "flat.npy"
+    np.save(dem, (st.sample_dem().heights[300:341, 600:641] / 100.0).astype(np.float32))  # 9.15 to 13.08 m
+    out = tmp_path / "batch.png"
+    assert example.main(["--dem", str(dem), "--size", "41", "--tile", "20", "--scheduler", "serial",
+                         "--device", "cpu", "--output", str(out)]) == 0
+    tiles = sorted(example.tiles_folder(out).glob("*.glb"))
+    assert len(tiles) == 4
+    # glTF is y-up: a height is a vertex's y
+    z = np.concatenate([trimesh.load(path, force="mesh").vertices[:, 1] for path in tiles])
+    terraces = np.unique(np.round(z, 3))
+    assert len(terraces) >= 3, f"terraces at {terraces}"
+    assert "has no step" not in capsys.readouterr().err
