@@ -477,3 +477,28 @@ def test_batch_tiles_steps_a_dem_of_little_relief_by_default(tmp_path, monkeypat
     terraces = np.unique(np.round(z, 3))
     assert len(terraces) >= 3, f"terraces at {terraces}"
     assert "has no step" not in capsys.readouterr().err
+
+
+def test_textures_texture_panel_keeps_the_dems_proportions(monkeypatch, tmp_path, capsys):
+    """textures.py's texture panel letterboxed the composite's texels as squares: a DEM of cells taller than wide
+    (the Front Range's 3", 70.8 x 92.7 m) was drawn square, squashed north-south by a quarter, its circular lens an
+    ellipse. The panel now keeps the terrain's extent in metres."""
+    import stepterrain as st
+
+    from .conftest import shared_file
+
+    dem = shared_file("front_range_srtmgl3_3arcsec.tif")
+    example = load_example("textures")
+    monkeypatch.setattr(example, "render_textured_mesh", lambda mesh, window_size, **kw: np.full(
+        (window_size[1], window_size[0], 3), 255, np.uint8))  # the draped view is not this test's: no render
+    out = tmp_path / "t.png"
+    assert example.main(["--dem", str(dem), "--size", "24", "--panel", "96", "72", "--device", "cpu",
+                         "--output", str(out)]) == 0
+    from PIL import Image
+
+    with Image.open(out) as image:
+        panel = np.asarray(image.convert("RGB"))[:, :96].astype(int)
+    drawn = np.nonzero((panel < 250).any(axis=-1))
+    rows, cols = np.ptp(drawn[0]) + 1, np.ptp(drawn[1]) + 1
+    xmin, xmax, ymin, ymax = example.crop_sample(24, st.load_dem(dem)).extent
+    assert cols / rows == pytest.approx((xmax - xmin) / (ymax - ymin), abs=0.03)
