@@ -51,7 +51,8 @@ def crop_sample(size: int, dem: st.Terrain | None = None) -> st.Terrain:
     heights = dem.heights[i0: i0 + n_rows * stride: stride, j0: j0 + n_cols * stride: stride]
     dx, dy = dem.spacing
     return st.Terrain.from_heights(heights, spacing=(dx * stride, dy * stride),
-                                   origin=(dem.origin[0] + j0 * dx, dem.origin[1] + i0 * dy), crs=dem.crs)
+                                   origin=(dem.origin[0] + j0 * dx, dem.origin[1] + i0 * dy), crs=dem.crs,
+                                   source=dem.source)
 
 
 def colour_layers(terrain: st.Terrain) -> tuple[np.ndarray, np.ndarray]:

@@ -502,3 +502,32 @@ def test_textures_texture_panel_keeps_the_dems_proportions(monkeypatch, tmp_path
     rows, cols = np.ptp(drawn[0]) + 1, np.ptp(drawn[1]) + 1
     xmin, xmax, ymin, ymax = example.crop_sample(24, st.load_dem(dem)).extent
     assert cols / rows == pytest.approx((xmax - xmin) / (ymax - ymin), abs=0.03)
+
+
+@pytest.mark.parametrize("name", ["closeup_anchors", "closeup_mappings"])
+def test_closeup_examples_crop_keeps_the_dems_crs_and_source(name, monkeypatch, tmp_path):
+    """closeup_anchors.py's and closeup_mappings.py's --size crop made a Terrain of the heights, spacing and origin
+    only: the DEM's CRS and source were lost (the other examples' crops keep them)."""
+    import stepterrain as st
+
+    example = load_example(name)
+    seen = []
+
+    def render(terrain, closeups, **kw):
+        seen.append(terrain)
+        return np.zeros((8, 8, 3), np.uint8)
+
+    monkeypatch.setattr(example, "render_closeups", render)
+    assert example.main(["--size", "40", "--device", "cpu", "--output", str(tmp_path / "c.png")]) == 0
+    dem = st.sample_dem()
+    assert seen[0].shape == (40, 40)
+    assert (seen[0].crs, seen[0].source) == (dem.crs, dem.source)
+
+
+def test_textures_crop_keeps_the_dems_source():
+    """textures.py's (and flood.py's) crop_sample kept the DEM's CRS but not its source, as stepped_terrain's does."""
+    import stepterrain as st
+
+    dem = st.sample_dem()
+    terrain = load_example("textures").crop_sample(32, dem)
+    assert (terrain.crs, terrain.source) == (dem.crs, dem.source)
