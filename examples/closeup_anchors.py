@@ -25,7 +25,9 @@ INACTIVE = ("hidden", "gray", "faint", None)
 def closeups(terrain: st.Terrain, inactive: bool = False) -> list[CloseUp]:
     xmin, xmax, ymin, ymax = terrain.extent
     w, h = xmax - xmin, ymax - ymin
-    r = 0.1 * min(w, h)
+    # a tenth of the height, and narrow enough that four 1.3 x close-ups 0.225 w apart stay apart (a tenth of the
+    # shorter side overlapped them on a DEM not much wider than tall, a square one)
+    r = 0.1 * min(h, 0.85 * w)
     out = []
     for k, style in enumerate(STYLES):
         fx = 0.16 + 0.225 * k

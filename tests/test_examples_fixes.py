@@ -531,3 +531,23 @@ def test_textures_crop_keeps_the_dems_source():
     dem = st.sample_dem()
     terrain = load_example("textures").crop_sample(32, dem)
     assert (terrain.crs, terrain.source) == (dem.crs, dem.source)
+
+
+@pytest.mark.parametrize("rows, cols", [(60, 112), (60, 60), (100, 60), (40, 200)])
+def test_closeup_anchors_closeups_stay_apart_on_any_dem(rows, cols):
+    """closeup_anchors.py's four close-ups (ROI radius a tenth of the shorter side, 1.3 x enlarged, centres 0.225 of
+    the width apart) overlapped one another on a DEM not much wider than tall (a square one, the Front Range's,
+    taller than wide): four discs merged into one band, the anchor styles could not be told apart. They now stay
+    apart, and inside the DEM, whatever its proportions (unchanged on the embedded DEM, 1.86 times wider than tall)."""
+    import stepterrain as st
+
+    terrain = st.Terrain.from_heights(np.zeros((rows, cols), np.float32), spacing=(30.0, -30.0))
+    xmin, xmax, ymin, ymax = terrain.extent
+    cus = load_example("closeup_anchors").closeups(terrain)
+    for cu in cus:  # each ROI on the DEM
+        (x, y), (w, h) = cu.roi.center, cu.roi.size
+        assert xmin <= x - w / 2 and x + w / 2 <= xmax and ymin <= y - h / 2 and y + h / 2 <= ymax
+    for a, b in zip(cus, cus[1:], strict=False):  # neighbours apart, overview ROIs and enlarged close-ups alike
+        gap = (b.roi.center[0] + b.offset[0]) - (a.roi.center[0] + a.offset[0])
+        assert gap >= a.roi.size[0] * a.scale[0] / 2 + b.roi.size[0] * b.scale[0] / 2
+        assert b.roi.center[0] - a.roi.center[0] >= a.roi.size[0] / 2 + b.roi.size[0] / 2
