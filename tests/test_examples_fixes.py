@@ -551,3 +551,42 @@ def test_closeup_anchors_closeups_stay_apart_on_any_dem(rows, cols):
         gap = (b.roi.center[0] + b.offset[0]) - (a.roi.center[0] + a.offset[0])
         assert gap >= a.roi.size[0] * a.scale[0] / 2 + b.roi.size[0] * b.scale[0] / 2
         assert b.roi.center[0] - a.roi.center[0] >= a.roi.size[0] / 2 + b.roi.size[0] / 2
+
+
+def test_flood_frames_keep_the_dems_proportions(tmp_path, capsys):
+    """flood.py drew one pixel per node: a DEM of cells taller than wide (the Front Range's 3", 70.8 x 92.7 m) came
+    out square, squashed north-south by a quarter. The frames now have square pixels on the ground: as many
+    columns as nodes across, the rows stretched (the embedded DEM's 30 m cells keep one pixel per node)."""
+    import imageio.v3 as iio
+
+    import stepterrain as st
+
+    from .conftest import shared_file
+
+    dem = shared_file("front_range_srtmgl3_3arcsec.tif")
+    example = load_example("flood")
+    out = tmp_path / "flood.png"
+    assert example.main(["--dem", str(dem), "--size", "24", "--frames", "2", "--keyframes", "2", "--device", "cpu",
+                         "--output", str(out)]) == 0
+    terrain = example.crop_sample(24, st.load_dem(dem))
+    (dx, dy), (rows, cols) = terrain.spacing, terrain.shape
+    frames = iio.imread(out.with_suffix(".gif"), index=None)
+    assert frames.shape[1:3] == (round(rows * abs(dy) / abs(dx)), cols) == (31, 24)
+    water = frames[-1][..., 2].astype(int) > frames[-1][..., 0].astype(int) + 40  # east (the plains) flooded
+    assert water[:, -4:].mean() > 0.9 and water[:, :4].mean() < 0.5
+
+
+def test_flood_mp4_of_stretched_frames_is_even(tmp_path):
+    """An MP4 of the Front Range's frames, stretched north-south to square pixels (24 nodes x 31 rows), is written
+    at an even 24 x 32, as the GIF beside it, not refused for an odd size its --size 24 did not ask for."""
+    pytest.importorskip("imageio_ffmpeg", reason="MP4 output needs imageio-ffmpeg (pip install 'stepterrain[video]')")
+    import imageio.v3 as iio
+
+    from .conftest import shared_file
+
+    dem = shared_file("front_range_srtmgl3_3arcsec.tif")
+    out = tmp_path / "flood.png"
+    assert load_example("flood").main(["--dem", str(dem), "--size", "24", "--frames", "2", "--keyframes", "2",
+                                       "--mp4", "--device", "cpu", "--output", str(out)]) == 0
+    assert iio.imread(out.with_suffix(".mp4"), index=None, extension=".mp4").shape[:3] == (2, 32, 24)
+    assert iio.imread(out.with_suffix(".gif"), index=None).shape[:3] == (2, 32, 24)
