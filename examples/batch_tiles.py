@@ -34,7 +34,10 @@ def main(argv: list[str] | None = None) -> int:
                              "(default: all 1197 of the embedded DEM)")
     add_dem_option(parser)
     parser.add_argument("--tile", type=int, default=256, help="cells per tile (default 256)")
-    parser.add_argument("--interval", type=float, default=100.0, help="step interval in metres (default 100)")
+    parser.add_argument("--interval", type=float, default=None,
+                        help="step interval in metres (default: a round one giving about 15 steps over the DEM's "
+                             "heights, 100 m for the embedded DEM; a fixed 100 m left a DEM of little relief one "
+                             "flat terrace)")
     parser.add_argument("--workers", type=int, default=2, help="LocalCluster worker processes (default 2)")
     parser.add_argument("--scheduler", default=None, help="'serial', or tcp://host:port (default: a LocalCluster)")
     parser.add_argument("--window", type=int, nargs=2, default=(1600, 900), metavar=("W", "H"))

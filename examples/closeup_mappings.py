@@ -76,7 +76,8 @@ def run(args: argparse.Namespace) -> int:
         i0, j0 = max(0, (rows - args.size) // 2), max(0, (cols - args.size) // 2)
         dx, dy = terrain.spacing
         terrain = st.Terrain.from_heights(terrain.heights[i0: i0 + args.size, j0: j0 + args.size], spacing=(dx, dy),
-                                          origin=(terrain.origin[0] + j0 * dx, terrain.origin[1] + i0 * dy))
+                                          origin=(terrain.origin[0] + j0 * dx, terrain.origin[1] + i0 * dy),
+                                          crs=terrain.crs, source=terrain.source)
     cus = closeups(terrain)
     image = render_closeups(terrain, cus, window_size=tuple(args.window), z_scale=2.0, device=args.device)
     frames = None

@@ -52,6 +52,30 @@ def write_mp4(frames: list[np.ndarray], path: Path) -> Path:
     return save_animation(frames, path, fps=1000.0 / FRAME_MS)
 
 
+def frame_size(terrain, even: bool = False) -> tuple[int, int]:
+    """(width, height) of a frame in pixels, square on the ground: one pixel per node across the DEM's finer
+    direction, the other stretched (one pixel per node drew a DEM of cells taller than wide, a 3" one's, squashed
+    north-south), to an even number of pixels when ``even`` (an MP4's); one per node both ways for square cells."""
+    rows, cols = terrain.shape
+    dx, dy = (abs(float(v)) for v in terrain.spacing)
+    if math.isclose(dx, dy, rel_tol=1e-9):
+        return cols, rows
+
+    def stretched(n: int, ratio: float) -> int:
+        return max(2, 2 * round(n * ratio / 2)) if even else max(1, round(n * ratio))
+
+    return (cols, stretched(rows, dy / dx)) if dy > dx else (stretched(cols, dx / dy), rows)
+
+
+def square_pixels(frame: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """``frame`` (H, W, 3) uint8 resampled to ``size`` (width, height); as it is when it has that size."""
+    if frame.shape[1::-1] == size:
+        return frame
+    from PIL import Image
+
+    return np.asarray(Image.fromarray(frame).resize(size, Image.Resampling.BILINEAR))
+
+
 def water_layer(terrain, level: float, lo: float, hi: float):
     """A thematic RGBA keyframe: water below ``level``, deeper water darker; transparent above."""
     h = terrain.heights
@@ -96,14 +120,16 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     terrain = crop_sample(args.size, example_dem(args.dem, args.nodata))
     rows, cols = terrain.shape
-    if args.mp4 and (rows % 2 or cols % 2):  # before any work: the GIF and PNG were written, then the MP4 stretched
+    width, height = frame_size(terrain, even=args.mp4)
+    if args.mp4 and (width % 2 or height % 2):  # before any work: the GIF and PNG were written, then the MP4 stretched
+        pixels = "one pixel each" if (width, height) == (cols, rows) else f"frames of {width} x {height} square pixels"
         raise InvalidInputError(f"--mp4 needs frames of an even width and height (H.264 codes 2 x 2 colour blocks; "
-                                f"the GIF takes any size); --size {args.size} crops {cols} x {rows} nodes, one pixel "
-                                "each: give an even --size, no larger than the DEM's shorter side")
-    held = args.frames * terrain.heights.size * 3 * (3 if args.mp4 else 2)  # the frames, the GIF's (and MP4's) stack
+                                f"the GIF takes any size); --size {args.size} crops {cols} x {rows} nodes, {pixels}"
+                                ": give an even --size, no larger than the DEM's shorter side")
+    held = args.frames * width * height * 3 * (3 if args.mp4 else 2)  # the frames, the GIF's (and MP4's) stack
     if held > get_memory_budget():  # every frame is kept for the GIF: a large --frames ran out of memory
         raise OutputTooLargeError(
-            f"--frames {args.frames} of {terrain.shape[1]} x {terrain.shape[0]} pixels would hold {held / 2**20:,.1f} "
+            f"--frames {args.frames} of {width} x {height} pixels would hold {held / 2**20:,.1f} "
             f"MiB, over the memory budget of {get_memory_budget() / 2**20:,.1f} MiB; give fewer frames or a smaller "
             "--size")
     lo, hi = terrain.height_range
@@ -121,7 +147,8 @@ def run(args: argparse.Namespace) -> int:
     frames = []
     for t in np.linspace(0.0, 1.0, args.frames):
         water = animation.frame(float(t), device=args.device)
-        frames.append(blend(shaded, water, device=args.device).to_uint8(background=(1, 1, 1)))
+        frames.append(square_pixels(np.asarray(blend(shaded, water, device=args.device).to_uint8(background=(1, 1, 1))),
+                                    (width, height)))
     import imageio.v3 as iio
 
     gif = args.output.with_suffix(".gif")

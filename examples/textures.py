@@ -51,7 +51,8 @@ def crop_sample(size: int, dem: st.Terrain | None = None) -> st.Terrain:
     heights = dem.heights[i0: i0 + n_rows * stride: stride, j0: j0 + n_cols * stride: stride]
     dx, dy = dem.spacing
     return st.Terrain.from_heights(heights, spacing=(dx * stride, dy * stride),
-                                   origin=(dem.origin[0] + j0 * dx, dem.origin[1] + i0 * dy), crs=dem.crs)
+                                   origin=(dem.origin[0] + j0 * dx, dem.origin[1] + i0 * dy), crs=dem.crs,
+                                   source=dem.source)
 
 
 def colour_layers(terrain: st.Terrain) -> tuple[np.ndarray, np.ndarray]:
@@ -106,13 +107,19 @@ def run(args: argparse.Namespace) -> int:
     mesh = drape(st.stepped(terrain, interval=interval, device=args.device), composite)
     width, height = args.panel
     top = np.asarray(composite.to_uint8(background=(1, 1, 1)))
-    # the texture panel: the composite letterboxed into the panel, north up
+    # the texture panel: the composite letterboxed into the panel, north up, in the terrain's proportions (its
+    # texels squares drew a DEM of cells taller than wide, a 3" one's, squashed north-south)
     from PIL import Image
 
     picture = Image.fromarray(top)
-    scale = min(width / picture.width, height / picture.height)
-    picture = picture.resize((max(1, int(picture.width * scale)), max(1, int(picture.height * scale))),
-                             Image.Resampling.LANCZOS)
+    extent_x, extent_y = xmax - xmin, ymax - ymin
+    if extent_x > 0 and extent_y > 0:
+        scale = min(width / extent_x, height / extent_y)
+        size = (round(extent_x * scale), round(extent_y * scale))
+    else:  # a DEM of one row or column of nodes: no proportions to keep
+        scale = min(width / picture.width, height / picture.height)
+        size = (int(picture.width * scale), int(picture.height * scale))
+    picture = picture.resize((min(width, max(1, size[0])), min(height, max(1, size[1]))), Image.Resampling.LANCZOS)
     panel = np.full((height, width, 3), 255, np.uint8)
     y0, x0 = (height - picture.height) // 2, (width - picture.width) // 2
     panel[y0: y0 + picture.height, x0: x0 + picture.width] = np.asarray(picture)

@@ -453,3 +453,140 @@ def test_batch_tiles_refuses_a_tiles_folder_name_too_long_by_name(tmp_path, caps
     assert_usage_error_writing_nothing("batch_tiles", [*TINY["batch_tiles"], "--device", "cpu", "--output",
                                                        str(output)], "the tiles folder beside --output", tmp_path,
                                        capsys)
+
+
+def test_batch_tiles_steps_a_dem_of_little_relief_by_default(tmp_path, monkeypatch, capsys):
+    """batch_tiles.py stepped every DEM at a fixed 100 m by default: a --dem of 4 m relief (a patch of the embedded
+    DEM's heights / 100) came out as one flat terrace in every tile, with a warning. By default it now leaves the
+    interval to the library (nice_interval of the DEM's range, 100 m for the embedded DEM, as before)."""
+    import trimesh
+
+    import stepterrain as st
+
+    example = load_example("batch_tiles")
+    monkeypatch.setattr(example, "overview_image", lambda report, **kw: np.zeros((8, 8, 3), np.uint8))  # no render
+    dem = tmp_path / "flat.npy"
+    np.save(dem, (st.sample_dem().heights[300:341, 600:641] / 100.0).astype(np.float32))  # 9.15 to 13.08 m
+    out = tmp_path / "batch.png"
+    assert example.main(["--dem", str(dem), "--size", "41", "--tile", "20", "--scheduler", "serial",
+                         "--device", "cpu", "--output", str(out)]) == 0
+    tiles = sorted(example.tiles_folder(out).glob("*.glb"))
+    assert len(tiles) == 4
+    # glTF is y-up: a height is a vertex's y
+    z = np.concatenate([trimesh.load(path, force="mesh").vertices[:, 1] for path in tiles])
+    terraces = np.unique(np.round(z, 3))
+    assert len(terraces) >= 3, f"terraces at {terraces}"
+    assert "has no step" not in capsys.readouterr().err
+
+
+def test_textures_texture_panel_keeps_the_dems_proportions(monkeypatch, tmp_path, capsys):
+    """textures.py's texture panel letterboxed the composite's texels as squares: a DEM of cells taller than wide
+    (the Front Range's 3", 70.8 x 92.7 m) was drawn square, squashed north-south by a quarter, its circular lens an
+    ellipse. The panel now keeps the terrain's extent in metres."""
+    import stepterrain as st
+
+    from .conftest import shared_file
+
+    dem = shared_file("front_range_srtmgl3_3arcsec.tif")
+    example = load_example("textures")
+    monkeypatch.setattr(example, "render_textured_mesh", lambda mesh, window_size, **kw: np.full(
+        (window_size[1], window_size[0], 3), 255, np.uint8))  # the draped view is not this test's: no render
+    out = tmp_path / "t.png"
+    assert example.main(["--dem", str(dem), "--size", "24", "--panel", "96", "72", "--device", "cpu",
+                         "--output", str(out)]) == 0
+    from PIL import Image
+
+    with Image.open(out) as image:
+        panel = np.asarray(image.convert("RGB"))[:, :96].astype(int)
+    drawn = np.nonzero((panel < 250).any(axis=-1))
+    rows, cols = np.ptp(drawn[0]) + 1, np.ptp(drawn[1]) + 1
+    xmin, xmax, ymin, ymax = example.crop_sample(24, st.load_dem(dem)).extent
+    assert cols / rows == pytest.approx((xmax - xmin) / (ymax - ymin), abs=0.03)
+
+
+@pytest.mark.parametrize("name", ["closeup_anchors", "closeup_mappings"])
+def test_closeup_examples_crop_keeps_the_dems_crs_and_source(name, monkeypatch, tmp_path):
+    """closeup_anchors.py's and closeup_mappings.py's --size crop made a Terrain of the heights, spacing and origin
+    only: the DEM's CRS and source were lost (the other examples' crops keep them)."""
+    import stepterrain as st
+
+    example = load_example(name)
+    seen = []
+
+    def render(terrain, closeups, **kw):
+        seen.append(terrain)
+        return np.zeros((8, 8, 3), np.uint8)
+
+    monkeypatch.setattr(example, "render_closeups", render)
+    assert example.main(["--size", "40", "--device", "cpu", "--output", str(tmp_path / "c.png")]) == 0
+    dem = st.sample_dem()
+    assert seen[0].shape == (40, 40)
+    assert (seen[0].crs, seen[0].source) == (dem.crs, dem.source)
+
+
+def test_textures_crop_keeps_the_dems_source():
+    """textures.py's (and flood.py's) crop_sample kept the DEM's CRS but not its source, as stepped_terrain's does."""
+    import stepterrain as st
+
+    dem = st.sample_dem()
+    terrain = load_example("textures").crop_sample(32, dem)
+    assert (terrain.crs, terrain.source) == (dem.crs, dem.source)
+
+
+@pytest.mark.parametrize("rows, cols", [(60, 112), (60, 60), (100, 60), (40, 200)])
+def test_closeup_anchors_closeups_stay_apart_on_any_dem(rows, cols):
+    """closeup_anchors.py's four close-ups (ROI radius a tenth of the shorter side, 1.3 x enlarged, centres 0.225 of
+    the width apart) overlapped one another on a DEM not much wider than tall (a square one, the Front Range's,
+    taller than wide): four discs merged into one band, the anchor styles could not be told apart. They now stay
+    apart, and inside the DEM, whatever its proportions (unchanged on the embedded DEM, 1.86 times wider than tall)."""
+    import stepterrain as st
+
+    terrain = st.Terrain.from_heights(np.zeros((rows, cols), np.float32), spacing=(30.0, -30.0))
+    xmin, xmax, ymin, ymax = terrain.extent
+    cus = load_example("closeup_anchors").closeups(terrain)
+    for cu in cus:  # each ROI on the DEM
+        (x, y), (w, h) = cu.roi.center, cu.roi.size
+        assert xmin <= x - w / 2 and x + w / 2 <= xmax and ymin <= y - h / 2 and y + h / 2 <= ymax
+    for a, b in zip(cus, cus[1:], strict=False):  # neighbours apart, overview ROIs and enlarged close-ups alike
+        gap = (b.roi.center[0] + b.offset[0]) - (a.roi.center[0] + a.offset[0])
+        assert gap >= a.roi.size[0] * a.scale[0] / 2 + b.roi.size[0] * b.scale[0] / 2
+        assert b.roi.center[0] - a.roi.center[0] >= a.roi.size[0] / 2 + b.roi.size[0] / 2
+
+
+def test_flood_frames_keep_the_dems_proportions(tmp_path, capsys):
+    """flood.py drew one pixel per node: a DEM of cells taller than wide (the Front Range's 3", 70.8 x 92.7 m) came
+    out square, squashed north-south by a quarter. The frames now have square pixels on the ground: as many
+    columns as nodes across, the rows stretched (the embedded DEM's 30 m cells keep one pixel per node)."""
+    import imageio.v3 as iio
+
+    import stepterrain as st
+
+    from .conftest import shared_file
+
+    dem = shared_file("front_range_srtmgl3_3arcsec.tif")
+    example = load_example("flood")
+    out = tmp_path / "flood.png"
+    assert example.main(["--dem", str(dem), "--size", "24", "--frames", "2", "--keyframes", "2", "--device", "cpu",
+                         "--output", str(out)]) == 0
+    terrain = example.crop_sample(24, st.load_dem(dem))
+    (dx, dy), (rows, cols) = terrain.spacing, terrain.shape
+    frames = iio.imread(out.with_suffix(".gif"), index=None)
+    assert frames.shape[1:3] == (round(rows * abs(dy) / abs(dx)), cols) == (31, 24)
+    water = frames[-1][..., 2].astype(int) > frames[-1][..., 0].astype(int) + 40  # east (the plains) flooded
+    assert water[:, -4:].mean() > 0.9 and water[:, :4].mean() < 0.5
+
+
+def test_flood_mp4_of_stretched_frames_is_even(tmp_path):
+    """An MP4 of the Front Range's frames, stretched north-south to square pixels (24 nodes x 31 rows), is written
+    at an even 24 x 32, as the GIF beside it, not refused for an odd size its --size 24 did not ask for."""
+    pytest.importorskip("imageio_ffmpeg", reason="MP4 output needs imageio-ffmpeg (pip install 'stepterrain[video]')")
+    import imageio.v3 as iio
+
+    from .conftest import shared_file
+
+    dem = shared_file("front_range_srtmgl3_3arcsec.tif")
+    out = tmp_path / "flood.png"
+    assert load_example("flood").main(["--dem", str(dem), "--size", "24", "--frames", "2", "--keyframes", "2",
+                                       "--mp4", "--device", "cpu", "--output", str(out)]) == 0
+    assert iio.imread(out.with_suffix(".mp4"), index=None, extension=".mp4").shape[:3] == (2, 32, 24)
+    assert iio.imread(out.with_suffix(".gif"), index=None).shape[:3] == (2, 32, 24)
