@@ -2111,6 +2111,8 @@ def batch(
     retries : int
         Extra attempts for an item whose task raised (worker lost, disk error). Bad input data (an
         unreadable tile) fails at once.
+    connect_timeout : float
+        Seconds to reach a ``"tcp://host:port"`` scheduler and its first worker (see ``scheduler``; default 10).
     resume : bool
         Skip items already complete in ``output_dir`` (see Notes); ``False`` redoes everything.
     progress : bool or callable
