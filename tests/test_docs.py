@@ -319,3 +319,36 @@ def test_page_command_lines_name_options_that_exist():
             assert not command_line_problems(line, parser), (page.name, line, command_line_problems(line, parser))
             checked += 1
     assert checked >= 20, checked
+
+
+# ------------------------------------------------------ "`--option ...` (steps, closeup, ...)": the subcommands named
+SUBCOMMANDS = "steps|globe|closeup|texture|batch|info"
+OPTION_COMMANDS = re.compile(rf"`(--[a-z][a-z0-9-]*)[^`]*`\s+\(((?:{SUBCOMMANDS})(?:,\s+(?:and\s+)?(?:{SUBCOMMANDS}))*)"
+                             r"[;:)]")
+
+
+def option_command_lists(text: str) -> list[tuple[str, list[str]]]:
+    """The pages' ``--option ...`` followed by a parenthesised list of the subcommands that take it."""
+    return [(m.group(1), re.split(r",\s+(?:and\s+)?", m.group(2))) for m in OPTION_COMMANDS.finditer(text)]
+
+
+def test_the_subcommands_a_page_lists_for_an_option_are_those_that_take_it():
+    """Where the README or a docs page lists the subcommands that take an option (```--band N`` (steps, closeup,
+    texture, info, batch)``), the list is the parser's exactly: an option added to or removed from a subcommand
+    shows here, not only to a reader who tries it."""
+    import argparse
+
+    from stepterrain import cli
+
+    parser = cli.build_parser()
+    (action,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    assert option_command_lists("the CLI's `--crop a,b` and `--coarsen N`\n(steps, info) do it") == [
+        ("--coarsen", ["steps", "info"])]
+    checked = 0
+    for page in PAGES:
+        for option, listed in option_command_lists(page.read_text(encoding="utf-8")):
+            taking = {name for name, sub in action.choices.items()
+                      if any(option in a.option_strings for a in sub._actions)}
+            assert sorted(listed) == sorted(taking), (page.name, option, listed, sorted(taking))
+            checked += 1
+    assert checked >= 5, checked
