@@ -2112,7 +2112,8 @@ def batch(
         Extra attempts for an item whose task raised (worker lost, disk error). Bad input data (an
         unreadable tile) fails at once.
     connect_timeout : float
-        Seconds to reach a ``"tcp://host:port"`` scheduler and its first worker (see ``scheduler``; default 10).
+        Seconds to connect to the scheduler (a ``"tcp://host:port"`` one and its first worker, a Client's first
+        worker, or the LocalCluster started) before giving up (see ``scheduler``; default 10).
     resume : bool
         Skip items already complete in ``output_dir`` (see Notes); ``False`` redoes everything.
     progress : bool or callable
