@@ -352,3 +352,44 @@ def test_the_subcommands_a_page_lists_for_an_option_are_those_that_take_it():
             assert sorted(listed) == sorted(taking), (page.name, option, listed, sorted(taking))
             checked += 1
     assert checked >= 5, checked
+
+
+# ---------------------------------------------------- the library names the pages give (``st.export.read_mesh``)
+def page_names(text: str) -> list[str]:
+    """The dotted ``st.X.Y`` / ``stepterrain.X.Y`` names in a page's inline code and code blocks, and the
+    ``from stepterrain.X import a, b`` names, as ``stepterrain.X.a``."""
+    code = re.findall(r"`([^`\n]+)`", text) + re.findall(r"^```\w*\n(.*?)^```", text, re.S | re.M)
+    names = [m.group(1) for c in code for m in re.finditer(r"(?<![\w.])(?:st|stepterrain)((?:\.[A-Za-z_]\w*)+)", c)]
+    for module, imported in re.findall(r"from stepterrain((?:\.\w+)*) import ([\w, ]+)", text):
+        names += [f"{module}.{n.strip()}" for n in imported.split(",") if n.strip()]
+    return ["stepterrain" + n for n in names]
+
+
+def resolves(dotted: str) -> bool:
+    import importlib
+
+    obj, parts = st, dotted.split(".")[1:]
+    for k, part in enumerate(parts):
+        try:
+            obj = getattr(obj, part)
+        except AttributeError:
+            try:
+                obj = importlib.import_module(".".join(["stepterrain", *parts[: k + 1]]))
+            except ImportError:
+                return False
+    return True
+
+
+def test_the_library_names_the_pages_give_exist():
+    """Every ``st.…``/``stepterrain.…`` name of the README's and docs' prose and blocks, and every name they import
+    from stepterrain, exists: a renamed or moved function shows here, not only to a reader whose copied call fails
+    (the python blocks run in test_page_blocks_run; the names in the prose run nowhere)."""
+    assert not resolves("stepterrain.export.read_meshes") and resolves("stepterrain.export.read_mesh")
+    assert page_names("`st.io.COMMON_NODATA` and\nfrom stepterrain.batch import load_series, batch") == [
+        "stepterrain.io.COMMON_NODATA", "stepterrain.batch.load_series", "stepterrain.batch.batch"]
+    checked = 0
+    for page in PAGES:
+        for name in page_names(page.read_text(encoding="utf-8")):
+            assert resolves(name), (page.name, name)
+            checked += 1
+    assert checked >= 80, checked

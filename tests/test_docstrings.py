@@ -101,3 +101,39 @@ def test_raised_exceptions_exist(name, obj):
     assert named, name
     unknown = [e for e in named if not isinstance(getattr(errors, e, getattr(builtins, e, None)), type)]
     assert not unknown, f"{name}: Raises names no such exception: {unknown}"
+
+
+REFERENCE = re.compile(r":(?:func|class|meth|data|mod|attr|exc):`~?([\w.]+)`")
+
+
+def reference_resolves(ref: str, obj: object) -> bool:
+    """Whether ``ref`` names something from ``obj``'s module, its class (a method's), or the package."""
+    module = importlib.import_module(obj.__module__)
+    owner = getattr(module, obj.__qualname__.split(".")[0], None) if "." in obj.__qualname__ else None
+    for base in (module, obj if inspect.isclass(obj) else None, owner, st):
+        found = base
+        for part in ref.removeprefix("stepterrain.").split(".") if base is not None else ():
+            found = getattr(found, part, None)
+        if base is not None and found is not None:
+            return True
+    try:
+        importlib.import_module(ref)
+    except ImportError:
+        return False
+    return True
+
+
+def test_cross_references_name_what_exists():
+    """The ``:func:`...``` / ``:class:`...``` / ``:data:`...``` references of the public docstrings name functions,
+    classes and constants that exist (a renamed one shows here)."""
+    assert not reference_resolves("no_such_function", st.heightfield_mesh)
+    assert reference_resolves("Terrain.mesh", st.heightfield_mesh)
+    assert reference_resolves("stepterrain.render", st.batch.batch)
+    unknown, checked = [], 0
+    for name, obj in public_callables():
+        for ref in REFERENCE.findall(obj.__doc__ or ""):
+            checked += 1
+            if not reference_resolves(ref, obj):
+                unknown.append((name, ref))
+    assert not unknown, unknown
+    assert checked >= 200, checked
