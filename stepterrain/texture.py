@@ -693,6 +693,15 @@ def normal_map(
     """Surface normals encoded as an RGB texture (paper 004 §7.4): ``round(n · 127.5 + 127.5)``, from the Horn
     gradient :func:`hillshade` shades (its border too), so :func:`relight` reproduces the hillshade.
 
+    Parameters
+    ----------
+    terrain : Terrain or (H, W) array_like
+    z_factor : float
+        Vertical exaggeration of the heights (default 1), as :func:`hillshade` takes it.
+    spacing : (dx, dy), optional
+        Node spacing of an array ``terrain`` (default (1, 1)); refused with a Terrain, which brings its own.
+    device : warp device, optional
+
     Returns
     -------
     (H, W, 3) uint8
