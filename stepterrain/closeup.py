@@ -765,7 +765,8 @@ class CloseUp:
         color (matplotlib's default: black), not as flat or facing north; so does the aspect of flat ground,
         which has no downhill direction (it showed as south).
     cmap : str, optional
-        The colormap of the close-up's ``scalars`` and ``stepped`` levels; default None: the render's or scene's.
+        The colormap of the close-up's ``scalars`` and ``stepped`` levels; default None: "terrain", "magma" or
+        "twilight" for its height, slope or aspect ``scalars``, the render's or scene's for its ``stepped`` levels.
     texture : (h, w, 3|4) uint8 image, optional
         An aerial image over the terrain's extent (row 0 at the north, i.e. the upper y) draped over the
         close-up instead (MPFR with a surface texture, §IV.B); sampled bilinearly per vertex. Kept as a
