@@ -751,7 +751,7 @@ class CloseUp:
         one size and place over its spin: it is fitted from its content's bounding cylinder about the spin axis,
         which turning keeps, so it comes out somewhat smaller than the same close-up still (fitted to its box).
     billboard_view : (azimuth, elevation), radians
-        A billboard's view direction (see ``view``); default (π, 89°). Ignored by an overview close-up.
+        A billboard's view direction (see ``view``); default (π, 89°). Ignored with ``view="overview"``.
     stepped : float, optional
         MPFR (§IV.A): the close-up shows the stepped terrain (paper 000) at this interval, γ = ``gamma``, its
         levels colored by ``cmap``, else by the colormap the render or scene was given (``cmap`` of
@@ -2471,7 +2471,8 @@ def render_closeups(
         A world-space box [(xmin, ymin, zmin), (xmax, ymax, zmax)] the camera frames instead of the overview,
         close-ups and anchors together: the same box for every frame of an animation keeps the camera still.
     device : warp device, optional
-        Where the close-ups are transformed (default: Warp's default device).
+        Where the close-ups (a stepped one's terraces included) and their anchors are built: amplified,
+        transformed and culled (:func:`closeup_layers`, :func:`anchor_strips`; default: Warp's default device).
     view_angle : float
         The camera's vertical field of view in degrees, in [1e-8, 179], as in
         :func:`stepterrain.render.render_mesh` (default 30); a fitted camera frames the box with it.
