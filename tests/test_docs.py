@@ -359,9 +359,11 @@ def page_names(text: str) -> list[str]:
     """The dotted ``st.X.Y`` / ``stepterrain.X.Y`` names in a page's inline code and code blocks, and the
     ``from stepterrain.X import a, b`` names, as ``stepterrain.X.a``."""
     code = re.findall(r"`([^`\n]+)`", text) + re.findall(r"^```\w*\n(.*?)^```", text, re.S | re.M)
-    names = [m.group(1) for c in code for m in re.finditer(r"(?<![\w.])(?:st|stepterrain)((?:\.[A-Za-z_]\w*)+)", c)]
+    # not a path's or file name's ``out/st.tif``, ``my-stepterrain.toml``
+    names = [m.group(1) for c in code
+             for m in re.finditer(r"(?<![\w./\\-])(?:st|stepterrain)((?:\.[A-Za-z_]\w*)+)(?![\w/\\-])", c)]
     for module, imported in re.findall(r"from stepterrain((?:\.\w+)*) import ([\w, ]+)", text):
-        names += [f"{module}.{n.strip()}" for n in imported.split(",") if n.strip()]
+        names += [f"{module}.{n.split(' as ')[0].strip()}" for n in imported.split(",") if n.strip()]
     return ["stepterrain" + n for n in names]
 
 
@@ -387,6 +389,8 @@ def test_the_library_names_the_pages_give_exist():
     assert not resolves("stepterrain.export.read_meshes") and resolves("stepterrain.export.read_mesh")
     assert page_names("`st.io.COMMON_NODATA` and\nfrom stepterrain.batch import load_series, batch") == [
         "stepterrain.io.COMMON_NODATA", "stepterrain.batch.load_series", "stepterrain.batch.batch"]
+    assert page_names("`out/st.tif`, `st.tif` and\nfrom stepterrain.texture import hillshade as hs, relight") == [
+        "stepterrain.tif", "stepterrain.texture.hillshade", "stepterrain.texture.relight"]
     checked = 0
     for page in PAGES:
         for name in page_names(page.read_text(encoding="utf-8")):

@@ -20,6 +20,8 @@ HEADING = re.compile(r"^(\w[\w ]*)\n-{3,}$", re.M)
 # a parameter line: names (``a``, ``a, b``, ``*args``) and an optional `` : type``; prose lines inside the section
 # (Terrain.coarsen's ```crs``, ... stay``) are not parameters
 NAMES = re.compile(r"^(\*{0,2}[A-Za-z_]\w*(?:, \*{0,2}[A-Za-z_]\w*)*)(?: : .*)?$")
+# a Raises entry may name its exception with its module (``stepterrain.errors.InvalidInputError``)
+EXCEPTIONS = re.compile(r"^([A-Za-z_][\w.]*(?:, [A-Za-z_][\w.]*)*)$")
 
 
 MODULES = ("camera", "closeup", "export", "globe", "mesh", "pyvista_accessor", "render", "texture", "texture_lod",
@@ -56,11 +58,11 @@ def sections(doc: str) -> dict[str, list[str]]:
             for k, m in enumerate(heads)}
 
 
-def entry_names(lines: list[str]) -> list[str]:
+def entry_names(lines: list[str], pattern: re.Pattern[str] = NAMES) -> list[str]:
     """The names of a Parameters or Raises section's entries (its unindented lines)."""
     names = []
     for line in lines:
-        match = NAMES.match(line) if line and not line[0].isspace() else None
+        match = pattern.match(line) if line and not line[0].isspace() else None
         if match:
             names += [n.lstrip("*") for n in match.group(1).split(", ")]
     return names
@@ -80,11 +82,36 @@ def test_the_check_sees_parameter_sections():
     assert {"stepped", "batch", "heightfield_mesh", "hillshade", "CloseUp", "render_closeups"} <= names, names
     assert len(CASES) >= 20, len(CASES)
     assert entry_names(["a, b : float", "    text", "``crs`` and ``source`` stay.", "*args"]) == ["a", "b", "args"]
+    assert entry_names(["stepterrain.errors.InvalidInputError, OSError", "    text"], EXCEPTIONS) == [
+        "stepterrain.errors.InvalidInputError", "OSError"]
+    assert documented_parameters("f\n\nParameters\n----------\na : int\n\nOther Parameters\n----------------\nb\n"
+                                 ) == ["a", "b"]
+    assert is_exception("stepterrain.errors.InvalidInputError") and is_exception("OSError")
+    assert not is_exception("InvalidInputErorr") and not is_exception("stepterrain.errors.NoSuchError")
+
+
+def documented_parameters(doc: str) -> list[str]:
+    """The entries of Parameters and (numpydoc's rarely used keyword part) Other Parameters."""
+    found = sections(doc)
+    return entry_names(found["Parameters"]) + entry_names(found.get("Other Parameters", []))
+
+
+def is_exception(name: str) -> bool:
+    """Whether ``name`` (bare, as stepterrain.errors or builtins hold it, or dotted with its module) is a class."""
+    module, _, attr = name.rpartition(".")
+    if module:
+        try:
+            found = getattr(importlib.import_module(module), attr, None)
+        except ImportError:
+            found = None
+    else:
+        found = getattr(errors, name, getattr(builtins, name, None))
+    return isinstance(found, type)
 
 
 @pytest.mark.parametrize(("name", "obj"), CASES, ids=[name for name, _ in CASES])
 def test_documented_parameters_are_the_signatures(name, obj):
-    documented = entry_names(sections(obj.__doc__)["Parameters"])
+    documented = documented_parameters(obj.__doc__)
     real = signature_names(obj)
     assert len(documented) == len(set(documented)), f"{name}: a parameter documented twice: {documented}"
     missing = [p for p in real if p not in documented]
@@ -97,9 +124,9 @@ RAISING = [(name, obj) for name, obj in public_callables() if "Raises" in sectio
 
 @pytest.mark.parametrize(("name", "obj"), RAISING, ids=[name for name, _ in RAISING])
 def test_raised_exceptions_exist(name, obj):
-    named = entry_names(sections(obj.__doc__)["Raises"])
+    named = entry_names(sections(obj.__doc__)["Raises"], EXCEPTIONS)
     assert named, name
-    unknown = [e for e in named if not isinstance(getattr(errors, e, getattr(builtins, e, None)), type)]
+    unknown = [e for e in named if not is_exception(e)]
     assert not unknown, f"{name}: Raises names no such exception: {unknown}"
 
 
