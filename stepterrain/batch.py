@@ -2113,7 +2113,8 @@ def batch(
         unreadable tile) fails at once.
     connect_timeout : float
         Seconds to connect to the scheduler (a ``"tcp://host:port"`` one and its first worker, a Client's first
-        worker, or the LocalCluster started) before giving up (see ``scheduler``; default 10).
+        worker, or the LocalCluster started) before giving up (see ``scheduler``; default 10); also the longest wait
+        for a worker to take again the heights of an item whose worker was lost (the item fails then).
     resume : bool
         Skip items already complete in ``output_dir`` (see Notes); ``False`` redoes everything.
     progress : bool or callable
