@@ -2111,6 +2111,10 @@ def batch(
     retries : int
         Extra attempts for an item whose task raised (worker lost, disk error). Bad input data (an
         unreadable tile) fails at once.
+    connect_timeout : float
+        Seconds to connect to the scheduler (a ``"tcp://host:port"`` one and its first worker, a Client's first
+        worker, or the LocalCluster started) before giving up (see ``scheduler``; default 10); also the longest wait
+        for a worker to take again the heights of an item whose worker was lost (the item fails then).
     resume : bool
         Skip items already complete in ``output_dir`` (see Notes); ``False`` redoes everything.
     progress : bool or callable

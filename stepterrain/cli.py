@@ -159,8 +159,8 @@ def add_dem_option(parser: argparse.ArgumentParser) -> None:
     takes a value starting with a minus and a digit as a value, as the CLI's do)."""
     parser.add_argument("--dem", type=_path, default=None, metavar="PATH",
                         help="a DEM file to use instead of the embedded Big Tujunga DEM (any format load_dem reads: "
-                             ".tif, .npy, .asc, .hgt, ...; heights in metres, a .npy's cells 1 m apart); --size crops "
-                             "it as it crops the embedded one")
+                             ".tif, .npy, .asc, .hgt, ...; heights in metres, a .npy's cells 1 m apart); --size cuts "
+                             "it down as it cuts the embedded one (a crop, or every n-th node, as its help says)")
     _add_nodata(parser, "the --dem file (or the embedded DEM)")
     # as _Parser: '--nodata -9999,-32768' (the form its help shows) and '-1e20' are values, not unknown options
     parser._negative_number_matcher = _NEGATIVE_NUMBER

@@ -750,16 +750,23 @@ class CloseUp:
         the east, π (the default, at 89° elevation: nearly from above) from the south. A spinning billboard keeps
         one size and place over its spin: it is fitted from its content's bounding cylinder about the spin axis,
         which turning keeps, so it comes out somewhat smaller than the same close-up still (fitted to its box).
+    billboard_view : (azimuth, elevation), radians
+        A billboard's view direction (see ``view``); default (π, 89°). Ignored with ``view="overview"``.
     stepped : float, optional
         MPFR (§IV.A): the close-up shows the stepped terrain (paper 000) at this interval, γ = ``gamma``, its
         levels colored by ``cmap``, else by the colormap the render or scene was given (``cmap`` of
         :func:`render_closeups`, :func:`closeup_scene`; the CLI's ``--colormap``).
+    gamma : float
+        The γ blend of a ``stepped`` close-up (paper 000 §3.3), in [0, 1]; default 1: fully stepped.
     scalars : None, "height", "slope" or "aspect"
         The data layer colored by ``cmap`` (None: the overview's mapping); slope and aspect need a grid terrain.
         Next to nodata the gradient takes the one-sided difference to the neighbour with a height; a node with
         none along an axis (both neighbours missing) has no slope or aspect and shows in the colormap's "bad"
         color (matplotlib's default: black), not as flat or facing north; so does the aspect of flat ground,
         which has no downhill direction (it showed as south).
+    cmap : str, optional
+        The colormap of the close-up's ``scalars`` and ``stepped`` levels; default None: "terrain", "magma" or
+        "twilight" for its height, slope or aspect ``scalars``, the render's or scene's for its ``stepped`` levels.
     texture : (h, w, 3|4) uint8 image, optional
         An aerial image over the terrain's extent (row 0 at the north, i.e. the upper y) draped over the
         close-up instead (MPFR with a surface texture, §IV.B); sampled bilinearly per vertex. Kept as a
@@ -2027,7 +2034,9 @@ def composite(
     Parameters
     ----------
     base : (H, W, 3) uint8
-        The overview pass (background included); ``base_depth`` (H, W) its depth (inf where empty).
+        The overview pass (background included).
+    base_depth : (H, W) float32
+        Its depth (inf where empty).
     layers : sequence of (color, alpha, depth, depth_test, writes_depth)
         ``color`` (H, W, 3) uint8 or float in [0, 255], ``alpha`` (H, W) in [0, 1] or a bool mask (0 where the layer is
         empty), ``depth`` (H, W). A layer shows where alpha > 0 and, with ``depth_test``, where its depth is
@@ -2456,6 +2465,14 @@ def render_closeups(
         few pixels), with fewer passes.
     timings : dict, optional
         Filled with seconds spent in "transform", "render" and "composite".
+    background : color
+        The image's background (default "white"), any pyvista color as in :func:`stepterrain.render.render_mesh`.
+    bounds : (2, 3) array_like, optional
+        A world-space box [(xmin, ymin, zmin), (xmax, ymax, zmax)] the camera frames instead of the overview,
+        close-ups and anchors together: the same box for every frame of an animation keeps the camera still.
+    device : warp device, optional
+        Where the close-ups (a stepped one's terraces included) and their anchors are built: amplified,
+        transformed and culled (:func:`closeup_layers`, :func:`anchor_strips`; default: Warp's default device).
     view_angle : float
         The camera's vertical field of view in degrees, in [1e-8, 179], as in
         :func:`stepterrain.render.render_mesh` (default 30); a fitted camera frames the box with it.

@@ -557,7 +557,9 @@ class Globe:
     @classmethod
     def sample(cls, *, face_size: int = 257, radius: float = EARTH_RADIUS, exaggeration: float = 1.0,
                device: wp.DeviceLike = None) -> Globe:
-        """The embedded global relief (ETOPO 2022 at 20 arc-minutes, see ``stepterrain/data/README.md``)."""
+        """The embedded global relief (ETOPO 2022 at 20 arc-minutes, see ``stepterrain/data/README.md``) on the cube
+        sphere: :meth:`from_latlon` of :func:`load_global_relief`, ``face_size`` (default 257), ``radius`` (default
+        :data:`EARTH_RADIUS`), ``exaggeration`` (default 1) and ``device`` as it takes them."""
         lat, lon, elevation = load_global_relief()
         globe = cls.from_latlon(elevation, lat, lon, face_size=face_size, radius=radius,
                                 exaggeration=exaggeration, device=device)

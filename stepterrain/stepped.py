@@ -1281,6 +1281,8 @@ def stepped(
         float32 too: a floor that rounds onto it leaves the solid no thickness there in an .stl or a .glb) is
         refused; where the heights tell that point (a TIN, a grid without nodata: the lowest height blended with its
         isovalue), before stepping.
+    floor : float, optional
+        The base height of a ``solid`` (default above); refused without ``solid=True``.
     spacing, origin : (dx, dy), (x0, y0)
         Grid geometry when ``terrain`` is a raw array (default (1, 1) and (0, 0)).
     memory_budget : int, optional

@@ -243,6 +243,8 @@ def hillshade(
     shadow_strength : float, optional
         In [0, 1]: a shadowed pixel keeps ``1 − shadow_strength`` of its shade (default 1); refused without
         ``shadows=True`` (it would have no effect).
+    spacing : (dx, dy), optional
+        Node spacing of an array ``terrain`` (default (1, 1)); refused with a Terrain, which brings its own.
     device : warp device, optional
     exaggeration : float, optional
         MapLibre methods only: ``hillshade-exaggeration`` in [0, 1], default 0.5.
@@ -691,6 +693,15 @@ def normal_map(
     """Surface normals encoded as an RGB texture (paper 004 §7.4): ``round(n · 127.5 + 127.5)``, from the Horn
     gradient :func:`hillshade` shades (its border too), so :func:`relight` reproduces the hillshade.
 
+    Parameters
+    ----------
+    terrain : Terrain or (H, W) array_like
+    z_factor : float
+        Vertical exaggeration of the heights (default 1), as :func:`hillshade` takes it.
+    spacing : (dx, dy), optional
+        Node spacing of an array ``terrain`` (default (1, 1)); refused with a Terrain, which brings its own.
+    device : warp device, optional
+
     Returns
     -------
     (H, W, 3) uint8
@@ -740,6 +751,7 @@ def relight(
         For a point light, the surface as given to :func:`normal_map`; ``z_factor`` must be a positive number
         with either light. ``terrain`` and ``spacing`` given with a directional light are refused (they would
         have no effect).
+    device : warp device, optional
 
     Returns
     -------
@@ -1293,6 +1305,8 @@ def contour_layer(
         texels no larger than it, no larger than the node spacing; default one texel per node. The heights are
         the bilinear interpolant's (nodata corners left out, their weight fading the alpha); in the half cell beyond
         the outer nodes, the edge's, as the other layers are sampled there.
+    spacing : (dx, dy), optional
+        Node spacing of an array ``terrain`` (default (1, 1)); refused with a Terrain, which brings its own.
     device : warp device, optional
 
     Returns

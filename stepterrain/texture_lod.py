@@ -638,6 +638,8 @@ class ImagePyramid:
         band_bytes : int
             Source bytes processed per band (of an image file read by bands, also its bytes read per band, in whole
             tiles or strips of the file).
+        device : warp device, optional
+            Where the levels are reduced (default: Warp's default device).
 
         Raises
         ------

@@ -319,3 +319,81 @@ def test_page_command_lines_name_options_that_exist():
             assert not command_line_problems(line, parser), (page.name, line, command_line_problems(line, parser))
             checked += 1
     assert checked >= 20, checked
+
+
+# ------------------------------------------------------ "`--option ...` (steps, closeup, ...)": the subcommands named
+SUBCOMMANDS = "steps|globe|closeup|texture|batch|info"
+OPTION_COMMANDS = re.compile(rf"`(--[a-z][a-z0-9-]*)[^`]*`\s+\(((?:{SUBCOMMANDS})(?:,\s+(?:and\s+)?(?:{SUBCOMMANDS}))*)"
+                             r"[;:)]")
+
+
+def option_command_lists(text: str) -> list[tuple[str, list[str]]]:
+    """The pages' ``--option ...`` followed by a parenthesised list of the subcommands that take it."""
+    return [(m.group(1), re.split(r",\s+(?:and\s+)?", m.group(2))) for m in OPTION_COMMANDS.finditer(text)]
+
+
+def test_the_subcommands_a_page_lists_for_an_option_are_those_that_take_it():
+    """Where the README or a docs page lists the subcommands that take an option (```--band N`` (steps, closeup,
+    texture, info, batch)``), the list is the parser's exactly: an option added to or removed from a subcommand
+    shows here, not only to a reader who tries it."""
+    import argparse
+
+    from stepterrain import cli
+
+    parser = cli.build_parser()
+    (action,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    assert option_command_lists("the CLI's `--crop a,b` and `--coarsen N`\n(steps, info) do it") == [
+        ("--coarsen", ["steps", "info"])]
+    checked = 0
+    for page in PAGES:
+        for option, listed in option_command_lists(page.read_text(encoding="utf-8")):
+            taking = {name for name, sub in action.choices.items()
+                      if any(option in a.option_strings for a in sub._actions)}
+            assert sorted(listed) == sorted(taking), (page.name, option, listed, sorted(taking))
+            checked += 1
+    assert checked >= 5, checked
+
+
+# ---------------------------------------------------- the library names the pages give (``st.export.read_mesh``)
+def page_names(text: str) -> list[str]:
+    """The dotted ``st.X.Y`` / ``stepterrain.X.Y`` names in a page's inline code and code blocks, and the
+    ``from stepterrain.X import a, b`` names, as ``stepterrain.X.a``."""
+    code = re.findall(r"`([^`\n]+)`", text) + re.findall(r"^```\w*\n(.*?)^```", text, re.S | re.M)
+    # not a path's or file name's ``out/st.tif``, ``my-stepterrain.toml``
+    names = [m.group(1) for c in code
+             for m in re.finditer(r"(?<![\w./\\-])(?:st|stepterrain)((?:\.[A-Za-z_]\w*)+)(?![\w/\\-])", c)]
+    for module, imported in re.findall(r"from stepterrain((?:\.\w+)*) import ([\w, ]+)", text):
+        names += [f"{module}.{n.split(' as ')[0].strip()}" for n in imported.split(",") if n.strip()]
+    return ["stepterrain" + n for n in names]
+
+
+def resolves(dotted: str) -> bool:
+    import importlib
+
+    obj, parts = st, dotted.split(".")[1:]
+    for k, part in enumerate(parts):
+        try:
+            obj = getattr(obj, part)
+        except AttributeError:
+            try:
+                obj = importlib.import_module(".".join(["stepterrain", *parts[: k + 1]]))
+            except ImportError:
+                return False
+    return True
+
+
+def test_the_library_names_the_pages_give_exist():
+    """Every ``st.…``/``stepterrain.…`` name of the README's and docs' prose and blocks, and every name they import
+    from stepterrain, exists: a renamed or moved function shows here, not only to a reader whose copied call fails
+    (the python blocks run in test_page_blocks_run; the names in the prose run nowhere)."""
+    assert not resolves("stepterrain.export.read_meshes") and resolves("stepterrain.export.read_mesh")
+    assert page_names("`st.io.COMMON_NODATA` and\nfrom stepterrain.batch import load_series, batch") == [
+        "stepterrain.io.COMMON_NODATA", "stepterrain.batch.load_series", "stepterrain.batch.batch"]
+    assert page_names("`out/st.tif`, `st.tif` and\nfrom stepterrain.texture import hillshade as hs, relight") == [
+        "stepterrain.tif", "stepterrain.texture.hillshade", "stepterrain.texture.relight"]
+    checked = 0
+    for page in PAGES:
+        for name in page_names(page.read_text(encoding="utf-8")):
+            assert resolves(name), (page.name, name)
+            checked += 1
+    assert checked >= 80, checked
