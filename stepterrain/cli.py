@@ -998,6 +998,7 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
 
     # γ: scalar or a lens
     gamma: Any = args.gamma
+    lens_metadata = None  # the lens as used, for the mesh file's metadata
     if args.lens is not None or args.lens_relative is not None:
         xmin, xmax, ymin, ymax = terrain.extent
         if args.lens is not None:
@@ -1013,6 +1014,11 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         with warnings.catch_warnings():  # a lens beside the terrain: said below, naming --lens and --lens-relative
             warnings.filterwarnings("ignore", message="circular_lens: the lens at ")
             gamma = st.circular_lens(terrain, (cx, cy), radius, edge_width=args.lens_edge, outside=args.gamma)
+        # the lens as circular_lens got it (--lens-relative's fractions resolved, --lens-edge's default r/4): "gamma":
+        # "lens" alone lost the lens and the γ outside it (--gamma 0.3 and 0.7 files carried the same metadata)
+        lens_metadata = {"center": [float(cx), float(cy)], "radius": float(radius),
+                         "edge_width": float(radius / 4.0 if args.lens_edge is None else args.lens_edge),
+                         "outside": float(args.gamma)}
         progress.say(f"lens at ({cx:.1f}, {cy:.1f}), radius {radius:.1f}: original terrain inside, "
                      f"gamma {args.gamma:g} outside")
         reach = radius + (radius / 4.0 if args.lens_edge is None else args.lens_edge) / 2.0  # γ < --gamma within
@@ -1110,6 +1116,8 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
             "gamma": "lens" if isinstance(gamma, st.Lens) else float(args.gamma),
             "solid": bool(args.solid),
         }
+        if lens_metadata is not None:
+            metadata["lens"] = lens_metadata
         written = export.save_mesh(mesh, out, metadata=metadata)
         progress.done(_size(written))
     if image is not None:

@@ -2532,3 +2532,34 @@ def test_memory_budget_of_one_byte_is_said_in_the_singular(tmp_path, capsys):
     assert code == 2 and out == "", err
     assert "over the memory budget of 1 byte;" in err and "1 bytes" not in err, err
     assert "would need 168 bytes" in err, err  # 6 x 7 float32 cells: more than one, plural
+
+
+@pytest.mark.parametrize("lens", [["--lens-relative", "0.45,0.55,0.3"], ["--lens-relative", "0.5,0.5,0.25",
+                                                                          "--lens-edge", "0"]])
+def test_steps_lens_metadata_records_the_lens_and_gamma_outside_it(tmp_path, capsys, lens):
+    """``steps --lens ... --gamma G`` recorded ``gamma: "lens"`` alone: the lens' centre, radius, edge and the γ outside
+    it were lost, so two files of different meshes (--gamma 0.3 and 0.7) carried the same metadata. The metadata now
+    rebuilds the library's mesh: circular_lens from it, stepped on the cropped DEM, gives the file's vertices."""
+    x0, x1, y0, y1 = st.sample_dem().extent
+    crop = (x0 + 0.4 * (x1 - x0), x0 + 0.46 * (x1 - x0), y0 + 0.4 * (y1 - y0), y0 + 0.48 * (y1 - y0))
+    terrain = st.sample_dem().crop(crop)
+    metas, meshes = [], []
+    for gamma in (0.3, 0.7):
+        out = tmp_path / f"lens{gamma}.ply"
+        code, _, err = run(capsys, "steps", "--crop", ",".join(repr(v) for v in crop), "--interval", "50", *lens,
+                           "--gamma", gamma, "-q", "-o", out)
+        assert code == 0, err
+        mesh = st.export.read_mesh(out)
+        meta = mesh.metadata
+        assert meta["gamma"] == "lens"
+        rec = meta["lens"]
+        assert rec["outside"] == gamma
+        rebuilt = st.circular_lens(terrain, tuple(rec["center"]), rec["radius"], edge_width=rec["edge_width"],
+                                   outside=rec["outside"])
+        ref = st.stepped(terrain, interval=50.0, gamma=rebuilt)
+        np.testing.assert_allclose(mesh.vertices, ref.vertices, rtol=0, atol=1e-6)
+        np.testing.assert_array_equal(mesh.faces, ref.faces)
+        metas.append(meta)
+        meshes.append(mesh)
+    assert not np.array_equal(meshes[0].vertices, meshes[1].vertices)
+    assert metas[0]["lens"] != metas[1]["lens"]
