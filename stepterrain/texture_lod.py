@@ -1954,12 +1954,14 @@ class TextureCache:
     """Texture data loaded on demand in a background thread, least recently used evicted over ``budget`` bytes.
 
     ``request`` never blocks (§4: "non-blocking!!!"); ``loader(M)`` (default: a copy of ``M.image()``) runs in
-    the background thread. ``is_loaded`` marks the patch as recently used. The bytes held never exceed ``budget``:
-    a patch whose data alone is larger fails to load (:class:`~stepterrain.errors.OutputTooLargeError`). A load
-    that fails (the loader raised: a corrupt or missing tile) is raised to the caller as a
-    :class:`~stepterrain.errors.DataFileError` naming the patch, from the loader's exception, by the next
-    :meth:`request`, :meth:`load_now`, :meth:`wait` or :func:`render_with_textures` with this cache; once raised it
-    is forgotten, so a later request loads the patch again.
+    the background thread. ``is_loaded`` marks the patch as recently used. Loaded NumPy data is handed out
+    read-only (a read-only view of the loader's array), so a caller cannot change what later hits get. The bytes
+    held never exceed ``budget``: a patch whose data alone is larger fails to load
+    (:class:`~stepterrain.errors.OutputTooLargeError`). A load that fails (the loader raised: a corrupt or missing
+    tile) is raised to the caller as a :class:`~stepterrain.errors.DataFileError` naming the patch, from the
+    loader's exception, by the next :meth:`request`, :meth:`load_now`, :meth:`wait` or
+    :func:`render_with_textures` with this cache; once raised it is forgotten, so a later request loads the patch
+    again.
     """
 
     def __init__(self, budget: int = 256 * 1024**2, loader: Callable[[TexturePatch], Any] | None = None,
@@ -2044,6 +2046,12 @@ class TextureCache:
     def _load(self, patch: TexturePatch) -> None:
         try:
             data = self.loader(patch)
+            if isinstance(data, np.ndarray) and data.flags.writeable:
+                # handed out read-only, every hit the same array: a caller's in-place edit (a gamma, premultiplied
+                # alpha) went into the cache, drawn by every later hit and frame; a view, so a loader's own array
+                # stays writeable for its owner
+                data = data.view()
+                data.flags.writeable = False
             size = int(getattr(data, "nbytes", patch.nbytes))
             if size > self.budget:  # it was kept anyway, alone: the bytes held went past the budget
                 raise OutputTooLargeError(f"its data takes {size} bytes, more than the cache's budget of "  # size > 1

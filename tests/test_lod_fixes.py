@@ -1371,3 +1371,33 @@ def test_an_owned_relative_storage_is_deleted_where_it_was_given(tmp_path, monke
     pyramid.close()
     assert (tmp_path / "b" / "levels" / "keep.txt").is_file()
     assert not (tmp_path / "a" / "levels").exists()
+
+
+@pytest.mark.parametrize("own_loader", [False, True])
+def test_texture_cache_hands_out_data_a_caller_cannot_corrupt(own_loader):
+    """TextureCache.load_now / get gave every caller the one array it held: a caller editing it in place (a gamma,
+    premultiplying alpha) changed what every later hit and every later frame drew, without a word. The cached array
+    is read-only (a loader's own array stays writeable, the cache holding a read-only view of it)."""
+    from stepterrain.texture_lod import TextureCache
+
+    from .test_texture_lod import lod_setup
+
+    quadtree, tree, pyramid, _ = lod_setup()
+    given = []
+
+    def loader(patch):
+        given.append(np.array(patch.image()))
+        return given[-1]
+
+    cache = TextureCache(budget=1 << 30, loader=loader if own_loader else None)
+    with pyramid:
+        patch = tree.patches()[1]
+        expected = np.array(patch.image())
+        data = cache.load_now(patch)
+        assert data is cache.get(patch) and np.array_equal(data, expected)  # a hit: the same array
+        with pytest.raises(ValueError):
+            data[...] = 0  # an in-place edit is refused, not written into the cache
+        assert np.array_equal(cache.get(patch), expected)
+        if own_loader:
+            assert given[0].flags.writeable  # the loader's array is not made read-only under its owner
+    cache.close()
