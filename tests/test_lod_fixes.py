@@ -1401,3 +1401,30 @@ def test_texture_cache_hands_out_data_a_caller_cannot_corrupt(own_loader):
         if own_loader:
             assert given[0].flags.writeable  # the loader's array is not made read-only under its owner
     cache.close()
+
+
+def test_pyramid_over_a_npy_file_rewritten_after_build_is_refused(tmp_path):
+    """A pyramid built from a .npy path maps that file as level 0; rewriting the file in place (np.save over it) after
+    the build changed level 0 under the pyramid while levels 1+ kept the old image: a patch drew the new image at full
+    resolution and the old one coarser, without a word (and a shorter file killed the process with SIGBUS on the next
+    read). The pyramid notices the change before reading and raises a DataFileError naming the file."""
+    import time
+
+    from stepterrain.errors import DataFileError
+
+    path = tmp_path / "image.npy"
+    np.save(path, np.full((9, 7, 3), 10, np.uint8))
+    with ImagePyramid.build(path) as pyramid:
+        assert np.asarray(pyramid.levels[1]).max() == 10
+        time.sleep(0.05)  # past the file system's timestamp granularity
+        np.save(path, np.full((9, 7, 3), 200, np.uint8))  # the same size, the same file (truncated, rewritten)
+        with pytest.raises(DataFileError, match=r"image\.npy.*changed"):
+            _ = pyramid.levels
+        with pytest.raises(DataFileError, match=r"image\.npy.*changed"):
+            pyramid.sub_image(0, (0, 2, 0, 2))
+    # replaced by another file under its name (renamed over it): the old file stays mapped, whole; nothing to refuse
+    np.save(path, np.full((9, 7, 3), 10, np.uint8))
+    with ImagePyramid.build(path) as pyramid:
+        np.save(tmp_path / "other.npy", np.full((9, 7, 3), 200, np.uint8))
+        os.replace(tmp_path / "other.npy", path)
+        assert np.asarray(pyramid.levels[0]).max() == np.asarray(pyramid.levels[1]).max() == 10
