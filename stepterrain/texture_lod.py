@@ -500,6 +500,15 @@ def _memmap_backing(array: NDArray[Any]) -> str | None:
     return array.filename
 
 
+def _file_state(path: str) -> tuple[str, Any] | None:
+    """(path, ((device, inode), size, mtime_ns, ctime_ns)) of the file ``path``, None when it cannot be stat'ed."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return path, ((st.st_dev, st.st_ino), st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+
+
 def _mapped_file(array: Any) -> str | None:
     """The file ``array`` maps, whatever its layout: its own memmap's, or its base's for a view (a slice of channels,
     ``np.asarray`` of a memmap), else None."""
@@ -529,7 +538,8 @@ class ImagePyramid:
     geographic ``crs`` on a DEM load_dem read from degrees into local metres, where it places the extent exactly).
 
     Levels 1+ are raw uint8 files in ``storage`` opened as read-only ``numpy.memmap``. Level 0 is the source itself
-    when nothing can change it (an image file decoded whole; a .npy stays on disk, memory-mapped read-only); a TIFF of
+    when nothing can change it (an image file decoded whole; a .npy stays on disk, memory-mapped read-only: rewritten
+    in place after the build, the pyramid refuses to be read, a :class:`DataFileError`); a TIFF of
     8-bit bands or a PNG is read a band of rows at a time into ``storage`` as ``level_0.u8`` (see :meth:`build`); an
     array the caller can still edit (writeable, or a view of one) is copied first, read-only (a writeable memmap into
     ``storage`` as ``level_0.u8``), so editing it after :meth:`build` leaves the pyramid's levels in agreement (the
@@ -589,6 +599,7 @@ class ImagePyramid:
                            if owned else None)
         self._closed = False
         self._georeferenced = False  # build() placed it by its file's georeferencing (image_layer asks, not reopens)
+        self._source: tuple[str, Any] | None = None  # (file level 0 maps, its _file_state at the build): build()'s
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -772,6 +783,8 @@ class ImagePyramid:
             raise
         pyramid = cls(levels, extent, folder, aniso, owned, crs)
         pyramid._georeferenced = placed_by_file
+        if tiff is None and backing is not None and not changeable:  # level 0 maps the caller's file (a .npy path)
+            pyramid._source = _file_state(backing)
         return pyramid
 
     @classmethod
@@ -793,12 +806,30 @@ class ImagePyramid:
     def levels(self) -> list[NDArray[np.uint8]]:
         """The levels, 0 (the image) to the 1 x 1 one."""
         self._open("its levels")
+        if self._source is not None:
+            self._check_source()
         return self._levels
+
+    def _check_source(self) -> None:
+        """Raise a DataFileError when the file level 0 maps (a .npy path's) was rewritten in place since the build:
+        level 0 showed the new image under levels 1+ of the old one, without a word (and a shorter file killed the
+        process with SIGBUS on the next read). A file replaced under its name, or deleted, leaves the old one mapped,
+        whole: nothing to refuse."""
+        path, built = self._source
+        found = _file_state(path)
+        now = None if found is None else found[1]
+        if now is not None and now[0] == built[0] and now != built:  # the same file (device, inode), rewritten
+            raise DataFileError(f"image file {str(path)!r} changed since its ImagePyramid was built from it (level 0 "
+                                "maps the file, the coarser levels hold the image as it was): build the pyramid "
+                                "again, or replace the file (write another and rename it over) instead of "
+                                "rewriting it in place")
 
     @property
     def anisotropic(self) -> dict[tuple[int, int], NDArray[np.uint8]]:
         """The anisotropic levels by (kx, ky), empty unless built with ``anisotropic=True``."""
         self._open("its anisotropic levels")
+        if self._source is not None:
+            self._check_source()
         return self._anisotropic
 
     def __len__(self) -> int:
@@ -1956,12 +1987,14 @@ class TextureCache:
     """Texture data loaded on demand in a background thread, least recently used evicted over ``budget`` bytes.
 
     ``request`` never blocks (§4: "non-blocking!!!"); ``loader(M)`` (default: a copy of ``M.image()``) runs in
-    the background thread. ``is_loaded`` marks the patch as recently used. The bytes held never exceed ``budget``:
-    a patch whose data alone is larger fails to load (:class:`~stepterrain.errors.OutputTooLargeError`). A load
-    that fails (the loader raised: a corrupt or missing tile) is raised to the caller as a
-    :class:`~stepterrain.errors.DataFileError` naming the patch, from the loader's exception, by the next
-    :meth:`request`, :meth:`load_now`, :meth:`wait` or :func:`render_with_textures` with this cache; once raised it
-    is forgotten, so a later request loads the patch again.
+    the background thread. ``is_loaded`` marks the patch as recently used. Loaded NumPy data is handed out
+    read-only (a read-only view of the loader's array), so a caller cannot change what later hits get. The bytes
+    held never exceed ``budget``: a patch whose data alone is larger fails to load
+    (:class:`~stepterrain.errors.OutputTooLargeError`). A load that fails (the loader raised: a corrupt or missing
+    tile) is raised to the caller as a :class:`~stepterrain.errors.DataFileError` naming the patch, from the
+    loader's exception, by the next :meth:`request`, :meth:`load_now`, :meth:`wait` or
+    :func:`render_with_textures` with this cache; once raised it is forgotten, so a later request loads the patch
+    again.
     """
 
     def __init__(self, budget: int = 256 * 1024**2, loader: Callable[[TexturePatch], Any] | None = None,
@@ -2046,6 +2079,12 @@ class TextureCache:
     def _load(self, patch: TexturePatch) -> None:
         try:
             data = self.loader(patch)
+            if isinstance(data, np.ndarray) and data.flags.writeable:
+                # handed out read-only, every hit the same array: a caller's in-place edit (a gamma, premultiplied
+                # alpha) went into the cache, drawn by every later hit and frame; a view, so a loader's own array
+                # stays writeable for its owner
+                data = data.view()
+                data.flags.writeable = False
             size = int(getattr(data, "nbytes", patch.nbytes))
             if size > self.budget:  # it was kept anyway, alone: the bytes held went past the budget
                 raise OutputTooLargeError(f"its data takes {size} bytes, more than the cache's budget of "  # size > 1

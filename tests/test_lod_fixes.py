@@ -1371,3 +1371,60 @@ def test_an_owned_relative_storage_is_deleted_where_it_was_given(tmp_path, monke
     pyramid.close()
     assert (tmp_path / "b" / "levels" / "keep.txt").is_file()
     assert not (tmp_path / "a" / "levels").exists()
+
+
+@pytest.mark.parametrize("own_loader", [False, True])
+def test_texture_cache_hands_out_data_a_caller_cannot_corrupt(own_loader):
+    """TextureCache.load_now / get gave every caller the one array it held: a caller editing it in place (a gamma,
+    premultiplying alpha) changed what every later hit and every later frame drew, without a word. The cached array
+    is read-only (a loader's own array stays writeable, the cache holding a read-only view of it)."""
+    from stepterrain.texture_lod import TextureCache
+
+    from .test_texture_lod import lod_setup
+
+    quadtree, tree, pyramid, _ = lod_setup()
+    given = []
+
+    def loader(patch):
+        given.append(np.array(patch.image()))
+        return given[-1]
+
+    cache = TextureCache(budget=1 << 30, loader=loader if own_loader else None)
+    with pyramid:
+        patch = tree.patches()[1]
+        expected = np.array(patch.image())
+        data = cache.load_now(patch)
+        assert data is cache.get(patch) and np.array_equal(data, expected)  # a hit: the same array
+        with pytest.raises(ValueError):
+            data[...] = 0  # an in-place edit is refused, not written into the cache
+        assert np.array_equal(cache.get(patch), expected)
+        if own_loader:
+            assert given[0].flags.writeable  # the loader's array is not made read-only under its owner
+    cache.close()
+
+
+def test_pyramid_over_a_npy_file_rewritten_after_build_is_refused(tmp_path):
+    """A pyramid built from a .npy path maps that file as level 0; rewriting the file in place (np.save over it) after
+    the build changed level 0 under the pyramid while levels 1+ kept the old image: a patch drew the new image at full
+    resolution and the old one coarser, without a word (and a shorter file killed the process with SIGBUS on the next
+    read). The pyramid notices the change before reading and raises a DataFileError naming the file."""
+    import time
+
+    from stepterrain.errors import DataFileError
+
+    path = tmp_path / "image.npy"
+    np.save(path, np.full((9, 7, 3), 10, np.uint8))
+    with ImagePyramid.build(path) as pyramid:
+        assert np.asarray(pyramid.levels[1]).max() == 10
+        time.sleep(0.05)  # past the file system's timestamp granularity
+        np.save(path, np.full((9, 7, 3), 200, np.uint8))  # the same size, the same file (truncated, rewritten)
+        with pytest.raises(DataFileError, match=r"image\.npy.*changed"):
+            _ = pyramid.levels
+        with pytest.raises(DataFileError, match=r"image\.npy.*changed"):
+            pyramid.sub_image(0, (0, 2, 0, 2))
+    # replaced by another file under its name (renamed over it): the old file stays mapped, whole; nothing to refuse
+    np.save(path, np.full((9, 7, 3), 10, np.uint8))
+    with ImagePyramid.build(path) as pyramid:
+        np.save(tmp_path / "other.npy", np.full((9, 7, 3), 200, np.uint8))
+        os.replace(tmp_path / "other.npy", path)
+        assert np.asarray(pyramid.levels[0]).max() == np.asarray(pyramid.levels[1]).max() == 10
