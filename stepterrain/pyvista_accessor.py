@@ -337,7 +337,10 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
                 continue
             if array.dtype.kind == "O" and all(isinstance(v, str) for v in array.ravel()):
                 array = array.astype(str)  # strings held as objects (a pandas column's values) are strings
-            if array.dtype.kind == "c" and array.ndim > 1:  # pyvista's ValueError "Complex data must be single
+            if array.size == 0:  # (N, 0): pyvista's ValueError "Empty arrays are not allowed" came out of
+                # to_polydata (and of render_mesh and save_mesh of the mesh), naming no argument
+                left_out.append(f"{kind} attribute {name!r} ({array.dtype} of shape {array.shape})")
+            elif array.dtype.kind == "c" and array.ndim > 1:  # pyvista's ValueError "Complex data must be single
                 # dimensional" came out of to_polydata: it stores a complex value as two floats, one value a cell
                 left_out.append(f"{kind} attribute {name!r} ({array.dtype} of shape {array.shape})")
             elif array.dtype.kind in _DATA_KINDS:
@@ -346,7 +349,8 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
                 left_out.append(f"{kind} attribute {name!r} ({array.dtype})")
     if left_out:
         warnings.warn(f"to_polydata: {', '.join(left_out)} left out: VTK holds arrays of numbers and strings only "
-                      "(complex numbers one to a point or cell)", stacklevel=caller_stacklevel())
+                      "(complex numbers one to a point or cell), of at least one value each",
+                      stacklevel=caller_stacklevel())
     uv = getattr(mesh.visual, "uv", None) if mesh.visual.kind == "texture" else None
     if uv is not None and np.shape(uv) == (len(mesh.vertices), 2):
         poly.active_texture_coordinates = own(uv, dtype=np.float64)
@@ -508,7 +512,9 @@ def _uint8_colours(values: NDArray[Any]) -> NDArray[np.uint8] | None:
         with np.errstate(invalid="ignore"):
             if not (np.isfinite(values).all() and (values >= 0).all() and (values <= 1).all()):
                 return None
-        return np.rint(values.astype(np.float64) * 255.0).astype(np.uint8)
+        # VTK's direct colour mode computes floor(c * 255 + 0.5) in double: np.rint rounded exact halves (a float64
+        # c = (2k + 1) / 510) to even, one level below what poly.plot() shows for every other half
+        return np.floor(values.astype(np.float64) * 255.0 + 0.5).astype(np.uint8)
     return None
 
 

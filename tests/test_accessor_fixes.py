@@ -729,3 +729,42 @@ def test_bool_attributes_and_metadata_arrays_come_back_from_pyvista_as_bools():
     stepped_poly = pv.ImageData(dimensions=(6, 5, 1))
     stepped_poly["elevation"] = np.arange(30.0)
     assert stepped_poly.stepterrain.stepped(interval=4.0).cell_data["wall"].dtype == bool  # the accessor's, shared
+
+
+@pytest.mark.parametrize("kind", ["vertex", "face"])
+@pytest.mark.parametrize("shape", [(0,), (2, 0)])
+def test_to_polydata_leaves_out_attributes_with_no_values_by_name(kind, shape):
+    """An attribute of no values per vertex or face, (N, 0), raised pyvista's ValueError ("Empty arrays are not
+    allowed") out of to_polydata, naming no argument (and render_mesh and save_mesh of such a mesh with it). VTK holds
+    no array of zero components: it is left out with a warning naming it, the other attributes kept."""
+    mesh = trimesh.creation.box()
+    count = len(mesh.vertices) if kind == "vertex" else len(mesh.faces)
+    attributes = mesh.vertex_attributes if kind == "vertex" else mesh.face_attributes
+    attributes["empty"] = np.zeros((count, *shape))
+    attributes["kept"] = np.arange(count, dtype=np.float64)
+    with pytest.warns(UserWarning, match=rf"{kind} attribute 'empty' \(float64 of shape \({count}, {shape[0]}"):
+        poly = to_polydata(mesh)
+    data = poly.point_data if kind == "vertex" else poly.cell_data
+    assert "empty" not in data and np.array_equal(data["kept"], np.arange(count))
+
+
+def test_float_colours_round_as_vtk_maps_them_halves_up():
+    """Float colours were rounded half to even (np.rint): a float64 value on an exact half, c = (2k + 1) / 510 for an
+    even k, became k where VTK's direct colour mode (how pyvista plots the same array) gives k + 1, as it computes
+    floor(c * 255 + 0.5) in double. Checked against VTK's own mapping, vtkLookupTable.MapScalars in direct mode, on
+    every half and on random float64 and float32 colours."""
+    import vtk
+    from vtkmodules.util.numpy_support import numpy_to_vtk, vtk_to_numpy
+
+    from stepterrain.pyvista_accessor import _uint8_colours
+
+    rng = np.random.default_rng(7)
+    halves = np.repeat((np.arange(511) / 510.0)[:, None], 3, axis=1)
+    for values in (halves, rng.random((2000, 4)), rng.random((2000, 3)).astype(np.float32)):
+        source = numpy_to_vtk(np.ascontiguousarray(values), deep=1)
+        mapped = vtk.vtkLookupTable().MapScalars(source, vtk.VTK_COLOR_MODE_DIRECT_SCALARS, -1)
+        expected = vtk_to_numpy(mapped)[:, : values.shape[1]]
+        assert np.array_equal(_uint8_colours(values), expected)
+    poly = pv.Sphere(theta_resolution=6, phi_resolution=4)
+    poly["colors_rgba"] = np.full((poly.n_points, 4), 5 / 510)  # 2.5: VTK's 3, np.rint's 2
+    assert np.array_equal(from_polydata(poly).visual.vertex_colors, np.full((poly.n_points, 4), 3))
