@@ -433,7 +433,9 @@ def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:
 
     if not isinstance(poly, pv.PolyData):
         raise InvalidInputError(f"{name} must be a pyvista.PolyData; got {type(poly).__name__}")
-    if poly.n_cells and not poly.is_all_triangles:
+    # pyvista's is_all_triangles looks at the polygons alone: strips beside triangles passed, and their faces were
+    # dropped without a word (regular_faces holds the polygons), a cell-data array longer than the faces kept
+    if poly.n_cells and (poly.n_strips or not poly.is_all_triangles):
         polygons = int((np.diff(poly.GetPolys().GetOffsetsArray()) != 3).sum()) if poly.GetNumberOfPolys() else 0
         others = {("vertex cell", None): poly.n_verts, ("line", None): poly.n_lines, ("strip", None): poly.n_strips,
                   ("polygon of 4 or more corners", "polygons of 4 or more corners"): polygons}  # fmt: skip

@@ -768,3 +768,21 @@ def test_float_colours_round_as_vtk_maps_them_halves_up():
     poly = pv.Sphere(theta_resolution=6, phi_resolution=4)
     poly["colors_rgba"] = np.full((poly.n_points, 4), 5 / 510)  # 2.5: VTK's 3, np.rint's 2
     assert np.array_equal(from_polydata(poly).visual.vertex_colors, np.full((poly.n_points, 4), 3))
+
+
+def test_from_polydata_refuses_strips_beside_triangles_not_dropping_them():
+    """A PolyData of triangles and triangle strips (what VTK's vtkStripper makes of a surface, with the triangles it
+    could not strip) passed as all triangles (pyvista's is_all_triangles looks at the polygons alone): from_polydata
+    returned the triangles alone, the strips' faces lost without a word, and a cell-data array of one value per cell
+    became a face attribute longer than the faces. Strips are refused with the triangulate() advice, as strips
+    alone are; triangulated, every face comes back."""
+    sphere = pv.Sphere(theta_resolution=8, phi_resolution=6)
+    stripped = sphere.strip()
+    poly = stripped.merge(pv.PolyData(sphere.points, faces=[3, 0, 1, 2]), merge_points=False)
+    assert poly.n_strips and poly.GetNumberOfPolys() == 1
+    poly.cell_data["id"] = np.arange(poly.n_cells)
+    with pytest.raises(InvalidInputError, match=r"got \d+ strips? \(mesh\.triangulate\(\) makes triangles"):
+        from_polydata(poly)
+    back = from_polydata(poly.triangulate())
+    assert len(back.faces) == sphere.n_cells + 1 and len(back.face_attributes["id"]) == len(back.faces)
+    assert back.area == pytest.approx(sphere.area + trimesh.Trimesh(sphere.points[:3], [[0, 1, 2]]).area)
