@@ -364,7 +364,10 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
         data[RGBA_ALIAS] = data["RGBA"]
         data.active_scalars_name = RGBA_ALIAS
     if "isovalues" in mesh.metadata:
-        poly.field_data["isovalues"] = np.asarray(mesh.metadata["isovalues"], dtype=np.float64)
+        try:  # numbers; others (strings, ragged lists: numpy's ValueError came out of to_polydata) go as any item
+            poly.field_data["isovalues"] = np.asarray(mesh.metadata["isovalues"], dtype=np.float64)
+        except (TypeError, ValueError):
+            pass
     # only the isovalues were kept (source, CRS, gamma, floor dropped), where pv.wrap keeps them in user_dict
     kept, dropped = {}, []
     for key, value in mesh.metadata.items():
@@ -374,11 +377,12 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
             item = {}
         kept.update(item)
         # "_" items are private (trimesh's "_ply_raw"), as in glTF extras; the isovalues are a field_data array above
-        if item or str(key).startswith("_") or key == "isovalues":
+        if item or str(key).startswith("_") or (key == "isovalues" and key in poly.field_data):
             continue
         # an array past glTF extras' length (a globe's per-vertex node_entry) was left out without a word
         array = value if isinstance(value, np.ndarray) else None
-        if array is not None and array.dtype.kind in "biuf" and isinstance(key, str):
+        # (N, 0) raised pyvista's ValueError "Empty arrays are not allowed" out of to_polydata
+        if array is not None and array.dtype.kind in "biuf" and isinstance(key, str) and 0 not in array.shape[1:]:
             poly.field_data[key] = _vtk_values(array, own)
         else:
             dropped.append(key)

@@ -786,3 +786,28 @@ def test_from_polydata_refuses_strips_beside_triangles_not_dropping_them():
     back = from_polydata(poly.triangulate())
     assert len(back.faces) == sphere.n_cells + 1 and len(back.face_attributes["id"]) == len(back.faces)
     assert back.area == pytest.approx(sphere.area + trimesh.Trimesh(sphere.points[:3], [[0, 1, 2]]).area)
+
+
+@pytest.mark.parametrize("isovalues", [["low", "high"], [[0.0, 10.0], [20.0]], {"step": 10.0}])
+def test_to_polydata_keeps_isovalues_metadata_that_is_not_numbers_as_any_other_item(isovalues):
+    """to_polydata put metadata["isovalues"] into field data as float64 whatever it held: strings or a ragged list
+    (a GLB's extras written by another tool) raised numpy's ValueError, a dict its TypeError, out of to_polydata
+    (and out of render_mesh and save_mesh of the PolyData's way back), naming nothing. Numbers still go to field
+    data; anything else is an item as any other, in user_dict and back."""
+    mesh = trimesh.creation.box()
+    mesh.metadata["isovalues"] = isovalues
+    poly = to_polydata(mesh)
+    assert "isovalues" not in poly.field_data
+    assert from_polydata(poly).metadata["isovalues"] == isovalues
+
+
+def test_to_polydata_leaves_out_a_metadata_array_with_no_values_per_row_by_name():
+    """A metadata array too long for user_dict went to field data as it was: one of shape (N, 0) raised pyvista's
+    ValueError ("Empty arrays are not allowed") out of to_polydata. It is left out with the warning other
+    metadata VTK cannot hold get; the other items are kept."""
+    mesh = trimesh.creation.box()
+    mesh.metadata.update(empty=np.zeros((20000, 0)), node_entry=np.arange(20000))
+    with pytest.warns(UserWarning, match=r"metadata items \['empty'\]"):
+        poly = to_polydata(mesh)
+    back = from_polydata(poly)
+    assert "empty" not in back.metadata and np.array_equal(back.metadata["node_entry"], np.arange(20000))
