@@ -581,13 +581,25 @@ def render_mesh(
     if scalars == "level":
         if "level" not in mesh.face_attributes:
             raise InvalidInputError("scalars='level' needs face_attributes['level'] (a stepped mesh)")
+        given = mesh.face_attributes["level"]
         try:
-            levels = np.asarray(mesh.face_attributes["level"], dtype=np.float32).reshape(-1)
+            with np.errstate(over="ignore"):  # a level beyond float32 becomes inf, named below
+                levels = np.asarray(given, dtype=np.float32).reshape(-1)
         except (TypeError, ValueError):
-            levels = np.full(0, np.nan)
-        if levels.shape != (len(mesh.faces),) or not np.isfinite(levels).all():
+            levels = None
+        # what is wrong, named: a NaN level (or one beyond float32) was reported as its shape alone, "got (2,)" for
+        # two faces, and values that are no numbers ('a') likewise
+        got = None
+        if levels is None:
+            got = f"{np.asarray(given).dtype} values"
+        elif levels.shape != (len(mesh.faces),):
+            got = f"shape {np.shape(given)}"
+        elif not np.isfinite(levels).all():
+            k = int(np.flatnonzero(~np.isfinite(levels))[0])
+            got = f"{np.asarray(given, dtype=np.float64).reshape(-1)[k]:g} at face {k}"
+        if got is not None:
             raise InvalidInputError(f"face_attributes['level'] must hold one finite number per face "
-                                    f"({len(mesh.faces)}); got {np.shape(mesh.face_attributes['level'])}")
+                                    f"({len(mesh.faces)}); got {got}")
         face_attributes["level"] = levels
 
     rgb = _colors_rgb(mesh, "vertex") if scalars is None else None

@@ -1782,3 +1782,17 @@ def test_an_explicit_camera_that_sees_part_of_the_mesh_still_renders():
     edge = [(0.0, -20.0, 0.0), (30.0, 0.0, 0.0), (0.0, 0.0, 1.0)]  # the mesh at the left edge of a wide view
     for camera in (inside, edge):
         assert (render.render_mesh(mesh, window_size=(32, 32), camera=camera, view_angle=90.0) != 255).any()
+
+
+@pytest.mark.parametrize(("levels", "got"), [([1.0, np.nan], "got nan at face 1"), ([np.inf, 2.0], "got inf at face 0"),
+                                             ([2.0, 1e39], r"got 1e\+39 at face 1"), (["a", "b"], "got <U1 values"),
+                                             ([1.0], r"got shape \(1,\)")])
+def test_level_scalars_that_are_not_finite_are_named_not_reported_as_their_shape(levels, got):
+    """render_mesh(scalars='level') refused a NaN level (or an infinite one, or one beyond float32) by the levels'
+    shape alone, "got (2,)" for a mesh of two faces: the right shape, so nothing said what was wrong. Strings the
+    same. The message names the value and its face, or the dtype, or the wrong shape."""
+    mesh = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], [[0, 1, 2], [1, 3, 2]], process=False)
+    mesh.face_attributes["level"] = np.asarray(levels)
+    with pytest.raises(InvalidInputError, match=r"face_attributes\['level'\] must hold one finite number per face "
+                                                rf"\(2\); {got}$"):
+        render.render_mesh(mesh, scalars="level", window_size=(16, 16))
