@@ -1796,3 +1796,19 @@ def test_level_scalars_that_are_not_finite_are_named_not_reported_as_their_shape
     with pytest.raises(InvalidInputError, match=r"face_attributes\['level'\] must hold one finite number per face "
                                                 rf"\(2\); {got}$"):
         render.render_mesh(mesh, scalars="level", window_size=(16, 16))
+
+
+@needs_render
+def test_a_mesh_of_degenerate_faces_is_refused_not_rendered_blank():
+    """A mesh whose faces all have no area (corners on one line, or repeated: a profile line saved as triangles)
+    has a box of some size, so it passed every check and rendered a blank picture without a word: VTK rasterises
+    none of its faces. It is refused by name now; one face of some area among them renders, and shows."""
+    line = np.array([[0.0, 0.0, 0.0], [50.0, 20.0, 3.0], [100.0, 40.0, 6.0], [30.0, 80.0, 1.0]])
+    degenerate = trimesh.Trimesh(line, [[0, 1, 2], [0, 0, 3], [3, 3, 3]], process=False)
+    for camera in ("oblique", "top", (0.3, 0.2)):
+        with pytest.raises(InvalidInputError, match=r"mesh has no face of some area: every one of its 3 faces is "
+                                                    r"degenerate .* renders blank"):
+            render.render_mesh(degenerate, window_size=(32, 24), camera=camera)
+    shown = trimesh.Trimesh(line, [[0, 1, 2], [0, 0, 3], [0, 1, 3]], process=False)
+    image = render.render_mesh(shown, window_size=(32, 24))
+    assert (image != 255).any(axis=2).sum() > 20
