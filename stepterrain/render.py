@@ -742,7 +742,7 @@ def _frame_mesh(
         # subset is at most the whole's: the whole is projected only when that one is under a pixel
         if min(_pixel_extent(drawn[::max(1, len(drawn) // 100_000)], position, (width, height), view_angle)) < 1.0:
             _check_visible(drawn, position, (width, height), box, z_scale, view_angle, camera, "the mesh")
-    _check_some_area(local, mesh.faces, finite)  # last: the checks above name what they find first
+    _check_some_area(local, mesh.faces, finite, z_scale)  # last: the checks above name what they find first
     return width, height, vertices, local, finite, box, position
 
 
@@ -750,7 +750,8 @@ def _frame_mesh(
 _AREA_CHUNK = 65536
 
 
-def _check_some_area(local: NDArray[np.float64], faces: ArrayLike, finite: NDArray[np.bool_]) -> None:
+def _check_some_area(local: NDArray[np.float64], faces: ArrayLike, finite: NDArray[np.bool_],
+                     z_scale: float = 1.0) -> None:
     """An InvalidInputError when no face drawn (all its corners finite) has an area: VTK rasterises none of a
     mesh of degenerate faces (corners repeated, or on one line), and it rendered blank without a word, its box
     of some size passing every other check. An area below 1e-12 of the square of the drawn vertices' extent (z
@@ -768,8 +769,9 @@ def _check_some_area(local: NDArray[np.float64], faces: ArrayLike, finite: NDArr
         if (doubled > least).any():
             return
     raise InvalidInputError(f"mesh has no face of some area: every one of its {counted(len(faces), 'face')} is "
-                            "degenerate (corners repeated or on one line, or not finite), so it renders blank; nothing "
-                            "to render")
+                            "degenerate (corners repeated or on one line, or not finite)"
+                            + (f" with z_scale={z_scale:g}" if z_scale != 1.0 else "")
+                            + ", so it renders blank; nothing to render")
 
 
 def _misses_view(box: NDArray[np.float64], position: Any, aspect: float, view_angle: float) -> bool:
