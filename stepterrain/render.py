@@ -586,7 +586,7 @@ def render_mesh(
         try:
             with np.errstate(over="ignore"):  # a level beyond float32 becomes inf, named below
                 levels = np.asarray(given, dtype=np.float32).reshape(-1)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):  # OverflowError: a Python int beyond float (10**400)
             levels = None
         # what is wrong, named: a NaN level (or one beyond float32) was reported as its shape alone, "got (2,)" for
         # two faces, and values that are no numbers ('a') likewise

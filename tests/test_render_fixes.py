@@ -1786,7 +1786,8 @@ def test_an_explicit_camera_that_sees_part_of_the_mesh_still_renders():
 
 @pytest.mark.parametrize(("levels", "got"), [([1.0, np.nan], "got nan at face 1"), ([np.inf, 2.0], "got inf at face 0"),
                                              ([2.0, 1e39], r"got 1e\+39 at face 1"), (["a", "b"], "got <U1 values"),
-                                             ([1.0], r"got shape \(1,\)")])
+                                             ([1.0], r"got shape \(1,\)"),
+                                             ([1, 10**400], "got object values")])  # OverflowError came out
 def test_level_scalars_that_are_not_finite_are_named_not_reported_as_their_shape(levels, got):
     """render_mesh(scalars='level') refused a NaN level (or an infinite one, or one beyond float32) by the levels'
     shape alone, "got (2,)" for a mesh of two faces: the right shape, so nothing said what was wrong. Strings the
