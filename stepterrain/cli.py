@@ -1172,6 +1172,8 @@ def _reading(path: str | None, progress: Progress) -> bool:
 
 
 def _run_info(args: argparse.Namespace, progress: Progress) -> int:
+    if sys.stdout is None:  # `info FILE >&-`: the summary went nowhere (print to None writes nothing) and it exited 0
+        raise OSError("standard output is closed (>&-): info prints its summary there, so it has nowhere to go")
     loud = _reading(args.file, progress)
     if args.file and Path(args.file).suffix.lower() in MESH_EXTENSIONS:
         if args.height_unit is not None:  # it was ignored without a word: a mesh's z is not converted
@@ -1296,7 +1298,10 @@ def _mesh_summary(path: Path) -> dict[str, Any]:
         # isovalues; they were left out, so `info` showed no eye for a view-dependent globe mesh
         if isinstance(value, (tuple, list)) and all(isinstance(v, (str, int, float, bool)) for v in value):
             value = list(value)
-        if isinstance(value, (str, int, float, bool, list)) and key not in summary:
+        # meta.KEY clashes with none of the summary's own fields: a key named like one ("faces", "kind") was left
+        # out, checked by its plain name; the first of two items giving one meta.KEY (a "print.size" key beside the
+        # "print" record's size) is kept
+        if isinstance(value, (str, int, float, bool, list)) and f"meta.{key}" not in summary:
             summary[f"meta.{key}"] = value
     return summary
 

@@ -337,7 +337,10 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
                 continue
             if array.dtype.kind == "O" and all(isinstance(v, str) for v in array.ravel()):
                 array = array.astype(str)  # strings held as objects (a pandas column's values) are strings
-            if array.dtype.kind == "c" and array.ndim > 1:  # pyvista's ValueError "Complex data must be single
+            if array.size == 0:  # (N, 0): pyvista's ValueError "Empty arrays are not allowed" came out of
+                # to_polydata (and of render_mesh and save_mesh of the mesh), naming no argument
+                left_out.append(f"{kind} attribute {name!r} ({array.dtype} of shape {array.shape})")
+            elif array.dtype.kind == "c" and array.ndim > 1:  # pyvista's ValueError "Complex data must be single
                 # dimensional" came out of to_polydata: it stores a complex value as two floats, one value a cell
                 left_out.append(f"{kind} attribute {name!r} ({array.dtype} of shape {array.shape})")
             elif array.dtype.kind in _DATA_KINDS:
@@ -346,7 +349,8 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
                 left_out.append(f"{kind} attribute {name!r} ({array.dtype})")
     if left_out:
         warnings.warn(f"to_polydata: {', '.join(left_out)} left out: VTK holds arrays of numbers and strings only "
-                      "(complex numbers one to a point or cell)", stacklevel=caller_stacklevel())
+                      "(complex numbers one to a point or cell), of at least one value each",
+                      stacklevel=caller_stacklevel())
     uv = getattr(mesh.visual, "uv", None) if mesh.visual.kind == "texture" else None
     if uv is not None and np.shape(uv) == (len(mesh.vertices), 2):
         poly.active_texture_coordinates = own(uv, dtype=np.float64)
@@ -360,7 +364,10 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
         data[RGBA_ALIAS] = data["RGBA"]
         data.active_scalars_name = RGBA_ALIAS
     if "isovalues" in mesh.metadata:
-        poly.field_data["isovalues"] = np.asarray(mesh.metadata["isovalues"], dtype=np.float64)
+        try:  # numbers; others (strings, ragged lists: numpy's ValueError came out of to_polydata) go as any item
+            poly.field_data["isovalues"] = np.asarray(mesh.metadata["isovalues"], dtype=np.float64)
+        except (TypeError, ValueError):
+            pass
     # only the isovalues were kept (source, CRS, gamma, floor dropped), where pv.wrap keeps them in user_dict
     kept, dropped = {}, []
     for key, value in mesh.metadata.items():
@@ -370,11 +377,12 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
             item = {}
         kept.update(item)
         # "_" items are private (trimesh's "_ply_raw"), as in glTF extras; the isovalues are a field_data array above
-        if item or str(key).startswith("_") or key == "isovalues":
+        if item or str(key).startswith("_") or (key == "isovalues" and key in poly.field_data):
             continue
         # an array past glTF extras' length (a globe's per-vertex node_entry) was left out without a word
         array = value if isinstance(value, np.ndarray) else None
-        if array is not None and array.dtype.kind in "biuf" and isinstance(key, str):
+        # (N, 0) raised pyvista's ValueError "Empty arrays are not allowed" out of to_polydata
+        if array is not None and array.dtype.kind in "biuf" and isinstance(key, str) and 0 not in array.shape[1:]:
             poly.field_data[key] = _vtk_values(array, own)
         else:
             dropped.append(key)
@@ -429,7 +437,9 @@ def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:
 
     if not isinstance(poly, pv.PolyData):
         raise InvalidInputError(f"{name} must be a pyvista.PolyData; got {type(poly).__name__}")
-    if poly.n_cells and not poly.is_all_triangles:
+    # pyvista's is_all_triangles looks at the polygons alone: strips beside triangles passed, and their faces were
+    # dropped without a word (regular_faces holds the polygons), a cell-data array longer than the faces kept
+    if poly.n_cells and (poly.n_strips or not poly.is_all_triangles):
         polygons = int((np.diff(poly.GetPolys().GetOffsetsArray()) != 3).sum()) if poly.GetNumberOfPolys() else 0
         others = {("vertex cell", None): poly.n_verts, ("line", None): poly.n_lines, ("strip", None): poly.n_strips,
                   ("polygon of 4 or more corners", "polygons of 4 or more corners"): polygons}  # fmt: skip
@@ -508,7 +518,9 @@ def _uint8_colours(values: NDArray[Any]) -> NDArray[np.uint8] | None:
         with np.errstate(invalid="ignore"):
             if not (np.isfinite(values).all() and (values >= 0).all() and (values <= 1).all()):
                 return None
-        return np.rint(values.astype(np.float64) * 255.0).astype(np.uint8)
+        # VTK's direct colour mode computes floor(c * 255 + 0.5) in double: np.rint rounded exact halves (a float64
+        # c = (2k + 1) / 510) to even, one level below what poly.plot() shows for every other half
+        return np.floor(values.astype(np.float64) * 255.0 + 0.5).astype(np.uint8)
     return None
 
 

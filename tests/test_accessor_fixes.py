@@ -729,3 +729,85 @@ def test_bool_attributes_and_metadata_arrays_come_back_from_pyvista_as_bools():
     stepped_poly = pv.ImageData(dimensions=(6, 5, 1))
     stepped_poly["elevation"] = np.arange(30.0)
     assert stepped_poly.stepterrain.stepped(interval=4.0).cell_data["wall"].dtype == bool  # the accessor's, shared
+
+
+@pytest.mark.parametrize("kind", ["vertex", "face"])
+@pytest.mark.parametrize("shape", [(0,), (2, 0)])
+def test_to_polydata_leaves_out_attributes_with_no_values_by_name(kind, shape):
+    """An attribute of no values per vertex or face, (N, 0), raised pyvista's ValueError ("Empty arrays are not
+    allowed") out of to_polydata, naming no argument (and render_mesh and save_mesh of such a mesh with it). VTK holds
+    no array of zero components: it is left out with a warning naming it, the other attributes kept."""
+    mesh = trimesh.creation.box()
+    count = len(mesh.vertices) if kind == "vertex" else len(mesh.faces)
+    attributes = mesh.vertex_attributes if kind == "vertex" else mesh.face_attributes
+    attributes["empty"] = np.zeros((count, *shape))
+    attributes["kept"] = np.arange(count, dtype=np.float64)
+    with pytest.warns(UserWarning, match=rf"{kind} attribute 'empty' \(float64 of shape \({count}, {shape[0]}"):
+        poly = to_polydata(mesh)
+    data = poly.point_data if kind == "vertex" else poly.cell_data
+    assert "empty" not in data and np.array_equal(data["kept"], np.arange(count))
+
+
+def test_float_colours_round_as_vtk_maps_them_halves_up():
+    """Float colours were rounded half to even (np.rint): a float64 value on an exact half, c = (2k + 1) / 510 for an
+    even k, became k where VTK's direct colour mode (how pyvista plots the same array) gives k + 1, as it computes
+    floor(c * 255 + 0.5) in double. Checked against VTK's own mapping, vtkLookupTable.MapScalars in direct mode, on
+    every half and on random float64 and float32 colours."""
+    import vtk
+    from vtkmodules.util.numpy_support import numpy_to_vtk, vtk_to_numpy
+
+    from stepterrain.pyvista_accessor import _uint8_colours
+
+    rng = np.random.default_rng(7)
+    halves = np.repeat((np.arange(511) / 510.0)[:, None], 3, axis=1)
+    for values in (halves, rng.random((2000, 4)), rng.random((2000, 3)).astype(np.float32)):
+        source = numpy_to_vtk(np.ascontiguousarray(values), deep=1)
+        mapped = vtk.vtkLookupTable().MapScalars(source, vtk.VTK_COLOR_MODE_DIRECT_SCALARS, -1)
+        expected = vtk_to_numpy(mapped)[:, : values.shape[1]]
+        assert np.array_equal(_uint8_colours(values), expected)
+    poly = pv.Sphere(theta_resolution=6, phi_resolution=4)
+    poly["colors_rgba"] = np.full((poly.n_points, 4), 5 / 510)  # 2.5: VTK's 3, np.rint's 2
+    assert np.array_equal(from_polydata(poly).visual.vertex_colors, np.full((poly.n_points, 4), 3))
+
+
+def test_from_polydata_refuses_strips_beside_triangles_not_dropping_them():
+    """A PolyData of triangles and triangle strips (what VTK's vtkStripper makes of a surface, with the triangles it
+    could not strip) passed as all triangles (pyvista's is_all_triangles looks at the polygons alone): from_polydata
+    returned the triangles alone, the strips' faces lost without a word, and a cell-data array of one value per cell
+    became a face attribute longer than the faces. Strips are refused with the triangulate() advice, as strips
+    alone are; triangulated, every face comes back."""
+    sphere = pv.Sphere(theta_resolution=8, phi_resolution=6)
+    stripped = sphere.strip()
+    poly = stripped.merge(pv.PolyData(sphere.points, faces=[3, 0, 1, 2]), merge_points=False)
+    assert poly.n_strips and poly.GetNumberOfPolys() == 1
+    poly.cell_data["id"] = np.arange(poly.n_cells)
+    with pytest.raises(InvalidInputError, match=r"got \d+ strips? \(mesh\.triangulate\(\) makes triangles"):
+        from_polydata(poly)
+    back = from_polydata(poly.triangulate())
+    assert len(back.faces) == sphere.n_cells + 1 and len(back.face_attributes["id"]) == len(back.faces)
+    assert back.area == pytest.approx(sphere.area + trimesh.Trimesh(sphere.points[:3], [[0, 1, 2]]).area)
+
+
+@pytest.mark.parametrize("isovalues", [["low", "high"], [[0.0, 10.0], [20.0]], {"step": 10.0}])
+def test_to_polydata_keeps_isovalues_metadata_that_is_not_numbers_as_any_other_item(isovalues):
+    """to_polydata put metadata["isovalues"] into field data as float64 whatever it held: strings or a ragged list
+    (a GLB's extras written by another tool) raised numpy's ValueError, a dict its TypeError, out of to_polydata
+    (and out of render_mesh and save_mesh of the PolyData's way back), naming nothing. Numbers still go to field
+    data; anything else is an item as any other, in user_dict and back."""
+    mesh = trimesh.creation.box()
+    mesh.metadata["isovalues"] = isovalues
+    poly = to_polydata(mesh)
+    assert "isovalues" not in poly.field_data
+    assert from_polydata(poly).metadata["isovalues"] == isovalues
+
+
+def test_to_polydata_leaves_out_a_metadata_array_with_no_values_per_row_by_name():
+    """A metadata array too long for user_dict went to field data as it was: one of shape (N, 0) raised pyvista's
+    ValueError ("Empty arrays are not allowed") out of to_polydata. It is left out with the warning other
+    metadata VTK cannot hold get; the other items are kept."""
+    mesh = trimesh.creation.box()
+    mesh.metadata.update(empty=np.zeros((20000, 0)), node_entry=np.arange(20000))
+    with pytest.warns(UserWarning, match=r"metadata items \['empty'\]"):
+        poly = to_polydata(mesh)
+    back = from_polydata(poly)
+    assert "empty" not in back.metadata and np.array_equal(back.metadata["node_entry"], np.arange(20000))

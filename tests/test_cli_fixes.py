@@ -2563,3 +2563,34 @@ def test_steps_lens_metadata_records_the_lens_and_gamma_outside_it(tmp_path, cap
         meshes.append(mesh)
     assert not np.array_equal(meshes[0].vertices, meshes[1].vertices)
     assert metas[0]["lens"] != metas[1]["lens"]
+
+
+def test_info_shows_metadata_named_like_a_summary_field(tmp_path, capsys):
+    """info left out a mesh's metadata item named like one of its own summary fields (``faces``, ``kind``,
+    ``vertex_colors``) without a word, though it prints each as ``meta.NAME``, which clashes with none of them: it
+    checked the plain name against the summary. Now every such item is shown, the summary's own fields as they were."""
+    from stepterrain.export import save_mesh
+
+    mesh = trimesh.creation.box()
+    mesh.metadata.update({"faces": "from the DEM's cells", "kind": "terrain", "vertex_colors": True, "other": 3})
+    path = tmp_path / "box.glb"
+    save_mesh(mesh, path)
+    code, out, err = run(capsys, "info", path, "--json")
+    assert code == 0, err
+    summary = json.loads(out)
+    assert summary["kind"] == "mesh" and summary["faces"] == 12 and summary["vertex_colors"] is False
+    assert {key: summary.get(f"meta.{key}") for key in ("faces", "kind", "vertex_colors", "other")} == {
+        "faces": "from the DEM's cells", "kind": "terrain", "vertex_colors": True, "other": 3}
+
+
+def test_info_with_stdout_closed_is_an_error_not_a_silent_success(dem, capsys, monkeypatch):
+    """With stdout closed (``stepterrain info dem.npy >&-``: Python's sys.stdout is None) info printed its summary
+    to nowhere (``print`` to None writes nothing) and exited 0, as if a script reading it had got it. Its summary is
+    its whole output: it fails now, saying why on stderr, exit 2, before reading the file."""
+    monkeypatch.setattr("sys.stdout", None)
+    monkeypatch.setattr(cli, "_mesh_summary", lambda path: pytest.fail("read the file with nowhere to print"))
+    code = cli.main(["info", str(dem)])
+    err = capsys.readouterr().err
+    assert code == 2 and "stepterrain info: error: standard output is closed" in err, err
+    code = cli.main(["info", str(tmp := dem.with_suffix(".ply"))])
+    assert code == 2 and "standard output is closed" in capsys.readouterr().err and not tmp.exists()
