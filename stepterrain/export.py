@@ -1129,6 +1129,9 @@ def _save_image(image: ArrayLike, path: str | os.PathLike[str], *, extent: Any =
                     picture.save(tmp, format="TIFF", compression="tiff_deflate")
             except OSError as exc:
                 raise DataFileError(f"cannot write {str(target)!r}: {exc}") from exc
+            except RuntimeError as exc:  # libtiff could not write the header (a full disk): Pillow's "tiff codec
+                # initialization failed" went out uncaught; the system's words where a write says them
+                raise DataFileError(f"cannot write {str(target)!r}: {_write_failure(tmp) or exc}") from exc
             if suffix == ".png" and reused and options:  # a large one: a glTF of it takes its bytes
                 with contextlib.suppress(OSError):
                     stamp = _file_stamp(tmp)  # the bytes written, before the rename (see _LAST_PNG)
@@ -1145,6 +1148,51 @@ def _save_image(image: ArrayLike, path: str | os.PathLike[str], *, extent: Any =
     if stamp is not None:
         _LAST_PNG[:] = [(_pixels_digest(picture, pixels), target.absolute(), stamp)]
     return target
+
+
+def _write_failure(path: Path) -> str | None:
+    """The system's reason a write to ``path`` fails now (``No space left on device``), or None where a write of a few
+    bytes (flushed, then cut off again) succeeds: the reason behind a C library's own error."""
+    try:
+        with open(path, "r+b") as file:
+            file.write(b"\0" * 4096)
+            file.flush()
+            os.fsync(file.fileno())
+            file.truncate(0)
+    except OSError as exc:
+        return str(exc.strerror or exc)
+    return None
+
+
+#: Rows of a GeoTIFF :func:`_check_read_back` reads at a time.
+_READ_BACK_ROWS = 512
+
+
+def _check_read_back(path: Path, array: NDArray[np.uint8], target: Path) -> None:
+    """Raise DataFileError, naming ``target``, unless the GeoTIFF GDAL wrote to ``path`` reads back as ``array``.
+    GDAL writes a small image's pixels and its directory as the dataset closes, and a write failing there (a full
+    disk) is only printed, never raised (rasterio's close): the old GeoTIFF was replaced by an empty or truncated
+    file. Read in bands of :data:`_READ_BACK_ROWS` rows (memory bounded; decoding costs less than deflate's
+    encoding)."""
+    import rasterio
+    from rasterio.windows import Window
+
+    height, width, bands = array.shape
+    try:
+        with rasterio.open(path) as dataset:
+            same = (dataset.height, dataset.width, dataset.count) == (height, width, bands)
+            for row in range(0, height, _READ_BACK_ROWS) if same else ():
+                rows = min(_READ_BACK_ROWS, height - row)
+                band = dataset.read(window=Window(0, row, width, rows))
+                if not np.array_equal(band, np.moveaxis(array[row:row + rows], 2, 0)):
+                    same = False
+                    break
+    except (OSError, rasterio.errors.RasterioError):
+        same = False
+    if not same:
+        reason = _write_failure(path)
+        raise DataFileError(f"cannot write {str(target)!r}: " + (reason or "GDAL could not finish the file (it does "
+                                                                           "not read back as written)"))
 
 
 def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str | None) -> Path:
@@ -1203,6 +1251,7 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
                 try:
                     with rasterio.open(written, "w", **profile) as dataset:
                         dataset.write(np.moveaxis(array, 2, 0))
+                    _check_read_back(written, array, target)
                     if written != tmp:
                         os.replace(written, tmp)
                     if os.path.exists(aux):

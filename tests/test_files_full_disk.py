@@ -1,0 +1,67 @@
+"""Output files on a disk that fills while they are written (each test failed before its fix): the old file stays
+whole and the error is a DataFileError naming the path. The full disk is the file size limit (RLIMIT_FSIZE, whose
+writes past it fail as ENOSPC's do, EFBIG) of a child process: GDAL's and libtiff's writes are C code no patch of
+os.write reaches."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+resource = pytest.importorskip("resource")  # POSIX only
+if not hasattr(resource, "RLIMIT_FSIZE"):
+    pytest.skip("needs RLIMIT_FSIZE", allow_module_level=True)
+
+_WRITER = """
+import json, os, resource, signal, sys
+import numpy as np
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails (EFBIG) instead of killing the process
+import stepterrain.errors as errors
+from stepterrain.export import save_image
+path, limit, geo = sys.argv[1], int(sys.argv[2]), sys.argv[3] == "geo"
+image = np.random.default_rng(0).integers(0, 255, (40, 30, 3), dtype=np.uint8)
+resource.setrlimit(resource.RLIMIT_FSIZE, (limit, resource.RLIM_INFINITY))
+try:
+    save_image(image, path, **({"extent": (0.0, 30.0, 0.0, 40.0), "crs": "EPSG:32632"} if geo else {}))
+    said = ["ok", ""]
+except errors.StepTerrainError as exc:
+    said = [type(exc).__name__, str(exc)]
+except Exception as exc:
+    said = ["uncaught " + type(exc).__name__, str(exc)]
+print(json.dumps(said))
+"""
+
+
+def _write_full(path, limit, geo):
+    done = subprocess.run([sys.executable, "-c", _WRITER, str(path), str(limit), "geo" if geo else "plain"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.parametrize("limit", [0, 1000])
+def test_a_geotiff_that_does_not_fit_keeps_the_old_file(tmp_path, limit):
+    # GDAL writes a small GeoTIFF's pixels and directory when the dataset closes, and a failure there is only printed
+    # (rasterio's close raises nothing): save_image returned, and the old GeoTIFF was replaced by an empty or
+    # truncated file that no reader opens
+    pytest.importorskip("rasterio")
+    old = tmp_path / "ortho.tif"
+    old.write_bytes(b"an earlier GeoTIFF" * 100)
+    kind, message = _write_full(old, limit, geo=True)
+    assert kind == "DataFileError" and str(old) in message, (kind, message)
+    assert old.read_bytes() == b"an earlier GeoTIFF" * 100
+    assert [p.name for p in tmp_path.iterdir()] == ["ortho.tif"]  # no temporary file left
+
+
+def test_a_tiff_on_a_full_disk_is_a_data_file_error(tmp_path):
+    # libtiff could not write the header of the temporary file: Pillow's "RuntimeError: tiff codec initialization
+    # failed" went out uncaught, a traceback, where a PNG said "cannot write ...: No space left on device"
+    old = tmp_path / "texture.tif"
+    old.write_bytes(b"an earlier TIFF" * 100)
+    kind, message = _write_full(old, 0, geo=False)
+    assert kind == "DataFileError" and str(old) in message, (kind, message)
+    assert old.read_bytes() == b"an earlier TIFF" * 100
+    assert [p.name for p in tmp_path.iterdir()] == ["texture.tif"]
