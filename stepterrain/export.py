@@ -1060,7 +1060,10 @@ def save_image(
     DataFileError
         The target folder cannot be created or written, ``path`` is a side file (material or texture
         image) of a textured OBJ :func:`save_mesh` wrote in this process, which the image would replace, or
-        ``crs`` needs the side file ``<path>.aux.xml`` and its name is over 255 bytes (the image's over 247).
+        ``crs`` needs the side file ``<path>.aux.xml`` and its name is over 255 bytes (the image's over 247), or the
+        file cannot be written whole (a full disk: the message gives the system's reason); an existing ``path`` is
+        then kept as it was. A GeoTIFF is read back once GDAL has closed it (GDAL only prints a failure to write
+        its last pixels and directory as it closes the file).
 
     Notes
     -----
