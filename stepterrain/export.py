@@ -1155,13 +1155,16 @@ def _save_image(image: ArrayLike, path: str | os.PathLike[str], *, extent: Any =
 
 def _write_failure(path: Path) -> str | None:
     """The system's reason a write to ``path`` fails now (``No space left on device``), or None where a write of a few
-    bytes (flushed, then cut off again) succeeds: the reason behind a C library's own error."""
+    bytes (flushed, then cut off again) succeeds: the reason behind a C library's own error. The bytes go after the
+    file's end: written at its start, over bytes already on the disk, they fitted where the library's had not (a
+    file cut off past its first 4096 bytes gave no reason)."""
     try:
         with open(path, "r+b") as file:
+            size = file.seek(0, os.SEEK_END)
             file.write(b"\0" * 4096)
             file.flush()
             os.fsync(file.fileno())
-            file.truncate(0)
+            file.truncate(size)
     except OSError as exc:
         return str(exc.strerror or exc)
     return None

@@ -5,7 +5,9 @@ os.write reaches."""
 
 from __future__ import annotations
 
+import errno
 import json
+import os
 import subprocess
 import sys
 
@@ -21,8 +23,8 @@ import numpy as np
 signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails (EFBIG) instead of killing the process
 import stepterrain.errors as errors
 from stepterrain.export import save_image
-path, limit, geo = sys.argv[1], int(sys.argv[2]), sys.argv[3] == "geo"
-image = np.random.default_rng(0).integers(0, 255, (40, 30, 3), dtype=np.uint8)
+path, limit, geo, rows = sys.argv[1], int(sys.argv[2]), sys.argv[3] == "geo", int(sys.argv[4])
+image = np.random.default_rng(0).integers(0, 255, (rows, 30, 3), dtype=np.uint8)
 resource.setrlimit(resource.RLIMIT_FSIZE, (limit, resource.RLIM_INFINITY))
 try:
     save_image(image, path, **({"extent": (0.0, 30.0, 0.0, 40.0), "crs": "EPSG:32632"} if geo else {}))
@@ -35,8 +37,8 @@ print(json.dumps(said))
 """
 
 
-def _write_full(path, limit, geo):
-    done = subprocess.run([sys.executable, "-c", _WRITER, str(path), str(limit), "geo" if geo else "plain"],
+def _write_full(path, limit, geo, rows=40):
+    done = subprocess.run([sys.executable, "-c", _WRITER, str(path), str(limit), "geo" if geo else "plain", str(rows)],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     return json.loads(done.stdout.strip().splitlines()[-1])
@@ -65,3 +67,17 @@ def test_a_tiff_on_a_full_disk_is_a_data_file_error(tmp_path):
     assert kind == "DataFileError" and str(old) in message, (kind, message)
     assert old.read_bytes() == b"an earlier TIFF" * 100
     assert [p.name for p in tmp_path.iterdir()] == ["texture.tif"]
+
+
+def test_a_geotiff_cut_off_past_its_first_block_gives_the_system_reason(tmp_path):
+    # the reason was found by writing 4096 bytes at the start of the cut-off temporary file: where GDAL had written
+    # more than that, the write went over bytes already on the disk and succeeded (on a full disk as under a size
+    # limit), and the message said "GDAL could not finish the file" where the system's words were "File too large"
+    pytest.importorskip("rasterio")
+    old = tmp_path / "ortho.tif"
+    old.write_bytes(b"an earlier GeoTIFF" * 100)
+    kind, message = _write_full(old, 8192, geo=True, rows=100)
+    assert kind == "DataFileError" and str(old) in message, (kind, message)
+    assert message.endswith(os.strerror(errno.EFBIG)), message
+    assert old.read_bytes() == b"an earlier GeoTIFF" * 100
+    assert [p.name for p in tmp_path.iterdir()] == ["ortho.tif"]
