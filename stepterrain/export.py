@@ -1130,8 +1130,10 @@ def _save_image(image: ArrayLike, path: str | os.PathLike[str], *, extent: Any =
                     picture.save(tmp, format="PNG", **options)
                 else:
                     picture.save(tmp, format="TIFF", compression="tiff_deflate")
-            except OSError as exc:
-                raise DataFileError(f"cannot write {str(target)!r}: {exc}") from exc
+            except OSError as exc:  # libtiff's "encoder error -9" (no errno) on a full disk: the system's words
+                failure = None if exc.errno is not None else _write_failure(tmp)
+                reason = f"{failure} ({exc})" if failure else exc
+                raise DataFileError(f"cannot write {str(target)!r}: {reason}") from exc
             except RuntimeError as exc:  # libtiff could not write the header (a full disk): Pillow's "tiff codec
                 # initialization failed" went out uncaught; the system's words where a write says them
                 raise DataFileError(f"cannot write {str(target)!r}: {_write_failure(tmp) or exc}") from exc
@@ -1165,6 +1167,8 @@ def _write_failure(path: Path) -> str | None:
             file.flush()
             os.fsync(file.fileno())
             file.truncate(size)
+    except FileNotFoundError:  # (no file: not the reason a write failed)
+        return None
     except OSError as exc:
         return str(exc.strerror or exc)
     return None
@@ -1275,7 +1279,11 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
                 except (OSError, rasterio.errors.RasterioError) as exc:
                     from .io import gdal_reason  # GDAL's words (No space left on device), not "See previous exception"
 
-                    raise DataFileError(f"cannot write {str(target)!r}: {gdal_reason(exc)}") from exc
+                    reason = gdal_reason(exc)  # with the system's words: "No space left on device (TIFFAppend
+                    # ToStrip:Write error at scanline 42)" (an OSError, of the rename or the side file, has its own)
+                    failure = isinstance(exc, rasterio.errors.RasterioError) and _write_failure(written)
+                    reason = f"{failure} ({reason})" if failure else reason
+                    raise DataFileError(f"cannot write {str(target)!r}: {reason}") from exc
                 finally:
                     with contextlib.suppress(OSError):
                         aux.unlink()
