@@ -1060,7 +1060,10 @@ def save_image(
     DataFileError
         The target folder cannot be created or written, ``path`` is a side file (material or texture
         image) of a textured OBJ :func:`save_mesh` wrote in this process, which the image would replace, or
-        ``crs`` needs the side file ``<path>.aux.xml`` and its name is over 255 bytes (the image's over 247).
+        ``crs`` needs the side file ``<path>.aux.xml`` and its name is over 255 bytes (the image's over 247), or the
+        file cannot be written whole (a full disk: the message gives the system's reason); an existing ``path`` is
+        then kept as it was. A GeoTIFF is read back once GDAL has closed it (GDAL only prints a failure to write
+        its last pixels and directory as it closes the file).
 
     Notes
     -----
@@ -1127,8 +1130,13 @@ def _save_image(image: ArrayLike, path: str | os.PathLike[str], *, extent: Any =
                     picture.save(tmp, format="PNG", **options)
                 else:
                     picture.save(tmp, format="TIFF", compression="tiff_deflate")
-            except OSError as exc:
-                raise DataFileError(f"cannot write {str(target)!r}: {exc}") from exc
+            except OSError as exc:  # libtiff's "encoder error -9" (no errno) on a full disk: the system's words
+                failure = None if exc.errno is not None else _write_failure(tmp)
+                reason = f"{failure} ({exc})" if failure else exc
+                raise DataFileError(f"cannot write {str(target)!r}: {reason}") from exc
+            except RuntimeError as exc:  # libtiff could not write the header (a full disk): Pillow's "tiff codec
+                # initialization failed" went out uncaught; the system's words where a write says them
+                raise DataFileError(f"cannot write {str(target)!r}: {_write_failure(tmp) or exc}") from exc
             if suffix == ".png" and reused and options:  # a large one: a glTF of it takes its bytes
                 with contextlib.suppress(OSError):
                     stamp = _file_stamp(tmp)  # the bytes written, before the rename (see _LAST_PNG)
@@ -1145,6 +1153,56 @@ def _save_image(image: ArrayLike, path: str | os.PathLike[str], *, extent: Any =
     if stamp is not None:
         _LAST_PNG[:] = [(_pixels_digest(picture, pixels), target.absolute(), stamp)]
     return target
+
+
+def _write_failure(path: Path) -> str | None:
+    """The system's reason a write to ``path`` fails now (``No space left on device``), or None where a write of a few
+    bytes (flushed, then cut off again) succeeds: the reason behind a C library's own error. The bytes go after the
+    file's end: written at its start, over bytes already on the disk, they fitted where the library's had not (a
+    file cut off past its first 4096 bytes gave no reason)."""
+    try:
+        with open(path, "r+b") as file:
+            size = file.seek(0, os.SEEK_END)
+            file.write(b"\0" * 4096)
+            file.flush()
+            os.fsync(file.fileno())
+            file.truncate(size)
+    except FileNotFoundError:  # (no file: not the reason a write failed)
+        return None
+    except OSError as exc:
+        return str(exc.strerror or exc)
+    return None
+
+
+#: Rows of a GeoTIFF :func:`_check_read_back` reads at a time.
+_READ_BACK_ROWS = 512
+
+
+def _check_read_back(path: Path, array: NDArray[np.uint8], target: Path) -> None:
+    """Raise DataFileError, naming ``target``, unless the GeoTIFF GDAL wrote to ``path`` reads back as ``array``.
+    GDAL writes a small image's pixels and its directory as the dataset closes, and a write failing there (a full
+    disk) is only printed, never raised (rasterio's close): the old GeoTIFF was replaced by an empty or truncated
+    file. Read in bands of :data:`_READ_BACK_ROWS` rows (memory bounded; decoding costs less than deflate's
+    encoding)."""
+    import rasterio
+    from rasterio.windows import Window
+
+    height, width, bands = array.shape
+    try:
+        with rasterio.open(path) as dataset:
+            same = (dataset.height, dataset.width, dataset.count) == (height, width, bands)
+            for row in range(0, height, _READ_BACK_ROWS) if same else ():
+                rows = min(_READ_BACK_ROWS, height - row)
+                band = dataset.read(window=Window(0, row, width, rows))
+                if not np.array_equal(band, np.moveaxis(array[row:row + rows], 2, 0)):
+                    same = False
+                    break
+    except (OSError, rasterio.errors.RasterioError):
+        same = False
+    if not same:
+        reason = _write_failure(path)
+        raise DataFileError(f"cannot write {str(target)!r}: " + (reason or "GDAL could not finish the file (it does "
+                                                                           "not read back as written)"))
 
 
 def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str | None) -> Path:
@@ -1203,6 +1261,7 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
                 try:
                     with rasterio.open(written, "w", **profile) as dataset:
                         dataset.write(np.moveaxis(array, 2, 0))
+                    _check_read_back(written, array, target)
                     if written != tmp:
                         os.replace(written, tmp)
                     if os.path.exists(aux):
@@ -1220,7 +1279,11 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
                 except (OSError, rasterio.errors.RasterioError) as exc:
                     from .io import gdal_reason  # GDAL's words (No space left on device), not "See previous exception"
 
-                    raise DataFileError(f"cannot write {str(target)!r}: {gdal_reason(exc)}") from exc
+                    reason = gdal_reason(exc)  # with the system's words: "No space left on device (TIFFAppend
+                    # ToStrip:Write error at scanline 42)" (an OSError, of the rename or the side file, has its own)
+                    failure = isinstance(exc, rasterio.errors.RasterioError) and _write_failure(written)
+                    reason = f"{failure} ({reason})" if failure else reason
+                    raise DataFileError(f"cannot write {str(target)!r}: {reason}") from exc
                 finally:
                     with contextlib.suppress(OSError):
                         aux.unlink()
