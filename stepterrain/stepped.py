@@ -1279,8 +1279,8 @@ def stepped(
         welded by position, taking the first copy's: one colour or UV per vertex, so the faces beside a seam blend
         the colours or smear the texture, with a warning). A ``floor`` not below the surface's lowest point (in
         float32 too: a floor that rounds onto it leaves the solid no thickness there in an .stl or a .glb) is
-        refused; where the heights tell that point (a TIN, a grid without nodata: the lowest height blended with its
-        isovalue), before stepping.
+        refused; before stepping where the heights tell that point (the lowest height a triangle uses blended with
+        its isovalue at a scalar γ; with a varying γ, a floor above both).
     floor : float, optional
         The base height of a ``solid`` (default above); refused without ``solid=True``.
     spacing, origin : (dx, dy), (x0, y0)
