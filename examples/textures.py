@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
     width, height = args.panel
     top = np.asarray(composite.to_uint8(background=(1, 1, 1)))
     # the texture panel: the composite letterboxed into the panel, north up, in the terrain's proportions (its
-    # texels squares drew a DEM of cells taller than wide, a 3" one's, squashed north-south)
+    # texels drawn as squares squashed a DEM of cells taller than wide, a 3" one's, north-south)
     from PIL import Image
 
     picture = Image.fromarray(top)

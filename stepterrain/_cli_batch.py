@@ -279,6 +279,8 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
 
     from .io import recorded_nodata
 
+    # the embedded DEM's --nodata, applied as it was read (batch records a file source's itself)
+    embedded_nodata = [] if args.input else recorded_nodata(args.nodata or ())
     report = batch(
         source, args.output, format=args.format, tile_size=tile, interval=args.interval, levels=args.levels,
         base=base, gamma=args.gamma, colors=None if args.colormap.lower() == "none" else args.colormap,
@@ -290,9 +292,7 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
         metadata={"generator": "stepterrain batch"} if source_folder is not None or listed else {  # each file's
             "generator": "stepterrain batch",
             "input": _absolute(args.input) if args.input else "embedded Big Tujunga DEM",
-            # the embedded DEM's --nodata, applied as it was read (batch records a file source's itself)
-            **({"nodata": recorded_nodata(args.nodata)} if recorded_nodata(args.nodata or ()) and not args.input
-               else {})},
+            **({"nodata": embedded_nodata} if embedded_nodata else {})},
         height_unit=args.height_unit, spacing=args.spacing, crop=args.crop, coarsen=args.coarsen, device=args.device,
         band=args.band, overview_size=None if png is None else args.size,  # its render checked before the items run
         height_encoding=args.height_encoding, nodata=args.nodata if args.input else None,

@@ -2899,6 +2899,7 @@ def _check_floor_over(h: float | None, name: str, values: tuple[float, ...], gam
     in a folder, the file) holding it."""
     if h is None:
         return  # no surface at all: each item says so
+    from .mesh import float32_floor_clash
     from .stepped import lowest_surface
 
     lowest, alpha, _margin = lowest_surface(h, np.asarray(values, np.float32), gamma)
@@ -2907,15 +2908,10 @@ def _check_floor_over(h: float | None, name: str, values: tuple[float, ...], gam
             f"floor (the CLI's --floor) must lie below the lowest point {lowest:.9g} of the stepped surface of "
             f"{name} (its lowest height {h:g} on the isovalue {alpha:g}, γ = {gamma:g}); got {floor:.9g}"
         )
-    with np.errstate(over="ignore"):  # a point beyond float32 (inf): no floor rounds onto it
-        low32 = np.float32(lowest)
-    if np.float32(floor) >= low32:  # below it, but on it in float32: close_solid refuses it in every item that has it
-        raise InvalidInputError(
-            f"floor (the CLI's --floor) must lie below the lowest point {lowest:.9g} of the stepped surface of "
-            f"{name} in float32 too (an .stl or a .glb stores float32 positions: at most "
-            f"{float(np.nextafter(low32, np.float32(-np.inf))):.9g}); got {floor!r}, which rounds to "
-            f"{float(np.float32(floor)):.9g} in float32"
-        )
+    clash = float32_floor_clash(floor, lowest)
+    if clash:  # below it, but on it in float32: close_solid refuses it in every item that has it
+        raise InvalidInputError(f"floor (the CLI's --floor) must lie below the lowest point {lowest:.9g} of the "
+                                f"stepped surface of {name}{clash}")
 
 
 class _Recorder:

@@ -521,6 +521,22 @@ def _projected_area(vertices: NDArray[np.float64], edges: NDArray[np.int64]) -> 
     return float(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]))
 
 
+def float32_floor_clash(floor: float, lowest: float) -> str:
+    """The end of the refusal of a solid's ``floor`` that lies below the surface's ``lowest`` point in float64 but
+    on it in float32 (" in float32 too (...: at most F); got ..., which rounds to ... in float32"); the empty string
+    where it lies below in float32 too. On it in float32, the base lies on the lowest point in an .stl or a .glb (and
+    on the GPU): no thickness there. :func:`close_solid`'s rule, which :func:`~stepterrain.stepped.stepped` and
+    :func:`~stepterrain.batch.batch` apply before stepping. ``floor`` fits in float32 (checked first); every such
+    floor lies below a ``lowest`` beyond float32 (its float32 value inf)."""
+    with np.errstate(over="ignore"):
+        low32 = np.float32(lowest)
+    if np.float32(floor) < low32:
+        return ""
+    return (f" in float32 too (an .stl or a .glb stores float32 positions: at most "
+            f"{float(np.nextafter(low32, np.float32(-np.inf))):.9g}); got {float(floor)!r}, which rounds to "
+            f"{float(np.float32(floor)):.9g} in float32")
+
+
 def close_solid(
     vertices: NDArray[np.float64],
     faces: NDArray[np.int64],
@@ -534,7 +550,8 @@ def close_solid(
     vertex per surface vertex except that a wall's bottom and top (the faces not in ``terrace_mask``, in consecutive
     pairs as the step kernels emit them) share theirs; each boundary edge gets a vertical skirt down to the base. A
     vertical boundary edge (a wall's side on the domain boundary) joins the skirt of the boundary edge that follows
-    it, so no zero-area face appears.
+    it, so no zero-area face appears. ``floor`` must lie below the surface's lowest point, in float32 too (a base
+    that rounds onto it has no thickness there in an .stl or a .glb: :func:`float32_floor_clash`).
 
     Where the surface's boundary touches itself at a vertex (two triangles meeting only there, e.g. between
     nodata holes), that vertex is split first: each fan of faces around it gets its own copy, and so does the base
@@ -627,13 +644,9 @@ def _close_solid(vertices: Any, faces: Any, terrace_mask: Any, floor: float, dev
     zmin = float(vertices[:, 2].min()) if len(vertices) else 0.0
     if floor >= zmin:
         raise InvalidInputError(f"floor must lie below the lowest surface height {zmin}; got {floor}")
-    with np.errstate(over="ignore"):  # a surface beyond float32 (its float32 bound inf): the floor lies below it
-        low32 = np.float32(zmin)
-    if np.float32(floor) >= low32:  # the base on the lowest point in an .stl or a .glb, on the GPU: no thickness there
-        below = float(np.nextafter(low32, np.float32(-np.inf)))
-        raise InvalidInputError(f"floor must lie below the lowest surface height {zmin} in float32 too (an .stl or a "
-                                f".glb stores float32 positions: at most {below:.9g}); got {floor}, which rounds to "
-                                f"{float(np.float32(floor)):.9g} in float32")
+    clash = float32_floor_clash(floor, zmin)
+    if clash:
+        raise InvalidInputError(f"floor must lie below the lowest surface height {zmin}{clash}")
     edges = _boundary(flat, len(vertices), device)
     # wound clockwise seen from +z (a TIN's faces flipped): the skirts and base follow the surface's winding, so its
     # solid came out inside out (watertight and consistently wound, but its volume negative, its normals inward)

@@ -50,7 +50,7 @@ from ._device import (
 )
 from .errors import InvalidInputError, OutputTooLargeError, caller_stacklevel, counted
 from .kernels import stepped as stepped_kernels
-from .mesh import reclaim_dropped, track
+from .mesh import float32_floor_clash, reclaim_dropped, track
 from .terrain import (
     FLOAT32_MAX,
     Terrain,
@@ -1279,8 +1279,8 @@ def stepped(
         welded by position, taking the first copy's: one colour or UV per vertex, so the faces beside a seam blend
         the colours or smear the texture, with a warning). A ``floor`` not below the surface's lowest point (in
         float32 too: a floor that rounds onto it leaves the solid no thickness there in an .stl or a .glb) is
-        refused; where the heights tell that point (a TIN, a grid without nodata: the lowest height blended with its
-        isovalue), before stepping.
+        refused; before stepping where the heights tell that point (the lowest height a triangle uses blended with
+        its isovalue at a scalar γ; with a varying γ, a floor above both).
     floor : float, optional
         The base height of a ``solid`` (default above); refused without ``solid=True``.
     spacing, origin : (dx, dy), (x0, y0)
@@ -1484,15 +1484,11 @@ def _refuse_floor_above_surface(t: Terrain, values: NDArray[np.float32], gamma: 
         return  # no surface: refused after stepping, as it says
     h = t.height_range[0]  # of the nodes a triangle with three finite heights uses (a TIN's used points)
     lowest, alpha, margin = lowest_surface(h, values, g)
-    with np.errstate(over="ignore"):  # a bound beyond float32 (inf): no floor rounds onto it
-        bound32 = np.float32(lowest + margin)
-    if floor_z < lowest + margin and np.float32(floor_z) < bound32:
+    if floor_z < lowest + margin:
+        clash = float32_floor_clash(floor_z, lowest + margin)
+        if clash:  # below it in float64, on it in float32: close_solid's rule (no thickness in an .stl)
+            raise InvalidInputError(f"floor must lie below the lowest surface height {lowest:.9g}{clash}")
         return
-    if floor_z < lowest + margin:  # below it in float64, on it in float32: close_solid's rule (no thickness in an .stl)
-        raise InvalidInputError(
-            f"floor must lie below the lowest surface height {lowest:.9g} in float32 too (an .stl or a .glb stores "
-            f"float32 positions: at most {float(np.nextafter(bound32, np.float32(-np.inf))):.9g}); got {floor_z!r}, "
-            f"which rounds to {float(np.float32(floor_z)):.9g} in float32")
     if g is not None:
         raise InvalidInputError(
             f"floor must lie below the lowest surface height {lowest:.9g} (the lowest height {float(np.float32(h)):g} "

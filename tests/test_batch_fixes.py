@@ -3326,3 +3326,18 @@ def test_a_series_shared_levels_and_floor_are_read_frame_by_frame_not_over_the_w
                                                                       interval=1.0).tolist()), seed
         assert _shared_floor(src, (-50.0, 50.0), 1.0, 1.0) == _floor_under(lowest_used_height_reference(heights),
                                                                           (-50.0, 50.0), 1.0, 1.0), seed
+
+
+@pytest.mark.parametrize(("given", "recorded"), [("nan,315", [315.0]), ("nan", None), (None, None)])
+def test_cli_batch_of_the_embedded_dem_records_its_finite_nodata(tmp_path, capsys, given, recorded):
+    """``stepterrain batch`` of the embedded DEM records the --nodata it was read with in every tile's metadata, the
+    finite values only (JSON has no NaN: ``--nodata nan`` recorded ``[null]``, which reads as "no nodata value"), and
+    no ``nodata`` key without a finite one (a file source's batch records itself)."""
+    from .conftest import run_cli
+
+    argv = ["batch", "--coarsen", "16", "--tile", "64", "--interval", "200", "--scheduler", "serial", "--format",
+            ".ply", "-o", tmp_path / "out"]
+    code, _, err = run_cli(capsys, *argv, *(["--nodata", given] if given else []))
+    assert code == 0, err
+    paths = sorted((tmp_path / "out").glob("*.ply"))
+    assert paths and [read_mesh(p).metadata.get("nodata") for p in paths] == [recorded] * len(paths)
