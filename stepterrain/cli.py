@@ -513,8 +513,8 @@ def _input_metadata(args: argparse.Namespace) -> dict[str, Any]:
     if args.nodata is not None:  # the values read as missing besides the file's own nodata
         from .io import recorded_nodata
 
-        if recorded_nodata(args.nodata):
-            metadata["nodata"] = recorded_nodata(args.nodata)
+        if recorded := recorded_nodata(args.nodata):
+            metadata["nodata"] = recorded
     if args.spacing is not None:
         # the DEM's (dx, dy) as Terrain.spacing, `info` and a heightfield mesh's own metadata give it: rows run north
         # to south, dy negative (--spacing 30 recorded (30, 30), and replaced a draped mesh's (30, -30))
@@ -1016,12 +1016,12 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
             gamma = st.circular_lens(terrain, (cx, cy), radius, edge_width=args.lens_edge, outside=args.gamma)
         # the lens as circular_lens got it (--lens-relative's fractions resolved, --lens-edge's default r/4): "gamma":
         # "lens" alone lost the lens and the γ outside it (--gamma 0.3 and 0.7 files carried the same metadata)
-        lens_metadata = {"center": [float(cx), float(cy)], "radius": float(radius),
-                         "edge_width": float(radius / 4.0 if args.lens_edge is None else args.lens_edge),
+        edge_width = radius / 4.0 if args.lens_edge is None else args.lens_edge
+        lens_metadata = {"center": [float(cx), float(cy)], "radius": float(radius), "edge_width": float(edge_width),
                          "outside": float(args.gamma)}
         progress.say(f"lens at ({cx:.1f}, {cy:.1f}), radius {radius:.1f}: original terrain inside, "
                      f"gamma {args.gamma:g} outside")
-        reach = radius + (radius / 4.0 if args.lens_edge is None else args.lens_edge) / 2.0  # γ < --gamma within
+        reach = radius + edge_width / 2.0  # γ < --gamma within
         # γ is float32 in the kernels: a --gamma below its least (1e-50) is 0, the original surface, lens or not
         stepping = bool(np.float32(args.gamma) > 0.0)
         if stepping and not (gamma.mask < np.float32(args.gamma)).any():  # the mesh came out as without it

@@ -37,7 +37,14 @@ from ._compaction import budget_value, check_budget, count_buffer, exclusive_off
 from ._device import host_copy, launch, launch_chunked, resolve_device, to_device
 from ._memo import MISSING, Same, derived, keep, recall
 from .camera import QUARTER_TURN
-from .errors import DataFileError, InvalidInputError, MissingDependencyError, OutputTooLargeError, counted
+from .errors import (
+    DataFileError,
+    InvalidInputError,
+    MissingDependencyError,
+    OutputTooLargeError,
+    caller_stacklevel,
+    counted,
+)
 from .io import degrees_hint
 from .kernels import closeup as closeup_kernels
 from .kernels import compaction as compaction_kernels
@@ -2671,7 +2678,7 @@ def _warn_unseen(renderer: Any, camera: Any, drawn: dict[int, Any], strips: Sequ
     if all(renderer._misses(b) for b in parts):
         warnings.warn(f"camera [(eye), (focal point), (view up)] sees none of the overview, its close-ups and "
                       f"anchors: the image is the background alone (the position is taken relative to the centre of "
-                      f"the framed box, z times z_scale); got {camera!r}", stacklevel=3)
+                      f"the framed box, z times z_scale); got {camera!r}", stacklevel=caller_stacklevel())
 
 
 def _check_framed(t: Terrain, items: Sequence[CloseUp], drawn: dict[int, Any], box: NDArray[np.float64],

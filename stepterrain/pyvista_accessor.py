@@ -337,8 +337,9 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
                 continue
             if array.dtype.kind == "O" and all(isinstance(v, str) for v in array.ravel()):
                 array = array.astype(str)  # strings held as objects (a pandas column's values) are strings
-            if array.size == 0:  # (N, 0): pyvista's ValueError "Empty arrays are not allowed" came out of
-                # to_polydata (and of render_mesh and save_mesh of the mesh), naming no argument
+            if array.size == 0 and array.ndim > 1:  # (N, 0): pyvista's ValueError "Empty arrays are not allowed"
+                # came out of to_polydata (and of render_mesh and save_mesh of the mesh), naming no argument; (0,) of
+                # a mesh with no faces VTK holds
                 left_out.append(f"{kind} attribute {name!r} ({array.dtype} of shape {array.shape})")
             elif array.dtype.kind == "c" and array.ndim > 1:  # pyvista's ValueError "Complex data must be single
                 # dimensional" came out of to_polydata: it stores a complex value as two floats, one value a cell

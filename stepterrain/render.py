@@ -592,7 +592,10 @@ def render_mesh(
         # two faces, and values that are no numbers ('a') likewise
         got = None
         if levels is None:
-            got = f"{np.asarray(given).dtype} values"
+            try:
+                got = f"{np.asarray(given).dtype} values"
+            except ValueError:  # a ragged list (face_attributes is a dict: kept as given): numpy's ValueError again
+                got = f"a ragged {type(given).__name__}"
         elif levels.shape != (len(mesh.faces),):
             got = f"shape {np.shape(given)}"
         elif not np.isfinite(levels).all():

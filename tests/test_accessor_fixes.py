@@ -811,3 +811,16 @@ def test_to_polydata_leaves_out_a_metadata_array_with_no_values_per_row_by_name(
         poly = to_polydata(mesh)
     back = from_polydata(poly)
     assert "empty" not in back.metadata and np.array_equal(back.metadata["node_entry"], np.arange(20000))
+
+
+def test_to_polydata_keeps_the_empty_attributes_of_a_mesh_with_no_faces_without_a_warning():
+    """The (N, 0) check left out every attribute of no values: a mesh with no faces had its face attributes of
+    shape (0,) (one value a face, none) left out with a warning, though VTK holds them (an empty array for no cells),
+    as it did before. An attribute of no values per element is still left out, by name."""
+    mesh = trimesh.Trimesh(np.zeros((3, 3)), np.zeros((0, 3), dtype=np.int64), process=False)
+    mesh.face_attributes["level"] = np.zeros(0, dtype=np.int64)
+    mesh.face_attributes["rgb"] = np.zeros((0, 3))  # pyvista refuses it: left out
+    with pytest.warns(UserWarning, match=r"face attribute 'rgb' \(float64 of shape \(0, 3\)\) left out") as caught:
+        poly = to_polydata(mesh)
+    assert not any("'level'" in str(w.message) for w in caught)
+    assert poly.cell_data["level"].shape == (0,) and "rgb" not in poly.cell_data

@@ -2124,3 +2124,16 @@ def test_bad_view_options_are_refused_before_the_closeups_are_transformed(monkey
             animate_closeups(terrain(), [cu], frames=3, window_size=SIZE, device="cpu", **{option: value})
         else:
             render_closeups(terrain(), [cu], window_size=SIZE, device="cpu", **{option: value})
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_the_unseen_camera_warning_points_at_the_callers_line_through_animate_closeups():
+    """The warning of an explicit camera that sees nothing took a fixed stacklevel=3: right for render_closeups
+    called directly, but through animate_closeups (which calls render_closeups per frame) it pointed at that call
+    inside stepterrain/closeup.py, not at the user's line, as the package's other warnings do
+    (errors.caller_stacklevel)."""
+    away = [(0.0, -300.0, 200.0), (0.0, -600.0, 300.0), (0.0, 0.0, 1.0)]  # as the test above: sees nothing
+    with pytest.warns(UserWarning, match=r"^camera .* sees none of the overview") as caught:
+        animate_closeups(terrain(), [one(spin=(0.5, 1))], frames=2, window_size=SIZE, camera=away, device="cpu")
+    assert {w.filename for w in caught if "sees none" in str(w.message)} == {__file__}

@@ -1833,3 +1833,13 @@ def test_the_degenerate_faces_check_takes_the_framed_box_span_not_a_pass_over_th
     np.testing.assert_allclose(np.nanmax(local[finite], axis=0) - np.nanmin(local[finite], axis=0), expected)
     render._frame_mesh(mesh, (32, 24), 2.5, [[0.0, 0.0, 0.0], [20.0, 20.0, 20.0]], "oblique")
     assert seen[-1][4] is None
+
+
+def test_ragged_level_scalars_are_refused_by_name_not_numpys_valueerror():
+    """face_attributes is a dict: a ragged list of levels stays a list. render_mesh(scalars='level') refused it with
+    numpy's ValueError ("inhomogeneous shape"), raised again while naming what was wrong (the levels' dtype)."""
+    mesh = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], [[0, 1, 2], [1, 3, 2]], process=False)
+    mesh.face_attributes["level"] = [[1.0], [2.0, 3.0]]
+    with pytest.raises(InvalidInputError, match=r"face_attributes\['level'\] must hold one finite number per face "
+                                                r"\(2\); got a ragged list$"):
+        render.render_mesh(mesh, scalars="level", window_size=(16, 16))
