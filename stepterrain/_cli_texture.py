@@ -451,7 +451,7 @@ def _contour_options(args: argparse.Namespace) -> dict[str, Any] | None:
     return options
 
 
-def _texture_metadata(args: argparse.Namespace, coloured: bool, contours: dict[str, Any] | None,
+def _texture_metadata(args: argparse.Namespace, contours: dict[str, Any] | None,
                       grid: tuple[Any, tuple[int, int]]) -> dict[str, Any]:
     """The options that shaped the texture, with the values it was made with (defaults included), for the draped
     mesh's metadata beside ``method`` and the light's angles: ``--z-factor`` where the relief was shaded (a hillshade,
@@ -467,7 +467,7 @@ def _texture_metadata(args: argparse.Namespace, coloured: bool, contours: dict[s
     if args.shadows:
         metadata["shadow_strength"] = float(args.shadow_strength)
     metadata["occlusion"] = float(args.occlusion)
-    found = _colormap(args.colormap) if coloured else None
+    found = _colormap(args.colormap)  # None for 'none', as _hypsometric colours nothing
     metadata["colormap"] = found[0].name if found is not None else "none"
     if args.image is not None:
         metadata["image"] = str(args.image)
@@ -721,8 +721,7 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
             metadata["azimuth_deg"] = args.azimuth
         if args.shadows or args.method not in ("igor", "none"):
             metadata["altitude_deg"] = args.altitude
-        metadata.update(_texture_metadata(args, colors is not None, contour_options,
-                                          (composite.extent, image.shape[:2])))
+        metadata.update(_texture_metadata(args, contour_options, (composite.extent, image.shape[:2])))
         export.save_mesh(draped if textured_mesh else _texture_colours(draped), mesh_out, metadata=metadata)
         progress.say(f"wrote {mesh_out} ({_size(mesh_out)})")
     if shot is not None:

@@ -1062,8 +1062,9 @@ def save_image(
         image) of a textured OBJ :func:`save_mesh` wrote in this process, which the image would replace, or
         ``crs`` needs the side file ``<path>.aux.xml`` and its name is over 255 bytes (the image's over 247), or the
         file cannot be written whole (a full disk: the message gives the system's reason); an existing ``path`` is
-        then kept as it was. A GeoTIFF is read back once GDAL has closed it (GDAL only prints a failure to write
-        its last pixels and directory as it closes the file).
+        then kept as it was. A GeoTIFF is read back once GDAL has closed it, with its CRS where that went into the
+        side file (GDAL only prints a failure to write its last pixels, directory and side file as it closes the
+        file).
 
     Notes
     -----
@@ -1205,6 +1206,26 @@ def _check_read_back(path: Path, array: NDArray[np.uint8], target: Path) -> None
                                                                            "not read back as written)"))
 
 
+def _check_side_file_crs(path: Path, aux: Path, crs: Any, target: Path) -> None:
+    """Raise DataFileError, naming ``target``, unless the GeoTIFF GDAL wrote to ``path`` reads back with ``crs`` from
+    its side file ``aux`` (an ob_tran CRS, which GeoTIFF's keys cannot hold): GDAL writes the side file as the dataset
+    closes and only prints a failure to write it (a full disk), and :func:`_check_read_back` reads the pixels only:
+    the image was put in place beside an empty or cut-off side file, its CRS lost without a word."""
+    import rasterio
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # (rasterio's NotGeoreferencedWarning where the side file was lost)
+            with rasterio.open(path) as dataset:
+                same = dataset.crs == crs
+    except (OSError, rasterio.errors.RasterioError):
+        same = False
+    if not same:
+        reason = _write_failure(aux)
+        raise DataFileError(f"cannot write {str(target)!r}: " + (reason or "GDAL could not finish its side file "
+                                                                           f"{aux.name!r}, which holds the CRS"))
+
+
 def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str | None) -> Path:
     """:func:`save_image`'s GeoTIFF: north-up, deflate-compressed, RGB (alpha as the fourth band)."""
     from .texture import _check_extent
@@ -1262,6 +1283,8 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
                     with rasterio.open(written, "w", **profile) as dataset:
                         dataset.write(np.moveaxis(array, 2, 0))
                     _check_read_back(written, array, target)
+                    if os.path.exists(aux):  # (before written is renamed: GDAL pairs the side file with its name)
+                        _check_side_file_crs(written, aux, crs, target)
                     if written != tmp:
                         os.replace(written, tmp)
                     if os.path.exists(aux):

@@ -1300,7 +1300,7 @@ def _png_pam_nodata(file: Path, top: int) -> float | None:
             return None  # no cell of the band holds it (1.#QNAN junk: GDAL's NaN, masking none, said nothing of)
         if not whole:
             warnings.warn(
-                f"{file.name}: the NoDataValue {text.strip()!r} in {file.name}.aux.xml is not a number; read as "
+                f"{file.name}: the NoDataValue {text!r} in {file.name}.aux.xml is not a number; read as "
                 f"{value:g}, as GDAL reads it (the number the text starts with, else 0): its cells at "
                 f"{math.trunc(value):d} are nodata; write the nodata value as a number there",
                 stacklevel=caller_stacklevel(),

@@ -599,7 +599,9 @@ class ImagePyramid:
                            if owned else None)
         self._closed = False
         self._georeferenced = False  # build() placed it by its file's georeferencing (image_layer asks, not reopens)
-        self._source: tuple[str, Any] | None = None  # (file level 0 maps, its _file_state at the build): build()'s
+        # (the file level 0 maps, its _file_state at the build): set by build() for a .npy path's (or a read-only
+        # memmap's) pyramid, checked before its levels are handed out (_check_source)
+        self._source: tuple[str, Any] | None = None
 
     # ------------------------------------------------------------------ construction
     @classmethod
