@@ -501,12 +501,13 @@ def _memmap_backing(array: NDArray[Any]) -> str | None:
 
 
 def _file_state(path: str) -> tuple[str, Any] | None:
-    """(path, ((device, inode), size, mtime_ns, ctime_ns)) of the file ``path``, None when it cannot be stat'ed."""
+    """(path, ((device, inode), size, mtime_ns)) of the file ``path``, None when it cannot be stat'ed. No ctime: a
+    chmod or a new hard link (a backup's ``cp -l``) changes it, not the bytes; a rewrite changes mtime or size."""
     try:
         st = os.stat(path)
     except OSError:
         return None
-    return path, ((st.st_dev, st.st_ino), st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+    return path, ((st.st_dev, st.st_ino), st.st_size, st.st_mtime_ns)
 
 
 def _mapped_file(array: Any) -> str | None:

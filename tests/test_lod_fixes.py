@@ -1428,3 +1428,15 @@ def test_pyramid_over_a_npy_file_rewritten_after_build_is_refused(tmp_path):
         np.save(tmp_path / "other.npy", np.full((9, 7, 3), 200, np.uint8))
         os.replace(tmp_path / "other.npy", path)
         assert np.asarray(pyramid.levels[0]).max() == np.asarray(pyramid.levels[1]).max() == 10
+
+
+def test_pyramid_over_a_npy_file_whose_mode_or_links_changed_still_reads(tmp_path):
+    """Only a rewrite of the bytes refuses a pyramid: a chmod or a new hard link to the .npy (a backup's ``cp -l``)
+    changes the file's ctime, not its contents, and left the pyramid unreadable when ctime was compared."""
+    path = tmp_path / "image.npy"
+    np.save(path, np.full((9, 7, 3), 10, np.uint8))
+    with ImagePyramid.build(path) as pyramid:
+        os.chmod(path, 0o444)
+        os.link(path, tmp_path / "backup.npy")
+        assert np.asarray(pyramid.levels[1]).max() == 10
+        assert np.asarray(pyramid.sub_image(0, (0, 2, 0, 2))).max() == 10
