@@ -1120,8 +1120,7 @@ def _save_image(image: ArrayLike, path: str | os.PathLike[str], *, extent: Any =
     # an old <image>.aux.xml (GDAL's side file of an earlier GeoTIFF or GDAL write of this name: CRS, geotransform,
     # nodata) stayed, and GDAL read the new image with it; it goes aside just before the image's rename, as a
     # GeoTIFF's does (_save_geotiff), and is removed once the image is in place (back if the rename fails)
-    own_aux = _link_target(target)
-    own_aux = own_aux.with_name(own_aux.name + ".aux.xml")
+    own_aux = _side_file(target)
     aside: Path | None = None
     placed = False
     try:
@@ -1144,12 +1143,7 @@ def _save_image(image: ArrayLike, path: str | os.PathLike[str], *, extent: Any =
             aside = _set_aside(own_aux, target)
         placed = True
     finally:
-        if aside is not None:
-            with contextlib.suppress(OSError):
-                if placed:
-                    os.unlink(aside)
-                else:
-                    os.replace(aside, own_aux)
+        _settle_aside(aside, own_aux, placed)
     _record_owner([target], target)
     if stamp is not None:
         _LAST_PNG[:] = [(_pixels_digest(picture, pixels), target.absolute(), stamp)]
@@ -1264,8 +1258,7 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
     # plus ".aux.xml" was over the 255 bytes a name may have, GDAL wrote no side file, and the CRS was lost without a
     # word, where "<name>.aux.xml" fits up to 247 bytes. GDAL then writes to a shorter temporary, renamed onto tmp,
     # and a CRS that needs a side file the image's name leaves no room for is refused before the image is put in place
-    own_aux = _link_target(target)
-    own_aux = own_aux.with_name(own_aux.name + ".aux.xml")
+    own_aux = _side_file(target)
     aside: Path | None = None
     placed = False
     try:
@@ -1316,12 +1309,7 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
                 aside = _set_aside(own_aux, target)
             placed = True
     finally:
-        if aside is not None:
-            with contextlib.suppress(OSError):
-                if placed:
-                    os.unlink(aside)
-                else:
-                    os.replace(aside, own_aux)
+        _settle_aside(aside, own_aux, placed)
     _record_owner([target], target)
     return target
 
@@ -1339,6 +1327,25 @@ def _replacing_like(tmp: Path, old_path: Path) -> None:
         _keep_owner(tmp, old)  # before chmod: a change of owner clears set-id bits
     with contextlib.suppress(OSError):
         os.chmod(tmp, stat.S_IMODE(old.st_mode))
+
+def _side_file(image: Path) -> Path:
+    """GDAL's side file ``<name>.aux.xml`` of ``image``, beside the file it names through links (the one
+    :func:`atomic_path` writes)."""
+    own = _link_target(image)
+    return own.with_name(own.name + ".aux.xml")
+
+
+def _settle_aside(aside: Path | None, side: Path, placed: bool) -> None:
+    """The old side file :func:`_set_aside` moved to ``aside``: removed once the new image is ``placed``, else put
+    back as ``side`` beside the old image."""
+    if aside is None:
+        return
+    with contextlib.suppress(OSError):
+        if placed:
+            os.unlink(aside)
+        else:
+            os.replace(aside, side)
+
 
 def _set_aside(side: Path, image: Path) -> Path | None:
     """Rename the side file ``side`` of ``image`` (a GeoTIFF's ``.aux.xml``) to a new temporary name beside it and
