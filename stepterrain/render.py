@@ -1501,9 +1501,7 @@ def _texture_picture(image: Any) -> NDArray[np.uint8]:
     from .io import picture_uint8
 
     what = "the mesh's texture image"
-    if hasattr(image, "convert") and hasattr(image, "mode"):  # a Pillow image
-        if "transparency" in getattr(image, "info", {}) and image.mode in ("P", "L", "RGB", "1"):
-            image = image.convert("RGBA")  # a palette's or a PNG's transparent colour (tRNS)
+    if hasattr(image, "convert") and hasattr(image, "mode"):  # a Pillow image (a transparent colour read as alpha)
         return np.ascontiguousarray(picture_uint8(image, what, alpha=True))
     array = np.asarray(image)
     if array.dtype != np.uint8 or not (array.ndim == 2 or (array.ndim == 3 and array.shape[2] in (1, 3, 4))) \
