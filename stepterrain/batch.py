@@ -2362,8 +2362,8 @@ def batch(
         recorded["band"] = band
     if height_encoding is not None:  # the colours the files' heights were decoded from
         recorded["height_encoding"] = height_encoding
-    if recorded_nodata(given):  # the values read as missing besides the files' own nodata
-        recorded["nodata"] = recorded_nodata(given)
+    if finite := recorded_nodata(given):  # the values read as missing besides the files' own nodata
+        recorded["nodata"] = finite
     if origin is not None and (files or src is None or not isinstance(source, np.ndarray | list | tuple)):
         raise InvalidInputError("origin applies to an array source; a file, a folder or a Terrain has its own")
     if spacing is not None and files:  # a file without georeferencing: load_dem's 1 m cells, rows north to south
