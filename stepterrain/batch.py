@@ -2874,22 +2874,32 @@ def _floor_under(h: float | None, values: tuple[float, ...], gamma: float, inter
     every file of a folder); None for none."""
     if h is None:
         return None
-    from .stepped import default_floor, snapped_isovalue
+    from .stepped import default_floor
 
     values32 = np.asarray(values, np.float32)
+    return default_floor(values32, _lowest_vertex(h, values32, gamma)[0], interval)
+
+
+def _lowest_vertex(h: float, values: NDArray[np.float32], gamma: float) -> tuple[float, float]:
+    """The stepped surface's lowest vertex when ``h`` is the lowest height a triangle uses, and α, the isovalue h
+    snaps to: (1 − γ) h + γ α in float32, as kernels/stepped.py's ``blended`` computes it (compiled without
+    contracted multiply-adds, alike on the CPU and a GPU), not the blend's float64 value, which that vertex can lie
+    a float32 step below."""
+    from .stepped import snapped_isovalue
+
     h32 = np.float32(h)
-    alpha = snapped_isovalue(h32, values32)
+    alpha = snapped_isovalue(h32, values)
     g = np.float32(gamma)
-    lowest = (np.float32(1.0) - g) * h32 + g * alpha  # in float32, as kernels/stepped.py's blended computes it
-    return default_floor(values32, float(lowest), interval)
+    return float((np.float32(1.0) - g) * h32 + g * alpha), float(alpha)
 
 
 def _check_floor(src: _Source, values: tuple[float, ...], gamma: float, floor: float) -> None:
     """Refuse a solid's floor that is not below the lowest point of every frame's or tile's stepped surface.
 
-    That point is (1 − γ) h + γ α(h) at the lowest height h of a node that a triangle with three finite heights
-    uses, α(h) the isovalue it snaps to (monotone in h, so no vertex lies lower); tiles share their border nodes,
-    so their triangles are the raster's. The floor ``close_solid`` checks per item, known here at once.
+    That point is (1 − γ) h + γ α(h) in float32 (:func:`_lowest_vertex`) at the lowest height h of a node that a
+    triangle with three finite heights uses, α(h) the isovalue it snaps to (monotone in h, and so is each float32
+    rounding, so no vertex lies lower); tiles share their border nodes, so their triangles are the raster's. The
+    floor ``close_solid`` checks per item, known here at once.
     """
     _check_floor_over(lowest_used_height(src.heights, src.height_range), src.name, values, gamma, floor)
 
@@ -2900,10 +2910,11 @@ def _check_floor_over(h: float | None, name: str, values: tuple[float, ...], gam
     if h is None:
         return  # no surface at all: each item says so
     from .mesh import float32_floor_clash
-    from .stepped import lowest_surface
 
-    lowest, alpha, _margin = lowest_surface(h, np.asarray(values, np.float32), gamma)
-    if floor >= lowest:  # without the rounding margin: a floor on the point itself is refused once, up front
+    # the vertex as the kernel blends it, in float32: the float64 value of the blend let a floor through that lay on
+    # it (or above it) in float32, and close_solid refused it in the item holding the lowest point, the others written
+    lowest, alpha = _lowest_vertex(h, np.asarray(values, np.float32), gamma)
+    if floor >= lowest:  # a floor on the point itself is refused once, up front
         raise InvalidInputError(
             f"floor (the CLI's --floor) must lie below the lowest point {lowest:.9g} of the stepped surface of "
             f"{name} (its lowest height {h:g} on the isovalue {alpha:g}, γ = {gamma:g}); got {floor:.9g}"

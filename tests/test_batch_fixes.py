@@ -3341,3 +3341,44 @@ def test_cli_batch_of_the_embedded_dem_records_its_finite_nodata(tmp_path, capsy
     assert code == 0, err
     paths = sorted((tmp_path / "out").glob("*.ply"))
     assert paths and [read_mesh(p).metadata.get("nodata") for p in paths] == [recorded] * len(paths)
+
+
+def _blend_below_its_float64_value() -> tuple[float, float]:
+    """A lowest height h (isovalue 0 of the levels 0, 10, 20, 30) whose float32 blend at γ = 0.3, as the kernel
+    computes it, lies below the blend's float64 value by more than that value's own float32 rounding: (h, vertex)."""
+    g = np.float32(0.3)
+    for h in np.linspace(0.1, 4.9, 20001, dtype=np.float32):
+        vertex = (np.float32(1.0) - g) * h  # + g * 0.0 (its isovalue)
+        exact = 0.7 * float(h)
+        if float(vertex) < exact and np.float32(exact) > vertex:
+            return float(h), float(vertex)
+    raise AssertionError("no such height")
+
+
+def test_a_floor_on_the_float32_blend_of_the_lowest_point_is_refused_before_any_work(tmp_path):
+    # The check up front compared the floor with (1 - γ) h + γ α in float64, but the kernel blends in float32 and
+    # the lowest vertex came out one float32 step below that: a floor on that vertex passed the check, then
+    # close_solid refused it in the one tile (frame, file) holding the lowest point, the others written with it
+    # (3 written, 1 failed), where a floor every item cannot take is refused once, before any work
+    import stepterrain as st
+    from stepterrain.errors import InvalidInputError
+
+    h, vertex = _blend_below_its_float64_value()
+    levels = [0.0, 10.0, 20.0, 30.0]
+    z = np.linspace(5.0, 30.0, 81, dtype=np.float32).reshape(9, 9)
+    z[1, 1] = h
+    surface = st.stepped(st.Terrain.from_heights(z), levels=levels, gamma=0.3)
+    assert float(surface.vertices[:, 2].min()) == vertex  # the kernel's float32 blend
+    with pytest.raises(InvalidInputError, match="floor"):  # the library itself refuses that floor
+        st.stepped(st.Terrain.from_heights(z), levels=levels, gamma=0.3, solid=True, floor=vertex)
+    for source, tiles in ((z, 4), (np.stack([z + 1.0, z]), None)):
+        with pytest.raises(InvalidInputError, match=re.escape("floor (the CLI's --floor) must lie below the lowest "
+                                                              f"point {vertex:.9g}")):
+            batch(source, tmp_path / "out", tile_size=tiles, levels=levels, gamma=0.3, solid=True, floor=vertex,
+                  scheduler="serial")
+        assert not (tmp_path / "out").exists()
+        below = float(np.nextafter(np.float32(vertex), np.float32(-np.inf)))
+        report = batch(source, tmp_path / f"ok{tiles}", tile_size=tiles, levels=levels, gamma=0.3, solid=True,
+                       floor=below, format=".ply", scheduler="serial")
+        assert report.ok and len(report.done) == (4 if tiles else 2), report.summary()
+        assert min(float(read_mesh(r.path).vertices[:, 2].min()) for r in report.done) == below
