@@ -3371,14 +3371,18 @@ def test_a_floor_on_the_float32_blend_of_the_lowest_point_is_refused_before_any_
     assert float(surface.vertices[:, 2].min()) == vertex  # the kernel's float32 blend
     with pytest.raises(InvalidInputError, match="floor"):  # the library itself refuses that floor
         st.stepped(st.Terrain.from_heights(z), levels=levels, gamma=0.3, solid=True, floor=vertex)
-    for source, tiles in ((z, 4), (np.stack([z + 1.0, z]), None)):
+    folder = tmp_path / "files"
+    folder.mkdir()
+    np.save(folder / "a.npy", z + 1.0)
+    np.save(folder / "b.npy", z)
+    for source, tiles, n in ((z, 4, 4), (np.stack([z + 1.0, z]), None, 2), (folder, None, 2)):
         with pytest.raises(InvalidInputError, match=re.escape("floor (the CLI's --floor) must lie below the lowest "
                                                               f"point {vertex:.9g}")):
             batch(source, tmp_path / "out", tile_size=tiles, levels=levels, gamma=0.3, solid=True, floor=vertex,
                   scheduler="serial")
         assert not (tmp_path / "out").exists()
         below = float(np.nextafter(np.float32(vertex), np.float32(-np.inf)))
-        report = batch(source, tmp_path / f"ok{tiles}", tile_size=tiles, levels=levels, gamma=0.3, solid=True,
+        report = batch(source, tmp_path / f"ok{n}{tiles}", tile_size=tiles, levels=levels, gamma=0.3, solid=True,
                        floor=below, format=".ply", scheduler="serial")
-        assert report.ok and len(report.done) == (4 if tiles else 2), report.summary()
+        assert report.ok and len(report.done) == n, report.summary()
         assert min(float(read_mesh(r.path).vertices[:, 2].min()) for r in report.done) == below
