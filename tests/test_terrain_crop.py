@@ -456,3 +456,39 @@ def test_a_cropped_stepped_mesh_lies_on_the_whole_one_as_crop_says(name, exact):
     rounding = 2.0**-23 * 60 * max(dx, dy)  # float32 about each grid's local origin, both
     assert distance.max() <= rounding
     assert (distance[at_node] == 0).all() == exact
+
+
+# ------------------------------------------------------------------------------------------ batch's coarsen
+def _coast_tiles(folder):
+    """Three 9 x 9 tiles: ``land`` of heights, ``sea`` of nodata only, and ``coast`` of nodata but its last row and
+    column, which coarsen=2's blocks (rows and columns 0-7) leave out."""
+    folder.mkdir()
+    land = (np.random.default_rng(4).random((9, 9)) * 100).astype(np.float32)
+    coast = np.full((9, 9), np.nan, np.float32)
+    coast[8, :], coast[:, 8] = 50.0, 60.0
+    for name, z in (("land", land), ("sea", np.full((9, 9), np.nan, np.float32)), ("coast", coast)):
+        np.save(folder / f"{name}.npy", z)
+    return folder, land, coast
+
+
+def test_batch_coarsen_of_a_tile_whose_land_it_drops_is_an_empty_item_as_the_sea_is(tmp_path):
+    """batch(coarsen=2) of a folder of tiles (a coast cut from one raster): a tile of nodata only is an empty item,
+    done, but one whose finite nodes all lay in the last row and column, which the 2 x 2 blocks leave out, failed
+    (Terrain.coarsen's refusal of a result of nodata only); in a series such a frame failed the whole batch before
+    any item ran. Both are empty items now, coarsened to nodata as the sea tile is; a raster of one grid so coarsened
+    is still refused, as Terrain.coarsen refuses it."""
+    from stepterrain.batch import _reshaped_source, _Source
+
+    folder, land, coast = _coast_tiles(tmp_path / "tiles")
+    report = st.batch(folder, tmp_path / "out", interval=10.0, coarsen=2, scheduler="serial", format=".ply")
+    assert report.ok, report.summary()
+    faces = {r.key: r.faces for r in report.done}
+    assert faces["coast"] == faces["sea"] == 0 and faces["land"] > 0, faces
+    assert faces["land"] == len(st.stepped(st.Terrain.from_heights(land).coarsen(2), interval=10.0).faces)
+
+    stack = np.stack([land, coast, np.full_like(land, np.nan)])
+    series = _reshaped_source(_Source(stack, (1.0, 1.0), (0.0, 0.0), None, "series"), None, 2)
+    np.testing.assert_array_equal(series.heights[0], st.Terrain.from_heights(land).coarsen(2).heights)
+    assert series.heights.shape == (3, 4, 4) and np.isnan(series.heights[1:]).all()
+    with pytest.raises(InvalidInputError, match=r"^coarsen=2: factor 2 \(mean\) leaves only nodata of the 9 x 9 "):
+        _reshaped_source(_Source(coast, (1.0, 1.0), (0.0, 0.0), None, "raster"), None, 2)
