@@ -726,10 +726,7 @@ def _item_terrain(item: BatchItem, source: _Source | None, height_unit: str | No
                                            height_unit=terrain.height_unit)  # fmt: skip
         if coarsen is None:
             return terrain
-        if terrain.has_nodata and not np.isfinite(terrain.heights).any():  # nodata only: stays so, an empty item
-            _, shape, coarse_spacing, origin = _coarse_geometry(terrain, coarsen)  # (coarsen refuses nodata only)
-            return terrain._subgrid(np.full(shape, np.nan, np.float32), coarse_spacing, origin)
-        return _coarsened(terrain, coarsen)
+        return _coarsened(terrain, coarsen, empty=True)
     assert source is not None
     frame0, row0, col0 = source.offset
     if item.kind == "frame":
@@ -904,8 +901,15 @@ def _coarse_geometry(terrain: Terrain, factor: int) -> Any:
         raise InvalidInputError(f"coarsen={factor}: {exc}") from None
 
 
-def _coarsened(terrain: Terrain, factor: int) -> Terrain:
-    """``terrain.coarsen(factor)`` (block means), its refusal naming ``coarsen``."""
+def _coarsened(terrain: Terrain, factor: int, *, empty: bool = False) -> Terrain:
+    """``terrain.coarsen(factor)`` (block means), its refusal naming ``coarsen``. ``empty``: a grid whose blocks hold
+    no finite node (nodata only, or its finite nodes all in the last rows and columns, beyond the last whole block)
+    becomes a coarse grid of nodata, an empty item (as a file or frame of nodata only is), where coarsen refuses it:
+    a coast tile whose land lay in its last row failed its item, and such a frame of a series the whole batch."""
+    if empty and terrain.has_nodata:  # (cached: no pass over a grid without nodata)
+        _, (rows, cols), spacing, origin = _coarse_geometry(terrain, factor)
+        if not np.isfinite(terrain.heights[:rows * factor, :cols * factor]).any():  # (coarsen refuses nodata only)
+            return terrain._subgrid(np.full((rows, cols), np.nan, np.float32), spacing, origin)
     try:
         return terrain.coarsen(factor)
     except InvalidInputError as exc:
@@ -959,8 +963,8 @@ def _reshaped_source(src: _Source, crop: ArrayLike | None, coarsen: int | None) 
         frames = []
         for frame in (heights if series else heights[None]):
             if np.isfinite(frame).any():
-                frames.append(_coarsened(Terrain.from_heights(frame, spacing=probe.spacing,
-                                                              origin=probe.origin), coarsen).heights)  # fmt: skip
+                frames.append(_coarsened(Terrain.from_heights(frame, spacing=probe.spacing, origin=probe.origin),
+                                         coarsen, empty=series).heights)  # a frame whose land it drops: empty too
             else:  # nodata only: stays so, an empty item
                 frames.append(np.full(shape, np.nan, np.float32))
         heights = np.stack(frames) if series else frames[0]

@@ -1243,7 +1243,7 @@ class Terrain:
         if isinstance(factor, (bool, np.bool_)) or not isinstance(factor, numbers.Integral) or factor < 1:
             raise InvalidInputError(f"factor must be a positive integer (nodes per new node along each axis); "
                                     f"got {factor!r}")
-        if method not in ("mean", "nearest"):
+        if not isinstance(method, str) or method not in ("mean", "nearest"):  # an array of names: numpy's ValueError
             raise InvalidInputError(f"method must be 'mean' or 'nearest'; got {method!r}")
         f = int(factor)
         (rows, cols), (dx, dy), (ox, oy) = self.heights.shape, self.spacing, self.origin

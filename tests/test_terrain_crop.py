@@ -456,3 +456,135 @@ def test_a_cropped_stepped_mesh_lies_on_the_whole_one_as_crop_says(name, exact):
     rounding = 2.0**-23 * 60 * max(dx, dy)  # float32 about each grid's local origin, both
     assert distance.max() <= rounding
     assert (distance[at_node] == 0).all() == exact
+
+
+# ------------------------------------------------------------------------------------------ batch's coarsen
+def _coast_tiles(folder):
+    """Three 9 x 9 tiles: ``land`` of heights, ``sea`` of nodata only, and ``coast`` of nodata but its last row and
+    column, which coarsen=2's blocks (rows and columns 0-7) leave out."""
+    folder.mkdir()
+    land = (np.random.default_rng(4).random((9, 9)) * 100).astype(np.float32)
+    coast = np.full((9, 9), np.nan, np.float32)
+    coast[8, :], coast[:, 8] = 50.0, 60.0
+    for name, z in (("land", land), ("sea", np.full((9, 9), np.nan, np.float32)), ("coast", coast)):
+        np.save(folder / f"{name}.npy", z)
+    return folder, land, coast
+
+
+def test_batch_coarsen_of_a_tile_whose_land_it_drops_is_an_empty_item_as_the_sea_is(tmp_path):
+    """batch(coarsen=2) of a folder of tiles (a coast cut from one raster): a tile of nodata only is an empty item,
+    done, but one whose finite nodes all lay in the last row and column, which the 2 x 2 blocks leave out, failed
+    (Terrain.coarsen's refusal of a result of nodata only); in a series such a frame failed the whole batch before
+    any item ran. Both are empty items now, coarsened to nodata as the sea tile is; a raster of one grid so coarsened
+    is still refused, as Terrain.coarsen refuses it."""
+    from stepterrain.batch import _reshaped_source, _Source
+
+    folder, land, coast = _coast_tiles(tmp_path / "tiles")
+    report = st.batch(folder, tmp_path / "out", interval=10.0, coarsen=2, scheduler="serial", format=".ply")
+    assert report.ok, report.summary()
+    faces = {r.key: r.faces for r in report.done}
+    assert faces["coast"] == faces["sea"] == 0 and faces["land"] > 0, faces
+    assert faces["land"] == len(st.stepped(st.Terrain.from_heights(land).coarsen(2), interval=10.0).faces)
+
+    stack = np.stack([land, coast, np.full_like(land, np.nan)])
+    series = _reshaped_source(_Source(stack, (1.0, 1.0), (0.0, 0.0), None, "series"), None, 2)
+    np.testing.assert_array_equal(series.heights[0], st.Terrain.from_heights(land).coarsen(2).heights)
+    assert series.heights.shape == (3, 4, 4) and np.isnan(series.heights[1:]).all()
+    with pytest.raises(InvalidInputError, match=r"^coarsen=2: factor 2 \(mean\) leaves only nodata of the 9 x 9 "):
+        _reshaped_source(_Source(coast, (1.0, 1.0), (0.0, 0.0), None, "raster"), None, 2)
+
+
+# ------------------------------------------------------------------------------------------ crop then coarsen
+def _crop_then_coarsen_reference(z, spacing, origin, nodes, f, method):
+    """NumPy reference of ``crop`` to the node ranges ``nodes`` = ((i0, i1), (j0, j1)), bounds included, then
+    ``coarsen(f, method)``: heights (block means of the finite nodes in float64, NaN for a block of nodata only; or
+    every f-th node) and the origin (the first block's mean node position; the first kept node)."""
+    (i0, i1), (j0, j1) = nodes
+    (dx, dy), (ox, oy) = spacing, origin
+    part = z[i0:i1 + 1, j0:j1 + 1].astype(np.float64)
+    x0, y0 = ox + j0 * dx, oy + i0 * dy
+    if f == 1:
+        return part, (x0, y0)
+    if method == "nearest":
+        return part[::f, ::f], (x0, y0)
+    h, w = part.shape[0] // f, part.shape[1] // f
+    blocks = part[:h * f, :w * f].reshape(h, f, w, f).transpose(0, 2, 1, 3).reshape(h, w, f * f)
+    finite = np.isfinite(blocks)
+    sums = np.where(finite, blocks, 0.0).sum(axis=2)
+    counts = finite.sum(axis=2)
+    means = np.full((h, w), np.nan)
+    np.divide(sums, counts, out=means, where=counts > 0)
+    return means, (x0 + (f - 1) / 2 * dx, y0 + (f - 1) / 2 * dy)
+
+
+@settings(max_examples=40, deadline=None)
+@given(rows=st_.integers(2, 16), cols=st_.integers(2, 16), dx=st_.sampled_from([0.3, -0.3, 30.0, 1e-3, -7.123456789]),
+       dy=st_.sampled_from([-0.3, 0.7, -30.0, 7.123456789]), far=st_.booleans(), f=st_.integers(1, 4),
+       method=st_.sampled_from(["mean", "nearest"]), nodata=st_.sampled_from([0.0, 0.4]), data=st_.data())
+def test_crop_to_node_positions_then_coarsen_matches_a_numpy_reference(rows, cols, dx, dy, far, f, method, nodata,
+                                                                         data):
+    """An extent typed from node positions (origin + k·step in float64, as `stepterrain info` or a GIS reports a
+    node) keeps exactly those nodes, for spacings that do not add up exactly and origins of UTM size; coarsening the
+    crop gives the NumPy reference's heights and origin, the crop's spacing times f, and every node of its
+    heightfield mesh where the reference puts it; crs, source and height_unit carried through both."""
+    origin = (376328.6554542635, 3807902.8276283755) if far else (-12.5, 3.25)
+    t = _grid(rows, cols, spacing=(dx, dy), origin=origin, seed=data.draw(st_.integers(0, 10**6)), nodata=nodata)
+    i0 = data.draw(st_.integers(0, rows // 3))
+    i1 = data.draw(st_.integers(i0 + 1, rows - 1))
+    j0 = data.draw(st_.integers(0, cols // 3))
+    j1 = data.draw(st_.integers(j0 + 1, cols - 1))
+    xs = (origin[0] + j0 * dx, origin[0] + j1 * dx)
+    ys = (origin[1] + i0 * dy, origin[1] + i1 * dy)
+    extent = (min(xs), max(xs), min(ys), max(ys))
+    expected, expected_origin = _crop_then_coarsen_reference(t.heights, (dx, dy), origin, ((i0, i1), (j0, j1)),
+                                                              f, method)
+    if not np.isfinite(t.heights[i0:i1 + 1, j0:j1 + 1]).any():
+        with pytest.raises(InvalidInputError, match=r"^extent \(.*\) holds only nodata"):
+            t.crop(extent)
+        return
+    c = t.crop(extent)
+    assert c.shape == (i1 - i0 + 1, j1 - j0 + 1) and c.spacing == (dx, dy)
+    if min(expected.shape) < 2 or not np.isfinite(expected).any():
+        with pytest.raises(InvalidInputError, match=rf"^factor {f} leaves "):
+            c.coarsen(f, method=method)
+        return
+    k = c.coarsen(f, method=method)
+    np.testing.assert_allclose(k.heights, expected, rtol=1e-6, atol=1e-4)
+    np.testing.assert_array_equal(np.isnan(k.heights), np.isnan(expected))
+    assert k.spacing == ((f * dx, f * dy) if f > 1 else (dx, dy))
+    np.testing.assert_allclose(k.origin, expected_origin, rtol=0, atol=1e-9 * max(1.0, abs(origin[0]), abs(origin[1])))
+    assert (k.crs, k.source, k.height_unit) == (t.crs, t.source, t.height_unit)
+    mesh = st.heightfield_mesh(k)
+    index = mesh.metadata.get("node_index", np.arange(k.heights.size))
+    i, j = np.divmod(index, k.shape[1])
+    np.testing.assert_allclose(mesh.vertices[:, 0], expected_origin[0] + j * f * dx, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(mesh.vertices[:, 1], expected_origin[1] + i * f * dy, rtol=0, atol=1e-6)
+    assert (mesh.metadata["crs"], mesh.metadata["source"]) == (t.crs, t.source)
+
+
+def test_cli_crop_and_coarsen_of_a_y_up_geotiff_with_nodata_is_the_librarys(tmp_path, capsys):
+    """`steps --crop --coarsen` of a GeoTIFF stored south-up (positive pixel height: load_dem's dy > 0) with nodata
+    reads only the crop's window, and its mesh is, vertex for vertex, stepped(load_dem(path).crop(c).coarsen(n))."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    z = np.random.default_rng(11).normal(size=(40, 50)).cumsum(axis=0).cumsum(axis=1).astype(np.float32) * 5
+    z[:6, :9] = -9999.0
+    path = tmp_path / "south_up.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=50, height=40, count=1, dtype="float32", crs="EPSG:32611",
+                       transform=Affine(30.0, 0.0, 380000.0, 0.0, 30.0, 3790000.0), nodata=-9999.0) as ds:
+        ds.write(z, 1)
+    whole = st.load_dem(path)
+    assert whole.spacing == (30.0, 30.0) and whole.origin == (380015.0, 3790015.0)  # node (0, 0): first row's centre
+    crop = (380100.0, 381000.25, 3790000.0, 3790900.5)
+    expected = whole.crop(crop).coarsen(3)
+    assert st.load_dem(path, crop=crop).origin == whole.crop(crop).origin
+    out = tmp_path / "part.ply"
+    assert cli.main(["-q", "steps", str(path), "--crop", ",".join(map(repr, crop)), "--coarsen", "3",
+                     "--interval", "20", "-o", str(out)]) == 0, capsys.readouterr().err
+    reference = tmp_path / "reference.ply"
+    st.export.save_mesh(st.stepped(expected, interval=20.0, device="cpu"), reference)
+    got, want = st.export.read_mesh(out), st.export.read_mesh(reference)
+    assert len(got.faces) > 0
+    np.testing.assert_array_equal(got.vertices, want.vertices)
+    np.testing.assert_array_equal(got.faces, want.faces)

@@ -1445,3 +1445,15 @@ def test_lowest_used_height_takes_nested_lists_of_floats_and_integers():
     assert lowest_used_height([[5, 2], [3, 4]]) == 2.0
     rows = [[np.nan, 2.0, 5.0], [3.0, 4.0, 6.0]]
     assert lowest_used_height(rows) == lowest_used_height(np.array(rows))
+
+
+@pytest.mark.parametrize("method", [np.array(["mean", "nearest"]), np.array(["mean", "mean"]), np.array("mean"),
+                                    ["mean"], None, 2])
+def test_coarsen_refuses_a_method_that_is_not_text_naming_it(method):
+    """``coarsen(method=...)`` compared the argument with ``in``: an array of names raised numpy's "truth value of an
+    array ... is ambiguous" ValueError, naming neither the argument nor what it takes (a 0-d array passed as 'mean').
+    Every method that is not text is refused as an unknown one is, naming it."""
+    t = st.Terrain.from_heights(_H)
+    with pytest.raises(InvalidInputError, match=r"^method must be 'mean' or 'nearest'; got "):
+        t.coarsen(2, method=method)
+    assert t.coarsen(2, method=np.str_("nearest")).shape == (3, 4)  # numpy's text is text
