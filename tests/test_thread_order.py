@@ -192,11 +192,13 @@ def test_solid_hashed_buckets_do_not_depend_on_the_thread_order(one_thread_at_a_
     from .test_solid_kernels import _wall_fan
 
     vertices, faces, terrace = _wall_fan(60, ring=True, pinch=True, fins=0.1)
+    heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=24, step=5)
     monkeypatch.setattr(mesh_module, "LARGE_BUCKET", 0)
 
     def make():
-        return [np.asarray(a).tobytes() if isinstance(a, np.ndarray) else a
-                for a in mesh_module.close_solid(vertices, faces, terrace, -1.0, device="cpu")]
+        fan = [np.asarray(a).tobytes() if isinstance(a, np.ndarray) else a
+               for a in mesh_module.close_solid(vertices, faces, terrace, -1.0, device="cpu")]
+        return fan, _mesh_bits(st.stepped(heights, interval=40.0, solid=True, device="cpu"))
 
     ordinary = make()
     assert one_thread_at_a_time(order, make) == ordinary
