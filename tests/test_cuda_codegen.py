@@ -31,3 +31,19 @@ def test_kernel_module_compiles_for_cuda(name, tmp_path):
     wp.compile_aot_module(module.__name__, arch=90, module_dir=tmp_path)
     compiled = [p for p in tmp_path.rglob("*") if p.suffix in (".cubin", ".ptx")]
     assert compiled, f"no CUDA binary written for {name}: {sorted(p.name for p in tmp_path.rglob('*'))}"
+
+
+def test_every_kernel_module_is_compiled_above():
+    """MODULES names every module of ``stepterrain.kernels`` that defines a kernel or device function: a new module
+    left out would never be compiled for CUDA here."""
+    import pkgutil
+
+    import stepterrain.kernels as package
+
+    with_device_code = set()
+    for info in pkgutil.iter_modules(package.__path__):
+        module = importlib.import_module(f"{package.__name__}.{info.name}")
+        if any(isinstance(v, (wp.Kernel, wp.Function)) for v in vars(module).values()):
+            with_device_code.add(info.name)
+    assert with_device_code, "no kernel module found"
+    assert with_device_code <= set(MODULES), f"not compiled for CUDA: {sorted(with_device_code - set(MODULES))}"

@@ -155,3 +155,81 @@ def test_textures_do_not_depend_on_the_thread_order(one_thread_at_a_time, order)
     permuted = one_thread_at_a_time(order, make)
     for a, b in zip(ordinary, permuted, strict=True):
         assert np.asarray(a).tobytes() == np.asarray(b).tobytes()
+
+
+@pytest.mark.parametrize("order", ORDERS)
+def test_closeups_do_not_depend_on_the_thread_order(one_thread_at_a_time, order):
+    """The close-ups' cull and compaction (count -> scan -> emit over the faces, mark_used_vertices' flags written by
+    every face of a vertex, remap_faces in place) and their anchor strips."""
+    from stepterrain.closeup import ROI, CloseUp, anchor_strips, closeup_layers
+
+    heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=30, step=3)
+
+    def make():  # a new terrain and new ROIs each time: the cull is cached per terrain and ROI objects
+        t = st.Terrain.from_heights(heights, spacing=(90.0, -90.0), origin=(0.0, 2700.0))
+        cus = [CloseUp(ROI.circle((900.0, 1500.0), 500.0, edge_width=150.0), rotation=(0.3, 0.7),
+                       scale=(1.5, 2.0, 3.0), offset=(50.0, -30.0, 800.0)),
+               CloseUp(ROI.ellipse((2300.0, 600.0), (300.0, 700.0)), scale=1.2, offset=(30.0, 30.0, 300.0))]
+        layers = closeup_layers(t, cus, device="cpu")
+        strips = anchor_strips(t, cus, device="cpu")
+        return ([np.asarray(a).tobytes() for layer in layers
+                 for a in (layer.vertices, layer.faces, layer.mask_factor, layer.original)],
+                [np.asarray(s.vertices).tobytes() + np.asarray(s.faces).tobytes() for s in strips])
+
+    ordinary = make()
+    assert all(len(b) > 0 for b in ordinary[0])
+    assert one_thread_at_a_time(order, make) == ordinary
+
+
+@pytest.mark.filterwarnings("ignore:faces. the surface is wound clockwise")
+@pytest.mark.parametrize("order", ORDERS)
+def test_solid_hashed_buckets_do_not_depend_on_the_thread_order(one_thread_at_a_time, order, monkeypatch):
+    """close_solid's atomic passes (count_keys, fill_buckets' and fill_corners' slots, last_wall_writes, column_reps'
+    atomic min) through the hashed buckets of every key (LARGE_BUCKET 0): the order inside a bucket follows the
+    thread order, the solid must not."""
+    from stepterrain import mesh as mesh_module
+
+    from .test_solid_kernels import _wall_fan
+
+    vertices, faces, terrace = _wall_fan(60, ring=True, pinch=True, fins=0.1)
+    heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=24, step=5)
+    monkeypatch.setattr(mesh_module, "LARGE_BUCKET", 0)
+
+    def make():
+        fan = [np.asarray(a).tobytes() if isinstance(a, np.ndarray) else a
+               for a in mesh_module.close_solid(vertices, faces, terrace, -1.0, device="cpu")]
+        return fan, _mesh_bits(st.stepped(heights, interval=40.0, solid=True, device="cpu"))
+
+    ordinary = make()
+    assert one_thread_at_a_time(order, make) == ordinary
+
+
+@pytest.mark.parametrize("order", ORDERS)
+def test_texture_operations_do_not_depend_on_the_thread_order(one_thread_at_a_time, order):
+    """The per-texel passes not in the test above: MapLibre's hillshade, relighting a normal map, the layer
+    operations (blend, weighted add, modulate, adjust) and an image pyramid's area-weighted reductions."""
+    from stepterrain.texture import TextureLayer, adjust, blend, modulate, relight, weighted_add
+    from stepterrain.texture_lod import ImagePyramid
+
+    heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=30, step=3).copy()
+    rng = np.random.default_rng(3)
+    a = TextureLayer("thematic", rng.random((23, 17, 3)), (0, 17, 0, 23))
+    b = rng.random((23, 17, 3))
+    picture = (rng.random((37, 29, 4)) * 255).astype(np.uint8)
+    picture[..., 3][rng.random((37, 29)) < 0.3] = 0
+
+    def make():
+        rgb = st.normal_map(heights, device="cpu")
+        out = [st.hillshade(heights, method="maplibre-combined", device="cpu"),
+               relight(rgb, azimuth=1.0, altitude=0.6, device="cpu"),
+               blend(a, b, rng_free_weights, device="cpu").rgba(),
+               weighted_add([a, a], [0.5, 2.0], device="cpu").rgba(),
+               modulate(a, rng_free_weights, device="cpu").rgba(),
+               adjust(a, brightness=1.7, split="left", device="cpu").rgba()]
+        with ImagePyramid.build(picture, device="cpu") as pyramid:
+            out += [np.array(level) for level in pyramid.levels]
+        return [np.asarray(x).tobytes() for x in out]
+
+    rng_free_weights = np.linspace(0.0, 1.0, 23 * 17).reshape(23, 17)
+    ordinary = make()
+    assert one_thread_at_a_time(order, make) == ordinary
