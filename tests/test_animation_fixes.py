@@ -1,0 +1,89 @@
+"""Fixes to the animation writers: GIF frame delays and runs of identical frames (save_animation)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from stepterrain.closeup import save_animation
+from stepterrain.errors import InvalidInputError
+
+
+def gif_delays(path) -> list[int]:
+    """The GIF's frame delays in milliseconds (whole hundredths of a second, as stored), read back by Pillow."""
+    with Image.open(path) as image:
+        delays = []
+        for k in range(image.n_frames):
+            image.seek(k)
+            delays.append(int(image.info["duration"]))
+    return delays
+
+
+@pytest.mark.parametrize("fps", [12.0, 30.0, 40.0, 60.0, 7.3, 100.0])
+def test_gif_frames_start_at_their_time_within_half_a_hundredth(tmp_path, fps):
+    """Pillow truncated each frame's delay to whole hundredths of a second (int(100 / fps)): a 12 fps GIF played at
+    12.5 fps, 30 fps at 33.3 and 60 fps at 100 (24 frames in 0.24 s, not 0.4 s), the spin faster than asked. Frame k
+    must start at k / fps, rounded to the nearest hundredth; the delays then add up to the animation's length."""
+    n = 24
+    frames = [np.full((6, 5, 3), 10 * k, np.uint8) for k in range(n)]  # all different: none merged
+    delays = gif_delays(save_animation(frames, tmp_path / "a.gif", fps=fps))
+    assert len(delays) == n
+    starts = np.concatenate([[0], np.cumsum(delays)])  # ms
+    expected = np.arange(n + 1) * 1000.0 / fps
+    assert np.abs(starts - expected).max() <= 5.0 + 1e-9, (delays, fps)
+    assert min(delays) >= 10  # no 0 delay (a player's default rate)
+
+
+def test_gif_identical_frames_keep_their_total_time(tmp_path):
+    """Pillow merges runs of identical frames into one GIF frame with their delays added: the time stays."""
+    frames = [np.zeros((4, 4, 3), np.uint8)] * 3 + [np.full((4, 4, 3), 200, np.uint8)]
+    delays = gif_delays(save_animation(frames, tmp_path / "a.gif", fps=30.0))
+    assert len(delays) == 2
+    assert delays[0] == 100  # frames 0..2: 0.1 s (3.33 hundredths each, rounded as they add up)
+    assert sum(delays) == round(4 * 100 / 30) * 10
+
+
+@pytest.mark.parametrize("count, kept", [(7, False), (6, True)])
+def test_gif_a_run_of_identical_frames_too_long_for_a_gif_delay_is_refused(tmp_path, count, kept):
+    """Identical frames are one GIF frame (Pillow merges them, adding their delays): 7 still frames at 0.01 fps
+    (700 s) raised Pillow's bare OverflowError "int too big to convert" after every close-up frame was rendered (a
+    GIF delay is at most 655.35 s). Now an InvalidInputError naming fps and the frames; the old file stays. 6 of
+    them (600 s) are written, as one frame of 600 s."""
+    target = tmp_path / "still.gif"
+    target.write_bytes(b"an earlier animation")
+    frames = [np.full((4, 6, 3), 90, np.uint8)] * count + [np.zeros((4, 6, 3), np.uint8)]
+    if kept:
+        assert gif_delays(save_animation(frames, target, fps=0.01)) == [600_000, 100_000]
+        return
+    with pytest.raises(InvalidInputError, match=r"^fps 0\.01 shows frames\[0\] to frames\[6\] \(identical: one GIF "
+                                                r"frame\) for 700 s, longer than a GIF frame's longest delay \(655\.35 "
+                                                r"s\)"):
+        save_animation(frames, target, fps=0.01)
+    assert target.read_bytes() == b"an earlier animation"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["still.gif"]
+
+
+def test_gif_slowest_rate_still_written(tmp_path):
+    """The slowest rate _check_fps accepts (int(100 / fps) = 65535 hundredths) is written, its delays clipped to a
+    GIF's longest, not refused by Pillow."""
+    fps = 100.0 / 65535.5
+    frames = [np.full((2, 2, 3), 60 * k, np.uint8) for k in range(3)]
+    delays = gif_delays(save_animation(frames, tmp_path / "slow.gif", fps=fps))
+    assert delays == [655_350] * 3
+    assert math.isclose(sum(delays) / 1000, 3 / fps, rel_tol=1e-4)
+
+
+def test_gif_frames_alike_in_the_gif_palette_too_long_are_refused(tmp_path):
+    """Frames that differ in one bit of one pixel are alike once Pillow quantizes them to 256 colours: it merged
+    them too, and 8 of them at 0.01 fps raised the bare OverflowError. Now an InvalidInputError naming fps; nothing
+    is left behind."""
+    a = np.random.default_rng(1).integers(0, 256, (32, 32, 3), dtype=np.uint8)  # more colours than a GIF has
+    b = a.copy()
+    b[0, 0, 0] ^= 1
+    with pytest.raises(InvalidInputError, match=r"^fps 0\.01 shows frames that are alike in a GIF's colours for "
+                                                r"longer than a GIF frame's longest delay \(655\.35 s\)"):
+        save_animation([a, b] * 4, tmp_path / "q.gif", fps=0.01)
+    assert list(tmp_path.iterdir()) == []
