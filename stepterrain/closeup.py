@@ -2981,7 +2981,8 @@ def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[
 
     ``fps`` must be a rate the format stores: [0.001526, 100] for a GIF (frame delays in whole hundredths of a
     second), [0.001, 1000] for an MP4. An MP4 keeps the frame size, which must be even both ways (H.264); a GIF
-    takes any size."""
+    takes any size. A GIF's frame k starts at k / fps rounded to the nearest hundredth of a second, and identical
+    consecutive frames are one GIF frame as long as all of them (refused past a GIF delay's 655.35 s)."""
     from .export import _target, atomic_path
 
     target = _target(path)  # 5 or b"x.gif" raised pathlib's TypeError
