@@ -87,3 +87,30 @@ def test_gif_frames_alike_in_the_gif_palette_too_long_are_refused(tmp_path):
                                                 r"longer than a GIF frame's longest delay \(655\.35 s\)"):
         save_animation([a, b] * 4, tmp_path / "q.gif", fps=0.01)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_texture_animation_ends_on_its_last_key_where_that_key_lies():
+    """frame(t) at or after the last key time drew the last key resampled onto the previous key's grid: with keys
+    over other extents (a lens moved with TextureLayer.moved to follow a point) the last frame lay where the previous
+    key was, and a lens moved off it was lost (a uniform rim colour), while every other key time gave its own key.
+    Now the last key time gives the last key, on its own grid, as the first key time gives the first."""
+    from stepterrain.texture import TextureAnimation, TextureLayer, highlight_lens
+
+    rng = np.random.default_rng(0)
+    a = TextureLayer("thematic", rng.random((8, 10, 4)), (0.0, 10.0, 0.0, 8.0))
+    b = TextureLayer("thematic", rng.random((8, 10, 4)), (5.0, 15.0, 0.0, 8.0))
+    anim = TextureAnimation([a, b], (0.0, 1.0))
+    for t, key in ((0.0, a), (1.0, b), (7.5, b)):
+        frame = anim.frame(t, device="cpu")
+        assert frame.extent == key.extent and frame.shape == key.shape
+        np.testing.assert_allclose(frame.rgba(), key.rgba(), atol=1e-6)
+
+    lens = highlight_lens((0.0, 0.0), 1.0, strength=0.5, resolution=16)
+    keys = [lens, lens.moved(10.0, 0.0), lens.moved(20.0, 0.0)]
+    anim = TextureAnimation(keys, (0.0, 1.0, 2.0))
+    for t, key in ((1.0, keys[1]), (2.0, keys[2]), (3.0, keys[2])):  # an inner key and the last one, alike
+        frame = anim.frame(t, device="cpu")
+        centre = frame.rgba()[8, 8, 0]  # the hot spot: 1 (the rim is 1 - strength = 0.5)
+        assert centre == pytest.approx(1.0, abs=1e-6), t
+        x0, x1, _, _ = frame.extent
+        assert x0 < 10.0 * keys.index(key) < x1
