@@ -2981,8 +2981,9 @@ def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[
 
     ``fps`` must be a rate the format stores: [0.001526, 100] for a GIF (frame delays in whole hundredths of a
     second), [0.001, 1000] for an MP4. An MP4 keeps the frame size, which must be even both ways (H.264); a GIF
-    takes any size. A GIF's frame k starts at k / fps rounded to the nearest hundredth of a second, and identical
-    consecutive frames are one GIF frame as long as all of them (refused past a GIF delay's 655.35 s)."""
+    takes any size up to 65535 pixels each way. A GIF's frame k starts at k / fps rounded to the nearest hundredth
+    of a second, and identical consecutive frames are one GIF frame as long as all of them (refused past a GIF
+    delay's 655.35 s)."""
     from .export import _target, atomic_path
 
     target = _target(path)  # 5 or b"x.gif" raised pathlib's TypeError
@@ -2994,6 +2995,7 @@ def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[
     if suffix == ".mp4":
         _check_mp4_size(stack[0].shape[1], stack[0].shape[0], "frames")
     else:
+        _check_gif_size(stack[0].shape[1], stack[0].shape[0], "frames")
         _check_gif_runs(stack, fps)
     import imageio.v3 as iio
 
@@ -3027,7 +3029,17 @@ def _check_mp4_size(width: int, height: int, name: str) -> None:
     video not the size asked for) with only a printed warning."""
     if width % 2 or height % 2:
         raise InvalidInputError(f"{name} of an MP4 must have an even width and height (H.264 codes 2 x 2 colour "
-                                f"blocks; a GIF takes any size); got {width}x{height}")
+                                f"blocks; a GIF takes any size up to 65535); got {width}x{height}")
+
+
+def _check_gif_size(width: int, height: int, name: str) -> None:
+    """An InvalidInputError unless a GIF stores frames of this size: its width and height are 16-bit numbers (at most
+    65535); Pillow raised a bare OverflowError for a wider or taller frame (which :func:`_write_gif`'s backstop for
+    merged delays would have reported as an fps too slow)."""
+    top = _GIF_DELAYS[1]  # a GIF's 16-bit fields: its delays and its sizes
+    if width > top or height > top:
+        raise InvalidInputError(f"{name} of a GIF must be at most {top} pixels each way (its sizes are 16-bit "
+                                f"numbers); got {width}x{height}")
 
 
 def _write_gif(frames: Sequence[NDArray[np.uint8]], tmp: Path, fps: float) -> None:

@@ -114,3 +114,15 @@ def test_texture_animation_ends_on_its_last_key_where_that_key_lies():
         assert centre == pytest.approx(1.0, abs=1e-6), t
         x0, x1, _, _ = frame.extent
         assert x0 < 10.0 * keys.index(key) < x1
+
+
+@pytest.mark.parametrize("shape", [(1, 65536), (65536, 1)])
+def test_gif_frames_wider_or_taller_than_a_gif_stores_are_refused_naming_their_size(tmp_path, shape):
+    """A GIF's width and height are 16-bit numbers: Pillow raised a bare OverflowError for a 65536-pixel frame, which
+    the backstop for merged delays in _write_gif reported as "fps 12 shows frames that are alike ... give a higher
+    fps" (a wrong cause). Now an InvalidInputError naming the frames' size; nothing is left behind."""
+    frames = [np.zeros((*shape, 3), np.uint8), np.full((*shape, 3), 9, np.uint8)]
+    with pytest.raises(InvalidInputError, match=rf"^frames of a GIF must be at most 65535 pixels each way .*got "
+                                                rf"{shape[1]}x{shape[0]}$"):
+        save_animation(frames, tmp_path / "wide.gif", fps=12.0)
+    assert list(tmp_path.iterdir()) == []
