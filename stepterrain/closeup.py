@@ -2952,7 +2952,8 @@ def _check_frames(frames: Any) -> list[NDArray[np.uint8]]:
 
 
 #: Frame rates each animation format stores: a GIF's frame delay is a whole number of hundredths of a second, 1 to
-#: 65535 (Pillow writes int(100 / fps)); ffmpeg wrote an MP4 below about 1e-4 fps as a broken file without an error
+#: 65535 (frame k starts at k / fps, rounded to hundredths: :func:`_gif_delays`); ffmpeg wrote an MP4 below about
+#: 1e-4 fps as a broken file without an error
 _GIF_DELAYS = (1, 65535)
 _MP4_FPS = (1e-3, 1e3)
 
@@ -2980,7 +2981,9 @@ def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[
 
     ``fps`` must be a rate the format stores: [0.001526, 100] for a GIF (frame delays in whole hundredths of a
     second), [0.001, 1000] for an MP4. An MP4 keeps the frame size, which must be even both ways (H.264); a GIF
-    takes any size."""
+    takes any size up to 65535 pixels each way. A GIF's frame k starts at k / fps rounded to the nearest hundredth
+    of a second, and identical consecutive frames are one GIF frame as long as all of them (refused past a GIF
+    delay's 655.35 s)."""
     from .export import _target, atomic_path
 
     target = _target(path)  # 5 or b"x.gif" raised pathlib's TypeError
@@ -2991,6 +2994,9 @@ def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[
     stack = _check_frames(frames)
     if suffix == ".mp4":
         _check_mp4_size(stack[0].shape[1], stack[0].shape[0], "frames")
+    else:
+        _check_gif_size(stack[0].shape[1], stack[0].shape[0], "frames")
+        _check_gif_runs(stack, fps)
     import imageio.v3 as iio
 
     if suffix == ".mp4":
@@ -3023,7 +3029,17 @@ def _check_mp4_size(width: int, height: int, name: str) -> None:
     video not the size asked for) with only a printed warning."""
     if width % 2 or height % 2:
         raise InvalidInputError(f"{name} of an MP4 must have an even width and height (H.264 codes 2 x 2 colour "
-                                f"blocks; a GIF takes any size); got {width}x{height}")
+                                f"blocks; a GIF takes any size up to 65535); got {width}x{height}")
+
+
+def _check_gif_size(width: int, height: int, name: str) -> None:
+    """An InvalidInputError unless a GIF stores frames of this size: its width and height are 16-bit numbers (at most
+    65535); Pillow raised a bare OverflowError for a wider or taller frame (which :func:`_write_gif`'s backstop for
+    merged delays would have reported as an fps too slow)."""
+    top = _GIF_DELAYS[1]  # a GIF's 16-bit fields: its delays and its sizes
+    if width > top or height > top:
+        raise InvalidInputError(f"{name} of a GIF must be at most {top} pixels each way (its sizes are 16-bit "
+                                f"numbers); got {width}x{height}")
 
 
 def _write_gif(frames: Sequence[NDArray[np.uint8]], tmp: Path, fps: float) -> None:
@@ -3032,10 +3048,45 @@ def _write_gif(frames: Sequence[NDArray[np.uint8]], tmp: Path, fps: float) -> No
     and printed a second traceback ("Exception ignored in PluginV3.__del__") after the error."""
     from PIL import Image
 
+    delays = _gif_delays(len(frames), fps)
     pictures = [Image.fromarray(frame) for frame in frames]
     more = {"save_all": True, "append_images": pictures[1:]} if len(pictures) > 1 else {}
     with open(tmp, "wb") as fh:
-        pictures[0].save(fh, format="GIF", duration=1000.0 / fps, loop=0, **more)
+        try:
+            pictures[0].save(fh, format="GIF", duration=[10 * d for d in delays] if more else 10 * delays[0],
+                             loop=0, **more)
+        except OverflowError as exc:  # frames that differ but quantize alike: merged past 655.35 s (see below)
+            raise InvalidInputError(f"fps {fps:g} shows frames that are alike in a GIF's colours for longer than a "
+                                    f"GIF frame's longest delay ({_GIF_DELAYS[1] / 100:g} s): give a higher fps")\
+                from exc
+
+
+def _gif_delays(count: int, fps: float) -> list[int]:
+    """The delays of ``count`` GIF frames at ``fps``, in hundredths of a second: frame k starts at k / fps rounded
+    to the nearest hundredth (Pillow's int(100 / fps) for each frame played 12 fps at 12.5 and 60 at 100), each
+    clipped to the delays a GIF stores (:data:`_GIF_DELAYS`; :func:`_check_fps` keeps 100 / fps in [1, 65536))."""
+    starts = [math.floor(100.0 * k / fps + 0.5) for k in range(count + 1)]
+    lo, hi = _GIF_DELAYS
+    return [min(max(b - a, lo), hi) for a, b in zip(starts, starts[1:], strict=False)]
+
+
+def _check_gif_runs(frames: Sequence[NDArray[np.uint8]], fps: float) -> None:
+    """An InvalidInputError when a run of identical frames would last longer than a GIF frame's longest delay:
+    Pillow writes such a run as one frame with the run's delays added, and raised a bare OverflowError past
+    655.35 s (after every frame of an animation was rendered)."""
+    delays = _gif_delays(len(frames), fps)
+    if len(frames) * max(delays) <= _GIF_DELAYS[1]:  # no run can be too long: the frames are not compared
+        return
+    start = 0
+    for k in range(1, len(frames) + 1):
+        if k < len(frames) and np.array_equal(frames[k], frames[start]):
+            continue
+        total = sum(delays[start:k])
+        if total > _GIF_DELAYS[1]:
+            raise InvalidInputError(f"fps {fps:g} shows frames[{start}] to frames[{k - 1}] (identical: one GIF frame) "
+                                    f"for {total / 100:g} s, longer than a GIF frame's longest delay "
+                                    f"({_GIF_DELAYS[1] / 100:g} s): give a higher fps or fewer identical frames")
+        start = k
 
 
 def _unfinished_mp4(file: Path) -> str | None:

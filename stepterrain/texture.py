@@ -2045,15 +2045,20 @@ class TextureAnimation:
         return self.layers[k], self.layers[k + 1], float(alpha)
 
     def frame(self, t: float, *, device: wp.DeviceLike = None) -> TextureLayer:
-        """The animated layer at time t: (1 − α) · layer k + α · layer k + 1, premultiplied by alpha."""
+        """The animated layer at time t: (1 − α) · layer k + α · layer k + 1, premultiplied by alpha, on layer k's
+        pixel grid (the last key's own at and after its time)."""
         a, b, alpha = self.at(t)
         k = next(i for i, layer in enumerate(self.layers) if layer is a)
+        kb = min(k + 1, len(self.layers) - 1)
+        if alpha == 1.0:  # at (or past) the last key: that key, on its own grid, as every other key time gives its
+            # key; on the previous key's grid a key over another extent (a lens moved to follow a point) was lost
+            a, k, alpha = b, kb, 0.0
         dev = resolve_device(device)
         extent, shape = _result_frame(a)
         out = wp.empty(shape, dtype=wp.vec4, device=dev)
         launch(texture_kernels.interpolate_layers, dim=shape[0] * shape[1],
                inputs=[_sampled(a, extent, shape, dev, f"layers[{k}]"),
-                       _sampled(b, extent, shape, dev, f"layers[{min(k + 1, len(self.layers) - 1)}]"), alpha],
+                       _sampled(b, extent, shape, dev, f"layers[{kb}]"), alpha],
                outputs=[out], device=dev)
         return _finish(out, extent, "frame")
 

@@ -1,0 +1,128 @@
+"""Fixes to the animation writers: GIF frame delays and runs of identical frames (save_animation)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from stepterrain.closeup import save_animation
+from stepterrain.errors import InvalidInputError
+
+
+def gif_delays(path) -> list[int]:
+    """The GIF's frame delays in milliseconds (whole hundredths of a second, as stored), read back by Pillow."""
+    with Image.open(path) as image:
+        delays = []
+        for k in range(image.n_frames):
+            image.seek(k)
+            delays.append(int(image.info["duration"]))
+    return delays
+
+
+@pytest.mark.parametrize("fps", [12.0, 30.0, 40.0, 60.0, 7.3, 100.0])
+def test_gif_frames_start_at_their_time_within_half_a_hundredth(tmp_path, fps):
+    """Pillow truncated each frame's delay to whole hundredths of a second (int(100 / fps)): a 12 fps GIF played at
+    12.5 fps, 30 fps at 33.3 and 60 fps at 100 (24 frames in 0.24 s, not 0.4 s), the spin faster than asked. Frame k
+    must start at k / fps, rounded to the nearest hundredth; the delays then add up to the animation's length."""
+    n = 24
+    frames = [np.full((6, 5, 3), 10 * k, np.uint8) for k in range(n)]  # all different: none merged
+    delays = gif_delays(save_animation(frames, tmp_path / "a.gif", fps=fps))
+    assert len(delays) == n
+    starts = np.concatenate([[0], np.cumsum(delays)])  # ms
+    expected = np.arange(n + 1) * 1000.0 / fps
+    assert np.abs(starts - expected).max() <= 5.0 + 1e-9, (delays, fps)
+    assert min(delays) >= 10  # no 0 delay (a player's default rate)
+
+
+def test_gif_identical_frames_keep_their_total_time(tmp_path):
+    """Pillow merges runs of identical frames into one GIF frame with their delays added: the time stays."""
+    frames = [np.zeros((4, 4, 3), np.uint8)] * 3 + [np.full((4, 4, 3), 200, np.uint8)]
+    delays = gif_delays(save_animation(frames, tmp_path / "a.gif", fps=30.0))
+    assert len(delays) == 2
+    assert delays[0] == 100  # frames 0..2: 0.1 s (3.33 hundredths each, rounded as they add up)
+    assert sum(delays) == round(4 * 100 / 30) * 10
+
+
+@pytest.mark.parametrize("count, kept", [(7, False), (6, True)])
+def test_gif_a_run_of_identical_frames_too_long_for_a_gif_delay_is_refused(tmp_path, count, kept):
+    """Identical frames are one GIF frame (Pillow merges them, adding their delays): 7 still frames at 0.01 fps
+    (700 s) raised Pillow's bare OverflowError "int too big to convert" after every close-up frame was rendered (a
+    GIF delay is at most 655.35 s). Now an InvalidInputError naming fps and the frames; the old file stays. 6 of
+    them (600 s) are written, as one frame of 600 s."""
+    target = tmp_path / "still.gif"
+    target.write_bytes(b"an earlier animation")
+    frames = [np.full((4, 6, 3), 90, np.uint8)] * count + [np.zeros((4, 6, 3), np.uint8)]
+    if kept:
+        assert gif_delays(save_animation(frames, target, fps=0.01)) == [600_000, 100_000]
+        return
+    with pytest.raises(InvalidInputError, match=r"^fps 0\.01 shows frames\[0\] to frames\[6\] \(identical: one GIF "
+                                                r"frame\) for 700 s, longer than a GIF frame's longest delay \(655\.35 "
+                                                r"s\)"):
+        save_animation(frames, target, fps=0.01)
+    assert target.read_bytes() == b"an earlier animation"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["still.gif"]
+
+
+def test_gif_slowest_rate_still_written(tmp_path):
+    """The slowest rate _check_fps accepts (int(100 / fps) = 65535 hundredths) is written, its delays clipped to a
+    GIF's longest, not refused by Pillow."""
+    fps = 100.0 / 65535.5
+    frames = [np.full((2, 2, 3), 60 * k, np.uint8) for k in range(3)]
+    delays = gif_delays(save_animation(frames, tmp_path / "slow.gif", fps=fps))
+    assert delays == [655_350] * 3
+    assert math.isclose(sum(delays) / 1000, 3 / fps, rel_tol=1e-4)
+
+
+def test_gif_frames_alike_in_the_gif_palette_too_long_are_refused(tmp_path):
+    """Frames that differ in one bit of one pixel are alike once Pillow quantizes them to 256 colours: it merged
+    them too, and 8 of them at 0.01 fps raised the bare OverflowError. Now an InvalidInputError naming fps; nothing
+    is left behind."""
+    a = np.random.default_rng(1).integers(0, 256, (32, 32, 3), dtype=np.uint8)  # more colours than a GIF has
+    b = a.copy()
+    b[0, 0, 0] ^= 1
+    with pytest.raises(InvalidInputError, match=r"^fps 0\.01 shows frames that are alike in a GIF's colours for "
+                                                r"longer than a GIF frame's longest delay \(655\.35 s\)"):
+        save_animation([a, b] * 4, tmp_path / "q.gif", fps=0.01)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_texture_animation_ends_on_its_last_key_where_that_key_lies():
+    """frame(t) at or after the last key time drew the last key resampled onto the previous key's grid: with keys
+    over other extents (a lens moved with TextureLayer.moved to follow a point) the last frame lay where the previous
+    key was, and a lens moved off it was lost (a uniform rim colour), while every other key time gave its own key.
+    Now the last key time gives the last key, on its own grid, as the first key time gives the first."""
+    from stepterrain.texture import TextureAnimation, TextureLayer, highlight_lens
+
+    rng = np.random.default_rng(0)
+    a = TextureLayer("thematic", rng.random((8, 10, 4)), (0.0, 10.0, 0.0, 8.0))
+    b = TextureLayer("thematic", rng.random((8, 10, 4)), (5.0, 15.0, 0.0, 8.0))
+    anim = TextureAnimation([a, b], (0.0, 1.0))
+    for t, key in ((0.0, a), (1.0, b), (7.5, b)):
+        frame = anim.frame(t, device="cpu")
+        assert frame.extent == key.extent and frame.shape == key.shape
+        np.testing.assert_allclose(frame.rgba(), key.rgba(), atol=1e-6)
+
+    lens = highlight_lens((0.0, 0.0), 1.0, strength=0.5, resolution=16)
+    keys = [lens, lens.moved(10.0, 0.0), lens.moved(20.0, 0.0)]
+    anim = TextureAnimation(keys, (0.0, 1.0, 2.0))
+    for t, key in ((1.0, keys[1]), (2.0, keys[2]), (3.0, keys[2])):  # an inner key and the last one, alike
+        frame = anim.frame(t, device="cpu")
+        centre = frame.rgba()[8, 8, 0]  # the hot spot: 1 (the rim is 1 - strength = 0.5)
+        assert centre == pytest.approx(1.0, abs=1e-6), t
+        x0, x1, _, _ = frame.extent
+        assert x0 < 10.0 * keys.index(key) < x1
+
+
+@pytest.mark.parametrize("shape", [(1, 65536), (65536, 1)])
+def test_gif_frames_wider_or_taller_than_a_gif_stores_are_refused_naming_their_size(tmp_path, shape):
+    """A GIF's width and height are 16-bit numbers: Pillow raised a bare OverflowError for a 65536-pixel frame, which
+    the backstop for merged delays in _write_gif reported as "fps 12 shows frames that are alike ... give a higher
+    fps" (a wrong cause). Now an InvalidInputError naming the frames' size; nothing is left behind."""
+    frames = [np.zeros((*shape, 3), np.uint8), np.full((*shape, 3), 9, np.uint8)]
+    with pytest.raises(InvalidInputError, match=rf"^frames of a GIF must be at most 65535 pixels each way .*got "
+                                                rf"{shape[1]}x{shape[0]}$"):
+        save_animation(frames, tmp_path / "wide.gif", fps=12.0)
+    assert list(tmp_path.iterdir()) == []
