@@ -2977,7 +2977,7 @@ def _check_fps(fps: Any, suffix: str, name: str = "fps") -> float:
 
 
 def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[str], *, fps: float = 12.0) -> Path:
-    """Write frames as a looping GIF or an MP4 (by extension), atomically, through imageio.
+    """Write frames as a looping GIF (through Pillow) or an MP4 (through imageio's ffmpeg), by extension, atomically.
 
     ``fps`` must be a rate the format stores: [0.001526, 100] for a GIF (frame delays in whole hundredths of a
     second), [0.001, 1000] for an MP4. An MP4 keeps the frame size, which must be even both ways (H.264); a GIF
