@@ -1650,6 +1650,11 @@ def _plate_carree_shift(picture: Any, path: Any) -> int:
     if found is None:
         return 0
     (a, b, west, d, e, north), projected, source = found
+    if not all(map(math.isfinite, found[0])):  # GDAL reads a PAM file's or a GeoTIFF's NaN and inf as they are: the
+        # west edge's round() raised Python's ValueError / OverflowError, and a NaN north edge passed the extent tests
+        raise InvalidInputError(f"{name} must be georeferenced by finite numbers; got {source} with its upper-left "
+                                f"corner at ({west:.6g}, {north:.6g}), pixel size ({a:.6g}, {e:.6g}) and rotation "
+                                f"({b:.6g}, {d:.6g})")
     if projected:
         raise InvalidInputError(f"{name} must be a global plate-carrée image (longitude and latitude in degrees); got "
                                 f"{source} in a projected CRS: reproject it first (`gdalwarp -dstalpha -t_srs "
