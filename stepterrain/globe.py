@@ -1814,7 +1814,9 @@ def _drape_texture(mesh: trimesh.Trimesh, pixels: NDArray[np.uint8], picture: An
     horizontal = np.hypot(vertices[:, 0], vertices[:, 1])
     u = (np.degrees(np.arctan2(vertices[:, 1], vertices[:, 0])) + 180.0) / 360.0
     v = (np.degrees(np.arctan2(vertices[:, 2], horizontal)) + 90.0) / 180.0
-    pole = horizontal <= 1e-9 * np.maximum(np.abs(vertices[:, 2]), 1.0)
+    # relative to the vertex's height along the axis: within 1e-9 (an absolute length for |z| < 1) the ring round
+    # each pole of a globe of radius 1e-8 became poles, and every vertex of one of radius 1e-12 (every u 0)
+    pole = horizontal <= 1e-9 * np.abs(vertices[:, 2])
     corner_u = u[faces]
     corner_pole = pole[faces]
     # the antimeridian: a face whose non-pole corners span more than half the image wraps around

@@ -2197,3 +2197,22 @@ def test_a_texture_georeferenced_by_non_finite_numbers_is_refused_by_name(tmp_pa
     assert main(["-q", "globe", "--face-size", "5", "--no-camera", "--texture", str(path), "-o", str(out),
                  "--device", "cpu"]) == 2
     assert "must be georeferenced by finite numbers" in capsys.readouterr().err and not out.exists()
+
+
+@pytest.mark.parametrize("radius", [2.0**-40, 2.0**-27, 2.0**40])  # about 1e-12, 7e-9, 1e12; powers of 2: exact
+def test_a_globe_drape_is_the_same_at_any_radius(radius):
+    """drape_texture took a vertex for a pole where it lay within 1e-9 (an absolute length, for |z| < 1) of the polar
+    axis: on a globe of radius 1e-8 the ring of vertices round each pole became poles (their u the mean of their faces'
+    other corners), at 1e-12 every vertex did (every u 0: the whole texture one column). Globe.from_latlon takes any
+    radius from 1.18e-38; the drape depends on the directions alone: the same vertices, faces and UVs at any scale."""
+    from stepterrain.globe import drape_texture
+
+    mesh = Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=65, radius=1.0, device="cpu").mesh()
+    image = np.zeros((4, 8, 3), np.uint8)
+    unit = drape_texture(mesh, image)
+    scaled = mesh.copy()
+    scaled.vertices = mesh.vertices * radius
+    got = drape_texture(scaled, image)
+    np.testing.assert_array_equal(got.faces, unit.faces)
+    np.testing.assert_array_equal(got.visual.uv, unit.visual.uv)
+    np.testing.assert_array_equal(got.vertices, unit.vertices * radius)
