@@ -1650,6 +1650,11 @@ def _plate_carree_shift(picture: Any, path: Any) -> int:
     if found is None:
         return 0
     (a, b, west, d, e, north), projected, source = found
+    if not all(map(math.isfinite, found[0])):  # GDAL reads a PAM file's or a GeoTIFF's NaN and inf as they are: the
+        # west edge's round() raised Python's ValueError / OverflowError, and a NaN north edge passed the extent tests
+        raise InvalidInputError(f"{name} must be georeferenced by finite numbers; got {source} with its upper-left "
+                                f"corner at ({west:.6g}, {north:.6g}), pixel size ({a:.6g}, {e:.6g}) and rotation "
+                                f"({b:.6g}, {d:.6g})")
     if projected:
         raise InvalidInputError(f"{name} must be a global plate-carrée image (longitude and latitude in degrees); got "
                                 f"{source} in a projected CRS: reproject it first (`gdalwarp -dstalpha -t_srs "
@@ -1809,7 +1814,9 @@ def _drape_texture(mesh: trimesh.Trimesh, pixels: NDArray[np.uint8], picture: An
     horizontal = np.hypot(vertices[:, 0], vertices[:, 1])
     u = (np.degrees(np.arctan2(vertices[:, 1], vertices[:, 0])) + 180.0) / 360.0
     v = (np.degrees(np.arctan2(vertices[:, 2], horizontal)) + 90.0) / 180.0
-    pole = horizontal <= 1e-9 * np.maximum(np.abs(vertices[:, 2]), 1.0)
+    # relative to the vertex's height along the axis: within 1e-9 (an absolute length for |z| < 1) the ring round
+    # each pole of a globe of radius 1e-8 became poles, and every vertex of one of radius 1e-12 (every u 0)
+    pole = horizontal <= 1e-9 * np.abs(vertices[:, 2])
     corner_u = u[faces]
     corner_pole = pole[faces]
     # the antimeridian: a face whose non-pole corners span more than half the image wraps around

@@ -2156,3 +2156,63 @@ def test_a_planar_eye_refused_just_under_the_surface_is_printed_apart_from_it():
     found = re.search(r"the surface is at z = (\S+) m, the eye at z = (\S+) m;", str(caught.value))
     assert found, str(caught.value)
     assert float(found.group(1)) == pytest.approx(0.001) and float(found.group(2)) == pytest.approx(0.0008)
+
+
+@pytest.mark.parametrize("side, value", [("aux", "nan"), ("aux", "inf"), ("aux", "north nan"), ("tiff", "nan"),
+                                          ("tiff", "inf"), ("tiff", "north nan")])
+def test_a_texture_georeferenced_by_non_finite_numbers_is_refused_by_name(tmp_path, capsys, side, value):
+    """A PAM file's GeoTransform or a GeoTIFF's tiepoint of NaN or inf (GDAL reads both as they are) crashed the drape
+    with Python's ValueError / OverflowError (``round`` of the west edge: a traceback from ``stepterrain globe
+    --texture``), and a NaN north edge passed every extent test (NaN compares false) and was draped as a global image
+    from 180° W without a word. Refused now, naming the texture and where the numbers came from."""
+    from PIL import Image, TiffImagePlugin
+
+    from stepterrain.cli import main
+    from stepterrain.globe import drape_colors, drape_texture
+
+    west, north = ("nan" if value == "nan" else "inf" if value == "inf" else "-180"), \
+        ("nan" if value == "north nan" else "90")
+    pixels = np.zeros((4, 8, 3), np.uint8)
+    if side == "aux":
+        path = tmp_path / "earth.png"
+        Image.fromarray(pixels).save(path)
+        (tmp_path / "earth.png.aux.xml").write_text(f"<PAMDataset><GeoTransform>{west}, 45, 0, {north}, 0, -45"
+                                                    "</GeoTransform></PAMDataset>")
+        source = r"a PAM file 'earth\.png\.aux\.xml'"
+    else:
+        path = tmp_path / "earth.tif"
+        info = TiffImagePlugin.ImageFileDirectory_v2()
+        for tag, numbers in ((33550, (45.0, 45.0, 0.0)), (33922, (0.0, 0.0, 0.0, float(west), float(north), 0.0))):
+            info[tag], info.tagtype[tag] = numbers, 12  # doubles
+        info[34735], info.tagtype[34735] = (1, 1, 0, 2, 1024, 0, 1, 2, 1025, 0, 1, 1), 3  # geographic, PixelIsArea
+        Image.fromarray(pixels).save(path, tiffinfo=info)
+        source = "a GeoTIFF"
+    directions = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]) * EARTH_RADIUS
+    message = rf"^texture .*earth\.\w+' must be georeferenced by finite numbers; got {source} with "
+    with pytest.raises(InvalidInputError, match=message):
+        drape_colors(directions, path)
+    with pytest.raises(InvalidInputError, match=message):
+        drape_texture(trimesh_sphere(), path)
+    out = tmp_path / "g.glb"
+    assert main(["-q", "globe", "--face-size", "5", "--no-camera", "--texture", str(path), "-o", str(out),
+                 "--device", "cpu"]) == 2
+    assert "must be georeferenced by finite numbers" in capsys.readouterr().err and not out.exists()
+
+
+@pytest.mark.parametrize("radius", [2.0**-40, 2.0**-27, 2.0**40])  # about 1e-12, 7e-9, 1e12; powers of 2: exact
+def test_a_globe_drape_is_the_same_at_any_radius(radius):
+    """drape_texture took a vertex for a pole where it lay within 1e-9 (an absolute length, for |z| < 1) of the polar
+    axis: on a globe of radius 1e-8 the ring of vertices round each pole became poles (their u the mean of their faces'
+    other corners), at 1e-12 every vertex did (every u 0: the whole texture one column). Globe.from_latlon takes any
+    radius from 1.18e-38; the drape depends on the directions alone: the same vertices, faces and UVs at any scale."""
+    from stepterrain.globe import drape_texture
+
+    mesh = Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=65, radius=1.0, device="cpu").mesh()
+    image = np.zeros((4, 8, 3), np.uint8)
+    unit = drape_texture(mesh, image)
+    scaled = mesh.copy()
+    scaled.vertices = mesh.vertices * radius
+    got = drape_texture(scaled, image)
+    np.testing.assert_array_equal(got.faces, unit.faces)
+    np.testing.assert_array_equal(got.visual.uv, unit.visual.uv)
+    np.testing.assert_array_equal(got.vertices, unit.vertices * radius)
