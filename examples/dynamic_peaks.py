@@ -3,8 +3,8 @@
 A time series of heightfields (T, H, W) -- a few Gaussian peaks drifting on circles while their amplitude
 rises and falls, over a gently undulating base -- goes through :func:`stepterrain.stepped_series`, which
 compiles the Warp kernels once and reuses the device buffers for every frame. Each stepped frame is rendered
-off-screen with a fixed camera and the frames are written as an animated GIF (imageio) beside a PNG of the
-middle frame.
+off-screen with a fixed camera and the frames are written as an animated GIF (:func:`stepterrain.save_animation`)
+beside a PNG of the middle frame.
 
     python examples/dynamic_peaks.py --size 128 --frames 48 --output out/dynamic_peaks.png
 """
@@ -16,13 +16,14 @@ import sys
 import time
 from pathlib import Path
 
-import imageio.v3 as iio
 import numpy as np
 
 import stepterrain as st
 from stepterrain.cli import check_example_outputs, usage_errors
-from stepterrain.export import atomic_path
+from stepterrain.closeup import save_animation
 from stepterrain.render import render_mesh, save_png
+
+FRAME_MS = 80  # display time of one GIF frame: 12.5 frames per second
 
 
 def moving_peaks(size: int, frames: int, *, n_peaks: int = 5, seed: int = 7) -> np.ndarray:
@@ -90,10 +91,8 @@ def run(args: argparse.Namespace) -> int:
         images.append(render_mesh(mesh, window_size=tuple(args.window), z_scale=0.45, bounds=bounds))
     elapsed = time.perf_counter() - start
 
-    gif = args.output.with_suffix(".gif")
-    gif.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(gif) as tmp:
-        iio.imwrite(tmp, np.stack(images), extension=".gif", duration=80, loop=0)
+    # through the library: atomic, a full disk a DataFileError naming the file (a usage error here), 80 ms a frame
+    gif = save_animation(images, args.output.with_suffix(".gif"), fps=1000.0 / FRAME_MS)
     save_png(images[len(images) // 2], args.output)
     print(f"wrote {gif} and {args.output}: {len(images)} frames of {args.size} x {args.size} "
           f"in {elapsed:.1f} s", file=sys.stderr)

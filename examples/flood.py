@@ -26,13 +26,13 @@ from stepterrain import get_memory_budget
 from stepterrain.cli import add_dem_option, check_example_outputs, example_dem, usage_errors
 from stepterrain.closeup import save_animation
 from stepterrain.errors import InvalidInputError, MissingDependencyError, OutputTooLargeError
-from stepterrain.export import atomic_path, save_image
+from stepterrain.export import save_image
 from stepterrain.texture import TextureAnimation, blend, modulate, terrain_layer, topographic_layer
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from textures import crop_sample  # noqa: E402
 
-FRAME_MS = 120  # display time of one frame (GIF duration; the MP4 runs at 1000 / FRAME_MS frames per second)
+FRAME_MS = 120  # display time of one frame: the GIF and the MP4 run at 1000 / FRAME_MS frames per second
 
 
 def require_video() -> None:
@@ -149,12 +149,8 @@ def run(args: argparse.Namespace) -> int:
         water = animation.frame(float(t), device=args.device)
         frames.append(square_pixels(np.asarray(blend(shaded, water, device=args.device).to_uint8(background=(1, 1, 1))),
                                     (width, height)))
-    import imageio.v3 as iio
-
-    gif = args.output.with_suffix(".gif")
-    with atomic_path(gif) as tmp:
-        iio.imwrite(tmp, np.stack(frames), extension=".gif", duration=FRAME_MS, loop=0)
-    written = [gif]
+    # through the library, as the MP4: atomic, a full disk a DataFileError naming the file (a usage error here)
+    written = [save_animation(frames, args.output.with_suffix(".gif"), fps=1000.0 / FRAME_MS)]
     if args.mp4:
         written.append(write_mp4(frames, args.output.with_suffix(".mp4")))
     save_image(frames[-1], args.output)

@@ -182,6 +182,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         TRANSFER_PRESETS,
         AnchorStyle,
         CloseUp,
+        _check_animation,
         _check_fps,
         _check_mp4_size,
         _closeup_scale,
@@ -360,6 +361,8 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         raise InvalidInputError(f"no --roi or --roi-relative given: the default close-up at the DEM's centre (radius "
                                 f"{rois[0][2]:g}, 0.12 of its shorter side) {text[len('closeups[0]: '):]}; give "
                                 "--roi x,y,r or --roi-relative fx,fy,fr over the terrain") from None
+    if frames is not None and anim is not None:  # before any file: a GIF refused for its runs of identical frames
+        _check_animation(frames, anim, args.fps)  # (--spin 1e-12 at a slow --fps) left the mesh and PNG written
     if scene is not None and mesh_out is not None:
         from .export import save_mesh
 

@@ -2984,19 +2984,9 @@ def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[
     takes any size up to 65535 pixels each way. A GIF's frame k starts at k / fps rounded to the nearest hundredth
     of a second, and identical consecutive frames are one GIF frame as long as all of them (refused past a GIF
     delay's 655.35 s)."""
-    from .export import _target, atomic_path
+    from .export import atomic_path
 
-    target = _target(path)  # 5 or b"x.gif" raised pathlib's TypeError
-    suffix = target.suffix.lower()
-    if suffix not in (".gif", ".mp4"):
-        raise InvalidInputError(f"animation path must end in .gif or .mp4; got {str(path)!r}")
-    fps = _check_fps(fps, suffix)
-    stack = _check_frames(frames)
-    if suffix == ".mp4":
-        _check_mp4_size(stack[0].shape[1], stack[0].shape[0], "frames")
-    else:
-        _check_gif_size(stack[0].shape[1], stack[0].shape[0], "frames")
-        _check_gif_runs(stack, fps)
+    target, suffix, fps, stack = _check_animation(frames, path, fps)
     import imageio.v3 as iio
 
     if suffix == ".mp4":
@@ -3021,6 +3011,27 @@ def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[
                 raise
             raise DataFileError(f"cannot write {str(target)!r}: {exc.strerror or exc}") from exc
     return target
+
+
+def _check_animation(frames: Any, path: Any, fps: Any) -> tuple[Path, str, float, list[NDArray[np.uint8]]]:
+    """Every check :func:`save_animation` makes before it writes: the target path, its suffix (".gif" or ".mp4"), the
+    fps as a float and the frames as (H, W, 3) uint8 images, else an InvalidInputError. A caller writing other files
+    with the animation (the CLI's ``closeup``: a mesh, a PNG) runs it first: a GIF refused for its runs of identical
+    frames left the other files written (the old ones replaced), though the run failed."""
+    from .export import _target
+
+    target = _target(path)  # 5 or b"x.gif" raised pathlib's TypeError
+    suffix = target.suffix.lower()
+    if suffix not in (".gif", ".mp4"):
+        raise InvalidInputError(f"animation path must end in .gif or .mp4; got {str(path)!r}")
+    fps = _check_fps(fps, suffix)
+    stack = _check_frames(frames)
+    if suffix == ".mp4":
+        _check_mp4_size(stack[0].shape[1], stack[0].shape[0], "frames")
+    else:
+        _check_gif_size(stack[0].shape[1], stack[0].shape[0], "frames")
+        _check_gif_runs(stack, fps)
+    return target, suffix, fps, stack
 
 
 def _check_mp4_size(width: int, height: int, name: str) -> None:

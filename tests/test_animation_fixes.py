@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import math
 
 import numpy as np
@@ -126,3 +127,42 @@ def test_gif_frames_wider_or_taller_than_a_gif_stores_are_refused_naming_their_s
                                                 rf"{shape[1]}x{shape[0]}$"):
         save_animation(frames, tmp_path / "wide.gif", fps=12.0)
     assert list(tmp_path.iterdir()) == []
+
+
+_EXAMPLE_GIFS = {  # the example, small arguments, its GIF's delay per frame in ms
+    "flood": (["--size", "16", "--frames", "3", "--keyframes", "2", "--device", "cpu"], 120),
+    "dynamic_peaks": (["--size", "12", "--frames", "3", "--window", "64", "48", "--device", "cpu"], 80),
+}
+
+
+@pytest.mark.parametrize("name", sorted(_EXAMPLE_GIFS))
+def test_example_gif_on_a_full_disk_is_a_usage_error_keeping_the_old_gif(tmp_path, monkeypatch, capsys, name):
+    """examples/flood.py and dynamic_peaks.py wrote their GIF through imageio directly: a full disk ended them in the
+    bare OSError "[Errno 28] No space left on device" (a traceback naming no file), and imageio's plugin wrote its
+    queued frames once more in __del__, a second traceback. Through save_animation it is one usage-error line naming
+    the GIF (exit 2); the old GIF stays, nothing else is written. Each frame keeps the delay the example gave it."""
+    from PIL import ImageFile
+
+    from .test_examples import load_example
+
+    argv, delay = _EXAMPLE_GIFS[name]
+    out = tmp_path / f"{name}.png"
+    assert load_example(name).main([*argv, "--output", str(out)]) == 0
+    assert gif_delays(out.with_suffix(".gif")) == [delay] * 3  # the frames differ: none merged
+    capsys.readouterr()
+
+    old = tmp_path / "full" / f"{name}.gif"
+    old.parent.mkdir()
+    old.write_bytes(b"the old animation")
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(ImageFile, "_save", full)
+    with pytest.raises(SystemExit) as exit_info:
+        load_example(name).main([*argv, "--output", str(old.with_suffix(".png"))])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert f"error: cannot write {str(old)!r}: No space left on device" in err and "Traceback" not in err, err
+    assert [p.name for p in old.parent.iterdir()] == [old.name]
+    assert old.read_bytes() == b"the old animation"

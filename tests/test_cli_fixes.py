@@ -2594,3 +2594,20 @@ def test_info_with_stdout_closed_is_an_error_not_a_silent_success(dem, capsys, m
     assert code == 2 and "stepterrain info: error: standard output is closed" in err, err
     code = cli.main(["info", str(tmp := dem.with_suffix(".ply"))])
     assert code == 2 and "standard output is closed" in capsys.readouterr().err and not tmp.exists()
+
+
+@needs_render
+def test_closeup_gif_refused_for_identical_frames_writes_no_mesh_or_png(tmp_path, capsys):
+    """``closeup --gif --spin 1e-12 --fps 0.002`` shows identical frames of 500 s each: two of them are one GIF frame of
+    1000 s, past a GIF delay's 655.35 s. save_animation refused it, but only after the scene mesh and the PNG were
+    written (the old ones replaced, though the run failed). Now refused before any file is written."""
+    mesh, png, gif = tmp_path / "c.glb", tmp_path / "c.png", tmp_path / "spin.gif"
+    for path in (mesh, png):
+        path.write_bytes(b"an earlier output")
+    code, _, err = run(capsys, "-q", "closeup", "--size", "96x72", "--gif", gif, "--spin", "1e-12", "--fps", "0.002",
+                       "--frames", "2", "-o", mesh, "--png", png)
+    assert code == 2
+    assert ("--fps 0.002 shows frames[0] to frames[1] (identical: one GIF frame) for 1000 s, longer than a GIF "
+            "frame's longest delay (655.35 s)") in one_error_line(err, "closeup")
+    assert mesh.read_bytes() == png.read_bytes() == b"an earlier output"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.glb", "c.png"]
