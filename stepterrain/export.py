@@ -23,6 +23,7 @@ import os
 import queue
 import re
 import secrets
+import shutil
 import stat
 import string
 import struct
@@ -221,13 +222,149 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
                     _keep_owner(tmp_path, old)  # before chmod: a change of owner clears set-id bits
                 with contextlib.suppress(OSError):
                     os.chmod(tmp_path, stat.S_IMODE(old.st_mode))
-            os.replace(tmp_path, target)
+            together = _TOGETHER.get()
+            if together is None:
+                os.replace(tmp_path, target)
         except OSError as exc:
             raise DataFileError(f"cannot write {str(target)!r}: {exc.strerror}") from exc
     except BaseException:
         with contextlib.suppress(OSError):
             tmp_path.unlink()
         raise
+    if together is not None:  # renamed by _replaced_together's end, or removed there
+        together.staged.append((tmp_path, target))
+
+
+class _Replacements:
+    """The files :func:`atomic_path` staged within one :func:`_replaced_together`: (temporary, target) in the order
+    their blocks ended."""
+
+    def __init__(self) -> None:
+        self.staged: list[tuple[Path, Path]] = []
+
+    def discard(self) -> None:
+        for tmp, _ in self.staged:
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+
+    def commit(self) -> None:
+        """Rename each temporary file onto its target, in order; on a failure (or an interrupt) part-way, the targets
+        already replaced get their old files back (kept under a hard link, their own inode: content, mode, owner)
+        and those that did not exist are removed, before the error goes on."""
+        done: list[tuple[Path, Path | None]] = []  # target, its old file's backup (None: there was none)
+        pending = list(self.staged)
+        try:
+            while pending:
+                tmp, target = pending[0]
+                # the last one needs no backup: its failure replaced nothing, and once it is in place all are
+                backup = _backup(target) if len(pending) > 1 else None
+                try:
+                    os.replace(tmp, target)
+                except BaseException as exc:  # (an interrupt too: the backup is of a file not replaced)
+                    if backup is not None:
+                        with contextlib.suppress(OSError):
+                            backup.unlink()
+                    if isinstance(exc, OSError):
+                        raise DataFileError(f"cannot write {str(target)!r}: {exc.strerror}") from exc
+                    raise
+                pending.pop(0)
+                done.append((target, backup))
+        except BaseException as exc:
+            for tmp, _ in pending:
+                with contextlib.suppress(OSError):
+                    tmp.unlink()
+            lost = _roll_back(done)
+            if lost and isinstance(exc, DataFileError):
+                raise DataFileError(f"{exc}; and then {lost}") from exc
+            raise
+        for _, backup in done:
+            if backup is not None:
+                with contextlib.suppress(OSError):
+                    backup.unlink()
+
+
+def _backup(target: Path) -> Path | None:
+    """A second name (``.<name>.XXXXXXXX.tmp`` beside it) for the existing file ``target``, by which
+    :class:`_Replacements` puts it back: a hard link (the file itself), or where the file system has none, a copy
+    with its mode and owner; None where there is no ``target``."""
+    try:
+        old = os.stat(target)
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        raise DataFileError(f"cannot write {str(target)!r}: {exc.strerror}") from exc
+    try:
+        for _ in range(100):
+            backup = target.parent / f".{_temporary_stem(target.name)}.{secrets.token_hex(4)}.tmp"
+            try:
+                os.link(target, backup)
+                return backup
+            except FileExistsError:
+                continue
+            except OSError as exc:
+                if exc.errno not in (errno.EPERM, errno.EXDEV, errno.EMLINK, errno.ENOTSUP, errno.ENOSYS,
+                                     getattr(errno, "EOPNOTSUPP", errno.ENOTSUP)):
+                    raise
+                break  # no hard links here (FAT, some network shares): a copy
+        backup = _new_temporary(target.parent, target.name)
+        try:
+            shutil.copyfile(target, backup)
+            with contextlib.suppress(OSError):
+                _keep_owner(backup, old)
+            with contextlib.suppress(OSError):
+                os.chmod(backup, stat.S_IMODE(old.st_mode))
+        except BaseException:
+            with contextlib.suppress(OSError):
+                backup.unlink()
+            raise
+        return backup
+    except OSError as exc:
+        raise DataFileError(f"cannot write {str(target)!r}: its old file could not be kept to put back if a file "
+                            f"written with it failed: {exc.strerror}") from exc
+
+
+def _roll_back(done: list[tuple[Path, Path | None]]) -> str:
+    """Put back the old files of the targets :class:`_Replacements` replaced (``done``: target, backup), last first;
+    remove those that were new. Returns what could not be undone (the backup's name, where the old file is), or ""."""
+    lost = []
+    for target, backup in reversed(done):
+        try:
+            if backup is None:
+                os.unlink(target)
+            else:
+                os.replace(backup, target)
+        except OSError as exc:
+            where = f"its old content is in {str(backup)!r}" if backup is not None else "it is the new file"
+            lost.append(f"{str(target)!r} could not be put back ({exc.strerror}; {where})")
+    return "; ".join(lost)
+
+
+#: The :class:`_Replacements` :func:`atomic_path` adds its file to, within :func:`_replaced_together`.
+_TOGETHER: contextvars.ContextVar[_Replacements | None] = contextvars.ContextVar("stepterrain_together", default=None)
+
+
+@contextlib.contextmanager
+def _replaced_together() -> Iterator[None]:
+    """Within (this thread or task): :func:`atomic_path` stages its file (written, flushed, given the old file's mode
+    and owner) and the block's end renames them all into place, in the order their ``atomic_path`` blocks ended; an
+    error in the block removes them all. A rename that fails part-way puts back the files renamed before it (see
+    :meth:`_Replacements.commit`): the files of one output (a textured OBJ's ``.obj``, ``.mtl`` and images) are then
+    all new or all old, where a failure of the second rename left the new texture beside the old OBJ. (A crash of
+    the machine during the renames can still leave a mix: each rename is atomic, the set is not.) Nested: the
+    outermost block's end renames."""
+    if _TOGETHER.get() is not None:
+        yield
+        return
+    together = _Replacements()
+    token = _TOGETHER.set(together)
+    try:
+        yield
+    except BaseException:
+        _TOGETHER.reset(token)
+        together.discard()
+        raise
+    _TOGETHER.reset(token)
+    together.commit()
 
 
 def _refuse_read_only(target: Path) -> None:
@@ -517,7 +654,10 @@ def save_mesh(
     a JPEG) beside ``path`` (whitespace in the stem becomes ``_``: OBJ and MTL readers split file names on it; an
     image with transparent texels is also the MTL's dissolve, ``map_d -imfchan m``; its ``Kd`` is white and ``Ks``
     black unless the material sets a base colour, so the texture shows at full brightness, matte; a base colour's
-    alpha below 1 is its dissolve ``d``), each atomically, once the OBJ itself is complete; one that would
+    alpha below 1 is its dissolve ``d``), each atomically, once the OBJ itself is complete, and renamed into place
+    just before it: a failure of one of these renames (or an interrupt) puts back the files renamed before it (the
+    old files themselves, or none where there were none), so the OBJ and its side files are all new or all old
+    (a crash of the machine part-way can still leave a mix); one that would
     replace an image :func:`save_image` wrote in this process, or a side file of another OBJ, is refused (a
     DataFileError) before any is written. The file appears complete or not at all: the mesh is
     written to a temporary file in the same folder and renamed, and an existing ``path`` is untouched
@@ -573,7 +713,8 @@ def save_mesh(
         _pil_textures(getattr(prepared.visual, "material", None))  # before any folder or file is made
         if ext in (".glb", ".gltf"):  # its sampler's wrap (_sampler_postprocessor): a bad one was refused in the
             texture_wrap(getattr(prepared.visual, "material", None))  # writer, after atomic_path made the folders
-    with atomic_path(target) as tmp:
+    # a textured OBJ's side files (.mtl, images) and the OBJ itself go into place together, all or none of them
+    with _replaced_together(), atomic_path(target) as tmp:
         try:
             if ext in (".glb", ".gltf"):
                 writer(prepared, tmp, target, bounds, frame, anchor)
@@ -1701,14 +1842,14 @@ def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
     _check_owner(paths, target)  # all of them before the first is written
     with contextlib.ExitStack() as side_files:
         # each side file replaces its old one only once the OBJ is complete: written first, an OBJ that then failed
-        # (disk full, interrupted, a folder in its place) left the old OBJ with the new texture, or side files of no OBJ
+        # (disk full, interrupted, a folder in its place) left the old OBJ with the new texture, or side files of no
+        # OBJ. Within save_mesh's _replaced_together, they are renamed after the OBJ is written and flushed, just
+        # before the OBJ itself, and a failed rename puts back the files renamed before it (all old, or all new)
         for path, data in zip(paths, sidecars.values(), strict=True):
             side_files.enter_context(atomic_path(path)).write_bytes(data)
         _write_obj_text(mesh, tmp, mtl_name, material, uv)
-        # flushed as atomic_path will (once more, cheaply) before the side files replace theirs: its failure left
-        # the old OBJ with the new texture
-        if sidecars:
-            _flush_if_replacing(tmp, os.path.exists(target))
+        if sidecars and _TOGETHER.get() is None:  # (outside one, the side files are renamed first: the OBJ is
+            _flush_if_replacing(tmp, os.path.exists(target))  # flushed before, as atomic_path will)
     _record_owner(paths, target)
 
 
