@@ -1184,6 +1184,12 @@ def save_image(
         ``+proj=ob_tran``) goes into ``<path>.aux.xml`` beside it, which GDAL reads with the image; an image written
         over one removes the ``.aux.xml`` it has no use for. So does a PNG or plain TIFF: an old ``<path>.aux.xml``
         (an earlier GeoTIFF's, GDAL's of a PNG it wrote) would give it the old image's CRS, placement and nodata.
+        The image and its side file are put in place together: a failure of either rename keeps the old image with
+        its old side file. A ``path`` that is a symbolic link is written through (see :func:`atomic_path`); GDAL
+        reads the side file beside the name it opens, so the side file goes beside both the link and the file it
+        points to, and an old one beside either is removed. A world file beside ``path`` (``.pgw``, ``.tfw``,
+        ``.wld``) is kept: stepterrain writes none, so it is the user's (an orthophoto re-rendered under its name).
+        GDAL places a PNG or plain TIFF by it, and a GeoTIFF by its own georeferencing, which GDAL prefers.
 
     Returns
     -------
@@ -1261,8 +1267,8 @@ def _save_image(image: ArrayLike, path: str | os.PathLike[str], *, extent: Any =
     # an old <image>.aux.xml (GDAL's side file of an earlier GeoTIFF or GDAL write of this name: CRS, geotransform,
     # nodata) stayed, and GDAL read the new image with it; it goes aside just before the image's rename, as a
     # GeoTIFF's does (_save_geotiff), and is removed once the image is in place (back if the rename fails)
-    own_aux = _side_file(target)
-    aside: Path | None = None
+    sides = _side_files_of(target)
+    asides: list[tuple[Path | None, Path]] = []
     placed = False
     try:
         with atomic_path(target) as tmp:
@@ -1281,10 +1287,10 @@ def _save_image(image: ArrayLike, path: str | os.PathLike[str], *, extent: Any =
             if suffix == ".png" and reused and options:  # a large one: a glTF of it takes its bytes
                 with contextlib.suppress(OSError):
                     stamp = _file_stamp(tmp)  # the bytes written, before the rename (see _LAST_PNG)
-            aside = _set_aside(own_aux, target)
+            asides = _set_aside_all(sides, target)
         placed = True
     finally:
-        _settle_aside(aside, own_aux, placed)
+        _settle_asides(asides, placed)
     _record_owner([target], target)
     if stamp is not None:
         _LAST_PNG[:] = [(_pixels_digest(picture, pixels), target.absolute(), stamp)]
@@ -1399,12 +1405,16 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
     # plus ".aux.xml" was over the 255 bytes a name may have, GDAL wrote no side file, and the CRS was lost without a
     # word, where "<name>.aux.xml" fits up to 247 bytes. GDAL then writes to a shorter temporary, renamed onto tmp,
     # and a CRS that needs a side file the image's name leaves no room for is refused before the image is put in place
-    own_aux = _side_file(target)
-    aside: Path | None = None
+    # Through a link, GDAL reads the side file beside the name it opens, the link's: the new one goes beside both the
+    # link and its target, an old one beside either is set aside. The image and its new side files are renamed
+    # together (_replaced_together), the image first: a failed rename of a side file put in place the new image
+    # without its CRS, and removed the old one's
+    sides = _side_files_of(target)
+    asides: list[tuple[Path | None, Path]] = []
     placed = False
     try:
-        with contextlib.ExitStack() as side_file:  # its exit, the new side file's rename, follows the image's
-            with atomic_path(target) as tmp:
+        with _replaced_together(), contextlib.ExitStack() as side_file:  # its exit stages the new side files after
+            with atomic_path(target) as tmp:  # the image
                 written = tmp
                 try:
                     if len(os.fsencode(tmp.name + ".aux.xml")) > _NAME_MAX:
@@ -1421,7 +1431,7 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
                         _check_side_file_crs(written, aux, crs, target)
                     if written != tmp:
                         os.replace(written, tmp)
-                    if os.path.exists(aux):
+                    for own_aux in sides if os.path.exists(aux) else ():
                         if len(os.fsencode(own_aux.name)) > _NAME_MAX:
                             raise DataFileError(
                                 f"cannot write {str(target)!r} with its crs: GeoTIFF's keys cannot hold that CRS, and "
@@ -1447,10 +1457,10 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
                     if written != tmp:  # (gone when renamed onto tmp)
                         with contextlib.suppress(OSError):
                             written.unlink()
-                aside = _set_aside(own_aux, target)
-            placed = True
+                asides = _set_aside_all(sides, target)
+        placed = True
     finally:
-        _settle_aside(aside, own_aux, placed)
+        _settle_asides(asides, placed)
     _record_owner([target], target)
     return target
 
@@ -1474,6 +1484,34 @@ def _side_file(image: Path) -> Path:
     :func:`atomic_path` writes)."""
     own = _link_target(image)
     return own.with_name(own.name + ".aux.xml")
+
+
+def _side_files_of(image: Path) -> list[Path]:
+    """The side files GDAL may read with ``image``: :func:`_side_file` and, where ``image`` is a symbolic link,
+    ``<name>.aux.xml`` beside the link (GDAL reads the one beside the name it opens: the link's, when the image is
+    opened by the name it was written to)."""
+    own = _side_file(image)
+    named = image.with_name(image.name + ".aux.xml")
+    return [own] if os.path.abspath(named) == os.path.abspath(own) else [own, named]
+
+
+def _set_aside_all(sides: list[Path], image: Path) -> list[tuple[Path | None, Path]]:
+    """:func:`_set_aside` of each of ``sides``: (aside, side) pairs for :func:`_settle_asides`; those set aside are
+    put back when one cannot be."""
+    done: list[tuple[Path | None, Path]] = []
+    try:
+        for side in sides:
+            done.append((_set_aside(side, image), side))
+    except BaseException:
+        _settle_asides(done, False)
+        raise
+    return done
+
+
+def _settle_asides(asides: list[tuple[Path | None, Path]], placed: bool) -> None:
+    """:func:`_settle_aside` of each (aside, side) pair of :func:`_set_aside_all`."""
+    for aside, side in asides:
+        _settle_aside(aside, side, placed)
 
 
 def _settle_aside(aside: Path | None, side: Path, placed: bool) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import errno
 import os
+import warnings
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ import trimesh
 from PIL import Image
 
 from stepterrain.errors import DataFileError
-from stepterrain.export import save_mesh
+from stepterrain.export import save_image, save_mesh
 
 
 def _textured(color: tuple[int, int, int], alpha: bool = False) -> trimesh.Trimesh:
@@ -156,3 +157,84 @@ def test_a_file_that_cannot_be_put_back_is_named_with_where_its_old_content_is(t
     monkeypatch.undo()
     kept = [path for path in tmp_path.iterdir() if path.name.startswith(".t_material_0.png.")]
     assert len(kept) == 1 and kept[0].read_bytes() == old_texture  # never lost
+
+
+_OB_TRAN = "+proj=ob_tran +o_proj=longlat +o_lon_p=0 +o_lat_p=30 +lon_0=10 +datum=WGS84 +no_defs"
+_STALE_AUX = "<PAMDataset><SRS>EPSG:4326</SRS><GeoTransform>100, 1, 0, 50, 0, -1</GeoTransform></PAMDataset>"
+
+
+def _placement(path) -> tuple[object, tuple[float, ...]]:
+    rasterio = pytest.importorskip("rasterio")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # NotGeoreferencedWarning
+        with rasterio.open(path) as dataset:
+            return dataset.crs, tuple(dataset.transform)[:6]
+
+
+@pytest.mark.parametrize("name", ["l.png", "l.tif"])
+def test_an_image_written_through_a_link_drops_the_stale_side_file_beside_the_link(tmp_path, name):
+    # GDAL reads <name>.aux.xml beside the name it opens, the link's: save_image removed only the one beside the
+    # link's target, and the new image read through the link had the old one's CRS and placement
+    pytest.importorskip("rasterio")
+    target = tmp_path / f"target{name[1:]}"
+    save_image(np.zeros((4, 6, 3), np.uint8), target)
+    (tmp_path / name).symlink_to(target.name)
+    (tmp_path / f"{name}.aux.xml").write_text(_STALE_AUX)
+    assert _placement(tmp_path / name)[0] is not None  # (GDAL reads it)
+    save_image(np.ones((4, 6, 3), np.uint8), tmp_path / name)
+    assert _placement(tmp_path / name) == _placement(target) == (None, (1.0, 0.0, 0.0, 0.0, 1.0, 0.0))
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([name, target.name])
+
+
+def test_a_geotiff_written_through_a_link_reads_back_with_its_crs_through_the_link(tmp_path):
+    # a CRS GeoTIFF's keys cannot hold went into <target>.aux.xml beside the link's target only: read through the
+    # link, the name written, the image had no CRS
+    rasterio = pytest.importorskip("rasterio")
+    crs = rasterio.crs.CRS.from_user_input(_OB_TRAN)
+    target = tmp_path / "data" / "target.tif"
+    target.parent.mkdir()
+    save_image(np.zeros((4, 6, 3), np.uint8), target)
+    (tmp_path / "l.tif").symlink_to(target)
+    (tmp_path / "l.tif.aux.xml").write_text(_STALE_AUX)
+    save_image(np.ones((4, 6, 3), np.uint8), tmp_path / "l.tif", extent=(0, 6, 0, 4), crs=_OB_TRAN)
+    assert _placement(tmp_path / "l.tif")[0] == crs and _placement(target)[0] == crs
+    assert _placement(tmp_path / "l.tif")[1] == (1.0, 0.0, 0.0, 0.0, -1.0, 4.0)
+
+
+@pytest.mark.parametrize("failing", ["image", "side file"])
+def test_a_geotiff_whose_side_file_cannot_be_put_in_place_keeps_the_old_image_and_side_file(tmp_path, monkeypatch,
+                                                                                              failing):
+    # the image was renamed into place first and its side file (the CRS) after: a failure of that second rename left
+    # the new image without its CRS, the old side file removed
+    pytest.importorskip("rasterio")
+    target = tmp_path / "t.tif"
+    save_image(np.zeros((4, 6, 3), np.uint8), target, extent=(0, 6, 0, 4), crs=_OB_TRAN)
+    old = _files(tmp_path)
+    assert sorted(old) == ["t.tif", "t.tif.aux.xml"]
+    real = os.replace
+    failed = []
+
+    def replace(src, dst):  # the first rename onto the file, not the one putting the old file back
+        if not failed and os.path.basename(dst) == {"image": "t.tif", "side file": "t.tif.aux.xml"}[failing]:
+            failed.append(dst)
+            raise OSError(errno.EIO, "Input/output error")
+        real(src, dst)
+
+    monkeypatch.setattr(os, "replace", replace)
+    with pytest.raises(DataFileError, match="Input/output error"):
+        save_image(np.ones((4, 6, 3), np.uint8), target, extent=(10, 16, 0, 4), crs=_OB_TRAN)
+    monkeypatch.undo()
+    assert _files(tmp_path) == old
+    assert _placement(target)[1] == (1.0, 0.0, 0.0, 0.0, -1.0, 4.0)
+
+
+@pytest.mark.parametrize("suffix, world", [(".png", ".pgw"), (".tif", ".tfw")])
+def test_a_world_file_beside_a_plain_image_is_the_users_and_kept(tmp_path, suffix, world):
+    # stepterrain writes no world file: one beside the image is the user's (the extent of an orthophoto re-rendered
+    # under its name), kept as save_image documents, and GDAL places the new image by it
+    target = tmp_path / f"i{suffix}"
+    save_image(np.zeros((4, 6, 3), np.uint8), target)
+    (tmp_path / f"i{world}").write_text("1\n0\n0\n-1\n100.5\n49.5\n")
+    save_image(np.ones((4, 6, 3), np.uint8), target)
+    assert (tmp_path / f"i{world}").exists()
+    assert _placement(target)[1] == (1.0, 0.0, 100.0, 0.0, -1.0, 50.0)
