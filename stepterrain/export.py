@@ -239,8 +239,9 @@ class _Replacements:
     """The files :func:`atomic_path` staged within one :func:`_replaced_together`: (temporary, target) in the order
     their blocks ended."""
 
-    def __init__(self) -> None:
+    def __init__(self, what: str = "") -> None:
         self.staged: list[tuple[Path, Path]] = []
+        self.what = what  # what a target is, in an error ("the pyramid level ")
 
     def discard(self) -> None:
         for tmp, _ in self.staged:
@@ -265,7 +266,7 @@ class _Replacements:
                         with contextlib.suppress(OSError):
                             backup.unlink()
                     if isinstance(exc, OSError):
-                        raise DataFileError(f"cannot write {str(target)!r}: {exc.strerror}") from exc
+                        raise DataFileError(f"cannot write {self.what}{str(target)!r}: {exc.strerror}") from exc
                     raise
                 pending.pop(0)
                 done.append((target, backup))

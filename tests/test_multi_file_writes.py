@@ -238,3 +238,22 @@ def test_a_world_file_beside_a_plain_image_is_the_users_and_kept(tmp_path, suffi
     save_image(np.ones((4, 6, 3), np.uint8), target)
     assert (tmp_path / f"i{world}").exists()
     assert _placement(target)[1] == (1.0, 0.0, 100.0, 0.0, -1.0, 50.0)
+
+
+def test_a_pyramid_whose_nth_level_rename_fails_leaves_the_storage_as_it_was(tmp_path, monkeypatch):
+    # the level files were renamed into place one at a time: a failure part-way left the storage with the new image's
+    # first levels beside the old one's last (a pyramid reopened from it mixed the two images)
+    from stepterrain.texture_lod import ImagePyramid
+
+    rng = np.random.default_rng(1)
+    storage = tmp_path / "levels"
+    first = rng.integers(0, 256, (16, 16, 3), dtype=np.uint8)
+    ImagePyramid.build(first, storage=storage).close()
+    old = _files(storage)
+    assert len(old) == 4  # levels 1-4 (level 0 is the array itself)
+    for n in (2, 4):
+        calls = _failing_replace(monkeypatch, n)
+        with pytest.raises(DataFileError, match=r"cannot write the pyramid level .*Input/output error"):
+            ImagePyramid.build(rng.integers(0, 256, (16, 16, 3), dtype=np.uint8), storage=storage)
+        monkeypatch.undo()
+        assert len(calls) >= n and _files(storage) == old, f"rename {n} failed"
