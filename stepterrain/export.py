@@ -1186,9 +1186,11 @@ def save_image(
         over one removes the ``.aux.xml`` it has no use for. So does a PNG or plain TIFF: an old ``<path>.aux.xml``
         (an earlier GeoTIFF's, GDAL's of a PNG it wrote) would give it the old image's CRS, placement and nodata.
         The image and its side file are put in place together: a failure of either rename keeps the old image with
-        its old side file. A ``path`` that is a symbolic link is written through (see :func:`atomic_path`); GDAL
-        reads the side file beside the name it opens, so the side file goes beside both the link and the file it
-        points to, and an old one beside either is removed. A world file beside ``path`` (``.pgw``, ``.tfw``,
+        its old side file. A ``path`` that is a symbolic link is written through (see :func:`atomic_path`): the side
+        file goes beside the file the link points to, and an old one beside the link is removed too. GDAL reads the
+        side file beside the name it opens: such a CRS is read through the file's own name, not through the link
+        (a copy beside the link would go stale once the file is written by its own name, or the link
+        pointed elsewhere, and give another image its CRS). A world file beside ``path`` (``.pgw``, ``.tfw``,
         ``.wld``) is kept: stepterrain writes none, so it is the user's (an orthophoto re-rendered under its name).
         GDAL places a PNG or plain TIFF by it, and a GeoTIFF by its own georeferencing, which GDAL prefers.
 
@@ -1406,10 +1408,10 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
     # plus ".aux.xml" was over the 255 bytes a name may have, GDAL wrote no side file, and the CRS was lost without a
     # word, where "<name>.aux.xml" fits up to 247 bytes. GDAL then writes to a shorter temporary, renamed onto tmp,
     # and a CRS that needs a side file the image's name leaves no room for is refused before the image is put in place
-    # Through a link, GDAL reads the side file beside the name it opens, the link's: the new one goes beside both the
-    # link and its target, an old one beside either is set aside. The image and its new side files are renamed
-    # together (_replaced_together), the image first: a failed rename of a side file put in place the new image
-    # without its CRS, and removed the old one's
+    # Through a link, GDAL reads the side file beside the name it opens, the link's: an old one beside the link is set
+    # aside too (the new one goes beside the file the link points to alone: see save_image's crs). The image and its
+    # new side file are renamed together (_replaced_together), the image first: a failed rename of the side file put
+    # in place the new image without its CRS, and removed the old one's
     sides = _side_files_of(target)
     asides: list[tuple[Path | None, Path]] = []
     placed = False
@@ -1432,7 +1434,7 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
                         _check_side_file_crs(written, aux, crs, target)
                     if written != tmp:
                         os.replace(written, tmp)
-                    for own_aux in sides if os.path.exists(aux) else ():
+                    for own_aux in sides[:1] if os.path.exists(aux) else ():  # beside the file itself
                         if len(os.fsencode(own_aux.name)) > _NAME_MAX:
                             raise DataFileError(
                                 f"cannot write {str(target)!r} with its crs: GeoTIFF's keys cannot hold that CRS, and "

@@ -186,9 +186,9 @@ def test_an_image_written_through_a_link_drops_the_stale_side_file_beside_the_li
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([name, target.name])
 
 
-def test_a_geotiff_written_through_a_link_reads_back_with_its_crs_through_the_link(tmp_path):
-    # a CRS GeoTIFF's keys cannot hold went into <target>.aux.xml beside the link's target only: read through the
-    # link, the name written, the image had no CRS
+def test_a_geotiff_written_through_a_link_drops_the_stale_side_file_beside_the_link(tmp_path):
+    # with a CRS GeoTIFF's keys cannot hold, the new side file goes beside the file the link points to, and the stale
+    # one beside the link (which GDAL reads through the link) is removed, not left to give the image its CRS
     rasterio = pytest.importorskip("rasterio")
     crs = rasterio.crs.CRS.from_user_input(_OB_TRAN)
     target = tmp_path / "data" / "target.tif"
@@ -197,8 +197,9 @@ def test_a_geotiff_written_through_a_link_reads_back_with_its_crs_through_the_li
     (tmp_path / "l.tif").symlink_to(target)
     (tmp_path / "l.tif.aux.xml").write_text(_STALE_AUX)
     save_image(np.ones((4, 6, 3), np.uint8), tmp_path / "l.tif", extent=(0, 6, 0, 4), crs=_OB_TRAN)
-    assert _placement(tmp_path / "l.tif")[0] == crs and _placement(target)[0] == crs
-    assert _placement(tmp_path / "l.tif")[1] == (1.0, 0.0, 0.0, 0.0, -1.0, 4.0)
+    assert _placement(target) == (crs, (1.0, 0.0, 0.0, 0.0, -1.0, 4.0))
+    assert not (tmp_path / "l.tif.aux.xml").exists()
+    assert _placement(tmp_path / "l.tif") == (None, (1.0, 0.0, 0.0, 0.0, -1.0, 4.0))  # (see save_image's crs)
 
 
 @pytest.mark.parametrize("failing", ["image", "side file"])
@@ -257,3 +258,4 @@ def test_a_pyramid_whose_nth_level_rename_fails_leaves_the_storage_as_it_was(tmp
             ImagePyramid.build(rng.integers(0, 256, (16, 16, 3), dtype=np.uint8), storage=storage)
         monkeypatch.undo()
         assert len(calls) >= n and _files(storage) == old, f"rename {n} failed"
+
