@@ -236,8 +236,8 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
 
 
 class _Replacements:
-    """The files :func:`atomic_path` staged within one :func:`_replaced_together`: (temporary, target) in the order
-    their blocks ended."""
+    """The files :func:`atomic_path` staged within one :func:`_replaced_together` (or a pyramid's level files,
+    :class:`~stepterrain.texture_lod._StagedFiles`): (temporary, target) in the order they are to be renamed."""
 
     def __init__(self, what: str = "") -> None:
         self.staged: list[tuple[Path, Path]] = []
@@ -1411,7 +1411,9 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
     # Through a link, GDAL reads the side file beside the name it opens, the link's: an old one beside the link is set
     # aside too (the new one goes beside the file the link points to alone: see save_image's crs). The image and its
     # new side file are renamed together (_replaced_together), the image first: a failed rename of the side file put
-    # in place the new image without its CRS, and removed the old one's
+    # in place the new image without its CRS, and removed the old one's. (Never within another _replaced_together
+    # block: its end would rename the image after `placed`, and a failure then left the old image without its side
+    # file.)
     sides = _side_files_of(target)
     asides: list[tuple[Path | None, Path]] = []
     placed = False
