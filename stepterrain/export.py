@@ -43,6 +43,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._compaction import check_budget
 from ._device import recycled_empty
 from ._files import as_path, refuse_folder_name, require_regular_file
+from ._signals import signals_held
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, caller_stacklevel, counted
 from .mesh import mesh_argument
 from .terrain import FLOAT32_MAX, as_array, finite_number, real_numbers
@@ -225,14 +226,14 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
             together = _TOGETHER.get()
             if together is None:
                 os.replace(tmp_path, target)
+            else:  # renamed by _replaced_together's end, or removed there (staged within the try: an interrupt
+                together.staged.append((tmp_path, target))  # before it left the temporary behind)
         except OSError as exc:
             raise DataFileError(f"cannot write {str(target)!r}: {exc.strerror}") from exc
     except BaseException:
         with contextlib.suppress(OSError):
             tmp_path.unlink()
         raise
-    if together is not None:  # renamed by _replaced_together's end, or removed there
-        together.staged.append((tmp_path, target))
 
 
 class _Replacements:
@@ -251,7 +252,16 @@ class _Replacements:
     def commit(self) -> None:
         """Rename each temporary file onto its target, in order; on a failure (or an interrupt) part-way, the targets
         already replaced get their old files back (kept under a hard link, their own inode: content, mode, owner)
-        and those that did not exist are removed, before the error goes on."""
+        and those that did not exist are removed, before the error goes on.
+
+        Ctrl-C, SIGTERM and SIGHUP are held back meanwhile (:func:`~stepterrain._signals.signals_held`, the main
+        thread's; of several files): one that came as a rename ran raised KeyboardInterrupt as ``os.replace``
+        returned, that file, replaced, was taken for one not replaced (its backup removed, not put back) and the new
+        file stayed beside the old ones put back. It goes to its handler once all are in place (or all put back)."""
+        with signals_held() if len(self.staged) > 1 else contextlib.nullcontext():
+            self._rename_all()
+
+    def _rename_all(self) -> None:
         done: list[tuple[Path, Path | None]] = []  # target, its old file's backup (None: there was none)
         pending = list(self.staged)
         try:

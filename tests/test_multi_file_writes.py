@@ -259,3 +259,58 @@ def test_a_pyramid_whose_nth_level_rename_fails_leaves_the_storage_as_it_was(tmp
         monkeypatch.undo()
         assert len(calls) >= n and _files(storage) == old, f"rename {n} failed"
 
+
+
+def test_a_textured_obj_whose_rename_meets_a_ctrl_c_is_never_a_mix(tmp_path, monkeypatch):
+    # SIGINT arriving while a rename runs: the rename completes and Python raises KeyboardInterrupt as os.replace
+    # returns, inside its try: that file's backup was removed as if it had not been replaced, and the rollback put back
+    # the files before it only, leaving the new texture beside the old .obj with the texture's old content lost
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread() or not callable(signal.getsignal(signal.SIGINT)):
+        pytest.skip("needs Python's SIGINT handler in the main thread")
+    new = tmp_path / "new"
+    save_mesh(_textured((10, 200, 10)), new / "t.obj")
+    for n in (1, 2):
+        folder = tmp_path / f"n{n}"
+        save_mesh(_textured((200, 10, 10)).apply_scale(2.0), folder / "t.obj")  # another .obj too
+        old = _files(folder)
+        calls: list[str] = []
+
+        def replace(src, dst, *args, real=os.replace, calls=calls, n=n, **kwargs):
+            real(src, dst, *args, **kwargs)
+            calls.append(dst)
+            if len(calls) == n:
+                os.kill(os.getpid(), signal.SIGINT)
+
+        monkeypatch.setattr(os, "replace", replace)
+        with pytest.raises(KeyboardInterrupt):
+            save_mesh(_textured((10, 200, 10)), folder / "t.obj")
+        monkeypatch.undo()
+        assert _files(folder) in (old, _files(new)), f"Ctrl-C in rename {n}"  # no backup left either
+
+
+def test_a_thread_writing_does_not_join_another_threads_block(tmp_path):
+    # the block is the thread's own (a context variable): a file another thread writes meanwhile is renamed into place
+    # as its atomic_path ends, not staged in (and rolled back or renamed with) this thread's files
+    import threading
+
+    from stepterrain.export import _replaced_together, atomic_path
+
+    seen = {}
+
+    def other() -> None:
+        with atomic_path(tmp_path / "other.txt") as tmp:
+            tmp.write_text("other")
+        seen["other"] = (tmp_path / "other.txt").exists()
+
+    with _replaced_together():
+        with atomic_path(tmp_path / "mine.txt") as tmp:
+            tmp.write_text("mine")
+        thread = threading.Thread(target=other)
+        thread.start()
+        thread.join()
+        seen["mine"] = (tmp_path / "mine.txt").exists()
+    assert seen == {"other": True, "mine": False}
+    assert sorted(_files(tmp_path)) == ["mine.txt", "other.txt"]
