@@ -23,6 +23,7 @@ import os
 import queue
 import re
 import secrets
+import shutil
 import stat
 import string
 import struct
@@ -42,6 +43,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._compaction import check_budget
 from ._device import recycled_empty
 from ._files import as_path, refuse_folder_name, require_regular_file
+from ._signals import signals_held
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, caller_stacklevel, counted
 from .mesh import mesh_argument
 from .terrain import FLOAT32_MAX, as_array, finite_number, real_numbers
@@ -221,13 +223,159 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
                     _keep_owner(tmp_path, old)  # before chmod: a change of owner clears set-id bits
                 with contextlib.suppress(OSError):
                     os.chmod(tmp_path, stat.S_IMODE(old.st_mode))
-            os.replace(tmp_path, target)
+            together = _TOGETHER.get()
+            if together is None:
+                os.replace(tmp_path, target)
+            else:  # renamed by _replaced_together's end, or removed there (staged within the try: an interrupt
+                together.staged.append((tmp_path, target))  # before it left the temporary behind)
         except OSError as exc:
             raise DataFileError(f"cannot write {str(target)!r}: {exc.strerror}") from exc
     except BaseException:
         with contextlib.suppress(OSError):
             tmp_path.unlink()
         raise
+
+
+class _Replacements:
+    """The files :func:`atomic_path` staged within one :func:`_replaced_together` (or a pyramid's level files,
+    :class:`~stepterrain.texture_lod._StagedFiles`): (temporary, target) in the order they are to be renamed."""
+
+    def __init__(self, what: str = "") -> None:
+        self.staged: list[tuple[Path, Path]] = []
+        self.what = what  # what a target is, in an error ("the pyramid level ")
+
+    def discard(self) -> None:
+        for tmp, _ in self.staged:
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+
+    def commit(self) -> None:
+        """Rename each temporary file onto its target, in order; on a failure (or an interrupt) part-way, the targets
+        already replaced get their old files back (kept under a hard link, their own inode: content, mode, owner)
+        and those that did not exist are removed, before the error goes on.
+
+        Ctrl-C, SIGTERM and SIGHUP are held back meanwhile (:func:`~stepterrain._signals.signals_held`, the main
+        thread's; of several files): one that came as a rename ran raised KeyboardInterrupt as ``os.replace``
+        returned, that file, replaced, was taken for one not replaced (its backup removed, not put back) and the new
+        file stayed beside the old ones put back. It goes to its handler once all are in place (or all put back)."""
+        with signals_held() if len(self.staged) > 1 else contextlib.nullcontext():
+            self._rename_all()
+
+    def _rename_all(self) -> None:
+        done: list[tuple[Path, Path | None]] = []  # target, its old file's backup (None: there was none)
+        pending = list(self.staged)
+        try:
+            while pending:
+                tmp, target = pending[0]
+                # the last one needs no backup: its failure replaced nothing, and once it is in place all are
+                backup = _backup(target) if len(pending) > 1 else None
+                try:
+                    os.replace(tmp, target)
+                except BaseException as exc:  # (an interrupt too: the backup is of a file not replaced)
+                    if backup is not None:
+                        with contextlib.suppress(OSError):
+                            backup.unlink()
+                    if isinstance(exc, OSError):
+                        raise DataFileError(f"cannot write {self.what}{str(target)!r}: {exc.strerror}") from exc
+                    raise
+                pending.pop(0)
+                done.append((target, backup))
+        except BaseException as exc:
+            for tmp, _ in pending:
+                with contextlib.suppress(OSError):
+                    tmp.unlink()
+            lost = _roll_back(done)
+            if lost and isinstance(exc, DataFileError):
+                raise DataFileError(f"{exc}; and then {lost}") from exc
+            raise
+        for _, backup in done:
+            if backup is not None:
+                with contextlib.suppress(OSError):
+                    backup.unlink()
+
+
+def _backup(target: Path) -> Path | None:
+    """A second name (``.<name>.XXXXXXXX.tmp`` beside it) for the existing file ``target``, by which
+    :class:`_Replacements` puts it back: a hard link (the file itself), or where the file system has none, a copy
+    with its mode and owner; None where there is no ``target``."""
+    try:
+        old = os.stat(target)
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        raise DataFileError(f"cannot write {str(target)!r}: {exc.strerror}") from exc
+    try:
+        for _ in range(100):
+            backup = target.parent / f".{_temporary_stem(target.name)}.{secrets.token_hex(4)}.tmp"
+            try:
+                os.link(target, backup)
+                return backup
+            except FileExistsError:
+                continue
+            except OSError as exc:
+                if exc.errno not in (errno.EPERM, errno.EXDEV, errno.EMLINK, errno.ENOTSUP, errno.ENOSYS,
+                                     getattr(errno, "EOPNOTSUPP", errno.ENOTSUP)):
+                    raise
+                break  # no hard links here (FAT, some network shares): a copy
+        backup = _new_temporary(target.parent, target.name)
+        try:
+            shutil.copyfile(target, backup)
+            with contextlib.suppress(OSError):
+                _keep_owner(backup, old)
+            with contextlib.suppress(OSError):
+                os.chmod(backup, stat.S_IMODE(old.st_mode))
+        except BaseException:
+            with contextlib.suppress(OSError):
+                backup.unlink()
+            raise
+        return backup
+    except OSError as exc:
+        raise DataFileError(f"cannot write {str(target)!r}: its old file could not be kept to put back if a file "
+                            f"written with it failed: {exc.strerror}") from exc
+
+
+def _roll_back(done: list[tuple[Path, Path | None]]) -> str:
+    """Put back the old files of the targets :class:`_Replacements` replaced (``done``: target, backup), last first;
+    remove those that were new. Returns what could not be undone (the backup's name, where the old file is), or ""."""
+    lost = []
+    for target, backup in reversed(done):
+        try:
+            if backup is None:
+                os.unlink(target)
+            else:
+                os.replace(backup, target)
+        except OSError as exc:
+            where = f"its old content is in {str(backup)!r}" if backup is not None else "it is the new file"
+            lost.append(f"{str(target)!r} could not be put back ({exc.strerror}; {where})")
+    return "; ".join(lost)
+
+
+#: The :class:`_Replacements` :func:`atomic_path` adds its file to, within :func:`_replaced_together`.
+_TOGETHER: contextvars.ContextVar[_Replacements | None] = contextvars.ContextVar("stepterrain_together", default=None)
+
+
+@contextlib.contextmanager
+def _replaced_together() -> Iterator[None]:
+    """Within (this thread or task): :func:`atomic_path` stages its file (written, flushed, given the old file's mode
+    and owner) and the block's end renames them all into place, in the order their ``atomic_path`` blocks ended; an
+    error in the block removes them all. A rename that fails part-way puts back the files renamed before it (see
+    :meth:`_Replacements.commit`): the files of one output (a textured OBJ's ``.obj``, ``.mtl`` and images) are then
+    all new or all old, where a failure of the second rename left the new texture beside the old OBJ. (A crash of
+    the machine during the renames can still leave a mix: each rename is atomic, the set is not.) Nested: the
+    outermost block's end renames."""
+    if _TOGETHER.get() is not None:
+        yield
+        return
+    together = _Replacements()
+    token = _TOGETHER.set(together)
+    try:
+        yield
+    except BaseException:
+        _TOGETHER.reset(token)
+        together.discard()
+        raise
+    _TOGETHER.reset(token)
+    together.commit()
 
 
 def _refuse_read_only(target: Path) -> None:
@@ -517,7 +665,10 @@ def save_mesh(
     a JPEG) beside ``path`` (whitespace in the stem becomes ``_``: OBJ and MTL readers split file names on it; an
     image with transparent texels is also the MTL's dissolve, ``map_d -imfchan m``; its ``Kd`` is white and ``Ks``
     black unless the material sets a base colour, so the texture shows at full brightness, matte; a base colour's
-    alpha below 1 is its dissolve ``d``), each atomically, once the OBJ itself is complete; one that would
+    alpha below 1 is its dissolve ``d``), each atomically, once the OBJ itself is complete, and renamed into place
+    just before it: a failure of one of these renames (or an interrupt) puts back the files renamed before it (the
+    old files themselves, or none where there were none), so the OBJ and its side files are all new or all old
+    (a crash of the machine part-way can still leave a mix); one that would
     replace an image :func:`save_image` wrote in this process, or a side file of another OBJ, is refused (a
     DataFileError) before any is written. The file appears complete or not at all: the mesh is
     written to a temporary file in the same folder and renamed, and an existing ``path`` is untouched
@@ -573,7 +724,8 @@ def save_mesh(
         _pil_textures(getattr(prepared.visual, "material", None))  # before any folder or file is made
         if ext in (".glb", ".gltf"):  # its sampler's wrap (_sampler_postprocessor): a bad one was refused in the
             texture_wrap(getattr(prepared.visual, "material", None))  # writer, after atomic_path made the folders
-    with atomic_path(target) as tmp:
+    # a textured OBJ's side files (.mtl, images) and the OBJ itself go into place together, all or none of them
+    with _replaced_together(), atomic_path(target) as tmp:
         try:
             if ext in (".glb", ".gltf"):
                 writer(prepared, tmp, target, bounds, frame, anchor)
@@ -1043,6 +1195,14 @@ def save_image(
         ``+proj=ob_tran``) goes into ``<path>.aux.xml`` beside it, which GDAL reads with the image; an image written
         over one removes the ``.aux.xml`` it has no use for. So does a PNG or plain TIFF: an old ``<path>.aux.xml``
         (an earlier GeoTIFF's, GDAL's of a PNG it wrote) would give it the old image's CRS, placement and nodata.
+        The image and its side file are put in place together: a failure of either rename keeps the old image with
+        its old side file. A ``path`` that is a symbolic link is written through (see :func:`atomic_path`): the side
+        file goes beside the file the link points to, and an old one beside the link is removed too. GDAL reads the
+        side file beside the name it opens: such a CRS is read through the file's own name, not through the link
+        (a copy beside the link would go stale once the file is written by its own name, or the link
+        pointed elsewhere, and give another image its CRS). A world file beside ``path`` (``.pgw``, ``.tfw``,
+        ``.wld``) is kept: stepterrain writes none, so it is the user's (an orthophoto re-rendered under its name).
+        GDAL places a PNG or plain TIFF by it, and a GeoTIFF by its own georeferencing, which GDAL prefers.
 
     Returns
     -------
@@ -1120,8 +1280,8 @@ def _save_image(image: ArrayLike, path: str | os.PathLike[str], *, extent: Any =
     # an old <image>.aux.xml (GDAL's side file of an earlier GeoTIFF or GDAL write of this name: CRS, geotransform,
     # nodata) stayed, and GDAL read the new image with it; it goes aside just before the image's rename, as a
     # GeoTIFF's does (_save_geotiff), and is removed once the image is in place (back if the rename fails)
-    own_aux = _side_file(target)
-    aside: Path | None = None
+    sides = _side_files_of(target)
+    asides: list[tuple[Path | None, Path]] = []
     placed = False
     try:
         with atomic_path(target) as tmp:
@@ -1140,10 +1300,10 @@ def _save_image(image: ArrayLike, path: str | os.PathLike[str], *, extent: Any =
             if suffix == ".png" and reused and options:  # a large one: a glTF of it takes its bytes
                 with contextlib.suppress(OSError):
                     stamp = _file_stamp(tmp)  # the bytes written, before the rename (see _LAST_PNG)
-            aside = _set_aside(own_aux, target)
+            asides = _set_aside_all(sides, target)
         placed = True
     finally:
-        _settle_aside(aside, own_aux, placed)
+        _settle_asides(asides, placed)
     _record_owner([target], target)
     if stamp is not None:
         _LAST_PNG[:] = [(_pixels_digest(picture, pixels), target.absolute(), stamp)]
@@ -1258,12 +1418,18 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
     # plus ".aux.xml" was over the 255 bytes a name may have, GDAL wrote no side file, and the CRS was lost without a
     # word, where "<name>.aux.xml" fits up to 247 bytes. GDAL then writes to a shorter temporary, renamed onto tmp,
     # and a CRS that needs a side file the image's name leaves no room for is refused before the image is put in place
-    own_aux = _side_file(target)
-    aside: Path | None = None
+    # Through a link, GDAL reads the side file beside the name it opens, the link's: an old one beside the link is set
+    # aside too (the new one goes beside the file the link points to alone: see save_image's crs). The image and its
+    # new side file are renamed together (_replaced_together), the image first: a failed rename of the side file put
+    # in place the new image without its CRS, and removed the old one's. (Never within another _replaced_together
+    # block: its end would rename the image after `placed`, and a failure then left the old image without its side
+    # file.)
+    sides = _side_files_of(target)
+    asides: list[tuple[Path | None, Path]] = []
     placed = False
     try:
-        with contextlib.ExitStack() as side_file:  # its exit, the new side file's rename, follows the image's
-            with atomic_path(target) as tmp:
+        with _replaced_together(), contextlib.ExitStack() as side_file:  # its exit stages the new side files after
+            with atomic_path(target) as tmp:  # the image
                 written = tmp
                 try:
                     if len(os.fsencode(tmp.name + ".aux.xml")) > _NAME_MAX:
@@ -1280,7 +1446,7 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
                         _check_side_file_crs(written, aux, crs, target)
                     if written != tmp:
                         os.replace(written, tmp)
-                    if os.path.exists(aux):
+                    for own_aux in sides[:1] if os.path.exists(aux) else ():  # beside the file itself
                         if len(os.fsencode(own_aux.name)) > _NAME_MAX:
                             raise DataFileError(
                                 f"cannot write {str(target)!r} with its crs: GeoTIFF's keys cannot hold that CRS, and "
@@ -1306,10 +1472,10 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
                     if written != tmp:  # (gone when renamed onto tmp)
                         with contextlib.suppress(OSError):
                             written.unlink()
-                aside = _set_aside(own_aux, target)
-            placed = True
+                asides = _set_aside_all(sides, target)
+        placed = True
     finally:
-        _settle_aside(aside, own_aux, placed)
+        _settle_asides(asides, placed)
     _record_owner([target], target)
     return target
 
@@ -1333,6 +1499,34 @@ def _side_file(image: Path) -> Path:
     :func:`atomic_path` writes)."""
     own = _link_target(image)
     return own.with_name(own.name + ".aux.xml")
+
+
+def _side_files_of(image: Path) -> list[Path]:
+    """The side files GDAL may read with ``image``: :func:`_side_file` and, where ``image`` is a symbolic link,
+    ``<name>.aux.xml`` beside the link (GDAL reads the one beside the name it opens: the link's, when the image is
+    opened by the name it was written to)."""
+    own = _side_file(image)
+    named = image.with_name(image.name + ".aux.xml")
+    return [own] if os.path.abspath(named) == os.path.abspath(own) else [own, named]
+
+
+def _set_aside_all(sides: list[Path], image: Path) -> list[tuple[Path | None, Path]]:
+    """:func:`_set_aside` of each of ``sides``: (aside, side) pairs for :func:`_settle_asides`; those set aside are
+    put back when one cannot be."""
+    done: list[tuple[Path | None, Path]] = []
+    try:
+        for side in sides:
+            done.append((_set_aside(side, image), side))
+    except BaseException:
+        _settle_asides(done, False)
+        raise
+    return done
+
+
+def _settle_asides(asides: list[tuple[Path | None, Path]], placed: bool) -> None:
+    """:func:`_settle_aside` of each (aside, side) pair of :func:`_set_aside_all`."""
+    for aside, side in asides:
+        _settle_aside(aside, side, placed)
 
 
 def _settle_aside(aside: Path | None, side: Path, placed: bool) -> None:
@@ -1701,14 +1895,14 @@ def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
     _check_owner(paths, target)  # all of them before the first is written
     with contextlib.ExitStack() as side_files:
         # each side file replaces its old one only once the OBJ is complete: written first, an OBJ that then failed
-        # (disk full, interrupted, a folder in its place) left the old OBJ with the new texture, or side files of no OBJ
+        # (disk full, interrupted, a folder in its place) left the old OBJ with the new texture, or side files of no
+        # OBJ. Within save_mesh's _replaced_together, they are renamed after the OBJ is written and flushed, just
+        # before the OBJ itself, and a failed rename puts back the files renamed before it (all old, or all new)
         for path, data in zip(paths, sidecars.values(), strict=True):
             side_files.enter_context(atomic_path(path)).write_bytes(data)
         _write_obj_text(mesh, tmp, mtl_name, material, uv)
-        # flushed as atomic_path will (once more, cheaply) before the side files replace theirs: its failure left
-        # the old OBJ with the new texture
-        if sidecars:
-            _flush_if_replacing(tmp, os.path.exists(target))
+        if sidecars and _TOGETHER.get() is None:  # (outside one, the side files are renamed first: the OBJ is
+            _flush_if_replacing(tmp, os.path.exists(target))  # flushed before, as atomic_path will)
     _record_owner(paths, target)
 
 

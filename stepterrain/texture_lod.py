@@ -1110,7 +1110,10 @@ _LEVEL_FILE = re.compile(r"level_\d+(?:_\d+)?\.u8")
 
 class _StagedFiles:
     """The level files of one build, written under temporary names in ``folder`` (``.level_1.u8.<random>.tmp``)
-    and renamed to their own names (``level_1.u8``) together by :meth:`commit`, or removed by :meth:`discard`."""
+    and renamed to their own names (``level_1.u8``) together by :meth:`commit`, or removed by :meth:`discard`. A
+    rename failing part-way puts back the level files renamed before it (:class:`~stepterrain.export._Replacements`):
+    the storage then holds the earlier pyramid's levels, where it held the new image's first levels beside the old
+    one's last."""
 
     def __init__(self, folder: Path) -> None:
         self.folder = folder
@@ -1124,12 +1127,12 @@ class _StagedFiles:
         return self.temporary[name]
 
     def commit(self) -> None:
-        for name, temporary in self.temporary.items():
-            final = self.folder / name
-            try:
-                os.replace(temporary, final)
-            except OSError as exc:
-                raise DataFileError(f"cannot write the pyramid level {str(final)!r}: {exc.strerror}") from exc
+        from .export import _Replacements
+
+        together = _Replacements("the pyramid level ")
+        together.staged = [(temporary, self.folder / name) for name, temporary in self.temporary.items()]
+        together.commit()
+        for temporary, final in together.staged:
             self.committed[os.path.abspath(temporary)] = final
 
     def reopen(self, level: NDArray[np.uint8]) -> NDArray[np.uint8]:

@@ -1,0 +1,316 @@
+"""Outputs of several files (a textured OBJ's .obj, .mtl and texture images; an image and GDAL's side files): all
+new or all old after a failure part-way, never a mix."""
+
+from __future__ import annotations
+
+import errno
+import os
+import warnings
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+from stepterrain.errors import DataFileError
+from stepterrain.export import save_image, save_mesh
+
+
+def _textured(color: tuple[int, int, int], alpha: bool = False) -> trimesh.Trimesh:
+    mesh = trimesh.creation.box()
+    image = Image.new("RGBA", (2, 2), (*color, 100)) if alpha else Image.new("RGB", (2, 2), color)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((8, 2)), image=image)
+    return mesh
+
+
+def _files(folder) -> dict[str, bytes]:
+    return {path.name: path.read_bytes() for path in sorted(folder.iterdir()) if not path.is_symlink()}
+
+
+def _failing_replace(monkeypatch, n: int) -> list[tuple[str, str]]:
+    """os.replace failing (EIO) on its ``n``-th call (1-based), the calls before and after going through."""
+    real = os.replace
+    calls: list[tuple[str, str]] = []
+
+    def replace(src, dst, *args, **kwargs):
+        calls.append((os.fspath(src), os.fspath(dst)))
+        if len(calls) == n:
+            raise OSError(errno.EIO, "Input/output error")
+        return real(src, dst, *args, **kwargs)
+
+    monkeypatch.setattr(os, "replace", replace)
+    return calls
+
+
+def _renames_of_a_textured_obj(tmp_path, monkeypatch) -> int:
+    """How many files a textured OBJ (with an alpha map: .obj, .mtl, texture) renames into place."""
+    probe = tmp_path / "probe"
+    probe.mkdir()
+    calls = _failing_replace(monkeypatch, 0)
+    save_mesh(_textured((1, 2, 3), alpha=True), probe / "t.obj")
+    monkeypatch.undo()
+    count = sum(1 for _, dst in calls if not os.path.basename(dst).startswith("."))
+    for path in probe.iterdir():
+        path.unlink()
+    probe.rmdir()
+    return count
+
+
+@pytest.mark.parametrize("existing", [True, False], ids=["replacing", "new"])
+def test_a_textured_obj_whose_nth_rename_fails_leaves_all_old_files(tmp_path, monkeypatch, existing):
+    # the .obj, .mtl and texture were renamed into place one at a time: a failure of the second or third rename left
+    # the new texture (and .mtl) beside the old .obj, or new side files beside no .obj at all
+    count = _renames_of_a_textured_obj(tmp_path, monkeypatch)
+    assert count == 3
+    for n in range(1, count + 1):
+        folder = tmp_path / f"n{n}"
+        folder.mkdir()
+        if existing:
+            save_mesh(_textured((200, 10, 10), alpha=True), folder / "t.obj")
+        old = _files(folder)
+        calls = _failing_replace(monkeypatch, n)
+        with pytest.raises(DataFileError, match="Input/output error"):
+            save_mesh(_textured((10, 200, 10), alpha=True), folder / "t.obj")
+        monkeypatch.undo()
+        assert len(calls) >= n
+        assert _files(folder) == old, f"rename {n} of {count} failed"  # no temporary left either
+    save_mesh(_textured((10, 200, 10), alpha=True), tmp_path / "ok.obj")  # the same bytes as without a failure
+    assert _files(folder) == old
+
+
+def test_a_textured_obj_rolled_back_keeps_the_old_files_own_inodes_and_modes(tmp_path, monkeypatch):
+    folder = tmp_path
+    save_mesh(_textured((200, 10, 10)), folder / "t.obj")
+    for path in folder.iterdir():
+        path.chmod(0o640)
+    before = {path.name: (os.stat(path).st_ino, os.stat(path).st_mode) for path in folder.iterdir()}
+    _failing_replace(monkeypatch, 3)  # the .obj's own rename, after its side files'
+    with pytest.raises(DataFileError):
+        save_mesh(_textured((10, 200, 10)), folder / "t.obj")
+    monkeypatch.undo()
+    assert {path.name: (os.stat(path).st_ino, os.stat(path).st_mode) for path in folder.iterdir()} == before
+
+
+def test_a_textured_obj_written_whole_is_as_without_the_rollback(tmp_path):
+    # the success path: each file once, no backup left behind, the bytes a second write repeats
+    first = save_mesh(_textured((10, 200, 10), alpha=True), tmp_path / "a" / "t.obj")
+    save_mesh(_textured((200, 10, 10), alpha=True), tmp_path / "b" / "t.obj")
+    save_mesh(_textured((10, 200, 10), alpha=True), tmp_path / "b" / "t.obj")
+    assert _files(first.parent) == _files(tmp_path / "b")
+    assert sorted(_files(first.parent)) == ["t.mtl", "t.obj", "t_material_0.png"]
+
+
+def test_a_textured_obj_interrupted_part_way_is_rolled_back_too(tmp_path, monkeypatch):
+    save_mesh(_textured((200, 10, 10)), tmp_path / "t.obj")
+    old = _files(tmp_path)
+    real = os.replace
+    calls = []
+
+    def interrupted(src, dst):
+        calls.append(dst)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        real(src, dst)
+
+    monkeypatch.setattr(os, "replace", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        save_mesh(_textured((10, 200, 10)), tmp_path / "t.obj")
+    monkeypatch.undo()
+    assert _files(tmp_path) == old
+
+
+def test_without_hard_links_the_old_files_are_kept_as_copies(tmp_path, monkeypatch):
+    # a file system without hard links (FAT, some network shares): the old files are copied to be put back
+    save_mesh(_textured((200, 10, 10)), tmp_path / "t.obj")
+    old = _files(tmp_path)
+
+    def no_links(src, dst, **kwargs):
+        raise OSError(errno.EPERM, "Operation not permitted")
+
+    monkeypatch.setattr(os, "link", no_links)
+    _failing_replace(monkeypatch, 3)
+    with pytest.raises(DataFileError, match="Input/output error"):
+        save_mesh(_textured((10, 200, 10)), tmp_path / "t.obj")
+    monkeypatch.undo()
+    assert _files(tmp_path) == old
+    monkeypatch.setattr(os, "link", no_links)
+    save_mesh(_textured((10, 200, 10)), tmp_path / "t.obj")  # and without a failure: no copy left
+    assert sorted(_files(tmp_path)) == ["t.mtl", "t.obj", "t_material_0.png"] and _files(tmp_path) != old
+
+
+def test_a_file_that_cannot_be_put_back_is_named_with_where_its_old_content_is(tmp_path, monkeypatch):
+    save_mesh(_textured((200, 10, 10)), tmp_path / "t.obj")
+    old_texture = (tmp_path / "t_material_0.png").read_bytes()
+    real = os.replace
+    calls = []
+
+    def failing(src, dst):
+        calls.append(dst)
+        if len(calls) >= 2:  # the .mtl's rename, and then putting back the texture
+            raise OSError(errno.EIO, "Input/output error")
+        real(src, dst)
+
+    monkeypatch.setattr(os, "replace", failing)
+    with pytest.raises(DataFileError, match=r"t\.mtl': Input/output error; and then '.*t_material_0\.png' could not "
+                                            r"be put back \(Input/output error; its old content is in '.*\.tmp'\)"):
+        save_mesh(_textured((10, 200, 10)), tmp_path / "t.obj")
+    monkeypatch.undo()
+    kept = [path for path in tmp_path.iterdir() if path.name.startswith(".t_material_0.png.")]
+    assert len(kept) == 1 and kept[0].read_bytes() == old_texture  # never lost
+
+
+_OB_TRAN = "+proj=ob_tran +o_proj=longlat +o_lon_p=0 +o_lat_p=30 +lon_0=10 +datum=WGS84 +no_defs"
+_STALE_AUX = "<PAMDataset><SRS>EPSG:4326</SRS><GeoTransform>100, 1, 0, 50, 0, -1</GeoTransform></PAMDataset>"
+
+
+def _placement(path) -> tuple[object, tuple[float, ...]]:
+    rasterio = pytest.importorskip("rasterio")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # NotGeoreferencedWarning
+        with rasterio.open(path) as dataset:
+            return dataset.crs, tuple(dataset.transform)[:6]
+
+
+@pytest.mark.parametrize("name", ["l.png", "l.tif"])
+def test_an_image_written_through_a_link_drops_the_stale_side_file_beside_the_link(tmp_path, name):
+    # GDAL reads <name>.aux.xml beside the name it opens, the link's: save_image removed only the one beside the
+    # link's target, and the new image read through the link had the old one's CRS and placement
+    pytest.importorskip("rasterio")
+    target = tmp_path / f"target{name[1:]}"
+    save_image(np.zeros((4, 6, 3), np.uint8), target)
+    (tmp_path / name).symlink_to(target.name)
+    (tmp_path / f"{name}.aux.xml").write_text(_STALE_AUX)
+    assert _placement(tmp_path / name)[0] is not None  # (GDAL reads it)
+    save_image(np.ones((4, 6, 3), np.uint8), tmp_path / name)
+    assert _placement(tmp_path / name) == _placement(target) == (None, (1.0, 0.0, 0.0, 0.0, 1.0, 0.0))
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([name, target.name])
+
+
+def test_a_geotiff_written_through_a_link_drops_the_stale_side_file_beside_the_link(tmp_path):
+    # with a CRS GeoTIFF's keys cannot hold, the new side file goes beside the file the link points to, and the stale
+    # one beside the link (which GDAL reads through the link) is removed, not left to give the image its CRS
+    rasterio = pytest.importorskip("rasterio")
+    crs = rasterio.crs.CRS.from_user_input(_OB_TRAN)
+    target = tmp_path / "data" / "target.tif"
+    target.parent.mkdir()
+    save_image(np.zeros((4, 6, 3), np.uint8), target)
+    (tmp_path / "l.tif").symlink_to(target)
+    (tmp_path / "l.tif.aux.xml").write_text(_STALE_AUX)
+    save_image(np.ones((4, 6, 3), np.uint8), tmp_path / "l.tif", extent=(0, 6, 0, 4), crs=_OB_TRAN)
+    assert _placement(target) == (crs, (1.0, 0.0, 0.0, 0.0, -1.0, 4.0))
+    assert not (tmp_path / "l.tif.aux.xml").exists()
+    assert _placement(tmp_path / "l.tif") == (None, (1.0, 0.0, 0.0, 0.0, -1.0, 4.0))  # (see save_image's crs)
+
+
+@pytest.mark.parametrize("failing", ["image", "side file"])
+def test_a_geotiff_whose_side_file_cannot_be_put_in_place_keeps_the_old_image_and_side_file(tmp_path, monkeypatch,
+                                                                                              failing):
+    # the image was renamed into place first and its side file (the CRS) after: a failure of that second rename left
+    # the new image without its CRS, the old side file removed
+    pytest.importorskip("rasterio")
+    target = tmp_path / "t.tif"
+    save_image(np.zeros((4, 6, 3), np.uint8), target, extent=(0, 6, 0, 4), crs=_OB_TRAN)
+    old = _files(tmp_path)
+    assert sorted(old) == ["t.tif", "t.tif.aux.xml"]
+    real = os.replace
+    failed = []
+
+    def replace(src, dst):  # the first rename onto the file, not the one putting the old file back
+        if not failed and os.path.basename(dst) == {"image": "t.tif", "side file": "t.tif.aux.xml"}[failing]:
+            failed.append(dst)
+            raise OSError(errno.EIO, "Input/output error")
+        real(src, dst)
+
+    monkeypatch.setattr(os, "replace", replace)
+    with pytest.raises(DataFileError, match="Input/output error"):
+        save_image(np.ones((4, 6, 3), np.uint8), target, extent=(10, 16, 0, 4), crs=_OB_TRAN)
+    monkeypatch.undo()
+    assert _files(tmp_path) == old
+    assert _placement(target)[1] == (1.0, 0.0, 0.0, 0.0, -1.0, 4.0)
+
+
+@pytest.mark.parametrize("suffix, world", [(".png", ".pgw"), (".tif", ".tfw")])
+def test_a_world_file_beside_a_plain_image_is_the_users_and_kept(tmp_path, suffix, world):
+    # stepterrain writes no world file: one beside the image is the user's (the extent of an orthophoto re-rendered
+    # under its name), kept as save_image documents, and GDAL places the new image by it
+    target = tmp_path / f"i{suffix}"
+    save_image(np.zeros((4, 6, 3), np.uint8), target)
+    (tmp_path / f"i{world}").write_text("1\n0\n0\n-1\n100.5\n49.5\n")
+    save_image(np.ones((4, 6, 3), np.uint8), target)
+    assert (tmp_path / f"i{world}").exists()
+    assert _placement(target)[1] == (1.0, 0.0, 100.0, 0.0, -1.0, 50.0)
+
+
+def test_a_pyramid_whose_nth_level_rename_fails_leaves_the_storage_as_it_was(tmp_path, monkeypatch):
+    # the level files were renamed into place one at a time: a failure part-way left the storage with the new image's
+    # first levels beside the old one's last (a pyramid reopened from it mixed the two images)
+    from stepterrain.texture_lod import ImagePyramid
+
+    rng = np.random.default_rng(1)
+    storage = tmp_path / "levels"
+    first = rng.integers(0, 256, (16, 16, 3), dtype=np.uint8)
+    ImagePyramid.build(first, storage=storage).close()
+    old = _files(storage)
+    assert len(old) == 4  # levels 1-4 (level 0 is the array itself)
+    for n in (2, 4):
+        calls = _failing_replace(monkeypatch, n)
+        with pytest.raises(DataFileError, match=r"cannot write the pyramid level .*Input/output error"):
+            ImagePyramid.build(rng.integers(0, 256, (16, 16, 3), dtype=np.uint8), storage=storage)
+        monkeypatch.undo()
+        assert len(calls) >= n and _files(storage) == old, f"rename {n} failed"
+
+
+
+def test_a_textured_obj_whose_rename_meets_a_ctrl_c_is_never_a_mix(tmp_path, monkeypatch):
+    # SIGINT arriving while a rename runs: the rename completes and Python raises KeyboardInterrupt as os.replace
+    # returns, inside its try: that file's backup was removed as if it had not been replaced, and the rollback put back
+    # the files before it only, leaving the new texture beside the old .obj with the texture's old content lost
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread() or not callable(signal.getsignal(signal.SIGINT)):
+        pytest.skip("needs Python's SIGINT handler in the main thread")
+    new = tmp_path / "new"
+    save_mesh(_textured((10, 200, 10)), new / "t.obj")
+    for n in (1, 2):
+        folder = tmp_path / f"n{n}"
+        save_mesh(_textured((200, 10, 10)).apply_scale(2.0), folder / "t.obj")  # another .obj too
+        old = _files(folder)
+        calls: list[str] = []
+
+        def replace(src, dst, *args, real=os.replace, calls=calls, n=n, **kwargs):
+            real(src, dst, *args, **kwargs)
+            calls.append(dst)
+            if len(calls) == n:
+                os.kill(os.getpid(), signal.SIGINT)
+
+        monkeypatch.setattr(os, "replace", replace)
+        with pytest.raises(KeyboardInterrupt):
+            save_mesh(_textured((10, 200, 10)), folder / "t.obj")
+        monkeypatch.undo()
+        assert _files(folder) in (old, _files(new)), f"Ctrl-C in rename {n}"  # no backup left either
+
+
+def test_a_thread_writing_does_not_join_another_threads_block(tmp_path):
+    # the block is the thread's own (a context variable): a file another thread writes meanwhile is renamed into place
+    # as its atomic_path ends, not staged in (and rolled back or renamed with) this thread's files
+    import threading
+
+    from stepterrain.export import _replaced_together, atomic_path
+
+    seen = {}
+
+    def other() -> None:
+        with atomic_path(tmp_path / "other.txt") as tmp:
+            tmp.write_text("other")
+        seen["other"] = (tmp_path / "other.txt").exists()
+
+    with _replaced_together():
+        with atomic_path(tmp_path / "mine.txt") as tmp:
+            tmp.write_text("mine")
+        thread = threading.Thread(target=other)
+        thread.start()
+        thread.join()
+        seen["mine"] = (tmp_path / "mine.txt").exists()
+    assert seen == {"other": True, "mine": False}
+    assert sorted(_files(tmp_path)) == ["mine.txt", "other.txt"]
