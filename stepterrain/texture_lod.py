@@ -1200,7 +1200,8 @@ class GeometryPatch:
     """A node N of the geometry multiresolution model H(G) (§3.1): grid nodes rows[0]..rows[1] x
     cols[0]..cols[1] (inclusive), approximated by every ``stride``-th node; ``error`` e(N) is the largest
     vertical distance between the terrain and that approximation (the triangles :func:`paint_with_textures` draws;
-    where a nodata node leaves terrain with data undrawn, at least the coarse cell's diagonal); ``box`` B(N) =
+    where a nodata node leaves terrain with data undrawn, or a void is drawn over, at least the coarse cell's
+    diagonal); ``box`` B(N) =
     (min xyz, max xyz)."""
 
     domain: Extent
@@ -1279,7 +1280,9 @@ def _approximation_error(block: NDArray[np.float32], stride: int, spacing: tuple
 
     A node with data that no drawn triangle covers (the approximation's hole around a nodata node is wider than the
     terrain's) counts as the coarse cell's diagonal, stride × hypot(dx, dy) in world units: γ(N) then refines the
-    patch once that hole spans more than γ_user pixels on screen (its vertical distance is undefined)."""
+    patch once that hole spans more than γ_user pixels on screen (its vertical distance is undefined). So does a
+    nodata node that a drawn triangle covers (a void inside coarse cells whose corners have data, drawn over as
+    ground): it counted 0, and a flat DEM with a lake of nodata drew its root, the lake covered, from any distance."""
     if stride <= 1:
         return 0.0
     z = np.asarray(block, dtype=np.float64)
@@ -1309,7 +1312,10 @@ def _approximation_error(block: NDArray[np.float32], stride: int, spacing: tuple
         fr, fc = fr[:, None], fc[None, :]
         upper, lower = planes(k, m, fr, fc)
         diff = np.abs(z - np.where(fc >= fr, upper, lower))
-        return float(np.nanmax(diff)) if np.isfinite(diff).any() else 0.0
+        error = float(np.nanmax(diff)) if np.isfinite(diff).any() else 0.0
+        if not np.isfinite(z).all():  # a void inside the coarse cells (their corners have data): drawn over
+            error = max(error, stride * math.hypot(*spacing))
+        return error
     worst = np.zeros(z.shape)
     covered = np.zeros(z.shape, dtype=bool)
     # a node on a coarse row or column lies in the cells on both sides of it: where one side's triangle is not drawn
@@ -1328,7 +1334,7 @@ def _approximation_error(block: NDArray[np.float32], stride: int, spacing: tuple
                 covered |= drawn
     data = np.isfinite(z)
     error = float(worst[data & covered].max()) if (data & covered).any() else 0.0
-    if (data & ~covered).any():
+    if (data != covered).any():  # terrain with data left undrawn, or a void drawn over
         error = max(error, stride * math.hypot(*spacing))
     return error
 

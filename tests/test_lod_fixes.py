@@ -208,8 +208,9 @@ def test_a_pyramid_of_a_memmap_whose_file_was_replaced_reads_the_mapped_pixels(t
 
 def _drawn_mesh_error(block, stride, spacing):
     """e(N) by brute force: every node with data against every drawn triangle of the coarse mesh containing it
-    (paint_with_textures' mesh: grid_faces' split, no triangle with a nodata corner); a node no triangle covers
-    counts as the coarse cell's diagonal. A leaf (stride 1) is the terrain itself: 0."""
+    (paint_with_textures' mesh: grid_faces' split, no triangle with a nodata corner); a node with data no triangle
+    covers, or a node without data a triangle covers, counts as the coarse cell's diagonal. A leaf (stride 1) is the
+    terrain itself: 0."""
     if stride == 1:
         return 0.0
     rows, cols = block.shape
@@ -226,8 +227,7 @@ def _drawn_mesh_error(block, stride, spacing):
     worst = 0.0
     for i in range(rows):
         for j in range(cols):
-            if not np.isfinite(block[i, j]):
-                continue
+            data = bool(np.isfinite(block[i, j]))
             covered = False
             for (r0, c0), (r1, c1), (r2, c2) in triangles:
                 det = (r1 - r0) * (c2 - c0) - (r2 - r0) * (c1 - c0)
@@ -236,9 +236,10 @@ def _drawn_mesh_error(block, stride, spacing):
                 if min(w1, w2, 1.0 - w1 - w2) < -1e-12:
                     continue
                 covered = True
-                value = (1 - w1 - w2) * block[r0, c0] + w1 * block[r1, c1] + w2 * block[r2, c2]
-                worst = max(worst, abs(float(block[i, j]) - float(value)))
-            if not covered:
+                if data:
+                    value = (1 - w1 - w2) * block[r0, c0] + w1 * block[r1, c1] + w2 * block[r2, c2]
+                    worst = max(worst, abs(float(block[i, j]) - float(value)))
+            if covered != data:  # ground left undrawn, or a void drawn over
                 worst = max(worst, stride * float(np.hypot(*spacing)))
     return worst
 
@@ -1440,3 +1441,30 @@ def test_pyramid_over_a_npy_file_whose_mode_or_links_changed_still_reads(tmp_pat
         os.link(path, tmp_path / "backup.npy")
         assert np.asarray(pyramid.levels[1]).max() == 10
         assert np.asarray(pyramid.sub_image(0, (0, 2, 0, 2))).max() == 10
+
+
+def test_a_void_the_coarse_mesh_draws_over_counts_in_the_geometric_error():
+    """e(N) skipped nodes without data: a void inside a coarse cell whose corners have data is drawn over by the
+    coarse mesh (ground where the DEM has none) and counted 0, so a flat DEM with a lake of nodata drew its root alone,
+    the lake covered, from any distance, even a few cells above it (e(root) 0, while its children, whose finer mesh
+    leaves the void's rim undrawn, had 4·√2). The void drawn over now counts as the coarse cell's diagonal, as terrain
+    left undrawn does, so γ refines until the void opens on screen."""
+    from stepterrain.terrain import heightfield_mesh
+    from stepterrain.texture_lod import paint_with_textures
+
+    flat = np.zeros((65, 65), np.float32)
+    flat[10:15, 10:15] = np.nan  # inside the root's coarse cell rows 8..16, cols 8..16 (stride 8): drawn over
+    quadtree = PatchQuadtree(flat, leaf_size=8)
+    assert quadtree.root.error == pytest.approx(8 * np.sqrt(2.0))
+    # an eye 100 units above the void sees the whole DEM, a cell ~10 pixels across, the void ~50
+    camera = Camera((12.0, 12.0, 100.0), (12.0, 12.0001, 0.0), up=(0.0, 1.0, 0.0), viewport=(800, 800))
+    with ImagePyramid.build(np.full((64, 64, 3), 90, np.uint8), extent=quadtree.root.domain, device="cpu") as pyramid:
+        tree = TextureTree(pyramid, quadtree, max_texture_size=16)
+        items = render_with_textures(quadtree.root, [tree.root], camera, gamma_user=1.0, tau_user=1e9)
+        area = sum(paint_with_textures(item).area for item in items)
+    assert area == pytest.approx(heightfield_mesh(flat).area)  # the void is open: 4096 - 35 cells of ground
+    small = np.zeros((33, 33), np.float32)
+    small[10:13, 10:13] = small[3, 27] = np.nan  # drawn over by the coarser patches, a hole in the finer ones
+    for patch in PatchQuadtree(small, leaf_size=4, spacing=(2.0, -1.5)).patches():
+        block = small[patch.rows[0]: patch.rows[1] + 1, patch.cols[0]: patch.cols[1] + 1].astype(np.float64)
+        assert patch.error == pytest.approx(_drawn_mesh_error(block, patch.stride, (2.0, -1.5)), rel=1e-9, abs=1e-9)
