@@ -208,8 +208,9 @@ def test_a_pyramid_of_a_memmap_whose_file_was_replaced_reads_the_mapped_pixels(t
 
 def _drawn_mesh_error(block, stride, spacing):
     """e(N) by brute force: every node with data against every drawn triangle of the coarse mesh containing it
-    (paint_with_textures' mesh: grid_faces' split, no triangle with a nodata corner); a node no triangle covers
-    counts as the coarse cell's diagonal. A leaf (stride 1) is the terrain itself: 0."""
+    (paint_with_textures' mesh: grid_faces' split, no triangle with a nodata corner); a node with data no triangle
+    covers, or a node without data a triangle covers, counts as the coarse cell's diagonal. A leaf (stride 1) is the
+    terrain itself: 0."""
     if stride == 1:
         return 0.0
     rows, cols = block.shape
@@ -226,8 +227,7 @@ def _drawn_mesh_error(block, stride, spacing):
     worst = 0.0
     for i in range(rows):
         for j in range(cols):
-            if not np.isfinite(block[i, j]):
-                continue
+            data = bool(np.isfinite(block[i, j]))
             covered = False
             for (r0, c0), (r1, c1), (r2, c2) in triangles:
                 det = (r1 - r0) * (c2 - c0) - (r2 - r0) * (c1 - c0)
@@ -236,9 +236,10 @@ def _drawn_mesh_error(block, stride, spacing):
                 if min(w1, w2, 1.0 - w1 - w2) < -1e-12:
                     continue
                 covered = True
-                value = (1 - w1 - w2) * block[r0, c0] + w1 * block[r1, c1] + w2 * block[r2, c2]
-                worst = max(worst, abs(float(block[i, j]) - float(value)))
-            if not covered:
+                if data:
+                    value = (1 - w1 - w2) * block[r0, c0] + w1 * block[r1, c1] + w2 * block[r2, c2]
+                    worst = max(worst, abs(float(block[i, j]) - float(value)))
+            if covered != data:  # ground left undrawn, or a void drawn over
                 worst = max(worst, stride * float(np.hypot(*spacing)))
     return worst
 
@@ -1440,3 +1441,105 @@ def test_pyramid_over_a_npy_file_whose_mode_or_links_changed_still_reads(tmp_pat
         os.link(path, tmp_path / "backup.npy")
         assert np.asarray(pyramid.levels[1]).max() == 10
         assert np.asarray(pyramid.sub_image(0, (0, 2, 0, 2))).max() == 10
+
+
+def test_a_void_the_coarse_mesh_draws_over_counts_in_the_geometric_error():
+    """e(N) skipped nodes without data: a void inside a coarse cell whose corners have data is drawn over by the
+    coarse mesh (ground where the DEM has none) and counted 0, so a flat DEM with a lake of nodata drew its root alone,
+    the lake covered, from any distance, even a few cells above it (e(root) 0, while its children, whose finer mesh
+    leaves the void's rim undrawn, had 4·√2). The void drawn over now counts as the coarse cell's diagonal, as terrain
+    left undrawn does, so γ refines until the void opens on screen."""
+    from stepterrain.terrain import heightfield_mesh
+    from stepterrain.texture_lod import paint_with_textures
+
+    flat = np.zeros((65, 65), np.float32)
+    flat[10:15, 10:15] = np.nan  # inside the root's coarse cell rows 8..16, cols 8..16 (stride 8): drawn over
+    quadtree = PatchQuadtree(flat, leaf_size=8)
+    assert quadtree.root.error == pytest.approx(8 * np.sqrt(2.0))
+    # an eye 100 units above the void sees the whole DEM, a cell ~10 pixels across, the void ~50
+    camera = Camera((12.0, 12.0, 100.0), (12.0, 12.0001, 0.0), up=(0.0, 1.0, 0.0), viewport=(800, 800))
+    with ImagePyramid.build(np.full((64, 64, 3), 90, np.uint8), extent=quadtree.root.domain, device="cpu") as pyramid:
+        tree = TextureTree(pyramid, quadtree, max_texture_size=16)
+        items = render_with_textures(quadtree.root, [tree.root], camera, gamma_user=1.0, tau_user=1e9)
+        area = sum(paint_with_textures(item).area for item in items)
+    assert area == pytest.approx(heightfield_mesh(flat).area)  # the void is open: 4096 - 35 cells of ground
+    small = np.zeros((33, 33), np.float32)
+    small[10:13, 10:13] = small[3, 27] = np.nan  # drawn over by the coarser patches, a hole in the finer ones
+    for patch in PatchQuadtree(small, leaf_size=4, spacing=(2.0, -1.5)).patches():
+        block = small[patch.rows[0]: patch.rows[1] + 1, patch.cols[0]: patch.cols[1] + 1].astype(np.float64)
+        assert patch.error == pytest.approx(_drawn_mesh_error(block, patch.stride, (2.0, -1.5)), rel=1e-9, abs=1e-9)
+
+
+def _surface_at(block, ri, ci, points):
+    """Heights at ``points`` (n, 2) (row, column, fractional) of the mesh on nodes ri x ci of ``block`` (two triangles a
+    cell, split along (r, c)-(r+1, c+1)) by barycentric weights in the cell holding each point."""
+    ri, ci = np.asarray(ri), np.asarray(ci)
+    r, c = points[:, 0], points[:, 1]
+    k = np.clip(np.searchsorted(ri, r, side="right") - 1, 0, len(ri) - 2)
+    m = np.clip(np.searchsorted(ci, c, side="right") - 1, 0, len(ci) - 2)
+    u = (r - ri[k]) / (ri[k + 1] - ri[k])
+    v = (c - ci[m]) / (ci[m + 1] - ci[m])
+    z00, z01 = block[ri[k], ci[m]], block[ri[k], ci[m + 1]]
+    z10, z11 = block[ri[k + 1], ci[m]], block[ri[k + 1], ci[m + 1]]
+    return np.where(v >= u, z00 * (1 - v) + z01 * (v - u) + z11 * u, z00 * (1 - u) + z10 * (u - v) + z11 * v)
+
+
+def _overlay_error(block, stride):
+    """The largest vertical distance between the terrain's mesh and the coarse mesh over a block with data everywhere,
+    exactly: their difference is linear on each piece of the two triangulations' overlay, so it is largest at a node
+    or where a coarse edge crosses a fine edge (each found here by intersecting every pair of segments)."""
+    rows, cols = block.shape
+    ri = sorted({*range(0, rows, stride), rows - 1})
+    ci = sorted({*range(0, cols, stride), cols - 1})
+
+    def edges(rs, cs):
+        out = []
+        for a, r in enumerate(rs):
+            for b, c in enumerate(cs):
+                if b + 1 < len(cs):
+                    out.append((r, c, r, cs[b + 1]))
+                if a + 1 < len(rs):
+                    out.append((r, c, rs[a + 1], c))
+                if a + 1 < len(rs) and b + 1 < len(cs):
+                    out.append((r, c, rs[a + 1], cs[b + 1]))
+        return np.array(out, dtype=np.float64)
+
+    fine, coarse = edges(range(rows), range(cols)), edges(ri, ci)
+    p, d = fine[:, None, :2], fine[:, None, 2:] - fine[:, None, :2]
+    q, e = coarse[None, :, :2], coarse[None, :, 2:] - coarse[None, :, :2]
+    cross = d[..., 0] * e[..., 1] - d[..., 1] * e[..., 0]
+    w = q - p
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = (w[..., 0] * e[..., 1] - w[..., 1] * e[..., 0]) / cross
+        t = (w[..., 0] * d[..., 1] - w[..., 1] * d[..., 0]) / cross
+    hit = (cross != 0) & (s >= 0) & (s <= 1) & (t >= 0) & (t <= 1)
+    crossings = (p + np.where(hit, s, 0.0)[..., None] * d)[hit]
+    nodes = np.stack(np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij"), -1).reshape(-1, 2).astype(float)
+    points = np.concatenate([nodes, crossings])
+    fine_z = _surface_at(block, range(rows), range(cols), points)
+    return float(np.abs(fine_z - _surface_at(block, ri, ci, points)).max())
+
+
+def test_the_geometric_error_includes_where_a_narrow_coarse_cells_diagonal_crosses_the_terrain():
+    """e(N) was measured at the terrain's nodes only. The coarse mesh's last row and column of cells are narrower than
+    the stride wherever the patch's size is no multiple of it (odd-sized DEMs); their diagonals then cross the
+    terrain's edges between nodes, where the two surfaces may lie farther apart than at any node: on Big Tujunga
+    (leaf_size 8) 820 of 21845 patches' e(N) fell short, by up to 7 m (18.5 for 25.5 m), so γ let the drawn error
+    pass γ_user by a third. The crossings are measured too."""
+    heights = real_dem_crop("big_tujunga_srtm_30m_utm11n.npz", size=45, step=3).astype(np.float64)[:, :37]
+    assert np.isfinite(heights).all()
+    quadtree = PatchQuadtree(heights, leaf_size=4)
+    checked = 0
+    for patch in quadtree.patches():
+        if patch.stride == 1:
+            continue
+        block = heights[patch.rows[0]: patch.rows[1] + 1, patch.cols[0]: patch.cols[1] + 1]
+        assert patch.error == pytest.approx(_overlay_error(block, patch.stride), rel=1e-9, abs=1e-9)
+        checked += 1
+    assert checked > 10
+    # the smallest case: one coarse cell 1 x 2, its diagonal crossing the middle column between the nodes
+    from stepterrain.texture_lod import _approximation_error
+
+    block = np.array([[0.0, 5.0, 10.0], [10.0, 5.0, 0.0]])  # 0 at every node, 5 m apart at (0.5, 1)
+
+    assert _approximation_error(block, 2) == pytest.approx(_overlay_error(block, 2)) == pytest.approx(5.0)
