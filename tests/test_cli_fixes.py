@@ -2594,3 +2594,61 @@ def test_info_with_stdout_closed_is_an_error_not_a_silent_success(dem, capsys, m
     assert code == 2 and "stepterrain info: error: standard output is closed" in err, err
     code = cli.main(["info", str(tmp := dem.with_suffix(".ply"))])
     assert code == 2 and "standard output is closed" in capsys.readouterr().err and not tmp.exists()
+
+
+#: (subcommand, option, value): every numeric option, in a value float()/int() reads though a user did not type that
+#: number: digit grouping (1_0 is 10 to Python, 1 or an error to strtod and to other tools) and non-ASCII digits (an
+#: Arabic-Indic 3 is 3 to Python). --band, --coarsen and --nodata refused them already; these read them silently.
+_UNTYPED_NUMBERS = [
+    *[("steps", opt, v) for opt in ("--interval", "--base", "--gamma", "--lens-edge", "--floor", "--print-size",
+                                    "--print-z-scale", "--z-scale") for v in ("1_0", "\u0663")],
+    ("steps", "--levels", "1_0,20"), ("steps", "--crop", "0,1_0,0,10"), ("steps", "--lens", "1,2,\u0663"),
+    ("steps", "--lens-relative", "0.5,0.5,0_2"), ("steps", "--spacing", "1_0"), ("steps", "--camera", "1_0,30"),
+    ("steps", "--size", "1_28x96"), ("steps", "--size", "\u0661\u0662\u0668x96"),
+    ("steps", "--memory-budget", "\u0663GiB"),
+    *[("globe", opt, "1_0") for opt in ("--face-size", "--exaggeration", "--radius", "--error", "--tilt", "--heading",
+                                        "--view-angle")],
+    ("globe", "--eye", "3_0,10,1e7"),
+    *[("closeup", opt, "1_0") for opt in ("--edge", "--stepped", "--z-scale", "--frames", "--fps", "--spin",
+                                          "--scale")],
+    ("closeup", "--offset", "0,0,1_0"), ("closeup", "--rotation", "1_0,0"), ("closeup", "--roi", "1,2,\u0663"),
+    ("closeup", "--color", "0_0,0,0"),
+    *[("texture", opt, "1_0") for opt in ("--azimuth", "--altitude", "--z-factor", "--shadow-strength", "--occlusion",
+                                          "--texel-size", "--contours", "--contour-width", "--contour-index",
+                                          "--interval", "--z-scale")],
+    ("texture", "--image-extent", "0,1_0,0,10"), ("texture", "--contour-color", "0_0,0,0"),
+    *[("batch", opt, "1_0") for opt in ("--interval", "--base", "--gamma", "--floor", "--workers", "--connect-timeout",
+                                        "--retries", "--z-scale", "--tile")],
+]
+
+
+@pytest.mark.parametrize(("command", "option", "value"), _UNTYPED_NUMBERS)
+def test_numbers_with_underscores_or_non_ascii_digits_are_refused_naming_the_option(command, option, value, tmp_path,
+                                                                                    capsys):
+    """Every numeric option read '1_0' as 10 and an Arabic-Indic 3 as 3 (float()'s and int()'s reading): --interval
+    1_0 stepped at 10 m without a word, and a refusal named a value not typed (--gamma 1_0: 'got 10.0'). They are
+    argparse errors now, naming the option and the text typed, as --band's, --coarsen's and --nodata's were."""
+    out = tmp_path / "out"
+    code, stdout, err = run(capsys, command, f"{option}={value}", "-o", out / "x.glb" if command != "batch" else out)
+    assert code == 2, err
+    assert f"argument {option}" in err and repr(value) in err and "Traceback" not in err, err
+    assert len(err.strip().splitlines()) == 1 and stdout == ""
+    assert not out.exists()
+
+
+def test_batch_spacing_beyond_float32_is_a_usage_error_before_any_item_runs(tmp_path, capsys):
+    """batch --spacing 1e308 ran every item, each failing alike ('spacing must lie between 1e-30 and 1e+30'), exit 1
+    after the work, where steps refused it (exit 2); and steps' refusal named (1e+308, -1e+308), not the 1e308 typed.
+    --spacing's range is argparse's now, for every subcommand, naming the text typed."""
+    src = tile_folder(tmp_path / "tiles")
+    for spacing in ("1e308", "1e-31", "30,1e31"):
+        code, out, err = run(capsys, "batch", src, "--spacing", spacing, "--scheduler", "serial",
+                             "-o", tmp_path / "out")
+        assert code == 2, err
+        assert "argument --spacing" in err and repr(spacing) in err and "1e-30" in err, err
+        assert not (tmp_path / "out").exists()
+        code, out, err = run(capsys, "steps", src / "t0.npy", "--spacing", spacing, "-o", tmp_path / "s.glb")
+        assert code == 2 and "argument --spacing" in err and repr(spacing) in err, err
+        assert not (tmp_path / "s.glb").exists()
+    code, out, err = run(capsys, "steps", src / "t0.npy", "--spacing", "1e-30,1e30", "-o", tmp_path / "s.glb")
+    assert code == 0, err  # the range's ends are accepted
