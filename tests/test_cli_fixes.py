@@ -6,6 +6,7 @@ import json
 import math
 import os
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -2652,3 +2653,73 @@ def test_batch_spacing_beyond_float32_is_a_usage_error_before_any_item_runs(tmp_
         assert not (tmp_path / "s.glb").exists()
     code, out, err = run(capsys, "steps", src / "t0.npy", "--spacing", "1e-30,1e30", "-o", tmp_path / "s.glb")
     assert code == 0, err  # the range's ends are accepted
+
+
+#: Text no numeric option reads as a number: empty, blank, non-finite, hex, another separator, digit grouping,
+#: non-ASCII digits (each option's own range is its own test's).
+_NOT_NUMBERS = ("", " ", "nan", "inf", "-inf", "0x10", "1;2", "1_0", "\u0663")
+
+#: subcommand -> (argv before the option, {option: (context options it needs, values refused besides _NOT_NUMBERS)}).
+_FUZZ = {
+    "steps": (["--spacing", "30", "-o", "{out}/a.glb"], {
+        "--band": ((), ("0", "-1", "1e308", "1,2")), "--spacing": ((), ("0", "-1", "1e308", "1e-400", "1,2,3")),
+        "--crop": ((), ("1,2", "1,2,3,4,5")), "--coarsen": ((), ("0", "1", "-1", "1.5")),
+        "--interval": ((), ("0", "-1", "-0", "1e308")), "--levels": ((), ("1e308", "2,1")),
+        "--base": (("--interval=2",), ("1e308",)), "--gamma": ((), ("-1", "1.5", "1e308")),
+        "--lens": ((), ("1,2",)), "--lens-relative": ((), ("0.5,0.5,0", "1,2,3,4")),
+        "--lens-edge": (("--lens-relative=0.5,0.5,0.2",), ("-1",)), "--floor": (("--solid",), ("1e308",)),
+        "--print-size": (("--solid",), ("0", "-1")), "--print-z-scale": (("--solid", "--print-size=100"), ("0",)),
+        "--size": (("--png", "{out}/a.png"), ("7x8", "8x16385", "0x0", "8x8x8")),
+        "--z-scale": (("--png", "{out}/a.png"), ("0", "-1")), "--camera": (("--png", "{out}/a.png"), ("0,91", "1")),
+        "--memory-budget": ((), ("0", "0.5", "-1", "1 XB")),
+    }),
+    "globe": (["--face-size=9", "-o", "{out}/a.glb"], {
+        "--face-size": ((), ("0", "4", "1.5")), "--exaggeration": ((), ("0", "-1")), "--radius": ((), ("0", "1e308")),
+        "--error": ((), ("-1",)), "--eye": ((), ("91,0,1e7", "0,0")), "--tilt": ((), ("90", "-1")),
+        "--heading": ((), ()), "--view-angle": ((), ("0", "180")), "--size": (("--png", "{out}/a.png"), ("7x8",)),
+    }),
+    "closeup": (["--spacing", "30", "-o", "{out}/a.glb"], {
+        "--roi": ((), ("1,2", "0,0,0")), "--roi-relative": ((), ("0.5,0.5,0",)), "--edge": ((), ("-1",)),
+        "--scale": ((), ("0", "1,2")), "--offset": ((), ("1,2",)), "--rotation": ((), ("1,2,3",)),
+        "--color": ((), ("2,0,0", "nope")), "--stepped": ((), ("-1",)),
+        "--frames": (("--gif", "{out}/a.gif", "--size=128x96"), ("0", "-1")),
+        "--fps": (("--gif", "{out}/a.gif", "--size=128x96"), ("0", "1000")),
+        "--spin": (("--gif", "{out}/a.gif", "--size=128x96"), ("0",)),
+        "--z-scale": (("--png", "{out}/a.png", "--size=128x96"), ("0",)),
+    }),
+    "texture": (["--spacing", "30", "-o", "{out}/a.png"], {
+        "--azimuth": ((), ()), "--altitude": ((), ("91", "-1")), "--z-factor": ((), ("0", "1e308")),
+        "--shadow-strength": (("--shadows",), ("1.5", "-1")), "--occlusion": ((), ("1.5", "-1")),
+        "--texel-size": ((), ("0", "-1", "31")), "--contours": ((), ("0", "-1")),
+        "--contour-width": (("--contours=2",), ("0",)), "--contour-color": (("--contours=2",), ("1,0", "2,0,0")),
+        "--contour-index": (("--contours=2",), ("-1", str(2**31))), "--interval": (("--mesh", "{out}/a.glb"), ("0",)),
+        "--image-extent": (("--image", "{dem}"), ("1,2", "1,0,0,1")),
+    }),
+    "batch": (["--scheduler=serial", "-o", "{out}/d"], {
+        "--tile": ((), ("0", "1x", "1x2x3")), "--interval": ((), ("0", "-1")), "--gamma": ((), ("-1", "2")),
+        "--retries": ((), ("-1",)), "--floor": (("--solid",), ("1e308",)), "--spacing": ((), ("1e308",)),
+    }),
+}
+
+
+@pytest.mark.parametrize("command", sorted(_FUZZ))
+def test_fuzzed_option_values_are_refused_in_one_line_naming_the_option(command, dem, tmp_path, capsys):
+    """A fuzz of every numeric option of every subcommand (not a number, not finite, out of range, a list of the
+    wrong length): each ends with exit status 2 and one line naming the option and the text typed, no traceback,
+    nothing written, before any work."""
+    before, options = _FUZZ[command]
+    out = tmp_path / "out"
+    bad = []
+    for option, (context, values) in options.items():
+        for value in (*_NOT_NUMBERS, *values):  # (--nodata's own: nan and inf are nodata values)
+            argv = [command, str(dem), "-q", *(a.format(out=out, dem=dem) for a in (*before, *context)),
+                    f"{option}={value}"]
+            code, stdout, err = run(capsys, *argv)
+            lines = err.strip().splitlines()
+            ok = (code == 2 and stdout == "" and len(lines) == 1 and "Traceback" not in err
+                  and lines[0].startswith(f"stepterrain {command}: error: ") and option in lines[0]
+                  and not out.exists())
+            if not ok:
+                bad.append(f"{option}={value!r}: exit {code}, {err.strip()!r}")
+                shutil.rmtree(out, ignore_errors=True)
+    assert not bad, "\n".join(bad)
