@@ -65,7 +65,11 @@ def _refuse_alike(report: Any, marker: str, head: str, inputs: tuple[str, str], 
 
 
 def _tile(text: str) -> int | tuple[int, int]:
+    from .cli import _untyped
+
     try:
+        if _untyped(text):  # int() reads 1_0 as 10, an Arabic-Indic 3 as 3
+            raise ValueError(text)
         parts = [int(v) for v in text.lower().split("x")]
     except ValueError:
         raise argparse.ArgumentTypeError(
@@ -89,6 +93,8 @@ def add_parser(commands: Any) -> None:
         _coarsen_factor,
         _floats,
         _path,
+        _real,
+        _whole,
         _window,
     )
     from .export import MESH_EXTENSIONS
@@ -133,14 +139,14 @@ def add_parser(commands: Any) -> None:
                    help="cut one raster into tiles of N (or R x C) cells; neighbours share border nodes "
                         "(default 256 for the embedded DEM)")
     iso = p.add_mutually_exclusive_group()
-    iso.add_argument("--interval", type=float, metavar="M",
+    iso.add_argument("--interval", type=_real, metavar="M",
                      help=f"uniform isovalues base + k*M (default a round M giving ~{TARGET_STEPS} steps over "
                           f"the whole source: a raster's tiles, a series' frames, all the files of a folder)")
     iso.add_argument("--levels", type=_floats(None, "comma-separated heights a,b,c"), metavar="a,b,c",
                      help="explicit, strictly increasing isovalues")
-    p.add_argument("--base", type=float, metavar="B",
+    p.add_argument("--base", type=_real, metavar="B",
                    help="isovalue offset for --interval (default 0); not with --levels")
-    p.add_argument("--gamma", type=float, default=1.0, metavar="G",
+    p.add_argument("--gamma", type=_real, default=1.0, metavar="G",
                    help="blend in [0, 1]: 0 = original surface, 1 = fully stepped (default 1)")
     p.add_argument("--colormap", default=None, metavar="NAME",
                    help="matplotlib colormap for level colors, or 'none' (default terrain, land part, as steps; "
@@ -148,25 +154,25 @@ def add_parser(commands: Any) -> None:
                         "share their levels, so a height has one colour in all of them (a folder's files are read "
                         "once more first, for their common height range, recorded for reruns)")
     p.add_argument("--solid", action="store_true", help="watertight solids (for .stl/.3mf printing)")
-    p.add_argument("--floor", type=float, metavar="Z",
+    p.add_argument("--floor", type=_real, metavar="Z",
                    help="base height of --solid (default: one --interval under the whole raster, series or "
                         "folder, with --levels a tenth of their span (at least 0.1), shared by every item)")
     p.add_argument("--scheduler", metavar="ADDR",
                    help="an existing dask scheduler, e.g. tcp://host:8786; 'serial' runs in this process "
                         "(default: a LocalCluster of --workers processes)")
-    p.add_argument("--workers", type=int, metavar="N",
+    p.add_argument("--workers", type=_whole, metavar="N",
                    help="LocalCluster worker processes (default 2; at most one per item to run); not with --scheduler")
-    p.add_argument("--connect-timeout", type=float, default=None, metavar="S",
+    p.add_argument("--connect-timeout", type=_real, default=None, metavar="S",
                    help="seconds to reach --scheduler (or start the LocalCluster) before giving up (default 10); "
                         "not with --scheduler serial")
-    p.add_argument("--retries", type=int, default=2, metavar="N",
+    p.add_argument("--retries", type=_whole, default=2, metavar="N",
                    help="extra attempts for an item whose task failed (default 2)")
     p.add_argument("--no-resume", action="store_true", help="redo every item, even complete ones")
     _add_device(p, " on the workers")
     p.add_argument("--png", type=_path, metavar="OUT.png",
                    help="also render an overview: the welded tiles, or a contact sheet of up to 16 items")
     p.add_argument("--size", type=_window, default=None, metavar="WxH", help="--png size (default 1280x800)")
-    p.add_argument("--z-scale", type=float, default=None, metavar="S",
+    p.add_argument("--z-scale", type=_real, default=None, metavar="S",
                    help="vertical exaggeration of the overview render only, with --png (default 2; the meshes are "
                         "written as they are)")
     _add_camera(p, "the overview render, with --png (each cell of a contact sheet alike)")

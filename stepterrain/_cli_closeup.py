@@ -51,11 +51,12 @@ def _color_option(text: str) -> str | tuple[float, ...]:
     it (a name, '#rrggbb'); matplotlib reads no "1,0,0", which the refusal's "RGB in [0, 1]" offered. Checked here,
     before the DEM is read, so that a refusal names what was typed (CloseUp's named the parsed tuple, (1.0, 2.0, 0.0)
     for ``--color 1,2,0``)."""
+    from .cli import _untyped
     from .closeup import _color
 
     parts = text.split(",")
     value: str | tuple[float, ...] = text
-    if len(parts) == 3:
+    if len(parts) == 3 and not _untyped(text):  # 0_0,0,0 is no r,g,b (float() reads 0_0 as 0): matplotlib's to read
         try:
             value = tuple(float(part) for part in parts)
         except ValueError:
@@ -71,9 +72,11 @@ def _color_option(text: str) -> str | tuple[float, ...]:
 def _spin(text: str) -> float:
     """--spin: a finite non-zero number of turns per second (negative turns the other way), refused by argparse:
     inf, NaN and 0 were refused only after the output paths and the other options were checked, 1e308 not at all."""
+    from .cli import _real
+
     try:
-        value = float(text)
-    except ValueError:
+        value = _real(text)  # in ASCII digits, without underscores
+    except argparse.ArgumentTypeError:
         value = math.nan
     if not math.isfinite(value) or value == 0:
         raise argparse.ArgumentTypeError(f"expected a finite non-zero number of turns per second (negative: the "
@@ -83,7 +86,7 @@ def _spin(text: str) -> float:
 
 def add_parser(commands: Any) -> None:
     """Add the ``closeup`` subcommand to the ``stepterrain`` parser."""
-    from .cli import _add_camera, _add_device, _add_input_options, _floats, _path, _window
+    from .cli import _add_camera, _add_device, _add_input_options, _floats, _path, _real, _whole, _window
 
     p = commands.add_parser(
         "closeup",
@@ -103,7 +106,7 @@ def add_parser(commands: Any) -> None:
                    help="ROI centre as fractions of the extent, radius as a fraction of its shorter side")
     p.add_argument("--shape", choices=("circle", "rectangle", "rounded"), default="circle",
                    help="ROI shape from the library (default circle)")
-    p.add_argument("--edge", type=float, default=None, metavar="W",
+    p.add_argument("--edge", type=_real, default=None, metavar="W",
                    help="soft edge width in world units (default: a fifth of the radius)")
     p.add_argument("--scale", type=_floats(None, "s or sx,sy,sz"), action="append", metavar="s",
                    help="close-up scale: s or sx,sy,sz (default 1.5)")
@@ -114,7 +117,7 @@ def add_parser(commands: Any) -> None:
                    help="tilt about x and turn about the vertical, degrees (default 0,0; whole turns are taken off)")
     p.add_argument("--color", type=_color_option, action="append", metavar="COLOR",
                    help="close-up color: a matplotlib name, #rrggbb or r,g,b in [0, 1] (default: a palette)")
-    p.add_argument("--stepped", type=float, action="append", metavar="INTERVAL",
+    p.add_argument("--stepped", type=_real, action="append", metavar="INTERVAL",
                    help="the close-up shows the stepped terrain at this interval (a mapping of its own: multi-pass "
                         "forward rendering, MPFR); 0: continuous")
     p.add_argument("--anchor", default="linear", metavar="PRESET",
@@ -125,7 +128,7 @@ def add_parser(commands: Any) -> None:
                    help="overview data mapping (default height)")
     p.add_argument("--colormap", default=None, metavar="NAME",
                    help="matplotlib colormap of the overview and the stepped close-ups (default terrain)")
-    p.add_argument("--z-scale", type=float, default=None, metavar="S",
+    p.add_argument("--z-scale", type=_real, default=None, metavar="S",
                    help="vertical exaggeration of the render and the animation (default 2)")
     _add_device(p)
     p.add_argument("-o", "--output", type=_path, metavar="OUT",
@@ -143,8 +146,8 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--spin", type=_spin, default=None, metavar="TURNS/S",
                    help="spin speed of the animation in turns per second, negative the other way, at most half a "
                         "turn a frame: |TURNS/S| <= --fps / 2 (default 0.25)")
-    p.add_argument("--frames", type=int, default=None, metavar="N", help="animation frames (default 24)")
-    p.add_argument("--fps", type=float, default=None, metavar="FPS", help="animation frame rate (default 12)")
+    p.add_argument("--frames", type=_whole, default=None, metavar="N", help="animation frames (default 24)")
+    p.add_argument("--fps", type=_real, default=None, metavar="FPS", help="animation frame rate (default 12)")
     _add_camera(p, "the render and the animation (a .png --output, --png or --gif), framing the overview and "
                    "the close-ups")
     p.set_defaults(run=_run_closeup)

@@ -31,8 +31,10 @@ from .cli import (
     _given,
     _mesh_and_png,
     _path,
+    _real,
     _refuse_unused,
     _size,
+    _whole,
     _window,
 )
 from .errors import DataFileError, InvalidInputError
@@ -144,14 +146,14 @@ def add_parser(commands: Any) -> None:
                              "metres (default: the unit the file names, else as stored)")
     _add_nodata(p, "the INPUT", "the globe refuses such cells as it refuses the file's own nodata: fill "
                                   "them first")
-    p.add_argument("--face-size", type=int, default=257, metavar="N",
+    p.add_argument("--face-size", type=_whole, default=257, metavar="N",
                    help="nodes per cube face edge, 2^k+1 (default 257; the paper uses 1025)")
-    p.add_argument("--exaggeration", type=float, default=1.0, metavar="X", help="vertical exaggeration (default 1)")
-    p.add_argument("--radius", type=float, default=None, metavar="M",
+    p.add_argument("--exaggeration", type=_real, default=1.0, metavar="X", help="vertical exaggeration (default 1)")
+    p.add_argument("--radius", type=_real, default=None, metavar="M",
                    help="sphere radius in metres (default: the mean radius a(1 - f/3) of the body the INPUT's CRS "
                         "names when it is not the earth (Mars: IAU_2015:49900, a GEOGCS of Mars 2000; the Moon: "
                         "IAU_2015:30100); else the earth's, 6371000)")
-    p.add_argument("--error", type=float, default=500.0, metavar="E",
+    p.add_argument("--error", type=_real, default=500.0, metavar="E",
                    help="metres of error tolerated at the eye's altitude (grows with distance squared); "
                         "0 = full resolution where visible (default 500)")
     p.add_argument("--eye", type=_floats(3, "lat,lon,altitude (degrees, degrees, metres)"),
@@ -159,11 +161,11 @@ def add_parser(commands: Any) -> None:
                    help="eye position: latitude, longitude (degrees) and altitude (metres above the sphere, and "
                         "above the terrain there: negative over land or sea floor below it, such as the Dead Sea); "
                         "default 30,10,3R, R the --radius (the whole globe in view)")
-    p.add_argument("--tilt", type=float, default=None, metavar="DEG",
+    p.add_argument("--tilt", type=_real, default=None, metavar="DEG",
                    help="tilt of the view from straight down, in [0, 90) degrees (default 0)")
-    p.add_argument("--heading", type=float, default=None, metavar="DEG",
+    p.add_argument("--heading", type=_real, default=None, metavar="DEG",
                    help="direction of the tilt, degrees clockwise from north; whole turns are taken off (default 0)")
-    p.add_argument("--view-angle", type=float, default=None, metavar="DEG",
+    p.add_argument("--view-angle", type=_real, default=None, metavar="DEG",
                    help="vertical field of view of the eye in [1e-08, 179] degrees (default 30): the view the mesh "
                         "is refined and culled for, and the --png render's")
     p.add_argument("--no-camera", action="store_true",

@@ -32,10 +32,12 @@ from .cli import (
     _input_terrain,
     _mesh_and_png,
     _path,
+    _real,
     _refuse_degrees,
     _refuse_unused,
     _size,
     _surface_size,
+    _whole,
     _window,
 )
 from .errors import DataFileError, InvalidInputError, MissingDependencyError
@@ -99,20 +101,20 @@ def add_parser(commands: Any) -> None:
                         "standard; MapLibre's shaders are in the Python API only, method='maplibre-...'), or none: "
                         "no hillshade, every node fully lit (an orthophoto's own light kept), --shadows and "
                         "--occlusion still darken")
-    p.add_argument("--azimuth", type=float, default=None, metavar="DEG",
+    p.add_argument("--azimuth", type=_real, default=None, metavar="DEG",
                    help="light azimuth, degrees clockwise from north (default 315); multidirectional shades by its "
                         "four fixed lights, so there it aims --shadows only")
-    p.add_argument("--altitude", type=float, default=None, metavar="DEG",
+    p.add_argument("--altitude", type=_real, default=None, metavar="DEG",
                    help="light altitude above the horizon in [0, 90] degrees (default 45); igor ignores it, so "
                         "there it aims --shadows only")
-    p.add_argument("--z-factor", type=float, default=None, metavar="Z",
+    p.add_argument("--z-factor", type=_real, default=None, metavar="Z",
                    help="vertical exaggeration of the shading (default 1)")
     p.add_argument("--shadows", action="store_true",
                    help="self-shadowing by the full-resolution terrain (default off; the library's topographic_layer "
                         "casts them by default, shadows=True)")
-    p.add_argument("--shadow-strength", type=float, default=None, metavar="S",
+    p.add_argument("--shadow-strength", type=_real, default=None, metavar="S",
                    help="with --shadows: how much a shadow darkens, in [0, 1] (default 0.6)")
-    p.add_argument("--occlusion", type=float, default=0.0, metavar="W",
+    p.add_argument("--occlusion", type=_real, default=0.0, metavar="W",
                    help="weight in [0, 1] of horizon-based ambient occlusion (default 0: off)")
     p.add_argument("--colormap", default="terrain", metavar="NAME",
                    help="matplotlib colormap of the hypsometric thematic layer, or 'none' (default terrain)")
@@ -133,7 +135,7 @@ def add_parser(commands: Any) -> None:
                         "info` prints, as --crop takes them; a geographic DEM's local metres); needed for an image "
                         "without georeferencing (PNG, JPEG without a world file, a TIFF without a geotransform); for "
                         "a georeferenced image it replaces the georeferencing")
-    p.add_argument("--texel-size", type=float, metavar="M",
+    p.add_argument("--texel-size", type=_real, metavar="M",
                    help="metres (the DEM's units) per texel of the texture, for -o, --mesh and --png alike (default: "
                         "the DEM's node spacing, one texel per node); finer keeps an --image's detail (a 0.5 m "
                         "orthophoto on a 30 m DEM: --texel-size 0.5), the hillshade, shadows and colours "
@@ -143,17 +145,17 @@ def add_parser(commands: Any) -> None:
                         "texture is checked against --memory-budget, and a textured --mesh or --png refuses more than "
                         f"{_GPU_TEXTURE_LIMIT} texels a side (the largest texture GPUs load); --normals stay on the "
                         "DEM's grid")
-    p.add_argument("--contours", type=float, metavar="M",
+    p.add_argument("--contours", type=_real, metavar="M",
                    help="contour lines every M height units (levels 0, M, 2M, ...), drawn last, over the shaded "
                         "colours and --image (unshaded, as on a topographic map), anti-aliased, their width in texels "
                         "of the texture (on --texel-size's grid too); not over the DEM's nodata. Heights in a named "
                         "unit (the file's, or --height-unit ft) are metres once loaded, so M then counts metres")
-    p.add_argument("--contour-width", type=float, default=None, metavar="TEXELS",
+    p.add_argument("--contour-width", type=_real, default=None, metavar="TEXELS",
                    help="with --contours: line width in texels (default 1); index lines are twice as wide")
     p.add_argument("--contour-color", type=_floats(None, "r,g,b or r,g,b,a in [0, 1]"), default=None,
                    metavar="R,G,B", help="with --contours: line colour, r,g,b (or r,g,b,a) in [0, 1] (default "
                                          "0.55,0.32,0.14, a map's contour brown); index lines 30%% darker")
-    p.add_argument("--contour-index", type=int, default=None, metavar="N",
+    p.add_argument("--contour-index", type=_whole, default=None, metavar="N",
                    help="with --contours: every Nth line (0, N x M, 2N x M, ... in height) is an index line, twice as "
                         "wide and darker (default 5; 0: none)")
     p.add_argument("--normals", type=_path, metavar="OUT.png", help="also write the normals encoded as RGB "
@@ -168,7 +170,7 @@ def add_parser(commands: Any) -> None:
                    + " ".join(MESH_EXTENSIONS) + " (GLB/glTF embed the image, OBJ writes it beside; .ply and .3mf "
                    "hold no texture: the texture's colour at each vertex instead; .stl, which holds no colours, is "
                    "refused)")
-    p.add_argument("--interval", type=float, metavar="M",
+    p.add_argument("--interval", type=_real, metavar="M",
                    help="with --mesh/--png: drape on the stepped terrain with this step interval (default: the "
                         "continuous heightfield)")
     p.add_argument("--png", type=_path, metavar="OUT.png",
@@ -176,7 +178,7 @@ def add_parser(commands: Any) -> None:
                         "run)")
     p.add_argument("--size", type=_window, default=None, metavar="WxH",
                    help="render size, with --png (default 1280x800)")
-    p.add_argument("--z-scale", type=float, default=None, metavar="S",
+    p.add_argument("--z-scale", type=_real, default=None, metavar="S",
                    help="vertical exaggeration of the render only, with --png (default 2)")
     _add_camera(p, "the render of the draped mesh, with --png")
     p.add_argument("--lighting", choices=("auto", "on", "off"), default=None,

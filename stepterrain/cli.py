@@ -201,8 +201,41 @@ def check_example_outputs(outputs: dict[str, str | os.PathLike[str] | None],
     _check_outputs({"--dem": dem}, names, **paths)
 
 
+#: float() and int() read digit grouping ('1_0' is 10) and the digits of every script (an Arabic-Indic 3 is 3): a number
+#: not typed as such (strtod, and so GDAL's tools and awk, read 1_0 as 1), which a refusal then named as its reading
+#: ('--gamma 1_0': got 10.0); every numeric option refuses them, as --band, --coarsen and --nodata do
+_PLAIN_DIGITS = "in ASCII digits, without underscores (digit grouping: 1_0 is 10 to Python, 1 to strtod)"
+
+
+def _untyped(text: str) -> bool:
+    """Whether ``text`` holds what float()/int() read but no one types as a number: an underscore, a non-ASCII digit."""
+    return "_" in text or not text.isascii()
+
+
+def _real(text: str) -> float:
+    """A number option (argparse's ``type=float``, its message kept), in ASCII digits, without underscores."""
+    if _untyped(text):
+        raise argparse.ArgumentTypeError(f"expected a number {_PLAIN_DIGITS}; got {text!r}")
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid float value: {text!r}") from None
+
+
+def _whole(text: str) -> int:
+    """A whole-number option (argparse's ``type=int``, its message kept), in ASCII digits, without underscores."""
+    if _untyped(text):
+        raise argparse.ArgumentTypeError(f"expected a whole number {_PLAIN_DIGITS}; got {text!r}")
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid int value: {text!r}") from None
+
+
 def _floats(count: int | None, what: str) -> Callable[[str], tuple[float, ...]]:
     def parse(text: str) -> tuple[float, ...]:
+        if _untyped(text):
+            raise argparse.ArgumentTypeError(f"expected {what} {_PLAIN_DIGITS}; got {text!r}")
         # blanks around a value go ('1, 2, 3'); blanks inside one are an error, not removed ('1 2 3' read as 123)
         items = [item.strip() for item in text.split(",")]
         if "" in items and text.strip():  # '1,,2' or '1,2,': a value left out, not a shorter list
@@ -371,10 +404,16 @@ def _coarsen_factor(text: str) -> int:
 
 def _cell_size(text: str) -> tuple[float, ...]:
     """A ``--spacing``: one cell size D or dx,dy, positive metres."""
+    from .terrain import SPACING_RANGE
+
     what = "one cell size D or dx,dy in positive metres"
     values = _floats(None, what)(text)
     if len(values) > 2 or min(values) <= 0:
         raise argparse.ArgumentTypeError(f"expected {what}; got {text!r}")
+    lo, hi = SPACING_RANGE  # Terrain's, checked here: batch ran every item into it (exit 1 after the work)
+    if not all(lo <= v <= hi for v in values):
+        raise argparse.ArgumentTypeError(f"expected {what} from {lo:g} to {hi:g} (nodes are placed in float32); got "
+                                         f"{text!r}")
     return values
 
 
@@ -537,7 +576,7 @@ def _input_metadata(args: argparse.Namespace) -> dict[str, Any]:
 #: ``--memory-budget`` units, case-insensitive: decimal (kB, MB, GB, TB), binary (KiB, MiB, GiB, TiB); B or none: bytes.
 _BYTE_UNITS = {"": 1, "b": 1, **{f"{p}b": 1000**k for k, p in enumerate("kmgt", 1)},
                **{f"{p}ib": 1024**k for k, p in enumerate("kmgt", 1)}}
-_BYTE_SIZE = re.compile(r"^\s*(\d+(\.\d*)?|\.\d+)\s*([a-z]*)\s*$", re.IGNORECASE)
+_BYTE_SIZE = re.compile(r"^\s*([0-9]+(\.[0-9]*)?|\.[0-9]+)\s*([a-z]*)\s*$", re.IGNORECASE)  # \d: any script's
 
 
 def _byte_size(text: str) -> int:
@@ -558,6 +597,8 @@ def _byte_size(text: str) -> int:
 
 def _window(text: str) -> tuple[int, int]:
     try:
+        if _untyped(text):
+            raise ValueError(text)
         w, h = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, e.g. 1280x800; got {text!r}") from None
@@ -661,23 +702,23 @@ def _add_steps(commands: Any) -> None:
     )
     _add_input_options(p)
     iso = p.add_mutually_exclusive_group()
-    iso.add_argument("--interval", type=float, metavar="M",
+    iso.add_argument("--interval", type=_real, metavar="M",
                      help=f"uniform isovalues base + k*M (default: a round M giving ~{TARGET_STEPS} steps)")
     iso.add_argument("--levels", type=_floats(None, "comma-separated heights a,b,c"), metavar="a,b,c",
                      help="explicit, strictly increasing isovalues")
-    p.add_argument("--base", type=float, metavar="B",
+    p.add_argument("--base", type=_real, metavar="B",
                    help="isovalue offset for --interval (default 0); not with --levels")
-    p.add_argument("--gamma", type=float, default=1.0, metavar="G",
+    p.add_argument("--gamma", type=_real, default=1.0, metavar="G",
                    help="blend in [0, 1]: 0 = original surface, 1 = fully stepped (default 1)")
     lens = p.add_mutually_exclusive_group()
     lens.add_argument("--lens", type=_floats(3, "x,y,r"), metavar="x,y,r",
                       help="circular lens in world coordinates: original terrain inside, steps outside")
     lens.add_argument("--lens-relative", type=_floats(3, "fx,fy,fr"), metavar="fx,fy,fr",
                       help="lens centre as fractions of the extent, radius as a fraction of its shorter side")
-    p.add_argument("--lens-edge", type=float, metavar="W", help="width of the lens' soft edge (default r/4)")
+    p.add_argument("--lens-edge", type=_real, metavar="W", help="width of the lens' soft edge (default r/4)")
     p.add_argument("--solid", action="store_true",
                    help="close into a watertight solid (side skirts and a base)")
-    p.add_argument("--floor", type=float, metavar="Z",
+    p.add_argument("--floor", type=_real, metavar="Z",
                    help="base height of --solid (default one --interval below the lowest isovalue or surface "
                         "point, whichever is lower; with --levels a tenth of their span, at least 0.1, below it)")
     p.add_argument("--colormap", default=None, metavar="NAME",
@@ -686,18 +727,18 @@ def _add_steps(commands: Any) -> None:
     p.add_argument("-o", "--output", type=_path, metavar="OUT",
                    help="mesh file; format by extension: " + " ".join(MESH_EXTENSIONS)
                         + " (optional with --png: a render-only run writes no mesh)")
-    p.add_argument("--print-size", type=float, default=None, metavar="MM",
+    p.add_argument("--print-size", type=_real, default=None, metavar="MM",
                    help="scale the mesh file for a 3D print: its longer horizontal side MM long (millimetres, as "
                         "slicers read .stl and .3mf), its lowest corner at 0,0,0 (the base of --solid on z = 0); "
                         "the mesh is no longer georeferenced (its metadata 'print' maps it back); with --solid "
                         "(a surface alone is no printable solid: a warning says so)")
-    p.add_argument("--print-z-scale", type=float, default=None, metavar="S",
+    p.add_argument("--print-z-scale", type=_real, default=None, metavar="S",
                    help="vertical exaggeration of the --print-size model (default 1: true proportions)")
     p.add_argument("--png", type=_path, metavar="OUT.png",
                    help="write an off-screen render (beside the mesh, or alone without -o)")
     p.add_argument("--size", type=_window, default=None, metavar="WxH",
                    help="render size, with --png (default 1280x800)")
-    p.add_argument("--z-scale", type=float, default=None, metavar="S",
+    p.add_argument("--z-scale", type=_real, default=None, metavar="S",
                    help="vertical exaggeration of the render only, with --png (default 2)")
     _add_camera(p)
     p.set_defaults(run=_run_steps)

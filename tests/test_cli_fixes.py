@@ -6,6 +6,7 @@ import json
 import math
 import os
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -2611,3 +2612,131 @@ def test_closeup_gif_refused_for_identical_frames_writes_no_mesh_or_png(tmp_path
             "frame's longest delay (655.35 s)") in one_error_line(err, "closeup")
     assert mesh.read_bytes() == png.read_bytes() == b"an earlier output"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.glb", "c.png"]
+
+
+#: (subcommand, option, value): every numeric option, in a value float()/int() reads though a user did not type that
+#: number: digit grouping (1_0 is 10 to Python, 1 or an error to strtod and to other tools) and non-ASCII digits (an
+#: Arabic-Indic 3 is 3 to Python). --band, --coarsen and --nodata refused them already; these read them silently.
+_UNTYPED_NUMBERS = [
+    *[("steps", opt, v) for opt in ("--interval", "--base", "--gamma", "--lens-edge", "--floor", "--print-size",
+                                    "--print-z-scale", "--z-scale") for v in ("1_0", "\u0663")],
+    ("steps", "--levels", "1_0,20"), ("steps", "--crop", "0,1_0,0,10"), ("steps", "--lens", "1,2,\u0663"),
+    ("steps", "--lens-relative", "0.5,0.5,0_2"), ("steps", "--spacing", "1_0"), ("steps", "--camera", "1_0,30"),
+    ("steps", "--size", "1_28x96"), ("steps", "--size", "\u0661\u0662\u0668x96"),
+    ("steps", "--memory-budget", "\u0663GiB"),
+    *[("globe", opt, "1_0") for opt in ("--face-size", "--exaggeration", "--radius", "--error", "--tilt", "--heading",
+                                        "--view-angle")],
+    ("globe", "--eye", "3_0,10,1e7"),
+    *[("closeup", opt, "1_0") for opt in ("--edge", "--stepped", "--z-scale", "--frames", "--fps", "--spin",
+                                          "--scale")],
+    ("closeup", "--offset", "0,0,1_0"), ("closeup", "--rotation", "1_0,0"), ("closeup", "--roi", "1,2,\u0663"),
+    ("closeup", "--color", "0_0,0,0"),
+    *[("texture", opt, "1_0") for opt in ("--azimuth", "--altitude", "--z-factor", "--shadow-strength", "--occlusion",
+                                          "--texel-size", "--contours", "--contour-width", "--contour-index",
+                                          "--interval", "--z-scale")],
+    ("texture", "--image-extent", "0,1_0,0,10"), ("texture", "--contour-color", "0_0,0,0"),
+    *[("batch", opt, "1_0") for opt in ("--interval", "--base", "--gamma", "--floor", "--workers", "--connect-timeout",
+                                        "--retries", "--z-scale", "--tile")],
+]
+
+
+@pytest.mark.parametrize(("command", "option", "value"), _UNTYPED_NUMBERS)
+def test_numbers_with_underscores_or_non_ascii_digits_are_refused_naming_the_option(command, option, value, tmp_path,
+                                                                                    capsys):
+    """Every numeric option read '1_0' as 10 and an Arabic-Indic 3 as 3 (float()'s and int()'s reading): --interval
+    1_0 stepped at 10 m without a word, and a refusal named a value not typed (--gamma 1_0: 'got 10.0'). They are
+    argparse errors now, naming the option and the text typed, as --band's, --coarsen's and --nodata's were."""
+    out = tmp_path / "out"
+    code, stdout, err = run(capsys, command, f"{option}={value}", "-o", out / "x.glb" if command != "batch" else out)
+    assert code == 2, err
+    assert f"argument {option}" in err and repr(value) in err and "Traceback" not in err, err
+    assert len(err.strip().splitlines()) == 1 and stdout == ""
+    assert not out.exists()
+
+
+def test_batch_spacing_beyond_float32_is_a_usage_error_before_any_item_runs(tmp_path, capsys):
+    """batch --spacing 1e308 ran every item, each failing alike ('spacing must lie between 1e-30 and 1e+30'), exit 1
+    after the work, where steps refused it (exit 2); and steps' refusal named (1e+308, -1e+308), not the 1e308 typed.
+    --spacing's range is argparse's now, for every subcommand, naming the text typed."""
+    src = tile_folder(tmp_path / "tiles")
+    for spacing in ("1e308", "1e-31", "30,1e31"):
+        code, out, err = run(capsys, "batch", src, "--spacing", spacing, "--scheduler", "serial",
+                             "-o", tmp_path / "out")
+        assert code == 2, err
+        assert "argument --spacing" in err and repr(spacing) in err and "1e-30" in err, err
+        assert not (tmp_path / "out").exists()
+        code, out, err = run(capsys, "steps", src / "t0.npy", "--spacing", spacing, "-o", tmp_path / "s.glb")
+        assert code == 2 and "argument --spacing" in err and repr(spacing) in err, err
+        assert not (tmp_path / "s.glb").exists()
+    code, out, err = run(capsys, "steps", src / "t0.npy", "--spacing", "1e-30,1e30", "-o", tmp_path / "s.glb")
+    assert code == 0, err  # the range's ends are accepted
+
+
+#: Text no numeric option reads as a number: empty, blank, non-finite, hex, another separator, digit grouping,
+#: non-ASCII digits (each option's own range is its own test's).
+_NOT_NUMBERS = ("", " ", "nan", "inf", "-inf", "0x10", "1;2", "1_0", "\u0663")
+
+#: subcommand -> (argv before the option, {option: (context options it needs, values refused besides _NOT_NUMBERS)}).
+_FUZZ = {
+    "steps": (["--spacing", "30", "-o", "{out}/a.glb"], {
+        "--band": ((), ("0", "-1", "1e308", "1,2")), "--spacing": ((), ("0", "-1", "1e308", "1e-400", "1,2,3")),
+        "--crop": ((), ("1,2", "1,2,3,4,5")), "--coarsen": ((), ("0", "1", "-1", "1.5")),
+        "--interval": ((), ("0", "-1", "-0", "1e308")), "--levels": ((), ("1e308", "2,1")),
+        "--base": (("--interval=2",), ("1e308",)), "--gamma": ((), ("-1", "1.5", "1e308")),
+        "--lens": ((), ("1,2",)), "--lens-relative": ((), ("0.5,0.5,0", "1,2,3,4")),
+        "--lens-edge": (("--lens-relative=0.5,0.5,0.2",), ("-1",)), "--floor": (("--solid",), ("1e308",)),
+        "--print-size": (("--solid",), ("0", "-1")), "--print-z-scale": (("--solid", "--print-size=100"), ("0",)),
+        "--size": (("--png", "{out}/a.png"), ("7x8", "8x16385", "0x0", "8x8x8")),
+        "--z-scale": (("--png", "{out}/a.png"), ("0", "-1")), "--camera": (("--png", "{out}/a.png"), ("0,91", "1")),
+        "--memory-budget": ((), ("0", "0.5", "-1", "1 XB")),
+    }),
+    "globe": (["--face-size=9", "-o", "{out}/a.glb"], {
+        "--face-size": ((), ("0", "4", "1.5")), "--exaggeration": ((), ("0", "-1")), "--radius": ((), ("0", "1e308")),
+        "--error": ((), ("-1",)), "--eye": ((), ("91,0,1e7", "0,0")), "--tilt": ((), ("90", "-1")),
+        "--heading": ((), ()), "--view-angle": ((), ("0", "180")), "--size": (("--png", "{out}/a.png"), ("7x8",)),
+    }),
+    "closeup": (["--spacing", "30", "-o", "{out}/a.glb"], {
+        "--roi": ((), ("1,2", "0,0,0")), "--roi-relative": ((), ("0.5,0.5,0",)), "--edge": ((), ("-1",)),
+        "--scale": ((), ("0", "1,2")), "--offset": ((), ("1,2",)), "--rotation": ((), ("1,2,3",)),
+        "--color": ((), ("2,0,0", "nope")), "--stepped": ((), ("-1",)),
+        "--frames": (("--gif", "{out}/a.gif", "--size=128x96"), ("0", "-1")),
+        "--fps": (("--gif", "{out}/a.gif", "--size=128x96"), ("0", "1000")),
+        "--spin": (("--gif", "{out}/a.gif", "--size=128x96"), ("0",)),
+        "--z-scale": (("--png", "{out}/a.png", "--size=128x96"), ("0",)),
+    }),
+    "texture": (["--spacing", "30", "-o", "{out}/a.png"], {
+        "--azimuth": ((), ()), "--altitude": ((), ("91", "-1")), "--z-factor": ((), ("0", "1e308")),
+        "--shadow-strength": (("--shadows",), ("1.5", "-1")), "--occlusion": ((), ("1.5", "-1")),
+        "--texel-size": ((), ("0", "-1", "31")), "--contours": ((), ("0", "-1")),
+        "--contour-width": (("--contours=2",), ("0",)), "--contour-color": (("--contours=2",), ("1,0", "2,0,0")),
+        "--contour-index": (("--contours=2",), ("-1", str(2**31))), "--interval": (("--mesh", "{out}/a.glb"), ("0",)),
+        "--image-extent": (("--image", "{dem}"), ("1,2", "1,0,0,1")),
+    }),
+    "batch": (["--scheduler=serial", "-o", "{out}/d"], {
+        "--tile": ((), ("0", "1x", "1x2x3")), "--interval": ((), ("0", "-1")), "--gamma": ((), ("-1", "2")),
+        "--retries": ((), ("-1",)), "--floor": (("--solid",), ("1e308",)), "--spacing": ((), ("1e308",)),
+    }),
+}
+
+
+@pytest.mark.parametrize("command", sorted(_FUZZ))
+def test_fuzzed_option_values_are_refused_in_one_line_naming_the_option(command, dem, tmp_path, capsys):
+    """A fuzz of every numeric option of every subcommand (not a number, not finite, out of range, a list of the
+    wrong length): each ends with exit status 2 and one line naming the option and the text typed, no traceback,
+    nothing written, before any work."""
+    before, options = _FUZZ[command]
+    out = tmp_path / "out"
+    bad = []
+    for option, (context, values) in options.items():
+        for value in (*_NOT_NUMBERS, *values):  # (--nodata's own: nan and inf are nodata values)
+            argv = [command, str(dem), "-q", *(a.format(out=out, dem=dem) for a in (*before, *context)),
+                    f"{option}={value}"]
+            code, stdout, err = run(capsys, *argv)
+            lines = err.strip().splitlines()
+            ok = (code == 2 and stdout == "" and len(lines) == 1 and "Traceback" not in err
+                  and lines[0].startswith(f"stepterrain {command}: error: ") and option in lines[0]
+                  and not out.exists())
+            if not ok:
+                bad.append(f"{option}={value!r}: exit {code}, {err.strip()!r}")
+                shutil.rmtree(out, ignore_errors=True)
+    assert not bad, "\n".join(bad)
