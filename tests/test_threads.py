@@ -1,0 +1,156 @@
+"""The library called from several threads at once (a ThreadPoolExecutor, dask's threaded scheduler, a web service).
+
+Python's warning filters and display are the process's: ``warnings.catch_warnings`` swaps the filter list (and
+``showwarning``) and puts back what it found on exit, so two blocks in two threads that enter and leave in the order
+first in, second in, first out, second out leave the first block's filters (an "ignore") in the process for good.
+Every such block of the library holds one lock (``stepterrain._warning_filters.FILTERS``); each test here runs two of
+them in that order (the first waits, a second at most, until the second is inside) and checks the filters after.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import warnings
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from stepterrain import batch as batch_module
+from stepterrain import export, io
+from stepterrain.terrain import Terrain
+
+
+def _interleaved(first, second) -> list[BaseException]:
+    """Run ``first(hook)`` and ``second(hook)`` in two threads, each calling ``hook()`` inside its warning block: the
+    first's hook waits (up to a second) until the second is inside, the second's until the first has returned. Without
+    a lock between them that is first in, second in, first out, second out; with one, the second waits for the
+    first and the hooks time out. Returns the exceptions the threads raised."""
+    first_in, second_in, first_done = threading.Event(), threading.Event(), threading.Event()
+    errors: list[BaseException] = []
+
+    def first_hook() -> None:
+        first_in.set()
+        second_in.wait(1.0)
+
+    def second_hook() -> None:
+        second_in.set()
+        first_done.wait(1.0)
+
+    def run_first() -> None:
+        try:
+            first(first_hook)
+        except BaseException as exc:  # noqa: BLE001 - reported by the test
+            errors.append(exc)
+        finally:
+            first_in.set()
+            first_done.set()
+
+    def run_second() -> None:
+        first_in.wait(5.0)
+        try:
+            second(second_hook)
+        except BaseException as exc:  # noqa: BLE001 - reported by the test
+            errors.append(exc)
+
+    threads = [threading.Thread(target=run_first), threading.Thread(target=run_second)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(20)
+        assert not thread.is_alive(), "a warning block deadlocked"
+    return errors
+
+
+@pytest.fixture
+def blocks(tmp_path, monkeypatch):
+    """The library's warning blocks by name, each a function of a hook it calls inside its block."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import from_origin
+
+    tif = tmp_path / "dem.tif"
+    with rasterio.open(tif, "w", driver="GTiff", height=4, width=5, count=1, dtype="float32", crs="EPSG:32611",
+                       transform=from_origin(0, 40, 10, 10)) as out:
+        out.write(np.arange(20, dtype=np.float32).reshape(1, 4, 5))
+    jpeg = tmp_path / "texture.jpg"
+    Image.fromarray((np.arange(8 * 8 * 3) % 251).astype(np.uint8).reshape(8, 8, 3)).save(jpeg)
+    hooks: dict[str, object] = {}
+    real_rasterio_open, real_image_open = rasterio.open, Image.open
+
+    def rasterio_open(*args, **kwargs):
+        hooks[threading.get_ident()]()
+        return real_rasterio_open(*args, **kwargs)
+
+    def image_open(*args, **kwargs):
+        hooks[threading.get_ident()]()
+        return real_image_open(*args, **kwargs)
+
+    def off_thresholds(ring, values, magnitude):
+        hooks[threading.get_ident()]()
+        return ring
+
+    monkeypatch.setattr(rasterio, "open", rasterio_open)
+    monkeypatch.setattr(Image, "open", image_open)
+    # batch imports it from the module at each call
+    monkeypatch.setattr(sys.modules["stepterrain.stepped"], "_off_thresholds", off_thresholds)
+
+    def hooked(call):
+        def run(hook):
+            hooks[threading.get_ident()] = hook
+            call()
+        return run
+
+    def open_raster():
+        with io.open_raster(tif) as dataset:
+            assert dataset.count == 1
+
+    def source_jpeg():
+        hooks[threading.get_ident()] = lambda: None  # the caller's own open
+        with real_image_open(jpeg) as image:
+            image.load()
+            hooks[threading.get_ident()] = hooks.pop(-threading.get_ident())
+            assert export._source_jpeg(image) == jpeg.read_bytes()
+
+    def side_file_crs():
+        export._check_side_file_crs(tif, tmp_path / "dem.tif.aux.xml", rasterio.crs.CRS.from_epsg(32611), tif)
+
+    def tile_off_thresholds():
+        heights = np.arange(36, dtype=np.float64).reshape(6, 6)
+        source = SimpleNamespace(bounds=((0.0, 0.0, 0.0), (50.0, 50.0, 35.0)), offset=(0, 0, 0), heights=heights,
+                                 spacing=(10.0, 10.0), origin=(0.0, 0.0))
+        item = SimpleNamespace(rows=(1, 4), cols=(1, 4))
+        terrain = Terrain.from_heights(heights[1:4, 1:4], spacing=(10.0, 10.0), origin=(10.0, 10.0))
+        options = SimpleNamespace(interval=5.0, levels=None, base=0.0)
+        assert batch_module._tile_off_thresholds(item, source, terrain, options) is terrain
+
+    def with_own_hook(call):
+        def run(hook):
+            hooks[-threading.get_ident()] = hook
+            call()
+        return run
+
+    return {"open_raster": hooked(open_raster), "source_jpeg": with_own_hook(source_jpeg),
+            "side_file_crs": hooked(side_file_crs), "tile_off_thresholds": hooked(tile_off_thresholds)}
+
+
+@pytest.mark.parametrize(("first", "second"), [
+    ("source_jpeg", "open_raster"),  # a textured glTF saved while a DEM is read
+    ("tile_off_thresholds", "open_raster"),
+    ("tile_off_thresholds", "tile_off_thresholds"),  # two solid tiles of one raster on dask's threaded workers
+    ("side_file_crs", "source_jpeg"),
+])
+def test_warning_blocks_in_two_threads_leave_the_process_filters_as_they_were(blocks, first, second):
+    """export._source_jpeg (a glTF's JPEG texture), export._check_side_file_crs (a GeoTIFF with an ob_tran CRS) and
+    batch._tile_off_thresholds (every solid tile of a raster, on dask's worker threads) swapped the filters without
+    the lock io.open_raster and batch's recording held: overlapped with another block they left their "ignore" in
+    the process for good, and every later warning of the process (or DecompressionBombWarning) was lost."""
+    before, display = list(warnings.filters), warnings.showwarning
+    errors = _interleaved(blocks[first], blocks[second])
+    after, shown = list(warnings.filters), warnings.showwarning
+    warnings.filters[:] = before  # for the tests after this one, also when it fails
+    warnings.showwarning = display
+    assert errors == []
+    assert after == before
+    assert shown is display
