@@ -1852,7 +1852,6 @@ def start_local_cluster(workers: int) -> Any:
         The worker processes cannot be started.
     """
     import dask
-    from distributed import LocalCluster
     from distributed.utils import LoopRunner
 
     # the cluster's event loop thread, made with SIGINT and SIGHUP blocked: the workers, which it (and the threads it
@@ -1866,7 +1865,23 @@ def start_local_cluster(workers: int) -> Any:
     # own into os.environ when it spawns its worker: after any earlier LocalCluster of the session (dask's
     # MALLOC_TRIM_THRESHOLD_=65536 left in os.environ) the configuration below was ignored, and this cluster's
     # values stayed in the caller's environment (its later subprocesses started with them). Set for the start
-    # only, then put back as they were
+    # only, then put back as they were; one start at a time in the process: two threads starting clusters at once
+    # each put back what they had found, so the second put back the first's variables (and dask configuration) after
+    # the first had put back the caller's, and they stayed for good
+    with _CLUSTER_START:
+        return _started_local_cluster(workers, environ, runner)
+
+
+#: Held while :func:`start_local_cluster` has :data:`LOCAL_CLUSTER_MALLOC` in os.environ (and dask's configuration set).
+_CLUSTER_START = threading.Lock()
+
+
+def _started_local_cluster(workers: int, environ: dict[str, Any], runner: Any) -> Any:
+    """:func:`start_local_cluster`'s LocalCluster, started with :data:`LOCAL_CLUSTER_MALLOC` set in os.environ and the
+    nannies' configuration set, both put back as they were after (``runner``: its event loop, stopped after)."""
+    import dask
+    from distributed import LocalCluster
+
     before = {key: os.environ.get(key) for key in LOCAL_CLUSTER_MALLOC}
     try:
         os.environ.update({key: str(value) for key, value in LOCAL_CLUSTER_MALLOC.items()})

@@ -9,6 +9,7 @@ them in that order (the first waits, a second at most, until the second is insid
 
 from __future__ import annotations
 
+import os
 import sys
 import threading
 import warnings
@@ -154,3 +155,32 @@ def test_warning_blocks_in_two_threads_leave_the_process_filters_as_they_were(bl
     assert errors == []
     assert after == before
     assert shown is display
+
+
+def test_local_clusters_started_in_two_threads_leave_the_environment_as_it_was(monkeypatch):
+    """start_local_cluster sets LOCAL_CLUSTER_MALLOC in os.environ while the workers start and puts back what it found:
+    two threads starting clusters at once (two batches of a service) left the variables in the process for good (its
+    later subprocesses started with them), as the second put back the first's after the first had put back the
+    caller's. The cluster here is a stand-in that sees the variables and calls the hook as it starts."""
+    distributed = pytest.importorskip("distributed")
+    hooks: dict[int, object] = {}
+    seen: list[bool] = []
+
+    class Started:
+        def __init__(self, **kwargs):
+            seen.append(all(os.environ.get(key) == str(value)
+                            for key, value in batch_module.LOCAL_CLUSTER_MALLOC.items()))
+            hooks[threading.get_ident()]()
+
+    monkeypatch.setattr(distributed, "LocalCluster", Started)
+    for key in batch_module.LOCAL_CLUSTER_MALLOC:
+        monkeypatch.delenv(key, raising=False)
+
+    def start(hook):
+        hooks[threading.get_ident()] = hook
+        assert isinstance(batch_module.start_local_cluster(1), Started)
+
+    assert _interleaved(start, start) == []
+    assert seen == [True, True]
+    assert {key: os.environ.get(key) for key in batch_module.LOCAL_CLUSTER_MALLOC} == dict.fromkeys(
+        batch_module.LOCAL_CLUSTER_MALLOC)
