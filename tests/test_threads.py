@@ -184,3 +184,104 @@ def test_local_clusters_started_in_two_threads_leave_the_environment_as_it_was(m
     assert seen == [True, True]
     assert {key: os.environ.get(key) for key in batch_module.LOCAL_CLUSTER_MALLOC} == dict.fromkeys(
         batch_module.LOCAL_CLUSTER_MALLOC)
+
+
+def _digest(*arrays) -> str:
+    import hashlib
+
+    digest = hashlib.sha1()
+    for array in arrays:
+        array = np.ascontiguousarray(array)
+        digest.update(f"{array.dtype}{array.shape}".encode())
+        digest.update(array.tobytes())
+    return digest.hexdigest()
+
+
+def test_calls_in_eight_threads_give_each_the_serial_result_and_leave_held_outputs_alone(monkeypatch):
+    """stepped (terraces and solids), heightfield_mesh, close_solid, a Globe's meshes (a shared Globe), adaptive_mesh
+    and texture layers through a Pipeline, each called with its own inputs from 8 threads at once on one shared
+    Terrain, while another thread changes the CPU thread count and memory budget: every output is the serial call's
+    bit for bit, and the outputs the threads keep are unchanged after every later call (the output pool lends every
+    mesh array here, RECYCLE_MIN_BYTES lowered, and the dropped ones' memory serves later calls; every pass is split
+    over threads, MIN_THREAD_ELEMENTS lowered)."""
+    import stepterrain as st
+    from stepterrain import _device
+    from stepterrain.globe import Globe, look_from
+    from stepterrain.mesh import close_solid
+    from stepterrain.texture import Pipeline
+
+    monkeypatch.setattr(_device, "RECYCLE_MIN_BYTES", 1 << 12)
+    monkeypatch.setattr(_device, "MIN_THREAD_ELEMENTS", 1 << 8)
+    previous_threads, previous_budget = _device._cpu_threads, st.get_memory_budget()
+    dem = st.sample_dem()
+    rows, cols = dem.heights.shape
+    terrain = Terrain.from_heights(dem.heights[: rows // 3, : cols // 3], spacing=dem.spacing, origin=(0.0, 0.0))
+    globe = Globe.sample(face_size=33)
+
+    def call(kind: str, k: int):
+        if kind == "stepped":
+            mesh = st.stepped(terrain, interval=25.0 + 5 * k)
+            return mesh, (mesh.vertices, mesh.faces)
+        if kind == "solid":
+            mesh = st.stepped(terrain, interval=60.0 + 10 * k, solid=True)
+            return mesh, (mesh.vertices, mesh.faces)
+        if kind == "heightfield":
+            mesh = st.heightfield_mesh(terrain.heights[k:, k:])
+            return mesh, (mesh.vertices, mesh.faces)
+        if kind == "close_solid":
+            mesh = st.stepped(terrain, interval=40.0 + 10 * k)
+            out = close_solid(mesh.vertices, mesh.faces, mesh.face_normals[:, 2] > 0.5,
+                              float(mesh.vertices[:, 2].min()) - 10.0)
+            return out, out[:3]
+        if kind == "globe":
+            camera = look_from(10.0 * k, 20.0 * k, 2.0e6) if k % 2 else None
+            mesh = globe.mesh(error=4000.0 + 1000 * k, camera=camera)
+            return mesh, (mesh.vertices, mesh.faces)
+        if kind == "adaptive":
+            mesh = st.adaptive_mesh(terrain, error=5.0 + 3 * k)
+            return mesh, (mesh.vertices, mesh.faces)
+        base = st.topographic_layer(terrain, azimuth=0.3 * k)
+        layer = Pipeline().modulate(st.hillshade(terrain, azimuth=0.5 + 0.2 * k)).adjust(brightness=1.0 + 0.1 * k)
+        layer = layer.apply(base)
+        return layer, (layer.image,)
+
+    calls = [(kind, k) for k in range(3) for kind in
+             ("stepped", "solid", "heightfield", "close_solid", "globe", "adaptive", "texture")]
+    serial = {}
+    for key in calls:
+        _, arrays = call(*key)
+        serial[key] = _digest(*arrays)
+    stop = threading.Event()
+
+    def change_settings() -> None:
+        k = 0
+        while not stop.is_set():
+            st.set_cpu_threads(1 + k % 4)
+            st.set_memory_budget((4 + k % 4) << 30)
+            k += 1
+            stop.wait(0.002)
+
+    changer = threading.Thread(target=change_settings)
+    changer.start()
+    try:
+        from concurrent.futures import ThreadPoolExecutor
+
+        held, got = {}, {}
+        order = [calls[k] for k in np.random.default_rng(1).permutation(len(calls))]
+        with ThreadPoolExecutor(8) as pool:
+            futures = {key: pool.submit(call, *key) for key in order}
+            for key in order:
+                made, arrays = futures[key].result(timeout=120)
+                got[key] = _digest(*arrays)
+                if key[1] != 1:  # kept; the others dropped, their memory lent again
+                    held[key] = (made, arrays)
+                del made, arrays
+        for key in calls[:7]:  # more calls after all: lent the dropped outputs' memory
+            call(*key)
+    finally:
+        stop.set()
+        changer.join(10)
+        st.set_cpu_threads(previous_threads)
+        st.set_memory_budget(previous_budget)
+    assert {key: got[key] == serial[key] for key in calls} == dict.fromkeys(calls, True)
+    assert {key: _digest(*held[key][1]) == serial[key] for key in held} == dict.fromkeys(held, True)
