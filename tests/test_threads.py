@@ -285,3 +285,30 @@ def test_calls_in_eight_threads_give_each_the_serial_result_and_leave_held_outpu
         st.set_memory_budget(previous_budget)
     assert {key: got[key] == serial[key] for key in calls} == dict.fromkeys(calls, True)
     assert {key: _digest(*held[key][1]) == serial[key] for key in held} == dict.fromkeys(held, True)
+
+
+def test_the_signal_helpers_off_the_main_thread_run_their_block_and_change_nothing():
+    """signals_held and terminal_signals_blocked_for_children (a batch's LocalCluster start, the package's imports,
+    VTK's load) called from a worker thread (a batch started by a web service) run their block: Python handles signals
+    in the main thread only (signal.signal raises ValueError elsewhere), so they hold back nothing there, and this
+    thread's signal mask (inherited by what it starts) stays as it was."""
+    import signal
+
+    from stepterrain._signals import signals_held, terminal_signals_blocked_for_children
+
+    handlers = {number: signal.getsignal(number) for number in (signal.SIGINT, signal.SIGTERM)}
+    seen: list[object] = []
+
+    def work() -> None:
+        mask = signal.pthread_sigmask(signal.SIG_BLOCK, []) if hasattr(signal, "pthread_sigmask") else None
+        with signals_held(), terminal_signals_blocked_for_children():
+            seen.append({number: signal.getsignal(number) for number in handlers})
+            if mask is not None:
+                seen.append(signal.pthread_sigmask(signal.SIG_BLOCK, []) == mask)
+        seen.append("done")
+
+    thread = threading.Thread(target=work)
+    thread.start()
+    thread.join(10)
+    assert seen[0] == handlers and seen[-1] == "done" and all(flag is True for flag in seen[1:-1])
+    assert {number: signal.getsignal(number) for number in handlers} == handlers
