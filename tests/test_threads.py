@@ -202,8 +202,8 @@ def test_calls_in_eight_threads_give_each_the_serial_result_and_leave_held_outpu
     and texture layers through a Pipeline, each called with its own inputs from 8 threads at once on one shared
     Terrain, while another thread changes the CPU thread count and memory budget: every output is the serial call's
     bit for bit, and the outputs the threads keep are unchanged after every later call (the output pool lends every
-    mesh array here, RECYCLE_MIN_BYTES lowered, and the dropped ones' memory serves later calls; every pass is split
-    over threads, MIN_THREAD_ELEMENTS lowered)."""
+    mesh array here, RECYCLE_MIN_BYTES lowered, and the dropped ones' memory serves later calls; the larger passes over
+    the 214 x 399 grid split over up to 4 threads as the setting changes)."""
     import stepterrain as st
     from stepterrain import _device
     from stepterrain.globe import Globe, look_from
@@ -211,7 +211,6 @@ def test_calls_in_eight_threads_give_each_the_serial_result_and_leave_held_outpu
     from stepterrain.texture import Pipeline
 
     monkeypatch.setattr(_device, "RECYCLE_MIN_BYTES", 1 << 12)
-    monkeypatch.setattr(_device, "MIN_THREAD_ELEMENTS", 1 << 8)
     previous_threads, previous_budget = _device._cpu_threads, st.get_memory_budget()
     dem = st.sample_dem()
     rows, cols = dem.heights.shape
