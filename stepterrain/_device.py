@@ -464,7 +464,9 @@ def set_cpu_threads(threads: int | None) -> int | None:
 
     Warp's CPU backend runs a launch on one thread; stepterrain's kernels take a ``thread_offset`` so one pass
     can run as several launches on disjoint ranges at once (Warp releases the GIL while a kernel runs). The
-    output does not depend on the thread count.
+    output does not depend on the thread count. The setting is the process's: calls in other threads split the passes
+    they start after it this way, and a pass under way keeps its split (tests/test_threads.py changes it while eight
+    threads step, mesh and texture).
     """
     global _cpu_threads
     if threads is not None and (isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1):

@@ -49,6 +49,7 @@ from ._callable_module import make_module_callable
 from ._compaction import BUDGET_HINT, budget_hint, get_memory_budget
 from ._files import GdalPath, as_path, gdal_path, local_archive
 from ._signals import signals_held, terminal_signals_blocked_for_children
+from ._warning_filters import FILTERS
 from .errors import (
     DataFileError,
     InvalidInputError,
@@ -766,7 +767,9 @@ def _tile_off_thresholds(item: BatchItem, source: _Source, terrain: Terrain, opt
     (xmin, ymin, _), (xmax, ymax, _) = source.bounds
     magnitude = max(abs(xmin), abs(xmax), abs(ymin), abs(ymax), xmax - xmin, ymax - ymin)
     values = isovalues(terrain.height_range, interval=options.interval, levels=options.levels, base=options.base)
-    with warnings.catch_warnings():
+    # under the lock of the library's warning blocks: dask's threaded workers step a raster's tiles at once, and two
+    # of these blocks overlapping left "ignore" in the process's filters for good
+    with _RECORDING, warnings.catch_warnings():
         warnings.simplefilter("ignore")  # a height left on its threshold: stepped says so for the tile itself
         moved = _off_thresholds(ring, values, magnitude)
     if moved is ring:
@@ -1071,7 +1074,7 @@ _BUDGET_LEASE = _BudgetLease()
 #: process's, and ``warnings.catch_warnings`` puts back what it found on exit. Two serial runs in two threads recorded
 #: at once: the second put back the first's recorder, so that every later warning of the process went into a list
 #: nobody read, and the "default" filter stayed before the user's own.
-_RECORDING = threading.Lock()
+_RECORDING = FILTERS  # the lock of every warning block of the library (stepterrain._warning_filters), re-entrant
 
 
 def run_item(
@@ -1849,7 +1852,6 @@ def start_local_cluster(workers: int) -> Any:
         The worker processes cannot be started.
     """
     import dask
-    from distributed import LocalCluster
     from distributed.utils import LoopRunner
 
     # the cluster's event loop thread, made with SIGINT and SIGHUP blocked: the workers, which it (and the threads it
@@ -1863,7 +1865,23 @@ def start_local_cluster(workers: int) -> Any:
     # own into os.environ when it spawns its worker: after any earlier LocalCluster of the session (dask's
     # MALLOC_TRIM_THRESHOLD_=65536 left in os.environ) the configuration below was ignored, and this cluster's
     # values stayed in the caller's environment (its later subprocesses started with them). Set for the start
-    # only, then put back as they were
+    # only, then put back as they were; one start at a time in the process: two threads starting clusters at once
+    # each put back what they had found, so the second put back the first's variables (and dask configuration) after
+    # the first had put back the caller's, and they stayed for good
+    with _CLUSTER_START:
+        return _started_local_cluster(workers, environ, runner)
+
+
+#: Held while :func:`start_local_cluster` has :data:`LOCAL_CLUSTER_MALLOC` in os.environ (and dask's configuration set).
+_CLUSTER_START = threading.Lock()
+
+
+def _started_local_cluster(workers: int, environ: dict[str, Any], runner: Any) -> Any:
+    """:func:`start_local_cluster`'s LocalCluster, started with :data:`LOCAL_CLUSTER_MALLOC` set in os.environ and the
+    nannies' configuration set, both put back as they were after (``runner``: its event loop, stopped after)."""
+    import dask
+    from distributed import LocalCluster
+
     before = {key: os.environ.get(key) for key in LOCAL_CLUSTER_MALLOC}
     try:
         os.environ.update({key: str(value) for key, value in LOCAL_CLUSTER_MALLOC.items()})

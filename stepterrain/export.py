@@ -44,6 +44,7 @@ from ._compaction import check_budget
 from ._device import recycled_empty
 from ._files import as_path, refuse_folder_name, require_regular_file
 from ._signals import signals_held
+from ._warning_filters import FILTERS
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, caller_stacklevel, counted
 from .mesh import mesh_argument
 from .terrain import FLOAT32_MAX, as_array, finite_number, real_numbers
@@ -1368,7 +1369,7 @@ def _check_side_file_crs(path: Path, aux: Path, crs: Any, target: Path) -> None:
     import rasterio
 
     try:
-        with warnings.catch_warnings():
+        with FILTERS, warnings.catch_warnings():  # one block at a time in the process (stepterrain._warning_filters)
             warnings.simplefilter("ignore")  # (rasterio's NotGeoreferencedWarning where the side file was lost)
             with rasterio.open(path) as dataset:
                 same = dataset.crs == crs
@@ -3837,7 +3838,7 @@ def _source_jpeg(image: Any) -> bytes | None:
         return None
     try:
         data = Path(os.fsdecode(name)).read_bytes()
-        with warnings.catch_warnings():
+        with FILTERS, warnings.catch_warnings():  # one block at a time in the process (stepterrain._warning_filters)
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # warned when the image was opened
             with Image.open(io.BytesIO(data)) as source:
                 if (source.format != "JPEG" or source.mode != image.mode or source.size != image.size

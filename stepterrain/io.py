@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 
 from ._compaction import check_budget
 from ._files import URL_FILE_SYSTEMS, GdalPath, _restored, as_path, gdal_path, local_archive, require_regular_file
+from ._warning_filters import FILTERS
 from .errors import (
     DataFileError,
     InvalidInputError,
@@ -1625,8 +1626,9 @@ def picture_uint8(picture: Any, what: str, *, alpha: bool = False) -> NDArray[np
 _PREMULTIPLIED = {"RGBa": "RGBA", "La": "LA"}
 
 
-#: Held while a raster is opened with rasterio's NotGeoreferencedWarning filtered out (:func:`open_raster`).
-_OPEN_QUIETLY = threading.Lock()
+#: Held while a raster is opened with rasterio's NotGeoreferencedWarning filtered out (:func:`open_raster`): the lock of
+#: every warning block of the library (stepterrain._warning_filters).
+_OPEN_QUIETLY = FILTERS
 
 
 def open_raster(path: str | os.PathLike[str]) -> Any:
