@@ -2297,6 +2297,12 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     face touches a NaN node and those nodes are left out). Returns a ``trimesh.Trimesh``;
     an item whose layer has no texture patch yet raises :class:`~stepterrain.errors.InvalidInputError`.
 
+    Patches are not stitched (the paper draws them as they are): where neighbours drawn at different levels meet,
+    the finer one's border nodes between the coarser one's leave T-junctions, slivers of height up to the coarser
+    patch's e(N), i.e. up to about ``gamma_user`` pixels on screen (Big Tujunga, ``leaf_size=32``, ``gamma_user=1``:
+    about 6,000 such border edges in an oblique view, the widest 0.7 px). Keep ``gamma_user`` at 1 or below where
+    they would show, or draw a skirt below each patch.
+
     Examples
     --------
     >>> import numpy as np
