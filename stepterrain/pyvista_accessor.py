@@ -320,6 +320,10 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
 
     own = np.asarray if share else np.array  # np.array copies
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
+    if not share:  # (a stepped mesh's faces index its vertices)
+        # VTK took indices past the points (or -1) as they were: the PolyData's compute_normals(), clean() and
+        # decimate() then crashed Python with a segmentation fault
+        _check_face_indices(faces, len(mesh.vertices), "mesh", "vertex", "vertices")
     # VTK's offsets and connectivity on the faces as they are: a padded [3, a, b, c] copy took 2.5 s and 550 MB
     # more for 13 M faces (a 2600² grid stepped), almost all of grid.stepterrain.stepped's time past the kernels
     poly = pv.PolyData.from_regular_faces(own(mesh.vertices, dtype=np.float64), faces, deep=False)
@@ -328,12 +332,22 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
     # rule: numbers and strings are kept (a string vertex attribute was dropped without a word while a face one was
     # kept); what VTK holds no array of (objects, which VTK turned into their str, None into 'None'; datetimes,
     # whose TypeError came out of to_polydata) is left out with a warning, as metadata is
-    left_out = []
+    left_out, shadowed = [], []
+    coloured = mesh.visual.kind if mesh.visual.kind in ("vertex", "face") else None
+    colours = None
+    if coloured is not None:
+        colours = np.asarray(mesh.visual.vertex_colors if coloured == "vertex" else mesh.visual.face_colors)
     for kind, attributes, count, data in (("face", mesh.face_attributes, len(faces), poly.cell_data),
                                           ("vertex", mesh.vertex_attributes, len(mesh.vertices), poly.point_data)):
         for name, values in attributes.items():
             array = np.asarray(values)
             if array.shape[:1] != (count,):
+                continue
+            if colours is not None and _shadows_colours(name, kind, coloured):
+                # the colours go under these names (a user's "RGBA" scalar field was written over without a word);
+                # one holding the very colours (a mesh from pv.to_trimesh) loses nothing
+                if not (array.shape == colours.shape and kind == coloured and np.array_equal(array, colours)):
+                    shadowed.append(f"{kind} attribute {name!r}")
                 continue
             if array.dtype.kind == "O" and all(isinstance(v, str) for v in array.ravel()):
                 array = array.astype(str)  # strings held as objects (a pandas column's values) are strings
@@ -352,13 +366,16 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
         warnings.warn(f"to_polydata: {', '.join(left_out)} left out: VTK holds arrays of numbers and strings only "
                       "(complex numbers one to a point or cell), of at least one value each",
                       stacklevel=caller_stacklevel())
+    if shadowed:
+        warnings.warn(f"to_polydata: {', '.join(shadowed)} left out: the mesh's {coloured} colours go under 'RGBA' "
+                      f"and {RGBA_ALIAS!r} in the PolyData, and from_polydata reads those names as the colours "
+                      "(rename the attribute to keep it)", stacklevel=caller_stacklevel())
     uv = getattr(mesh.visual, "uv", None) if mesh.visual.kind == "texture" else None
     if uv is not None and np.shape(uv) == (len(mesh.vertices), 2):
         poly.active_texture_coordinates = own(uv, dtype=np.float64)
-    if mesh.visual.kind in ("vertex", "face"):  # colours by face (a PLY or 3MF read back) were dropped
-        data = poly.point_data if mesh.visual.kind == "vertex" else poly.cell_data
-        colors = mesh.visual.vertex_colors if mesh.visual.kind == "vertex" else mesh.visual.face_colors
-        data["RGBA"] = own(colors, dtype=np.uint8)
+    if colours is not None:  # colours by face (a PLY or 3MF read back) were dropped
+        data = poly.point_data if coloured == "vertex" else poly.cell_data
+        data["RGBA"] = own(colours, dtype=np.uint8)
         # pyvista shows an array as colours (no colormap, no scalar bar) only when its name ends in "_rgb" or
         # "_rgba": steps.plot() drew "RGBA" through viridis, with a bar of 'RGBA' magnitudes. The same bytes (one
         # buffer, no copy) under RGBA_ALIAS are the active scalars, so the default plot shows the level colours.
@@ -393,6 +410,22 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
     if kept:
         poly.user_dict.update(kept)
     return poly
+
+
+def _shadows_colours(name: str, kind: str, coloured: str) -> bool:
+    """Whether a ``kind`` ("vertex" or "face") attribute ``name`` of a mesh coloured by ``coloured`` would be taken
+    for its colours: written over by them (their names, "RGBA" and :data:`RGBA_ALIAS`, in the data they go to), or
+    read back by :func:`from_polydata` instead of them (:data:`RGBA_ALIAS` in point data beside colours by face)."""
+    return name in (RGBA_ALIAS, "RGBA") if kind == coloured else (kind == "vertex" and name == RGBA_ALIAS)
+
+
+def _check_face_indices(faces: NDArray[np.int64], count: int, name: str, noun: str, plural: str) -> None:
+    """Refuse ``faces`` (F, 3) that index outside ``count`` points, naming ``name`` and the first such face."""
+    if faces.size == 0 or (faces.min() >= 0 and faces.max() < count):
+        return
+    bad = int(np.flatnonzero(((faces < 0) | (faces >= count)).any(axis=1))[0])
+    raise InvalidInputError(f"{name} faces must index its {counted(count, noun, plural)} (0 .. {count - 1}); face "
+                            f"{bad} is {faces[bad].tolist()}")
 
 
 #: The dtype kinds :func:`to_polydata` keeps as point or cell data: booleans, integers, floats, complex, strings
@@ -460,9 +493,13 @@ def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:
                                 f"{name}.n_verts + {name}.n_lines)).triangulate() keeps its faces alone, as triangles)")
     vertices = np.array(poly.points, dtype=np.float64)
     faces = np.array(poly.regular_faces, dtype=np.int64) if poly.n_cells else np.zeros((0, 3), np.int64)
+    # VTK keeps indices past the points (or -1) as they are: the Trimesh's first use raised numpy's IndexError
+    _check_face_indices(faces, len(vertices), name, "point", "points")
     point_data, cell_data = poly.point_data, poly.cell_data
-    colors, colour_names = _colours(point_data)
-    face_colors, face_colour_names = _colours(cell_data) if colors is None else (None, set())
+    coloured, found, colour_names = _colours(point_data, cell_data)
+    colors, face_colors = (found, None) if coloured == "vertex" else (None, found)
+    face_colour_names = colour_names if coloured == "face" else set()
+    colour_names = colour_names if coloured == "vertex" else set()
     skipped = {point_data.active_normals_name, point_data.active_texture_coordinates_name} | colour_names
     vertex_attributes = {n: np.array(point_data[n]) for n in point_data.keys() if n not in skipped}
     face_attributes = {}
@@ -482,25 +519,30 @@ def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:
                            face_attributes=face_attributes, vertex_attributes=vertex_attributes, metadata=metadata)
 
 
-def _colours(data: Any) -> tuple[NDArray[np.uint8] | None, set[str]]:
-    """The colours among a PolyData's point or cell ``data`` (see :func:`from_polydata`), a copy, and the names of
-    the arrays they are (none of them an attribute besides), else (None, no names)."""
+def _colours(point_data: Any, cell_data: Any) -> tuple[str | None, NDArray[np.uint8] | None, set[str]]:
+    """The colours among a PolyData's ``point_data`` and ``cell_data`` (see :func:`from_polydata`): "vertex" or
+    "face", the colours (a copy) and the names of the arrays they are (none of them an attribute besides), else
+    (None, None, no names). The strongest name wins wherever it is (point data first at one name): point data was
+    looked at first whatever its names, so a mesh coloured by face with a vertex attribute "RGB" came back coloured
+    by that attribute, its colours face attributes."""
     # "RGB": pv.read of a PLY without alpha, or of an OBJ, (VTK's readers) rendered tan, its colours a vertex attribute
-    colour_name = next((n for n in (RGBA_ALIAS, "RGBA", "RGB") if n in data), None)
-    active = data.active_scalars_name
-    if colour_name is None and active is not None and active.lower().endswith(("_rgb", "_rgba")):
-        colour_name = active
-    if colour_name is None:
-        return None, set()
-    values = np.asarray(data[colour_name])
-    if values.ndim != 2 or values.shape[1] not in (3, 4):
-        return None, set()
-    colours = _uint8_colours(values)
-    if colours is None:
-        return None, set()
-    # "RGBA" and its alias share one buffer (to_polydata): neither is an attribute besides
-    same = {n for n in (RGBA_ALIAS, "RGBA") if n in data and np.array_equal(np.asarray(data[n]), values)}
-    return colours, {colour_name} | same
+    candidates = [(kind, data, n) for n in (RGBA_ALIAS, "RGBA", "RGB")
+                  for kind, data in (("vertex", point_data), ("face", cell_data)) if n in data]
+    for kind, data in (("vertex", point_data), ("face", cell_data)):
+        active = data.active_scalars_name
+        if active is not None and active.lower().endswith(("_rgb", "_rgba")):
+            candidates.append((kind, data, active))
+    for kind, data, colour_name in candidates:
+        values = np.asarray(data[colour_name])
+        if values.ndim != 2 or values.shape[1] not in (3, 4):
+            continue
+        colours = _uint8_colours(values)
+        if colours is None:
+            continue
+        # "RGBA" and its alias share one buffer (to_polydata): neither is an attribute besides
+        same = {n for n in (RGBA_ALIAS, "RGBA") if n in data and np.array_equal(np.asarray(data[n]), values)}
+        return kind, colours, {colour_name} | same
+    return None, None, set()
 
 
 def _uint8_colours(values: NDArray[Any]) -> NDArray[np.uint8] | None:

@@ -824,3 +824,62 @@ def test_to_polydata_keeps_the_empty_attributes_of_a_mesh_with_no_faces_without_
         poly = to_polydata(mesh)
     assert not any("'level'" in str(w.message) for w in caught)
     assert poly.cell_data["level"].shape == (0,) and "rgb" not in poly.cell_data
+
+
+@pytest.mark.parametrize("bad", [7, -1])
+def test_faces_outside_the_vertices_are_refused_by_name_both_ways(bad):
+    """to_polydata of a ``process=False`` Trimesh whose faces index past its vertices (or -1) handed the indices to
+    VTK as they were: the PolyData's compute_normals(), clean() and decimate() then crashed Python with a
+    segmentation fault. from_polydata of such a PolyData gave a Trimesh whose first use raised numpy's IndexError.
+    Found by feeding both hand-made meshes. Now both name the argument and the offending face."""
+    points = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0]])
+    mesh = trimesh.Trimesh(points, [[0, 1, 2], [0, 1, bad]], process=False)
+    with pytest.raises(InvalidInputError, match=rf"mesh faces must index its 3 vertices .*face 1 is \[0, 1, {bad}\]"):
+        to_polydata(mesh)
+    poly = pv.PolyData(points, faces=[3, 0, 1, 2, 3, 0, 1, bad])
+    with pytest.raises(InvalidInputError, match=rf"steps faces must index its 3 points .*face 1 is \[0, 1, {bad}\]"):
+        from_polydata(poly, name="steps")
+
+
+@pytest.mark.parametrize("kind", ["vertex", "face"])
+@pytest.mark.parametrize("name", ["RGBA", RGBA_ALIAS])
+def test_an_attribute_under_a_colour_name_of_a_coloured_mesh_is_left_out_with_a_warning(kind, name):
+    """A coloured mesh with an attribute of its own named "RGBA" or "colors_rgba" (a scalar field, other colours)
+    lost it without a word: to_polydata wrote the colours over it. The colours win (they are what the PolyData's
+    plot and from_polydata read), and the attribute left out is named in a warning; one holding those very colours
+    (a mesh from pv.to_trimesh) is no loss and passes without one."""
+    box = trimesh.creation.box()
+    count = len(box.vertices) if kind == "vertex" else len(box.faces)
+    colours = np.random.default_rng(1).integers(0, 256, (count, 4), dtype=np.uint8)
+    mesh = trimesh.Trimesh(box.vertices, box.faces, process=False, **{f"{kind}_colors": colours})
+    getattr(mesh, f"{kind}_attributes")[name] = np.arange(count, dtype=np.float64)
+    getattr(mesh, f"{kind}_attributes")["kept"] = np.arange(count, dtype=np.int16)
+    with pytest.warns(UserWarning, match=rf"{kind} attribute '{name}' .*left out.*the mesh's {kind} colours"):
+        back = from_polydata(to_polydata(mesh))
+    assert np.array_equal(getattr(back.visual, f"{kind}_colors"), colours)
+    assert list(getattr(back, f"{kind}_attributes")) == ["kept"]
+    getattr(mesh, f"{kind}_attributes")[name] = colours.copy()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        back = from_polydata(to_polydata(mesh))
+    assert np.array_equal(getattr(back.visual, f"{kind}_colors"), colours)
+
+
+@pytest.mark.parametrize("name", ["RGB", "RGBA", "height_rgb"])
+def test_face_colours_come_back_as_face_colours_beside_a_colour_named_vertex_attribute(name):
+    """A mesh coloured by face with a vertex attribute named "RGB" ("RGBA", "*_rgb": colour-like uint8 values) came
+    back from from_polydata(to_polydata(mesh)) coloured by vertex with that attribute, its face colours turned into
+    face attributes "RGBA" and "colors_rgba": from_polydata looked at point data before cell data whatever the
+    names. Now the strongest colour name wins wherever it is (colors_rgba, then RGBA, then RGB, then active
+    scalars named *_rgb/*_rgba; point data first at one name), so to_polydata's colours are found; the vertex
+    attribute comes back as it was."""
+    box = trimesh.creation.box()
+    face_colours = np.random.default_rng(2).integers(0, 256, (len(box.faces), 4), dtype=np.uint8)
+    mesh = trimesh.Trimesh(box.vertices, box.faces, process=False, face_colors=face_colours)
+    values = np.random.default_rng(3).integers(0, 256, (len(box.vertices), 3), dtype=np.uint8)
+    mesh.vertex_attributes[name] = values
+    back = from_polydata(to_polydata(mesh))
+    assert back.visual.kind == "face"
+    assert np.array_equal(back.visual.face_colors, face_colours)
+    assert list(back.vertex_attributes) == [name] and np.array_equal(back.vertex_attributes[name], values)
+    assert list(back.face_attributes) == []
