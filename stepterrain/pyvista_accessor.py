@@ -291,7 +291,18 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
     (values as :func:`~stepterrain.export.save_mesh` writes them to glTF extras) goes to
     ``user_dict``, as ``pv.wrap`` keeps them; a numeric array too long for that (a globe's ``node_entry``, a
     close-up layer's ``source_faces``) is a ``field_data`` array, as ``pv.wrap`` keeps it; any other item is left
-    out with a warning naming it. :func:`from_polydata` is the way back.
+    out with a warning naming it. :func:`from_polydata` is the way back: it gives the vertices, faces, colours,
+    attributes and metadata back, dtypes kept (half floats as float32, metadata as JSON values), except that (N, 1)
+    attributes come back (N,) (VTK's one-component arrays) and an uncoloured mesh's attribute under a colour name
+    (``RGBA``, ``colors_rgba``, ``RGB``, holding colour values) comes back as its colours (what a mesh from
+    ``pv.to_trimesh`` of a PolyData holds).
+
+    The colours' names are theirs: a coloured mesh's attribute under ``RGBA`` or ``colors_rgba`` in the data its
+    colours go to (or ``colors_rgba`` by vertex beside colours by face, which :func:`from_polydata` would read
+    first) is left out with a warning naming it (rename it to keep it), unless it holds those very colours. The
+    colours win, not the attribute: they are what the PolyData plots and what every way back (``from_polydata``,
+    ``save_mesh`` and ``render_mesh`` of the PolyData) reads as its colours; refusing the mesh would stop the
+    common ``pv.to_trimesh`` round trip, whose attributes hold the colours as they were before a recolouring.
 
     The PolyData's points and data arrays are its own copies (as ``pv.wrap`` makes them): they were the mesh's own
     buffers, so exaggerating the PolyData's heights (``poly.points[:, 2] *= 3``) or setting its colours changed the
@@ -302,7 +313,8 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
     ------
     InvalidInputError
         ``mesh`` is not a ``trimesh.Trimesh`` (a Scene, a PointCloud, a PolyData already, None): trimesh's or
-        Python's AttributeError ("'Scene' object has no attribute 'faces'") came out of it, naming no argument.
+        Python's AttributeError ("'Scene' object has no attribute 'faces'") came out of it, naming no argument;
+        or its faces index outside its vertices (a ``process=False`` mesh keeps them; VTK crashed on them).
     """
     if not isinstance(mesh, trimesh.Trimesh):
         hint = (" (trimesh.load gives one for a glTF/GLB: read the file with stepterrain.export.read_mesh(path), one "
@@ -449,12 +461,13 @@ def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:
     (``grid.stepterrain.stepped``'s result), which :func:`~stepterrain.export.save_mesh`,
     :func:`~stepterrain.render.render_mesh` and :func:`~stepterrain.texture.drape` call on a PolyData given to them.
 
-    Points and faces are copied as they are (float64, int64). The point data ``colors_rgba`` (else ``RGBA``, else
-    ``RGB``, as VTK's PLY and OBJ readers name colours, else active scalars named ``*_rgb``/``*_rgba``), 3
-    or 4 columns of uint8, or of other whole numbers in [0, 255] or floats in [0, 1] (as pyvista plots them), become
-    the vertex colours (pv.to_trimesh leaves them as a plain vertex attribute, so they were not
-    written nor drawn); without them, cell data found so (a PLY's face colours, :func:`to_polydata`'s of a mesh
-    coloured by face) become the face colours. Other point data become vertex attributes (normals and texture
+    Points and faces are copied as they are (float64, int64; NaN points too, as a Trimesh holds them: the writers
+    and renderers refuse them by name). The array named ``colors_rgba`` (else ``RGBA``, else ``RGB``, as VTK's PLY
+    and OBJ readers name colours, else active scalars named ``*_rgb``/``*_rgba``), point data before cell data at
+    one name, of 3 or 4 columns of uint8, or of other whole numbers in [0, 255] or floats in [0, 1] (as pyvista plots
+    them), becomes the vertex colours, or the face colours if in cell data (pv.to_trimesh leaves them as a plain
+    attribute, so they were not written nor drawn); an array under such a name that holds no colours (floats beyond
+    1, one column) is passed over, an attribute. Other point data become vertex attributes (normals and texture
     coordinates aside: a PolyData holds no texture image, drape it instead). Other cell data become face
     attributes, ``wall`` (0/1) as bool again. ``user_dict`` items and the other field data (``isovalues`` as a
     list) become the metadata. ``name`` names the argument in errors.
@@ -465,7 +478,8 @@ def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:
         ``poly`` is not a PolyData, or holds cells other than triangles (vertices, lines, strips, polygons of
         more corners: ``poly.triangulate()`` makes triangles of the strips and polygons; vertices and lines beside
         faces are removed first, ``poly.remove_cells(range(poly.n_verts + poly.n_lines))``; points alone, or
-        lines, have no face to triangulate: ``poly.delaunay_2d()`` makes a TIN of them).
+        lines, have no face to triangulate: ``poly.delaunay_2d()`` makes a TIN of them), or faces that index
+        outside its points (the Trimesh's first use raised numpy's IndexError).
     """
     from pyvista.core.dataobject import USER_DICT_KEY
 
