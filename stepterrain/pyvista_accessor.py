@@ -284,8 +284,8 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
     point data ``RGBA`` (uint8), also the active scalars ``colors_rgba`` (plotted as colours); colours by face go to
     cell data so. Face attributes become cell data and vertex attributes point data (bools as pyvista keeps them,
     uint8 in VTK read back as bool, half floats as float32; numbers and strings, anything else left out with a warning
-    naming it, as are complex numbers of several components), a textured mesh's UVs (one per vertex) the active
-    texture coordinates (its image is not data of a PolyData: plot with
+    naming it, as are complex numbers of several components and attributes not named by a str), a textured mesh's
+    UVs (one per vertex) the active texture coordinates (its image is not data of a PolyData: plot with
     ``texture=np.asarray(image)``, the image being ``mesh.visual.material.baseColorTexture``, or ``.image`` for
     a globe's ``drape_texture``), ``isovalues`` a float64 ``field_data`` array, and every metadata item that is JSON
     (values as :func:`~stepterrain.export.save_mesh` writes them to glTF extras) goes to
@@ -344,7 +344,7 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
     # rule: numbers and strings are kept (a string vertex attribute was dropped without a word while a face one was
     # kept); what VTK holds no array of (objects, which VTK turned into their str, None into 'None'; datetimes,
     # whose TypeError came out of to_polydata) is left out with a warning, as metadata is
-    left_out, shadowed = [], []
+    left_out, shadowed, unnamed = [], [], []
     coloured = mesh.visual.kind if mesh.visual.kind in ("vertex", "face") else None
     colours = None
     if coloured is not None:
@@ -354,6 +354,9 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
         for name, values in attributes.items():
             array = np.asarray(values)
             if array.shape[:1] != (count,):
+                continue
+            if not isinstance(name, str):  # pyvista's TypeError "Only strings are valid keys" came out of to_polydata
+                unnamed.append(f"{kind} attribute {name!r}")
                 continue
             if colours is not None and _shadows_colours(name, kind, coloured):
                 # the colours go under these names (a user's "RGBA" scalar field was written over without a word);
@@ -378,6 +381,9 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
         warnings.warn(f"to_polydata: {', '.join(left_out)} left out: VTK holds arrays of numbers and strings only "
                       "(complex numbers one to a point or cell), of at least one value each",
                       stacklevel=caller_stacklevel())
+    if unnamed:
+        warnings.warn(f"to_polydata: {', '.join(unnamed)} left out: VTK's arrays are named by a str (as metadata "
+                      "keys must be)", stacklevel=caller_stacklevel())
     if shadowed:
         warnings.warn(f"to_polydata: {', '.join(shadowed)} left out: the mesh's {coloured} colours go under 'RGBA' "
                       f"and {RGBA_ALIAS!r} in the PolyData, and from_polydata reads those names as the colours "

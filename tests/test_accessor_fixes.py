@@ -970,3 +970,20 @@ def test_to_polydata_and_back_gives_the_mesh_back(mesh):
             assert np.array_equal(values, expected, equal_nan=expected.dtype.kind == "f"), name
     for key, value in mesh.metadata.items():
         assert back.metadata[key] == (None if isinstance(value, float) and not np.isfinite(value) else value)
+
+
+@pytest.mark.parametrize("kind", ["vertex", "face"])
+def test_to_polydata_leaves_out_an_attribute_not_named_by_a_str_with_a_warning(kind):
+    """An attribute named by a number (``mesh.vertex_attributes[5] = ...``, as trimesh allows) raised pyvista's
+    TypeError "Only strings are valid keys for DataSetAttributes" out of to_polydata, naming no argument, so the mesh
+    could not go to pyvista at all. It is left out with a warning naming it, as metadata keys that are no str are;
+    the other attributes go."""
+    box = trimesh.creation.box()
+    mesh = trimesh.Trimesh(box.vertices, box.faces, process=False)
+    attributes = getattr(mesh, f"{kind}_attributes")
+    count = len(box.vertices) if kind == "vertex" else len(box.faces)
+    attributes[5] = np.arange(count)
+    attributes["kept"] = np.arange(count) * 2.0
+    with pytest.warns(UserWarning, match=rf"{kind} attribute 5 left out: .*named by a str"):
+        back = from_polydata(to_polydata(mesh))
+    assert list(getattr(back, f"{kind}_attributes")) == ["kept"]
