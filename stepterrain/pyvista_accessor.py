@@ -283,9 +283,9 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
     ``pv.wrap`` of a Trimesh drops its vertex colours (pyvista carries vertex attributes only); this keeps them as
     point data ``RGBA`` (uint8), also the active scalars ``colors_rgba`` (plotted as colours); colours by face go to
     cell data so. Face attributes become cell data and vertex attributes point data (bools as pyvista keeps them,
-    uint8 in VTK read back as bool, half floats as float32; numbers and strings, anything else left out with a warning
-    naming it, as are complex numbers of several components and attributes not named by a str), a textured mesh's
-    UVs (one per vertex) the active texture coordinates (its image is not data of a PolyData: plot with
+    uint8 in VTK read back as bool, half floats as float32; numbers and ASCII strings, anything else left out with a
+    warning naming it, as are complex numbers of several components and attributes not named by a str), a textured
+    mesh's UVs (one per vertex) the active texture coordinates (its image is not data of a PolyData: plot with
     ``texture=np.asarray(image)``, the image being ``mesh.visual.material.baseColorTexture``, or ``.image`` for
     a globe's ``drape_texture``), ``isovalues`` a float64 ``field_data`` array, and every metadata item that is JSON
     (values as :func:`~stepterrain.export.save_mesh` writes them to glTF extras) goes to
@@ -373,13 +373,17 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
             elif array.dtype.kind == "c" and array.ndim > 1:  # pyvista's ValueError "Complex data must be single
                 # dimensional" came out of to_polydata: it stores a complex value as two floats, one value a cell
                 left_out.append(f"{kind} attribute {name!r} ({array.dtype} of shape {array.shape})")
+            elif array.dtype.kind in "US" and not all(v.isascii() for v in array.ravel().tolist()):
+                # pyvista's ValueError "String array contains non-ASCII characters that are not supported by VTK"
+                # (bytes: a UnicodeDecodeError) came out of to_polydata
+                left_out.append(f"{kind} attribute {name!r} (non-ASCII strings)")
             elif array.dtype.kind in _DATA_KINDS:
                 data[name] = _vtk_values(array, own)
             else:
                 left_out.append(f"{kind} attribute {name!r} ({array.dtype})")
     if left_out:
-        warnings.warn(f"to_polydata: {', '.join(left_out)} left out: VTK holds arrays of numbers and strings only "
-                      "(complex numbers one to a point or cell), of at least one value each",
+        warnings.warn(f"to_polydata: {', '.join(left_out)} left out: VTK holds arrays of numbers and ASCII strings "
+                      "only (complex numbers one to a point or cell), of at least one value each",
                       stacklevel=caller_stacklevel())
     if unnamed:
         warnings.warn(f"to_polydata: {', '.join(unnamed)} left out: VTK's arrays are named by a str (as metadata "

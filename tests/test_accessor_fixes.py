@@ -987,3 +987,22 @@ def test_to_polydata_leaves_out_an_attribute_not_named_by_a_str_with_a_warning(k
     with pytest.warns(UserWarning, match=rf"{kind} attribute 5 left out: .*named by a str"):
         back = from_polydata(to_polydata(mesh))
     assert list(getattr(back, f"{kind}_attributes")) == ["kept"]
+
+
+@pytest.mark.parametrize("values", [np.array(["Zürich", "Bern", "Genève"]), np.array(["Zürich", "Bern", "Genève"], object),
+                                    np.array([b"\xff", b"ab", b"c"])], ids=["str", "object", "bytes"])
+@pytest.mark.parametrize("kind", ["vertex", "face"])
+def test_to_polydata_leaves_out_non_ascii_string_attributes_with_a_warning(kind, values):
+    """A string attribute with a character past ASCII (a place name) raised pyvista's ValueError "String array
+    contains non-ASCII characters that are not supported by VTK" out of to_polydata, bytes past ASCII a
+    UnicodeDecodeError, naming no argument: the mesh could not go to pyvista at all. Such an attribute is left out
+    with a warning naming it, as other arrays VTK holds not; ASCII strings still go and come back."""
+    points = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0]])
+    mesh = trimesh.Trimesh(points, [[0, 1, 2], [0, 2, 1], [1, 2, 0]], process=False)
+    attributes = getattr(mesh, f"{kind}_attributes")
+    attributes["name"] = values
+    attributes["code"] = np.array(["ZH", "BE", "GE"])
+    with pytest.warns(UserWarning, match=rf"{kind} attribute 'name' \(.*non-ASCII"):
+        back = from_polydata(to_polydata(mesh))
+    assert list(getattr(back, f"{kind}_attributes")) == ["code"]
+    assert getattr(back, f"{kind}_attributes")["code"].tolist() == ["ZH", "BE", "GE"]
