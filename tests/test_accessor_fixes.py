@@ -989,7 +989,8 @@ def test_to_polydata_leaves_out_an_attribute_not_named_by_a_str_with_a_warning(k
     assert list(getattr(back, f"{kind}_attributes")) == ["kept"]
 
 
-@pytest.mark.parametrize("values", [np.array(["Zürich", "Bern", "Genève"]), np.array(["Zürich", "Bern", "Genève"], object),
+@pytest.mark.parametrize("values", [np.array(["Zürich", "Bern", "Genève"]),
+                                    np.array(["Zürich", "Bern", "Genève"], object),
                                     np.array([b"\xff", b"ab", b"c"])], ids=["str", "object", "bytes"])
 @pytest.mark.parametrize("kind", ["vertex", "face"])
 def test_to_polydata_leaves_out_non_ascii_string_attributes_with_a_warning(kind, values):
