@@ -446,8 +446,8 @@ def _check_face_indices(faces: NDArray[np.int64], count: int, name: str, noun: s
     if faces.size == 0 or (faces.min() >= 0 and faces.max() < count):
         return
     bad = int(np.flatnonzero(((faces < 0) | (faces >= count)).any(axis=1))[0])
-    raise InvalidInputError(f"{name} faces must index its {counted(count, noun, plural)} (0 .. {count - 1}); face "
-                            f"{bad} is {faces[bad].tolist()}")
+    within = f"its {counted(count, noun, plural)} (0 .. {count - 1})" if count else f"{plural}, and it has none"
+    raise InvalidInputError(f"{name} faces must index {within}; face {bad} is {faces[bad].tolist()}")
 
 
 #: The dtype kinds :func:`to_polydata` keeps as point or cell data: booleans, integers, floats, complex, strings
