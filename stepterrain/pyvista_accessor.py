@@ -461,7 +461,7 @@ def _vtk_values(array: NDArray[Any], own: Any) -> NDArray[Any]:
     them as uint8 (VTK has no bool arrays) and reads them back as bool; cast to uint8 here, they came back from
     :func:`from_polydata` as 0/1 numbers (``wall`` aside), so a mask face attribute indexed rows 0 and 1 instead of
     selecting faces."""
-    if array.dtype == np.float16:
+    if array.dtype.kind == "f" and array.dtype.itemsize == 2:  # ">f2" (big-endian) too: VTK's TypeError for it
         return array.astype(np.float32)
     return own(array)
 

@@ -1007,3 +1007,17 @@ def test_to_polydata_leaves_out_non_ascii_string_attributes_with_a_warning(kind,
         back = from_polydata(to_polydata(mesh))
     assert list(getattr(back, f"{kind}_attributes")) == ["code"]
     assert getattr(back, f"{kind}_attributes")["code"].tolist() == ["ZH", "BE", "GE"]
+
+
+def test_to_polydata_takes_big_endian_half_floats_as_float32():
+    """Half floats in big-endian order (``>f2``, as a file's bytes read with np.frombuffer give them) raised VTK's
+    TypeError "Could not find a suitable VTK type for >f2" out of to_polydata: only the native float16 dtype went to
+    float32. Other big-endian arrays went (pyvista swaps them). Found by fuzzing attribute dtypes and byte orders."""
+    box = trimesh.creation.box()
+    values = np.arange(len(box.vertices)).astype(">f2") / 4
+    mesh = trimesh.Trimesh(box.vertices, box.faces, process=False, vertex_attributes={"h": values})
+    mesh.metadata["long"] = np.linspace(0, 1, 10_000).astype(">f2")  # a field_data array, past glTF extras' length
+    back = from_polydata(to_polydata(mesh))
+    assert back.vertex_attributes["h"].dtype == np.float32
+    np.testing.assert_array_equal(back.vertex_attributes["h"], values.astype(np.float32))
+    np.testing.assert_array_equal(back.metadata["long"], mesh.metadata["long"].astype(np.float32))
