@@ -283,17 +283,17 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
     ``pv.wrap`` of a Trimesh drops its vertex colours (pyvista carries vertex attributes only); this keeps them as
     point data ``RGBA`` (uint8), also the active scalars ``colors_rgba`` (plotted as colours); colours by face go to
     cell data so. Face attributes become cell data and vertex attributes point data (bools as pyvista keeps them,
-    uint8 in VTK read back as bool, half floats as float32; numbers and ASCII strings, anything else left out with a
-    warning naming it, as are complex numbers of several components and attributes not named by a str), a textured
-    mesh's UVs (one per vertex) the active texture coordinates (its image is not data of a PolyData: plot with
+    uint8 in VTK read back as bool, half floats as float32, long doubles as float64, (N, a, b) as (N, a * b); numbers
+    and ASCII strings, anything else left out with a warning naming it, as are complex numbers of several components
+    and attributes not named by a str), a textured mesh's UVs (one per vertex) the active texture coordinates (its image is not data of a PolyData: plot with
     ``texture=np.asarray(image)``, the image being ``mesh.visual.material.baseColorTexture``, or ``.image`` for
     a globe's ``drape_texture``), ``isovalues`` a float64 ``field_data`` array, and every metadata item that is JSON
     (values as :func:`~stepterrain.export.save_mesh` writes them to glTF extras) goes to
     ``user_dict``, as ``pv.wrap`` keeps them; a numeric array too long for that (a globe's ``node_entry``, a
     close-up layer's ``source_faces``) is a ``field_data`` array, as ``pv.wrap`` keeps it; any other item is left
     out with a warning naming it. :func:`from_polydata` is the way back: it gives the vertices, faces, colours,
-    attributes and metadata back, dtypes kept (half floats as float32, metadata as JSON values), except that (N, 1)
-    attributes come back (N,) (VTK's one-component arrays) and an uncoloured mesh's attribute under a colour name
+    attributes and metadata back, dtypes kept (with the conversions above; bytes as str, metadata as JSON values),
+    except that (N, 1) attributes come back (N,) (VTK's one-component arrays) and an uncoloured mesh's attribute under a colour name
     (``RGBA``, ``colors_rgba``, ``RGB``, holding colour values) comes back as its colours (what a mesh from
     ``pv.to_trimesh`` of a PolyData holds).
 
@@ -457,12 +457,20 @@ _DATA_KINDS = "biufcUS"
 
 def _vtk_values(array: NDArray[Any], own: Any) -> NDArray[Any]:
     """``array`` as VTK takes it: half floats as float32 (VTK has no float16: its TypeError "Could not find a suitable
-    VTK type for float16" came out of to_polydata), else ``own(array)``. Bools go to pyvista as they are: it stores
+    VTK type for float16" came out of to_polydata), long doubles as float64 (complex128), complex numbers and
+    strings in native byte order, else ``own(array)``. Bools go to pyvista as they are: it stores
     them as uint8 (VTK has no bool arrays) and reads them back as bool; cast to uint8 here, they came back from
     :func:`from_polydata` as 0/1 numbers (``wall`` aside), so a mask face attribute indexed rows 0 and 1 instead of
     selecting faces."""
     if array.dtype.kind == "f" and array.dtype.itemsize == 2:  # ">f2" (big-endian) too: VTK's TypeError for it
         return array.astype(np.float32)
+    # long doubles (VTK's TypeError "Could not find a suitable VTK type for float128", pyvista's ValueError "Only
+    # numpy.complex64 or numpy.complex128 is supported") as double, the widest VTK holds
+    if array.dtype.kind in "fc" and array.dtype.itemsize > (8 if array.dtype.kind == "f" else 16):
+        return array.astype(np.float64 if array.dtype.kind == "f" else np.complex128)
+    if array.dtype.kind in "cU" and not array.dtype.isnative:  # pyvista's ValueErrors ("Only numpy.complex64 or
+        # numpy.complex128", "non-ASCII characters" of ASCII strings) for them; its other arrays it swaps itself
+        return array.astype(array.dtype.newbyteorder("="))
     return own(array)
 
 

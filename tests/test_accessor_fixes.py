@@ -1021,3 +1021,22 @@ def test_to_polydata_takes_big_endian_half_floats_as_float32():
     assert back.vertex_attributes["h"].dtype == np.float32
     np.testing.assert_array_equal(back.vertex_attributes["h"], values.astype(np.float32))
     np.testing.assert_array_equal(back.metadata["long"], mesh.metadata["long"].astype(np.float32))
+
+
+@pytest.mark.parametrize(("dtype", "expected"), [(np.longdouble, np.float64), (np.clongdouble, np.complex128),
+                                                 (">c16", np.complex128), (">c8", np.complex64), (">U2", np.str_)])
+def test_to_polydata_takes_long_double_and_big_endian_complex_and_string_attributes(dtype, expected):
+    """A long double attribute raised VTK's TypeError "Could not find a suitable VTK type for float128", a long
+    double or big-endian complex one pyvista's ValueError "Only numpy.complex64 or numpy.complex128 is supported",
+    and big-endian strings (ASCII) its ValueError "String array contains non-ASCII characters", all out of
+    to_polydata. Found by fuzzing attribute dtypes and byte orders. Long doubles go as float64 (complex128): VTK
+    holds no wider floats; the others in native order, the same values."""
+    box = trimesh.creation.box()
+    values = (np.arange(len(box.vertices)) * 3 // 2).astype(dtype)
+    mesh = trimesh.Trimesh(box.vertices, box.faces, process=False)
+    mesh.vertex_attributes["a"] = values
+    mesh.face_attributes["b"] = np.repeat(values[:6], 2)
+    back = from_polydata(to_polydata(mesh))
+    for got, sent in ((back.vertex_attributes["a"], values), (back.face_attributes["b"], mesh.face_attributes["b"])):
+        assert got.dtype.type is np.dtype(expected).type and got.dtype.isnative
+        assert got.tolist() == sent.astype(expected).tolist()
