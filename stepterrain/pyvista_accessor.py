@@ -285,17 +285,19 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
     cell data so. Face attributes become cell data and vertex attributes point data (bools as pyvista keeps them,
     uint8 in VTK read back as bool, half floats as float32, long doubles as float64, (N, a, b) as (N, a * b); numbers
     and ASCII strings, anything else left out with a warning naming it, as are complex numbers of several components
-    and attributes not named by a str), a textured mesh's UVs (one per vertex) the active texture coordinates (its image is not data of a PolyData: plot with
-    ``texture=np.asarray(image)``, the image being ``mesh.visual.material.baseColorTexture``, or ``.image`` for
-    a globe's ``drape_texture``), ``isovalues`` a float64 ``field_data`` array, and every metadata item that is JSON
-    (values as :func:`~stepterrain.export.save_mesh` writes them to glTF extras) goes to
-    ``user_dict``, as ``pv.wrap`` keeps them; a numeric array too long for that (a globe's ``node_entry``, a
-    close-up layer's ``source_faces``) is a ``field_data`` array, as ``pv.wrap`` keeps it; any other item is left
-    out with a warning naming it. :func:`from_polydata` is the way back: it gives the vertices, faces, colours,
-    attributes and metadata back, dtypes kept (with the conversions above; bytes as str, metadata as JSON values),
-    except that (N, 1) attributes come back (N,) (VTK's one-component arrays) and an uncoloured mesh's attribute under a colour name
-    (``RGBA``, ``colors_rgba``, ``RGB``, holding colour values) comes back as its colours (what a mesh from
-    ``pv.to_trimesh`` of a PolyData holds).
+    and attributes not named by a str), a textured mesh's UVs (one per vertex) the active texture coordinates (its
+    image is not data of a PolyData: plot with ``texture=np.asarray(image)``, the image being
+    ``mesh.visual.material.baseColorTexture``, or ``.image`` for a globe's ``drape_texture``), ``isovalues`` a
+    float64 ``field_data`` array, and every metadata item that is JSON (values as
+    :func:`~stepterrain.export.save_mesh` writes them to glTF extras) goes to ``user_dict``, as ``pv.wrap`` keeps
+    them; a numeric array too long for that (a globe's ``node_entry``, a close-up layer's ``source_faces``) is a
+    ``field_data`` array, as ``pv.wrap`` keeps it; any other item is left out with a warning naming it.
+
+    :func:`from_polydata` is the way back: it gives the vertices, faces, colours, attributes and metadata back,
+    dtypes kept (with the conversions above; bytes as str, metadata as JSON values), except that (N, 1) attributes
+    come back (N,) (VTK's one-component arrays) and an uncoloured mesh's attribute under a colour name (``RGBA``,
+    ``colors_rgba``, ``RGB``, holding colour values) comes back as its colours (what a mesh from ``pv.to_trimesh``
+    of a PolyData holds).
 
     The colours' names are theirs: a coloured mesh's attribute under ``RGBA`` or ``colors_rgba`` in the data its
     colours go to (or ``colors_rgba`` by vertex beside colours by face, which :func:`from_polydata` would read
