@@ -535,12 +535,13 @@ def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:
     face_colour_names = colour_names if coloured == "face" else set()
     colour_names = colour_names if coloured == "vertex" else set()
     skipped = {point_data.active_normals_name, point_data.active_texture_coordinates_name} | colour_names
-    vertex_attributes = {n: np.array(point_data[n]) for n in point_data.keys() if n not in skipped}
+    # (pyvista reads a complex array of one value back as a 0-d array: shape (), no value per vertex or face)
+    vertex_attributes = {n: np.array(point_data[n], ndmin=1) for n in point_data.keys() if n not in skipped}
     face_attributes = {}
     for key in cell_data.keys():
         if key == cell_data.active_normals_name or key in face_colour_names:
             continue
-        values = np.array(cell_data[key])
+        values = np.array(cell_data[key], ndmin=1)
         if key == "wall" and values.dtype == np.uint8 and values.max(initial=0) <= 1:  # bool as uint8 in VTK
             values = values.astype(bool)
         face_attributes[key] = values

@@ -1040,3 +1040,18 @@ def test_to_polydata_takes_long_double_and_big_endian_complex_and_string_attribu
     for got, sent in ((back.vertex_attributes["a"], values), (back.face_attributes["b"], mesh.face_attributes["b"])):
         assert got.dtype.type is np.dtype(expected).type and got.dtype.isnative
         assert got.tolist() == sent.astype(expected).tolist()
+
+
+@pytest.mark.parametrize("kind", ["vertex", "face"])
+def test_a_complex_attribute_of_one_vertex_or_face_comes_back_one_value_long(kind):
+    """pyvista reads a complex array of one value back as a 0-d array: from_polydata gave a mesh of one face (or
+    vertex) a complex attribute of shape (), no value per face, which indexing by face refused. Found by fuzzing
+    attribute dtypes over meshes of one to six vertices. It comes back of shape (1,), as it went."""
+    mesh = trimesh.Trimesh([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], process=False)
+    values = np.array([2 + 3j] * (1 if kind == "face" else 3), np.complex64)
+    if kind == "vertex":
+        mesh = trimesh.Trimesh(mesh.vertices[:1], np.zeros((0, 3), int), process=False)
+        values = values[:1]
+    getattr(mesh, f"{kind}_attributes")["z"] = values
+    back = getattr(from_polydata(to_polydata(mesh)), f"{kind}_attributes")["z"]
+    assert back.shape == (1,) and back.dtype == np.complex64 and back.tolist() == [2 + 3j]
