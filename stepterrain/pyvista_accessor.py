@@ -273,6 +273,10 @@ class StepTerrainAccessor:
             return np.reshape(gamma, (ny, nx))
         if not isinstance(terrain, Terrain) and shape == (ny, nx):
             return np.reshape(gamma, -1)
+        if len(shape) and shape not in ((ny, nx), (ny * nx,)):
+            # stepped() named the one shape of the terrain the grid became, (H, W) or (N,), as the only one
+            raise InvalidInputError(f"gamma must be one γ per node, shape ({ny}, {nx}) or ({ny * nx},) (point data), "
+                                    f"or a scalar, a callable or a Lens; got shape {shape}")
         return gamma
 
 

@@ -1055,3 +1055,20 @@ def test_a_complex_attribute_of_one_vertex_or_face_comes_back_one_value_long(kin
     getattr(mesh, f"{kind}_attributes")["z"] = values
     back = getattr(from_polydata(to_polydata(mesh)), f"{kind}_attributes")["z"]
     assert back.shape == (1,) and back.dtype == np.complex64 and back.tolist() == [2 + 3j]
+
+
+@pytest.mark.parametrize("kind", ["image", "structured"])
+def test_a_gamma_array_of_neither_shape_is_refused_naming_both_the_accessor_takes(kind):
+    """The accessor takes a per-node γ as (H, W) or as one value per point (N,), on every grid; an array of another
+    shape was refused with stepped()'s message, which names one of the two (the (H, W) of a grid Terrain, the (N,) of
+    a TIN) as the only shape, so a pyvista user told "must be shape (4, 5)" of an ImageData did not learn that
+    grid["gamma"] (N,) goes too. Both are named now, with the grid's dimensions."""
+    x, y = np.meshgrid(np.arange(5) * 10.0, np.arange(4) * 10.0)
+    grid = pv.ImageData(dimensions=(5, 4, 1), spacing=(10, 10, 1)) if kind == "image" else pv.StructuredGrid(
+        x, y, np.zeros_like(x))
+    grid["elevation"] = np.arange(20.0)
+    nx, ny, _ = grid.dimensions
+    with pytest.raises(InvalidInputError, match=rf"gamma must be one γ per node, shape \({ny}, {nx}\) or \(20,\) "
+                                                r".*got shape \(7,\)"):
+        grid.stepterrain.stepped(interval=2.0, gamma=np.full(7, 0.5))
+    assert grid.stepterrain.stepped(interval=2.0, gamma=np.full(20, 0.5)).n_cells > 0
