@@ -273,6 +273,10 @@ class StepTerrainAccessor:
             return np.reshape(gamma, (ny, nx))
         if not isinstance(terrain, Terrain) and shape == (ny, nx):
             return np.reshape(gamma, -1)
+        if len(shape) and shape not in ((ny, nx), (ny * nx,)):
+            # stepped() named the one shape of the terrain the grid became, (H, W) or (N,), as the only one
+            raise InvalidInputError(f"gamma must be one γ per node, shape ({ny}, {nx}) or ({ny * nx},) (point data), "
+                                    f"or a scalar, a callable or a Lens; got shape {shape}")
         return gamma
 
 
@@ -283,15 +287,28 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
     ``pv.wrap`` of a Trimesh drops its vertex colours (pyvista carries vertex attributes only); this keeps them as
     point data ``RGBA`` (uint8), also the active scalars ``colors_rgba`` (plotted as colours); colours by face go to
     cell data so. Face attributes become cell data and vertex attributes point data (bools as pyvista keeps them,
-    uint8 in VTK read back as bool, half floats as float32; numbers and strings, anything else left out with a warning
-    naming it, as are complex numbers of several components), a textured mesh's UVs (one per vertex) the active
-    texture coordinates (its image is not data of a PolyData: plot with
-    ``texture=np.asarray(image)``, the image being ``mesh.visual.material.baseColorTexture``, or ``.image`` for
-    a globe's ``drape_texture``), ``isovalues`` a float64 ``field_data`` array, and every metadata item that is JSON
-    (values as :func:`~stepterrain.export.save_mesh` writes them to glTF extras) goes to
-    ``user_dict``, as ``pv.wrap`` keeps them; a numeric array too long for that (a globe's ``node_entry``, a
-    close-up layer's ``source_faces``) is a ``field_data`` array, as ``pv.wrap`` keeps it; any other item is left
-    out with a warning naming it. :func:`from_polydata` is the way back.
+    uint8 in VTK read back as bool, half floats as float32, long doubles as float64, (N, a, b) as (N, a * b); numbers
+    and ASCII strings, anything else left out with a warning naming it, as are complex numbers of several components
+    and attributes not named by a str), a textured mesh's UVs (one per vertex) the active texture coordinates (its
+    image is not data of a PolyData: plot with ``texture=np.asarray(image)``, the image being
+    ``mesh.visual.material.baseColorTexture``, or ``.image`` for a globe's ``drape_texture``), ``isovalues`` a
+    float64 ``field_data`` array, and every metadata item that is JSON (values as
+    :func:`~stepterrain.export.save_mesh` writes them to glTF extras) goes to ``user_dict``, as ``pv.wrap`` keeps
+    them; a numeric array too long for that (a globe's ``node_entry``, a close-up layer's ``source_faces``) is a
+    ``field_data`` array, as ``pv.wrap`` keeps it; any other item is left out with a warning naming it.
+
+    :func:`from_polydata` is the way back: it gives the vertices, faces, colours, attributes and metadata back,
+    dtypes kept (with the conversions above; bytes as str, metadata as JSON values), except that (N, 1) attributes
+    come back (N,) (VTK's one-component arrays) and an uncoloured mesh's attribute under a colour name (``RGBA``,
+    ``colors_rgba``, ``RGB``, holding colour values) comes back as its colours (what a mesh from ``pv.to_trimesh``
+    of a PolyData holds).
+
+    The colours' names are theirs: a coloured mesh's attribute under ``RGBA`` or ``colors_rgba`` in the data its
+    colours go to (or ``colors_rgba`` by vertex beside colours by face, which :func:`from_polydata` would read
+    first) is left out with a warning naming it (rename it to keep it), unless it holds those very colours. The
+    colours win, not the attribute: they are what the PolyData plots and what every way back (``from_polydata``,
+    ``save_mesh`` and ``render_mesh`` of the PolyData) reads as its colours; refusing the mesh would stop the
+    common ``pv.to_trimesh`` round trip, whose attributes hold the colours as they were before a recolouring.
 
     The PolyData's points and data arrays are its own copies (as ``pv.wrap`` makes them): they were the mesh's own
     buffers, so exaggerating the PolyData's heights (``poly.points[:, 2] *= 3``) or setting its colours changed the
@@ -302,7 +319,8 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
     ------
     InvalidInputError
         ``mesh`` is not a ``trimesh.Trimesh`` (a Scene, a PointCloud, a PolyData already, None): trimesh's or
-        Python's AttributeError ("'Scene' object has no attribute 'faces'") came out of it, naming no argument.
+        Python's AttributeError ("'Scene' object has no attribute 'faces'") came out of it, naming no argument;
+        or its faces index outside its vertices (a ``process=False`` mesh keeps them; VTK crashed on them).
     """
     if not isinstance(mesh, trimesh.Trimesh):
         hint = (" (trimesh.load gives one for a glTF/GLB: read the file with stepterrain.export.read_mesh(path), one "
@@ -320,6 +338,10 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
 
     own = np.asarray if share else np.array  # np.array copies
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
+    if not share:  # (a stepped mesh's faces index its vertices)
+        # VTK took indices past the points (or -1) as they were: the PolyData's compute_normals(), clean() and
+        # decimate() then crashed Python with a segmentation fault
+        _check_face_indices(faces, len(mesh.vertices), "mesh", "vertex", "vertices")
     # VTK's offsets and connectivity on the faces as they are: a padded [3, a, b, c] copy took 2.5 s and 550 MB
     # more for 13 M faces (a 2600² grid stepped), almost all of grid.stepterrain.stepped's time past the kernels
     poly = pv.PolyData.from_regular_faces(own(mesh.vertices, dtype=np.float64), faces, deep=False)
@@ -328,12 +350,25 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
     # rule: numbers and strings are kept (a string vertex attribute was dropped without a word while a face one was
     # kept); what VTK holds no array of (objects, which VTK turned into their str, None into 'None'; datetimes,
     # whose TypeError came out of to_polydata) is left out with a warning, as metadata is
-    left_out = []
+    left_out, shadowed, unnamed = [], [], []
+    coloured = mesh.visual.kind if mesh.visual.kind in ("vertex", "face") else None
+    colours = None
+    if coloured is not None:
+        colours = np.asarray(mesh.visual.vertex_colors if coloured == "vertex" else mesh.visual.face_colors)
     for kind, attributes, count, data in (("face", mesh.face_attributes, len(faces), poly.cell_data),
                                           ("vertex", mesh.vertex_attributes, len(mesh.vertices), poly.point_data)):
         for name, values in attributes.items():
             array = np.asarray(values)
             if array.shape[:1] != (count,):
+                continue
+            if not isinstance(name, str):  # pyvista's TypeError "Only strings are valid keys" came out of to_polydata
+                unnamed.append(f"{kind} attribute {name!r}")
+                continue
+            if colours is not None and _shadows_colours(name, kind, coloured):
+                # the colours go under these names (a user's "RGBA" scalar field was written over without a word);
+                # one holding the very colours (a mesh from pv.to_trimesh) loses nothing
+                if not (array.shape == colours.shape and kind == coloured and np.array_equal(array, colours)):
+                    shadowed.append(f"{kind} attribute {name!r}")
                 continue
             if array.dtype.kind == "O" and all(isinstance(v, str) for v in array.ravel()):
                 array = array.astype(str)  # strings held as objects (a pandas column's values) are strings
@@ -344,21 +379,31 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
             elif array.dtype.kind == "c" and array.ndim > 1:  # pyvista's ValueError "Complex data must be single
                 # dimensional" came out of to_polydata: it stores a complex value as two floats, one value a cell
                 left_out.append(f"{kind} attribute {name!r} ({array.dtype} of shape {array.shape})")
+            elif array.dtype.kind in "US" and not all(v.isascii() for v in array.ravel().tolist()):
+                # pyvista's ValueError "String array contains non-ASCII characters that are not supported by VTK"
+                # (bytes: a UnicodeDecodeError) came out of to_polydata
+                left_out.append(f"{kind} attribute {name!r} (non-ASCII strings)")
             elif array.dtype.kind in _DATA_KINDS:
                 data[name] = _vtk_values(array, own)
             else:
                 left_out.append(f"{kind} attribute {name!r} ({array.dtype})")
     if left_out:
-        warnings.warn(f"to_polydata: {', '.join(left_out)} left out: VTK holds arrays of numbers and strings only "
-                      "(complex numbers one to a point or cell), of at least one value each",
+        warnings.warn(f"to_polydata: {', '.join(left_out)} left out: VTK holds arrays of numbers and ASCII strings "
+                      "only (complex numbers one to a point or cell), of at least one value each",
                       stacklevel=caller_stacklevel())
+    if unnamed:
+        warnings.warn(f"to_polydata: {', '.join(unnamed)} left out: VTK's arrays are named by a str (as metadata "
+                      "keys must be)", stacklevel=caller_stacklevel())
+    if shadowed:
+        warnings.warn(f"to_polydata: {', '.join(shadowed)} left out: the mesh's {coloured} colours go under 'RGBA' "
+                      f"and {RGBA_ALIAS!r} in the PolyData, and from_polydata reads those names as the colours "
+                      "(rename the attribute to keep it)", stacklevel=caller_stacklevel())
     uv = getattr(mesh.visual, "uv", None) if mesh.visual.kind == "texture" else None
     if uv is not None and np.shape(uv) == (len(mesh.vertices), 2):
         poly.active_texture_coordinates = own(uv, dtype=np.float64)
-    if mesh.visual.kind in ("vertex", "face"):  # colours by face (a PLY or 3MF read back) were dropped
-        data = poly.point_data if mesh.visual.kind == "vertex" else poly.cell_data
-        colors = mesh.visual.vertex_colors if mesh.visual.kind == "vertex" else mesh.visual.face_colors
-        data["RGBA"] = own(colors, dtype=np.uint8)
+    if colours is not None:  # colours by face (a PLY or 3MF read back) were dropped
+        data = poly.point_data if coloured == "vertex" else poly.cell_data
+        data["RGBA"] = own(colours, dtype=np.uint8)
         # pyvista shows an array as colours (no colormap, no scalar bar) only when its name ends in "_rgb" or
         # "_rgba": steps.plot() drew "RGBA" through viridis, with a bar of 'RGBA' magnitudes. The same bytes (one
         # buffer, no copy) under RGBA_ALIAS are the active scalars, so the default plot shows the level colours.
@@ -395,6 +440,22 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
     return poly
 
 
+def _shadows_colours(name: str, kind: str, coloured: str) -> bool:
+    """Whether a ``kind`` ("vertex" or "face") attribute ``name`` of a mesh coloured by ``coloured`` would be taken
+    for its colours: written over by them (their names, "RGBA" and :data:`RGBA_ALIAS`, in the data they go to), or
+    read back by :func:`from_polydata` instead of them (:data:`RGBA_ALIAS` in point data beside colours by face)."""
+    return name in (RGBA_ALIAS, "RGBA") if kind == coloured else (kind == "vertex" and name == RGBA_ALIAS)
+
+
+def _check_face_indices(faces: NDArray[np.int64], count: int, name: str, noun: str, plural: str) -> None:
+    """Refuse ``faces`` (F, 3) that index outside ``count`` points, naming ``name`` and the first such face."""
+    if faces.size == 0 or (faces.min() >= 0 and faces.max() < count):
+        return
+    bad = int(np.flatnonzero(((faces < 0) | (faces >= count)).any(axis=1))[0])
+    within = f"its {counted(count, noun, plural)} (0 .. {count - 1})" if count else f"{plural}, and it has none"
+    raise InvalidInputError(f"{name} faces must index {within}; face {bad} is {faces[bad].tolist()}")
+
+
 #: The dtype kinds :func:`to_polydata` keeps as point or cell data: booleans, integers, floats, complex, strings
 #: (str and bytes, both VTK string arrays).
 _DATA_KINDS = "biufcUS"
@@ -402,12 +463,20 @@ _DATA_KINDS = "biufcUS"
 
 def _vtk_values(array: NDArray[Any], own: Any) -> NDArray[Any]:
     """``array`` as VTK takes it: half floats as float32 (VTK has no float16: its TypeError "Could not find a suitable
-    VTK type for float16" came out of to_polydata), else ``own(array)``. Bools go to pyvista as they are: it stores
+    VTK type for float16" came out of to_polydata), long doubles as float64 (complex128), complex numbers and
+    strings in native byte order, else ``own(array)``. Bools go to pyvista as they are: it stores
     them as uint8 (VTK has no bool arrays) and reads them back as bool; cast to uint8 here, they came back from
     :func:`from_polydata` as 0/1 numbers (``wall`` aside), so a mask face attribute indexed rows 0 and 1 instead of
     selecting faces."""
-    if array.dtype == np.float16:
+    if array.dtype.kind == "f" and array.dtype.itemsize == 2:  # ">f2" (big-endian) too: VTK's TypeError for it
         return array.astype(np.float32)
+    # long doubles (VTK's TypeError "Could not find a suitable VTK type for float128", pyvista's ValueError "Only
+    # numpy.complex64 or numpy.complex128 is supported") as double, the widest VTK holds
+    if array.dtype.kind in "fc" and array.dtype.itemsize > (8 if array.dtype.kind == "f" else 16):
+        return array.astype(np.float64 if array.dtype.kind == "f" else np.complex128)
+    if array.dtype.kind in "cU" and not array.dtype.isnative:  # pyvista's ValueErrors ("Only numpy.complex64 or
+        # numpy.complex128", "non-ASCII characters" of ASCII strings) for them; its other arrays it swaps itself
+        return array.astype(array.dtype.newbyteorder("="))
     return own(array)
 
 
@@ -416,12 +485,13 @@ def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:
     (``grid.stepterrain.stepped``'s result), which :func:`~stepterrain.export.save_mesh`,
     :func:`~stepterrain.render.render_mesh` and :func:`~stepterrain.texture.drape` call on a PolyData given to them.
 
-    Points and faces are copied as they are (float64, int64). The point data ``colors_rgba`` (else ``RGBA``, else
-    ``RGB``, as VTK's PLY and OBJ readers name colours, else active scalars named ``*_rgb``/``*_rgba``), 3
-    or 4 columns of uint8, or of other whole numbers in [0, 255] or floats in [0, 1] (as pyvista plots them), become
-    the vertex colours (pv.to_trimesh leaves them as a plain vertex attribute, so they were not
-    written nor drawn); without them, cell data found so (a PLY's face colours, :func:`to_polydata`'s of a mesh
-    coloured by face) become the face colours. Other point data become vertex attributes (normals and texture
+    Points and faces are copied as they are (float64, int64; NaN points too, as a Trimesh holds them: the writers
+    and renderers refuse them by name). The array named ``colors_rgba`` (else ``RGBA``, else ``RGB``, as VTK's PLY
+    and OBJ readers name colours, else active scalars named ``*_rgb``/``*_rgba``), point data before cell data at
+    one name, of 3 or 4 columns of uint8, or of other whole numbers in [0, 255] or floats in [0, 1] (as pyvista plots
+    them), becomes the vertex colours, or the face colours if in cell data (pv.to_trimesh leaves them as a plain
+    attribute, so they were not written nor drawn); an array under such a name that holds no colours (floats beyond
+    1, one column) is passed over, an attribute. Other point data become vertex attributes (normals and texture
     coordinates aside: a PolyData holds no texture image, drape it instead). Other cell data become face
     attributes, ``wall`` (0/1) as bool again. ``user_dict`` items and the other field data (``isovalues`` as a
     list) become the metadata. ``name`` names the argument in errors.
@@ -432,7 +502,8 @@ def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:
         ``poly`` is not a PolyData, or holds cells other than triangles (vertices, lines, strips, polygons of
         more corners: ``poly.triangulate()`` makes triangles of the strips and polygons; vertices and lines beside
         faces are removed first, ``poly.remove_cells(range(poly.n_verts + poly.n_lines))``; points alone, or
-        lines, have no face to triangulate: ``poly.delaunay_2d()`` makes a TIN of them).
+        lines, have no face to triangulate: ``poly.delaunay_2d()`` makes a TIN of them), or faces that index
+        outside its points (the Trimesh's first use raised numpy's IndexError).
     """
     from pyvista.core.dataobject import USER_DICT_KEY
 
@@ -460,16 +531,21 @@ def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:
                                 f"{name}.n_verts + {name}.n_lines)).triangulate() keeps its faces alone, as triangles)")
     vertices = np.array(poly.points, dtype=np.float64)
     faces = np.array(poly.regular_faces, dtype=np.int64) if poly.n_cells else np.zeros((0, 3), np.int64)
+    # VTK keeps indices past the points (or -1) as they are: the Trimesh's first use raised numpy's IndexError
+    _check_face_indices(faces, len(vertices), name, "point", "points")
     point_data, cell_data = poly.point_data, poly.cell_data
-    colors, colour_names = _colours(point_data)
-    face_colors, face_colour_names = _colours(cell_data) if colors is None else (None, set())
+    coloured, found, colour_names = _colours(point_data, cell_data)
+    colors, face_colors = (found, None) if coloured == "vertex" else (None, found)
+    face_colour_names = colour_names if coloured == "face" else set()
+    colour_names = colour_names if coloured == "vertex" else set()
     skipped = {point_data.active_normals_name, point_data.active_texture_coordinates_name} | colour_names
-    vertex_attributes = {n: np.array(point_data[n]) for n in point_data.keys() if n not in skipped}
+    # (pyvista reads a complex array of one value back as a 0-d array: shape (), no value per vertex or face)
+    vertex_attributes = {n: np.array(point_data[n], ndmin=1) for n in point_data.keys() if n not in skipped}
     face_attributes = {}
     for key in cell_data.keys():
         if key == cell_data.active_normals_name or key in face_colour_names:
             continue
-        values = np.array(cell_data[key])
+        values = np.array(cell_data[key], ndmin=1)
         if key == "wall" and values.dtype == np.uint8 and values.max(initial=0) <= 1:  # bool as uint8 in VTK
             values = values.astype(bool)
         face_attributes[key] = values
@@ -482,25 +558,30 @@ def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:
                            face_attributes=face_attributes, vertex_attributes=vertex_attributes, metadata=metadata)
 
 
-def _colours(data: Any) -> tuple[NDArray[np.uint8] | None, set[str]]:
-    """The colours among a PolyData's point or cell ``data`` (see :func:`from_polydata`), a copy, and the names of
-    the arrays they are (none of them an attribute besides), else (None, no names)."""
+def _colours(point_data: Any, cell_data: Any) -> tuple[str | None, NDArray[np.uint8] | None, set[str]]:
+    """The colours among a PolyData's ``point_data`` and ``cell_data`` (see :func:`from_polydata`): "vertex" or
+    "face", the colours (a copy) and the names of the arrays they are (none of them an attribute besides), else
+    (None, None, no names). The strongest name wins wherever it is (point data first at one name): point data was
+    looked at first whatever its names, so a mesh coloured by face with a vertex attribute "RGB" came back coloured
+    by that attribute, its colours face attributes."""
     # "RGB": pv.read of a PLY without alpha, or of an OBJ, (VTK's readers) rendered tan, its colours a vertex attribute
-    colour_name = next((n for n in (RGBA_ALIAS, "RGBA", "RGB") if n in data), None)
-    active = data.active_scalars_name
-    if colour_name is None and active is not None and active.lower().endswith(("_rgb", "_rgba")):
-        colour_name = active
-    if colour_name is None:
-        return None, set()
-    values = np.asarray(data[colour_name])
-    if values.ndim != 2 or values.shape[1] not in (3, 4):
-        return None, set()
-    colours = _uint8_colours(values)
-    if colours is None:
-        return None, set()
-    # "RGBA" and its alias share one buffer (to_polydata): neither is an attribute besides
-    same = {n for n in (RGBA_ALIAS, "RGBA") if n in data and np.array_equal(np.asarray(data[n]), values)}
-    return colours, {colour_name} | same
+    candidates = [(kind, data, n) for n in (RGBA_ALIAS, "RGBA", "RGB")
+                  for kind, data in (("vertex", point_data), ("face", cell_data)) if n in data]
+    for kind, data in (("vertex", point_data), ("face", cell_data)):
+        active = data.active_scalars_name
+        if active is not None and active.lower().endswith(("_rgb", "_rgba")):
+            candidates.append((kind, data, active))
+    for kind, data, colour_name in candidates:
+        values = np.asarray(data[colour_name])
+        if values.ndim != 2 or values.shape[1] not in (3, 4):
+            continue
+        colours = _uint8_colours(values)
+        if colours is None:
+            continue
+        # "RGBA" and its alias share one buffer (to_polydata): neither is an attribute besides
+        same = {n for n in (RGBA_ALIAS, "RGBA") if n in data and np.array_equal(np.asarray(data[n]), values)}
+        return kind, colours, {colour_name} | same
+    return None, None, set()
 
 
 def _uint8_colours(values: NDArray[Any]) -> NDArray[np.uint8] | None:

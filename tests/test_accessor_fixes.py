@@ -8,6 +8,9 @@ import numpy as np
 import pytest
 import pyvista as pv
 import trimesh
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
 
 import stepterrain.pyvista_accessor  # noqa: F401 - registers the accessor
 from stepterrain import render
@@ -824,3 +827,248 @@ def test_to_polydata_keeps_the_empty_attributes_of_a_mesh_with_no_faces_without_
         poly = to_polydata(mesh)
     assert not any("'level'" in str(w.message) for w in caught)
     assert poly.cell_data["level"].shape == (0,) and "rgb" not in poly.cell_data
+
+
+@pytest.mark.parametrize("bad", [7, -1])
+def test_faces_outside_the_vertices_are_refused_by_name_both_ways(bad):
+    """to_polydata of a ``process=False`` Trimesh whose faces index past its vertices (or -1) handed the indices to
+    VTK as they were: the PolyData's compute_normals(), clean() and decimate() then crashed Python with a
+    segmentation fault. from_polydata of such a PolyData gave a Trimesh whose first use raised numpy's IndexError.
+    Found by feeding both hand-made meshes. Now both name the argument and the offending face."""
+    points = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0]])
+    mesh = trimesh.Trimesh(points, [[0, 1, 2], [0, 1, bad]], process=False)
+    with pytest.raises(InvalidInputError, match=rf"mesh faces must index its 3 vertices .*face 1 is \[0, 1, {bad}\]"):
+        to_polydata(mesh)
+    poly = pv.PolyData(points, faces=[3, 0, 1, 2, 3, 0, 1, bad])
+    with pytest.raises(InvalidInputError, match=rf"steps faces must index its 3 points .*face 1 is \[0, 1, {bad}\]"):
+        from_polydata(poly, name="steps")
+
+
+@pytest.mark.parametrize("kind", ["vertex", "face"])
+@pytest.mark.parametrize("name", ["RGBA", RGBA_ALIAS])
+def test_an_attribute_under_a_colour_name_of_a_coloured_mesh_is_left_out_with_a_warning(kind, name):
+    """A coloured mesh with an attribute of its own named "RGBA" or "colors_rgba" (a scalar field, other colours)
+    lost it without a word: to_polydata wrote the colours over it. The colours win (they are what the PolyData's
+    plot and from_polydata read), and the attribute left out is named in a warning; one holding those very colours
+    (a mesh from pv.to_trimesh) is no loss and passes without one."""
+    box = trimesh.creation.box()
+    count = len(box.vertices) if kind == "vertex" else len(box.faces)
+    colours = np.random.default_rng(1).integers(0, 256, (count, 4), dtype=np.uint8)
+    mesh = trimesh.Trimesh(box.vertices, box.faces, process=False, **{f"{kind}_colors": colours})
+    getattr(mesh, f"{kind}_attributes")[name] = np.arange(count, dtype=np.float64)
+    getattr(mesh, f"{kind}_attributes")["kept"] = np.arange(count, dtype=np.int16)
+    with pytest.warns(UserWarning, match=rf"{kind} attribute '{name}' .*left out.*the mesh's {kind} colours"):
+        back = from_polydata(to_polydata(mesh))
+    assert np.array_equal(getattr(back.visual, f"{kind}_colors"), colours)
+    assert list(getattr(back, f"{kind}_attributes")) == ["kept"]
+    getattr(mesh, f"{kind}_attributes")[name] = colours.copy()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        back = from_polydata(to_polydata(mesh))
+    assert np.array_equal(getattr(back.visual, f"{kind}_colors"), colours)
+
+
+@pytest.mark.parametrize("name", ["RGB", "RGBA", "height_rgb"])
+def test_face_colours_come_back_as_face_colours_beside_a_colour_named_vertex_attribute(name):
+    """A mesh coloured by face with a vertex attribute named "RGB" ("RGBA", "*_rgb": colour-like uint8 values) came
+    back from from_polydata(to_polydata(mesh)) coloured by vertex with that attribute, its face colours turned into
+    face attributes "RGBA" and "colors_rgba": from_polydata looked at point data before cell data whatever the
+    names. Now the strongest colour name wins wherever it is (colors_rgba, then RGBA, then RGB, then active
+    scalars named *_rgb/*_rgba; point data first at one name), so to_polydata's colours are found; the vertex
+    attribute comes back as it was."""
+    box = trimesh.creation.box()
+    face_colours = np.random.default_rng(2).integers(0, 256, (len(box.faces), 4), dtype=np.uint8)
+    mesh = trimesh.Trimesh(box.vertices, box.faces, process=False, face_colors=face_colours)
+    values = np.random.default_rng(3).integers(0, 256, (len(box.vertices), 3), dtype=np.uint8)
+    mesh.vertex_attributes[name] = values
+    back = from_polydata(to_polydata(mesh))
+    assert back.visual.kind == "face"
+    assert np.array_equal(back.visual.face_colors, face_colours)
+    assert list(back.vertex_attributes) == [name] and np.array_equal(back.vertex_attributes[name], values)
+    assert list(back.face_attributes) == []
+
+
+def test_a_vertex_attribute_under_the_colour_alias_of_a_mesh_coloured_by_face_is_left_out_with_a_warning():
+    """Beside colours by face (cell data "colors_rgba"), a vertex attribute "colors_rgba" of colour-like values was
+    read back by from_polydata as vertex colours, the face colours turned into face attributes. It is left out with
+    a warning, as one of the face colours' names; the face colours come back."""
+    box = trimesh.creation.box()
+    face_colours = np.random.default_rng(4).integers(0, 256, (len(box.faces), 4), dtype=np.uint8)
+    mesh = trimesh.Trimesh(box.vertices, box.faces, process=False, face_colors=face_colours)
+    mesh.vertex_attributes[RGBA_ALIAS] = np.full((len(box.vertices), 4), 9, np.uint8)
+    with pytest.warns(UserWarning, match=rf"vertex attribute '{RGBA_ALIAS}' left out: the mesh's face colours"):
+        back = from_polydata(to_polydata(mesh))
+    assert back.visual.kind == "face" and np.array_equal(back.visual.face_colors, face_colours)
+    assert list(back.vertex_attributes) == [] and list(back.face_attributes) == []
+
+
+_DTYPES = [np.bool_, np.int8, np.int16, np.int32, np.int64, np.uint8, np.uint16, np.uint32, np.uint64, np.float16,
+           np.float32, np.float64]
+_COLOUR_NAMES = ("RGB", "RGBA", RGBA_ALIAS, "x_rgb")
+
+
+@st.composite
+def _meshes(draw):
+    """Trimeshes of 0 to 8 vertices (unreferenced ones too), 0 to 6 faces, colours by vertex (uint8 or float, RGB or
+    RGBA) or by face or none, vertex and face attributes of every dtype VTK holds, (N,) and (N, k), some under the
+    colours' names, and JSON metadata."""
+    count = draw(st.integers(0, 8))
+    vertices = draw(hnp.arrays(np.float64, (count, 3), elements=st.floats(-1e3, 1e3)))
+    faces = draw(hnp.arrays(np.int64, (draw(st.integers(0, 6)) if count else 0, 3),
+                            elements=st.integers(0, max(count - 1, 0))))
+    colour = draw(st.sampled_from([None, "vertex", "face"]))
+    rows = {"vertex": count, "face": len(faces)}
+    kw = {}
+    if colour is not None and rows[colour]:
+        dtype = draw(st.sampled_from([np.uint8, np.float64])) if colour == "vertex" else np.uint8
+        elements = st.floats(0, 1) if dtype == np.float64 else None
+        kw[f"{colour}_colors"] = draw(hnp.arrays(dtype, (rows[colour], draw(st.sampled_from([3, 4]))),
+                                                 elements=elements))
+    mesh = trimesh.Trimesh(vertices, faces, process=False, **kw)
+    for kind, n in rows.items():
+        for i in range(draw(st.integers(0, 3))):
+            dtype = draw(st.sampled_from(_DTYPES))
+            name = draw(st.sampled_from([f"{kind}{i}", *_COLOUR_NAMES]))
+            shape = draw(st.sampled_from([(n,), (n, 2), (n, 3), (n, 4)] if n else [(0,)]))
+            getattr(mesh, f"{kind}_attributes")[name] = draw(hnp.arrays(dtype, shape))
+    mesh.metadata.update(draw(st.dictionaries(
+        st.text("abxyz", min_size=1, max_size=3), st.one_of(st.integers(-2**60, 2**60), st.floats(allow_nan=False),
+                                                           st.text(max_size=4), st.booleans(), st.none(),
+                                                           st.lists(st.integers(-5, 5), max_size=3)), max_size=3)))
+    return mesh
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=list(HealthCheck))
+@given(_meshes())
+def test_to_polydata_and_back_gives_the_mesh_back(mesh):
+    """from_polydata(to_polydata(mesh)) gives back the vertices, faces, colours, attributes (dtypes kept; half floats
+    as float32) and metadata (JSON values, an infinity as None) of the mesh, with the documented exceptions: an
+    attribute under the colours' names of a coloured mesh is left out with a warning naming it, and of an uncoloured
+    mesh one holding colour values comes back as the colours (pv.to_trimesh's way)."""
+    coloured = mesh.visual.kind if mesh.visual.kind in ("vertex", "face") else None
+    colours = None if coloured is None else getattr(mesh.visual, f"{coloured}_colors").copy()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        back = from_polydata(to_polydata(mesh))
+    said = " ".join(str(w.message) for w in caught if "left out" in str(w.message))
+    assert np.array_equal(back.vertices, mesh.vertices) and np.array_equal(back.faces, mesh.faces)
+    if coloured is not None:
+        assert back.visual.kind == coloured
+        assert np.array_equal(getattr(back.visual, f"{coloured}_colors"), colours)
+    for kind in ("vertex", "face"):
+        before, after = getattr(mesh, f"{kind}_attributes"), getattr(back, f"{kind}_attributes")
+        left_out = {n for n in before if f"{kind} attribute {n!r}" in said}
+        assert left_out <= set(_COLOUR_NAMES) and (not left_out or coloured is not None)
+        read_as_colours = set(before) - set(after) - left_out
+        if read_as_colours:  # one array, of the uncoloured mesh, of the kind that came back coloured
+            assert coloured is None and back.visual.kind == kind and len(read_as_colours) == 1
+            assert read_as_colours <= set(_COLOUR_NAMES)
+        assert set(after) == set(before) - left_out - read_as_colours
+        for name, values in after.items():
+            expected = before[name].astype(np.float32) if before[name].dtype == np.float16 else before[name]
+            assert values.dtype == expected.dtype and values.shape == expected.shape, name
+            assert np.array_equal(values, expected, equal_nan=expected.dtype.kind == "f"), name
+    for key, value in mesh.metadata.items():
+        assert back.metadata[key] == (None if isinstance(value, float) and not np.isfinite(value) else value)
+
+
+@pytest.mark.parametrize("kind", ["vertex", "face"])
+def test_to_polydata_leaves_out_an_attribute_not_named_by_a_str_with_a_warning(kind):
+    """An attribute named by a number (``mesh.vertex_attributes[5] = ...``, as trimesh allows) raised pyvista's
+    TypeError "Only strings are valid keys for DataSetAttributes" out of to_polydata, naming no argument, so the mesh
+    could not go to pyvista at all. It is left out with a warning naming it, as metadata keys that are no str are;
+    the other attributes go."""
+    box = trimesh.creation.box()
+    mesh = trimesh.Trimesh(box.vertices, box.faces, process=False)
+    attributes = getattr(mesh, f"{kind}_attributes")
+    count = len(box.vertices) if kind == "vertex" else len(box.faces)
+    attributes[5] = np.arange(count)
+    attributes["kept"] = np.arange(count) * 2.0
+    with pytest.warns(UserWarning, match=rf"{kind} attribute 5 left out: .*named by a str"):
+        back = from_polydata(to_polydata(mesh))
+    assert list(getattr(back, f"{kind}_attributes")) == ["kept"]
+
+
+@pytest.mark.parametrize("values", [np.array(["Zürich", "Bern", "Genève"]),
+                                    np.array(["Zürich", "Bern", "Genève"], object),
+                                    np.array([b"\xff", b"ab", b"c"])], ids=["str", "object", "bytes"])
+@pytest.mark.parametrize("kind", ["vertex", "face"])
+def test_to_polydata_leaves_out_non_ascii_string_attributes_with_a_warning(kind, values):
+    """A string attribute with a character past ASCII (a place name) raised pyvista's ValueError "String array
+    contains non-ASCII characters that are not supported by VTK" out of to_polydata, bytes past ASCII a
+    UnicodeDecodeError, naming no argument: the mesh could not go to pyvista at all. Such an attribute is left out
+    with a warning naming it, as other arrays VTK holds not; ASCII strings still go and come back."""
+    points = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0]])
+    mesh = trimesh.Trimesh(points, [[0, 1, 2], [0, 2, 1], [1, 2, 0]], process=False)
+    attributes = getattr(mesh, f"{kind}_attributes")
+    attributes["name"] = values
+    attributes["code"] = np.array(["ZH", "BE", "GE"])
+    with pytest.warns(UserWarning, match=rf"{kind} attribute 'name' \(.*non-ASCII"):
+        back = from_polydata(to_polydata(mesh))
+    assert list(getattr(back, f"{kind}_attributes")) == ["code"]
+    assert getattr(back, f"{kind}_attributes")["code"].tolist() == ["ZH", "BE", "GE"]
+
+
+def test_to_polydata_takes_big_endian_half_floats_as_float32():
+    """Half floats in big-endian order (``>f2``, as a file's bytes read with np.frombuffer give them) raised VTK's
+    TypeError "Could not find a suitable VTK type for >f2" out of to_polydata: only the native float16 dtype went to
+    float32. Other big-endian arrays went (pyvista swaps them). Found by fuzzing attribute dtypes and byte orders."""
+    box = trimesh.creation.box()
+    values = np.arange(len(box.vertices)).astype(">f2") / 4
+    mesh = trimesh.Trimesh(box.vertices, box.faces, process=False, vertex_attributes={"h": values})
+    mesh.metadata["long"] = np.linspace(0, 1, 10_000).astype(">f2")  # a field_data array, past glTF extras' length
+    back = from_polydata(to_polydata(mesh))
+    assert back.vertex_attributes["h"].dtype == np.float32
+    np.testing.assert_array_equal(back.vertex_attributes["h"], values.astype(np.float32))
+    np.testing.assert_array_equal(back.metadata["long"], mesh.metadata["long"].astype(np.float32))
+
+
+@pytest.mark.parametrize(("dtype", "expected"), [(np.longdouble, np.float64), (np.clongdouble, np.complex128),
+                                                 (">c16", np.complex128), (">c8", np.complex64), (">U2", np.str_)])
+def test_to_polydata_takes_long_double_and_big_endian_complex_and_string_attributes(dtype, expected):
+    """A long double attribute raised VTK's TypeError "Could not find a suitable VTK type for float128", a long
+    double or big-endian complex one pyvista's ValueError "Only numpy.complex64 or numpy.complex128 is supported",
+    and big-endian strings (ASCII) its ValueError "String array contains non-ASCII characters", all out of
+    to_polydata. Found by fuzzing attribute dtypes and byte orders. Long doubles go as float64 (complex128): VTK
+    holds no wider floats; the others in native order, the same values."""
+    box = trimesh.creation.box()
+    values = (np.arange(len(box.vertices)) * 3 // 2).astype(dtype)
+    mesh = trimesh.Trimesh(box.vertices, box.faces, process=False)
+    mesh.vertex_attributes["a"] = values
+    mesh.face_attributes["b"] = np.repeat(values[:6], 2)
+    back = from_polydata(to_polydata(mesh))
+    for got, sent in ((back.vertex_attributes["a"], values), (back.face_attributes["b"], mesh.face_attributes["b"])):
+        assert got.dtype.type is np.dtype(expected).type and got.dtype.isnative
+        assert got.tolist() == sent.astype(expected).tolist()
+
+
+@pytest.mark.parametrize("kind", ["vertex", "face"])
+def test_a_complex_attribute_of_one_vertex_or_face_comes_back_one_value_long(kind):
+    """pyvista reads a complex array of one value back as a 0-d array: from_polydata gave a mesh of one face (or
+    vertex) a complex attribute of shape (), no value per face, which indexing by face refused. Found by fuzzing
+    attribute dtypes over meshes of one to six vertices. It comes back of shape (1,), as it went."""
+    mesh = trimesh.Trimesh([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], process=False)
+    values = np.array([2 + 3j] * (1 if kind == "face" else 3), np.complex64)
+    if kind == "vertex":
+        mesh = trimesh.Trimesh(mesh.vertices[:1], np.zeros((0, 3), int), process=False)
+        values = values[:1]
+    getattr(mesh, f"{kind}_attributes")["z"] = values
+    back = getattr(from_polydata(to_polydata(mesh)), f"{kind}_attributes")["z"]
+    assert back.shape == (1,) and back.dtype == np.complex64 and back.tolist() == [2 + 3j]
+
+
+@pytest.mark.parametrize("kind", ["image", "structured"])
+def test_a_gamma_array_of_neither_shape_is_refused_naming_both_the_accessor_takes(kind):
+    """The accessor takes a per-node γ as (H, W) or as one value per point (N,), on every grid; an array of another
+    shape was refused with stepped()'s message, which names one of the two (the (H, W) of a grid Terrain, the (N,) of
+    a TIN) as the only shape, so a pyvista user told "must be shape (4, 5)" of an ImageData did not learn that
+    grid["gamma"] (N,) goes too. Both are named now, with the grid's dimensions."""
+    x, y = np.meshgrid(np.arange(5) * 10.0, np.arange(4) * 10.0)
+    grid = pv.ImageData(dimensions=(5, 4, 1), spacing=(10, 10, 1)) if kind == "image" else pv.StructuredGrid(
+        x, y, np.zeros_like(x))
+    grid["elevation"] = np.arange(20.0)
+    nx, ny, _ = grid.dimensions
+    with pytest.raises(InvalidInputError, match=rf"gamma must be one γ per node, shape \({ny}, {nx}\) or \(20,\) "
+                                                r".*got shape \(7,\)"):
+        grid.stepterrain.stepped(interval=2.0, gamma=np.full(7, 0.5))
+    assert grid.stepterrain.stepped(interval=2.0, gamma=np.full(20, 0.5)).n_cells > 0
