@@ -71,7 +71,7 @@ def label(image: np.ndarray, text: str) -> np.ndarray:
 
 
 def render_panel(mesh, size: tuple[int, int], *, bounds: np.ndarray | None = None, supersample: int = 2,
-                 edge_opacity: float = 0.75) -> np.ndarray:
+                 edge_opacity: float = 0.6) -> np.ndarray:
     """``mesh`` coloured by height with its triangle edges thin and translucent, as a ``size`` (width, height) image.
 
     Black one-pixel edges at the panel's size buried the 10 m panel and blacked out the 2.5 m one (more triangles than
@@ -123,6 +123,7 @@ def add_zoom(image: np.ndarray, mesh, box: np.ndarray, grid) -> np.ndarray:
     whole = np.array([mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)])
     inside = render_mesh(grid, window_size=(width, height), z_scale=1.5, bounds=whole).min(axis=2) < 250
     ring = inside & ~(np.roll(inside, 1, 0) & np.roll(inside, -1, 0) & np.roll(inside, 1, 1) & np.roll(inside, -1, 1))
+    ring |= np.roll(ring, 1, 0) | np.roll(ring, 1, 1)  # two pixels wide
     out = image.copy()
     out[ring] = (220, 0, 0)
     w, h = (width * 3) // 8, (height * 3) // 8
