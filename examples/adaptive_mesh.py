@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import trimesh
 
 import stepterrain as st
 from stepterrain.cli import add_dem_option, check_example_outputs, example_dem, usage_errors
@@ -78,12 +79,11 @@ def render_panel(mesh, size: tuple[int, int], *, bounds: np.ndarray | None = Non
     pixels). Rendered ``supersample`` times larger with and without edges, blended at ``edge_opacity`` and averaged
     back down, each edge is a fraction of a pixel, half-tone: where the triangles are smaller than a pixel the surface
     only darkens with their density, and the height colours show through everywhere. ``bounds``: the box to frame
-(render_mesh's), default the mesh's own."""
+    (render_mesh's), default the mesh's own."""
     factor = max(1, min(supersample, 16384 // max(size)))  # render_mesh's largest window
     window = (size[0] * factor, size[1] * factor)
     plain, edged = (render_mesh(mesh, window_size=window, z_scale=1.5, scalars="height", show_edges=edges,
-                                        bounds=bounds)
-                    for edges in (False, True))
+                                bounds=bounds) for edges in (False, True))
     blend = (1.0 - edge_opacity) * plain.astype(np.float32) + edge_opacity * edged.astype(np.float32)
     blend = blend.reshape(size[1], factor, size[0], factor, 3).mean(axis=(1, 3))
     return np.round(blend).astype(np.uint8)
@@ -93,10 +93,9 @@ def render_panel(mesh, size: tuple[int, int], *, bounds: np.ndarray | None = Non
 ZOOM_CENTRE, ZOOM_SIDE = (0.3, 0.3), 0.06
 
 
-def zoom_box(terrain: st.Terrain) -> tuple[np.ndarray, np.ndarray]:
-    """The zoomed square's (2, 2) [min, max] box in x, y and a mesh of the crop's grid inside it (for its outline)."""
-    import trimesh
-
+def zoom_box(terrain: st.Terrain) -> tuple[np.ndarray, trimesh.Trimesh | None]:
+    """The zoomed square's (2, 2) [min, max] box in x, y and a mesh of the crop's grid inside it (for its outline),
+    None where the square holds under two nodes a side."""
     rows, cols = terrain.shape
     (dx, dy), (x0, y0) = terrain.spacing, terrain.origin
     x, y = x0 + dx * np.arange(cols), y0 + dy * np.arange(rows)
@@ -115,8 +114,9 @@ def zoom_box(terrain: st.Terrain) -> tuple[np.ndarray, np.ndarray]:
     return box, trimesh.Trimesh(vertices, faces, process=False)
 
 
-def add_zoom(image: np.ndarray, mesh, box: np.ndarray, grid) -> np.ndarray:
-    """``image`` (``mesh``'s panel) with ``box`` outlined in red and zoomed in an inset in its lower right corner."""
+def add_zoom(image: np.ndarray, mesh, box: np.ndarray, grid: trimesh.Trimesh | None) -> np.ndarray:
+    """``image`` (``mesh``'s panel) with ``box`` outlined in red and zoomed in an inset in its lower right corner (not
+    in a panel under 43 pixels a side)."""
     if grid is None:
         return image
     height, width = image.shape[:2]
