@@ -3,7 +3,10 @@
 The embedded Big Tujunga DEM (30 m SRTM), cropped and subsampled to about SIZE x SIZE nodes, meshed by
 ``stepterrain.globe.adaptive_mesh`` at three error bounds and rendered side by side with the triangle edges;
 each panel names its triangle count and the measured largest vertical error over every grid node, which never
-exceeds the bound.
+exceeds the bound. The edges are drawn thin and translucent (:func:`render_panel`), so the colours stay readable
+and the mesh's density shows as shade: darker where the terrain is rough and the triangles small. An inset in each
+panel's lower right corner zooms on the same small square (outlined in red, across a valley floor and its slopes),
+where the single triangles show.
 
     python examples/adaptive_mesh.py --size 512 --output out/adaptive_mesh.png
 """
@@ -15,6 +18,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import trimesh
 
 import stepterrain as st
 from stepterrain.cli import add_dem_option, check_example_outputs, example_dem, usage_errors
@@ -67,6 +71,71 @@ def label(image: np.ndarray, text: str) -> np.ndarray:
     return np.asarray(picture)
 
 
+def render_panel(mesh, size: tuple[int, int], *, bounds: np.ndarray | None = None, supersample: int = 2,
+                 edge_opacity: float = 0.6) -> np.ndarray:
+    """``mesh`` coloured by height with its triangle edges thin and translucent, as a ``size`` (width, height) image.
+
+    Black one-pixel edges at the panel's size buried the 10 m panel and blacked out the 2.5 m one (more triangles than
+    pixels). Rendered ``supersample`` times larger with and without edges, blended at ``edge_opacity`` and averaged
+    back down, each edge is a fraction of a pixel, half-tone: where the triangles are smaller than a pixel the surface
+    only darkens with their density, and the height colours show through everywhere. ``bounds``: the box to frame
+    (render_mesh's), default the mesh's own."""
+    factor = max(1, min(supersample, 16384 // max(size)))  # render_mesh's largest window
+    window = (size[0] * factor, size[1] * factor)
+    plain, edged = (render_mesh(mesh, window_size=window, z_scale=1.5, scalars="height", show_edges=edges,
+                                bounds=bounds) for edges in (False, True))
+    blend = (1.0 - edge_opacity) * plain.astype(np.float32) + edge_opacity * edged.astype(np.float32)
+    blend = blend.reshape(size[1], factor, size[0], factor, 3).mean(axis=(1, 3))
+    return np.round(blend).astype(np.uint8)
+
+
+#: the zoomed square: centre and side as fractions of the crop's extent (x east, y north from its south-west corner)
+ZOOM_CENTRE, ZOOM_SIDE = (0.3, 0.3), 0.06
+
+
+def zoom_box(terrain: st.Terrain) -> tuple[np.ndarray, trimesh.Trimesh | None]:
+    """The zoomed square's (2, 2) [min, max] box in x, y and a mesh of the crop's grid inside it (for its outline),
+    None where the square holds under two nodes a side."""
+    rows, cols = terrain.shape
+    (dx, dy), (x0, y0) = terrain.spacing, terrain.origin
+    x, y = x0 + dx * np.arange(cols), y0 + dy * np.arange(rows)
+    lo, hi = np.array([min(x[0], x[-1]), min(y[0], y[-1])]), np.array([max(x[0], x[-1]), max(y[0], y[-1])])
+    centre, half = lo + (hi - lo) * ZOOM_CENTRE, (hi - lo) * ZOOM_SIDE / 2
+    box = np.array([centre - half, centre + half])
+    j = np.flatnonzero((x >= box[0, 0]) & (x <= box[1, 0]))
+    i = np.flatnonzero((y >= box[0, 1]) & (y <= box[1, 1]))
+    if len(i) < 2 or len(j) < 2:  # a crop too small for a zoom
+        return box, None
+    gx, gy = np.meshgrid(x[j], y[i])
+    vertices = np.column_stack([gx.ravel(), gy.ravel(), terrain.heights[np.ix_(i, j)].ravel()])
+    k = np.arange(len(vertices)).reshape(len(i), len(j))[:-1, :-1].ravel()
+    n = len(j)
+    faces = np.concatenate([np.column_stack([k, k + 1, k + n + 1]), np.column_stack([k, k + n + 1, k + n])])
+    return box, trimesh.Trimesh(vertices, faces, process=False)
+
+
+def add_zoom(image: np.ndarray, mesh, box: np.ndarray, grid: trimesh.Trimesh | None) -> np.ndarray:
+    """``image`` (``mesh``'s panel) with ``box`` outlined in red and zoomed in an inset in its lower right corner (not
+    in a panel under 43 pixels a side)."""
+    if grid is None:
+        return image
+    height, width = image.shape[:2]
+    whole = np.array([mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)])
+    inside = render_mesh(grid, window_size=(width, height), z_scale=1.5, bounds=whole).min(axis=2) < 250
+    ring = inside & ~(np.roll(inside, 1, 0) & np.roll(inside, -1, 0) & np.roll(inside, 1, 1) & np.roll(inside, -1, 1))
+    ring |= np.roll(ring, 1, 0) | np.roll(ring, 1, 1)  # two pixels wide
+    out = image.copy()
+    out[ring] = (220, 0, 0)
+    w, h = (width * 3) // 8, (height * 3) // 8
+    if min(w, h) < 16:  # a tiny panel: no room for an inset
+        return out
+    z = grid.vertices[:, 2]
+    inset = render_panel(mesh, (w - 2, h - 2), bounds=np.column_stack([box, [z.min(), z.max()]]))
+    out[height - h :, width - w :] = (220, 0, 0)
+    out[height - h + 1 : height - 1, width - w + 1 : width - 1] = inset
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default=None, help="Warp device: cpu, cuda, cuda:0 (default: Warp's)")
@@ -87,10 +156,11 @@ def main(argv: list[str] | None = None) -> int:
 def run(args: argparse.Namespace) -> int:
     terrain = crop(args.size, example_dem(args.dem, args.nodata))
     panels = []
+    box, grid = zoom_box(terrain)
     for error in args.errors:
         mesh = adaptive_mesh(terrain, error=error, device=args.device)
         worst = true_error(mesh, terrain)
-        image = render_mesh(mesh, window_size=tuple(args.panel), z_scale=1.5, scalars="height", show_edges=True)
+        image = add_zoom(render_panel(mesh, tuple(args.panel)), mesh, box, grid)
         panels.append(label(image, f"error <= {error:g} m: {len(mesh.faces):,} triangles, max {worst:.2f} m"))
     save_image(np.concatenate(panels, axis=1), args.output)
     print(f"wrote {args.output}")

@@ -590,3 +590,33 @@ def test_flood_mp4_of_stretched_frames_is_even(tmp_path):
                                        "--mp4", "--device", "cpu", "--output", str(out)]) == 0
     assert iio.imread(out.with_suffix(".mp4"), index=None, extension=".mp4").shape[:3] == (2, 32, 24)
     assert iio.imread(out.with_suffix(".gif"), index=None).shape[:3] == (2, 32, 24)
+
+
+@needs_render
+def test_adaptive_mesh_example_keeps_a_dense_mesh_readable(tmp_path):
+    """The panels drew every triangle edge black and one pixel wide: a mesh with more triangles than pixels (the 2.5 m
+    panel of docs/adaptive_mesh.png, 311k triangles in 480 x 400) rendered almost black, its height colours and the
+    mesh's adaptivity lost. The edges are now a blended fraction of a pixel: the dense panel keeps most of the plain
+    surface's brightness, and an inset (framed in red, its square outlined in red) zooms in on single triangles."""
+    import stepterrain as st
+    from stepterrain.render import render_mesh
+
+    example = load_example("adaptive_mesh")
+    out = tmp_path / "a.png"
+    width, height = 96, 80
+    assert example.main(["--size", "64", "--errors", "0", "--panel", str(width), str(height), "--device", "cpu",
+                         "--output", str(out)]) == 0
+    from PIL import Image
+
+    image = np.asarray(Image.open(out).convert("RGB")).astype(np.float64)
+    mesh = st.adaptive_mesh(example.crop(64), error=0.0, device="cpu")  # every node: 7,938 triangles
+    assert len(mesh.faces) > width * height
+    plain = render_mesh(mesh, window_size=(width, height), z_scale=1.5, scalars="height").astype(np.float64)
+    surface = plain.min(axis=2) < 250  # the mesh's pixels, less the caption and the inset
+    surface[:17] = False
+    surface[height - (height * 3) // 8 :, width - (width * 3) // 8 :] = False
+    assert surface.sum() > 1000
+    ratio = image[surface].mean() / plain[surface].mean()
+    assert ratio > 0.45, ratio  # 0.51 (0.065 with the black edges)
+    red = (image[..., 0] > 200) & (image[..., 1] < 30) & (image[..., 2] < 30)
+    assert red.sum() > 2 * (width + height) * 3 // 8  # at least the inset's frame
