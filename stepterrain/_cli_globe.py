@@ -376,9 +376,9 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     from .globe import (
         METRICS,
         Globe,
+        _drape_colors,
         _drape_texture,
         _radius_value,
-        _drape_colors,
         _texture_image,
         elevation_colors,
         load_global_relief,

@@ -1694,9 +1694,9 @@ def _plate_carree_placement(picture: Any, path: Any) -> _Placement | None:
     one whose west edge lies a fraction of a pixel from there (an odd width over 0..360, a node-registered image's
     half pixel), or that spans not quite 360 x 180 degrees (a node-registered 361 x 181 one), is placed by its UVs
     and colours (:meth:`_Placement.columns`, :meth:`_Placement.rows`): each pixel's centre where its
-    georeferencing puts it. One whose georeferencing is no whole globe in degrees is refused before its pixels are read: a projected CRS, a
-    regional extent (a DEM, an orthophoto), a rotated or south-up grid; each was draped over the whole globe from
-    180° W, without a word (a UTM orthophoto wrapped round the earth)."""
+    georeferencing puts it. One whose georeferencing is no whole globe in degrees is refused before its pixels are
+    read: a projected CRS, a regional extent (a DEM, an orthophoto), a rotated or south-up grid; each was draped over
+    the whole globe from 180° W, without a word (a UTM orthophoto wrapped round the earth)."""
     import os
     import pathlib
 
