@@ -2320,3 +2320,13 @@ def test_a_texture_off_whole_columns_puts_each_pixel_centre_where_its_georeferen
             got = list(zip(row.tolist(), col.tolist(), strict=True))
             assert all(g == m or (g[0] == m[0] and {g[1], m[1]} == {0, 360}) for g, m, p in
                        zip(got, expected, pole, strict=True) if not p), got
+        # the seam: a globe's faces across the antimeridian span a few of the texture's columns, not the image (their
+        # western corners' copies a turn on, u + 1); each face spans the columns of its longitudes, and at most the
+        # one column more where the image's own ends meet (node-registered: 180° W twice)
+        globe = Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=9, device="cpu").mesh(error=0.0)
+        plain = drape_texture(globe, np.zeros((2, 2, 3), np.uint8))  # u = (lon + 180) / 360
+        placed = drape_texture(globe, path)
+        np.testing.assert_array_equal(placed.faces, plain.faces)
+        turn = 360.0 / a  # the texture's columns in a turn
+        spans = [np.ptp(np.asarray(m.visual.uv)[m.faces, 0], axis=1) for m in (plain, placed)]
+        assert (spans[0] < 0.5).all() and (spans[1] * width <= spans[0] * turn + 1 + 1e-6).all(), str(path)
