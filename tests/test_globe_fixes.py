@@ -2330,3 +2330,34 @@ def test_a_texture_off_whole_columns_puts_each_pixel_centre_where_its_georeferen
         turn = 360.0 / a  # the texture's columns in a turn
         spans = [np.ptp(np.asarray(m.visual.uv)[m.faces, 0], axis=1) for m in (plain, placed)]
         assert (spans[0] < 0.5).all() and (spans[1] * width <= spans[0] * turn + 1 + 1e-6).all(), str(path)
+
+
+def test_the_cli_drapes_a_texture_off_whole_columns_where_its_georeferencing_says(tmp_path):
+    """``stepterrain globe --texture`` decodes the texture once and drapes its pixels (vertex colours, and the UVs of
+    a GLB): it passed them on as a bare array, plate carrée from 180° W, so a node-registered 361 x 181 image was
+    stretched over 360 x 180 degrees (up to about a pixel off) even where drape_colors and drape_texture placed it.
+    Now its georeferencing goes with them: the .ply's colours are drape_colors', and the .glb's UVs each vertex's
+    pixel coordinate from the geotransform."""
+    from stepterrain.cli import main
+    from stepterrain.export import read_mesh
+    from stepterrain.globe import drape_colors
+
+    path = _georeferenced_markers(tmp_path)[1][0]  # node.png: its PAM file's -180.5, 1, 0, 90.5, 0, -1
+    argv = ["-q", "globe", "--face-size", "17", "--error", "0", "--no-camera", "--device", "cpu", "--texture",
+            str(path)]
+    assert main([*argv, "-o", str(tmp_path / "earth.ply")]) == 0
+    mesh = read_mesh(tmp_path / "earth.ply")
+    np.testing.assert_allclose(np.asarray(mesh.visual.vertex_colors, dtype=float),
+                               drape_colors(mesh.vertices, path).astype(float), atol=1)
+    assert main([*argv, "-o", str(tmp_path / "earth.glb")]) == 0
+    glb = read_mesh(tmp_path / "earth.glb")  # z up, as written
+    vertices = np.asarray(glb.vertices, dtype=np.float64)
+    lon = np.degrees(np.arctan2(vertices[:, 1], vertices[:, 0]))
+    lat = np.degrees(np.arctan2(vertices[:, 2], np.hypot(vertices[:, 0], vertices[:, 1])))
+    uv = np.asarray(glb.visual.uv, dtype=np.float64)
+    pole = np.abs(lat) > 89.999
+    x = (lon - -180.5) / 1.0  # pixel edges from the geotransform, not rolled (its west edge is 180.5 W)
+    off = (uv[:, 0] * 361 - x + 180.5) % 361 - 180.5  # modulo the image: u repeats
+    seam = np.abs(lon) > 179.5  # 180 W twice (columns 0 and 360): either
+    assert (np.abs(off[~pole & ~seam]) < 1e-3).all() and (np.abs(np.abs(off[seam]) - 0.5) <= 0.5 + 1e-3).all()
+    np.testing.assert_allclose((1 - uv[:, 1]) * 181, 90.5 - lat, atol=1e-3)
