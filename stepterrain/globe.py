@@ -1835,8 +1835,13 @@ def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trim
     :func:`~stepterrain.io.fill_transparent`).
 
     Each vertex gets u = (λ + 180°) / 360°, v = (φ + 90°) / 180° from its direction (row 0 of the image at
-    90° N, column 0 at 180° W; v up, as trimesh stores UVs). A face across the antimeridian gets copies of
-    its western corners at u + 1 (glTF's default REPEAT wrap), so no face spans the whole image; a corner
+    90° N, column 0 at 180° W; v up, as trimesh stores UVs). A file georeferenced as the whole globe in degrees is
+    placed by it (:func:`drape_colors`): the UVs put each pixel's centre at the latitude and longitude its
+    georeferencing gives, one off whole columns from 180° W too (an odd-width image over 0..360: its columns rolled
+    by the nearest whole one, u offset by the rest) or not over exactly 360 x 180 degrees (a node-registered
+    361 x 181 image, its pixel centres on whole degrees: v clamped to [0, 1] beyond its edge rows). A face across
+    the antimeridian gets copies of its western corners at u + 1 (glTF's default REPEAT wrap), so no face spans the
+    whole image (one off whole columns spans at most a column more, where the image's own ends meet); a corner
     at a pole gets a copy per face with the mean u of the face's other corners (the pole vertex itself serves the
     first such face, as does any vertex whose every face takes a copy: every vertex is a face's corner). The copies
     sit exactly on the original positions, so the surface stays crack-free; the mesh's vertices keep their indices,
@@ -1951,11 +1956,15 @@ def _drape_texture(mesh: trimesh.Trimesh, pixels: NDArray[np.uint8], picture: An
 
 def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint8]:
     """(V, 4) uint8 RGBA per vertex from a global plate-carrée image (row 0 at 90° N, column 0 at 180° W; a file
-    georeferenced as the whole globe in degrees, 0..360 too, is placed by it, other georeferencing refused),
-    bilinear at each vertex's direction (paper 003 §5.3: a global texture draped by latitude and longitude). An
-    (H, W, 4) image's alpha is kept (bilinear; its colour is weighted by alpha, so that transparent texels' colour
-    does not darken the opaque ones' next to them; a vertex of alpha 0 gets the colour of the opaque texels near it,
-    :func:`~stepterrain.io.fill_transparent`, which its faces blend with their opaque corners'), an RGB image's is 255.
+    georeferenced as the whole globe in degrees, 0..360 too, is placed by it, each pixel's centre at the latitude
+    and longitude its georeferencing gives, off whole columns too (an odd-width 0..360 image) and over not quite
+    360 x 180 degrees (a node-registered 361 x 181 image: its pixel centres on whole degrees, its edge rows at the
+    poles; between its last column and its first, the two are blended as a sampler repeating the image blends
+    them); other georeferencing refused), bilinear at each vertex's direction (paper 003 §5.3: a global texture
+    draped by latitude and longitude). An (H, W, 4) image's alpha is kept (bilinear; its colour is weighted by
+    alpha, so that transparent texels' colour does not darken the opaque ones' next to them; a vertex of alpha 0 gets
+    the colour of the opaque texels near it, :func:`~stepterrain.io.fill_transparent`, which its faces blend with
+    their opaque corners'), an RGB image's is 255.
 
     Raises
     ------
