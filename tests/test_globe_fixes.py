@@ -2361,3 +2361,52 @@ def test_the_cli_drapes_a_texture_off_whole_columns_where_its_georeferencing_say
     seam = np.abs(lon) > 179.5  # 180 W twice (columns 0 and 360): either
     assert (np.abs(off[~pole & ~seam]) < 1e-3).all() and (np.abs(np.abs(off[seam]) - 0.5) <= 0.5 + 1e-3).all()
     np.testing.assert_allclose((1 - uv[:, 1]) * 181, 90.5 - lat, atol=1e-3)
+
+
+def test_every_accepted_georeferencing_puts_each_pixel_centre_where_it_says(tmp_path):
+    """Property: for global textures of random size whose georeferencing (a PAM file) starts anywhere round the
+    globe, off whole columns, and spans up to 1.4 pixels more or less than 360 x 180 degrees (each accepted),
+    drape_colors at each pixel's centre (its lat/lon from the geotransform) is that pixel's colour, and
+    drape_texture's UV of a vertex there is that pixel's centre in the embedded image. (A column whose centre the
+    image's other end covers again, where it spans more than 360 degrees, and a row beyond a pole are skipped.)"""
+    from hypothesis import given, settings
+    from hypothesis import strategies as hst
+    from PIL import Image
+
+    from stepterrain.globe import drape_colors, drape_texture
+
+    @settings(max_examples=25, deadline=None, derandomize=True)
+    @given(hst.integers(3, 40), hst.integers(3, 20), hst.integers(0, 39), hst.floats(-0.5, 0.5),
+           hst.floats(-1.4, 1.4), hst.floats(-1.4, 1.4), hst.floats(-1.4, 1.4))
+    def check(width, height, start, offset, wide, tall, up):
+        sx, sy = 360.0 / (width - wide), 180.0 / (height - tall)  # width - wide pixels in a turn
+        west, north = -180.0 + ((start % width) + offset) * sx, 90.0 + up * sy
+        rng = np.random.default_rng(width * 100 + height)
+        pixels = rng.permutation(width * height * 3 * 4)[: width * height * 3].reshape(height, width, 3) % 256
+        pixels = pixels.astype(np.uint8)
+        path = tmp_path / "earth.png"
+        Image.fromarray(pixels).save(path)
+        (tmp_path / "earth.png.aux.xml").write_text(f"<PAMDataset><GeoTransform>{west!r}, {sx!r}, 0, {north!r}, 0, "
+                                                    f"{-sy!r}</GeoTransform></PAMDataset>")
+        row, col = np.meshgrid(np.arange(height), np.arange(width), indexing="ij")
+        lat, lon = north - (row + 0.5) * sy, west + (col + 0.5) * sx
+        keep = (np.abs(lat) < 90 - 1e-9) & (col < width - wide - 1e-6)  # off a pole, not the overlap's second copy
+        lat, lon, row, col = np.radians(lat[keep]), np.radians(lon[keep]), row[keep], col[keep]
+        directions = np.column_stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)])
+        got = drape_colors(directions * EARTH_RADIUS, path)[:, :3].astype(int)
+        near = (got == pixels[row, col]).all(axis=1)
+        assert near.all(), (west, north, sx, sy, row[~near], col[~near])
+        n = len(directions)
+        mesh = trimesh.Trimesh(directions, np.arange(n - n % 3).reshape(-1, 3), process=False)
+        draped = drape_texture(mesh, path)
+        image = np.asarray(draped.visual.material.image.convert("RGB"))
+        uv = np.asarray(draped.visual.uv, dtype=np.float64)[: n - n % 3]
+        x, y = uv[:, 0] * width % width - 0.5, (1 - uv[:, 1]) * height - 0.5
+        np.testing.assert_allclose(x, np.round(x), atol=1e-6)
+        np.testing.assert_allclose(y, np.round(y), atol=1e-6)
+        texel = image[np.round(y).astype(int), np.round(x).astype(int) % width]
+        np.testing.assert_array_equal(texel, pixels[row, col][: n - n % 3])
+
+    import trimesh
+
+    check()
