@@ -1656,8 +1656,9 @@ class _Placement:
 
     def columns(self, lon: NDArray[np.float64]) -> NDArray[np.float64]:
         """The rolled image's column coordinate (pixel edges: column j spans [j, j + 1), its centre j + 0.5) of
-        longitudes ``lon`` in [-180, 180] (540 for a seam's copy), continuous over the globe but where the image's
-        own edges meet, modulo ``width`` exact (a texture repeats in u): the georeferencing's column wrapped into
+        longitudes ``lon`` in [-180, 180], near (``lon`` + 180) / 360 · ``width`` (within a few pixels: a seam's
+        copy takes it + ``width``, :func:`_drape_texture`) and continuous over the globe but where the image's own
+        edges meet, modulo ``width`` exact (a texture repeats in u): the georeferencing's column wrapped into
         one turn from column 0's centre; between the last column's centre and the first's a turn on (a gap, where
         the image spans less than 360°) the coordinate runs from the one to the other, as a sampler that repeats
         the image blends them; where it spans more (a node-registered one), a longitude in both ends takes the
