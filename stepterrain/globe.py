@@ -1842,7 +1842,8 @@ def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trim
     by the nearest whole one, u offset by the rest) or not over exactly 360 x 180 degrees (a node-registered
     361 x 181 image, its pixel centres on whole degrees: v clamped to [0, 1] beyond its edge rows). A face across
     the antimeridian gets copies of its western corners at u + 1 (glTF's default REPEAT wrap), so no face spans the
-    whole image (one off whole columns spans at most a column more, where the image's own ends meet); a corner
+    whole image (one off whole columns, where the image's own ends meet, spans up to a column and a half more: the
+    longitudes both ends cover, one column for a node-registered image, or one column blending its ends); a corner
     at a pole gets a copy per face with the mean u of the face's other corners (the pole vertex itself serves the
     first such face, as does any vertex whose every face takes a copy: every vertex is a face's corner). The copies
     sit exactly on the original positions, so the surface stays crack-free; the mesh's vertices keep their indices,
