@@ -378,10 +378,10 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     from .globe import (
         METRICS,
         Globe,
+        _drape_colors,
         _drape_texture,
         _radius_value,
         _texture_image,
-        drape_colors,
         elevation_colors,
         load_global_relief,
         look_from,
@@ -490,7 +490,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         render.require_offscreen()
     # the image before the work: a missing, unreadable or non-image --texture failed after the globe was built
     # decoded once for both drapes; a JPEG used as is (picture) is embedded as its file's bytes, not a PNG 3x larger
-    pixels, picture = _texture_image(args.texture) if args.texture else (None, None)
+    pixels, picture, placement = _texture_image(args.texture) if args.texture else (None, None, None)
     if args.texture is not None and out is not None:  # a textured OBJ's .mtl and image, named as drape_texture's
         _check_side_files("--output", out, _drape_side_files(out, picture is not None),
                           {"INPUT": args.input, "--texture": args.texture}, {"--png": png})
@@ -553,11 +553,11 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     textured = None
     keeps_texture = out is not None and out.suffix.lower() in (".glb", ".gltf", ".obj")
     if pixels is not None:
-        mesh.visual.vertex_colors = drape_colors(mesh.vertices, pixels)
+        mesh.visual.vertex_colors = _drape_colors(mesh.vertices, pixels, placement)
         # the render draws the image itself (vertex colours blurred it to the mesh's triangles: far from the eye,
         # whole countries)
         if keeps_texture or png is not None:
-            textured = _drape_texture(mesh, pixels, picture)
+            textured = _drape_texture(mesh, pixels, picture, placement)
     else:
         heights = globe.heights.reshape(-1)[mesh.metadata["node_entry"]] / args.exaggeration
         mesh.visual.vertex_colors = elevation_colors(heights)

@@ -1564,12 +1564,13 @@ def _texture_pixels(image: ArrayLike | str) -> NDArray[np.uint8]:
     return _texture_image(image)[0]
 
 
-def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
-    """:func:`_texture_pixels`' image, and the PIL image a drape embeds as it is (:func:`_drape_texture`): that of a
+def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any, _Placement | None]:
+    """:func:`_texture_pixels`' image, the PIL image a drape embeds as it is (:func:`_drape_texture`): that of a
     path to a JPEG file used as is (:func:`_kept_jpeg`), whose own bytes :func:`~stepterrain.export.save_mesh` then
     embeds (the 3840 x 1920 Blue Marble, 4.7 MB, was a 14.7 MB PNG in the GLB); else None (the pixels are
-    embedded, as PNG)."""
-    kept = None
+    embedded, as PNG), and where a georeferenced file's pixels lie (:func:`_plate_carree_placement`; None for an
+    array or a file without georeferencing: plate carrée from 180° W)."""
+    kept = placement = None
     if isinstance(image, (str, bytes)) or hasattr(image, "__fspath__"):
         import os
         from pathlib import Path
@@ -1588,7 +1589,7 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
                 from .texture_lod import _tiff_as_stored
 
                 _tiff_as_stored(picture)  # its stored pixels, as a PNG's or JPEG's: Pillow turns a TIFF by its tag
-                shift = _plate_carree_shift(picture, image)  # from its header: refused before its pixels are read
+                placement = _plate_carree_placement(picture, image)  # from its header: refused before its pixels
                 # its (H, W, 3|4) pixels against the memory budget, from the header, as texture_lod checks an image
                 # before decoding it: a texture was decoded whole whatever the budget (--memory-budget 10MB decoded
                 # an 8000 x 4000 JPEG, 96 MB of pixels, 500 MB peak with the drape)
@@ -1606,8 +1607,9 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
                     picture.close()
         except OSError as exc:
             raise DataFileError(f"cannot read texture {image!r}: {exc}") from exc
-        if shift:  # a global GeoTIFF in longitudes 0..360: its columns put at -180..180, as the drape reads them
-            image, kept = np.roll(np.asarray(image), shift, axis=1), None
+        if placement is not None and placement.shift:  # a global GeoTIFF in longitudes 0..360: its columns put at
+            # -180..180, as the drape reads them (to the nearest whole column; the UVs and colours take the rest)
+            image, kept = np.roll(np.asarray(image), placement.shift, axis=1), None
     pixels = np.asarray(image)
     if pixels.ndim != 3 or pixels.shape[2] not in (3, 4) or min(pixels.shape[:2]) < 2:
         raise InvalidInputError(f"texture must be an (H, W, 3|4) image of at least 2 x 2 pixels; got shape "
@@ -1617,22 +1619,85 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
             raise InvalidInputError(f"texture values must lie in [0, 255] (or [0, 1] floats); got dtype {pixels.dtype}")
         scale = 255.0 if pixels.dtype.kind == "f" and pixels.max() <= 1.0 else 1.0
         pixels = np.round(pixels.astype(np.float64) * scale).astype(np.uint8)
-    return pixels, kept
+    return pixels, kept, placement
 
 
-def _plate_carree_shift(picture: Any, path: Any) -> int:
-    """Columns to roll a texture file by so that its column 0 starts at 180° W, as the drape reads every texture,
+@dataclasses.dataclass(frozen=True)
+class _Placement:
+    """Where the pixels of a global texture file lie, from its georeferencing (:func:`_plate_carree_placement`):
+    its columns rolled by ``shift`` (:func:`_texture_image`: the nearest whole column to 180° W first), and its
+    original column 0's west edge at longitude ``west`` (the turn's nearest to 180° W), its row 0's north edge at
+    latitude ``north``, its pixels ``sx`` by ``sy`` degrees, ``width`` x ``height`` of them. The image need not start
+    at a whole column from 180° W, nor span exactly 360 x 180 degrees (a node-registered 361 x 181 one, its pixel
+    centres on whole degrees, spans 361 x 181): :meth:`columns` and :meth:`rows` put each pixel's centre where the
+    georeferencing says, for the UVs (:func:`_drape_texture`) and the colours (:func:`drape_colors`) alike."""
+
+    shift: int
+    west: float
+    north: float
+    sx: float
+    sy: float
+    width: int
+    height: int
+
+    @property
+    def whole_columns(self) -> bool:
+        """Whether the columns are plate carrée from 180° W (``shift`` whole columns of exactly 360° / ``width``),
+        within float32's resolution of the UVs: a drape reads them as it reads a texture without georeferencing,
+        bit for bit (the Blue Marble's GeoTIFF, a 0..360 one of even width)."""
+        start = (self.west + 180.0) / self.sx
+        return abs(start - round(start)) + abs(360.0 / self.sx - self.width) <= self.width * 2.0**-24
+
+    @property
+    def whole_rows(self) -> bool:
+        """Whether the rows span 90° N to 90° S exactly (within float32's resolution of the UVs), as
+        :attr:`whole_columns` for the columns."""
+        return abs(90.0 - self.north) / self.sy + abs(180.0 / self.sy - self.height) <= self.height * 2.0**-24
+
+    def columns(self, lon: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The rolled image's column coordinate (pixel edges: column j spans [j, j + 1), its centre j + 0.5) of
+        longitudes ``lon`` in [-180, 180], near (``lon`` + 180) / 360 · ``width`` (within a few pixels: a seam's
+        copy takes it + ``width``, :func:`_drape_texture`) and continuous over the globe but where the image's own
+        edges meet, modulo ``width`` exact (a texture repeats in u): the georeferencing's column wrapped into
+        one turn from column 0's centre; between the last column's centre and the first's a turn on (a gap, where
+        the image spans less than 360°) the coordinate runs from the one to the other, as a sampler that repeats
+        the image blends them; where it spans more (a node-registered one), a longitude in both ends takes the
+        western column (the jump of the overlap lies at column 0's centre, 180° W for a node-registered one)."""
+        width = self.width
+        period = 360.0 / self.sx  # pixels in a turn
+        start = round((self.west + 180.0) / self.sx)  # its original column 0's in the turn's columns (shift mod W)
+        q = (np.asarray(lon, dtype=np.float64) - self.west) / self.sx - 0.5  # from column 0's centre, in pixels
+        turns = np.floor(q / period)
+        q = q - turns * period  # within one turn of column 0's centre: [0, period)
+        gap = period - (width - 1)  # pixels of longitude from the last column's centre to the first's a turn on
+        if gap > 0:
+            beyond = q > width - 1
+            q = np.where(beyond, (width - 1) + (q - (width - 1)) / gap, q)
+        return q + 0.5 + start + turns * width
+
+    def rows(self, lat: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The row coordinate (pixel edges: row i spans [i, i + 1), its centre i + 0.5) of latitudes ``lat``,
+        unclamped (a pole beyond the image's edge lies above row 0 or below row H)."""
+        return (self.north - np.asarray(lat, dtype=np.float64)) / self.sy
+
+
+def _plate_carree_placement(picture: Any, path: Any) -> _Placement | None:
+    """Where a texture file's pixels lie (:class:`_Placement`: the columns to roll it by so that its column 0 starts
+    at 180° W, to the nearest whole column, as the drape reads every texture, and the rest of its georeferencing),
     from its georeferencing: a GeoTIFF's tags (ModelPixelScale 33550 and ModelTiepoint 33922, or
     ModelTransformation 34264; GTModelTypeGeoKey and GTRasterTypeGeoKey in the GeoKeyDirectory 34735), GDAL's PAM
     file beside it (``earth.png.aux.xml``: its GeoTransform and SRS, where ``gdal_translate -of PNG`` or ``-of
     JPEG`` puts them), or a world file beside it (``.jgw``/``.pgw``/``.tfw``, ``.jpgw``..., ``.wld``; its CRS from
     a ``.prj``), as GDAL reads them (the PAM file first, then a GeoTIFF's tags, then the world file). Read from
     ``picture``'s header (a PIL image opened, not decoded) and the small files beside ``path``: no pixels, and no
-    rasterio (the optional ``[geo]`` extra). 0 for an image without georeferencing (plate carrée from 180° W, as
-    documented) or one that starts there; a global one in longitudes 0..360 (or from any whole column) is rolled.
-    One whose georeferencing is no whole globe in degrees is refused before its pixels are read: a projected CRS, a
-    regional extent (a DEM, an orthophoto), a rotated or south-up grid; each was draped over the whole globe from
-    180° W, without a word (a UTM orthophoto wrapped round the earth)."""
+    rasterio (the optional ``[geo]`` extra). None for an image without georeferencing (plate carrée from 180° W, as
+    documented); a global one in longitudes 0..360 (or from any column) is rolled by the nearest whole column, and
+    one whose west edge lies a fraction of a pixel from there (an odd width over 0..360, a node-registered image's
+    half pixel), or that spans not quite 360 x 180 degrees (a node-registered 361 x 181 one), is placed by its UVs
+    and colours (:meth:`_Placement.columns`, :meth:`_Placement.rows`): each pixel's centre where its
+    georeferencing puts it. One whose georeferencing is no whole globe in degrees is refused before its pixels are
+    read: a projected CRS, a regional extent (a DEM, an orthophoto), a rotated or south-up grid; each was draped over
+    the whole globe from 180° W, without a word (a UTM orthophoto wrapped round the earth)."""
     import os
     import pathlib
 
@@ -1648,7 +1713,7 @@ def _plate_carree_shift(picture: Any, path: Any) -> int:
     if found is None:
         found = _world_file_transform(image, root)
     if found is None:
-        return 0
+        return None
     (a, b, west, d, e, north), projected, source = found
     if not all(map(math.isfinite, found[0])):  # GDAL reads a PAM file's or a GeoTIFF's NaN and inf as they are: the
         # west edge's round() raised Python's ValueError / OverflowError, and a NaN north edge passed the extent tests
@@ -1665,14 +1730,17 @@ def _plate_carree_shift(picture: Any, path: Any) -> int:
                                 f"with pixel size ({a:.6g}, {e:.6g}) and rotation ({b:.6g}, {d:.6g})")
     sx, sy = a, -e
     east, south = west + width * sx, north - height * sy
-    # 1.5 pixels of slack either way: a PixelIsPoint raster's extent may lie half a pixel inside the area one's
+    # 1.5 pixels of slack either way (a node-registered image's extent lies half a pixel beyond the globe's each
+    # way): each pixel is placed where its georeferencing says (_Placement), not stretched over 360 x 180 degrees
     if abs((east - west) - 360.0) > 1.5 * sx or abs((north - south) - 180.0) > 1.5 * sy or abs(north - 90) > 1.5 * sy:
         raise InvalidInputError(
             f"{name} must be a global plate-carrée image (360 x 180 degrees, row 0 at 90N); got {source} over "
             f"longitudes {west:.6g} to {east:.6g} and latitudes {south:.6g} to {north:.6g}: a regional image drapes "
             "a DEM of its region (`stepterrain texture DEM --image IMAGE`, st.texture_lod.image_layer)")
-    # the nearest whole column (within half a pixel, as a -180..180 one is taken): a 0..360 image's 180 W is half-way
-    return round((west + 180.0) / sx) % width
+    # the turn's west edge nearest 180 W (a -180.5 one's, a node-registered image's, is not rolled by 359 columns)
+    west -= 360.0 * round((west + 180.0) / 360.0)
+    # rolled by the nearest whole column (an odd-width 0..360 image's 180 W is half-way); the UVs take the rest
+    return _Placement(round((west + 180.0) / sx) % width, west, north, sx, sy, width, height)
 
 
 def _geotiff_transform(picture: Any) -> tuple[tuple[float, ...], bool, str] | None:
@@ -1768,8 +1836,14 @@ def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trim
     :func:`~stepterrain.io.fill_transparent`).
 
     Each vertex gets u = (λ + 180°) / 360°, v = (φ + 90°) / 180° from its direction (row 0 of the image at
-    90° N, column 0 at 180° W; v up, as trimesh stores UVs). A face across the antimeridian gets copies of
-    its western corners at u + 1 (glTF's default REPEAT wrap), so no face spans the whole image; a corner
+    90° N, column 0 at 180° W; v up, as trimesh stores UVs). A file georeferenced as the whole globe in degrees is
+    placed by it (:func:`drape_colors`): the UVs put each pixel's centre at the latitude and longitude its
+    georeferencing gives, one off whole columns from 180° W too (an odd-width image over 0..360: its columns rolled
+    by the nearest whole one, u offset by the rest) or not over exactly 360 x 180 degrees (a node-registered
+    361 x 181 image, its pixel centres on whole degrees: v clamped to [0, 1] beyond its edge rows). A face across
+    the antimeridian gets copies of its western corners at u + 1 (glTF's default REPEAT wrap), so no face spans the
+    whole image (one off whole columns, where the image's own ends meet, spans up to a column and a half more: the
+    longitudes both ends cover, one column for a node-registered image, or one column blending its ends); a corner
     at a pole gets a copy per face with the mean u of the face's other corners (the pole vertex itself serves the
     first such face, as does any vertex whose every face takes a copy: every vertex is a face's corner). The copies
     sit exactly on the original positions, so the surface stays crack-free; the mesh's vertices keep their indices,
@@ -1800,9 +1874,11 @@ def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trim
     return _drape_texture(mesh, *_texture_image(image))
 
 
-def _drape_texture(mesh: trimesh.Trimesh, pixels: NDArray[np.uint8], picture: Any = None) -> trimesh.Trimesh:
+def _drape_texture(mesh: trimesh.Trimesh, pixels: NDArray[np.uint8], picture: Any = None,
+                   placement: _Placement | None = None) -> trimesh.Trimesh:
     """:func:`drape_texture` of ``mesh`` (a Trimesh) with the texture's ``pixels``; ``picture``: the PIL image to
-    embed instead of them, when the texture is a JPEG file's used as is (:func:`_texture_image`)."""
+    embed instead of them, when the texture is a JPEG file's used as is, and ``placement``: where a georeferenced
+    file's pixels lie (:func:`_texture_image`; None: plate carrée from 180° W)."""
     from PIL import Image
 
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
@@ -1812,8 +1888,17 @@ def _drape_texture(mesh: trimesh.Trimesh, pixels: NDArray[np.uint8], picture: An
         raise InvalidInputError(f"mesh vertices must be finite to drape a texture; got vertex {bad[0]} at "
                                 f"{vertices[bad[0]].tolist()}")
     horizontal = np.hypot(vertices[:, 0], vertices[:, 1])
-    u = (np.degrees(np.arctan2(vertices[:, 1], vertices[:, 0])) + 180.0) / 360.0
-    v = (np.degrees(np.arctan2(vertices[:, 2], horizontal)) + 90.0) / 180.0
+    lon = np.degrees(np.arctan2(vertices[:, 1], vertices[:, 0]))
+    lat = np.degrees(np.arctan2(vertices[:, 2], horizontal))
+    u = (lon + 180.0) / 360.0  # the seam's (the antimeridian's) u, whatever the texture's
+    v = (lat + 90.0) / 180.0
+    # a georeferenced file's pixels off whole columns (an odd-width 0..360 image) or not over exactly 360 x 180
+    # degrees (a node-registered one): each pixel's centre where its georeferencing puts it (they were rolled by the
+    # nearest whole column and stretched over the globe: up to a pixel off)
+    height, width = np.asarray(pixels).shape[:2]
+    texture_u = u if placement is None or placement.whole_columns else placement.columns(lon) / width
+    if placement is not None and not placement.whole_rows:  # clamped: a pole beyond the image's edge takes its row
+        v = np.clip(1.0 - placement.rows(lat) / height, 0.0, 1.0)
     # relative to the vertex's height along the axis: within 1e-9 (an absolute length for |z| < 1) the ring round
     # each pole of a globe of radius 1e-8 became poles, and every vertex of one of radius 1e-12 (every u 0)
     pole = horizontal <= 1e-9 * np.abs(vertices[:, 2])
@@ -1824,6 +1909,8 @@ def _drape_texture(mesh: trimesh.Trimesh, pixels: NDArray[np.uint8], picture: An
     hi = np.where(corner_pole, -np.inf, corner_u).max(axis=1)
     crossing = hi - lo > 0.5
     shift = crossing[:, None] & (corner_u < 0.5) & ~corner_pole
+    # its western corners a turn on: the texture's u + 1 (its columns repeat), whatever the texture's placement
+    corner_u = texture_u[faces] if texture_u is not u else corner_u
     corner_u = np.where(shift, corner_u + 1.0, corner_u)
     # the poles: the mean u of the face's other corners
     others = np.where(corner_pole, 0.0, corner_u).sum(axis=1) / np.maximum((~corner_pole).sum(axis=1), 1)
@@ -1836,7 +1923,8 @@ def _drape_texture(mesh: trimesh.Trimesh, pixels: NDArray[np.uint8], picture: An
     pole_rows, pole_cols = np.nonzero(corner_pole)
     new_faces[pole_rows, pole_cols] = len(vertices) + len(shifted) + np.arange(len(pole_rows))
     sources = np.concatenate([np.arange(len(vertices)), shifted, faces[pole_rows, pole_cols]])
-    uv = np.column_stack([np.concatenate([u, u[shifted] + 1.0, corner_u[pole_rows, pole_cols]]), v[sources]])
+    uv = np.column_stack([np.concatenate([texture_u, texture_u[shifted] + 1.0, corner_u[pole_rows, pole_cols]]),
+                          v[sources]])
     # a vertex every face of which now uses a copy (a pole vertex, always) takes the place of its first copy: no face
     # used it, yet the GLB kept it (stepterrain info counted it) and trimesh's OBJ reader dropped it (the two read
     # back with other counts); the input's vertices keep their indices
@@ -1870,11 +1958,15 @@ def _drape_texture(mesh: trimesh.Trimesh, pixels: NDArray[np.uint8], picture: An
 
 def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint8]:
     """(V, 4) uint8 RGBA per vertex from a global plate-carrée image (row 0 at 90° N, column 0 at 180° W; a file
-    georeferenced as the whole globe in degrees, 0..360 too, is placed by it, other georeferencing refused),
-    bilinear at each vertex's direction (paper 003 §5.3: a global texture draped by latitude and longitude). An
-    (H, W, 4) image's alpha is kept (bilinear; its colour is weighted by alpha, so that transparent texels' colour
-    does not darken the opaque ones' next to them; a vertex of alpha 0 gets the colour of the opaque texels near it,
-    :func:`~stepterrain.io.fill_transparent`, which its faces blend with their opaque corners'), an RGB image's is 255.
+    georeferenced as the whole globe in degrees, 0..360 too, is placed by it, each pixel's centre at the latitude
+    and longitude its georeferencing gives, off whole columns too (an odd-width 0..360 image) and over not quite
+    360 x 180 degrees (a node-registered 361 x 181 image: its pixel centres on whole degrees, its edge rows at the
+    poles; between its last column and its first, the two are blended as a sampler repeating the image blends
+    them); other georeferencing refused), bilinear at each vertex's direction (paper 003 §5.3: a global texture
+    draped by latitude and longitude). An (H, W, 4) image's alpha is kept (bilinear; its colour is weighted by
+    alpha, so that transparent texels' colour does not darken the opaque ones' next to them; a vertex of alpha 0 gets
+    the colour of the opaque texels near it, :func:`~stepterrain.io.fill_transparent`, which its faces blend with
+    their opaque corners'), an RGB image's is 255.
 
     Raises
     ------
@@ -1897,7 +1989,14 @@ def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint
         raise InvalidInputError("vertices must be a (V, 3) array of planet-centred positions; got a "
                                 "trimesh.Trimesh: pass its vertices, mesh.visual.vertex_colors = "
                                 "drape_colors(mesh.vertices, image)")
-    pixels = _texture_pixels(image)
+    pixels, _, placement = _texture_image(image)
+    return _drape_colors(vertices, pixels, placement)
+
+
+def _drape_colors(vertices: ArrayLike, pixels: NDArray[np.uint8], placement: _Placement | None = None
+                  ) -> NDArray[np.uint8]:
+    """:func:`drape_colors` of ``vertices`` with the texture's ``pixels``, placed by ``placement`` (a georeferenced
+    file's, :func:`_texture_image`; None: plate carrée from 180° W)."""
     v = real_numbers(vertices, "vertices", "a (V, 3) array of planet-centred positions")
     if v.ndim != 2 or v.shape[1] != 3:
         raise InvalidInputError(f"vertices must be a (V, 3) array of planet-centred positions; got shape {v.shape}")
@@ -1910,8 +2009,14 @@ def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint
     lat = np.degrees(np.arcsin(np.clip(d[:, 2], -1, 1)))
     lon = np.degrees(np.arctan2(d[:, 1], d[:, 0]))
     h, w = pixels.shape[:2]
-    fy = np.clip((90.0 - lat) / 180.0 * h - 0.5, 0, h - 1)
-    fx = ((lon + 180.0) / 360.0 * w - 0.5) % w
+    if placement is None or placement.whole_rows:
+        fy = np.clip((90.0 - lat) / 180.0 * h - 0.5, 0, h - 1)
+    else:  # each pixel's centre where its georeferencing puts it (_Placement), as drape_texture's UVs
+        fy = np.clip(placement.rows(lat) - 0.5, 0, h - 1)
+    if placement is None or placement.whole_columns:
+        fx = ((lon + 180.0) / 360.0 * w - 0.5) % w
+    else:  # the columns wrap as a repeating sampler reads drape_texture's UVs there
+        fx = (placement.columns(lon) - 0.5) % w
     y0 = np.minimum(np.floor(fy).astype(int), h - 2)
     x0 = np.floor(fx).astype(int) % w
     x1 = (x0 + 1) % w

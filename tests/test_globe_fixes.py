@@ -2216,3 +2216,197 @@ def test_a_globe_drape_is_the_same_at_any_radius(radius):
     np.testing.assert_array_equal(got.faces, unit.faces)
     np.testing.assert_array_equal(got.visual.uv, unit.visual.uv)
     np.testing.assert_array_equal(got.vertices, unit.vertices * radius)
+
+
+def _georeferenced_markers(tmp_path):
+    """Global textures whose west edge is no whole number of pixels from 180° W, each with marker pixels (row, column,
+    colour) and its geotransform (a, c, e, f: x = c + a·col, y = f + e·row at pixel corners), written without
+    rasterio: an odd-width image over 0..360 (a world file: 180° W lies half-way across its column 22), and a
+    node-registered 361 x 181 one (pixel centres on whole degrees, its edges at 180.5° W and 90.5° N: a PAM file, a
+    PixelIsPoint GeoTIFF whose tiepoint is the first pixel's centre, and a JPEG with a world file)."""
+    from PIL import Image, TiffImagePlugin
+
+    rng = np.random.default_rng(7)
+    cases = []
+    odd = rng.integers(0, 60, (18, 45, 3)).astype(np.uint8)  # 8° columns from 0° E, 10° rows
+    odd_markers = [(0, 0, (250, 10, 10)), (5, 22, (10, 250, 10)), (9, 44, (10, 10, 250)), (17, 30, (250, 250, 10)),
+                   (12, 7, (250, 10, 250))]
+    for i, j, colour in odd_markers:
+        odd[i, j] = colour
+    Image.fromarray(odd).save(tmp_path / "odd.png")
+    (tmp_path / "odd.pgw").write_text("8\n0\n0\n-10\n4\n85\n")  # the upper-left pixel's centre: 4° E, 85° N
+    cases.append((tmp_path / "odd.png", odd, odd_markers, (8.0, 0.0, -10.0, 90.0)))
+
+    node = rng.integers(0, 60, (181, 361, 3)).astype(np.uint8)  # centres on whole degrees, 180° W to 180° E
+    node[0] = (200, 200, 200)  # the north pole's row, the south pole's: one colour each
+    node[180] = (90, 200, 250)
+    node[:, 360] = node[:, 0]  # 180° W and 180° E: one meridian
+    node_markers = [(40, 0, (250, 10, 10)), (40, 360, (250, 10, 10)), (90, 180, (10, 250, 10)),
+                    (130, 359, (10, 10, 250)), (12, 1, (250, 250, 10)), (180, 77, (90, 200, 250)),
+                    (67, 233, (250, 10, 250))]
+    for i, j, colour in node_markers:
+        node[i, j] = colour
+    transform = (1.0, -180.5, -1.0, 90.5)
+    Image.fromarray(node).save(tmp_path / "node.png")
+    (tmp_path / "node.png.aux.xml").write_text("<PAMDataset><GeoTransform>-180.5, 1, 0, 90.5, 0, -1</GeoTransform>"
+                                               "</PAMDataset>")
+    cases.append((tmp_path / "node.png", node, node_markers, transform))
+    info = TiffImagePlugin.ImageFileDirectory_v2()
+    info[33550] = (1.0, 1.0, 0.0)
+    info[33922] = (0.0, 0.0, 0.0, -180.0, 90.0, 0.0)  # PixelIsPoint: the first pixel's centre
+    info[34735] = (1, 1, 0, 3, 1024, 0, 1, 2, 1025, 0, 1, 2, 2048, 0, 1, 4326)
+    Image.fromarray(node).save(tmp_path / "node.tif", tiffinfo=info)
+    cases.append((tmp_path / "node.tif", node, node_markers, transform))
+    Image.fromarray(node).save(tmp_path / "node.jpg", quality=100)  # lossy: its UVs checked, not its colours
+    (tmp_path / "node.jgw").write_text("1\n0\n0\n-1\n-180\n90\n")
+    cases.append((tmp_path / "node.jpg", None, node_markers, transform))
+    return cases
+
+
+def _marker_directions(markers, transform):
+    """Unit directions of the marker pixels' centres, from the geotransform alone (independent of the drape)."""
+    a, c, e, f = transform
+    lon = np.radians(np.array([c + a * (j + 0.5) for _, j, _ in markers]))
+    lat = np.radians(np.array([f + e * (i + 0.5) for i, _, _ in markers]))
+    return np.column_stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)])
+
+
+def test_a_texture_off_whole_columns_puts_each_pixel_centre_where_its_georeferencing_says(tmp_path):
+    """A global texture whose west edge is no whole number of pixels from 180° W (an odd-width image over 0..360, a
+    node-registered 361 x 181 one) was rolled by the nearest whole column and stretched over 360 x 180 degrees: each
+    pixel landed up to half a pixel off (a node-registered one's, up to about a pixel, in rows too). drape_colors at a
+    marker pixel's centre (its lat/lon from the geotransform) gave a blend of it and its neighbours. Now its colour is
+    the marker's, exactly; drape_texture's UV of a vertex there is that pixel's centre in the embedded image."""
+    import trimesh
+
+    from stepterrain.globe import drape_colors, drape_texture
+
+    for path, pixels, markers, transform in _georeferenced_markers(tmp_path):
+        directions = _marker_directions(markers, transform)
+        colours = np.array([colour for _, _, colour in markers])
+        if pixels is not None:
+            np.testing.assert_array_equal(drape_colors(directions * EARTH_RADIUS, path)[:, :3], colours,
+                                          err_msg=str(path))
+        # a small triangle at each marker: the marker, and points a tenth of a pixel west and south of it
+        a, _, e, _ = transform
+        lat, lon = np.arcsin(directions[:, 2]), np.arctan2(directions[:, 1], directions[:, 0])
+        west = np.radians(a / 10)
+        south = np.radians(-e / 10)
+        lat_s = np.maximum(lat - south, -np.pi / 2)
+        corners = [directions, np.column_stack([np.cos(lat) * np.cos(lon - west), np.cos(lat) * np.sin(lon - west),
+                                                np.sin(lat)]),
+                   np.column_stack([np.cos(lat_s) * np.cos(lon), np.cos(lat_s) * np.sin(lon), np.sin(lat_s)])]
+        lat_n = np.minimum(lat + south, np.pi / 2)  # the south pole's marker: its triangle north of it
+        corners[2][lat_s == -np.pi / 2] = np.column_stack([np.cos(lat_n) * np.cos(lon), np.cos(lat_n) * np.sin(lon),
+                                                           np.sin(lat_n)])[lat_s == -np.pi / 2]
+        n = len(markers)
+        mesh = trimesh.Trimesh(np.concatenate(corners) * EARTH_RADIUS,
+                               np.arange(3 * n).reshape(3, n).T, process=False)
+        draped = drape_texture(mesh, path)
+        image = np.asarray(draped.visual.material.image.convert("RGB"))
+        height, width = image.shape[:2]
+        uv = np.asarray(draped.visual.uv, dtype=np.float64)[:n]
+        x, y = uv[:, 0] * width % width, (1 - uv[:, 1]) * height
+        pole = np.abs(directions[:, 2]) == 1.0  # a pole's u is its face's (no pixel centre there)
+        np.testing.assert_allclose(y - 0.5, np.round(y - 0.5), atol=1e-6, err_msg=str(path))
+        np.testing.assert_allclose(x[~pole] - 0.5, np.round(x[~pole] - 0.5), atol=1e-6, err_msg=str(path))
+        row, col = np.round(y - 0.5).astype(int), np.round(x - 0.5).astype(int) % width
+        if pixels is not None:
+            np.testing.assert_array_equal(image[row[~pole], col[~pole]], colours[~pole], err_msg=str(path))
+            np.testing.assert_array_equal(image[row[pole], 0], colours[pole], err_msg=str(path))
+        else:  # the JPEG embedded as it is: its own pixels, the marker's row and column
+            assert draped.visual.material.image.format == "JPEG"
+            expected = [(i, j) for i, j, _ in markers]
+            got = list(zip(row.tolist(), col.tolist(), strict=True))
+            assert all(g == m or (g[0] == m[0] and {g[1], m[1]} == {0, 360}) for g, m, p in
+                       zip(got, expected, pole, strict=True) if not p), got
+        # the seam: a globe's faces across the antimeridian span a few of the texture's columns, not the image (their
+        # western corners' copies a turn on, u + 1); each face spans the columns of its longitudes, and at most the
+        # one column more where the image's own ends meet (node-registered: 180° W twice)
+        globe = Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=9, device="cpu").mesh(error=0.0)
+        plain = drape_texture(globe, np.zeros((2, 2, 3), np.uint8))  # u = (lon + 180) / 360
+        placed = drape_texture(globe, path)
+        np.testing.assert_array_equal(placed.faces, plain.faces)
+        turn = 360.0 / a  # the texture's columns in a turn
+        spans = [np.ptp(np.asarray(m.visual.uv)[m.faces, 0], axis=1) for m in (plain, placed)]
+        assert (spans[0] < 0.5).all() and (spans[1] * width <= spans[0] * turn + 1 + 1e-6).all(), str(path)
+
+
+def test_the_cli_drapes_a_texture_off_whole_columns_where_its_georeferencing_says(tmp_path):
+    """``stepterrain globe --texture`` decodes the texture once and drapes its pixels (vertex colours, and the UVs of
+    a GLB): it passed them on as a bare array, plate carrée from 180° W, so a node-registered 361 x 181 image was
+    stretched over 360 x 180 degrees (up to about a pixel off) even where drape_colors and drape_texture placed it.
+    Now its georeferencing goes with them: the .ply's colours are drape_colors', and the .glb's UVs each vertex's
+    pixel coordinate from the geotransform."""
+    from stepterrain.cli import main
+    from stepterrain.export import read_mesh
+    from stepterrain.globe import drape_colors
+
+    path = _georeferenced_markers(tmp_path)[1][0]  # node.png: its PAM file's -180.5, 1, 0, 90.5, 0, -1
+    argv = ["-q", "globe", "--face-size", "17", "--error", "0", "--no-camera", "--device", "cpu", "--texture",
+            str(path)]
+    assert main([*argv, "-o", str(tmp_path / "earth.ply")]) == 0
+    mesh = read_mesh(tmp_path / "earth.ply")
+    np.testing.assert_allclose(np.asarray(mesh.visual.vertex_colors, dtype=float),
+                               drape_colors(mesh.vertices, path).astype(float), atol=1)
+    assert main([*argv, "-o", str(tmp_path / "earth.glb")]) == 0
+    glb = read_mesh(tmp_path / "earth.glb")  # z up, as written
+    vertices = np.asarray(glb.vertices, dtype=np.float64)
+    lon = np.degrees(np.arctan2(vertices[:, 1], vertices[:, 0]))
+    lat = np.degrees(np.arctan2(vertices[:, 2], np.hypot(vertices[:, 0], vertices[:, 1])))
+    uv = np.asarray(glb.visual.uv, dtype=np.float64)
+    pole = np.abs(lat) > 89.999
+    x = (lon - -180.5) / 1.0  # pixel edges from the geotransform, not rolled (its west edge is 180.5 W)
+    off = (uv[:, 0] * 361 - x + 180.5) % 361 - 180.5  # modulo the image: u repeats
+    seam = np.abs(lon) > 179.5  # 180 W twice (columns 0 and 360): either
+    assert (np.abs(off[~pole & ~seam]) < 1e-3).all() and (np.abs(np.abs(off[seam]) - 0.5) <= 0.5 + 1e-3).all()
+    np.testing.assert_allclose((1 - uv[:, 1]) * 181, 90.5 - lat, atol=1e-3)
+
+
+def test_every_accepted_georeferencing_puts_each_pixel_centre_where_it_says(tmp_path):
+    """Property: for global textures of random size whose georeferencing (a PAM file) starts anywhere round the
+    globe, off whole columns, and spans up to 1.4 pixels more or less than 360 x 180 degrees (each accepted),
+    drape_colors at each pixel's centre (its lat/lon from the geotransform) is that pixel's colour, and
+    drape_texture's UV of a vertex there is that pixel's centre in the embedded image. (A column whose centre the
+    image's other end covers again, where it spans more than 360 degrees, and a row beyond a pole are skipped.)"""
+    from hypothesis import given, settings
+    from hypothesis import strategies as hst
+    from PIL import Image
+
+    from stepterrain.globe import drape_colors, drape_texture
+
+    @settings(max_examples=25, deadline=None, derandomize=True)
+    @given(hst.integers(3, 40), hst.integers(3, 20), hst.integers(0, 39), hst.floats(-0.5, 0.5),
+           hst.floats(-1.4, 1.4), hst.floats(-1.4, 1.4), hst.floats(-1.4, 1.4))
+    def check(width, height, start, offset, wide, tall, up):
+        sx, sy = 360.0 / (width - wide), 180.0 / (height - tall)  # width - wide pixels in a turn
+        west, north = -180.0 + ((start % width) + offset) * sx, 90.0 + up * sy
+        rng = np.random.default_rng(width * 100 + height)
+        pixels = rng.permutation(width * height * 3 * 4)[: width * height * 3].reshape(height, width, 3) % 256
+        pixels = pixels.astype(np.uint8)
+        path = tmp_path / "earth.png"
+        Image.fromarray(pixels).save(path)
+        (tmp_path / "earth.png.aux.xml").write_text(f"<PAMDataset><GeoTransform>{west!r}, {sx!r}, 0, {north!r}, 0, "
+                                                    f"{-sy!r}</GeoTransform></PAMDataset>")
+        row, col = np.meshgrid(np.arange(height), np.arange(width), indexing="ij")
+        lat, lon = north - (row + 0.5) * sy, west + (col + 0.5) * sx
+        keep = (np.abs(lat) < 90 - 1e-9) & (col < width - wide - 1e-6)  # off a pole, not the overlap's second copy
+        lat, lon, row, col = np.radians(lat[keep]), np.radians(lon[keep]), row[keep], col[keep]
+        directions = np.column_stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)])
+        got = drape_colors(directions * EARTH_RADIUS, path)[:, :3].astype(int)
+        near = (got == pixels[row, col]).all(axis=1)
+        assert near.all(), (west, north, sx, sy, row[~near], col[~near])
+        n = len(directions)
+        mesh = trimesh.Trimesh(directions, np.arange(n - n % 3).reshape(-1, 3), process=False)
+        draped = drape_texture(mesh, path)
+        image = np.asarray(draped.visual.material.image.convert("RGB"))
+        uv = np.asarray(draped.visual.uv, dtype=np.float64)[: n - n % 3]
+        x, y = uv[:, 0] * width % width - 0.5, (1 - uv[:, 1]) * height - 0.5
+        np.testing.assert_allclose(x, np.round(x), atol=1e-6)
+        np.testing.assert_allclose(y, np.round(y), atol=1e-6)
+        texel = image[np.round(y).astype(int), np.round(x).astype(int) % width]
+        np.testing.assert_array_equal(texel, pixels[row, col][: n - n % 3])
+
+    import trimesh
+
+    check()
