@@ -2603,7 +2603,10 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         vertex the file does not have (a PLY's or glTF's index as stored), and so are a ``.glb`` that is empty, not a
         GLB, shorter than its header counts or whose header counts fewer bytes than its headers and JSON chunk
         take (a length of 0), and a glTF without a scene, whose scene holds no node or whose
-        ``scene`` names none, each said so.
+        ``scene`` names none, each said so; and what trimesh's reader reads wrong without a word: a glTF primitive
+        that is a triangle fan (mode 6, skipped) or whose positions, normals or UVs are normalized integers
+        (KHR_mesh_quantization's, read unscaled), an OBJ face naming index 0 (OBJ counts from 1) and an OBJ
+        vertex of fewer than 3 coordinates (every vertex clipped to its length).
     """
     file = _target(path, output=False)
     require_regular_file(file, "mesh file", "mesh file")
@@ -2624,6 +2627,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             color = _color_attribute(scene)
             loaded = scene.to_mesh()
         else:  # an OBJ of faces of vertex indices only keeps the vertices no face names (_obj_faces_name_vertices_only)
+            if file.suffix.lower() == ".obj":
+                _check_obj_indices(file)
             plain_obj = file.suffix.lower() == ".obj" and _obj_faces_name_vertices_only(file)
             order = {"maintain_order": True} if plain_obj else {}
             loaded = _trimesh_read(trimesh.load, file, force="mesh", process=False, **order)
@@ -2635,6 +2640,11 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                 _check_format(file)
         if file.suffix.lower() == ".stl":  # anything as an empty STL, and an ASCII one cut short as its first solids
             _check_format(file)
+        if isinstance(loaded, trimesh.Trimesh) and np.asarray(loaded.vertices).shape[1:] != (3,):
+            # an OBJ's "v 0 1": trimesh's reader clipped every vertex to its shortest
+            short = _short_obj_vertex(file) if file.suffix.lower() == ".obj" else ""
+            raise ValueError(f"a vertex has fewer than 3 coordinates{short}: every vertex needs x, y and z; read as "
+                             f"{np.asarray(loaded.vertices).shape[1:]} per vertex")
         if isinstance(loaded, trimesh.Trimesh):  # a PLY's or glTF's indices as stored
             faces, count = np.asarray(loaded.faces), len(loaded.vertices)
             bad = _face_outside(faces, count)
@@ -2916,16 +2926,32 @@ def _check_dense_gltf(file: Path) -> dict[str, Any] | None:
         accessors = tree.get("accessors") or []
         for mesh in tree.get("meshes") or []:
             for primitive in mesh.get("primitives") or []:
-                used = [("POSITION", (primitive.get("attributes") or {}).get("POSITION")),
-                        ("indices", primitive.get("indices"))]
+                if primitive.get("mode") == _GL_TRIANGLE_FAN:  # trimesh's reader skips it: its surface left out
+                    raise ValueError("a glTF primitive is a TRIANGLE_FAN (mode 6), which trimesh's reader skips (the "
+                                     "file read without that surface, or as no scene): write it as triangles (mode 4)")
+                attributes = primitive.get("attributes") or {}
+                used = [("POSITION", attributes.get("POSITION")), ("indices", primitive.get("indices"))]
                 for name, index in used:
                     if isinstance(index, int) and 0 <= index < len(accessors) and accessors[index].get("sparse"):
                         sparse = f"glTF accessor {index} (a primitive's {name}) is sparse"
                         raise ValueError(f"{sparse}, which trimesh's reader reads as its base values alone: write "
                                          "the file without sparse accessors (Blender and most exporters do)")
+                for name, index in attributes.items():  # colours: _color_attribute scales them
+                    if ((name in ("POSITION", "NORMAL") or str(name).startswith("TEXCOORD_"))
+                            and isinstance(index, int) and 0 <= index < len(accessors)
+                            and accessors[index].get("normalized") is True):
+                        raise ValueError(
+                            f"glTF accessor {index} (a primitive's {name}) holds normalized integers "
+                            "(KHR_mesh_quantization: 65535 for 1.0), which trimesh's reader reads as the integers "
+                            "(a mesh or its UVs thousands of times too large): write the file unquantized, or with "
+                            "integer positions and a node scale (gltfpack -vpi), or floats (gltfpack -vpf)")
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, struct.error, AttributeError, TypeError):
         return None
     return tree if isinstance(tree, dict) else None
+
+
+#: glTF 2.0 §3.7.2.1: a primitive's mode 6, triangles sharing its first vertex, which trimesh's reader skips.
+_GL_TRIANGLE_FAN = 6
 
 
 def _stored_z_up(tree: dict[str, Any] | None) -> bool | None:
@@ -3058,6 +3084,50 @@ def _gltf_color_0(file: Path, tree: Any = None) -> NDArray[np.float64] | None:
 _OBJ_FACE_WITH_SLASH = re.compile(rb"^[ \t]*f[ \t][^\n]*/", re.MULTILINE)
 _OBJ_USEMTL = re.compile(rb"^[ \t]*usemtl[ \t]", re.MULTILINE)
 _OBJ_FACE = re.compile(rb"^[ \t]*f[ \t]", re.MULTILINE)
+#: an index 0 (of a vertex, UV or normal) on an OBJ line, which names none in a face: OBJ counts from 1, or back from -1
+_OBJ_ZERO = re.compile(rb"[ \t/]0+(?![0-9.eE])")
+#: an OBJ vertex of fewer than three coordinates
+_OBJ_SHORT_VERTEX = re.compile(rb"^[ \t]*v[ \t]+(?:[^ \t\r\n]+[ \t]+)?[^ \t\r\n]*[ \t]*\r?$", re.MULTILINE)
+
+
+def _check_obj_indices(file: Path) -> None:
+    """Raise a ValueError where a face of the OBJ ``file`` names index 0, which names nothing (OBJ counts from 1, and
+    back from -1): trimesh's reader took it as the first vertex and shifted none of the others, so ``f 0 1 2`` read as
+    the degenerate face (0, 0, 1) without a word. Scanned without reading the file into memory."""
+    import mmap
+
+    with open(file, "rb") as stream:
+        if os.fstat(stream.fileno()).st_size == 0:
+            return
+        with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as data:
+            # from the first face: the vertices mostly come first, and their zeros are not looked at
+            at = 0 if data[:1] == b"f" else data.find(b"\nf")
+            while at >= 0:
+                found = _OBJ_ZERO.search(data, at)  # type: ignore[call-overload]
+                if found is None:
+                    return
+                start = data.rfind(b"\n", 0, found.start()) + 1
+                end = data.find(b"\n", found.end())
+                del found
+                text = data[start:end if end >= 0 else len(data)]
+                if text.lstrip()[:2] in (b"f ", b"f\t"):
+                    line = data[:start].count(b"\n") + 1  # a copy, on the way to the error only
+                    break
+                at = end
+            else:
+                return
+    raise ValueError(f"line {line}, {text.decode('utf-8', 'replace').strip()!r}, names index 0, which names nothing: "
+                     "an OBJ's indices count from 1 (or back from -1)")
+
+
+def _short_obj_vertex(file: Path) -> str:
+    """The first ``v`` line of the OBJ ``file`` with fewer than three coordinates, as ``" (line N, 'v 0 1')"``, or
+    ``""``."""
+    with open(file, "rb") as stream:
+        for number, row in enumerate(stream, 1):
+            if _OBJ_SHORT_VERTEX.match(row.rstrip(b"\n")):
+                return f" (line {number}, {row.decode('utf-8', 'replace').strip()!r})"
+    return ""
 
 
 def _obj_faces_name_vertices_only(file: Path) -> bool:
