@@ -2760,16 +2760,54 @@ def _ply_attributes(mesh: trimesh.Trimesh, booleans: Mapping[str, Iterable[str]]
         else:
             continue
         flags = set(booleans.get(element, ()))
+        # a PLY of quads or polygons: trimesh cut them into triangles, each to carry its polygon's values
+        source = _ply_face_source(columns, count) if element == "face" else None
         if element == "face" and "stepped" in booleans and {"level", "wall"} <= set(columns):
             flags.add("wall")
         for name, column in columns.items():
             column = np.asarray(column)
+            if column.ndim == 2 and column.shape[1] == 1:  # an ASCII PLY's scalar beside a list, as trimesh reads it
+                column = column[:, 0]
+            if source is not None and column.ndim == 1 and len(column) != count:
+                column = column[source]
             if name in _PLY_OWN[element] or column.ndim != 1 or column.dtype.kind not in "biuf" or len(column) != count:
                 continue
             column = column.astype(column.dtype.newbyteorder("="))
             if name in flags and column.dtype.kind in "bu" and column.max(initial=0) <= 1:
                 column = column.astype(bool)  # written from a bool: `faces[wall]` took rows 0 and 1, not the walls
             attributes.setdefault(str(name), column)
+
+
+def _ply_face_source(columns: Mapping[str, Any], count: int) -> NDArray[np.int64] | None:
+    """For each of the ``count`` triangles trimesh's reader made of a PLY's faces (``columns``, its face element's
+    data), the face it was cut from: trimesh triangulates quads and polygons (``triangulate_quads``: the triangles
+    first, then the quads' first halves, their second halves, then the polygons' fans), so a face property, one value
+    per polygon, is one per triangle taken from these. Found by triangulating the polygons again with each corner
+    numbered after its face, whatever that order. None where the faces were triangles (one each) or cannot be
+    matched."""
+    indices = next((columns[name] for name in ("vertex_indices", "vertex_index") if name in columns), None)
+    if indices is None:
+        return None
+    indices = np.asarray(indices)
+    if indices.dtype.names and "f1" in indices.dtype.names:  # a binary PLY's list: (count, indices)
+        indices = indices["f1"]
+    if len(indices) == count or len(indices) == 0:
+        return None
+    if indices.dtype == object:
+        lengths = np.fromiter((len(face) for face in indices), dtype=np.int64, count=len(indices))
+    elif indices.ndim == 2:
+        lengths = np.full(len(indices), indices.shape[1], dtype=np.int64)
+    else:
+        return None
+    widest = int(lengths.max())
+    # corner k of face i as i * widest + k: any triangle of it names i by // widest
+    numbered = [np.arange(i * widest, i * widest + size, dtype=np.int64) for i, size in enumerate(lengths.tolist())]
+    if len(set(lengths.tolist())) == 1:
+        numbered = np.array(numbered)  # type: ignore[assignment]
+    triangles = np.asarray(trimesh.geometry.triangulate_quads(numbered))
+    if triangles.ndim != 2 or len(triangles) != count:
+        return None
+    return triangles[:, 0] // widest  # type: ignore[no-any-return]
 
 
 def _color_attribute(scene: Any) -> NDArray[Any] | None:

@@ -126,3 +126,40 @@ def test_obj_objects_after_faces_read(tmp_path):
     mesh = read_mesh(path)
     assert len(mesh.faces) == 3  # the quad as two triangles
     assert np.isclose(mesh.area, 1.5)
+
+
+_PLY_HEAD = ("ply\nformat {form} 1.0\nelement vertex 6\nproperty float x\nproperty float y\nproperty float z\n"
+             "element face {faces}\nproperty list uchar int vertex_indices\nproperty int label\nend_header\n")
+_PLY_VERTICES = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0.5, 2, 0], [2, 0.5, 0]], np.float32)
+
+
+@pytest.mark.parametrize(("polygons", "form"), [
+    ([[0, 1, 2, 3], [3, 2, 4], [1, 5, 2]], "ascii"),  # a quad among triangles
+    ([[0, 1, 2, 3], [3, 2, 4, 3]], "ascii"),  # quads only
+    ([[0, 1, 2, 3], [3, 2, 4, 3]], "binary_big_endian"),
+    ([[3, 2, 4], [0, 1, 5, 2, 3], [0, 1, 2, 3]], "ascii"),  # a pentagon, a quad
+    ([[0, 1, 2], [3, 2, 4]], "ascii"),  # triangles: trimesh read the label as (N, 1), which was dropped too
+])
+def test_ply_polygon_face_attributes_follow_triangles(tmp_path, polygons, form):
+    """A PLY of quads or polygons with a face property (a classification, a label): trimesh's reader cuts the
+    polygons into triangles (triangles first, then the quads' first halves, their second halves, the polygons'
+    fans), and the property, one per polygon, was dropped without a word. Each triangle now carries its polygon's
+    value: checked against which polygon's corners the triangle's are."""
+    labels = [10 * (i + 1) for i in range(len(polygons))]
+    rows = list(zip(polygons, labels, strict=True))
+    path = tmp_path / "polygons.ply"
+    head = _PLY_HEAD.format(form=form, faces=len(polygons)).encode()
+    if form == "ascii":
+        body = "".join(" ".join(map(str, v)) + "\n" for v in _PLY_VERTICES.tolist())
+        body += "".join(f"{len(p)} {' '.join(map(str, p))} {label}\n" for p, label in rows)
+        path.write_bytes(head + body.encode())
+    else:
+        body = _PLY_VERTICES.astype(">f4").tobytes()
+        body += b"".join(struct.pack(f">B{len(p)}ii", len(p), *p, label) for p, label in rows)
+        path.write_bytes(head + body)
+    mesh = read_mesh(path)
+    label = mesh.face_attributes["label"]
+    assert len(label) == len(mesh.faces) == sum(len(p) - 2 for p in polygons)
+    for face, value in zip(mesh.faces.tolist(), label.tolist(), strict=True):
+        owner = polygons[labels.index(value)]
+        assert set(face) <= set(owner)
