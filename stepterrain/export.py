@@ -2631,7 +2631,13 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                 _check_obj_indices(file)
             plain_obj = file.suffix.lower() == ".obj" and _obj_faces_name_vertices_only(file)
             order = {"maintain_order": True} if plain_obj else {}
-            loaded = _trimesh_read(trimesh.load, file, force="mesh", process=False, **order)
+            try:
+                loaded = _trimesh_read(trimesh.load, file, force="mesh", process=False, **order)
+            except ValueError as exc:
+                mixed = _ply_binary_mixed_lists(file) if file.suffix.lower() == ".ply" else None
+                if mixed is None:
+                    raise
+                raise ValueError(mixed) from exc
         if isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices) == 0:
             loaded = _read_points(file, scene) or loaded
             if gltf and len(loaded.vertices) == 0:  # an empty mesh's metadata, in its node's extras
@@ -2685,6 +2691,69 @@ def _utf8_name(text: str) -> str:
         return text.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
     except UnicodeEncodeError:  # a surrogate that is no escaped byte (U+D800)
         return text.encode("utf-8", "surrogatepass").decode("utf-8", "replace")
+
+
+#: PLY's scalar types, as NumPy's (without byte order)
+_PLY_NUMPY = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2", "ushort": "u2",
+              "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4", "float": "f4",
+              "float32": "f4", "double": "f8", "float64": "f8"}
+
+
+def _ply_binary_mixed_lists(file: Path, rows: int = 65536) -> str | None:
+    """Why trimesh's reader refused the binary PLY ``file`` ("PLY is unexpected length!") where its lists (a face's
+    vertex indices) have different lengths in its first ``rows`` rows of an element (triangles and quads mixed):
+    trimesh's binary reader takes every list as long as the first, so a valid file read as cut short. None where
+    the lists its walk saw are all as long (or the header does not parse): a file cut short is one."""
+    try:
+        with open(file, "rb") as stream:
+            if stream.readline().strip() != b"ply":
+                return None
+            elements: list[tuple[str, int, list[tuple[str, ...]]]] = []
+            order = None
+            for raw in stream:
+                words = raw.decode("ascii", "replace").split()
+                if not words:
+                    continue
+                if words[0] == "end_header":
+                    break
+                if words[0] == "format" and len(words) > 1:
+                    order = {"binary_little_endian": "<", "binary_big_endian": ">"}.get(words[1])
+                elif words[0] == "element" and len(words) == 3:
+                    elements.append((words[1], int(words[2]), []))
+                elif words[0] == "property" and elements:
+                    elements[-1][2].append(tuple(words[1:]))
+            else:
+                return None
+            if order is None:
+                return None
+            for name, count, properties in elements:
+                if not any(prop[0] == "list" for prop in properties):
+                    stream.seek(count * sum(np.dtype(_PLY_NUMPY[prop[0]]).itemsize for prop in properties), 1)
+                    continue
+                first = None
+                for row in range(min(count, rows)):
+                    for prop in properties:
+                        if prop[0] != "list":
+                            stream.seek(np.dtype(_PLY_NUMPY[prop[0]]).itemsize, 1)
+                            continue
+                        size = np.dtype(order + _PLY_NUMPY[prop[1]])
+                        blob = stream.read(size.itemsize)
+                        if len(blob) < size.itemsize:
+                            return None
+                        length = int(np.frombuffer(blob, dtype=size)[0])
+                        if first is None:
+                            first = length
+                        elif length != first:
+                            return (f"a binary PLY whose {name} lists differ in length ({name} 0's {prop[-1]} has "
+                                    f"{first}, {name} {row}'s {length}: triangles and quads mixed, say), which "
+                                    "trimesh's binary reader cannot read (it takes every list as long as the first); "
+                                    "write it as ASCII PLY, or triangulated")
+                        stream.seek(length * np.dtype(_PLY_NUMPY[prop[2]]).itemsize, 1)
+                if count > rows:
+                    return None
+    except (OSError, KeyError, ValueError, IndexError, TypeError):
+        return None
+    return None
 
 
 def _trimesh_read(load: Callable[..., Any], file: Path, **kwargs: Any) -> Any:

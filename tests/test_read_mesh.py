@@ -163,3 +163,22 @@ def test_ply_polygon_face_attributes_follow_triangles(tmp_path, polygons, form):
     for face, value in zip(mesh.faces.tolist(), label.tolist(), strict=True):
         owner = polygons[labels.index(value)]
         assert set(face) <= set(owner)
+
+
+@pytest.mark.parametrize("order", ["<", ">"])
+def test_binary_ply_of_mixed_polygons_refused_by_name(tmp_path, order):
+    """A binary PLY of triangles and quads is valid, but trimesh's binary reader takes every list as long as the
+    first and refused it as "PLY is unexpected length!", which reads as a file cut short: it is said what it is."""
+    form = {"<": "binary_little_endian", ">": "binary_big_endian"}[order]
+    head = (f"ply\nformat {form} 1.0\nelement vertex 5\nproperty float x\nproperty float y\nproperty float z\n"
+            "element face 2\nproperty list uchar int vertex_indices\nend_header\n").encode()
+    body = _PLY_VERTICES[:5].astype(order + "f4").tobytes()
+    body += struct.pack(f"{order}B4i", 4, 0, 1, 2, 3) + struct.pack(f"{order}B3i", 3, 3, 2, 4)
+    (tmp_path / "mixed.ply").write_bytes(head + body)
+    with pytest.raises(DataFileError, match=r"mixed\.ply.*face 0's vertex_indices has 4, face 1's 3"):
+        read_mesh(tmp_path / "mixed.ply")
+    quads = body[:-13] + struct.pack(f"{order}B4i", 4, 3, 2, 4, 3)
+    (tmp_path / "short.ply").write_bytes(head + quads[:-4])  # quads cut short: not said to be mixed
+    with pytest.raises(DataFileError, match=r"short\.ply") as caught:
+        read_mesh(tmp_path / "short.ply")
+    assert "differ in length" not in str(caught.value)
