@@ -3031,6 +3031,11 @@ def _check_dense_gltf(file: Path) -> dict[str, Any] | None:
                              "trimesh's reader cannot decode (it reads the compressed bytes as positions): write the "
                              "file without that compression")
         accessors = tree.get("accessors") or []
+        modes = [primitive.get("mode", 4) for mesh in tree.get("meshes") or [] if isinstance(mesh, dict)
+                 for primitive in mesh.get("primitives") or [] if isinstance(primitive, dict)]
+        if modes and all(mode in _GL_LINE_MODES for mode in modes):  # read as an empty mesh, its positions lost
+            raise ValueError("the glTF holds lines only (primitive modes LINES, LINE_LOOP or LINE_STRIP), no "
+                             "triangles or points: not a mesh (trimesh.load_path reads its lines)")
         for mesh in tree.get("meshes") or []:
             for primitive in mesh.get("primitives") or []:
                 if primitive.get("mode") == _GL_TRIANGLE_FAN:  # trimesh's reader skips it: its surface left out
@@ -3059,6 +3064,8 @@ def _check_dense_gltf(file: Path) -> dict[str, Any] | None:
 
 #: glTF 2.0 §3.7.2.1: a primitive's mode 6, triangles sharing its first vertex, which trimesh's reader skips.
 _GL_TRIANGLE_FAN = 6
+#: glTF 2.0 §3.7.2.1: the primitive modes of lines (LINES, LINE_LOOP, LINE_STRIP), which no mesh holds
+_GL_LINE_MODES = (1, 2, 3)
 
 
 def _stored_z_up(tree: dict[str, Any] | None) -> bool | None:

@@ -182,3 +182,15 @@ def test_binary_ply_of_mixed_polygons_refused_by_name(tmp_path, order):
     with pytest.raises(DataFileError, match=r"short\.ply") as caught:
         read_mesh(tmp_path / "short.ply")
     assert "differ in length" not in str(caught.value)
+
+
+@pytest.mark.parametrize("mode", [1, 3])
+def test_gltf_of_lines_only_refused(tmp_path, mode):
+    """A glTF of lines only (LINES, LINE_STRIP) read as an empty mesh, 0 vertices, 0 faces in ``stepterrain info``
+    without a word, where the file holds positions: refused as no mesh. Lines beside triangles are left out of the
+    mesh, as before."""
+    _ramp_glb(tmp_path / "lines.glb", indices=np.array([0, 1, 1, 2], np.uint16), mode=mode)
+    with pytest.raises(DataFileError, match=r"lines\.glb.*lines only"):
+        read_mesh(tmp_path / "lines.glb")
+    _ramp_glb(tmp_path / "both.glb", indices=np.array([0, 1, 1, 2], np.uint16), mode=mode, triangles_too=True)
+    assert len(read_mesh(tmp_path / "both.glb").faces) == 2
