@@ -3030,6 +3030,15 @@ def _check_dense_gltf(file: Path) -> dict[str, Any] | None:
             raise ValueError("the glTF's buffers are meshopt-compressed (EXT_meshopt_compression, required), which "
                              "trimesh's reader cannot decode (it reads the compressed bytes as positions): write the "
                              "file without that compression")
+        buffers = tree.get("buffers") or []
+        for number, view in enumerate(tree.get("bufferViews") or []):  # trimesh's reader: "AssertionError: ", bare
+            which = view.get("buffer") if isinstance(view, dict) else None
+            if type(which) is int and 0 <= which < len(buffers) and isinstance(buffers[which], dict):
+                end = view.get("byteOffset", 0) + view.get("byteLength", 0)
+                size = buffers[which].get("byteLength")
+                if isinstance(size, int) and isinstance(end, int) and end > size:
+                    raise ValueError(f"glTF bufferView {number} ends at byte {end:,} of buffer {which}, which holds "
+                                     f"{size:,} bytes (glTF 2.0 §3.6.1): the file is cut short or not valid")
         accessors = tree.get("accessors") or []
         modes = [primitive.get("mode", 4) for mesh in tree.get("meshes") or [] if isinstance(mesh, dict)
                  for primitive in mesh.get("primitives") or [] if isinstance(primitive, dict)]

@@ -194,3 +194,19 @@ def test_gltf_of_lines_only_refused(tmp_path, mode):
         read_mesh(tmp_path / "lines.glb")
     _ramp_glb(tmp_path / "both.glb", indices=np.array([0, 1, 1, 2], np.uint16), mode=mode, triangles_too=True)
     assert len(read_mesh(tmp_path / "both.glb").faces) == 2
+
+
+def test_gltf_buffer_view_past_its_buffer_refused_by_name(tmp_path):
+    """A bufferView reaching past its buffer's bytes was refused as "AssertionError: " (trimesh's bare assert)."""
+    path = tmp_path / "over.glb"
+    _ramp_glb(path, indices=_TRIANGLES)
+    data = bytearray(path.read_bytes())
+    length = struct.unpack_from("<I", data, 12)[0]
+    tree = json.loads(bytes(data[20:20 + length]))
+    tree["bufferViews"][1]["byteLength"] = 400
+    tree["accessors"][1]["count"] = 200
+    binary = bytes(data[20 + length + 8:])
+    tree.pop("buffers")
+    _write_glb(path, tree, binary)
+    with pytest.raises(DataFileError, match=r"over\.glb.*bufferView 1 ends at byte 448 of buffer 0, which holds 60"):
+        read_mesh(path)
