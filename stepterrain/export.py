@@ -2605,8 +2605,11 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         take (a length of 0), and a glTF without a scene, whose scene holds no node or whose
         ``scene`` names none, each said so; and what trimesh's reader reads wrong without a word: a glTF primitive
         that is a triangle fan (mode 6, skipped) or whose positions, normals or UVs are normalized integers
-        (KHR_mesh_quantization's, read unscaled), an OBJ face naming index 0 (OBJ counts from 1) and an OBJ
-        vertex of fewer than 3 coordinates (every vertex clipped to its length).
+        (KHR_mesh_quantization's, read unscaled), a glTF of lines only (read as an empty mesh), an OBJ face naming
+        index 0 (OBJ counts from 1) and an OBJ vertex of fewer than 3 coordinates (every vertex clipped to its
+        length); a binary PLY of triangles and quads mixed (which trimesh's binary reader cannot read) and a glTF
+        bufferView past its buffer are said so. A PLY's quads and polygons come back as triangles (trimesh's
+        ``triangulate_quads``), each with its polygon's face properties.
     """
     file = _target(path, output=False)
     require_regular_file(file, "mesh file", "mesh file")
