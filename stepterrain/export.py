@@ -2603,7 +2603,13 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         vertex the file does not have (a PLY's or glTF's index as stored), and so are a ``.glb`` that is empty, not a
         GLB, shorter than its header counts or whose header counts fewer bytes than its headers and JSON chunk
         take (a length of 0), and a glTF without a scene, whose scene holds no node or whose
-        ``scene`` names none, each said so.
+        ``scene`` names none, each said so; and what trimesh's reader reads wrong without a word: a glTF primitive
+        that is a triangle fan (mode 6, skipped) or whose positions, normals or UVs are normalized integers
+        (KHR_mesh_quantization's, read unscaled), a glTF of lines only (read as an empty mesh), an OBJ face naming
+        index 0 (OBJ counts from 1) and an OBJ vertex of fewer than 3 coordinates (every vertex clipped to its
+        length); a binary PLY of triangles and quads mixed (which trimesh's binary reader cannot read) and a glTF
+        bufferView past its buffer are said so. A PLY's quads and polygons come back as triangles (trimesh's
+        ``triangulate_quads``), each with its polygon's face properties.
     """
     file = _target(path, output=False)
     require_regular_file(file, "mesh file", "mesh file")
@@ -2624,9 +2630,17 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             color = _color_attribute(scene)
             loaded = scene.to_mesh()
         else:  # an OBJ of faces of vertex indices only keeps the vertices no face names (_obj_faces_name_vertices_only)
+            if file.suffix.lower() == ".obj":
+                _check_obj_indices(file)
             plain_obj = file.suffix.lower() == ".obj" and _obj_faces_name_vertices_only(file)
             order = {"maintain_order": True} if plain_obj else {}
-            loaded = _trimesh_read(trimesh.load, file, force="mesh", process=False, **order)
+            try:
+                loaded = _trimesh_read(trimesh.load, file, force="mesh", process=False, **order)
+            except ValueError as exc:
+                mixed = _ply_binary_mixed_lists(file) if file.suffix.lower() == ".ply" else None
+                if mixed is None:
+                    raise
+                raise ValueError(mixed) from exc
         if isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices) == 0:
             loaded = _read_points(file, scene) or loaded
             if gltf and len(loaded.vertices) == 0:  # an empty mesh's metadata, in its node's extras
@@ -2635,6 +2649,11 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                 _check_format(file)
         if file.suffix.lower() == ".stl":  # anything as an empty STL, and an ASCII one cut short as its first solids
             _check_format(file)
+        if isinstance(loaded, trimesh.Trimesh) and np.asarray(loaded.vertices).shape[1:] != (3,):
+            # an OBJ's "v 0 1": trimesh's reader clipped every vertex to its shortest
+            short = _short_obj_vertex(file) if file.suffix.lower() == ".obj" else ""
+            raise ValueError(f"a vertex has fewer than 3 coordinates{short}: every vertex needs x, y and z; read as "
+                             f"{np.asarray(loaded.vertices).shape[1:]} per vertex")
         if isinstance(loaded, trimesh.Trimesh):  # a PLY's or glTF's indices as stored
             faces, count = np.asarray(loaded.faces), len(loaded.vertices)
             bad = _face_outside(faces, count)
@@ -2675,6 +2694,69 @@ def _utf8_name(text: str) -> str:
         return text.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
     except UnicodeEncodeError:  # a surrogate that is no escaped byte (U+D800)
         return text.encode("utf-8", "surrogatepass").decode("utf-8", "replace")
+
+
+#: PLY's scalar types, as NumPy's (without byte order)
+_PLY_NUMPY = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2", "ushort": "u2",
+              "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4", "float": "f4",
+              "float32": "f4", "double": "f8", "float64": "f8"}
+
+
+def _ply_binary_mixed_lists(file: Path, rows: int = 65536) -> str | None:
+    """Why trimesh's reader refused the binary PLY ``file`` ("PLY is unexpected length!") where its lists (a face's
+    vertex indices) have different lengths in its first ``rows`` rows of an element (triangles and quads mixed):
+    trimesh's binary reader takes every list as long as the first, so a valid file read as cut short. None where
+    the lists its walk saw are all as long (or the header does not parse): a file cut short is one."""
+    try:
+        with open(file, "rb") as stream:
+            if stream.readline().strip() != b"ply":
+                return None
+            elements: list[tuple[str, int, list[tuple[str, ...]]]] = []
+            order = None
+            for raw in stream:
+                words = raw.decode("ascii", "replace").split()
+                if not words:
+                    continue
+                if words[0] == "end_header":
+                    break
+                if words[0] == "format" and len(words) > 1:
+                    order = {"binary_little_endian": "<", "binary_big_endian": ">"}.get(words[1])
+                elif words[0] == "element" and len(words) == 3:
+                    elements.append((words[1], int(words[2]), []))
+                elif words[0] == "property" and elements:
+                    elements[-1][2].append(tuple(words[1:]))
+            else:
+                return None
+            if order is None:
+                return None
+            for name, count, properties in elements:
+                if not any(prop[0] == "list" for prop in properties):
+                    stream.seek(count * sum(np.dtype(_PLY_NUMPY[prop[0]]).itemsize for prop in properties), 1)
+                    continue
+                first = None
+                for row in range(min(count, rows)):
+                    for prop in properties:
+                        if prop[0] != "list":
+                            stream.seek(np.dtype(_PLY_NUMPY[prop[0]]).itemsize, 1)
+                            continue
+                        size = np.dtype(order + _PLY_NUMPY[prop[1]])
+                        blob = stream.read(size.itemsize)
+                        if len(blob) < size.itemsize:
+                            return None
+                        length = int(np.frombuffer(blob, dtype=size)[0])
+                        if first is None:
+                            first = length
+                        elif length != first:
+                            return (f"a binary PLY whose {name} lists differ in length ({name} 0's {prop[-1]} has "
+                                    f"{first}, {name} {row}'s {length}: triangles and quads mixed, say), which "
+                                    "trimesh's binary reader cannot read (it takes every list as long as the first); "
+                                    "write it as ASCII PLY, or triangulated")
+                        stream.seek(length * np.dtype(_PLY_NUMPY[prop[2]]).itemsize, 1)
+                if count > rows:
+                    return None
+    except (OSError, KeyError, ValueError, IndexError, TypeError):
+        return None
+    return None
 
 
 def _trimesh_read(load: Callable[..., Any], file: Path, **kwargs: Any) -> Any:
@@ -2750,16 +2832,54 @@ def _ply_attributes(mesh: trimesh.Trimesh, booleans: Mapping[str, Iterable[str]]
         else:
             continue
         flags = set(booleans.get(element, ()))
+        # a PLY of quads or polygons: trimesh cut them into triangles, each to carry its polygon's values
+        source = _ply_face_source(columns, count) if element == "face" else None
         if element == "face" and "stepped" in booleans and {"level", "wall"} <= set(columns):
             flags.add("wall")
         for name, column in columns.items():
             column = np.asarray(column)
+            if column.ndim == 2 and column.shape[1] == 1:  # an ASCII PLY's scalar beside a list, as trimesh reads it
+                column = column[:, 0]
+            if source is not None and column.ndim == 1 and len(column) != count:
+                column = column[source]
             if name in _PLY_OWN[element] or column.ndim != 1 or column.dtype.kind not in "biuf" or len(column) != count:
                 continue
             column = column.astype(column.dtype.newbyteorder("="))
             if name in flags and column.dtype.kind in "bu" and column.max(initial=0) <= 1:
                 column = column.astype(bool)  # written from a bool: `faces[wall]` took rows 0 and 1, not the walls
             attributes.setdefault(str(name), column)
+
+
+def _ply_face_source(columns: Mapping[str, Any], count: int) -> NDArray[np.int64] | None:
+    """For each of the ``count`` triangles trimesh's reader made of a PLY's faces (``columns``, its face element's
+    data), the face it was cut from: trimesh triangulates quads and polygons (``triangulate_quads``: the triangles
+    first, then the quads' first halves, their second halves, then the polygons' fans), so a face property, one value
+    per polygon, is one per triangle taken from these. Found by triangulating the polygons again with each corner
+    numbered after its face, whatever that order. None where the faces were triangles (one each) or cannot be
+    matched."""
+    indices = next((columns[name] for name in ("vertex_indices", "vertex_index") if name in columns), None)
+    if indices is None:
+        return None
+    indices = np.asarray(indices)
+    if indices.dtype.names and "f1" in indices.dtype.names:  # a binary PLY's list: (count, indices)
+        indices = indices["f1"]
+    if len(indices) == count or len(indices) == 0:
+        return None
+    if indices.dtype == object:
+        lengths = np.fromiter((len(face) for face in indices), dtype=np.int64, count=len(indices))
+    elif indices.ndim == 2:
+        lengths = np.full(len(indices), indices.shape[1], dtype=np.int64)
+    else:
+        return None
+    widest = int(lengths.max())
+    # corner k of face i as i * widest + k: any triangle of it names i by // widest
+    numbered = [np.arange(i * widest, i * widest + size, dtype=np.int64) for i, size in enumerate(lengths.tolist())]
+    if len(set(lengths.tolist())) == 1:
+        numbered = np.array(numbered)  # type: ignore[assignment]
+    triangles = np.asarray(trimesh.geometry.triangulate_quads(numbered))
+    if triangles.ndim != 2 or len(triangles) != count:
+        return None
+    return triangles[:, 0] // widest  # type: ignore[no-any-return]
 
 
 def _color_attribute(scene: Any) -> NDArray[Any] | None:
@@ -2913,19 +3033,51 @@ def _check_dense_gltf(file: Path) -> dict[str, Any] | None:
             raise ValueError("the glTF's buffers are meshopt-compressed (EXT_meshopt_compression, required), which "
                              "trimesh's reader cannot decode (it reads the compressed bytes as positions): write the "
                              "file without that compression")
+        buffers = tree.get("buffers") or []
+        for number, view in enumerate(tree.get("bufferViews") or []):  # trimesh's reader: "AssertionError: ", bare
+            which = view.get("buffer") if isinstance(view, dict) else None
+            if type(which) is int and 0 <= which < len(buffers) and isinstance(buffers[which], dict):
+                end = view.get("byteOffset", 0) + view.get("byteLength", 0)
+                size = buffers[which].get("byteLength")
+                if isinstance(size, int) and isinstance(end, int) and end > size:
+                    raise ValueError(f"glTF bufferView {number} ends at byte {end:,} of buffer {which}, which holds "
+                                     f"{size:,} bytes (glTF 2.0 §3.6.1): the file is cut short or not valid")
         accessors = tree.get("accessors") or []
+        modes = [primitive.get("mode", 4) for mesh in tree.get("meshes") or [] if isinstance(mesh, dict)
+                 for primitive in mesh.get("primitives") or [] if isinstance(primitive, dict)]
+        if modes and all(mode in _GL_LINE_MODES for mode in modes):  # read as an empty mesh, its positions lost
+            raise ValueError("the glTF holds lines only (primitive modes LINES, LINE_LOOP or LINE_STRIP), no "
+                             "triangles or points: not a mesh (trimesh.load_path reads its lines)")
         for mesh in tree.get("meshes") or []:
             for primitive in mesh.get("primitives") or []:
-                used = [("POSITION", (primitive.get("attributes") or {}).get("POSITION")),
-                        ("indices", primitive.get("indices"))]
+                if primitive.get("mode") == _GL_TRIANGLE_FAN:  # trimesh's reader skips it: its surface left out
+                    raise ValueError("a glTF primitive is a TRIANGLE_FAN (mode 6), which trimesh's reader skips (the "
+                                     "file read without that surface, or as no scene): write it as triangles (mode 4)")
+                attributes = primitive.get("attributes") or {}
+                used = [("POSITION", attributes.get("POSITION")), ("indices", primitive.get("indices"))]
                 for name, index in used:
                     if isinstance(index, int) and 0 <= index < len(accessors) and accessors[index].get("sparse"):
                         sparse = f"glTF accessor {index} (a primitive's {name}) is sparse"
                         raise ValueError(f"{sparse}, which trimesh's reader reads as its base values alone: write "
                                          "the file without sparse accessors (Blender and most exporters do)")
+                for name, index in attributes.items():  # colours: _color_attribute scales them
+                    if ((name in ("POSITION", "NORMAL") or str(name).startswith("TEXCOORD_"))
+                            and isinstance(index, int) and 0 <= index < len(accessors)
+                            and accessors[index].get("normalized") is True):
+                        raise ValueError(
+                            f"glTF accessor {index} (a primitive's {name}) holds normalized integers "
+                            "(KHR_mesh_quantization: 65535 for 1.0), which trimesh's reader reads as the integers "
+                            "(a mesh or its UVs thousands of times too large): write the file unquantized, or with "
+                            "integer positions and a node scale (gltfpack -vpi), or floats (gltfpack -vpf)")
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, struct.error, AttributeError, TypeError):
         return None
     return tree if isinstance(tree, dict) else None
+
+
+#: glTF 2.0 §3.7.2.1: a primitive's mode 6, triangles sharing its first vertex, which trimesh's reader skips.
+_GL_TRIANGLE_FAN = 6
+#: glTF 2.0 §3.7.2.1: the primitive modes of lines (LINES, LINE_LOOP, LINE_STRIP), which no mesh holds
+_GL_LINE_MODES = (1, 2, 3)
 
 
 def _stored_z_up(tree: dict[str, Any] | None) -> bool | None:
@@ -3058,6 +3210,50 @@ def _gltf_color_0(file: Path, tree: Any = None) -> NDArray[np.float64] | None:
 _OBJ_FACE_WITH_SLASH = re.compile(rb"^[ \t]*f[ \t][^\n]*/", re.MULTILINE)
 _OBJ_USEMTL = re.compile(rb"^[ \t]*usemtl[ \t]", re.MULTILINE)
 _OBJ_FACE = re.compile(rb"^[ \t]*f[ \t]", re.MULTILINE)
+#: an index 0 (of a vertex, UV or normal) on an OBJ line, which names none in a face: OBJ counts from 1, or back from -1
+_OBJ_ZERO = re.compile(rb"[ \t/]0+(?![0-9.eE])")
+#: an OBJ vertex of fewer than three coordinates
+_OBJ_SHORT_VERTEX = re.compile(rb"^[ \t]*v[ \t]+(?:[^ \t\r\n]+[ \t]+)?[^ \t\r\n]*[ \t]*\r?$", re.MULTILINE)
+
+
+def _check_obj_indices(file: Path) -> None:
+    """Raise a ValueError where a face of the OBJ ``file`` names index 0, which names nothing (OBJ counts from 1, and
+    back from -1): trimesh's reader took it as the first vertex and shifted none of the others, so ``f 0 1 2`` read as
+    the degenerate face (0, 0, 1) without a word. Scanned without reading the file into memory."""
+    import mmap
+
+    with open(file, "rb") as stream:
+        if os.fstat(stream.fileno()).st_size == 0:
+            return
+        with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as data:
+            # from the first face: the vertices mostly come first, and their zeros are not looked at
+            at = 0 if data[:1] == b"f" else data.find(b"\nf")
+            while at >= 0:
+                found = _OBJ_ZERO.search(data, at)  # type: ignore[call-overload]
+                if found is None:
+                    return
+                start = data.rfind(b"\n", 0, found.start()) + 1
+                end = data.find(b"\n", found.end())
+                del found
+                text = data[start:end if end >= 0 else len(data)]
+                if text.lstrip()[:2] in (b"f ", b"f\t"):
+                    line = data[:start].count(b"\n") + 1  # a copy, on the way to the error only
+                    break
+                at = end
+            else:
+                return
+    raise ValueError(f"line {line}, {text.decode('utf-8', 'replace').strip()!r}, names index 0, which names nothing: "
+                     "an OBJ's indices count from 1 (or back from -1)")
+
+
+def _short_obj_vertex(file: Path) -> str:
+    """The first ``v`` line of the OBJ ``file`` with fewer than three coordinates, as ``" (line N, 'v 0 1')"``, or
+    ``""``."""
+    with open(file, "rb") as stream:
+        for number, row in enumerate(stream, 1):
+            if _OBJ_SHORT_VERTEX.match(row.rstrip(b"\n")):
+                return f" (line {number}, {row.decode('utf-8', 'replace').strip()!r})"
+    return ""
 
 
 def _obj_faces_name_vertices_only(file: Path) -> bool:

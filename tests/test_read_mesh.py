@@ -1,0 +1,212 @@
+"""read_mesh on foreign files (not written by stepterrain): glTF primitives and accessors trimesh's reader misreads,
+OBJ vertices and faces it reads wrong, each refused by name where it was a silently wrong mesh."""
+
+from __future__ import annotations
+
+import json
+import struct
+
+import numpy as np
+import pytest
+
+from stepterrain.errors import DataFileError
+from stepterrain.export import read_mesh
+
+#: a y-up ramp (heights along +y), two triangles
+_RAMP = np.array([[0, 0, 0], [1, 0, 0], [1, 0.5, -1], [0, 0.5, -1]], np.float32)
+_TRIANGLES = np.array([0, 1, 2, 0, 2, 3], np.uint16)
+
+
+def _write_glb(path, tree: dict, binary: bytes) -> None:
+    binary += b"\0" * (-len(binary) % 4)
+    tree["buffers"] = [{"byteLength": len(binary)}]
+    text = json.dumps(tree).encode()
+    text += b" " * (-len(text) % 4)
+    total = 12 + 8 + len(text) + 8 + len(binary)
+    path.write_bytes(struct.pack("<4sII", b"glTF", 2, total) + struct.pack("<I4s", len(text), b"JSON") + text
+                     + struct.pack("<I4s", len(binary), b"BIN\0") + binary)
+
+
+def _tree(primitives: list[dict], accessors: list[dict], views: list[dict]) -> dict:
+    return {"asset": {"version": "2.0", "generator": "another tool"}, "scene": 0, "scenes": [{"nodes": [0]}],
+            "nodes": [{"mesh": 0}], "meshes": [{"primitives": primitives}], "accessors": accessors,
+            "bufferViews": views}
+
+
+def _ramp_glb(path, *, indices: np.ndarray, mode: int | None = None, triangles_too: bool = False) -> None:
+    """The ramp's positions with ``indices`` in primitive ``mode`` and, ``triangles_too``, a second primitive of
+    plain triangles beside it."""
+    binary = _RAMP.tobytes() + indices.tobytes()
+    views = [{"buffer": 0, "byteOffset": 0, "byteLength": _RAMP.nbytes},
+             {"buffer": 0, "byteOffset": _RAMP.nbytes, "byteLength": indices.nbytes}]
+    accessors = [{"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3",
+                  "min": _RAMP.min(axis=0).tolist(), "max": _RAMP.max(axis=0).tolist()},
+                 {"bufferView": 1, "componentType": 5123, "count": len(indices), "type": "SCALAR"}]
+    primitive = {"attributes": {"POSITION": 0}, "indices": 1} | ({} if mode is None else {"mode": mode})
+    primitives = [primitive]
+    if triangles_too:
+        binary += b"\0" * (-len(binary) % 4)
+        views.append({"buffer": 0, "byteOffset": len(binary), "byteLength": _TRIANGLES.nbytes})
+        accessors.append({"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"})
+        binary += _TRIANGLES.tobytes()
+        primitives.append({"attributes": {"POSITION": 0}, "indices": 2})
+    _write_glb(path, _tree(primitives, accessors, views), binary)
+
+
+def test_triangles_read_y_up_turned_z_up(tmp_path):
+    """The reference the refusals below stand against: a foreign y-up glTF of triangles comes back z-up."""
+    _ramp_glb(tmp_path / "ramp.glb", indices=_TRIANGLES)
+    mesh = read_mesh(tmp_path / "ramp.glb")
+    np.testing.assert_allclose(mesh.vertices, _RAMP[:, [0, 2, 1]] * [1, -1, 1])
+    assert len(mesh.faces) == 2
+
+
+@pytest.mark.parametrize("triangles_too", [False, True])
+def test_triangle_fan_refused(tmp_path, triangles_too):
+    """A TRIANGLE_FAN primitive (mode 6) was skipped by trimesh's reader: alone, the file was refused as "KeyError:
+    'world'"; beside a primitive of triangles, its surface was silently left out of the mesh."""
+    path = tmp_path / "fan.glb"
+    _ramp_glb(path, indices=np.array([0, 1, 2, 3], np.uint16), mode=6, triangles_too=triangles_too)
+    with pytest.raises(DataFileError, match=r"fan\.glb.*TRIANGLE_FAN"):
+        read_mesh(path)
+
+
+def test_normalized_positions_refused(tmp_path):
+    """Positions stored as normalized integers (KHR_mesh_quantization, ``"normalized": true``: 65535 is 1.0) were
+    read as the integers, a mesh 65535 times too large, without a word."""
+    quantized = (np.array([[0, 0, 0], [1, 0, 0], [1, 0.5, 1], [0, 0.5, 1]]) * 65535).astype(np.uint16)
+    binary = b"".join(row.tobytes() + b"\0\0" for row in quantized)  # VEC3 of uint16, padded to a 4-byte stride
+    views = [{"buffer": 0, "byteOffset": 0, "byteLength": len(binary), "byteStride": 8},
+             {"buffer": 0, "byteOffset": len(binary), "byteLength": _TRIANGLES.nbytes}]
+    accessors = [{"bufferView": 0, "componentType": 5123, "normalized": True, "count": 4, "type": "VEC3",
+                  "min": [0, 0, 0], "max": [65535, 32767, 65535]},
+                 {"bufferView": 1, "componentType": 5123, "count": 6, "type": "SCALAR"}]
+    tree = _tree([{"attributes": {"POSITION": 0}, "indices": 1}], accessors, views)
+    tree["extensionsUsed"] = tree["extensionsRequired"] = ["KHR_mesh_quantization"]
+    _write_glb(tmp_path / "quantized.glb", tree, binary + _TRIANGLES.tobytes())
+    with pytest.raises(DataFileError, match=r"quantized\.glb.*accessor 0.*normalized"):
+        read_mesh(tmp_path / "quantized.glb")
+
+
+def test_obj_vertex_of_two_coordinates_refused(tmp_path):
+    """An OBJ ``v`` line of two numbers made trimesh's reader clip every vertex to two coordinates: a mesh of (N, 2)
+    vertices, which info described with 2-D bounds and every later step crashed on."""
+    path = tmp_path / "short.obj"
+    path.write_text("v 0 0 0\nv 1 0 0\nv 0 1\nf 1 2 3\n")
+    with pytest.raises(DataFileError, match=r"short\.obj.*fewer than 3 coordinates.*'v 0 1'"):
+        read_mesh(path)
+
+
+@pytest.mark.parametrize("face", ["f 0 1 2", "f 1 2 0", "f 1/0 2/1 3/1", "f 3 2 1 0"])
+def test_obj_face_index_zero_refused(tmp_path, face):
+    """OBJ indices start at 1 (0 names no vertex): trimesh's reader took a 0 as the first vertex and shifted the
+    others, so ``f 0 1 2`` became the degenerate face (0, 0, 1) without a word."""
+    path = tmp_path / "zero.obj"
+    path.write_text(f"v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\n{face}\n")
+    with pytest.raises(DataFileError, match=r"zero\.obj.*index 0"):
+        read_mesh(path)
+
+
+@pytest.mark.parametrize("face", ["f 1 2 3", "f -3 -2 -1", "f 1/1 2/1 3/1", "f 1//1 2//1 3//1"])
+def test_obj_faces_without_zero_read(tmp_path, face):
+    """The refusal above leaves good faces alone (negative indices count back from the last vertex)."""
+    path = tmp_path / "good.obj"
+    path.write_text(f"v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvn 0 0 1\n{face}\n")
+    mesh = read_mesh(path)
+    assert len(mesh.faces) == 1
+    np.testing.assert_allclose(np.sort(mesh.vertices[mesh.faces[0]], axis=0),
+                               np.sort(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float), axis=0))
+
+
+def test_obj_objects_after_faces_read(tmp_path):
+    """Vertices with zero coordinates after the first face (a second object) are no face naming index 0."""
+    path = tmp_path / "two.obj"
+    path.write_text("o a\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\no b\nv 0 0 1\nv 1 0 1\nv 0 1 1\n"
+                    "f -3 -2 -1\n")
+    mesh = read_mesh(path)
+    assert len(mesh.faces) == 3  # the quad as two triangles
+    assert np.isclose(mesh.area, 1.5)
+
+
+_PLY_HEAD = ("ply\nformat {form} 1.0\nelement vertex 6\nproperty float x\nproperty float y\nproperty float z\n"
+             "element face {faces}\nproperty list uchar int vertex_indices\nproperty int label\nend_header\n")
+_PLY_VERTICES = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0.5, 2, 0], [2, 0.5, 0]], np.float32)
+
+
+@pytest.mark.parametrize(("polygons", "form"), [
+    ([[0, 1, 2, 3], [3, 2, 4], [1, 5, 2]], "ascii"),  # a quad among triangles
+    ([[0, 1, 2, 3], [3, 2, 4, 3]], "ascii"),  # quads only
+    ([[0, 1, 2, 3], [3, 2, 4, 3]], "binary_big_endian"),
+    ([[3, 2, 4], [0, 1, 5, 2, 3], [0, 1, 2, 3]], "ascii"),  # a pentagon, a quad
+    ([[0, 1, 2], [3, 2, 4]], "ascii"),  # triangles: trimesh read the label as (N, 1), which was dropped too
+])
+def test_ply_polygon_face_attributes_follow_triangles(tmp_path, polygons, form):
+    """A PLY of quads or polygons with a face property (a classification, a label): trimesh's reader cuts the
+    polygons into triangles (triangles first, then the quads' first halves, their second halves, the polygons'
+    fans), and the property, one per polygon, was dropped without a word. Each triangle now carries its polygon's
+    value: checked against which polygon's corners the triangle's are."""
+    labels = [10 * (i + 1) for i in range(len(polygons))]
+    rows = list(zip(polygons, labels, strict=True))
+    path = tmp_path / "polygons.ply"
+    head = _PLY_HEAD.format(form=form, faces=len(polygons)).encode()
+    if form == "ascii":
+        body = "".join(" ".join(map(str, v)) + "\n" for v in _PLY_VERTICES.tolist())
+        body += "".join(f"{len(p)} {' '.join(map(str, p))} {label}\n" for p, label in rows)
+        path.write_bytes(head + body.encode())
+    else:
+        body = _PLY_VERTICES.astype(">f4").tobytes()
+        body += b"".join(struct.pack(f">B{len(p)}ii", len(p), *p, label) for p, label in rows)
+        path.write_bytes(head + body)
+    mesh = read_mesh(path)
+    label = mesh.face_attributes["label"]
+    assert len(label) == len(mesh.faces) == sum(len(p) - 2 for p in polygons)
+    for face, value in zip(mesh.faces.tolist(), label.tolist(), strict=True):
+        owner = polygons[labels.index(value)]
+        assert set(face) <= set(owner)
+
+
+@pytest.mark.parametrize("order", ["<", ">"])
+def test_binary_ply_of_mixed_polygons_refused_by_name(tmp_path, order):
+    """A binary PLY of triangles and quads is valid, but trimesh's binary reader takes every list as long as the
+    first and refused it as "PLY is unexpected length!", which reads as a file cut short: it is said what it is."""
+    form = {"<": "binary_little_endian", ">": "binary_big_endian"}[order]
+    head = (f"ply\nformat {form} 1.0\nelement vertex 5\nproperty float x\nproperty float y\nproperty float z\n"
+            "element face 2\nproperty list uchar int vertex_indices\nend_header\n").encode()
+    body = _PLY_VERTICES[:5].astype(order + "f4").tobytes()
+    body += struct.pack(f"{order}B4i", 4, 0, 1, 2, 3) + struct.pack(f"{order}B3i", 3, 3, 2, 4)
+    (tmp_path / "mixed.ply").write_bytes(head + body)
+    with pytest.raises(DataFileError, match=r"mixed\.ply.*face 0's vertex_indices has 4, face 1's 3"):
+        read_mesh(tmp_path / "mixed.ply")
+    quads = body[:-13] + struct.pack(f"{order}B4i", 4, 3, 2, 4, 3)
+    (tmp_path / "short.ply").write_bytes(head + quads[:-4])  # quads cut short: not said to be mixed
+    with pytest.raises(DataFileError, match=r"short\.ply") as caught:
+        read_mesh(tmp_path / "short.ply")
+    assert "differ in length" not in str(caught.value)
+
+
+@pytest.mark.parametrize("mode", [1, 3])
+def test_gltf_of_lines_only_refused(tmp_path, mode):
+    """A glTF of lines only (LINES, LINE_STRIP) read as an empty mesh, 0 vertices, 0 faces in ``stepterrain info``
+    without a word, where the file holds positions: refused as no mesh. Lines beside triangles are left out of the
+    mesh, as before."""
+    _ramp_glb(tmp_path / "lines.glb", indices=np.array([0, 1, 1, 2], np.uint16), mode=mode)
+    with pytest.raises(DataFileError, match=r"lines\.glb.*lines only"):
+        read_mesh(tmp_path / "lines.glb")
+    _ramp_glb(tmp_path / "both.glb", indices=np.array([0, 1, 1, 2], np.uint16), mode=mode, triangles_too=True)
+    assert len(read_mesh(tmp_path / "both.glb").faces) == 2
+
+
+def test_gltf_buffer_view_past_its_buffer_refused_by_name(tmp_path):
+    """A bufferView reaching past its buffer's bytes was refused as "AssertionError: " (trimesh's bare assert)."""
+    path = tmp_path / "over.glb"
+    _ramp_glb(path, indices=_TRIANGLES)
+    data = bytearray(path.read_bytes())
+    length = struct.unpack_from("<I", data, 12)[0]
+    tree = json.loads(bytes(data[20:20 + length]))
+    tree["bufferViews"][1]["byteLength"] = 400
+    tree["accessors"][1]["count"] = 200
+    binary = bytes(data[20 + length + 8:])
+    tree.pop("buffers")
+    _write_glb(path, tree, binary)
+    with pytest.raises(DataFileError, match=r"over\.glb.*bufferView 1 ends at byte 448 of buffer 0, which holds 60"):
+        read_mesh(path)
