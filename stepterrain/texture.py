@@ -872,6 +872,11 @@ def _image_argument(value: Any, name: str, expected: str) -> Any:
 #: nodata mask and its negation.
 _RGBA_BYTES = 16 + 4 + 1 + 1
 
+#: Texels of a band of rows :meth:`TextureLayer.to_uint8` composes at once, and the bytes a texel of it takes at its
+#: peak: the RGB times alpha, one minus alpha and the background times it (12 + 4 + 12; 16 for RGBA times 255).
+_UINT8_BAND_TEXELS = 1 << 14
+_UINT8_BAND_BYTES = 12 + 4 + 12
+
 
 @dataclass(frozen=True, eq=False)
 class TextureLayer:
@@ -1029,12 +1034,31 @@ class TextureLayer:
                 bg = np.full(0, np.nan)
             if bg.shape != (3,) or not (np.isfinite(bg).all() and (bg >= 0).all() and (bg <= 1).all()):
                 raise InvalidInputError(f"background must be (r, g, b) in [0, 1]; got {background!r}")
+        h, w = self.shape
+        channels = 4 if background is None else 3
+        band = max(1, _UINT8_BAND_TEXELS // max(w, 1))  # rows composed at once
+        # what it keeps (the RGBA unless made already, the uint8 image) and a band's temporaries: composed whole, the
+        # temporaries of the formula (12 to 16 bytes a texel each) took 54 bytes a texel of a layer checked as 22
+        rgba_bytes = 0 if "rgba" in self._rgba_cache else _RGBA_BYTES * h * w
+        check_budget(rgba_bytes + channels * h * w + _UINT8_BAND_BYTES * min(band, h) * w,
+                     f"the {w} x {h} uint8 {'RGBA' if background is None else 'RGB'} image of a {self.kind} layer",
+                     hint="crop or downsample the image (texture_lod.ImagePyramid serves a large one by level)")
         rgba = self.rgba()
-        if background is None:
-            return np.round(rgba * 255.0).astype(np.uint8)
-        bg = bg.astype(np.float32).reshape(1, 1, 3)
-        rgb = rgba[..., :3] * rgba[..., 3:] + bg * (1.0 - rgba[..., 3:])
-        return np.round(np.clip(rgb, 0.0, 1.0) * 255.0).astype(np.uint8)
+        out = np.empty((h, w, channels), dtype=np.uint8)
+        if background is not None:
+            bg = bg.astype(np.float32).reshape(1, 1, 3)
+        for r0 in range(0, h, band):  # the one-pass formula's operations in its order, on a band of rows at a time
+            part = rgba[r0 : r0 + band]
+            if background is None:
+                value = part * 255.0
+            else:
+                value = part[..., :3] * part[..., 3:]
+                value += bg * (1.0 - part[..., 3:])
+                np.clip(value, 0.0, 1.0, out=value)
+                value *= 255.0
+            np.round(value, out=value)
+            out[r0 : r0 + band] = value  # the cast to uint8, as astype
+        return out
 
     @property
     def frame(self) -> tuple[Extent, tuple[int, int]]:

@@ -1369,3 +1369,42 @@ def test_blend_weights_as_a_mask():
     assert np.array_equal(full, out)
     hidden = np.ma.masked_array(np.ones((48, 48), np.uint8), mask=True)
     assert np.array_equal(blend(a, b, hidden, device="cpu").rgba(), a.rgba())
+
+
+@pytest.mark.parametrize("cached", [False, True])
+@pytest.mark.parametrize("background", [None, (1.0, 0.5, 0.0)])
+def test_to_uint8_stays_within_its_budget_check(monkeypatch, cached, background):
+    """``to_uint8`` composited the whole layer at once: RGB times alpha, one minus alpha, the background times it, their
+    sum, its clip, times 255 and its rounding (12 to 16 bytes a texel each) on top of the RGBA that ``rgba`` checked as
+    22 bytes a texel, so a layer that passed the check took 54 (drape's texture, a draped GLB's). It composes by bands
+    of rows now and checks what it keeps (the RGBA unless cached, the uint8 image, a band's temporaries); its peak
+    (numpy's allocations, traced) stays within what it counted, and the bytes are those of the one-pass formula."""
+    import tracemalloc
+
+    import stepterrain.texture as texture
+
+    rng = np.random.default_rng(5)
+    image = rng.random((600, 500, 4), np.float32)
+    image[..., 3] = np.where(rng.random((600, 500)) < 0.3, 1.0, image[..., 3])
+    layer = TextureLayer("thematic", image, (0, 500, 0, 600))
+    rgba = layer.rgba() if cached else np.array(layer.rgba())
+    if not cached:
+        layer = TextureLayer("thematic", image, (0, 500, 0, 600))
+    counted = []
+    check = texture.check_budget
+    monkeypatch.setattr(texture, "check_budget", lambda nbytes, *a, **k: (counted.append(nbytes), check(nbytes, *a,
+                                                                                                         **k))[1])
+    tracemalloc.start()
+    try:
+        out = layer.to_uint8(background=background)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert counted and peak <= max(counted), f"to_uint8 allocated {peak:,} bytes at its peak; it counted {counted}"
+    if background is None:
+        expected = np.round(rgba * 255.0).astype(np.uint8)
+    else:
+        bg = np.asarray(background, np.float32).reshape(1, 1, 3)
+        rgb = rgba[..., :3] * rgba[..., 3:] + bg * (1.0 - rgba[..., 3:])
+        expected = np.round(np.clip(rgb, 0.0, 1.0) * 255.0).astype(np.uint8)
+    np.testing.assert_array_equal(out, expected)
