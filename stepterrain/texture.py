@@ -1525,6 +1525,25 @@ def _sampled(layer: TextureLayer, extent: Extent, shape: tuple[int, int], device
     return out
 
 
+def _rgba_bytes(layer: TextureLayer) -> int:
+    """Bytes :meth:`TextureLayer.rgba` of ``layer`` allocates: none when cached, else its check's."""
+    return 0 if "rgba" in layer._rgba_cache else _RGBA_BYTES * layer.shape[0] * layer.shape[1]
+
+
+def _grid_bytes(layer: TextureLayer, extent: Extent, shape: tuple[int, int]) -> int:
+    """Bytes :func:`_sampled` of ``layer`` onto the pixel grid (extent, shape) allocates: its RGBA, and the grid's
+    float32 RGBA unless the layer is that grid."""
+    return _rgba_bytes(layer) + (0 if _is_grid(layer, extent, shape) else 16 * shape[0] * shape[1])
+
+
+def _check_operation(what: str, shape: tuple[int, int], nbytes: int) -> None:
+    """A layer operation's ``nbytes`` (its layers' RGBA and resampled copies, its outputs) against the memory budget,
+    before it allocates: each layer's RGBA alone was checked, so blend of three fresh layers, each within the budget,
+    took three times it (the grid's RGBA of each, and the result's)."""
+    check_budget(nbytes, f"{what} on a {shape[1]} x {shape[0]} texel grid",
+                 hint="crop or downsample the layers (texture_lod.ImagePyramid serves a large one by level)")
+
+
 def _composed_input(layer: TextureLayer | None, extent: Extent, shape: tuple[int, int], device: wp.Device,
                     name: str, raw: bool = False) -> tuple[wp.array, wp.mat33, int]:
     """A layer of :func:`_composed` as ``compose_texture`` takes it: its RGBA (or, ``raw``, its own uint8 pixels,
@@ -1673,6 +1692,8 @@ def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | 
                       if array.shape == a.shape else array, a, "weights")
     dev = resolve_device(device)
     extent, shape = _result_frame(a)
+    _check_operation("blend", shape, sum(_grid_bytes(layer, extent, shape) for layer in (a, b, w))
+                     + 16 * shape[0] * shape[1])
     out = wp.empty(shape, dtype=wp.vec4, device=dev)
     launch(texture_kernels.blend_layers, dim=shape[0] * shape[1],
            inputs=[_sampled(a, extent, shape, dev, "a"), _sampled(b, extent, shape, dev, "b"),
@@ -1715,6 +1736,13 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
     others = [_as_layer(layer, first, f"layers[{k + 1}]") for k, layer in enumerate(layers[1:])]
     dev = resolve_device(device)
     extent, shape = _result_frame(first)
+    texels = shape[0] * shape[1]
+    wide = math.fsum(abs(w) for w in checked) > FLOAT32_MAX / 2
+    # the first layer on the grid, one other at a time, and the sums: a pair of float32 results (the zero layer and
+    # the output of a lone layer), or the float64 sum and its compensation and the output
+    _check_operation("weighted_add", shape, _grid_bytes(first, extent, shape)
+                     + max((_grid_bytes(layer, extent, shape) for layer in others), default=0)
+                     + (80 if wide else 32) * texels)
     total = _sampled(first, extent, shape, dev, "layers[0]")
     zero = wp.zeros(shape, dtype=wp.vec4, device=dev) if not others else None
     if zero is not None:
@@ -1722,7 +1750,7 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
         launch(texture_kernels.add_layers, dim=shape[0] * shape[1], inputs=[total, zero, checked[0], 0.0, 1],
                outputs=[out], device=dev)
         return _finish(out, extent, "add")
-    if math.fsum(abs(w) for w in checked) > FLOAT32_MAX / 2:
+    if wide:
         # float32 partial sums could overflow: 3e38 + 3e38 − 3e38 − 3e38 became inf − 3e38 = inf, clamped to 1 (in
         # another order 0); in float64 every product is exact, no partial sum overflows, and the compensation keeps
         # a small term added before huge ones that cancel. The weights are the kernel's float32 ones, as in the
@@ -1767,9 +1795,13 @@ def modulate(a: TextureLayer, *others: TextureLayer | ArrayLike, device: wp.Devi
         raise InvalidInputError("modulate needs at least two layers")
     dev = resolve_device(device)
     extent, shape = _result_frame(a)
+    layers = [_as_layer(other, a, f"layer {k + 2}") for k, other in enumerate(others)]
+    # ``a`` on the grid, one other layer at a time, and the result with the one before it
+    _check_operation("modulate", shape, _grid_bytes(a, extent, shape)
+                     + max(_grid_bytes(layer, extent, shape) for layer in layers)
+                     + 16 * min(len(layers), 2) * shape[0] * shape[1])
     current = _sampled(a, extent, shape, dev, "a")
-    for k, other in enumerate(others):
-        layer = _as_layer(other, a, f"layer {k + 2}")
+    for k, layer in enumerate(layers):
         out = wp.empty(shape, dtype=wp.vec4, device=dev)
         launch(texture_kernels.modulate_layers, dim=shape[0] * shape[1],
                inputs=[current, _sampled(layer, extent, shape, dev, f"layer {k + 2}")], outputs=[out], device=dev)
@@ -1837,6 +1869,8 @@ def adjust(
     # on the layer's own texels, kept with its texture matrix and border: a moved lens resampled onto its unmoved
     # extent lost its hot spot, and an 'edge' border turned transparent (black when modulated), with the defaults too
     frame, own = _frame(extent, shape), _own_texels(layer, extent)
+    _check_operation("adjust", shape, (_rgba_bytes(layer) if own is not None else _grid_bytes(layer, extent, shape))
+                     + 16 * shape[0] * shape[1])
     if own is not None:
         frame.origin, frame.pixel = own
         image = _sampled(replace(layer, matrix=None), extent, shape, dev, "layer")

@@ -11,6 +11,7 @@ from hypothesis import given
 from hypothesis import strategies as hst
 from hypothesis.extra.numpy import arrays
 
+import stepterrain.texture as texture_ops
 from stepterrain.errors import InvalidInputError, StepTerrainError
 from stepterrain.texture import (
     Pipeline,
@@ -1408,3 +1409,52 @@ def test_to_uint8_stays_within_its_budget_check(monkeypatch, cached, background)
         rgb = rgba[..., :3] * rgba[..., 3:] + bg * (1.0 - rgba[..., 3:])
         expected = np.round(np.clip(rgb, 0.0, 1.0) * 255.0).astype(np.uint8)
     np.testing.assert_array_equal(out, expected)
+
+
+def _operation_layers(n=300):
+    """Three fresh (writeable, so uncached) 300 x 300 layers over one extent: RGB, RGBA and a visibility layer."""
+    rng = np.random.default_rng(11)
+    extent = (0.0, float(n), 0.0, float(n))
+    return (TextureLayer("thematic", rng.random((n, n, 3), np.float32), extent),
+            TextureLayer("thematic", rng.random((n, n, 4), np.float32), extent),
+            TextureLayer("visibility", rng.random((n, n), np.float32), extent))
+
+
+_OPERATIONS = {
+    "blend": lambda a, b, w: texture_ops.blend(a, b, w, device="cpu"),
+    "modulate": lambda a, b, w: texture_ops.modulate(a, b, w, device="cpu"),
+    "weighted_add": lambda a, b, w: texture_ops.weighted_add([a, b, w], [0.3, 0.3, 0.4], device="cpu"),
+    "weighted_add wide": lambda a, b, w: texture_ops.weighted_add([a, b, w], [3e38, -3e38, 0.4], device="cpu"),
+    "adjust": lambda a, b, w: texture_ops.adjust(a, brightness=1.5, device="cpu"),
+    "pipeline": lambda a, b, w: texture_ops.Pipeline().blend(b, w).modulate(w).apply(a, device="cpu"),
+}
+
+
+@pytest.mark.parametrize("name", list(_OPERATIONS))
+def test_layer_operations_check_what_they_allocate(name):
+    """blend, modulate, weighted_add and adjust (and a Pipeline of them) allocate 16 bytes a texel for their output,
+    for each layer resampled onto its grid and for a chain's previous result, besides their layers' RGBA, but only
+    each layer's RGBA was checked, one at a time (22 bytes a texel): blend of three fresh layers took 64 bytes a texel
+    of a budget of 30. Now each operation checks the whole before allocating: over the budget it refuses, naming the
+    operation, and at the size it counted it runs."""
+    import stepterrain as st
+
+    operation = _OPERATIONS[name]
+    texels = 300 * 300
+    previous = st.set_memory_budget(30 * texels)  # above every layer's RGBA check, below what the call allocates
+    try:
+        with pytest.raises(st.OutputTooLargeError, match=r"would need .* over the memory budget of 2\.6 MiB"):
+            operation(*_operation_layers())
+        counted = []
+        check = texture_ops.check_budget
+        try:
+            texture_ops.check_budget = lambda nbytes, *a, **k: (counted.append(nbytes), check(nbytes, *a, **k))[1]
+            st.set_memory_budget(1 << 40)
+            reference = operation(*_operation_layers()).rgba()
+        finally:
+            texture_ops.check_budget = check
+        st.set_memory_budget(max(counted))  # exactly what it counted: runs
+        out = operation(*_operation_layers()).rgba()
+    finally:
+        st.set_memory_budget(previous)
+    np.testing.assert_array_equal(out, reference)
