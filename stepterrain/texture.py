@@ -2203,7 +2203,19 @@ def drape(mesh: trimesh.Trimesh, layer: TextureLayer, *, background: Sequence[fl
     bg = real_vector(background, "background", "(r, g, b) in [0, 1]", 3)
     if bg.min() < 0 or bg.max() > 1:
         raise InvalidInputError(f"background must be (r, g, b) in [0, 1]; got {background!r}")
+    rows, cols = layer.shape
+    # the texture coordinates with the texture (its RGBA unless made already, the uint8 image) before either is made:
+    # only the image was checked, and a large mesh's UVs took 72 bytes a vertex under a small texture
+    check_budget(_UV_BYTES * len(mesh.vertices) + 3 * rows * cols + _rgba_bytes(layer),
+                 f"the texture coordinates of {counted(len(mesh.vertices), 'vertex', 'vertices', grouped=True)} "
+                 f"and the {cols} x {rows} texture of the draped mesh",
+                 hint="drape a mesh of fewer vertices (a larger interval, a coarsened or cropped DEM, tiles)")
     return _draped(mesh, layer, layer.to_uint8(background=bg), bg, name)
+
+
+#: Bytes a vertex :func:`texture_uv` takes at its peak: a float64 copy of the vertices (24), their texels (16) and
+#: texel columns and UVs (16 each) made from them.
+_UV_BYTES = 72
 
 
 def _draped(mesh: trimesh.Trimesh, layer: TextureLayer, image: NDArray[np.uint8], bg: NDArray[np.float64],

@@ -1458,3 +1458,37 @@ def test_layer_operations_check_what_they_allocate(name):
     finally:
         st.set_memory_budget(previous)
     np.testing.assert_array_equal(out, reference)
+
+
+def test_drape_checks_its_texture_coordinates(monkeypatch):
+    """drape checked the layer's image (its RGBA, the uint8 texture) but not the texture coordinates, whose making took
+    72 bytes a vertex (a float64 copy of the vertices, the texels, their columns and the UVs): a 770 000-vertex stepped
+    mesh under a 2.7 MiB texture took 55 MiB. drape now checks them with the texture before making either; its peak
+    (numpy's allocations, traced) stays within the largest check, and at a budget below it the drape is refused."""
+    import tracemalloc
+
+    import stepterrain as st
+    from stepterrain.texture import drape, topographic_layer
+
+    terrain = st.sample_dem().coarsen(2)
+    mesh = st.stepped(terrain, levels=12)
+    layer = topographic_layer(terrain, device="cpu")
+    layer.rgba()  # cached: what is counted below is drape's own
+    counted = []
+    check = texture_ops.check_budget
+    monkeypatch.setattr(texture_ops, "check_budget",
+                        lambda nbytes, *a, **k: (counted.append(nbytes), check(nbytes, *a, **k))[1])
+    tracemalloc.start()
+    try:
+        out = drape(mesh, layer)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert counted and peak <= max(counted), f"drape allocated {peak:,} bytes at its peak; it counted {counted}"
+    np.testing.assert_array_equal(out.visual.uv, texture_ops.texture_uv(mesh.vertices, layer))
+    previous = st.set_memory_budget(peak // 2)
+    try:
+        with pytest.raises(st.OutputTooLargeError, match=r"texture coordinates .* would need"):
+            drape(mesh, layer)
+    finally:
+        st.set_memory_budget(previous)
