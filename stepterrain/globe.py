@@ -1780,7 +1780,7 @@ def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trim
         The image file cannot be read.
     OutputTooLargeError
         The image file's pixels exceed the memory budget (:func:`stepterrain.set_memory_budget`), checked from its
-        header before it is decoded.
+        header before it is decoded; or the textured mesh's making would (about 140 bytes a face), checked before it.
 
     Examples
     --------

@@ -2186,6 +2186,9 @@ def drape(mesh: trimesh.Trimesh, layer: TextureLayer, *, background: Sequence[fl
     :func:`~stepterrain.pyvista_accessor.from_polydata`). Export it with :func:`stepterrain.export.save_mesh` (GLB
     embeds the image) and render it with :func:`stepterrain.render.render_textured_mesh`.
 
+    Its texture coordinates (72 bytes a vertex while made) and texture are checked against the memory budget
+    (:func:`stepterrain.set_memory_budget`) before either is made: an :class:`~stepterrain.errors.OutputTooLargeError`.
+
     Examples
     --------
     >>> import numpy as np, stepterrain as st
