@@ -1780,7 +1780,7 @@ def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trim
         The image file cannot be read.
     OutputTooLargeError
         The image file's pixels exceed the memory budget (:func:`stepterrain.set_memory_budget`), checked from its
-        header before it is decoded; or the textured mesh's making would (about 140 bytes a face), checked before it.
+        header before it is decoded; or the textured mesh's making would (about 150 bytes a face), checked before it.
 
     Examples
     --------
@@ -1797,8 +1797,9 @@ def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trim
 
 #: Bytes :func:`_drape_texture` takes at its peak per vertex and per face of the mesh (the per-corner u and pole
 #: flags, the seam's and poles' copies, the UVs and the copied vertices): 137 a face on cube-sphere meshes (two faces
-#: a vertex), measured with tracemalloc at 49 152 to 786 432 faces: 56 a vertex and 112 a face make 140 a face.
-_DRAPE_VERTEX_BYTES, _DRAPE_FACE_BYTES = 56, 112
+#: a vertex), measured with tracemalloc at 49 152 to 786 432 faces, 145 once it takes a placement= (main): 56 a vertex
+#: and 120 a face make 148 a face.
+_DRAPE_VERTEX_BYTES, _DRAPE_FACE_BYTES = 56, 120
 
 
 def _drape_texture(mesh: trimesh.Trimesh, pixels: NDArray[np.uint8], picture: Any = None) -> trimesh.Trimesh:
