@@ -1399,8 +1399,9 @@ def test_cli_texture_obj_side_image_through_a_linked_folder_is_refused(tmp_path,
 
 def test_texture_occlusion_over_the_budget_is_refused_before_the_shading(tmp_path, capsys, monkeypatch):
     """With --occlusion the topographic layer takes 33 bytes a DEM node (28.2 to 30.8 measured as peak RSS), more than
-    the texture's RGBA (22) that was the command's only up-front check: a budget between them let the shading start (then
-    topographic_layer refused it, minutes into a large DEM). Now refused once the DEM is loaded, naming the layer."""
+    the texture's RGBA (22) that was the command's only up-front check: a budget between them let the shading start
+    (then topographic_layer refused it, minutes into a large DEM). Now refused once the DEM is loaded, naming the
+    layer."""
     from stepterrain import texture as tx
 
     dem = tmp_path / "dem.npy"
