@@ -209,7 +209,8 @@ _NODE_BYTES = {"hillshade": 7, "maplibre": 20, "cast_shadows": 2, "ambient_occlu
 def _check_nodes(t: Terrain, nbytes: int, what: str) -> None:
     """``what`` of the DEM ``t`` at ``nbytes`` a node against the memory budget, before anything is allocated."""
     rows, cols = t.heights.shape
-    check_budget(nbytes * rows * cols, f"{what} of a {cols} x {rows} DEM")
+    check_budget(nbytes * rows * cols, f"{what} of a {cols} x {rows} DEM",
+                 hint="crop or coarsen the DEM (Terrain.crop, Terrain.coarsen; --crop, --coarsen)")
 
 
 def hillshade(
