@@ -251,6 +251,16 @@ def _check_node_texture(terrain: Any) -> None:
                  "composed)", hint="give --coarsen N or a --crop")
 
 
+def _check_shading(terrain: Any, occlusion: bool) -> None:
+    """The topographic layer's working memory (:data:`~stepterrain.texture._NODE_BYTES`, one texel per DEM node
+    whatever ``--texel-size``), checked as :func:`~stepterrain.texture.topographic_layer` checks it, once the DEM is
+    loaded: with ``--occlusion`` it takes more than the texture's RGBA that :func:`_check_node_texture` counts."""
+    from .texture import _NODE_BYTES, _check_nodes
+
+    _check_nodes(terrain, _NODE_BYTES["topographic_layer"] + (_NODE_BYTES["occlusion"] if occlusion else 0),
+                 "the topographic layer")
+
+
 def _is_tiff(path: Path | None) -> bool:
     return path is not None and path.suffix.lower() in (".tif", ".tiff")
 
@@ -587,6 +597,7 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
                                  contours=args.contours is not None)
     else:
         _check_node_texture(terrain)
+    _check_shading(terrain, args.occlusion > 0)
     if png is not None:  # the render holds the texture too, one texel per node or --texel-size's, and its copies of
         # the mesh draped: the DEM's surface (at least that, stepped by --interval): before any work
         render._check_render_budget(args.size[0], args.size[1], "--size",

@@ -196,6 +196,23 @@ def _result(host: NDArray[Any] | None, array: wp.array) -> NDArray[Any]:
 
 
 # ---------------------------------------------------------------------------------------------- §7 topographic
+#: Bytes a DEM node the topographic functions take at their peak (output and working arrays, numpy's and Warp's),
+#: measured as the process's peak RSS (VmHWM) over a 2000 x 2000 DEM and rounded up: hillshade 4.5 (5.7
+#: multidirectional with shadows), 16.4 with a MapLibre method's RGBA; cast_shadows 1.1; ambient_occlusion 11.2;
+#: normal_map 3.9; topographic_layer 13.7, 28.2 with occlusion (17.4 and 30.8 on a Terrain shaded the first time:
+#: its heights' device copy, kept). Nothing was checked: a DEM loaded within the budget (4 bytes a node) made a
+#: topographic layer of three times it.
+_NODE_BYTES = {"hillshade": 7, "maplibre": 20, "cast_shadows": 2, "ambient_occlusion": 13, "normal_map": 5,
+               "topographic_layer": 18, "occlusion": 15}
+
+
+def _check_nodes(t: Terrain, nbytes: int, what: str) -> None:
+    """``what`` of the DEM ``t`` at ``nbytes`` a node against the memory budget, before anything is allocated."""
+    rows, cols = t.heights.shape
+    check_budget(nbytes * rows * cols, f"{what} of a {cols} x {rows} DEM",
+                 hint="crop or coarsen the DEM (Terrain.crop, Terrain.coarsen; --crop, --coarsen)")
+
+
 def hillshade(
     terrain: Terrain | ArrayLike,
     *,
@@ -303,6 +320,7 @@ def hillshade(
     True
     """
     t = _grid_terrain(terrain, spacing)
+    _check_nodes(t, _NODE_BYTES["maplibre" if _is_name(method, MAPLIBRE_METHODS) else "hillshade"], "the hillshade")
     shadows = check_flag(shadows, "shadows")
     if shadow_strength is not None and not shadows:  # it was ignored: the shade came out the same whatever it was
         raise InvalidInputError(f"shadow_strength applies only with shadows=True (it darkens the shadowed pixels); "
@@ -605,6 +623,7 @@ def cast_shadows(
     [0, 0, 0, 1, 1, 1, 1, 1]
     """
     t = _grid_terrain(terrain, spacing)
+    _check_nodes(t, _NODE_BYTES["cast_shadows"], "the shadow mask")
     azimuth, altitude = _light(azimuth, altitude)
     z_factor = _finite(z_factor, "z_factor", positive=True)
     dev = resolve_device(device)
@@ -650,6 +669,7 @@ def ambient_occlusion(
     True
     """
     t = _grid_terrain(terrain, spacing)
+    _check_nodes(t, _NODE_BYTES["ambient_occlusion"], "the ambient occlusion")
     if (isinstance(directions, bool) or not isinstance(directions, (int, np.integer))
             or not 1 <= directions <= MAX_OCCLUSION_DIRECTIONS):  # one sweep of launches per direction
         raise InvalidInputError(f"directions must be an int in [1, {MAX_OCCLUSION_DIRECTIONS}]; got {directions!r}")
@@ -715,6 +735,7 @@ def normal_map(
     [128, 128, 255]
     """
     t = _grid_terrain(terrain, spacing)
+    _check_nodes(t, _NODE_BYTES["normal_map"], "the normal map")
     z_factor = _finite(z_factor, "z_factor", positive=True)
     dev = resolve_device(device)
     grid = _height_grid(t, z_factor, dev)
@@ -871,6 +892,11 @@ def _image_argument(value: Any, name: str, expected: str) -> Any:
 #: Bytes a pixel of :meth:`TextureLayer.rgba` at its peak: the float32 RGBA, the finite flags of its channels and the
 #: nodata mask and its negation.
 _RGBA_BYTES = 16 + 4 + 1 + 1
+
+#: Texels of a band of rows :meth:`TextureLayer.to_uint8` composes at once, and the bytes a texel of it takes at its
+#: peak: the RGB times alpha, one minus alpha and the background times it (12 + 4 + 12; 16 for RGBA times 255).
+_UINT8_BAND_TEXELS = 1 << 14
+_UINT8_BAND_BYTES = 12 + 4 + 12
 
 
 @dataclass(frozen=True, eq=False)
@@ -1029,12 +1055,31 @@ class TextureLayer:
                 bg = np.full(0, np.nan)
             if bg.shape != (3,) or not (np.isfinite(bg).all() and (bg >= 0).all() and (bg <= 1).all()):
                 raise InvalidInputError(f"background must be (r, g, b) in [0, 1]; got {background!r}")
+        h, w = self.shape
+        channels = 4 if background is None else 3
+        band = max(1, _UINT8_BAND_TEXELS // max(w, 1))  # rows composed at once
+        # what it keeps (the RGBA unless made already, the uint8 image) and a band's temporaries: composed whole, the
+        # temporaries of the formula (12 to 16 bytes a texel each) took 54 bytes a texel of a layer checked as 22
+        rgba_bytes = 0 if "rgba" in self._rgba_cache else _RGBA_BYTES * h * w
+        check_budget(rgba_bytes + channels * h * w + _UINT8_BAND_BYTES * min(band, h) * w,
+                     f"the {w} x {h} uint8 {'RGBA' if background is None else 'RGB'} image of a {self.kind} layer",
+                     hint="crop or downsample the image (texture_lod.ImagePyramid serves a large one by level)")
         rgba = self.rgba()
-        if background is None:
-            return np.round(rgba * 255.0).astype(np.uint8)
-        bg = bg.astype(np.float32).reshape(1, 1, 3)
-        rgb = rgba[..., :3] * rgba[..., 3:] + bg * (1.0 - rgba[..., 3:])
-        return np.round(np.clip(rgb, 0.0, 1.0) * 255.0).astype(np.uint8)
+        out = np.empty((h, w, channels), dtype=np.uint8)
+        if background is not None:
+            bg = bg.astype(np.float32).reshape(1, 1, 3)
+        for r0 in range(0, h, band):  # the one-pass formula's operations in its order, on a band of rows at a time
+            part = rgba[r0 : r0 + band]
+            if background is None:
+                value = part * 255.0
+            else:
+                value = part[..., :3] * part[..., 3:]
+                value += bg * (1.0 - part[..., 3:])
+                np.clip(value, 0.0, 1.0, out=value)
+                value *= 255.0
+            np.round(value, out=value)
+            out[r0 : r0 + band] = value  # the cast to uint8, as astype
+        return out
 
     @property
     def frame(self) -> tuple[Extent, tuple[int, int]]:
@@ -1148,6 +1193,8 @@ def topographic_layer(
                                 f"shadows and occlusion alone); got {method!r}")
     ambient = _finite(ambient, "ambient", lo=0.0, hi=1.0)
     occlusion = _finite(occlusion, "occlusion", lo=0.0, hi=1.0)
+    _check_nodes(t, _NODE_BYTES["topographic_layer"] + (_NODE_BYTES["occlusion"] if occlusion > 0 else 0),
+                 "the topographic layer")
     if _is_name(method, ("none",)):
         shade = _unshaded(t, azimuth, altitude, z_factor, shadows, shadow_strength, device)
     else:
@@ -1501,6 +1548,25 @@ def _sampled(layer: TextureLayer, extent: Extent, shape: tuple[int, int], device
     return out
 
 
+def _rgba_bytes(layer: TextureLayer) -> int:
+    """Bytes :meth:`TextureLayer.rgba` of ``layer`` allocates: none when cached, else its check's."""
+    return 0 if "rgba" in layer._rgba_cache else _RGBA_BYTES * layer.shape[0] * layer.shape[1]
+
+
+def _grid_bytes(layer: TextureLayer, extent: Extent, shape: tuple[int, int]) -> int:
+    """Bytes :func:`_sampled` of ``layer`` onto the pixel grid (extent, shape) allocates: its RGBA, and the grid's
+    float32 RGBA unless the layer is that grid."""
+    return _rgba_bytes(layer) + (0 if _is_grid(layer, extent, shape) else 16 * shape[0] * shape[1])
+
+
+def _check_operation(what: str, shape: tuple[int, int], nbytes: int) -> None:
+    """A layer operation's ``nbytes`` (its layers' RGBA and resampled copies, its outputs) against the memory budget,
+    before it allocates: each layer's RGBA alone was checked, so blend of three fresh layers, each within the budget,
+    took three times it (the grid's RGBA of each, and the result's)."""
+    check_budget(nbytes, f"{what} on a {shape[1]} x {shape[0]} texel grid",
+                 hint="crop or downsample the layers (texture_lod.ImagePyramid serves a large one by level)")
+
+
 def _composed_input(layer: TextureLayer | None, extent: Extent, shape: tuple[int, int], device: wp.Device,
                     name: str, raw: bool = False) -> tuple[wp.array, wp.mat33, int]:
     """A layer of :func:`_composed` as ``compose_texture`` takes it: its RGBA (or, ``raw``, its own uint8 pixels,
@@ -1649,6 +1715,8 @@ def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | 
                       if array.shape == a.shape else array, a, "weights")
     dev = resolve_device(device)
     extent, shape = _result_frame(a)
+    _check_operation("blend", shape, sum(_grid_bytes(layer, extent, shape) for layer in (a, b, w))
+                     + 16 * shape[0] * shape[1])
     out = wp.empty(shape, dtype=wp.vec4, device=dev)
     launch(texture_kernels.blend_layers, dim=shape[0] * shape[1],
            inputs=[_sampled(a, extent, shape, dev, "a"), _sampled(b, extent, shape, dev, "b"),
@@ -1691,6 +1759,13 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
     others = [_as_layer(layer, first, f"layers[{k + 1}]") for k, layer in enumerate(layers[1:])]
     dev = resolve_device(device)
     extent, shape = _result_frame(first)
+    texels = shape[0] * shape[1]
+    wide = math.fsum(abs(w) for w in checked) > FLOAT32_MAX / 2
+    # the first layer on the grid, one other at a time, and the sums: a pair of float32 results (the zero layer and
+    # the output of a lone layer), or the float64 sum and its compensation and the output
+    _check_operation("weighted_add", shape, _grid_bytes(first, extent, shape)
+                     + max((_grid_bytes(layer, extent, shape) for layer in others), default=0)
+                     + (80 if wide else 32) * texels)
     total = _sampled(first, extent, shape, dev, "layers[0]")
     zero = wp.zeros(shape, dtype=wp.vec4, device=dev) if not others else None
     if zero is not None:
@@ -1698,7 +1773,7 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
         launch(texture_kernels.add_layers, dim=shape[0] * shape[1], inputs=[total, zero, checked[0], 0.0, 1],
                outputs=[out], device=dev)
         return _finish(out, extent, "add")
-    if math.fsum(abs(w) for w in checked) > FLOAT32_MAX / 2:
+    if wide:
         # float32 partial sums could overflow: 3e38 + 3e38 − 3e38 − 3e38 became inf − 3e38 = inf, clamped to 1 (in
         # another order 0); in float64 every product is exact, no partial sum overflows, and the compensation keeps
         # a small term added before huge ones that cancel. The weights are the kernel's float32 ones, as in the
@@ -1743,9 +1818,13 @@ def modulate(a: TextureLayer, *others: TextureLayer | ArrayLike, device: wp.Devi
         raise InvalidInputError("modulate needs at least two layers")
     dev = resolve_device(device)
     extent, shape = _result_frame(a)
+    layers = [_as_layer(other, a, f"layer {k + 2}") for k, other in enumerate(others)]
+    # ``a`` on the grid, one other layer at a time, and the result with the one before it
+    _check_operation("modulate", shape, _grid_bytes(a, extent, shape)
+                     + max(_grid_bytes(layer, extent, shape) for layer in layers)
+                     + 16 * min(len(layers), 2) * shape[0] * shape[1])
     current = _sampled(a, extent, shape, dev, "a")
-    for k, other in enumerate(others):
-        layer = _as_layer(other, a, f"layer {k + 2}")
+    for k, layer in enumerate(layers):
         out = wp.empty(shape, dtype=wp.vec4, device=dev)
         launch(texture_kernels.modulate_layers, dim=shape[0] * shape[1],
                inputs=[current, _sampled(layer, extent, shape, dev, f"layer {k + 2}")], outputs=[out], device=dev)
@@ -1813,6 +1892,8 @@ def adjust(
     # on the layer's own texels, kept with its texture matrix and border: a moved lens resampled onto its unmoved
     # extent lost its hot spot, and an 'edge' border turned transparent (black when modulated), with the defaults too
     frame, own = _frame(extent, shape), _own_texels(layer, extent)
+    _check_operation("adjust", shape, (_rgba_bytes(layer) if own is not None else _grid_bytes(layer, extent, shape))
+                     + 16 * shape[0] * shape[1])
     if own is not None:
         frame.origin, frame.pixel = own
         image = _sampled(replace(layer, matrix=None), extent, shape, dev, "layer")
@@ -2128,6 +2209,9 @@ def drape(mesh: trimesh.Trimesh, layer: TextureLayer, *, background: Sequence[fl
     :func:`~stepterrain.pyvista_accessor.from_polydata`). Export it with :func:`stepterrain.export.save_mesh` (GLB
     embeds the image) and render it with :func:`stepterrain.render.render_textured_mesh`.
 
+    Its texture coordinates (72 bytes a vertex while made) and texture are checked against the memory budget
+    (:func:`stepterrain.set_memory_budget`) before either is made: an :class:`~stepterrain.errors.OutputTooLargeError`.
+
     Examples
     --------
     >>> import numpy as np, stepterrain as st
@@ -2145,7 +2229,19 @@ def drape(mesh: trimesh.Trimesh, layer: TextureLayer, *, background: Sequence[fl
     bg = real_vector(background, "background", "(r, g, b) in [0, 1]", 3)
     if bg.min() < 0 or bg.max() > 1:
         raise InvalidInputError(f"background must be (r, g, b) in [0, 1]; got {background!r}")
+    rows, cols = layer.shape
+    # the texture coordinates with the texture (its RGBA unless made already, the uint8 image) before either is made:
+    # only the image was checked, and a large mesh's UVs took 72 bytes a vertex under a small texture
+    check_budget(_UV_BYTES * len(mesh.vertices) + 3 * rows * cols + _rgba_bytes(layer),
+                 f"the texture coordinates of {counted(len(mesh.vertices), 'vertex', 'vertices', grouped=True)} "
+                 f"and the {cols} x {rows} texture of the draped mesh",
+                 hint="drape a mesh of fewer vertices (a larger interval, a coarsened or cropped DEM, tiles)")
     return _draped(mesh, layer, layer.to_uint8(background=bg), bg, name)
+
+
+#: Bytes a vertex :func:`texture_uv` takes at its peak: a float64 copy of the vertices (24), their texels (16) and
+#: texel columns and UVs (16 each) made from them.
+_UV_BYTES = 72
 
 
 def _draped(mesh: trimesh.Trimesh, layer: TextureLayer, image: NDArray[np.uint8], bg: NDArray[np.float64],

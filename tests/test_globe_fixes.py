@@ -2410,3 +2410,37 @@ def test_every_accepted_georeferencing_puts_each_pixel_centre_where_it_says(tmp_
     import trimesh
 
     check()
+
+def test_drape_texture_checks_the_mesh_it_makes(monkeypatch):
+    """drape_texture checked an image file's pixels but nothing of the mesh: its UVs, seam and pole copies and their
+    working arrays took 137 bytes a face (a 786 432-face globe under a 90 x 180 texture: 103 MiB, unchecked). It now
+    checks them before the work; its peak (numpy's allocations, traced) stays within what it counted, and a budget
+    below that refuses it, naming the faces."""
+    import tracemalloc
+
+    import stepterrain as st
+    import stepterrain.globe as globe_module
+    from stepterrain.globe import Globe, drape_texture
+
+    lat = np.linspace(89.5, -89.5, 180)
+    lon = np.linspace(-179.5, 179.5, 360)
+    mesh = Globe.from_latlon(np.zeros((180, 360)), lat, lon, face_size=65, device="cpu").mesh()
+    image = np.zeros((90, 180, 3), np.uint8)
+    counted = []
+    check = globe_module.check_budget
+    monkeypatch.setattr(globe_module, "check_budget",
+                        lambda nbytes, *a, **k: (counted.append(nbytes), check(nbytes, *a, **k))[1])
+    tracemalloc.start()
+    try:
+        out = drape_texture(mesh, image)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert counted and peak <= max(counted), f"drape_texture allocated {peak:,} bytes at its peak; counted {counted}"
+    assert len(out.visual.uv) == len(out.vertices) > len(mesh.vertices)
+    previous = st.set_memory_budget(peak // 2)
+    try:
+        with pytest.raises(st.OutputTooLargeError, match=r"draping a texture on a mesh of 49,152 faces"):
+            drape_texture(mesh, image)
+    finally:
+        st.set_memory_budget(previous)

@@ -1395,3 +1395,29 @@ def test_cli_texture_obj_side_image_through_a_linked_folder_is_refused(tmp_path,
     assert main(["texture", str(small_dem), "-o", str(out), "--mesh", str(tmp_path / "x.obj")]) == 2
     assert "which is what --output names" in capsys.readouterr().err
     assert not out.exists() and not (tmp_path / "x.obj").exists()
+
+
+def test_texture_occlusion_over_the_budget_is_refused_before_the_shading(tmp_path, capsys, monkeypatch):
+    """With --occlusion the topographic layer takes 33 bytes a DEM node (28.2 to 30.8 measured as peak RSS), more than
+    the texture's RGBA (22) that was the command's only up-front check: a budget between them let the shading start
+    (then topographic_layer refused it, minutes into a large DEM). Now refused once the DEM is loaded, naming the
+    layer."""
+    from stepterrain import texture as tx
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((40, 50)).astype(np.float32) * 100)
+    out = tmp_path / "t.png"
+    shade = tx.topographic_layer
+
+    def no_shading(*args, **kwargs):
+        raise AssertionError("the texture was shaded before the memory budget was checked")
+
+    monkeypatch.setattr(tx, "topographic_layer", no_shading)
+    budget = tx._RGBA_BYTES * 40 * 50  # holds the RGBA, not the occlusion's working memory
+    code = main(["texture", str(dem), "--occlusion", "0.5", "-o", str(out), "--device", "cpu", "--memory-budget",
+                 str(budget)])
+    err = capsys.readouterr().err
+    assert code == 2 and "the topographic layer of a 50 x 40 DEM" in err and "--memory-budget" in err, err
+    assert not out.exists()
+    monkeypatch.setattr(tx, "topographic_layer", shade)
+    assert main(["texture", str(dem), "-o", str(out), "--device", "cpu", "-q", "--memory-budget", str(budget)]) == 0

@@ -11,6 +11,7 @@ from hypothesis import given
 from hypothesis import strategies as hst
 from hypothesis.extra.numpy import arrays
 
+import stepterrain.texture as texture_ops
 from stepterrain.errors import InvalidInputError, StepTerrainError
 from stepterrain.texture import (
     Pipeline,
@@ -1369,3 +1370,169 @@ def test_blend_weights_as_a_mask():
     assert np.array_equal(full, out)
     hidden = np.ma.masked_array(np.ones((48, 48), np.uint8), mask=True)
     assert np.array_equal(blend(a, b, hidden, device="cpu").rgba(), a.rgba())
+
+
+@pytest.mark.parametrize("cached", [False, True])
+@pytest.mark.parametrize("background", [None, (1.0, 0.5, 0.0)])
+def test_to_uint8_stays_within_its_budget_check(monkeypatch, cached, background):
+    """``to_uint8`` composited the whole layer at once: RGB times alpha, one minus alpha, the background times it, their
+    sum, its clip, times 255 and its rounding (12 to 16 bytes a texel each) on top of the RGBA that ``rgba`` checked as
+    22 bytes a texel, so a layer that passed the check took 54 (drape's texture, a draped GLB's). It composes by bands
+    of rows now and checks what it keeps (the RGBA unless cached, the uint8 image, a band's temporaries); its peak
+    (numpy's allocations, traced) stays within what it counted, and the bytes are those of the one-pass formula."""
+    import tracemalloc
+
+    import stepterrain.texture as texture
+
+    rng = np.random.default_rng(5)
+    image = rng.random((600, 500, 4), np.float32)
+    image[..., 3] = np.where(rng.random((600, 500)) < 0.3, 1.0, image[..., 3])
+    layer = TextureLayer("thematic", image, (0, 500, 0, 600))
+    rgba = layer.rgba() if cached else np.array(layer.rgba())
+    if not cached:
+        layer = TextureLayer("thematic", image, (0, 500, 0, 600))
+    counted = []
+    check = texture.check_budget
+    monkeypatch.setattr(texture, "check_budget", lambda nbytes, *a, **k: (counted.append(nbytes), check(nbytes, *a,
+                                                                                                         **k))[1])
+    tracemalloc.start()
+    try:
+        out = layer.to_uint8(background=background)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert counted and peak <= max(counted), f"to_uint8 allocated {peak:,} bytes at its peak; it counted {counted}"
+    if background is None:
+        expected = np.round(rgba * 255.0).astype(np.uint8)
+    else:
+        bg = np.asarray(background, np.float32).reshape(1, 1, 3)
+        rgb = rgba[..., :3] * rgba[..., 3:] + bg * (1.0 - rgba[..., 3:])
+        expected = np.round(np.clip(rgb, 0.0, 1.0) * 255.0).astype(np.uint8)
+    np.testing.assert_array_equal(out, expected)
+
+
+def _operation_layers(n=300):
+    """Three fresh (writeable, so uncached) 300 x 300 layers over one extent: RGB, RGBA and a visibility layer."""
+    rng = np.random.default_rng(11)
+    extent = (0.0, float(n), 0.0, float(n))
+    return (TextureLayer("thematic", rng.random((n, n, 3), np.float32), extent),
+            TextureLayer("thematic", rng.random((n, n, 4), np.float32), extent),
+            TextureLayer("visibility", rng.random((n, n), np.float32), extent))
+
+
+_OPERATIONS = {
+    "blend": lambda a, b, w: texture_ops.blend(a, b, w, device="cpu"),
+    "modulate": lambda a, b, w: texture_ops.modulate(a, b, w, device="cpu"),
+    "weighted_add": lambda a, b, w: texture_ops.weighted_add([a, b, w], [0.3, 0.3, 0.4], device="cpu"),
+    "weighted_add wide": lambda a, b, w: texture_ops.weighted_add([a, b, w], [3e38, -3e38, 0.4], device="cpu"),
+    "adjust": lambda a, b, w: texture_ops.adjust(a, brightness=1.5, device="cpu"),
+    "pipeline": lambda a, b, w: texture_ops.Pipeline().blend(b, w).modulate(w).apply(a, device="cpu"),
+}
+
+
+@pytest.mark.parametrize("name", list(_OPERATIONS))
+def test_layer_operations_check_what_they_allocate(name):
+    """blend, modulate, weighted_add and adjust (and a Pipeline of them) allocate 16 bytes a texel for their output,
+    for each layer resampled onto its grid and for a chain's previous result, besides their layers' RGBA, but only
+    each layer's RGBA was checked, one at a time (22 bytes a texel): blend of three fresh layers took 64 bytes a texel
+    of a budget of 30. Now each operation checks the whole before allocating: over the budget it refuses, naming the
+    operation, and at the size it counted it runs."""
+    import stepterrain as st
+
+    operation = _OPERATIONS[name]
+    texels = 300 * 300
+    previous = st.set_memory_budget(30 * texels)  # above every layer's RGBA check, below what the call allocates
+    try:
+        with pytest.raises(st.OutputTooLargeError, match=r"would need .* over the memory budget of 2\.6 MiB"):
+            operation(*_operation_layers())
+        counted = []
+        check = texture_ops.check_budget
+        try:
+            texture_ops.check_budget = lambda nbytes, *a, **k: (counted.append(nbytes), check(nbytes, *a, **k))[1]
+            st.set_memory_budget(1 << 40)
+            reference = operation(*_operation_layers()).rgba()
+        finally:
+            texture_ops.check_budget = check
+        st.set_memory_budget(max(counted))  # exactly what it counted: runs
+        out = operation(*_operation_layers()).rgba()
+    finally:
+        st.set_memory_budget(previous)
+    np.testing.assert_array_equal(out, reference)
+
+
+def test_drape_checks_its_texture_coordinates(monkeypatch):
+    """drape checked the layer's image (its RGBA, the uint8 texture) but not the texture coordinates, whose making took
+    72 bytes a vertex (a float64 copy of the vertices, the texels, their columns and the UVs): a 770 000-vertex stepped
+    mesh under a 2.7 MiB texture took 55 MiB. drape now checks them with the texture before making either; its peak
+    (numpy's allocations, traced) stays within the largest check, and at a budget below it the drape is refused."""
+    import tracemalloc
+
+    import stepterrain as st
+    from stepterrain.texture import drape, topographic_layer
+
+    terrain = st.sample_dem().coarsen(2)
+    mesh = st.stepped(terrain, levels=12)
+    layer = topographic_layer(terrain, device="cpu")
+    layer.rgba()  # cached: what is counted below is drape's own
+    counted = []
+    check = texture_ops.check_budget
+    monkeypatch.setattr(texture_ops, "check_budget",
+                        lambda nbytes, *a, **k: (counted.append(nbytes), check(nbytes, *a, **k))[1])
+    tracemalloc.start()
+    try:
+        out = drape(mesh, layer)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert counted and peak <= max(counted), f"drape allocated {peak:,} bytes at its peak; it counted {counted}"
+    np.testing.assert_array_equal(out.visual.uv, texture_ops.texture_uv(mesh.vertices, layer))
+    previous = st.set_memory_budget(peak // 2)
+    try:
+        with pytest.raises(st.OutputTooLargeError, match=r"texture coordinates .* would need"):
+            drape(mesh, layer)
+    finally:
+        st.set_memory_budget(previous)
+
+
+_TOPOGRAPHIC = {
+    "hillshade": lambda t: texture_ops.hillshade(t, device="cpu"),
+    "hillshade maplibre": lambda t: texture_ops.hillshade(t, method="maplibre-standard", device="cpu"),
+    "cast_shadows": lambda t: texture_ops.cast_shadows(t, device="cpu"),
+    "ambient_occlusion": lambda t: texture_ops.ambient_occlusion(t, directions=4, device="cpu"),
+    "normal_map": lambda t: texture_ops.normal_map(t, device="cpu"),
+    "topographic_layer": lambda t: texture_ops.topographic_layer(t, device="cpu"),
+    "topographic_layer occlusion": lambda t: texture_ops.topographic_layer(t, occlusion=0.5, device="cpu"),
+}
+
+
+@pytest.mark.parametrize("name", list(_TOPOGRAPHIC))
+def test_topographic_functions_check_the_budget(name):
+    """hillshade, cast_shadows, ambient_occlusion, normal_map and topographic_layer checked nothing: a DEM loaded
+    within the budget (4 bytes a node) made a hillshade of 4.5 bytes a node (16.4 with a MapLibre method's RGBA), an
+    occlusion of 11.2 and a topographic layer of 13.7 (28.2 with occlusion), as peak RSS. Each now checks its bytes a
+    node before allocating: a budget one byte below them refuses it, naming the DEM's size; at them it runs, with the
+    result it gives under the default budget."""
+    import stepterrain as st
+
+    terrain = st.sample_dem().coarsen(4)
+    rows, cols = terrain.heights.shape
+    operation = _TOPOGRAPHIC[name]
+    reference = operation(terrain)
+    counted = []
+    check = texture_ops.check_budget
+    try:
+        texture_ops.check_budget = lambda nbytes, *a, **k: (counted.append(nbytes), check(nbytes, *a, **k))[1]
+        operation(terrain)
+    finally:
+        texture_ops.check_budget = check
+    assert counted and max(counted) >= np.asarray(getattr(reference, 'image', reference)).nbytes  # what it keeps
+    previous = st.set_memory_budget(max(counted) - 1)
+    try:
+        with pytest.raises(st.OutputTooLargeError, match=rf"of a {cols} x {rows} DEM would need"):
+            operation(terrain)
+        st.set_memory_budget(max(counted))
+        out = operation(terrain)
+    finally:
+        st.set_memory_budget(previous)
+    np.testing.assert_array_equal(out.image if hasattr(out, "image") else out,
+                                  reference.image if hasattr(reference, "image") else reference)
