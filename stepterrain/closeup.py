@@ -21,6 +21,7 @@ import hashlib
 import inspect
 import math
 import os
+import struct
 import warnings
 from collections.abc import MutableMapping, Sequence
 from dataclasses import KW_ONLY, dataclass, field, replace
@@ -3054,9 +3055,10 @@ def _check_gif_size(width: int, height: int, name: str) -> None:
 
 
 def _write_gif(frames: Sequence[NDArray[np.uint8]], tmp: Path, fps: float) -> None:
-    """The frames as a looping GIF at ``tmp``, written by Pillow as imageio's pillow plugin wrote it (the same bytes).
-    Through imageio a failed write (a full disk) kept the plugin's frames queued: its ``__del__`` wrote them once more
-    and printed a second traceback ("Exception ignored in PluginV3.__del__") after the error."""
+    """The frames as a looping GIF at ``tmp``, written by Pillow, each frame's delay rounded so that frame k starts at
+    k / fps (:func:`_gif_delays`; imageio's pillow plugin gave every frame int(100 / fps) hundredths). Through
+    imageio a failed write (a full disk) kept the plugin's frames queued: its ``__del__`` wrote them once more and
+    printed a second traceback ("Exception ignored in PluginV3.__del__") after the error."""
     from PIL import Image
 
     delays = _gif_delays(len(frames), fps)
@@ -3066,7 +3068,8 @@ def _write_gif(frames: Sequence[NDArray[np.uint8]], tmp: Path, fps: float) -> No
         try:
             pictures[0].save(fh, format="GIF", duration=[10 * d for d in delays] if more else 10 * delays[0],
                              loop=0, **more)
-        except OverflowError as exc:  # frames that differ but quantize alike: merged past 655.35 s (see below)
+        except (OverflowError, struct.error) as exc:  # frames alike once quantized, merged past 655.35 s (Pillow
+            # 13 packs a delay with int.to_bytes, older ones with struct.pack)
             raise InvalidInputError(f"fps {fps:g} shows frames that are alike in a GIF's colours for longer than a "
                                     f"GIF frame's longest delay ({_GIF_DELAYS[1] / 100:g} s): give a higher fps")\
                 from exc

@@ -244,6 +244,7 @@ class _Replacements:
     def __init__(self, what: str = "") -> None:
         self.staged: list[tuple[Path, Path]] = []
         self.what = what  # what a target is, in an error ("the pyramid level ")
+        self.renamed = False  # all in place (an interrupt held back meanwhile is raised after)
 
     def discard(self) -> None:
         for tmp, _ in self.staged:
@@ -265,6 +266,7 @@ class _Replacements:
     def _rename_all(self) -> None:
         done: list[tuple[Path, Path | None]] = []  # target, its old file's backup (None: there was none)
         pending = list(self.staged)
+        interrupt: BaseException | None = None  # raised as the last rename returned: all are in place
         try:
             while pending:
                 tmp, target = pending[0]
@@ -272,8 +274,18 @@ class _Replacements:
                 backup = _backup(target) if len(pending) > 1 else None
                 try:
                     os.replace(tmp, target)
-                except BaseException as exc:  # (an interrupt too: the backup is of a file not replaced)
-                    if backup is not None:
+                except BaseException as exc:
+                    # an interrupt raised as os.replace returned (a second Ctrl-C, which signals_held lets through):
+                    # the file is in place, put back with the others (the last one: all are in place)
+                    if not isinstance(exc, OSError) and not os.path.lexists(tmp):
+                        if len(pending) == 1:
+                            interrupt = exc
+                            pending.pop(0)
+                            break
+                        pending.pop(0)
+                        done.append((target, backup))
+                        raise
+                    if backup is not None:  # (an interrupt before the rename: the backup is of a file not replaced)
                         with contextlib.suppress(OSError):
                             backup.unlink()
                     if isinstance(exc, OSError):
@@ -289,10 +301,13 @@ class _Replacements:
             if lost and isinstance(exc, DataFileError):
                 raise DataFileError(f"{exc}; and then {lost}") from exc
             raise
+        self.renamed = True
         for _, backup in done:
             if backup is not None:
                 with contextlib.suppress(OSError):
                     backup.unlink()
+        if interrupt is not None:
+            raise interrupt
 
 
 def _backup(target: Path) -> Path | None:
@@ -356,7 +371,7 @@ _TOGETHER: contextvars.ContextVar[_Replacements | None] = contextvars.ContextVar
 
 
 @contextlib.contextmanager
-def _replaced_together() -> Iterator[None]:
+def _replaced_together() -> Iterator[_Replacements]:
     """Within (this thread or task): :func:`atomic_path` stages its file (written, flushed, given the old file's mode
     and owner) and the block's end renames them all into place, in the order their ``atomic_path`` blocks ended; an
     error in the block removes them all. A rename that fails part-way puts back the files renamed before it (see
@@ -364,13 +379,14 @@ def _replaced_together() -> Iterator[None]:
     all new or all old, where a failure of the second rename left the new texture beside the old OBJ. (A crash of
     the machine during the renames can still leave a mix: each rename is atomic, the set is not.) Nested: the
     outermost block's end renames."""
-    if _TOGETHER.get() is not None:
-        yield
+    outer = _TOGETHER.get()
+    if outer is not None:
+        yield outer
         return
     together = _Replacements()
     token = _TOGETHER.set(together)
     try:
-        yield
+        yield together
     except BaseException:
         _TOGETHER.reset(token)
         together.discard()
@@ -1428,9 +1444,10 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
     sides = _side_files_of(target)
     asides: list[tuple[Path | None, Path]] = []
     placed = False
-    try:
-        with _replaced_together(), contextlib.ExitStack() as side_file:  # its exit stages the new side files after
-            with atomic_path(target) as tmp:  # the image
+    together: _Replacements | None = None
+    try:  # the ExitStack's exit stages the new side files after the image
+        with _replaced_together() as together, contextlib.ExitStack() as side_file:
+            with atomic_path(target) as tmp:
                 written = tmp
                 try:
                     if len(os.fsencode(tmp.name + ".aux.xml")) > _NAME_MAX:
@@ -1475,8 +1492,8 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
                             written.unlink()
                 asides = _set_aside_all(sides, target)
         placed = True
-    finally:
-        _settle_asides(asides, placed)
+    finally:  # renamed, and then a Ctrl-C held back during the renames: the old side files are not put back
+        _settle_asides(asides, placed or (together is not None and together.renamed))
     _record_owner([target], target)
     return target
 
@@ -1556,10 +1573,15 @@ def _set_aside(side: Path, image: Path) -> Path | None:
     try:
         aside = _new_temporary(side.parent, side.name)
         os.replace(side, aside)
-    except OSError as exc:
+    except BaseException as exc:  # an interrupt too, raised as os.replace returned: the side file moved aside
         if aside is not None:
             with contextlib.suppress(OSError):
-                aside.unlink()
+                if os.path.lexists(side):
+                    aside.unlink()
+                else:
+                    os.replace(aside, side)
+        if not isinstance(exc, OSError):
+            raise
         raise DataFileError(f"cannot remove {str(side)!r}, whose metadata GDAL would read with the new "
                             f"{str(image)!r}: {exc.strerror}") from exc
     return aside

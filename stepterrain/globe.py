@@ -1876,8 +1876,8 @@ def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trim
 
 #: Bytes :func:`_drape_texture` takes at its peak per vertex and per face of the mesh (the per-corner u and pole
 #: flags, the seam's and poles' copies, the UVs and the copied vertices): 137 a face on cube-sphere meshes (two faces
-#: a vertex), measured with tracemalloc at 49 152 to 786 432 faces, 145 with a placement= (the exact georeferencing): 56 a vertex
-#: and 120 a face make 148 a face.
+#: a vertex), measured with tracemalloc at 49 152 to 786 432 faces, 145 with a placement= (the exact
+#: georeferencing): 56 a vertex and 120 a face make 148 a face.
 _DRAPE_VERTEX_BYTES, _DRAPE_FACE_BYTES = 56, 120
 
 

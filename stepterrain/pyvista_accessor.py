@@ -258,7 +258,8 @@ class StepTerrainAccessor:
         for a TIN on the grid's points (in point order, row-major as the heights). A γ array had to match the kind of
         terrain the grid happened to become: pyvista's (N,) point data was refused on an ImageData, an (H, W) array
         on a StructuredGrid, and a RectilinearGrid wanted one or the other by whether its coordinates were even. Any
-        other γ (a scalar, a callable, a Lens, a shape that fits neither) is passed on as it is, for stepped's checks.
+        other γ (a scalar, a callable, a Lens) is passed on as it is, for stepped's checks; an array of another shape is
+        refused naming both shapes the accessor takes.
         """
         from .stepped import Lens
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import errno
 import os
+import signal
+import threading
 import warnings
 
 import numpy as np
@@ -74,8 +76,10 @@ def test_a_textured_obj_whose_nth_rename_fails_leaves_all_old_files(tmp_path, mo
         monkeypatch.undo()
         assert len(calls) >= n
         assert _files(folder) == old, f"rename {n} of {count} failed"  # no temporary left either
-    save_mesh(_textured((10, 200, 10), alpha=True), tmp_path / "ok.obj")  # the same bytes as without a failure
-    assert _files(folder) == old
+    clean = tmp_path / "clean"  # written without a failure: the same bytes as the last folder's would have been
+    save_mesh(_textured((10, 200, 10), alpha=True), clean / "t.obj")
+    save_mesh(_textured((10, 200, 10), alpha=True), folder / "t.obj")
+    assert _files(folder) == _files(clean)
 
 
 def test_a_textured_obj_rolled_back_keeps_the_old_files_own_inodes_and_modes(tmp_path, monkeypatch):
@@ -260,7 +264,6 @@ def test_a_pyramid_whose_nth_level_rename_fails_leaves_the_storage_as_it_was(tmp
         assert len(calls) >= n and _files(storage) == old, f"rename {n} failed"
 
 
-
 def test_a_textured_obj_whose_rename_meets_a_ctrl_c_is_never_a_mix(tmp_path, monkeypatch):
     # SIGINT arriving while a rename runs: the rename completes and Python raises KeyboardInterrupt as os.replace
     # returns, inside its try: that file's backup was removed as if it had not been replaced, and the rollback put back
@@ -314,3 +317,67 @@ def test_a_thread_writing_does_not_join_another_threads_block(tmp_path):
         seen["mine"] = (tmp_path / "mine.txt").exists()
     assert seen == {"other": True, "mine": False}
     assert sorted(_files(tmp_path)) == ["mine.txt", "other.txt"]
+
+
+def _interrupting_replace(monkeypatch, n: int, *, kill: bool) -> None:
+    """os.replace renaming, then on its ``n``-th call a Ctrl-C as it returns: a real SIGINT (``kill``; held back by
+    signals_held during a set's renames) or a KeyboardInterrupt raised there (a second Ctrl-C, let through at once)."""
+    calls: list[object] = []
+
+    def replace(src, dst, *args, real=os.replace, **kwargs):
+        real(src, dst, *args, **kwargs)
+        calls.append(dst)
+        if len(calls) == n:
+            if kill:
+                os.kill(os.getpid(), signal.SIGINT)
+            else:
+                raise KeyboardInterrupt
+
+    monkeypatch.setattr(os, "replace", replace)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_a_geotiff_whose_renames_meet_a_ctrl_c_is_never_a_mix(tmp_path, monkeypatch, n):
+    # the image and its .aux.xml (an ob_tran CRS) are one set: the old side file was put back beside the new image
+    # (the Ctrl-C held back until the renames were done), or left under a temporary name when it came as the old
+    # side file was set aside
+    pytest.importorskip("rasterio")
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("a SIGINT goes to the main thread")
+    crs = _OB_TRAN.replace("o_lat_p=30", "o_lat_p=40")
+    new, folder = tmp_path / "new", tmp_path / "f"
+    new.mkdir(), folder.mkdir()
+    save_image(np.ones((4, 6, 3), np.uint8), new / "t.tif", extent=(0, 6, 0, 4), crs=crs)
+    save_image(np.zeros((4, 6, 3), np.uint8), folder / "t.tif", extent=(0, 6, 0, 4), crs=_OB_TRAN)
+    old = _files(folder)
+    assert "t.tif.aux.xml" in old
+    _interrupting_replace(monkeypatch, n, kill=True)
+    with pytest.raises(KeyboardInterrupt):
+        save_image(np.ones((4, 6, 3), np.uint8), folder / "t.tif", extent=(0, 6, 0, 4), crs=crs)
+    monkeypatch.undo()
+    assert _files(folder) in (old, _files(new))
+
+
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_an_interrupt_raised_as_a_rename_of_a_textured_obj_returns_never_loses_a_file(tmp_path, monkeypatch, n):
+    # raised after the file was renamed: its backup was deleted as if it had not been, and it was not put back (the
+    # old texture lost, the new one beside the old .obj)
+    save_mesh(_textured((200, 10, 10)), tmp_path / "old" / "t.obj")
+    save_mesh(_textured((10, 200, 10)), tmp_path / "new" / "t.obj")
+    save_mesh(_textured((200, 10, 10)), tmp_path / "f" / "t.obj")
+    _interrupting_replace(monkeypatch, n, kill=False)
+    with pytest.raises(KeyboardInterrupt):
+        save_mesh(_textured((10, 200, 10)), tmp_path / "f" / "t.obj")
+    monkeypatch.undo()
+    expected = _files(tmp_path / "new") if n == 3 else _files(tmp_path / "old")  # the last: every file in place
+    assert _files(tmp_path / "f") == expected
+
+
+def test_an_interrupt_raised_as_a_plain_geotiffs_rename_returns_leaves_the_new_file_alone(tmp_path, monkeypatch):
+    pytest.importorskip("rasterio")
+    save_image(np.zeros((4, 6, 3), np.uint8), tmp_path / "t.tif", extent=(0, 6, 0, 4), crs="EPSG:32611")
+    _interrupting_replace(monkeypatch, 1, kill=False)
+    with pytest.raises(KeyboardInterrupt):
+        save_image(np.ones((4, 6, 3), np.uint8), tmp_path / "t.tif", extent=(0, 6, 0, 4), crs="EPSG:32611")
+    monkeypatch.undo()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.tif"]
