@@ -336,14 +336,23 @@ def _interrupting_replace(monkeypatch, n: int, *, kill: bool) -> None:
     monkeypatch.setattr(os, "replace", replace)
 
 
+@pytest.fixture
+def _sigint_restored():
+    previous = signal.getsignal(signal.SIGINT)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
 @pytest.mark.parametrize("n", [1, 2, 3])
-def test_a_geotiff_whose_renames_meet_a_ctrl_c_is_never_a_mix(tmp_path, monkeypatch, n):
+def test_a_geotiff_whose_renames_meet_a_ctrl_c_is_never_a_mix(tmp_path, monkeypatch, n, _sigint_restored):
     # the image and its .aux.xml (an ob_tran CRS) are one set: the old side file was put back beside the new image
     # (the Ctrl-C held back until the renames were done), or left under a temporary name when it came as the old
     # side file was set aside
     pytest.importorskip("rasterio")
     if threading.current_thread() is not threading.main_thread():
         pytest.skip("a SIGINT goes to the main thread")
+    # Python's own handler, as in a terminal: a shell starts background jobs with SIGINT ignored (CI's nohup run)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     crs = _OB_TRAN.replace("o_lat_p=30", "o_lat_p=40")
     new, folder = tmp_path / "new", tmp_path / "f"
     new.mkdir(), folder.mkdir()
