@@ -81,6 +81,20 @@ def trimeshes_left_by(call) -> int:
         gc.enable()
 
 
+def budget_counts(monkeypatch, module) -> list[int]:
+    """The byte counts ``module``'s calls of ``check_budget`` check from now on (each still checked), in a list the
+    caller reads after the call under test."""
+    counted: list[int] = []
+    check = module.check_budget
+
+    def counting(nbytes, *args, **kwargs):
+        counted.append(nbytes)
+        return check(nbytes, *args, **kwargs)
+
+    monkeypatch.setattr(module, "check_budget", counting)
+    return counted
+
+
 def assert_valid_mesh(mesh: trimesh.Trimesh) -> None:
     """Indices in range, no repeated index in a face, every vertex referenced, all coordinates finite."""
     faces = np.asarray(mesh.faces)

@@ -16,7 +16,7 @@ import stepterrain._compaction as compaction
 from stepterrain.errors import InvalidInputError, OutputTooLargeError
 from stepterrain.globe import EARTH_RADIUS, Camera, Globe, adaptive_mesh, look_from, render_view
 
-from .conftest import needs_render
+from .conftest import budget_counts, needs_render
 
 LAT1 = np.linspace(89.5, -89.5, 180)
 LON1 = np.linspace(-179.5, 179.5, 360)
@@ -2426,10 +2426,7 @@ def test_drape_texture_checks_the_mesh_it_makes(monkeypatch):
     lon = np.linspace(-179.5, 179.5, 360)
     mesh = Globe.from_latlon(np.zeros((180, 360)), lat, lon, face_size=65, device="cpu").mesh()
     image = np.zeros((90, 180, 3), np.uint8)
-    counted = []
-    check = globe_module.check_budget
-    monkeypatch.setattr(globe_module, "check_budget",
-                        lambda nbytes, *a, **k: (counted.append(nbytes), check(nbytes, *a, **k))[1])
+    counted = budget_counts(monkeypatch, globe_module)
     tracemalloc.start()
     try:
         out = drape_texture(mesh, image)

@@ -33,7 +33,7 @@ from stepterrain.texture import (
     weighted_add,
 )
 
-from .conftest import needs_render
+from .conftest import budget_counts, needs_render
 from .reference_texture import hillshade_reference, occlusion_reference, real_dem_crop, shadows_reference
 
 RAD = math.radians
@@ -862,10 +862,7 @@ def test_rgba_allocates_no_more_than_its_budget_check_counted(monkeypatch, kind,
     rng = np.random.default_rng(3)
     image = rng.integers(0, 256, shape).astype(np.uint8) if dtype == np.uint8 else rng.random(shape, np.float32)
     image.setflags(write=False)
-    counted = []
-    check = texture.check_budget
-    monkeypatch.setattr(texture, "check_budget", lambda nbytes, *a, **k: (counted.append(nbytes), check(nbytes, *a,
-                                                                                                         **k))[1])
+    counted = budget_counts(monkeypatch, texture)
     layer = TextureLayer(kind, image, (0, 500, 0, 600))
     tracemalloc.start()
     try:
@@ -1391,10 +1388,7 @@ def test_to_uint8_stays_within_its_budget_check(monkeypatch, cached, background)
     rgba = layer.rgba() if cached else np.array(layer.rgba())
     if not cached:
         layer = TextureLayer("thematic", image, (0, 500, 0, 600))
-    counted = []
-    check = texture.check_budget
-    monkeypatch.setattr(texture, "check_budget", lambda nbytes, *a, **k: (counted.append(nbytes), check(nbytes, *a,
-                                                                                                         **k))[1])
+    counted = budget_counts(monkeypatch, texture)
     tracemalloc.start()
     try:
         out = layer.to_uint8(background=background)
@@ -1445,14 +1439,10 @@ def test_layer_operations_check_what_they_allocate(name):
     try:
         with pytest.raises(st.OutputTooLargeError, match=r"would need .* over the memory budget of 2\.6 MiB"):
             operation(*_operation_layers())
-        counted = []
-        check = texture_ops.check_budget
-        try:
-            texture_ops.check_budget = lambda nbytes, *a, **k: (counted.append(nbytes), check(nbytes, *a, **k))[1]
+        with pytest.MonkeyPatch.context() as patch:
+            counted = budget_counts(patch, texture_ops)
             st.set_memory_budget(1 << 40)
             reference = operation(*_operation_layers()).rgba()
-        finally:
-            texture_ops.check_budget = check
         st.set_memory_budget(max(counted))  # exactly what it counted: runs
         out = operation(*_operation_layers()).rgba()
     finally:
@@ -1474,10 +1464,7 @@ def test_drape_checks_its_texture_coordinates(monkeypatch):
     mesh = st.stepped(terrain, levels=12)
     layer = topographic_layer(terrain, device="cpu")
     layer.rgba()  # cached: what is counted below is drape's own
-    counted = []
-    check = texture_ops.check_budget
-    monkeypatch.setattr(texture_ops, "check_budget",
-                        lambda nbytes, *a, **k: (counted.append(nbytes), check(nbytes, *a, **k))[1])
+    counted = budget_counts(monkeypatch, texture_ops)
     tracemalloc.start()
     try:
         out = drape(mesh, layer)
@@ -1518,13 +1505,9 @@ def test_topographic_functions_check_the_budget(name):
     rows, cols = terrain.heights.shape
     operation = _TOPOGRAPHIC[name]
     reference = operation(terrain)
-    counted = []
-    check = texture_ops.check_budget
-    try:
-        texture_ops.check_budget = lambda nbytes, *a, **k: (counted.append(nbytes), check(nbytes, *a, **k))[1]
+    with pytest.MonkeyPatch.context() as patch:
+        counted = budget_counts(patch, texture_ops)
         operation(terrain)
-    finally:
-        texture_ops.check_budget = check
     assert counted and max(counted) >= np.asarray(getattr(reference, 'image', reference)).nbytes  # what it keeps
     previous = st.set_memory_budget(max(counted) - 1)
     try:
