@@ -212,24 +212,23 @@ def _untyped(text: str) -> bool:
     return "_" in text or not text.isascii()
 
 
-def _real(text: str) -> float:
-    """A number option (argparse's ``type=float``, its message kept), in ASCII digits, without underscores."""
-    if _untyped(text):
-        raise argparse.ArgumentTypeError(f"expected a number {_PLAIN_DIGITS}; got {text!r}")
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"invalid float value: {text!r}") from None
+def _typed(convert: Callable[[str], Any], what: str) -> Callable[[str], Any]:
+    """An option type as argparse's ``type=float`` / ``type=int`` (its message kept for other bad text), the number
+    in ASCII digits, without underscores."""
+
+    def number(text: str) -> Any:
+        if _untyped(text):
+            raise argparse.ArgumentTypeError(f"expected {what} {_PLAIN_DIGITS}; got {text!r}")
+        try:
+            return convert(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"invalid {convert.__name__} value: {text!r}") from None
+
+    return number
 
 
-def _whole(text: str) -> int:
-    """A whole-number option (argparse's ``type=int``, its message kept), in ASCII digits, without underscores."""
-    if _untyped(text):
-        raise argparse.ArgumentTypeError(f"expected a whole number {_PLAIN_DIGITS}; got {text!r}")
-    try:
-        return int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"invalid int value: {text!r}") from None
+_real: Callable[[str], float] = _typed(float, "a number")  # a number option
+_whole: Callable[[str], int] = _typed(int, "a whole number")  # a whole-number option
 
 
 def _floats(count: int | None, what: str) -> Callable[[str], tuple[float, ...]]:
@@ -325,7 +324,7 @@ def _nodata_values(text: str) -> list[float]:
     """A ``--nodata``: one number or several, comma-separated (``-9999,-32768``), checked before any file is read."""
     values = []
     for part in text.split(","):
-        if "_" in part or not part.isascii():  # float() reads '1_0' as 10 (digit grouping) and '٣' as 3; GDAL's
+        if _untyped(part):  # float() reads '1_0' as 10 (digit grouping) and '٣' as 3; GDAL's
             # -a_nodata (strtod) declares 1 and 0
             raise argparse.ArgumentTypeError(
                 f"expected a number or comma-separated numbers (the values of missing cells) in ASCII digits, without "
@@ -383,7 +382,7 @@ def _positive_int(text: str) -> int:
     """A count option (``--band``, ``--coarsen``): a whole number >= 1, refused by argparse before any file is read;
     in ASCII digits, without underscores (int() reads '1_0' as 10: a file's band 10, "got --band 10" of a 1_0)."""
     try:
-        value = int(text) if text.isascii() and "_" not in text else 0
+        value = 0 if _untyped(text) else int(text)
     except ValueError:
         value = 0
     if value < 1:
