@@ -1460,11 +1460,12 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
                     with rasterio.open(written, "w", **profile) as dataset:
                         dataset.write(np.moveaxis(array, 2, 0))
                     _check_read_back(written, array, target)
-                    if os.path.exists(aux):  # (before written is renamed: GDAL pairs the side file with its name)
+                    has_aux = os.path.exists(aux)
+                    if has_aux:  # (before written is renamed: GDAL pairs the side file with its name)
                         _check_side_file_crs(written, aux, crs, target)
                     if written != tmp:
                         os.replace(written, tmp)
-                    for own_aux in sides[:1] if os.path.exists(aux) else ():  # beside the file itself
+                    for own_aux in sides[:1] if has_aux else ():  # beside the file itself
                         if len(os.fsencode(own_aux.name)) > _NAME_MAX:
                             raise DataFileError(
                                 f"cannot write {str(target)!r} with its crs: GeoTIFF's keys cannot hold that CRS, and "
@@ -1924,8 +1925,6 @@ def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
         for path, data in zip(paths, sidecars.values(), strict=True):
             side_files.enter_context(atomic_path(path)).write_bytes(data)
         _write_obj_text(mesh, tmp, mtl_name, material, uv)
-        if sidecars and _TOGETHER.get() is None:  # (outside one, the side files are renamed first: the OBJ is
-            _flush_if_replacing(tmp, os.path.exists(target))  # flushed before, as atomic_path will)
     _record_owner(paths, target)
 
 

@@ -450,9 +450,11 @@ def _shadows_colours(name: str, kind: str, coloured: str) -> bool:
 
 def _check_face_indices(faces: NDArray[np.int64], count: int, name: str, noun: str, plural: str) -> None:
     """Refuse ``faces`` (F, 3) that index outside ``count`` points, naming ``name`` and the first such face."""
-    if faces.size == 0 or (faces.min() >= 0 and faces.max() < count):
+    from .export import _face_outside
+
+    bad = _face_outside(faces, count)
+    if bad is None:
         return
-    bad = int(np.flatnonzero(((faces < 0) | (faces >= count)).any(axis=1))[0])
     within = f"its {counted(count, noun, plural)} (0 .. {count - 1})" if count else f"{plural}, and it has none"
     raise InvalidInputError(f"{name} faces must index {within}; face {bad} is {faces[bad].tolist()}")
 

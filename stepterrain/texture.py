@@ -1060,8 +1060,7 @@ class TextureLayer:
         band = max(1, _UINT8_BAND_TEXELS // max(w, 1))  # rows composed at once
         # what it keeps (the RGBA unless made already, the uint8 image) and a band's temporaries: composed whole, the
         # temporaries of the formula (12 to 16 bytes a texel each) took 54 bytes a texel of a layer checked as 22
-        rgba_bytes = 0 if "rgba" in self._rgba_cache else _RGBA_BYTES * h * w
-        check_budget(rgba_bytes + channels * h * w + _UINT8_BAND_BYTES * min(band, h) * w,
+        check_budget(_rgba_bytes(self) + channels * h * w + _UINT8_BAND_BYTES * min(band, h) * w,
                      f"the {w} x {h} uint8 {'RGBA' if background is None else 'RGB'} image of a {self.kind} layer",
                      hint="crop or downsample the image (texture_lod.ImagePyramid serves a large one by level)")
         rgba = self.rgba()
