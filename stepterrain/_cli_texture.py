@@ -255,10 +255,9 @@ def _check_shading(terrain: Any, occlusion: bool) -> None:
     """The topographic layer's working memory (:data:`~stepterrain.texture._NODE_BYTES`, one texel per DEM node
     whatever ``--texel-size``), checked as :func:`~stepterrain.texture.topographic_layer` checks it, once the DEM is
     loaded: with ``--occlusion`` it takes more than the texture's RGBA that :func:`_check_node_texture` counts."""
-    from .texture import _NODE_BYTES, _check_nodes
+    from .texture import _check_topographic
 
-    _check_nodes(terrain, _NODE_BYTES["topographic_layer"] + (_NODE_BYTES["occlusion"] if occlusion else 0),
-                 "the topographic layer")
+    _check_topographic(terrain, occlusion)
 
 
 def _is_tiff(path: Path | None) -> bool:

@@ -213,6 +213,13 @@ def _check_nodes(t: Terrain, nbytes: int, what: str) -> None:
                  hint="crop or coarsen the DEM (Terrain.crop, Terrain.coarsen; --crop, --coarsen)")
 
 
+def _check_topographic(t: Terrain, occlusion: bool) -> None:
+    """:func:`topographic_layer`'s working memory (:data:`_NODE_BYTES`, more with ambient occlusion), checked before
+    it shades (and by the texture CLI once its DEM is loaded)."""
+    _check_nodes(t, _NODE_BYTES["topographic_layer"] + (_NODE_BYTES["occlusion"] if occlusion else 0),
+                 "the topographic layer")
+
+
 def hillshade(
     terrain: Terrain | ArrayLike,
     *,
@@ -1192,8 +1199,7 @@ def topographic_layer(
                                 f"shadows and occlusion alone); got {method!r}")
     ambient = _finite(ambient, "ambient", lo=0.0, hi=1.0)
     occlusion = _finite(occlusion, "occlusion", lo=0.0, hi=1.0)
-    _check_nodes(t, _NODE_BYTES["topographic_layer"] + (_NODE_BYTES["occlusion"] if occlusion > 0 else 0),
-                 "the topographic layer")
+    _check_topographic(t, occlusion > 0)
     if _is_name(method, ("none",)):
         shade = _unshaded(t, azimuth, altitude, z_factor, shadows, shadow_strength, device)
     else:
