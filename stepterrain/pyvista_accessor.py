@@ -290,7 +290,8 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
     cell data so. Face attributes become cell data and vertex attributes point data (bools as pyvista keeps them,
     uint8 in VTK read back as bool, half floats as float32, long doubles as float64, (N, a, b) as (N, a * b); numbers
     and ASCII strings, anything else left out with a warning naming it, as are complex numbers of several components
-    and attributes not named by a str), a textured mesh's UVs (one per vertex) the active texture coordinates (its
+    and attributes not named by a str or named ""), a textured mesh's UVs (one per vertex) the active texture
+    coordinates (named "Texture Coordinates", or "Texture Coordinates (uv)" beside an attribute of that name; its
     image is not data of a PolyData: plot with ``texture=np.asarray(image)``, the image being
     ``mesh.visual.material.baseColorTexture``, or ``.image`` for a globe's ``drape_texture``), ``isovalues`` a
     float64 ``field_data`` array, and every metadata item that is JSON (values as
@@ -310,6 +311,9 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
     colours win, not the attribute: they are what the PolyData plots and what every way back (``from_polydata``,
     ``save_mesh`` and ``render_mesh`` of the PolyData) reads as its colours; refusing the mesh would stop the
     common ``pv.to_trimesh`` round trip, whose attributes hold the colours as they were before a recolouring.
+
+    Vertices are passed on as they are, NaN or infinite ones too, as :func:`from_polydata` takes them back (both
+    ways agree: a PolyData and its Trimesh render and save alike).
 
     The PolyData's points and data arrays are its own copies (as ``pv.wrap`` makes them): they were the mesh's own
     buffers, so exaggerating the PolyData's heights (``poly.points[:, 2] *= 3``) or setting its colours changed the
@@ -362,7 +366,9 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
             array = np.asarray(values)
             if array.shape[:1] != (count,):
                 continue
-            if not isinstance(name, str):  # pyvista's TypeError "Only strings are valid keys" came out of to_polydata
+            # not a str: pyvista's TypeError "Only strings are valid keys" came out of to_polydata; "": VTK's unnamed
+            # array, which pyvista calls "Unnamed_0", came back from from_polydata under that name, without a word
+            if not isinstance(name, str) or not name:
                 unnamed.append(f"{kind} attribute {name!r}")
                 continue
             if colours is not None and _shadows_colours(name, kind, coloured):
@@ -393,15 +399,21 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
                       "only (complex numbers one to a point or cell), of at least one value each",
                       stacklevel=caller_stacklevel())
     if unnamed:
-        warnings.warn(f"to_polydata: {', '.join(unnamed)} left out: VTK's arrays are named by a str (as metadata "
-                      "keys must be)", stacklevel=caller_stacklevel())
+        warnings.warn(f"to_polydata: {', '.join(unnamed)} left out: VTK's arrays are named by a str that is not "
+                      "empty (as metadata keys must be)", stacklevel=caller_stacklevel())
     if shadowed:
         warnings.warn(f"to_polydata: {', '.join(shadowed)} left out: the mesh's {coloured} colours go under 'RGBA' "
                       f"and {RGBA_ALIAS!r} in the PolyData, and from_polydata reads those names as the colours "
                       "(rename the attribute to keep it)", stacklevel=caller_stacklevel())
     uv = getattr(mesh.visual, "uv", None) if mesh.visual.kind == "texture" else None
     if uv is not None and np.shape(uv) == (len(mesh.vertices), 2):
-        poly.active_texture_coordinates = own(uv, dtype=np.float64)
+        # pyvista's setter stores them as "Texture Coordinates": a vertex attribute of that name was written over by
+        # them without a word. Under a name of their own then, both kept (from_polydata passes the UVs over by it)
+        uv_name = "Texture Coordinates"
+        while uv_name in poly.point_data:
+            uv_name += " (uv)"
+        poly.point_data[uv_name] = own(uv, dtype=np.float64)
+        poly.point_data.active_texture_coordinates_name = uv_name
     if colours is not None:  # colours by face (a PLY or 3MF read back) were dropped
         data = poly.point_data if coloured == "vertex" else poly.cell_data
         data["RGBA"] = own(colours, dtype=np.uint8)
@@ -429,7 +441,9 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
         # an array past glTF extras' length (a globe's per-vertex node_entry) was left out without a word
         array = value if isinstance(value, np.ndarray) else None
         # (N, 0) raised pyvista's ValueError "Empty arrays are not allowed" out of to_polydata
-        if array is not None and array.dtype.kind in "biuf" and isinstance(key, str) and 0 not in array.shape[1:]:
+        # a key "" too: VTK's unnamed array came back as "Unnamed_0"
+        if array is not None and array.dtype.kind in "biuf" and isinstance(key, str) and key \
+                and 0 not in array.shape[1:]:
             poly.field_data[key] = _vtk_values(array, own)
         else:
             dropped.append(key)
@@ -488,16 +502,18 @@ def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:
     (``grid.stepterrain.stepped``'s result), which :func:`~stepterrain.export.save_mesh`,
     :func:`~stepterrain.render.render_mesh` and :func:`~stepterrain.texture.drape` call on a PolyData given to them.
 
-    Points and faces are copied as they are (float64, int64; NaN points too, as a Trimesh holds them: the writers
-    and renderers refuse them by name). The array named ``colors_rgba`` (else ``RGBA``, else ``RGB``, as VTK's PLY
-    and OBJ readers name colours, else active scalars named ``*_rgb``/``*_rgba``), point data before cell data at
-    one name, of 3 or 4 columns of uint8, or of other whole numbers in [0, 255] or floats in [0, 1] (as pyvista plots
-    them), becomes the vertex colours, or the face colours if in cell data (pv.to_trimesh leaves them as a plain
-    attribute, so they were not written nor drawn); an array under such a name that holds no colours (floats beyond
-    1, one column) is passed over, an attribute. Other point data become vertex attributes (normals and texture
-    coordinates aside: a PolyData holds no texture image, drape it instead). Other cell data become face
-    attributes, ``wall`` (0/1) as bool again. ``user_dict`` items and the other field data (``isovalues`` as a
-    list) become the metadata. ``name`` names the argument in errors.
+    Points and faces are copied as they are (float64, int64; non-finite points too, as a Trimesh holds them and
+    :func:`to_polydata` passes them on: :func:`~stepterrain.export.save_mesh` refuses them by name,
+    :func:`~stepterrain.render.render_mesh` leaves NaN points out (nodata) and refuses infinite ones). The array
+    named ``colors_rgba`` (else ``RGBA``, else ``RGB``, as VTK's PLY and OBJ readers name colours, else active
+    scalars named ``*_rgb``/``*_rgba``), point data before cell data at one name, of 3 or 4 columns of uint8, or of
+    other whole numbers in [0, 255] or floats in [0, 1] (as pyvista plots them), becomes the vertex colours, or the
+    face colours if in cell data (pv.to_trimesh leaves them as a plain attribute, so they were not written nor
+    drawn); an array under such a name that holds no colours (floats beyond 1, one column) is passed over, an
+    attribute. Other point data become vertex attributes (normals and texture coordinates aside: a PolyData holds no
+    texture image, drape it instead). Other cell data become face attributes, ``wall`` (0/1) as bool again.
+    ``user_dict`` items and the other field data (``isovalues`` as a list) become the metadata. ``name`` names the
+    argument in errors.
 
     Raises
     ------

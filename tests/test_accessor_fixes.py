@@ -1072,3 +1072,63 @@ def test_a_gamma_array_of_neither_shape_is_refused_naming_both_the_accessor_take
                                                 r".*got shape \(7,\)"):
         grid.stepterrain.stepped(interval=2.0, gamma=np.full(7, 0.5))
     assert grid.stepterrain.stepped(interval=2.0, gamma=np.full(20, 0.5)).n_cells > 0
+
+
+@pytest.mark.parametrize("kind", ["vertex", "face"])
+def test_to_polydata_leaves_out_an_attribute_named_by_the_empty_string_with_a_warning(kind):
+    """An attribute named "" (trimesh allows it) went to VTK as an unnamed array, which pyvista names "Unnamed_0": it
+    came back from from_polydata under a name it never had, without a word. It is left out with a warning naming
+    it, as an attribute not named by a str is; a numeric metadata array under "" (a field_data array) likewise."""
+    box = trimesh.creation.box()
+    count = len(box.vertices) if kind == "vertex" else len(box.faces)
+    mesh = trimesh.Trimesh(box.vertices, box.faces, process=False, metadata={"": np.arange(5000)})
+    getattr(mesh, f"{kind}_attributes")[""] = np.arange(count) * 1.5
+    getattr(mesh, f"{kind}_attributes")["kept"] = np.arange(count) * 2.0
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        back = from_polydata(to_polydata(mesh))
+    said = " ".join(str(w.message) for w in caught)
+    assert f"{kind} attribute '' left out" in said and "mesh.metadata items ['']" in said
+    assert list(getattr(back, f"{kind}_attributes")) == ["kept"]
+    assert not any(str(key).startswith("Unnamed") for key in back.metadata)
+
+
+def test_to_polydata_keeps_a_vertex_attribute_named_texture_coordinates_beside_the_uvs():
+    """pyvista stores the active texture coordinates under "Texture Coordinates": a textured mesh's vertex attribute
+    of that name was written over by its UVs, without a word, and from_polydata then passed it over as the texture
+    coordinates. The UVs go under another name when that one is taken, so both reach the PolyData and the attribute
+    comes back as it was."""
+    from PIL import Image
+
+    box = trimesh.creation.box()
+    uv = np.random.default_rng(1).random((len(box.vertices), 2))
+    own = np.arange(len(box.vertices) * 2, dtype=np.float64).reshape(-1, 2) + 10.0
+    mesh = trimesh.Trimesh(box.vertices, box.faces, process=False,
+                           visual=trimesh.visual.TextureVisuals(uv=uv, image=Image.new("RGB", (2, 2))),
+                           vertex_attributes={"Texture Coordinates": own})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # nothing left out
+        poly = to_polydata(mesh)
+    assert np.array_equal(poly.active_texture_coordinates, uv)
+    assert np.array_equal(poly.point_data["Texture Coordinates"], own)
+    back = from_polydata(poly)
+    assert list(back.vertex_attributes) == ["Texture Coordinates"]
+    assert np.array_equal(back.vertex_attributes["Texture Coordinates"], own)
+
+
+def test_to_polydata_and_from_polydata_pass_non_finite_points_alike():
+    """Both ways treat NaN and infinite points alike (pinned: a brief said to_polydata refused NaN points and
+    from_polydata did not; neither does, and refusing in from_polydata would make render_mesh of a PolyData refuse
+    what render_mesh of its Trimesh renders, NaN vertices being nodata left out of the picture). Points come back
+    bit for bit, and the renderer's framing takes the PolyData's Trimesh as it takes the Trimesh."""
+    vertices = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [np.nan, 0, 0], [1, 1, np.inf]])
+    faces = np.array([[0, 1, 2], [1, 3, 2], [1, 4, 2]])
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    poly = to_polydata(mesh)
+    assert np.array_equal(np.asarray(poly.points), vertices, equal_nan=True)
+    back = from_polydata(pv.PolyData.from_regular_faces(vertices, faces))
+    assert np.array_equal(back.vertices, vertices, equal_nan=True)
+    finite = trimesh.Trimesh(vertices[:4], faces[:2], process=False)
+    for argument in (finite, to_polydata(finite)):
+        framed = render._frame_mesh(render.mesh_argument(argument), (64, 64), 1.0, None, "oblique")
+        assert framed[4].tolist() == [True, True, True, False]
