@@ -1819,7 +1819,7 @@ def test_the_degenerate_faces_check_takes_the_framed_box_span_not_a_pass_over_th
     """The check that some face has an area took the extent of the vertices drawn by a masked min/max over all of
     them, 50 ms a million vertices (0.17 s for a 3.4M-vertex stepped mesh) on every render, where it stops at the
     first chunk of faces. Without bounds the framed box is that extent (z scaled, loose and NaN vertices left out):
-    it is passed in, equal to the extent a pass would find; with bounds the check finds it itself."""
+    it is passed in, equal to the extent a pass would find; with bounds, the one pass _frame_mesh makes over them."""
     seen = []
     check = render._check_some_area
     monkeypatch.setattr(render, "_check_some_area", lambda *a: seen.append(a) or check(*a))
@@ -1832,7 +1832,7 @@ def test_the_degenerate_faces_check_takes_the_framed_box_span_not_a_pass_over_th
     np.testing.assert_allclose(span, expected, rtol=1e-12)
     np.testing.assert_allclose(np.nanmax(local[finite], axis=0) - np.nanmin(local[finite], axis=0), expected)
     render._frame_mesh(mesh, (32, 24), 2.5, [[0.0, 0.0, 0.0], [20.0, 20.0, 20.0]], "oblique")
-    assert seen[-1][4] is None
+    np.testing.assert_array_equal(seen[-1][4], expected)
 
 
 def test_ragged_level_scalars_are_refused_by_name_not_numpys_valueerror():
@@ -1843,3 +1843,30 @@ def test_ragged_level_scalars_are_refused_by_name_not_numpys_valueerror():
     with pytest.raises(InvalidInputError, match=r"face_attributes\['level'\] must hold one finite number per face "
                                                 r"\(2\); got a ragged list$"):
         render.render_mesh(mesh, scalars="level", window_size=(16, 16))
+
+
+@pytest.mark.parametrize("camera", ["oblique", [(30.0, -40.0, 50.0), (5.0, 4.0, 6.0), (0.0, 0.0, 1.0)]],
+                         ids=["fitted", "position"])
+def test_frame_mesh_with_bounds_finds_the_drawn_box_once(monkeypatch, camera):
+    """With explicit bounds and a camera position, _frame_mesh took the box of the vertices drawn twice, two masked
+    min/max passes over every vertex: once for the in-view check, again inside _check_some_area. One pass now, its
+    extent handed to the area check; what it returns is the same, bit for bit."""
+    vertices = np.array([[5.0, 1.0, 2.0], [9.0, 4.0, 3.0], [6.0, 7.0, 10.0], [1e6, 0.0, 0.0], [np.nan, 0.0, 0.0]])
+    mesh = trimesh.Trimesh(vertices, [[0, 1, 2], [0, 2, 4]], process=False)
+    bounds = [[0.0, 0.0, 0.0], [20.0, 20.0, 20.0]]
+    before = render._frame_mesh(mesh, (32, 24), 2.5, bounds, camera)
+    passes = []
+    np_min = np.min
+
+    def counting_min(a, *args, **kwargs):
+        if "where" in kwargs and np.shape(a) == vertices.shape:
+            passes.append(kwargs["where"].shape)
+        return np_min(a, *args, **kwargs)
+
+    monkeypatch.setattr(np, "min", counting_min)
+    after = render._frame_mesh(mesh, (32, 24), 2.5, bounds, camera)
+    assert len(passes) == 1
+    for a, b in zip(before, after, strict=True):
+        assert np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True)
+    span = np.nanmax(after[3][after[4]], axis=0) - np.nanmin(after[3][after[4]], axis=0)
+    np.testing.assert_array_equal(span, [9.0 - 5.0, 7.0 - 1.0, 2.5 * (10.0 - 2.0)])
