@@ -46,7 +46,7 @@ from ._files import as_path, refuse_folder_name, require_regular_file
 from ._signals import signals_held
 from ._warning_filters import FILTERS
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, caller_stacklevel, counted
-from .mesh import mesh_argument
+from .mesh import check_face_indices, face_outside, mesh_argument
 from .terrain import FLOAT32_MAX, as_array, finite_number, real_numbers
 
 __all__ = ["atomic_path", "save_mesh", "scale_for_print", "save_image", "MESH_EXTENSIONS", "add_write_listener"]
@@ -718,7 +718,9 @@ def save_mesh(
             f"cannot write {str(target)!r}: unknown mesh extension {target.suffix or '(none)'!r}; "
             f"supported: {', '.join(MESH_EXTENSIONS)}"
         )
-    _check_faces(mesh, len(vertices))
+    # faces outside the vertices (process=False meshes keep them): every writer put them in the file as they were (a
+    # -1 became 4294967295 in glTF), except STL's, which raised trimesh's IndexError
+    check_face_indices(mesh.faces, len(vertices), "mesh faces")
     if ext in _TEXTURED:
         _check_uv(mesh, ext, target)
     if len(mesh.faces) == 0 and len(vertices) and ext in _TRIANGLES_ONLY:
@@ -923,32 +925,6 @@ def _check_write_counts(n_vertices: int, n_faces: int, ext: str, target: Path, *
                  + (" with face colours)" if face_colors else ")"),
                  hint="write a mesh of fewer faces (a larger interval, a coarsened or cropped DEM, tiles)"
                       + (f" or a format that needs less memory ({', '.join(less)}, from the least)" if less else ""))
-
-
-def _face_outside(faces: NDArray[Any], vertex_count: int) -> int | None:
-    """The first of ``faces`` (F, 3) with an index outside the ``vertex_count`` vertices, else None."""
-    if len(faces) == 0:
-        return None
-    if faces.dtype == np.int64 and faces.flags.c_contiguous:
-        # one reduction instead of min and max: as uint64 a negative index is >= 2**63, beyond any vertex count
-        if int(faces.view(np.uint64).max()) < vertex_count:
-            return None
-    elif faces.min() >= 0 and faces.max() < vertex_count:
-        return None
-    return int(np.flatnonzero(((faces < 0) | (faces >= vertex_count)).any(axis=1))[0])
-
-
-def _check_faces(mesh: trimesh.Trimesh, vertex_count: int) -> None:
-    """Refuse faces that index outside the vertices (``process=False`` meshes keep them): every writer put them in
-    the file as they were (a -1 became 4294967295 in glTF), except STL's, which raised trimesh's IndexError."""
-    faces = np.asarray(mesh.faces)
-    bad = _face_outside(faces, vertex_count)
-    if bad is None:
-        return
-    raise InvalidInputError(
-        f"mesh faces must index its vertices (0 to {vertex_count - 1}); face {bad} is {faces[bad].tolist()}; the mesh "
-        f"has {counted(vertex_count, 'vertex', 'vertices')}"
-    )
 
 
 def _check_uv(mesh: trimesh.Trimesh, ext: str, target: Path) -> None:
@@ -2677,7 +2653,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                              f"{np.asarray(loaded.vertices).shape[1:]} per vertex")
         if isinstance(loaded, trimesh.Trimesh):  # a PLY's or glTF's indices as stored
             faces, count = np.asarray(loaded.faces), len(loaded.vertices)
-            bad = _face_outside(faces, count)
+            bad = face_outside(faces, count)
             if bad is not None:
                 row = faces[bad]
                 raise ValueError(f"face {bad} names vertex {int(row[(row < 0) | (row >= count)][0])}, and the file "

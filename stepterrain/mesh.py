@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import trimesh
 import warp as wp
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import MAX_INT32
 from ._device import (
@@ -41,7 +41,7 @@ from .errors import InvalidInputError, OutputTooLargeError, caller_stacklevel, c
 from .kernels import solid as kernels
 from .terrain import FLOAT32_MAX, finite_number, real_numbers
 
-__all__ = ["close_solid", "boundary_edges", "exact_keys", "mesh_argument"]
+__all__ = ["close_solid", "boundary_edges", "exact_keys", "mesh_argument", "check_face_indices"]
 
 
 def mesh_argument(mesh: Any, name: str = "mesh", hint: str = "") -> trimesh.Trimesh:
@@ -66,6 +66,37 @@ def mesh_argument(mesh: Any, name: str = "mesh", hint: str = "") -> trimesh.Trim
                 f"{steps}){hint}")
     raise InvalidInputError(f"{name} must be a trimesh.Trimesh or a pyvista.PolyData of triangles{hint}; got "
                             f"{type(mesh).__name__}")
+
+
+def face_outside(faces: NDArray[Any], vertex_count: int) -> int | None:
+    """The first of ``faces`` (F, 3) with an index outside the ``vertex_count`` vertices, else None."""
+    if len(faces) == 0:
+        return None
+    if faces.dtype == np.int64 and faces.flags.c_contiguous:
+        # one reduction instead of min and max: as uint64 a negative index is >= 2**63, beyond any vertex count
+        if int(faces.view(np.uint64).max()) < vertex_count:
+            return None
+    elif faces.min() >= 0 and faces.max() < vertex_count:
+        return None
+    return int(np.flatnonzero(((faces < 0) | (faces >= vertex_count)).any(axis=1))[0])
+
+
+def check_face_indices(faces: ArrayLike, vertex_count: int, name: str, noun: str = "vertex",
+                       plural: str = "vertices") -> None:
+    """Refuse ``faces`` (F, 3) that are no whole numbers or that index outside the ``vertex_count`` vertices (named
+    ``noun``, ``plural``) with an InvalidInputError naming ``name``, the range and the first such face: a
+    ``process=False`` Trimesh (or a PolyData) keeps them, and VTK read them from outside its point buffer (garbage
+    triangles, or a crash), writers put them in the file as they were. The one check of save_mesh, render and the
+    pyvista accessor (each had its own, with a message of its own)."""
+    indices = np.asarray(faces)
+    if indices.size and indices.dtype.kind not in "iu":
+        raise InvalidInputError(f"{name} must hold whole-number indices of its {plural}; got dtype {indices.dtype}")
+    bad = face_outside(indices.reshape(-1, 3), vertex_count)
+    if bad is None:
+        return
+    within = (f"its {counted(vertex_count, noun, plural)} (0 .. {vertex_count - 1})" if vertex_count
+              else f"{plural}, and it has none")
+    raise InvalidInputError(f"{name} must index {within}; face {bad} is {indices.reshape(-1, 3)[bad].tolist()}")
 
 
 def release(mesh: trimesh.Trimesh) -> None:

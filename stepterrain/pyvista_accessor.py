@@ -23,6 +23,7 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import InvalidInputError, MissingDependencyError, caller_stacklevel, counted
+from .mesh import check_face_indices
 from .terrain import Terrain, finite_or_nan, float32_heights, grid_faces
 
 __all__ = ["StepTerrainAccessor", "to_polydata", "from_polydata", "ELEVATION_NAMES", "RGBA_ALIAS"]
@@ -346,7 +347,7 @@ def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
     if not share:  # (a stepped mesh's faces index its vertices)
         # VTK took indices past the points (or -1) as they were: the PolyData's compute_normals(), clean() and
         # decimate() then crashed Python with a segmentation fault
-        _check_face_indices(faces, len(mesh.vertices), "mesh", "vertex", "vertices")
+        check_face_indices(faces, len(mesh.vertices), "mesh faces")
     # VTK's offsets and connectivity on the faces as they are: a padded [3, a, b, c] copy took 2.5 s and 550 MB
     # more for 13 M faces (a 2600² grid stepped), almost all of grid.stepterrain.stepped's time past the kernels
     poly = pv.PolyData.from_regular_faces(own(mesh.vertices, dtype=np.float64), faces, deep=False)
@@ -462,17 +463,6 @@ def _shadows_colours(name: str, kind: str, coloured: str) -> bool:
     return name in (RGBA_ALIAS, "RGBA") if kind == coloured else (kind == "vertex" and name == RGBA_ALIAS)
 
 
-def _check_face_indices(faces: NDArray[np.int64], count: int, name: str, noun: str, plural: str) -> None:
-    """Refuse ``faces`` (F, 3) that index outside ``count`` points, naming ``name`` and the first such face."""
-    from .export import _face_outside
-
-    bad = _face_outside(faces, count)
-    if bad is None:
-        return
-    within = f"its {counted(count, noun, plural)} (0 .. {count - 1})" if count else f"{plural}, and it has none"
-    raise InvalidInputError(f"{name} faces must index {within}; face {bad} is {faces[bad].tolist()}")
-
-
 #: The dtype kinds :func:`to_polydata` keeps as point or cell data: booleans, integers, floats, complex, strings
 #: (str and bytes, both VTK string arrays).
 _DATA_KINDS = "biufcUS"
@@ -551,7 +541,7 @@ def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:
     vertices = np.array(poly.points, dtype=np.float64)
     faces = np.array(poly.regular_faces, dtype=np.int64) if poly.n_cells else np.zeros((0, 3), np.int64)
     # VTK keeps indices past the points (or -1) as they are: the Trimesh's first use raised numpy's IndexError
-    _check_face_indices(faces, len(vertices), name, "point", "points")
+    check_face_indices(faces, len(vertices), f"{name} faces", "point", "points")
     point_data, cell_data = poly.point_data, poly.cell_data
     coloured, found, colour_names = _colours(point_data, cell_data)
     colors, face_colors = (found, None) if coloured == "vertex" else (None, found)

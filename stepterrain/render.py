@@ -31,7 +31,7 @@ from ._memo import derived
 from ._signals import signals_held
 from .camera import QUARTER_TURN
 from .errors import InvalidInputError, MissingDependencyError, counted
-from .mesh import mesh_argument
+from .mesh import check_face_indices, mesh_argument
 from .terrain import check_flag, finite_or_nan, is_name, number_or_nan, real_numbers, real_vector
 
 __all__ = ["render_mesh", "save_png", "offscreen_available", "require_offscreen", "KEY_LIGHT_AZIMUTH",
@@ -702,7 +702,8 @@ def _frame_mesh(
     # the mesh's copies too, before the first of them (the recentred vertices below)
     _check_render_budget(width, height, anti_aliasing=anti_aliasing, mesh=(len(mesh.vertices), len(mesh.faces)))
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
-    _check_face_indices(mesh.faces, len(vertices), "mesh.faces")
+    check_face_indices(mesh.faces, len(vertices), "mesh.faces")  # VTK read an index past the end from outside
+    # the point buffer (garbage triangles, or a crash), without an error
     finite = np.isfinite(vertices).all(axis=1)
     if not finite.all():  # an infinite vertex, even one no face uses, left VTK's render blank, without a word
         finite_or_nan(vertices, "mesh.vertices")
@@ -915,17 +916,6 @@ def _check_box(value: Any, name: str) -> NDArray[np.float64]:
     if box.shape != (2, 3) or not np.isfinite(box).all() or np.any(box[1] < box[0]):
         raise InvalidInputError(f"{name} must be {_BOX}; got {value!r}")
     return box
-
-
-def _check_face_indices(faces: ArrayLike, n_vertices: int, name: str) -> None:
-    """Every index of ``faces`` must name one of the ``n_vertices`` vertices: VTK reads an index past the end
-    from outside the point buffer (garbage triangles, or a crash), without an error."""
-    indices = np.asarray(faces)
-    if indices.size and (indices.dtype.kind not in "iu" or int(indices.min()) < 0
-                         or int(indices.max()) >= n_vertices):
-        low, high = (int(indices.min()), int(indices.max())) if indices.dtype.kind in "iu" else (None, None)
-        raise InvalidInputError(f"{name} must hold integer vertex indices in [0, {n_vertices - 1}]; got "
-                                + (f"dtype {indices.dtype}" if low is None else f"indices from {low} to {high}"))
 
 
 def _check_background(pv: Any, background: Any) -> None:
@@ -1822,7 +1812,7 @@ class LayeredRenderer:
             self._bounds[name] = np.array([lo, hi])
             self._local_bounds[name] = local_box
             return
-        _check_face_indices(faces, len(local), f"faces of layer {name!r}")  # a new topology: checked once
+        check_face_indices(faces, len(local), f"faces of layer {name!r}")  # a new topology: checked once
         self.remove(name)
         poly = _polydata(self._pv, local, faces)
         self._meshes[name] = (poly, kind, faces.copy(), faces_in, rgb_in)
@@ -2173,7 +2163,7 @@ class LayeredRenderer:
             raise InvalidInputError(f"vertices must include a finite vertex; got "
                                     f"{counted(len(vertices), 'vertex', 'vertices')}, none finite (nothing to render)")
         faces = _layer_faces(faces, "faces")
-        _check_face_indices(faces, len(vertices), "faces")
+        check_face_indices(faces, len(vertices), "faces")
         if rgb is not None:
             rgb = _layer_rgb(rgb, len(vertices), "rgb")
         direction = real_vector(view, "view", "(azimuth, elevation) in radians, finite", 2)  # it named "camera"

@@ -275,8 +275,8 @@ def test_faces_outside_the_vertices_are_refused(tmp_path, ext, faces, shown):
     OBJ, PLY and 3MF files (-1 became 4294967295 in glTF), and STL raised trimesh's IndexError. Now an
     InvalidInputError names the face; nothing is written."""
     mesh = trimesh.Trimesh([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], faces, process=False)
-    with pytest.raises(InvalidInputError, match=rf"^mesh faces must index its vertices \(0 to 2\); face 0 is {shown}; "
-                       "the mesh has 3 vertices$"):
+    with pytest.raises(InvalidInputError,
+                       match=rf"^mesh faces must index its 3 vertices \(0 \.\. 2\); face 0 is {shown}$"):
         save_mesh(mesh, tmp_path / f"m{ext}")
     no_leftovers(tmp_path, set())
 
@@ -331,13 +331,13 @@ def test_a_non_finite_vertex_anywhere_is_refused_and_bounds_are_exact(tmp_path, 
 
 @pytest.mark.parametrize("index", [-1, -(2**62), 2**40, 3])
 def test_one_reduction_finds_any_face_index_outside(tmp_path, index):
-    """_check_faces reads int64 faces once as uint64 (a negative index is >= 2**63 there): any index below 0 or
+    """The face check reads int64 faces once as uint64 (a negative index is >= 2**63 there): any index below 0 or
     past the last vertex, in any face, is refused by name."""
     vertices = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
     faces = np.zeros((100, 3), np.int64)
     faces[57, 2] = index
     mesh = trimesh.Trimesh(vertices, faces, process=False)
-    with pytest.raises(InvalidInputError, match=rf"face 57 is \[0, 0, {index}\]; the mesh has 3 vertices$"):
+    with pytest.raises(InvalidInputError, match=rf"face 57 is \[0, 0, {index}\]$"):
         save_mesh(mesh, tmp_path / "m.ply")
     no_leftovers(tmp_path, set())
 

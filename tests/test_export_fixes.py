@@ -2707,3 +2707,23 @@ def test_a_texture_image_of_no_pixels_is_refused_by_name_before_any_file_is_made
                                                 r"(0 x 5|0 x 4)"):
         save_mesh(mesh, tmp_path / "out" / f"t{ext}")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("bad", [7, -1])
+def test_the_face_index_checks_share_one_message_naming_their_argument(tmp_path, bad):
+    """save_mesh, to_polydata/from_polydata and render each refused faces indexing outside the vertices with a
+    check of their own and a message of their own ("must index its vertices (0 to 2)", "must index its 3 vertices
+    (0 .. 2)", "must hold integer vertex indices in [0, 2]; got indices from 0 to 7"), only two of them naming the
+    face. One helper makes them now: each names its argument, the vertex count and range, and the first bad face."""
+    from stepterrain import render
+    from stepterrain.pyvista_accessor import to_polydata
+
+    points = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 1]])
+    mesh = trimesh.Trimesh(points, [[0, 1, 2], [0, 1, bad]], process=False)
+    face = rf"face 1 is \[0, 1, {bad}\]$"
+    with pytest.raises(InvalidInputError, match=rf"^mesh faces must index its 3 vertices \(0 \.\. 2\); {face}"):
+        save_mesh(mesh, tmp_path / "m.ply")
+    with pytest.raises(InvalidInputError, match=rf"^mesh faces must index its 3 vertices \(0 \.\. 2\); {face}"):
+        to_polydata(mesh)
+    with pytest.raises(InvalidInputError, match=rf"^mesh\.faces must index its 3 vertices \(0 \.\. 2\); {face}"):
+        render.render_mesh(mesh, window_size=(32, 32))

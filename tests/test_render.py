@@ -260,14 +260,15 @@ def test_face_indices_outside_the_vertices_are_refused(bad):
     mesh = trimesh.Trimesh(process=False)
     mesh.vertices = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 1]])
     mesh.faces = np.array(bad)
-    with pytest.raises(InvalidInputError, match=r"mesh.faces must hold integer vertex indices in \[0, 2\]"):
+    with pytest.raises(InvalidInputError, match=r"mesh\.faces must index its 3 vertices \(0 \.\. 2\); face 0 is "):
         render.render_mesh(mesh, window_size=(64, 48))
 
 
 @needs_render
 def test_layered_renderer_refuses_face_indices_outside_the_vertices():
     with render.LayeredRenderer(window_size=(64, 48)) as renderer:
-        with pytest.raises(InvalidInputError, match=r"faces of layer 'a' must hold .* from 0 to 7"):
+        with pytest.raises(InvalidInputError,
+                           match=r"faces of layer 'a' must index its 3 vertices .*face 0 is \[0, 1, 7\]$"):
             renderer.set_mesh("a", [[0.0, 0, 0], [1, 0, 0], [0, 1, 1]], [[0, 1, 7]])
 
 
@@ -399,7 +400,7 @@ def billboard(**changes):
         (billboard(rgb=np.full((3, 3), np.nan)), r"rgb must be .*; got values from nan to nan"),  # drawn black
         (billboard(rgb=[["r", "g", "b"]] * 3), r"rgb must be .* \(real numbers\); got dtype <U1"),  # int("r")
         (billboard(faces=np.array([[0, 1, 7]])),  # VTK read a vertex past the end
-         r"faces must hold integer vertex indices in \[0, 2\]; got indices from 0 to 7"),
+         r"faces must index its 3 vertices \(0 \.\. 2\); face 0 is \[0, 1, 7\]"),
         (billboard(faces=[[0, 1, 1.5]]), r"faces must be \(F, 3\) vertex indices; got 1.5 \(not a whole number\)"),
         (billboard(vertices="abc"), r"vertices must be \(V, 3\) coordinates \(real numbers\); got dtype <U3"),
         (billboard(anchor_points=np.zeros((3, 2))),  # reshaped to (2, 3) before
