@@ -2929,7 +2929,8 @@ def animate_closeups(
 
 
 def _check_frames(frames: Any) -> list[NDArray[np.uint8]]:
-    """``frames`` as (H, W, 3) uint8 images of one size: a float or 2-D frame would be cast or cut silently."""
+    """``frames`` as (H, W, 3) or (H, W, 4) uint8 images of one size, as given (contiguous): a float or 2-D frame
+    would be cast or cut silently. :func:`_animation_frames` decides what becomes of an alpha channel."""
     if isinstance(frames, np.ndarray) and frames.ndim == 4:
         frames = list(frames)
     if not isinstance(frames, Sequence) or isinstance(frames, (str, bytes)):
@@ -2948,8 +2949,56 @@ def _check_frames(frames: Any) -> list[NDArray[np.uint8]]:
         if stack and array.shape[:2] != stack[0].shape[:2]:
             raise InvalidInputError(f"frames must share one size; frames[0] is {stack[0].shape[:2]}, frames[{k}] "
                                     f"{array.shape[:2]}")
-        stack.append(np.ascontiguousarray(array[..., :3]))
+        stack.append(np.ascontiguousarray(array))
     return stack
+
+
+def _animation_frames(stack: list[NDArray[np.uint8]], suffix: str) -> tuple[list[NDArray[np.uint8]], list[str]]:
+    """The frames as the format of ``suffix`` stores them, and what was lost on the way (warnings to give). The alpha
+    of RGBA frames was dropped without a word: a transparent background was written opaque, in whatever colour its
+    hidden pixels held. Frames all opaque (no alpha, or alpha 255 everywhere) are RGB, the file the same as of their
+    RGB. Otherwise a GIF keeps 1-bit transparency: alpha below 128 is transparent (its colour, hidden, set to black
+    so frames alike look alike), 128 and above opaque, with a warning when some alpha lay between 0 and 255; an MP4
+    (H.264) holds no transparency: the alpha is dropped, with a warning."""
+    clear = sum(f.shape[2] == 4 and not bool((f[..., 3] == 255).all()) for f in stack)
+    if not clear:
+        return [f if f.shape[2] == 3 else np.ascontiguousarray(f[..., :3]) for f in stack], []
+    if suffix == ".mp4":
+        return [np.ascontiguousarray(f[..., :3]) for f in stack], [
+            f"an MP4 (H.264) holds no transparency: the alpha of {counted(clear, 'frame')} (below 255 in places) is "
+            "dropped, their pixels drawn opaque in their RGB colours; save a GIF to keep 1-bit transparency, or "
+            "composite the frames over a background first"]
+    frames, partial = [], 0
+    for frame in stack:
+        rgba = np.empty((*frame.shape[:2], 4), np.uint8)
+        rgba[..., :3] = frame[..., :3]
+        if frame.shape[2] == 3:
+            rgba[..., 3] = 255
+        else:
+            alpha = frame[..., 3]
+            partial += int(np.count_nonzero((alpha > 0) & (alpha < 255)))
+            hidden = alpha < 128
+            rgba[..., 3] = np.where(hidden, 0, 255)
+            rgba[hidden, :3] = 0
+        frames.append(rgba)
+    notes = [f"a GIF stores 1-bit transparency: {counted(partial, 'pixel')} of partial alpha (between 0 and 255) "
+             "made transparent (alpha below 128) or opaque (128 and above)"] if partial else []
+    return frames, notes
+
+
+def _browser_slow_frames(frames: Sequence[NDArray[np.uint8]], fps: float) -> int:
+    """How many frames of the GIF :func:`_write_gif` writes last 1 hundredth of a second (runs of identical frames,
+    one GIF frame, merged first): browsers play such a delay as 10 hundredths."""
+    delays = _gif_delays(len(frames), fps)
+    if len(frames) < 2 or min(delays) > 1:  # a still, or fps <= 50: no frame can be that short
+        return 0
+    count, run = 0, delays[0]
+    for k in range(1, len(frames)):
+        if np.array_equal(frames[k], frames[k - 1]):
+            run += delays[k]
+        else:
+            count, run = count + (run < 2), delays[k]
+    return count + (run < 2)
 
 
 #: Frame rates each animation format stores: a GIF's frame delay is a whole number of hundredths of a second, 1 to
@@ -2978,16 +3027,31 @@ def _check_fps(fps: Any, suffix: str, name: str = "fps") -> float:
 
 
 def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[str], *, fps: float = 12.0) -> Path:
-    """Write frames as a looping GIF (through Pillow) or an MP4 (through imageio's ffmpeg), by extension, atomically.
+    """Write frames, (H, W, 3) or (H, W, 4) uint8, as a looping GIF (through Pillow) or an MP4 (through imageio's
+    ffmpeg), by extension, atomically.
 
     ``fps`` must be a rate the format stores: [0.001526, 100] for a GIF (frame delays in whole hundredths of a
     second), [0.001, 1000] for an MP4. An MP4 keeps the frame size, which must be even both ways (H.264); a GIF
     takes any size up to 65535 pixels each way. A GIF's frame k starts at k / fps rounded to the nearest hundredth
     of a second, and identical consecutive frames are one GIF frame as long as all of them (refused past a GIF
-    delay's 655.35 s)."""
+    delay's 655.35 s). Browsers (Chrome, Firefox, Safari) play a GIF delay of 1 hundredth as 10: above 50 fps some
+    frames are that short, and a warning says the GIF plays slower there (50 fps or less, or an MP4, plays at its
+    speed everywhere).
+
+    Transparency: a GIF keeps it, 1-bit: where an RGBA frame's alpha is below 128 the frame is transparent (each
+    frame replaces the last: disposal 2), elsewhere opaque; alpha between 0 and 255 is rounded so, with a warning.
+    An MP4 (H.264) holds none: RGBA frames with alpha below 255 are written as their RGB, with a warning. Frames
+    all opaque write as their RGB, without one. (imageio's ``imread(gif, index=None)`` cannot stack the frames of a
+    GIF with transparency, reading the first as RGB and the rest as RGBA: read them one by one, or with Pillow.)"""
     from .export import atomic_path
 
-    target, suffix, fps, stack = _check_animation(frames, path, fps)
+    target, suffix, fps, stack, notes = _check_animation(frames, path, fps)
+    if suffix == ".gif" and (short := _browser_slow_frames(stack, fps)):
+        notes.append(f"fps {fps:g}: {counted(short, 'GIF frame')} of the animation last 1 hundredth of a second, "
+                     "which browsers (Chrome, Firefox, Safari) play as 10 hundredths: it plays slower there than "
+                     "asked; an fps of 50 or less (or an MP4) plays at its speed everywhere")
+    for note in notes:
+        warnings.warn(f"save_animation: {note}", stacklevel=caller_stacklevel())
     import imageio.v3 as iio
 
     if suffix == ".mp4":
@@ -3014,9 +3078,12 @@ def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[
     return target
 
 
-def _check_animation(frames: Any, path: Any, fps: Any) -> tuple[Path, str, float, list[NDArray[np.uint8]]]:
+def _check_animation(
+    frames: Any, path: Any, fps: Any
+) -> tuple[Path, str, float, list[NDArray[np.uint8]], list[str]]:
     """Every check :func:`save_animation` makes before it writes: the target path, its suffix (".gif" or ".mp4"), the
-    fps as a float and the frames as (H, W, 3) uint8 images, else an InvalidInputError. A caller writing other files
+    fps as a float, the frames as the format stores them and what they lose on the way (:func:`_animation_frames`),
+    else an InvalidInputError. A caller writing other files
     with the animation (the CLI's ``closeup``: a mesh, a PNG) runs it first: a GIF refused for its runs of identical
     frames left the other files written (the old ones replaced), though the run failed."""
     from .export import _target
@@ -3026,13 +3093,13 @@ def _check_animation(frames: Any, path: Any, fps: Any) -> tuple[Path, str, float
     if suffix not in (".gif", ".mp4"):
         raise InvalidInputError(f"animation path must end in .gif or .mp4; got {str(path)!r}")
     fps = _check_fps(fps, suffix)
-    stack = _check_frames(frames)
+    stack, notes = _animation_frames(_check_frames(frames), suffix)
     if suffix == ".mp4":
         _check_mp4_size(stack[0].shape[1], stack[0].shape[0], "frames")
     else:
         _check_gif_size(stack[0].shape[1], stack[0].shape[0], "frames")
         _check_gif_runs(stack, fps)
-    return target, suffix, fps, stack
+    return target, suffix, fps, stack, notes
 
 
 def _check_mp4_size(width: int, height: int, name: str) -> None:
@@ -3064,6 +3131,9 @@ def _write_gif(frames: Sequence[NDArray[np.uint8]], tmp: Path, fps: float) -> No
     delays = _gif_delays(len(frames), fps)
     pictures = [Image.fromarray(frame) for frame in frames]
     more = {"save_all": True, "append_images": pictures[1:]} if len(pictures) > 1 else {}
+    if more and frames[0].shape[2] == 4:  # transparent frames: each replaces the last (disposal 0 kept the last
+        # frame's pixels under a transparent one, and Pillow's delta frames drew unchanged pixels transparent over it)
+        more["disposal"] = 2
     with open(tmp, "wb") as fh:
         try:
             pictures[0].save(fh, format="GIF", duration=[10 * d for d in delays] if more else 10 * delays[0],

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import errno
 import math
+import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,6 +25,7 @@ def gif_delays(path) -> list[int]:
     return delays
 
 
+@pytest.mark.filterwarnings("ignore:save_animation. fps .* browsers")
 @pytest.mark.parametrize("fps", [12.0, 30.0, 40.0, 60.0, 7.3, 100.0])
 def test_gif_frames_start_at_their_time_within_half_a_hundredth(tmp_path, fps):
     """Pillow truncated each frame's delay to whole hundredths of a second (int(100 / fps)): a 12 fps GIF played at
@@ -166,3 +169,129 @@ def test_example_gif_on_a_full_disk_is_a_usage_error_keeping_the_old_gif(tmp_pat
     assert f"error: cannot write {str(old)!r}: No space left on device" in err and "Traceback" not in err, err
     assert [p.name for p in old.parent.iterdir()] == [old.name]
     assert old.read_bytes() == b"the old animation"
+
+
+def _rgba_frames(count=3, shape=(6, 8), seed=0):
+    """``count`` RGBA frames of few colours (a GIF palette holds them exactly), each transparent in its own row."""
+    rng = np.random.default_rng(seed)
+    palette = rng.integers(0, 256, (5, 3), dtype=np.uint8)
+    frames = []
+    for k in range(count):
+        frame = np.empty((*shape, 4), np.uint8)
+        frame[..., :3] = palette[rng.integers(0, len(palette), shape)]
+        frame[..., 3] = 255
+        frame[k % shape[0], :, 3] = 0  # transparent, its colours hidden
+        frames.append(frame)
+    return frames
+
+
+def _gif_frames(path):
+    """The GIF's frames as shown (Pillow composites each over the last as its disposal says), RGBA, and disposals."""
+    with Image.open(path) as image:
+        shown, disposals = [], []
+        for k in range(image.n_frames):
+            image.seek(k)
+            shown.append(np.asarray(image.convert("RGBA")))
+            disposals.append(image.disposal_method)
+    return shown, disposals
+
+
+def test_gif_keeps_rgba_frames_transparent_where_their_alpha_is_0(tmp_path):
+    """save_animation dropped the alpha of RGBA frames: a transparent background was written opaque, in whatever
+    colour its hidden pixels held. A GIF holds 1-bit transparency: each frame's transparent pixels are transparent
+    now (each frame replaces the last, disposal 2: a pixel transparent in frame 1 shows nothing of frame 0), its
+    opaque ones keep their colours."""
+    frames = _rgba_frames()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # alpha 0 and 255 only: nothing lost, no warning
+        gif = save_animation(frames, tmp_path / "a.gif", fps=4.0)
+    shown, disposals = _gif_frames(gif)
+    assert len(shown) == len(frames) and set(disposals) == {2}
+    for frame, got in zip(frames, shown, strict=True):
+        opaque = frame[..., 3] == 255
+        assert np.array_equal(got[..., 3], frame[..., 3])
+        assert np.array_equal(got[opaque][:, :3], frame[opaque][:, :3])
+
+
+def test_gif_partial_alpha_is_rounded_to_one_bit_with_a_warning(tmp_path):
+    """Alpha between 0 and 255 has no place in a GIF (1-bit transparency): alpha below 128 is transparent, the rest
+    opaque, and a warning says so and counts the pixels."""
+    frames = _rgba_frames(2)
+    frames[0][2, :4, 3] = 127
+    frames[1][3, :3, 3] = 128
+    expected = [np.where(f[..., 3] < 128, 0, 255) for f in frames]
+    with pytest.warns(UserWarning, match=r"GIF stores 1-bit transparency: 7 pixels of partial alpha"):
+        gif = save_animation(frames, tmp_path / "a.gif", fps=4.0)
+    shown, _ = _gif_frames(gif)
+    for want, got in zip(expected, shown, strict=True):
+        assert np.array_equal(got[..., 3], want)
+
+
+def test_gif_of_opaque_rgba_frames_is_the_gif_of_their_rgb(tmp_path):
+    """RGBA frames whose alpha is all 255 lose nothing: the same file as their RGB, no warning."""
+    frames = _rgba_frames(3)
+    for frame in frames:
+        frame[..., 3] = 255
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rgba = save_animation(frames, tmp_path / "rgba.gif", fps=4.0).read_bytes()
+    assert rgba == save_animation([f[..., :3] for f in frames], tmp_path / "rgb.gif", fps=4.0).read_bytes()
+
+
+def test_mp4_of_transparent_rgba_frames_warns_that_their_alpha_is_dropped(tmp_path):
+    """An MP4 (H.264) holds no transparency: RGBA frames with alpha below 255 were written as their RGB without a
+    word. A warning says the alpha is dropped and what keeps it; opaque RGBA frames write without one."""
+    pytest.importorskip("imageio_ffmpeg")
+    frames = _rgba_frames(2, shape=(8, 8))
+    with pytest.warns(UserWarning, match=r"MP4 .*no transparency: the alpha of 2 frames .*dropped"):
+        save_animation(frames, tmp_path / "a.mp4", fps=4.0)
+    for frame in frames:
+        frame[..., 3] = 255
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        save_animation(frames, tmp_path / "b.mp4", fps=4.0)
+
+
+@pytest.mark.parametrize(("fps", "warned"), [(60.0, True), (100.0, True), (50.0, False), (30.0, False)])
+def test_gif_faster_than_50_fps_warns_that_browsers_play_it_slower(tmp_path, fps, warned):
+    """A GIF frame of 1 hundredth of a second (fps above 50) is played as 10 hundredths by browsers (Chrome, Firefox,
+    Safari): a 100 fps spin ran ten times slower there, without a word. A warning says so; 50 fps and below, none."""
+    frames = [np.full((4, 4, 3), 10 * k, np.uint8) for k in range(6)]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        save_animation(frames, tmp_path / "a.gif", fps=fps)
+    said = [str(w.message) for w in caught if "browsers" in str(w.message)]
+    assert bool(said) == warned, said
+    if warned:
+        assert f"fps {fps:g}" in said[0] and "1 hundredth" in said[0]
+
+
+def _gif_controls(path):
+    """(disposal, transparent?) of each frame's graphic control extension, read from the bytes (GIF89a §23):
+    Pillow's reader restores a disposal-2 frame to the background colour unless the first frame has a transparent
+    index, where browsers clear to transparent."""
+    data, controls = Path(path).read_bytes(), []
+    i = 13 + (3 << ((data[10] & 7) + 1) if data[10] & 0x80 else 0)
+    while data[i] != 0x3B:
+        if data[i] == 0x21:  # an extension: its label, then sub-blocks
+            if data[i + 1] == 0xF9:
+                controls.append(((data[i + 3] >> 2) & 7, bool(data[i + 3] & 1)))
+            i += 2
+        else:  # an image: its descriptor, a local colour table, the LZW code size, then sub-blocks
+            i += 10 + (3 << ((data[i + 9] & 7) + 1) if data[i + 9] & 0x80 else 0) + 1
+        while data[i]:
+            i += data[i] + 1
+        i += 1
+    return controls
+
+
+def test_gif_frames_transparent_after_an_opaque_one_say_so_in_the_file(tmp_path):
+    """An opaque first frame, transparent ones after it: every frame is disposed of (2: cleared, as browsers clear
+    it, to transparent), and each frame with transparent pixels has its transparent index. Opaque frames are written
+    as before (Pillow's delta frames: a frame is drawn over the last, unchanged pixels transparent)."""
+    frames = _rgba_frames(3)
+    frames[0][..., 3] = 255
+    gif = save_animation(frames, tmp_path / "a.gif", fps=4.0)
+    assert _gif_controls(gif) == [(2, False), (2, True), (2, True)]
+    rgb = save_animation([f[..., :3] for f in frames], tmp_path / "rgb.gif", fps=4.0)
+    assert [disposal for disposal, _ in _gif_controls(rgb)] == [0, 0, 0]  # opaque frames: Pillow's delta frames

@@ -539,7 +539,9 @@ def test_save_animation_takes_a_4d_stack(tmp_path):
     import imageio.v3 as iio
 
     frames = np.zeros((2, 8, 6, 4), np.uint8)
+    frames[..., 3] = 255  # opaque (alpha 0 is kept transparent in a GIF: imageio reads such frames as RGB, then RGBA)
     frames[1] = 200
+    frames[1, ..., 3] = 255
     gif = save_animation(frames, tmp_path / "stack.gif", fps=2.0)
     assert iio.imread(gif, index=None).shape[:3] == (2, 8, 6)
 
