@@ -1607,6 +1607,12 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any, _Pla
                     picture.close()
         except OSError as exc:
             raise DataFileError(f"cannot read texture {image!r}: {exc}") from exc
+        if placement is not None and placement.closing:  # a node-registered image's last column: its first's
+            # meridian again. Kept, the two copies lay side by side in the texture (at Greenwich for a 0..360 one,
+            # across the antimeridian for a -180..180 one), and the faces across them spanned a column more than
+            # their longitudes; the first is kept (as Globe.from_latlon drops a grid's closing column)
+            image, kept = np.asarray(image)[:, :-1], None
+            placement = placement.without_closing_column()
         if placement is not None and placement.shift:  # a global GeoTIFF in longitudes 0..360: its columns put at
             # -180..180, as the drape reads them (to the nearest whole column; the UVs and colours take the rest)
             image, kept = np.roll(np.asarray(image), placement.shift, axis=1), None
@@ -1629,8 +1635,9 @@ class _Placement:
     original column 0's west edge at longitude ``west`` (the turn's nearest to 180° W), its row 0's north edge at
     latitude ``north``, its pixels ``sx`` by ``sy`` degrees, ``width`` x ``height`` of them. The image need not start
     at a whole column from 180° W, nor span exactly 360 x 180 degrees (a node-registered 361 x 181 one, its pixel
-    centres on whole degrees, spans 361 x 181): :meth:`columns` and :meth:`rows` put each pixel's centre where the
-    georeferencing says, for the UVs (:func:`_drape_texture`) and the colours (:func:`drape_colors`) alike."""
+    centres on whole degrees, spans 361 x 181, until its closing column is dropped, :attr:`closing`): :meth:`columns`
+    and :meth:`rows` put each pixel's centre where the georeferencing says, for the UVs (:func:`_drape_texture`) and
+    the colours (:func:`drape_colors`) alike."""
 
     shift: int
     west: float
@@ -1639,6 +1646,19 @@ class _Placement:
     sy: float
     width: int
     height: int
+
+    @property
+    def closing(self) -> bool:
+        """Whether the last column repeats the first's meridian, its centre a turn east of the first's (a
+        node-registered image: 361 columns of 1° over 0..360 or -180..180), within float32's resolution of the UVs;
+        :func:`_texture_image` drops it (:meth:`without_closing_column`)."""
+        return self.width > 2 and abs(360.0 / self.sx - (self.width - 1)) <= self.width * 2.0**-24
+
+    def without_closing_column(self) -> _Placement:
+        """This placement of the image without its last column (:attr:`closing`): ``width`` - 1 columns in a turn,
+        rolled by the nearest whole one to 180° W of those."""
+        width = self.width - 1
+        return dataclasses.replace(self, shift=round((self.west + 180.0) / self.sx) % width, width=width)
 
     @property
     def whole_columns(self) -> bool:
@@ -1662,7 +1682,8 @@ class _Placement:
         one turn from column 0's centre; between the last column's centre and the first's a turn on (a gap, where
         the image spans less than 360°) the coordinate runs from the one to the other, as a sampler that repeats
         the image blends them; where it spans more (a node-registered one), a longitude in both ends takes the
-        western column (the jump of the overlap lies at column 0's centre, 180° W for a node-registered one)."""
+        western column (the jump of the overlap lies at column 0's centre; a node-registered one's overlap, a whole
+        column, is dropped before: :attr:`closing`)."""
         width = self.width
         period = 360.0 / self.sx  # pixels in a turn
         start = round((self.west + 180.0) / self.sx)  # its original column 0's in the turn's columns (shift mod W)
@@ -1840,10 +1861,12 @@ def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trim
     placed by it (:func:`drape_colors`): the UVs put each pixel's centre at the latitude and longitude its
     georeferencing gives, one off whole columns from 180° W too (an odd-width image over 0..360: its columns rolled
     by the nearest whole one, u offset by the rest) or not over exactly 360 x 180 degrees (a node-registered
-    361 x 181 image, its pixel centres on whole degrees: v clamped to [0, 1] beyond its edge rows). A face across
+    361 x 181 image, its pixel centres on whole degrees: v clamped to [0, 1] beyond its edge rows; its last column,
+    the first's meridian again, is dropped, so that the embedded image holds each meridian once and every face spans
+    the columns of its longitudes, Greenwich and the antimeridian too). A face across
     the antimeridian gets copies of its western corners at u + 1 (glTF's default REPEAT wrap), so no face spans the
     whole image (one off whole columns, where the image's own ends meet, spans up to a column and a half more: the
-    longitudes both ends cover, one column for a node-registered image, or one column blending its ends); a corner
+    longitudes both ends cover, or one column blending its ends); a corner
     at a pole gets a copy per face with the mean u of the face's other corners (the pole vertex itself serves the
     first such face, as does any vertex whose every face takes a copy: every vertex is a face's corner). The copies
     sit exactly on the original positions, so the surface stays crack-free; the mesh's vertices keep their indices,
@@ -1974,8 +1997,9 @@ def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint
     georeferenced as the whole globe in degrees, 0..360 too, is placed by it, each pixel's centre at the latitude
     and longitude its georeferencing gives, off whole columns too (an odd-width 0..360 image) and over not quite
     360 x 180 degrees (a node-registered 361 x 181 image: its pixel centres on whole degrees, its edge rows at the
-    poles; between its last column and its first, the two are blended as a sampler repeating the image blends
-    them); other georeferencing refused), bilinear at each vertex's direction (paper 003 §5.3: a global texture
+    poles, its last column, the first's meridian again, dropped; between the last column and the first of an image
+    spanning less than 360°, the two are blended as a sampler repeating the image blends them); other georeferencing
+    refused), bilinear at each vertex's direction (paper 003 §5.3: a global texture
     draped by latitude and longitude). An (H, W, 4) image's alpha is kept (bilinear; its colour is weighted by
     alpha, so that transparent texels' colour does not darken the opaque ones' next to them; a vertex of alpha 0 gets
     the colour of the opaque texels near it, :func:`~stepterrain.io.fill_transparent`, which its faces blend with

@@ -1,0 +1,110 @@
+"""Loose ends of the globe drape and its exports: a node-registered texture's closing column, the poles'
+colours, NaN in a glTF read back, the 3MF unit of a globe in metres."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stepterrain.globe import EARTH_RADIUS, Globe
+
+LAT1 = np.linspace(89.5, -89.5, 180)
+LON1 = np.linspace(-179.5, 179.5, 360)
+
+
+def _node_registered(tmp_path, west):
+    """A node-registered 361 x 181 PNG (pixel centres on whole degrees, its PAM file's geotransform from ``west``,
+    -0.5 for 0..360, -180.5 for -180..180), its last column the first's meridian again, and its pixels."""
+    from PIL import Image
+
+    rng = np.random.default_rng(3)
+    pixels = rng.integers(0, 256, (181, 361, 3)).astype(np.uint8)
+    pixels[:, 360] = pixels[:, 0]  # the same meridian
+    path = tmp_path / f"node{int(west)}.png"
+    Image.fromarray(pixels).save(path)
+    path.with_name(path.name + ".aux.xml").write_text(
+        f"<PAMDataset><GeoTransform>{west!r}, 1, 0, 90.5, 0, -1</GeoTransform></PAMDataset>")
+    return path, pixels
+
+
+def _lerp_columns(row, x):
+    """Bilinear along a row of pixels (columns wrapping), at column coordinates ``x`` of pixel centres."""
+    x0 = np.floor(x).astype(int)
+    t = (x - x0)[:, None]
+    return (1 - t) * row[x0 % len(row)] + t * row[(x0 + 1) % len(row)]
+
+
+@pytest.mark.parametrize("west", [-0.5, -180.5])
+def test_a_node_registered_texture_puts_every_column_at_its_longitude_without_a_stretched_face(tmp_path, west):
+    """A node-registered 361 x 181 texture (its first and last columns one meridian) was rolled by whole columns and
+    kept both copies of that meridian: over 0..360 the copies landed side by side at Greenwich, where each face
+    across it spanned one texture column more than its longitudes (a face column showing 2° of image over 1°), and
+    over -180..180 each face across the antimeridian did. The closing column is dropped now (the grid's own closing
+    column is, Globe.from_latlon): every face spans the columns of its longitudes, the seams too, and each vertex
+    samples the image at its own longitude (compared with the file's pixels at its georeferenced column)."""
+    from stepterrain.globe import drape_texture
+
+    path, pixels = _node_registered(tmp_path, west)
+    mesh = Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=9, device="cpu").mesh(error=0.0)
+    draped = drape_texture(mesh, path)
+    image = np.asarray(draped.visual.material.image.convert("RGB"), dtype=np.float64)
+    height, width = image.shape[:2]
+    vertices = np.asarray(draped.vertices, dtype=np.float64)
+    uv = np.asarray(draped.visual.uv, dtype=np.float64)
+    lon = np.degrees(np.arctan2(vertices[:, 1], vertices[:, 0]))
+    pole = np.hypot(vertices[:, 0], vertices[:, 1]) <= 1e-9 * np.abs(vertices[:, 2])
+    faces = np.asarray(draped.faces)
+    # each face: its texture columns (u times the embedded image's width) against its longitudes (1° a column)
+    corner_lon = np.where(pole[faces], np.nan, lon[faces])
+    across = np.nanmax(corner_lon, axis=1) - np.nanmin(corner_lon, axis=1) > 180
+    corner_lon = np.where(across[:, None] & (corner_lon < 0), corner_lon + 360, corner_lon)
+    degrees = np.nanmax(corner_lon, axis=1) - np.nanmin(corner_lon, axis=1)
+    corner_u = np.where(pole[faces], np.nan, uv[faces, 0] * width)
+    columns = np.nanmax(corner_u, axis=1) - np.nanmin(corner_u, axis=1)
+    worst = np.argmax(np.abs(columns - degrees))
+    assert np.abs(columns - degrees).max() < 1e-6, (worst, lon[faces[worst]].tolist(), columns[worst],
+                                                     degrees[worst])
+    # each vertex samples, along its row, the file's pixels at its georeferenced column (x from the geotransform)
+    keep = ~pole
+    row = np.clip(np.round((1 - uv[keep, 1]) * height - 0.5).astype(int), 0, height - 1)
+    x_image = (uv[keep, 0] * width - 0.5) % width
+    x_file = (lon[keep] - west - 0.5) % 360  # the file's columns 0..359: its column 360 repeats column 0
+    embedded = np.array([_lerp_columns(image[r], np.array([x]))[0] for r, x in zip(row, x_image, strict=True)])
+    expected = np.array([_lerp_columns(pixels[r, :360].astype(np.float64), np.array([x]))[0]
+                         for r, x in zip(row, x_file, strict=True)])
+    np.testing.assert_allclose(embedded, expected, atol=1e-6)
+
+
+def test_drape_colors_gives_a_pole_the_mean_of_the_image_s_edge_row(tmp_path):
+    """A pole vertex (every longitude at once) took the edge row's colour at longitude 0, arctan2(0, 0): a pole of
+    an image whose edge row varies got one column's colour. It takes the row's mean now (premultiplied by alpha in an
+    RGBA image: the opaque texels' mean colour, the mean alpha), as Globe.from_latlon gives a pole node its row's mean
+    height; a uniform edge row (a node-registered image's pole row) gives its colour, as before."""
+    from stepterrain.globe import drape_colors
+
+    pixels = np.zeros((18, 36, 4), np.uint8)
+    pixels[..., 3] = 255
+    red = np.random.default_rng(5).integers(0, 256, 36)
+    pixels[0, :, 0] = red  # red along the north row
+    pixels[0, :, 1] = 40
+    pixels[-1, :, 2] = (np.arange(36) % 5) * 60  # blue along the south row
+    pixels[-1, :18, 3] = 0  # its western half transparent
+    poles = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]]) * EARTH_RADIUS
+    got = drape_colors(poles, pixels).astype(int)
+    north = [round(red.mean()), 40, 0, 255]
+    assert abs(red.mean() - (red[17] + red[18]) / 2) > 1  # longitude 0's colour is not the mean
+    opaque = (np.arange(36) % 5)[18:] * 60
+    south = [0, 0, round(opaque.mean()), round(255 * 18 / 36)]
+    assert got.tolist() == [north, south]
+    # the RGB image alike, and a pole's colour does not depend on which way the tiny horizontal part points
+    rgb = pixels[..., :3].copy()
+    np.testing.assert_array_equal(drape_colors(poles, rgb)[0], [*north[:3], 255])
+    tilted = np.array([[1e-12, -1e-12, 1.0]]) * EARTH_RADIUS  # a pole to float64's rounding, arctan2 135° W
+    np.testing.assert_array_equal(drape_colors(tilted, rgb)[0], [*north[:3], 255])
+    # a uniform edge row: its colour
+    rgb[0] = (12, 34, 56)
+    np.testing.assert_array_equal(drape_colors(poles, rgb)[0], [12, 34, 56, 255])
+    # a vertex off the pole keeps its own longitude's colour (0°: between columns 17 and 18)
+    near = np.array([[np.cos(np.radians(89.99)), 0.0, np.sin(np.radians(89.99))]]) * EARTH_RADIUS
+    expected = np.round((pixels[0, 17, :3].astype(float) + pixels[0, 18, :3]) / 2)
+    np.testing.assert_array_equal(drape_colors(near, pixels[..., :3])[0, :3], expected)
