@@ -2401,11 +2401,10 @@ def test_every_accepted_georeferencing_puts_each_pixel_centre_where_it_says(tmp_
         draped = drape_texture(mesh, path)
         image = np.asarray(draped.visual.material.image.convert("RGB"))
         uv = np.asarray(draped.visual.uv, dtype=np.float64)[: n - n % 3]
-        embedded = image.shape[1]  # width - 1 where the last column closes the turn (dropped)
-        x, y = uv[:, 0] * embedded % embedded - 0.5, (1 - uv[:, 1]) * height - 0.5
+        x, y = uv[:, 0] * width % width - 0.5, (1 - uv[:, 1]) * height - 0.5
         np.testing.assert_allclose(x, np.round(x), atol=1e-6)
         np.testing.assert_allclose(y, np.round(y), atol=1e-6)
-        texel = image[np.round(y).astype(int), np.round(x).astype(int) % embedded]
+        texel = image[np.round(y).astype(int), np.round(x).astype(int) % width]
         np.testing.assert_array_equal(texel, pixels[row, col][: n - n % 3])
 
     import trimesh
