@@ -2003,7 +2003,10 @@ def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint
     draped by latitude and longitude). An (H, W, 4) image's alpha is kept (bilinear; its colour is weighted by
     alpha, so that transparent texels' colour does not darken the opaque ones' next to them; a vertex of alpha 0 gets
     the colour of the opaque texels near it, :func:`~stepterrain.io.fill_transparent`, which its faces blend with
-    their opaque corners'), an RGB image's is 255.
+    their opaque corners'), an RGB image's is 255. A pole vertex (its direction along the axis, within 1e-9), at
+    every longitude at once, gets its row's mean over all columns (alpha-weighted: the opaque texels' mean colour,
+    and the mean alpha), as :meth:`Globe.from_latlon` gives a pole node its row's mean height: a uniform pole row (a
+    node-registered image's) gives its own colour; a vertex off the pole, its longitude's.
 
     Raises
     ------
@@ -2062,6 +2065,13 @@ def _drape_colors(vertices: ArrayLike, pixels: NDArray[np.uint8], placement: _Pl
     # the four texels of each vertex, gathered once and only they made float64 (the whole image was: 5.6 GB of float64
     # for a 21600 x 10800 RGB, and as much again for its alpha)
     texels = [pixels[y, x].astype(np.float64) for y, x in ((y0, x0), (y0, x1), (y0 + 1, x0), (y0 + 1, x1))]
+    # a pole (as drape_texture tells one: its horizontal part within 1e-9 of its length) lies at every longitude at
+    # once: it takes its rows' mean over all columns (its alpha-weighted colour), as Globe.from_latlon gives a pole
+    # node its row's mean height; it took the row's colour at longitude 0 (arctan2(0, 0)), one column's of many
+    pole = np.hypot(d[:, 0], d[:, 1]) <= 1e-9 * np.abs(d[:, 2])
+    if pole.any():
+        for k, rows in enumerate((y0, y0, y0 + 1, y0 + 1)):
+            texels[k][pole] = _row_means(pixels, rows[pole])
     top = (1 - tx) * texels[0][:, :3] + tx * texels[1][:, :3]
     bottom = (1 - tx) * texels[2][:, :3] + tx * texels[3][:, :3]
     rgb = (1 - ty) * top + ty * bottom
@@ -2085,8 +2095,24 @@ def _drape_colors(vertices: ArrayLike, pixels: NDArray[np.uint8], placement: _Pl
         bare = ~covered
         near = [filled[y[bare], x[bare], :3].astype(np.float64)
                 for y, x in ((y0, x0), (y0, x1), (y0 + 1, x0), (y0 + 1, x1))]
+        if (pole & bare).any():  # a pole among transparent texels: the mean of its rows' filled colours
+            for k, rows in enumerate((y0, y0, y0 + 1, y0 + 1)):
+                near[k][pole[bare]] = _row_means(filled[..., :3], rows[pole & bare])
         rgb[bare] = sum(w[bare] * texel for w, texel in zip(corners, near, strict=True))
     return np.column_stack([np.round(rgb).astype(np.uint8), np.round(alpha[:, 0]).astype(np.uint8)])
+
+
+def _row_means(pixels: NDArray[np.uint8], rows: NDArray[np.int64]) -> NDArray[np.float64]:
+    """(len(rows), C) float64: each of ``rows`` of ``pixels`` (H, W, 3|4) averaged over its columns; an RGBA row's
+    colour weighted by alpha (its opaque texels' mean colour; a transparent row's plain mean) and its mean alpha."""
+    unique, inverse = np.unique(rows, return_inverse=True)
+    means = np.empty((len(unique), pixels.shape[2]), dtype=np.float64)
+    for k, row in enumerate(unique):  # a row or two: a pole's
+        values = pixels[row].astype(np.float64)
+        means[k] = values.mean(axis=0)
+        if pixels.shape[2] == 4 and values[:, 3].sum() > 0:
+            means[k, :3] = (values[:, :3] * values[:, 3:]).sum(axis=0) / values[:, 3].sum()
+    return means[inverse.reshape(-1)]
 
 
 def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float = 0.0, heading: float = 0.0,
