@@ -551,8 +551,9 @@ def save_mesh(
         that holds every vertex exactly), ``.stl`` (binary; a
         triangle with two corners on one float32 position, of no area, is left out: the walls of zero height of a
         solid at γ = 0, which a reader merging corners by position would fold onto their neighbours' edges),
-        ``.3mf`` (exact coordinates, in the unit it declares, millimetres: a terrain in metres is scaled for a
-        print in the slicer; vertex or face colours as a colour group: a colour 3D print keeps its tints;
+        ``.3mf`` (exact coordinates, in the unit it declares: the one ``metadata["units"]`` names, a globe's
+        metres, print_mesh's millimetres, else millimetres: a terrain in metres is scaled for a print in the slicer;
+        vertex or face colours as a colour group: a colour 3D print keeps its tints;
         a triangle naming one vertex twice, of no area, is left out, as 3MF requires).
     metadata : mapping, optional
         Merged over ``mesh.metadata`` and stored in the glTF mesh ``extras`` and, as JSON, in a ``.ply``'s header
@@ -2503,9 +2504,30 @@ def _behind(out: Any) -> Iterator[Callable[[str | bytes], None]]:
         raise failed[0]
 
 
+#: 3MF's units (core spec §3.4, the model's ``unit``) by the names of a mesh's ``metadata["units"]`` (trimesh's:
+#: "meters", and their singulars and symbols).
+_3MF_UNITS: dict[str, str] = {
+    **dict.fromkeys(("micron", "microns", "micrometer", "micrometers", "micrometre", "micrometres", "um"), "micron"),
+    **dict.fromkeys(("millimeter", "millimeters", "millimetre", "millimetres", "mm"), "millimeter"),
+    **dict.fromkeys(("centimeter", "centimeters", "centimetre", "centimetres", "cm"), "centimeter"),
+    **dict.fromkeys(("meter", "meters", "metre", "metres", "m"), "meter"),
+    **dict.fromkeys(("inch", "inches", "in"), "inch"),
+    **dict.fromkeys(("foot", "feet", "ft"), "foot"),
+}
+
+
+def _3mf_unit(metadata: Mapping[str, Any]) -> str:
+    """The 3MF ``unit`` of a mesh whose ``metadata["units"]`` names one (case-insensitive: a globe's "meters",
+    print_mesh's "millimeters", trimesh's of a mesh it read), else millimetre (3MF's default: a terrain in metres
+    is scaled for a print in the slicer, or by :func:`print_mesh`). Every 3MF said millimetre: a globe, in metres,
+    came out 1000 times too small."""
+    units = metadata.get("units")
+    return _3MF_UNITS.get(units.strip().lower(), "millimeter") if isinstance(units, str) else "millimeter"
+
+
 def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
-    """3MF core + materials: one mesh object, coordinates as written by ``repr`` (exact), millimetre units (as
-    trimesh writes them), and vertex colours as a ``m:colorgroup`` with each triangle's corners' colours (p1, p2,
+    """3MF core + materials: one mesh object, coordinates as written by ``repr`` (exact), in the unit its
+    metadata's ``units`` names (:func:`_3mf_unit`; millimetres without one), and vertex colours as a ``m:colorgroup`` with each triangle's corners' colours (p1, p2,
     p3; trimesh's writer dropped them), or face colours as each triangle's p1. Written by us, streamed into the
     zip: no lxml or networkx needed. A triangle naming one vertex twice (no area: trimesh's loader makes one of a
     sliver when it merges vertices) is left out: 3MF's v1, v2 and v3 MUST be distinct (core spec §4.1.4.1), and
@@ -2536,7 +2558,7 @@ def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
         with archive.open(_3mf_member("3D/3dmodel.model"), "w", force_zip64=True) as out, _behind(out) as write:
             text = "".join(_metadata_pieces(mesh.metadata))  # ASCII JSON: only & < > to escape in XML
             own = f' xmlns:{_3MF_PREFIX}="{_3MF_NAMESPACE}"' if text else ""
-            write('<?xml version="1.0" encoding="UTF-8"?>\n<model unit="millimeter" xml:lang="en-US" '
+            write(f'<?xml version="1.0" encoding="UTF-8"?>\n<model unit="{_3mf_unit(mesh.metadata)}" xml:lang="en-US" '
                   'xmlns="http://schemas.microsoft.com/3dmanufacturing/core/2015/02" '
                   f'xmlns:m="http://schemas.microsoft.com/3dmanufacturing/material/2015/02"{own}>')
             if text:

@@ -644,8 +644,8 @@ class Globe:
         -------
         trimesh.Trimesh (or a list of six)
             Welded: each node once, counter-clockwise seen from outside; ``face_attributes["cube_face"]``,
-            ``metadata["node_entry"]`` (vertex -> node entry), ``metadata["levels"]`` (triangles per level); with a
-            camera ``metadata["eye"]`` (its eye, x, y, z: :func:`~stepterrain.export.save_mesh` stores a glTF's
+            ``metadata["node_entry"]`` (vertex -> node entry), ``metadata["levels"]`` (triangles per level),
+            ``metadata["units"]`` "meters" (a ``.3mf`` declares them); with a camera ``metadata["eye"]`` (its eye, x, y, z: :func:`~stepterrain.export.save_mesh` stores a glTF's
             float32 positions relative to it unless given another ``origin``).
 
         Raises
@@ -681,6 +681,8 @@ class Globe:
         mesh = _extract(self._grid, self._params, view, users, self.levels, faces=6,
                         cull=bool(cull and camera is not None and "clip" in names), per_face=per_face,
                         device=self.device)
+        for part in mesh if per_face else [mesh]:  # its radius and heights: a 3MF declares the unit (it said mm)
+            part.metadata["units"] = "meters"
         if camera is not None:  # save_mesh's default glTF origin: stored relative to the eye, a close view keeps
             # the vertices near it to float32's rounding of their distance from it (the bounds' centre: 0.3 m off)
             for part in mesh if per_face else [mesh]:

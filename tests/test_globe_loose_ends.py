@@ -108,3 +108,41 @@ def test_drape_colors_gives_a_pole_the_mean_of_the_image_s_edge_row(tmp_path):
     near = np.array([[np.cos(np.radians(89.99)), 0.0, np.sin(np.radians(89.99))]]) * EARTH_RADIUS
     expected = np.round((pixels[0, 17, :3].astype(float) + pixels[0, 18, :3]) / 2)
     np.testing.assert_array_equal(drape_colors(near, pixels[..., :3])[0, :3], expected)
+
+
+def _model_unit(path):
+    """The ``unit`` a 3MF's model declares (millimetre when absent, as the 3MF core spec says)."""
+    import re
+    import zipfile
+
+    with zipfile.ZipFile(path) as archive:
+        head = archive.read("3D/3dmodel.model")[:400].decode()
+    found = re.search(r'<model [^>]*unit="([a-z]+)"', head)
+    return found.group(1) if found else "millimeter"
+
+
+def test_a_globe_in_metres_is_written_to_3mf_in_metres(tmp_path):
+    """A 3MF declared millimetres whatever the mesh's unit: a globe (its radius and heights in metres) came out
+    1000 times too small in a slicer (12.7 km across, not 12 742 km), and a mesh whose metadata says ``units``
+    (trimesh's "meters" of a mesh read from a glTF) alike. Globe.mesh records units "meters" and the 3MF declares
+    the unit its metadata names (millimetres without one: a terrain scaled for a print, print_mesh's), the
+    coordinates as they are; read back, the metadata names it again."""
+    import trimesh
+
+    from stepterrain.export import read_mesh, save_mesh
+
+    mesh = Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=9, device="cpu").mesh()
+    assert mesh.metadata["units"] == "meters"
+    path = save_mesh(mesh, tmp_path / "globe.3mf")
+    assert _model_unit(path) == "meter"
+    back = read_mesh(path)
+    np.testing.assert_array_equal(back.vertices, mesh.vertices)
+    assert back.metadata["units"] == "meters"
+    # trimesh's names, and none (millimetres, as before)
+    box = trimesh.creation.box()
+    for units, unit in (("millimeters", "millimeter"), ("inches", "inch"), ("feet", "foot"),
+                        ("centimeters", "centimeter"), ("microns", "micron"), ("m", "meter"), (None, "millimeter")):
+        box.metadata.clear()
+        if units is not None:
+            box.metadata["units"] = units
+        assert _model_unit(save_mesh(box, tmp_path / "box.3mf")) == unit, units
