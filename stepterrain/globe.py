@@ -645,8 +645,9 @@ class Globe:
         trimesh.Trimesh (or a list of six)
             Welded: each node once, counter-clockwise seen from outside; ``face_attributes["cube_face"]``,
             ``metadata["node_entry"]`` (vertex -> node entry), ``metadata["levels"]`` (triangles per level),
-            ``metadata["units"]`` "meters" (a ``.3mf`` declares them); with a camera ``metadata["eye"]`` (its eye, x, y, z: :func:`~stepterrain.export.save_mesh` stores a glTF's
-            float32 positions relative to it unless given another ``origin``).
+            ``metadata["units"]`` "meters" (a ``.3mf`` declares them); with a camera ``metadata["eye"]`` (its eye,
+            x, y, z: :func:`~stepterrain.export.save_mesh` stores a glTF's float32 positions relative to it unless
+            given another ``origin``).
 
         Raises
         ------
