@@ -2526,15 +2526,15 @@ def _3mf_unit(metadata: Mapping[str, Any]) -> str:
 
 
 def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
-    """3MF core + materials: one mesh object, coordinates as written by ``repr`` (exact), in the unit its
-    metadata's ``units`` names (:func:`_3mf_unit`; millimetres without one), and vertex colours as a
-    ``m:colorgroup`` with each triangle's corners' colours (p1, p2, p3; trimesh's writer dropped them), or face
-    colours as each triangle's p1. Written by us, streamed into the zip: no lxml or networkx needed. A triangle
-    naming one vertex twice (no area: trimesh's loader makes one of a sliver when it merges vertices) is left out: 3MF's v1, v2 and v3 MUST be distinct (core spec §4.1.4.1), and
-    it was written as it was. The mesh's metadata is the model's ``<metadata name="stepterrain:metadata"
-    preserve="1">`` (its compact JSON text, :func:`_metadata_pieces` joined; the core spec, §2.3.1, allows names of
-    other namespaces, the prefix declared on the model; ``preserve`` asks an editor to keep it): it was dropped,
-    and a GIS user's 3MF lost its crs."""
+    """3MF core + materials: one mesh object, coordinates as written by ``repr`` (exact), in the unit its metadata's
+    ``units`` names (:func:`_3mf_unit`; millimetres without one), and vertex colours as a ``m:colorgroup`` with each
+    triangle's corners' colours (p1, p2, p3; trimesh's writer dropped them), or face colours as each triangle's p1.
+    Written by us, streamed into the zip: no lxml or networkx needed. A triangle naming one vertex twice (no area:
+    trimesh's loader makes one of a sliver when it merges vertices) is left out: 3MF's v1, v2 and v3 MUST be distinct
+    (core spec §4.1.4.1), and it was written as it was. The mesh's metadata is the model's ``<metadata
+    name="stepterrain:metadata" preserve="1">`` (its compact JSON text, :func:`_metadata_pieces` joined; the core spec,
+    §2.3.1, allows names of other namespaces, the prefix declared on the model; ``preserve`` asks an editor to keep it):
+    it was dropped, and a GIS user's 3MF lost its crs."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
     distinct = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])
