@@ -709,9 +709,10 @@ def save_mesh(
     vertices = np.asarray(mesh.vertices)
     bounds = _vertex_bounds(vertices)
     if bounds is not None and not (np.isfinite(bounds[0]).all() and np.isfinite(bounds[1]).all()):
-        bad = int((~np.isfinite(vertices).all(axis=1)).sum())
+        bad = np.flatnonzero(~np.isfinite(vertices).all(axis=1))  # on the error path only: the bounds said so
         raise InvalidInputError(
-            f"mesh vertices must be finite to be written; got {bad} of {len(vertices)} vertices with NaN or inf"
+            f"mesh vertices must be finite to be written; got {bad.size} of {len(vertices)} vertices with NaN or inf "
+            f"(vertex {bad[0]} at {np.asarray(vertices[bad[0]], dtype=np.float64).tolist()})"
         )
     writer = _WRITERS.get(ext)
     if writer is None:
@@ -2651,8 +2652,10 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         (KHR_mesh_quantization's, read unscaled), a glTF of lines only (read as an empty mesh), an OBJ face naming
         index 0 (OBJ counts from 1) and an OBJ vertex of fewer than 3 coordinates (every vertex clipped to its
         length); a binary PLY of triangles and quads mixed (which trimesh's binary reader cannot read) and a glTF
-        bufferView past its buffer are said so. A PLY's quads and polygons come back as triangles (trimesh's
-        ``triangulate_quads``), each with its polygon's face properties.
+        bufferView past its buffer are said so, and a glTF position that is NaN or infinite is refused, naming the
+        vertex as stored (the glTF validator refuses such a file; turned z-up, a NaN coordinate spread over the
+        vertex's three, where the other formats' readers keep it where it stands). A PLY's quads and polygons come
+        back as triangles (trimesh's ``triangulate_quads``), each with its polygon's face properties.
     """
     file = _target(path, output=False)
     require_regular_file(file, "mesh file", "mesh file")
@@ -2667,6 +2670,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             tree = _check_dense_gltf(file)  # its JSON, read once
             stored_z_up = _stored_z_up(tree)
             scene = _trimesh_read(trimesh.load_scene, file, process=False)
+            _check_finite_positions(scene)  # before the turn, which spread a NaN over the vertex's coordinates
             y_up = not (_faces_along_z(scene) if stored_z_up is None else stored_z_up)
             if y_up:  # glTF's world is y-up (§3.4); ours z-up. Exact for save_mesh's files: their turn undone
                 scene.apply_transform(_Y_UP_TO_Z_UP)
@@ -3121,6 +3125,19 @@ def _check_dense_gltf(file: Path) -> dict[str, Any] | None:
 _GL_TRIANGLE_FAN = 6
 #: glTF 2.0 §3.7.2.1: the primitive modes of lines (LINES, LINE_LOOP, LINE_STRIP), which no mesh holds
 _GL_LINE_MODES = (1, 2, 3)
+
+
+def _check_finite_positions(scene: trimesh.Scene) -> None:
+    """Raise ValueError naming the first vertex of a glTF ``scene`` (as stored) that is not finite: the glTF
+    validator refuses NaN and infinite accessor values (ACCESSOR_INVALID_FLOAT), and the turn z-up (a matrix product,
+    0 · NaN = NaN) spread one NaN coordinate over its vertex's three, without a word; save_mesh writes none."""
+    for name, geometry in getattr(scene, "geometry", {}).items():
+        vertices = np.asarray(getattr(geometry, "vertices", np.zeros((0, 3))), dtype=np.float64)
+        bad = np.flatnonzero(~np.isfinite(vertices).all(axis=1)) if vertices.ndim == 2 else []
+        if len(bad):
+            x, y, z = vertices[bad[0]].tolist()
+            raise ValueError(f"mesh {name!r} has {counted(len(bad), 'vertex', 'vertices')} with NaN or inf, vertex "
+                             f"{bad[0]} first, at ({x}, {y}, {z}) as stored: glTF positions must be finite")
 
 
 def _stored_z_up(tree: dict[str, Any] | None) -> bool | None:

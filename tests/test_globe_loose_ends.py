@@ -146,3 +146,31 @@ def test_a_globe_in_metres_is_written_to_3mf_in_metres(tmp_path):
         if units is not None:
             box.metadata["units"] = units
         assert _model_unit(save_mesh(box, tmp_path / "box.3mf")) == unit, units
+
+
+def test_a_nan_vertex_is_refused_naming_it_in_every_format_and_a_gltf_holding_one_is_not_turned(tmp_path):
+    """save_mesh refused a NaN vertex in every format by count alone (which vertex?): it names the first now. A glTF
+    holding one (another tool's: its validator calls it ACCESSOR_INVALID_FLOAT) was turned z-up by a matrix product
+    (0 · NaN is NaN): the NaN spread to the vertex's three coordinates without a word, where the other formats read it
+    where it stands. read_mesh refuses it now, naming the vertex as stored."""
+    import trimesh
+
+    from stepterrain.errors import DataFileError, InvalidInputError
+    from stepterrain.export import MESH_EXTENSIONS, read_mesh, save_mesh
+
+    box = trimesh.creation.box()
+    vertices = np.asarray(box.vertices).copy()
+    vertices[5, 1] = np.nan
+    bad = trimesh.Trimesh(vertices, box.faces, process=False)
+    for ext in MESH_EXTENSIONS:
+        with pytest.raises(InvalidInputError, match=r"^mesh vertices must be finite to be written; got 1 of 8 "
+                                                    r"vertices with NaN or inf \(vertex 5 at \[0\.5, nan, 0\.5\]\)$"):
+            save_mesh(bad, tmp_path / f"bad{ext}")
+        assert not (tmp_path / f"bad{ext}").exists()
+    path = tmp_path / "other.glb"  # y-up, as any other tool writes a glTF
+    path.write_bytes(trimesh.exchange.gltf.export_glb(trimesh.Scene(bad)))
+    with pytest.raises(DataFileError, match=r"1 vertex with NaN or inf, vertex 5 first, at \(0\.5, nan, 0\.5\) "
+                                            r"as stored: glTF positions must be finite$"):
+        read_mesh(path)
+    path.write_bytes(trimesh.exchange.gltf.export_glb(trimesh.Scene(box)))  # finite: read as before
+    np.testing.assert_array_equal(read_mesh(path).vertices, np.asarray(box.vertices)[:, [0, 2, 1]] * [1, -1, 1])
