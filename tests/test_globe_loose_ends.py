@@ -174,3 +174,46 @@ def test_a_nan_vertex_is_refused_naming_it_in_every_format_and_a_gltf_holding_on
         read_mesh(path)
     path.write_bytes(trimesh.exchange.gltf.export_glb(trimesh.Scene(box)))  # finite: read as before
     np.testing.assert_array_equal(read_mesh(path).vertices, np.asarray(box.vertices)[:, [0, 2, 1]] * [1, -1, 1])
+
+
+def test_the_globe_example_frames_its_clipped_close_views_whole():
+    """examples/globe.py rendered the clipped close views (from 48° N to the horizon beyond the north pole) from a
+    fixed camera 2600 km above 51° N: their far part reached 3.7 times the panel's half height above its centre and
+    was cut off at the top of docs/globe.png. Its overview camera frames every vertex now (an independent pinhole
+    projection: within the image, and in front of the eye), the part under the close eye at the bottom."""
+    import importlib.util
+    import math
+    from pathlib import Path
+
+    from stepterrain.globe import look_from
+
+    spec = importlib.util.spec_from_file_location("globe_example",
+                                                  Path(__file__).parents[1] / "examples" / "globe.py")
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    globe = Globe.sample(face_size=65, exaggeration=10.0, device="cpu")
+    close = look_from(44.0, 9.0, 400_000.0, tilt=65.0, heading=0.0, aspect=1.6)
+    meshes = [example.coloured_mesh(globe, close, bounds, 100.0) for bounds in ("cone", "sphere")]
+    points = np.concatenate([m.vertices for m in meshes])
+
+    def image(camera):  # (x, y) in [-1, 1] across the image, and the depth
+        eye = np.asarray(camera.eye, dtype=np.float64)
+        forward = np.asarray(camera.target) - eye
+        forward /= np.linalg.norm(forward)
+        right = np.cross(forward, camera.up)
+        right /= np.linalg.norm(right)
+        up = np.cross(right, forward)
+        rel = points - eye
+        depth = rel @ forward
+        t = math.tan(camera.fov / 2)
+        return (rel @ right) / depth / (t * camera.aspect), (rel @ up) / depth / t, depth
+
+    x, y, depth = image(look_from(51.0, 9.0, 2_600_000.0, aspect=1.6))  # the old camera
+    assert y.max() > 2  # cut off
+    overview = example.overview_of(meshes, -np.asarray(close.eye), 1.6)
+    x, y, depth = image(overview)
+    assert (depth > 0).all() and np.abs(x).max() <= 1 and np.abs(y).max() <= 1
+    assert max(np.abs(x).max(), np.abs(y).max()) > 0.6  # framed, not a speck
+    ground = np.asarray(close.eye) / np.linalg.norm(close.eye)
+    under = np.argmin(np.linalg.norm(points / np.linalg.norm(points, axis=1, keepdims=True) - ground, axis=1))
+    assert y[under] < 0  # the vertex nearest the close eye's ground lies in the lower half
