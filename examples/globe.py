@@ -6,8 +6,9 @@ view with its own error bound (--far-error, --close-error), cones and spheres wi
 
 1. far view, cone frustums (rendered from the eye);  2. far view, bounding spheres;
 3. close view from 400 km above the Ligurian coast (44° N, 9° E), tilted 65° to look north over the Alps, cone
-   frustums, clipped to the view and rendered from an overview camera with the triangle edges, so the saving
-   outside the view shows;  4. the same, spheres.
+   frustums, clipped to the view (from 48° N to the horizon beyond the pole) and rendered with the triangle edges
+   from an overview camera that frames it whole (the part under the eye at the bottom), so the saving outside the
+   view shows;  4. the same, spheres.
 
 Each panel is labelled with its triangle count (the paper reports spheres needing ~1.4x the triangles).
 
@@ -26,15 +27,40 @@ import numpy as np
 
 from stepterrain.cli import check_example_outputs, usage_errors
 from stepterrain.export import save_image
-from stepterrain.globe import EARTH_RADIUS, Globe, elevation_colors, look_from, render_view
+from stepterrain.globe import EARTH_RADIUS, Camera, Globe, elevation_colors, look_from, render_view
 
 
-def panel(globe: Globe, camera, view_camera, bounds: str, error: float, size: tuple[int, int], edges: bool):
+def coloured_mesh(globe: Globe, camera, bounds: str, error: float):
     mesh = globe.mesh(error=error, camera=camera, bounds=bounds)
     heights = globe.heights.reshape(-1)[mesh.metadata["node_entry"]] / globe.exaggeration
     mesh.visual.vertex_colors = elevation_colors(heights)
-    image = render_view(mesh, view_camera, window_size=size, show_edges=edges)
-    return image, len(mesh.faces)
+    return mesh
+
+
+def overview_of(meshes, up, aspect: float, fov: float = math.radians(30.0), fill: float = 0.9) -> Camera:
+    """A camera looking straight down at ``meshes``' vertices (towards the centre), ``up`` its image's up (minus the
+    close camera's eye: the part of the view under the eye at the bottom, the horizon at the top), high enough that all
+    of them lie within ``fill`` of its field of view, aimed at the middle of their image: the clipped close views were
+    framed by a fixed camera (51° N, 2600 km up), and the part of them towards the horizon (to the north pole, 3.7 times
+    the panel's half height above its centre) was cut off at the top of the panels."""
+    points = np.concatenate([np.asarray(mesh.vertices, dtype=np.float64) for mesh in meshes])
+    unit = points / np.linalg.norm(points, axis=1, keepdims=True)
+
+    def fitted(direction):  # the lowest altitude (to 5 %) whose narrower frustum holds every vertex
+        altitude = 100_000.0
+        while True:
+            eye, clip = tuple(direction * (EARTH_RADIUS + altitude)), (altitude / 1000, 4 * EARTH_RADIUS + altitude)
+            planes = Camera(eye, (0.0, 0.0, 0.0), up, fov * fill, aspect, *clip).planes()
+            if ((points @ planes[:, :3].T + planes[:, 3]) <= 0).all():
+                return Camera(eye, (0.0, 0.0, 0.0), up, fov, aspect, *clip)
+            altitude *= 1.05
+
+    middle = (unit.min(axis=0) + unit.max(axis=0)) / 2  # their directions' box (a view over a pole has no lon range)
+    middle /= np.linalg.norm(middle)
+    for _ in range(3):  # aimed again at the vertex nearest the middle of their image
+        pixels, _ = fitted(middle).project(points)
+        middle = unit[np.argmin(np.linalg.norm(pixels - (pixels.min(axis=0) + pixels.max(axis=0)) / 2, axis=1))]
+    return fitted(middle)
 
 
 def label(image: np.ndarray, text: str) -> np.ndarray:
@@ -80,15 +106,16 @@ def run(args: argparse.Namespace) -> int:
     w, h = args.panel
     far = look_from(35.0, 15.0, 3.0 * EARTH_RADIUS, aspect=w / h)
     close = look_from(44.0, 9.0, 400_000.0, tilt=65.0, heading=0.0, aspect=w / h)
-    overview = look_from(51.0, 9.0, 2_600_000.0, aspect=w / h)
     rows = []
-    for camera, view_camera, edges, error in ((far, far, False, args.far_error),
-                                              (close, overview, True, args.close_error)):
+    for camera, edges, error in ((far, False, args.far_error), (close, True, args.close_error)):
+        meshes = {bounds: coloured_mesh(globe, camera, bounds, error) for bounds in ("cone", "sphere")}
+        # the far view from its eye; the clipped close views from above, one camera framing both whole
+        view_camera = far if camera is far else overview_of(meshes.values(), -np.asarray(camera.eye), w / h)
         row = []
-        for bounds in ("cone", "sphere"):
-            image, count = panel(globe, camera, view_camera, bounds, error, (w, h), edges)
+        for bounds, mesh in meshes.items():
+            image = render_view(mesh, view_camera, window_size=(w, h), show_edges=edges)
             name = "far view" if camera is far else "close view (clipped)"
-            row.append(label(image, f"{name}, {bounds}s: {count:,} triangles"))
+            row.append(label(image, f"{name}, {bounds}s: {len(mesh.faces):,} triangles"))
         rows.append(np.concatenate(row, axis=1))
     save_image(np.concatenate(rows, axis=0), args.output)
     print(f"wrote {args.output} in {time.perf_counter() - start:.1f} s")

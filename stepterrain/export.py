@@ -551,8 +551,9 @@ def save_mesh(
         that holds every vertex exactly), ``.stl`` (binary; a
         triangle with two corners on one float32 position, of no area, is left out: the walls of zero height of a
         solid at γ = 0, which a reader merging corners by position would fold onto their neighbours' edges),
-        ``.3mf`` (exact coordinates, in the unit it declares, millimetres: a terrain in metres is scaled for a
-        print in the slicer; vertex or face colours as a colour group: a colour 3D print keeps its tints;
+        ``.3mf`` (exact coordinates, in the unit it declares: the one ``metadata["units"]`` names, a globe's
+        metres, print_mesh's millimetres, else millimetres: a terrain in metres is scaled for a print in the slicer;
+        vertex or face colours as a colour group: a colour 3D print keeps its tints;
         a triangle naming one vertex twice, of no area, is left out, as 3MF requires).
     metadata : mapping, optional
         Merged over ``mesh.metadata`` and stored in the glTF mesh ``extras`` and, as JSON, in a ``.ply``'s header
@@ -708,9 +709,10 @@ def save_mesh(
     vertices = np.asarray(mesh.vertices)
     bounds = _vertex_bounds(vertices)
     if bounds is not None and not (np.isfinite(bounds[0]).all() and np.isfinite(bounds[1]).all()):
-        bad = int((~np.isfinite(vertices).all(axis=1)).sum())
+        bad = np.flatnonzero(~np.isfinite(vertices).all(axis=1))  # on the error path only: the bounds said so
         raise InvalidInputError(
-            f"mesh vertices must be finite to be written; got {bad} of {len(vertices)} vertices with NaN or inf"
+            f"mesh vertices must be finite to be written; got {bad.size} of {len(vertices)} vertices with NaN or inf "
+            f"(vertex {bad[0]} at {np.asarray(vertices[bad[0]], dtype=np.float64).tolist()})"
         )
     writer = _WRITERS.get(ext)
     if writer is None:
@@ -2479,16 +2481,37 @@ def _behind(out: Any) -> Iterator[Callable[[str | bytes], None]]:
         raise failed[0]
 
 
+#: 3MF's units (core spec §3.4, the model's ``unit``) by the names of a mesh's ``metadata["units"]`` (trimesh's:
+#: "meters", and their singulars and symbols).
+_3MF_UNITS: dict[str, str] = {
+    **dict.fromkeys(("micron", "microns", "micrometer", "micrometers", "micrometre", "micrometres", "um"), "micron"),
+    **dict.fromkeys(("millimeter", "millimeters", "millimetre", "millimetres", "mm"), "millimeter"),
+    **dict.fromkeys(("centimeter", "centimeters", "centimetre", "centimetres", "cm"), "centimeter"),
+    **dict.fromkeys(("meter", "meters", "metre", "metres", "m"), "meter"),
+    **dict.fromkeys(("inch", "inches", "in"), "inch"),
+    **dict.fromkeys(("foot", "feet", "ft"), "foot"),
+}
+
+
+def _3mf_unit(metadata: Mapping[str, Any]) -> str:
+    """The 3MF ``unit`` of a mesh whose ``metadata["units"]`` names one (case-insensitive: a globe's "meters",
+    print_mesh's "millimeters", trimesh's of a mesh it read), else millimetre (3MF's default: a terrain in metres
+    is scaled for a print in the slicer, or by :func:`print_mesh`). Every 3MF said millimetre: a globe, in metres,
+    came out 1000 times too small."""
+    units = metadata.get("units")
+    return _3MF_UNITS.get(units.strip().lower(), "millimeter") if isinstance(units, str) else "millimeter"
+
+
 def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
-    """3MF core + materials: one mesh object, coordinates as written by ``repr`` (exact), millimetre units (as
-    trimesh writes them), and vertex colours as a ``m:colorgroup`` with each triangle's corners' colours (p1, p2,
-    p3; trimesh's writer dropped them), or face colours as each triangle's p1. Written by us, streamed into the
-    zip: no lxml or networkx needed. A triangle naming one vertex twice (no area: trimesh's loader makes one of a
-    sliver when it merges vertices) is left out: 3MF's v1, v2 and v3 MUST be distinct (core spec §4.1.4.1), and
-    it was written as it was. The mesh's metadata is the model's ``<metadata name="stepterrain:metadata"
-    preserve="1">`` (its compact JSON text, :func:`_metadata_pieces` joined; the core spec, §2.3.1, allows names of
-    other namespaces, the prefix declared on the model; ``preserve`` asks an editor to keep it): it was dropped,
-    and a GIS user's 3MF lost its crs."""
+    """3MF core + materials: one mesh object, coordinates as written by ``repr`` (exact), in the unit its metadata's
+    ``units`` names (:func:`_3mf_unit`; millimetres without one), and vertex colours as a ``m:colorgroup`` with each
+    triangle's corners' colours (p1, p2, p3; trimesh's writer dropped them), or face colours as each triangle's p1.
+    Written by us, streamed into the zip: no lxml or networkx needed. A triangle naming one vertex twice (no area:
+    trimesh's loader makes one of a sliver when it merges vertices) is left out: 3MF's v1, v2 and v3 MUST be distinct
+    (core spec §4.1.4.1), and it was written as it was. The mesh's metadata is the model's ``<metadata
+    name="stepterrain:metadata" preserve="1">`` (its compact JSON text, :func:`_metadata_pieces` joined; the core spec,
+    §2.3.1, allows names of other namespaces, the prefix declared on the model; ``preserve`` asks an editor to keep it):
+    it was dropped, and a GIS user's 3MF lost its crs."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
     distinct = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])
@@ -2512,7 +2535,7 @@ def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
         with archive.open(_3mf_member("3D/3dmodel.model"), "w", force_zip64=True) as out, _behind(out) as write:
             text = "".join(_metadata_pieces(mesh.metadata))  # ASCII JSON: only & < > to escape in XML
             own = f' xmlns:{_3MF_PREFIX}="{_3MF_NAMESPACE}"' if text else ""
-            write('<?xml version="1.0" encoding="UTF-8"?>\n<model unit="millimeter" xml:lang="en-US" '
+            write(f'<?xml version="1.0" encoding="UTF-8"?>\n<model unit="{_3mf_unit(mesh.metadata)}" xml:lang="en-US" '
                   'xmlns="http://schemas.microsoft.com/3dmanufacturing/core/2015/02" '
                   f'xmlns:m="http://schemas.microsoft.com/3dmanufacturing/material/2015/02"{own}>')
             if text:
@@ -2605,8 +2628,10 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         (KHR_mesh_quantization's, read unscaled), a glTF of lines only (read as an empty mesh), an OBJ face naming
         index 0 (OBJ counts from 1) and an OBJ vertex of fewer than 3 coordinates (every vertex clipped to its
         length); a binary PLY of triangles and quads mixed (which trimesh's binary reader cannot read) and a glTF
-        bufferView past its buffer are said so. A PLY's quads and polygons come back as triangles (trimesh's
-        ``triangulate_quads``), each with its polygon's face properties.
+        bufferView past its buffer are said so, and a glTF position that is NaN or infinite is refused, naming the
+        vertex as stored (the glTF validator refuses such a file; turned z-up, a NaN coordinate spread over the
+        vertex's three, where the other formats' readers keep it where it stands). A PLY's quads and polygons come
+        back as triangles (trimesh's ``triangulate_quads``), each with its polygon's face properties.
     """
     file = _target(path, output=False)
     require_regular_file(file, "mesh file", "mesh file")
@@ -2621,6 +2646,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             tree = _check_dense_gltf(file)  # its JSON, read once
             stored_z_up = _stored_z_up(tree)
             scene = _trimesh_read(trimesh.load_scene, file, process=False)
+            _check_finite_positions(scene)  # before the turn, which spread a NaN over the vertex's coordinates
             y_up = not (_faces_along_z(scene) if stored_z_up is None else stored_z_up)
             if y_up:  # glTF's world is y-up (§3.4); ours z-up. Exact for save_mesh's files: their turn undone
                 scene.apply_transform(_Y_UP_TO_Z_UP)
@@ -3075,6 +3101,19 @@ def _check_dense_gltf(file: Path) -> dict[str, Any] | None:
 _GL_TRIANGLE_FAN = 6
 #: glTF 2.0 §3.7.2.1: the primitive modes of lines (LINES, LINE_LOOP, LINE_STRIP), which no mesh holds
 _GL_LINE_MODES = (1, 2, 3)
+
+
+def _check_finite_positions(scene: trimesh.Scene) -> None:
+    """Raise ValueError naming the first vertex of a glTF ``scene`` (as stored) that is not finite: the glTF
+    validator refuses NaN and infinite accessor values (ACCESSOR_INVALID_FLOAT), and the turn z-up (a matrix product,
+    0 · NaN = NaN) spread one NaN coordinate over its vertex's three, without a word; save_mesh writes none."""
+    for name, geometry in getattr(scene, "geometry", {}).items():
+        vertices = np.asarray(getattr(geometry, "vertices", np.zeros((0, 3))), dtype=np.float64)
+        bad = np.flatnonzero(~np.isfinite(vertices).all(axis=1)) if vertices.ndim == 2 else []
+        if len(bad):
+            x, y, z = vertices[bad[0]].tolist()
+            raise ValueError(f"mesh {name!r} has {counted(len(bad), 'vertex', 'vertices')} with NaN or inf, vertex "
+                             f"{bad[0]} first, at ({x}, {y}, {z}) as stored: glTF positions must be finite")
 
 
 def _stored_z_up(tree: dict[str, Any] | None) -> bool | None:

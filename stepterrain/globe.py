@@ -644,9 +644,10 @@ class Globe:
         -------
         trimesh.Trimesh (or a list of six)
             Welded: each node once, counter-clockwise seen from outside; ``face_attributes["cube_face"]``,
-            ``metadata["node_entry"]`` (vertex -> node entry), ``metadata["levels"]`` (triangles per level); with a
-            camera ``metadata["eye"]`` (its eye, x, y, z: :func:`~stepterrain.export.save_mesh` stores a glTF's
-            float32 positions relative to it unless given another ``origin``).
+            ``metadata["node_entry"]`` (vertex -> node entry), ``metadata["levels"]`` (triangles per level),
+            ``metadata["units"]`` "meters" (a ``.3mf`` declares them); with a camera ``metadata["eye"]`` (its eye,
+            x, y, z: :func:`~stepterrain.export.save_mesh` stores a glTF's float32 positions relative to it unless
+            given another ``origin``).
 
         Raises
         ------
@@ -681,6 +682,8 @@ class Globe:
         mesh = _extract(self._grid, self._params, view, users, self.levels, faces=6,
                         cull=bool(cull and camera is not None and "clip" in names), per_face=per_face,
                         device=self.device)
+        for part in mesh if per_face else [mesh]:  # its radius and heights: a 3MF declares the unit (it said mm)
+            part.metadata["units"] = "meters"
         if camera is not None:  # save_mesh's default glTF origin: stored relative to the eye, a close view keeps
             # the vertices near it to float32's rounding of their distance from it (the bounds' centre: 0.3 m off)
             for part in mesh if per_face else [mesh]:
@@ -1607,6 +1610,12 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any, _Pla
                     picture.close()
         except OSError as exc:
             raise DataFileError(f"cannot read texture {image!r}: {exc}") from exc
+        if placement is not None and placement.closing:  # a node-registered image's last column: its first's
+            # meridian again. Kept, the two copies lay side by side in the texture (at Greenwich for a 0..360 one,
+            # across the antimeridian for a -180..180 one), and the faces across them spanned a column more than
+            # their longitudes; the first is kept (as Globe.from_latlon drops a grid's closing column)
+            image, kept = np.asarray(image)[:, :-1], None
+            placement = placement.without_closing_column()
         if placement is not None and placement.shift:  # a global GeoTIFF in longitudes 0..360: its columns put at
             # -180..180, as the drape reads them (to the nearest whole column; the UVs and colours take the rest)
             image, kept = np.roll(np.asarray(image), placement.shift, axis=1), None
@@ -1629,8 +1638,9 @@ class _Placement:
     original column 0's west edge at longitude ``west`` (the turn's nearest to 180° W), its row 0's north edge at
     latitude ``north``, its pixels ``sx`` by ``sy`` degrees, ``width`` x ``height`` of them. The image need not start
     at a whole column from 180° W, nor span exactly 360 x 180 degrees (a node-registered 361 x 181 one, its pixel
-    centres on whole degrees, spans 361 x 181): :meth:`columns` and :meth:`rows` put each pixel's centre where the
-    georeferencing says, for the UVs (:func:`_drape_texture`) and the colours (:func:`drape_colors`) alike."""
+    centres on whole degrees, spans 361 x 181, until its closing column is dropped, :attr:`closing`): :meth:`columns`
+    and :meth:`rows` put each pixel's centre where the georeferencing says, for the UVs (:func:`_drape_texture`) and
+    the colours (:func:`drape_colors`) alike."""
 
     shift: int
     west: float
@@ -1639,6 +1649,19 @@ class _Placement:
     sy: float
     width: int
     height: int
+
+    @property
+    def closing(self) -> bool:
+        """Whether the last column repeats the first's meridian, its centre a turn east of the first's (a
+        node-registered image: 361 columns of 1° over 0..360 or -180..180), within float32's resolution of the UVs;
+        :func:`_texture_image` drops it (:meth:`without_closing_column`)."""
+        return self.width > 2 and abs(360.0 / self.sx - (self.width - 1)) <= self.width * 2.0**-24
+
+    def without_closing_column(self) -> _Placement:
+        """This placement of the image without its last column (:attr:`closing`): ``width`` - 1 columns in a turn,
+        rolled by the nearest whole one to 180° W of those."""
+        width = self.width - 1
+        return dataclasses.replace(self, shift=round((self.west + 180.0) / self.sx) % width, width=width)
 
     @property
     def whole_columns(self) -> bool:
@@ -1662,7 +1685,8 @@ class _Placement:
         one turn from column 0's centre; between the last column's centre and the first's a turn on (a gap, where
         the image spans less than 360°) the coordinate runs from the one to the other, as a sampler that repeats
         the image blends them; where it spans more (a node-registered one), a longitude in both ends takes the
-        western column (the jump of the overlap lies at column 0's centre, 180° W for a node-registered one)."""
+        western column (the jump of the overlap lies at column 0's centre; a node-registered one's overlap, a whole
+        column, is dropped before: :attr:`closing`)."""
         width = self.width
         period = 360.0 / self.sx  # pixels in a turn
         start = round((self.west + 180.0) / self.sx)  # its original column 0's in the turn's columns (shift mod W)
@@ -1840,10 +1864,12 @@ def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trim
     placed by it (:func:`drape_colors`): the UVs put each pixel's centre at the latitude and longitude its
     georeferencing gives, one off whole columns from 180° W too (an odd-width image over 0..360: its columns rolled
     by the nearest whole one, u offset by the rest) or not over exactly 360 x 180 degrees (a node-registered
-    361 x 181 image, its pixel centres on whole degrees: v clamped to [0, 1] beyond its edge rows). A face across
+    361 x 181 image, its pixel centres on whole degrees: v clamped to [0, 1] beyond its edge rows; its last column,
+    the first's meridian again, is dropped, so that the embedded image holds each meridian once and every face spans
+    the columns of its longitudes, Greenwich and the antimeridian too). A face across
     the antimeridian gets copies of its western corners at u + 1 (glTF's default REPEAT wrap), so no face spans the
     whole image (one off whole columns, where the image's own ends meet, spans up to a column and a half more: the
-    longitudes both ends cover, one column for a node-registered image, or one column blending its ends); a corner
+    longitudes both ends cover, or one column blending its ends); a corner
     at a pole gets a copy per face with the mean u of the face's other corners (the pole vertex itself serves the
     first such face, as does any vertex whose every face takes a copy: every vertex is a face's corner). The copies
     sit exactly on the original positions, so the surface stays crack-free; the mesh's vertices keep their indices,
@@ -1974,12 +2000,16 @@ def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint
     georeferenced as the whole globe in degrees, 0..360 too, is placed by it, each pixel's centre at the latitude
     and longitude its georeferencing gives, off whole columns too (an odd-width 0..360 image) and over not quite
     360 x 180 degrees (a node-registered 361 x 181 image: its pixel centres on whole degrees, its edge rows at the
-    poles; between its last column and its first, the two are blended as a sampler repeating the image blends
-    them); other georeferencing refused), bilinear at each vertex's direction (paper 003 §5.3: a global texture
+    poles, its last column, the first's meridian again, dropped; between the last column and the first of an image
+    spanning less than 360°, the two are blended as a sampler repeating the image blends them); other georeferencing
+    refused), bilinear at each vertex's direction (paper 003 §5.3: a global texture
     draped by latitude and longitude). An (H, W, 4) image's alpha is kept (bilinear; its colour is weighted by
     alpha, so that transparent texels' colour does not darken the opaque ones' next to them; a vertex of alpha 0 gets
     the colour of the opaque texels near it, :func:`~stepterrain.io.fill_transparent`, which its faces blend with
-    their opaque corners'), an RGB image's is 255.
+    their opaque corners'), an RGB image's is 255. A pole vertex (its direction along the axis, within 1e-9), at
+    every longitude at once, gets its row's mean over all columns (alpha-weighted: the opaque texels' mean colour,
+    and the mean alpha), as :meth:`Globe.from_latlon` gives a pole node its row's mean height: a uniform pole row (a
+    node-registered image's) gives its own colour; a vertex off the pole, its longitude's.
 
     Raises
     ------
@@ -2038,6 +2068,13 @@ def _drape_colors(vertices: ArrayLike, pixels: NDArray[np.uint8], placement: _Pl
     # the four texels of each vertex, gathered once and only they made float64 (the whole image was: 5.6 GB of float64
     # for a 21600 x 10800 RGB, and as much again for its alpha)
     texels = [pixels[y, x].astype(np.float64) for y, x in ((y0, x0), (y0, x1), (y0 + 1, x0), (y0 + 1, x1))]
+    # a pole (as drape_texture tells one: its horizontal part within 1e-9 of its length) lies at every longitude at
+    # once: it takes its rows' mean over all columns (its alpha-weighted colour), as Globe.from_latlon gives a pole
+    # node its row's mean height; it took the row's colour at longitude 0 (arctan2(0, 0)), one column's of many
+    pole = np.hypot(d[:, 0], d[:, 1]) <= 1e-9 * np.abs(d[:, 2])
+    if pole.any():
+        for k, rows in enumerate((y0, y0, y0 + 1, y0 + 1)):
+            texels[k][pole] = _row_means(pixels, rows[pole])
     top = (1 - tx) * texels[0][:, :3] + tx * texels[1][:, :3]
     bottom = (1 - tx) * texels[2][:, :3] + tx * texels[3][:, :3]
     rgb = (1 - ty) * top + ty * bottom
@@ -2061,8 +2098,24 @@ def _drape_colors(vertices: ArrayLike, pixels: NDArray[np.uint8], placement: _Pl
         bare = ~covered
         near = [filled[y[bare], x[bare], :3].astype(np.float64)
                 for y, x in ((y0, x0), (y0, x1), (y0 + 1, x0), (y0 + 1, x1))]
+        if (pole & bare).any():  # a pole among transparent texels: the mean of its rows' filled colours
+            for k, rows in enumerate((y0, y0, y0 + 1, y0 + 1)):
+                near[k][pole[bare]] = _row_means(filled[..., :3], rows[pole & bare])
         rgb[bare] = sum(w[bare] * texel for w, texel in zip(corners, near, strict=True))
     return np.column_stack([np.round(rgb).astype(np.uint8), np.round(alpha[:, 0]).astype(np.uint8)])
+
+
+def _row_means(pixels: NDArray[np.uint8], rows: NDArray[np.int64]) -> NDArray[np.float64]:
+    """(len(rows), C) float64: each of ``rows`` of ``pixels`` (H, W, 3|4) averaged over its columns; an RGBA row's
+    colour weighted by alpha (its opaque texels' mean colour; a transparent row's plain mean) and its mean alpha."""
+    unique, inverse = np.unique(rows, return_inverse=True)
+    means = np.empty((len(unique), pixels.shape[2]), dtype=np.float64)
+    for k, row in enumerate(unique):  # a row or two: a pole's
+        values = pixels[row].astype(np.float64)
+        means[k] = values.mean(axis=0)
+        if pixels.shape[2] == 4 and values[:, 3].sum() > 0:
+            means[k, :3] = (values[:, :3] * values[:, 3:]).sum(axis=0) / values[:, 3].sum()
+    return means[inverse.reshape(-1)]
 
 
 def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float = 0.0, heading: float = 0.0,

@@ -324,7 +324,7 @@ def test_a_non_finite_vertex_anywhere_is_refused_and_bounds_are_exact(tmp_path, 
         spoiled[row, row % 3] = bad
         mesh = trimesh.Trimesh(spoiled, faces, process=False)
         with pytest.raises(InvalidInputError, match=rf"^mesh vertices must be finite to be written; got 1 of {count} "
-                           "vertices with NaN or inf$"):
+                           rf"vertices with NaN or inf \(vertex {row} at \[.*\]\)$"):
             save_mesh(mesh, tmp_path / "m.glb")
     no_leftovers(tmp_path, set())
 

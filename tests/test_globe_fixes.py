@@ -2314,15 +2314,14 @@ def test_a_texture_off_whole_columns_puts_each_pixel_centre_where_its_georeferen
         if pixels is not None:
             np.testing.assert_array_equal(image[row[~pole], col[~pole]], colours[~pole], err_msg=str(path))
             np.testing.assert_array_equal(image[row[pole], 0], colours[pole], err_msg=str(path))
-        else:  # the JPEG embedded as it is: its own pixels, the marker's row and column
-            assert draped.visual.material.image.format == "JPEG"
-            expected = [(i, j) for i, j, _ in markers]
+        else:  # the JPEG's pixels without their closing column (column 360, 180° E, is column 0's meridian)
+            assert width == 360
+            expected = [(i, j % 360) for i, j, _ in markers]
             got = list(zip(row.tolist(), col.tolist(), strict=True))
-            assert all(g == m or (g[0] == m[0] and {g[1], m[1]} == {0, 360}) for g, m, p in
-                       zip(got, expected, pole, strict=True) if not p), got
+            assert all(g == m for g, m, p in zip(got, expected, pole, strict=True) if not p), got
         # the seam: a globe's faces across the antimeridian span a few of the texture's columns, not the image (their
         # western corners' copies a turn on, u + 1); each face spans the columns of its longitudes, and at most the
-        # one column more where the image's own ends meet (node-registered: 180° W twice)
+        # one column more where the image's own ends meet (an odd-width image's blend of its ends)
         globe = Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=9, device="cpu").mesh(error=0.0)
         plain = drape_texture(globe, np.zeros((2, 2, 3), np.uint8))  # u = (lon + 180) / 360
         placed = drape_texture(globe, path)
@@ -2357,9 +2356,10 @@ def test_the_cli_drapes_a_texture_off_whole_columns_where_its_georeferencing_say
     uv = np.asarray(glb.visual.uv, dtype=np.float64)
     pole = np.abs(lat) > 89.999
     x = (lon - -180.5) / 1.0  # pixel edges from the geotransform, not rolled (its west edge is 180.5 W)
-    off = (uv[:, 0] * 361 - x + 180.5) % 361 - 180.5  # modulo the image: u repeats
-    seam = np.abs(lon) > 179.5  # 180 W twice (columns 0 and 360): either
-    assert (np.abs(off[~pole & ~seam]) < 1e-3).all() and (np.abs(np.abs(off[seam]) - 0.5) <= 0.5 + 1e-3).all()
+    # modulo the image, its closing column (180° E, column 0's meridian again) dropped: 360 columns, u repeats
+    off = (uv[:, 0] * 360 - x + 180) % 360 - 180
+    assert glb.visual.material.baseColorTexture.size == (360, 181)
+    assert (np.abs(off[~pole]) < 1e-3).all()
     np.testing.assert_allclose((1 - uv[:, 1]) * 181, 90.5 - lat, atol=1e-3)
 
 
