@@ -838,6 +838,10 @@ class ImagePyramid:
     def __len__(self) -> int:
         return len(self.levels)
 
+    # Each public method below reads ``self.levels`` once (the closed check, and the stat of a .npy path's file:
+    # _check_source) and hands the list down: the helpers stat'ed it again at every step, 3 to 5 times a call (a
+    # TextureTree's build and walk made ~58 000 stats on the sample DEM at leaf_size 16).
+
     def __enter__(self) -> ImagePyramid:
         self._open("it")
         return self
@@ -854,10 +858,11 @@ class ImagePyramid:
             self._finalizer()  # shutil.rmtree of the folder, once
             self._owned = False
 
-    def _level(self, level: Any) -> NDArray[np.uint8]:
-        """The array of ``level``, else an InvalidInputError naming it: level -1 read the last (1 x 1) level through
-        Python's negative indexing, True level 1."""
-        levels = self.levels  # a closed pyramid is refused first
+    @staticmethod
+    def _level(levels: list[NDArray[np.uint8]], level: Any) -> NDArray[np.uint8]:
+        """The array of ``level`` in ``levels`` (``self.levels``: a closed pyramid is refused first), else an
+        InvalidInputError naming it: level -1 read the last (1 x 1) level through Python's negative indexing, True
+        level 1."""
         if isinstance(level, bool) or not isinstance(level, (int, np.integer)) or not 0 <= level < len(levels):
             raise InvalidInputError(f"level must index the pyramid's {counted(len(levels), 'level')} (0 to "
                                     f"{len(levels) - 1}); got {level!r}")
@@ -865,12 +870,17 @@ class ImagePyramid:
 
     def shape(self, level: int) -> tuple[int, int]:
         """(rows, cols) of ``level``."""
-        shape = self._level(level).shape
+        return self._shape(self.levels, level)
+
+    def _shape(self, levels: list[NDArray[np.uint8]], level: Any) -> tuple[int, int]:
+        shape = self._level(levels, level).shape
         return int(shape[0]), int(shape[1])
 
     def pixel_size(self, level: int) -> tuple[float, float]:
         """(width, height) of one pixel of ``level`` in world units."""
-        rows, cols = self.shape(level)
+        return self._pixel_size(*self.shape(level))
+
+    def _pixel_size(self, rows: int, cols: int) -> tuple[float, float]:
         xmin, xmax, ymin, ymax = self.extent
         return (xmax - xmin) / cols, (ymax - ymin) / rows
 
@@ -878,9 +888,13 @@ class ImagePyramid:
         """(r0, r1, c0, c1): the smallest pixel window of ``level`` covering ``domain`` (clipped to the image; for
         a world image spanning a whole turn of longitude, placed on a DEM in degrees, the columns go on past its
         west or east edge, read from its other end), or None when the image does not overlap it."""
+        return self._window_over(self.levels, level, domain)
+
+    def _window_over(self, levels: list[NDArray[np.uint8]], level: int,
+                     domain: Extent) -> tuple[int, int, int, int] | None:
         domain = _check_extent(domain, "domain")  # NaN raised math.floor's ValueError, text a TypeError
-        rows, cols = self.shape(level)
-        px, py = self.pixel_size(level)
+        rows, cols = self._shape(levels, level)
+        px, py = self._pixel_size(rows, cols)
         xmin, xmax, ymin, ymax = self.extent
         c0 = math.floor((domain[0] - xmin) / px + 1e-9)
         c1 = math.ceil((domain[1] - xmin) / px - 1e-9)
@@ -899,24 +913,25 @@ class ImagePyramid:
         edge (a window may then reach past either, up to a turn: see :func:`_placed`)."""
         return bool(getattr(self, "whole_turn", False))
 
-    def _with_margin(self, level: int, window: tuple[int, int, int, int]) -> tuple[int, int, int, int]:
+    def _with_margin(self, levels: list[NDArray[np.uint8]], level: int,
+                     window: tuple[int, int, int, int]) -> tuple[int, int, int, int]:
         """``window`` grown by one pixel on each side within the image (past its seam for a world image): a
         bilinear sample within half a pixel of the window's edge then takes the image's next pixel, as over the
         whole image, instead of repeating the edge pixel (adjacent crops or texture patches differed at their
         seams)."""
         r0, r1, c0, c1 = window
-        rows, cols = self.shape(level)
+        rows, cols = self._shape(levels, level)
         if not self._wraps:
             c0, c1 = max(c0 - 1, 0), min(c1 + 1, cols)
         else:
             c0, c1 = c0 - 1, c1 + 1
         return max(r0 - 1, 0), min(r1 + 1, rows), c0, c1
 
-    def _window(self, level: int, window: Any) -> tuple[int, int, int, int]:
+    def _window(self, levels: list[NDArray[np.uint8]], level: int, window: Any) -> tuple[int, int, int, int]:
         """``window`` (r0, r1, c0, c1) as ints when it is a non-empty pixel window of ``level``, else an
         InvalidInputError naming it: a negative index sliced from the end, a reversed window gave an empty image, one
         past the edge a clipped image, and the extents of all three did not match their images."""
-        rows, cols = self.shape(level)
+        rows, cols = self._shape(levels, level)
         if type(window) is tuple and len(window) == 4 and all(type(v) is int for v in window):
             r0, r1, c0, c1 = window  # what window() gives and a TexturePatch holds: read on every traversal
         else:
@@ -933,16 +948,18 @@ class ImagePyramid:
 
     def window_extent(self, level: int, window: tuple[int, int, int, int]) -> Extent:
         """World extent of a pixel window of ``level`` (as :meth:`window` gives it)."""
-        r0, r1, c0, c1 = self._window(level, window)
-        px, py = self.pixel_size(level)
+        levels = self.levels
+        r0, r1, c0, c1 = self._window(levels, level, window)
+        px, py = self._pixel_size(*self._shape(levels, level))
         xmin, _, _, ymax = self.extent
         return xmin + c0 * px, xmin + c1 * px, ymax - r1 * py, ymax - r0 * py
 
     def sub_image(self, level: int, window: tuple[int, int, int, int]) -> NDArray[np.uint8]:
         """A view of a pixel window of ``level`` (as :meth:`window` gives it; no copy: a memmap slice stays on disk
         until read; a copy of a world image's window past its seam, its columns read from the other end)."""
-        r0, r1, c0, c1 = self._window(level, window)
-        pixels = self._level(level)
+        levels = self.levels
+        r0, r1, c0, c1 = self._window(levels, level, window)
+        pixels = self._level(levels, level)
         if 0 <= c0 and c1 <= pixels.shape[1]:
             return pixels[r0:r1, c0:c1]
         return np.take(pixels[r0:r1], np.arange(c0, c1) % pixels.shape[1], axis=1)
@@ -1605,15 +1622,16 @@ class TextureTree:
         self.pyramid = pyramid
         self.quadtree = quadtree
         self.max_texture_size = max_texture_size
-        self.root = self._build(quadtree.root, None)
+        self.root = self._build(quadtree.root, None, pyramid.levels)  # checked once (ImagePyramid.levels)
         if self.root is None:
             raise InvalidInputError(f"the image extent {pyramid.extent} does not overlap the terrain's "
                                     f"{quadtree.root.domain} (mismatched extent)")
 
-    def _build(self, geometry: GeometryPatch, parent: TexturePatch | None) -> TexturePatch | None:
+    def _build(self, geometry: GeometryPatch, parent: TexturePatch | None,
+               levels: list[NDArray[np.uint8]]) -> TexturePatch | None:
         choice = None
-        for level in range(len(self.pyramid.levels)):
-            window = self.pyramid.window(level, geometry.domain)
+        for level in range(len(levels)):
+            window = self.pyramid._window_over(levels, level, geometry.domain)
             if window is None:
                 return None
             r0, r1, c0, c1 = window
@@ -1621,14 +1639,14 @@ class TextureTree:
                 # a pixel more on each side (OpenGL's texture border, §4: not counted in the size), as image_layer's:
                 # the patch's texels within half a pixel of its edge were sampled from its edge pixel repeated, so
                 # adjacent patches at one level differed at their seam
-                choice = (level, self.pyramid._with_margin(level, window))
+                choice = (level, self.pyramid._with_margin(levels, level, window))
                 break
         if choice is None:  # pragma: no cover - the 1 x 1 level always fits
             return None
         patch = TexturePatch(self, geometry, choice[0], choice[1], parent)
         if choice[0] > 0:
             for child in geometry.children:
-                sub = self._build(child, patch)
+                sub = self._build(child, patch, levels)
                 if sub is not None:
                     patch.children[id(child)] = sub
         return patch
@@ -1972,7 +1990,7 @@ def image_layer(image: ArrayLike | str | os.PathLike[str], terrain: Terrain, *, 
         # image's next pixel beyond it, not the window's edge pixel repeated (a cropped DEM, or a tile beside
         # another, took other colours on its nodes near the edge than the whole DEM did on the same nodes); a world
         # image's window goes on past its seam (a DEM across the antimeridian was draped on one side only)
-        window = placed._with_margin(level, window)
+        window = placed._with_margin(placed.levels, level, window)
         if tiff is None:
             pixels = np.array(placed.sub_image(level, window))  # a copy: the level files go with the pyramid
         else:

@@ -1591,3 +1591,45 @@ def test_the_sample_dems_patches_measured_together_keep_the_per_patch_geometric_
     heights = stepterrain.sample_dem().heights[:157, :203].astype(np.float64)
     heights[40:61, 90:118] = np.nan
     assert _assert_errors_match_the_per_patch_reference(PatchQuadtree(heights, leaf_size=8)) > 100
+
+
+def test_a_pyramid_stats_its_source_once_per_public_call_and_still_refuses_a_rewrite(tmp_path, monkeypatch):
+    """A .npy path's pyramid stat'ed its file at every internal level access (shape, pixel_size, _window...): 3 to 5
+    stats a window() or sub_image(), ~25 000 for a TextureTree's build over the sample DEM. It stats once per public
+    call (a TextureTree's build once), and a file rewritten in place is still refused by each of them."""
+    import time
+
+    from stepterrain.errors import DataFileError
+
+    path = tmp_path / "image.npy"
+    np.save(path, np.full((33, 29, 3), 10, np.uint8))
+    stats = []
+    state = texture_lod._file_state
+    monkeypatch.setattr(texture_lod, "_file_state", lambda p: stats.append(p) or state(p))
+    quadtree = PatchQuadtree(np.arange(17 * 15, dtype=np.float64).reshape(17, 15), leaf_size=2)
+    with ImagePyramid.build(path, extent=(0.0, 14.0, 0.0, 16.0)) as pyramid:
+        calls = {
+            "levels": lambda: pyramid.levels, "len": lambda: len(pyramid), "anisotropic": lambda: pyramid.anisotropic,
+            "shape": lambda: pyramid.shape(1), "pixel_size": lambda: pyramid.pixel_size(1),
+            "window": lambda: pyramid.window(1, (1.0, 5.0, 2.0, 9.0)),
+            "window_extent": lambda: pyramid.window_extent(1, (1, 4, 2, 5)),
+            "sub_image": lambda: pyramid.sub_image(1, (1, 4, 2, 5)),
+        }
+        for name, call in calls.items():
+            stats.clear()
+            call()
+            assert len(stats) == 1, (name, len(stats))
+        stats.clear()
+        tree = TextureTree(pyramid, quadtree, max_texture_size=4)
+        assert len(tree.patches()) > 20 and len(stats) == 1
+        patch = tree.patches()[-1]
+        for name, call in {"image": patch.image, "domain": lambda: patch.domain, "nbytes": lambda: patch.nbytes,
+                           "texel_size": lambda: patch.texel_size}.items():
+            stats.clear()
+            call()
+            assert len(stats) == 1, (name, len(stats))
+        time.sleep(0.05)  # past the file system's timestamp granularity
+        np.save(path, np.full((33, 29, 3), 200, np.uint8))  # rewritten in place
+        for call in [*calls.values(), patch.image, lambda: TextureTree(pyramid, quadtree)]:
+            with pytest.raises(DataFileError, match=r"image\.npy.*changed"):
+                call()
