@@ -1591,6 +1591,14 @@ def test_the_sample_dems_patches_measured_together_keep_the_per_patch_geometric_
     heights = stepterrain.sample_dem().heights[:157, :203].astype(np.float64)
     heights[40:61, 90:118] = np.nan
     assert _assert_errors_match_the_per_patch_reference(PatchQuadtree(heights, leaf_size=8)) > 100
+    # a stack of blocks one node tall (one coarse row: the mean's distance, kept one block at a time), and square ones
+    rng = np.random.default_rng(5)
+    for shape, stride in (((6, 1, 23), 4), ((6, 9, 1), 2), ((5, 13, 13), 4), ((4, 9, 14), 8)):
+        blocks = rng.normal(0.0, 50.0, shape)
+        blocks[rng.random(shape) < 0.2] = np.nan
+        blocks[0] = np.nan
+        got = texture_lod._approximation_errors(blocks, stride, (2.0, 3.0))
+        assert [float(e) for e in got] == [approximation_error_reference(b, stride, (2.0, 3.0)) for b in blocks]
 
 
 def test_a_pyramid_stats_its_source_once_per_public_call_and_still_refuses_a_rewrite(tmp_path, monkeypatch):
