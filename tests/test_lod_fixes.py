@@ -9,11 +9,16 @@ import warnings
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as hst
 
+import stepterrain
+from stepterrain import texture_lod
 from stepterrain.camera import Camera
 from stepterrain.errors import InvalidInputError
 from stepterrain.texture_lod import ImagePyramid, PatchQuadtree, TextureTree, render_with_textures
 
+from .reference_lod import approximation_error_reference
 from .reference_texture import real_dem_crop, reduce_rounded_reference
 from .test_texture_lod import big_memmap_npy, pyramid_build_rise
 
@@ -1543,3 +1548,96 @@ def test_the_geometric_error_includes_where_a_narrow_coarse_cells_diagonal_cross
     block = np.array([[0.0, 5.0, 10.0], [10.0, 5.0, 0.0]])  # 0 at every node, 5 m apart at (0.5, 1)
 
     assert _approximation_error(block, 2) == pytest.approx(_overlay_error(block, 2)) == pytest.approx(5.0)
+
+
+def _assert_errors_match_the_per_patch_reference(quadtree):
+    """Every patch's e(N) equals, bit for bit, the per-patch computation the library used before measuring the
+    patches of one shape together; returns how many patches shared a pass with another of their shape and stride."""
+    heights = quadtree.terrain.heights
+    shapes = {}
+    for patch in quadtree.patches():
+        block = heights[patch.rows[0]: patch.rows[1] + 1, patch.cols[0]: patch.cols[1] + 1]
+        expected = approximation_error_reference(block, patch.stride, quadtree.terrain.spacing)
+        assert patch.error == expected, (patch.rows, patch.cols, patch.stride, patch.error, expected)
+        key = (*block.shape, patch.stride)
+        shapes[key] = shapes.get(key, 0) + (patch.stride > 1)
+    return sum(n for n in shapes.values() if n > 1)
+
+
+@given(rows=hst.integers(2, 41), cols=hst.integers(2, 41), leaf_size=hst.integers(2, 5), seed=hst.integers(0, 10**6),
+       voids=hst.sampled_from([0.0, 0.04, 0.3]), lake=hst.booleans(), pass_nodes=hst.sampled_from([1, 200, 1 << 21]))
+def test_patches_of_one_shape_measured_together_keep_the_per_patch_geometric_error(rows, cols, leaf_size, seed, voids,
+                                                                                  lake, pass_nodes):
+    """PatchQuadtree measures e(N) of a level's patches of one shape in one pass (the per-patch computation, with
+    _diagonal_gap's crossings, took the sample DEM's leaf_size 8 build from 2.7 s to 7 s): the result must be the per-
+    patch one bit for bit, on odd shapes (narrow last coarse cells), with scattered nodata and a nodata lake, whatever
+    the band of patches one pass takes."""
+    rng = np.random.default_rng(seed)
+    heights = np.cumsum(rng.normal(0.0, 3.0, (rows, cols)), axis=1) + np.cumsum(rng.normal(0.0, 3.0, (rows, 1)), 0)
+    heights[rng.random((rows, cols)) < voids] = np.nan
+    if lake:
+        r, c = rng.integers(0, rows), rng.integers(0, cols)
+        heights[r: r + rng.integers(1, 9), c: c + rng.integers(1, 9)] = np.nan
+    spacing = (float(rng.uniform(0.5, 30.0)), float(rng.uniform(0.5, 30.0)))
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(texture_lod, "_ERROR_PASS_NODES", pass_nodes)
+        quadtree = PatchQuadtree(heights, leaf_size=leaf_size, spacing=spacing)
+    _assert_errors_match_the_per_patch_reference(quadtree)
+
+
+def test_the_sample_dems_patches_measured_together_keep_the_per_patch_geometric_error():
+    """As above on a crop of the sample DEM no multiple of the strides (and with a nodata lake): many patches of one
+    shape share a pass."""
+    heights = stepterrain.sample_dem().heights[:157, :203].astype(np.float64)
+    heights[40:61, 90:118] = np.nan
+    assert _assert_errors_match_the_per_patch_reference(PatchQuadtree(heights, leaf_size=8)) > 100
+    # a stack of blocks one node tall (one coarse row: the mean's distance, kept one block at a time), and square ones
+    rng = np.random.default_rng(5)
+    for shape, stride in (((6, 1, 23), 4), ((6, 9, 1), 2), ((5, 13, 13), 4), ((4, 9, 14), 8)):
+        blocks = rng.normal(0.0, 50.0, shape)
+        blocks[rng.random(shape) < 0.2] = np.nan
+        blocks[0] = np.nan
+        got = texture_lod._approximation_errors(blocks, stride, (2.0, 3.0))
+        assert [float(e) for e in got] == [approximation_error_reference(b, stride, (2.0, 3.0)) for b in blocks]
+
+
+def test_a_pyramid_stats_its_source_once_per_public_call_and_still_refuses_a_rewrite(tmp_path, monkeypatch):
+    """A .npy path's pyramid stat'ed its file at every internal level access (shape, pixel_size, _window...): 3 to 5
+    stats a window() or sub_image(), ~25 000 for a TextureTree's build over the sample DEM. It stats once per public
+    call (a TextureTree's build once), and a file rewritten in place is still refused by each of them."""
+    import time
+
+    from stepterrain.errors import DataFileError
+
+    path = tmp_path / "image.npy"
+    np.save(path, np.full((33, 29, 3), 10, np.uint8))
+    stats = []
+    state = texture_lod._file_state
+    monkeypatch.setattr(texture_lod, "_file_state", lambda p: stats.append(p) or state(p))
+    quadtree = PatchQuadtree(np.arange(17 * 15, dtype=np.float64).reshape(17, 15), leaf_size=2)
+    with ImagePyramid.build(path, extent=(0.0, 14.0, 0.0, 16.0)) as pyramid:
+        calls = {
+            "levels": lambda: pyramid.levels, "len": lambda: len(pyramid), "anisotropic": lambda: pyramid.anisotropic,
+            "shape": lambda: pyramid.shape(1), "pixel_size": lambda: pyramid.pixel_size(1),
+            "window": lambda: pyramid.window(1, (1.0, 5.0, 2.0, 9.0)),
+            "window_extent": lambda: pyramid.window_extent(1, (1, 4, 2, 5)),
+            "sub_image": lambda: pyramid.sub_image(1, (1, 4, 2, 5)),
+        }
+        for name, call in calls.items():
+            stats.clear()
+            call()
+            assert len(stats) == 1, (name, len(stats))
+        stats.clear()
+        tree = TextureTree(pyramid, quadtree, max_texture_size=4)
+        assert len(tree.patches()) > 20 and len(stats) == 1
+        patch = tree.patches()[-1]
+        for name, call in {"image": patch.image, "domain": lambda: patch.domain, "nbytes": lambda: patch.nbytes,
+                           "texel_size": lambda: patch.texel_size}.items():
+            stats.clear()
+            call()
+            assert len(stats) == 1, (name, len(stats))
+        time.sleep(0.05)  # past the file system's timestamp granularity
+        np.save(path, np.full((33, 29, 3), 200, np.uint8))  # rewritten in place
+        for call in [*calls.values(), patch.image, lambda: TextureTree(pyramid, quadtree)]:
+            with pytest.raises(DataFileError, match=r"image\.npy.*changed"):
+                call()
