@@ -767,11 +767,9 @@ def _tile_off_thresholds(item: BatchItem, source: _Source, terrain: Terrain, opt
     (xmin, ymin, _), (xmax, ymax, _) = source.bounds
     magnitude = max(abs(xmin), abs(xmax), abs(ymin), abs(ymax), xmax - xmin, ymax - ymin)
     values = isovalues(terrain.height_range, interval=options.interval, levels=options.levels, base=options.base)
-    # under the lock of the library's warning blocks: dask's threaded workers step a raster's tiles at once, and two
-    # of these blocks overlapping left "ignore" in the process's filters for good
-    with _RECORDING, warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # a height left on its threshold: stepped says so for the tile itself
-        moved = _off_thresholds(ring, values, magnitude)
+    # a height left on its threshold unsaid (stepped says so for the tile itself): no catch_warnings block, whose
+    # lock (the process's filters) ran the tiles of dask's threaded workers one at a time
+    moved = _off_thresholds(ring, values, magnitude, warn=False)
     if moved is ring:
         return terrain
     heights = moved.heights[r0 - h0 : r1 - h0, c0 - w0 : c1 - w0]

@@ -1504,7 +1504,7 @@ def _refuse_floor_above_surface(t: Terrain, values: NDArray[np.float32], gamma: 
 OFF_THRESHOLD_STEPS = 4.0
 
 
-def _off_thresholds(t: Terrain, values: NDArray[np.float32], magnitude: float = 0.0) -> Terrain:
+def _off_thresholds(t: Terrain, values: NDArray[np.float32], magnitude: float = 0.0, *, warn: bool = True) -> Terrain:
     """The terrain a solid is stepped from: ``t`` itself, or, where a height the surface uses sits exactly on a
     threshold t_i = (α_i + α_i+1) / 2, a copy with such heights moved up by τ, the least that puts every wall
     crossing on the node's edges :data:`OFF_THRESHOLD_STEPS` float32 steps of the coordinates (world or local,
@@ -1526,7 +1526,9 @@ def _off_thresholds(t: Terrain, values: NDArray[np.float32], magnitude: float = 
     watertight; its ``.stl`` may merge there); where that next float32 value is itself a threshold (levels a few
     float32 steps apart), the height stays, with a warning that the solid may leak there. ``magnitude``: a least
     coordinate magnitude for the float32 step (a tile of a raster: the whole raster's, so that the nodes two tiles
-    share get one τ in both, see ``batch``)."""
+    share get one τ in both, see ``batch``). ``warn``: False leaves a height that stays on its threshold unsaid (a
+    batch tile's ring: the tile's own stepped() says it), without a ``warnings.catch_warnings`` block (the process's
+    filters, under a lock that dask's threaded workers would take one at a time)."""
     thresholds = thresholds_of(values)
     # only the heights the surface uses: a TIN's unused points and a grid's nodes isolated by nodata are in no mesh
     # (they warned that the solid may leak where it has no vertex)
@@ -1537,11 +1539,12 @@ def _off_thresholds(t: Terrain, values: NDArray[np.float32], magnitude: float = 
     up = np.nextafter(heights.reshape(-1)[on], np.float32(np.inf))
     stays = np.isin(up, thresholds)
     if stays.any():
-        warnings.warn(
-            "some heights sit exactly on a threshold (α_i + α_i+1) / 2 that lies one float32 step below the next; "
-            "the solid may not be watertight there. Give levels further apart.",
-            stacklevel=caller_stacklevel(),
-        )
+        if warn:
+            warnings.warn(
+                "some heights sit exactly on a threshold (α_i + α_i+1) / 2 that lies one float32 step below the "
+                "next; the solid may not be watertight there. Give levels further apart.",
+                stacklevel=caller_stacklevel(),
+            )
         on, up = on[~stays], up[~stays]
     if on.size:
         up = _off_threshold_heights(t, thresholds, on, up, magnitude, top=float(values[-1]))
