@@ -906,13 +906,10 @@ def _coarsened(terrain: Terrain, factor: int, *, empty: bool = False) -> Terrain
     """``terrain.coarsen(factor)`` (block means), its refusal naming ``coarsen``. ``empty``: a grid whose blocks hold
     no finite node (nodata only, or its finite nodes all in the last rows and columns, beyond the last whole block)
     becomes a coarse grid of nodata, an empty item (as a file or frame of nodata only is), where coarsen refuses it:
-    a coast tile whose land lay in its last row failed its item, and such a frame of a series the whole batch."""
-    if empty and terrain.has_nodata:  # (cached: no pass over a grid without nodata)
-        _, (rows, cols), spacing, origin = _coarse_geometry(terrain, factor)
-        if not np.isfinite(terrain.heights[:rows * factor, :cols * factor]).any():  # (coarsen refuses nodata only)
-            return terrain._subgrid(np.full((rows, cols), np.nan, np.float32), spacing, origin)
+    a coast tile whose land lay in its last row failed its item, and such a frame of a series the whole batch (found
+    by the coarsening itself: its blocks' means all NaN, no pass over the heights before it)."""
     try:
-        return terrain.coarsen(factor)
+        return terrain._coarsen(factor, empty_ok=empty)
     except InvalidInputError as exc:
         raise InvalidInputError(f"coarsen={factor}: {exc}") from None
 
@@ -957,10 +954,7 @@ def _reshaped_source(src: _Source, crop: ArrayLike | None, coarsen: int | None) 
                                     f" holds only nodata of the source ({i1 - i0} x {j1 - j0} nodes)")
     spacing, origin = probe.spacing, probe.origin
     if coarsen is not None:
-        try:
-            _, shape, spacing, origin = probe._coarse_geometry(coarsen)
-        except InvalidInputError as exc:
-            raise InvalidInputError(f"coarsen={coarsen}: {exc}") from None  # as _coarsened says it
+        _, shape, spacing, origin = _coarse_geometry(probe, coarsen)
         frames = []
         for frame in (heights if series else heights[None]):
             if np.isfinite(frame).any():

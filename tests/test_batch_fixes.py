@@ -3386,3 +3386,47 @@ def test_a_floor_on_the_float32_blend_of_the_lowest_point_is_refused_before_any_
                        floor=below, format=".ply", scheduler="serial")
         assert report.ok and len(report.done) == n, report.summary()
         assert min(float(read_mesh(r.path).vertices[:, 2].min()) for r in report.done) == below
+
+
+def test_coarsened_empty_item_is_found_by_the_coarsening_without_a_pass_before_it(monkeypatch):
+    """batch._coarsened(empty=True) (a file item read with --coarsen, a frame of a series) scanned a grid with nodata
+    for a finite node in its whole blocks (np.isfinite of the grid) before coarsening it, which finds the same in its
+    blocks' means: that pass is gone (Terrain._coarsen(empty_ok=True) returns the grid of NaN means). The results
+    are those of before: a grid of nodata for blocks of nodata only (land beyond the last whole block), the block
+    means otherwise, and without ``empty`` the refusal of a result of nodata only, named ``coarsen=``."""
+    from stepterrain import batch as batch_module
+    from stepterrain.errors import InvalidInputError
+    from stepterrain.terrain import Terrain
+
+    heights = np.full((7, 9), np.nan, np.float32)
+    heights[6, :], heights[:, 8] = 5.0, 3.0  # only beyond the 3 x 4 whole blocks of 2 x 2 nodes
+    coast = Terrain.from_heights(heights, spacing=(10.0, 10.0), origin=(100.0, 200.0))
+    land = heights.copy()
+    land[1:4, 2:5] = np.arange(9, dtype=np.float32).reshape(3, 3)
+    partial = Terrain.from_heights(land, spacing=(10.0, 10.0), origin=(100.0, 200.0))
+    passes: list[tuple[int, ...]] = []
+
+    class Counted:  # batch's numpy, its np.isfinite counted
+        def __getattr__(self, name):
+            return getattr(np, name)
+
+        @staticmethod
+        def isfinite(a, *args, **kwargs):
+            passes.append(np.shape(a))
+            return np.isfinite(a, *args, **kwargs)
+
+    monkeypatch.setattr(batch_module, "np", Counted())
+    empty = batch_module._coarsened(coast, 2, empty=True)
+    means = batch_module._coarsened(partial, 2, empty=True)
+    with pytest.raises(InvalidInputError, match=r"^coarsen=2: factor 2 \(mean\) leaves only nodata"):
+        batch_module._coarsened(coast, 2)
+    with pytest.raises(InvalidInputError, match=r"^coarsen=5: factor 5 leaves 1 x 1 nodes"):
+        batch_module._coarsened(coast, 5, empty=True)
+    assert passes == []
+    assert empty.heights.shape == (3, 4) and np.isnan(empty.heights).all()
+    assert (empty.spacing, empty.origin) == ((20.0, 20.0), (105.0, 205.0))
+    block = land[:6, :8].reshape(3, 2, 4, 2).astype(np.float64)
+    with np.errstate(invalid="ignore"):
+        reference = (np.nansum(block, axis=(1, 3)) / np.isfinite(block).sum(axis=(1, 3))).astype(np.float32)
+    assert np.array_equal(means.heights, reference, equal_nan=True) and np.isfinite(means.heights).any()
+    assert np.array_equal(means.heights, partial.coarsen(2).heights, equal_nan=True)
