@@ -77,6 +77,7 @@ from .terrain import (
     FLOAT32_MAX,
     Terrain,
     _described,
+    _used_span,
     check_flag,
     check_mapped,
     finite_number,
@@ -87,7 +88,6 @@ from .terrain import (
     lowest_used_height,
     number_or_nan,
     unmasked,
-    used_height_range,
 )
 
 __all__ = [
@@ -2415,13 +2415,14 @@ def batch(
     # with the shared levels' default interval, before the floor: without it a solid's default floor was a tenth of
     # the levels' span down, not one interval (952.5 m for tiles where stepped() puts the whole at 975 m)
     chosen = interval is None and levels is None  # the default interval, said once before the items run
-    level_values, z_range, interval = _levels_and_range(src, interval, levels, base)
+    level_values, z_range, interval, lowest = _levels_and_range(src, interval, levels, base)
     if src is not None and items and items[0].kind == "tile" and z_range is not None:
         src = dataclasses.replace(src, bounds=_raster_bounds(src, z_range))
     if floor is not None and solid and src is not None and level_values is not None:
-        _check_floor(src, level_values, gamma_value, float(floor))  # heights at hand: refused once, not per item
+        # heights at hand: refused once, not per item
+        _check_floor_over(lowest, src.name, level_values, gamma_value, float(floor))
     elif solid and src is not None and level_values is not None:  # every tile or frame on the whole source's floor
-        floor = _shared_floor(src, level_values, gamma_value, None if interval is None else float(interval))
+        floor = _floor_under(lowest, level_values, gamma_value, None if interval is None else float(interval))
     if src is None:  # no shared height range yet: check interval/levels/base now, not once per item (neither given:
         from .stepped import isovalues  # the default interval over all files, found with their range below)
 
@@ -2714,27 +2715,32 @@ def _raster_bounds(
 
 def _levels_and_range(
     src: _Source | None, interval: float | None, levels: ArrayLike | None, base: float
-) -> tuple[tuple[float, ...] | None, tuple[float, float] | None, float | None]:
+) -> tuple[tuple[float, ...] | None, tuple[float, float] | None, float | None, float | None]:
     """:func:`_shared_levels`, the (min, max) of the heights they came from (those a triangle uses, as
-    :attr:`~stepterrain.terrain.Terrain.height_range`; None without a source), and the interval: ``interval``, or
-    without it and ``levels`` the default one for that range."""
+    :attr:`~stepterrain.terrain.Terrain.height_range`; None without a source), the interval: ``interval``, or
+    without it and ``levels`` the default one for that range; and the lowest height a triangle uses
+    (:func:`~stepterrain.terrain.lowest_used_height`, for a solid's floor: :func:`_floor_under`,
+    :func:`_check_floor_over`; None where no triangle has three finite heights), found in the same pass as the range
+    (a solid's source with nodata was read twice)."""
     if src is None:
-        return None, None, interval
+        return None, None, interval, None
     from .stepped import _default_isovalues, isovalues
 
     if src.height_range is not None:  # found by the source's checks: no further pass, no copy
         lo, hi = src.height_range
+        lowest = lowest_used_height(src.heights, src.height_range)  # its min (rows of one node: no triangle)
     else:  # nodata (or a series file): the range of the nodes a triangle uses, as stepped() takes it; a series'
         # frame by frame (used_height_range reads a stack so), as stepped_series takes a stack's
-        used = used_height_range(src.heights)
+        used, any_used = _used_span(src.heights)
         if used is None:
             raise InvalidInputError(f"source {src.name!r} holds no finite height")
         lo, hi = used
+        lowest = lo if any_used else None  # (no triangle: the range is that of the finite heights)
     if interval is None and levels is None:
         interval, found = _default_isovalues(lo, hi, base)
     else:
         found = isovalues((lo, hi), interval=interval, levels=levels, base=base)
-    return tuple(float(v) for v in found), (lo, hi), interval
+    return tuple(float(v) for v in found), (lo, hi), interval, lowest
 
 
 def _files_range(
@@ -2833,7 +2839,7 @@ def _files_levels(
     kept: _Kept | None = None, said: set[str] | None = None,
 ) -> tuple[_Options, tuple[dict[str, Any], bool] | None, tuple[float, float] | None]:
     """``options`` with the levels and floor every file of a folder or list shares, as tiles of one raster share
-    them (:func:`_levels_and_range`, :func:`_shared_floor`): the isovalues of ``interval`` over the height range of
+    them (:func:`_levels_and_range`, :func:`_floor_under`): the isovalues of ``interval`` over the height range of
     all files (:func:`_files_range`; explicit ``levels`` as given), so that a height gets one colour in every file,
     and a solid's default floor under the lowest of all files, so that every file stands on one base; an explicit
     ``floor`` checked against every file here, refused once before any item runs, naming the file whose surface it
@@ -2874,18 +2880,14 @@ def _files_levels(
     return options, (ranges, changed), (lo, hi)
 
 
-def _shared_floor(src: _Source, values: tuple[float, ...], gamma: float, interval: float | None) -> float | None:
+def _floor_under(h: float | None, values: tuple[float, ...], gamma: float, interval: float | None) -> float | None:
     """The default floor of a solid over the whole source, :func:`~stepterrain.stepped`'s for the whole raster: one
     interval (without one, a tenth of the levels' span) below the lowest isovalue or the lowest vertex of the whole
-    stepped surface. Each tile or frame stepped alone put its floor under its *own* lowest vertex, and without the
-    interval (the items get the shared levels) a tenth of the span down: tiles that did not meet at their base, and
-    under a floor other than the whole raster's. None when no triangle has three finite heights."""
-    return _floor_under(lowest_used_height(src.heights, src.height_range), values, gamma, interval)
-
-
-def _floor_under(h: float | None, values: tuple[float, ...], gamma: float, interval: float | None) -> float | None:
-    """:func:`_shared_floor` of the lowest height ``h`` a triangle uses over the whole source (a raster, a series, or
-    every file of a folder); None for none."""
+    stepped surface, ``h`` the lowest height a triangle uses over the whole source (a raster, a series, or every file
+    of a folder: :func:`_levels_and_range`, :func:`_files_range`). Each tile or frame stepped alone put its floor
+    under its *own* lowest vertex, and without the interval (the items get the shared levels) a tenth of the span
+    down: tiles that did not meet at their base, and under a floor other than the whole raster's. None when no
+    triangle has three finite heights (``h`` None)."""
     if h is None:
         return None
     from .stepped import default_floor
@@ -2907,20 +2909,15 @@ def _lowest_vertex(h: float, values: NDArray[np.float32], gamma: float) -> tuple
     return float((np.float32(1.0) - g) * h32 + g * alpha), float(alpha)
 
 
-def _check_floor(src: _Source, values: tuple[float, ...], gamma: float, floor: float) -> None:
-    """Refuse a solid's floor that is not below the lowest point of every frame's or tile's stepped surface.
+def _check_floor_over(h: float | None, name: str, values: tuple[float, ...], gamma: float, floor: float) -> None:
+    """Refuse a solid's floor that is not below the lowest point of every frame's or tile's stepped surface, ``h``
+    the lowest height a triangle uses over the whole source (:func:`_levels_and_range`), ``name`` the source (or, in
+    a folder, the file) holding it.
 
     That point is (1 − γ) h + γ α(h) in float32 (:func:`_lowest_vertex`) at the lowest height h of a node that a
     triangle with three finite heights uses, α(h) the isovalue it snaps to (monotone in h, and so is each float32
     rounding, so no vertex lies lower); tiles share their border nodes, so their triangles are the raster's. The
-    floor ``close_solid`` checks per item, known here at once.
-    """
-    _check_floor_over(lowest_used_height(src.heights, src.height_range), src.name, values, gamma, floor)
-
-
-def _check_floor_over(h: float | None, name: str, values: tuple[float, ...], gamma: float, floor: float) -> None:
-    """:func:`_check_floor` of the lowest height ``h`` a triangle uses over the whole source, ``name`` the source (or,
-    in a folder, the file) holding it."""
+    floor ``close_solid`` checks per item, known here at once."""
     if h is None:
         return  # no surface at all: each item says so
     from .mesh import float32_floor_clash

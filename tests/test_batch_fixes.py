@@ -3284,7 +3284,7 @@ def test_a_series_shared_levels_and_floor_are_read_frame_by_frame_not_over_the_w
     (tests/reference.py)."""
     import tracemalloc
 
-    from stepterrain.batch import _floor_under, _shared_floor, _shared_levels, _Source, plan_items
+    from stepterrain.batch import _floor_under, _levels_and_range, _shared_levels, _Source, plan_items
     from stepterrain.stepped import isovalues
 
     from .reference import lowest_used_height_reference, used_height_range_reference
@@ -3309,7 +3309,7 @@ def test_a_series_shared_levels_and_floor_are_read_frame_by_frame_not_over_the_w
     assert peak < series.nbytes / 4, f"{peak:,} bytes for the levels of a series of {series.nbytes:,}"
     assert levels == tuple(isovalues(used_height_range_reference(series), interval=10.0).tolist())
     assert -500.0 < levels[0]
-    floor, peak = peak_of(lambda: _shared_floor(src, levels, 0.5, 10.0))
+    floor, peak = peak_of(lambda: _floor_under(_levels_and_range(src, 10.0, None, 0.0)[3], levels, 0.5, 10.0))
     assert peak < series.nbytes / 4, f"{peak:,} bytes for the floor of a series of {series.nbytes:,}"
     assert floor == _floor_under(lowest_used_height_reference(series), levels, 0.5, 10.0)
     # small series of every kind of frame against the whole-series computation: no nodata, nodata, no triangle,
@@ -3324,8 +3324,9 @@ def test_a_series_shared_levels_and_floor_are_read_frame_by_frame_not_over_the_w
         src = _Source(heights, (1.0, 1.0), (0.0, 0.0), None, "series")
         assert _shared_levels(src, 1.0, None, 0.0) == tuple(isovalues(used_height_range_reference(heights),
                                                                       interval=1.0).tolist()), seed
-        assert _shared_floor(src, (-50.0, 50.0), 1.0, 1.0) == _floor_under(lowest_used_height_reference(heights),
-                                                                          (-50.0, 50.0), 1.0, 1.0), seed
+        lowest = _levels_and_range(src, 1.0, None, 0.0)[3]
+        assert _floor_under(lowest, (-50.0, 50.0), 1.0, 1.0) == _floor_under(lowest_used_height_reference(heights),
+                                                                            (-50.0, 50.0), 1.0, 1.0), seed
 
 
 @pytest.mark.parametrize(("given", "recorded"), [("nan,315", [315.0]), ("nan", None), (None, None)])
@@ -3430,3 +3431,51 @@ def test_coarsened_empty_item_is_found_by_the_coarsening_without_a_pass_before_i
         reference = (np.nansum(block, axis=(1, 3)) / np.isfinite(block).sum(axis=(1, 3))).astype(np.float32)
     assert np.array_equal(means.heights, reference, equal_nan=True) and np.isfinite(means.heights).any()
     assert np.array_equal(means.heights, partial.coarsen(2).heights, equal_nan=True)
+
+
+@pytest.mark.parametrize("floor", [None, -1000.0, 1e9])
+def test_a_solid_batch_reads_its_sources_heights_once_for_levels_and_floor(tmp_path, monkeypatch, floor):
+    """A solid batch of a raster (or series) with nodata found its levels' height range (used_height_range: a mask of
+    the nodes the triangles use) and then the floor's lowest used height (lowest_used_height: the same masks again)
+    in two passes over the whole source: one pass gives both now. Floors and refusals as before: the default floor
+    one interval under the lowest vertex (NumPy reference), a given one below it taken, one above it refused before
+    any item runs."""
+    from stepterrain import terrain as terrain_module
+    from stepterrain.errors import InvalidInputError
+    from stepterrain.stepped import isovalues
+
+    from .reference import lowest_used_height_reference, used_height_range_reference
+
+    rng = np.random.default_rng(5)
+    heights = (rng.random((40, 50)) * 300.0 + 100.0).astype(np.float32)
+    heights[:7, :9] = np.nan
+    heights[20, 30] = np.nan
+    heights[39, 0] = -400.0  # beside nodata on every side a triangle could take: on no triangle
+    heights[38, 0] = heights[38, 1] = heights[39, 1] = np.nan
+    masks: list[tuple[int, ...]] = []
+    real = terrain_module.used_nodes
+
+    def spy(finite, *args, **kwargs):
+        masks.append(np.shape(finite))
+        return real(finite, *args, **kwargs)
+
+    monkeypatch.setattr(terrain_module, "used_nodes", spy)
+    out = tmp_path / "out"
+    if floor == 1e9:
+        with pytest.raises(InvalidInputError, match=r"^floor \(the CLI's --floor\) must lie below the lowest point "):
+            batch(heights, out, tile_size=16, interval=50.0, solid=True, floor=floor, format=".ply",
+                  scheduler="serial")
+        assert masks.count(heights.shape) == 1 and not list(out.glob("*.ply"))
+        return
+    report = batch(heights, out, tile_size=16, interval=50.0, solid=True, floor=floor, format=".ply",
+                   scheduler="serial")
+    assert report.ok, report.summary()
+    assert masks.count(heights.shape) == 1, masks
+    lo = lowest_used_height_reference(heights)
+    values = isovalues(used_height_range_reference(heights), interval=50.0)
+    assert lo > -400.0
+    expected = floor if floor is not None else min(float(values[0]), float(values[np.searchsorted(
+        (values[:-1].astype(np.float64) + values[1:]) / 2, np.float32(lo), side="right")])) - 50.0
+    for path in sorted(out.glob("*.ply")):
+        mesh = read_mesh(path)
+        assert float(np.asarray(mesh.vertices)[:, 2].min()) == pytest.approx(expected, abs=1e-3), path.name
