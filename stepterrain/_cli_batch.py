@@ -203,6 +203,9 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
         _refuse_unused,
     )
 
+    if os.fspath(args.output) == "-":  # a dash reads as standard output: it made a folder named '-' here
+        raise InvalidInputError("--output '-' would be standard output, which is no folder: batch writes a mesh file "
+                                "per item into the folder --output names; give a folder (./- for one named '-')")
     files = list(args.input)  # several: one item each, as a folder's files
     if len(files) > 1 and args.tile is not None:
         raise InvalidInputError(f"--tile cuts one DEM into tiles; got {len(files)} INPUT files (each file is one "
