@@ -2045,6 +2045,7 @@ def batch(
     overview_size: tuple[int, int] | None = None,
     height_encoding: str | None = None,
     nodata: float | Sequence[float] | None = None,
+    overview_z_scale: float = 2.0,
 ) -> BatchReport:
     """Step many terrains, one mesh file each, on dask.distributed (or serially).
 
@@ -2177,6 +2178,11 @@ def batch(
         over the budget is refused (an :class:`~stepterrain.errors.OutputTooLargeError`) before the items are
         stepped and written, not after. A folder's or list's files are read only by the items: their overview is
         checked when it is rendered.
+    overview_z_scale : float
+        With ``overview_size``: the ``z_scale`` of that :func:`overview_image` (default 2), checked before any item
+        runs as well: a positive finite number, and for a raster or series one that keeps the z-scaled height of
+        the meshes it shows (at least that of their nodes, and a solid's floor) within what the render can frame
+        (``--z-scale 1e308`` wrote every mesh, then the render refused it).
 
     Returns
     -------
@@ -2448,7 +2454,7 @@ def batch(
         steps = (("interval", float(interval)), ("base", float(base)))
         options = dataclasses.replace(options, metadata=options.metadata + steps)
     if overview_size is not None:  # before any item runs (once refused only after every item was written)
-        _check_overview(items, src, overview_size)
+        _check_overview(items, src, overview_size, overview_z_scale, level_values, gamma_value, options.floor)
     _check_scheduler(scheduler)
     folder, made = _check_output_dir(output_dir)
     lock = _FolderLock(folder)  # before anything is read or removed there: another run may be writing it
@@ -3236,32 +3242,65 @@ def _sheet_grid(n_items: int) -> tuple[int, int]:
     return math.ceil(n_items / cols), cols
 
 
-def _check_overview(items: Sequence[BatchItem], src: _Source | None, overview_size: Any) -> None:
-    """:func:`batch`'s ``overview_size``: the render of :func:`overview_image` (its defaults) of these items, every
-    one written, checked against the memory budget from the plan, before any item runs: the mosaic of the first
-    :data:`_MOSAIC_ITEMS` tiles (their surfaces together), or the largest of the first :data:`_SHEET_ITEMS` frames
-    in its cell of the contact sheet. A folder's files (``src`` None) are read by the items only: not checked."""
+def _check_overview(items: Sequence[BatchItem], src: _Source | None, overview_size: Any, z_scale: Any = 2.0,
+                    values: tuple[float, ...] | None = None, gamma: float = 1.0, floor: float | None = None) -> None:
+    """:func:`batch`'s ``overview_size`` and ``overview_z_scale``: the render of :func:`overview_image` (its
+    defaults but ``z_scale``) of these items, every one written, checked from the plan before any item runs: against
+    the memory budget, the mosaic of the first :data:`_MOSAIC_ITEMS` tiles (their surfaces together), or the largest
+    of the first :data:`_SHEET_ITEMS` frames in its cell of the contact sheet; and ``z_scale`` against the height
+    the render frames (:func:`_check_overview_reach`; ``values``, ``gamma`` and ``floor``: the items' shared
+    isovalues, γ and a solid's floor). A folder's files (``src`` None) are read by the items only: not checked."""
     from . import render
 
     try:
-        width, height, _ = render._check_window(overview_size, 2.0)
-    except InvalidInputError as exc:  # window_size is overview_image's name for it
-        raise InvalidInputError(str(exc).replace("window_size", "overview_size", 1)) from None
+        width, height, _ = render._check_window(overview_size, z_scale)
+    except InvalidInputError as exc:  # window_size and z_scale are overview_image's names for them
+        raise InvalidInputError(str(exc).replace("window_size", "overview_size", 1).replace(
+            "z_scale", "overview_z_scale", 1)) from None
     render._check_render_budget(width, height, "overview_size")  # the window alone, as overview_image checks it
     if src is None or not items:
         return
     name = "overview_size"
     if items[0].kind == "tile":
-        counts = [grid_surface_counts(src.heights[i.rows[0] : i.rows[1], i.cols[0] : i.cols[1]])
-                  for i in items[:_MOSAIC_ITEMS]]
+        tiles = [src.heights[i.rows[0] : i.rows[1], i.cols[0] : i.cols[1]] for i in items[:_MOSAIC_ITEMS]]
+        counts = [grid_surface_counts(tile) for tile in tiles]
         mesh = (sum(v for v, _ in counts), sum(f for _, f in counts))
+        # the mosaic is one render of the tiles it shows: the nodes their triangles use
+        used = [span for span, some in map(_used_span, tiles) if some and span is not None]
+        spans = [(min(lo for lo, _ in used), max(hi for _, hi in used))] if used else []
     else:  # each frame is rendered on its own, in a cell of the window (overview_image's grid; 8 pixels at least)
         shown = items[:_SHEET_ITEMS]
         mesh = max((grid_surface_counts(src.heights[i.index]) for i in shown), key=lambda vf: (vf[1], vf[0]))
         rows, cols = _sheet_grid(len(shown))
         width, height = max(-(-width // cols), 8), max(-(-height // rows), 8)
         name = "contact-sheet cell"
+        spans = [span for span, some in (_used_span(src.heights[i.index]) for i in shown) if some and span]
+    if values is not None:
+        _check_overview_reach(spans, float(z_scale), np.asarray(values, np.float32), gamma, floor)
     render._check_render_budget(width, height, name, mesh=mesh, mesh_hint=_OVERVIEW_HINT, at_least=True)
+
+
+def _check_overview_reach(spans: Sequence[tuple[float, float]], z_scale: float, values: NDArray[np.float32],
+                          gamma: float, floor: float | None) -> None:
+    """Refuse a ``z_scale`` that makes some render of an overview (``spans``: the (min, max) of the heights of the
+    nodes a triangle uses in each render's meshes) taller than :func:`~stepterrain.render.render_mesh` frames: the mesh
+    spans at least its nodes' stepped heights ((1 − γ) h + γ α(h), :func:`_lowest_vertex`, monotone in h) and, for a
+    solid, the ``floor`` under them; z-scaled about its centre, half of that beyond ±render._MAX_REACH is refused
+    there, after every item was stepped and written."""
+    from .render import _MAX_REACH
+
+    tallest = 0.0
+    for span in spans:
+        top = _lowest_vertex(span[1], values, gamma)[0]
+        bottom = floor if floor is not None else _lowest_vertex(span[0], values, gamma)[0]
+        tallest = max(tallest, top - bottom)
+    with np.errstate(over="ignore"):
+        reach = float(np.float64(tallest) / 2.0 * np.float64(z_scale))
+    if reach > _MAX_REACH:
+        raise InvalidInputError(
+            f"overview_z_scale must keep the overview's meshes (at least {tallest:g} tall) within ±{_MAX_REACH:g} of "
+            f"their centre once z-scaled, where the render's squared camera distances overflow float64: at most "
+            f"{2.0 * _MAX_REACH / tallest:.3g}; got {z_scale:g}")
 
 
 def overview_image(

@@ -16,7 +16,7 @@ from stepterrain.batch import MANIFEST_NAME, batch
 from stepterrain.export import read_mesh
 from stepterrain.mesh import boundary_edges
 
-from .conftest import shared_file
+from .conftest import needs_render, shared_file
 
 
 def test_a_rerun_removes_the_partial_temporary_files_a_killed_run_left(tmp_path):
@@ -3479,3 +3479,55 @@ def test_a_solid_batch_reads_its_sources_heights_once_for_levels_and_floor(tmp_p
     for path in sorted(out.glob("*.ply")):
         mesh = read_mesh(path)
         assert float(np.asarray(mesh.vertices)[:, 2].min()) == pytest.approx(expected, abs=1e-3), path.name
+
+
+def test_overview_z_scale_beyond_what_the_render_frames_is_refused_before_any_item(tmp_path):
+    """``batch --png --z-scale 1e308`` stepped and wrote every mesh, then the overview's render refused the z-scale
+    (its z-scaled box beyond ±1e150, where the camera's squared distances overflow float64). batch() takes the
+    overview's ``overview_z_scale`` and refuses it with the plan's heights, before anything is written: the meshes a
+    render shows span at least their nodes' stepped heights (a solid's floor under them; a contact sheet's cells
+    each alone), so what is refused the render would refuse; the largest z-scale taken keeps the written meshes'
+    z-scaled half-height within the render's bound (NumPy on the meshes read back)."""
+    from stepterrain.errors import InvalidInputError
+    from stepterrain.render import _MAX_REACH
+
+    heights = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)  # 0 to 16, levels 0, 2, ..., 16
+    kw = dict(tile_size=4, interval=2.0, scheduler="serial", format=".ply", overview_size=(64, 64))
+    out = tmp_path / "out"
+    for z, solid, tall in ((1e308, False, 16.0), (2e150 / 17, True, 18.0)):  # a solid: its floor 2 under level 0
+        with pytest.raises(InvalidInputError, match=rf"^overview_z_scale must keep the overview's meshes \(at least "
+                                                    rf"{tall:g} tall\) within ±1e\+150 of their centre .*; got "):
+            batch(heights, out, solid=solid, overview_z_scale=z, **kw)
+        assert not out.exists()
+    with pytest.raises(InvalidInputError, match=r"^overview_z_scale must be a positive finite number; got inf"):
+        batch(heights, out, overview_z_scale=float("inf"), **kw)
+    assert not out.exists()
+    # taken below the bound: the written meshes' z-scaled half-height is within the render's
+    report = batch(heights, out, overview_z_scale=2e150 / 17, **kw)
+    assert report.ok and len(report.done) == 4
+    z = np.concatenate([np.asarray(read_mesh(p).vertices)[:, 2] for p in sorted(out.glob("*.ply"))])
+    assert (z.max() - z.min()) == 16.0 and (z.max() - z.min()) / 2 * (2e150 / 17) <= _MAX_REACH
+    # a series: each frame in its own cell, the tallest frame's height counts (not the stack's range)
+    series = np.stack([heights, heights + 100.0, heights * 10.0])
+    with pytest.raises(InvalidInputError, match=r"\(at least 160 tall\)"):
+        batch(series, tmp_path / "series", interval=2.0, scheduler="serial", overview_size=(64, 64),
+              overview_z_scale=2e150 / 150)
+    assert not (tmp_path / "series").exists()
+
+
+@needs_render
+def test_cli_batch_png_z_scale_beyond_the_render_is_refused_writing_nothing(tmp_path, capsys):
+    """``stepterrain batch --png OUT.png --z-scale 1e308`` wrote every mesh, then refused the overview's render; the
+    z-scale is now checked with the plan, before any item: exit 2 naming --z-scale, no output folder, no picture."""
+    from stepterrain import cli
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32))
+    out, png = tmp_path / "out", tmp_path / "overview.png"
+    assert cli.main(["-q", "batch", str(dem), "--tile", "4", "--interval", "2", "--scheduler", "serial", "-o",
+                     str(out), "--png", str(png), "--z-scale", "1e308"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("stepterrain batch: error: --z-scale must keep the overview's meshes (at least 16 tall) "
+                          "within ±1e+150 of their centre"), err
+    assert err.rstrip().endswith("; got 1e+308"), err
+    assert not out.exists() and not png.exists()
