@@ -2896,23 +2896,10 @@ def _floor_under(h: float | None, values: tuple[float, ...], gamma: float, inter
     triangle has three finite heights (``h`` None)."""
     if h is None:
         return None
-    from .stepped import default_floor
+    from .stepped import default_floor, stepped_height
 
     values32 = np.asarray(values, np.float32)
-    return default_floor(values32, _lowest_vertex(h, values32, gamma)[0], interval)
-
-
-def _lowest_vertex(h: float, values: NDArray[np.float32], gamma: float) -> tuple[float, float]:
-    """The stepped surface's lowest vertex when ``h`` is the lowest height a triangle uses, and α, the isovalue h
-    snaps to: (1 − γ) h + γ α in float32, as kernels/stepped.py's ``blended`` computes it (compiled without
-    contracted multiply-adds, alike on the CPU and a GPU), not the blend's float64 value, which that vertex can lie
-    a float32 step below."""
-    from .stepped import snapped_isovalue
-
-    h32 = np.float32(h)
-    alpha = snapped_isovalue(h32, values)
-    g = np.float32(gamma)
-    return float((np.float32(1.0) - g) * h32 + g * alpha), float(alpha)
+    return default_floor(values32, stepped_height(h, values32, gamma)[0], interval)
 
 
 def _check_floor_over(h: float | None, name: str, values: tuple[float, ...], gamma: float, floor: float) -> None:
@@ -2920,17 +2907,18 @@ def _check_floor_over(h: float | None, name: str, values: tuple[float, ...], gam
     the lowest height a triangle uses over the whole source (:func:`_levels_and_range`), ``name`` the source (or, in
     a folder, the file) holding it.
 
-    That point is (1 − γ) h + γ α(h) in float32 (:func:`_lowest_vertex`) at the lowest height h of a node that a
-    triangle with three finite heights uses, α(h) the isovalue it snaps to (monotone in h, and so is each float32
-    rounding, so no vertex lies lower); tiles share their border nodes, so their triangles are the raster's. The
-    floor ``close_solid`` checks per item, known here at once."""
+    That point is (1 − γ) h + γ α(h) in float32 (:func:`~stepterrain.stepped.stepped_height`) at the lowest height
+    h of a node that a triangle with three finite heights uses, α(h) the isovalue it snaps to (monotone in h, and so
+    is each float32 rounding, so no vertex lies lower); tiles share their border nodes, so their triangles are the
+    raster's. The floor ``close_solid`` checks per item, known here at once."""
     if h is None:
         return  # no surface at all: each item says so
     from .mesh import float32_floor_clash
+    from .stepped import stepped_height
 
     # the vertex as the kernel blends it, in float32: the float64 value of the blend let a floor through that lay on
     # it (or above it) in float32, and close_solid refused it in the item holding the lowest point, the others written
-    lowest, alpha = _lowest_vertex(h, np.asarray(values, np.float32), gamma)
+    lowest, alpha = stepped_height(h, np.asarray(values, np.float32), gamma)
     if floor >= lowest:  # a floor on the point itself is refused once, up front
         raise InvalidInputError(
             f"floor (the CLI's --floor) must lie below the lowest point {lowest:.9g} of the stepped surface of "
@@ -3284,15 +3272,16 @@ def _check_overview_reach(spans: Sequence[tuple[float, float]], z_scale: float, 
                           gamma: float, floor: float | None) -> None:
     """Refuse a ``z_scale`` that makes some render of an overview (``spans``: the (min, max) of the heights of the
     nodes a triangle uses in each render's meshes) taller than :func:`~stepterrain.render.render_mesh` frames: the mesh
-    spans at least its nodes' stepped heights ((1 − γ) h + γ α(h), :func:`_lowest_vertex`, monotone in h) and, for a
+    spans at least its nodes' stepped heights (:func:`~stepterrain.stepped.stepped_height`, monotone in h) and, for a
     solid, the ``floor`` under them; z-scaled about its centre, half of that beyond ±render._MAX_REACH is refused
     there, after every item was stepped and written."""
     from .render import _MAX_REACH
+    from .stepped import stepped_height
 
     tallest = 0.0
     for span in spans:
-        top = _lowest_vertex(span[1], values, gamma)[0]
-        bottom = floor if floor is not None else _lowest_vertex(span[0], values, gamma)[0]
+        top = stepped_height(span[1], values, gamma)[0]
+        bottom = floor if floor is not None else stepped_height(span[0], values, gamma)[0]
         tallest = max(tallest, top - bottom)
     with np.errstate(over="ignore"):
         reach = float(np.float64(tallest) / 2.0 * np.float64(z_scale))

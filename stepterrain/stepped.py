@@ -1409,6 +1409,18 @@ def snapped_isovalue(h: np.float32, values: NDArray[np.float32]) -> np.float32:
     return values[np.searchsorted(thresholds_of(values), h, side="right")]
 
 
+def stepped_height(h: float, values: NDArray[np.float32], gamma: float) -> tuple[float, float]:
+    """``(z, α)``: the stepped surface's vertex of a node of height ``h`` at a scalar γ, and α, the isovalue h snaps
+    to: (1 − γ) h + γ α in float32, as kernels/stepped.py's ``blended`` computes it (compiled without contracted
+    multiply-adds, alike on the CPU and a GPU), not the blend's float64 value, which that vertex can lie a float32
+    step below. Monotone in h: of the lowest height a triangle uses, the surface's lowest vertex (a batch's shared
+    floor and its check, where :func:`lowest_surface` gives a margin instead)."""
+    h32 = np.float32(h)
+    alpha = snapped_isovalue(h32, values)
+    g = np.float32(gamma)
+    return float((np.float32(1.0) - g) * h32 + g * alpha), float(alpha)
+
+
 def lowest_surface(h: float, values: NDArray[np.float32], gamma: float | None) -> tuple[float, float, float]:
     """``(lowest, α, margin)``: the stepped surface's lowest point when ``h`` is the lowest height a triangle uses,
     α the isovalue h snaps to (monotone in h: no node and no wall vertex lies lower at the same γ), and the float32
