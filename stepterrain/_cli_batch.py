@@ -304,7 +304,7 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
             **({"nodata": embedded_nodata} if embedded_nodata else {})},
         height_unit=args.height_unit, spacing=args.spacing, crop=args.crop, coarsen=args.coarsen, device=args.device,
         band=args.band, overview_size=None if png is None else args.size,  # its render checked before the items run
-        overview_z_scale=args.z_scale,  # with --png only: checked before the items run too
+        overview_z_scale=None if png is None else args.z_scale,  # checked before the items run too
         height_encoding=args.height_encoding, nodata=args.nodata if args.input else None,
     )  # fmt: skip
     progress.done(f"{len(report.done)} written, {len(report.skipped)} complete already, {len(report.failed)} failed")

@@ -2045,7 +2045,7 @@ def batch(
     overview_size: tuple[int, int] | None = None,
     height_encoding: str | None = None,
     nodata: float | Sequence[float] | None = None,
-    overview_z_scale: float = 2.0,
+    overview_z_scale: float | None = None,
 ) -> BatchReport:
     """Step many terrains, one mesh file each, on dask.distributed (or serially).
 
@@ -2178,8 +2178,8 @@ def batch(
         over the budget is refused (an :class:`~stepterrain.errors.OutputTooLargeError`) before the items are
         stepped and written, not after. A folder's or list's files are read only by the items: their overview is
         checked when it is rendered.
-    overview_z_scale : float
-        With ``overview_size``: the ``z_scale`` of that :func:`overview_image` (default 2), checked before any item
+    overview_z_scale : float, optional
+        With ``overview_size`` only: the ``z_scale`` of that :func:`overview_image` (default 2), checked before any item
         runs as well: a positive finite number, and for a raster or series one that keeps the z-scaled height of
         the meshes it shows (at least that of their nodes, and a solid's floor) within what the render can frame
         (``--z-scale 1e308`` wrote every mesh, then the render refused it).
@@ -2306,6 +2306,9 @@ def batch(
             from ._device import resolve_device
 
             resolve_device(device)
+    if overview_z_scale is not None and overview_size is None:  # checked for a render that is not to be
+        raise InvalidInputError(f"overview_z_scale applies only with overview_size (the overview to render); got "
+                                f"overview_z_scale={overview_z_scale!r} without it")
     if floor is not None and not solid:
         raise InvalidInputError("floor applies only with solid=True")
     if floor is not None:
@@ -2454,7 +2457,8 @@ def batch(
         steps = (("interval", float(interval)), ("base", float(base)))
         options = dataclasses.replace(options, metadata=options.metadata + steps)
     if overview_size is not None:  # before any item runs (once refused only after every item was written)
-        _check_overview(items, src, overview_size, overview_z_scale, level_values, gamma_value, options.floor)
+        _check_overview(items, src, overview_size, 2.0 if overview_z_scale is None else overview_z_scale,
+                        level_values, gamma_value, options.floor)
     _check_scheduler(scheduler)
     folder, made = _check_output_dir(output_dir)
     lock = _FolderLock(folder)  # before anything is read or removed there: another run may be writing it

@@ -3501,6 +3501,9 @@ def test_overview_z_scale_beyond_what_the_render_frames_is_refused_before_any_it
         assert not out.exists()
     with pytest.raises(InvalidInputError, match=r"^overview_z_scale must be a positive finite number; got inf"):
         batch(heights, out, overview_z_scale=float("inf"), **kw)
+    with pytest.raises(InvalidInputError, match=r"^overview_z_scale applies only with overview_size .*; got "
+                                                r"overview_z_scale=3.0 without it"):
+        batch(heights, out, overview_z_scale=3.0, **{**kw, "overview_size": None})
     assert not out.exists()
     # taken below the bound: the written meshes' z-scaled half-height is within the render's
     report = batch(heights, out, overview_z_scale=2e150 / 17, **kw)
