@@ -203,6 +203,9 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
         _refuse_unused,
     )
 
+    if os.fspath(args.output) == "-":  # a dash reads as standard output: it made a folder named '-' here
+        raise InvalidInputError("--output '-' would be standard output, which is no folder: batch writes a mesh file "
+                                "per item into the folder --output names; give a folder (./- for one named '-')")
     files = list(args.input)  # several: one item each, as a folder's files
     if len(files) > 1 and args.tile is not None:
         raise InvalidInputError(f"--tile cuts one DEM into tiles; got {len(files)} INPUT files (each file is one "
@@ -301,6 +304,7 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
             **({"nodata": embedded_nodata} if embedded_nodata else {})},
         height_unit=args.height_unit, spacing=args.spacing, crop=args.crop, coarsen=args.coarsen, device=args.device,
         band=args.band, overview_size=None if png is None else args.size,  # its render checked before the items run
+        overview_z_scale=None if png is None else args.z_scale,  # checked before the items run too
         height_encoding=args.height_encoding, nodata=args.nodata if args.input else None,
     )  # fmt: skip
     progress.done(f"{len(report.done)} written, {len(report.skipped)} complete already, {len(report.failed)} failed")

@@ -77,6 +77,7 @@ from .terrain import (
     FLOAT32_MAX,
     Terrain,
     _described,
+    _used_span,
     check_flag,
     check_mapped,
     finite_number,
@@ -87,7 +88,6 @@ from .terrain import (
     lowest_used_height,
     number_or_nan,
     unmasked,
-    used_height_range,
 )
 
 __all__ = [
@@ -767,11 +767,9 @@ def _tile_off_thresholds(item: BatchItem, source: _Source, terrain: Terrain, opt
     (xmin, ymin, _), (xmax, ymax, _) = source.bounds
     magnitude = max(abs(xmin), abs(xmax), abs(ymin), abs(ymax), xmax - xmin, ymax - ymin)
     values = isovalues(terrain.height_range, interval=options.interval, levels=options.levels, base=options.base)
-    # under the lock of the library's warning blocks: dask's threaded workers step a raster's tiles at once, and two
-    # of these blocks overlapping left "ignore" in the process's filters for good
-    with _RECORDING, warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # a height left on its threshold: stepped says so for the tile itself
-        moved = _off_thresholds(ring, values, magnitude)
+    # a height left on its threshold unsaid (stepped says so for the tile itself): no catch_warnings block, whose
+    # lock (the process's filters) ran the tiles of dask's threaded workers one at a time
+    moved = _off_thresholds(ring, values, magnitude, warn=False)
     if moved is ring:
         return terrain
     heights = moved.heights[r0 - h0 : r1 - h0, c0 - w0 : c1 - w0]
@@ -908,13 +906,10 @@ def _coarsened(terrain: Terrain, factor: int, *, empty: bool = False) -> Terrain
     """``terrain.coarsen(factor)`` (block means), its refusal naming ``coarsen``. ``empty``: a grid whose blocks hold
     no finite node (nodata only, or its finite nodes all in the last rows and columns, beyond the last whole block)
     becomes a coarse grid of nodata, an empty item (as a file or frame of nodata only is), where coarsen refuses it:
-    a coast tile whose land lay in its last row failed its item, and such a frame of a series the whole batch."""
-    if empty and terrain.has_nodata:  # (cached: no pass over a grid without nodata)
-        _, (rows, cols), spacing, origin = _coarse_geometry(terrain, factor)
-        if not np.isfinite(terrain.heights[:rows * factor, :cols * factor]).any():  # (coarsen refuses nodata only)
-            return terrain._subgrid(np.full((rows, cols), np.nan, np.float32), spacing, origin)
+    a coast tile whose land lay in its last row failed its item, and such a frame of a series the whole batch (found
+    by the coarsening itself: its blocks' means all NaN, no pass over the heights before it)."""
     try:
-        return terrain.coarsen(factor)
+        return terrain._coarsen(factor, empty_ok=empty)
     except InvalidInputError as exc:
         raise InvalidInputError(f"coarsen={factor}: {exc}") from None
 
@@ -959,10 +954,7 @@ def _reshaped_source(src: _Source, crop: ArrayLike | None, coarsen: int | None) 
                                     f" holds only nodata of the source ({i1 - i0} x {j1 - j0} nodes)")
     spacing, origin = probe.spacing, probe.origin
     if coarsen is not None:
-        try:
-            _, shape, spacing, origin = probe._coarse_geometry(coarsen)
-        except InvalidInputError as exc:
-            raise InvalidInputError(f"coarsen={coarsen}: {exc}") from None  # as _coarsened says it
+        _, shape, spacing, origin = _coarse_geometry(probe, coarsen)
         frames = []
         for frame in (heights if series else heights[None]):
             if np.isfinite(frame).any():
@@ -2053,6 +2045,7 @@ def batch(
     overview_size: tuple[int, int] | None = None,
     height_encoding: str | None = None,
     nodata: float | Sequence[float] | None = None,
+    overview_z_scale: float | None = None,
 ) -> BatchReport:
     """Step many terrains, one mesh file each, on dask.distributed (or serially).
 
@@ -2185,6 +2178,11 @@ def batch(
         over the budget is refused (an :class:`~stepterrain.errors.OutputTooLargeError`) before the items are
         stepped and written, not after. A folder's or list's files are read only by the items: their overview is
         checked when it is rendered.
+    overview_z_scale : float, optional
+        With ``overview_size`` only: the ``z_scale`` of that :func:`overview_image` (default 2), checked before any item
+        runs as well: a positive finite number, and for a raster or series one that keeps the z-scaled height of
+        the meshes it shows (at least that of their nodes, and a solid's floor) within what the render can frame
+        (``--z-scale 1e308`` wrote every mesh, then the render refused it).
 
     Returns
     -------
@@ -2308,6 +2306,9 @@ def batch(
             from ._device import resolve_device
 
             resolve_device(device)
+    if overview_z_scale is not None and overview_size is None:  # checked for a render that is not to be
+        raise InvalidInputError(f"overview_z_scale applies only with overview_size (the overview to render); got "
+                                f"overview_z_scale={overview_z_scale!r} without it")
     if floor is not None and not solid:
         raise InvalidInputError("floor applies only with solid=True")
     if floor is not None:
@@ -2423,13 +2424,14 @@ def batch(
     # with the shared levels' default interval, before the floor: without it a solid's default floor was a tenth of
     # the levels' span down, not one interval (952.5 m for tiles where stepped() puts the whole at 975 m)
     chosen = interval is None and levels is None  # the default interval, said once before the items run
-    level_values, z_range, interval = _levels_and_range(src, interval, levels, base)
+    level_values, z_range, interval, lowest = _levels_and_range(src, interval, levels, base)
     if src is not None and items and items[0].kind == "tile" and z_range is not None:
         src = dataclasses.replace(src, bounds=_raster_bounds(src, z_range))
     if floor is not None and solid and src is not None and level_values is not None:
-        _check_floor(src, level_values, gamma_value, float(floor))  # heights at hand: refused once, not per item
+        # heights at hand: refused once, not per item
+        _check_floor_over(lowest, src.name, level_values, gamma_value, float(floor))
     elif solid and src is not None and level_values is not None:  # every tile or frame on the whole source's floor
-        floor = _shared_floor(src, level_values, gamma_value, None if interval is None else float(interval))
+        floor = _floor_under(lowest, level_values, gamma_value, None if interval is None else float(interval))
     if src is None:  # no shared height range yet: check interval/levels/base now, not once per item (neither given:
         from .stepped import isovalues  # the default interval over all files, found with their range below)
 
@@ -2455,7 +2457,8 @@ def batch(
         steps = (("interval", float(interval)), ("base", float(base)))
         options = dataclasses.replace(options, metadata=options.metadata + steps)
     if overview_size is not None:  # before any item runs (once refused only after every item was written)
-        _check_overview(items, src, overview_size)
+        _check_overview(items, src, overview_size, 2.0 if overview_z_scale is None else overview_z_scale,
+                        level_values, gamma_value, options.floor)
     _check_scheduler(scheduler)
     folder, made = _check_output_dir(output_dir)
     lock = _FolderLock(folder)  # before anything is read or removed there: another run may be writing it
@@ -2722,27 +2725,32 @@ def _raster_bounds(
 
 def _levels_and_range(
     src: _Source | None, interval: float | None, levels: ArrayLike | None, base: float
-) -> tuple[tuple[float, ...] | None, tuple[float, float] | None, float | None]:
+) -> tuple[tuple[float, ...] | None, tuple[float, float] | None, float | None, float | None]:
     """:func:`_shared_levels`, the (min, max) of the heights they came from (those a triangle uses, as
-    :attr:`~stepterrain.terrain.Terrain.height_range`; None without a source), and the interval: ``interval``, or
-    without it and ``levels`` the default one for that range."""
+    :attr:`~stepterrain.terrain.Terrain.height_range`; None without a source), the interval: ``interval``, or
+    without it and ``levels`` the default one for that range; and the lowest height a triangle uses
+    (:func:`~stepterrain.terrain.lowest_used_height`, for a solid's floor: :func:`_floor_under`,
+    :func:`_check_floor_over`; None where no triangle has three finite heights), found in the same pass as the range
+    (a solid's source with nodata was read twice)."""
     if src is None:
-        return None, None, interval
+        return None, None, interval, None
     from .stepped import _default_isovalues, isovalues
 
     if src.height_range is not None:  # found by the source's checks: no further pass, no copy
         lo, hi = src.height_range
+        lowest = lowest_used_height(src.heights, src.height_range)  # its min (rows of one node: no triangle)
     else:  # nodata (or a series file): the range of the nodes a triangle uses, as stepped() takes it; a series'
         # frame by frame (used_height_range reads a stack so), as stepped_series takes a stack's
-        used = used_height_range(src.heights)
+        used, any_used = _used_span(src.heights)
         if used is None:
             raise InvalidInputError(f"source {src.name!r} holds no finite height")
         lo, hi = used
+        lowest = lo if any_used else None  # (no triangle: the range is that of the finite heights)
     if interval is None and levels is None:
         interval, found = _default_isovalues(lo, hi, base)
     else:
         found = isovalues((lo, hi), interval=interval, levels=levels, base=base)
-    return tuple(float(v) for v in found), (lo, hi), interval
+    return tuple(float(v) for v in found), (lo, hi), interval, lowest
 
 
 def _files_range(
@@ -2841,7 +2849,7 @@ def _files_levels(
     kept: _Kept | None = None, said: set[str] | None = None,
 ) -> tuple[_Options, tuple[dict[str, Any], bool] | None, tuple[float, float] | None]:
     """``options`` with the levels and floor every file of a folder or list shares, as tiles of one raster share
-    them (:func:`_levels_and_range`, :func:`_shared_floor`): the isovalues of ``interval`` over the height range of
+    them (:func:`_levels_and_range`, :func:`_floor_under`): the isovalues of ``interval`` over the height range of
     all files (:func:`_files_range`; explicit ``levels`` as given), so that a height gets one colour in every file,
     and a solid's default floor under the lowest of all files, so that every file stands on one base; an explicit
     ``floor`` checked against every file here, refused once before any item runs, naming the file whose surface it
@@ -2882,60 +2890,39 @@ def _files_levels(
     return options, (ranges, changed), (lo, hi)
 
 
-def _shared_floor(src: _Source, values: tuple[float, ...], gamma: float, interval: float | None) -> float | None:
+def _floor_under(h: float | None, values: tuple[float, ...], gamma: float, interval: float | None) -> float | None:
     """The default floor of a solid over the whole source, :func:`~stepterrain.stepped`'s for the whole raster: one
     interval (without one, a tenth of the levels' span) below the lowest isovalue or the lowest vertex of the whole
-    stepped surface. Each tile or frame stepped alone put its floor under its *own* lowest vertex, and without the
-    interval (the items get the shared levels) a tenth of the span down: tiles that did not meet at their base, and
-    under a floor other than the whole raster's. None when no triangle has three finite heights."""
-    return _floor_under(lowest_used_height(src.heights, src.height_range), values, gamma, interval)
-
-
-def _floor_under(h: float | None, values: tuple[float, ...], gamma: float, interval: float | None) -> float | None:
-    """:func:`_shared_floor` of the lowest height ``h`` a triangle uses over the whole source (a raster, a series, or
-    every file of a folder); None for none."""
+    stepped surface, ``h`` the lowest height a triangle uses over the whole source (a raster, a series, or every file
+    of a folder: :func:`_levels_and_range`, :func:`_files_range`). Each tile or frame stepped alone put its floor
+    under its *own* lowest vertex, and without the interval (the items get the shared levels) a tenth of the span
+    down: tiles that did not meet at their base, and under a floor other than the whole raster's. None when no
+    triangle has three finite heights (``h`` None)."""
     if h is None:
         return None
-    from .stepped import default_floor
+    from .stepped import default_floor, stepped_height
 
     values32 = np.asarray(values, np.float32)
-    return default_floor(values32, _lowest_vertex(h, values32, gamma)[0], interval)
-
-
-def _lowest_vertex(h: float, values: NDArray[np.float32], gamma: float) -> tuple[float, float]:
-    """The stepped surface's lowest vertex when ``h`` is the lowest height a triangle uses, and α, the isovalue h
-    snaps to: (1 − γ) h + γ α in float32, as kernels/stepped.py's ``blended`` computes it (compiled without
-    contracted multiply-adds, alike on the CPU and a GPU), not the blend's float64 value, which that vertex can lie
-    a float32 step below."""
-    from .stepped import snapped_isovalue
-
-    h32 = np.float32(h)
-    alpha = snapped_isovalue(h32, values)
-    g = np.float32(gamma)
-    return float((np.float32(1.0) - g) * h32 + g * alpha), float(alpha)
-
-
-def _check_floor(src: _Source, values: tuple[float, ...], gamma: float, floor: float) -> None:
-    """Refuse a solid's floor that is not below the lowest point of every frame's or tile's stepped surface.
-
-    That point is (1 − γ) h + γ α(h) in float32 (:func:`_lowest_vertex`) at the lowest height h of a node that a
-    triangle with three finite heights uses, α(h) the isovalue it snaps to (monotone in h, and so is each float32
-    rounding, so no vertex lies lower); tiles share their border nodes, so their triangles are the raster's. The
-    floor ``close_solid`` checks per item, known here at once.
-    """
-    _check_floor_over(lowest_used_height(src.heights, src.height_range), src.name, values, gamma, floor)
+    return default_floor(values32, stepped_height(h, values32, gamma)[0], interval)
 
 
 def _check_floor_over(h: float | None, name: str, values: tuple[float, ...], gamma: float, floor: float) -> None:
-    """:func:`_check_floor` of the lowest height ``h`` a triangle uses over the whole source, ``name`` the source (or,
-    in a folder, the file) holding it."""
+    """Refuse a solid's floor that is not below the lowest point of every frame's or tile's stepped surface, ``h``
+    the lowest height a triangle uses over the whole source (:func:`_levels_and_range`), ``name`` the source (or, in
+    a folder, the file) holding it.
+
+    That point is (1 − γ) h + γ α(h) in float32 (:func:`~stepterrain.stepped.stepped_height`) at the lowest height
+    h of a node that a triangle with three finite heights uses, α(h) the isovalue it snaps to (monotone in h, and so
+    is each float32 rounding, so no vertex lies lower); tiles share their border nodes, so their triangles are the
+    raster's. The floor ``close_solid`` checks per item, known here at once."""
     if h is None:
         return  # no surface at all: each item says so
     from .mesh import float32_floor_clash
+    from .stepped import stepped_height
 
     # the vertex as the kernel blends it, in float32: the float64 value of the blend let a floor through that lay on
     # it (or above it) in float32, and close_solid refused it in the item holding the lowest point, the others written
-    lowest, alpha = _lowest_vertex(h, np.asarray(values, np.float32), gamma)
+    lowest, alpha = stepped_height(h, np.asarray(values, np.float32), gamma)
     if floor >= lowest:  # a floor on the point itself is refused once, up front
         raise InvalidInputError(
             f"floor (the CLI's --floor) must lie below the lowest point {lowest:.9g} of the stepped surface of "
@@ -3247,32 +3234,66 @@ def _sheet_grid(n_items: int) -> tuple[int, int]:
     return math.ceil(n_items / cols), cols
 
 
-def _check_overview(items: Sequence[BatchItem], src: _Source | None, overview_size: Any) -> None:
-    """:func:`batch`'s ``overview_size``: the render of :func:`overview_image` (its defaults) of these items, every
-    one written, checked against the memory budget from the plan, before any item runs: the mosaic of the first
-    :data:`_MOSAIC_ITEMS` tiles (their surfaces together), or the largest of the first :data:`_SHEET_ITEMS` frames
-    in its cell of the contact sheet. A folder's files (``src`` None) are read by the items only: not checked."""
+def _check_overview(items: Sequence[BatchItem], src: _Source | None, overview_size: Any, z_scale: Any = 2.0,
+                    values: tuple[float, ...] | None = None, gamma: float = 1.0, floor: float | None = None) -> None:
+    """:func:`batch`'s ``overview_size`` and ``overview_z_scale``: the render of :func:`overview_image` (its
+    defaults but ``z_scale``) of these items, every one written, checked from the plan before any item runs: against
+    the memory budget, the mosaic of the first :data:`_MOSAIC_ITEMS` tiles (their surfaces together), or the largest
+    of the first :data:`_SHEET_ITEMS` frames in its cell of the contact sheet; and ``z_scale`` against the height
+    the render frames (:func:`_check_overview_reach`; ``values``, ``gamma`` and ``floor``: the items' shared
+    isovalues, γ and a solid's floor). A folder's files (``src`` None) are read by the items only: not checked."""
     from . import render
 
     try:
-        width, height, _ = render._check_window(overview_size, 2.0)
-    except InvalidInputError as exc:  # window_size is overview_image's name for it
-        raise InvalidInputError(str(exc).replace("window_size", "overview_size", 1)) from None
+        width, height, _ = render._check_window(overview_size, z_scale)
+    except InvalidInputError as exc:  # window_size and z_scale are overview_image's names for them
+        raise InvalidInputError(str(exc).replace("window_size", "overview_size", 1).replace(
+            "z_scale", "overview_z_scale", 1)) from None
     render._check_render_budget(width, height, "overview_size")  # the window alone, as overview_image checks it
     if src is None or not items:
         return
     name = "overview_size"
     if items[0].kind == "tile":
-        counts = [grid_surface_counts(src.heights[i.rows[0] : i.rows[1], i.cols[0] : i.cols[1]])
-                  for i in items[:_MOSAIC_ITEMS]]
+        tiles = [src.heights[i.rows[0] : i.rows[1], i.cols[0] : i.cols[1]] for i in items[:_MOSAIC_ITEMS]]
+        counts = [grid_surface_counts(tile) for tile in tiles]
         mesh = (sum(v for v, _ in counts), sum(f for _, f in counts))
+        # the mosaic is one render of the tiles it shows: the nodes their triangles use
+        used = [span for span, some in map(_used_span, tiles) if some and span is not None]
+        spans = [(min(lo for lo, _ in used), max(hi for _, hi in used))] if used else []
     else:  # each frame is rendered on its own, in a cell of the window (overview_image's grid; 8 pixels at least)
         shown = items[:_SHEET_ITEMS]
         mesh = max((grid_surface_counts(src.heights[i.index]) for i in shown), key=lambda vf: (vf[1], vf[0]))
         rows, cols = _sheet_grid(len(shown))
         width, height = max(-(-width // cols), 8), max(-(-height // rows), 8)
         name = "contact-sheet cell"
+        spans = [span for span, some in (_used_span(src.heights[i.index]) for i in shown) if some and span]
+    if values is not None:
+        _check_overview_reach(spans, float(z_scale), np.asarray(values, np.float32), gamma, floor)
     render._check_render_budget(width, height, name, mesh=mesh, mesh_hint=_OVERVIEW_HINT, at_least=True)
+
+
+def _check_overview_reach(spans: Sequence[tuple[float, float]], z_scale: float, values: NDArray[np.float32],
+                          gamma: float, floor: float | None) -> None:
+    """Refuse a ``z_scale`` that makes some render of an overview (``spans``: the (min, max) of the heights of the
+    nodes a triangle uses in each render's meshes) taller than :func:`~stepterrain.render.render_mesh` frames: the mesh
+    spans at least its nodes' stepped heights (:func:`~stepterrain.stepped.stepped_height`, monotone in h) and, for a
+    solid, the ``floor`` under them; z-scaled about its centre, half of that beyond ±render._MAX_REACH is refused
+    there, after every item was stepped and written."""
+    from .render import _MAX_REACH
+    from .stepped import stepped_height
+
+    tallest = 0.0
+    for span in spans:
+        top = stepped_height(span[1], values, gamma)[0]
+        bottom = floor if floor is not None else stepped_height(span[0], values, gamma)[0]
+        tallest = max(tallest, top - bottom)
+    with np.errstate(over="ignore"):
+        reach = float(np.float64(tallest) / 2.0 * np.float64(z_scale))
+    if reach > _MAX_REACH:
+        raise InvalidInputError(
+            f"overview_z_scale must keep the overview's meshes (at least {tallest:g} tall) within ±{_MAX_REACH:g} of "
+            f"their centre once z-scaled, where the render's squared camera distances overflow float64: at most "
+            f"{2.0 * _MAX_REACH / tallest:.3g}; got {z_scale:g}")
 
 
 def overview_image(

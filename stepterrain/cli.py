@@ -1375,7 +1375,8 @@ _OPTION_ALIASES = {
     # tile_size: "tile_size applies to one raster" reached the user as it was; window_size: overview_image's, of the
     # --png; overview_size: batch's name for that window_size; output_dir: "output_dir '/dev/stdout' exists and is
     # not a folder"
-    "batch": {"tile_size": "--tile", "window_size": "--size", "overview_size": "--size", "output_dir": "--output"},
+    "batch": {"tile_size": "--tile", "window_size": "--size", "overview_size": "--size", "output_dir": "--output",
+              "overview_z_scale": "--z-scale"},
     "globe": {"window_size": "--size"},
     "texture": {"window_size": "--size"},
 }

@@ -1409,6 +1409,18 @@ def snapped_isovalue(h: np.float32, values: NDArray[np.float32]) -> np.float32:
     return values[np.searchsorted(thresholds_of(values), h, side="right")]
 
 
+def stepped_height(h: float, values: NDArray[np.float32], gamma: float) -> tuple[float, float]:
+    """``(z, α)``: the stepped surface's vertex of a node of height ``h`` at a scalar γ, and α, the isovalue h snaps
+    to: (1 − γ) h + γ α in float32, as kernels/stepped.py's ``blended`` computes it (compiled without contracted
+    multiply-adds, alike on the CPU and a GPU), not the blend's float64 value, which that vertex can lie a float32
+    step below. Monotone in h: of the lowest height a triangle uses, the surface's lowest vertex (a batch's shared
+    floor and its check, where :func:`lowest_surface` gives a margin instead)."""
+    h32 = np.float32(h)
+    alpha = snapped_isovalue(h32, values)
+    g = np.float32(gamma)
+    return float((np.float32(1.0) - g) * h32 + g * alpha), float(alpha)
+
+
 def lowest_surface(h: float, values: NDArray[np.float32], gamma: float | None) -> tuple[float, float, float]:
     """``(lowest, α, margin)``: the stepped surface's lowest point when ``h`` is the lowest height a triangle uses,
     α the isovalue h snaps to (monotone in h: no node and no wall vertex lies lower at the same γ), and the float32
@@ -1504,7 +1516,7 @@ def _refuse_floor_above_surface(t: Terrain, values: NDArray[np.float32], gamma: 
 OFF_THRESHOLD_STEPS = 4.0
 
 
-def _off_thresholds(t: Terrain, values: NDArray[np.float32], magnitude: float = 0.0) -> Terrain:
+def _off_thresholds(t: Terrain, values: NDArray[np.float32], magnitude: float = 0.0, *, warn: bool = True) -> Terrain:
     """The terrain a solid is stepped from: ``t`` itself, or, where a height the surface uses sits exactly on a
     threshold t_i = (α_i + α_i+1) / 2, a copy with such heights moved up by τ, the least that puts every wall
     crossing on the node's edges :data:`OFF_THRESHOLD_STEPS` float32 steps of the coordinates (world or local,
@@ -1526,7 +1538,9 @@ def _off_thresholds(t: Terrain, values: NDArray[np.float32], magnitude: float = 
     watertight; its ``.stl`` may merge there); where that next float32 value is itself a threshold (levels a few
     float32 steps apart), the height stays, with a warning that the solid may leak there. ``magnitude``: a least
     coordinate magnitude for the float32 step (a tile of a raster: the whole raster's, so that the nodes two tiles
-    share get one τ in both, see ``batch``)."""
+    share get one τ in both, see ``batch``). ``warn``: False leaves a height that stays on its threshold unsaid (a
+    batch tile's ring: the tile's own stepped() says it), without a ``warnings.catch_warnings`` block (the process's
+    filters, under a lock that dask's threaded workers would take one at a time)."""
     thresholds = thresholds_of(values)
     # only the heights the surface uses: a TIN's unused points and a grid's nodes isolated by nodata are in no mesh
     # (they warned that the solid may leak where it has no vertex)
@@ -1537,11 +1551,12 @@ def _off_thresholds(t: Terrain, values: NDArray[np.float32], magnitude: float = 
     up = np.nextafter(heights.reshape(-1)[on], np.float32(np.inf))
     stays = np.isin(up, thresholds)
     if stays.any():
-        warnings.warn(
-            "some heights sit exactly on a threshold (α_i + α_i+1) / 2 that lies one float32 step below the next; "
-            "the solid may not be watertight there. Give levels further apart.",
-            stacklevel=caller_stacklevel(),
-        )
+        if warn:
+            warnings.warn(
+                "some heights sit exactly on a threshold (α_i + α_i+1) / 2 that lies one float32 step below the "
+                "next; the solid may not be watertight there. Give levels further apart.",
+                stacklevel=caller_stacklevel(),
+            )
         on, up = on[~stays], up[~stays]
     if on.size:
         up = _off_threshold_heights(t, thresholds, on, up, magnitude, top=float(values[-1]))

@@ -1215,12 +1215,18 @@ class Terrain:
         >>> t.coarsen(3, method="nearest").heights.tolist()
         [[0.0, 3.0], [12.0, 15.0]]
         """
+        return self._coarsen(factor, method)
+
+    def _coarsen(self, factor: int, method: str = "mean", *, empty_ok: bool = False) -> Terrain:
+        """:meth:`coarsen`; ``empty_ok``: a result of nodata only is returned (a grid of NaN: a batch's empty item),
+        not refused, with no pass over the heights beyond the coarsening's own."""
         f, shape, spacing, origin = self._coarse_geometry(factor, method)
         if f == 1:
             return self
         if method == "nearest":
             kept = self.heights[::f, ::f]
-            self._some_finite(kept, f, method)
+            if not empty_ok:
+                self._some_finite(kept, f, method)
             return self._subgrid(kept, spacing, origin)
         h, w = shape
         total = np.zeros((h, w), dtype=np.float64)
@@ -1232,7 +1238,8 @@ class Terrain:
             count += finite.sum(axis=2)
         with np.errstate(invalid="ignore", divide="ignore"):
             mean = (total / count).astype(np.float32)
-        self._some_finite(mean, f, method)
+        if not empty_ok:
+            self._some_finite(mean, f, method)
         return self._subgrid(mean, spacing, origin)
 
     def _coarse_geometry(self, factor: int, method: str = "mean") -> tuple[int, tuple[int, int], tuple[float, float],

@@ -482,10 +482,13 @@ def test_floor_on_the_lowest_point_in_float32_is_refused_before_any_work(tmp_pat
 
 
 def test_floor_check_reuses_the_height_range_the_source_checks_found(monkeypatch):
-    """_check_floor took an isfinite pass and built a mask of the nodes that triangles use, over every height, to
+    """The floor check took an isfinite pass and built a mask of the nodes that triangles use, over every height, to
     find the lowest such height: without nodata that is every node of a grid of at least 2 x 2, and the source's
     checks had already found its min (as _shared_levels reuses it). The same heights and messages."""
-    from stepterrain.batch import _check_floor, _shared_levels, _Source
+    from stepterrain.batch import _check_floor_over, _levels_and_range, _shared_levels, _Source
+
+    def check_floor(src, levels, gamma, floor):
+        _check_floor_over(_levels_and_range(src, 5.0, None, 0.0)[3], src.name, levels, gamma, floor)
     from stepterrain.terrain import Terrain
 
     rng = np.random.default_rng(7)
@@ -503,13 +506,13 @@ def test_floor_check_reuses_the_height_range_the_source_checks_found(monkeypatch
         with monkeypatch.context() as patch:
             patch.setattr(np, "isfinite", spy)
             with pytest.raises(InvalidInputError, match=re.escape(f"(its lowest height {lo:g} on the isovalue")):
-                _check_floor(src, levels, 0.0, 1e9)
-            _check_floor(src, levels, 0.0, lo - 1.0)  # below the surface: accepted
+                check_floor(src, levels, 0.0, 1e9)
+            check_floor(src, levels, 0.0, lo - 1.0)  # below the surface: accepted
         assert src.heights.shape not in seen, "a further pass over the heights"
     # rows of one node: no triangle, nothing to refuse (the known range is no triangle's lowest height). plan_items
     # refuses such a series up front now, as load_series refuses such a file: the source is built as it was
     src = _Source(np.zeros((2, 1, 5), np.float32), (1.0, 1.0), (0.0, 0.0), None, "series", height_range=(0.0, 0.0))
-    _check_floor(src, (0.0,), 0.0, 5.0)
+    check_floor(src, (0.0,), 0.0, 5.0)
 
 
 def test_cli_batch_floor_above_the_surface_exits_2_once(tmp_path, capsys):

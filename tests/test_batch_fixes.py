@@ -16,7 +16,7 @@ from stepterrain.batch import MANIFEST_NAME, batch
 from stepterrain.export import read_mesh
 from stepterrain.mesh import boundary_edges
 
-from .conftest import shared_file
+from .conftest import needs_render, shared_file
 
 
 def test_a_rerun_removes_the_partial_temporary_files_a_killed_run_left(tmp_path):
@@ -3284,7 +3284,7 @@ def test_a_series_shared_levels_and_floor_are_read_frame_by_frame_not_over_the_w
     (tests/reference.py)."""
     import tracemalloc
 
-    from stepterrain.batch import _floor_under, _shared_floor, _shared_levels, _Source, plan_items
+    from stepterrain.batch import _floor_under, _levels_and_range, _shared_levels, _Source, plan_items
     from stepterrain.stepped import isovalues
 
     from .reference import lowest_used_height_reference, used_height_range_reference
@@ -3309,7 +3309,7 @@ def test_a_series_shared_levels_and_floor_are_read_frame_by_frame_not_over_the_w
     assert peak < series.nbytes / 4, f"{peak:,} bytes for the levels of a series of {series.nbytes:,}"
     assert levels == tuple(isovalues(used_height_range_reference(series), interval=10.0).tolist())
     assert -500.0 < levels[0]
-    floor, peak = peak_of(lambda: _shared_floor(src, levels, 0.5, 10.0))
+    floor, peak = peak_of(lambda: _floor_under(_levels_and_range(src, 10.0, None, 0.0)[3], levels, 0.5, 10.0))
     assert peak < series.nbytes / 4, f"{peak:,} bytes for the floor of a series of {series.nbytes:,}"
     assert floor == _floor_under(lowest_used_height_reference(series), levels, 0.5, 10.0)
     # small series of every kind of frame against the whole-series computation: no nodata, nodata, no triangle,
@@ -3324,8 +3324,9 @@ def test_a_series_shared_levels_and_floor_are_read_frame_by_frame_not_over_the_w
         src = _Source(heights, (1.0, 1.0), (0.0, 0.0), None, "series")
         assert _shared_levels(src, 1.0, None, 0.0) == tuple(isovalues(used_height_range_reference(heights),
                                                                       interval=1.0).tolist()), seed
-        assert _shared_floor(src, (-50.0, 50.0), 1.0, 1.0) == _floor_under(lowest_used_height_reference(heights),
-                                                                          (-50.0, 50.0), 1.0, 1.0), seed
+        lowest = _levels_and_range(src, 1.0, None, 0.0)[3]
+        assert _floor_under(lowest, (-50.0, 50.0), 1.0, 1.0) == _floor_under(lowest_used_height_reference(heights),
+                                                                            (-50.0, 50.0), 1.0, 1.0), seed
 
 
 @pytest.mark.parametrize(("given", "recorded"), [("nan,315", [315.0]), ("nan", None), (None, None)])
@@ -3386,3 +3387,150 @@ def test_a_floor_on_the_float32_blend_of_the_lowest_point_is_refused_before_any_
                        floor=below, format=".ply", scheduler="serial")
         assert report.ok and len(report.done) == n, report.summary()
         assert min(float(read_mesh(r.path).vertices[:, 2].min()) for r in report.done) == below
+
+
+def test_coarsened_empty_item_is_found_by_the_coarsening_without_a_pass_before_it(monkeypatch):
+    """batch._coarsened(empty=True) (a file item read with --coarsen, a frame of a series) scanned a grid with nodata
+    for a finite node in its whole blocks (np.isfinite of the grid) before coarsening it, which finds the same in its
+    blocks' means: that pass is gone (Terrain._coarsen(empty_ok=True) returns the grid of NaN means). The results
+    are those of before: a grid of nodata for blocks of nodata only (land beyond the last whole block), the block
+    means otherwise, and without ``empty`` the refusal of a result of nodata only, named ``coarsen=``."""
+    from stepterrain import batch as batch_module
+    from stepterrain.errors import InvalidInputError
+    from stepterrain.terrain import Terrain
+
+    heights = np.full((7, 9), np.nan, np.float32)
+    heights[6, :], heights[:, 8] = 5.0, 3.0  # only beyond the 3 x 4 whole blocks of 2 x 2 nodes
+    coast = Terrain.from_heights(heights, spacing=(10.0, 10.0), origin=(100.0, 200.0))
+    land = heights.copy()
+    land[1:4, 2:5] = np.arange(9, dtype=np.float32).reshape(3, 3)
+    partial = Terrain.from_heights(land, spacing=(10.0, 10.0), origin=(100.0, 200.0))
+    passes: list[tuple[int, ...]] = []
+
+    class Counted:  # batch's numpy, its np.isfinite counted
+        def __getattr__(self, name):
+            return getattr(np, name)
+
+        @staticmethod
+        def isfinite(a, *args, **kwargs):
+            passes.append(np.shape(a))
+            return np.isfinite(a, *args, **kwargs)
+
+    monkeypatch.setattr(batch_module, "np", Counted())
+    empty = batch_module._coarsened(coast, 2, empty=True)
+    means = batch_module._coarsened(partial, 2, empty=True)
+    with pytest.raises(InvalidInputError, match=r"^coarsen=2: factor 2 \(mean\) leaves only nodata"):
+        batch_module._coarsened(coast, 2)
+    with pytest.raises(InvalidInputError, match=r"^coarsen=5: factor 5 leaves 1 x 1 nodes"):
+        batch_module._coarsened(coast, 5, empty=True)
+    assert passes == []
+    assert empty.heights.shape == (3, 4) and np.isnan(empty.heights).all()
+    assert (empty.spacing, empty.origin) == ((20.0, 20.0), (105.0, 205.0))
+    block = land[:6, :8].reshape(3, 2, 4, 2).astype(np.float64)
+    with np.errstate(invalid="ignore"):
+        reference = (np.nansum(block, axis=(1, 3)) / np.isfinite(block).sum(axis=(1, 3))).astype(np.float32)
+    assert np.array_equal(means.heights, reference, equal_nan=True) and np.isfinite(means.heights).any()
+    assert np.array_equal(means.heights, partial.coarsen(2).heights, equal_nan=True)
+
+
+@pytest.mark.parametrize("floor", [None, -1000.0, 1e9])
+def test_a_solid_batch_reads_its_sources_heights_once_for_levels_and_floor(tmp_path, monkeypatch, floor):
+    """A solid batch of a raster (or series) with nodata found its levels' height range (used_height_range: a mask of
+    the nodes the triangles use) and then the floor's lowest used height (lowest_used_height: the same masks again)
+    in two passes over the whole source: one pass gives both now. Floors and refusals as before: the default floor
+    one interval under the lowest vertex (NumPy reference), a given one below it taken, one above it refused before
+    any item runs."""
+    from stepterrain import terrain as terrain_module
+    from stepterrain.errors import InvalidInputError
+    from stepterrain.stepped import isovalues
+
+    from .reference import lowest_used_height_reference, used_height_range_reference
+
+    rng = np.random.default_rng(5)
+    heights = (rng.random((40, 50)) * 300.0 + 100.0).astype(np.float32)
+    heights[:7, :9] = np.nan
+    heights[20, 30] = np.nan
+    heights[39, 0] = -400.0  # beside nodata on every side a triangle could take: on no triangle
+    heights[38, 0] = heights[38, 1] = heights[39, 1] = np.nan
+    masks: list[tuple[int, ...]] = []
+    real = terrain_module.used_nodes
+
+    def spy(finite, *args, **kwargs):
+        masks.append(np.shape(finite))
+        return real(finite, *args, **kwargs)
+
+    monkeypatch.setattr(terrain_module, "used_nodes", spy)
+    out = tmp_path / "out"
+    if floor == 1e9:
+        with pytest.raises(InvalidInputError, match=r"^floor \(the CLI's --floor\) must lie below the lowest point "):
+            batch(heights, out, tile_size=16, interval=50.0, solid=True, floor=floor, format=".ply",
+                  scheduler="serial")
+        assert masks.count(heights.shape) == 1 and not list(out.glob("*.ply"))
+        return
+    report = batch(heights, out, tile_size=16, interval=50.0, solid=True, floor=floor, format=".ply",
+                   scheduler="serial")
+    assert report.ok, report.summary()
+    assert masks.count(heights.shape) == 1, masks
+    lo = lowest_used_height_reference(heights)
+    values = isovalues(used_height_range_reference(heights), interval=50.0)
+    assert lo > -400.0
+    expected = floor if floor is not None else min(float(values[0]), float(values[np.searchsorted(
+        (values[:-1].astype(np.float64) + values[1:]) / 2, np.float32(lo), side="right")])) - 50.0
+    for path in sorted(out.glob("*.ply")):
+        mesh = read_mesh(path)
+        assert float(np.asarray(mesh.vertices)[:, 2].min()) == pytest.approx(expected, abs=1e-3), path.name
+
+
+def test_overview_z_scale_beyond_what_the_render_frames_is_refused_before_any_item(tmp_path):
+    """``batch --png --z-scale 1e308`` stepped and wrote every mesh, then the overview's render refused the z-scale
+    (its z-scaled box beyond ±1e150, where the camera's squared distances overflow float64). batch() takes the
+    overview's ``overview_z_scale`` and refuses it with the plan's heights, before anything is written: the meshes a
+    render shows span at least their nodes' stepped heights (a solid's floor under them; a contact sheet's cells
+    each alone), so what is refused the render would refuse; the largest z-scale taken keeps the written meshes'
+    z-scaled half-height within the render's bound (NumPy on the meshes read back)."""
+    from stepterrain.errors import InvalidInputError
+    from stepterrain.render import _MAX_REACH
+
+    heights = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)  # 0 to 16, levels 0, 2, ..., 16
+    kw = dict(tile_size=4, interval=2.0, scheduler="serial", format=".ply", overview_size=(64, 64))
+    out = tmp_path / "out"
+    for z, solid, tall in ((1e308, False, 16.0), (2e150 / 17, True, 18.0)):  # a solid: its floor 2 under level 0
+        with pytest.raises(InvalidInputError, match=rf"^overview_z_scale must keep the overview's meshes \(at least "
+                                                    rf"{tall:g} tall\) within ±1e\+150 of their centre .*; got "):
+            batch(heights, out, solid=solid, overview_z_scale=z, **kw)
+        assert not out.exists()
+    with pytest.raises(InvalidInputError, match=r"^overview_z_scale must be a positive finite number; got inf"):
+        batch(heights, out, overview_z_scale=float("inf"), **kw)
+    with pytest.raises(InvalidInputError, match=r"^overview_z_scale applies only with overview_size .*; got "
+                                                r"overview_z_scale=3.0 without it"):
+        batch(heights, out, overview_z_scale=3.0, **{**kw, "overview_size": None})
+    assert not out.exists()
+    # taken below the bound: the written meshes' z-scaled half-height is within the render's
+    report = batch(heights, out, overview_z_scale=2e150 / 17, **kw)
+    assert report.ok and len(report.done) == 4
+    z = np.concatenate([np.asarray(read_mesh(p).vertices)[:, 2] for p in sorted(out.glob("*.ply"))])
+    assert (z.max() - z.min()) == 16.0 and (z.max() - z.min()) / 2 * (2e150 / 17) <= _MAX_REACH
+    # a series: each frame in its own cell, the tallest frame's height counts (not the stack's range)
+    series = np.stack([heights, heights + 100.0, heights * 10.0])
+    with pytest.raises(InvalidInputError, match=r"\(at least 160 tall\)"):
+        batch(series, tmp_path / "series", interval=2.0, scheduler="serial", overview_size=(64, 64),
+              overview_z_scale=2e150 / 150)
+    assert not (tmp_path / "series").exists()
+
+
+@needs_render
+def test_cli_batch_png_z_scale_beyond_the_render_is_refused_writing_nothing(tmp_path, capsys):
+    """``stepterrain batch --png OUT.png --z-scale 1e308`` wrote every mesh, then refused the overview's render; the
+    z-scale is now checked with the plan, before any item: exit 2 naming --z-scale, no output folder, no picture."""
+    from stepterrain import cli
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32))
+    out, png = tmp_path / "out", tmp_path / "overview.png"
+    assert cli.main(["-q", "batch", str(dem), "--tile", "4", "--interval", "2", "--scheduler", "serial", "-o",
+                     str(out), "--png", str(png), "--z-scale", "1e308"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("stepterrain batch: error: --z-scale must keep the overview's meshes (at least 16 tall) "
+                          "within ±1e+150 of their centre"), err
+    assert err.rstrip().endswith("; got 1e+308"), err
+    assert not out.exists() and not png.exists()

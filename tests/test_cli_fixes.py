@@ -1757,6 +1757,24 @@ def test_batch_output_that_is_a_file_is_refused_naming_the_option(tmp_path, caps
     assert taken.read_bytes() == b"mine" and sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy", "taken.glb"]
 
 
+def test_batch_output_dash_is_refused_as_standard_output_writing_nothing(tmp_path, capsys, monkeypatch):
+    """`stepterrain batch -o -` made a folder named '-' in the working directory and wrote every mesh there, where a
+    dash reads as standard output: it is refused now, naming --output, before anything is read or written (a folder
+    named '-' is still ./-)."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32))
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run(capsys, "-q", "batch", dem, "--interval", "2", "--scheduler", "serial", "-o", "-")
+    assert code == 2 and out == ""
+    assert err.strip() == ("stepterrain batch: error: --output '-' would be standard output, which is no folder: batch "
+                           "writes a mesh file per item into the folder --output names; give a folder (./- for one "
+                           "named '-')"), err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy"]
+    code, _, err = run(capsys, "-q", "batch", dem, "--interval", "2", "--scheduler", "serial", "-o", "./-")
+    assert code == 0, err
+    assert sorted(p.name for p in (tmp_path / "-").glob("*.glb")) == ["dem.glb"]
+
+
 @pytest.mark.skipif(not hasattr(__import__("signal"), "SIGHUP"), reason="POSIX's SIGHUP")
 def test_sighup_ends_a_run_as_sigterm_does(tmp_path):
     """SIGHUP (the terminal closed, the ssh connection dropped) killed a command outright: the file being written

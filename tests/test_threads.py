@@ -10,7 +10,6 @@ them in that order (the first waits, a second at most, until the second is insid
 from __future__ import annotations
 
 import os
-import sys
 import threading
 import warnings
 from types import SimpleNamespace
@@ -88,14 +87,8 @@ def blocks(tmp_path, monkeypatch):
         hooks[threading.get_ident()]()
         return real_image_open(*args, **kwargs)
 
-    def off_thresholds(ring, values, magnitude):
-        hooks[threading.get_ident()]()
-        return ring
-
     monkeypatch.setattr(rasterio, "open", rasterio_open)
     monkeypatch.setattr(Image, "open", image_open)
-    # batch imports it from the module at each call
-    monkeypatch.setattr(sys.modules["stepterrain.stepped"], "_off_thresholds", off_thresholds)
 
     def hooked(call):
         def run(hook):
@@ -117,15 +110,6 @@ def blocks(tmp_path, monkeypatch):
     def side_file_crs():
         export._check_side_file_crs(tif, tmp_path / "dem.tif.aux.xml", rasterio.crs.CRS.from_epsg(32611), tif)
 
-    def tile_off_thresholds():
-        heights = np.arange(36, dtype=np.float64).reshape(6, 6)
-        source = SimpleNamespace(bounds=((0.0, 0.0, 0.0), (50.0, 50.0, 35.0)), offset=(0, 0, 0), heights=heights,
-                                 spacing=(10.0, 10.0), origin=(0.0, 0.0))
-        item = SimpleNamespace(rows=(1, 4), cols=(1, 4))
-        terrain = Terrain.from_heights(heights[1:4, 1:4], spacing=(10.0, 10.0), origin=(10.0, 10.0))
-        options = SimpleNamespace(interval=5.0, levels=None, base=0.0)
-        assert batch_module._tile_off_thresholds(item, source, terrain, options) is terrain
-
     def with_own_hook(call):
         def run(hook):
             hooks[-threading.get_ident()] = hook
@@ -133,20 +117,18 @@ def blocks(tmp_path, monkeypatch):
         return run
 
     return {"open_raster": hooked(open_raster), "source_jpeg": with_own_hook(source_jpeg),
-            "side_file_crs": hooked(side_file_crs), "tile_off_thresholds": hooked(tile_off_thresholds)}
+            "side_file_crs": hooked(side_file_crs)}
 
 
 @pytest.mark.parametrize(("first", "second"), [
     ("source_jpeg", "open_raster"),  # a textured glTF saved while a DEM is read
-    ("tile_off_thresholds", "open_raster"),
-    ("tile_off_thresholds", "tile_off_thresholds"),  # two solid tiles of one raster on dask's threaded workers
     ("side_file_crs", "source_jpeg"),
 ])
 def test_warning_blocks_in_two_threads_leave_the_process_filters_as_they_were(blocks, first, second):
-    """export._source_jpeg (a glTF's JPEG texture), export._check_side_file_crs (a GeoTIFF with an ob_tran CRS) and
-    batch._tile_off_thresholds (every solid tile of a raster, on dask's worker threads) swapped the filters without
-    the lock io.open_raster and batch's recording held: overlapped with another block they left their "ignore" in
-    the process for good, and every later warning of the process (or DecompressionBombWarning) was lost."""
+    """export._source_jpeg (a glTF's JPEG texture) and export._check_side_file_crs (a GeoTIFF with an ob_tran CRS)
+    swapped the filters without the lock io.open_raster and batch's recording held: overlapped with another block they
+    left their "ignore" in the process for good, and every later warning of the process (or DecompressionBombWarning)
+    was lost. (batch._tile_off_thresholds had such a block too; it has none now: see the test after this one.)"""
     before, display = list(warnings.filters), warnings.showwarning
     errors = _interleaved(blocks[first], blocks[second])
     after, shown = list(warnings.filters), warnings.showwarning
@@ -155,6 +137,93 @@ def test_warning_blocks_in_two_threads_leave_the_process_filters_as_they_were(bl
     assert errors == []
     assert after == before
     assert shown is display
+
+
+def _threshold_raster():
+    """A raster on levels a few float32 steps apart at the top (thresholds -10, 0.5, 1.0 and the next float32 value
+    after 1.0), its heights on every threshold: those on 1.0 stay there (its next float32 value is the next threshold,
+    which :func:`stepterrain.stepped._off_thresholds` warns of), the others move up by τ. Its 4 tiles, the source
+    with its bounds, and the options a solid tile reads."""
+    from stepterrain.stepped import thresholds_of
+
+    levels = np.array([-20.0, 0.0, np.nextafter(np.float32(1), np.float32(0)), 1.0, 1.0 + 2.0**-22], np.float32)
+    thresholds = thresholds_of(levels)
+    assert thresholds.tolist() == [-10.0, np.float32(0.5) - 2.0**-25, 1.0, 1.0 + 2.0**-23]
+    heights = np.random.default_rng(3).choice(np.array([-15.0, *thresholds[:3], 0.25, 3.0], np.float32), (9, 9))
+    terrain = Terrain.from_heights(heights.astype(np.float32), spacing=(10.0, 10.0), origin=(500.0, 700.0))
+    items, src = batch_module.plan_items(terrain, tile_size=4)
+    src = batch_module.dataclasses.replace(src, bounds=batch_module._raster_bounds(src, terrain.height_range))
+    options = SimpleNamespace(interval=None, levels=tuple(float(v) for v in levels), base=0.0)
+    return items, src, options
+
+
+def test_solid_tiles_move_their_heights_in_threads_while_another_holds_the_warning_lock():
+    """batch._tile_off_thresholds (every solid tile of a raster, on dask's threaded workers) held the library's
+    warning lock (stepterrain._warning_filters.FILTERS) around its threshold pass, in a catch_warnings block only to
+    hide the warning of a height left on its threshold: the workers ran those passes one at a time, and behind any
+    other warning block of the process. The pass now says nothing itself (_off_thresholds(warn=False)) and takes no
+    lock: two tiles' passes in two threads finish while a third thread holds the lock with a recorder of every
+    warning installed, which records none of theirs (nothing leaked into another thread's block); each tile's heights
+    are the serial pass's bit for bit, and the process's filters are as they were."""
+    from stepterrain._warning_filters import FILTERS
+
+    items, src, options = _threshold_raster()
+
+    def moved(item):
+        return batch_module._tile_off_thresholds(item, batch_module._item_source(src, item),
+                                                 batch_module._item_terrain(item, src), options).heights
+
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        serial = [moved(item) for item in items]
+    assert said == []  # the tile's own stepped() says it, not its threshold pass
+    cut = [batch_module._item_terrain(item, src).heights for item in items]
+    assert sum(int((a != b).sum()) for a, b in zip(serial, cut, strict=True)) > 0  # some heights moved
+    assert all(np.array_equal(a[b == 1.0], b[b == 1.0]) for a, b in zip(serial, cut, strict=True))  # those stay
+    assert any((b == 1.0).any() for b in cut)
+
+    before, display = list(warnings.filters), warnings.showwarning
+    inside, release = threading.Event(), threading.Event()
+    recorded: list[warnings.WarningMessage] = []
+
+    def hold() -> None:
+        with FILTERS, warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            inside.set()
+            release.wait(20)
+            recorded.extend(caught)
+
+    got: dict[str, np.ndarray] = {}
+    done = [threading.Event() for _ in range(2)]
+
+    def step(k: int) -> None:
+        try:
+            for item in items[k::2]:
+                got[item.key] = moved(item)
+        finally:
+            done[k].set()
+
+    holder = threading.Thread(target=hold)
+    holder.start()
+    try:
+        assert inside.wait(10)
+        workers = [threading.Thread(target=step, args=(k,)) for k in range(2)]
+        for worker in workers:
+            worker.start()
+        finished = [event.wait(10) for event in done]  # before: each waited for the lock, until released below
+    finally:
+        release.set()
+        holder.join(20)
+    for worker in workers:
+        worker.join(20)
+    after, shown = list(warnings.filters), warnings.showwarning
+    warnings.filters[:] = before  # for the tests after this one, also when it fails
+    warnings.showwarning = display
+    assert finished == [True, True]
+    assert recorded == []
+    assert {item.key: got[item.key].tobytes() for item in items} == {
+        item.key: heights.tobytes() for item, heights in zip(items, serial, strict=True)}
+    assert after == before and shown is display
 
 
 def test_local_clusters_started_in_two_threads_leave_the_environment_as_it_was(monkeypatch):
