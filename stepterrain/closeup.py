@@ -2610,10 +2610,11 @@ def render_closeups(
             for k, strip in enumerate(strips):  # the close-ups where they are drawn (not their blended V_C)
                 boxes += [b for b in (drawn[k], render._finite_bounds(strip.vertices)) if b is not None]
             box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
-        renderer.set_view(camera, box, view_angle=view_angle)
-        if fitted and items:
+        if fitted and items:  # before set_view: its own check of a box too thin to see named "the mesh" and a
+            # z_scale for a close-up lifted absurdly high (animate_closeups named the close-up, checking it first)
             _check_framed(t, items, drawn, box, camera, (width, height), renderer.z_scale, view_angle)
-        elif not render._fitted_camera(camera):
+        renderer.set_view(camera, box, view_angle=view_angle)
+        if not render._fitted_camera(camera):
             _warn_unseen(renderer, camera, drawn, strips)
         base, base_depth = renderer.render(["overview"], reuse=reuse_overview)
         # each layer comes back cut to its screen box: read-backs and compositing follow its size on screen
@@ -2723,7 +2724,7 @@ def _check_framed(t: Terrain, items: Sequence[CloseUp], drawn: dict[int, Any], b
     raise InvalidInputError(
         f"the camera fitted to the overview and its close-ups would show {' and '.join(small)} under a pixel: the "
         f"framed box x [{lo[0]:.6g}, {hi[0]:.6g}], y [{lo[1]:.6g}, {hi[1]:.6g}], z [{lo[2]:.6g}, {hi[2]:.6g}] is "
-        f"wide because closeups[{far}] (offset {tuple(float(v) for v in items[far].offset)}) is drawn "
+        f"that large because closeups[{far}] (offset {tuple(float(v) for v in items[far].offset)}) is drawn "
         f"{reach[far]:.3g} from the terrain's centre; move it nearer, or frame what to see with bounds")
 
 

@@ -1595,6 +1595,26 @@ def test_a_closeup_moved_absurdly_far_is_refused_not_rendered_blank():
     assert (framed != 255).any(axis=2).sum() > 1000  # the overview, drawn in the caller's frame
 
 
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+@pytest.mark.parametrize("dz", [1e7, -1e7])
+def test_a_closeup_lifted_absurdly_high_is_named_as_the_closeup_not_as_the_z_scale(dz):
+    """A close-up lifted 1e7 m over an 80 m terrain: render_closeups refused it as the renderer's too-thin box ("the
+    mesh would render 0.0019 x 1.1e+02 pixels ... a z_scale near 8e-06 makes it as tall as it is wide"), naming
+    neither the close-up nor its offset and offering a z_scale that flattens the terrain, while animate_closeups of
+    the same close-up named it (its framing check came before the renderer's; in render_closeups it came after)."""
+    t = terrain()
+    high = one(offset=(0.0, 0.0, dz))
+    named = (r"^the camera fitted to the overview and its close-ups would show the overview \(.* px\) .*under a "
+             rf"pixel: .*closeups\[0\] \(offset \(0.0, 0.0, {dz}\)\)")
+    with pytest.raises(InvalidInputError, match=named):
+        render_closeups(t, [high], window_size=SIZE, device="cpu")
+    with pytest.raises(InvalidInputError, match=named):
+        animate_closeups(t, [high], frames=1, window_size=SIZE, device="cpu")
+    with pytest.raises(InvalidInputError, match=rf"closeups\[1\] \(offset \(0.0, 0.0, {dz}\)\) is drawn"):
+        render_closeups(t, [one(), high], window_size=SIZE, device="cpu")
+
+
 @pytest.mark.parametrize("renderer", ["yes", 5, object()])
 def test_render_closeups_names_a_renderer_that_is_not_a_layered_renderer(renderer):
     """A renderer that is not a LayeredRenderer (a pyvista Plotter, a flag) raised AttributeError "'Plotter' object has
