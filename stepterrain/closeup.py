@@ -1218,10 +1218,11 @@ def _layers_struct(closeups: Sequence[CloseUp], matrices: Sequence[NDArray[np.fl
         packed = np.concatenate([r.mask.reshape(-1) for r in rois]) if rois else np.zeros(1, np.float32)
         # the world box's float64 rounding, and the float32 rounding of the local box and of the points it is compared
         # with (each half an ulp of its float32 coordinate): the far rim's node j·dx and box side x1 - ox rounded one
-        # float32 ulp apart, past a margin of the world's rounding alone, and the rim row had m = 0
-        margins = (np.array([r._margin for r in rois], dtype=np.float64)
-                   + 2.0 * np.spacing(np.abs(boxes).max(axis=1, initial=0.0)).astype(np.float64)).astype(np.float32)
-        return (wp.array(boxes, dtype=wp.vec4, device=device), wp.array(margins, dtype=wp.float32, device=device),
+        # float32 ulp apart, past a margin of the world's rounding alone, and the rim row had m = 0. Per side: the
+        # ulps of the farthest side on every side (4 m for a box reaching 2e7 m west) lifted the nodes past a near one
+        margins = (np.array([r._margin for r in rois], dtype=np.float64)[:, None]
+                   + 2.0 * np.spacing(np.abs(boxes)).astype(np.float64)).astype(np.float32).reshape(-1, 4)
+        return (wp.array(boxes, dtype=wp.vec4, device=device), wp.array(margins, dtype=wp.vec4, device=device),
                 wp.array(info, dtype=wp.vec3i, device=device),
                 wp.array(packed.astype(np.float32), dtype=wp.float32, device=device))
 

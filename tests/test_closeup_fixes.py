@@ -2075,6 +2075,29 @@ def test_the_kernel_holds_the_far_rim_rows_to_float32_rounding(shape, spacing, o
         assert len(layer.faces) > 0 and (layer.mask_factor == 1).all()
 
 
+@pytest.mark.parametrize("east", [True, False])
+def test_the_kernels_rim_margin_is_each_sides_own_not_the_farthest_sides(east):
+    """The kernel's rounding margin about a ROI box was two float32 ulps of its farthest side, on every side: a hard
+    rectangle reaching 2e7 m west of a 0.5 m grid (its far side's ulp 2 m, a margin of 4 m) lifted the node column
+    0.5 m east of its near edge (m = 1 there, clamped onto the rim), where ROI.factor, and the float32 rounding of that
+    side and of the nodes (a few 1e-6 m), give 0: the close-up took a strip of terrain past its edge."""
+    from stepterrain.terrain import Terrain
+
+    t = Terrain.from_heights(np.zeros((21, 81), np.float32), spacing=(0.5, 0.5), origin=(0.0, 0.0))
+    far = 2e7
+    center = (20.0 - far / 2, 5.0) if east else (20.0 + far / 2, 5.0)  # its near side at x = 20 m either way
+    roi = ROI.rectangle(center, (far, 20.0), edge_width=0)
+    nodes = np.asarray(t.mesh().vertices)[:, :2]
+    expected = roi.factor(nodes)
+    held = (nodes[:, 0] <= 20.0) if east else (nodes[:, 0] >= 20.0)
+    assert ((expected == 1) == (held & (nodes[:, 1] >= -5.0) & (nodes[:, 1] <= 15.0))).all()
+    (layer,) = closeup_layers(t, [CloseUp(roi, offset=(0.0, 0.0, 10.0))], device="cpu")
+    at = np.rint(layer.original[:, :2] / 0.5).astype(np.int64)  # each kept vertex's node
+    np.testing.assert_array_equal(layer.mask_factor, expected[at[:, 1] * 81 + at[:, 0]])
+    lifted = layer.original[layer.mask_factor > 0, 0]
+    assert (lifted <= 20.0).all() if east else (lifted >= 20.0).all()
+
+
 def test_a_box_collapsed_in_float32_lifts_no_node_beside_it():
     """A ROI narrower than a float32 ulp of its local coordinates collapses to one value in the kernel: a node one ulp
     beside it, within the kernel's rounding margin, gave u = ±inf, which was clamped onto the mask's edge (m = 1 under a
