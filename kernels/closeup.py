@@ -31,7 +31,7 @@ class CloseUpLayers:
 
     matrices: wp.array[wp.mat44]
     boxes: wp.array[wp.vec4]  # (x0, y0, x1, y1) of the ROI box in local coordinates, x1 > x0, y1 > y0
-    margins: wp.array[wp.float32]  # how far outside its box a point still lies on it (rounding of box and points)
+    margins: wp.array[wp.vec4]  # how far outside each side (x0, y0, x1, y1) a point still lies on it (rounding)
     mask_info: wp.array[wp.vec3i]  # (offset into masks, rows, cols), rows and cols >= 2
     masks: wp.array[wp.float32]
 
@@ -49,13 +49,13 @@ def mask_factor(p: wp.vec3, k: wp.int32, layers: CloseUpLayers) -> wp.float32:
     """Bilinear lookup of close-up k's mask at p's xy; 0 outside the ROI box (and where u or v is not finite: a box
     that collapses to one float32 value gives 0 / 0 on its edge and ±inf beside it, which the comparisons must not
     let through to the int32 texel index, as ``ROI.factor`` takes it). A point within ``layers.margins[k]`` outside
-    the box lies on its rim, as in ``ROI.factor``: the world box's float64 rounding (which float32 keeps next to the
-    local origin) and the float32 rounding of the local box and of the points (the far rim's node and box side round
-    apart)."""
+    a side of the box lies on its rim, as in ``ROI.factor``: the world box's float64 rounding (which float32 keeps next
+    to the local origin) and the float32 rounding of that side and of the points next to it (the far rim's node and
+    box side round apart); each side its own, as a far side's rounding says nothing of a near one's."""
     box = layers.boxes[k]
     margin = layers.margins[k]
-    if not (p[0] >= box[0] - margin and p[0] <= box[2] + margin and p[1] >= box[1] - margin
-            and p[1] <= box[3] + margin):
+    if not (p[0] >= box[0] - margin[0] and p[0] <= box[2] + margin[2] and p[1] >= box[1] - margin[1]
+            and p[1] <= box[3] + margin[3]):
         return 0.0
     u = (p[0] - box[0]) / (box[2] - box[0])
     v = (p[1] - box[1]) / (box[3] - box[1])

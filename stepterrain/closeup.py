@@ -1218,10 +1218,11 @@ def _layers_struct(closeups: Sequence[CloseUp], matrices: Sequence[NDArray[np.fl
         packed = np.concatenate([r.mask.reshape(-1) for r in rois]) if rois else np.zeros(1, np.float32)
         # the world box's float64 rounding, and the float32 rounding of the local box and of the points it is compared
         # with (each half an ulp of its float32 coordinate): the far rim's node j·dx and box side x1 - ox rounded one
-        # float32 ulp apart, past a margin of the world's rounding alone, and the rim row had m = 0
-        margins = (np.array([r._margin for r in rois], dtype=np.float64)
-                   + 2.0 * np.spacing(np.abs(boxes).max(axis=1, initial=0.0)).astype(np.float64)).astype(np.float32)
-        return (wp.array(boxes, dtype=wp.vec4, device=device), wp.array(margins, dtype=wp.float32, device=device),
+        # float32 ulp apart, past a margin of the world's rounding alone, and the rim row had m = 0. Per side: the
+        # ulps of the farthest side on every side (4 m for a box reaching 2e7 m west) lifted the nodes past a near one
+        margins = (np.array([r._margin for r in rois], dtype=np.float64)[:, None]
+                   + 2.0 * np.spacing(np.abs(boxes)).astype(np.float64)).astype(np.float32).reshape(-1, 4)
+        return (wp.array(boxes, dtype=wp.vec4, device=device), wp.array(margins, dtype=wp.vec4, device=device),
                 wp.array(info, dtype=wp.vec3i, device=device),
                 wp.array(packed.astype(np.float32), dtype=wp.float32, device=device))
 
@@ -2610,10 +2611,11 @@ def render_closeups(
             for k, strip in enumerate(strips):  # the close-ups where they are drawn (not their blended V_C)
                 boxes += [b for b in (drawn[k], render._finite_bounds(strip.vertices)) if b is not None]
             box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
-        renderer.set_view(camera, box, view_angle=view_angle)
-        if fitted and items:
+        if fitted and items:  # before set_view: its own check of a box too thin to see named "the mesh" and a
+            # z_scale for a close-up lifted absurdly high (animate_closeups named the close-up, checking it first)
             _check_framed(t, items, drawn, box, camera, (width, height), renderer.z_scale, view_angle)
-        elif not render._fitted_camera(camera):
+        renderer.set_view(camera, box, view_angle=view_angle)
+        if not render._fitted_camera(camera):
             _warn_unseen(renderer, camera, drawn, strips)
         base, base_depth = renderer.render(["overview"], reuse=reuse_overview)
         # each layer comes back cut to its screen box: read-backs and compositing follow its size on screen
@@ -2723,7 +2725,7 @@ def _check_framed(t: Terrain, items: Sequence[CloseUp], drawn: dict[int, Any], b
     raise InvalidInputError(
         f"the camera fitted to the overview and its close-ups would show {' and '.join(small)} under a pixel: the "
         f"framed box x [{lo[0]:.6g}, {hi[0]:.6g}], y [{lo[1]:.6g}, {hi[1]:.6g}], z [{lo[2]:.6g}, {hi[2]:.6g}] is "
-        f"wide because closeups[{far}] (offset {tuple(float(v) for v in items[far].offset)}) is drawn "
+        f"that large because closeups[{far}] (offset {tuple(float(v) for v in items[far].offset)}) is drawn "
         f"{reach[far]:.3g} from the terrain's centre; move it nearer, or frame what to see with bounds")
 
 

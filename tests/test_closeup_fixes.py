@@ -1595,6 +1595,26 @@ def test_a_closeup_moved_absurdly_far_is_refused_not_rendered_blank():
     assert (framed != 255).any(axis=2).sum() > 1000  # the overview, drawn in the caller's frame
 
 
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+@pytest.mark.parametrize("dz", [1e7, -1e7])
+def test_a_closeup_lifted_absurdly_high_is_named_as_the_closeup_not_as_the_z_scale(dz):
+    """A close-up lifted 1e7 m over an 80 m terrain: render_closeups refused it as the renderer's too-thin box ("the
+    mesh would render 0.0019 x 1.1e+02 pixels ... a z_scale near 8e-06 makes it as tall as it is wide"), naming
+    neither the close-up nor its offset and offering a z_scale that flattens the terrain, while animate_closeups of
+    the same close-up named it (its framing check came before the renderer's; in render_closeups it came after)."""
+    t = terrain()
+    high = one(offset=(0.0, 0.0, dz))
+    named = (r"^the camera fitted to the overview and its close-ups would show the overview \(.* px\) .*under a "
+             rf"pixel: .*closeups\[0\] \(offset \(0.0, 0.0, {dz}\)\)")
+    with pytest.raises(InvalidInputError, match=named):
+        render_closeups(t, [high], window_size=SIZE, device="cpu")
+    with pytest.raises(InvalidInputError, match=named):
+        animate_closeups(t, [high], frames=1, window_size=SIZE, device="cpu")
+    with pytest.raises(InvalidInputError, match=rf"closeups\[1\] \(offset \(0.0, 0.0, {dz}\)\) is drawn"):
+        render_closeups(t, [one(), high], window_size=SIZE, device="cpu")
+
+
 @pytest.mark.parametrize("renderer", ["yes", 5, object()])
 def test_render_closeups_names_a_renderer_that_is_not_a_layered_renderer(renderer):
     """A renderer that is not a LayeredRenderer (a pyvista Plotter, a flag) raised AttributeError "'Plotter' object has
@@ -2053,6 +2073,29 @@ def test_the_kernel_holds_the_far_rim_rows_to_float32_rounding(shape, spacing, o
         # a stepped close-up's rim vertices too (their float32 positions lay as far outside: 1.6 % of them lost)
         (layer,) = closeup_layers(t, [CloseUp(roi, offset=(0.0, 0.0, 50.0), stepped=1.0)], device="cpu")
         assert len(layer.faces) > 0 and (layer.mask_factor == 1).all()
+
+
+@pytest.mark.parametrize("east", [True, False])
+def test_the_kernels_rim_margin_is_each_sides_own_not_the_farthest_sides(east):
+    """The kernel's rounding margin about a ROI box was two float32 ulps of its farthest side, on every side: a hard
+    rectangle reaching 2e7 m west of a 0.5 m grid (its far side's ulp 2 m, a margin of 4 m) lifted the node column
+    0.5 m east of its near edge (m = 1 there, clamped onto the rim), where ROI.factor, and the float32 rounding of that
+    side and of the nodes (a few 1e-6 m), give 0: the close-up took a strip of terrain past its edge."""
+    from stepterrain.terrain import Terrain
+
+    t = Terrain.from_heights(np.zeros((21, 81), np.float32), spacing=(0.5, 0.5), origin=(0.0, 0.0))
+    far = 2e7
+    center = (20.0 - far / 2, 5.0) if east else (20.0 + far / 2, 5.0)  # its near side at x = 20 m either way
+    roi = ROI.rectangle(center, (far, 20.0), edge_width=0)
+    nodes = np.asarray(t.mesh().vertices)[:, :2]
+    expected = roi.factor(nodes)
+    held = (nodes[:, 0] <= 20.0) if east else (nodes[:, 0] >= 20.0)
+    assert ((expected == 1) == (held & (nodes[:, 1] >= -5.0) & (nodes[:, 1] <= 15.0))).all()
+    (layer,) = closeup_layers(t, [CloseUp(roi, offset=(0.0, 0.0, 10.0))], device="cpu")
+    at = np.rint(layer.original[:, :2] / 0.5).astype(np.int64)  # each kept vertex's node
+    np.testing.assert_array_equal(layer.mask_factor, expected[at[:, 1] * 81 + at[:, 0]])
+    lifted = layer.original[layer.mask_factor > 0, 0]
+    assert (lifted <= 20.0).all() if east else (lifted >= 20.0).all()
 
 
 def test_a_box_collapsed_in_float32_lifts_no_node_beside_it():

@@ -552,3 +552,19 @@ def test_animate_closeups_refuses_frames_over_the_memory_budget():
     for frames in (10**7, 10**12):
         with pytest.raises(OutputTooLargeError, match=f"{frames} frames of 640 x 400 pixels"):
             animate_closeups(terrain(), [one()], frames=frames, window_size=(640, 400), device="cpu")
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+@pytest.mark.parametrize("offset", ["0,0,1e9", "1e9,0,40"])
+def test_cli_closeup_an_absurd_offset_is_refused_with_advice_an_option_follows(dem, tmp_path, capsys, offset):
+    """A close-up moved absurdly far (--offset 0,0,1e9 over a 40 x 32 m DEM) is refused before any file is written; the
+    advice was the library's "frame what to see with bounds", which no option of closeup gives: it names --offset."""
+    argv = ["-q", "closeup", str(dem), "--roi-relative", "0.5,0.5,0.2", "--offset", offset, "--size", "160x120",
+            "-o", str(tmp_path / "scene.ply"), "--png", str(tmp_path / "x.png"), "--device", "cpu"]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("stepterrain closeup: error: the camera fitted to the overview and its close-ups would show "
+                          "the overview ("), err
+    assert "bounds" not in err and err.endswith("; move it nearer: give it a smaller --offset\n"), err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy"]
