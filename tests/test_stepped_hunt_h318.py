@@ -1,0 +1,57 @@
+"""Bugs found by a hunt over the less-tested stepped combinations (lenses, TINs, series, γ, nodata, solids, extreme
+intervals and coordinates), one test each."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st_
+
+import stepterrain as st
+
+
+def _minimal_cover(lo: float, hi: float, interval: float, base: float) -> np.ndarray:
+    """The run of ``float32(base + k * interval)`` over consecutive k that covers [float32(lo), float32(hi)] with the
+    fewest values: the last at or below lo to the first at or above hi, found by walking k over a wide window (no
+    floor or ceil of a quotient)."""
+    k_lo, k_hi = int(np.floor((lo - base) / interval)) - 3, int(np.ceil((hi - base) / interval)) + 3
+    run = (base + np.arange(k_lo, k_hi + 1, dtype=np.float64) * interval).astype(np.float32)
+    lo32, hi32 = np.float32(lo), np.float32(hi)
+    below = np.flatnonzero(run <= lo32)
+    above = np.flatnonzero(run >= hi32)
+    return run[below[-1] : above[0] + 1]
+
+
+def test_isovalues_add_no_empty_level_where_the_quotient_rounds_off_an_integer():
+    """(lo - base) / interval rounds in float64: float32 heights 0.7 to 1.0 at interval 0.1 give 6.99999988 and the
+    floor took 6, an isovalue 0.6 no height reaches (0.7 is an isovalue itself); heights 0 to float32(0.3) gave
+    3.0000001 and the ceil took 4, an empty 0.4 on top. Heights 7 to 10 at interval 1 got no such level: level indices
+    then started at 1, colormaps were spread over a level too many, and a solid's default floor lay two intervals
+    below the lowest terrace rather than one."""
+    lo = float(np.float32(0.7))
+    np.testing.assert_array_equal(st.isovalues((lo, 1.0), interval=0.1),
+                                  np.float32([0.7, 0.8, 0.9, 1.0]))
+    np.testing.assert_array_equal(st.isovalues((0.0, float(np.float32(0.3))), interval=0.1),
+                                  np.float32([0.0, 0.1, 0.2, 0.3]))
+    heights = np.array([[0.7, 0.8], [0.9, 1.0]], np.float32)
+    mesh = st.stepped(heights, interval=0.1)
+    assert mesh.metadata["isovalues"] == np.float32([0.7, 0.8, 0.9, 1.0]).tolist()
+    assert mesh.face_attributes["level"].min() == 0  # the lowest terrace is level 0, as heights 7 to 10 at 1 give
+    solid = st.stepped(heights, interval=0.1, solid=True)
+    assert solid.metadata["floor"] == float(np.float32(0.7)) - 0.1  # one interval below the lowest isovalue
+    integers = st.stepped(heights * 10, interval=1.0, solid=True)
+    assert integers.metadata["floor"] == 6.0 and integers.metadata["isovalues"] == [7.0, 8.0, 9.0, 10.0]
+
+
+@settings(max_examples=300, deadline=None)
+@given(lo=st_.integers(-3000, 3000), span=st_.integers(0, 400),
+       interval=st_.sampled_from([0.1, 0.2, 0.3, 0.7, 1.0, 2.5, 0.05, 0.01]),
+       base=st_.sampled_from([0.0, 0.1, -0.3, 0.05, 1.7]), scale=st_.sampled_from([0.1, 0.01, 0.5, 1.0]))
+def test_isovalues_are_the_fewest_that_cover_the_float32_heights(lo, span, interval, base, scale):
+    """Against an independent walk over k: decimal heights (float32, as stepped() takes them) and decimal intervals,
+    whose quotients land a hair off integers; the isovalues are the shortest run of float32(base + k * interval)
+    whose first lies at or below the lowest height and whose last at or above the highest."""
+    h_lo = float(np.float32(lo * scale))
+    h_hi = float(np.float32((lo + span) * scale))
+    got = st.isovalues((h_lo, h_hi), interval=interval, base=base)
+    np.testing.assert_array_equal(got, _minimal_cover(h_lo, h_hi, interval, base))
