@@ -218,8 +218,10 @@ def circular_lens(
     for name, value in (("inside", inside), ("outside", outside)):
         if not 0.0 <= finite_number(value, f"lens {name}") <= 1.0:
             raise InvalidInputError(f"lens {name} must lie in [0, 1]; got {value}")
-    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 2:
-        raise InvalidInputError(f"lens resolution must be an int >= 2; got {resolution!r}")
+    # 3 at least: a 2 x 2 mask has its samples only at the corners of the lens's square, all beyond the lens's reach
+    # (:func:`_lens_box`), so it was `outside` everywhere: a lens on the terrain that changed nothing, unsaid
+    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 3:
+        raise InvalidInputError(f"lens resolution must be an int >= 3; got {resolution!r}")
     check_budget(LENS_TEXEL_BYTES * int(resolution) ** 2, f"a lens mask of resolution {int(resolution)}",
                  hint="lower the lens resolution")
     n = int(resolution)

@@ -4,6 +4,7 @@ intervals and coordinates), one test each."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st_
 
@@ -55,3 +56,30 @@ def test_isovalues_are_the_fewest_that_cover_the_float32_heights(lo, span, inter
     h_hi = float(np.float32((lo + span) * scale))
     got = st.isovalues((h_lo, h_hi), interval=interval, base=base)
     np.testing.assert_array_equal(got, _minimal_cover(h_lo, h_hi, interval, base))
+
+
+def test_a_lens_of_two_by_two_samples_is_refused_rather_than_changing_nothing():
+    """A circular lens's mask covers the square around its centre whose border samples lie beyond its reach, so a
+    2 x 2 mask (resolution=2, accepted as ">= 2") held only those four corners, all ``outside``: a lens in the middle
+    of the terrain left every vertex stepped, without the warning a lens beside the terrain gets."""
+    heights = np.zeros((50, 50))
+    with pytest.raises(st.InvalidInputError, match=r"lens resolution must be an int >= 3; got 2"):
+        st.circular_lens(heights, (25.0, 25.0), 10.0, resolution=2)
+
+
+@pytest.mark.parametrize("resolution", [3, 4, 5, 8, 512])
+def test_every_accepted_lens_resolution_shows_the_inside_at_the_centre(resolution):
+    """The smallest masks still reach ``inside`` at the lens's centre (γ sampled there as stepped() samples it): the
+    original terrain, not the steps, at the centre vertex."""
+    rng = np.random.default_rng(0)
+    heights = rng.uniform(0.0, 10.0, (51, 51)).astype(np.float32)
+    lens = st.circular_lens(heights, (25.0, 25.0), 10.0, resolution=resolution)
+    mesh = st.stepped(heights, interval=1.0, gamma=lens)
+    at_zero = st.stepped(heights, interval=1.0, gamma=0.0)
+    at_one = st.stepped(heights, interval=1.0, gamma=1.0)
+    centre = np.flatnonzero((at_one.vertices[:, 0] == 25.0) & (at_one.vertices[:, 1] == 25.0))
+    z0, z1, z = at_zero.vertices[centre, 2], at_one.vertices[centre, 2], mesh.vertices[centre, 2]
+    moved = z1 != z0
+    assert moved.any()
+    gamma = (z[moved] - z0[moved]) / (z1[moved] - z0[moved])
+    assert np.all(gamma < 0.01)
