@@ -504,13 +504,6 @@ def isovalues(
             f"interval={step} with base={base} gives isovalues [{values[0]}, {values[-1]}] that do not cover the "
             f"heights [{lo}, {hi}] in float32; bring base closer to the heights"
         )
-    # the fewest that cover them: (lo - base) / interval rounds in float64 (0.7 / 0.1 = 6.999999999999999), and floor
-    # and ceil of a quotient a hair off an integer added a level no height reaches below or above them (heights 0.7
-    # to 1.0 at interval 0.1 got an empty level 0.6: level indices from 1, colours shifted, a solid's default floor
-    # two intervals down, where heights 7 to 10 at interval 1 got none); float32, as the kernels compare
-    first = int(np.searchsorted(values, np.float32(lo), side="right")) - 1  # the last value at or below lo
-    last = int(np.searchsorted(values, np.float32(hi), side="left"))  # the first value at or above hi
-    values = values[max(first, 0) : last + 1]
     if values.size > 1 and (values[1:] <= values[:-1]).any():  # finite: np.diff(values) <= 0, without its copies
         raise InvalidInputError(f"interval={step} is too small for float32 heights around {hi}")
     close = _unseparated(values)
@@ -521,6 +514,14 @@ def isovalues(
             f"neighbouring float32 values, so the threshold between them (their midpoint) rounds onto the lower one, "
             f"whose heights would step up; use an interval of at least {2 * (b - a):g} there"
         )
+    # the fewest that cover them: (lo - base) / interval rounds in float64 (0.7 / 0.1 = 6.999999999999999), and floor
+    # and ceil of a quotient a hair off an integer added a level no height reaches below or above them (heights 0.7
+    # to 1.0 at interval 0.1 got an empty level 0.6: level indices from 1, colours shifted, a solid's default floor
+    # two intervals down, where heights 7 to 10 at interval 1 got none); in float32, as the kernels compare; after
+    # the checks above, so that they refuse what they refused before
+    first = int(np.searchsorted(values, np.float32(lo), side="right")) - 1  # the last value at or below lo
+    last = int(np.searchsorted(values, np.float32(hi), side="left"))  # the first value at or above hi
+    values = values[max(first, 0) : last + 1]
     return _check_span(lo, hi, values)
 
 
