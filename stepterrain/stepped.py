@@ -218,8 +218,10 @@ def circular_lens(
     for name, value in (("inside", inside), ("outside", outside)):
         if not 0.0 <= finite_number(value, f"lens {name}") <= 1.0:
             raise InvalidInputError(f"lens {name} must lie in [0, 1]; got {value}")
-    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 2:
-        raise InvalidInputError(f"lens resolution must be an int >= 2; got {resolution!r}")
+    # 3 at least: a 2 x 2 mask has its samples only at the corners of the lens's square, all beyond the lens's reach
+    # (:func:`_lens_box`), so it was `outside` everywhere: a lens on the terrain that changed nothing, unsaid
+    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 3:
+        raise InvalidInputError(f"lens resolution must be an int >= 3; got {resolution!r}")
     check_budget(LENS_TEXEL_BYTES * int(resolution) ** 2, f"a lens mask of resolution {int(resolution)}",
                  hint="lower the lens resolution")
     n = int(resolution)
@@ -395,7 +397,8 @@ def isovalues(
     levels: ArrayLike | None = None,
     base: float = 0.0,
 ) -> NDArray[np.float32]:
-    """The isovalues α_i: ``base + k * interval`` covering ``height_range``, or the explicit ``levels``.
+    """The isovalues α_i: the fewest ``base + k * interval`` covering ``height_range`` (in float32, as the kernels
+    compare), or the explicit ``levels``.
 
     Raises
     ------
@@ -511,6 +514,14 @@ def isovalues(
             f"neighbouring float32 values, so the threshold between them (their midpoint) rounds onto the lower one, "
             f"whose heights would step up; use an interval of at least {2 * (b - a):g} there"
         )
+    # the fewest that cover them: (lo - base) / interval rounds in float64 (0.7 / 0.1 = 6.999999999999999), and floor
+    # and ceil of a quotient a hair off an integer added a level no height reaches below or above them (heights 0.7
+    # to 1.0 at interval 0.1 got an empty level 0.6: level indices from 1, colours shifted, a solid's default floor
+    # two intervals down, where heights 7 to 10 at interval 1 got none); in float32, as the kernels compare; after
+    # the checks above, so that they refuse what they refused before
+    first = int(np.searchsorted(values, np.float32(lo), side="right")) - 1  # the last value at or below lo
+    last = int(np.searchsorted(values, np.float32(hi), side="left"))  # the first value at or above hi
+    values = values[max(first, 0) : last + 1]
     return _check_span(lo, hi, values)
 
 

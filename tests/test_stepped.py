@@ -805,10 +805,10 @@ def test_lens_shows_the_original_inside_and_steps_outside(dem):
         ({"outside": True}, r"lens outside must be a number; got True"),
         ({"outside": 1}, None),
         ({"outside": [0.5]}, r"lens outside must be a number; got \[0.5\]"),
-        ({"resolution": float("nan")}, r"lens resolution must be an int >= 2; got nan"),
-        ({"resolution": "64"}, r"lens resolution must be an int >= 2; got '64'"),
-        ({"resolution": 2.7}, r"lens resolution must be an int >= 2; got 2.7"),
-        ({"resolution": True}, r"lens resolution must be an int >= 2; got True"),
+        ({"resolution": float("nan")}, r"lens resolution must be an int >= 3; got nan"),
+        ({"resolution": "64"}, r"lens resolution must be an int >= 3; got '64'"),
+        ({"resolution": 2.7}, r"lens resolution must be an int >= 3; got 2.7"),
+        ({"resolution": True}, r"lens resolution must be an int >= 3; got True"),
     ],
 )
 def test_circular_lens_bad_numbers_are_named(kwargs, match):
