@@ -2693,10 +2693,11 @@ def _utf8_name(text: str) -> str:
         return text.encode("utf-8", "surrogatepass").decode("utf-8", "replace")
 
 
-#: PLY's scalar types, as NumPy's (without byte order)
+#: PLY's scalar types, as NumPy's (without byte order), with those trimesh's reader takes beyond the standard's
+#: (int64, uint64, float16): the walk of :func:`_ply_binary_mixed_lists` gave up on a file holding one of them
 _PLY_NUMPY = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2", "ushort": "u2",
-              "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4", "float": "f4",
-              "float32": "f4", "double": "f8", "float64": "f8"}
+              "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4", "int64": "i8", "uint64": "u8",
+              "float16": "f2", "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
 
 
 def _ply_binary_mixed_lists(file: Path, rows: int = 65536) -> str | None:
