@@ -429,3 +429,40 @@ def test_a_nested_block_that_fails_inside_the_outer_one_puts_none_of_its_files_i
         with atomic_path(tmp_path / "outer.txt") as tmp:
             tmp.write_text("outer")
     assert _files(tmp_path) == {"inner.txt": b"old", "outer.txt": b"outer"}  # no temporary file left either
+
+
+def test_a_geotiff_within_another_block_is_put_back_whole_when_a_later_file_of_that_block_fails(tmp_path,
+                                                                                                 monkeypatch):
+    # the GeoTIFF's old side file was set aside and removed as its own (inner) block ended, before the outer block
+    # renamed anything: a failed rename of a later file of the outer set put the old image back without its CRS
+    rasterio = pytest.importorskip("rasterio")
+    from stepterrain.export import _replaced_together, atomic_path
+
+    target = tmp_path / "t.tif"
+    save_image(np.zeros((4, 6, 3), np.uint8), target, extent=(0, 6, 0, 4), crs=_OB_TRAN)
+    (tmp_path / "other.txt").write_text("old")
+    old = _files(tmp_path)
+    assert "t.tif.aux.xml" in old
+    real, failed = os.replace, []
+
+    def replace(src, dst, *args, **kwargs):
+        if not failed and os.path.basename(dst) == "other.txt":
+            failed.append(dst)
+            raise OSError(errno.EIO, "Input/output error")
+        real(src, dst, *args, **kwargs)
+
+    monkeypatch.setattr(os, "replace", replace)
+    crs = _OB_TRAN.replace("o_lat_p=30", "o_lat_p=40")
+    with pytest.raises(DataFileError, match="Input/output error"):
+        with _replaced_together():
+            save_image(np.ones((4, 6, 3), np.uint8), target, extent=(10, 16, 0, 4), crs=crs)
+            with atomic_path(tmp_path / "other.txt") as tmp:
+                tmp.write_text("new")
+    monkeypatch.undo()
+    assert failed and _files(tmp_path) == old
+    with _replaced_together():  # and without a failure, the new image with its own side file
+        save_image(np.ones((4, 6, 3), np.uint8), target, extent=(10, 16, 0, 4), crs=crs)
+        with atomic_path(tmp_path / "other.txt") as tmp:
+            tmp.write_text("new")
+    assert _placement(target) == (rasterio.crs.CRS.from_user_input(crs), (1.0, 0.0, 10.0, 0.0, -1.0, 4.0))
+    assert sorted(_files(tmp_path)) == ["other.txt", "t.tif", "t.tif.aux.xml"]
