@@ -220,10 +220,7 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         try:
             _flush_if_replacing(tmp_path, old is not None)
             if old is not None:
-                with contextlib.suppress(OSError):
-                    _keep_owner(tmp_path, old)  # before chmod: a change of owner clears set-id bits
-                with contextlib.suppress(OSError):
-                    os.chmod(tmp_path, stat.S_IMODE(old.st_mode))
+                _take_owner_and_mode(tmp_path, old)
             together = _TOGETHER.get()
             if together is None:
                 os.replace(tmp_path, target)
@@ -239,17 +236,30 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
 
 class _Replacements:
     """The files :func:`atomic_path` staged within one :func:`_replaced_together` (or a pyramid's level files,
-    :class:`~stepterrain.texture_lod._StagedFiles`): (temporary, target) in the order they are to be renamed."""
+    :class:`~stepterrain.texture_lod._StagedFiles`): (temporary, target) in the order they are to be renamed, and
+    (None, target) for a file to remove with them (:meth:`remove`)."""
 
     def __init__(self, what: str = "") -> None:
-        self.staged: list[tuple[Path, Path]] = []
+        self.staged: list[tuple[Path | None, Path]] = []
+        self.why: dict[Path, str] = {}  # a staged removal's words in an error (see remove)
         self.what = what  # what a target is, in an error ("the pyramid level ")
         self.renamed = False  # all in place (an interrupt held back meanwhile is raised after)
 
-    def discard(self) -> None:
-        for tmp, _ in self.staged:
-            with contextlib.suppress(OSError):
-                tmp.unlink()
+    def remove(self, target: Path, why: str) -> None:
+        """Stage the removal of ``target`` (where there is one then), in its place among the renames: an old file
+        that must not stay beside the new ones (a GeoTIFF's ``.aux.xml``). It is renamed aside there, removed once
+        all are in place, and put back with the old files on a failure or an interrupt part-way. ``why`` begins the
+        error should it not go aside ("cannot remove X, whose ...")."""
+        self.staged.append((None, target))
+        self.why[target] = why
+
+    def discard(self, start: int = 0) -> None:
+        """Remove the temporary files staged from ``start`` on, and drop them and the removals from the set."""
+        for tmp, _ in self.staged[start:]:
+            if tmp is not None:
+                with contextlib.suppress(OSError):
+                    tmp.unlink()
+        del self.staged[start:]
 
     def commit(self) -> None:
         """Rename each temporary file onto its target, in order; on a failure (or an interrupt) part-way, the targets
@@ -270,6 +280,12 @@ class _Replacements:
         try:
             while pending:
                 tmp, target = pending[0]
+                if tmp is None:  # a removal: set aside (put back by itself if that fails), kept for the rollback
+                    aside = _set_aside(target, self.why[target])
+                    pending.pop(0)
+                    if aside is not None:
+                        done.append((target, aside))
+                    continue
                 # the last one needs no backup: its failure replaced nothing, and once it is in place all are
                 backup = _backup(target) if len(pending) > 1 else None
                 try:
@@ -295,8 +311,9 @@ class _Replacements:
                 done.append((target, backup))
         except BaseException as exc:
             for tmp, _ in pending:
-                with contextlib.suppress(OSError):
-                    tmp.unlink()
+                if tmp is not None:
+                    with contextlib.suppress(OSError):
+                        tmp.unlink()
             lost = _roll_back(done)
             if lost and isinstance(exc, DataFileError):
                 raise DataFileError(f"{exc}; and then {lost}") from exc
@@ -336,10 +353,7 @@ def _backup(target: Path) -> Path | None:
         backup = _new_temporary(target.parent, target.name)
         try:
             shutil.copyfile(target, backup)
-            with contextlib.suppress(OSError):
-                _keep_owner(backup, old)
-            with contextlib.suppress(OSError):
-                os.chmod(backup, stat.S_IMODE(old.st_mode))
+            _take_owner_and_mode(backup, old)
         except BaseException:
             with contextlib.suppress(OSError):
                 backup.unlink()
@@ -378,10 +392,16 @@ def _replaced_together() -> Iterator[_Replacements]:
     :meth:`_Replacements.commit`): the files of one output (a textured OBJ's ``.obj``, ``.mtl`` and images) are then
     all new or all old, where a failure of the second rename left the new texture beside the old OBJ. (A crash of
     the machine during the renames can still leave a mix: each rename is atomic, the set is not.) Nested: the
-    outermost block's end renames."""
+    outermost block's end renames; an error in an inner block removes the files staged within it (and its staged
+    removals) from the set, so an outer block that goes on after catching it does not rename them into place."""
     outer = _TOGETHER.get()
     if outer is not None:
-        yield outer
+        start = len(outer.staged)
+        try:
+            yield outer
+        except BaseException:
+            outer.discard(start)
+            raise
         return
     together = _Replacements()
     token = _TOGETHER.set(together)
@@ -403,6 +423,15 @@ def _refuse_read_only(target: Path) -> None:
     if os.path.exists(target) and not os.access(target, os.W_OK):
         raise DataFileError(f"cannot write {str(target)!r}: the file exists and is read-only (write-protected for "
                             "this user); make it writable (chmod u+w) to replace it, or choose another name")
+
+
+def _take_owner_and_mode(path: Path, old: os.stat_result) -> None:
+    """Give ``path`` the owner, group (:func:`_keep_owner`) and mode of the file ``old`` describes, as far as the
+    system lets the writer: what is refused stays as it is."""
+    with contextlib.suppress(OSError):
+        _keep_owner(path, old)  # before chmod: a change of owner clears set-id bits
+    with contextlib.suppress(OSError):
+        os.chmod(path, stat.S_IMODE(old.st_mode))
 
 
 def _keep_owner(path: Path, old: os.stat_result) -> None:
@@ -1273,12 +1302,10 @@ def _save_image(image: ArrayLike, path: str | os.PathLike[str], *, extent: Any =
     _check_owner([target], target)
     stamp, options = None, _png_options(picture)
     # an old <image>.aux.xml (GDAL's side file of an earlier GeoTIFF or GDAL write of this name: CRS, geotransform,
-    # nodata) stayed, and GDAL read the new image with it; it goes aside just before the image's rename, as a
-    # GeoTIFF's does (_save_geotiff), and is removed once the image is in place (back if the rename fails)
-    sides = _side_files_of(target)
-    asides: list[tuple[Path | None, Path]] = []
-    placed = False
-    try:
+    # nodata) stayed, and GDAL read the new image with it; it is removed with the image's rename, as a GeoTIFF's is
+    # (_save_geotiff): set aside just before it, gone once the image is in place, back if the rename fails
+    with _replaced_together() as together:
+        _remove_side_files(together, target)
         with atomic_path(target) as tmp:
             try:
                 if suffix == ".png":
@@ -1295,10 +1322,6 @@ def _save_image(image: ArrayLike, path: str | os.PathLike[str], *, extent: Any =
             if suffix == ".png" and reused and options:  # a large one: a glTF of it takes its bytes
                 with contextlib.suppress(OSError):
                     stamp = _file_stamp(tmp)  # the bytes written, before the rename (see _LAST_PNG)
-            asides = _set_aside_all(sides, target)
-        placed = True
-    finally:
-        _settle_asides(asides, placed)
     _record_owner([target], target)
     if stamp is not None:
         _LAST_PNG[:] = [(_pixels_digest(picture, pixels), target.absolute(), stamp)]
@@ -1408,88 +1431,65 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
     # lost. It goes beside the image (the file a link names, as an OBJ's side files). An old one goes aside just before
     # the image is put in place (GDAL removes it when it makes the file: else the new image had the old one's CRS) and
     # the new one after: a reader sees either image with its own side file or none, never the other's, and a failed
-    # write puts the old one back beside the old image (the new one, put in place first, stayed beside it for good).
+    # write puts the old one back beside the old image.
     # GDAL names its side file after the file it writes: for a target name of 234 bytes or more the temporary's name
     # plus ".aux.xml" was over the 255 bytes a name may have, GDAL wrote no side file, and the CRS was lost without a
     # word, where "<name>.aux.xml" fits up to 247 bytes. GDAL then writes to a shorter temporary, renamed onto tmp,
     # and a CRS that needs a side file the image's name leaves no room for is refused before the image is put in place
     # Through a link, GDAL reads the side file beside the name it opens, the link's: an old one beside the link is set
-    # aside too (the new one goes beside the file the link points to alone: see save_image's crs). The image and its
-    # new side file are renamed together (_replaced_together), the image first: a failed rename of the side file put
-    # in place the new image without its CRS, and removed the old one's. (Never within another _replaced_together
-    # block: its end would rename the image after `placed`, and a failure then left the old image without its side
-    # file.)
+    # aside too (the new one goes beside the file the link points to alone: see save_image's crs). The old side files'
+    # removal, the image and its new side file are one set (_replaced_together), in that order: a failed rename of the
+    # side file put in place the new image without its CRS, and removed the old one's; now all are put back.
     sides = _side_files_of(target)
-    asides: list[tuple[Path | None, Path]] = []
-    placed = False
-    together: _Replacements | None = None
-    try:  # the ExitStack's exit stages the new side files after the image
-        with _replaced_together() as together, contextlib.ExitStack() as side_file:
-            with atomic_path(target) as tmp:
-                written = tmp
-                try:
-                    if len(os.fsencode(tmp.name + ".aux.xml")) > _NAME_MAX:
-                        written = _new_temporary(tmp.parent, tmp.name, reserve=len(".aux.xml"))
-                except OSError as exc:
-                    raise DataFileError(f"cannot write in the output folder {str(tmp.parent)!r}: "
-                                        f"{unwritable_reason(exc, tmp.parent)}") from exc
-                aux = written.with_name(written.name + ".aux.xml")
-                try:
-                    with rasterio.open(written, "w", **profile) as dataset:
-                        dataset.write(np.moveaxis(array, 2, 0))
-                    _check_read_back(written, array, target)
-                    has_aux = os.path.exists(aux)
-                    if has_aux:  # (before written is renamed: GDAL pairs the side file with its name)
-                        _check_side_file_crs(written, aux, crs, target)
-                    if written != tmp:
-                        os.replace(written, tmp)
-                    for own_aux in sides[:1] if has_aux else ():  # beside the file itself
-                        if len(os.fsencode(own_aux.name)) > _NAME_MAX:
-                            raise DataFileError(
-                                f"cannot write {str(target)!r} with its crs: GeoTIFF's keys cannot hold that CRS, and "
-                                f"GDAL keeps it in the side file {own_aux.name!r}, whose name of "
-                                f"{len(os.fsencode(own_aux.name))} bytes is over the {_NAME_MAX} a file name may "
-                                f"have; give the image a name of at most {_NAME_MAX - len('.aux.xml')} bytes")
-                        side = side_file.enter_context(atomic_path(own_aux))
-                        side.write_bytes(aux.read_bytes())
-                        _replacing_like(side, own_aux)  # the old one is set aside before atomic_path renames it
-                except DataFileError:  # (an OSError: its own words, not wrapped in another "cannot write")
-                    raise
-                except (OSError, rasterio.errors.RasterioError) as exc:
-                    from .io import gdal_reason  # GDAL's words (No space left on device), not "See previous exception"
+    with _replaced_together() as together, contextlib.ExitStack() as side_file:  # (the ExitStack's exit stages the
+        _remove_side_files(together, target, sides)  # new side file after the image)
+        with atomic_path(target) as tmp:
+            written = tmp
+            try:
+                if len(os.fsencode(tmp.name + ".aux.xml")) > _NAME_MAX:
+                    written = _new_temporary(tmp.parent, tmp.name, reserve=len(".aux.xml"))
+            except OSError as exc:
+                raise DataFileError(f"cannot write in the output folder {str(tmp.parent)!r}: "
+                                    f"{unwritable_reason(exc, tmp.parent)}") from exc
+            aux = written.with_name(written.name + ".aux.xml")
+            try:
+                with rasterio.open(written, "w", **profile) as dataset:
+                    dataset.write(np.moveaxis(array, 2, 0))
+                _check_read_back(written, array, target)
+                has_aux = os.path.exists(aux)
+                if has_aux:  # (before written is renamed: GDAL pairs the side file with its name)
+                    _check_side_file_crs(written, aux, crs, target)
+                if written != tmp:
+                    os.replace(written, tmp)
+                for own_aux in sides[:1] if has_aux else ():  # beside the file itself
+                    if len(os.fsencode(own_aux.name)) > _NAME_MAX:
+                        raise DataFileError(
+                            f"cannot write {str(target)!r} with its crs: GeoTIFF's keys cannot hold that CRS, and "
+                            f"GDAL keeps it in the side file {own_aux.name!r}, whose name of "
+                            f"{len(os.fsencode(own_aux.name))} bytes is over the {_NAME_MAX} a file name may "
+                            f"have; give the image a name of at most {_NAME_MAX - len('.aux.xml')} bytes")
+                    side = side_file.enter_context(atomic_path(own_aux))
+                    side.write_bytes(aux.read_bytes())  # (the old one's mode and owner: it is there until the set
+                    # lands)
+            except DataFileError:  # (an OSError: its own words, not wrapped in another "cannot write")
+                raise
+            except (OSError, rasterio.errors.RasterioError) as exc:
+                from .io import gdal_reason  # GDAL's words (No space left on device), not "See previous exception"
 
-                    reason = gdal_reason(exc)  # with the system's words: "No space left on device (TIFFAppend
-                    # ToStrip:Write error at scanline 42)" (an OSError, of the rename or the side file, has its own)
-                    failure = isinstance(exc, rasterio.errors.RasterioError) and _write_failure(written)
-                    reason = f"{failure} ({reason})" if failure else reason
-                    raise DataFileError(f"cannot write {str(target)!r}: {reason}") from exc
-                finally:
+                reason = gdal_reason(exc)  # with the system's words: "No space left on device (TIFFAppend
+                # ToStrip:Write error at scanline 42)" (an OSError, of the rename or the side file, has its own)
+                failure = isinstance(exc, rasterio.errors.RasterioError) and _write_failure(written)
+                reason = f"{failure} ({reason})" if failure else reason
+                raise DataFileError(f"cannot write {str(target)!r}: {reason}") from exc
+            finally:
+                with contextlib.suppress(OSError):
+                    aux.unlink()
+                if written != tmp:  # (gone when renamed onto tmp)
                     with contextlib.suppress(OSError):
-                        aux.unlink()
-                    if written != tmp:  # (gone when renamed onto tmp)
-                        with contextlib.suppress(OSError):
-                            written.unlink()
-                asides = _set_aside_all(sides, target)
-        placed = True
-    finally:  # renamed, and then a Ctrl-C held back during the renames: the old side files are not put back
-        _settle_asides(asides, placed or (together is not None and together.renamed))
+                        written.unlink()
     _record_owner([target], target)
     return target
 
-
-def _replacing_like(tmp: Path, old_path: Path) -> None:
-    """What :func:`atomic_path` does to ``tmp`` before renaming it over an existing ``old_path`` (flushed to disk, the
-    old file's owner and mode), done before ``old_path`` is set aside (:func:`_set_aside`), after which atomic_path
-    finds no file to replace; nothing where there is none."""
-    try:
-        old = os.stat(old_path)
-    except OSError:
-        return
-    _flush_if_replacing(tmp, True)
-    with contextlib.suppress(OSError):
-        _keep_owner(tmp, old)  # before chmod: a change of owner clears set-id bits
-    with contextlib.suppress(OSError):
-        os.chmod(tmp, stat.S_IMODE(old.st_mode))
 
 def _side_file(image: Path) -> Path:
     """GDAL's side file ``<name>.aux.xml`` of ``image``, beside the file it names through links (the one
@@ -1507,47 +1507,24 @@ def _side_files_of(image: Path) -> list[Path]:
     return [own] if os.path.abspath(named) == os.path.abspath(own) else [own, named]
 
 
-def _set_aside_all(sides: list[Path], image: Path) -> list[tuple[Path | None, Path]]:
-    """:func:`_set_aside` of each of ``sides``: (aside, side) pairs for :func:`_settle_asides`; those set aside are
-    put back when one cannot be."""
-    done: list[tuple[Path | None, Path]] = []
-    try:
-        for side in sides:
-            done.append((_set_aside(side, image), side))
-    except BaseException:
-        _settle_asides(done, False)
-        raise
-    return done
+def _remove_side_files(together: _Replacements, image: Path, sides: list[Path] | None = None) -> None:
+    """Stage the removal of the old side files GDAL reads with ``image`` (``sides``, else :func:`_side_files_of`) in
+    ``together``, before the image's rename."""
+    for side in _side_files_of(image) if sides is None else sides:
+        together.remove(side, f"cannot remove {str(side)!r}, whose metadata GDAL would read with the new "
+                              f"{str(image)!r}")
 
 
-def _settle_asides(asides: list[tuple[Path | None, Path]], placed: bool) -> None:
-    """:func:`_settle_aside` of each (aside, side) pair of :func:`_set_aside_all`."""
-    for aside, side in asides:
-        _settle_aside(aside, side, placed)
-
-
-def _settle_aside(aside: Path | None, side: Path, placed: bool) -> None:
-    """The old side file :func:`_set_aside` moved to ``aside``: removed once the new image is ``placed``, else put
-    back as ``side`` beside the old image."""
-    if aside is None:
-        return
-    with contextlib.suppress(OSError):
-        if placed:
-            os.unlink(aside)
-        else:
-            os.replace(aside, side)
-
-
-def _set_aside(side: Path, image: Path) -> Path | None:
-    """Rename the side file ``side`` of ``image`` (a GeoTIFF's ``.aux.xml``) to a new temporary name beside it and
-    return that name; None where there is none (or its name is too long to be one). See :func:`_save_geotiff`."""
+def _set_aside(side: Path, why: str) -> Path | None:
+    """Rename ``side`` (a removal :class:`_Replacements` staged) to a new temporary name beside it and return that
+    name; None where there is none (or its name is too long to be one). A failure (or an interrupt) leaves ``side``
+    where it was: a DataFileError beginning with ``why``."""
     try:
         os.lstat(side)
     except OSError as exc:
         if exc.errno in (errno.ENOENT, errno.ENAMETOOLONG):
             return None
-        raise DataFileError(f"cannot remove {str(side)!r}, whose metadata GDAL would read with the new "
-                            f"{str(image)!r}: {exc.strerror}") from exc
+        raise DataFileError(f"{why}: {exc.strerror}") from exc
     aside = None
     try:
         aside = _new_temporary(side.parent, side.name)
@@ -1561,8 +1538,7 @@ def _set_aside(side: Path, image: Path) -> Path | None:
                     os.replace(aside, side)
         if not isinstance(exc, OSError):
             raise
-        raise DataFileError(f"cannot remove {str(side)!r}, whose metadata GDAL would read with the new "
-                            f"{str(image)!r}: {exc.strerror}") from exc
+        raise DataFileError(f"{why}: {exc.strerror}") from exc
     return aside
 
 
@@ -2719,10 +2695,11 @@ def _utf8_name(text: str) -> str:
         return text.encode("utf-8", "surrogatepass").decode("utf-8", "replace")
 
 
-#: PLY's scalar types, as NumPy's (without byte order)
+#: PLY's scalar types, as NumPy's (without byte order), with those trimesh's reader takes beyond the standard's
+#: (int64, uint64, float16): the walk of :func:`_ply_binary_mixed_lists` gave up on a file holding one of them
 _PLY_NUMPY = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2", "ushort": "u2",
-              "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4", "float": "f4",
-              "float32": "f4", "double": "f8", "float64": "f8"}
+              "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4", "int64": "i8", "uint64": "u8",
+              "float16": "f2", "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
 
 
 def _ply_binary_mixed_lists(file: Path, rows: int = 65536) -> str | None:

@@ -1527,7 +1527,6 @@ def test_a_large_png_replaced_by_another_writer_after_the_rename_is_not_taken_fo
     stamped and paired with this image's digest, and the GLB embedded the other writer's picture. The stamp is now
     the temporary file's, before the rename (the inode survives it): the other file does not match it, and the
     texture is encoded from its own pixels."""
-    import contextlib
     import io
 
     from stepterrain import export
@@ -1539,17 +1538,16 @@ def test_a_large_png_replaced_by_another_writer_after_the_rename_is_not_taken_fo
     other = tmp_path / "theirs.png"
     Image.fromarray(theirs).save(other, **export._png_options(Image.fromarray(theirs)))
     target = tmp_path / "tex.png"
-    original = export.atomic_path
+    original = os.replace
 
-    @contextlib.contextmanager
-    def swapped(path):
-        with original(path) as tmp:
-            yield tmp
-        os.replace(other, target)  # the other writer's rename lands right after this one's
+    def swapped(src, dst, *args, **kwargs):
+        original(src, dst, *args, **kwargs)
+        if os.fspath(dst) == str(target) and os.fspath(src) != str(other):
+            original(other, target)  # the other writer's rename lands right after this one's
 
-    monkeypatch.setattr(export, "atomic_path", swapped)
+    monkeypatch.setattr(os, "replace", swapped)
     export.save_image(mine, target)
-    monkeypatch.setattr(export, "atomic_path", original)
+    monkeypatch.setattr(os, "replace", original)
     with Image.open(target) as back:
         assert np.array_equal(np.asarray(back), theirs)  # the path holds the other writer's picture now
     mesh = trimesh.creation.box()

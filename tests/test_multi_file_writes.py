@@ -390,3 +390,79 @@ def test_an_interrupt_raised_as_a_plain_geotiffs_rename_returns_leaves_the_new_f
         save_image(np.ones((4, 6, 3), np.uint8), tmp_path / "t.tif", extent=(0, 6, 0, 4), crs="EPSG:32611")
     monkeypatch.undo()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["t.tif"]
+
+
+@pytest.mark.parametrize("suffix", [".png", ".tif"])
+@pytest.mark.parametrize("n", [1, 2])
+@pytest.mark.parametrize("kill", [True, False])
+def test_a_plain_image_whose_rename_meets_a_ctrl_c_never_keeps_the_old_side_file_beside_the_new_image(
+        tmp_path, monkeypatch, suffix, n, kill, _sigint_restored):
+    # a PNG or TIFF is one rename, its old .aux.xml set aside before it: a Ctrl-C as that rename returned put the old
+    # side file back beside the new image, which GDAL then read with the old CRS and placement
+    if kill and threading.current_thread() is not threading.main_thread():
+        pytest.skip("a SIGINT goes to the main thread")
+    signal.signal(signal.SIGINT, signal.default_int_handler)  # (CI's background run starts with SIGINT ignored)
+    new, folder = tmp_path / "new", tmp_path / "f"
+    save_image(np.ones((4, 6, 3), np.uint8), new / f"i{suffix}")
+    save_image(np.zeros((4, 6, 3), np.uint8), folder / f"i{suffix}")
+    (folder / f"i{suffix}.aux.xml").write_text(_STALE_AUX)
+    old = _files(folder)
+    _interrupting_replace(monkeypatch, n, kill=kill)
+    with pytest.raises(KeyboardInterrupt):
+        save_image(np.ones((4, 6, 3), np.uint8), folder / f"i{suffix}")
+    monkeypatch.undo()
+    assert _files(folder) in (old, _files(new)), f"Ctrl-C in rename {n}"
+
+
+def test_a_nested_block_that_fails_inside_the_outer_one_puts_none_of_its_files_in_place(tmp_path):
+    # an inner _replaced_together whose error the outer block caught left its files staged in the outer block, whose
+    # end renamed them into place: a file of the failed write replaced the old one
+    from stepterrain.export import _replaced_together, atomic_path
+
+    (tmp_path / "inner.txt").write_text("old")
+    with _replaced_together():
+        with pytest.raises(ValueError):
+            with _replaced_together():
+                with atomic_path(tmp_path / "inner.txt") as tmp:
+                    tmp.write_text("new, of a failed write")
+                raise ValueError("the inner write failed")
+        with atomic_path(tmp_path / "outer.txt") as tmp:
+            tmp.write_text("outer")
+    assert _files(tmp_path) == {"inner.txt": b"old", "outer.txt": b"outer"}  # no temporary file left either
+
+
+def test_a_geotiff_within_another_block_is_put_back_whole_when_a_later_file_of_that_block_fails(tmp_path,
+                                                                                                 monkeypatch):
+    # the GeoTIFF's old side file was set aside and removed as its own (inner) block ended, before the outer block
+    # renamed anything: a failed rename of a later file of the outer set put the old image back without its CRS
+    rasterio = pytest.importorskip("rasterio")
+    from stepterrain.export import _replaced_together, atomic_path
+
+    target = tmp_path / "t.tif"
+    save_image(np.zeros((4, 6, 3), np.uint8), target, extent=(0, 6, 0, 4), crs=_OB_TRAN)
+    (tmp_path / "other.txt").write_text("old")
+    old = _files(tmp_path)
+    assert "t.tif.aux.xml" in old
+    real, failed = os.replace, []
+
+    def replace(src, dst, *args, **kwargs):
+        if not failed and os.path.basename(dst) == "other.txt":
+            failed.append(dst)
+            raise OSError(errno.EIO, "Input/output error")
+        real(src, dst, *args, **kwargs)
+
+    monkeypatch.setattr(os, "replace", replace)
+    crs = _OB_TRAN.replace("o_lat_p=30", "o_lat_p=40")
+    with pytest.raises(DataFileError, match="Input/output error"):
+        with _replaced_together():
+            save_image(np.ones((4, 6, 3), np.uint8), target, extent=(10, 16, 0, 4), crs=crs)
+            with atomic_path(tmp_path / "other.txt") as tmp:
+                tmp.write_text("new")
+    monkeypatch.undo()
+    assert failed and _files(tmp_path) == old
+    with _replaced_together():  # and without a failure, the new image with its own side file
+        save_image(np.ones((4, 6, 3), np.uint8), target, extent=(10, 16, 0, 4), crs=crs)
+        with atomic_path(tmp_path / "other.txt") as tmp:
+            tmp.write_text("new")
+    assert _placement(target) == (rasterio.crs.CRS.from_user_input(crs), (1.0, 0.0, 10.0, 0.0, -1.0, 4.0))
+    assert sorted(_files(tmp_path)) == ["other.txt", "t.tif", "t.tif.aux.xml"]

@@ -184,6 +184,25 @@ def test_binary_ply_of_mixed_polygons_refused_by_name(tmp_path, order):
     assert "differ in length" not in str(caught.value)
 
 
+@pytest.mark.parametrize("kind, code", [("int64", "q"), ("uint64", "Q"), ("float16", "e")])
+@pytest.mark.parametrize("element", ["vertex", "face"])
+def test_binary_ply_of_mixed_polygons_with_a_64_bit_or_half_property_refused_by_name(tmp_path, kind, code, element):
+    """trimesh reads PLY properties of int64, uint64 and float16, which the walk over a binary PLY's lists did not know:
+    a file of triangles and quads with such a property got trimesh's bare "PLY is unexpected length!" again."""
+    vertex_extra = f"property {kind} id\n" if element == "vertex" else ""
+    face_extra = f"property {kind} id\n" if element == "face" else ""
+    head = ("ply\nformat binary_little_endian 1.0\nelement vertex 5\nproperty float x\nproperty float y\n"
+            f"property float z\n{vertex_extra}element face 2\nproperty list uchar int vertex_indices\n{face_extra}"
+            "end_header\n").encode()
+    body = b"".join(_PLY_VERTICES[k].astype("<f4").tobytes() + (struct.pack(f"<{code}", k) if vertex_extra else b"")
+                    for k in range(5))
+    tail = struct.pack(f"<{code}", 7) if face_extra else b""
+    body += struct.pack("<B4i", 4, 0, 1, 2, 3) + tail + struct.pack("<B3i", 3, 3, 2, 4) + tail
+    (tmp_path / "mixed.ply").write_bytes(head + body)
+    with pytest.raises(DataFileError, match=r"mixed\.ply.*face 0's vertex_indices has 4, face 1's 3"):
+        read_mesh(tmp_path / "mixed.ply")
+
+
 @pytest.mark.parametrize("mode", [1, 3])
 def test_gltf_of_lines_only_refused(tmp_path, mode):
     """A glTF of lines only (LINES, LINE_STRIP) read as an empty mesh, 0 vertices, 0 faces in ``stepterrain info``
