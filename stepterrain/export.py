@@ -243,7 +243,6 @@ class _Replacements:
         self.staged: list[tuple[Path | None, Path]] = []
         self.why: dict[Path, str] = {}  # a staged removal's words in an error (see remove)
         self.what = what  # what a target is, in an error ("the pyramid level ")
-        self.renamed = False  # all in place (an interrupt held back meanwhile is raised after)
 
     def remove(self, target: Path, why: str) -> None:
         """Stage the removal of ``target`` (where there is one then), in its place among the renames: an old file
@@ -281,10 +280,8 @@ class _Replacements:
             while pending:
                 tmp, target = pending[0]
                 if tmp is None:  # a removal: set aside (put back by itself if that fails), kept for the rollback
-                    aside = _set_aside(target, self.why[target])
+                    _set_aside(target, self.why[target], done)  # recorded in done as it goes aside
                     pending.pop(0)
-                    if aside is not None:
-                        done.append((target, aside))
                     continue
                 # the last one needs no backup: its failure replaced nothing, and once it is in place all are
                 backup = _backup(target) if len(pending) > 1 else None
@@ -310,15 +307,16 @@ class _Replacements:
                 pending.pop(0)
                 done.append((target, backup))
         except BaseException as exc:
-            for tmp, _ in pending:
-                if tmp is not None:
-                    with contextlib.suppress(OSError):
-                        tmp.unlink()
-            lost = _roll_back(done)
-            if lost and isinstance(exc, DataFileError):
-                raise DataFileError(f"{exc}; and then {lost}") from exc
-            raise
-        self.renamed = True
+            if pending or isinstance(exc, Exception):
+                for tmp, _ in pending:
+                    if tmp is not None:
+                        with contextlib.suppress(OSError):
+                            tmp.unlink()
+                lost = _roll_back(done)
+                if lost and isinstance(exc, DataFileError):
+                    raise DataFileError(f"{exc}; and then {lost}") from exc
+                raise
+            interrupt = exc  # all in place (the last one has no backup to put back): raised once settled
         for _, backup in done:
             if backup is not None:
                 with contextlib.suppress(OSError):
@@ -1515,7 +1513,7 @@ def _remove_side_files(together: _Replacements, image: Path, sides: list[Path] |
                               f"{str(image)!r}")
 
 
-def _set_aside(side: Path, why: str) -> Path | None:
+def _set_aside(side: Path, why: str, done: list[tuple[Path, Path | None]] | None = None) -> Path | None:
     """Rename ``side`` (a removal :class:`_Replacements` staged) to a new temporary name beside it and return that
     name; None where there is none (or its name is too long to be one). A failure (or an interrupt) leaves ``side``
     where it was: a DataFileError beginning with ``why``."""
@@ -1529,7 +1527,11 @@ def _set_aside(side: Path, why: str) -> Path | None:
     try:
         aside = _new_temporary(side.parent, side.name)
         os.replace(side, aside)
+        if done is not None:
+            done.append((side, aside))
     except BaseException as exc:  # an interrupt too, raised as os.replace returned: the side file moved aside
+        if done and done[-1] == (side, aside):
+            done.pop()
         if aside is not None:
             with contextlib.suppress(OSError):
                 if os.path.lexists(side):

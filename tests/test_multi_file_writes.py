@@ -466,3 +466,44 @@ def test_a_geotiff_within_another_block_is_put_back_whole_when_a_later_file_of_t
             tmp.write_text("new")
     assert _placement(target) == (rasterio.crs.CRS.from_user_input(crs), (1.0, 0.0, 10.0, 0.0, -1.0, 4.0))
     assert sorted(_files(tmp_path)) == ["other.txt", "t.tif", "t.tif.aux.xml"]
+
+
+@pytest.mark.parametrize("after", ["last_rename", "set_aside"])
+def test_a_second_ctrl_c_in_the_renames_bookkeeping_loses_no_file(tmp_path, after):
+    # signals_held lets a second Ctrl-C through: one raised after the last rename of a set had returned (the loop's
+    # next line) rolled the set back, and the last file has no backup, so the user's old image was removed outright;
+    # one raised after the old side file was set aside but before the set recorded it left that file under its
+    # temporary name, never put back
+    import sys
+
+    save_image(np.zeros((4, 6, 3), np.uint8), tmp_path / "new" / "i.png")
+    save_image(np.ones((4, 6, 3), np.uint8), tmp_path / "f" / "i.png")
+    (tmp_path / "f" / "i.png.aux.xml").write_text(_STALE_AUX)
+    old, new = _files(tmp_path / "f"), _files(tmp_path / "new")
+    fired = []
+
+    def tracer(frame, event, arg):
+        if frame.f_code.co_name != "_rename_all":
+            return None
+
+        def local(frame, event, arg):
+            state = frame.f_locals
+            if event != "line" or fired or "pending" not in state:
+                return local
+            pending, done = state["pending"], state.get("done", [])
+            at = ((not pending and done) if after == "last_rename"
+                  else (done or pending and pending[0][0] is None and not os.path.lexists(pending[0][1])))
+            if at:
+                fired.append(frame.f_lineno)
+                raise KeyboardInterrupt
+            return local
+        return local
+
+    sys.settrace(tracer)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            save_image(np.zeros((4, 6, 3), np.uint8), tmp_path / "f" / "i.png")
+    finally:
+        sys.settrace(None)
+    assert fired
+    assert _files(tmp_path / "f") in (old, new), f"interrupt at line {fired}"
