@@ -1,0 +1,97 @@
+"""A layer operation that leaves a texel's colour alone returns it bit for bit (straight alpha, paper 004 §3.2.3, §6).
+
+The kernels divided a premultiplied sum by its alpha: ``rgb * a / a`` is ``rgb`` give or take one float32 ulp, so
+``blend`` with a transparent (nodata) or zero-weight ``b``, an animation frame at a key's time and a layer sampled
+at its own texel centres changed colours by an ulp, and ``to_uint8`` rounded a colour near a half step the other
+way (957 of 20 000 such texels): a texture with an empty overlay differed from the texture alone.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as hst
+
+from stepterrain.texture import TextureAnimation, TextureLayer, blend
+
+EXTENT = (0.0, 8.0, 0.0, 5.0)
+
+
+def _near_half_steps(seed: int, shape: tuple[int, int] = (5, 8)) -> TextureLayer:
+    """An RGBA float layer whose colours lie within a few ulps of (k + 0.5) / 255 (uint8's rounding edges), its
+    alphas anywhere in (0, 1]."""
+    rng = np.random.default_rng(seed)
+    k = rng.integers(0, 255, (*shape, 3))
+    rgb = ((k + 0.5) / 255).astype(np.float32)
+    rgb += rng.integers(-3, 4, rgb.shape).astype(np.float32) * np.spacing(rgb)
+    alpha = rng.uniform(0.01, 1.0, (*shape, 1)).astype(np.float32)
+    return TextureLayer("thematic", np.concatenate([rgb, alpha], axis=2), EXTENT)
+
+
+def _assert_same(got: TextureLayer, want: TextureLayer) -> None:
+    g, w = got.rgba(), want.rgba()
+    np.testing.assert_array_equal(g[..., 3], w[..., 3])
+    np.testing.assert_array_equal(g[w[..., 3] > 0], w[w[..., 3] > 0])
+    np.testing.assert_array_equal(got.to_uint8(), want.to_uint8())
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=hst.integers(0, 2**32 - 1))
+def test_blend_with_nothing_to_lay_over_leaves_a_bit_for_bit(seed):
+    a = _near_half_steps(seed)
+    nodata = TextureLayer("thematic", np.full((5, 8, 4), np.nan), EXTENT)
+    _assert_same(blend(a, nodata, device="cpu"), a)
+    other = _near_half_steps(seed + 1)
+    _assert_same(blend(a, other, np.zeros((5, 8)), device="cpu"), a)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=hst.integers(0, 2**32 - 1))
+def test_blend_over_a_transparent_layer_gives_b_bit_for_bit(seed):
+    b = _near_half_steps(seed)
+    nodata = TextureLayer("thematic", np.full((5, 8, 4), np.nan), EXTENT)
+    _assert_same(blend(nodata, b, device="cpu"), b)
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=hst.integers(0, 2**32 - 1), keys=hst.integers(1, 4), data=hst.data())
+def test_animation_frame_at_a_key_time_is_that_key(seed, keys, data):
+    layers = [_near_half_steps(seed + k) for k in range(keys)]
+    times = np.cumsum(data.draw(hst.lists(hst.floats(0.25, 4.0), min_size=keys, max_size=keys)))
+    animation = TextureAnimation(layers, times)
+    for k in range(keys):
+        _assert_same(animation.frame(float(times[k]), device="cpu"), layers[k])
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=hst.integers(0, 2**32 - 1), shift=hst.tuples(hst.integers(-3, 3), hst.integers(-3, 3)))
+def test_sampling_a_layer_at_its_own_texel_centres_keeps_its_colours(seed, shift):
+    """A layer over the same texel grid shifted by whole texels (not the grid itself: it is resampled)."""
+    picture = _near_half_steps(seed)
+    dx, dy = shift
+    moved = TextureLayer("thematic", picture.image, (EXTENT[0] + dx, EXTENT[1] + dx, EXTENT[2] + dy, EXTENT[3] + dy))
+    base = TextureLayer("thematic", np.full((5, 8, 4), np.nan), EXTENT)
+    got = blend(base, moved, device="cpu").rgba()
+    rows, cols = np.mgrid[0:5, 0:8]
+    r, c = rows + dy, cols - dx  # the moved layer's texel at each pixel (row 0 north)
+    inside = (r >= 0) & (r < 5) & (c >= 0) & (c < 8)
+    np.testing.assert_array_equal(got[inside], picture.rgba()[r[inside], c[inside]])
+    assert (got[~inside][:, 3] == 0).all()
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=hst.integers(0, 2**32 - 1), fu=hst.floats(0.0, 0.99), fv=hst.floats(0.0, 0.99))
+def test_a_texel_among_transparent_ones_keeps_its_colour_where_sampled_between_them(seed, fu, fv):
+    """Bilinear sampling mixes colours premultiplied: beside transparent texels only the opaque one's colour counts,
+    as it is, whatever its weight."""
+    picture = _near_half_steps(seed, (3, 3))
+    image = np.array(picture.image)
+    image[[0, 0, 0, 1, 1, 2, 2, 2], [0, 1, 2, 0, 2, 0, 1, 2]] = np.nan  # the centre texel alone has data
+    layer = TextureLayer("thematic", image, (0.0, 3.0, 0.0, 3.0))
+    # a one-pixel grid whose centre lies (fu, fv) texels east and south of the centre texel's centre
+    x, y = 1.5 + fu, 1.5 - fv
+    base = TextureLayer("thematic", np.full((1, 1, 4), np.nan), (x - 0.5, x + 0.5, y - 0.5, y + 0.5))
+    got = blend(base, layer, device="cpu").rgba()[0, 0]
+    want = layer.rgba()[1, 1]
+    np.testing.assert_array_equal(got[:3], want[:3])
+    np.testing.assert_allclose(got[3], want[3] * (1 - fu) * (1 - fv), rtol=1e-5, atol=1e-7)
