@@ -2118,24 +2118,30 @@ class TextureAnimation:
         object.__setattr__(self, "layers", layers)
         object.__setattr__(self, "times", tuple(times.tolist()))
 
-    def at(self, t: float) -> tuple[TextureLayer, TextureLayer, float]:
-        """(layer k, layer k + 1, α) with times[k] <= t <= times[k + 1]: draw them with 1 − α and α."""
+    def _keys(self, t: float) -> tuple[int, int, float]:
+        """(k, k + 1, α) of :meth:`at`: the keys' positions in ``layers``."""
         t = _finite(t, "t")
         times = self.times
         if t <= times[0] or len(times) == 1:
-            return self.layers[0], self.layers[min(1, len(times) - 1)], 0.0
+            return 0, min(1, len(times) - 1), 0.0
         if t >= times[-1]:
-            return self.layers[-2], self.layers[-1], 1.0
+            return len(times) - 2, len(times) - 1, 1.0
         k = int(np.searchsorted(times, t, side="right")) - 1
         alpha = (t - times[k]) / (times[k + 1] - times[k])
-        return self.layers[k], self.layers[k + 1], float(alpha)
+        return k, k + 1, float(alpha)
+
+    def at(self, t: float) -> tuple[TextureLayer, TextureLayer, float]:
+        """(layer k, layer k + 1, α) with times[k] <= t <= times[k + 1]: draw them with 1 − α and α."""
+        k, kb, alpha = self._keys(t)
+        return self.layers[k], self.layers[kb], alpha
 
     def frame(self, t: float, *, device: wp.DeviceLike = None) -> TextureLayer:
         """The animated layer at time t: (1 − α) · layer k + α · layer k + 1, premultiplied by alpha, on layer k's
         pixel grid (the last key's own at and after its time)."""
-        a, b, alpha = self.at(t)
-        k = next(i for i, layer in enumerate(self.layers) if layer is a)
-        kb = min(k + 1, len(self.layers) - 1)
+        # the keys by position: found by identity in ``layers``, a key shown twice (a cycle A, B, A, C) was taken
+        # for its first showing, and a refusal of the key after it named the wrong one (layers[1] for layers[3])
+        k, kb, alpha = self._keys(t)
+        a, b = self.layers[k], self.layers[kb]
         if alpha == 1.0:  # at (or past) the last key: that key, on its own grid, as every other key time gives its
             # key; on the previous key's grid a key over another extent (a lens moved to follow a point) was lost
             a, k, alpha = b, kb, 0.0

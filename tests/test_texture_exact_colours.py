@@ -9,9 +9,11 @@ way (957 of 20 000 such texels): a texture with an empty overlay differed from t
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as hst
 
+from stepterrain.errors import InvalidInputError
 from stepterrain.texture import TextureAnimation, TextureLayer, blend
 
 EXTENT = (0.0, 8.0, 0.0, 5.0)
@@ -95,3 +97,16 @@ def test_a_texel_among_transparent_ones_keeps_its_colour_where_sampled_between_t
     want = layer.rgba()[1, 1]
     np.testing.assert_array_equal(got[:3], want[:3])
     np.testing.assert_allclose(got[3], want[3] * (1 - fu) * (1 - fv), rtol=1e-5, atol=1e-7)
+
+
+def test_animation_names_the_key_it_refuses_when_a_key_is_shown_twice():
+    """Keys A, B, A, C (a cycle back to A, then on): between A's second time and C's the frame blends A and C; a C
+    off A's extent is refused as ``layers[3]``. The keys were found by identity, A at its first showing, and the
+    refusal named ``layers[1]`` (B, which takes no part)."""
+    a = _near_half_steps(1)
+    b = _near_half_steps(2)
+    far = TextureLayer("thematic", np.array(a.image), (100.0, 108.0, 0.0, 5.0))
+    animation = TextureAnimation([a, b, a, far], (0.0, 1.0, 2.0, 3.0))
+    _assert_same(animation.frame(1.0, device="cpu"), b)
+    with pytest.raises(InvalidInputError, match=r"layers\[3\] covers none"):
+        animation.frame(2.5, device="cpu")
