@@ -1767,7 +1767,7 @@ def lay_over_uint8(
     run of ``run`` texels of the image in row-major order, in float32, each formula evaluated in the order written
     here (as NumPy evaluated it: ``stepterrain.texture.blend`` laying ``b`` over ``a``, ``to_uint8`` rounding):
     coverage c = the layer's alpha; over RGB the colour ``b * c + a * (1 - c)``; over RGBA alpha
-    ``c + alpha_a * (1 - c)`` and colour ``(b * c + a * alpha_a * (1 - c)) / alpha`` (``a`` where alpha is 0);
+    ``c + alpha_a * (1 - c)`` and colour ``b * (c / alpha) + a * (alpha_a * (1 - c) / alpha)`` (``a`` where alpha is 0);
     rounded half to even."""
     cols = layer.shape[1]
     total = layer.shape[0] * cols
@@ -1786,12 +1786,13 @@ def lay_over_uint8(
                 image[r, c, ch] = unit_to_uint8(top[ch] * cover + under * rest)
         else:
             alpha_a = wp.float32(image[r, c, 3]) / 255.0
-            alpha = cover + alpha_a * rest
+            kept = alpha_a * rest
+            alpha = cover + kept
             for ch in range(3):
                 under = wp.float32(image[r, c, ch]) / 255.0
                 value = under
-                if alpha > 0.0:
-                    value = (top[ch] * cover + under * alpha_a * rest) / alpha
+                if alpha > 0.0:  # blend_over's shares of the alpha
+                    value = top[ch] * (cover / alpha) + under * (kept / alpha)
                 image[r, c, ch] = unit_to_uint8(value)
             image[r, c, 3] = unit_to_uint8(alpha)
         n += 1

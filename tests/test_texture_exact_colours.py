@@ -14,6 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as hst
 
 from stepterrain.errors import InvalidInputError
+import stepterrain.texture as texture_ops
 from stepterrain.texture import TextureAnimation, TextureLayer, blend
 
 EXTENT = (0.0, 8.0, 0.0, 5.0)
@@ -110,3 +111,21 @@ def test_animation_names_the_key_it_refuses_when_a_key_is_shown_twice():
     _assert_same(animation.frame(1.0, device="cpu"), b)
     with pytest.raises(InvalidInputError, match=r"layers\[3\] covers none"):
         animation.frame(2.5, device="cpu")
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=hst.integers(0, 2**32 - 1), channels=hst.sampled_from([3, 4]))
+def test_laying_lines_over_a_uint8_texture_is_blend_then_to_uint8(seed, channels):
+    """``stepterrain texture --contours`` lays the lines over the uint8 texture in place (``_lay_over_uint8``), as
+    ``blend`` lays them and ``to_uint8`` rounds: byte for byte, colours near uint8's half steps too."""
+    rng = np.random.default_rng(seed)
+    under = rng.integers(0, 256, (5, 8, channels), dtype=np.uint8)
+    lines = _near_half_steps(seed)
+    image = np.array(lines.image)
+    image[rng.random((5, 8)) < 0.3, 3] = 0.0  # no line there
+    lines = TextureLayer("thematic", image, EXTENT)
+    want = blend(TextureLayer("thematic", under, EXTENT), lines, device="cpu").to_uint8(
+        None if channels == 4 else (0.0, 0.0, 0.0))
+    got = under.copy()
+    texture_ops._lay_over_uint8(got, lines)
+    np.testing.assert_array_equal(got, want)
