@@ -1640,8 +1640,11 @@ def _composed_pair(shading: TextureLayer, colours: TextureLayer | None, picture:
     return _result(host, target), (_result(over_host, over_target) if both else None)
 
 
-def _finish(out: wp.array, extent: Extent, name: str) -> TextureLayer:
-    return TextureLayer("thematic", host_copy(out), extent, border="transparent", name=name)
+def _finish(out: wp.array, extent: Extent, name: str, border: str = "transparent") -> TextureLayer:
+    """The result of an operation: ``border`` its first layer's, so an operation on a lens (an 'edge' border: its
+    outside value repeats) stays a lens; a transparent border left the terrain beyond the lens image's square
+    untouched (an animated or dimmed highlight lens lit a square)."""
+    return TextureLayer("thematic", host_copy(out), extent, border=border, name=name)
 
 
 def _result_frame(layer: TextureLayer) -> tuple[Extent, tuple[int, int]]:
@@ -1726,7 +1729,7 @@ def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | 
     launch(texture_kernels.blend_layers, dim=shape[0] * shape[1],
            inputs=[_sampled(a, extent, shape, dev, "a"), _sampled(b, extent, shape, dev, "b"),
                    _sampled(w, extent, shape, dev, "weights"), 1 if weights is None else 0], outputs=[out], device=dev)
-    return _finish(out, extent, "blend")
+    return _finish(out, extent, "blend", a.border)
 
 
 def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[float], *,
@@ -1777,7 +1780,7 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
         out = wp.empty(shape, dtype=wp.vec4, device=dev)
         launch(texture_kernels.add_layers, dim=shape[0] * shape[1], inputs=[total, zero, checked[0], 0.0, 1],
                outputs=[out], device=dev)
-        return _finish(out, extent, "add")
+        return _finish(out, extent, "add", first.border)
     if wide:
         # float32 partial sums could overflow: 3e38 + 3e38 − 3e38 − 3e38 became inf − 3e38 = inf, clamped to 1 (in
         # another order 0); in float64 every product is exact, no partial sum overflows, and the compensation keeps
@@ -1791,7 +1794,7 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
                    inputs=[wide, error, sampled, float(np.float32(checked[k]))], outputs=[wide, error], device=dev)
         out = wp.empty(shape, dtype=wp.vec4, device=dev)
         launch(texture_kernels.clamp_wide, dim=shape[0] * shape[1], inputs=[wide, error], outputs=[out], device=dev)
-        return _finish(out, extent, "add")
+        return _finish(out, extent, "add", first.border)
     weight_total = checked[0]
     for k, layer in enumerate(others):
         out = wp.empty(shape, dtype=wp.vec4, device=dev)
@@ -1801,7 +1804,7 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
                        1 if k == len(others) - 1 else 0],
                outputs=[out], device=dev)
         total, weight_total = out, 1.0
-    return _finish(total, extent, "add")
+    return _finish(total, extent, "add", first.border)
 
 
 def modulate(a: TextureLayer, *others: TextureLayer | ArrayLike, device: wp.DeviceLike = None) -> TextureLayer:
@@ -1834,7 +1837,7 @@ def modulate(a: TextureLayer, *others: TextureLayer | ArrayLike, device: wp.Devi
         launch(texture_kernels.modulate_layers, dim=shape[0] * shape[1],
                inputs=[current, _sampled(layer, extent, shape, dev, f"layer {k + 2}")], outputs=[out], device=dev)
         current = out
-    return _finish(current, extent, "modulate")
+    return _finish(current, extent, "modulate", a.border)
 
 
 def adjust(
@@ -1908,7 +1911,7 @@ def adjust(
     launch(texture_kernels.adjust_layer, dim=shape[0] * shape[1], inputs=[frame, image, params], outputs=[out],
            device=dev)
     if own is None:
-        return _finish(out, layer.extent, "adjust")
+        return _finish(out, layer.extent, "adjust", layer.border)
     return TextureLayer("thematic", host_copy(out), extent, matrix=layer.matrix, border=layer.border, name="adjust")
 
 
@@ -2152,7 +2155,9 @@ class TextureAnimation:
                inputs=[_sampled(a, extent, shape, dev, f"layers[{k}]"),
                        _sampled(b, extent, shape, dev, f"layers[{kb}]"), alpha],
                outputs=[out], device=dev)
-        return _finish(out, extent, "frame")
+        # a key's border: lenses (an 'edge' border) animated stay lenses; at a key's time the key's own
+        border = a.border if alpha == 0.0 or a.border == b.border else "transparent"
+        return _finish(out, extent, "frame", border)
 
 
 # ---------------------------------------------------------------------------------------------- draping

@@ -13,9 +13,17 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as hst
 
-from stepterrain.errors import InvalidInputError
 import stepterrain.texture as texture_ops
-from stepterrain.texture import TextureAnimation, TextureLayer, blend
+from stepterrain.errors import InvalidInputError
+from stepterrain.texture import (
+    TextureAnimation,
+    TextureLayer,
+    adjust,
+    blend,
+    highlight_lens,
+    modulate,
+    weighted_add,
+)
 
 EXTENT = (0.0, 8.0, 0.0, 5.0)
 
@@ -129,3 +137,43 @@ def test_laying_lines_over_a_uint8_texture_is_blend_then_to_uint8(seed, channels
     got = under.copy()
     texture_ops._lay_over_uint8(got, lines)
     np.testing.assert_array_equal(got, want)
+
+
+TERRAIN = TextureLayer("thematic", np.full((40, 40, 3), 0.8, dtype=np.float32), (0.0, 40.0, 0.0, 40.0))
+
+
+@pytest.mark.parametrize("t", [0.0, 0.25, 0.5, 1.0])
+def test_an_animated_highlight_lens_darkens_the_terrain_beyond_its_square(t):
+    """Keys of an 'edge' border (lenses, §5: 1 - strength outside) animated (§6): the frame kept a transparent
+    border, so a terrain modulated by it was darkened only within the lens image's square (the rest left at full
+    brightness, a square edge of light), and a frame at a key's time was not that key."""
+    keys = [highlight_lens((10.0, 10.0), 4.0, strength=0.5, resolution=16),
+            highlight_lens((30.0, 30.0), 4.0, strength=0.5, resolution=16)]
+    frame = TextureAnimation(keys, (0.0, 1.0)).frame(t, device="cpu")
+    assert frame.border == "edge"
+    shaded = modulate(TERRAIN, frame, device="cpu").rgba()
+    np.testing.assert_allclose(shaded[0, 39, :3], 0.4, rtol=1e-6)  # the north-east corner: far from both lenses
+    np.testing.assert_allclose(shaded[39, 0, :3], 0.4, rtol=1e-6)  # the south-west corner
+    if t in (0.0, 1.0):
+        np.testing.assert_allclose(shaded, modulate(TERRAIN, keys[int(t)], device="cpu").rgba(), atol=1e-6)
+
+
+@pytest.mark.parametrize("operation", ["blend", "add", "modulate", "adjust rotated"])
+def test_an_operation_on_a_lens_keeps_its_edge_border(operation):
+    """A lens dimmed or combined (its first layer 'edge') repeats its edge as the lens does: the result's border was
+    transparent, so the terrain beyond the lens image's square was left undarkened."""
+    lens = highlight_lens((20.0, 20.0), 4.0, strength=0.5, resolution=16)
+    if operation == "blend":
+        result = blend(lens, np.full((16, 16), 0.5), np.zeros((16, 16)), device="cpu")
+    elif operation == "add":
+        result = weighted_add([lens, lens], [0.5, 0.5], device="cpu")
+    elif operation == "modulate":
+        result = modulate(lens, np.ones((16, 16)), device="cpu")
+    else:  # a texture matrix turned a quarter turn about the lens' centre: resampled onto its extent
+        c, s = 0.0, 1.0
+        turn = np.array([[c, -s, 20.0 - c * 20.0 + s * 20.0], [s, c, 20.0 - s * 20.0 - c * 20.0], [0.0, 0.0, 1.0]])
+        result = adjust(TextureLayer("luminance", lens.image, lens.extent, matrix=lens.matrix @ turn,
+                                     border="edge"), brightness=1.0, device="cpu")
+    assert result.border == "edge"
+    np.testing.assert_allclose(modulate(TERRAIN, result, device="cpu").rgba(),
+                               modulate(TERRAIN, lens, device="cpu").rgba(), atol=1e-6)
