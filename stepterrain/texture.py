@@ -1681,7 +1681,8 @@ def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | 
     Colours are straight (not premultiplied) alpha, and ``b`` is laid over ``a`` with coverage
     ``c = w · alpha_b`` (``c = alpha_b`` for ``weights=None``): alpha ``c + alpha_a · (1 − c)``, colour
     ``(c · b + (1 − c) · alpha_a · a) / alpha``; for opaque layers that is the formula above. So an opaque ``a``
-    stays opaque, and a transparent pixel of ``b`` (nodata, outside its extent) leaves ``a`` as it is.
+    stays opaque, and a transparent pixel of ``b`` (nodata, outside its extent) leaves ``a`` as it is. The result
+    lies on ``a``'s pixels with ``a``'s border (as :func:`weighted_add` and :func:`modulate` give their first layer's).
 
     Examples
     --------
@@ -2140,7 +2141,8 @@ class TextureAnimation:
 
     def frame(self, t: float, *, device: wp.DeviceLike = None) -> TextureLayer:
         """The animated layer at time t: (1 − α) · layer k + α · layer k + 1, premultiplied by alpha, on layer k's
-        pixel grid (the last key's own at and after its time)."""
+        pixel grid (the last key's own at and after its time), with the keys' border where they share it (animated
+        lenses repeat their edge) and the key's own at its time."""
         # the keys by position: found by identity in ``layers``, a key shown twice (a cycle A, B, A, C) was taken
         # for its first showing, and a refusal of the key after it named the wrong one (layers[1] for layers[3])
         k, kb, alpha = self._keys(t)
