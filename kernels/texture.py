@@ -946,12 +946,18 @@ def sample_at(frame: PixelFrame, image: wp.array2d[wp.vec4], matrix: wp.mat33, b
     w01 = fu * (1.0 - fv)
     w10 = (1.0 - fu) * fv
     w11 = fu * fv
-    alpha = t00[3] * w00 + t01[3] * w01 + t10[3] * w10 + t11[3] * w11
+    k00 = t00[3] * w00
+    k01 = t01[3] * w01
+    k10 = t10[3] * w10
+    k11 = t11[3] * w11
+    alpha = k00 + k01 + k10 + k11
     straight = t00 * w00 + t01 * w01 + t10 * w10 + t11 * w11
     if alpha > 0.0:
-        rgb = (wp.vec3(t00[0], t00[1], t00[2]) * (t00[3] * w00) + wp.vec3(t01[0], t01[1], t01[2]) * (t01[3] * w01)
-               + wp.vec3(t10[0], t10[1], t10[2]) * (t10[3] * w10)
-               + wp.vec3(t11[0], t11[1], t11[2]) * (t11[3] * w11)) / alpha
+        # each texel's share of the alpha, then its colour times it: a texel alone with alpha (at its centre, beside
+        # transparent ones) has share 1 exactly and keeps its colour bit for bit; the premultiplied sum divided by
+        # alpha (c * a / a) moved it by an ulp, and to_uint8 rounded a colour near a half step the other way
+        rgb = (wp.vec3(t00[0], t00[1], t00[2]) * (k00 / alpha) + wp.vec3(t01[0], t01[1], t01[2]) * (k01 / alpha)
+               + wp.vec3(t10[0], t10[1], t10[2]) * (k10 / alpha) + wp.vec3(t11[0], t11[1], t11[2]) * (k11 / alpha))
         return wp.vec4(rgb[0], rgb[1], rgb[2], alpha)
     return wp.vec4(straight[0], straight[1], straight[2], 0.0)
 
@@ -980,8 +986,8 @@ def blend_over(x: wp.vec4, y: wp.vec4, w: wp.float32, own_alpha: wp.int32) -> wp
         c = w * y[3]
     under = x[3] * (1.0 - c)
     alpha = c + under
-    if alpha > 0.0:
-        rgb = (wp.vec3(y[0], y[1], y[2]) * c + wp.vec3(x[0], x[1], x[2]) * under) / alpha
+    if alpha > 0.0:  # shares of the alpha: c = 0 (nothing laid over) leaves x bit for bit, under = 0 gives y
+        rgb = wp.vec3(y[0], y[1], y[2]) * (c / alpha) + wp.vec3(x[0], x[1], x[2]) * (under / alpha)
         return wp.vec4(rgb[0], rgb[1], rgb[2], alpha)
     mixed = x * (1.0 - w) + y * w
     return wp.vec4(mixed[0], mixed[1], mixed[2], 0.0)
@@ -1105,8 +1111,8 @@ def interpolate_layers(
     wa = (1.0 - t) * x[3]
     wb = t * y[3]
     alpha = wa + wb
-    if alpha > 0.0:
-        rgb = (wp.vec3(x[0], x[1], x[2]) * wa + wp.vec3(y[0], y[1], y[2]) * wb) / alpha
+    if alpha > 0.0:  # shares of the alpha: at a key's time (t 0, or a transparent other key) the key bit for bit
+        rgb = wp.vec3(x[0], x[1], x[2]) * (wa / alpha) + wp.vec3(y[0], y[1], y[2]) * (wb / alpha)
         rgba_out[i, j] = wp.vec4(wp.clamp(rgb[0], 0.0, 1.0), wp.clamp(rgb[1], 0.0, 1.0), wp.clamp(rgb[2], 0.0, 1.0),
                                  wp.min(alpha, 1.0))
     else:
@@ -1761,7 +1767,7 @@ def lay_over_uint8(
     run of ``run`` texels of the image in row-major order, in float32, each formula evaluated in the order written
     here (as NumPy evaluated it: ``stepterrain.texture.blend`` laying ``b`` over ``a``, ``to_uint8`` rounding):
     coverage c = the layer's alpha; over RGB the colour ``b * c + a * (1 - c)``; over RGBA alpha
-    ``c + alpha_a * (1 - c)`` and colour ``(b * c + a * alpha_a * (1 - c)) / alpha`` (``a`` where alpha is 0);
+    ``c + alpha_a * (1 - c)`` and colour ``b * (c / alpha) + a * (alpha_a * (1 - c) / alpha)`` (``a`` where alpha is 0);
     rounded half to even."""
     cols = layer.shape[1]
     total = layer.shape[0] * cols
@@ -1780,12 +1786,13 @@ def lay_over_uint8(
                 image[r, c, ch] = unit_to_uint8(top[ch] * cover + under * rest)
         else:
             alpha_a = wp.float32(image[r, c, 3]) / 255.0
-            alpha = cover + alpha_a * rest
+            kept = alpha_a * rest
+            alpha = cover + kept
             for ch in range(3):
                 under = wp.float32(image[r, c, ch]) / 255.0
                 value = under
-                if alpha > 0.0:
-                    value = (top[ch] * cover + under * alpha_a * rest) / alpha
+                if alpha > 0.0:  # blend_over's shares of the alpha
+                    value = top[ch] * (cover / alpha) + under * (kept / alpha)
                 image[r, c, ch] = unit_to_uint8(value)
             image[r, c, 3] = unit_to_uint8(alpha)
         n += 1

@@ -1640,8 +1640,11 @@ def _composed_pair(shading: TextureLayer, colours: TextureLayer | None, picture:
     return _result(host, target), (_result(over_host, over_target) if both else None)
 
 
-def _finish(out: wp.array, extent: Extent, name: str) -> TextureLayer:
-    return TextureLayer("thematic", host_copy(out), extent, border="transparent", name=name)
+def _finish(out: wp.array, extent: Extent, name: str, border: str = "transparent") -> TextureLayer:
+    """The result of an operation: ``border`` its first layer's, so an operation on a lens (an 'edge' border: its
+    outside value repeats) stays a lens; a transparent border left the terrain beyond the lens image's square
+    untouched (an animated or dimmed highlight lens lit a square)."""
+    return TextureLayer("thematic", host_copy(out), extent, border=border, name=name)
 
 
 def _result_frame(layer: TextureLayer) -> tuple[Extent, tuple[int, int]]:
@@ -1678,7 +1681,8 @@ def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | 
     Colours are straight (not premultiplied) alpha, and ``b`` is laid over ``a`` with coverage
     ``c = w · alpha_b`` (``c = alpha_b`` for ``weights=None``): alpha ``c + alpha_a · (1 − c)``, colour
     ``(c · b + (1 − c) · alpha_a · a) / alpha``; for opaque layers that is the formula above. So an opaque ``a``
-    stays opaque, and a transparent pixel of ``b`` (nodata, outside its extent) leaves ``a`` as it is.
+    stays opaque, and a transparent pixel of ``b`` (nodata, outside its extent) leaves ``a`` as it is. The result
+    lies on ``a``'s pixels with ``a``'s border (as :func:`weighted_add` and :func:`modulate` give their first layer's).
 
     Examples
     --------
@@ -1726,7 +1730,7 @@ def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | 
     launch(texture_kernels.blend_layers, dim=shape[0] * shape[1],
            inputs=[_sampled(a, extent, shape, dev, "a"), _sampled(b, extent, shape, dev, "b"),
                    _sampled(w, extent, shape, dev, "weights"), 1 if weights is None else 0], outputs=[out], device=dev)
-    return _finish(out, extent, "blend")
+    return _finish(out, extent, "blend", a.border)
 
 
 def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[float], *,
@@ -1777,7 +1781,7 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
         out = wp.empty(shape, dtype=wp.vec4, device=dev)
         launch(texture_kernels.add_layers, dim=shape[0] * shape[1], inputs=[total, zero, checked[0], 0.0, 1],
                outputs=[out], device=dev)
-        return _finish(out, extent, "add")
+        return _finish(out, extent, "add", first.border)
     if wide:
         # float32 partial sums could overflow: 3e38 + 3e38 − 3e38 − 3e38 became inf − 3e38 = inf, clamped to 1 (in
         # another order 0); in float64 every product is exact, no partial sum overflows, and the compensation keeps
@@ -1791,7 +1795,7 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
                    inputs=[wide, error, sampled, float(np.float32(checked[k]))], outputs=[wide, error], device=dev)
         out = wp.empty(shape, dtype=wp.vec4, device=dev)
         launch(texture_kernels.clamp_wide, dim=shape[0] * shape[1], inputs=[wide, error], outputs=[out], device=dev)
-        return _finish(out, extent, "add")
+        return _finish(out, extent, "add", first.border)
     weight_total = checked[0]
     for k, layer in enumerate(others):
         out = wp.empty(shape, dtype=wp.vec4, device=dev)
@@ -1801,7 +1805,7 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
                        1 if k == len(others) - 1 else 0],
                outputs=[out], device=dev)
         total, weight_total = out, 1.0
-    return _finish(total, extent, "add")
+    return _finish(total, extent, "add", first.border)
 
 
 def modulate(a: TextureLayer, *others: TextureLayer | ArrayLike, device: wp.DeviceLike = None) -> TextureLayer:
@@ -1834,7 +1838,7 @@ def modulate(a: TextureLayer, *others: TextureLayer | ArrayLike, device: wp.Devi
         launch(texture_kernels.modulate_layers, dim=shape[0] * shape[1],
                inputs=[current, _sampled(layer, extent, shape, dev, f"layer {k + 2}")], outputs=[out], device=dev)
         current = out
-    return _finish(current, extent, "modulate")
+    return _finish(current, extent, "modulate", a.border)
 
 
 def adjust(
@@ -1908,7 +1912,7 @@ def adjust(
     launch(texture_kernels.adjust_layer, dim=shape[0] * shape[1], inputs=[frame, image, params], outputs=[out],
            device=dev)
     if own is None:
-        return _finish(out, layer.extent, "adjust")
+        return _finish(out, layer.extent, "adjust", layer.border)
     return TextureLayer("thematic", host_copy(out), extent, matrix=layer.matrix, border=layer.border, name="adjust")
 
 
@@ -2118,24 +2122,31 @@ class TextureAnimation:
         object.__setattr__(self, "layers", layers)
         object.__setattr__(self, "times", tuple(times.tolist()))
 
-    def at(self, t: float) -> tuple[TextureLayer, TextureLayer, float]:
-        """(layer k, layer k + 1, α) with times[k] <= t <= times[k + 1]: draw them with 1 − α and α."""
+    def _keys(self, t: float) -> tuple[int, int, float]:
+        """(k, k + 1, α) of :meth:`at`: the keys' positions in ``layers``."""
         t = _finite(t, "t")
         times = self.times
         if t <= times[0] or len(times) == 1:
-            return self.layers[0], self.layers[min(1, len(times) - 1)], 0.0
+            return 0, min(1, len(times) - 1), 0.0
         if t >= times[-1]:
-            return self.layers[-2], self.layers[-1], 1.0
+            return len(times) - 2, len(times) - 1, 1.0
         k = int(np.searchsorted(times, t, side="right")) - 1
         alpha = (t - times[k]) / (times[k + 1] - times[k])
-        return self.layers[k], self.layers[k + 1], float(alpha)
+        return k, k + 1, float(alpha)
+
+    def at(self, t: float) -> tuple[TextureLayer, TextureLayer, float]:
+        """(layer k, layer k + 1, α) with times[k] <= t <= times[k + 1]: draw them with 1 − α and α."""
+        k, kb, alpha = self._keys(t)
+        return self.layers[k], self.layers[kb], alpha
 
     def frame(self, t: float, *, device: wp.DeviceLike = None) -> TextureLayer:
         """The animated layer at time t: (1 − α) · layer k + α · layer k + 1, premultiplied by alpha, on layer k's
-        pixel grid (the last key's own at and after its time)."""
-        a, b, alpha = self.at(t)
-        k = next(i for i, layer in enumerate(self.layers) if layer is a)
-        kb = min(k + 1, len(self.layers) - 1)
+        pixel grid (the last key's own at and after its time), with the keys' border where they share it (animated
+        lenses repeat their edge) and the key's own at its time."""
+        # the keys by position: found by identity in ``layers``, a key shown twice (a cycle A, B, A, C) was taken
+        # for its first showing, and a refusal of the key after it named the wrong one (layers[1] for layers[3])
+        k, kb, alpha = self._keys(t)
+        a, b = self.layers[k], self.layers[kb]
         if alpha == 1.0:  # at (or past) the last key: that key, on its own grid, as every other key time gives its
             # key; on the previous key's grid a key over another extent (a lens moved to follow a point) was lost
             a, k, alpha = b, kb, 0.0
@@ -2146,7 +2157,9 @@ class TextureAnimation:
                inputs=[_sampled(a, extent, shape, dev, f"layers[{k}]"),
                        _sampled(b, extent, shape, dev, f"layers[{kb}]"), alpha],
                outputs=[out], device=dev)
-        return _finish(out, extent, "frame")
+        # a key's border: lenses (an 'edge' border) animated stay lenses; at a key's time the key's own
+        border = a.border if alpha == 0.0 or a.border == b.border else "transparent"
+        return _finish(out, extent, "frame", border)
 
 
 # ---------------------------------------------------------------------------------------------- draping
