@@ -1256,7 +1256,7 @@ class PatchQuadtree:
         stride = 2 ** (self.depth - depth)
         domain = self._domain(rows, cols)
         box = np.array([[domain[0], domain[2], zmin], [domain[1], domain[3], zmax]])
-        error = _approximation_error(block, stride, t.spacing)
+        error = _approximation_error(block, stride, t.spacing, (rows[0], cols[0]))
         patch = GeometryPatch(domain, rows, cols, depth, stride, error, box, parent)
         if depth < self.depth and (rows[1] - rows[0] > 1 or cols[1] - cols[0] > 1):
             rm = (rows[0] + rows[1]) // 2
@@ -1276,10 +1276,23 @@ class PatchQuadtree:
         return out
 
 
-def _approximation_error(block: NDArray[np.float32], stride: int, spacing: tuple[float, float] = (1.0, 1.0)) -> float:
+def _samples(first: int, last: int, stride: int) -> NDArray[np.intp]:
+    """The grid lines (rows or columns) a patch over ``first``..``last`` draws at ``stride``: the multiples of the
+    stride within it (counted from the grid's first line, not the patch's) and its two ends. A patch's lines are then
+    a subset of every finer patch's along a common border (a coarse stride is a multiple of a fine one), so
+    :func:`paint_with_textures` can stitch the finer one onto the coarser one's edges; counted from the patch's own
+    first line, a DEM whose size is no power of two plus one left them apart (a child starts at its parent's middle
+    line, no multiple of its stride)."""
+    start = -(-first // stride) * stride
+    return np.unique(np.r_[first, np.arange(start, last + 1, stride), last]).astype(np.intp)
+
+
+def _approximation_error(block: NDArray[np.float32], stride: int, spacing: tuple[float, float] = (1.0, 1.0),
+                         corner: tuple[int, int] = (0, 0)) -> float:
     """e(N): max |h − G(N)| over the block's nodes with data and where a narrow coarse cell's diagonal crosses the
     terrain's edges (:func:`_diagonal_gap`), h the terrain's mesh and G(N) the mesh :func:`paint_with_textures` draws
-    (every stride-th node, last row/column kept, two triangles a cell split along (r, c)-(r+1, c+1) as
+    (the block's rows and columns of :func:`_samples`, ``corner`` the grid node of its first row and column, two
+    triangles a cell split along (r, c)-(r+1, c+1) as
     :func:`~stepterrain.terrain.grid_faces`; a triangle with a nodata corner is not drawn): the largest vertical
     distance between the two surfaces, which lies at one of those points.
 
@@ -1292,8 +1305,8 @@ def _approximation_error(block: NDArray[np.float32], stride: int, spacing: tuple
         return 0.0
     z = np.asarray(block, dtype=np.float64)
     rows, cols = z.shape
-    ri = np.unique(np.r_[np.arange(0, rows, stride), rows - 1])
-    ci = np.unique(np.r_[np.arange(0, cols, stride), cols - 1])
+    ri = _samples(corner[0], corner[0] + rows - 1, stride) - corner[0]
+    ci = _samples(corner[1], corner[1] + cols - 1, stride) - corner[1]
     coarse = z[np.ix_(ri, ci)]
     if len(ri) == 1 or len(ci) == 1:
         return float(np.nanmax(np.abs(z - np.nanmean(coarse)))) if np.isfinite(z).any() else 0.0
@@ -2174,11 +2187,14 @@ class TextureCache:
 class DrawItem:
     """One ``paintWithTextures(N, T)`` call: the geometry patch, one texture patch per active layer (None while a
     layer has nothing loaded yet) and, per layer, whether hybrid shading replaces it by computed lighting
-    (§7.3: a topographic leaf texture whose texel exceeds τ_user on screen)."""
+    (§7.3: a topographic leaf texture whose texel exceeds τ_user on screen). ``seams`` names, per side of the patch
+    (its first row, last row, first column, last column of grid nodes), the coarser patch drawn across it, onto whose
+    edge :func:`paint_with_textures` moves that border's nodes (None: no coarser neighbour drawn there)."""
 
     geometry: GeometryPatch
     textures: tuple[TexturePatch | None, ...]
     lighting: tuple[bool, ...]
+    seams: tuple[GeometryPatch | None, ...] = (None, None, None, None)
 
 
 def render_with_textures(
@@ -2219,7 +2235,9 @@ def render_with_textures(
     Frustum culling with B(N); refinement while γ(N) > γ_user or τ(N, S) > τ_user; children take M's child
     texture patch, M itself where M is pruned at full resolution, and drop a layer that does not reach them
     (partial textures). Before painting, each M is reduced to its parent while τ(N, M_parent) ≤ τ_user, then
-    to its parent while its data is not loaded (requesting it).
+    to its parent while its data is not loaded (requesting it). The cut is balanced: a drawn patch with a neighbour
+    drawn more than one level finer is split too (not in the paper, whose patches leave T-junction cracks), and each
+    item names its coarser neighbours in ``seams`` for :func:`paint_with_textures` to stitch onto.
     """
     gamma_user = _threshold(gamma_user, "gamma_user")
     tau_user = _threshold(tau_user, "tau_user")
@@ -2247,6 +2265,47 @@ def render_with_textures(
              else (False,) * len(layers))
     if len(flags) != len(layers):
         raise InvalidInputError(f"hybrid needs one flag per layer ({len(layers)}); got {len(flags)}")
+    forced: set[GeometryPatch] = set()
+    while True:  # balanced: split a drawn patch while a neighbour is drawn more than one level finer (a few passes)
+        out = _traverse(root, layers, flags, camera, gamma_user, tau_user, cache, forced)
+        drawn = {item.geometry for item in out}
+        seams = [_coarser_neighbours(item.geometry, root, drawn) for item in out]
+        # a leaf is not split: one coarser than its depth is a single cell (both its sides <= 1 cell), no node between
+        split = {n for item, sides in zip(out, seams, strict=True) for n in sides
+                 if n is not None and n.children and item.geometry.depth - n.depth > 1} - forced
+        if not split:
+            return [DrawItem(item.geometry, item.textures, item.lighting, sides)
+                    for item, sides in zip(out, seams, strict=True)]
+        forced |= split
+
+
+def _coarser_neighbours(patch: GeometryPatch, root: GeometryPatch,
+                        drawn: set[GeometryPatch]) -> tuple[GeometryPatch | None, ...]:
+    """Per side of ``patch`` (first row, last row, first column, last column), the patch of ``drawn`` across it
+    when that one is coarser, else None. A coarser one spans the whole side (quadtree patches of one depth share their
+    rows or columns), so the cell just outside the side's middle finds it."""
+    (r0, r1), (c0, c1) = patch.rows, patch.cols
+    last_row, last_col = root.rows[1], root.cols[1]
+    probes = [(r0 - 1, (c0 + c1) // 2) if r0 > 0 and c1 > c0 else None,
+              (r1, (c0 + c1) // 2) if r1 < last_row and c1 > c0 else None,
+              ((r0 + r1) // 2, c0 - 1) if c0 > 0 and r1 > r0 else None,
+              ((r0 + r1) // 2, c1) if c1 < last_col and r1 > r0 else None]
+    out: list[GeometryPatch | None] = []
+    for probe in probes:
+        node: GeometryPatch | None = root if probe is not None else None
+        while node is not None and node not in drawn:  # down to the drawn patch holding the cell (None: culled)
+            i, j = probe
+            node = next((child for child in node.children
+                         if child.rows[0] <= i < max(child.rows[1], child.rows[0] + 1)
+                         and child.cols[0] <= j < max(child.cols[1], child.cols[0] + 1)), None)
+        out.append(node if node is not None and node.depth < patch.depth else None)
+    return tuple(out)
+
+
+def _traverse(root: GeometryPatch, layers: list[TexturePatch], flags: tuple[bool, ...], camera: Camera,
+              gamma_user: float, tau_user: float, cache: TextureCache | None,
+              forced: set[GeometryPatch]) -> list[DrawItem]:
+    """One pass of :func:`render_with_textures`' traversal, splitting the patches of ``forced`` too."""
     out: list[DrawItem] = []
     stack: list[tuple[GeometryPatch, list[TexturePatch | None]]] = [(root, list(layers))]
     while stack:  # depth-first over patches (a few thousand at most), never over cells
@@ -2255,7 +2314,8 @@ def render_with_textures(
             continue
         view = _in_view(camera, node.box)  # γ's and every τ's of this patch
         tau = max((_texture_error_in(m, camera, view) for m in current if m is not None), default=0.0)
-        if not node.is_leaf and (_geometric_error_in(node, camera, view) > gamma_user or tau > tau_user):
+        if not node.is_leaf and (node in forced or _geometric_error_in(node, camera, view) > gamma_user
+                                 or tau > tau_user):
             children = [(child, [m.child_for(child) if m is not None else None for m in current])
                         for child in node.children]
             stack.extend(reversed(children))
@@ -2297,11 +2357,12 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     face touches a NaN node and those nodes are left out). Returns a ``trimesh.Trimesh``;
     an item whose layer has no texture patch yet raises :class:`~stepterrain.errors.InvalidInputError`.
 
-    Patches are not stitched (the paper draws them as they are): where neighbours drawn at different levels meet,
-    the finer one's border nodes between the coarser one's leave T-junctions, slivers of height up to the coarser
-    patch's e(N), i.e. up to about ``gamma_user`` pixels on screen (Big Tujunga, ``leaf_size=32``, ``gamma_user=1``:
-    about 6,000 such border edges in an oblique view, the widest 0.7 px). Keep ``gamma_user`` at 1 or below where
-    they would show, or draw a skirt below each patch.
+    Patches are stitched (the paper draws them as they are): a patch samples the grid lines that are multiples of its
+    stride (:func:`_samples`), so a coarser neighbour's border nodes are among its own, and its border nodes between
+    two of them, on a side the item's ``seams`` names, are moved onto the coarser patch's edge (linear between its two
+    ends). The border of two patches drawn at different levels is then one polyline: no crack (unstitched, Big
+    Tujunga, ``leaf_size=32``, ``gamma_user=1``: about 6,000 T-junction border edges in an oblique view, gaps up to
+    0.7 px). The moved nodes leave the terrain by up to the coarser patch's e(N) along that border.
 
     Examples
     --------
@@ -2327,12 +2388,24 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     if terrain is None:
         raise InvalidInputError("paint_with_textures needs a DrawItem whose layer has a texture patch")
     (r0, r1), (c0, c1) = patch.rows, patch.cols
-    rows = np.unique(np.r_[np.arange(r0, r1 + 1, patch.stride), r1])
-    cols = np.unique(np.r_[np.arange(c0, c1 + 1, patch.stride), c1])
+    rows, cols = _samples(r0, r1, patch.stride), _samples(c0, c1, patch.stride)
     dx, dy = terrain.spacing
     jj, ii = np.meshgrid(cols, rows)
+    z = terrain.heights[np.ix_(rows, cols)].astype(np.float64)
+    heights = terrain.heights
+    for side, coarse in enumerate(item.seams):  # T-junctions closed: border nodes moved onto the coarser edge
+        if coarse is None:
+            continue
+        if side < 2:  # the first or last row, along the columns
+            line = r0 if side == 0 else r1
+            z[0 if side == 0 else -1, :] = _stitched(heights[line, :], cols, coarse.cols, coarse.stride,
+                                                     z[0 if side == 0 else -1, :])
+        else:
+            line = c0 if side == 2 else c1
+            z[:, 0 if side == 2 else -1] = _stitched(heights[:, line], rows, coarse.rows, coarse.stride,
+                                                     z[:, 0 if side == 2 else -1])
     vertices = np.column_stack([terrain.origin[0] + jj.reshape(-1) * dx, terrain.origin[1] + ii.reshape(-1) * dy,
-                                terrain.heights[np.ix_(rows, cols)].reshape(-1).astype(np.float64)])
+                                z.reshape(-1)])
     faces = grid_faces(len(rows), len(cols), flip=dx * dy < 0)
     # nodata, as heightfield_mesh: no face touches a NaN node, and the NaN nodes go (they were kept: NaN vertices in
     # the mesh, its faces spanning the void)
@@ -2348,6 +2421,22 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     else:
         texture_layer = TextureLayer("thematic", image, texture.domain)
     return drape(mesh, texture_layer)
+
+
+def _stitched(profile: NDArray[Any], at: NDArray[np.intp], span: tuple[int, int], stride: int,
+              z: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Heights ``z`` of a patch's border nodes ``at`` (grid indices along the border line, whose terrain heights are
+    ``profile``) with each node between two of the coarser neighbour's (:func:`_samples` of ``span`` at ``stride``)
+    moved onto that neighbour's edge: linear between its two ends' heights. The same arithmetic in every patch, so two
+    finer patches meeting on the coarse edge move their common corner to the same float. A node with nodata, or on an
+    edge with a nodata end (the coarse patch draws no face there), keeps its height."""
+    coarse = _samples(span[0], span[1], stride)
+    k = np.clip(np.searchsorted(coarse, at), 1, len(coarse) - 1)
+    a, b = coarse[k - 1], coarse[k]
+    between = (at > a) & (at < b)
+    za, zb = profile[a].astype(np.float64), profile[b].astype(np.float64)
+    moved = za + (zb - za) * ((at - a) / np.maximum(b - a, 1))
+    return np.where(between & np.isfinite(za) & np.isfinite(zb) & np.isfinite(z), moved, z)
 
 
 def _tree_of(item: DrawItem, layer: int) -> TextureTree | None:
