@@ -1205,7 +1205,9 @@ class GeometryPatch:
     vertical distance between the terrain and that approximation (the triangles :func:`paint_with_textures` draws;
     where a nodata node leaves terrain with data undrawn, or a void is drawn over, at least the coarse cell's
     diagonal); ``box`` B(N) =
-    (min xyz, max xyz)."""
+    (min xyz, max xyz); ``seam_errors`` s(N) per side (first row, last row, first column, last column): the
+    largest vertical distance :func:`paint_with_textures` moves that border's nodes by when a patch one level coarser
+    is drawn across it (the drawn mesh then lies within e(N) + that of the terrain)."""
 
     domain: Extent
     rows: tuple[int, int]
@@ -1216,10 +1218,23 @@ class GeometryPatch:
     box: NDArray[np.float64]
     parent: GeometryPatch | None = None
     children: list[GeometryPatch] = field(default_factory=list)
+    heights: NDArray[Any] | None = field(default=None, repr=False)  # the terrain's, for seam_errors
 
     @property
     def is_leaf(self) -> bool:
         return not self.children
+
+    @property
+    def seam_errors(self) -> tuple[float, ...]:
+        """s(N) per side (see the class), measured on first use (only stitched patches need it)."""
+        found = self.__dict__.get("_seam_errors")
+        if found is None:
+            parent = self.parent
+            found = (0.0, 0.0, 0.0, 0.0) if parent is None or self.heights is None else tuple(
+                _seam_error(self.heights, self, side, parent.cols if side < 2 else parent.rows, parent.stride)
+                for side in range(4))
+            self.__dict__["_seam_errors"] = found
+        return found
 
 
 class PatchQuadtree:
@@ -1257,7 +1272,8 @@ class PatchQuadtree:
         domain = self._domain(rows, cols)
         box = np.array([[domain[0], domain[2], zmin], [domain[1], domain[3], zmax]])
         error = _approximation_error(block, stride, t.spacing, (rows[0], cols[0]))
-        patch = GeometryPatch(domain, rows, cols, depth, stride, error, box, parent)
+        # a neighbour one level coarser spans the parent's rows or columns at its stride: seam_errors
+        patch = GeometryPatch(domain, rows, cols, depth, stride, error, box, parent, heights=t.heights)
         if depth < self.depth and (rows[1] - rows[0] > 1 or cols[1] - cols[0] > 1):
             rm = (rows[0] + rows[1]) // 2
             cm = (cols[0] + cols[1]) // 2
@@ -2013,15 +2029,17 @@ def _bounded_segment(camera: Camera, view: _InView, vector: NDArray[np.float64])
         return float(camera.focal_pixels * spread * d / ((d - half) * (d + half)))
 
 
-def _geometric_error_in(patch: GeometryPatch, camera: Camera, view: _InView) -> float:
-    """γ(N) of a patch with children (:func:`visual_geometric_error`) over its :func:`_in_view` ``view``."""
-    vertical = _bounded_segment(camera, view, np.array([0.0, 0.0, patch.error]))
+def _geometric_error_in(patch: GeometryPatch, camera: Camera, view: _InView, error: float | None = None) -> float:
+    """γ(N) of a patch with children (:func:`visual_geometric_error`) over its :func:`_in_view` ``view`` (of
+    ``error`` in place of e(N) where given)."""
+    error = patch.error if error is None else error
+    vertical = _bounded_segment(camera, view, np.array([0.0, 0.0, error]))
     offset = view.nearest - np.asarray(camera.eye, dtype=np.float64)
     depth = float(offset @ view.axes[0])
     if not depth > 0.0:  # p behind the eye (a box out of view, or around the eye): refine, as segment_pixels does
         return math.inf
     with np.errstate(over="ignore", divide="ignore"):  # a huge error, or depth² underflowing to 0: inf
-        return max(vertical, float(camera.focal_pixels * patch.error * np.linalg.norm(offset) / depth ** 2))
+        return max(vertical, float(camera.focal_pixels * error * np.linalg.norm(offset) / depth ** 2))
 
 
 def texel_pixels(geometry: GeometryPatch, texture: TexturePatch, camera: Camera) -> float:
@@ -2237,7 +2255,10 @@ def render_with_textures(
     (partial textures). Before painting, each M is reduced to its parent while τ(N, M_parent) ≤ τ_user, then
     to its parent while its data is not loaded (requesting it). The cut is balanced: a drawn patch with a neighbour
     drawn more than one level finer is split too (not in the paper, whose patches leave T-junction cracks), and each
-    item names its coarser neighbours in ``seams`` for :func:`paint_with_textures` to stitch onto.
+    item names its coarser neighbours in ``seams`` for :func:`paint_with_textures` to stitch onto. A stitched patch's
+    mesh lies within e(N) + s(N) of the terrain, s(N) its largest seam error (:class:`GeometryPatch`
+    ``seam_errors``) on a stitched side; where γ of that exceeds γ_user, the coarser neighbours split too, so it holds
+    for every item whose coarser neighbours have children.
     """
     gamma_user = _threshold(gamma_user, "gamma_user")
     tau_user = _threshold(tau_user, "tau_user")
@@ -2266,13 +2287,20 @@ def render_with_textures(
     if len(flags) != len(layers):
         raise InvalidInputError(f"hybrid needs one flag per layer ({len(layers)}); got {len(flags)}")
     forced: set[GeometryPatch] = set()
+    views: dict[GeometryPatch, tuple[_InView, float] | None] = {}  # each patch's (view, γ), once over the passes
     while True:  # balanced: split a drawn patch while a neighbour is drawn more than one level finer (a few passes)
-        out = _traverse(root, layers, flags, camera, gamma_user, tau_user, cache, forced)
+        out = _traverse(root, layers, flags, camera, gamma_user, tau_user, cache, forced, views)
         drawn = {item.geometry for item in out}
         seams = [_coarser_neighbours(item.geometry, root, drawn) for item in out]
         # a leaf is not split: one coarser than its depth is a single cell (both its sides <= 1 cell), no node between
         split = {n for item, sides in zip(out, seams, strict=True) for n in sides
-                 if n is not None and n.children and item.geometry.depth - n.depth > 1} - forced
+                 if n is not None and n.children and item.geometry.depth - n.depth > 1}
+        for item, sides in zip(out, seams, strict=True):  # γ of e(N) + the seam error: the coarser neighbour splits
+            node = item.geometry
+            seam = max((node.seam_errors[k] for k, n in enumerate(sides) if n is not None), default=0.0)
+            if seam > 0.0 and _geometric_error_in(node, camera, views[node][0], node.error + seam) > gamma_user:
+                split.update(n for n in sides if n is not None and n.children)
+        split -= forced
         if not split:
             return [DrawItem(item.geometry, item.textures, item.lighting, sides)
                     for item, sides in zip(out, seams, strict=True)]
@@ -2294,28 +2322,39 @@ def _coarser_neighbours(patch: GeometryPatch, root: GeometryPatch,
     for probe in probes:
         node: GeometryPatch | None = root if probe is not None else None
         while node is not None and node not in drawn:  # down to the drawn patch holding the cell (None: culled)
-            i, j = probe
-            node = next((child for child in node.children
-                         if child.rows[0] <= i < max(child.rows[1], child.rows[0] + 1)
-                         and child.cols[0] <= j < max(child.cols[1], child.cols[0] + 1)), None)
+            if not node.children:
+                node = None
+                break
+            first = node.children[0]  # children: row parts x column parts, each axis split in two or kept whole
+            split_cols = first.cols[1] != node.cols[1]
+            below = first.rows[1] != node.rows[1] and probe[0] >= first.rows[1]
+            right = split_cols and probe[1] >= first.cols[1]
+            node = node.children[(2 if split_cols else 1) * below + right]
         out.append(node if node is not None and node.depth < patch.depth else None)
     return tuple(out)
 
 
 def _traverse(root: GeometryPatch, layers: list[TexturePatch], flags: tuple[bool, ...], camera: Camera,
               gamma_user: float, tau_user: float, cache: TextureCache | None,
-              forced: set[GeometryPatch]) -> list[DrawItem]:
-    """One pass of :func:`render_with_textures`' traversal, splitting the patches of ``forced`` too."""
+              forced: set[GeometryPatch], views: dict[GeometryPatch, tuple[_InView, float] | None]) -> list[DrawItem]:
+    """One pass of :func:`render_with_textures`' traversal, splitting the patches of ``forced`` too (``views``: per
+    patch visited, None where culled, else its :func:`_in_view` and γ(N), filled in as they are first visited)."""
     out: list[DrawItem] = []
     stack: list[tuple[GeometryPatch, list[TexturePatch | None]]] = [(root, list(layers))]
     while stack:  # depth-first over patches (a few thousand at most), never over cells
         node, current = stack.pop()
-        if not camera.box_visible(node.box):
+        if node not in views:
+            if camera.box_visible(node.box):
+                view = _in_view(camera, node.box)  # γ's and every τ's of this patch
+                views[node] = view, (0.0 if node.is_leaf else _geometric_error_in(node, camera, view))
+            else:
+                views[node] = None
+        seen = views[node]
+        if seen is None:
             continue
-        view = _in_view(camera, node.box)  # γ's and every τ's of this patch
+        view, gamma = seen
         tau = max((_texture_error_in(m, camera, view) for m in current if m is not None), default=0.0)
-        if not node.is_leaf and (node in forced or _geometric_error_in(node, camera, view) > gamma_user
-                                 or tau > tau_user):
+        if not node.is_leaf and (node in forced or gamma > gamma_user or tau > tau_user):
             children = [(child, [m.child_for(child) if m is not None else None for m in current])
                         for child in node.children]
             stack.extend(reversed(children))
@@ -2362,7 +2401,8 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     two of them, on a side the item's ``seams`` names, are moved onto the coarser patch's edge (linear between its two
     ends). The border of two patches drawn at different levels is then one polyline: no crack (unstitched, Big
     Tujunga, ``leaf_size=32``, ``gamma_user=1``: about 6,000 T-junction border edges in an oblique view, gaps up to
-    0.7 px). The moved nodes leave the terrain by up to the coarser patch's e(N) along that border.
+    0.7 px). The moved nodes leave the terrain by the patch's seam error on that side (:class:`GeometryPatch`
+    ``seam_errors``), which :func:`render_with_textures` counts in γ.
 
     Examples
     --------
@@ -2392,18 +2432,12 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     dx, dy = terrain.spacing
     jj, ii = np.meshgrid(cols, rows)
     z = terrain.heights[np.ix_(rows, cols)].astype(np.float64)
-    heights = terrain.heights
+    edge = [(0, slice(None)), (-1, slice(None)), (slice(None), 0), (slice(None), -1)]  # first/last row/column of z
     for side, coarse in enumerate(item.seams):  # T-junctions closed: border nodes moved onto the coarser edge
-        if coarse is None:
-            continue
-        if side < 2:  # the first or last row, along the columns
-            line = r0 if side == 0 else r1
-            z[0 if side == 0 else -1, :] = _stitched(heights[line, :], cols, coarse.cols, coarse.stride,
-                                                     z[0 if side == 0 else -1, :])
-        else:
-            line = c0 if side == 2 else c1
-            z[:, 0 if side == 2 else -1] = _stitched(heights[:, line], rows, coarse.rows, coarse.stride,
-                                                     z[:, 0 if side == 2 else -1])
+        if coarse is not None:
+            profile, at = _border(terrain.heights, patch, side)
+            z[edge[side]] = _stitched(profile, at, coarse.cols if side < 2 else coarse.rows, coarse.stride,
+                                      z[edge[side]])
     vertices = np.column_stack([terrain.origin[0] + jj.reshape(-1) * dx, terrain.origin[1] + ii.reshape(-1) * dy,
                                 z.reshape(-1)])
     faces = grid_faces(len(rows), len(cols), flip=dx * dy < 0)
@@ -2437,6 +2471,24 @@ def _stitched(profile: NDArray[Any], at: NDArray[np.intp], span: tuple[int, int]
     za, zb = profile[a].astype(np.float64), profile[b].astype(np.float64)
     moved = za + (zb - za) * ((at - a) / np.maximum(b - a, 1))
     return np.where(between & np.isfinite(za) & np.isfinite(zb) & np.isfinite(z), moved, z)
+
+
+def _border(heights: NDArray[Any], patch: GeometryPatch, side: int) -> tuple[NDArray[Any], NDArray[np.intp]]:
+    """(the terrain's heights along the grid line of ``patch``'s ``side``, the patch's nodes on it), for
+    :func:`_stitched`."""
+    (r0, r1), (c0, c1) = patch.rows, patch.cols
+    if side < 2:
+        return heights[r0 if side == 0 else r1, :], _samples(c0, c1, patch.stride)
+    return heights[:, c0 if side == 2 else c1], _samples(r0, r1, patch.stride)
+
+
+def _seam_error(heights: NDArray[Any], patch: GeometryPatch, side: int, span: tuple[int, int], stride: int) -> float:
+    """The largest vertical distance :func:`_stitched` moves ``patch``'s nodes on ``side`` by onto the edges of a
+    coarser neighbour over ``span`` at ``stride`` (0 where none moves)."""
+    profile, at = _border(heights, patch, side)
+    z = profile[at].astype(np.float64)
+    moved = np.abs(_stitched(profile, at, span, stride, z) - z)
+    return float(np.nanmax(moved)) if np.isfinite(moved).any() else 0.0
 
 
 def _tree_of(item: DrawItem, layer: int) -> TextureTree | None:

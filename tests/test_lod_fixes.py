@@ -1597,15 +1597,15 @@ def _border_edges(meshes, terrain):
 @pytest.mark.parametrize("case", ["sample_dem", "synthetic"])
 def test_patches_drawn_at_different_levels_meet_without_cracks(case):
     """Neighbouring patches drawn at different levels left T-junction cracks along their border: the finer one's
-    border nodes between the coarser one's lay on the terrain, off the coarser one's edge (sample DEM, an oblique view:
-    209 of 815 borders open, up to 45 m), and a patch counted its stride from its own first row and column, so on a DEM
-    of no power-of-two-plus-one size the coarser one's nodes were not even among the finer one's. Patches now sample
-    the grid's multiples of their stride, the cut is balanced (neighbours at most one level apart) and the finer
-    border is moved onto the coarser edge: every border piece is shared by two patches, with one height."""
+    border nodes between the coarser one's lay on the terrain, off the coarser one's edge (this view: gaps up to 50 m
+    on the sample DEM, 2.8 m on the synthetic one), and a patch counted its stride from its own first row and column,
+    so on a DEM of no power-of-two-plus-one size the coarser one's nodes were not even among the finer one's. Patches
+    now sample the grid's multiples of their stride, the cut is balanced (neighbours at most one level apart) and the
+    finer border is moved onto the coarser edge: every border piece is shared by two patches, with one height."""
     import dataclasses
 
     from stepterrain import sample_dem
-    from stepterrain.texture_lod import paint_with_textures
+    from stepterrain.texture_lod import _geometric_error_in, _in_view, paint_with_textures
 
     if case == "sample_dem":
         terrain, leaf_size, gamma_user = sample_dem(), 32, 1.0  # 643 x 1197
@@ -1634,6 +1634,16 @@ def test_patches_drawn_at_different_levels_meet_without_cracks(case):
                 assert item.geometry.depth - seam.depth == 1
                 span, own = (seam.cols, item.geometry.cols) if side < 2 else (seam.rows, item.geometry.rows)
                 assert span[0] <= own[0] and own[1] <= span[1]
+    for item, mesh in zip(items, meshes, strict=True):  # the stitched nodes move by the seam error counted in γ
+        col = np.rint((mesh.vertices[:, 0] - t.origin[0]) / t.spacing[0]).astype(int)
+        row = np.rint((mesh.vertices[:, 1] - t.origin[1]) / t.spacing[1]).astype(int)
+        moved = float(np.abs(mesh.vertices[:, 2] - t.heights[row, col]).max())
+        node = item.geometry
+        seam = max((node.seam_errors[k] for k, n in enumerate(item.seams) if n is not None), default=0.0)
+        assert moved == pytest.approx(seam, rel=1e-12, abs=1e-12)
+        if seam:
+            error = _geometric_error_in(node, camera, _in_view(camera, node.box), node.error + seam)
+            assert error <= gamma_user
     pieces, gap = _border_edges(meshes, t)
     outline = {key for key in pieces if (key[0][0] == key[1][0] and key[0][0] in (0, rows - 1))
                or (key[0][1] == key[1][1] and key[0][1] in (0, cols - 1))}
@@ -1644,3 +1654,30 @@ def test_patches_drawn_at_different_levels_meet_without_cracks(case):
     # unstitched, the same cut cracks: the check sees it
     _, open_gap = _border_edges(unstitched, t)
     assert open_gap > 1.0
+
+
+def test_a_patchs_seam_errors_are_the_distances_its_border_nodes_move_onto_its_parents_lines():
+    """GeometryPatch.seam_errors (s(N), counted in γ with e(N) for a stitched patch) against a reference: each border
+    node's distance to the line through the terrain at the two nearest nodes the parent draws on that border (the
+    grid's multiples of twice the stride and the parent's ends)."""
+    yy, xx = np.mgrid[0:45, 0:38]
+    heights = 30 * np.sin(xx / 4.0) * np.cos(yy / 6.0) + np.random.default_rng(5).normal(0, 1.0, xx.shape)
+    quadtree = PatchQuadtree(heights, leaf_size=4)
+    heights = quadtree.terrain.heights.astype(np.float64)  # as stored (float32)
+    checked = 0
+    for patch in quadtree.patches():
+        if patch.parent is None:
+            assert patch.seam_errors == (0.0, 0.0, 0.0, 0.0)
+            continue
+        parent = patch.parent
+        for side in range(4):
+            if side < 2:
+                line, own, span = heights[patch.rows[side], :], patch.cols, parent.cols
+            else:
+                line, own, span = heights[:, patch.cols[side - 2]], patch.rows, parent.rows
+            nodes = sorted({own[0], own[1], *(k for k in range(own[0], own[1] + 1) if k % patch.stride == 0)})
+            coarse = sorted({span[0], span[1], *(k for k in range(span[0], span[1] + 1) if k % parent.stride == 0)})
+            expected = max(abs(line[k] - np.interp(k, coarse, line[coarse])) for k in nodes)
+            assert patch.seam_errors[side] == pytest.approx(expected, rel=1e-9, abs=1e-9)
+            checked += expected > 0
+    assert checked > 20
