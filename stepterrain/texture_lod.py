@@ -1222,7 +1222,9 @@ class GeometryPatch:
     vertical distance between the terrain and that approximation (the triangles :func:`paint_with_textures` draws;
     where a nodata node leaves terrain with data undrawn, or a void is drawn over, at least the coarse cell's
     diagonal); ``box`` B(N) =
-    (min xyz, max xyz)."""
+    (min xyz, max xyz); ``seam_errors`` s(N) per side (first row, last row, first column, last column): the
+    largest vertical distance :func:`paint_with_textures` moves that border's nodes by when a patch one level coarser
+    is drawn across it (the drawn mesh then lies within e(N) + that of the terrain)."""
 
     domain: Extent
     rows: tuple[int, int]
@@ -1233,10 +1235,23 @@ class GeometryPatch:
     box: NDArray[np.float64]
     parent: GeometryPatch | None = None
     children: list[GeometryPatch] = field(default_factory=list)
+    heights: NDArray[Any] | None = field(default=None, repr=False)  # the terrain's, for seam_errors
 
     @property
     def is_leaf(self) -> bool:
         return not self.children
+
+    @property
+    def seam_errors(self) -> tuple[float, ...]:
+        """s(N) per side (see the class), measured on first use (only stitched patches need it)."""
+        found = self.__dict__.get("_seam_errors")
+        if found is None:
+            parent = self.parent
+            found = (0.0, 0.0, 0.0, 0.0) if parent is None or self.heights is None else tuple(
+                _seam_error(self.heights, self, side, parent.cols if side < 2 else parent.rows, parent.stride)
+                for side in range(4))
+            self.__dict__["_seam_errors"] = found
+        return found
 
 
 class PatchQuadtree:
@@ -1260,21 +1275,23 @@ class PatchQuadtree:
         self._measure(self.patches())
 
     def _measure(self, patches: list[GeometryPatch]) -> None:
-        """Sets each patch's e(N): the patches of one shape and stride measured together (:func:`_approximation_errors`;
-        a split's halves take at most two shapes per level)."""
+        """Sets each patch's e(N): the patches of one shape, stride and sample pattern (their corner modulo the
+        stride) measured together (:func:`_approximation_errors`)."""
         heights = self.terrain.heights
-        groups: dict[tuple[int, int, int], list[GeometryPatch]] = {}
+        groups: dict[tuple[int, int, int, int, int], list[GeometryPatch]] = {}
         for patch in patches:
             if patch.stride > 1:  # leaves: full resolution, e = 0
-                shape = (patch.rows[1] - patch.rows[0] + 1, patch.cols[1] - patch.cols[0] + 1, patch.stride)
-                groups.setdefault(shape, []).append(patch)
-        for (rows, cols, stride), group in groups.items():
+                (top, bottom), (left, right), stride = patch.rows, patch.cols, patch.stride
+                # where the sample lines (_samples: the grid's multiples of the stride) fall: the corner modulo stride
+                key = (bottom - top + 1, right - left + 1, stride, top % stride, left % stride)
+                groups.setdefault(key, []).append(patch)
+        for (rows, cols, stride, row_phase, col_phase), group in groups.items():
             r0 = np.array([p.rows[0] for p in group])[:, None, None] + np.arange(rows)[None, :, None]
             c0 = np.array([p.cols[0] for p in group])[:, None, None] + np.arange(cols)[None, None, :]
             for at in range(0, len(group), band := max(1, _ERROR_PASS_NODES // (rows * cols))):
                 z = np.asarray(heights[r0[at: at + band], c0[at: at + band]], dtype=np.float64)
-                for patch, error in zip(group[at: at + band], _approximation_errors(z, stride, self.terrain.spacing),
-                                        strict=True):
+                for patch, error in zip(group[at: at + band], _approximation_errors(
+                        z, stride, self.terrain.spacing, (row_phase, col_phase)), strict=True):
                     patch.error = float(error)
 
     def _domain(self, rows: tuple[int, int], cols: tuple[int, int]) -> Extent:
@@ -1292,7 +1309,9 @@ class PatchQuadtree:
         stride = 2 ** (self.depth - depth)
         domain = self._domain(rows, cols)
         box = np.array([[domain[0], domain[2], zmin], [domain[1], domain[3], zmax]])
-        patch = GeometryPatch(domain, rows, cols, depth, stride, 0.0, box, parent)  # error: set by _measure
+        # error: set by _measure; heights: a neighbour one level coarser spans the parent's rows or columns at its
+        # stride (seam_errors)
+        patch = GeometryPatch(domain, rows, cols, depth, stride, 0.0, box, parent, heights=t.heights)
         if depth < self.depth and (rows[1] - rows[0] > 1 or cols[1] - cols[0] > 1):
             rm = (rows[0] + rows[1]) // 2
             cm = (cols[0] + cols[1]) // 2
@@ -1311,9 +1330,22 @@ class PatchQuadtree:
         return out
 
 
-def _approximation_error(block: NDArray[np.float32], stride: int, spacing: tuple[float, float] = (1.0, 1.0)) -> float:
-    """e(N) of one patch: :func:`_approximation_errors` of a stack of one block."""
-    return float(_approximation_errors(np.asarray(block, dtype=np.float64)[None], stride, spacing)[0])
+def _samples(first: int, last: int, stride: int) -> NDArray[np.intp]:
+    """The grid lines (rows or columns) a patch over ``first``..``last`` draws at ``stride``: the multiples of the
+    stride within it (counted from the grid's first line, not the patch's) and its two ends. A patch's lines are then
+    a subset of every finer patch's along a common border (a coarse stride is a multiple of a fine one), so
+    :func:`paint_with_textures` can stitch the finer one onto the coarser one's edges; counted from the patch's own
+    first line, a DEM whose size is no power of two plus one left them apart (a child starts at its parent's middle
+    line, no multiple of its stride). Relative to ``first``, they depend on ``first % stride`` and the span alone."""
+    start = -(-first // stride) * stride
+    return np.unique(np.r_[first, np.arange(start, last + 1, stride), last]).astype(np.intp)
+
+
+def _approximation_error(block: NDArray[np.float32], stride: int, spacing: tuple[float, float] = (1.0, 1.0),
+                         corner: tuple[int, int] = (0, 0)) -> float:
+    """e(N) of one patch, ``corner`` the grid node of its block's first row and column: :func:`_approximation_errors`
+    of a stack of one block."""
+    return float(_approximation_errors(np.asarray(block, dtype=np.float64)[None], stride, spacing, corner)[0])
 
 
 #: Nodes of one pass of :func:`_approximation_errors` (a stack of patches of one shape) in
@@ -1322,12 +1354,13 @@ def _approximation_error(block: NDArray[np.float32], stride: int, spacing: tuple
 _ERROR_PASS_NODES = 1 << 21
 
 
-def _approximation_errors(z: NDArray[np.float64], stride: int,
-                          spacing: tuple[float, float] = (1.0, 1.0)) -> NDArray[np.float64]:
-    """e(N) of each of n patches of one shape, z their heights (n, rows, cols) in float64: max |h − G(N)| over the
-    block's nodes with data and where a narrow coarse cell's diagonal crosses the terrain's edges
-    (:func:`_diagonal_gaps`), h the terrain's mesh and G(N) the mesh :func:`paint_with_textures` draws (every
-    stride-th node, last row/column kept, two triangles a cell split along (r, c)-(r+1, c+1) as
+def _approximation_errors(z: NDArray[np.float64], stride: int, spacing: tuple[float, float] = (1.0, 1.0),
+                          corner: tuple[int, int] = (0, 0)) -> NDArray[np.float64]:
+    """e(N) of each of n patches of one shape and sample pattern, z their heights (n, rows, cols) in float64: max
+    |h − G(N)| over the block's nodes with data and where a narrow coarse cell's diagonal crosses the terrain's edges
+    (:func:`_diagonal_gaps`), h the terrain's mesh and G(N) the mesh :func:`paint_with_textures` draws (the block's
+    rows and columns of :func:`_samples`, ``corner`` the grid node of a block's first row and column, the same for
+    every block modulo ``stride``; two triangles a cell split along (r, c)-(r+1, c+1) as
     :func:`~stepterrain.terrain.grid_faces`; a triangle with a nodata corner is not drawn): the largest vertical
     distance between the two surfaces, which lies at one of those points.
 
@@ -1337,14 +1370,14 @@ def _approximation_errors(z: NDArray[np.float64], stride: int,
     nodata node that a drawn triangle covers (a void inside coarse cells whose corners have data, drawn over as
     ground): it counted 0, and a flat DEM with a lake of nodata drew its root, the lake covered, from any distance.
 
-    The patches of one shape share their coarse nodes, cells and crossings, so they are measured together: the same
-    elementwise arithmetic as one patch at a time, with a leading axis (measuring each patch apart cost the sample
-    DEM's leaf_size 8 build ~3 s of its 7)."""
+    The patches of one shape and sample pattern share their coarse nodes, cells and crossings, so they are measured
+    together: the same elementwise arithmetic as one patch at a time, with a leading axis (measuring each patch apart
+    cost the sample DEM's leaf_size 8 build ~3 s of its 7)."""
     n, rows, cols = z.shape
     if stride <= 1 or n == 0:
         return np.zeros(n)
-    ri = np.unique(np.r_[np.arange(0, rows, stride), rows - 1])
-    ci = np.unique(np.r_[np.arange(0, cols, stride), cols - 1])
+    ri = _samples(corner[0], corner[0] + rows - 1, stride) - corner[0]
+    ci = _samples(corner[1], corner[1] + cols - 1, stride) - corner[1]
     if len(ri) == 1 or len(ci) == 1:  # one coarse row or column: its mean per patch (a sum: kept one patch at a time)
         return np.array([float(np.nanmax(np.abs(zi - np.nanmean(zi[np.ix_(ri, ci)])))) if np.isfinite(zi).any()
                          else 0.0 for zi in z])
@@ -1429,12 +1462,12 @@ def _diagonal_gaps(z: NDArray[np.float64], ri: NDArray[np.intp], ci: NDArray[np.
 
     The two meshes differ linearly on each piece of their overlay, so the largest difference lies at a node or where a
     coarse edge crosses a terrain edge. A coarse cell's sides run along the terrain's rows and columns, and a square
-    one's diagonal along the terrain's diagonals through its nodes; but the last row and column of coarse cells are
-    narrower than the stride where the patch is no multiple of it, and their diagonals cross the terrain's rows,
-    columns and diagonals between nodes, where the surfaces may lie farther apart than at any node (Big Tujunga,
-    leaf_size 8: 820 of 21845 patches' e(N) fell short, by up to 7 m of 25.5). A crossing whose terrain triangle has
-    a nodata corner, or whose coarse diagonal is not drawn (a nodata end, or both its cell's triangles not drawn), is
-    skipped (the node rules of :func:`_approximation_errors` count those)."""
+    one's diagonal along the terrain's diagonals through its nodes; but the first and last rows and columns of coarse
+    cells are narrower than the stride where the patch's ends are no multiples of it (:func:`_samples`), and their
+    diagonals cross the terrain's rows, columns and diagonals between nodes, where the surfaces may lie farther apart
+    than at any node (Big Tujunga, leaf_size 8: 820 of 21845 patches' e(N) fell short, by up to 7 m of 25.5). A crossing
+    whose terrain triangle has a nodata corner, or whose coarse diagonal is not drawn (a nodata end, or both its cell's
+    triangles not drawn), is skipped (the node rules of :func:`_approximation_errors` count those)."""
     heights, widths = np.diff(ri), np.diff(ci)
     worst = np.zeros(len(z))
     flat = z.reshape(len(z), -1)
@@ -2085,15 +2118,17 @@ def _bounded_segment(camera: Camera, view: _InView, vector: NDArray[np.float64])
         return float(camera.focal_pixels * spread * d / ((d - half) * (d + half)))
 
 
-def _geometric_error_in(patch: GeometryPatch, camera: Camera, view: _InView) -> float:
-    """γ(N) of a patch with children (:func:`visual_geometric_error`) over its :func:`_in_view` ``view``."""
-    vertical = _bounded_segment(camera, view, np.array([0.0, 0.0, patch.error]))
+def _geometric_error_in(patch: GeometryPatch, camera: Camera, view: _InView, error: float | None = None) -> float:
+    """γ(N) of a patch with children (:func:`visual_geometric_error`) over its :func:`_in_view` ``view`` (of
+    ``error`` in place of e(N) where given)."""
+    error = patch.error if error is None else error
+    vertical = _bounded_segment(camera, view, np.array([0.0, 0.0, error]))
     offset = view.nearest - np.asarray(camera.eye, dtype=np.float64)
     depth = float(offset @ view.axes[0])
     if not depth > 0.0:  # p behind the eye (a box out of view, or around the eye): refine, as segment_pixels does
         return math.inf
     with np.errstate(over="ignore", divide="ignore"):  # a huge error, or depth² underflowing to 0: inf
-        return max(vertical, float(camera.focal_pixels * patch.error * np.linalg.norm(offset) / depth ** 2))
+        return max(vertical, float(camera.focal_pixels * error * np.linalg.norm(offset) / depth ** 2))
 
 
 def texel_pixels(geometry: GeometryPatch, texture: TexturePatch, camera: Camera) -> float:
@@ -2259,11 +2294,14 @@ class TextureCache:
 class DrawItem:
     """One ``paintWithTextures(N, T)`` call: the geometry patch, one texture patch per active layer (None while a
     layer has nothing loaded yet) and, per layer, whether hybrid shading replaces it by computed lighting
-    (§7.3: a topographic leaf texture whose texel exceeds τ_user on screen)."""
+    (§7.3: a topographic leaf texture whose texel exceeds τ_user on screen). ``seams`` names, per side of the patch
+    (its first row, last row, first column, last column of grid nodes), the coarser patch drawn across it, onto whose
+    edge :func:`paint_with_textures` moves that border's nodes (None: no coarser neighbour drawn there)."""
 
     geometry: GeometryPatch
     textures: tuple[TexturePatch | None, ...]
     lighting: tuple[bool, ...]
+    seams: tuple[GeometryPatch | None, ...] = (None, None, None, None)
 
 
 def render_with_textures(
@@ -2304,7 +2342,12 @@ def render_with_textures(
     Frustum culling with B(N); refinement while γ(N) > γ_user or τ(N, S) > τ_user; children take M's child
     texture patch, M itself where M is pruned at full resolution, and drop a layer that does not reach them
     (partial textures). Before painting, each M is reduced to its parent while τ(N, M_parent) ≤ τ_user, then
-    to its parent while its data is not loaded (requesting it).
+    to its parent while its data is not loaded (requesting it). The cut is balanced: a drawn patch with a neighbour
+    drawn more than one level finer is split too (not in the paper, whose patches leave T-junction cracks), and each
+    item names its coarser neighbours in ``seams`` for :func:`paint_with_textures` to stitch onto. A stitched patch's
+    mesh lies within e(N) + s(N) of the terrain, s(N) its largest seam error (:class:`GeometryPatch`
+    ``seam_errors``) on a stitched side; where γ of that exceeds γ_user, the coarser neighbours split too, so it holds
+    for every item whose coarser neighbours have children.
     """
     gamma_user = _threshold(gamma_user, "gamma_user")
     tau_user = _threshold(tau_user, "tau_user")
@@ -2332,15 +2375,75 @@ def render_with_textures(
              else (False,) * len(layers))
     if len(flags) != len(layers):
         raise InvalidInputError(f"hybrid needs one flag per layer ({len(layers)}); got {len(flags)}")
+    forced: set[GeometryPatch] = set()
+    views: dict[GeometryPatch, tuple[_InView, float] | None] = {}  # each patch's (view, γ), once over the passes
+    while True:  # balanced: split a drawn patch while a neighbour is drawn more than one level finer (a few passes)
+        out = _traverse(root, layers, flags, camera, gamma_user, tau_user, cache, forced, views)
+        drawn = {item.geometry for item in out}
+        seams = [_coarser_neighbours(item.geometry, root, drawn) for item in out]
+        # a leaf is not split: one coarser than its depth is a single cell (both its sides <= 1 cell), no node between
+        split = {n for item, sides in zip(out, seams, strict=True) for n in sides
+                 if n is not None and n.children and item.geometry.depth - n.depth > 1}
+        for item, sides in zip(out, seams, strict=True):  # γ of e(N) + the seam error: the coarser neighbour splits
+            node = item.geometry
+            seam = max((node.seam_errors[k] for k, n in enumerate(sides) if n is not None), default=0.0)
+            if seam > 0.0 and _geometric_error_in(node, camera, views[node][0], node.error + seam) > gamma_user:
+                split.update(n for n in sides if n is not None and n.children)
+        split -= forced
+        if not split:
+            return [DrawItem(item.geometry, item.textures, item.lighting, sides)
+                    for item, sides in zip(out, seams, strict=True)]
+        forced |= split
+
+
+def _coarser_neighbours(patch: GeometryPatch, root: GeometryPatch,
+                        drawn: set[GeometryPatch]) -> tuple[GeometryPatch | None, ...]:
+    """Per side of ``patch`` (first row, last row, first column, last column), the patch of ``drawn`` across it
+    when that one is coarser, else None. A coarser one spans the whole side (quadtree patches of one depth share their
+    rows or columns), so the cell just outside the side's middle finds it."""
+    (r0, r1), (c0, c1) = patch.rows, patch.cols
+    last_row, last_col = root.rows[1], root.cols[1]
+    probes = [(r0 - 1, (c0 + c1) // 2) if r0 > 0 and c1 > c0 else None,
+              (r1, (c0 + c1) // 2) if r1 < last_row and c1 > c0 else None,
+              ((r0 + r1) // 2, c0 - 1) if c0 > 0 and r1 > r0 else None,
+              ((r0 + r1) // 2, c1) if c1 < last_col and r1 > r0 else None]
+    out: list[GeometryPatch | None] = []
+    for probe in probes:
+        node: GeometryPatch | None = root if probe is not None else None
+        while node is not None and node not in drawn:  # down to the drawn patch holding the cell (None: culled)
+            if not node.children:
+                node = None
+                break
+            first = node.children[0]  # children: row parts x column parts, each axis split in two or kept whole
+            split_cols = first.cols[1] != node.cols[1]
+            below = first.rows[1] != node.rows[1] and probe[0] >= first.rows[1]
+            right = split_cols and probe[1] >= first.cols[1]
+            node = node.children[(2 if split_cols else 1) * below + right]
+        out.append(node if node is not None and node.depth < patch.depth else None)
+    return tuple(out)
+
+
+def _traverse(root: GeometryPatch, layers: list[TexturePatch], flags: tuple[bool, ...], camera: Camera,
+              gamma_user: float, tau_user: float, cache: TextureCache | None,
+              forced: set[GeometryPatch], views: dict[GeometryPatch, tuple[_InView, float] | None]) -> list[DrawItem]:
+    """One pass of :func:`render_with_textures`' traversal, splitting the patches of ``forced`` too (``views``: per
+    patch visited, None where culled, else its :func:`_in_view` and γ(N), filled in as they are first visited)."""
     out: list[DrawItem] = []
     stack: list[tuple[GeometryPatch, list[TexturePatch | None]]] = [(root, list(layers))]
     while stack:  # depth-first over patches (a few thousand at most), never over cells
         node, current = stack.pop()
-        if not camera.box_visible(node.box):
+        if node not in views:
+            if camera.box_visible(node.box):
+                view = _in_view(camera, node.box)  # γ's and every τ's of this patch
+                views[node] = view, (0.0 if node.is_leaf else _geometric_error_in(node, camera, view))
+            else:
+                views[node] = None
+        seen = views[node]
+        if seen is None:
             continue
-        view = _in_view(camera, node.box)  # γ's and every τ's of this patch
+        view, gamma = seen
         tau = max((_texture_error_in(m, camera, view) for m in current if m is not None), default=0.0)
-        if not node.is_leaf and (_geometric_error_in(node, camera, view) > gamma_user or tau > tau_user):
+        if not node.is_leaf and (node in forced or gamma > gamma_user or tau > tau_user):
             children = [(child, [m.child_for(child) if m is not None else None for m in current])
                         for child in node.children]
             stack.extend(reversed(children))
@@ -2382,11 +2485,13 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     face touches a NaN node and those nodes are left out). Returns a ``trimesh.Trimesh``;
     an item whose layer has no texture patch yet raises :class:`~stepterrain.errors.InvalidInputError`.
 
-    Patches are not stitched (the paper draws them as they are): where neighbours drawn at different levels meet,
-    the finer one's border nodes between the coarser one's leave T-junctions, slivers of height up to the coarser
-    patch's e(N), i.e. up to about ``gamma_user`` pixels on screen (Big Tujunga, ``leaf_size=32``, ``gamma_user=1``:
-    about 6,000 such border edges in an oblique view, the widest 0.7 px). Keep ``gamma_user`` at 1 or below where
-    they would show, or draw a skirt below each patch.
+    Patches are stitched (the paper draws them as they are): a patch samples the grid lines that are multiples of its
+    stride (:func:`_samples`), so a coarser neighbour's border nodes are among its own, and its border nodes between
+    two of them, on a side the item's ``seams`` names, are moved onto the coarser patch's edge (linear between its two
+    ends). The border of two patches drawn at different levels is then one polyline: no crack (unstitched, Big
+    Tujunga, ``leaf_size=32``, ``gamma_user=1``: about 6,000 T-junction border edges in an oblique view, gaps up to
+    0.7 px). The moved nodes leave the terrain by the patch's seam error on that side (:class:`GeometryPatch`
+    ``seam_errors``), which :func:`render_with_textures` counts in γ.
 
     Examples
     --------
@@ -2412,12 +2517,18 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     if terrain is None:
         raise InvalidInputError("paint_with_textures needs a DrawItem whose layer has a texture patch")
     (r0, r1), (c0, c1) = patch.rows, patch.cols
-    rows = np.unique(np.r_[np.arange(r0, r1 + 1, patch.stride), r1])
-    cols = np.unique(np.r_[np.arange(c0, c1 + 1, patch.stride), c1])
+    rows, cols = _samples(r0, r1, patch.stride), _samples(c0, c1, patch.stride)
     dx, dy = terrain.spacing
     jj, ii = np.meshgrid(cols, rows)
+    z = terrain.heights[np.ix_(rows, cols)].astype(np.float64)
+    edge = [(0, slice(None)), (-1, slice(None)), (slice(None), 0), (slice(None), -1)]  # first/last row/column of z
+    for side, coarse in enumerate(item.seams):  # T-junctions closed: border nodes moved onto the coarser edge
+        if coarse is not None:
+            profile, at = _border(terrain.heights, patch, side)
+            z[edge[side]] = _stitched(profile, at, coarse.cols if side < 2 else coarse.rows, coarse.stride,
+                                      z[edge[side]])
     vertices = np.column_stack([terrain.origin[0] + jj.reshape(-1) * dx, terrain.origin[1] + ii.reshape(-1) * dy,
-                                terrain.heights[np.ix_(rows, cols)].reshape(-1).astype(np.float64)])
+                                z.reshape(-1)])
     faces = grid_faces(len(rows), len(cols), flip=dx * dy < 0)
     # nodata, as heightfield_mesh: no face touches a NaN node, and the NaN nodes go (they were kept: NaN vertices in
     # the mesh, its faces spanning the void)
@@ -2433,6 +2544,40 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     else:
         texture_layer = TextureLayer("thematic", image, texture.domain)
     return drape(mesh, texture_layer)
+
+
+def _stitched(profile: NDArray[Any], at: NDArray[np.intp], span: tuple[int, int], stride: int,
+              z: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Heights ``z`` of a patch's border nodes ``at`` (grid indices along the border line, whose terrain heights are
+    ``profile``) with each node between two of the coarser neighbour's (:func:`_samples` of ``span`` at ``stride``)
+    moved onto that neighbour's edge: linear between its two ends' heights. The same arithmetic in every patch, so two
+    finer patches meeting on the coarse edge move their common corner to the same float. A node with nodata, or on an
+    edge with a nodata end (the coarse patch draws no face there), keeps its height."""
+    coarse = _samples(span[0], span[1], stride)
+    k = np.clip(np.searchsorted(coarse, at), 1, len(coarse) - 1)
+    a, b = coarse[k - 1], coarse[k]
+    between = (at > a) & (at < b)
+    za, zb = profile[a].astype(np.float64), profile[b].astype(np.float64)
+    moved = za + (zb - za) * ((at - a) / np.maximum(b - a, 1))
+    return np.where(between & np.isfinite(za) & np.isfinite(zb) & np.isfinite(z), moved, z)
+
+
+def _border(heights: NDArray[Any], patch: GeometryPatch, side: int) -> tuple[NDArray[Any], NDArray[np.intp]]:
+    """(the terrain's heights along the grid line of ``patch``'s ``side``, the patch's nodes on it), for
+    :func:`_stitched`."""
+    (r0, r1), (c0, c1) = patch.rows, patch.cols
+    if side < 2:
+        return heights[r0 if side == 0 else r1, :], _samples(c0, c1, patch.stride)
+    return heights[:, c0 if side == 2 else c1], _samples(r0, r1, patch.stride)
+
+
+def _seam_error(heights: NDArray[Any], patch: GeometryPatch, side: int, span: tuple[int, int], stride: int) -> float:
+    """The largest vertical distance :func:`_stitched` moves ``patch``'s nodes on ``side`` by onto the edges of a
+    coarser neighbour over ``span`` at ``stride`` (0 where none moves)."""
+    profile, at = _border(heights, patch, side)
+    z = profile[at].astype(np.float64)
+    moved = np.abs(_stitched(profile, at, span, stride, z) - z)
+    return float(np.nanmax(moved)) if np.isfinite(moved).any() else 0.0
 
 
 def _tree_of(item: DrawItem, layer: int) -> TextureTree | None:

@@ -1,6 +1,7 @@
 """Reference e(N) of :class:`~stepterrain.texture_lod.PatchQuadtree`: the per-patch computation the library used until
-it measured a level's patches of one shape in one pass (``_approximation_errors``), kept
-verbatim so the batched pass can be checked against it bit for bit."""
+it measured a level's patches of one shape and sample pattern in one pass (``_approximation_errors``), kept verbatim
+(as of the crack stitching, which made a patch sample the grid's multiples of its stride: the block's ``corner``) so
+the batched pass can be checked against it bit for bit."""
 
 from __future__ import annotations
 
@@ -11,12 +12,20 @@ import numpy as np
 from numpy.typing import NDArray
 
 
-def approximation_error_reference(block: NDArray[np.float32], stride: int,
-                                  spacing: tuple[float, float] = (1.0, 1.0)) -> float:
+def samples_reference(first: int, last: int, stride: int) -> NDArray[np.intp]:
+    """The grid lines a patch over ``first``..``last`` draws at ``stride``: the multiples of the stride within it
+    (counted from the grid's first line) and its two ends."""
+    start = -(-first // stride) * stride
+    return np.unique(np.r_[first, np.arange(start, last + 1, stride), last]).astype(np.intp)
+
+
+def approximation_error_reference(block: NDArray[np.float32], stride: int, spacing: tuple[float, float] = (1.0, 1.0),
+                                  corner: tuple[int, int] = (0, 0)) -> float:
     """e(N) of one patch (the library's per-patch computation before session 45): max |h − G(N)| over the block's
     nodes with data and where a narrow coarse cell's diagonal crosses the terrain's edges
     (:func:`diagonal_gap_reference`), h the terrain's mesh and G(N) the mesh :func:`paint_with_textures` draws
-    (every stride-th node, last row/column kept, two triangles a cell split along (r, c)-(r+1, c+1) as
+    (the block's rows and columns of :func:`samples_reference`, ``corner`` the grid node of its first row and column,
+    two triangles a cell split along (r, c)-(r+1, c+1) as
     :func:`~stepterrain.terrain.grid_faces`; a triangle with a nodata corner is not drawn): the largest vertical
     distance between the two surfaces, which lies at one of those points.
 
@@ -29,8 +38,8 @@ def approximation_error_reference(block: NDArray[np.float32], stride: int,
         return 0.0
     z = np.asarray(block, dtype=np.float64)
     rows, cols = z.shape
-    ri = np.unique(np.r_[np.arange(0, rows, stride), rows - 1])
-    ci = np.unique(np.r_[np.arange(0, cols, stride), cols - 1])
+    ri = samples_reference(corner[0], corner[0] + rows - 1, stride) - corner[0]
+    ci = samples_reference(corner[1], corner[1] + cols - 1, stride) - corner[1]
     coarse = z[np.ix_(ri, ci)]
     if len(ri) == 1 or len(ci) == 1:
         return float(np.nanmax(np.abs(z - np.nanmean(coarse)))) if np.isfinite(z).any() else 0.0
@@ -88,12 +97,12 @@ def diagonal_gap_reference(z: NDArray[np.float64], ri: NDArray[np.intp], ci: NDA
 
     The two meshes differ linearly on each piece of their overlay, so the largest difference lies at a node or where a
     coarse edge crosses a terrain edge. A coarse cell's sides run along the terrain's rows and columns, and a square
-    one's diagonal along the terrain's diagonals through its nodes; but the last row and column of coarse cells are
-    narrower than the stride where the patch is no multiple of it, and their diagonals cross the terrain's rows,
-    columns and diagonals between nodes, where the surfaces may lie farther apart than at any node (Big Tujunga,
-    leaf_size 8: 820 of 21845 patches' e(N) fell short, by up to 7 m of 25.5). A crossing whose terrain triangle has
-    a nodata corner, or whose coarse diagonal is not drawn (a nodata end, or both its cell's triangles not drawn), is
-    skipped (the node rules of :func:`approximation_error_reference` count those)."""
+    one's diagonal along the terrain's diagonals through its nodes; but the first and last rows and columns of coarse
+    cells are narrower than the stride where the patch's ends are no multiples of it, and their diagonals cross the
+    terrain's rows, columns and diagonals between nodes, where the surfaces may lie farther apart than at any node (Big
+    Tujunga, leaf_size 8: 820 of 21845 patches' e(N) fell short, by up to 7 m of 25.5). A crossing whose terrain
+    triangle has a nodata corner, or whose coarse diagonal is not drawn (a nodata end, or both its cell's triangles not
+    drawn), is skipped (the node rules of :func:`approximation_error_reference` count those)."""
     heights, widths = np.diff(ri), np.diff(ci)
     worst = 0.0
     for h in np.unique(heights):
@@ -123,5 +132,3 @@ def diagonal_gap_reference(z: NDArray[np.float64], ri: NDArray[np.intp], ci: NDA
             if np.isfinite(gap).any():
                 worst = max(worst, float(np.nanmax(gap)))
     return worst
-
-

@@ -16,6 +16,7 @@ import stepterrain
 from stepterrain import texture_lod
 from stepterrain.camera import Camera
 from stepterrain.errors import InvalidInputError
+from stepterrain.terrain import as_terrain
 from stepterrain.texture_lod import ImagePyramid, PatchQuadtree, TextureTree, render_with_textures
 
 from .reference_lod import approximation_error_reference
@@ -211,7 +212,13 @@ def test_a_pyramid_of_a_memmap_whose_file_was_replaced_reads_the_mapped_pixels(t
     first.close()
 
 
-def _drawn_mesh_error(block, stride, spacing):
+def _drawn_lines(first, count, stride):
+    """The block's lines (0-based) a patch whose first line is grid line ``first`` draws: the grid's multiples of the
+    stride within it and its two ends."""
+    return sorted({0, count - 1, *(k - first for k in range(first, first + count) if k % stride == 0)})
+
+
+def _drawn_mesh_error(block, stride, spacing, corner=(0, 0)):
     """e(N) by brute force: every node with data against every drawn triangle of the coarse mesh containing it
     (paint_with_textures' mesh: grid_faces' split, no triangle with a nodata corner); a node with data no triangle
     covers, or a node without data a triangle covers, counts as the coarse cell's diagonal. A leaf (stride 1) is the
@@ -219,8 +226,7 @@ def _drawn_mesh_error(block, stride, spacing):
     if stride == 1:
         return 0.0
     rows, cols = block.shape
-    ri = sorted({*range(0, rows, stride), rows - 1})
-    ci = sorted({*range(0, cols, stride), cols - 1})
+    ri, ci = _drawn_lines(corner[0], rows, stride), _drawn_lines(corner[1], cols, stride)
     triangles = []
     for k in range(len(ri) - 1):
         for m in range(len(ci) - 1):
@@ -263,7 +269,8 @@ def test_the_geometric_error_is_the_distance_to_the_drawn_mesh_near_nodata_too()
     quadtree = PatchQuadtree(heights, leaf_size=4, spacing=spacing)
     for patch in quadtree.patches():
         block = heights[patch.rows[0]: patch.rows[1] + 1, patch.cols[0]: patch.cols[1] + 1].astype(np.float64)
-        assert patch.error == pytest.approx(_drawn_mesh_error(block, patch.stride, spacing), rel=1e-9, abs=1e-9)
+        corner = patch.rows[0], patch.cols[0]
+        assert patch.error == pytest.approx(_drawn_mesh_error(block, patch.stride, spacing, corner), rel=1e-9, abs=1e-9)
     flat = np.zeros((33, 33), np.float32)
     flat[16, 16] = np.nan  # one void, on a node of the root's coarse mesh
     root = PatchQuadtree(flat, leaf_size=4).root
@@ -1472,7 +1479,9 @@ def test_a_void_the_coarse_mesh_draws_over_counts_in_the_geometric_error():
     small[10:13, 10:13] = small[3, 27] = np.nan  # drawn over by the coarser patches, a hole in the finer ones
     for patch in PatchQuadtree(small, leaf_size=4, spacing=(2.0, -1.5)).patches():
         block = small[patch.rows[0]: patch.rows[1] + 1, patch.cols[0]: patch.cols[1] + 1].astype(np.float64)
-        assert patch.error == pytest.approx(_drawn_mesh_error(block, patch.stride, (2.0, -1.5)), rel=1e-9, abs=1e-9)
+        corner = patch.rows[0], patch.cols[0]
+        expected = _drawn_mesh_error(block, patch.stride, (2.0, -1.5), corner)
+        assert patch.error == pytest.approx(expected, rel=1e-9, abs=1e-9)
 
 
 def _surface_at(block, ri, ci, points):
@@ -1489,13 +1498,12 @@ def _surface_at(block, ri, ci, points):
     return np.where(v >= u, z00 * (1 - v) + z01 * (v - u) + z11 * u, z00 * (1 - u) + z10 * (u - v) + z11 * v)
 
 
-def _overlay_error(block, stride):
+def _overlay_error(block, stride, corner=(0, 0)):
     """The largest vertical distance between the terrain's mesh and the coarse mesh over a block with data everywhere,
     exactly: their difference is linear on each piece of the two triangulations' overlay, so it is largest at a node
     or where a coarse edge crosses a fine edge (each found here by intersecting every pair of segments)."""
     rows, cols = block.shape
-    ri = sorted({*range(0, rows, stride), rows - 1})
-    ci = sorted({*range(0, cols, stride), cols - 1})
+    ri, ci = _drawn_lines(corner[0], rows, stride), _drawn_lines(corner[1], cols, stride)
 
     def edges(rs, cs):
         out = []
@@ -1539,7 +1547,8 @@ def test_the_geometric_error_includes_where_a_narrow_coarse_cells_diagonal_cross
         if patch.stride == 1:
             continue
         block = heights[patch.rows[0]: patch.rows[1] + 1, patch.cols[0]: patch.cols[1] + 1]
-        assert patch.error == pytest.approx(_overlay_error(block, patch.stride), rel=1e-9, abs=1e-9)
+        corner = patch.rows[0], patch.cols[0]
+        assert patch.error == pytest.approx(_overlay_error(block, patch.stride, corner), rel=1e-9, abs=1e-9)
         checked += 1
     assert checked > 10
     # the smallest case: one coarse cell 1 x 2, its diagonal crossing the middle column between the nodes
@@ -1551,17 +1560,23 @@ def test_the_geometric_error_includes_where_a_narrow_coarse_cells_diagonal_cross
 
 
 def _assert_errors_match_the_per_patch_reference(quadtree):
-    """Every patch's e(N) equals, bit for bit, the per-patch computation the library used before measuring the
-    patches of one shape together; returns how many patches shared a pass with another of their shape and stride."""
+    """Every patch's e(N) equals, bit for bit, the per-patch computation (sampling the grid's multiples of the stride
+    from the patch's corner) the library used before measuring the patches of one shape together; returns how many
+    patches shared a pass with another of their shape, stride and sample pattern, and how many patterns (corners
+    modulo the stride) a shape and stride took."""
     heights = quadtree.terrain.heights
-    shapes = {}
+    shapes, patterns = {}, {}
     for patch in quadtree.patches():
         block = heights[patch.rows[0]: patch.rows[1] + 1, patch.cols[0]: patch.cols[1] + 1]
-        expected = approximation_error_reference(block, patch.stride, quadtree.terrain.spacing)
+        corner = patch.rows[0], patch.cols[0]
+        expected = approximation_error_reference(block, patch.stride, quadtree.terrain.spacing, corner)
         assert patch.error == expected, (patch.rows, patch.cols, patch.stride, patch.error, expected)
-        key = (*block.shape, patch.stride)
+        phase = (corner[0] % patch.stride, corner[1] % patch.stride)
+        key = (*block.shape, patch.stride, *phase)
         shapes[key] = shapes.get(key, 0) + (patch.stride > 1)
-    return sum(n for n in shapes.values() if n > 1)
+        if patch.stride > 1:
+            patterns.setdefault((*block.shape, patch.stride), set()).add(phase)
+    return sum(n for n in shapes.values() if n > 1), max((len(p) for p in patterns.values()), default=0)
 
 
 @given(rows=hst.integers(2, 41), cols=hst.integers(2, 41), leaf_size=hst.integers(2, 5), seed=hst.integers(0, 10**6),
@@ -1570,8 +1585,9 @@ def test_patches_of_one_shape_measured_together_keep_the_per_patch_geometric_err
                                                                                   lake, pass_nodes):
     """PatchQuadtree measures e(N) of a level's patches of one shape in one pass (the per-patch computation, with
     _diagonal_gap's crossings, took the sample DEM's leaf_size 8 build from 2.7 s to 7 s): the result must be the per-
-    patch one bit for bit, on odd shapes (narrow last coarse cells), with scattered nodata and a nodata lake, whatever
-    the band of patches one pass takes."""
+    patch one bit for bit, on odd shapes (narrow first and last coarse cells; patches of one shape and stride whose
+    corners lie differently about the grid's multiples of the stride sample other lines), with scattered nodata and a
+    nodata lake, whatever the band of patches one pass takes."""
     rng = np.random.default_rng(seed)
     heights = np.cumsum(rng.normal(0.0, 3.0, (rows, cols)), axis=1) + np.cumsum(rng.normal(0.0, 3.0, (rows, 1)), 0)
     heights[rng.random((rows, cols)) < voids] = np.nan
@@ -1587,18 +1603,22 @@ def test_patches_of_one_shape_measured_together_keep_the_per_patch_geometric_err
 
 def test_the_sample_dems_patches_measured_together_keep_the_per_patch_geometric_error():
     """As above on a crop of the sample DEM no multiple of the strides (and with a nodata lake): many patches of one
-    shape share a pass."""
+    shape, stride and sample pattern share a pass, and patches of one shape and stride take several patterns."""
     heights = stepterrain.sample_dem().heights[:157, :203].astype(np.float64)
     heights[40:61, 90:118] = np.nan
-    assert _assert_errors_match_the_per_patch_reference(PatchQuadtree(heights, leaf_size=8)) > 100
-    # a stack of blocks one node tall (one coarse row: the mean's distance, kept one block at a time), and square ones
+    shared, patterns = _assert_errors_match_the_per_patch_reference(PatchQuadtree(heights, leaf_size=8))
+    assert shared > 100 and patterns > 1
+    # a stack of blocks one node tall (one coarse row: the mean's distance, kept one block at a time), and square ones,
+    # their corner on a multiple of the stride or not
     rng = np.random.default_rng(5)
     for shape, stride in (((6, 1, 23), 4), ((6, 9, 1), 2), ((5, 13, 13), 4), ((4, 9, 14), 8)):
         blocks = rng.normal(0.0, 50.0, shape)
         blocks[rng.random(shape) < 0.2] = np.nan
         blocks[0] = np.nan
-        got = texture_lod._approximation_errors(blocks, stride, (2.0, 3.0))
-        assert [float(e) for e in got] == [approximation_error_reference(b, stride, (2.0, 3.0)) for b in blocks]
+        for corner in ((0, 0), (stride + 1, 3), (5, 2 * stride - 1)):
+            got = texture_lod._approximation_errors(blocks, stride, (2.0, 3.0), corner)
+            expected = [approximation_error_reference(b, stride, (2.0, 3.0), corner) for b in blocks]
+            assert [float(e) for e in got] == expected
 
 
 def test_a_pyramid_stats_its_source_once_per_public_call_and_still_refuses_a_rewrite(tmp_path, monkeypatch):
@@ -1641,3 +1661,132 @@ def test_a_pyramid_stats_its_source_once_per_public_call_and_still_refuses_a_rew
         for call in [*calls.values(), patch.image, lambda: TextureTree(pyramid, quadtree)]:
             with pytest.raises(DataFileError, match=r"image\.npy.*changed"):
                 call()
+
+
+def _border_edges(meshes, terrain):
+    """The painted patches' border edges, each split at every border node of the other patches lying on it (a
+    T-junction), counted per piece (a pair of grid nodes), with the largest height gap between such a node and the edge
+    it splits and between two patches' heights at one border node: 0 where the patches' borders are one polyline."""
+    import trimesh
+
+    nodes, edges = {}, []
+    gap = 0.0
+    for mesh in meshes:
+        col = np.rint((mesh.vertices[:, 0] - terrain.origin[0]) / terrain.spacing[0]).astype(int)
+        row = np.rint((mesh.vertices[:, 1] - terrain.origin[1]) / terrain.spacing[1]).astype(int)
+        once = trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)  # the patch's outline
+        for a, b in mesh.edges_sorted[once]:
+            ends = [((int(row[v]), int(col[v])), float(mesh.vertices[v, 2])) for v in (a, b)]
+            edges.append(ends)
+            for node, z in ends:
+                gap = max(gap, abs(nodes.setdefault(node, z) - z))
+    on_row, on_col = {}, {}
+    for (r, c) in nodes:
+        on_row.setdefault(r, []).append(c)
+        on_col.setdefault(c, []).append(r)
+    pieces = {}
+    for ((r0, c0), z0), ((r1, c1), z1) in edges:
+        flat = r0 == r1  # along a row, else along a column
+
+        def line(k, flat=flat, r0=r0, c0=c0):
+            return (r0, k) if flat else (k, c0)
+
+        along = on_row[r0] if flat else on_col[c0]
+        s0, s1 = (c0, c1) if flat else (r0, r1)
+        if s0 > s1:
+            s0, s1, z0, z1 = s1, s0, z1, z0
+        stops = sorted({s0, s1, *(k for k in along if s0 < k < s1)})
+        for k in stops[1:-1]:
+            gap = max(gap, abs(nodes[line(k)] - (z0 + (z1 - z0) * (k - s0) / (s1 - s0))))
+        for a, b in zip(stops[:-1], stops[1:], strict=True):
+            pieces[line(a), line(b)] = pieces.get((line(a), line(b)), 0) + 1
+    return pieces, gap
+
+
+@pytest.mark.parametrize("case", ["sample_dem", "synthetic"])
+def test_patches_drawn_at_different_levels_meet_without_cracks(case):
+    """Neighbouring patches drawn at different levels left T-junction cracks along their border: the finer one's
+    border nodes between the coarser one's lay on the terrain, off the coarser one's edge (this view: gaps up to 50 m
+    on the sample DEM, 2.8 m on the synthetic one), and a patch counted its stride from its own first row and column,
+    so on a DEM of no power-of-two-plus-one size the coarser one's nodes were not even among the finer one's. Patches
+    now sample the grid's multiples of their stride, the cut is balanced (neighbours at most one level apart) and the
+    finer border is moved onto the coarser edge: every border piece is shared by two patches, with one height."""
+    import dataclasses
+
+    from stepterrain import sample_dem
+    from stepterrain.texture_lod import _geometric_error_in, _in_view, paint_with_textures
+
+    if case == "sample_dem":
+        terrain, leaf_size, gamma_user = sample_dem(), 32, 1.0  # 643 x 1197
+    else:  # 101 x 77, no power of two plus one either way
+        yy, xx = np.mgrid[0:101, 0:77]
+        heights = 40 * np.sin(xx / 9.0) * np.cos(yy / 13.0) + np.random.default_rng(3).normal(0, 0.5, xx.shape)
+        terrain, leaf_size, gamma_user = as_terrain(heights, spacing=(10.0, -10.0)), 4, 2.0
+    quadtree = PatchQuadtree(terrain, leaf_size=leaf_size)
+    t = quadtree.terrain
+    x0, x1, y0, y1 = quadtree.root.domain
+    camera = Camera((x0 - 1.5 * (x1 - x0), (y0 + y1) / 2, quadtree.root.box[1, 2] + 0.5 * (x1 - x0)),
+                    ((x0 + x1) / 2, (y0 + y1) / 2, quadtree.root.box[0, 2]), viewport=(640, 480))
+    with ImagePyramid.build(np.full((64, 64, 3), 90, np.uint8), extent=quadtree.root.domain) as pyramid:
+        tree = TextureTree(pyramid, quadtree, max_texture_size=16)
+        items = render_with_textures(quadtree.root, [tree.root], camera, gamma_user=gamma_user, tau_user=1e9)
+        meshes = [paint_with_textures(item) for item in items]
+        unstitched = [paint_with_textures(dataclasses.replace(item, seams=(None,) * 4)) for item in items]
+    assert len({item.geometry.depth for item in items}) >= 2  # a cut of mixed levels
+    assert sum(seam is not None for item in items for seam in item.seams) > 5
+    area = sum(float(np.prod(np.ptp(m.vertices[:, :2], axis=0))) for m in meshes)
+    assert area == pytest.approx((x1 - x0) * (y1 - y0), rel=1e-9)  # every patch in view: no border to a culled one
+    rows, cols = t.heights.shape
+    for item in items:  # balanced: a coarser neighbour is one level coarser, and covers the whole side
+        for side, seam in enumerate(item.seams):
+            if seam is not None:
+                assert item.geometry.depth - seam.depth == 1
+                span, own = (seam.cols, item.geometry.cols) if side < 2 else (seam.rows, item.geometry.rows)
+                assert span[0] <= own[0] and own[1] <= span[1]
+    for item, mesh in zip(items, meshes, strict=True):  # the stitched nodes move by the seam error counted in γ
+        col = np.rint((mesh.vertices[:, 0] - t.origin[0]) / t.spacing[0]).astype(int)
+        row = np.rint((mesh.vertices[:, 1] - t.origin[1]) / t.spacing[1]).astype(int)
+        moved = float(np.abs(mesh.vertices[:, 2] - t.heights[row, col]).max())
+        node = item.geometry
+        seam = max((node.seam_errors[k] for k, n in enumerate(item.seams) if n is not None), default=0.0)
+        assert moved == pytest.approx(seam, rel=1e-12, abs=1e-12)
+        if seam:
+            error = _geometric_error_in(node, camera, _in_view(camera, node.box), node.error + seam)
+            assert error <= gamma_user
+    pieces, gap = _border_edges(meshes, t)
+    outline = {key for key in pieces if (key[0][0] == key[1][0] and key[0][0] in (0, rows - 1))
+               or (key[0][1] == key[1][1] and key[0][1] in (0, cols - 1))}
+    assert gap <= 1e-9 * float(np.abs(t.heights).max())
+    assert all(count == (1 if key in outline else 2) for key, count in pieces.items())  # watertight inside
+    length = sum(abs(b[0] - a[0]) + abs(b[1] - a[1]) for a, b in outline)
+    assert length == 2 * ((rows - 1) + (cols - 1))  # the outline whole, once
+    # unstitched, the same cut cracks: the check sees it
+    _, open_gap = _border_edges(unstitched, t)
+    assert open_gap > 1.0
+
+
+def test_a_patchs_seam_errors_are_the_distances_its_border_nodes_move_onto_its_parents_lines():
+    """GeometryPatch.seam_errors (s(N), counted in γ with e(N) for a stitched patch) against a reference: each border
+    node's distance to the line through the terrain at the two nearest nodes the parent draws on that border (the
+    grid's multiples of twice the stride and the parent's ends)."""
+    yy, xx = np.mgrid[0:45, 0:38]
+    heights = 30 * np.sin(xx / 4.0) * np.cos(yy / 6.0) + np.random.default_rng(5).normal(0, 1.0, xx.shape)
+    quadtree = PatchQuadtree(heights, leaf_size=4)
+    heights = quadtree.terrain.heights.astype(np.float64)  # as stored (float32)
+    checked = 0
+    for patch in quadtree.patches():
+        if patch.parent is None:
+            assert patch.seam_errors == (0.0, 0.0, 0.0, 0.0)
+            continue
+        parent = patch.parent
+        for side in range(4):
+            if side < 2:
+                line, own, span = heights[patch.rows[side], :], patch.cols, parent.cols
+            else:
+                line, own, span = heights[:, patch.cols[side - 2]], patch.rows, parent.rows
+            nodes = sorted({own[0], own[1], *(k for k in range(own[0], own[1] + 1) if k % patch.stride == 0)})
+            coarse = sorted({span[0], span[1], *(k for k in range(span[0], span[1] + 1) if k % parent.stride == 0)})
+            expected = max(abs(line[k] - np.interp(k, coarse, line[coarse])) for k in nodes)
+            assert patch.seam_errors[side] == pytest.approx(expected, rel=1e-9, abs=1e-9)
+            checked += expected > 0
+    assert checked > 20
