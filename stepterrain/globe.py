@@ -1311,7 +1311,20 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
                 "refined without its neighbour and left a mesh node without a vertex; a user metric must not grow "
                 "as the bounding spheres shrink (decide by the whole sphere, points and bounding_radius)"
             )
-        _check_conforming(host_copy(leaves), grid.cells, faces, users)
+        # the refined triangle that owns the new node emits its vertex: the check above passes, and its coarser
+        # neighbour across the hypotenuse keeps that edge whole, a hanging node (a crack) returned without a word
+        hanging = wp.zeros(1, dtype=wp.int32, device=device)
+        launch_chunked(cube_kernels.count_hanging_edges, n_leaves, [grid.cells, grid.planar, leaves, vertex_id],
+                       [hanging], device, atomics=True)
+        split_edges = int(hanging.numpy()[0])
+        if split_edges:
+            names = ", ".join(repr(getattr(fn, "__name__", fn)) for fn in users)
+            edges = counted(split_edges, "edge", grouped=True)
+            raise InvalidInputError(
+                f"user metric {names} is not saturated: it grows from a node to its children somewhere, so a triangle "
+                f"refined without its neighbour: a hanging node (a crack) on {edges} of the mesh; a user metric must "
+                "not grow as the bounding spheres shrink (decide by the whole sphere, points and bounding_radius)"
+            )
     if culled:  # drop the vertices no face uses any more
         used = count_buffer("globe.used", n_vertices, device)
         used.zero_()  # the flags and count_buffer's final 0
@@ -1365,44 +1378,6 @@ def _split_faces(mesh: trimesh.Trimesh, n: int, cells: int) -> list[trimesh.Trim
         out.append(trimesh.Trimesh(mesh.vertices[used], local.reshape(-1, 3), process=False, visual=visual,
                                    metadata=metadata, face_attributes={"cube_face": cube_face[cube_face == f]}))
     return out
-
-
-def _check_conforming(leaves: NDArray[np.int32], cells: int, faces: int, users: list[UserMetric]) -> None:
-    """Refuse the leaves (face, packed corners a, b, c) of a refinement steered by a user metric unless they tile
-    the sphere (six faces) or the padded square (one) without a hanging node: every edge inside shared by two
-    leaves. A user metric that grows from a node to its children refines a triangle whose neighbour across the
-    hypotenuse stays coarser; when the refined one owns the new node its vertex is emitted (the unwritten-vertex
-    check above misses it) and the mesh had a T-junction, a crack, without a word (a random half-space metric on
-    a 33 x 33 grid: 10 meshes of 200, on the sample globe 1)."""
-    if not len(leaves):
-        return
-    leaves = leaves.astype(np.int64)
-    corners = leaves[:, 1:4]
-    i, j = corners >> 16, corners & 65535
-    if faces == 1:  # the square [0, cells]²: an edge along its border is used once
-        keys = i * (cells + 1) + j
-    else:  # the node's integer cube point: one key for the copies of a seam node on two or three faces
-        frames = np.array([[_axis(c) for c in frame] for frame in cube_kernels.FACE_FRAMES])  # (6, 3, 3)
-        local = np.stack([2 * j - cells, 2 * i - cells, np.full_like(i, cells)], axis=-1)  # (L, 3, 3)
-        points = np.einsum("lck,lkd->lcd", local, frames[leaves[:, 0]]) + cells
-        keys = (points[..., 0] * (2 * cells + 1) + points[..., 1]) * (2 * cells + 1) + points[..., 2]
-    nodes, ids = np.unique(keys.reshape(-1), return_inverse=True)
-    ids = ids.reshape(-1, 3)
-    ends = np.sort(np.concatenate([ids[:, [0, 1]], ids[:, [1, 2]], ids[:, [2, 0]]]), axis=1)
-    edge, count = np.unique(ends[:, 0] * len(nodes) + ends[:, 1], return_counts=True)
-    once = edge[count == 1]
-    if faces == 1 and len(once):  # those along the square's border are its edge, not a crack
-        a, b = nodes[once // len(nodes)], nodes[once % len(nodes)]
-        ai, aj, bi, bj = a // (cells + 1), a % (cells + 1), b // (cells + 1), b % (cells + 1)
-        border = ((ai == bi) & ((ai == 0) | (ai == cells))) | ((aj == bj) & ((aj == 0) | (aj == cells)))
-        once = once[~border]
-    if len(once):
-        names = ", ".join(repr(getattr(fn, "__name__", fn)) for fn in users)
-        raise InvalidInputError(
-            f"user metric {names} is not saturated: it grows from a node to its children somewhere, so a triangle "
-            f"refined without its neighbour and left {len(once):,} edges with a hanging node (cracks); a user metric "
-            "must not grow as the bounding spheres shrink (decide by the whole sphere, points and bounding_radius)"
-        )
 
 
 def _cube_points(entry: NDArray[np.int64], n: int, cells: int) -> NDArray[np.int64]:
