@@ -2487,3 +2487,22 @@ def test_drape_texture_checks_the_mesh_it_makes(monkeypatch):
             drape_texture(mesh, image)
     finally:
         st.set_memory_budget(previous)
+
+
+@pytest.mark.parametrize("bounds", ["cone", "sphere"])
+def test_the_distance_metric_is_scale_free_up_to_the_ends_of_float64(bounds):
+    """μ = e · (ℓ / d)² > ε depends on ℓ² / ε alone: ℓ = 1e200 with ε = 1e300 is ℓ = 1 with ε = 1e-100, and ℓ = 1e160
+    with ε = 1 is ℓ = 1e10 with ε = 1e-300. Globe.mesh returned the 12 roots for the large pair (the spheres stood
+    μ = 1e300 in for the eye inside a shape, no more than ε; the cones' μ · ℓ² overflowed, inf <= inf), 754 and 812
+    triangles for the small one on the face-size-17 sample globe."""
+    globe = Globe.sample(face_size=17, device="cpu")
+    camera = look_from(10.0, 10.0, 1e6, max_radius=globe.radius + float(globe.heights.max()))
+
+    def faces(error, scale):
+        mesh = globe.mesh(error=error, camera=camera, bounds=bounds, distance_scale=scale, cull=False)
+        return {tuple(sorted(t)) for t in np.asarray(mesh.metadata["node_entry"])[np.asarray(mesh.faces)].tolist()}
+
+    small = faces(1e-100, 1.0)
+    assert len(small) > 12
+    assert faces(1e300, 1e200) == small
+    assert faces(1.0, 1e160) == faces(1e-300, 1e10)
