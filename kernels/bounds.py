@@ -28,7 +28,7 @@ from .memory import load
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3, "fuse_fp": False})  # see kernels/__init__
 
-HUGE = wp.constant(wp.float64(1.0e300))
+FLOAT64_MAX = wp.constant(wp.float64(1.7976931348623157e308))
 
 
 @wp.struct
@@ -282,13 +282,13 @@ def refine_node(
             return 0
     if flags[1] != 0:
         d = eye_distance_sphere(p, wp.float64(r), eye)  # cones returned above, through refine_cone
-        if d > wp.float64(0.0):
+        if d > wp.float64(0.0):  # d = 0, the eye inside the shape: μ_dist = ∞, refine (mu > 0 here)
             q = distance_scale / d
             mu = mu * q * q
-        else:
-            mu = HUGE
-    if mu <= error:
-        return 0
+            if mu <= error:
+                return 0
+        # (a finite stand-in, μ = 1e300, for the eye inside was no more than an ε of 1e300 or above: the node the
+        # eye is in stayed unrefined)
     if flags[2] != 0:
         return refine_side(sphere_view_side(planes, p, wp.float64(r)))
     return 1
@@ -322,19 +322,30 @@ def refine_cone(
     alpha_sc = wp.vec2d(0.0, 1.0)
     have_unit = wp.int32(0)
     if flags[1] != 0:
-        # μ · (ℓ / d)² > ε compared as μ · ℓ² > ε · d²: no square root or division on the quick paths
+        # μ · (ℓ / d)² > ε compared as μ · ℓ² > ε · d²: no square root or division on the quick paths. An ε · d² that
+        # overflows to inf is still right (the true one exceeds every finite μ · ℓ²); a μ · ℓ² that overflows is
+        # not (inf <= inf kept every node unrefined, ℓ above ~1e154): then the quotient form, as the spheres'
         weighted = mu * distance_scale * distance_scale
-        gap = wp.max(v_len - (p_len + h), (p_len - h) - v_len)
-        if gap > wp.float64(0.0):
-            if weighted <= error * gap * gap:
-                return 0
-        far = eye - p
-        if weighted <= error * wp.dot(far, far):  # no quick accept: the exact distance
+        if weighted > FLOAT64_MAX:
             p_hat = p / p_len
             alpha_sc = sin_cos(alpha)
             have_unit = 1
             d = eye_distance_cone_unit(p_hat, p_len, h, alpha_sc, v_hat, v_len)
-            # d = 0, the eye inside the shape: μ_dist = ∞, refine (as the spheres' HUGE), also where μ · ℓ²
+            if d > wp.float64(0.0):
+                q = distance_scale / d
+                if mu * q * q <= error:
+                    return 0
+        gap = wp.max(v_len - (p_len + h), (p_len - h) - v_len)
+        if gap > wp.float64(0.0) and have_unit == 0:
+            if weighted <= error * gap * gap:
+                return 0
+        far = eye - p
+        if have_unit == 0 and weighted <= error * wp.dot(far, far):  # no quick accept: the exact distance
+            p_hat = p / p_len
+            alpha_sc = sin_cos(alpha)
+            have_unit = 1
+            d = eye_distance_cone_unit(p_hat, p_len, h, alpha_sc, v_hat, v_len)
+            # d = 0, the eye inside the shape: μ_dist = ∞, refine (as the spheres), also where μ · ℓ²
             # underflowed to 0 (ℓ below 1e-154): 0 <= ε · 0 kept the node the eye is in unrefined
             if d > wp.float64(0.0):
                 if weighted <= error * d * d:

@@ -2269,6 +2269,40 @@ def count_kept_faces(
         t += 1
 
 
+@wp.kernel
+def count_hanging_edges(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    cells: wp.int32,
+    planar: wp.int32,
+    leaves: wp.array[wp.vec4i],
+    vertex_id: wp.array[wp.int32],  # per canonical entry: its vertex, -1 for a node with none
+    # outputs
+    hanging_out: wp.array[wp.int32],  # (1,): leaf edges whose midpoint is a vertex (atomic)
+):
+    """One thread per leaf: its edges whose midpoint node has a vertex. The first node inserted inside an edge of
+    the bisection is its midpoint, so the leaves tile without a hanging node iff no leaf edge's midpoint is a vertex
+    (on the sphere, or the padded square: a midpoint on the border has its vertex only when split there too)."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    t = first
+    while t < last:
+        tri = load(leaves, t)
+        hanging = wp.int32(0)
+        for e in range(3):
+            p = unpack(tri[1 + e])
+            q = unpack(tri[1 + (e + 1) % 3])
+            si = p[0] + q[0]
+            sj = p[1] + q[1]
+            if (si & 1) == 0 and (sj & 1) == 0:
+                if load(vertex_id, node_entry(cells, planar, tri[0], si >> 1, sj >> 1)) >= 0:
+                    hanging += 1
+        if hanging > 0:
+            wp.atomic_add(hanging_out, 0, hanging)
+        t += 1
+
+
 @wp.func
 def canonical_corner_entry(cells: wp.int32, planar: wp.int32, face: wp.int32, corner: wp.int32) -> wp.int32:
     """Canonical entry of a packed corner (a seam node's one entry, see :func:`node_entry`)."""

@@ -133,7 +133,10 @@ class Camera:
                     raise InvalidInputError(f"Camera viewport must have an aspect (width / height) in [{lo:g}, "
                                             f"{hi:g}]; got {self.viewport!r}, {width / height:g}")
                 object.__setattr__(self, "aspect", width / height)
-            elif not abs(self.aspect * height - width) <= 0.5:  # agree to the pixel (replace() keeps both)
+            elif not (abs(self.aspect * height - width) <= 0.5 or (width == 1 and self.aspect * height < 1.0)):
+                # agree to the pixel (replace() keeps both); an aspect under one pixel's width (below 1/1600 at
+                # the default 800 rows) agrees with the 1-pixel width its default viewport rounds up to: replace()
+                # refused the camera it had made (adaptive_mesh's, moved by the origin: aspect 1e-4)
                 raise InvalidInputError(f"Camera aspect {self.aspect!r} disagrees with viewport {self.viewport!r}")
             object.__setattr__(self, "viewport", (width, height))
         elif self.aspect is None:

@@ -626,8 +626,9 @@ class Globe:
         metrics : names and callables
             Any of "geometric", "distance", "clip" (§7.1-§7.3), multiplied (§7.4). A callable
             ``f(points (M, 3) float64, bounding_radius (M,)) -> (M,)`` is a user metric multiplied in per level; it
-            must not grow from a node to its children (saturated), or cracks may appear (and an
-            InvalidInputError where a triangle refined without the neighbour owning its new node).
+            must not grow from a node to its children (saturated): where a triangle refined without its
+            neighbour (a hanging node, a crack) the mesh is refused with an InvalidInputError naming it (the leaves
+            of a refinement with a user metric are checked to share every inner edge).
         distance_scale : float, optional
             ℓ in metres (see ``error``); default: the eye's altitude above the sphere of radius R, at least
             one node spacing. Only with a camera and the distance metric (refused otherwise: it would change
@@ -1309,6 +1310,20 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
                 f"user metric {names} is not saturated: it grows from a node to its children somewhere, so a triangle "
                 "refined without its neighbour and left a mesh node without a vertex; a user metric must not grow "
                 "as the bounding spheres shrink (decide by the whole sphere, points and bounding_radius)"
+            )
+        # the refined triangle that owns the new node emits its vertex: the check above passes, and its coarser
+        # neighbour across the hypotenuse keeps that edge whole, a hanging node (a crack) returned without a word
+        hanging = wp.zeros(1, dtype=wp.int32, device=device)
+        launch_chunked(cube_kernels.count_hanging_edges, n_leaves, [grid.cells, grid.planar, leaves, vertex_id],
+                       [hanging], device, atomics=True)
+        split_edges = int(hanging.numpy()[0])
+        if split_edges:
+            names = ", ".join(repr(getattr(fn, "__name__", fn)) for fn in users)
+            edges = counted(split_edges, "edge", grouped=True)
+            raise InvalidInputError(
+                f"user metric {names} is not saturated: it grows from a node to its children somewhere, so a triangle "
+                f"refined without its neighbour: a hanging node (a crack) on {edges} of the mesh; a user metric must "
+                "not grow as the bounding spheres shrink (decide by the whole sphere, points and bounding_radius)"
             )
     if culled:  # drop the vertices no face uses any more
         used = count_buffer("globe.used", n_vertices, device)

@@ -112,6 +112,28 @@ def test_camera_survives_dataclasses_replace():
     assert moved.aspect == cam.aspect and moved.viewport == cam.viewport == (1067, 800)
 
 
+@pytest.mark.parametrize("aspect", [1e-6, 1e-4, 6e-4])
+def test_a_camera_narrower_than_one_pixel_survives_replace_and_adaptive_mesh(aspect):
+    """An aspect in range but under one pixel's width at 800 rows (below 1/1600): the default viewport rounds its
+    width up to 1 pixel, and the agreement check (to half a pixel) refused that viewport with its own aspect:
+    dataclasses.replace raised "Camera aspect 0.0001 disagrees with viewport (1, 800)", and so did adaptive_mesh
+    (which moves the camera by the origin) for any such camera."""
+    import dataclasses
+
+    from stepterrain.camera import Camera
+    from stepterrain.globe import adaptive_mesh
+
+    cam = Camera((1.0, 1.0, 10.0), (1.0, 1.0, 0.0), up=(0.0, 1.0, 0.0), aspect=aspect)
+    assert cam.viewport == (1, 800)
+    moved = dataclasses.replace(cam, eye=(1.0, 1.0, 11.0))
+    assert moved.aspect == aspect and moved.viewport == (1, 800)
+    assert Camera((1.0, 1.0, 10.0), (1.0, 1.0, 0.0), up=(0.0, 1.0, 0.0), aspect=aspect, viewport=(1, 800)) == cam
+    mesh = adaptive_mesh(np.zeros((3, 3)), error=0.1, camera=cam, cull=False, device="cpu")
+    assert len(mesh.faces) == 2  # a plane: the two roots
+    with pytest.raises(st.InvalidInputError, match="disagrees"):  # a 2-pixel width is still not that aspect
+        Camera((1.0, 1.0, 10.0), (1.0, 1.0, 0.0), up=(0.0, 1.0, 0.0), aspect=aspect, viewport=(2, 800))
+
+
 def test_camera_vectors_too_short_for_float64_are_named():
     """eye (1e-200, 0, 0) and target at the origin differ, but |target - eye| squares to 0: the camera said
     'eye and target must differ; both are (1e-200, 0, 0)'; an up of length 1e-300 was called zero or parallel."""

@@ -340,7 +340,7 @@ def test_property_camera_frustum_corners_lie_on_their_planes_and_project_to_the_
 @pytest.mark.parametrize("cone", [0, 1])
 def test_a_shape_holding_the_eye_refines_whatever_the_distance_scale(cone, scale):
     """§7.2: d(v, B) = 0 with the eye inside the shape, μ_dist = 1 / d² = ∞: the node refines whenever μ_geo > 0, as
-    the spheres' HUGE makes it. The cones compared μ · ℓ² <= ε · d² and kept the node unrefined once μ · ℓ² underflowed
+    the spheres refine it. The cones compared μ · ℓ² <= ε · d² and kept the node unrefined once μ · ℓ² underflowed
     to 0 (ℓ below about 1e-162 here, a positive distance_scale that Globe.mesh takes): 0 <= ε · 0. A node beside the
     eye, 9000 km from it, stays unrefined (ℓ <= 1 m), as the paper's metric has it (μ_dist = (ℓ / d)² ≈ 0)."""
     eye = np.array([0.0, 0.0, R + 1.0])
@@ -350,3 +350,24 @@ def test_a_shape_holding_the_eye_refines_whatever_the_distance_scale(cone, scale
     got = _refine(eye, np.zeros((0, 4)), (1, 1, 0, cone), scale, 1e-3, errors, centres, params)
     assert got[0] == 1, f"the {'cone' if cone else 'sphere'} holding the eye did not refine at distance_scale {scale}"
     assert got[1] == 0  # μ = 5 (ℓ / 9e6 m)² <= 1e-3
+
+
+@pytest.mark.parametrize("cone", [0, 1])
+@pytest.mark.parametrize(("scale", "error"), [(1.0, 1e300), (1e160, 1.0), (1e200, 1e300), (1e155, 1e300)])
+def test_huge_errors_and_distance_scales_decide_by_the_exact_metric(cone, scale, error):
+    """μ = e · (ℓ / d)² > ε at the ends of float64. The spheres stood μ = 1e300 in for the eye inside the shape (μ_dist
+    = ∞), so an ε of 1e300 or more kept the node the eye is in unrefined (Globe.mesh returned the 12 roots); the
+    cones compared μ · ℓ² <= ε · d², which overflowed to inf <= inf for ℓ above ~1e154 and kept every node unrefined
+    (the reference visit refines 754 triangles of the face-size-17 sample globe at ℓ = 1e160, ε = 1). Both decide
+    as the exact metric now: the shape holding the eye refines whatever ε, a shape 9000 km off refines when
+    5 · (ℓ / 9e6 m)² > ε (an overflow to inf included) and not otherwise."""
+    eye = np.array([0.0, 0.0, R + 1.0])
+    centres = np.array([[0.0, 0.0, R], [R, 0.0, 0.0]], dtype=np.float32)  # the eye 1 m above the first; far from both
+    params = np.array([[100.0, 100.0, 1e-3]] * 2, dtype=np.float32)  # (r, h, α): the first shape holds the eye
+    errors = np.array([5.0, 5.0], dtype=np.float32)
+    got = _refine(eye, np.zeros((0, 4)), (1, 1, 0, cone), scale, error, errors, centres, params)
+    d = math.dist(eye, centres[1].astype(np.float64)) - (100.0 if not cone else 0.0)  # about 9e6 m either way
+    with np.errstate(over="ignore"):
+        far = np.float64(5.0) * np.float64(scale / d) ** 2 > error
+    assert got[0] == 1, f"the {'cone' if cone else 'sphere'} holding the eye did not refine at ε {error:g}"
+    assert got[1] == int(far)

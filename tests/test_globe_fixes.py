@@ -838,6 +838,52 @@ def test_a_user_metric_that_is_not_saturated_is_refused_not_meshed_on_unwritten_
     assert (mesh.area_faces * mesh.face_normals[:, 2]).sum() == pytest.approx(69 * 89 * 900.0, rel=1e-9)
 
 
+def test_a_user_metric_that_is_not_saturated_is_refused_where_its_crack_had_every_vertex(monkeypatch):
+    """The unwritten-vertex check above catches a refined triangle whose new node's vertex no triangle emits; when
+    the refined triangle itself owns that node, the vertex is emitted and its coarser neighbour across the
+    hypotenuse keeps the edge whole: a T-junction. Globe.mesh and adaptive_mesh returned such cracked meshes
+    without a word (a random half-space metric on a 33 x 33 grid: 10 meshes of 200). The leaves of a refinement
+    steered by a user metric are checked to tile the sphere / the square now, naming the metric."""
+    import stepterrain.globe as globe_module
+    from stepterrain.mesh import boundary_edges
+
+    z = np.random.default_rng(0).normal(size=(33, 33)).astype(np.float32)
+    planar_salt = np.array([-1.11, -0.29, -0.26])
+    globe_salt = np.array([0.9, 0.8, 0.0])
+
+    def planar(points, radius):  # decided at the node's point: stripes, not saturated
+        return (np.sin(points @ planar_salt) > 0) * 1e9
+
+    def on_globe(points, radius):
+        return (np.sin(points @ globe_salt * 7.3e-5) > 0) * 1e9
+
+    globe = Globe.sample(face_size=17, device="cpu")
+    with pytest.raises(InvalidInputError, match=r"^user metric 'planar' is not saturated: .*: a hanging node "
+                                                r"\(a crack\) on 1 edge of the mesh; "):
+        adaptive_mesh(z, error=1.0, metrics=("geometric", planar), device="cpu")
+    with pytest.raises(InvalidInputError, match=r"^user metric 'on_globe' is not saturated: .*: a hanging node "
+                                                r"\(a crack\) on \d+ edges of the mesh"):
+        globe.mesh(error=1.0, metrics=("geometric", on_globe))
+    # what was returned: meshes with every vertex written, and cracks (edges used once inside the square / sphere)
+    launch_chunked = globe_module.launch_chunked
+
+    def without_the_check(kernel, *args, **kwargs):
+        if kernel is not cs.count_hanging_edges:
+            launch_chunked(kernel, *args, **kwargs)
+
+    monkeypatch.setattr(globe_module, "launch_chunked", without_the_check)
+    cracked = globe.mesh(error=1.0, metrics=("geometric", on_globe))
+    assert np.asarray(cracked.faces).max() < len(cracked.vertices) and not cracked.is_watertight
+    flat = adaptive_mesh(z, error=1.0, metrics=("geometric", planar), device="cpu")
+    ends = np.asarray(flat.vertices)[boundary_edges(np.asarray(flat.faces)).reshape(-1)][:, :2].reshape(-1, 2, 2)
+    border = [(ends[:, 0, k] == ends[:, 1, k]) & np.isin(ends[:, 0, k], (0.0, 32.0)) for k in (0, 1)]
+    assert (~(border[0] | border[1])).sum() == 3
+    monkeypatch.undo()
+    # saturated metrics (the whole bounding sphere) still mesh, crack-free
+    closed = globe.mesh(error=1.0, metrics=("geometric", lambda p, r: (p[:, 2] + r > 0) * 1e9))
+    assert closed.is_watertight and closed.euler_number == 2
+
+
 def test_an_eye_below_every_node_is_refused_naming_the_terrain_in_its_direction():
     """An eye below the lowest node was refused naming the lowest node's height as "the surface there": 4.5 km under
     sea level beneath the 6 km mountain the message said "terrain -4000.0 m" (on the real relief, an eye 11 km under
@@ -2441,3 +2487,22 @@ def test_drape_texture_checks_the_mesh_it_makes(monkeypatch):
             drape_texture(mesh, image)
     finally:
         st.set_memory_budget(previous)
+
+
+@pytest.mark.parametrize("bounds", ["cone", "sphere"])
+def test_the_distance_metric_is_scale_free_up_to_the_ends_of_float64(bounds):
+    """μ = e · (ℓ / d)² > ε depends on ℓ² / ε alone: ℓ = 1e200 with ε = 1e300 is ℓ = 1 with ε = 1e-100, and ℓ = 1e160
+    with ε = 1 is ℓ = 1e10 with ε = 1e-300. Globe.mesh returned the 12 roots for the large pair (the spheres stood
+    μ = 1e300 in for the eye inside a shape, no more than ε; the cones' μ · ℓ² overflowed, inf <= inf), 754 and 812
+    triangles for the small one on the face-size-17 sample globe."""
+    globe = Globe.sample(face_size=17, device="cpu")
+    camera = look_from(10.0, 10.0, 1e6, max_radius=globe.radius + float(globe.heights.max()))
+
+    def faces(error, scale):
+        mesh = globe.mesh(error=error, camera=camera, bounds=bounds, distance_scale=scale, cull=False)
+        return {tuple(sorted(t)) for t in np.asarray(mesh.metadata["node_entry"])[np.asarray(mesh.faces)].tolist()}
+
+    small = faces(1e-100, 1.0)
+    assert len(small) > 12
+    assert faces(1e300, 1e200) == small
+    assert faces(1.0, 1e160) == faces(1e-300, 1e10)

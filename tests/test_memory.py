@@ -223,8 +223,12 @@ def test_globe_kernels_stay_in_range_in_debug_mode():
             meshes += [g.mesh(error=20000.0), g.mesh(error=3000.0, camera=camera),
                        g.mesh(error=3000.0, camera=camera, bounds="sphere"),
                        g.mesh(error=3000.0, camera=camera, cull=False)]
-        meshes += [*g.mesh(error=8000.0, per_face=True),
-                   adaptive_mesh(np.load(sys.argv[3]), error=5.0, spacing=30.0, device="cpu")]
+        flat = lambda p, r: np.ones(len(p))  # a user metric: the hanging-node check (count_hanging_edges) runs
+        meshes += [*g.mesh(error=8000.0, per_face=True), g.mesh(error=3000.0, camera=camera, metrics=(
+                       "geometric", "distance", "clip", flat)),
+                   adaptive_mesh(np.load(sys.argv[3]), error=5.0, spacing=30.0, device="cpu"),
+                   adaptive_mesh(np.load(sys.argv[3])[:50, :61], error=5.0, spacing=30.0, metrics=("geometric", flat),
+                                 device="cpu")]
         np.savez(sys.argv[1], *[np.concatenate([m.vertices.ravel(), m.faces.ravel()]) for m in meshes])
     """
     with tempfile.TemporaryDirectory() as tmp:
