@@ -2491,7 +2491,15 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     ends). The border of two patches drawn at different levels is then one polyline: no crack (unstitched, Big
     Tujunga, ``leaf_size=32``, ``gamma_user=1``: about 6,000 T-junction border edges in an oblique view, gaps up to
     0.7 px). The moved nodes leave the terrain by the patch's seam error on that side (:class:`GeometryPatch`
-    ``seam_errors``), which :func:`render_with_textures` counts in γ.
+    ``seam_errors``), which :func:`render_with_textures` counts in γ. An entry of ``seams`` that is not None nor a
+    coarser patch of the same quadtree drawn across that side (its last row or column on the side's line, spanning
+    the side), or ``seams`` of other than 4 entries, raises :class:`~stepterrain.errors.InvalidInputError`.
+
+    The closure is geometric, not topological: each item paints a mesh of its own (its own texture patch's image and
+    UVs: separate objects, no shared vertex array), and the coarser patch's border stays one edge where the finer one
+    has its in-between nodes on it (a T-junction; welded by position, the coarse edge and the finer pieces are used
+    once each), so a rasterizer may still drop single pixels along it. Splitting the coarse edge there would need
+    each item's finer neighbours, which ``seams`` (the coarser ones) does not name.
 
     Examples
     --------
@@ -2516,13 +2524,14 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     terrain = tree.quadtree.terrain if tree is not None else None
     if terrain is None:
         raise InvalidInputError("paint_with_textures needs a DrawItem whose layer has a texture patch")
+    seams = _checked_seams(item)
     (r0, r1), (c0, c1) = patch.rows, patch.cols
     rows, cols = _samples(r0, r1, patch.stride), _samples(c0, c1, patch.stride)
     dx, dy = terrain.spacing
     jj, ii = np.meshgrid(cols, rows)
     z = terrain.heights[np.ix_(rows, cols)].astype(np.float64)
     edge = [(0, slice(None)), (-1, slice(None)), (slice(None), 0), (slice(None), -1)]  # first/last row/column of z
-    for side, coarse in enumerate(item.seams):  # T-junctions closed: border nodes moved onto the coarser edge
+    for side, coarse in enumerate(seams):  # T-junctions closed: border nodes moved onto the coarser edge
         if coarse is not None:
             profile, at = _border(terrain.heights, patch, side)
             z[edge[side]] = _stitched(profile, at, coarse.cols if side < 2 else coarse.rows, coarse.stride,
@@ -2544,6 +2553,53 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     else:
         texture_layer = TextureLayer("thematic", image, texture.domain)
     return drape(mesh, texture_layer)
+
+
+_SIDES = ("first row", "last row", "first column", "last column")
+
+
+def _checked_seams(item: DrawItem) -> tuple[GeometryPatch | None, ...]:
+    """``item.seams``, each entry None or a coarser patch of the item's quadtree drawn across that side (its last row
+    or column the side's line, its columns or rows spanning the side's), else an InvalidInputError naming it: a fifth
+    entry raised a bare IndexError, a non-patch an AttributeError, and a patch not across the side (or not coarser)
+    was stitched onto anyway, the border moved onto its edges extrapolated past its ends."""
+    patch, seams = item.geometry, item.seams
+    if not isinstance(patch, GeometryPatch):
+        raise InvalidInputError(f"item.geometry must be a GeometryPatch; got {type(patch).__name__}")
+    if isinstance(seams, (str, bytes)) or not isinstance(seams, Sequence) or len(seams) != 4:
+        got = counted(len(seams), "entry", "entries") if isinstance(seams, Sequence) else repr(seams)
+        raise InvalidInputError("item.seams must be 4 entries (the patch's first row, last row, first column, last "
+                                f"column), each the coarser GeometryPatch drawn across that side or None; got {got}")
+    root = _root_of(patch)
+    for side, coarse in enumerate(seams):
+        if coarse is None:
+            continue
+        axis, along = ("rows", "columns") if side < 2 else ("columns", "rows")
+        line = (patch.rows + patch.cols)[side]
+        own = patch.cols if side < 2 else patch.rows
+        ends, start = "starting" if side % 2 else "ending", side % 2 == 0  # its line: the neighbour's last or first
+        if not isinstance(coarse, GeometryPatch):
+            got = type(coarse).__name__
+        elif _root_of(coarse) is not root:
+            got = "a patch of another quadtree"
+        else:
+            got = (f"a patch of depth {coarse.depth} over rows {coarse.rows[0]}-{coarse.rows[1]}, columns "
+                   f"{coarse.cols[0]}-{coarse.cols[1]}")
+            theirs = coarse.rows if side < 2 else coarse.cols
+            span = coarse.cols if side < 2 else coarse.rows
+            if coarse.depth < patch.depth and theirs[1 if start else 0] == line and span[0] <= own[0] \
+                    and own[1] <= span[1]:
+                continue
+        raise InvalidInputError(f"item.seams[{side}] must be None or a coarser patch of the item's quadtree drawn "
+                                f"across its {_SIDES[side]} (depth < {patch.depth}, its {axis} {ends} at "
+                                f"{axis[:-1]} {line}, its {along} spanning {own[0]}-{own[1]}); got {got}")
+    return tuple(seams)
+
+
+def _root_of(patch: GeometryPatch) -> GeometryPatch:
+    while patch.parent is not None:
+        patch = patch.parent
+    return patch
 
 
 def _stitched(profile: NDArray[Any], at: NDArray[np.intp], span: tuple[int, int], stride: int,

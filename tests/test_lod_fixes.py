@@ -1790,3 +1790,54 @@ def test_a_patchs_seam_errors_are_the_distances_its_border_nodes_move_onto_its_p
             assert patch.seam_errors[side] == pytest.approx(expected, rel=1e-9, abs=1e-9)
             checked += expected > 0
     assert checked > 20
+
+
+def _seam_quadtree(seed=11):
+    """A 33 x 33 node quadtree of leaf size 8 (depths 0-2), not flat, so a stitched border moves."""
+    yy, xx = np.mgrid[0:33, 0:33]
+    heights = 20 * np.sin(xx / 3.0) * np.cos(yy / 4.0) + np.random.default_rng(seed).normal(0, 1.0, xx.shape)
+    quadtree = PatchQuadtree(heights, leaf_size=8)
+    return quadtree, {(p.rows, p.cols): p for p in quadtree.patches()}
+
+
+_FINE = ((16, 24), (8, 16))  # depth 2; its first row borders the depth-1 patch over rows 0-16, columns 0-16
+
+
+@pytest.mark.parametrize("seams, match", [
+    ((None,) * 4 + (((0, 16), (0, 16)),), r"^item\.seams must be 4 entries .*; got 5 entries"),  # a bare IndexError
+    ((None,) * 3, r"^item\.seams must be 4 entries .*; got 3 entries"),  # was painted, the fourth side unstitched
+    (None, r"^item\.seams must be 4 entries .*; got None"),  # was a TypeError
+    ((5, None, None, None), r"^item\.seams\[0\] must be None or a coarser patch .*; got int"),  # an AttributeError
+    # the rest were stitched: onto edges extrapolated past the named patch's ends, or onto its lines far away
+    ((((0, 16), (16, 32)), None, None, None), r"^item\.seams\[0\] must be None or a coarser patch of the item's "
+     r"quadtree drawn across its first row \(depth < 2, its rows ending at row 16, its columns spanning 8-16\); got "
+     r"a patch of depth 1 over rows 0-16, columns 16-32"),  # coarser, across the row, but not next to it
+    ((None, ((0, 16), (0, 16)), None, None), r"^item\.seams\[1\] must be .*across its last row .*rows starting at "
+     r"row 24.*; got a patch of depth 1 over rows 0-16, columns 0-16"),  # next to another side
+    # not coarser (its neighbour at its own depth), then the root holding it
+    ((((8, 16), (8, 16)), None, None, None), r"^item\.seams\[0\] .*; got a patch of depth 2 over rows 8-16"),
+    ((((0, 32), (0, 32)), None, None, None), r"^item\.seams\[0\] .*; got a patch of depth 0 over rows 0-32"),
+    ((None, None, "other", None), r"^item\.seams\[2\] .*across its first column .*; got a patch of another quadtree"),
+])
+def test_paint_with_textures_refuses_malformed_seams(seams, match):
+    """DrawItem.seams was read unchecked: a fifth entry raised a bare IndexError, a non-patch an AttributeError, and a
+    patch not drawn across that side, or not coarser, was stitched onto anyway (the border moved onto its edges
+    extrapolated past its ends). Each is now an InvalidInputError naming item.seams, what was expected and what was
+    got; render_with_textures' own seams paint as before."""
+    from stepterrain.texture_lod import DrawItem, paint_with_textures
+
+    quadtree, by_span = _seam_quadtree()
+    other = _seam_quadtree(12)[1]
+    fine = by_span[_FINE]
+    if isinstance(seams, tuple):
+        seams = tuple(other[((8, 16), (0, 8))] if s == "other" else by_span[s] if isinstance(s, tuple) else s
+                      for s in seams)
+    with ImagePyramid.build(np.full((32, 32, 3), 90, np.uint8), extent=quadtree.root.domain) as pyramid:
+        tree = TextureTree(pyramid, quadtree, max_texture_size=16)
+        good = DrawItem(fine, (tree.root,), (False,), (by_span[(0, 16), (0, 16)], None, None,
+                                                         by_span[(16, 32), (16, 32)]))
+        stitched = paint_with_textures(good)
+        assert np.abs(stitched.vertices[:, 2] - paint_with_textures(DrawItem(fine, (tree.root,), (False,))).vertices[
+            :, 2]).max() > 0.1  # the good seams stitch
+        with pytest.raises(InvalidInputError, match=match):
+            paint_with_textures(DrawItem(fine, (tree.root,), (False,), seams))
