@@ -1222,7 +1222,10 @@ def save_image(
         file goes beside the file the link points to, and an old one beside the link is removed too. GDAL reads the
         side file beside the name it opens: such a CRS is read through the file's own name, not through the link
         (a copy beside the link would go stale once the file is written by its own name, or the link
-        pointed elsewhere, and give another image its CRS). A world file beside ``path`` (``.pgw``, ``.tfw``,
+        pointed elsewhere, and give another image its CRS). A side file name that is itself a symbolic link is
+        written through as well: the new side file replaces the file it points to and the link stays (so does one
+        beside a linked ``path`` that points to the new side file); a link to an old side file that has no
+        successor is removed, the file it points to left as it is. A world file beside ``path`` (``.pgw``, ``.tfw``,
         ``.wld``) is kept: stepterrain writes none, so it is the user's (an orthophoto re-rendered under its name).
         GDAL places a PNG or plain TIFF by it, and a GeoTIFF by its own georeferencing, which GDAL prefers.
 
@@ -1438,10 +1441,13 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
     # aside too (the new one goes beside the file the link points to alone: see save_image's crs). The old side files'
     # removal, the image and its new side file are one set (_replaced_together), in that order: a failed rename of the
     # side file put in place the new image without its CRS, and removed the old one's; now all are put back.
+    # A side file name that is itself a symbolic link is written through, as the image is (atomic_path): the old
+    # side file it names goes aside and the new one takes its place there, the link stays (the link was set aside
+    # and removed with the write, the new side file written to its target, and GDAL read the image without its CRS).
+    # The removals are staged once it is known whether there is a new side file, still before the image's rename.
     sides = _side_files_of(target)
     with _replaced_together() as together, contextlib.ExitStack() as side_file:  # (the ExitStack's exit stages the
-        _remove_side_files(together, target, sides)  # new side file after the image)
-        with atomic_path(target) as tmp:
+        with atomic_path(target) as tmp:  # new side file after the image)
             written = tmp
             try:
                 if len(os.fsencode(tmp.name + ".aux.xml")) > _NAME_MAX:
@@ -1469,6 +1475,7 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
                     side = side_file.enter_context(atomic_path(own_aux))
                     side.write_bytes(aux.read_bytes())  # (the old one's mode and owner: it is there until the set
                     # lands)
+                _remove_side_files(together, target, sides, new=sides[0] if has_aux else None)
             except DataFileError:  # (an OSError: its own words, not wrapped in another "cannot write")
                 raise
             except (OSError, rasterio.errors.RasterioError) as exc:
@@ -1505,10 +1512,22 @@ def _side_files_of(image: Path) -> list[Path]:
     return [own] if os.path.abspath(named) == os.path.abspath(own) else [own, named]
 
 
-def _remove_side_files(together: _Replacements, image: Path, sides: list[Path] | None = None) -> None:
+def _remove_side_files(together: _Replacements, image: Path, sides: list[Path] | None = None,
+                       new: Path | None = None) -> None:
     """Stage the removal of the old side files GDAL reads with ``image`` (``sides``, else :func:`_side_files_of`) in
-    ``together``, before the image's rename."""
+    ``together``, before the image's rename. ``new`` is the name the new side file is written to (through links, by
+    :func:`atomic_path`), None where there is none: a side file name that leads there through symbolic links
+    (``t.tif.aux.xml -> store/t.aux.xml``, or a link's ``l.tif.aux.xml -> t.tif.aux.xml`` beside ``l.tif -> t.tif``)
+    has the file it names set aside, to be replaced, and stays a link to the new side file. Any other side file name
+    is removed itself: a link goes, and the file it names (elsewhere, perhaps another image's) is left alone."""
+    written = None if new is None else _link_target(new)
+    staged: set[str] = set()
     for side in _side_files_of(image) if sides is None else sides:
+        if written is not None and os.path.realpath(side) == os.path.realpath(written):
+            side = written  # (the same file for both names: set aside once)
+        if str(side) in staged:
+            continue
+        staged.add(str(side))
         together.remove(side, f"cannot remove {str(side)!r}, whose metadata GDAL would read with the new "
                               f"{str(image)!r}")
 

@@ -100,3 +100,18 @@ def nodata_gradient(heights: np.ndarray, dy: float, dx: float) -> tuple[np.ndarr
                 elif not math.isnan(before):
                     out[axis, i, j] = (h[i, j] - before) / step
     return out[0], out[1]
+
+
+def drawn_min_height(heights: np.ndarray) -> float:
+    """The close-up's pivot height: the lowest height of a grid node on a drawn triangle, one whose three corners
+    have finite heights; each cell (i, j) cut into (n00, n01, n11) and (n00, n11, n10). A finite node on no such
+    triangle is in no mesh. Where no triangle is drawn, the lowest finite height."""
+    h = np.asarray(heights, dtype=np.float64)
+    rows, cols = h.shape
+    index = np.arange(rows * cols).reshape(rows, cols)
+    n00, n01 = index[:-1, :-1].ravel(), index[:-1, 1:].ravel()
+    n11, n10 = index[1:, 1:].ravel(), index[1:, :-1].ravel()
+    triangles = np.concatenate([np.stack([n00, n01, n11], axis=1), np.stack([n00, n11, n10], axis=1)])
+    flat = h.ravel()
+    drawn = triangles[np.isfinite(flat[triangles]).all(axis=1)]
+    return float(flat[np.unique(drawn)].min()) if len(drawn) else float(np.nanmin(h))

@@ -28,7 +28,14 @@ from stepterrain.errors import InvalidInputError, OutputTooLargeError
 from stepterrain.terrain import Terrain, heightfield_mesh
 
 from .conftest import assert_valid_mesh, real_dem
-from .reference_closeup import bilinear_mask, close_up_matrix, culled_faces, surface_heights, transform
+from .reference_closeup import (
+    bilinear_mask,
+    close_up_matrix,
+    culled_faces,
+    drawn_min_height,
+    surface_heights,
+    transform,
+)
 
 
 def hills(rows: int = 33, cols: int = 41, seed: int = 0) -> np.ndarray:
@@ -39,11 +46,13 @@ def hills(rows: int = 33, cols: int = 41, seed: int = 0) -> np.ndarray:
 
 
 def reference_layer(terrain: Terrain, cu: CloseUp):
-    """Whole-mesh NumPy reference: m, V_C, the culled face indices and the mesh."""
+    """Whole-mesh NumPy reference: m, V_C, the culled face indices and the mesh. The transform pivots at the lowest
+    height of a node on a drawn triangle (:func:`drawn_min_height`), not of every finite node: a grid's."""
+    assert terrain.kind == "grid"
     mesh = terrain.mesh()
     v = np.asarray(mesh.vertices, dtype=np.float64)
     m = bilinear_mask(cu.roi.mask.astype(np.float64), cu.roi.box, v[:, 0], v[:, 1])
-    zmin = float(np.nanmin(terrain.heights))
+    zmin = drawn_min_height(terrain.heights)
     matrix = close_up_matrix(*cu.roi.center, zmin, cu.rotation[0], cu.rotation[1], cu.scale, cu.offset)
     return m, transform(v, m, matrix), culled_faces(np.asarray(mesh.faces), m), mesh, matrix
 
@@ -367,6 +376,27 @@ def test_animate_refuses_the_options_it_sets_per_frame(name):
     cu = CloseUp(ROI.circle((27.0, 24.0), 10.0), offset=(0.0, 0.0, 40.0))
     with pytest.raises(InvalidInputError, match=rf"animate_closeups sets {name} for each frame itself .*; got {name}="):
         animate_closeups(Terrain.from_heights(hills(17, 19), spacing=(3.0, 3.0)), [cu], frames=1, **{name: 1.0})
+
+
+@pytest.mark.parametrize("lone", [(10, 10), (0, 0), (20, 20)])
+def test_with_nodata_the_closeup_pivots_at_the_lowest_drawn_node_as_the_reference(device, lone):
+    # a finite node on no triangle with three finite heights (in a hole, or a corner whose neighbours are nodata) is
+    # in no mesh: the close-up pivots at the lowest drawn node, not at that node's extreme height (the reference
+    # pivoted at nanmin of all heights, right only without nodata)
+    heights = hills(21, 21)
+    heights[8:13, 8:13] = np.nan
+    heights[0, 1] = heights[1, 0] = heights[20, 19] = heights[19, 20] = np.nan
+    heights[lone] = -500.0
+    t = Terrain.from_heights(heights, spacing=(1.5, -1.5), origin=(100.0, 200.0))
+    pivot = drawn_min_height(heights)
+    assert pivot == t.height_range[0]
+    assert pivot > float(np.nanmin(heights)) + 400
+    cus = [CloseUp(ROI.circle((115.0, 185.0), 9.0), rotation=(0.3, -0.5), scale=(1.5, 0.8, 2.0),
+                   offset=(2.0, -3.0, 40.0)),
+           CloseUp(ROI.rectangle((110.0, 190.0), (14.0, 10.0)), scale=2.0, offset=(0.0, 0.0, 25.0))]
+    for cu, layer in zip(cus, closeup_layers(t, cus, device=device), strict=True):
+        assert len(layer.faces) > 0
+        assert_matches_reference(t, cu, layer)
 
 
 def test_nodata_faces_are_never_emitted(device):

@@ -206,6 +206,97 @@ def test_a_geotiff_written_through_a_link_drops_the_stale_side_file_beside_the_l
     assert _placement(tmp_path / "l.tif") == (None, (1.0, 0.0, 0.0, 0.0, -1.0, 4.0))  # (see save_image's crs)
 
 
+def test_a_geotiffs_side_file_that_is_a_link_gets_the_new_crs_at_its_target_and_the_link_stays(tmp_path):
+    # the old side file (a link) was set aside and removed with the write, the new side file written through it to
+    # the link's target: no <image>.aux.xml was left beside the image, and GDAL read the image without its CRS
+    rasterio = pytest.importorskip("rasterio")
+    store = tmp_path / "store"
+    store.mkdir()
+    image, link = tmp_path / "t.tif", tmp_path / "t.tif.aux.xml"
+    save_image(np.zeros((4, 6, 3), np.uint8), image, extent=(0, 6, 0, 4), crs=_OB_TRAN)
+    link.rename(store / "kept.aux.xml")
+    link.symlink_to(store / "kept.aux.xml")
+    crs = _OB_TRAN.replace("o_lat_p=30", "o_lat_p=40")
+    save_image(np.ones((4, 6, 3), np.uint8), image, extent=(10, 16, 0, 4), crs=crs)
+    assert link.is_symlink() and os.readlink(link) == str(store / "kept.aux.xml")
+    assert _placement(image) == (rasterio.crs.CRS.from_user_input(crs), (1.0, 0.0, 10.0, 0.0, -1.0, 4.0))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["store", "t.tif", "t.tif.aux.xml"]
+    assert sorted(p.name for p in store.iterdir()) == ["kept.aux.xml"]  # (no temporary left)
+    fresh = tmp_path / "fresh"
+    fresh.mkdir()
+    save_image(np.ones((4, 6, 3), np.uint8), fresh / "t.tif", extent=(10, 16, 0, 4), crs=crs)
+    assert (store / "kept.aux.xml").read_bytes() == (fresh / "t.tif.aux.xml").read_bytes()
+
+
+def test_a_linked_geotiff_whose_side_file_beside_the_link_links_to_its_own_keeps_that_link(tmp_path):
+    # l.tif -> data/t.tif and l.tif.aux.xml -> data/t.tif.aux.xml: the side file beside the link was removed as a
+    # stale one, and the image read through the link lost its CRS; it names the new side file, so it stays
+    rasterio = pytest.importorskip("rasterio")
+    data = tmp_path / "data"
+    data.mkdir()
+    save_image(np.zeros((4, 6, 3), np.uint8), data / "t.tif", extent=(0, 6, 0, 4), crs=_OB_TRAN)
+    (tmp_path / "l.tif").symlink_to(data / "t.tif")
+    (tmp_path / "l.tif.aux.xml").symlink_to(data / "t.tif.aux.xml")
+    crs = _OB_TRAN.replace("o_lat_p=30", "o_lat_p=40")
+    save_image(np.ones((4, 6, 3), np.uint8), tmp_path / "l.tif", extent=(10, 16, 0, 4), crs=crs)
+    placed = (rasterio.crs.CRS.from_user_input(crs), (1.0, 0.0, 10.0, 0.0, -1.0, 4.0))
+    assert _placement(tmp_path / "l.tif") == _placement(data / "t.tif") == placed
+    assert (tmp_path / "l.tif.aux.xml").is_symlink()
+    assert sorted(p.name for p in data.iterdir()) == ["t.tif", "t.tif.aux.xml"]
+
+
+@pytest.mark.parametrize("failing", ["image", "side file"])
+def test_a_geotiff_whose_linked_side_file_cannot_be_replaced_keeps_the_old_pair_and_the_link(tmp_path, monkeypatch,
+                                                                                            failing):
+    pytest.importorskip("rasterio")
+    store, folder = tmp_path / "store", tmp_path / "f"
+    store.mkdir(), folder.mkdir()
+    image, link = folder / "t.tif", folder / "t.tif.aux.xml"
+    save_image(np.zeros((4, 6, 3), np.uint8), image, extent=(0, 6, 0, 4), crs=_OB_TRAN)
+    link.rename(store / "kept.aux.xml")
+    link.symlink_to(store / "kept.aux.xml")
+    old, old_aux = _files(folder), (store / "kept.aux.xml").read_bytes()
+    real = os.replace
+    failed = []
+
+    def replace(src, dst):  # the first rename onto the file, not the one putting the old file back
+        if not failed and os.path.basename(dst) == {"image": "t.tif", "side file": "kept.aux.xml"}[failing]:
+            failed.append(dst)
+            raise OSError(errno.EIO, "Input/output error")
+        real(src, dst)
+
+    monkeypatch.setattr(os, "replace", replace)
+    with pytest.raises(DataFileError, match="Input/output error"):
+        save_image(np.ones((4, 6, 3), np.uint8), image, extent=(10, 16, 0, 4),
+                   crs=_OB_TRAN.replace("o_lat_p=30", "o_lat_p=40"))
+    monkeypatch.undo()
+    assert failed
+    assert _files(folder) == old and link.is_symlink()
+    assert sorted(p.name for p in store.iterdir()) == ["kept.aux.xml"]
+    assert (store / "kept.aux.xml").read_bytes() == old_aux
+    assert _placement(image)[1] == (1.0, 0.0, 0.0, 0.0, -1.0, 4.0)
+
+
+@pytest.mark.parametrize("name, crs", [("i.png", None), ("i.tif", None), ("i.tif", "EPSG:32611")])
+def test_a_stale_side_file_that_is_a_link_is_unlinked_and_the_file_it_names_kept(tmp_path, name, crs):
+    # nothing is written to replace it: the link (which GDAL reads with the image) goes, and the file elsewhere it
+    # names, perhaps another image's, stays as it was
+    rasterio = pytest.importorskip("rasterio")
+    elsewhere = tmp_path / "other" / "shared.aux.xml"
+    elsewhere.parent.mkdir()
+    elsewhere.write_text(_STALE_AUX)
+    save_image(np.zeros((4, 6, 3), np.uint8), tmp_path / name)
+    (tmp_path / f"{name}.aux.xml").symlink_to(elsewhere)
+    assert _placement(tmp_path / name)[0] is not None  # (GDAL reads it)
+    extent = None if crs is None else (0, 6, 0, 4)
+    save_image(np.ones((4, 6, 3), np.uint8), tmp_path / name, extent=extent, crs=crs)
+    placed = (None, (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)) if crs is None else (rasterio.crs.CRS.from_user_input(crs),
+                                                                         (1.0, 0.0, 0.0, 0.0, -1.0, 4.0))
+    assert _placement(tmp_path / name) == placed
+    assert not os.path.lexists(tmp_path / f"{name}.aux.xml")
+    assert elsewhere.read_text() == _STALE_AUX
+
+
 @pytest.mark.parametrize("failing", ["image", "side file"])
 def test_a_geotiff_whose_side_file_cannot_be_put_in_place_keeps_the_old_image_and_side_file(tmp_path, monkeypatch,
                                                                                               failing):
