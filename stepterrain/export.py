@@ -552,8 +552,8 @@ def save_mesh(
         triangle with two corners on one float32 position, of no area, is left out: the walls of zero height of a
         solid at γ = 0, which a reader merging corners by position would fold onto their neighbours' edges),
         ``.3mf`` (exact coordinates, in the unit it declares: the one ``metadata["units"]`` names, a globe's
-        metres, print_mesh's millimetres, else millimetres: a terrain in metres is scaled for a print in the slicer;
-        vertex or face colours as a colour group: a colour 3D print keeps its tints;
+        metres, scale_for_print's millimetres, else millimetres: a terrain in metres is scaled for a print in the
+        slicer; vertex or face colours as a colour group: a colour 3D print keeps its tints;
         a triangle naming one vertex twice, of no area, is left out, as 3MF requires).
     metadata : mapping, optional
         Merged over ``mesh.metadata`` and stored in the glTF mesh ``extras`` and, as JSON, in a ``.ply``'s header
@@ -2495,9 +2495,9 @@ _3MF_UNITS: dict[str, str] = {
 
 def _3mf_unit(metadata: Mapping[str, Any]) -> str:
     """The 3MF ``unit`` of a mesh whose ``metadata["units"]`` names one (case-insensitive: a globe's "meters",
-    print_mesh's "millimeters", trimesh's of a mesh it read), else millimetre (3MF's default: a terrain in metres
-    is scaled for a print in the slicer, or by :func:`print_mesh`). Every 3MF said millimetre: a globe, in metres,
-    came out 1000 times too small."""
+    scale_for_print's "millimeters", trimesh's of a mesh it read), else millimetre (3MF's default: a terrain in
+    metres is scaled for a print in the slicer, or by :func:`scale_for_print`). Every 3MF said millimetre: a globe,
+    in metres, came out 1000 times too small."""
     units = metadata.get("units")
     return _3MF_UNITS.get(units.strip().lower(), "millimeter") if isinstance(units, str) else "millimeter"
 
