@@ -2,7 +2,7 @@
 
 Shared output room of every capability (papers 000-004): glTF/GLB (flat-shaded, metadata in ``extras``),
 OBJ (metadata in comments), PLY (metadata in header comments), STL (no metadata) and 3MF (metadata in a model
-metadata element) meshes, and PNG images.
+metadata element) meshes, and PNG and TIFF images (a GeoTIFF given an ``extent``, through rasterio).
 
     from stepterrain.export import save_mesh
     save_mesh(mesh, "out/steps.glb", metadata={"interval": 100.0})
