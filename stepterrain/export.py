@@ -838,9 +838,7 @@ def _scaled_for_print(mesh: trimesh.Trimesh, size: Any, z_scale: Any, *, copy: b
         raise InvalidInputError(f"mesh vertices must be finite to be scaled for a print; got {bad} of "
                                 f"{len(vertices)} vertices with NaN or inf")
     faces = np.asarray(mesh.faces)
-    if faces.min() < 0 or faces.max() >= len(vertices):
-        raise InvalidInputError(f"mesh faces must index its {len(vertices)} vertices (0 .. {len(vertices) - 1}); got "
-                                f"indices {faces.min()} .. {faces.max()}")
+    check_face_indices(faces, len(vertices), "mesh faces")  # the message save_mesh gives, naming the first bad face
     # the bounds of the vertices the faces use, as trimesh's bounds and a slicer see the model: a stray vertex (a
     # file's unused point) made the print smaller than size and lifted it off the origin
     used = np.zeros(len(vertices), bool)
