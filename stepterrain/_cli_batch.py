@@ -132,7 +132,7 @@ def add_parser(commands: Any) -> None:
                         "--tile cuts it (--tile then counts coarse cells; the tiles still weld), every frame, or "
                         "each file")
     p.add_argument("-o", "--output", type=_path, required=True, metavar="DIR",
-                   help="output folder (created if missing)")
+                   help="output folder (created if missing; '-', standard output, is refused: ./- names a folder '-')")
     p.add_argument("--format", default=".glb", metavar="EXT",
                    help="mesh format of every output: " + " ".join(MESH_EXTENSIONS) + " (default .glb)")
     p.add_argument("--tile", type=_tile, metavar="N|RxC",

@@ -1,4 +1,5 @@
-"""``stepterrain globe``: a view-dependent mesh of the whole earth on the cube sphere (paper 003).
+"""``stepterrain globe``: a view-dependent mesh of a global grid on the cube sphere (paper 003): the earth's relief by
+default, another body's (Mars, the Moon) on its own sphere when the INPUT's CRS names it.
 
     stepterrain globe -o out/globe.glb --png out/globe.png
     stepterrain globe --eye 46,9,400000 --tilt 60 --heading 0 --error 30 -o alps.glb --png alps.png

@@ -11,7 +11,7 @@ DEM), step it with Warp, write the mesh by extension and an off-screen render li
 Progress goes to stderr as short stage lines; errors from :mod:`stepterrain.errors` print one line and exit
 with status 2 (no traceback), as do usage errors.
 
-A command with several outputs (``-o``, ``--png``, ``--mesh``, ``--normals-out``) checks every one before any work
+A command with several outputs (``-o``, ``--png``, ``--mesh``, ``--normals``) checks every one before any work
 (a folder, a read-only file, two options naming one file are refused then), and writes them once the work is done,
 one after another, each atomically (:func:`~stepterrain.export.atomic_path`) and whole with its own side files (a
 textured OBJ's ``.mtl`` and images, a GeoTIFF's ``.aux.xml``: all new or all old). A write failing part-way (a

@@ -3049,9 +3049,9 @@ def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[
 
     target, suffix, fps, stack, notes = _check_animation(frames, path, fps)
     if suffix == ".gif" and (short := _browser_slow_frames(stack, fps)):
-        notes.append(f"fps {fps:g}: {counted(short, 'GIF frame')} of the animation last 1 hundredth of a second, "
-                     "which browsers (Chrome, Firefox, Safari) play as 10 hundredths: it plays slower there than "
-                     "asked; an fps of 50 or less (or an MP4) plays at its speed everywhere")
+        notes.append(f"fps {fps:g}: {counted(short, 'GIF frame')} of the animation {'lasts' if short == 1 else 'last'} "
+                     "1 hundredth of a second, which browsers (Chrome, Firefox, Safari) play as 10 hundredths: it "
+                     "plays slower there than asked; an fps of 50 or less (or an MP4) plays at its speed everywhere")
     for note in notes:
         warnings.warn(f"save_animation: {note}", stacklevel=caller_stacklevel())
     import imageio.v3 as iio

@@ -2,7 +2,7 @@
 
 Shared output room of every capability (papers 000-004): glTF/GLB (flat-shaded, metadata in ``extras``),
 OBJ (metadata in comments), PLY (metadata in header comments), STL (no metadata) and 3MF (metadata in a model
-metadata element) meshes, and PNG images.
+metadata element) meshes, and PNG and TIFF images (a GeoTIFF given an ``extent``, through rasterio).
 
     from stepterrain.export import save_mesh
     save_mesh(mesh, "out/steps.glb", metadata={"interval": 100.0})
@@ -579,8 +579,8 @@ def save_mesh(
         triangle with two corners on one float32 position, of no area, is left out: the walls of zero height of a
         solid at γ = 0, which a reader merging corners by position would fold onto their neighbours' edges),
         ``.3mf`` (exact coordinates, in the unit it declares: the one ``metadata["units"]`` names, a globe's
-        metres, print_mesh's millimetres, else millimetres: a terrain in metres is scaled for a print in the slicer;
-        vertex or face colours as a colour group: a colour 3D print keeps its tints;
+        metres, scale_for_print's millimetres, else millimetres: a terrain in metres is scaled for a print in the
+        slicer; vertex or face colours as a colour group: a colour 3D print keeps its tints;
         a triangle naming one vertex twice, of no area, is left out, as 3MF requires).
     metadata : mapping, optional
         Merged over ``mesh.metadata`` and stored in the glTF mesh ``extras`` and, as JSON, in a ``.ply``'s header
@@ -865,9 +865,7 @@ def _scaled_for_print(mesh: trimesh.Trimesh, size: Any, z_scale: Any, *, copy: b
         raise InvalidInputError(f"mesh vertices must be finite to be scaled for a print; got {bad} of "
                                 f"{len(vertices)} vertices with NaN or inf")
     faces = np.asarray(mesh.faces)
-    if faces.min() < 0 or faces.max() >= len(vertices):
-        raise InvalidInputError(f"mesh faces must index its {len(vertices)} vertices (0 .. {len(vertices) - 1}); got "
-                                f"indices {faces.min()} .. {faces.max()}")
+    check_face_indices(faces, len(vertices), "mesh faces")  # the message save_mesh gives, naming the first bad face
     # the bounds of the vertices the faces use, as trimesh's bounds and a slicer see the model: a stray vertex (a
     # file's unused point) made the print smaller than size and lifted it off the origin
     used = np.zeros(len(vertices), bool)
@@ -2492,9 +2490,9 @@ _3MF_UNITS: dict[str, str] = {
 
 def _3mf_unit(metadata: Mapping[str, Any]) -> str:
     """The 3MF ``unit`` of a mesh whose ``metadata["units"]`` names one (case-insensitive: a globe's "meters",
-    print_mesh's "millimeters", trimesh's of a mesh it read), else millimetre (3MF's default: a terrain in metres
-    is scaled for a print in the slicer, or by :func:`print_mesh`). Every 3MF said millimetre: a globe, in metres,
-    came out 1000 times too small."""
+    scale_for_print's "millimeters", trimesh's of a mesh it read), else millimetre (3MF's default: a terrain in
+    metres is scaled for a print in the slicer, or by :func:`scale_for_print`). Every 3MF said millimetre: a globe,
+    in metres, came out 1000 times too small."""
     units = metadata.get("units")
     return _3MF_UNITS.get(units.strip().lower(), "millimeter") if isinstance(units, str) else "millimeter"
 

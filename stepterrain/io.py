@@ -1,4 +1,5 @@
-"""Elevation files -> :class:`~stepterrain.terrain.Terrain`: NumPy (.npy, .npz), PNG heightmaps and GeoTIFF.
+"""Elevation files -> :class:`~stepterrain.terrain.Terrain`: NumPy (.npy, .npz), PNG heightmaps and terrain tiles,
+GeoTIFF and the other rasters GDAL reads (.asc, .hgt, .img, .vrt, ...: rasterio), also gzipped, zipped or by URL.
 
 Shared input room of every capability (papers 000-004); the embedded Big Tujunga SRTM DEM is the default.
 

@@ -186,9 +186,10 @@ def circular_lens(
 
     The transition is a smoothstep over ``edge_width`` (default radius / 4) centred on the circle. With the
     defaults the original terrain shows inside the lens and the steps outside (paper 000 §4, Fig. 4). The mask
-    holds ``resolution`` x ``resolution`` samples over the lens's square (the circle and its soft edge, clipped to
-    the terrain's extent; the whole extent where the lens misses the terrain), and γ beyond that square is
-    ``outside``: a small lens on a large DEM is as smooth as a large one.
+    holds ``resolution`` x ``resolution`` samples (an int, 3 at least: a 2 x 2 mask holds only the square's corners,
+    all beyond the lens) over the lens's square (the circle and its soft edge, clipped to the terrain's extent; the
+    whole extent where the lens misses the terrain), and γ beyond that square is ``outside``: a small lens on a
+    large DEM is as smooth as a large one.
 
     ``center`` and ``radius`` are in the terrain's xy coordinates: for a raw (H, W) array give the ``spacing`` and
     ``origin`` that :func:`stepped` is given (a lens built over the unit-spaced array and applied to

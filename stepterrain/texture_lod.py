@@ -10,7 +10,9 @@ the simultaneous traversal ``renderWithTextures`` of §4: visual geometric error
 the parent as fallback (:class:`TextureCache`, LRU memory budget) and hybrid shading (§7.3). Typical use:
 
     pyramid = ImagePyramid.build("big.npy", extent=(x0, x1, y0, y1))
-    tree = TextureTree(pyramid, PatchQuadtree(terrain, leaf_size=64), max_texture_size=1024)
+    quadtree = PatchQuadtree(terrain, leaf_size=64)
+    tree = TextureTree(pyramid, quadtree, max_texture_size=1024)
+    cache = TextureCache()   # one for every frame: it loads patches in the background
     draws = render_with_textures(quadtree.root, [tree.root], camera, gamma_user=1.0, tau_user=1.0, cache=cache)
 """
 

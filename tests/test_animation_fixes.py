@@ -295,3 +295,21 @@ def test_gif_frames_transparent_after_an_opaque_one_say_so_in_the_file(tmp_path)
     assert _gif_controls(gif) == [(2, False), (2, True), (2, True)]
     rgb = save_animation([f[..., :3] for f in frames], tmp_path / "rgb.gif", fps=4.0)
     assert [disposal for disposal, _ in _gif_controls(rgb)] == [0, 0, 0]  # opaque frames: Pillow's delta frames
+
+
+def test_gif_faster_than_50_fps_warning_counts_one_frame_in_the_singular(tmp_path):
+    """The warning's verb agrees with its count: one short frame 'lasts' 1 hundredth (it said '1 GIF frame of the
+    animation last'), several 'last'."""
+    from stepterrain.closeup import _browser_slow_frames
+
+    frames = [np.full((4, 4, 3), 10 * k, np.uint8) for k in range(4)]
+    assert _browser_slow_frames(frames, 60.0) == 1  # delays 2, 1, 2, 2 hundredths
+    many = [np.full((4, 4, 3), 10 * k, np.uint8) for k in range(12)]
+    assert _browser_slow_frames(many, 60.0) > 1
+    for stack, verb in ((frames, "1 GIF frame of the animation lasts 1 hundredth"),
+                        (many, "GIF frames of the animation last 1 hundredth")):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            save_animation(stack, tmp_path / "a.gif", fps=60.0)
+        said = [str(w.message) for w in caught if "browsers" in str(w.message)]
+        assert len(said) == 1 and verb in said[0], said

@@ -224,6 +224,20 @@ def test_the_format_table_holds_on_round_trips(tmp_path):
             assert coords.startswith("float32")
             gap = np.abs(back.vertices - mesh.vertices).max()
             assert 0 <= gap <= np.spacing(np.float32(np.ptp(mesh.vertices, axis=0).max())), (ext, gap)
+        if ext == ".3mf":  # "in the unit its metadata's `units` names (...), else declared millimetres"
+            import re
+            import zipfile
+
+            assert "in the unit its metadata's `units` names" in coords and "else declared millimetres" in coords
+            for units, unit in ((None, "millimeter"), ("meters", "meter"), ("millimeters", "millimeter")):
+                copy = mesh.copy()
+                copy.metadata.pop("units", None)
+                if units is not None:
+                    copy.metadata["units"] = units
+                save_mesh(copy, path)
+                with zipfile.ZipFile(path) as archive:
+                    model = archive.read(next(n for n in archive.namelist() if n.endswith(".model")))
+                assert re.search(rb'<model unit="([a-z]+)"', model)[1] == unit.encode(), (units, model[:120])
         if ext == ".ply":
             header = path.read_bytes().split(b"end_header")[0]
             assert b"property double x" in header  # float64 where float32 would round 60000.123

@@ -2725,3 +2725,14 @@ def test_the_face_index_checks_share_one_message_naming_their_argument(tmp_path,
         to_polydata(mesh)
     with pytest.raises(InvalidInputError, match=rf"^mesh\.faces must index its 3 vertices \(0 \.\. 2\); {face}"):
         render.render_mesh(mesh, window_size=(32, 32))
+
+
+@pytest.mark.parametrize("bad", [7, -1])
+def test_scale_for_print_refuses_a_face_index_with_the_shared_message(bad):
+    """scale_for_print kept a face-index check of its own after the others shared one ("mesh faces must index its 3
+    vertices (0 .. 2); got indices 0 .. 7", naming no face): it names the first bad face as save_mesh does."""
+    points = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 1]])
+    mesh = trimesh.Trimesh(points, [[0, 1, 2], [0, 1, bad]], process=False)
+    with pytest.raises(InvalidInputError, match=rf"^mesh faces must index its 3 vertices \(0 \.\. 2\); "
+                                                rf"face 1 is \[0, 1, {bad}\]$"):
+        st.export.scale_for_print(mesh, 100.0)
