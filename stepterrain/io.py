@@ -362,7 +362,7 @@ def load_dem(
         in a unit that is not a known length unit:
         "degC", "meters above sea level"; ``height_unit`` overrides it), a ``.hgt`` not named by its south-west
         corner (``everest.hgt``: GDAL places a tile by its name, ``N27E086.hgt``, and reads no other) or not of a
-        tile's size (cut short), an ESRI ASCII grid (local, or a local ``.asc.gz``) holding fewer values than its
+        tile's size (cut short), an ESRI ASCII grid (local, or in a local gzip or zip) holding fewer values than its
         header declares (GDAL refuses one cut short but read a missing last value as 0), or is a GeoTIFF
         georeferenced only by ground control points (GCPs) or rational polynomial coefficients (RPCs), which is
         not a regular grid until warped (``gdalwarp`` makes it one; the message gives the command).
@@ -1826,18 +1826,26 @@ _ASC_KEYWORDS = frozenset(("ncols", "nrows", "xllcorner", "yllcorner", "xllcente
 
 
 def _refuse_short_ascii_grid(file: Path, shape: tuple[int, int]) -> None:
-    """Refuse the ESRI ASCII grid ``file`` (local, or the ``/vsigzip/`` path of a local gzip) of ``shape`` when it
+    """Refuse the ESRI ASCII grid ``file`` (local, or in a local gzip or zip) of ``shape`` when it
     holds fewer values than its header declares. GDAL refuses one cut short ("File short, can't read line"), but
     for the very last value: the end of the file after the last but one reads as the end of the last value, and the
     last cell is read as 0 without a word (a 0 m spike, or a pit, in the grid's corner). Its caller asks only where
     that cell reads as 0; a file GDAL reads through another virtual file system is not checked."""
     gdal = os.fspath(file)
-    if isinstance(file, GdalPath):
-        if not gdal.startswith("/vsigzip/") or not os.path.isfile(gdal[len("/vsigzip/"):]):
-            return
-        opener: Callable[[], BinaryIO] = lambda: gzip.open(gdal[len("/vsigzip/"):], "rb")  # noqa: E731
-    else:
+    opener: Callable[[], BinaryIO]
+    if not isinstance(file, GdalPath):
         opener = lambda: open(gdal, "rb")  # noqa: E731
+    elif gdal.startswith("/vsigzip/") and os.path.isfile(gdal[len("/vsigzip/"):]):
+        opener = lambda: gzip.open(gdal[len("/vsigzip/"):], "rb")  # noqa: E731
+    elif (gdal.startswith("/vsizip/") and (archive := local_archive(file)) is not None
+          and gdal.startswith(f"/vsizip/{archive}/") and os.path.isfile(archive)):
+        member = gdal[len(f"/vsizip/{archive}/"):]
+
+        def opener() -> BinaryIO:
+            with zipfile.ZipFile(archive) as zipped:  # the member's stream keeps the archive's file open
+                return zipped.open(member)
+    else:
+        return
     expected = shape[0] * shape[1]
     values = 0
     with opener() as handle:

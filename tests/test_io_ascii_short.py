@@ -53,3 +53,16 @@ def test_ascii_grid_values_counted_across_chunks(tmp_path, monkeypatch):
         st.load_dem(path)
     path.write_text(_HEADER + "10 20 30\n40 50 60\n70 80 0\n")
     assert st.load_dem(path).heights[-1].tolist() == [70.0, 80.0, 0.0]
+
+
+@pytest.mark.parametrize("local_zip", [True, False])
+def test_ascii_grid_in_a_zip_missing_its_last_value_is_refused(tmp_path, local_zip):
+    """In a local zip, read as the zip itself or through its ``/vsizip/`` path, as a plain file."""
+    import zipfile
+
+    archive = tmp_path / "grids.zip"
+    with zipfile.ZipFile(archive, "w", zipfile.ZIP_DEFLATED) as zipped:
+        zipped.writestr("dem.asc", _HEADER + "1 2 3\n4 5 6\n7 8\n")
+    path = archive if local_zip else f"/vsizip/{archive}/dem.asc"
+    with pytest.raises(DataFileError, match=r"3 x 3 = 9 values.*got 8 \(cut short"):
+        st.load_dem(path)
