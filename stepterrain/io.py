@@ -362,8 +362,9 @@ def load_dem(
         in a unit that is not a known length unit:
         "degC", "meters above sea level"; ``height_unit`` overrides it), a ``.hgt`` not named by its south-west
         corner (``everest.hgt``: GDAL places a tile by its name, ``N27E086.hgt``, and reads no other) or not of a
-        tile's size (cut short), an ESRI ASCII grid (local, or in a local gzip or zip) holding fewer values than its
-        header declares (GDAL refuses one cut short but read a missing last value as 0), or is a GeoTIFF
+        tile's size (cut short), an ESRI (or GRASS) ASCII grid (local, or in a local gzip or zip) holding fewer
+        values than its header declares (GDAL refuses one cut short but read a missing last value as 0), or is a
+        GeoTIFF
         georeferenced only by ground control points (GCPs) or rational polynomial coefficients (RPCs), which is
         not a regular grid until warped (``gdalwarp`` makes it one; the message gives the command).
     MissingDependencyError
@@ -1757,10 +1758,10 @@ def _load_geotiff(
             with rasterio.Env(GDAL_ONE_BIG_READ="NO"):
                 masked = dataset.read(band, masked=True, window=window)
                 unmasked = _missing_beyond_gdal_mask(dataset, band, masked.data, window)
-            if (dataset.driver == "AAIGrid" and masked.shape[0] and masked.shape[1]
+            if (dataset.driver in _ASCII_GRIDS and masked.shape[0] and masked.shape[1]
                     and (window is None or (i1 == shape[0] - 1 and j1 == shape[1] - 1))
                     and masked.data[-1, -1] == 0):
-                _refuse_short_ascii_grid(file, shape)
+                _refuse_short_ascii_grid(file, shape, _ASCII_GRIDS[dataset.driver])
     except RasterioError as exc:
         reason = gdal_reason(exc)
         raise DataFileError(
@@ -1817,17 +1818,23 @@ def _load_geotiff(
     return terrain
 
 
-#: The header keywords of an ESRI ASCII grid (GDAL's AAIGrid), lower case.
-#: Bytes of an ESRI ASCII grid counted at a time.
+#: Bytes of an ASCII grid counted at a time.
 _ASC_CHUNK = 1 << 24
 
+#: The header keywords of an ESRI ASCII grid (GDAL's AAIGrid) and a GRASS one (GRASSASCIIGrid: ``north: 4000030``,
+#: read under an .asc name too), lower case, without the GRASS colon.
 _ASC_KEYWORDS = frozenset(("ncols", "nrows", "xllcorner", "yllcorner", "xllcenter", "yllcenter", "cellsize", "dx",
-                           "dy", "nodata_value", "nodata"))
+                           "dy", "nodata_value", "nodata", "north", "south", "east", "west", "rows", "cols", "null",
+                           "type", "multiplier"))
+
+#: GDAL's ASCII grid drivers whose reader takes the end of the file for the end of a missing last value, and the
+#: format as messages name it.
+_ASCII_GRIDS = {"AAIGrid": "an ESRI ASCII grid", "GRASSASCIIGrid": "a GRASS ASCII grid"}
 
 
-def _refuse_short_ascii_grid(file: Path, shape: tuple[int, int]) -> None:
-    """Refuse the ESRI ASCII grid ``file`` (local, or in a local gzip or zip) of ``shape`` when it
-    holds fewer values than its header declares. GDAL refuses one cut short ("File short, can't read line"), but
+def _refuse_short_ascii_grid(file: Path, shape: tuple[int, int], what: str = "an ESRI ASCII grid") -> None:
+    """Refuse the ASCII grid ``file`` (``what``: ESRI's or GRASS's; local, or in a local gzip or zip) of ``shape``
+    when it holds fewer values than its header declares. GDAL refuses one cut short ("File short, can't read line"), but
     for the very last value: the end of the file after the last but one reads as the end of the last value, and the
     last cell is read as 0 without a word (a 0 m spike, or a pit, in the grid's corner). Its caller asks only where
     that cell reads as 0; a file GDAL reads through another virtual file system is not checked."""
@@ -1856,7 +1863,7 @@ def _refuse_short_ascii_grid(file: Path, shape: tuple[int, int]) -> None:
             words = line.split()
             if not line:
                 break
-            if words and words[0].decode("latin-1").lower() in _ASC_KEYWORDS:
+            if words and words[0].decode("latin-1").rstrip(":").lower() in _ASC_KEYWORDS:
                 continue
             handle.seek(start)
             header = False
@@ -1866,7 +1873,7 @@ def _refuse_short_ascii_grid(file: Path, shape: tuple[int, int]) -> None:
             joined = not chunk[-1:].isspace()
     if values < expected:
         raise DataFileError(
-            f"cannot read {str(file)!r}: expected an ESRI ASCII grid of {shape[0]} x {shape[1]} = {expected:,} "
+            f"cannot read {str(file)!r}: expected {what} of {shape[0]} x {shape[1]} = {expected:,} "
             f"values, as its header declares; got {values:,} (cut short: GDAL reads the missing last value as 0)"
         )
 

@@ -66,3 +66,14 @@ def test_ascii_grid_in_a_zip_missing_its_last_value_is_refused(tmp_path, local_z
     path = archive if local_zip else f"/vsizip/{archive}/dem.asc"
     with pytest.raises(DataFileError, match=r"3 x 3 = 9 values.*got 8 \(cut short"):
         st.load_dem(path)
+
+
+def test_grass_ascii_grid_missing_its_last_value_is_refused(tmp_path):
+    """A GRASS ASCII grid under an .asc name (GDAL's GRASSASCIIGrid, the same reader) likewise; whole, it reads."""
+    header = "north: 4000030\nsouth: 4000000\neast: 500030\nwest: 500000\nrows: 3\ncols: 3\nnull: -9999\n"
+    path = tmp_path / "grass.asc"
+    path.write_text(header + "1 2 3\n4 5 6\n7 8\n")
+    with pytest.raises(DataFileError, match=r"a GRASS ASCII grid of 3 x 3 = 9 values.*got 8 \(cut short"):
+        st.load_dem(path)
+    path.write_text(header + "1 2 3\n4 5 6\n7 8 0\n")
+    assert st.load_dem(path).heights[-1].tolist() == [7.0, 8.0, 0.0]
