@@ -2631,7 +2631,10 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         bufferView past its buffer are said so, and a glTF position that is NaN or infinite is refused, naming the
         vertex as stored (the glTF validator refuses such a file; turned z-up, a NaN coordinate spread over the
         vertex's three, where the other formats' readers keep it where it stands). A PLY's quads and polygons come
-        back as triangles (trimesh's ``triangulate_quads``), each with its polygon's face properties.
+        back as triangles (trimesh's ``triangulate_quads``), each with its polygon's face properties; a PLY's triangle
+    strips (a ``tristrips`` element and no ``face`` one, as the Stanford scanning tools and VCG write them; trimesh's
+    reader skipped them, a mesh of vertices only) come back as their triangles, in the strips' winding, a stitch
+    naming a vertex twice dropped.
     """
     file = _target(path, output=False)
     require_regular_file(file, "mesh file", "mesh file")
@@ -2666,6 +2669,10 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                 raise ValueError(mixed) from exc
         if isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices) == 0:
             loaded = _read_points(file, scene) or loaded
+            if file.suffix.lower() == ".ply" and len(loaded.faces) == 0:  # trimesh's reader skips triangle strips
+                strips = _ply_tristrips(loaded)
+                if strips is not None:
+                    loaded.faces = strips
             if gltf and len(loaded.vertices) == 0:  # an empty mesh's metadata, in its node's extras
                 loaded.metadata.update(_empty_gltf_extras(file, tree))
             if len(loaded.vertices) == 0 and file.suffix.lower() == ".obj":  # trimesh reads anything as an empty OBJ
@@ -2813,6 +2820,42 @@ _PLY_OWN = {
                          "texture_u", "texture_v"}),
     "face": frozenset({"vertex_indices", "vertex_index", "red", "green", "blue", "alpha", "texcoord"}),
 }  # fmt: skip
+
+
+def _ply_tristrips(mesh: trimesh.Trimesh) -> NDArray[np.int64] | None:
+    """The triangles of the ``tristrips`` element of the PLY ``mesh`` was read from, where it has no ``face`` element
+    (as the Stanford scanning repository's tools and VCG write strips: each row a list of vertex indices, -1 ending a
+    strip and starting the next), else None. Triangle k of a strip is (s[k], s[k+1], s[k+2]), its odd ones turned
+    (s[k+1], s[k], s[k+2]) to keep the strip's winding; a triangle naming one vertex twice (a strip's stitch) is
+    dropped, as VCG drops it. trimesh's reader skipped the element: the mesh came back as its vertices alone."""
+    raw = (mesh.metadata or {}).get("_ply_raw")
+    if not isinstance(raw, Mapping) or "face" in raw or not isinstance(raw.get("tristrips"), Mapping):
+        return None
+    data = raw["tristrips"].get("data")
+    rows: Any = None
+    for name in ("vertex_indices", "vertex_index"):
+        if isinstance(data, Mapping) and name in data:  # an ASCII file's columns
+            rows = data[name]
+        elif isinstance(data, np.ndarray) and data.dtype.names and name in data.dtype.names:  # a binary one's rows
+            rows = data[name]
+            rows = rows["f1"] if rows.dtype.names and "f1" in rows.dtype.names else rows  # (count, indices)
+        if rows is not None:
+            break
+    if rows is None:
+        return None
+    triangles: list[NDArray[np.int64]] = []
+    for row in rows:
+        indices = np.asarray(row, dtype=np.int64).ravel()
+        for strip in np.split(indices, np.flatnonzero(indices < 0)):
+            strip = strip[strip >= 0]  # the -1 that starts each piece but the first
+            if len(strip) < 3:
+                continue
+            k = np.arange(len(strip) - 2)
+            odd = (k % 2).astype(bool)
+            first, second = np.where(odd, strip[k + 1], strip[k]), np.where(odd, strip[k], strip[k + 1])
+            tri = np.stack([first, second, strip[k + 2]], axis=1)
+            triangles.append(tri[(tri[:, 0] != tri[:, 1]) & (tri[:, 1] != tri[:, 2]) & (tri[:, 0] != tri[:, 2])])
+    return np.concatenate(triangles) if triangles else np.zeros((0, 3), np.int64)
 
 
 def _check_ply_rows(mesh: trimesh.Trimesh) -> None:
