@@ -2607,7 +2607,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     (``f 1 2 3``: one :func:`save_mesh` writes without a texture) keeps the vertices no face names, in their
     order, as the other formats do (trimesh's reader dropped them: ``stepterrain info`` counted fewer vertices than
     were written); one with texture or normal indices comes back with the vertices its faces name, one per
-    distinct (v, vt, vn) corner.
+    distinct (v, vt, vn) corner. An OBJ whose lines are indented or whose words are separated by tabs reads as with
+    single spaces (trimesh's reader skipped such lines: it came back empty, or as its first vertex alone).
 
     Raises
     ------
@@ -2660,8 +2661,9 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                 _check_obj_indices(file)
             plain_obj = file.suffix.lower() == ".obj" and _obj_faces_name_vertices_only(file)
             order = {"maintain_order": True} if plain_obj else {}
+            tidied = _obj_tidied(file) if file.suffix.lower() == ".obj" else None
             try:
-                loaded = _trimesh_read(trimesh.load, file, force="mesh", process=False, **order)
+                loaded = _trimesh_read(trimesh.load, file, tidied, force="mesh", process=False, **order)
             except ValueError as exc:
                 mixed = _ply_binary_mixed_lists(file) if file.suffix.lower() == ".ply" else None
                 if mixed is None:
@@ -2789,23 +2791,41 @@ def _ply_binary_mixed_lists(file: Path, rows: int = 65536) -> str | None:
     return None
 
 
-def _trimesh_read(load: Callable[..., Any], file: Path, **kwargs: Any) -> Any:
+#: An OBJ line trimesh's reader skips: one starting with blanks, or a statement's words separated by a tab.
+_OBJ_LOOSE_LINE = re.compile(rb"(?:^|[\r\n])[ \t]+\S|\t")
+
+
+def _obj_tidied(file: Path) -> bytes | None:
+    """The OBJ ``file``'s text with each line's blanks around it dropped and its tabs made spaces, where a line starts
+    with blanks or holds a tab (as the OBJ format allows: its words are separated by white space), else None.
+    trimesh's reader finds statements by a newline, their keyword and a space: it skipped every such line without a
+    word (an OBJ indented, or written with tabs, came back empty or as its first vertex alone)."""
+    data = file.read_bytes()
+    if _OBJ_LOOSE_LINE.search(data) is None:
+        return None
+    return b"\n".join(line.strip(b" \t").replace(b"\t", b" ") for line in data.splitlines()) + b"\n"
+
+
+def _trimesh_read(load: Callable[..., Any], file: Path, data: bytes | None = None, **kwargs: Any) -> Any:
     """``load(file, **kwargs)`` (``trimesh.load`` or ``trimesh.load_scene``), also for a ``file`` whose name is no
     UTF-8 (a Latin-1 ``h\\xf6he.ply`` on a UTF-8 system, which Python names ``'h\\udcf6he.ply'``): trimesh names the
     scene node after the file and encodes that name as UTF-8, so such a file was refused ("cannot read ... 'utf-8'
     codec can't encode character '\\udcf6' ... surrogates not allowed"). It is read from the open file then, its side
     files (an OBJ's material and textures, a glTF's buffers) found beside it as before, and named as its name reads
-    with the undecodable bytes as U+FFFD (``metadata["name"]``, which every writer can store)."""
+    with the undecodable bytes as U+FFFD (``metadata["name"]``, which every writer can store). ``data``: the file's
+    contents to read instead of the file's own (an OBJ tidied, :func:`_obj_tidied`), its side files and name still
+    those of ``file``."""
     name = _utf8_name(file.name)
-    if name == file.name:
+    if name == file.name and data is None:
         return load(file, **kwargs)
     resolver = trimesh.resolvers.FilePathResolver(str(file))  # the folder, for side files
     resolver.file_name = name  # an OBJ's geometry is named by it
     # typed as trimesh types a path: an h\xf6he.tar.gz is a "tar.gz" (its last suffix, "gz", trimesh does not read)
     file_type = trimesh.util.split_extension(file.name, special=["tar.gz", "tar.bz2"]).lower()
-    with file.open("rb") as stream:
+    with (file.open("rb") if data is None else io.BytesIO(data)) as stream:
         loaded = load(stream, file_type=file_type, resolver=resolver, **kwargs)
-    if file_type in trimesh.exchange.load.compressed_loaders:  # named after the files in it, as for a plain name
+    # named after the files in it, as for a plain name; a tidied OBJ of a plain name is named as its file is read
+    if file_type in trimesh.exchange.load.compressed_loaders or name == file.name:
         return loaded
     for item in [loaded, *getattr(loaded, "geometry", {}).values()]:
         metadata = getattr(item, "metadata", None)

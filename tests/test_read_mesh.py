@@ -239,3 +239,24 @@ def test_ply_triangle_strips_read_as_triangles(tmp_path, binary):
     normals = np.cross(*(mesh.vertices[mesh.faces[:, 1:]] - mesh.vertices[mesh.faces[:, :1]]).transpose(1, 0, 2))
     assert (normals[:, 2] > 0).all()  # one winding: all face up, as the strip starts (3 0 4 is anticlockwise from +z)
     np.testing.assert_allclose(mesh.area, 2 * np.sqrt(1 + 1 + 100))  # two 1 x 1 cells on the plane z = x + 10 y
+
+
+_OBJ_SQUARE = "v 0 0 0\nv 1 0 0\nv 1 1 0.5\nv 0 1 0\nvn 0 0 1\nf 1 2 3\nf 1//1 3//1 4//1\n"
+
+
+@pytest.mark.parametrize("layout", ["tabs", "tab after keyword", "indented", "indented with tabs, CRLF"])
+def test_obj_written_with_tabs_or_indented_reads_as_with_spaces(tmp_path, layout):
+    """OBJ words are separated by white space: trimesh's reader finds a statement by a newline, its keyword and one
+    space, and skipped every other line without a word: a file written with tabs came back empty (0 vertices, 0
+    faces), an indented one as its first vertex alone. Each reads as the same file with single spaces does."""
+    text = {"tabs": _OBJ_SQUARE.replace(" ", "\t"),
+            "tab after keyword": _OBJ_SQUARE.replace("v ", "v\t").replace("f ", "f\t"),
+            "indented": "".join(f"  {line}\n" for line in _OBJ_SQUARE.splitlines()),
+            "indented with tabs, CRLF": "".join(f"\t{line}\r\n" for line in _OBJ_SQUARE.splitlines())}[layout]
+    (tmp_path / "plain.obj").write_text(_OBJ_SQUARE)
+    (tmp_path / "loose.obj").write_bytes(text.encode())
+    plain, loose = read_mesh(tmp_path / "plain.obj"), read_mesh(tmp_path / "loose.obj")
+    assert len(plain.vertices) == 4 and len(plain.faces) == 2  # the reference itself
+    np.testing.assert_array_equal(loose.vertices, plain.vertices)
+    np.testing.assert_array_equal(loose.faces, plain.faces)
+    assert loose.metadata["name"] == "loose.obj"
