@@ -2602,7 +2602,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     (``f 1 2 3``: one :func:`save_mesh` writes without a texture) keeps the vertices no face names, in their
     order, as the other formats do (trimesh's reader dropped them: ``stepterrain info`` counted fewer vertices than
     were written); one with texture or normal indices comes back with the vertices its faces name, one per
-    distinct (v, vt, vn) corner.
+    distinct (v, vt, vn) corner. An OBJ whose lines are indented or whose words are separated by tabs reads as with
+    single spaces (trimesh's reader skipped such lines: it came back empty, or as its first vertex alone).
 
     Raises
     ------
@@ -2626,7 +2627,10 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         bufferView past its buffer are said so, and a glTF position that is NaN or infinite is refused, naming the
         vertex as stored (the glTF validator refuses such a file; turned z-up, a NaN coordinate spread over the
         vertex's three, where the other formats' readers keep it where it stands). A PLY's quads and polygons come
-        back as triangles (trimesh's ``triangulate_quads``), each with its polygon's face properties.
+        back as triangles (trimesh's ``triangulate_quads``), each with its polygon's face properties; a PLY's triangle
+    strips (a ``tristrips`` element and no ``face`` one, as the Stanford scanning tools and VCG write them; trimesh's
+    reader skipped them, a mesh of vertices only) come back as their triangles, in the strips' winding, a stitch
+    naming a vertex twice dropped.
     """
     file = _target(path, output=False)
     require_regular_file(file, "mesh file", "mesh file")
@@ -2652,8 +2656,9 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                 _check_obj_indices(file)
             plain_obj = file.suffix.lower() == ".obj" and _obj_faces_name_vertices_only(file)
             order = {"maintain_order": True} if plain_obj else {}
+            tidied = _obj_tidied(file) if file.suffix.lower() == ".obj" else None
             try:
-                loaded = _trimesh_read(trimesh.load, file, force="mesh", process=False, **order)
+                loaded = _trimesh_read(trimesh.load, file, tidied, force="mesh", process=False, **order)
             except ValueError as exc:
                 mixed = _ply_binary_mixed_lists(file) if file.suffix.lower() == ".ply" else None
                 if mixed is None:
@@ -2661,6 +2666,10 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                 raise ValueError(mixed) from exc
         if isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices) == 0:
             loaded = _read_points(file, scene) or loaded
+            if file.suffix.lower() == ".ply" and len(loaded.faces) == 0:  # trimesh's reader skips triangle strips
+                strips = _ply_tristrips(loaded)
+                if strips is not None:
+                    loaded.faces = strips
             if gltf and len(loaded.vertices) == 0:  # an empty mesh's metadata, in its node's extras
                 loaded.metadata.update(_empty_gltf_extras(file, tree))
             if len(loaded.vertices) == 0 and file.suffix.lower() == ".obj":  # trimesh reads anything as an empty OBJ
@@ -2778,23 +2787,41 @@ def _ply_binary_mixed_lists(file: Path, rows: int = 65536) -> str | None:
     return None
 
 
-def _trimesh_read(load: Callable[..., Any], file: Path, **kwargs: Any) -> Any:
+#: An OBJ line trimesh's reader skips: one starting with blanks, or a statement's words separated by a tab.
+_OBJ_LOOSE_LINE = re.compile(rb"(?:^|[\r\n])[ \t]+\S|\t")
+
+
+def _obj_tidied(file: Path) -> bytes | None:
+    """The OBJ ``file``'s text with each line's blanks around it dropped and its tabs made spaces, where a line starts
+    with blanks or holds a tab (as the OBJ format allows: its words are separated by white space), else None.
+    trimesh's reader finds statements by a newline, their keyword and a space: it skipped every such line without a
+    word (an OBJ indented, or written with tabs, came back empty or as its first vertex alone)."""
+    data = file.read_bytes()
+    if _OBJ_LOOSE_LINE.search(data) is None:
+        return None
+    return b"\n".join(line.strip(b" \t").replace(b"\t", b" ") for line in data.splitlines()) + b"\n"
+
+
+def _trimesh_read(load: Callable[..., Any], file: Path, data: bytes | None = None, **kwargs: Any) -> Any:
     """``load(file, **kwargs)`` (``trimesh.load`` or ``trimesh.load_scene``), also for a ``file`` whose name is no
     UTF-8 (a Latin-1 ``h\\xf6he.ply`` on a UTF-8 system, which Python names ``'h\\udcf6he.ply'``): trimesh names the
     scene node after the file and encodes that name as UTF-8, so such a file was refused ("cannot read ... 'utf-8'
     codec can't encode character '\\udcf6' ... surrogates not allowed"). It is read from the open file then, its side
     files (an OBJ's material and textures, a glTF's buffers) found beside it as before, and named as its name reads
-    with the undecodable bytes as U+FFFD (``metadata["name"]``, which every writer can store)."""
+    with the undecodable bytes as U+FFFD (``metadata["name"]``, which every writer can store). ``data``: the file's
+    contents to read instead of the file's own (an OBJ tidied, :func:`_obj_tidied`), its side files and name still
+    those of ``file``."""
     name = _utf8_name(file.name)
-    if name == file.name:
+    if name == file.name and data is None:
         return load(file, **kwargs)
     resolver = trimesh.resolvers.FilePathResolver(str(file))  # the folder, for side files
     resolver.file_name = name  # an OBJ's geometry is named by it
     # typed as trimesh types a path: an h\xf6he.tar.gz is a "tar.gz" (its last suffix, "gz", trimesh does not read)
     file_type = trimesh.util.split_extension(file.name, special=["tar.gz", "tar.bz2"]).lower()
-    with file.open("rb") as stream:
+    with (file.open("rb") if data is None else io.BytesIO(data)) as stream:
         loaded = load(stream, file_type=file_type, resolver=resolver, **kwargs)
-    if file_type in trimesh.exchange.load.compressed_loaders:  # named after the files in it, as for a plain name
+    # named after the files in it, as for a plain name; a tidied OBJ of a plain name is named as its file is read
+    if file_type in trimesh.exchange.load.compressed_loaders or name == file.name:
         return loaded
     for item in [loaded, *getattr(loaded, "geometry", {}).values()]:
         metadata = getattr(item, "metadata", None)
@@ -2809,6 +2836,42 @@ _PLY_OWN = {
                          "texture_u", "texture_v"}),
     "face": frozenset({"vertex_indices", "vertex_index", "red", "green", "blue", "alpha", "texcoord"}),
 }  # fmt: skip
+
+
+def _ply_tristrips(mesh: trimesh.Trimesh) -> NDArray[np.int64] | None:
+    """The triangles of the ``tristrips`` element of the PLY ``mesh`` was read from, where it has no ``face`` element
+    (as the Stanford scanning repository's tools and VCG write strips: each row a list of vertex indices, -1 ending a
+    strip and starting the next), else None. Triangle k of a strip is (s[k], s[k+1], s[k+2]), its odd ones turned
+    (s[k+1], s[k], s[k+2]) to keep the strip's winding; a triangle naming one vertex twice (a strip's stitch) is
+    dropped, as VCG drops it. trimesh's reader skipped the element: the mesh came back as its vertices alone."""
+    raw = (mesh.metadata or {}).get("_ply_raw")
+    if not isinstance(raw, Mapping) or "face" in raw or not isinstance(raw.get("tristrips"), Mapping):
+        return None
+    data = raw["tristrips"].get("data")
+    rows: Any = None
+    for name in ("vertex_indices", "vertex_index"):
+        if isinstance(data, Mapping) and name in data:  # an ASCII file's columns
+            rows = data[name]
+        elif isinstance(data, np.ndarray) and data.dtype.names and name in data.dtype.names:  # a binary one's rows
+            rows = data[name]
+            rows = rows["f1"] if rows.dtype.names and "f1" in rows.dtype.names else rows  # (count, indices)
+        if rows is not None:
+            break
+    if rows is None:
+        return None
+    triangles: list[NDArray[np.int64]] = []
+    for row in rows:
+        indices = np.asarray(row, dtype=np.int64).ravel()
+        for strip in np.split(indices, np.flatnonzero(indices < 0)):
+            strip = strip[strip >= 0]  # the -1 that starts each piece but the first
+            if len(strip) < 3:
+                continue
+            k = np.arange(len(strip) - 2)
+            odd = (k % 2).astype(bool)
+            first, second = np.where(odd, strip[k + 1], strip[k]), np.where(odd, strip[k], strip[k + 1])
+            tri = np.stack([first, second, strip[k + 2]], axis=1)
+            triangles.append(tri[(tri[:, 0] != tri[:, 1]) & (tri[:, 1] != tri[:, 2]) & (tri[:, 0] != tri[:, 2])])
+    return np.concatenate(triangles) if triangles else np.zeros((0, 3), np.int64)
 
 
 def _check_ply_rows(mesh: trimesh.Trimesh) -> None:

@@ -363,7 +363,9 @@ def load_dem(
         in a unit that is not a known length unit:
         "degC", "meters above sea level"; ``height_unit`` overrides it), a ``.hgt`` not named by its south-west
         corner (``everest.hgt``: GDAL places a tile by its name, ``N27E086.hgt``, and reads no other) or not of a
-        tile's size (cut short), or is a GeoTIFF
+        tile's size (cut short), an ESRI (or GRASS) ASCII grid (local, or in a local gzip or zip) holding fewer
+        values than its header declares (GDAL refuses one cut short but read a missing last value as 0), or is a
+        GeoTIFF
         georeferenced only by ground control points (GCPs) or rational polynomial coefficients (RPCs), which is
         not a regular grid until warped (``gdalwarp`` makes it one; the message gives the command).
     MissingDependencyError
@@ -1757,6 +1759,10 @@ def _load_geotiff(
             with rasterio.Env(GDAL_ONE_BIG_READ="NO"):
                 masked = dataset.read(band, masked=True, window=window)
                 unmasked = _missing_beyond_gdal_mask(dataset, band, masked.data, window)
+            if (dataset.driver in _ASCII_GRIDS and masked.shape[0] and masked.shape[1]
+                    and (window is None or (i1 == shape[0] - 1 and j1 == shape[1] - 1))
+                    and masked.data[-1, -1] == 0):
+                _refuse_short_ascii_grid(file, shape, _ASCII_GRIDS[dataset.driver])
     except RasterioError as exc:
         reason = gdal_reason(exc)
         raise DataFileError(
@@ -1811,6 +1817,66 @@ def _load_geotiff(
     terrain = _grid(file, heights, spacing=spacing, origin=origin, crs=crs, source=source, height_unit=height_unit)
     _check_placed(file, place, terrain)  # a grid without a CRS that looks like degrees: told by its (crop's) heights
     return terrain
+
+
+#: Bytes of an ASCII grid counted at a time.
+_ASC_CHUNK = 1 << 24
+
+#: The header keywords of an ESRI ASCII grid (GDAL's AAIGrid) and a GRASS one (GRASSASCIIGrid: ``north: 4000030``,
+#: read under an .asc name too), lower case, without the GRASS colon.
+_ASC_KEYWORDS = frozenset(("ncols", "nrows", "xllcorner", "yllcorner", "xllcenter", "yllcenter", "cellsize", "dx",
+                           "dy", "nodata_value", "nodata", "north", "south", "east", "west", "rows", "cols", "null",
+                           "type", "multiplier"))
+
+#: GDAL's ASCII grid drivers whose reader takes the end of the file for the end of a missing last value, and the
+#: format as messages name it.
+_ASCII_GRIDS = {"AAIGrid": "an ESRI ASCII grid", "GRASSASCIIGrid": "a GRASS ASCII grid"}
+
+
+def _refuse_short_ascii_grid(file: Path, shape: tuple[int, int], what: str = "an ESRI ASCII grid") -> None:
+    """Refuse the ASCII grid ``file`` (``what``: ESRI's or GRASS's; local, or in a local gzip or zip) of ``shape``
+    when it holds fewer values than its header declares. GDAL refuses one cut short ("File short, can't read line"), but
+    for the very last value: the end of the file after the last but one reads as the end of the last value, and the
+    last cell is read as 0 without a word (a 0 m spike, or a pit, in the grid's corner). Its caller asks only where
+    that cell reads as 0; a file GDAL reads through another virtual file system is not checked."""
+    gdal = os.fspath(file)
+    opener: Callable[[], BinaryIO]
+    if not isinstance(file, GdalPath):
+        opener = lambda: open(gdal, "rb")  # noqa: E731
+    elif gdal.startswith("/vsigzip/") and os.path.isfile(gdal[len("/vsigzip/"):]):
+        opener = lambda: gzip.open(gdal[len("/vsigzip/"):], "rb")  # noqa: E731
+    elif (gdal.startswith("/vsizip/") and (archive := local_archive(file)) is not None
+          and gdal.startswith(f"/vsizip/{archive}/") and os.path.isfile(archive)):
+        member = gdal[len(f"/vsizip/{archive}/"):]
+
+        def opener() -> BinaryIO:
+            with zipfile.ZipFile(archive) as zipped:  # the member's stream keeps the archive's file open
+                return zipped.open(member)
+    else:
+        return
+    expected = shape[0] * shape[1]
+    values = 0
+    with opener() as handle:
+        header = True
+        while header:  # the header's keyword lines, then the values
+            start = handle.tell()
+            line = handle.readline()
+            words = line.split()
+            if not line:
+                break
+            if words and words[0].decode("latin-1").rstrip(":").lower() in _ASC_KEYWORDS:
+                continue
+            handle.seek(start)
+            header = False
+        joined = False  # whether the last chunk ended inside a value
+        while chunk := handle.read(_ASC_CHUNK):
+            values += len(chunk.split()) - (joined and not chunk[:1].isspace())
+            joined = not chunk[-1:].isspace()
+    if values < expected:
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected {what} of {shape[0]} x {shape[1]} = {expected:,} "
+            f"values, as its header declares; got {values:,} (cut short: GDAL reads the missing last value as 0)"
+        )
 
 
 def gdal_reason(exc: BaseException) -> str:

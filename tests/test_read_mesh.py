@@ -229,3 +229,53 @@ def test_gltf_buffer_view_past_its_buffer_refused_by_name(tmp_path):
     _write_glb(path, tree, binary)
     with pytest.raises(DataFileError, match=r"over\.glb.*bufferView 1 ends at byte 448 of buffer 0, which holds 60"):
         read_mesh(path)
+
+
+def _strip_ply(path, strip: list[int], *, binary: bool) -> None:
+    """A PLY of a 3 x 2 grid of vertices (z = x + 10 y) whose triangles are one ``tristrips`` row, as the Stanford
+    scanning repository's tools and VCG write them, and no face element."""
+    vertices = np.array([[x, y, x + 10 * y] for y in range(2) for x in range(3)], np.float32)
+    head = ["ply", f"format {'binary_little_endian' if binary else 'ascii'} 1.0", "element vertex 6",
+            "property float x", "property float y", "property float z", "element tristrips 1",
+            "property list int int vertex_indices", "end_header"]
+    if binary:
+        body = vertices.tobytes() + np.array([len(strip), *strip], "<i4").tobytes()
+        path.write_bytes(("\n".join(head) + "\n").encode() + body)
+    else:
+        rows = [" ".join(map(str, v)) for v in vertices.tolist()] + [" ".join(map(str, [len(strip), *strip]))]
+        path.write_text("\n".join(head + rows) + "\n")
+
+
+@pytest.mark.parametrize("binary", [False, True])
+def test_ply_triangle_strips_read_as_triangles(tmp_path, binary):
+    """trimesh's reader skips a ``tristrips`` element: the mesh came back as its 6 vertices without a face. Its
+    strips (-1 between them) are triangles, every other one turned so all face up as the strip winds, and a
+    stitching triangle naming a vertex twice dropped; each triangle's corners are those of the grid's cells."""
+    # the 3 x 2 grid: 0 1 2 along y = 0, 3 4 5 along y = 1; strip 3 0 4 1 5 2 winds its two cells' four triangles
+    _strip_ply(tmp_path / "strips.ply", [3, 0, 4, 1, -1, 4, 1, 5, 2, 2], binary=binary)
+    mesh = read_mesh(tmp_path / "strips.ply")
+    assert mesh.faces.tolist() == [[3, 0, 4], [4, 0, 1], [4, 1, 5], [5, 1, 2]]
+    normals = np.cross(*(mesh.vertices[mesh.faces[:, 1:]] - mesh.vertices[mesh.faces[:, :1]]).transpose(1, 0, 2))
+    assert (normals[:, 2] > 0).all()  # one winding: all face up, as the strip starts (3 0 4 is anticlockwise from +z)
+    np.testing.assert_allclose(mesh.area, 2 * np.sqrt(1 + 1 + 100))  # two 1 x 1 cells on the plane z = x + 10 y
+
+
+_OBJ_SQUARE = "v 0 0 0\nv 1 0 0\nv 1 1 0.5\nv 0 1 0\nvn 0 0 1\nf 1 2 3\nf 1//1 3//1 4//1\n"
+
+
+@pytest.mark.parametrize("layout", ["tabs", "tab after keyword", "indented", "indented with tabs, CRLF"])
+def test_obj_written_with_tabs_or_indented_reads_as_with_spaces(tmp_path, layout):
+    """OBJ words are separated by white space: trimesh's reader finds a statement by a newline, its keyword and one
+    space, and skipped every other line without a word: a file written with tabs came back empty (0 vertices, 0
+    faces), an indented one as its first vertex alone. Each reads as the same file with single spaces does."""
+    text = {"tabs": _OBJ_SQUARE.replace(" ", "\t"),
+            "tab after keyword": _OBJ_SQUARE.replace("v ", "v\t").replace("f ", "f\t"),
+            "indented": "".join(f"  {line}\n" for line in _OBJ_SQUARE.splitlines()),
+            "indented with tabs, CRLF": "".join(f"\t{line}\r\n" for line in _OBJ_SQUARE.splitlines())}[layout]
+    (tmp_path / "plain.obj").write_text(_OBJ_SQUARE)
+    (tmp_path / "loose.obj").write_bytes(text.encode())
+    plain, loose = read_mesh(tmp_path / "plain.obj"), read_mesh(tmp_path / "loose.obj")
+    assert len(plain.vertices) == 4 and len(plain.faces) == 2  # the reference itself
+    np.testing.assert_array_equal(loose.vertices, plain.vertices)
+    np.testing.assert_array_equal(loose.faces, plain.faces)
+    assert loose.metadata["name"] == "loose.obj"
