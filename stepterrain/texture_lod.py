@@ -2298,12 +2298,15 @@ class DrawItem:
     layer has nothing loaded yet) and, per layer, whether hybrid shading replaces it by computed lighting
     (§7.3: a topographic leaf texture whose texel exceeds τ_user on screen). ``seams`` names, per side of the patch
     (its first row, last row, first column, last column of grid nodes), the coarser patch drawn across it, onto whose
-    edge :func:`paint_with_textures` moves that border's nodes (None: no coarser neighbour drawn there)."""
+    edge :func:`paint_with_textures` moves that border's nodes (None: no coarser neighbour drawn there); ``finer``,
+    per side, the finer patches drawn across it (those whose ``seams`` name this one), in order along the side, at
+    whose border nodes it splits that side's edges (empty: none)."""
 
     geometry: GeometryPatch
     textures: tuple[TexturePatch | None, ...]
     lighting: tuple[bool, ...]
     seams: tuple[GeometryPatch | None, ...] = (None, None, None, None)
+    finer: tuple[tuple[GeometryPatch, ...], ...] = ((), (), (), ())
 
 
 def render_with_textures(
@@ -2346,7 +2349,8 @@ def render_with_textures(
     (partial textures). Before painting, each M is reduced to its parent while τ(N, M_parent) ≤ τ_user, then
     to its parent while its data is not loaded (requesting it). The cut is balanced: a drawn patch with a neighbour
     drawn more than one level finer is split too (not in the paper, whose patches leave T-junction cracks), and each
-    item names its coarser neighbours in ``seams`` for :func:`paint_with_textures` to stitch onto. A stitched patch's
+    item names its coarser neighbours in ``seams`` for :func:`paint_with_textures` to stitch onto, and its finer ones
+    in ``finer`` for it to split its border edges at their nodes (no T-junction left). A stitched patch's
     mesh lies within e(N) + s(N) of the terrain, s(N) its largest seam error (:class:`GeometryPatch`
     ``seam_errors``) on a stitched side; where γ of that exceeds γ_user, the coarser neighbours split too, so it holds
     for every item whose coarser neighbours have children.
@@ -2393,9 +2397,24 @@ def render_with_textures(
                 split.update(n for n in sides if n is not None and n.children)
         split -= forced
         if not split:
-            return [DrawItem(item.geometry, item.textures, item.lighting, sides)
-                    for item, sides in zip(out, seams, strict=True)]
+            finer = _finer_neighbours(out, seams)
+            return [DrawItem(item.geometry, item.textures, item.lighting, sides, across)
+                    for item, sides, across in zip(out, seams, finer, strict=True)]
         forced |= split
+
+
+def _finer_neighbours(out: list[DrawItem], seams: list[tuple[GeometryPatch | None, ...]]) -> list[
+        tuple[tuple[GeometryPatch, ...], ...]]:
+    """Per item of ``out``, per side, the finer drawn patches across it: those whose ``seams`` (per item) name it on
+    their opposite side (a finer patch's first row lies on a coarser one's last row), ordered along the side."""
+    index = {item.geometry: k for k, item in enumerate(out)}
+    finer: list[list[list[GeometryPatch]]] = [[[], [], [], []] for _ in out]
+    for item, sides in zip(out, seams, strict=True):
+        for side, coarse in enumerate(sides):
+            if coarse is not None:
+                finer[index[coarse]][side ^ 1].append(item.geometry)
+    return [tuple(tuple(sorted(across, key=lambda n, s=side: (n.cols if s < 2 else n.rows)[0]))
+                  for side, across in enumerate(sides)) for sides in finer]
 
 
 def _coarser_neighbours(patch: GeometryPatch, root: GeometryPatch,
@@ -2497,11 +2516,14 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     coarser patch of the same quadtree drawn across that side (its last row or column on the side's line, spanning
     the side), or ``seams`` of other than 4 entries, raises :class:`~stepterrain.errors.InvalidInputError`.
 
-    The closure is geometric, not topological: each item paints a mesh of its own (its own texture patch's image and
-    UVs: separate objects, no shared vertex array), and the coarser patch's border stays one edge where the finer one
-    has its in-between nodes on it (a T-junction; welded by position, the coarse edge and the finer pieces are used
-    once each), so a rasterizer may still drop single pixels along it. Splitting the coarse edge there would need
-    each item's finer neighbours, which ``seams`` (the coarser ones) does not name.
+    The closure is topological too: on a side the item's ``finer`` names finer patches across, each border triangle
+    whose edge has their border nodes between its ends is split at them (a fan from its opposite vertex), the extra
+    vertices at the very floats the finer patches give those nodes (the same arithmetic; UVs, from x and y, along the
+    edge), so the surface is the same and the meshes of a cut, each its own (own texture patch's image and UVs),
+    welded by exact position share every border edge: no T-junction for a rasterizer to drop pixels along (unsplit,
+    the sample DEM in an oblique view, ``leaf_size=32``: 346 coarse border edges used once each). An entry of
+    ``finer`` that is not a finer patch of the same quadtree drawn across that side, or a side named in both
+    ``seams`` and ``finer``, raises :class:`~stepterrain.errors.InvalidInputError`.
 
     Examples
     --------
@@ -2527,6 +2549,7 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     if terrain is None:
         raise InvalidInputError("paint_with_textures needs a DrawItem whose layer has a texture patch")
     seams = _checked_seams(item)
+    finer = _checked_finer(item, seams)
     (r0, r1), (c0, c1) = patch.rows, patch.cols
     rows, cols = _samples(r0, r1, patch.stride), _samples(c0, c1, patch.stride)
     dx, dy = terrain.spacing
@@ -2541,6 +2564,9 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     vertices = np.column_stack([terrain.origin[0] + jj.reshape(-1) * dx, terrain.origin[1] + ii.reshape(-1) * dy,
                                 z.reshape(-1)])
     faces = grid_faces(len(rows), len(cols), flip=dx * dy < 0)
+    for side, across in enumerate(finer):  # T-junctions closed: the border edges split at the finer nodes
+        if across:
+            vertices, faces = _split_border(terrain, patch, side, across, vertices, faces, (len(rows), len(cols)))
     # nodata, as heightfield_mesh: no face touches a NaN node, and the NaN nodes go (they were kept: NaN vertices in
     # the mesh, its faces spanning the void)
     vertices, faces, _ = without_nan_nodes(vertices, faces)
@@ -2596,6 +2622,111 @@ def _checked_seams(item: DrawItem) -> tuple[GeometryPatch | None, ...]:
                                 f"across its {_SIDES[side]} (depth < {patch.depth}, its {axis} {ends} at "
                                 f"{axis[:-1]} {line}, its {along} spanning {own[0]}-{own[1]}); got {got}")
     return tuple(seams)
+
+
+def _checked_finer(item: DrawItem, seams: tuple[GeometryPatch | None, ...]) -> tuple[tuple[GeometryPatch, ...], ...]:
+    """``item.finer``, each entry a sequence of finer patches of the item's quadtree drawn across that side (their
+    first or last row or column the side's line, their columns or rows within the side's), on a side ``seams`` leaves
+    None, else an InvalidInputError naming it."""
+    patch, finer = item.geometry, item.finer
+    if isinstance(finer, (str, bytes)) or not isinstance(finer, Sequence) or len(finer) != 4 or any(
+            isinstance(f, (str, bytes)) or not isinstance(f, Sequence) for f in finer):
+        got = counted(len(finer), "entry", "entries") if isinstance(finer, Sequence) else repr(finer)
+        raise InvalidInputError("item.finer must be 4 sequences (the patch's first row, last row, first column, last "
+                                "column), each of the finer GeometryPatches drawn across that side; got " + got)
+    root = _root_of(patch)
+    for side, across in enumerate(finer):
+        if across and seams[side] is not None:
+            raise InvalidInputError(f"item.finer[{side}] must be empty where item.seams[{side}] names a coarser patch "
+                                    f"across its {_SIDES[side]}; got {counted(len(across), 'patch', 'patches')}")
+        axis, along = ("rows", "columns") if side < 2 else ("columns", "rows")
+        line = (patch.rows + patch.cols)[side]
+        own = patch.cols if side < 2 else patch.rows
+        ends, start = "ending" if side % 2 == 0 else "starting", side % 2 == 0  # its line: the neighbour's last/first
+        for k, fine in enumerate(across):
+            if not isinstance(fine, GeometryPatch):
+                got = type(fine).__name__
+            elif _root_of(fine) is not root:
+                got = "a patch of another quadtree"
+            else:
+                got = (f"a patch of depth {fine.depth} over rows {fine.rows[0]}-{fine.rows[1]}, columns "
+                       f"{fine.cols[0]}-{fine.cols[1]}")
+                theirs = fine.rows if side < 2 else fine.cols
+                span = fine.cols if side < 2 else fine.rows
+                if fine.depth > patch.depth and theirs[1 if start else 0] == line and own[0] <= span[0] \
+                        and span[1] <= own[1]:
+                    continue
+            raise InvalidInputError(f"item.finer[{side}][{k}] must be a finer patch of the item's quadtree drawn "
+                                    f"across its {_SIDES[side]} (depth > {patch.depth}, its {axis} {ends} at "
+                                    f"{axis[:-1]} {line}, its {along} within {own[0]}-{own[1]}); got {got}")
+    return tuple(tuple(across) for across in finer)
+
+
+def _split_border(terrain: Terrain, patch: GeometryPatch, side: int, finer: Sequence[GeometryPatch],
+                  vertices: NDArray[np.float64], faces: NDArray[np.int64], shape: tuple[int, int]) -> tuple[
+        NDArray[np.float64], NDArray[np.int64]]:
+    """(vertices, faces) of ``patch``'s grid mesh (``shape``: its sampled rows x columns, :func:`grid_faces`'
+    order) with each border triangle on ``side`` whose edge has ``finer`` patches' border nodes between its ends split
+    at them (a fan from its opposite vertex, winding kept): the extra vertices at the floats the finer patches give
+    their stitched nodes (:func:`_stitched` onto this patch's edge, x and y as :func:`paint_with_textures` places a
+    grid node), so the meshes welded by exact position share every border edge. A triangle with a nodata corner
+    (dropped afterwards) or a finer node with nodata (the finer patch draws no face at it) is not split there."""
+    profile, own = _border(terrain.heights, patch, side)
+    span = patch.cols if side < 2 else patch.rows
+    at = np.unique(np.concatenate([_samples(*(f.cols if side < 2 else f.rows), f.stride) for f in finer]))
+    at = at[(at > span[0]) & (at < span[1]) & ~np.isin(at, own)]
+    if not len(at):
+        return vertices, faces
+    z = _stitched(profile, at, span, patch.stride, profile[at].astype(np.float64))
+    at, z = at[np.isfinite(z)], z[np.isfinite(z)]
+    line = (patch.rows + patch.cols)[side]
+    ii, jj = (np.full(len(at), line, np.intp), at) if side < 2 else (at, np.full(len(at), line, np.intp))
+    dx, dy = terrain.spacing
+    extra = np.column_stack([terrain.origin[0] + jj * dx, terrain.origin[1] + ii * dy, z])
+    first = len(vertices)
+    vertices = np.concatenate([vertices, extra])
+    n_rows, n_cols = shape
+    cells = n_cols - 1
+    new_faces = [faces]
+    faces = faces.copy()
+    new_faces[0] = faces
+    for k in range(len(own) - 1):
+        inside = np.flatnonzero((at > own[k]) & (at < own[k + 1]))
+        if not len(inside):
+            continue
+        if side < 2:  # grid_faces: cell (i, j) is faces 2 (i * cells + j) + 0 (n00 n01 n11) and + 1 (n00 n11 n10)
+            i = 0 if side == 0 else n_rows - 1
+            a, b = i * n_cols + k, i * n_cols + k + 1
+            f = 2 * ((0 if side == 0 else n_rows - 2) * cells + k) + (side == 1)
+        else:
+            j = 0 if side == 2 else n_cols - 1
+            a, b = k * n_cols + j, (k + 1) * n_cols + j
+            f = 2 * (k * cells + (0 if side == 2 else n_cols - 2)) + (side == 2)
+        tri = [int(v) for v in faces[f]]
+        if a not in tri or b not in tri:  # a one-cell patch: split at another side already, a fan piece holds it
+            pieces = np.concatenate(new_faces[1:]) if len(new_faces) > 1 else faces[:0]
+            hit = np.flatnonzero((pieces == a).any(axis=1) & (pieces == b).any(axis=1))
+            if not len(hit):
+                continue
+            tri = [int(v) for v in pieces[hit[0]]]
+            target = (len(new_faces) > 1, hit[0])
+        else:
+            target = (False, f)
+        if not np.isfinite(vertices[tri, 2]).all():
+            continue
+        w = next(v for v in tri if v not in (a, b))
+        turn = tri.index(w)
+        u, v = tri[(turn + 1) % 3], tri[(turn + 2) % 3]  # the border edge in the face's winding
+        mid = list(first + inside) if u == a else list(first + inside[::-1])
+        chain = [u, *mid, v]
+        fan = np.array([[chain[m], chain[m + 1], w] for m in range(len(chain) - 1)], dtype=faces.dtype)
+        if target[0]:
+            pieces[target[1]] = fan[0]
+            new_faces = [faces, pieces]
+        else:
+            faces[f] = fan[0]
+        new_faces.append(fan[1:])
+    return vertices, np.concatenate(new_faces)
 
 
 def _root_of(patch: GeometryPatch) -> GeometryPatch:

@@ -1703,6 +1703,28 @@ def _border_edges(meshes, terrain):
     return pieces, gap
 
 
+def _welded_edges(meshes, t):
+    """Per edge of ``meshes`` welded by exact vertex position (each mesh's faces' edges, undirected), how many faces
+    use it, and which of them lie on the grid's outline (both ends on its first or last row, or first or last
+    column; from the vertices' grid nodes)."""
+    vertices = np.concatenate([m.vertices for m in meshes])
+    offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
+    faces = np.concatenate([np.asarray(m.faces) + o for m, o in zip(meshes, offsets, strict=True)])
+    _, weld = np.unique(vertices, axis=0, return_inverse=True)
+    faces = weld.reshape(-1)[faces]
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    unique, counts = np.unique(edges, axis=0, return_counts=True)
+    node = np.zeros((weld.max() + 1, 2), dtype=int)
+    node[weld.reshape(-1), 0] = np.rint((vertices[:, 1] - t.origin[1]) / t.spacing[1])
+    node[weld.reshape(-1), 1] = np.rint((vertices[:, 0] - t.origin[0]) / t.spacing[0])
+    rows, cols = t.heights.shape
+    a, b = node[unique[:, 0]], node[unique[:, 1]]
+    outline = (((a[:, 0] == b[:, 0]) & np.isin(a[:, 0], (0, rows - 1)))
+               | ((a[:, 1] == b[:, 1]) & np.isin(a[:, 1], (0, cols - 1))))
+    length = np.abs(a - b).sum(axis=1)
+    return counts, outline, length
+
+
 @pytest.mark.parametrize("case", ["sample_dem", "synthetic"])
 def test_patches_drawn_at_different_levels_meet_without_cracks(case):
     """Neighbouring patches drawn at different levels left T-junction cracks along their border: the finer one's
@@ -1714,7 +1736,7 @@ def test_patches_drawn_at_different_levels_meet_without_cracks(case):
     import dataclasses
 
     from stepterrain import sample_dem
-    from stepterrain.texture_lod import _geometric_error_in, _in_view, paint_with_textures
+    from stepterrain.texture_lod import _geometric_error_in, _in_view, _samples, paint_with_textures
 
     if case == "sample_dem":
         terrain, leaf_size, gamma_user = sample_dem(), 32, 1.0  # 643 x 1197
@@ -1731,7 +1753,9 @@ def test_patches_drawn_at_different_levels_meet_without_cracks(case):
         tree = TextureTree(pyramid, quadtree, max_texture_size=16)
         items = render_with_textures(quadtree.root, [tree.root], camera, gamma_user=gamma_user, tau_user=1e9)
         meshes = [paint_with_textures(item) for item in items]
-        unstitched = [paint_with_textures(dataclasses.replace(item, seams=(None,) * 4)) for item in items]
+        unstitched = [paint_with_textures(dataclasses.replace(item, seams=(None,) * 4, finer=((),) * 4))
+                      for item in items]
+        unsplit = [paint_with_textures(dataclasses.replace(item, finer=((),) * 4)) for item in items]
     assert len({item.geometry.depth for item in items}) >= 2  # a cut of mixed levels
     assert sum(seam is not None for item in items for seam in item.seams) > 5
     area = sum(float(np.prod(np.ptp(m.vertices[:, :2], axis=0))) for m in meshes)
@@ -1746,8 +1770,9 @@ def test_patches_drawn_at_different_levels_meet_without_cracks(case):
     for item, mesh in zip(items, meshes, strict=True):  # the stitched nodes move by the seam error counted in γ
         col = np.rint((mesh.vertices[:, 0] - t.origin[0]) / t.spacing[0]).astype(int)
         row = np.rint((mesh.vertices[:, 1] - t.origin[1]) / t.spacing[1]).astype(int)
-        moved = float(np.abs(mesh.vertices[:, 2] - t.heights[row, col]).max())
         node = item.geometry
+        own = np.isin(row, _samples(*node.rows, node.stride)) & np.isin(col, _samples(*node.cols, node.stride))
+        moved = float(np.abs(mesh.vertices[own, 2] - t.heights[row, col][own]).max())  # not a finer one's, on its edge
         seam = max((node.seam_errors[k] for k, n in enumerate(item.seams) if n is not None), default=0.0)
         assert moved == pytest.approx(seam, rel=1e-12, abs=1e-12)
         if seam:
@@ -1763,6 +1788,16 @@ def test_patches_drawn_at_different_levels_meet_without_cracks(case):
     # unstitched, the same cut cracks: the check sees it
     _, open_gap = _border_edges(unstitched, t)
     assert open_gap > 1.0
+    # and the topology is closed: welded by exact position, every inner edge has two faces, the outline's one (a
+    # coarse border edge stayed whole, a T-junction: 59 edges used once inside on the synthetic DEM)
+    counts, on_outline, length = _welded_edges(meshes, t)
+    assert (counts[~on_outline] == 2).all(), f"{int((counts[~on_outline] != 2).sum())} inner edges not used twice"
+    assert (counts[on_outline] == 1).all()
+    assert length[on_outline].sum() == 2 * ((rows - 1) + (cols - 1))
+    assert sum(len(across) for item in items for across in item.finer) == sum(
+        seam is not None for item in items for seam in item.seams)  # each stitched side named from its coarse side
+    counts, on_outline, _ = _welded_edges(unsplit, t)  # without the split, the check sees the T-junctions
+    assert (counts[~on_outline] == 1).sum() > 10
 
 
 def test_a_patchs_seam_errors_are_the_distances_its_border_nodes_move_onto_its_parents_lines():
@@ -1841,3 +1876,48 @@ def test_paint_with_textures_refuses_malformed_seams(seams, match):
             :, 2]).max() > 0.1  # the good seams stitch
         with pytest.raises(InvalidInputError, match=match):
             paint_with_textures(DrawItem(fine, (tree.root,), (False,), seams))
+
+
+_COARSE = ((0, 16), (0, 16))  # depth 1; its last row borders _FINE and the depth-2 patch over columns 0-8
+
+
+@pytest.mark.parametrize("finer, match", [
+    (((), (), ()), r"^item\.finer must be 4 sequences .*; got 3 entries"),
+    (None, r"^item\.finer must be 4 sequences .*; got None"),
+    (((), 5, (), ()), r"^item\.finer must be 4 sequences .*; got 4 entries"),  # an entry not a sequence
+    (((), (5,), (), ()), r"^item\.finer\[1\]\[0\] must be a finer patch of the item's quadtree drawn across its last "
+     r"row \(depth > 1, its rows starting at row 16, its columns within 0-16\); got int"),
+    (((((16, 24), (8, 16)),), (), (), ()), r"^item\.finer\[0\]\[0\] .*across its first row .*rows ending at row 0.*; "
+     r"got a patch of depth 2 over rows 16-24, columns 8-16"),  # across another side
+    (((), (((16, 32), (0, 16)),), (), ()), r"^item\.finer\[1\]\[0\] .*; got a patch of depth 1 over rows 16-32"),
+    (((), (((16, 24), (16, 24)),), (), ()), r"^item\.finer\[1\]\[0\] .*; got a patch of depth 2 over rows 16-24, "
+     r"columns 16-24"),  # finer, on the line, but past the side's end
+    (((), ("other",), (), ()), r"^item\.finer\[1\]\[0\] .*; got a patch of another quadtree"),
+])
+def test_paint_with_textures_refuses_malformed_finer(finer, match):
+    """DrawItem.finer (the finer patches across each side, at whose border nodes paint_with_textures splits that
+    side's edges) is checked as seams is: an InvalidInputError naming item.finer, what was expected and what was got,
+    not a patch's border split at the nodes of one not across it. The good finer neighbours split the border: the
+    extra vertices are the finer patches' stitched nodes, on the coarse edge (the surface the same)."""
+    from stepterrain.texture_lod import DrawItem, paint_with_textures
+
+    quadtree, by_span = _seam_quadtree()
+    other = _seam_quadtree(12)[1]
+    coarse = by_span[_COARSE]
+    if isinstance(finer, tuple):
+        finer = tuple(tuple(other[((16, 24), (0, 8))] if s == "other" else by_span[s] if isinstance(s, tuple) else s
+                            for s in side) if isinstance(side, tuple) else side for side in finer)
+    with ImagePyramid.build(np.full((32, 32, 3), 90, np.uint8), extent=quadtree.root.domain) as pyramid:
+        tree = TextureTree(pyramid, quadtree, max_texture_size=16)
+        across = (by_span[(16, 24), (0, 8)], by_span[_FINE])
+        plain = paint_with_textures(DrawItem(coarse, (tree.root,), (False,)))
+        split = paint_with_textures(DrawItem(coarse, (tree.root,), (False,), (None,) * 4, ((), across, (), ())))
+        fine = paint_with_textures(DrawItem(by_span[_FINE], (tree.root,), (False,), (coarse, None, None, None)))
+        assert len(split.vertices) > len(plain.vertices) and split.area == pytest.approx(plain.area, rel=1e-12)
+        extra = {tuple(v) for v in split.vertices[len(plain.vertices):]}
+        assert extra & {tuple(v) for v in fine.vertices}  # at the very floats the finer patch draws
+        with pytest.raises(InvalidInputError, match=match):
+            paint_with_textures(DrawItem(coarse, (tree.root,), (False,), (None,) * 4, finer))
+        with pytest.raises(InvalidInputError, match=r"^item\.finer\[0\] must be empty where item\.seams\[0\] names"):
+            paint_with_textures(DrawItem(by_span[_FINE], (tree.root,), (False,), (coarse, None, None, None),
+                                         ((coarse,), (), (), ())))
