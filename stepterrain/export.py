@@ -2601,9 +2601,12 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     (over trimesh's ``name``; an STL's is only its header). An OBJ whose faces name vertex indices only
     (``f 1 2 3``: one :func:`save_mesh` writes without a texture) keeps the vertices no face names, in their
     order, as the other formats do (trimesh's reader dropped them: ``stepterrain info`` counted fewer vertices than
-    were written); one with texture or normal indices comes back with the vertices its faces name, one per
-    distinct (v, vt, vn) corner. An OBJ whose lines are indented or whose words are separated by tabs reads as with
-    single spaces (trimesh's reader skipped such lines: it came back empty, or as its first vertex alone).
+    were written), also one of several materials (``usemtl``): its faces in the file's order, each with its
+    material's colour as its face colour (:func:`_obj_materials_joined`; trimesh's reader repeated each vertex in
+    each material it is a corner in, open along the seams); one with texture or normal indices comes back with the
+    vertices its faces name, one per distinct (v, vt, vn) corner. An OBJ whose lines are indented or whose words are
+    separated by tabs reads as with single spaces (trimesh's reader skipped such lines: it came back empty, or as
+    its first vertex alone).
 
     Raises
     ------
@@ -2658,7 +2661,11 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             order = {"maintain_order": True} if plain_obj else {}
             tidied = _obj_tidied(file) if file.suffix.lower() == ".obj" else None
             try:
-                loaded = _trimesh_read(trimesh.load, file, tidied, force="mesh", process=False, **order)
+                loaded = None  # several usemtl, faces of vertex indices only: one vertex per v line still
+                if file.suffix.lower() == ".obj" and not plain_obj and not _obj_face_with_slash(file):
+                    loaded = _obj_materials_joined(file, tidied)
+                if loaded is None:
+                    loaded = _trimesh_read(trimesh.load, file, tidied, force="mesh", process=False, **order)
             except ValueError as exc:
                 mixed = _ply_binary_mixed_lists(file) if file.suffix.lower() == ".ply" else None
                 if mixed is None:
@@ -3358,8 +3365,9 @@ def _obj_faces_name_vertices_only(file: Path) -> bool:
     info`` counted fewer than were written, and a mesh read back was renumbered); with texture or normal indices that
     option takes one UV per vertex (a vertex on a UV seam got the median of its UVs) and lost the texture of a file
     with unused vertices, and with several ``usemtl`` it repeated every vertex in each material's mesh (faces
-    before the one ``usemtl`` make a mesh without a material: two), so those keep trimesh's default. Scanned without
-    reading the file into memory."""
+    before the one ``usemtl`` make a mesh without a material: two), so those are read by
+    :func:`_obj_materials_joined` (with texture or normal indices: trimesh's default). Scanned without reading the
+    file into memory."""
     import mmap
 
     with open(file, "rb") as stream:
@@ -3378,6 +3386,53 @@ def _obj_faces_name_vertices_only(file: Path) -> bool:
             # one material, for every face: not a second usemtl, nor faces before this one (a group of their own)
             return (_OBJ_USEMTL.search(data, end) is None  # type: ignore[call-overload]
                     and _OBJ_FACE.search(data, 0, start) is None)  # type: ignore[call-overload]
+
+
+def _obj_face_with_slash(file: Path) -> bool:
+    """Whether a face of the OBJ ``file`` names a texture or normal index (``f 1/1 2/2 3/3``, ``f 1//1 ...``)."""
+    import mmap
+
+    with open(file, "rb") as stream:
+        if os.fstat(stream.fileno()).st_size == 0:
+            return False
+        with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as data:
+            return data.find(b"/") >= 0 and _OBJ_FACE_WITH_SLASH.search(data) is not None  # type: ignore[call-overload]
+
+
+def _obj_materials_joined(file: Path, tidied: bytes | None) -> trimesh.Trimesh | None:
+    """The OBJ ``file`` whose faces name vertex indices only but which :func:`_obj_faces_name_vertices_only` does not
+    read in one piece (several ``usemtl``, or faces before its one) as one mesh of the file's vertices, one per ``v``
+    line in their order, and its faces in the file's order, indexing them. trimesh's reader made one mesh per material
+    (``maintain_order`` gave each every vertex) and ``force="mesh"`` joined them, each vertex repeated in each
+    material it is a corner in and the vertices no face names dropped: a closed surface of two materials came back
+    open along their seam. Read with trimesh's reader one chunk per ``usemtl`` (``group_material=False``; it lists
+    them last first), each with every vertex. Each face's material is kept as its face colour (the material's
+    colour, trimesh's grey where its ``.mtl`` names no ``Kd``; a face before any ``usemtl`` or of a material the
+    ``.mtl`` lacks, trimesh's default colour), as the 3MF reader keeps a colour per face: trimesh packed the
+    materials' colours into an atlas of its own, by UVs that cannot be kept on a vertex shared by two materials. A
+    file without materials (no ``.mtl`` found) keeps its ``v`` lines' colours, if any. None for a file of no faces."""
+    scene = _trimesh_read(trimesh.load_scene, file, tidied, process=False, maintain_order=True,
+                          group_material=False)
+    parts = [part for part in reversed(list(scene.geometry.values())) if isinstance(part, trimesh.Trimesh)]
+    if not parts:
+        return None
+    vertices = np.asarray(parts[0].vertices)
+    if any(len(part.vertices) != len(vertices) for part in parts):  # each has every vertex, as maintain_order reads
+        raise ValueError("the file's materials read with different vertices")
+    faces = np.concatenate([np.asarray(part.faces, dtype=np.int64).reshape(-1, 3) for part in parts])
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    materials = [getattr(part.visual, "material", None) for part in parts]
+    if any(material is not None for material in materials):
+        default = np.asarray(trimesh.visual.color.DEFAULT_COLOR, dtype=np.uint8)
+        colours = [np.asarray(material.main_color, dtype=np.uint8) if material is not None else default
+                   for material in materials]
+        counts = [len(part.faces) for part in parts]
+        mesh.visual = trimesh.visual.ColorVisuals(mesh, face_colors=np.repeat(np.asarray(colours), counts, axis=0))
+    elif all(part.visual.kind == "vertex" for part in parts):
+        mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=np.asarray(parts[0].visual.vertex_colors))
+    name = _utf8_name(file.name)
+    mesh.metadata.update({"name": name, "node": name})
+    return mesh
 
 
 #: the statements of Wavefront OBJ (and of its curves and surfaces), which an OBJ's lines start with

@@ -279,3 +279,28 @@ def test_obj_written_with_tabs_or_indented_reads_as_with_spaces(tmp_path, layout
     np.testing.assert_array_equal(loose.vertices, plain.vertices)
     np.testing.assert_array_equal(loose.faces, plain.faces)
     assert loose.metadata["name"] == "loose.obj"
+
+
+def test_obj_of_several_materials_keeps_its_vertices_once(tmp_path):
+    """An OBJ of vertex indices only with several ``usemtl`` came back split at the materials (trimesh's one mesh per
+    material, joined): its seam vertices repeated, its unused vertex dropped, the closed surface open. It keeps the
+    file's vertices, one per ``v`` line in order, its faces in the file's order, and each face's material colour."""
+    (tmp_path / "m.mtl").write_text("newmtl red\nKd 1 0 0\nnewmtl blue\nKd 0 0 1\n")
+    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    tetra = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])
+    materials = ["red", "blue", "red", "blue"]  # alternating: each usemtl a chunk of its own
+    lines = ["mtllib m.mtl", *(f"v {x:g} {y:g} {z:g}" for x, y, z in corners), "v 9 9 9"]
+    for face, material in zip(tetra, materials, strict=True):
+        lines += [f"usemtl {material}", "f " + " ".join(str(i + 1) for i in face)]
+    (tmp_path / "t.obj").write_text("\n".join(lines) + "\n")
+    mesh = read_mesh(tmp_path / "t.obj")
+    assert np.array_equal(mesh.vertices, [*corners, [9, 9, 9]])
+    assert np.array_equal(mesh.faces, tetra)
+    assert mesh.is_watertight
+    kd = {"red": [255, 0, 0, 255], "blue": [0, 0, 255, 255]}
+    assert np.array_equal(mesh.visual.face_colors, [kd[m] for m in materials])
+    # without its .mtl: the same geometry, no colours made up
+    (tmp_path / "m.mtl").unlink()
+    bare = read_mesh(tmp_path / "t.obj")
+    assert np.array_equal(bare.vertices, mesh.vertices) and np.array_equal(bare.faces, tetra)
+    assert bare.visual.kind is None
