@@ -2606,7 +2606,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     each material it is a corner in, open along the seams); one with texture or normal indices comes back with the
     vertices its faces name, one per distinct (v, vt, vn) corner. An OBJ whose lines are indented or whose words are
     separated by tabs reads as with single spaces (trimesh's reader skipped such lines: it came back empty, or as
-    its first vertex alone).
+    its first vertex alone), and a comment after a statement of numbers (``v 0 0 0 # a``, ``f 1 2 3 # x``) is dropped
+    (trimesh's reader refused the file; a ``#`` in a name, ``usemtl Material#1``, stays in it: :func:`_obj_tidied`).
 
     Raises
     ------
@@ -2796,17 +2797,34 @@ def _ply_binary_mixed_lists(file: Path, rows: int = 65536) -> str | None:
 
 #: An OBJ line trimesh's reader skips: one starting with blanks, or a statement's words separated by a tab.
 _OBJ_LOOSE_LINE = re.compile(rb"(?:^|[\r\n])[ \t]+\S|\t")
+#: The OBJ statements of numbers only (and ``s off``), whose ``#`` can only start a comment
+_OBJ_NUMBERS = frozenset({b"v", b"vt", b"vn", b"vp", b"f", b"l", b"p", b"s"})
+#: a comment after such a statement on its line (``v 0 0 0 # a``, ``f 1 2 3 # x``)
+_OBJ_TRAILING_COMMENT = re.compile(rb"^[ \t]*(?:v[tnp]?|[flps])[ \t][^\n#]*#", re.MULTILINE)
 
 
 def _obj_tidied(file: Path) -> bytes | None:
     """The OBJ ``file``'s text with each line's blanks around it dropped and its tabs made spaces, where a line starts
-    with blanks or holds a tab (as the OBJ format allows: its words are separated by white space), else None.
-    trimesh's reader finds statements by a newline, their keyword and a space: it skipped every such line without a
-    word (an OBJ indented, or written with tabs, came back empty or as its first vertex alone)."""
+    with blanks or holds a tab (as the OBJ format allows: its words are separated by white space), and the comment
+    after a statement of numbers (``v``, ``vt``, ``vn``, ``vp``, ``f``, ``l``, ``p``, ``s``: ``v 0 0 0 # a``, ``f 1
+    2 3 # x``) dropped, else None. trimesh's reader finds statements by a newline, their keyword and a space: it
+    skipped every such line without a word (an OBJ indented, or written with tabs, came back empty or as its first
+    vertex alone), and it refused a trailing comment with NumPy's "could not be read to its end due to unmatched
+    data". A ``#`` in a line of names (``mtllib``, ``usemtl``, ``o``, ``g``) is kept as part of the name: the OBJ
+    specification describes comments as lines starting with ``#``, and tools write names holding one
+    (``Material#1``), which trimesh's reader keeps."""
     data = file.read_bytes()
-    if _OBJ_LOOSE_LINE.search(data) is None:
+    comments = data.find(b"#") >= 0 and _OBJ_TRAILING_COMMENT.search(data) is not None
+    if not comments and _OBJ_LOOSE_LINE.search(data) is None:
         return None
-    return b"\n".join(line.strip(b" \t").replace(b"\t", b" ") for line in data.splitlines()) + b"\n"
+
+    def tidy(line: bytes) -> bytes:
+        line = line.strip(b" \t").replace(b"\t", b" ")
+        if comments and line.split(b" ", 1)[0] in _OBJ_NUMBERS:
+            line = line.split(b"#", 1)[0].rstrip(b" ")
+        return line
+
+    return b"\n".join(tidy(line) for line in data.splitlines()) + b"\n"
 
 
 def _trimesh_read(load: Callable[..., Any], file: Path, data: bytes | None = None, **kwargs: Any) -> Any:
@@ -3309,13 +3327,14 @@ def _gltf_color_0(file: Path, tree: Any = None) -> NDArray[np.float64] | None:
 
 
 #: An OBJ face statement with a texture or normal index (``f 1/1 2/2 3/3``, ``f 1//1 ...``) and a material statement.
-_OBJ_FACE_WITH_SLASH = re.compile(rb"^[ \t]*f[ \t][^\n]*/", re.MULTILINE)
+_OBJ_FACE_WITH_SLASH = re.compile(rb"^[ \t]*f[ \t][^\n#]*/", re.MULTILINE)
 _OBJ_USEMTL = re.compile(rb"^[ \t]*usemtl[ \t]", re.MULTILINE)
 _OBJ_FACE = re.compile(rb"^[ \t]*f[ \t]", re.MULTILINE)
 #: an index 0 (of a vertex, UV or normal) on an OBJ line, which names none in a face: OBJ counts from 1, or back from -1
 _OBJ_ZERO = re.compile(rb"[ \t/]0+(?![0-9.eE])")
 #: an OBJ vertex of fewer than three coordinates
-_OBJ_SHORT_VERTEX = re.compile(rb"^[ \t]*v[ \t]+(?:[^ \t\r\n]+[ \t]+)?[^ \t\r\n]*[ \t]*\r?$", re.MULTILINE)
+_OBJ_SHORT_VERTEX = re.compile(rb"^[ \t]*v[ \t]+(?:[^ \t\r\n#]+[ \t]+)?[^ \t\r\n#]*[ \t]*(?:#[^\r\n]*)?\r?$",
+                               re.MULTILINE)
 
 
 def _check_obj_indices(file: Path) -> None:
@@ -3336,9 +3355,11 @@ def _check_obj_indices(file: Path) -> None:
                     return
                 start = data.rfind(b"\n", 0, found.start()) + 1
                 end = data.find(b"\n", found.end())
+                offset = found.start() - start
                 del found
                 text = data[start:end if end >= 0 else len(data)]
-                if text.lstrip()[:2] in (b"f ", b"f\t"):
+                comment = text.find(b"#")  # f 1 2 3 # 0 apples: a zero in its comment names nothing
+                if text.lstrip()[:2] in (b"f ", b"f\t") and not 0 <= comment < offset:
                     line = data[:start].count(b"\n") + 1  # a copy, on the way to the error only
                     break
                 at = end

@@ -304,3 +304,19 @@ def test_obj_of_several_materials_keeps_its_vertices_once(tmp_path):
     bare = read_mesh(tmp_path / "t.obj")
     assert np.array_equal(bare.vertices, mesh.vertices) and np.array_equal(bare.faces, tetra)
     assert bare.visual.kind is None
+
+
+def test_obj_trailing_comments_read(tmp_path):
+    """A comment after an OBJ statement of numbers (``v 0 0 0 # a``, ``f 1 2 3 # x``) was refused with NumPy's
+    "could not be read to its end due to unmatched data"; it is dropped (a zero or slash in it not taken for an
+    index), while a ``#`` in a name (``usemtl Material#1``) stays part of the name."""
+    (tmp_path / "m.mtl").write_text("newmtl Material#1\nKd 1 0 0\nnewmtl b\nKd 0 0 1\n")
+    (tmp_path / "c.obj").write_text("mtllib m.mtl\nv 0 0 0 # a\nv 1 0 0\t# b\nv 0 1 0#c\nv 1 1 0\nv 7 7 7 # unused\n"
+                                    "usemtl Material#1\nf 1 2 3 # x 0 a/b\nusemtl b\nf 2 4 3#y\n")
+    mesh = read_mesh(tmp_path / "c.obj")
+    assert np.array_equal(mesh.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [7, 7, 7]])
+    assert np.array_equal(mesh.faces, [[0, 1, 2], [1, 3, 2]])
+    assert np.array_equal(mesh.visual.face_colors, [[255, 0, 0, 255], [0, 0, 255, 255]])
+    (tmp_path / "short.obj").write_text("v 0 0 0\nv 1 0 # two\nv 0 1 0\nf 1 2 3\n")
+    with pytest.raises(DataFileError, match="line 2, 'v 1 0 # two'"):
+        read_mesh(tmp_path / "short.obj")
