@@ -2608,6 +2608,9 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     separated by tabs reads as with single spaces (trimesh's reader skipped such lines: it came back empty, or as
     its first vertex alone), and a comment after a statement of numbers (``v 0 0 0 # a``, ``f 1 2 3 # x``) is dropped
     (trimesh's reader refused the file; a ``#`` in a name, ``usemtl Material#1``, stays in it: :func:`_obj_tidied`).
+    A COFF's vertex colours (trimesh's reader dropped them) come back as vertex colours, written as integers bytes
+    and with a decimal point floats 0..1; integers of 0 and 1 only, which read either way, are refused
+    (:func:`_off_vertex_colors`).
 
     Raises
     ------
@@ -2703,6 +2706,10 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             loaded.metadata.update(metadata)
         if file.suffix.lower() == ".obj" and isinstance(loaded, trimesh.Trimesh):
             loaded.metadata.update(_obj_metadata(file))
+        if file.suffix.lower() == ".off" and isinstance(loaded, trimesh.Trimesh):
+            colours = _off_vertex_colors(file, len(loaded.vertices))
+            if colours is not None:
+                loaded.visual = trimesh.visual.ColorVisuals(loaded, vertex_colors=colours)
         if gltf and isinstance(loaded, trimesh.Trimesh):
             if color is None and len(loaded.faces) == 0:  # points: trimesh rounds COLOR_0 to bytes, the file's
                 color = _gltf_color_0(file, tree)
@@ -3454,6 +3461,52 @@ def _obj_materials_joined(file: Path, tidied: bytes | None) -> trimesh.Trimesh |
     name = _utf8_name(file.name)
     mesh.metadata.update({"name": name, "node": name})
     return mesh
+
+
+#: an OFF file's keyword (Geomview's [ST][C][N][4][n]OFF): its groups say what each vertex line holds
+_OFF_KEYWORD = re.compile(r"(ST)?(C)?(N)?(4)?(n)?OFF")
+
+
+def _off_vertex_colors(file: Path, count: int) -> NDArray[np.uint8] | None:
+    """The vertex colours of the OFF ``file`` (``count`` vertices, as trimesh's reader read them) as RGBA bytes, or
+    None where its keyword has no ``C`` (``COFF``, ``CNOFF``, ...): trimesh's reader reads the coordinates alone.
+    Each vertex line holds x y z, then nx ny nz with an ``N``, then the colour, RGB or RGBA, then s t with an ``ST``.
+    Written with a decimal point or exponent anywhere, the colours are floats from 0 to 1 (Geomview's); written as
+    integers, bytes from 0 to 255 (MeshLab's). A ValueError where they do not read so: a vertex without a colour or of
+    colours of different lengths, a float outside 0..1, an integer outside 0..255, or integers of 0 and 1 only (0 1
+    0 is green as floats and nearly black as bytes)."""
+    text = file.read_bytes().decode("utf-8", "replace")
+    lines = [line.split("#", 1)[0].split() for line in text.splitlines()]
+    lines = [line for line in lines if line]
+    keyword = _OFF_KEYWORD.fullmatch(lines[0][0]) if lines else None
+    if keyword is None or keyword.group(2) is None:
+        return None
+    if keyword.group(4) or keyword.group(5):
+        raise ValueError(f"an OFF of {lines[0][0]!r}, whose vertices have other than 3 coordinates, is not read")
+    rest = lines[0][1:] or lines[1]
+    first = 1 if lines[0][1:] else 2
+    rows = lines[first : first + count]
+    skip, tail = 3 + (3 if keyword.group(3) else 0), 2 if keyword.group(1) else 0
+    widths = {len(row) - skip - tail for row in rows}
+    if not rest or len(rows) != count or len(widths) != 1 or widths.pop() not in (3, 4):
+        raise ValueError(f"a {lines[0][0]} file's vertex lines hold {sorted({len(row) for row in rows})} numbers: "
+                         f"{skip} before an RGB or RGBA colour{' and 2 after it' if tail else ''} expected on each")
+    words = [row[skip : len(row) - tail] for row in rows]
+    values = np.array(words, dtype=np.float64)
+    floats = any(any(c in word for c in ".eE") for row in words for word in row)
+    if floats:
+        if not np.all((values >= 0) & (values <= 1)):
+            raise ValueError(f"a {lines[0][0]} file's vertex colours written as floats are not all in 0..1")
+        values = np.round(values * 255)
+    elif not np.all((values >= 0) & (values <= 255)):
+        raise ValueError(f"a {lines[0][0]} file's vertex colours written as integers are not all in 0..255")
+    elif values.size and values.max() <= 1 and values.max() > 0:
+        raise ValueError(f"a {lines[0][0]} file's vertex colours are integers of 0 and 1 only: floats from 0 to 1 or "
+                         "bytes from 0 to 255? Write them as 0.0 and 1.0, or as 0 and 255")
+    colours = values.astype(np.uint8)
+    if colours.shape[1] == 3:
+        colours = np.column_stack([colours, np.full(len(colours), 255, np.uint8)])
+    return colours
 
 
 #: the statements of Wavefront OBJ (and of its curves and surfaces), which an OBJ's lines start with

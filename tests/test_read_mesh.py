@@ -320,3 +320,32 @@ def test_obj_trailing_comments_read(tmp_path):
     (tmp_path / "short.obj").write_text("v 0 0 0\nv 1 0 # two\nv 0 1 0\nf 1 2 3\n")
     with pytest.raises(DataFileError, match="line 2, 'v 1 0 # two'"):
         read_mesh(tmp_path / "short.obj")
+
+
+@pytest.mark.parametrize("form", ["bytes", "floats", "normals"])
+def test_off_vertex_colours_read(tmp_path, form):
+    """A COFF's vertex colours (RGB or RGBA after the coordinates, and after the normals of a CNOFF) were dropped by
+    trimesh's reader; they come back as RGBA bytes, written as integers bytes, with a decimal point floats 0..1."""
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float)
+    colours = np.array([[255, 0, 0, 255], [0, 255, 0, 128], [0, 0, 255, 255], [10, 20, 30, 255]], np.uint8)
+    keyword, rows = ("CNOFF" if form == "normals" else "COFF"), []
+    for vertex, colour in zip(vertices, colours, strict=True):
+        numbers = [f"{x:g}" for x in vertex] + (["0", "0", "1"] if form == "normals" else [])
+        numbers += [repr(int(c) / 255) for c in colour] if form == "floats" else [str(c) for c in colour]
+        rows.append(" ".join(numbers))
+    (tmp_path / "c.off").write_text(f"{keyword}\n# a comment\n4 2 0\n" + "\n".join(rows) + "\n3 0 1 2\n3 1 3 2\n")
+    mesh = read_mesh(tmp_path / "c.off")
+    assert np.array_equal(mesh.vertices, vertices) and np.array_equal(mesh.faces, [[0, 1, 2], [1, 3, 2]])
+    assert np.array_equal(mesh.visual.vertex_colors, colours)
+
+
+def test_off_vertex_colours_of_zeros_and_ones_refused(tmp_path):
+    """Integer colours of 0 and 1 only are floats (green) or bytes (nearly black): refused, said so; RGB gets alpha
+    255, and a plain OFF has no colours."""
+    (tmp_path / "rgb.off").write_text("COFF\n3 1 0\n0 0 0 0 255 0\n1 0 0 9 9 9\n0 1 0 0 0 0\n3 0 1 2\n")
+    assert np.array_equal(read_mesh(tmp_path / "rgb.off").visual.vertex_colors[:, 3], [255] * 3)
+    (tmp_path / "ones.off").write_text("COFF\n3 1 0\n0 0 0 0 1 0\n1 0 0 1 1 1\n0 1 0 0 0 0\n3 0 1 2\n")
+    with pytest.raises(DataFileError, match="integers of 0 and 1 only"):
+        read_mesh(tmp_path / "ones.off")
+    (tmp_path / "plain.off").write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+    assert read_mesh(tmp_path / "plain.off").visual.kind is None
