@@ -2488,6 +2488,11 @@ _3MF_UNITS: dict[str, str] = {
 }
 
 
+#: ``metadata["units"]`` (trimesh's names) for a 3MF's ``unit``, as :func:`_read_3mf` reads it
+_3MF_UNIT_NAMES = {"micron": "microns", "millimeter": "millimeters", "centimeter": "centimeters", "meter": "meters",
+                   "inch": "inches", "foot": "feet"}
+
+
 def _3mf_unit(metadata: Mapping[str, Any]) -> str:
     """The 3MF ``unit`` of a mesh whose ``metadata["units"]`` names one (case-insensitive: a globe's "meters",
     scale_for_print's "millimeters", trimesh's of a mesh it read), else millimetre (3MF's default: a terrain in
@@ -2589,7 +2594,9 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     without it), and a 3MF of one mesh object (as :func:`save_mesh`
     writes it) is read by stepterrain, streamed, with its colour group (trimesh's reader ignores ``m:colorgroup``)
     as vertex colours, or face colours where one vertex has corners of several colours, and its
-    ``stepterrain:metadata`` element as the mesh's metadata. A PLY's other numeric
+    ``stepterrain:metadata`` element as the mesh's metadata, and its model's ``unit`` as ``metadata["units"]``
+    (``"meters"``; none for millimetres, 3MF's default: a 3MF in metres read and saved again declared millimetres;
+    trimesh's reader, for other 3MFs, names it as the file does, ``"meter"``). A PLY's other numeric
     properties of its vertex and face elements (the ``face_attributes`` and ``vertex_attributes`` :func:`save_mesh`
     keeps there, as written: an (N, k) array as columns ``name_0`` ...; a bool, written as uchar 0/1 (PLY has no
     boolean type) and named in a header comment, as bool again, as is a 0/1 ``wall`` beside a ``level`` of a PLY
@@ -3585,7 +3592,10 @@ def _read_3mf(file: Path) -> trimesh.Trimesh | None:
     vertex colours, or face colours where one vertex has corners of several colours. Streamed (iterparse, elements
     cleared as read, numbers in compact arrays): trimesh's reader holds the whole XML tree, 9.8 GB for the embedded
     DEM's 4.3 M-face solid. The model's ``stepterrain:metadata`` element (:func:`_write_3mf`) becomes the mesh's
-    metadata. None for anything else (several objects, components, a build transform, no model):
+    metadata, and its ``unit`` its ``metadata["units"]`` (``"meters"`` for ``meter``, :data:`_3MF_UNIT_NAMES`) where
+    that metadata does not name it already: a foreign 3MF in metres read and saved again declared millimetres. A
+    model in millimetres (3MF's default, :func:`_write_3mf`'s for a mesh without units) adds none. None for
+    anything else (several objects, components, a build transform, no model):
     trimesh reads those."""
     import array
     import xml.etree.ElementTree as ET
@@ -3599,6 +3609,7 @@ def _read_3mf(file: Path) -> trimesh.Trimesh | None:
     default_pid = default_index = -1
     pid_ids: dict[str, int] = {}
     own: list[bytes] = []  # the text of its stepterrain:metadata element (_write_3mf)
+    unit = "millimeter"  # the model's, 3MF's default
     with zipfile.ZipFile(file) as archive:
         models = [name for name in archive.namelist() if name.lower().endswith(".model")]
         if len(models) != 1:
@@ -3622,6 +3633,8 @@ def _read_3mf(file: Path) -> trimesh.Trimesh | None:
                             return None
                     elif tag in (_3MF_CORE + "vertices", _3MF_CORE + "triangles"):
                         container = element
+                    elif tag == _3MF_CORE + "model":
+                        unit = element.get("unit", unit).strip().lower()
                     continue
                 if tag == _3MF_CORE + "triangle":
                     a = element.attrib
@@ -3653,6 +3666,8 @@ def _read_3mf(file: Path) -> trimesh.Trimesh | None:
     mesh = trimesh.Trimesh(vertices, faces, process=False)
     if own:
         mesh.metadata.update(_metadata_from_pieces(own))
+    if unit in _3MF_UNIT_NAMES and _3mf_unit(mesh.metadata) != unit:  # a foreign file's, or one edited
+        mesh.metadata["units"] = _3MF_UNIT_NAMES[unit]
     names = {index: name for name, index in pid_ids.items()}
     pids = np.unique(triangles[:, 3])
     if len(pids) != 1 or names.get(int(pids[0])) not in groups:

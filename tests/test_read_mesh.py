@@ -349,3 +349,48 @@ def test_off_vertex_colours_of_zeros_and_ones_refused(tmp_path):
         read_mesh(tmp_path / "ones.off")
     (tmp_path / "plain.off").write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
     assert read_mesh(tmp_path / "plain.off").visual.kind is None
+
+
+def _foreign_3mf(path, unit, objects=1):
+    """A 3MF as another tool writes it: ``objects`` tetrahedra in a model of ``unit`` (None: no attribute)."""
+    import zipfile
+
+    shapes = "".join(
+        f'<object id="{k + 1}" type="model"><mesh><vertices><vertex x="{k}" y="0" z="0"/><vertex x="{k + 1}" y="0" '
+        f'z="0"/><vertex x="{k}" y="1" z="0"/><vertex x="{k}" y="0" z="1"/></vertices><triangles>'
+        '<triangle v1="0" v2="2" v3="1"/><triangle v1="0" v2="1" v3="3"/><triangle v1="1" v2="2" v3="3"/>'
+        '<triangle v1="0" v2="3" v3="2"/></triangles></mesh></object>' for k in range(objects))
+    items = "".join(f'<item objectid="{k + 1}"/>' for k in range(objects))
+    declared = f' unit="{unit}"' if unit else ""
+    model = (f'<?xml version="1.0" encoding="UTF-8"?><model{declared} xml:lang="en-US" '
+             f'xmlns="http://schemas.microsoft.com/3dmanufacturing/core/2015/02"><resources>{shapes}</resources>'
+             f'<build>{items}</build></model>')
+    with zipfile.ZipFile(path, "w") as archive:
+        archive.writestr("[Content_Types].xml", '<?xml version="1.0" encoding="UTF-8"?><Types xmlns="http://schemas.'
+                         'openxmlformats.org/package/2006/content-types"><Default Extension="model" ContentType="'
+                         'application/vnd.ms-package.3dmanufacturing-3dmodel+xml"/></Types>')
+        archive.writestr("_rels/.rels", '<?xml version="1.0" encoding="UTF-8"?><Relationships xmlns="http://schemas.'
+                         'openxmlformats.org/package/2006/relationships"><Relationship Target="/3D/3dmodel.model" '
+                         'Id="rel0" Type="http://schemas.microsoft.com/3dmanufacturing/2013/01/3dmodel"/>'
+                         '</Relationships>')
+        archive.writestr("3D/3dmodel.model", model)
+    return path
+
+
+@pytest.mark.parametrize(("unit", "units"), [("meter", "meters"), ("inch", "inches"), ("millimeter", None),
+                                             (None, None)])
+def test_3mf_unit_read_and_kept_on_a_round_trip(tmp_path, unit, units):
+    """A foreign 3MF's ``unit`` was not read: one in metres, saved again, declared millimetres (1000 times too small
+    in a slicer). It comes back as ``metadata["units"]`` (none for millimetres, 3MF's default, as a mesh without
+    units writes), and save_mesh declares it again."""
+    import zipfile
+
+    from stepterrain.export import save_mesh
+
+    mesh = read_mesh(_foreign_3mf(tmp_path / "f.3mf", unit))
+    assert len(mesh.vertices) == 4 and len(mesh.faces) == 4
+    assert mesh.metadata.get("units") == units
+    save_mesh(mesh, tmp_path / "again.3mf")
+    model = zipfile.ZipFile(tmp_path / "again.3mf").read("3D/3dmodel.model").decode()
+    assert f'unit="{unit or "millimeter"}"' in model
+    assert read_mesh(tmp_path / "again.3mf").metadata.get("units") == units
