@@ -2488,6 +2488,11 @@ _3MF_UNITS: dict[str, str] = {
 }
 
 
+#: ``metadata["units"]`` (trimesh's names) for a 3MF's ``unit``, as :func:`_read_3mf` reads it
+_3MF_UNIT_NAMES = {"micron": "microns", "millimeter": "millimeters", "centimeter": "centimeters", "meter": "meters",
+                   "inch": "inches", "foot": "feet"}
+
+
 def _3mf_unit(metadata: Mapping[str, Any]) -> str:
     """The 3MF ``unit`` of a mesh whose ``metadata["units"]`` names one (case-insensitive: a globe's "meters",
     scale_for_print's "millimeters", trimesh's of a mesh it read), else millimetre (3MF's default: a terrain in
@@ -2589,7 +2594,9 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     without it), and a 3MF of one mesh object (as :func:`save_mesh`
     writes it) is read by stepterrain, streamed, with its colour group (trimesh's reader ignores ``m:colorgroup``)
     as vertex colours, or face colours where one vertex has corners of several colours, and its
-    ``stepterrain:metadata`` element as the mesh's metadata. A PLY's other numeric
+    ``stepterrain:metadata`` element as the mesh's metadata, and its model's ``unit`` as ``metadata["units"]``
+    (``"meters"``; none for millimetres, 3MF's default: a 3MF in metres read and saved again declared millimetres;
+    trimesh's reader, for other 3MFs, names it as the file does, ``"meter"``). A PLY's other numeric
     properties of its vertex and face elements (the ``face_attributes`` and ``vertex_attributes`` :func:`save_mesh`
     keeps there, as written: an (N, k) array as columns ``name_0`` ...; a bool, written as uchar 0/1 (PLY has no
     boolean type) and named in a header comment, as bool again, as is a 0/1 ``wall`` beside a ``level`` of a PLY
@@ -2601,9 +2608,16 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     (over trimesh's ``name``; an STL's is only its header). An OBJ whose faces name vertex indices only
     (``f 1 2 3``: one :func:`save_mesh` writes without a texture) keeps the vertices no face names, in their
     order, as the other formats do (trimesh's reader dropped them: ``stepterrain info`` counted fewer vertices than
-    were written); one with texture or normal indices comes back with the vertices its faces name, one per
-    distinct (v, vt, vn) corner. An OBJ whose lines are indented or whose words are separated by tabs reads as with
-    single spaces (trimesh's reader skipped such lines: it came back empty, or as its first vertex alone).
+    were written), also one of several materials (``usemtl``): its faces in the file's order, each with its
+    material's colour as its face colour (:func:`_obj_materials_joined`; trimesh's reader repeated each vertex in
+    each material it is a corner in, open along the seams); one with texture or normal indices comes back with the
+    vertices its faces name, one per distinct (v, vt, vn) corner. An OBJ whose lines are indented or whose words are
+    separated by tabs reads as with single spaces (trimesh's reader skipped such lines: it came back empty, or as
+    its first vertex alone), and a comment after a statement of numbers (``v 0 0 0 # a``, ``f 1 2 3 # x``) is dropped
+    (trimesh's reader refused the file; a ``#`` in a name, ``usemtl Material#1``, stays in it: :func:`_obj_tidied`).
+    A COFF's vertex colours (trimesh's reader dropped them) come back as vertex colours, written as integers bytes
+    and with a decimal point floats 0..1; integers of 0 and 1 only, which read either way, are refused
+    (:func:`_off_vertex_colors`).
 
     Raises
     ------
@@ -2658,7 +2672,11 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             order = {"maintain_order": True} if plain_obj else {}
             tidied = _obj_tidied(file) if file.suffix.lower() == ".obj" else None
             try:
-                loaded = _trimesh_read(trimesh.load, file, tidied, force="mesh", process=False, **order)
+                loaded = None  # several usemtl, faces of vertex indices only: one vertex per v line still
+                if file.suffix.lower() == ".obj" and not plain_obj and not _obj_face_with_slash(file):
+                    loaded = _obj_materials_joined(file, tidied)
+                if loaded is None:
+                    loaded = _trimesh_read(trimesh.load, file, tidied, force="mesh", process=False, **order)
             except ValueError as exc:
                 mixed = _ply_binary_mixed_lists(file) if file.suffix.lower() == ".ply" else None
                 if mixed is None:
@@ -2695,6 +2713,10 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             loaded.metadata.update(metadata)
         if file.suffix.lower() == ".obj" and isinstance(loaded, trimesh.Trimesh):
             loaded.metadata.update(_obj_metadata(file))
+        if file.suffix.lower() == ".off" and isinstance(loaded, trimesh.Trimesh):
+            colours = _off_vertex_colors(file, len(loaded.vertices))
+            if colours is not None:
+                loaded.visual = trimesh.visual.ColorVisuals(loaded, vertex_colors=colours)
         if gltf and isinstance(loaded, trimesh.Trimesh):
             if color is None and len(loaded.faces) == 0:  # points: trimesh rounds COLOR_0 to bytes, the file's
                 color = _gltf_color_0(file, tree)
@@ -2789,17 +2811,34 @@ def _ply_binary_mixed_lists(file: Path, rows: int = 65536) -> str | None:
 
 #: An OBJ line trimesh's reader skips: one starting with blanks, or a statement's words separated by a tab.
 _OBJ_LOOSE_LINE = re.compile(rb"(?:^|[\r\n])[ \t]+\S|\t")
+#: The OBJ statements of numbers only (and ``s off``), whose ``#`` can only start a comment
+_OBJ_NUMBERS = frozenset({b"v", b"vt", b"vn", b"vp", b"f", b"l", b"p", b"s"})
+#: a comment after such a statement on its line (``v 0 0 0 # a``, ``f 1 2 3 # x``)
+_OBJ_TRAILING_COMMENT = re.compile(rb"^[ \t]*(?:v[tnp]?|[flps])[ \t][^\n#]*#", re.MULTILINE)
 
 
 def _obj_tidied(file: Path) -> bytes | None:
     """The OBJ ``file``'s text with each line's blanks around it dropped and its tabs made spaces, where a line starts
-    with blanks or holds a tab (as the OBJ format allows: its words are separated by white space), else None.
-    trimesh's reader finds statements by a newline, their keyword and a space: it skipped every such line without a
-    word (an OBJ indented, or written with tabs, came back empty or as its first vertex alone)."""
+    with blanks or holds a tab (as the OBJ format allows: its words are separated by white space), and the comment
+    after a statement of numbers (``v``, ``vt``, ``vn``, ``vp``, ``f``, ``l``, ``p``, ``s``: ``v 0 0 0 # a``, ``f 1
+    2 3 # x``) dropped, else None. trimesh's reader finds statements by a newline, their keyword and a space: it
+    skipped every such line without a word (an OBJ indented, or written with tabs, came back empty or as its first
+    vertex alone), and it refused a trailing comment with NumPy's "could not be read to its end due to unmatched
+    data". A ``#`` in a line of names (``mtllib``, ``usemtl``, ``o``, ``g``) is kept as part of the name: the OBJ
+    specification describes comments as lines starting with ``#``, and tools write names holding one
+    (``Material#1``), which trimesh's reader keeps."""
     data = file.read_bytes()
-    if _OBJ_LOOSE_LINE.search(data) is None:
+    comments = data.find(b"#") >= 0 and _OBJ_TRAILING_COMMENT.search(data) is not None
+    if not comments and _OBJ_LOOSE_LINE.search(data) is None:
         return None
-    return b"\n".join(line.strip(b" \t").replace(b"\t", b" ") for line in data.splitlines()) + b"\n"
+
+    def tidy(line: bytes) -> bytes:
+        line = line.strip(b" \t").replace(b"\t", b" ")
+        if comments and line.split(b" ", 1)[0] in _OBJ_NUMBERS:
+            line = line.split(b"#", 1)[0].rstrip(b" ")
+        return line
+
+    return b"\n".join(tidy(line) for line in data.splitlines()) + b"\n"
 
 
 def _trimesh_read(load: Callable[..., Any], file: Path, data: bytes | None = None, **kwargs: Any) -> Any:
@@ -3302,13 +3341,14 @@ def _gltf_color_0(file: Path, tree: Any = None) -> NDArray[np.float64] | None:
 
 
 #: An OBJ face statement with a texture or normal index (``f 1/1 2/2 3/3``, ``f 1//1 ...``) and a material statement.
-_OBJ_FACE_WITH_SLASH = re.compile(rb"^[ \t]*f[ \t][^\n]*/", re.MULTILINE)
+_OBJ_FACE_WITH_SLASH = re.compile(rb"^[ \t]*f[ \t][^\n#]*/", re.MULTILINE)
 _OBJ_USEMTL = re.compile(rb"^[ \t]*usemtl[ \t]", re.MULTILINE)
 _OBJ_FACE = re.compile(rb"^[ \t]*f[ \t]", re.MULTILINE)
 #: an index 0 (of a vertex, UV or normal) on an OBJ line, which names none in a face: OBJ counts from 1, or back from -1
 _OBJ_ZERO = re.compile(rb"[ \t/]0+(?![0-9.eE])")
 #: an OBJ vertex of fewer than three coordinates
-_OBJ_SHORT_VERTEX = re.compile(rb"^[ \t]*v[ \t]+(?:[^ \t\r\n]+[ \t]+)?[^ \t\r\n]*[ \t]*\r?$", re.MULTILINE)
+_OBJ_SHORT_VERTEX = re.compile(rb"^[ \t]*v[ \t]+(?:[^ \t\r\n#]+[ \t]+)?[^ \t\r\n#]*[ \t]*(?:#[^\r\n]*)?\r?$",
+                               re.MULTILINE)
 
 
 def _check_obj_indices(file: Path) -> None:
@@ -3329,9 +3369,11 @@ def _check_obj_indices(file: Path) -> None:
                     return
                 start = data.rfind(b"\n", 0, found.start()) + 1
                 end = data.find(b"\n", found.end())
+                offset = found.start() - start
                 del found
                 text = data[start:end if end >= 0 else len(data)]
-                if text.lstrip()[:2] in (b"f ", b"f\t"):
+                comment = text.find(b"#")  # f 1 2 3 # 0 apples: a zero in its comment names nothing
+                if text.lstrip()[:2] in (b"f ", b"f\t") and not 0 <= comment < offset:
                     line = data[:start].count(b"\n") + 1  # a copy, on the way to the error only
                     break
                 at = end
@@ -3358,8 +3400,9 @@ def _obj_faces_name_vertices_only(file: Path) -> bool:
     info`` counted fewer than were written, and a mesh read back was renumbered); with texture or normal indices that
     option takes one UV per vertex (a vertex on a UV seam got the median of its UVs) and lost the texture of a file
     with unused vertices, and with several ``usemtl`` it repeated every vertex in each material's mesh (faces
-    before the one ``usemtl`` make a mesh without a material: two), so those keep trimesh's default. Scanned without
-    reading the file into memory."""
+    before the one ``usemtl`` make a mesh without a material: two), so those are read by
+    :func:`_obj_materials_joined` (with texture or normal indices: trimesh's default). Scanned without reading the
+    file into memory."""
     import mmap
 
     with open(file, "rb") as stream:
@@ -3378,6 +3421,99 @@ def _obj_faces_name_vertices_only(file: Path) -> bool:
             # one material, for every face: not a second usemtl, nor faces before this one (a group of their own)
             return (_OBJ_USEMTL.search(data, end) is None  # type: ignore[call-overload]
                     and _OBJ_FACE.search(data, 0, start) is None)  # type: ignore[call-overload]
+
+
+def _obj_face_with_slash(file: Path) -> bool:
+    """Whether a face of the OBJ ``file`` names a texture or normal index (``f 1/1 2/2 3/3``, ``f 1//1 ...``)."""
+    import mmap
+
+    with open(file, "rb") as stream:
+        if os.fstat(stream.fileno()).st_size == 0:
+            return False
+        with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as data:
+            return data.find(b"/") >= 0 and _OBJ_FACE_WITH_SLASH.search(data) is not None  # type: ignore[call-overload]
+
+
+def _obj_materials_joined(file: Path, tidied: bytes | None) -> trimesh.Trimesh | None:
+    """The OBJ ``file`` whose faces name vertex indices only but which :func:`_obj_faces_name_vertices_only` does not
+    read in one piece (several ``usemtl``, or faces before its one) as one mesh of the file's vertices, one per ``v``
+    line in their order, and its faces in the file's order, indexing them. trimesh's reader made one mesh per material
+    (``maintain_order`` gave each every vertex) and ``force="mesh"`` joined them, each vertex repeated in each
+    material it is a corner in and the vertices no face names dropped: a closed surface of two materials came back
+    open along their seam. Read with trimesh's reader one chunk per ``usemtl`` (``group_material=False``; it lists
+    them last first), each with every vertex. Each face's material is kept as its face colour (the material's
+    colour, trimesh's grey where its ``.mtl`` names no ``Kd``; a face before any ``usemtl`` or of a material the
+    ``.mtl`` lacks, trimesh's default colour), as the 3MF reader keeps a colour per face: trimesh packed the
+    materials' colours into an atlas of its own, by UVs that cannot be kept on a vertex shared by two materials. A
+    file without materials (no ``.mtl`` found) keeps its ``v`` lines' colours, if any. None for a file of no faces."""
+    scene = _trimesh_read(trimesh.load_scene, file, tidied, process=False, maintain_order=True,
+                          group_material=False)
+    parts = [part for part in reversed(list(scene.geometry.values())) if isinstance(part, trimesh.Trimesh)]
+    if not parts:
+        return None
+    vertices = np.asarray(parts[0].vertices)
+    if any(len(part.vertices) != len(vertices) for part in parts):  # each has every vertex, as maintain_order reads
+        raise ValueError("the file's materials read with different vertices")
+    faces = np.concatenate([np.asarray(part.faces, dtype=np.int64).reshape(-1, 3) for part in parts])
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    materials = [getattr(part.visual, "material", None) for part in parts]
+    if any(material is not None for material in materials):
+        default = np.asarray(trimesh.visual.color.DEFAULT_COLOR, dtype=np.uint8)
+        colours = [np.asarray(material.main_color, dtype=np.uint8) if material is not None else default
+                   for material in materials]
+        counts = [len(part.faces) for part in parts]
+        mesh.visual = trimesh.visual.ColorVisuals(mesh, face_colors=np.repeat(np.asarray(colours), counts, axis=0))
+    elif all(part.visual.kind == "vertex" for part in parts):
+        mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=np.asarray(parts[0].visual.vertex_colors))
+    name = _utf8_name(file.name)
+    mesh.metadata.update({"name": name, "node": name})
+    return mesh
+
+
+#: an OFF file's keyword (Geomview's [ST][C][N][4][n]OFF): its groups say what each vertex line holds
+_OFF_KEYWORD = re.compile(r"(ST)?(C)?(N)?(4)?(n)?OFF")
+
+
+def _off_vertex_colors(file: Path, count: int) -> NDArray[np.uint8] | None:
+    """The vertex colours of the OFF ``file`` (``count`` vertices, as trimesh's reader read them) as RGBA bytes, or
+    None where its keyword has no ``C`` (``COFF``, ``CNOFF``, ...): trimesh's reader reads the coordinates alone.
+    Each vertex line holds x y z, then nx ny nz with an ``N``, then the colour, RGB or RGBA, then s t with an ``ST``.
+    Written with a decimal point or exponent anywhere, the colours are floats from 0 to 1 (Geomview's); written as
+    integers, bytes from 0 to 255 (MeshLab's). A ValueError where they do not read so: a vertex without a colour or of
+    colours of different lengths, a float outside 0..1, an integer outside 0..255, or integers of 0 and 1 only (0 1
+    0 is green as floats and nearly black as bytes)."""
+    text = file.read_bytes().decode("utf-8", "replace")
+    lines = [line.split("#", 1)[0].split() for line in text.splitlines()]
+    lines = [line for line in lines if line]
+    keyword = _OFF_KEYWORD.fullmatch(lines[0][0]) if lines else None
+    if keyword is None or keyword.group(2) is None:
+        return None
+    if keyword.group(4) or keyword.group(5):
+        raise ValueError(f"an OFF of {lines[0][0]!r}, whose vertices have other than 3 coordinates, is not read")
+    rest = lines[0][1:] or lines[1]
+    first = 1 if lines[0][1:] else 2
+    rows = lines[first : first + count]
+    skip, tail = 3 + (3 if keyword.group(3) else 0), 2 if keyword.group(1) else 0
+    widths = {len(row) - skip - tail for row in rows}
+    if not rest or len(rows) != count or len(widths) != 1 or widths.pop() not in (3, 4):
+        raise ValueError(f"a {lines[0][0]} file's vertex lines hold {sorted({len(row) for row in rows})} numbers: "
+                         f"{skip} before an RGB or RGBA colour{' and 2 after it' if tail else ''} expected on each")
+    words = [row[skip : len(row) - tail] for row in rows]
+    values = np.array(words, dtype=np.float64)
+    floats = any(any(c in word for c in ".eE") for row in words for word in row)
+    if floats:
+        if not np.all((values >= 0) & (values <= 1)):
+            raise ValueError(f"a {lines[0][0]} file's vertex colours written as floats are not all in 0..1")
+        values = np.round(values * 255)
+    elif not np.all((values >= 0) & (values <= 255)):
+        raise ValueError(f"a {lines[0][0]} file's vertex colours written as integers are not all in 0..255")
+    elif values.size and values.max() <= 1 and values.max() > 0:
+        raise ValueError(f"a {lines[0][0]} file's vertex colours are integers of 0 and 1 only: floats from 0 to 1 or "
+                         "bytes from 0 to 255? Write them as 0.0 and 1.0, or as 0 and 255")
+    colours = values.astype(np.uint8)
+    if colours.shape[1] == 3:
+        colours = np.column_stack([colours, np.full(len(colours), 255, np.uint8)])
+    return colours
 
 
 #: the statements of Wavefront OBJ (and of its curves and surfaces), which an OBJ's lines start with
@@ -3456,7 +3592,10 @@ def _read_3mf(file: Path) -> trimesh.Trimesh | None:
     vertex colours, or face colours where one vertex has corners of several colours. Streamed (iterparse, elements
     cleared as read, numbers in compact arrays): trimesh's reader holds the whole XML tree, 9.8 GB for the embedded
     DEM's 4.3 M-face solid. The model's ``stepterrain:metadata`` element (:func:`_write_3mf`) becomes the mesh's
-    metadata. None for anything else (several objects, components, a build transform, no model):
+    metadata, and its ``unit`` its ``metadata["units"]`` (``"meters"`` for ``meter``, :data:`_3MF_UNIT_NAMES`) where
+    that metadata does not name it already: a foreign 3MF in metres read and saved again declared millimetres. A
+    model in millimetres (3MF's default, :func:`_write_3mf`'s for a mesh without units) adds none. None for
+    anything else (several objects, components, a build transform, no model):
     trimesh reads those."""
     import array
     import xml.etree.ElementTree as ET
@@ -3470,6 +3609,7 @@ def _read_3mf(file: Path) -> trimesh.Trimesh | None:
     default_pid = default_index = -1
     pid_ids: dict[str, int] = {}
     own: list[bytes] = []  # the text of its stepterrain:metadata element (_write_3mf)
+    unit = "millimeter"  # the model's, 3MF's default
     with zipfile.ZipFile(file) as archive:
         models = [name for name in archive.namelist() if name.lower().endswith(".model")]
         if len(models) != 1:
@@ -3493,6 +3633,8 @@ def _read_3mf(file: Path) -> trimesh.Trimesh | None:
                             return None
                     elif tag in (_3MF_CORE + "vertices", _3MF_CORE + "triangles"):
                         container = element
+                    elif tag == _3MF_CORE + "model":
+                        unit = element.get("unit", unit).strip().lower()
                     continue
                 if tag == _3MF_CORE + "triangle":
                     a = element.attrib
@@ -3524,6 +3666,8 @@ def _read_3mf(file: Path) -> trimesh.Trimesh | None:
     mesh = trimesh.Trimesh(vertices, faces, process=False)
     if own:
         mesh.metadata.update(_metadata_from_pieces(own))
+    if unit in _3MF_UNIT_NAMES and _3mf_unit(mesh.metadata) != unit:  # a foreign file's, or one edited
+        mesh.metadata["units"] = _3MF_UNIT_NAMES[unit]
     names = {index: name for name, index in pid_ids.items()}
     pids = np.unique(triangles[:, 3])
     if len(pids) != 1 or names.get(int(pids[0])) not in groups:

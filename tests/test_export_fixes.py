@@ -1431,24 +1431,25 @@ def test_an_obj_keeps_the_vertices_no_face_names_and_a_textured_one_its_uv_seams
     assert np.array_equal(np.asarray(seam.vertices)[seam.faces][:, :, :2], [[[0, 0], [1, 0], [0, 1]],
                                                                             [[1, 0], [1, 1], [0, 1]]])
     (tmp_path / "two.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nusemtl a\nf 1 2 3\nusemtl b\nf 2 4 3\n")
-    two = read_mesh(tmp_path / "two.obj")
-    assert len(two.faces) == 2 and len(two.vertices) == 6  # each material's mesh its 3 corners, not all 4 twice
+    two = read_mesh(tmp_path / "two.obj")  # the file's 4 vertices once (not all 4 twice, nor 3 corners each)
+    assert np.array_equal(two.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+    assert np.array_equal(two.faces, [[0, 1, 2], [1, 3, 2]])
 
 
 def test_an_obj_with_faces_before_its_one_material_is_not_read_with_every_vertex_twice(tmp_path, capsys):
     """An OBJ (another tool's) whose first faces come before its one ``usemtl`` was read with maintain_order, as
     one of a single material: trimesh makes the faces before it a mesh of their own, and maintain_order repeated
     every vertex in each (10 vertices for the 5 of the file, ``stepterrain info`` counting them; trimesh's default
-    read 6, the corners of each group). Such a file keeps trimesh's default, as one of several materials does."""
+    read 6, the corners of each group). Such a file is read as one of several materials is: the file's 5 vertices
+    once, in order, and each face's material as its face colour."""
     (tmp_path / "x.mtl").write_text("newmtl red\nKd 1 0 0\n")
     (tmp_path / "late.obj").write_text("mtllib x.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 5 5 5\n"
                                        "f 1 2 3\nusemtl red\nf 1 3 4\n")
     late = read_mesh(tmp_path / "late.obj")
-    assert len(late.faces) == 2 and len(late.vertices) == 6  # each group's 3 corners, not all 5 twice
-    corners = sorted(np.asarray(late.vertices)[late.faces].tolist())
-    assert corners == [[[0, 0, 0], [1, 0, 0], [1, 1, 0]], [[0, 0, 0], [1, 1, 0], [0, 1, 0]]]
+    assert len(late.vertices) == 5 and np.array_equal(late.faces, [[0, 1, 2], [0, 2, 3]])  # not all 5 twice
+    assert np.array_equal(late.visual.face_colors[1], [255, 0, 0, 255])  # red's Kd; the first face has none
     assert cli.main(["info", str(tmp_path / "late.obj"), "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)["vertices"] == 6
+    assert json.loads(capsys.readouterr().out)["vertices"] == 5
     # its one usemtl before every face: one material, every vertex kept in order
     (tmp_path / "early.obj").write_text("mtllib x.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 5 5 5\n"
                                         "usemtl red\nf 1 2 3\nf 1 3 4\n")

@@ -279,3 +279,118 @@ def test_obj_written_with_tabs_or_indented_reads_as_with_spaces(tmp_path, layout
     np.testing.assert_array_equal(loose.vertices, plain.vertices)
     np.testing.assert_array_equal(loose.faces, plain.faces)
     assert loose.metadata["name"] == "loose.obj"
+
+
+def test_obj_of_several_materials_keeps_its_vertices_once(tmp_path):
+    """An OBJ of vertex indices only with several ``usemtl`` came back split at the materials (trimesh's one mesh per
+    material, joined): its seam vertices repeated, its unused vertex dropped, the closed surface open. It keeps the
+    file's vertices, one per ``v`` line in order, its faces in the file's order, and each face's material colour."""
+    (tmp_path / "m.mtl").write_text("newmtl red\nKd 1 0 0\nnewmtl blue\nKd 0 0 1\n")
+    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    tetra = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])
+    materials = ["red", "blue", "red", "blue"]  # alternating: each usemtl a chunk of its own
+    lines = ["mtllib m.mtl", *(f"v {x:g} {y:g} {z:g}" for x, y, z in corners), "v 9 9 9"]
+    for face, material in zip(tetra, materials, strict=True):
+        lines += [f"usemtl {material}", "f " + " ".join(str(i + 1) for i in face)]
+    (tmp_path / "t.obj").write_text("\n".join(lines) + "\n")
+    mesh = read_mesh(tmp_path / "t.obj")
+    assert np.array_equal(mesh.vertices, [*corners, [9, 9, 9]])
+    assert np.array_equal(mesh.faces, tetra)
+    assert mesh.is_watertight
+    kd = {"red": [255, 0, 0, 255], "blue": [0, 0, 255, 255]}
+    assert np.array_equal(mesh.visual.face_colors, [kd[m] for m in materials])
+    # without its .mtl: the same geometry, no colours made up
+    (tmp_path / "m.mtl").unlink()
+    bare = read_mesh(tmp_path / "t.obj")
+    assert np.array_equal(bare.vertices, mesh.vertices) and np.array_equal(bare.faces, tetra)
+    assert bare.visual.kind is None
+
+
+def test_obj_trailing_comments_read(tmp_path):
+    """A comment after an OBJ statement of numbers (``v 0 0 0 # a``, ``f 1 2 3 # x``) was refused with NumPy's
+    "could not be read to its end due to unmatched data"; it is dropped (a zero or slash in it not taken for an
+    index), while a ``#`` in a name (``usemtl Material#1``) stays part of the name."""
+    (tmp_path / "m.mtl").write_text("newmtl Material#1\nKd 1 0 0\nnewmtl b\nKd 0 0 1\n")
+    (tmp_path / "c.obj").write_text("mtllib m.mtl\nv 0 0 0 # a\nv 1 0 0\t# b\nv 0 1 0#c\nv 1 1 0\nv 7 7 7 # unused\n"
+                                    "usemtl Material#1\nf 1 2 3 # x 0 a/b\nusemtl b\nf 2 4 3#y\n")
+    mesh = read_mesh(tmp_path / "c.obj")
+    assert np.array_equal(mesh.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [7, 7, 7]])
+    assert np.array_equal(mesh.faces, [[0, 1, 2], [1, 3, 2]])
+    assert np.array_equal(mesh.visual.face_colors, [[255, 0, 0, 255], [0, 0, 255, 255]])
+    (tmp_path / "short.obj").write_text("v 0 0 0\nv 1 0 # two\nv 0 1 0\nf 1 2 3\n")
+    with pytest.raises(DataFileError, match="line 2, 'v 1 0 # two'"):
+        read_mesh(tmp_path / "short.obj")
+
+
+@pytest.mark.parametrize("form", ["bytes", "floats", "normals"])
+def test_off_vertex_colours_read(tmp_path, form):
+    """A COFF's vertex colours (RGB or RGBA after the coordinates, and after the normals of a CNOFF) were dropped by
+    trimesh's reader; they come back as RGBA bytes, written as integers bytes, with a decimal point floats 0..1."""
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float)
+    colours = np.array([[255, 0, 0, 255], [0, 255, 0, 128], [0, 0, 255, 255], [10, 20, 30, 255]], np.uint8)
+    keyword, rows = ("CNOFF" if form == "normals" else "COFF"), []
+    for vertex, colour in zip(vertices, colours, strict=True):
+        numbers = [f"{x:g}" for x in vertex] + (["0", "0", "1"] if form == "normals" else [])
+        numbers += [repr(int(c) / 255) for c in colour] if form == "floats" else [str(c) for c in colour]
+        rows.append(" ".join(numbers))
+    (tmp_path / "c.off").write_text(f"{keyword}\n# a comment\n4 2 0\n" + "\n".join(rows) + "\n3 0 1 2\n3 1 3 2\n")
+    mesh = read_mesh(tmp_path / "c.off")
+    assert np.array_equal(mesh.vertices, vertices) and np.array_equal(mesh.faces, [[0, 1, 2], [1, 3, 2]])
+    assert np.array_equal(mesh.visual.vertex_colors, colours)
+
+
+def test_off_vertex_colours_of_zeros_and_ones_refused(tmp_path):
+    """Integer colours of 0 and 1 only are floats (green) or bytes (nearly black): refused, said so; RGB gets alpha
+    255, and a plain OFF has no colours."""
+    (tmp_path / "rgb.off").write_text("COFF\n3 1 0\n0 0 0 0 255 0\n1 0 0 9 9 9\n0 1 0 0 0 0\n3 0 1 2\n")
+    assert np.array_equal(read_mesh(tmp_path / "rgb.off").visual.vertex_colors[:, 3], [255] * 3)
+    (tmp_path / "ones.off").write_text("COFF\n3 1 0\n0 0 0 0 1 0\n1 0 0 1 1 1\n0 1 0 0 0 0\n3 0 1 2\n")
+    with pytest.raises(DataFileError, match="integers of 0 and 1 only"):
+        read_mesh(tmp_path / "ones.off")
+    (tmp_path / "plain.off").write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+    assert read_mesh(tmp_path / "plain.off").visual.kind is None
+
+
+def _foreign_3mf(path, unit, objects=1):
+    """A 3MF as another tool writes it: ``objects`` tetrahedra in a model of ``unit`` (None: no attribute)."""
+    import zipfile
+
+    shapes = "".join(
+        f'<object id="{k + 1}" type="model"><mesh><vertices><vertex x="{k}" y="0" z="0"/><vertex x="{k + 1}" y="0" '
+        f'z="0"/><vertex x="{k}" y="1" z="0"/><vertex x="{k}" y="0" z="1"/></vertices><triangles>'
+        '<triangle v1="0" v2="2" v3="1"/><triangle v1="0" v2="1" v3="3"/><triangle v1="1" v2="2" v3="3"/>'
+        '<triangle v1="0" v2="3" v3="2"/></triangles></mesh></object>' for k in range(objects))
+    items = "".join(f'<item objectid="{k + 1}"/>' for k in range(objects))
+    declared = f' unit="{unit}"' if unit else ""
+    model = (f'<?xml version="1.0" encoding="UTF-8"?><model{declared} xml:lang="en-US" '
+             f'xmlns="http://schemas.microsoft.com/3dmanufacturing/core/2015/02"><resources>{shapes}</resources>'
+             f'<build>{items}</build></model>')
+    with zipfile.ZipFile(path, "w") as archive:
+        archive.writestr("[Content_Types].xml", '<?xml version="1.0" encoding="UTF-8"?><Types xmlns="http://schemas.'
+                         'openxmlformats.org/package/2006/content-types"><Default Extension="model" ContentType="'
+                         'application/vnd.ms-package.3dmanufacturing-3dmodel+xml"/></Types>')
+        archive.writestr("_rels/.rels", '<?xml version="1.0" encoding="UTF-8"?><Relationships xmlns="http://schemas.'
+                         'openxmlformats.org/package/2006/relationships"><Relationship Target="/3D/3dmodel.model" '
+                         'Id="rel0" Type="http://schemas.microsoft.com/3dmanufacturing/2013/01/3dmodel"/>'
+                         '</Relationships>')
+        archive.writestr("3D/3dmodel.model", model)
+    return path
+
+
+@pytest.mark.parametrize(("unit", "units"), [("meter", "meters"), ("inch", "inches"), ("millimeter", None),
+                                             (None, None)])
+def test_3mf_unit_read_and_kept_on_a_round_trip(tmp_path, unit, units):
+    """A foreign 3MF's ``unit`` was not read: one in metres, saved again, declared millimetres (1000 times too small
+    in a slicer). It comes back as ``metadata["units"]`` (none for millimetres, 3MF's default, as a mesh without
+    units writes), and save_mesh declares it again."""
+    import zipfile
+
+    from stepterrain.export import save_mesh
+
+    mesh = read_mesh(_foreign_3mf(tmp_path / "f.3mf", unit))
+    assert len(mesh.vertices) == 4 and len(mesh.faces) == 4
+    assert mesh.metadata.get("units") == units
+    save_mesh(mesh, tmp_path / "again.3mf")
+    model = zipfile.ZipFile(tmp_path / "again.3mf").read("3D/3dmodel.model").decode()
+    assert f'unit="{unit or "millimeter"}"' in model
+    assert read_mesh(tmp_path / "again.3mf").metadata.get("units") == units
