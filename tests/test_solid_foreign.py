@@ -113,3 +113,31 @@ def test_foreign_tins_close_watertight_with_the_integrals_volume(seed, n, case):
     # holes can pinch the boundary at a vertex: its copies move 2 float32 steps (1.5e-5 at 100 m) into their fans,
     # the volume by at most 2√2 steps times the fan's outline times its height per copy (close_solid's docstring)
     assert solid.volume == pytest.approx(want, rel=1e-5 if case == "holes" else 1e-9)
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=hs.integers(0, 2**31 - 1), n=hs.integers(4, 30), share=hs.sampled_from([0.0, 0.1, 0.5, 1.0]))
+def test_a_tin_with_faces_flipped_is_refused_exactly_where_its_winding_disagrees(seed, n, share):
+    """Refused exactly where an interior edge has one face flipped and the other not (NumPy, from the faces' edge
+    pairs); else (none flipped, or all: closed reversed, with the warning) watertight, outward, the prism volume."""
+    vertices, faces = _tin(seed, n)
+    flipped = np.random.default_rng(seed).random(len(faces)) < share
+    given_faces = faces.copy()
+    given_faces[flipped] = given_faces[flipped][:, ::-1]
+    # the interior edges (two faces each in a Delaunay TIN) and whether their faces disagree
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    owner = np.tile(np.arange(len(faces)), 3)
+    order = np.lexsort(edges.T[::-1])
+    edges, owner = edges[order], owner[order]
+    pair = np.flatnonzero(np.all(edges[1:] == edges[:-1], axis=1))
+    disagree = bool(np.any(flipped[owner[pair]] != flipped[owner[pair + 1]]))
+    if disagree:
+        with pytest.raises(InvalidInputError, match="oriented manifold surface"):
+            _close(vertices, given_faces, 0.0)
+        return
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        solid_vertices, solid_faces, *_ = _close(vertices, given_faces, 0.0)
+    solid = trimesh.Trimesh(solid_vertices, solid_faces, process=False)
+    assert solid.is_watertight and solid.is_winding_consistent
+    assert solid.volume == pytest.approx(_prism_volume(vertices, faces, 0.0), rel=1e-9)
