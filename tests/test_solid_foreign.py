@@ -25,8 +25,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as hs
 from scipy.spatial import Delaunay
 
+from stepterrain import mesh as mesh_module
 from stepterrain.errors import InvalidInputError
 from stepterrain.mesh import close_solid
+from tests.test_solid_kernels import _surface
 
 
 def _tin(seed: int, n: int, offset=(0.0, 0.0), z_offset: float = 0.0):
@@ -141,3 +143,31 @@ def test_a_tin_with_faces_flipped_is_refused_exactly_where_its_winding_disagrees
     solid = trimesh.Trimesh(solid_vertices, solid_faces, process=False)
     assert solid.is_watertight and solid.is_winding_consistent
     assert solid.volume == pytest.approx(_prism_volume(vertices, faces, 0.0), rel=1e-9)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=hs.integers(0, 2**31 - 1), rows=hs.integers(2, 8), cols=hs.integers(2, 8), holes=hs.integers(0, 3),
+       interval=hs.sampled_from([1.0, 2.0]))
+def test_a_stepped_surface_on_its_thresholds_is_refused_exactly_where_its_solid_leaks(seed, rows, cols, holes,
+                                                                                        interval):
+    """Integer heights stepped as they are (not moved off the thresholds, as stepped(solid=True) moves them) can put
+    four walls on one vertical edge at a saddle: closed without the check (as stepped() closes its own), such a
+    solid leaks. The check refuses exactly those, and passes every surface whose solid is watertight."""
+    rng = np.random.default_rng(seed)
+    heights = np.round(rng.normal(0.0, 3.0, (rows, cols)).cumsum(0).cumsum(1)).astype(np.float32)
+    heights.reshape(-1)[rng.integers(0, rows * cols, size=holes)] = np.nan
+    if not np.isfinite(heights).any():
+        return
+    vertices, faces, terrace, floor = _surface(heights, interval=interval, nudged=False)
+    if len(faces) == 0:
+        return
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        unchecked = mesh_module._close_solid(vertices, faces, terrace, floor, None, turn=True)
+        watertight = trimesh.Trimesh(unchecked[0], unchecked[1], process=False).is_watertight
+        if watertight:
+            checked = close_solid(vertices, faces, terrace, floor)
+            assert all(np.array_equal(a, b) for a, b in zip(checked, unchecked, strict=True))
+        else:
+            with pytest.raises(InvalidInputError, match="oriented manifold surface"):
+                close_solid(vertices, faces, terrace, floor)
