@@ -616,13 +616,46 @@ def close_solid(
     wound the other way come out inside out (wind them alike first).
     The base vertices follow the surface's order: one per column (the surface vertices that share it), in the order
     of each column's smallest surface vertex.
+
+    A foreign surface (a TIN read from a file) must be an oriented manifold with a boundary, else its solid would
+    leak or be wound inconsistently without a word: a face with a repeated vertex, an edge run the same way by two
+    faces (a face wound against its neighbour, a duplicate face, an edge of three or more faces) and a closed mesh
+    (no boundary edge: a solid already) are refused, by an InvalidInputError naming them (a sort of the directed
+    edges, O(F log F); :func:`~stepterrain.stepped.stepped` closes its own surfaces without it). Holes, vertices no
+    face uses, unmerged vertices (one copy per face) and several pieces are closed as they are.
     """
-    return _close_solid(vertices, faces, terrace_mask, floor, device, turn=True)
+    return _close_solid(vertices, faces, terrace_mask, floor, device, turn=True, check=True)
 
 
-def _close_solid(vertices: Any, faces: Any, terrace_mask: Any, floor: float, device: wp.DeviceLike, turn: bool
+def _check_surface(faces: NDArray[np.int64], n: int) -> None:
+    """Refuse ``faces`` (over ``n`` vertices) that are no oriented manifold surface, whose solid would leak or be
+    wound inconsistently: a face with a repeated vertex, or a directed edge (a, b) in two faces (a face wound against
+    its neighbour, a duplicate face, or an edge of three or more faces: two of them run it the same way). O(F log F):
+    a sort of the 3 F directed edge keys (n < 2^31: a·n + b fits in int64)."""
+    repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 2] == faces[:, 0])
+    if repeated.any():
+        first = int(np.argmax(repeated))
+        raise InvalidInputError(f"faces must each join three distinct vertices; got "
+                                f"{counted(int(repeated.sum()), 'face')} with a repeated vertex, the first face "
+                                f"{first}: {faces[first].tolist()}")
+    keys = (faces * n + np.roll(faces, -1, axis=1)).reshape(-1)
+    keys.sort()
+    twice = keys[1:][keys[1:] == keys[:-1]]
+    if len(twice):
+        a, b = divmod(int(twice[0]), n)
+        raise InvalidInputError(f"faces must form an oriented manifold surface (each edge in at most two faces, wound "
+                                f"opposite ways); got {counted(len(np.unique(twice)), 'edge')} used twice the same way "
+                                f"(a face wound against its neighbour, a duplicate face or an edge of three or more "
+                                f"faces), the first ({a}, {b})")
+
+
+def _close_solid(vertices: Any, faces: Any, terrace_mask: Any, floor: float, device: wp.DeviceLike, turn: bool,
+                 check: bool = False
                  ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.bool_], int, NDArray[np.int64]]:
-    """:func:`close_solid`; ``turn``: a clockwise surface is closed again with its faces reversed (once)."""
+    """:func:`close_solid`; ``turn``: a clockwise surface is closed again with its faces reversed (once);
+    ``check``: the surface (a foreign one) is refused where it is no oriented manifold with a boundary
+    (:func:`_check_surface`; :func:`~stepterrain.stepped.stepped` passes its own surfaces, manifold by construction
+    once moved off the thresholds, unchecked)."""
     vertices = real_numbers(vertices, "vertices", "an (N, 3) array of x, y, z")
     faces = _face_indices(faces, len(vertices) if vertices.ndim else None)
     if vertices.ndim != 2 or vertices.shape[1] != 3:  # the kernels read them as flat rows of three
@@ -688,7 +721,14 @@ def _close_solid(vertices: Any, faces: Any, terrace_mask: Any, floor: float, dev
                       stacklevel=caller_stacklevel())
         # closed again from the given faces reversed: the fins and the walls' pairs are read from the step kernels'
         # layout, which a stepped surface through trimesh's invert has reversed (its solid leaked)
-        return _close_solid(given[0], np.ascontiguousarray(given[1][:, ::-1]), given[2], floor, device, turn=False)
+        return _close_solid(given[0], np.ascontiguousarray(given[1][:, ::-1]), given[2], floor, device, turn=False,
+                            check=check)
+    if check:  # after the fins (walls back to back share their edges with the terraces beside them) and the turn (a
+        # stepped surface reversed finds its fins only once turned back)
+        _check_surface(faces, len(vertices))
+        if len(edges) == 0:
+            raise InvalidInputError(f"faces: close_solid skirts a surface's boundary down to the floor; got a closed "
+                                    f"mesh ({counted(len(faces), 'face')}, no boundary edge): a solid already")
     vertices, faces, fan, copied = _split_pinches(vertices, faces, edges, terrace_mask)
     split = len(copied) > 0
     if split:

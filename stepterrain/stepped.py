@@ -1691,7 +1691,7 @@ def _assemble(
     if vertex_colors is None and t.visual is not None:
         carried = _carry_visual(t, arrays)
     if solid:
-        from .mesh import close_solid
+        from .mesh import _close_solid
 
         if len(faces) == 0:
             raise InvalidInputError("solid=True needs a surface to close; the terrain has no triangle with three "
@@ -1701,7 +1701,7 @@ def _assemble(
                        else as_number(floor))
         except (TypeError, ValueError, OverflowError):
             raise InvalidInputError(f"floor must be a number (the base height of the solid); got {floor!r}") from None
-        vertices, faces, kept, extra, source = close_solid(vertices, faces, ~face_walls, floor_z, device)
+        vertices, faces, kept, extra, source = _close_solid(vertices, faces, ~face_walls, floor_z, device, turn=True)
         face_levels = np.concatenate([face_levels[kept], np.full(extra, -1, np.int32)])
         face_walls = np.concatenate([face_walls[kept], np.zeros(extra, bool)])
         if vertex_colors is not None:  # a surface vertex (or its copy at a pinch) keeps its colour; the base is grey
