@@ -180,8 +180,9 @@ def load_dem(
         and ``xllcenter`` both place node (0, 0) at the top-left cell's centre; its CRS from the ``.prj`` beside
         it, none without one; a local one, gzipped or in a local zip, whose values do not match its header is
         refused where GDAL reads it cut or shifted without a word: more values than nrows x ncols, a first row not
-        ending at a line's end, the very last value missing, an indented header line), ``.hgt``
-        (SRTM tile, placed by its name ``N34W119.hgt``, -32768 voids as nodata),
+        ending at a line's end, the very last value missing, an indented header line; a byte-order mark, spaces or
+        a blank line before its first keyword are named), ``.hgt`` (SRTM tile, placed by its name
+        ``N34W119.hgt``, -32768 voids as nodata),
         ``.img`` (ERDAS Imagine), ``.vrt`` (GDAL virtual raster, its sources read where it names them), ``.bil``
         and ``.flt`` (ESRI band-interleaved and float grids, with their ``.hdr``), ``.dem`` (USGS DEM) and
         ``.dt0``/``.dt1``/``.dt2`` (DTED): :data:`GDAL_FORMATS`. Another GDAL format (netCDF ``.nc``, a Surfer
@@ -1688,7 +1689,8 @@ def _load_geotiff(
             # a missing file inside a zip, an unreachable URL: GDAL's reason, not "unreadable content"
             gdal = os.fspath(file)
             reason = gdal_reason(exc)
-            reason = _hgt_refusal(file, reason) or f"GDAL cannot open it as {_gdal_format(file)}: {reason}"
+            reason = (_hgt_refusal(file, reason) or _asc_refusal(file, reason)
+                      or f"GDAL cannot open it as {_gdal_format(file)}: {reason}")
             raise DataFileError(f"cannot read {str(file)!r}" + (f" (GDAL path {gdal!r})" if gdal != str(file) else "")
                                 + f": {reason}") from exc
         with opened as dataset:
@@ -1771,7 +1773,8 @@ def _load_geotiff(
         reason = gdal_reason(exc)
         raise DataFileError(
             f"cannot read {str(file)!r}: "
-            + (_hgt_refusal(file, reason) or f"expected {_gdal_format(file)}; got unreadable content ({reason})")
+            + (_hgt_refusal(file, reason) or _asc_refusal(file, reason)
+               or f"expected {_gdal_format(file)}; got unreadable content ({reason})")
         ) from exc
 
     if masked.dtype == np.bool_ or masked.dtype.kind not in "iuf":  # a complex band kept its real part silently
@@ -1982,6 +1985,40 @@ def _gdal_format(file: Path) -> str:
 #: 3 arc-seconds), 3601 x 3601 (SRTM1), 1801 x 3601 (SRTM1 above 50 degrees) and 7201 x 7201 (0.5 arc-seconds).
 _HGT_SIZES = frozenset(2 * rows * cols for rows, cols in ((1201, 1201), (3601, 3601), (1801, 3601), (7201, 7201)))
 _HGT_NAME = re.compile(r"[NS]\d\d[EW]\d\d\d\.", re.IGNORECASE)
+
+
+def _asc_refusal(file: Path, reason: str) -> str | None:
+    """Why GDAL did not know the ``.asc`` ``file`` (local, or in a local gzip or zip) as an ESRI ASCII grid, where
+    a header keyword follows a UTF-8 byte-order mark, spaces or blank lines at the start of the file: GDAL knows
+    the format only by a keyword at its very first byte, and said only "not recognized as being in a supported file
+    format". None otherwise (GDAL's ``reason`` is the one to give)."""
+    if file.suffix.lower() != ".asc" or "not recognized as being in a supported file format" not in reason:
+        return None
+    opener = _ascii_grid_opener(file)
+    if opener is None:
+        return None
+    try:
+        with opener() as handle:
+            head = handle.read(4096)
+    except (OSError, zipfile.BadZipFile, KeyError):
+        return None
+    if head.startswith(b"\xef\xbb\xbf"):
+        said, rest = "a UTF-8 byte-order mark (bytes EF BB BF)", head[3:]
+        fix = "save it as UTF-8 without a byte-order mark (`sed -i '1s/^\\xEF\\xBB\\xBF//' FILE`)"
+    elif head[:1] in (b"\r", b"\n"):
+        said, rest = "a blank line", head
+        fix = "remove the lines before it"
+    elif head[:1].isspace():
+        said, rest = "spaces", head
+        fix = "remove the spaces before it"
+    else:
+        return None
+    words = rest.split(maxsplit=1)
+    word = words[0].decode("latin-1") if words else ""
+    if word.rstrip(":").lower() not in _ASC_KEYWORDS:
+        return None
+    return (f"expected {_gdal_format(file)} starting with its first header keyword; got a file that starts with "
+            f"{said} before {word!r}, and GDAL knows the format only by a keyword at the file's very start: {fix}")
 
 
 def _hgt_refusal(file: Path, reason: str) -> str | None:

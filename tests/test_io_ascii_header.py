@@ -2,7 +2,7 @@
 in stream order and ignores the rest, so a header declaring too few rows read the grid truncated (and placed by
 its lower-left corner, too low), and one declaring too few columns read every row shifted, without a word.
 load_dem counts the values and checks where the first row ends, and refuses the file naming what its header
-declares and what it holds. A header GDAL takes for data (its lines indented) is named too."""
+declares and what it holds. A header GDAL takes for data (its lines indented, a byte-order mark) is named too."""
 
 from __future__ import annotations
 
@@ -99,6 +99,20 @@ def test_zipped_grid_checked_by_its_vsizip_path(tmp_path, braces):
         st.load_dem(f"{prefix}/sub/rows.asc")
     with pytest.raises(DataFileError, match=r"3 x 3 = 9 values.*got 8 \(cut short"):
         st.load_dem(f"{prefix}/sub/short.asc")
+
+
+@pytest.mark.parametrize(("prefix", "said"), [
+    ("\ufeff", "a UTF-8 byte-order mark"),
+    (" ", "spaces"),
+    ("\n", "a blank line"),
+])
+def test_header_start_gdal_refuses_is_named(tmp_path, prefix, said):
+    """GDAL knows an ESRI ASCII grid by its first keyword at the very start of the file: after a byte-order mark,
+    spaces or a blank line it said only 'not recognized as being in a supported file format'."""
+    path = tmp_path / "bom dem.asc"
+    path.write_text(prefix + _header(3, 3) + _ROWS, encoding="utf-8")
+    with pytest.raises(DataFileError, match=rf"bom dem\.asc.*starts with {said}"):
+        st.load_dem(path)
 
 
 @pytest.mark.parametrize("zipped", [False, True])
