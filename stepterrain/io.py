@@ -1941,6 +1941,7 @@ def _check_ascii_grid(file: Path, shape: tuple[int, int], driver: str, last_is_z
         while chunk := handle.read(_ASC_CHUNK):
             data = np.frombuffer(chunk, np.uint8)
             space = (data == 32) | ((data - 9) < 5)  # C's isspace, as GDAL's reader: ' ', \t \n \v \f \r
+            space |= (data == 0) | (data == 26)  # and NUL padding or a DOS end-of-file mark (Ctrl-Z) after the values
             values += int(np.count_nonzero(space[:-1] > space[1:])) + (not joined and not space[0])
             joined = not space[-1]
     if values > expected:

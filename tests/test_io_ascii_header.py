@@ -71,6 +71,14 @@ def test_values_matching_the_header_read(tmp_path, body):
     np.testing.assert_array_equal(st.load_dem(path).heights, np.arange(1, 10, dtype=np.float32).reshape(3, 3))
 
 
+@pytest.mark.parametrize("end", ["\x1a", "\x00\x00\x00", "\n\x1a\n"])
+def test_end_of_file_mark_or_padding_is_no_value(tmp_path, end):
+    """A DOS end-of-file mark (Ctrl-Z) or NUL padding after the values, which GDAL reads past, is no extra value."""
+    path = tmp_path / "dem.asc"
+    path.write_bytes((_header(3, 3) + _ROWS + end).encode())
+    np.testing.assert_array_equal(st.load_dem(path).heights, np.arange(1, 10, dtype=np.float32).reshape(3, 3))
+
+
 def test_header_with_a_blank_and_an_unknown_line_reads(tmp_path):
     """GDAL's header ends at the first line not starting with a letter: a blank line or one it does not know
     inside it are header, not values."""
