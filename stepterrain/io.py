@@ -1932,8 +1932,9 @@ def _check_ascii_grid(file: Path, shape: tuple[int, int], driver: str, last_is_z
                         f"its first {count} data lines hold {held:,}")
                     raise DataFileError(
                         f"cannot read {str(file)!r}: expected {what} of rows of {ncols:,} values ({declares}), each "
-                        f"starting a line; got a first row ending mid-line: {on} values, so GDAL would read every "
-                        f"row shifted (a wrong {cols_word} in the header?)"
+                        f"starting a line; got a first row ending mid-line: {on} values. Either the header's "
+                        f"{cols_word} is wrong (GDAL would read every row shifted) or the file wraps its values "
+                        "across rows (which the header cannot tell from a wrong one): write one row per line"
                     )
                 break
         values = 0
