@@ -178,7 +178,11 @@ def load_dem(
         read (its georeferencing, CRS, nodata, scale and offset, unit, a .prj beside it, ``band`` and ``crop``
         windows alike; below, what is said of a GeoTIFF holds for them): ``.asc`` (ESRI ASCII grid; ``xllcorner``
         and ``xllcenter`` both place node (0, 0) at the top-left cell's centre; its CRS from the ``.prj`` beside
-        it, none without one), ``.hgt`` (SRTM tile, placed by its name ``N34W119.hgt``, -32768 voids as nodata),
+        it, none without one; a local one, gzipped or in a local zip, whose values do not match its header is
+        refused where GDAL reads it cut or shifted without a word: more values than nrows x ncols, a first row not
+        ending at a line's end, the very last value missing, an indented header line; a byte-order mark, spaces or
+        a blank line before its first keyword are named), ``.hgt`` (SRTM tile, placed by its name
+        ``N34W119.hgt``, -32768 voids as nodata),
         ``.img`` (ERDAS Imagine), ``.vrt`` (GDAL virtual raster, its sources read where it names them), ``.bil``
         and ``.flt`` (ESRI band-interleaved and float grids, with their ``.hdr``), ``.dem`` (USGS DEM) and
         ``.dt0``/``.dt1``/``.dt2`` (DTED): :data:`GDAL_FORMATS`. Another GDAL format (netCDF ``.nc``, a Surfer
@@ -1685,7 +1689,8 @@ def _load_geotiff(
             # a missing file inside a zip, an unreachable URL: GDAL's reason, not "unreadable content"
             gdal = os.fspath(file)
             reason = gdal_reason(exc)
-            reason = _hgt_refusal(file, reason) or f"GDAL cannot open it as {_gdal_format(file)}: {reason}"
+            reason = (_hgt_refusal(file, reason) or _asc_refusal(file, reason)
+                      or f"GDAL cannot open it as {_gdal_format(file)}: {reason}")
             raise DataFileError(f"cannot read {str(file)!r}" + (f" (GDAL path {gdal!r})" if gdal != str(file) else "")
                                 + f": {reason}") from exc
         with opened as dataset:
@@ -1759,15 +1764,17 @@ def _load_geotiff(
             with rasterio.Env(GDAL_ONE_BIG_READ="NO"):
                 masked = dataset.read(band, masked=True, window=window)
                 unmasked = _missing_beyond_gdal_mask(dataset, band, masked.data, window)
-            if (dataset.driver in _ASCII_GRIDS and masked.shape[0] and masked.shape[1]
-                    and (window is None or (i1 == shape[0] - 1 and j1 == shape[1] - 1))
-                    and masked.data[-1, -1] == 0):
-                _refuse_short_ascii_grid(file, shape, _ASCII_GRIDS[dataset.driver])
+            if dataset.driver in _ASCII_GRIDS and shape[0] and shape[1]:  # values GDAL ignores, or a last one
+                # it made up (0 m), where it read the last cell
+                last_is_zero = (masked.shape[0] and masked.shape[1] and masked.data[-1, -1] == 0
+                                and (window is None or (i1 == shape[0] - 1 and j1 == shape[1] - 1)))
+                _check_ascii_grid(file, shape, dataset.driver, bool(last_is_zero))
     except RasterioError as exc:
         reason = gdal_reason(exc)
         raise DataFileError(
             f"cannot read {str(file)!r}: "
-            + (_hgt_refusal(file, reason) or f"expected {_gdal_format(file)}; got unreadable content ({reason})")
+            + (_hgt_refusal(file, reason) or _asc_refusal(file, reason)
+               or f"expected {_gdal_format(file)}; got unreadable content ({reason})")
         ) from exc
 
     if masked.dtype == np.bool_ or masked.dtype.kind not in "iuf":  # a complex band kept its real part silently
@@ -1820,7 +1827,10 @@ def _load_geotiff(
 
 
 #: Bytes of an ASCII grid counted at a time.
-_ASC_CHUNK = 1 << 24
+_ASC_CHUNK = 1 << 22
+
+#: Bytes at the start of an ASCII grid's values looked at for where its first row ends.
+_ASC_FIRST_ROW = 1 << 20
 
 #: The header keywords of an ESRI ASCII grid (GDAL's AAIGrid) and a GRASS one (GRASSASCIIGrid: ``north: 4000030``,
 #: read under an .asc name too), lower case, without the GRASS colon.
@@ -1828,53 +1838,123 @@ _ASC_KEYWORDS = frozenset(("ncols", "nrows", "xllcorner", "yllcorner", "xllcente
                            "dy", "nodata_value", "nodata", "north", "south", "east", "west", "rows", "cols", "null",
                            "type", "multiplier"))
 
-#: GDAL's ASCII grid drivers whose reader takes the end of the file for the end of a missing last value, and the
-#: format as messages name it.
-_ASCII_GRIDS = {"AAIGrid": "an ESRI ASCII grid", "GRASSASCIIGrid": "a GRASS ASCII grid"}
+#: GDAL's ASCII grid drivers whose reader takes the end of the file for the end of a missing last value, the format
+#: as messages name it, and its header's keywords for the rows and columns.
+_ASCII_GRIDS = {"AAIGrid": ("an ESRI ASCII grid", "nrows", "ncols"),
+                "GRASSASCIIGrid": ("a GRASS ASCII grid", "rows", "cols")}
 
 
-def _refuse_short_ascii_grid(file: Path, shape: tuple[int, int], what: str = "an ESRI ASCII grid") -> None:
-    """Refuse the ASCII grid ``file`` (``what``: ESRI's or GRASS's; local, or in a local gzip or zip) of ``shape``
-    when it holds fewer values than its header declares. GDAL refuses one cut short ("File short, can't read line"), but
-    for the very last value: the end of the file after the last but one reads as the end of the last value, and the
-    last cell is read as 0 without a word (a 0 m spike, or a pit, in the grid's corner). Its caller asks only where
-    that cell reads as 0; a file GDAL reads through another virtual file system is not checked."""
+def _ascii_grid_opener(file: Path) -> Callable[[], BinaryIO] | None:
+    """A function opening the bytes of the ASCII grid ``file`` as GDAL reads them: a local file, or one in a local
+    gzip (``/vsigzip/``) or zip (``/vsizip/``, the archive's path in GDAL's braces or not); None for one GDAL reads
+    through another virtual file system (a URL, a tar, a zip in a zip)."""
     gdal = os.fspath(file)
-    opener: Callable[[], BinaryIO]
     if not isinstance(file, GdalPath):
-        opener = lambda: open(gdal, "rb")  # noqa: E731
-    elif gdal.startswith("/vsigzip/") and os.path.isfile(gdal[len("/vsigzip/"):]):
-        opener = lambda: gzip.open(gdal[len("/vsigzip/"):], "rb")  # noqa: E731
-    elif (gdal.startswith("/vsizip/") and (archive := local_archive(file)) is not None
-          and gdal.startswith(f"/vsizip/{archive}/") and os.path.isfile(archive)):
-        member = gdal[len(f"/vsizip/{archive}/"):]
+        return lambda: open(gdal, "rb")
+    if gdal.startswith("/vsigzip/") and os.path.isfile(gdal[len("/vsigzip/"):]):
+        return lambda: gzip.open(gdal[len("/vsigzip/"):], "rb")
+    archive = local_archive(file) if gdal.startswith("/vsizip/") else None
+    if archive is None or not os.path.isfile(archive):
+        return None
+    named = next((n for n in (f"/vsizip/{archive}/", f"/vsizip/{{{archive}}}/") if gdal.startswith(n)), None)
+    if named is None:
+        return None
+    member = gdal[len(named):]
 
-        def opener() -> BinaryIO:
-            with zipfile.ZipFile(archive) as zipped:  # the member's stream keeps the archive's file open
-                return zipped.open(member)
-    else:
+    def opener() -> BinaryIO:
+        with zipfile.ZipFile(archive) as zipped:  # the member's stream keeps the archive's file open
+            return zipped.open(member)
+
+    return opener
+
+
+def _check_ascii_grid(file: Path, shape: tuple[int, int], driver: str, last_is_zero: bool) -> None:
+    """Refuse the ASCII grid ``file`` (GDAL's ``driver``: ESRI's or GRASS's) of ``shape`` where its values do not
+    match its header, which GDAL reads without a word:
+
+    - an indented header line after the first: GDAL's header ends at the first line not starting with a letter,
+      and the rest of it was read as heights (the keywords as 0);
+    - more values than the header's rows x columns: GDAL reads the first rows x columns in order and ignores the
+      rest (a header declaring too few rows read the grid cut, and placed from its lower-left corner, too low; too
+      few columns read every row shifted);
+    - a first row not ending where a data line ends (its first lines, up to the first row's last value, read by
+      the header's column count): the rows are not that long (a wrong ncols with as many values as declared, rows
+      and columns swapped). Rows wrapped over lines, several whole rows a line, the whole grid on one line read;
+      a file wrapping values at a fixed width across rows is refused with them;
+    - fewer values than declared where the last cell read 0 (``last_is_zero``): GDAL refuses a file cut short
+      ("File short"), but for the very last value, which it reads as 0 (the end of the file ends the last but one).
+
+    Not detected: a row longer and another shorter further down (as many values, the first row whole); a file
+    GDAL reads through another virtual file system (a URL, a tar: see :func:`_ascii_grid_opener`). The values are
+    counted at about 250 MB/s (vectorised, 0.2 s for a 55 MB grid GDAL reads in 2.5 s), a crop's file whole."""
+    opener = _ascii_grid_opener(file)
+    if opener is None:
         return
-    expected = shape[0] * shape[1]
-    values = 0
+    what, rows_word, cols_word = _ASCII_GRIDS[driver]
+    nrows, ncols = shape
+    expected = nrows * ncols
+    declares = f"{rows_word} {nrows}, {cols_word} {ncols}, as its header declares"
     with opener() as handle:
-        header = True
-        while header:  # the header's keyword lines, then the values
+        # the header as GDAL finds its end: the first line, then those starting with a letter (or blank), up to the
+        # first starting otherwise, but for values of 'null ' or 'nan '
+        handle.readline()
+        number = 1
+        while True:
             start = handle.tell()
             line = handle.readline()
-            words = line.split()
+            number += 1
             if not line:
                 break
-            if words and words[0].decode("latin-1").rstrip(":").lower() in _ASC_KEYWORDS:
+            if line[:1] in (b"\r", b"\n") or (line[:1].isalpha() and not line.startswith(b"null ")
+                                                and line[:4].lower() != b"nan "):
                 continue
             handle.seek(start)
-            header = False
+            words = line.split()
+            if line[:1].isspace() and words and words[0].decode("latin-1").rstrip(":").lower() in _ASC_KEYWORDS:
+                shown = line.decode("latin-1").rstrip("\r\n")
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: expected {what}'s header lines each starting with its keyword; got "
+                    f"header line {number} ({shown!r}) starting with spaces, where GDAL's reader ends the header and "
+                    "would read the rest of it as heights; remove the spaces at the lines' starts"
+                )
+            break
+        first = handle.read(_ASC_FIRST_ROW)
+        handle.seek(start)
+        lines = first.split(b"\n")
+        if len(first) == _ASC_FIRST_ROW:
+            lines.pop()  # perhaps cut: not known to end there
+        held = 0
+        for count, line in enumerate(lines, 1):
+            held += len(line.split())
+            if held >= ncols:
+                if held % ncols:
+                    on = f"its first data line holds {held:,}" if count == 1 else (
+                        f"its first {count} data lines hold {held:,}")
+                    raise DataFileError(
+                        f"cannot read {str(file)!r}: expected {what} of rows of {ncols:,} values ({declares}), each "
+                        f"starting a line; got a first row ending mid-line: {on} values. Either the header's "
+                        f"{cols_word} is wrong (GDAL would read every row shifted) or the file wraps its values "
+                        "across rows (which the header cannot tell from a wrong one): write one row per line"
+                    )
+                break
+        values = 0
         joined = False  # whether the last chunk ended inside a value
         while chunk := handle.read(_ASC_CHUNK):
-            values += len(chunk.split()) - (joined and not chunk[:1].isspace())
-            joined = not chunk[-1:].isspace()
-    if values < expected:
+            data = np.frombuffer(chunk, np.uint8)
+            space = (data == 32) | ((data - 9) < 5)  # C's isspace, as GDAL's reader: ' ', \t \n \v \f \r
+            space |= (data == 0) | (data == 26)  # and NUL padding or a DOS end-of-file mark (Ctrl-Z) after the values
+            values += int(np.count_nonzero(space[:-1] > space[1:])) + (not joined and not space[0])
+            joined = not space[-1]
+    if values > expected:
+        whole = f" ({values // ncols:,} rows of {ncols:,})" if values % ncols == 0 else ""
         raise DataFileError(
-            f"cannot read {str(file)!r}: expected {what} of {shape[0]} x {shape[1]} = {expected:,} "
+            f"cannot read {str(file)!r}: expected {what} of {nrows:,} x {ncols:,} = {expected:,} values ({declares}); "
+            f"got {values:,} values{whole}: GDAL reads the first {expected:,} in order and ignores the rest, so the "
+            f"grid would be read cut or its rows shifted (a wrong {rows_word} or {cols_word} in the header?)"
+        )
+    if values < expected and last_is_zero:
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected {what} of {nrows} x {ncols} = {expected:,} "
             f"values, as its header declares; got {values:,} (cut short: GDAL reads the missing last value as 0)"
         )
 
@@ -1907,6 +1987,40 @@ def _gdal_format(file: Path) -> str:
 #: 3 arc-seconds), 3601 x 3601 (SRTM1), 1801 x 3601 (SRTM1 above 50 degrees) and 7201 x 7201 (0.5 arc-seconds).
 _HGT_SIZES = frozenset(2 * rows * cols for rows, cols in ((1201, 1201), (3601, 3601), (1801, 3601), (7201, 7201)))
 _HGT_NAME = re.compile(r"[NS]\d\d[EW]\d\d\d\.", re.IGNORECASE)
+
+
+def _asc_refusal(file: Path, reason: str) -> str | None:
+    """Why GDAL did not know the ``.asc`` ``file`` (local, or in a local gzip or zip) as an ESRI ASCII grid, where
+    a header keyword follows a UTF-8 byte-order mark, spaces or blank lines at the start of the file: GDAL knows
+    the format only by a keyword at its very first byte, and said only "not recognized as being in a supported file
+    format". None otherwise (GDAL's ``reason`` is the one to give)."""
+    if file.suffix.lower() != ".asc" or "not recognized as being in a supported file format" not in reason:
+        return None
+    opener = _ascii_grid_opener(file)
+    if opener is None:
+        return None
+    try:
+        with opener() as handle:
+            head = handle.read(4096)
+    except (OSError, zipfile.BadZipFile, KeyError):
+        return None
+    if head.startswith(b"\xef\xbb\xbf"):
+        said, rest = "a UTF-8 byte-order mark (bytes EF BB BF)", head[3:]
+        fix = "save it as UTF-8 without a byte-order mark (`sed -i '1s/^\\xEF\\xBB\\xBF//' FILE`)"
+    elif head[:1] in (b"\r", b"\n"):
+        said, rest = "a blank line", head
+        fix = "remove the lines before it"
+    elif head[:1].isspace():
+        said, rest = "spaces", head
+        fix = "remove the spaces before it"
+    else:
+        return None
+    words = rest.split(maxsplit=1)
+    word = words[0].decode("latin-1") if words else ""
+    if word.rstrip(":").lower() not in _ASC_KEYWORDS:
+        return None
+    return (f"expected {_gdal_format(file)} starting with its first header keyword; got a file that starts with "
+            f"{said} before {word!r}, and GDAL knows the format only by a keyword at the file's very start: {fix}")
 
 
 def _hgt_refusal(file: Path, reason: str) -> str | None:

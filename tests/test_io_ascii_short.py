@@ -31,11 +31,12 @@ def test_ascii_grid_missing_its_last_value_is_refused(tmp_path, newline, gzipped
     assert st.load_dem(path, crop=(100.0, 115.0, 215.0, 230.0)).heights.tolist() == [[1.0, 2.0], [4.0, 5.0]]
 
 
-@pytest.mark.parametrize("body", ["1 2 3\n4 5 6\n7 8 0\n", "1 2 3\n4 5 6\n7 8 0", "  1 2\t3 4\n5\n6 7 8 0  \n\n",
-                                  "1 2 3 4 5 6 7 8 0 99\n"])
+@pytest.mark.parametrize("body", ["1 2 3\n4 5 6\n7 8 0\n", "1 2 3\n4 5 6\n7 8 0", "  1 2\t3\n4 5\n6\n7 8 0  \n\n",
+                                  "1 2 3 4 5 6 7 8 0\n"])
 def test_ascii_grid_whose_last_value_is_0_reads(tmp_path, body):
-    """A last value of 0 that is there (with or without a newline after it, values wrapped across lines, more
-    values than the header counts, which GDAL ignores) is a height of 0."""
+    """A last value of 0 that is there (with or without a newline after it, rows wrapped over lines, the whole grid
+    on one line) is a height of 0. (More values than the header counts, which GDAL ignores, are refused:
+    test_io_ascii_header.py.)"""
     path = tmp_path / "dem.asc"
     path.write_text(_HEADER + body)
     np.testing.assert_array_equal(st.load_dem(path).heights, np.array([[1, 2, 3], [4, 5, 6], [7, 8, 0]], np.float32))
