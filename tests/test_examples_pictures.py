@@ -51,6 +51,35 @@ def test_examples_refuse_a_palette_they_cannot_write(name, colors, tmp_path, cap
                                       tmp_path, capsys)
 
 
+def caption(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, columns) of the dark text pixels in ``image``'s top left corner, the label's place."""
+    corner = image[: image.shape[0] // 10, : image.shape[1] // 2]
+    return np.nonzero(corner.max(axis=2) < 90)
+
+
+@needs_render
+def test_stepped_terrain_names_its_panels(tmp_path):
+    """docs/stepped_panels.png showed three panels with no names: the continuous and stepped ones could be told
+    apart, but nothing said which was the lens view, nor that its lens was the smooth circle in the middle. Each
+    panel names itself now, in type scaled to the panel (16 px at 480 px high); a tiny panel has no label to hide
+    it."""
+    example = load_example("stepped_terrain")
+    out = tmp_path / "s.png"
+    assert example.main(["--size", "32", "--panel", "320", "240", "--output", str(out), "--device", "cpu"]) == 0
+    _, image = read(out)
+    panels = np.split(image, 3, axis=1)
+    spans = []
+    for panel in panels:
+        rows, cols = caption(panel)
+        assert len(rows) > 30, "no label in the panel's corner"
+        spans.append(cols.max() - cols.min())
+    assert spans[2] > 1.5 * spans[0]  # the lens panel's label says what the lens is, at more length
+    tiny = tmp_path / "t.png"
+    assert example.main(["--size", "16", "--panel", "64", "48", "--output", str(tiny), "--device", "cpu"]) == 0
+    plain = example.label(np.full((48, 64, 3), 200, np.uint8), "stepped (gamma 1)")
+    assert (plain == 200).all()
+
+
 def test_adaptive_mesh_labels_are_legible():
     """adaptive_mesh's captions were Pillow's default 10 px type on a 400 px panel: small beside the picture. The type
     scales with the panel now, 16 px at 400 px high, and its box holds the whole caption."""
