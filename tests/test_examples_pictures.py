@@ -93,3 +93,53 @@ def test_adaptive_mesh_labels_are_legible():
     assert box[rows.min() - 1, across].all() and box[rows.max() + 1, across].all()
     small = example.label(np.full((80, 96, 3), 128, np.uint8), "error <= 0 m")
     assert not (small[17:] != 128).any()  # the caption's box stays in the 17 rows kept for it on a small panel
+
+
+def swatches(image: np.ndarray) -> list[tuple[int, int, int]]:
+    """The PALETTE colours found in ``image``'s top band, in the order their leftmost pixels come, left to right."""
+    from PIL import ImageColor
+
+    from stepterrain.closeup import PALETTE
+
+    band = image[: image.shape[0] // 12]
+    found = []
+    for name in PALETTE:
+        colour = ImageColor.getrgb(name)
+        cols = np.nonzero((band == colour).all(axis=2).any(axis=0))[0]
+        if len(cols) >= band.shape[0] // 4:  # a square swatch, not a stray pixel of a fence
+            found.append((cols.min(), colour))
+    return [colour for _, colour in sorted(found)]
+
+
+def test_closeup_anchors_legend_names_each_anchor_style():
+    """docs/closeup_anchors.png drew four close-ups with fences in four colours and four transfer functions, and
+    nothing in the picture said which was which. A legend along the top names them by colour, left to right as the
+    close-ups stand; with --inactive it names the depictions (their fences are hidden, gray or faint: no colour
+    swatches to match); an image under 240 px high gets none."""
+    from PIL import ImageColor
+
+    from stepterrain.closeup import PALETTE
+
+    example = load_example("closeup_anchors")
+    blank = np.full((360, 640, 3), 255, np.uint8)
+    image = example.legend(blank)
+    assert swatches(image) == [ImageColor.getrgb(name) for name in PALETTE[:4]]
+    text = (image[:40].max(axis=2) < 60).sum(axis=0) > 0
+    assert text.sum() > 150  # the title and the four names
+    inactive = example.legend(blank, inactive=True)
+    assert swatches(inactive) == [] and (inactive[:40].max(axis=2) < 60).any(axis=0).sum() > 150
+    assert not (inactive[40:] != 255).any() and not (image[40:] != 255).any()  # the terrain's place untouched
+    assert (example.legend(blank[:239]) == 255).all()
+
+
+@needs_render
+def test_closeup_anchors_picture_has_its_legend(tmp_path):
+    from PIL import ImageColor
+
+    from stepterrain.closeup import PALETTE
+
+    example = load_example("closeup_anchors")
+    out = tmp_path / "a.png"
+    assert example.main(["--window", "384", "240", "--device", "cpu", "--output", str(out)]) == 0
+    _, image = read(out)
+    assert swatches(image.astype(np.uint8)) == [ImageColor.getrgb(name) for name in PALETTE[:4]]
