@@ -40,12 +40,10 @@ def closeups(terrain: st.Terrain, inactive: bool = False) -> list[CloseUp]:
     return out
 
 
-def legend(image, inactive: bool = False):
-    """``image`` with a legend along its top: a swatch of each close-up's anchor colour (the library's
-    :data:`~stepterrain.closeup.PALETTE`, in the close-ups' order, left to right) and its style's name (with
-    ``inactive``, the depictions' names alone); none on an image under 240 px high, where the type would be too
-    small to read. Without it docs/closeup_anchors.png showed
-    four coloured fences and left the reader to guess which transfer function each one drew."""
+def draw_legend(image, title: str, entries):
+    """``image`` with a legend along its top: ``title``, then each ``(name, colour)`` of ``entries`` left to right, a
+    swatch of the colour (a hex string; None: no swatch) before the name; none on an image under 240 px high, where
+    the type would be too small to read."""
     if image.shape[0] < 240:
         return image
     import numpy as np
@@ -55,21 +53,29 @@ def legend(image, inactive: bool = False):
     picture = Image.fromarray(np.ascontiguousarray(image[..., :3]))
     draw = ImageDraw.Draw(picture)
     font = ImageFont.load_default(size=size)
-    if inactive:  # the fences are hidden, gray or faint, not in their colours: names alone, in order
-        title, names = "left to right:", ("inactive: anchor hidden", "inactive: gray", "inactive: faint", "active")
-    else:
-        title, names = "anchor transparency:", STYLES
     x, y = size, size // 2
     draw.text((x, y), title, fill=(0, 0, 0), font=font)
     x = draw.textbbox((x, y), title, font=font)[2] + size
-    for k, name in enumerate(names):
-        if not inactive:
-            draw.rectangle([x, y + size // 8, x + size - 1, y + size + size // 8 - 1],
-                           fill=ImageColor.getrgb(PALETTE[k % len(PALETTE)]))
+    for name, colour in entries:
+        if colour is not None:
+            draw.rectangle([x, y + size // 8, x + size - 1, y + size + size // 8 - 1], fill=ImageColor.getrgb(colour))
             x += size + size // 3
         draw.text((x, y), name, fill=(0, 0, 0), font=font)
         x = draw.textbbox((x, y), name, font=font)[2] + size
     return np.asarray(picture)
+
+
+def legend(image, inactive: bool = False):
+    """``image`` with :func:`draw_legend`'s legend: a swatch of each close-up's anchor colour (the library's
+    :data:`~stepterrain.closeup.PALETTE`, in the close-ups' order, left to right) and its style's name; with
+    ``inactive``, the depictions' names alone (their fences are hidden, gray or faint, not in their colours).
+    Without it docs/closeup_anchors.png showed four coloured fences and left the reader to guess which transfer
+    function each one drew."""
+    if inactive:
+        names = ("inactive: anchor hidden", "inactive: gray", "inactive: faint", "active")
+        return draw_legend(image, "left to right:", [(name, None) for name in names])
+    return draw_legend(image, "anchor transparency:",
+                       [(name, PALETTE[k % len(PALETTE)]) for k, name in enumerate(STYLES)])
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -162,3 +162,22 @@ def test_flood_gif_frames_share_one_palette(tmp_path):
     assert frames.shape[1:] == last.shape
     difference = np.abs(frames[-1] - last)
     assert difference.mean() < 3 and np.percentile(difference, 99) < 24
+
+
+def test_closeup_mappings_legend_names_both_close_ups():
+    """docs/closeup.png (the README's top row) showed a red and a blue fence and a purple patch, and did not say that
+    one close-up was the terrain stepped and the other its slope seen as a billboard. A legend along the top names
+    both by their anchors' colours, the steps' interval with them."""
+    from PIL import ImageColor
+
+    import stepterrain as st
+
+    example = load_example("closeup_mappings")
+    closeups = example.closeups(st.sample_dem())
+    assert [cu.stepped is not None for cu in closeups] == [True, False] and closeups[1].scalars == "slope"
+    image = example.legend(np.full((360, 640, 3), 255, np.uint8), closeups)
+    found = swatches(image)
+    assert found == [ImageColor.getrgb(example.STEPPED_COLOR), ImageColor.getrgb(example.SLOPE_COLOR)]
+    assert np.allclose(closeups[0].color, np.divide(found[0], 255), atol=0.01)
+    assert np.allclose(closeups[1].color, np.divide(found[1], 255), atol=0.01)
+    assert (image[:40].max(axis=2) < 60).any(axis=0).sum() > 200 and not (image[40:] != 255).any()
