@@ -11,7 +11,8 @@ The embedded Big Tujunga DEM (30 m SRTM), cropped and subsampled to about SIZE x
    middle of every other terrace: every 200 m on the default crop, stepped every 100 m), an index line every fifth;
 5. the composite draped on the stepped terrain (paper 000) and rendered off-screen.
 
-Left panel: the composite texture seen from above; right panel: the draped stepped terrain. The PNG is written with
+Left panel: the composite texture seen from above; right panel: the draped stepped terrain; each names itself in its
+top left corner (a panel 240 px high or more). The PNG is written with
 a palette of COLORS colours (default 256, octree quantisation): a third of the full-colour file's size,
 and the hillshade and the lens's slope colours read the same; ``--colors 0`` writes it in full colour.
 
@@ -69,6 +70,30 @@ def colour_layers(terrain: st.Terrain) -> tuple[np.ndarray, np.ndarray]:
     slope = np.degrees(np.arctan(np.hypot(gx, gy)))
     classes = matplotlib.colormaps["magma_r"](np.clip(slope / 45.0, 0, 1))
     return hyps.astype(np.float32), classes.astype(np.float32)
+
+
+def label_band(height: int) -> int:
+    """Rows along the top of a panel ``height`` px high that :func:`label`'s box takes (0: no label)."""
+    return 0 if height < 240 else 2 * (height // 30)
+
+
+def label(image: np.ndarray, text: str) -> np.ndarray:
+    """``image`` with ``text`` in its top left corner, black on a white box, in type scaled to the panel (20 px at
+    600 px high); none on a panel under 240 px high, where the type would be too small to read. Unlabelled, the two
+    panels of docs/texture.png did not say that the left one is the texture itself, seen from above."""
+    if not label_band(image.shape[0]):
+        return image
+    from PIL import Image, ImageDraw, ImageFont
+
+    size = image.shape[0] // 30
+    picture = Image.fromarray(np.ascontiguousarray(image[..., :3]))
+    draw = ImageDraw.Draw(picture)
+    font = ImageFont.load_default(size=size)
+    origin = (size // 2, size // 3)
+    right, bottom = draw.textbbox(origin, text, font=font)[2:]
+    draw.rectangle([0, 0, right + size // 2, bottom + size // 3], fill=(255, 255, 255))
+    draw.text(origin, text, fill=(0, 0, 0), font=font)
+    return np.asarray(picture)
 
 
 def save_picture(image: np.ndarray, path: Path, colors: int) -> None:
@@ -134,18 +159,22 @@ def run(args: argparse.Namespace) -> int:
     from PIL import Image
 
     picture = Image.fromarray(top)
+    band = label_band(height)  # the label's strip along the top: the texture below it, none of it covered
+    room = max(1, height - band)
     extent_x, extent_y = xmax - xmin, ymax - ymin
     if extent_x > 0 and extent_y > 0:
-        scale = min(width / extent_x, height / extent_y)
+        scale = min(width / extent_x, room / extent_y)
         size = (round(extent_x * scale), round(extent_y * scale))
     else:  # a DEM of one row or column of nodes: no proportions to keep
-        scale = min(width / picture.width, height / picture.height)
+        scale = min(width / picture.width, room / picture.height)
         size = (int(picture.width * scale), int(picture.height * scale))
-    picture = picture.resize((min(width, max(1, size[0])), min(height, max(1, size[1]))), Image.Resampling.LANCZOS)
+    picture = picture.resize((min(width, max(1, size[0])), min(room, max(1, size[1]))), Image.Resampling.LANCZOS)
     panel = np.full((height, width, 3), 255, np.uint8)
-    y0, x0 = (height - picture.height) // 2, (width - picture.width) // 2
+    y0, x0 = band + (room - picture.height) // 2, (width - picture.width) // 2
     panel[y0: y0 + picture.height, x0: x0 + picture.width] = np.asarray(picture)
     view = render_textured_mesh(mesh, window_size=(width, height), z_scale=1.5, lighting=True)
+    panel = label(panel, "the texture from above, north up")
+    view = label(view, f"draped on the terrain stepped every {interval:g} m")
     save_picture(np.concatenate([panel, view], axis=1), args.output, args.colors)
     print(f"wrote {args.output} ({terrain.shape[0]} x {terrain.shape[1]} nodes, {len(mesh.faces):,} faces, "
           f"{time.perf_counter() - start:.2f} s)", file=sys.stderr)

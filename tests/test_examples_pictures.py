@@ -181,3 +181,30 @@ def test_closeup_mappings_legend_names_both_close_ups():
     assert np.allclose(closeups[0].color, np.divide(found[0], 255), atol=0.01)
     assert np.allclose(closeups[1].color, np.divide(found[1], 255), atol=0.01)
     assert (image[:40].max(axis=2) < 60).any(axis=0).sum() > 200 and not (image[40:] != 255).any()
+
+
+def test_textures_panels_are_labelled_above_the_texture(monkeypatch, tmp_path):
+    """docs/texture.png's two panels did not say that the left one is the texture itself, seen from above, and the
+    right one the terrain it is draped on. Each panel names itself now; the texture is letterboxed below the label's
+    strip, so the label covers none of it, and keeps its proportions."""
+    example = load_example("textures")
+    monkeypatch.setattr(example, "render_textured_mesh", lambda mesh, window_size, **kw: np.full(
+        (window_size[1], window_size[0], 3), 255, np.uint8))  # the draped view is not this test's: no render
+    out = tmp_path / "t.png"
+    width, height = 320, 240
+    assert example.main(["--size", "32", "--panel", str(width), str(height), "--device", "cpu", "--colors", "0",
+                         "--output", str(out)]) == 0
+    _, image = read(out)
+    band = example.label_band(height)
+    assert band == 16
+    texture, view = image[:, :width], image[:, width:]
+    for panel in (texture, view):
+        assert (panel[:band].max(axis=2) < 60).sum() > 30  # the label's text
+    drawn = (texture[band:] < 250).any(axis=2)  # the texture, below the strip
+    rows, cols = np.nonzero(drawn)
+    assert rows.min() == 0 and rows.max() == height - band - 1  # it fills the room left, no more
+    xmin, xmax, ymin, ymax = example.crop_sample(32).extent
+    assert (cols.max() - cols.min() + 1) / (height - band) == pytest.approx((xmax - xmin) / (ymax - ymin), abs=0.03)
+    left, right = cols.min(), cols.max()
+    assert (texture[:band, left:right + 1] >= 250).all(axis=2).mean() > 0.5  # the strip above it mostly blank
+    assert (example.label(np.zeros((239, 300, 3), np.uint8), "x") == 0).all()  # a small panel: no label
