@@ -208,3 +208,20 @@ def test_textures_panels_are_labelled_above_the_texture(monkeypatch, tmp_path):
     left, right = cols.min(), cols.max()
     assert (texture[:band, left:right + 1] >= 250).all(axis=2).mean() > 0.5  # the strip above it mostly blank
     assert (example.label(np.zeros((239, 300, 3), np.uint8), "x") == 0).all()  # a small panel: no label
+
+
+def test_globe_labels_are_legible():
+    """globe.py's captions were Pillow's default 10 px type on 640 x 400 panels (docs/globe.png, the README's top
+    row): small beside the picture. The type scales with the panel now, 16 px at 400 px high, white on a black box
+    that holds the whole caption; 11 px at least."""
+    example = load_example("globe")
+    text = "close view (clipped), spheres: 2,202 triangles"
+    image = example.label(np.full((400, 640, 3), 128, np.uint8), text)
+    rows, cols = np.nonzero(image.min(axis=2) > 200)
+    assert rows.max() - rows.min() >= 12  # the glyphs from ascender to descender
+    box = (image == 0).all(axis=2)
+    across = slice(cols.min(), cols.max() + 1)
+    assert box[rows.min() - 1, across].all() and box[rows.max() + 1, across].all()
+    small = example.label(np.full((48, 64, 3), 128, np.uint8), "far view")
+    rows = np.nonzero((small != 128).any(axis=(1, 2)))[0]
+    assert 0 < rows.max() < 20
