@@ -3,7 +3,8 @@
 Four close-ups of one DEM, each anchored to its ROI by a fence in its color whose transparency follows a
 different 1D transfer function of the normalized distance between overview and close-up: opaque, linear
 (solid at the ROI, fading towards the close-up), inverse and ends. With --inactive the close-ups are drawn
-inactive in the three depictions of Fig. 5 (anchor hidden, gray, faint) plus one active for comparison.
+inactive in the three depictions of Fig. 5 (anchor hidden, gray, faint) plus one active for comparison. A legend
+along the top names each close-up by its anchor's colour, left to right.
 
     python examples/closeup_anchors.py --output anchors.png
 """
@@ -15,7 +16,7 @@ import sys
 
 import stepterrain as st
 from stepterrain.cli import add_dem_option, check_example_outputs, example_dem, usage_errors
-from stepterrain.closeup import ROI, AnchorStyle, CloseUp, render_closeups
+from stepterrain.closeup import PALETTE, ROI, AnchorStyle, CloseUp, render_closeups
 from stepterrain.render import save_png
 
 STYLES = ("opaque", "linear", "inverse", "ends")
@@ -37,6 +38,44 @@ def closeups(terrain: st.Terrain, inactive: bool = False) -> list[CloseUp]:
                            offset=(0.0, 0.1 * h, 0.22 * max(w, h)), anchor=anchor,
                            active=depiction is None))
     return out
+
+
+def draw_legend(image, title: str, entries):
+    """``image`` with a legend along its top: ``title``, then each ``(name, colour)`` of ``entries`` left to right, a
+    swatch of the colour (a hex string; None: no swatch) before the name; none on an image under 240 px high, where
+    the type would be too small to read."""
+    if image.shape[0] < 240:
+        return image
+    import numpy as np
+    from PIL import Image, ImageColor, ImageDraw, ImageFont
+
+    size = image.shape[0] // 30
+    picture = Image.fromarray(np.ascontiguousarray(image[..., :3]))
+    draw = ImageDraw.Draw(picture)
+    font = ImageFont.load_default(size=size)
+    x, y = size, size // 2
+    draw.text((x, y), title, fill=(0, 0, 0), font=font)
+    x = draw.textbbox((x, y), title, font=font)[2] + size
+    for name, colour in entries:
+        if colour is not None:
+            draw.rectangle([x, y + size // 8, x + size - 1, y + size + size // 8 - 1], fill=ImageColor.getrgb(colour))
+            x += size + size // 3
+        draw.text((x, y), name, fill=(0, 0, 0), font=font)
+        x = draw.textbbox((x, y), name, font=font)[2] + size
+    return np.asarray(picture)
+
+
+def legend(image, inactive: bool = False):
+    """``image`` with :func:`draw_legend`'s legend: a swatch of each close-up's anchor colour (the library's
+    :data:`~stepterrain.closeup.PALETTE`, in the close-ups' order, left to right) and its style's name; with
+    ``inactive``, the depictions' names alone (their fences are hidden, gray or faint, not in their colours).
+    Without it docs/closeup_anchors.png showed four coloured fences and left the reader to guess which transfer
+    function each one drew."""
+    if inactive:
+        names = ("inactive: anchor hidden", "inactive: gray", "inactive: faint", "active")
+        return draw_legend(image, "left to right:", [(name, None) for name in names])
+    return draw_legend(image, "anchor transparency:",
+                       [(name, PALETTE[k % len(PALETTE)]) for k, name in enumerate(STYLES)])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -66,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
                                           crs=terrain.crs, source=terrain.source)
     image = render_closeups(terrain, closeups(terrain, args.inactive), window_size=tuple(args.window), z_scale=2.0,
                             device=args.device)
-    save_png(image, args.output)
+    save_png(legend(image, args.inactive), args.output)
     return 0
 
 

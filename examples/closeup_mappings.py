@@ -2,8 +2,9 @@
 
 The overview shows the terrain colored by height; one close-up shows the stepped terrain (paper 000) of its
 ROI, enlarged and lifted (MPFR, overview-dependent, Fig. 1a); another shows the slope of its ROI as an
-overview-independent billboard seen from above with an orthographic projection (Fig. 1b). Writes a PNG
-and, with --gif, an animation of the first close-up spinning.
+overview-independent billboard seen from above with an orthographic projection (Fig. 1b). A legend along the top
+names each close-up by its anchor's colour. Writes a PNG and, with --gif, an animation of the first close-up
+spinning.
 
     python examples/closeup_mappings.py --output closeup.png --gif closeup.gif
 """
@@ -20,6 +21,12 @@ from stepterrain.cli import add_dem_option, check_example_outputs, example_dem, 
 from stepterrain.closeup import ROI, AnchorStyle, CloseUp, animate_closeups, render_closeups, save_animation
 from stepterrain.render import save_png
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from closeup_anchors import draw_legend  # noqa: E402
+
+#: the anchors' colours, named again by the legend
+STEPPED_COLOR, SLOPE_COLOR = "#d62728", "#1f77b4"
+
 
 def closeups(terrain: st.Terrain) -> list[CloseUp]:
     """The two close-ups of the figure, placed by fractions of the terrain's extent."""
@@ -32,11 +39,20 @@ def closeups(terrain: st.Terrain) -> list[CloseUp]:
     interval = nice_interval(terrain.height_range, target=20)
     stepped = CloseUp(ROI.circle((xmin + 0.3 * w, ymin + 0.45 * h), r), scale=(1.6, 1.6, 2.0),
                       offset=(-0.05 * w, 0.0, lift), rotation=(0.0, math.radians(20)), stepped=interval,
-                      color="#d62728", anchor=AnchorStyle("linear"), spin=(0.25, 1))
+                      color=STEPPED_COLOR, anchor=AnchorStyle("linear"), spin=(0.25, 1))
     slope = CloseUp(ROI.rounded_rectangle((xmin + 0.72 * w, ymin + 0.55 * h), (2.2 * r, 1.6 * r)), scale=1.4,
-                    offset=(0.05 * w, 0.0, lift), scalars="slope", view="billboard", color="#1f77b4",
+                    offset=(0.05 * w, 0.0, lift), scalars="slope", view="billboard", color=SLOPE_COLOR,
                     anchor=AnchorStyle("ends"))
     return [stepped, slope]
+
+
+def legend(image, closeups: list[CloseUp]):
+    """``image`` with a legend along its top naming the two close-ups by their anchors' colours (see
+    :func:`closeup_anchors.draw_legend`). Without it docs/closeup.png showed a red and a blue fence and a purple
+    patch, and did not say that one close-up was the terrain stepped and the other its slope."""
+    stepped = closeups[0]
+    return draw_legend(image, "close-ups:", [(f"the terrain stepped every {stepped.stepped:g} m", STEPPED_COLOR),
+                                             ("its slope (bright: steep), a billboard seen from above", SLOPE_COLOR)])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -84,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
     if args.gif:  # before the PNG is written: frames refused for the memory budget left the PNG behind
         frames = animate_closeups(terrain, cus[:1], frames=args.frames, fps=12.0, window_size=tuple(args.window),
                                   z_scale=2.0, device=args.device)
-    save_png(image, args.output)
+    save_png(legend(image, cus), args.output)
     if frames is not None:
         save_animation(frames, args.gif, fps=12.0)
     return 0

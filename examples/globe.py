@@ -64,12 +64,19 @@ def overview_of(meshes, up, aspect: float, fov: float = math.radians(30.0), fill
 
 
 def label(image: np.ndarray, text: str) -> np.ndarray:
-    from PIL import Image, ImageDraw
+    """``image`` with ``text`` in its top left corner, white on a black box, in type scaled to the panel: 16 px at
+    400 px high, 11 px at least. Pillow's default 10 px type, in a box sized at 7 px a character, read small beside a
+    640 x 400 panel in docs/globe.png (the README's top row)."""
+    from PIL import Image, ImageDraw, ImageFont
 
+    size = max(11, image.shape[0] // 25)
     picture = Image.fromarray(image)
     draw = ImageDraw.Draw(picture)
-    draw.rectangle([0, 0, 8 + 7 * len(text), 18], fill=(0, 0, 0))
-    draw.text((4, 3), text, fill=(255, 255, 255))
+    font = ImageFont.load_default(size=size)
+    origin = (4, 2)
+    right, bottom = draw.textbbox(origin, text, font=font)[2:]
+    draw.rectangle([0, 0, right + 4, bottom + 3], fill=(0, 0, 0))
+    draw.text(origin, text, fill=(255, 255, 255), font=font)
     return np.asarray(picture)
 
 

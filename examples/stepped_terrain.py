@@ -7,6 +7,8 @@ nodes, each rendered off-screen with the same camera and lighting:
 2. γ = 1: the fully stepped terrain, terraces at the isovalues joined by vertical walls;
 3. a soft circular lens: original terrain inside, steps outside (the focus + context view of §4).
 
+Each panel names itself in its top left corner.
+
     python examples/stepped_terrain.py --size 256 --output out/stepped_terrain.png
 """
 
@@ -39,6 +41,24 @@ def crop_sample(size: int, dem: st.Terrain | None = None) -> st.Terrain:
                                    source=dem.source)
 
 
+def label(image: np.ndarray, text: str) -> np.ndarray:
+    """``image`` with ``text`` in its top left corner, black on a white box, in type scaled to the panel (16 px at
+    480 px high; none on a panel under 60 px high, where it would hide the terrain). Unlabelled, the three panels
+    of docs/stepped_panels.png left the reader to guess which was the lens view and where its lens was."""
+    from PIL import Image, ImageDraw, ImageFont
+
+    size = image.shape[0] // 30
+    if size < 2:
+        return image
+    picture = Image.fromarray(image)
+    draw = ImageDraw.Draw(picture)
+    font = ImageFont.load_default(size=size)
+    left, top, right, bottom = draw.textbbox((size // 2, size // 3), text, font=font)
+    draw.rectangle([0, 0, right + size // 2, bottom + size // 3], fill=(255, 255, 255))
+    draw.text((size // 2, size // 3), text, fill=(0, 0, 0), font=font)
+    return np.asarray(picture)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default=None, help="Warp device: cpu, cuda, cuda:0 (default: Warp's)")
@@ -67,11 +87,12 @@ def run(args: argparse.Namespace) -> int:
     bounds = [(xmin, ymin, float(levels[0])), (xmax, ymax, float(levels[-1]))]
 
     panels = []
-    for name, gamma in (("continuous (gamma 0)", 0.0), ("stepped (gamma 1)", 1.0), ("lens", lens)):
+    lens_name = "lens: continuous within a central circle, stepped outside"
+    for name, gamma in (("continuous (gamma 0)", 0.0), ("stepped (gamma 1)", 1.0), (lens_name, lens)):
         start = time.perf_counter()
         mesh = st.stepped(terrain, interval=interval, gamma=gamma, colors="terrain", device=args.device)
         image = render_mesh(mesh, window_size=tuple(args.panel), z_scale=2.0, bounds=bounds)
-        panels.append(image)
+        panels.append(label(image, name))
         print(f"{name}: {len(mesh.faces):,} faces, {time.perf_counter() - start:.2f} s", file=sys.stderr)
     save_png(np.concatenate(panels, axis=1), args.output)
     print(f"wrote {args.output} ({terrain.shape[0]} x {terrain.shape[1]} nodes, interval {interval:g} m)",

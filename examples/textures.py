@@ -11,7 +11,10 @@ The embedded Big Tujunga DEM (30 m SRTM), cropped and subsampled to about SIZE x
    middle of every other terrace: every 200 m on the default crop, stepped every 100 m), an index line every fifth;
 5. the composite draped on the stepped terrain (paper 000) and rendered off-screen.
 
-Left panel: the composite texture seen from above; right panel: the draped stepped terrain.
+Left panel: the composite texture seen from above; right panel: the draped stepped terrain; each names itself in its
+top left corner (a panel 240 px high or more). The PNG is written with
+a palette of COLORS colours (default 256, octree quantisation): a third of the full-colour file's size,
+and the hillshade and the lens's slope colours read the same; ``--colors 0`` writes it in full colour.
 
     python examples/textures.py --size 256 --output out/textures.png
 """
@@ -29,6 +32,7 @@ import numpy as np
 
 import stepterrain as st
 from stepterrain.cli import add_dem_option, check_example_outputs, example_dem, nice_interval, usage_errors
+from stepterrain.export import atomic_path
 from stepterrain.render import render_textured_mesh, save_png
 from stepterrain.texture import (
     Pipeline,
@@ -68,6 +72,45 @@ def colour_layers(terrain: st.Terrain) -> tuple[np.ndarray, np.ndarray]:
     return hyps.astype(np.float32), classes.astype(np.float32)
 
 
+def label_band(height: int) -> int:
+    """Rows along the top of a panel ``height`` px high that :func:`label`'s box takes (0: no label)."""
+    return 0 if height < 240 else 2 * (height // 30)
+
+
+def label(image: np.ndarray, text: str) -> np.ndarray:
+    """``image`` with ``text`` in its top left corner, black on a white box, in type scaled to the panel (20 px at
+    600 px high); none on a panel under 240 px high, where the type would be too small to read. Unlabelled, the two
+    panels of docs/texture.png did not say that the left one is the texture itself, seen from above."""
+    if not label_band(image.shape[0]):
+        return image
+    from PIL import Image, ImageDraw, ImageFont
+
+    size = image.shape[0] // 30
+    picture = Image.fromarray(np.ascontiguousarray(image[..., :3]))
+    draw = ImageDraw.Draw(picture)
+    font = ImageFont.load_default(size=size)
+    origin = (size // 2, size // 3)
+    right, bottom = draw.textbbox(origin, text, font=font)[2:]
+    draw.rectangle([0, 0, right + size // 2, bottom + size // 3], fill=(255, 255, 255))
+    draw.text(origin, text, fill=(0, 0, 0), font=font)
+    return np.asarray(picture)
+
+
+def save_picture(image: np.ndarray, path: Path, colors: int) -> None:
+    """``image`` as a PNG at ``path``, atomically: in full colour where ``colors`` is 0, else with a palette of that
+    many colours. Full colour, the 1600 x 600 picture of hillshaded texels took 1.02 MB (docs/texture.png); its
+    256-colour octree palette (Pillow's FASTOCTREE, no dithering: dithering's noise costs a third more bytes and
+    speckles the lens) takes about 0.32 MB, the shading and the slope colours as they were to the eye."""
+    if colors == 0:
+        save_png(image, path)
+        return
+    from PIL import Image
+
+    picture = Image.fromarray(np.ascontiguousarray(image[..., :3])).quantize(colors, method=Image.Quantize.FASTOCTREE)
+    with atomic_path(path) as tmp:
+        picture.save(tmp, format="PNG", optimize=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default=None, help="Warp device: cpu, cuda, cuda:0 (default: Warp's)")
@@ -76,7 +119,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--output", type=Path, default=Path("out/textures.png"), help="PNG to write")
     parser.add_argument("--panel", type=int, nargs=2, default=(800, 600), metavar=("W", "H"),
                         help="size of one panel in pixels (default 800 600)")
+    parser.add_argument("--colors", type=int, default=256,
+                        help="colours in the PNG's palette, 2 to 256 (default 256); 0: full colour")
     args = parser.parse_args(argv)
+    if args.colors != 0 and not 2 <= args.colors <= 256:
+        parser.error(f"--colors must be 0 (full colour) or 2 to 256; got {args.colors}")
     if args.size < 2:  # 0 raised a ZeroDivisionError in the crop; below 2 is no grid
         parser.error(f"--size must be at least 2 nodes; got {args.size}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
@@ -112,19 +159,23 @@ def run(args: argparse.Namespace) -> int:
     from PIL import Image
 
     picture = Image.fromarray(top)
+    band = label_band(height)  # the label's strip along the top: the texture below it, none of it covered
+    room = max(1, height - band)
     extent_x, extent_y = xmax - xmin, ymax - ymin
     if extent_x > 0 and extent_y > 0:
-        scale = min(width / extent_x, height / extent_y)
+        scale = min(width / extent_x, room / extent_y)
         size = (round(extent_x * scale), round(extent_y * scale))
     else:  # a DEM of one row or column of nodes: no proportions to keep
-        scale = min(width / picture.width, height / picture.height)
+        scale = min(width / picture.width, room / picture.height)
         size = (int(picture.width * scale), int(picture.height * scale))
-    picture = picture.resize((min(width, max(1, size[0])), min(height, max(1, size[1]))), Image.Resampling.LANCZOS)
+    picture = picture.resize((min(width, max(1, size[0])), min(room, max(1, size[1]))), Image.Resampling.LANCZOS)
     panel = np.full((height, width, 3), 255, np.uint8)
-    y0, x0 = (height - picture.height) // 2, (width - picture.width) // 2
+    y0, x0 = band + (room - picture.height) // 2, (width - picture.width) // 2
     panel[y0: y0 + picture.height, x0: x0 + picture.width] = np.asarray(picture)
     view = render_textured_mesh(mesh, window_size=(width, height), z_scale=1.5, lighting=True)
-    save_png(np.concatenate([panel, view], axis=1), args.output)
+    panel = label(panel, "the texture from above, north up")
+    view = label(view, f"draped on the terrain stepped every {interval:g} m")
+    save_picture(np.concatenate([panel, view], axis=1), args.output, args.colors)
     print(f"wrote {args.output} ({terrain.shape[0]} x {terrain.shape[1]} nodes, {len(mesh.faces):,} faces, "
           f"{time.perf_counter() - start:.2f} s)", file=sys.stderr)
     return 0
