@@ -125,7 +125,7 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--billboard", action="store_true",
                    help="overview-independent close-ups: orthographic, seen from above; in the renders (a .png "
                         "--output, --png, --gif) only, not in a scene mesh --output")
-    p.add_argument("--scalars", choices=("height", "slope", "aspect", "none"), default="height",
+    p.add_argument("--scalars", choices=("height", "slope", "aspect", "none"), default=None,
                    help="overview data mapping (default height)")
     p.add_argument("--colormap", default=None, metavar="NAME",
                    help="matplotlib colormap of the overview and the stepped close-ups (default terrain)")
@@ -211,10 +211,11 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         raise InvalidInputError(f"--anchor must be one of {', '.join(TRANSFER_PRESETS)}; got {args.anchor!r}")
     if mesh_out is not None and mesh_out.suffix.lower() == ".stl" and picture is None and anim is None:
         # the colours went nowhere: an STL holds none and no render showed them (as steps --colormap with an .stl)
-        # --anchor likewise: the anchors' opacity, in the vertex alpha of the other formats (`-o scene.stl --anchor
-        # hidden` wrote the file --anchor opaque writes)
+        # --anchor and --scalars likewise: the anchors' opacity, in the vertex alpha of the other formats, and the
+        # overview's colours (`-o scene.stl --anchor hidden --scalars slope` wrote the file without them)
         given = ([f"--colormap {args.colormap}"] * (args.colormap is not None) + ["--color"] * bool(args.color)
-                 + [f"--anchor {args.anchor}"] * (args.anchor is not None))
+                 + [f"--anchor {args.anchor}"] * (args.anchor is not None)
+                 + [f"--scalars {args.scalars}"] * (args.scalars is not None))
         if given:
             raise InvalidInputError(f"an .stl --output holds no colours: got {' and '.join(given)} (colouring the "
                                     f"scene and its renders) with --output {args.output!r} and no --png or --gif; "
@@ -224,6 +225,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     render_options = _given(args, {"z_scale": 2.0, "size": (1280, 720), "camera": "oblique"})
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
+    args.scalars = "height" if args.scalars is None else args.scalars
     if args.colormap is not None and args.scalars == "none" and not any(args.stepped or []):
         # nothing is coloured by it: the same image and scene mesh as without it
         raise InvalidInputError(f"--colormap colours the overview's --scalars and the --stepped close-ups; with "

@@ -1381,8 +1381,9 @@ def test_closeup_colours_an_stl_cannot_hold_are_refused(tmp_path, capsys):
 
 def test_closeup_anchor_opacity_an_stl_cannot_hold_is_refused(tmp_path, capsys):
     """``closeup --anchor hidden -o scene.stl`` with no --png or --gif wrote the file ``--anchor opaque`` writes (an
-    .stl holds no colours, so no opacity either) and said nothing, where its --colormap and --color are refused. Refused
-    by name now, before the DEM is read; a .ply keeps the anchors' opacity in its vertex alpha, so it passes there."""
+    .stl holds no colours, so no opacity either) and said nothing, where its --colormap and --color are refused; so did
+    ``--scalars slope`` (the overview's colours). Refused by name now, before the DEM is read; a .ply keeps the
+    anchors' opacity in its vertex alpha, so it passes there."""
     dem = tmp_path / "dem.npy"
     np.save(dem, np.add.outer(np.linspace(0.0, 40.0, 24), np.linspace(0.0, 30.0, 28)).astype(np.float32))
     out = tmp_path / "scene.stl"
@@ -1392,6 +1393,8 @@ def test_closeup_anchor_opacity_an_stl_cannot_hold_is_refused(tmp_path, capsys):
         f"stepterrain closeup: error: an .stl --output holds no colours: got --anchor hidden (colouring the scene and "
         f"its renders) with --output {str(out)!r} and no --png or --gif; write .glb, .ply or .3mf for colours, or "
         "leave them out")
+    code, _, err = run(capsys, "-q", "closeup", dem, "--scalars", "slope", "-o", out)
+    assert code == 2 and "an .stl --output holds no colours: got --scalars slope (colouring" in err, err
     assert list(tmp_path.iterdir()) == [dem]
     alphas = {}
     for preset in ("opaque", "hidden"):
