@@ -120,11 +120,12 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--stepped", type=_real, action="append", metavar="INTERVAL",
                    help="the close-up shows the stepped terrain at this interval (a mapping of its own: multi-pass "
                         "forward rendering, MPFR); 0: continuous")
-    p.add_argument("--anchor", default="linear", metavar="PRESET",
+    p.add_argument("--anchor", default=None, metavar="PRESET",
                    help="anchor transparency: opaque, linear, inverse, ends, hidden (default linear)")
     p.add_argument("--billboard", action="store_true",
-                   help="overview-independent close-ups: orthographic, seen from above")
-    p.add_argument("--scalars", choices=("height", "slope", "aspect", "none"), default="height",
+                   help="overview-independent close-ups: orthographic, seen from above; in the renders (a .png "
+                        "--output, --png, --gif) only, not in a scene mesh --output")
+    p.add_argument("--scalars", choices=("height", "slope", "aspect", "none"), default=None,
                    help="overview data mapping (default height)")
     p.add_argument("--colormap", default=None, metavar="NAME",
                    help="matplotlib colormap of the overview and the stepped close-ups (default terrain)")
@@ -205,9 +206,16 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         raise InvalidInputError(f"--png writes the render beside a mesh --output, or alone (a .png --output is the "
                                 f"render already); got --output {args.output!r} with --png {args.png!r}")
     picture = png if out is None or mesh_out is not None else out  # the still render's one file, if any
+    if args.anchor is not None and args.anchor not in TRANSFER_PRESETS:  # the library's message offered an opacity
+        # table, which no option takes
+        raise InvalidInputError(f"--anchor must be one of {', '.join(TRANSFER_PRESETS)}; got {args.anchor!r}")
     if mesh_out is not None and mesh_out.suffix.lower() == ".stl" and picture is None and anim is None:
         # the colours went nowhere: an STL holds none and no render showed them (as steps --colormap with an .stl)
-        given = [f"--colormap {args.colormap}"] * (args.colormap is not None) + ["--color"] * bool(args.color)
+        # --anchor and --scalars likewise: the anchors' opacity, in the vertex alpha of the other formats, and the
+        # overview's colours (`-o scene.stl --anchor hidden --scalars slope` wrote the file without them)
+        given = ([f"--colormap {args.colormap}"] * (args.colormap is not None) + ["--color"] * bool(args.color)
+                 + [f"--anchor {args.anchor}"] * (args.anchor is not None)
+                 + [f"--scalars {args.scalars}"] * (args.scalars is not None))
         if given:
             raise InvalidInputError(f"an .stl --output holds no colours: got {' and '.join(given)} (colouring the "
                                     f"scene and its renders) with --output {args.output!r} and no --png or --gif; "
@@ -217,6 +225,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     render_options = _given(args, {"z_scale": 2.0, "size": (1280, 720), "camera": "oblique"})
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
+    args.scalars = "height" if args.scalars is None else args.scalars
     if args.colormap is not None and args.scalars == "none" and not any(args.stepped or []):
         # nothing is coloured by it: the same image and scene mesh as without it
         raise InvalidInputError(f"--colormap colours the overview's --scalars and the --stepped close-ups; with "
@@ -224,8 +233,6 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
                                 f"{args.colormap}")
     args.colormap = "terrain" if args.colormap is None else args.colormap
     colormap(args.colormap, argument="--colormap")  # an unknown name fails here, before any work
-    if args.anchor not in TRANSFER_PRESETS:  # the library's message offered an opacity table, which no option takes
-        raise InvalidInputError(f"--anchor must be one of {', '.join(TRANSFER_PRESETS)}; got {args.anchor!r}")
     _check_size(args.size, renders=picture is not None or anim is not None, layered=True)
     # the animation's options: the still render and the scene mesh are the close-ups at time 0, before any spin
     unanimated = _given(args, {"spin": 0.25, "frames": 24, "fps": 12.0})
@@ -250,9 +257,10 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     if anim is None:  # (after their values, which are named first)
         _refuse_unused(unanimated, "--gif (the still render and the scene mesh show the close-ups before any spin)",
                        "without --gif")
-        if picture is None:  # the scene mesh alone: --size and --z-scale shape the renders only
-            _refuse_unused(render_options, "a render (a .png --output, --png or --gif)",
-                           f"with the mesh --output {args.output!r} alone")
+        if picture is None:  # the scene mesh alone: --size, --z-scale and --billboard shape the renders only (a
+            # billboard is an orthographic render pasted over the close-up's place: the scene mesh was the same)
+            _refuse_unused(render_options + ["--billboard"] * args.billboard, "a render (a .png --output, --png or "
+                           "--gif)", f"with the mesh --output {args.output!r} alone")
     if args.edge is not None and not (math.isfinite(args.edge) and args.edge >= 0):
         raise InvalidInputError(f"--edge must be a finite number >= 0; got {args.edge:g}")  # inf is >= 0
     # degrees (finite: _floats), whole turns taken off exactly: math.radians(1e308) kept none of the angle
@@ -327,7 +335,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
                 text = str(exc)  # _OPTION_ALIASES): not after "--stepped 1e-09: "
                 raise InvalidInputError(text if text.startswith("interval") else f"--stepped {interval:g}: {text}"
                                         ) from None
-    anchor = AnchorStyle(args.anchor)
+    anchor = AnchorStyle("linear" if args.anchor is None else args.anchor)
     # repetitions enough for the animation; |spin| * frames / fps overflowed to inf (an OverflowError in ceil) for
     # --spin 1e308: capped where float64 still counts whole turns
     turns = abs(args.spin) * args.frames / args.fps

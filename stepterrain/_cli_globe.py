@@ -487,6 +487,12 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     if args.no_camera and png is None:  # (after their values, which are named first)
         _refuse_unused(unused, "the camera or a --png render (with --no-camera the mesh is refined by the geometric "
                        "error alone)", "with --no-camera and no --png")
+    elif "clip" not in metrics and png is None:
+        # the view's direction, angle and aspect make the clip metric's (and the culling's) planes alone; the
+        # geometric and distance metrics read the eye's position: `--metrics geometric,distance --tilt 30` wrote the
+        # mesh that run writes without --tilt, and said nothing
+        _refuse_unused([o for o in unused if o != "--eye"], "the clip metric or a --png render (the geometric and "
+                       "distance metrics read only the --eye position)", f"with --metrics {args.metrics} and no --png")
     if png is not None:
         render.require_offscreen()
     # the image before the work: a missing, unreadable or non-image --texture failed after the globe was built

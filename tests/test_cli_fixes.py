@@ -1379,6 +1379,60 @@ def test_closeup_colours_an_stl_cannot_hold_are_refused(tmp_path, capsys):
     assert code == 0, err
 
 
+def test_closeup_anchor_opacity_an_stl_cannot_hold_is_refused(tmp_path, capsys):
+    """``closeup --anchor hidden -o scene.stl`` with no --png or --gif wrote the file ``--anchor opaque`` writes (an
+    .stl holds no colours, so no opacity either) and said nothing, where its --colormap and --color are refused; so did
+    ``--scalars slope`` (the overview's colours). Refused by name now, before the DEM is read; a .ply keeps the
+    anchors' opacity in its vertex alpha, so it passes there."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.add.outer(np.linspace(0.0, 40.0, 24), np.linspace(0.0, 30.0, 28)).astype(np.float32))
+    out = tmp_path / "scene.stl"
+    code, _, err = run(capsys, "-q", "closeup", dem, "--anchor", "hidden", "-o", out)
+    assert code == 2
+    assert one_error_line(err, "closeup") == (
+        f"stepterrain closeup: error: an .stl --output holds no colours: got --anchor hidden (colouring the scene and "
+        f"its renders) with --output {str(out)!r} and no --png or --gif; write .glb, .ply or .3mf for colours, or "
+        "leave them out")
+    code, _, err = run(capsys, "-q", "closeup", dem, "--scalars", "slope", "-o", out)
+    assert code == 2 and "an .stl --output holds no colours: got --scalars slope (colouring" in err, err
+    assert list(tmp_path.iterdir()) == [dem]
+    alphas = {}
+    for preset in ("opaque", "hidden"):
+        path = tmp_path / f"{preset}.ply"
+        code, _, err = run(capsys, "-q", "closeup", dem, "--roi-relative", "0.5,0.5,0.25", "--anchor", preset,
+                           "-o", path)
+        assert code == 0, err
+        alphas[preset] = st.export.read_mesh(path).visual.vertex_colors[:, 3]
+    assert (alphas["hidden"] < alphas["opaque"]).any()  # what --anchor changes, which an .stl cannot hold
+
+
+def test_closeup_billboard_without_a_render_is_refused(tmp_path, capsys):
+    """``closeup --billboard -o scene.glb`` (a scene mesh alone) was accepted and wrote the mesh ``closeup -o
+    scene.glb`` writes: a billboard is an orthographic render pasted over the close-up's place, so it shapes the renders
+    alone, like --size and --z-scale, which are refused without a render. Refused by name now, before the DEM is read;
+    with a render it passes."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.add.outer(np.linspace(0.0, 40.0, 24), np.linspace(0.0, 30.0, 28)).astype(np.float32))
+    out = tmp_path / "scene.glb"
+    code, _, err = run(capsys, "-q", "closeup", dem, "--billboard", "-o", out)
+    assert code == 2
+    assert one_error_line(err, "closeup") == (
+        "stepterrain closeup: error: --billboard applies only with a render (a .png --output, --png or --gif); got "
+        f"it with the mesh --output {str(out)!r} alone")
+    code, _, err = run(capsys, "-q", "closeup", dem, "--billboard", "--z-scale", "3", "-o", out)
+    assert code == 2 and "--z-scale and --billboard apply only with a render" in err, err
+    assert list(tmp_path.iterdir()) == [dem]
+    # the scene mesh is the same with and without it (what made it a no-op)
+    from stepterrain.closeup import ROI, CloseUp, closeup_scene
+
+    heights = np.load(dem)
+    roi = ROI.circle((14.0, 12.0), 5.0)
+    scenes = [closeup_scene(heights, [CloseUp(roi, offset=(0.0, 0.0, 20.0), view=view)], device="cpu")
+              for view in ("overview", "billboard")]
+    assert np.array_equal(scenes[0].vertices, scenes[1].vertices) and np.array_equal(scenes[0].faces,
+                                                                                      scenes[1].faces)
+
+
 def test_a_roi_or_lens_in_degrees_of_a_dem_in_degrees_names_its_centre_in_metres(tmp_path, capsys):
     """closeup --roi=-105.5,40.1,0.05 on the Front Range tile (in degrees, read as local metres) was refused as
     outside the extent, steps --lens warned it changed nothing, naming the metres extent only. Both now say it looks

@@ -1050,6 +1050,39 @@ def test_the_views_options_with_no_camera_and_no_png_are_refused_by_name(tmp_pat
     assert main([*base, "--no-camera"]) == 0 and out.exists()
 
 
+def test_the_views_direction_without_the_clip_metric_and_no_png_is_refused_by_name(tmp_path, capsys):
+    """``globe --metrics geometric,distance --tilt 30`` (or --heading, --view-angle, --size) without --png was
+    accepted and wrote the mesh that run writes without them: the view's direction, angle and aspect make only the
+    clip metric's (and the culling's) planes, and the geometric and distance metrics read the eye's position alone.
+    Refused by name now; --eye still shapes such a mesh, and with the clip metric or a --png the options pass."""
+    from stepterrain.cli import main
+
+    out = tmp_path / "g.ply"
+    base = ["-q", "globe", "--face-size", "9", "--error", "0", "-o", str(out), "--device", "cpu",
+            "--eye", "46,9,400000"]
+    bytes_of = {}
+    for metrics in ("geometric", "geometric,distance"):
+        assert main([*base, "--metrics", metrics]) == 0
+        bytes_of[metrics] = out.read_bytes()
+        out.unlink()
+        for extra, names, verb in (
+            (["--tilt", "20", "--heading", "90"], "--tilt and --heading", "apply"),
+            (["--size", "64x48"], "--size", "applies"),
+            (["--view-angle", "20"], "--view-angle", "applies"),
+        ):
+            assert main([*base, "--metrics", metrics, *extra]) == 2
+            err = capsys.readouterr().err
+            assert (f"error: {names} {verb} only with the clip metric or a --png render (the geometric and distance "
+                    f"metrics read only the --eye position); got {'them' if verb == 'apply' else 'it'} with --metrics "
+                    f"{metrics} and no --png") in err, err
+            assert not out.exists()
+            # with the clip metric the view shapes the mesh: the options pass
+            assert main([*base[:-2], "--eye", "46,9,400000", "--metrics", f"{metrics},clip", *extra]) == 0
+            out.unlink()
+    assert main([*base[:-1], "46,9,800000", "--metrics", "geometric,distance"]) == 0  # the eye's position: used
+    assert out.read_bytes() != bytes_of["geometric,distance"]
+
+
 def test_the_cli_names_unknown_and_repeated_metrics_in_its_own_terms(tmp_path, capsys):
     """``globe --metrics clip,bogus`` said "--metrics must be names among ('geometric', 'distance', 'clip') or
     callables", offering callables no option can pass; ``--metrics geometric,geometric`` was accepted (the library
