@@ -2703,15 +2703,16 @@ def _split_border(terrain: Terrain, patch: GeometryPatch, side: int, finer: Sequ
             a, b = k * n_cols + j, (k + 1) * n_cols + j
             f = 2 * (k * cells + (0 if side == 2 else n_cols - 2)) + (side == 2)
         tri = [int(v) for v in faces[f]]
-        if a not in tri or b not in tri:  # a one-cell patch: split at another side already, a fan piece holds it
-            pieces = np.concatenate(new_faces[1:]) if len(new_faces) > 1 else faces[:0]
-            hit = np.flatnonzero((pieces == a).any(axis=1) & (pieces == b).any(axis=1))
+        if a not in tri or b not in tri:
+            # a corner cell (or a one-cell patch) split at another side already, by this call or an earlier side's:
+            # a fan piece holds the edge, among all the faces so far
+            faces = np.concatenate(new_faces)
+            new_faces = [faces]
+            hit = np.flatnonzero((faces == a).any(axis=1) & (faces == b).any(axis=1))
             if not len(hit):
                 continue
-            tri = [int(v) for v in pieces[hit[0]]]
-            target = (len(new_faces) > 1, hit[0])
-        else:
-            target = (False, f)
+            f = int(hit[0])
+            tri = [int(v) for v in faces[f]]
         if not np.isfinite(vertices[tri, 2]).all():
             continue
         w = next(v for v in tri if v not in (a, b))
@@ -2720,11 +2721,7 @@ def _split_border(terrain: Terrain, patch: GeometryPatch, side: int, finer: Sequ
         mid = list(first + inside) if u == a else list(first + inside[::-1])
         chain = [u, *mid, v]
         fan = np.array([[chain[m], chain[m + 1], w] for m in range(len(chain) - 1)], dtype=faces.dtype)
-        if target[0]:
-            pieces[target[1]] = fan[0]
-            new_faces = [faces, pieces]
-        else:
-            faces[f] = fan[0]
+        faces[f] = fan[0]
         new_faces.append(fan[1:])
     return vertices, np.concatenate(new_faces)
 

@@ -1921,3 +1921,55 @@ def test_paint_with_textures_refuses_malformed_finer(finer, match):
         with pytest.raises(InvalidInputError, match=r"^item\.finer\[0\] must be empty where item\.seams\[0\] names"):
             paint_with_textures(DrawItem(by_span[_FINE], (tree.root,), (False,), (coarse, None, None, None),
                                          ((coarse,), (), (), ())))
+
+
+@pytest.mark.parametrize("spacing", [(10.0, 10.0), (-10.0, -10.0), (10.0, -10.0)])
+def test_a_corner_cell_with_finer_patches_on_two_sides_is_split_on_both(spacing):
+    """A patch with finer neighbours on two sides meeting at one triangle (first row and last column: the top-right
+    cell's n00 n01 n11; last row and first column: the bottom-left cell's n00 n11 n10) had that triangle fanned for
+    the first side only: the second side's call looked for the edge among its own fan pieces, not the earlier side's,
+    and left the coarse edge whole, a T-junction. With dx * dy < 0 the first fan piece happened to keep the other
+    edge (the other tests' spacing); with dx * dy > 0 it did not (1-4 T-junction edges in four of eight views)."""
+    import math
+
+    from stepterrain.texture_lod import paint_with_textures
+
+    yy, xx = np.mgrid[0:101, 0:77]
+    heights = 40 * np.sin(xx / 9.0) * np.cos(yy / 13.0) + np.random.default_rng(3).normal(0, 0.5, xx.shape)
+    quadtree = PatchQuadtree(as_terrain(heights, spacing=spacing), leaf_size=4)
+    t = quadtree.terrain
+    x0, x1, y0, y1 = quadtree.root.domain
+    cx, cy, reach = (x0 + x1) / 2, (y0 + y1) / 2, 1.2 * abs(x1 - x0)
+    t_junctions, views = {}, 0
+    with ImagePyramid.build(np.full((64, 64, 3), 90, np.uint8), extent=quadtree.root.domain) as pyramid:
+        tree = TextureTree(pyramid, quadtree, max_texture_size=16)
+        for azimuth in range(0, 360, 45):
+            a = math.radians(azimuth)
+            camera = Camera((cx + reach * math.cos(a), cy + reach * math.sin(a),
+                             quadtree.root.box[1, 2] + 0.4 * abs(x1 - x0)), (cx, cy, quadtree.root.box[0, 2]),
+                            viewport=(640, 480))
+            items = render_with_textures(quadtree.root, [tree.root], camera, gamma_user=2.0, tau_user=1e9)
+            views += sum(any(across) for item in items for across in item.finer) > 0
+            meshes = [paint_with_textures(item) for item in items]
+            vertices = np.concatenate([m.vertices for m in meshes])
+            offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
+            faces = np.concatenate([np.asarray(m.faces) + o for m, o in zip(meshes, offsets, strict=True)])
+            unique, weld = np.unique(vertices, axis=0, return_inverse=True)
+            faces = weld.reshape(-1)[faces]
+            edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+            edges, counts = np.unique(edges, axis=0, return_counts=True)
+            assert (counts <= 2).all()
+            col = np.rint((unique[:, 0] - t.origin[0]) / t.spacing[0]).astype(int)
+            row = np.rint((unique[:, 1] - t.origin[1]) / t.spacing[1]).astype(int)
+            nodes = set(zip(row.tolist(), col.tolist(), strict=True))
+            bad = 0
+            for a_, b_ in edges[counts == 1]:  # a border edge used once with a drawn node inside it: a T-junction
+                (ra, ca), (rb, cb) = (row[a_], col[a_]), (row[b_], col[b_])
+                if ra == rb:
+                    bad += any((ra, c) in nodes for c in range(min(ca, cb) + 1, max(ca, cb)))
+                elif ca == cb:
+                    bad += any((r, ca) in nodes for r in range(min(ra, rb) + 1, max(ra, rb)))
+            if bad:
+                t_junctions[azimuth] = bad
+    assert views >= 4  # the views have cuts of mixed levels
+    assert not t_junctions, f"T-junction edges by azimuth: {t_junctions}"
