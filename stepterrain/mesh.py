@@ -725,6 +725,9 @@ def _close_solid(vertices: Any, faces: Any, terrace_mask: Any, floor: float, dev
                             check=check)
     if check:  # after the fins (walls back to back share their edges with the terraces beside them) and the turn (a
         # stepped surface reversed finds its fins only once turned back)
+        if len(faces) == 0:
+            raise InvalidInputError("faces: close_solid skirts a surface's boundary down to the floor; got a surface "
+                                    "of no faces")
         _check_surface(faces, len(vertices))
         if len(edges) == 0:
             raise InvalidInputError(f"faces: close_solid skirts a surface's boundary down to the floor; got a closed "

@@ -83,6 +83,14 @@ def test_a_closed_mesh_is_refused(closed):
         _close(np.asarray(closed.vertices) + [0.0, 0.0, 20.0], np.asarray(closed.faces), 0.0)
 
 
+def test_a_surface_of_no_faces_is_refused_as_such():
+    # the closed-mesh check took a surface of no faces (no boundary edge either) for a closed mesh: "got a closed mesh
+    # (0 faces, no boundary edge): a solid already" (r134); before that check it came back as 3 vertices, no face
+    vertices, faces = _tin(1, 10)
+    with pytest.raises(InvalidInputError, match="got a surface of no faces"):
+        _close(vertices, faces[:0], 0.0)
+
+
 @settings(max_examples=12, deadline=None)
 @given(seed=hs.integers(0, 2**31 - 1), n=hs.integers(4, 50), case=hs.sampled_from(
     ["plain", "holes", "unmerged", "spare", "components", "utm", "float32"]))
