@@ -2486,10 +2486,10 @@ def _traverse(root: GeometryPatch, layers: list[TexturePatch], camera: Camera, g
     patches in traversal order. ``visits``: per patch visited, None where culled, else its :class:`_Visit`, filled in
     as they are first visited (a pass after the first computes nothing for the patches seen before)."""
     out: list[GeometryPatch] = []
-    stack: list[tuple[GeometryPatch, list[TexturePatch | None]]] = [(root, list(layers))]
+    stack: list[tuple[GeometryPatch, list[TexturePatch | None] | None]] = [(root, list(layers))]
     while stack:  # depth-first over patches (a few thousand at most), never over cells
         node, current = stack.pop()
-        if node not in visits:
+        if node not in visits:  # (current None: visited in an earlier pass)
             if camera.box_visible(node.box):
                 view = _in_view(camera, node.box)  # γ's and every τ's of this patch
                 if node.is_leaf:
@@ -2502,9 +2502,11 @@ def _traverse(root: GeometryPatch, layers: list[TexturePatch], camera: Camera, g
         seen = visits[node]
         if seen is None:
             continue
+        current = seen.textures
         if not node.is_leaf and (node in forced or seen.gamma > gamma_user or seen.tau > tau_user):
-            children = [(child, [m.child_for(child) if m is not None else None for m in current])
-                        for child in node.children]
+            children = [(child, None if child in visits else [m.child_for(child) if m is not None else None
+                                                              for m in current])
+                        for child in node.children]  # a child visited in an earlier pass has its textures already
             stack.extend(reversed(children))
             continue
         out.append(node)
