@@ -2390,6 +2390,7 @@ def render_with_textures(
     # per patch visited, over the passes: None where culled, else its view, γ(N), τ(N, S) and texture patches
     visits: dict[GeometryPatch, _Visit | None] = {}
     probes: dict[GeometryPatch, tuple[tuple[GeometryPatch, ...], ...]] = {}  # per drawn patch: _probe_paths
+    within: set[tuple[GeometryPatch, float]] = set()  # (patch, seam error) whose γ of e(N) + it is within γ_user
     while True:  # balanced: split a drawn patch while a neighbour is drawn more than one level finer (a few passes)
         cut = _traverse(root, layers, camera, gamma_user, tau_user, forced, visits)
         drawn = set(cut)
@@ -2399,8 +2400,11 @@ def render_with_textures(
                  if n is not None and n.children and node.depth - n.depth > 1}
         for node, sides in zip(cut, seams, strict=True):  # γ of e(N) + the seam error: the coarser neighbour splits
             seam = max((node._seam_error(k) for k, n in enumerate(sides) if n is not None), default=0.0)
-            if seam > 0.0 and _geometric_error_in(node, camera, visits[node][0], node.error + seam) > gamma_user:
-                split.update(n for n in sides if n is not None and n.children)
+            if seam > 0.0 and (node, seam) not in within:
+                if _geometric_error_in(node, camera, visits[node].view, node.error + seam) > gamma_user:
+                    split.update(n for n in sides if n is not None and n.children)
+                else:  # (a patch stays drawn over passes, its coarser neighbours too: measured once)
+                    within.add((node, seam))
         split -= forced
         if not split:
             break
