@@ -34,7 +34,7 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import warp as wp
@@ -1246,14 +1246,16 @@ class GeometryPatch:
     @property
     def seam_errors(self) -> tuple[float, ...]:
         """s(N) per side (see the class), measured on first use (only stitched patches need it)."""
-        found = self.__dict__.get("_seam_errors")
-        if found is None:
+        return tuple(self._seam_error(side) for side in range(4))
+
+    def _seam_error(self, side: int) -> float:
+        """s(N) of one side, measured on first use: :func:`render_with_textures` needs only a stitched side's."""
+        found = self.__dict__.setdefault("_seam_errors", [None] * 4)
+        if found[side] is None:
             parent = self.parent
-            found = (0.0, 0.0, 0.0, 0.0) if parent is None or self.heights is None else tuple(
-                _seam_error(self.heights, self, side, parent.cols if side < 2 else parent.rows, parent.stride)
-                for side in range(4))
-            self.__dict__["_seam_errors"] = found
-        return found
+            found[side] = 0.0 if parent is None or self.heights is None else _seam_error(
+                self.heights, self, side, parent.cols if side < 2 else parent.rows, parent.stride)
+        return found[side]
 
 
 class PatchQuadtree:
@@ -1340,7 +1342,10 @@ def _samples(first: int, last: int, stride: int) -> NDArray[np.intp]:
     first line, a DEM whose size is no power of two plus one left them apart (a child starts at its parent's middle
     line, no multiple of its stride). Relative to ``first``, they depend on ``first % stride`` and the span alone."""
     start = -(-first // stride) * stride
-    return np.unique(np.r_[first, np.arange(start, last + 1, stride), last]).astype(np.intp)
+    inner = np.arange(start, last + 1, stride, dtype=np.intp)
+    head = [first] if first < start else []  # (np.unique of the three: 3 times slower, called per patch and side)
+    tail = [last] if (int(inner[-1]) if len(inner) else first) < last else []
+    return np.concatenate([np.array(head, np.intp), inner, np.array(tail, np.intp)]) if head or tail else inner
 
 
 def _approximation_error(block: NDArray[np.float32], stride: int, spacing: tuple[float, float] = (1.0, 1.0),
@@ -2382,109 +2387,155 @@ def render_with_textures(
     if len(flags) != len(layers):
         raise InvalidInputError(f"hybrid needs one flag per layer ({len(layers)}); got {len(flags)}")
     forced: set[GeometryPatch] = set()
-    views: dict[GeometryPatch, tuple[_InView, float] | None] = {}  # each patch's (view, γ), once over the passes
+    # per patch visited, over the passes: None where culled, else its view, γ(N), τ(N, S) and texture patches
+    visits: dict[GeometryPatch, _Visit | None] = {}
+    probes: dict[GeometryPatch, tuple[tuple[GeometryPatch, ...], ...]] = {}  # per drawn patch: _probe_paths
+    within: set[tuple[GeometryPatch, float]] = set()  # (patch, seam error) whose γ of e(N) + it is within γ_user
     while True:  # balanced: split a drawn patch while a neighbour is drawn more than one level finer (a few passes)
-        out = _traverse(root, layers, flags, camera, gamma_user, tau_user, cache, forced, views)
-        drawn = {item.geometry for item in out}
-        seams = [_coarser_neighbours(item.geometry, root, drawn) for item in out]
+        cut = _traverse(root, layers, camera, gamma_user, tau_user, forced, visits)
+        drawn = set(cut)
+        seams = [_coarser_neighbours(node, root, drawn, probes) for node in cut]
         # a leaf is not split: one coarser than its depth is a single cell (both its sides <= 1 cell), no node between
-        split = {n for item, sides in zip(out, seams, strict=True) for n in sides
-                 if n is not None and n.children and item.geometry.depth - n.depth > 1}
-        for item, sides in zip(out, seams, strict=True):  # γ of e(N) + the seam error: the coarser neighbour splits
-            node = item.geometry
-            seam = max((node.seam_errors[k] for k, n in enumerate(sides) if n is not None), default=0.0)
-            if seam > 0.0 and _geometric_error_in(node, camera, views[node][0], node.error + seam) > gamma_user:
-                split.update(n for n in sides if n is not None and n.children)
+        split = {n for node, sides in zip(cut, seams, strict=True) for n in sides
+                 if n is not None and n.children and node.depth - n.depth > 1}
+        for node, sides in zip(cut, seams, strict=True):  # γ of e(N) + the seam error: the coarser neighbour splits
+            seam = max((node._seam_error(k) for k, n in enumerate(sides) if n is not None), default=0.0)
+            if seam > 0.0 and (node, seam) not in within:
+                if _geometric_error_in(node, camera, visits[node].view, node.error + seam) > gamma_user:
+                    split.update(n for n in sides if n is not None and n.children)
+                else:  # (a patch stays drawn over passes, its coarser neighbours too: measured once)
+                    within.add((node, seam))
         split -= forced
         if not split:
-            finer = _finer_neighbours(out, seams)
-            return [DrawItem(item.geometry, item.textures, item.lighting, sides, across)
-                    for item, sides, across in zip(out, seams, finer, strict=True)]
+            break
         forced |= split
+    finer = _finer_neighbours(cut, seams)
+    out = []
+    for node, sides, across in zip(cut, seams, finer, strict=True):  # the final cut's textures (loads requested)
+        visit = visits[node]
+        chosen, lighting = _textures(visit[3], visit[0], flags, camera, tau_user, cache)
+        out.append(DrawItem(node, chosen, lighting, sides, across))
+    return out
 
 
-def _finer_neighbours(out: list[DrawItem], seams: list[tuple[GeometryPatch | None, ...]]) -> list[
+def _finer_neighbours(cut: list[GeometryPatch], seams: list[tuple[GeometryPatch | None, ...]]) -> list[
         tuple[tuple[GeometryPatch, ...], ...]]:
-    """Per item of ``out``, per side, the finer drawn patches across it: those whose ``seams`` (per item) name it on
+    """Per patch of ``cut``, per side, the finer drawn patches across it: those whose ``seams`` (per patch) name it on
     their opposite side (a finer patch's first row lies on a coarser one's last row), ordered along the side."""
-    index = {item.geometry: k for k, item in enumerate(out)}
-    finer: list[list[list[GeometryPatch]]] = [[[], [], [], []] for _ in out]
-    for item, sides in zip(out, seams, strict=True):
+    index = {node: k for k, node in enumerate(cut)}
+    finer: list[list[list[GeometryPatch]]] = [[[], [], [], []] for _ in cut]
+    for node, sides in zip(cut, seams, strict=True):
         for side, coarse in enumerate(sides):
             if coarse is not None:
-                finer[index[coarse]][side ^ 1].append(item.geometry)
+                finer[index[coarse]][side ^ 1].append(node)
     return [tuple(tuple(sorted(across, key=lambda n, s=side: (n.cols if s < 2 else n.rows)[0]))
                   for side, across in enumerate(sides)) for sides in finer]
 
 
-def _coarser_neighbours(patch: GeometryPatch, root: GeometryPatch,
-                        drawn: set[GeometryPatch]) -> tuple[GeometryPatch | None, ...]:
+def _coarser_neighbours(patch: GeometryPatch, root: GeometryPatch, drawn: set[GeometryPatch],
+                        probes: dict[GeometryPatch, tuple[tuple[GeometryPatch, ...], ...]] | None = None) -> tuple[
+        GeometryPatch | None, ...]:
     """Per side of ``patch`` (first row, last row, first column, last column), the patch of ``drawn`` across it
-    when that one is coarser, else None. A coarser one spans the whole side (quadtree patches of one depth share their
-    rows or columns), so the cell just outside the side's middle finds it."""
+    when that one is coarser, else None: the drawn one among the patches coarser than ``patch`` holding the cell
+    just outside the side's middle (:func:`_probe_paths`; ``drawn``, a cut, holds at most one of them). A coarser one
+    spans the whole side (quadtree patches of one depth share their rows or columns). ``probes`` keeps the paths
+    per patch over the balancing passes."""
+    paths = probes.get(patch) if probes is not None else None
+    if paths is None:
+        paths = _probe_paths(patch, root)
+        if probes is not None:
+            probes[patch] = paths
+    return tuple(next((n for n in path if n in drawn), None) for path in paths)
+
+
+def _probe_paths(patch: GeometryPatch, root: GeometryPatch) -> tuple[tuple[GeometryPatch, ...], ...]:
+    """Per side of ``patch``, the patches coarser than it holding the cell just outside the side's middle, root
+    first (none where the side is on the grid's outline or a single node)."""
     (r0, r1), (c0, c1) = patch.rows, patch.cols
     last_row, last_col = root.rows[1], root.cols[1]
     probes = [(r0 - 1, (c0 + c1) // 2) if r0 > 0 and c1 > c0 else None,
               (r1, (c0 + c1) // 2) if r1 < last_row and c1 > c0 else None,
               ((r0 + r1) // 2, c0 - 1) if c0 > 0 and r1 > r0 else None,
               ((r0 + r1) // 2, c1) if c1 < last_col and r1 > r0 else None]
-    out: list[GeometryPatch | None] = []
+    out: list[tuple[GeometryPatch, ...]] = []
     for probe in probes:
-        node: GeometryPatch | None = root if probe is not None else None
-        while node is not None and node not in drawn:  # down to the drawn patch holding the cell (None: culled)
+        path: list[GeometryPatch] = []
+        node = root
+        while probe is not None and node.depth < patch.depth:  # down to the patch holding the cell
+            path.append(node)
             if not node.children:
-                node = None
                 break
             first = node.children[0]  # children: row parts x column parts, each axis split in two or kept whole
             split_cols = first.cols[1] != node.cols[1]
             below = first.rows[1] != node.rows[1] and probe[0] >= first.rows[1]
             right = split_cols and probe[1] >= first.cols[1]
             node = node.children[(2 if split_cols else 1) * below + right]
-        out.append(node if node is not None and node.depth < patch.depth else None)
+        out.append(tuple(path))
     return tuple(out)
 
 
-def _traverse(root: GeometryPatch, layers: list[TexturePatch], flags: tuple[bool, ...], camera: Camera,
-              gamma_user: float, tau_user: float, cache: TextureCache | None,
-              forced: set[GeometryPatch], views: dict[GeometryPatch, tuple[_InView, float] | None]) -> list[DrawItem]:
-    """One pass of :func:`render_with_textures`' traversal, splitting the patches of ``forced`` too (``views``: per
-    patch visited, None where culled, else its :func:`_in_view` and γ(N), filled in as they are first visited)."""
-    out: list[DrawItem] = []
-    stack: list[tuple[GeometryPatch, list[TexturePatch | None]]] = [(root, list(layers))]
+class _Visit(NamedTuple):
+    """A visible patch in :func:`_traverse`: its :func:`_in_view`, γ(N), τ(N, S) (0 for a leaf: never split) and
+    texture patches per layer (from the root down by ``child_for``)."""
+
+    view: _InView
+    gamma: float
+    tau: float
+    textures: list[TexturePatch | None]
+
+
+def _traverse(root: GeometryPatch, layers: list[TexturePatch], camera: Camera, gamma_user: float, tau_user: float,
+              forced: set[GeometryPatch], visits: dict[GeometryPatch, _Visit | None]) -> list[GeometryPatch]:
+    """One pass of :func:`render_with_textures`' traversal, splitting the patches of ``forced`` too: the drawn
+    patches in traversal order. ``visits``: per patch visited, None where culled, else its :class:`_Visit`, filled in
+    as they are first visited (a pass after the first computes nothing for the patches seen before)."""
+    out: list[GeometryPatch] = []
+    stack: list[tuple[GeometryPatch, list[TexturePatch | None] | None]] = [(root, list(layers))]
     while stack:  # depth-first over patches (a few thousand at most), never over cells
         node, current = stack.pop()
-        if node not in views:
+        if node not in visits:  # (current None: visited in an earlier pass)
             if camera.box_visible(node.box):
                 view = _in_view(camera, node.box)  # γ's and every τ's of this patch
-                views[node] = view, (0.0 if node.is_leaf else _geometric_error_in(node, camera, view))
+                if node.is_leaf:
+                    visits[node] = _Visit(view, 0.0, 0.0, current)
+                else:
+                    tau = max((_texture_error_in(m, camera, view) for m in current if m is not None), default=0.0)
+                    visits[node] = _Visit(view, _geometric_error_in(node, camera, view), tau, current)
             else:
-                views[node] = None
-        seen = views[node]
+                visits[node] = None
+        seen = visits[node]
         if seen is None:
             continue
-        view, gamma = seen
-        tau = max((_texture_error_in(m, camera, view) for m in current if m is not None), default=0.0)
-        if not node.is_leaf and (node in forced or gamma > gamma_user or tau > tau_user):
-            children = [(child, [m.child_for(child) if m is not None else None for m in current])
-                        for child in node.children]
+        current = seen.textures
+        if not node.is_leaf and (node in forced or seen.gamma > gamma_user or seen.tau > tau_user):
+            children = [(child, None if child in visits else [m.child_for(child) if m is not None else None
+                                                              for m in current])
+                        for child in node.children]  # a child visited in an earlier pass has its textures already
             stack.extend(reversed(children))
             continue
-        chosen: list[TexturePatch | None] = []
-        lighting: list[bool] = []
-        for k, m in enumerate(current):
-            if m is None:
-                chosen.append(None)
-                lighting.append(flags[k])
-                continue
-            while m.parent is not None and _texture_error_in(m.parent, camera, view) <= tau_user:
-                m = m.parent  # reduction of texture data
-            while m is not None and cache is not None and not cache.is_loaded(m):
-                cache.request(m)  # non-blocking; the parent stands in meanwhile
-                m = m.parent
-            chosen.append(m)
-            lighting.append(flags[k] and (m is None or (m.is_leaf and _texel_pixels_in(m, camera, view) > tau_user)))
-        out.append(DrawItem(node, tuple(chosen), tuple(lighting)))
+        out.append(node)
     return out
+
+
+def _textures(current: list[TexturePatch | None], view: _InView, flags: tuple[bool, ...], camera: Camera,
+              tau_user: float, cache: TextureCache | None) -> tuple[tuple[TexturePatch | None, ...], tuple[bool, ...]]:
+    """A drawn patch's texture patch per layer, reduced from its own ``current`` (§4: to the parent while τ of the
+    parent stays within ``tau_user``, then while not loaded, requesting it), and whether hybrid shading lights it."""
+    chosen: list[TexturePatch | None] = []
+    lighting: list[bool] = []
+    for k, m in enumerate(current):
+        if m is None:
+            chosen.append(None)
+            lighting.append(flags[k])
+            continue
+        while m.parent is not None and _texture_error_in(m.parent, camera, view) <= tau_user:
+            m = m.parent  # reduction of texture data
+        while m is not None and cache is not None and not cache.is_loaded(m):
+            cache.request(m)  # non-blocking; the parent stands in meanwhile
+            m = m.parent
+        chosen.append(m)
+        lighting.append(flags[k] and (m is None or (m.is_leaf and _texel_pixels_in(m, camera, view) > tau_user)))
+    return tuple(chosen), tuple(lighting)
 
 
 def _threshold(value: Any, name: str) -> float:

@@ -1973,3 +1973,46 @@ def test_a_corner_cell_with_finer_patches_on_two_sides_is_split_on_both(spacing)
                 t_junctions[azimuth] = bad
     assert views >= 4  # the views have cuts of mixed levels
     assert not t_junctions, f"T-junction edges by azimuth: {t_junctions}"
+
+
+def test_the_balanced_traversal_looks_each_patchs_textures_up_once_and_asks_the_cache_for_the_final_cut_only(
+        monkeypatch):
+    """render_with_textures reran the whole traversal per balancing pass: every patch visited again looked its
+    texture patches up (child_for), measured τ again, and every patch drawn in a pass, split in a later one, had its
+    textures reduced and asked of the cache (is_loaded, which marks them used, and request). Now each patch's texture
+    patches are looked up once over the passes and the textures chosen once, for the final cut: with every texture
+    loaded, one is_loaded per item and layer."""
+    from stepterrain.texture_lod import TextureCache, TexturePatch
+
+    yy, xx = np.mgrid[0:101, 0:77]
+    heights = 40 * np.sin(xx / 9.0) * np.cos(yy / 13.0) + np.random.default_rng(3).normal(0, 0.5, xx.shape)
+    quadtree = PatchQuadtree(as_terrain(heights, spacing=(10.0, -10.0)), leaf_size=4)
+    x0, x1, y0, y1 = quadtree.root.domain
+    camera = Camera((x0 - 1.5 * (x1 - x0), (y0 + y1) / 2, quadtree.root.box[1, 2] + 0.5 * (x1 - x0)),
+                    ((x0 + x1) / 2, (y0 + y1) / 2, quadtree.root.box[0, 2]), viewport=(640, 480))
+    passes, looked_up, asked = [], [], []
+    traverse, child_for = texture_lod._traverse, TexturePatch.child_for
+    monkeypatch.setattr(texture_lod, "_traverse", lambda *a: passes.append(1) or traverse(*a))
+    monkeypatch.setattr(TexturePatch, "child_for", lambda m, g: looked_up.append((id(m), id(g))) or child_for(m, g))
+
+    class Recording(TextureCache):
+        def is_loaded(self, patch):
+            asked.append(patch)
+            return super().is_loaded(patch)
+
+    with ImagePyramid.build(np.full((64, 64, 3), 90, np.uint8), extent=quadtree.root.domain) as pyramid:
+        trees = [TextureTree(pyramid, quadtree, max_texture_size=16), TextureTree(pyramid, quadtree,
+                                                                                    max_texture_size=8)]
+        cache = Recording(budget=1 << 30)
+        try:
+            for tree in trees:
+                for m in tree.patches():
+                    cache.load_now(m)
+            items = render_with_textures(quadtree.root, [tree.root for tree in trees], camera, gamma_user=1.0,
+                                         tau_user=1e9, cache=cache)
+        finally:
+            cache.close()
+    assert len(passes) >= 3  # the cut was balanced in more than one pass
+    assert len(looked_up) == len(set(looked_up))
+    assert len(asked) == 2 * len(items)
+    assert all(m is not None for item in items for m in item.textures)
