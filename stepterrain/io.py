@@ -1829,7 +1829,7 @@ def _load_geotiff(
 #: Bytes of an ASCII grid counted at a time.
 _ASC_CHUNK = 1 << 22
 
-#: Bytes at the start of an ASCII grid's values looked at for where its first row ends.
+#: Bytes at the start of an ASCII grid's values looked at for the values each line holds (a grid of another width).
 _ASC_FIRST_ROW = 1 << 20
 
 #: Bytes at the start of an ASCII grid looked at for its header (a few lines; blank ones among them).
