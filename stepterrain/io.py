@@ -1829,8 +1829,17 @@ def _load_geotiff(
 #: Bytes of an ASCII grid counted at a time.
 _ASC_CHUNK = 1 << 22
 
-#: Bytes at the start of an ASCII grid's values looked at for where its first row ends.
+#: Bytes at the start of an ASCII grid's values looked at for the values each line holds (a grid of another width).
 _ASC_FIRST_ROW = 1 << 20
+
+#: Bytes at the start of an ASCII grid looked at for its header (a few lines; blank ones among them).
+_ASC_HEADER = 1 << 20
+
+#: A line of an ASCII grid as GDAL's reader ends it: at \n, \r\n or a lone \r (a classic Mac file); empty at the end.
+_ASC_LINE = re.compile(rb"[^\r\n]*(?:\r\n|\r|\n)?")
+
+#: NUL padding and a DOS end-of-file mark (Ctrl-Z), which end an ASCII grid's values, as spaces.
+_ASC_NO_VALUE = bytes.maketrans(b"\x00\x1a", b"  ")
 
 #: The header keywords of an ESRI ASCII grid (GDAL's AAIGrid) and a GRASS one (GRASSASCIIGrid: ``north: 4000030``,
 #: read under an .asc name too), lower case, without the GRASS colon.
@@ -1877,14 +1886,21 @@ def _check_ascii_grid(file: Path, shape: tuple[int, int], driver: str, last_is_z
     - more values than the header's rows x columns: GDAL reads the first rows x columns in order and ignores the
       rest (a header declaring too few rows read the grid cut, and placed from its lower-left corner, too low; too
       few columns read every row shifted);
-    - a first row not ending where a data line ends (its first lines, up to the first row's last value, read by
-      the header's column count): the rows are not that long (a wrong ncols with as many values as declared, rows
-      and columns swapped). Rows wrapped over lines, several whole rows a line, the whole grid on one line read;
-      a file wrapping values at a fixed width across rows is refused with them;
+    - a clean grid of another width: every data line (of those in the values' first MiB) holding the same count k,
+      neither a multiple nor a divisor of ncols, the lines of k making up all the values (past the first MiB: k
+      dividing their count): a wrong ncols with as many values as declared, rows and columns swapped. A row a
+      line, several whole rows a line, rows wrapped evenly over lines, the whole grid on one line read, and so
+      does a file wrapping its values at a fixed width across rows (ESRI's format needs no line break at a row's
+      end; GDAL reads the values in order): its last line is shorter;
     - fewer values than declared where the last cell read 0 (``last_is_zero``): GDAL refuses a file cut short
       ("File short"), but for the very last value, which it reads as 0 (the end of the file ends the last but one).
 
-    Not detected: a row longer and another shorter further down (as many values, the first row whole); a file
+    Lines end at \n, \r\n or a lone \r (a classic Mac file), as GDAL's reader ends them. A line after the first
+    starting with a letter is a header line to GDAL: a one-column grid's first value ``NaN`` on its own line too
+    (GDAL then misses a value and reads the last as 0), which the refusal names.
+
+    Not detected: a row longer and another shorter further down (as many values, the first row whole); lines of k
+    values where k divides ncols or ncols divides k (a grid 3 wide declared 6 wide, with half its rows); a file
     GDAL reads through another virtual file system (a URL, a tar: see :func:`_ascii_grid_opener`). The values are
     counted at about 250 MB/s (vectorised, 0.2 s for a 55 MB grid GDAL reads in 2.5 s), a crop's file whole."""
     opener = _ascii_grid_opener(file)
@@ -1896,19 +1912,23 @@ def _check_ascii_grid(file: Path, shape: tuple[int, int], driver: str, last_is_z
     declares = f"{rows_word} {nrows}, {cols_word} {ncols}, as its header declares"
     with opener() as handle:
         # the header as GDAL finds its end: the first line, then those starting with a letter (or blank), up to the
-        # first starting otherwise, but for values of 'null ' or 'nan '
-        handle.readline()
+        # first starting otherwise, but for values of 'null ' or 'nan '; a line ends at \n, \r\n or a lone \r (a
+        # classic Mac file), as GDAL's reader takes either for a line's end
+        head = handle.read(_ASC_HEADER)
+        start = _ASC_LINE.match(head).end()
         number = 1
+        taken = None  # the last header line taken that is not blank: its number and text
         while True:
-            start = handle.tell()
-            line = handle.readline()
+            line = _ASC_LINE.match(head, start).group()
             number += 1
             if not line:
                 break
             if line[:1] in (b"\r", b"\n") or (line[:1].isalpha() and not line.startswith(b"null ")
                                                 and line[:4].lower() != b"nan "):
+                if line[:1] not in (b"\r", b"\n"):
+                    taken = (number, line)
+                start += len(line)
                 continue
-            handle.seek(start)
             words = line.split()
             if line[:1].isspace() and words and words[0].decode("latin-1").rstrip(":").lower() in _ASC_KEYWORDS:
                 shown = line.decode("latin-1").rstrip("\r\n")
@@ -1918,25 +1938,14 @@ def _check_ascii_grid(file: Path, shape: tuple[int, int], driver: str, last_is_z
                     "would read the rest of it as heights; remove the spaces at the lines' starts"
                 )
             break
+        handle.seek(start)
         first = handle.read(_ASC_FIRST_ROW)
         handle.seek(start)
-        lines = first.split(b"\n")
-        if len(first) == _ASC_FIRST_ROW:
+        cut = len(first) == _ASC_FIRST_ROW
+        lines = first.translate(_ASC_NO_VALUE).replace(b"\r", b"\n").split(b"\n")
+        if cut:
             lines.pop()  # perhaps cut: not known to end there
-        held = 0
-        for count, line in enumerate(lines, 1):
-            held += len(line.split())
-            if held >= ncols:
-                if held % ncols:
-                    on = f"its first data line holds {held:,}" if count == 1 else (
-                        f"its first {count} data lines hold {held:,}")
-                    raise DataFileError(
-                        f"cannot read {str(file)!r}: expected {what} of rows of {ncols:,} values ({declares}), each "
-                        f"starting a line; got a first row ending mid-line: {on} values. Either the header's "
-                        f"{cols_word} is wrong (GDAL would read every row shifted) or the file wraps its values "
-                        "across rows (which the header cannot tell from a wrong one): write one row per line"
-                    )
-                break
+        counts = {len(line.split()) for line in lines} - {0}
         values = 0
         joined = False  # whether the last chunk ended inside a value
         while chunk := handle.read(_ASC_CHUNK):
@@ -1945,6 +1954,19 @@ def _check_ascii_grid(file: Path, shape: tuple[int, int], driver: str, last_is_z
             space |= (data == 0) | (data == 26)  # and NUL padding or a DOS end-of-file mark (Ctrl-Z) after the values
             values += int(np.count_nonzero(space[:-1] > space[1:])) + (not joined and not space[0])
             joined = not space[-1]
+    # a clean grid of another width: every data line (of those looked at) holding k values, k neither a multiple nor
+    # a divisor of ncols (a row a line, whole rows a line, rows wrapped evenly over lines read), and the lines of k
+    # making up all the values; rows wrapped at a fixed width across rows end on a shorter line and read
+    if len(counts) == 1:
+        (k,) = counts
+        held = sum(1 for line in lines if line.split()) * k
+        if k % ncols and ncols % k and (held == values if not cut else values % k == 0):
+            rows = f"{values // k:,} lines of {k:,} values"
+            raise DataFileError(
+                f"cannot read {str(file)!r}: expected {what} of rows of {ncols:,} values ({declares}); got {rows} "
+                f"each, a grid {k:,} values wide: the header's {cols_word} is wrong, or its {rows_word} and "
+                f"{cols_word} swapped (GDAL would read every row shifted)"
+            )
     if values > expected:
         whole = f" ({values // ncols:,} rows of {ncols:,})" if values % ncols == 0 else ""
         raise DataFileError(
@@ -1953,9 +1975,17 @@ def _check_ascii_grid(file: Path, shape: tuple[int, int], driver: str, last_is_z
             f"grid would be read cut or its rows shifted (a wrong {rows_word} or {cols_word} in the header?)"
         )
     if values < expected and last_is_zero:
+        shown = taken[1].decode("latin-1").strip() if taken else ""
+        if shown and shown.split()[0].rstrip(":").lower() not in _ASC_KEYWORDS:  # a value GDAL took for a header
+            # line ('NaN' starting a one-column grid's values): its values are missing, not the file's end
+            why = (f"line {taken[0]} ({shown!r}) was read as a header line: GDAL's reader takes a line after the "
+                   "first starting with a letter for one, so its values are missing, and reads the missing last "
+                   "value as 0")
+        else:
+            why = "cut short: GDAL reads the missing last value as 0"
         raise DataFileError(
             f"cannot read {str(file)!r}: expected {what} of {nrows} x {ncols} = {expected:,} "
-            f"values, as its header declares; got {values:,} (cut short: GDAL reads the missing last value as 0)"
+            f"values, as its header declares; got {values:,} ({why})"
         )
 
 

@@ -1,8 +1,9 @@
 """An ESRI (or GRASS) ASCII grid whose header does not match its values: GDAL reads the first nrows x ncols values
 in stream order and ignores the rest, so a header declaring too few rows read the grid truncated (and placed by
 its lower-left corner, too low), and one declaring too few columns read every row shifted, without a word.
-load_dem counts the values and checks where the first row ends, and refuses the file naming what its header
-declares and what it holds. A header GDAL takes for data (its lines indented, a byte-order mark) is named too."""
+load_dem counts the values and the values a line (a clean grid of another width is refused), and refuses the file
+naming what its header declares and what it holds; values wrapped across rows at a fixed width read, as GDAL reads
+them. A header GDAL takes for data (its lines indented, a byte-order mark) is named too."""
 
 from __future__ import annotations
 
@@ -39,20 +40,20 @@ def test_header_declaring_fewer_rows_is_refused(tmp_path, gzipped):
 
 
 def test_header_declaring_fewer_columns_is_refused(tmp_path):
-    """ncols 2 over rows of 3: GDAL read [[1, 2], [3, 4]] (the rows shifted); the first row ends mid-line."""
+    """ncols 2 over rows of 3: GDAL read [[1, 2], [3, 4]] (the rows shifted); every line holds 3 values."""
     path = tmp_path / "dem.asc"
     path.write_text(_header(2, 2) + "1 2 3\n4 5 6\n")
-    pattern = r"dem\.asc.*rows of 2 values \(nrows 2, ncols 2.*its first data line holds 3"
+    pattern = r"dem\.asc.*rows of 2 values \(nrows 2, ncols 2.*got 2 lines of 3 values each, a grid 3 values wide"
     with pytest.raises(DataFileError, match=pattern):
         st.load_dem(path)
 
 
 @pytest.mark.parametrize(("nrows", "ncols", "body", "held"), [
-    (3, 2, "1 2 3\n4 5 6\n", "its first data line holds 3"),  # 2 x 3 declared 3 x 2: as many values
-    (3, 4, "1 2 3\n4 5 6\n7 8 9\n10 11 12\n", "its first 2 data lines hold 6"),  # 4 x 3 declared 3 x 4
+    (3, 2, "1 2 3\n4 5 6\n", "got 2 lines of 3 values each"),  # 2 x 3 declared 3 x 2: as many values
+    (3, 4, "1 2 3\n4 5 6\n7 8 9\n10 11 12\n", "got 4 lines of 3 values each"),  # 4 x 3 declared 3 x 4
 ])
 def test_header_with_rows_and_columns_swapped_is_refused(tmp_path, nrows, ncols, body, held):
-    """As many values as declared, but the first row does not end at a line's end: the rows are not ncols long."""
+    """As many values as declared, but every line holds another count: the rows are not ncols long."""
     path = tmp_path / "dem.asc"
     path.write_text(_header(nrows, ncols) + body)
     with pytest.raises(DataFileError, match=rf"rows of {ncols} values \(nrows {nrows}, ncols {ncols}.*{held}"):
@@ -69,6 +70,50 @@ def test_values_matching_the_header_read(tmp_path, body):
     path = tmp_path / "dem.asc"
     path.write_text(_header(3, 3) + body)
     np.testing.assert_array_equal(st.load_dem(path).heights, np.arange(1, 10, dtype=np.float32).reshape(3, 3))
+
+
+@pytest.mark.parametrize("gzipped", [False, True])
+@pytest.mark.parametrize("width", [10, 5, 3, 14, 28])
+def test_values_wrapped_across_rows_read_as_gdal_reads_them(tmp_path, width, gzipped):
+    """ESRI's format needs no line break at a row's end: a 4 x 7 grid written 10 (5, 3) values a line across the
+    rows (its last line shorter), two rows a line or all on one line, reads in stream order, as GDAL reads it."""
+    import rasterio
+
+    heights = np.arange(1, 29, dtype=np.float32).reshape(4, 7)
+    flat = heights.ravel()
+    body = "\n".join(" ".join(f"{v:g}" for v in flat[i:i + width]) for i in range(0, flat.size, width)) + "\n"
+    text = (_header(4, 7) + body).encode()
+    path = tmp_path / ("dem.asc.gz" if gzipped else "dem.asc")
+    path.write_bytes(gzip.compress(text) if gzipped else text)
+    with rasterio.open(f"/vsigzip/{path}" if gzipped else path) as source:
+        np.testing.assert_array_equal(source.read(1), heights)  # GDAL's own reading
+    np.testing.assert_array_equal(st.load_dem(path).heights, heights)
+
+
+def test_values_wrapped_at_a_width_making_a_clean_grid_are_refused(tmp_path):
+    """4 x 7 values written 4 a line: 7 lines of 4, a 7 x 4 grid with its rows and columns swapped in the header as
+    far as any reader can tell, refused (write one row a line)."""
+    flat = np.arange(1, 29)
+    body = "\n".join(" ".join(map(str, flat[i:i + 4])) for i in range(0, 28, 4)) + "\n"
+    path = tmp_path / "dem.asc"
+    path.write_text(_header(4, 7) + body)
+    with pytest.raises(DataFileError, match=r"rows of 7 values \(nrows 4, ncols 7.*got 7 lines of 4 values each"):
+        st.load_dem(path)
+
+
+def test_clean_grid_of_another_width_told_past_the_lines_looked_at(tmp_path, monkeypatch):
+    """Past the first lines looked at (a MiB; here 30 bytes), lines of k values are a grid k wide where k divides the
+    values' count: rows and columns swapped are refused; 10 a line across 28 values (a shorter last line) read."""
+    import stepterrain.io as io
+
+    monkeypatch.setattr(io, "_ASC_FIRST_ROW", 30)
+    path = tmp_path / "dem.asc"
+    path.write_text(_header(3, 5) + "1 2 3\n4 5 6\n7 8 9\n10 11 12\n13 14 15\n")  # 5 x 3 declared 3 x 5: 35 bytes
+    with pytest.raises(DataFileError, match=r"rows of 5 values \(nrows 3, ncols 5.*got 5 lines of 3 values each"):
+        st.load_dem(path)
+    flat = np.arange(1, 29)
+    path.write_text(_header(4, 7) + "\n".join(" ".join(map(str, flat[i:i + 10])) for i in range(0, 28, 10)))
+    np.testing.assert_array_equal(st.load_dem(path).heights, flat.reshape(4, 7).astype(np.float32))
 
 
 @pytest.mark.parametrize("end", ["\x1a", "\x00\x00\x00", "\n\x1a\n"])

@@ -42,6 +42,35 @@ def test_ascii_grid_whose_last_value_is_0_reads(tmp_path, body):
     np.testing.assert_array_equal(st.load_dem(path).heights, np.array([[1, 2, 3], [4, 5, 6], [7, 8, 0]], np.float32))
 
 
+def test_classic_mac_line_ends_read_as_gdal_reads_them(tmp_path):
+    """Lines ended by a lone \\r (a classic Mac file): GDAL's reader ends a line there, so the header is its six
+    lines and a last value of 0 a height; one value missing is refused still."""
+    import rasterio
+
+    path = tmp_path / "mac dem.asc"
+    path.write_bytes((_HEADER + "1 2 3\n4 5 6\n7 8 0\n").replace("\n", "\r").encode())
+    expected = np.array([[1, 2, 3], [4, 5, 6], [7, 8, 0]], np.float32)
+    with rasterio.open(path) as source:
+        np.testing.assert_array_equal(source.read(1), expected)  # GDAL's own reading
+    np.testing.assert_array_equal(st.load_dem(path).heights, expected)
+    path.write_bytes((_HEADER + "1 2 3\n4 5 6\n7 8\n").replace("\n", "\r").encode())
+    with pytest.raises(DataFileError, match=r"mac dem\.asc.*3 x 3 = 9 values.*got 8 \(cut short"):
+        st.load_dem(path)
+
+
+def test_one_column_grid_starting_with_nan_names_the_line_read_as_header(tmp_path):
+    """A one-column grid whose first value is NaN on its own line: GDAL takes the line for a header line (it starts
+    with a letter) and reads [2, 3, 0]; the refusal names that line, not a file cut short."""
+    import rasterio
+
+    path = tmp_path / "dem.asc"
+    path.write_text("ncols 1\nnrows 3\nxllcorner 0\nyllcorner 0\ncellsize 10\nNODATA_value nan\nNaN\n2\n3\n")
+    with rasterio.open(path) as source:
+        assert source.read(1).ravel().tolist() == [2.0, 3.0, 0.0]  # GDAL's own reading
+    with pytest.raises(DataFileError, match=r"3 x 1 = 3 values.*got 2 \(line 7 \('NaN'\) was read as a header line"):
+        st.load_dem(path)
+
+
 def test_ascii_grid_values_counted_across_chunks(tmp_path, monkeypatch):
     """Values are counted in chunks: one cut by a chunk's end is counted once."""
     import stepterrain.io as io
