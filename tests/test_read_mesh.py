@@ -339,14 +339,30 @@ def test_off_vertex_colours_read(tmp_path, form):
     assert np.array_equal(mesh.visual.vertex_colors, colours)
 
 
-def test_off_vertex_colours_of_zeros_and_ones_refused(tmp_path):
-    """Integer colours of 0 and 1 only are floats (green) or bytes (nearly black): refused, said so; RGB gets alpha
-    255, and a plain OFF has no colours."""
+def test_off_vertex_colours_of_zeros_and_ones_dropped(tmp_path):
+    """Integer colours of 0 and 1 only are floats (green) or bytes (nearly black): the mesh is read (as before its
+    colours were read), the colours dropped with a warning saying why, never guessed; RGB gets alpha 255, and a plain
+    OFF has no colours."""
     (tmp_path / "rgb.off").write_text("COFF\n3 1 0\n0 0 0 0 255 0\n1 0 0 9 9 9\n0 1 0 0 0 0\n3 0 1 2\n")
     assert np.array_equal(read_mesh(tmp_path / "rgb.off").visual.vertex_colors[:, 3], [255] * 3)
     (tmp_path / "ones.off").write_text("COFF\n3 1 0\n0 0 0 0 1 0\n1 0 0 1 1 1\n0 1 0 0 0 0\n3 0 1 2\n")
-    with pytest.raises(DataFileError, match="integers of 0 and 1 only"):
-        read_mesh(tmp_path / "ones.off")
+    with pytest.warns(UserWarning, match="integers of 0 and 1 only.*dropped"):
+        mesh = read_mesh(tmp_path / "ones.off")
+    assert np.array_equal(mesh.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0]]) and np.array_equal(mesh.faces, [[0, 1, 2]])
+    assert mesh.visual.kind is None
+
+
+@pytest.mark.parametrize("rows", ["0 0 0 1\n1 0 0 2\n0 1 0 3", "0 0 0 9 9 9\n1 0 0 9 9\n0 1 0 9 9 9",
+                                  "0 0 0\n1 0 0\n0 1 0"])
+def test_off_vertex_colours_uneven_dropped(tmp_path, rows):
+    """A COFF whose vertex lines hold no RGB(A) colour each (Geomview's colour map index, one number; colours of
+    different lengths; none) was read by trimesh's reader, coordinates alone: it still is, with a warning that its
+    colours are dropped."""
+    (tmp_path / "u.off").write_text(f"COFF\n3 1 0\n{rows}\n3 0 1 2\n")
+    with pytest.warns(UserWarning, match="vertex colours are dropped"):
+        mesh = read_mesh(tmp_path / "u.off")
+    assert np.array_equal(mesh.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0]]) and np.array_equal(mesh.faces, [[0, 1, 2]])
+    assert mesh.visual.kind is None
     (tmp_path / "plain.off").write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
     assert read_mesh(tmp_path / "plain.off").visual.kind is None
 
