@@ -3505,16 +3505,16 @@ def _obj_materials_joined(file: Path, tidied: bytes | None) -> trimesh.Trimesh |
         faces = np.concatenate(read[1])
         if len(faces) != len(loaded) or not np.array_equal(faces[np.lexsort(faces.T)], loaded[np.lexsort(loaded.T)]):
             read = None
-    if read is None:  # faces this scan does not read as trimesh's reader does: one mesh per usemtl chunk
-        del scene, parts, loaded
+    materials = {getattr(part.visual, "material", None) for part in parts} - {None}
+    by_name = {str(material.name).encode("utf-8", "surrogateescape"): material for material in materials}
+    if read is None or not set(by_name) <= set(read[0]):  # faces, or material names, this scan does not read as
+        del scene, parts, loaded  # trimesh's reader does: one mesh per usemtl chunk
         return _obj_chunks_joined(file, tidied)
     names, chunks = read
     del loaded
-    materials = {getattr(part.visual, "material", None) for part in parts} - {None}
     mesh = trimesh.Trimesh(vertices, faces, process=False)
     if materials:
         default = np.asarray(trimesh.visual.color.DEFAULT_COLOR, dtype=np.uint8)
-        by_name = {str(material.name).encode("utf-8", "surrogateescape"): material for material in materials}
         colours = [np.asarray(by_name[name].main_color, dtype=np.uint8) if name in by_name else default
                    for name in names]
         counts = [len(chunk) for chunk in chunks]
