@@ -2616,8 +2616,11 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     its first vertex alone), and a comment after a statement of numbers (``v 0 0 0 # a``, ``f 1 2 3 # x``) is dropped
     (trimesh's reader refused the file; a ``#`` in a name, ``usemtl Material#1``, stays in it: :func:`_obj_tidied`).
     A COFF's vertex colours (trimesh's reader dropped them) come back as vertex colours, written as integers bytes
-    and with a decimal point floats 0..1; integers of 0 and 1 only, which read either way, are refused
-    (:func:`_off_vertex_colors`).
+    and with a decimal point floats 0..1; integers of 0 and 1 only, which read either way, and vertex lines without
+    a colour each or of colours of different lengths are dropped with a warning, the mesh read without them
+    (:func:`_off_vertex_colors`). A PLY's triangle strips (a ``tristrips`` element and no ``face`` one, as the
+    Stanford scanning tools and VCG write them; trimesh's reader skipped them, a mesh of vertices only) come back as
+    their triangles, in the strips' winding, a stitch naming a vertex twice dropped.
 
     Raises
     ------
@@ -2641,10 +2644,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         bufferView past its buffer are said so, and a glTF position that is NaN or infinite is refused, naming the
         vertex as stored (the glTF validator refuses such a file; turned z-up, a NaN coordinate spread over the
         vertex's three, where the other formats' readers keep it where it stands). A PLY's quads and polygons come
-        back as triangles (trimesh's ``triangulate_quads``), each with its polygon's face properties; a PLY's triangle
-    strips (a ``tristrips`` element and no ``face`` one, as the Stanford scanning tools and VCG write them; trimesh's
-    reader skipped them, a mesh of vertices only) come back as their triangles, in the strips' winding, a stitch
-    naming a vertex twice dropped.
+        back as triangles (trimesh's ``triangulate_quads``), each with its polygon's face properties.
     """
     file = _target(path, output=False)
     require_regular_file(file, "mesh file", "mesh file")
@@ -2665,15 +2665,15 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                 scene.apply_transform(_Y_UP_TO_Z_UP)
             color = _color_attribute(scene)
             loaded = scene.to_mesh()
-        else:  # an OBJ of faces of vertex indices only keeps the vertices no face names (_obj_faces_name_vertices_only)
+        else:  # an OBJ of faces of vertex indices only keeps the vertices no face names (_obj_faces_kind)
             if file.suffix.lower() == ".obj":
                 _check_obj_indices(file)
-            plain_obj = file.suffix.lower() == ".obj" and _obj_faces_name_vertices_only(file)
-            order = {"maintain_order": True} if plain_obj else {}
+            kind = _obj_faces_kind(file) if file.suffix.lower() == ".obj" else None
+            order = {"maintain_order": True} if kind == "vertices" else {}
             tidied = _obj_tidied(file) if file.suffix.lower() == ".obj" else None
             try:
                 loaded = None  # several usemtl, faces of vertex indices only: one vertex per v line still
-                if file.suffix.lower() == ".obj" and not plain_obj and not _obj_face_with_slash(file):
+                if kind == "materials":
                     loaded = _obj_materials_joined(file, tidied)
                 if loaded is None:
                     loaded = _trimesh_read(trimesh.load, file, tidied, force="mesh", process=False, **order)
@@ -2809,12 +2809,26 @@ def _ply_binary_mixed_lists(file: Path, rows: int = 65536) -> str | None:
     return None
 
 
-#: An OBJ line trimesh's reader skips: one starting with blanks, or a statement's words separated by a tab.
-_OBJ_LOOSE_LINE = re.compile(rb"(?:^|[\r\n])[ \t]+\S|\t")
 #: The OBJ statements of numbers only (and ``s off``), whose ``#`` can only start a comment
 _OBJ_NUMBERS = frozenset({b"v", b"vt", b"vn", b"vp", b"f", b"l", b"p", b"s"})
-#: a comment after such a statement on its line (``v 0 0 0 # a``, ``f 1 2 3 # x``)
-_OBJ_TRAILING_COMMENT = re.compile(rb"^[ \t]*(?:v[tnp]?|[flps])[ \t][^\n#]*#", re.MULTILINE)
+
+
+def _obj_trailing_comment(data: Any) -> bool:
+    """Whether the OBJ text ``data`` (bytes or an mmap) has a comment after a statement of numbers on its line (``v 0
+    0 0 # a``, ``f 1 2 3 # x``): each ``#`` found in turn, only its own line looked at (a ``#`` starting a line, after
+    blanks, is a plain comment; one in a line of names is part of a name), then on from the next line."""
+    at = data.find(b"#")
+    while at >= 0:
+        start = max(data.rfind(b"\n", 0, at), data.rfind(b"\r", 0, at)) + 1
+        words = bytes(data[start:at]).replace(b"\t", b" ").split(b" ")
+        words = words[next((i for i, word in enumerate(words) if word), len(words)):]  # the blanks before it dropped
+        if len(words) > 1 and words[0] in _OBJ_NUMBERS:  # a keyword, a blank, then the rest
+            return True
+        ends = [end for end in (data.find(b"\n", at), data.find(b"\r", at)) if end >= 0]
+        if not ends:
+            return False
+        at = data.find(b"#", min(ends))
+    return False
 
 
 def _obj_tidied(file: Path) -> bytes | None:
@@ -2826,11 +2840,20 @@ def _obj_tidied(file: Path) -> bytes | None:
     vertex alone), and it refused a trailing comment with NumPy's "could not be read to its end due to unmatched
     data". A ``#`` in a line of names (``mtllib``, ``usemtl``, ``o``, ``g``) is kept as part of the name: the OBJ
     specification describes comments as lines starting with ``#``, and tools write names holding one
-    (``Material#1``), which trimesh's reader keeps."""
-    data = file.read_bytes()
-    comments = data.find(b"#") >= 0 and _OBJ_TRAILING_COMMENT.search(data) is not None
-    if not comments and _OBJ_LOOSE_LINE.search(data) is None:
-        return None
+    (``Material#1``), which trimesh's reader keeps. Decided by byte searches of the file mapped, not read (a large
+    OBJ, as :func:`save_mesh` writes it, needs no tidying); read only to be tidied."""
+    import mmap
+
+    with open(file, "rb") as stream:
+        if os.fstat(stream.fileno()).st_size == 0:
+            return None
+        with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as mapped:
+            loose = (mapped[:1] in (b" ", b"\t") or mapped.find(b"\t") >= 0
+                     or any(mapped.find(pair) >= 0 for pair in (b"\n ", b"\r ")))
+            comments = _obj_trailing_comment(mapped)
+            if not comments and not loose:
+                return None
+            data = mapped[:]
 
     def tidy(line: bytes) -> bytes:
         line = line.strip(b" \t").replace(b"\t", b" ")
@@ -3393,59 +3416,120 @@ def _short_obj_vertex(file: Path) -> str:
     return ""
 
 
-def _obj_faces_name_vertices_only(file: Path) -> bool:
-    """Whether the OBJ ``file``'s faces name vertex indices only (no ``vt`` or ``vn`` index) and it has at most one
-    ``usemtl``, before any face: what :func:`save_mesh` writes for a mesh without a texture. trimesh's reader then
-    keeps every ``v`` with ``maintain_order=True`` (by default it drops the vertices no face names, so ``stepterrain
-    info`` counted fewer than were written, and a mesh read back was renumbered); with texture or normal indices that
-    option takes one UV per vertex (a vertex on a UV seam got the median of its UVs) and lost the texture of a file
-    with unused vertices, and with several ``usemtl`` it repeated every vertex in each material's mesh (faces
-    before the one ``usemtl`` make a mesh without a material: two), so those are read by
-    :func:`_obj_materials_joined` (with texture or normal indices: trimesh's default). Scanned without reading the
-    file into memory."""
+def _obj_faces_kind(file: Path) -> str:
+    """How the OBJ ``file``'s faces are read, from one scan of it (mapped, not read into memory): ``"texture"`` where a
+    face names a texture or normal index (``f 1/1 2/2 3/3``, ``f 1//1 ...``), or the file is empty (trimesh's
+    reader, by default); else ``"vertices"`` where it has at most one ``usemtl``, before any face: what
+    :func:`save_mesh` writes for a mesh without a texture; else ``"materials"`` (several ``usemtl``, or faces before
+    its one, a group of their own), read by :func:`_obj_materials_joined`. trimesh's reader keeps every ``v`` with
+    ``maintain_order=True`` (by default it drops the vertices no face names, so ``stepterrain info`` counted fewer
+    than were written, and a mesh read back was renumbered); with texture or normal indices that option takes one UV
+    per vertex (a vertex on a UV seam got the median of its UVs) and lost the texture of a file with unused vertices,
+    and with several ``usemtl`` it repeated every vertex in each material's mesh."""
     import mmap
 
     with open(file, "rb") as stream:
         if os.fstat(stream.fileno()).st_size == 0:
-            return False
+            return "texture"
         with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as data:  # no match object outlives it
             if data.find(b"/") >= 0 and _OBJ_FACE_WITH_SLASH.search(data) is not None:  # type: ignore[call-overload]
-                return False
+                return "texture"
             if data.find(b"usemtl") < 0:
-                return True
+                return "vertices"
             first = _OBJ_USEMTL.search(data)  # type: ignore[call-overload]
             if first is None:
-                return True
+                return "vertices"
             start, end = first.span()
             del first
             # one material, for every face: not a second usemtl, nor faces before this one (a group of their own)
-            return (_OBJ_USEMTL.search(data, end) is None  # type: ignore[call-overload]
-                    and _OBJ_FACE.search(data, 0, start) is None)  # type: ignore[call-overload]
+            one = (_OBJ_USEMTL.search(data, end) is None  # type: ignore[call-overload]
+                   and _OBJ_FACE.search(data, 0, start) is None)  # type: ignore[call-overload]
+            return "vertices" if one else "materials"
 
 
-def _obj_face_with_slash(file: Path) -> bool:
-    """Whether a face of the OBJ ``file`` names a texture or normal index (``f 1/1 2/2 3/3``, ``f 1//1 ...``)."""
-    import mmap
-
-    with open(file, "rb") as stream:
-        if os.fstat(stream.fileno()).st_size == 0:
-            return False
-        with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as data:
-            return data.find(b"/") >= 0 and _OBJ_FACE_WITH_SLASH.search(data) is not None  # type: ignore[call-overload]
+def _obj_chunk_faces(data: bytes) -> tuple[list[bytes | None], list[NDArray[np.int64]]] | None:
+    """The OBJ text ``data``'s faces of vertex indices only, per ``usemtl`` chunk in the file's order: each chunk's
+    material name (None before the first ``usemtl``) and its triangles as 0-based indices into the file's ``v``
+    lines (a negative index counted back from the ``v`` lines before it; a quad split as trimesh's reader splits it,
+    (a, b, c) and (c, d, a), a larger polygon as a fan from its first corner). None where a face does not read so."""
+    names: list[bytes | None] = [None]
+    chunks: list[list[list[int]]] = [[]]
+    seen = 0
+    try:
+        for line in data.splitlines():
+            if line.startswith(b"v "):
+                seen += 1
+            elif line.startswith(b"f "):
+                corners = [int(word) for word in line.split()[1:]]
+                corners = [c - 1 if c > 0 else seen + c for c in corners]
+                if len(corners) < 3:
+                    continue
+                if len(corners) == 4:
+                    triangles = [corners[:3], [corners[2], corners[3], corners[0]]]
+                else:
+                    triangles = [[corners[0], corners[i], corners[i + 1]] for i in range(1, len(corners) - 1)]
+                chunks[-1].extend(triangles)
+            elif line.startswith(b"usemtl "):
+                names.append(line[7:].strip())
+                chunks.append([])
+    except ValueError:
+        return None
+    return names, [np.asarray(chunk, dtype=np.int64).reshape(-1, 3) for chunk in chunks]
 
 
 def _obj_materials_joined(file: Path, tidied: bytes | None) -> trimesh.Trimesh | None:
-    """The OBJ ``file`` whose faces name vertex indices only but which :func:`_obj_faces_name_vertices_only` does not
+    """The OBJ ``file`` whose faces name vertex indices only but which :func:`_obj_faces_kind` does not
     read in one piece (several ``usemtl``, or faces before its one) as one mesh of the file's vertices, one per ``v``
     line in their order, and its faces in the file's order, indexing them. trimesh's reader made one mesh per material
     (``maintain_order`` gave each every vertex) and ``force="mesh"`` joined them, each vertex repeated in each
     material it is a corner in and the vertices no face names dropped: a closed surface of two materials came back
-    open along their seam. Read with trimesh's reader one chunk per ``usemtl`` (``group_material=False``; it lists
-    them last first), each with every vertex. Each face's material is kept as its face colour (the material's
-    colour, trimesh's grey where its ``.mtl`` names no ``Kd``; a face before any ``usemtl`` or of a material the
-    ``.mtl`` lacks, trimesh's default colour), as the 3MF reader keeps a colour per face: trimesh packed the
-    materials' colours into an atlas of its own, by UVs that cannot be kept on a vertex shared by two materials. A
-    file without materials (no ``.mtl`` found) keeps its ``v`` lines' colours, if any. None for a file of no faces."""
+    open along their seam. Read with trimesh's reader one mesh per material (``group_material=True``: each with every
+    vertex, one copy per material, not per ``usemtl``), for the vertices and the materials; the faces, per ``usemtl``
+    chunk in the file's order, are read from the file's ``f`` lines (:func:`_obj_chunk_faces`), checked to be the
+    triangles trimesh's reader read (else read one mesh per chunk, ``group_material=False``, as trimesh lists them,
+    last first). Each face's material is kept as its face colour (the material's colour, trimesh's grey where its
+    ``.mtl`` names no ``Kd``; a face before any ``usemtl`` or of a material the ``.mtl`` lacks, trimesh's default
+    colour), as the 3MF reader keeps a colour per face: trimesh packed the materials' colours into an atlas of its
+    own, by UVs that cannot be kept on a vertex shared by two materials. A file without materials (no ``.mtl``
+    found) keeps its ``v`` lines' colours, if any. None for a file of no faces."""
+    scene = _trimesh_read(trimesh.load_scene, file, tidied, process=False, maintain_order=True)
+    parts = [part for part in scene.geometry.values() if isinstance(part, trimesh.Trimesh)]
+    if not parts:
+        return None
+    vertices = np.asarray(parts[0].vertices)
+    if any(len(part.vertices) != len(vertices) for part in parts):  # each has every vertex, as maintain_order reads
+        raise ValueError("the file's materials read with different vertices")
+    read = _obj_chunk_faces(file.read_bytes() if tidied is None else tidied)
+    loaded = np.concatenate([np.asarray(part.faces, dtype=np.int64).reshape(-1, 3) for part in parts])
+    if read is not None:
+        faces = np.concatenate(read[1])
+        if len(faces) != len(loaded) or not np.array_equal(faces[np.lexsort(faces.T)], loaded[np.lexsort(loaded.T)]):
+            read = None
+    materials = {getattr(part.visual, "material", None) for part in parts} - {None}
+    by_name = {str(material.name).encode("utf-8", "surrogateescape"): material for material in materials}
+    if read is None or not set(by_name) <= set(read[0]):  # faces, or material names, this scan does not read as
+        del scene, parts, loaded  # trimesh's reader does: one mesh per usemtl chunk
+        return _obj_chunks_joined(file, tidied)
+    names, chunks = read
+    del loaded
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    if materials:
+        default = np.asarray(trimesh.visual.color.DEFAULT_COLOR, dtype=np.uint8)
+        colours = [np.asarray(by_name[name].main_color, dtype=np.uint8) if name in by_name else default
+                   for name in names]
+        counts = [len(chunk) for chunk in chunks]
+        mesh.visual = trimesh.visual.ColorVisuals(mesh, face_colors=np.repeat(np.asarray(colours), counts, axis=0))
+    elif all(part.visual.kind == "vertex" for part in parts):
+        mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=np.asarray(parts[0].visual.vertex_colors))
+    name = _utf8_name(file.name)
+    mesh.metadata.update({"name": name, "node": name})
+    return mesh
+
+
+def _obj_chunks_joined(file: Path, tidied: bytes | None) -> trimesh.Trimesh | None:
+    """:func:`_obj_materials_joined` read with trimesh's reader one mesh per ``usemtl`` chunk
+    (``group_material=False``; it lists them last first), each with every vertex: for faces its own scan does not
+    read as trimesh's reader does."""
     scene = _trimesh_read(trimesh.load_scene, file, tidied, process=False, maintain_order=True,
                           group_material=False)
     parts = [part for part in reversed(list(scene.geometry.values())) if isinstance(part, trimesh.Trimesh)]
@@ -3474,42 +3558,61 @@ def _obj_materials_joined(file: Path, tidied: bytes | None) -> trimesh.Trimesh |
 _OFF_KEYWORD = re.compile(r"(ST)?(C)?(N)?(4)?(n)?OFF")
 
 
+def _off_keyword(file: Path) -> str | None:
+    """The first word of the OFF ``file`` (its keyword, ``OFF``, ``COFF``, ...), comments and blank lines before it
+    skipped, read line by line: not the whole file."""
+    with open(file, "rb") as stream:
+        for raw in stream:
+            words = raw.split(b"#", 1)[0].split(maxsplit=1)
+            if words:
+                return words[0].decode("utf-8", "replace")
+    return None
+
+
 def _off_vertex_colors(file: Path, count: int) -> NDArray[np.uint8] | None:
     """The vertex colours of the OFF ``file`` (``count`` vertices, as trimesh's reader read them) as RGBA bytes, or
-    None where its keyword has no ``C`` (``COFF``, ``CNOFF``, ...): trimesh's reader reads the coordinates alone.
-    Each vertex line holds x y z, then nx ny nz with an ``N``, then the colour, RGB or RGBA, then s t with an ``ST``.
-    Written with a decimal point or exponent anywhere, the colours are floats from 0 to 1 (Geomview's); written as
-    integers, bytes from 0 to 255 (MeshLab's). A ValueError where they do not read so: a vertex without a colour or of
-    colours of different lengths, a float outside 0..1, an integer outside 0..255, or integers of 0 and 1 only (0 1
-    0 is green as floats and nearly black as bytes)."""
-    text = file.read_bytes().decode("utf-8", "replace")
-    lines = [line.split("#", 1)[0].split() for line in text.splitlines()]
-    lines = [line for line in lines if line]
-    keyword = _OFF_KEYWORD.fullmatch(lines[0][0]) if lines else None
+    None where its keyword has no ``C`` (``COFF``, ``CNOFF``, ...): trimesh's reader reads the coordinates alone (the
+    keyword read first, the file only for a ``C``). Each vertex line holds x y z, then nx ny nz with an ``N``, then
+    the colour, RGB or RGBA, then s t with an ``ST``. Written with a decimal point or exponent anywhere, the colours
+    are floats from 0 to 1 (Geomview's); written as integers, bytes from 0 to 255 (MeshLab's). Where they cannot be
+    read so without guessing, a warning says why and None (the mesh without colours, as trimesh's reader reads it):
+    a vertex without a colour or of colours of different lengths (Geomview's colour map index, one number), or
+    integers of 0 and 1 only (0 1 0 is green as floats and nearly black as bytes). A ValueError for a float outside
+    0..1 or an integer outside 0..255."""
+    head = _off_keyword(file)
+    keyword = _OFF_KEYWORD.fullmatch(head) if head is not None else None
     if keyword is None or keyword.group(2) is None:
         return None
     if keyword.group(4) or keyword.group(5):
-        raise ValueError(f"an OFF of {lines[0][0]!r}, whose vertices have other than 3 coordinates, is not read")
-    rest = lines[0][1:] or lines[1]
+        raise ValueError(f"an OFF of {head!r}, whose vertices have other than 3 coordinates, is not read")
+    text = file.read_bytes().decode("utf-8", "replace")
+    lines = [line.split("#", 1)[0].split() for line in text.splitlines()]
+    lines = [line for line in lines if line]
+    rest = lines[0][1:] or (lines[1] if len(lines) > 1 else [])
     first = 1 if lines[0][1:] else 2
     rows = lines[first : first + count]
     skip, tail = 3 + (3 if keyword.group(3) else 0), 2 if keyword.group(1) else 0
     widths = {len(row) - skip - tail for row in rows}
     if not rest or len(rows) != count or len(widths) != 1 or widths.pop() not in (3, 4):
-        raise ValueError(f"a {lines[0][0]} file's vertex lines hold {sorted({len(row) for row in rows})} numbers: "
-                         f"{skip} before an RGB or RGBA colour{' and 2 after it' if tail else ''} expected on each")
+        warnings.warn(f"{str(file)!r}: a {head} file's vertex lines hold {sorted({len(row) for row in rows})} "
+                      f"numbers, where {skip} before an RGB or RGBA colour{' and 2 after it' if tail else ''} were "
+                      "expected on each: its vertex colours are dropped, the mesh read without them",
+                      stacklevel=caller_stacklevel())
+        return None
     words = [row[skip : len(row) - tail] for row in rows]
     values = np.array(words, dtype=np.float64)
     floats = any(any(c in word for c in ".eE") for row in words for word in row)
     if floats:
         if not np.all((values >= 0) & (values <= 1)):
-            raise ValueError(f"a {lines[0][0]} file's vertex colours written as floats are not all in 0..1")
+            raise ValueError(f"a {head} file's vertex colours written as floats are not all in 0..1")
         values = np.round(values * 255)
     elif not np.all((values >= 0) & (values <= 255)):
-        raise ValueError(f"a {lines[0][0]} file's vertex colours written as integers are not all in 0..255")
+        raise ValueError(f"a {head} file's vertex colours written as integers are not all in 0..255")
     elif values.size and values.max() <= 1 and values.max() > 0:
-        raise ValueError(f"a {lines[0][0]} file's vertex colours are integers of 0 and 1 only: floats from 0 to 1 or "
-                         "bytes from 0 to 255? Write them as 0.0 and 1.0, or as 0 and 255")
+        warnings.warn(f"{str(file)!r}: a {head} file's vertex colours are integers of 0 and 1 only: floats from 0 "
+                      "to 1 or bytes from 0 to 255? They are dropped, the mesh read without them; write them as 0.0 "
+                      "and 1.0, or as 0 and 255", stacklevel=caller_stacklevel())
+        return None
     colours = values.astype(np.uint8)
     if colours.shape[1] == 3:
         colours = np.column_stack([colours, np.full(len(colours), 255, np.uint8)])

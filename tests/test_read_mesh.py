@@ -339,14 +339,30 @@ def test_off_vertex_colours_read(tmp_path, form):
     assert np.array_equal(mesh.visual.vertex_colors, colours)
 
 
-def test_off_vertex_colours_of_zeros_and_ones_refused(tmp_path):
-    """Integer colours of 0 and 1 only are floats (green) or bytes (nearly black): refused, said so; RGB gets alpha
-    255, and a plain OFF has no colours."""
+def test_off_vertex_colours_of_zeros_and_ones_dropped(tmp_path):
+    """Integer colours of 0 and 1 only are floats (green) or bytes (nearly black): the mesh is read (as before its
+    colours were read), the colours dropped with a warning saying why, never guessed; RGB gets alpha 255, and a plain
+    OFF has no colours."""
     (tmp_path / "rgb.off").write_text("COFF\n3 1 0\n0 0 0 0 255 0\n1 0 0 9 9 9\n0 1 0 0 0 0\n3 0 1 2\n")
     assert np.array_equal(read_mesh(tmp_path / "rgb.off").visual.vertex_colors[:, 3], [255] * 3)
     (tmp_path / "ones.off").write_text("COFF\n3 1 0\n0 0 0 0 1 0\n1 0 0 1 1 1\n0 1 0 0 0 0\n3 0 1 2\n")
-    with pytest.raises(DataFileError, match="integers of 0 and 1 only"):
-        read_mesh(tmp_path / "ones.off")
+    with pytest.warns(UserWarning, match="integers of 0 and 1 only.*dropped"):
+        mesh = read_mesh(tmp_path / "ones.off")
+    assert np.array_equal(mesh.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0]]) and np.array_equal(mesh.faces, [[0, 1, 2]])
+    assert mesh.visual.kind is None
+
+
+@pytest.mark.parametrize("rows", ["0 0 0 1\n1 0 0 2\n0 1 0 3", "0 0 0 9 9 9\n1 0 0 9 9\n0 1 0 9 9 9",
+                                  "0 0 0\n1 0 0\n0 1 0"])
+def test_off_vertex_colours_uneven_dropped(tmp_path, rows):
+    """A COFF whose vertex lines hold no RGB(A) colour each (Geomview's colour map index, one number; colours of
+    different lengths; none) was read by trimesh's reader, coordinates alone: it still is, with a warning that its
+    colours are dropped."""
+    (tmp_path / "u.off").write_text(f"COFF\n3 1 0\n{rows}\n3 0 1 2\n")
+    with pytest.warns(UserWarning, match="vertex colours are dropped"):
+        mesh = read_mesh(tmp_path / "u.off")
+    assert np.array_equal(mesh.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0]]) and np.array_equal(mesh.faces, [[0, 1, 2]])
+    assert mesh.visual.kind is None
     (tmp_path / "plain.off").write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
     assert read_mesh(tmp_path / "plain.off").visual.kind is None
 
@@ -394,3 +410,21 @@ def test_3mf_unit_read_and_kept_on_a_round_trip(tmp_path, unit, units):
     model = zipfile.ZipFile(tmp_path / "again.3mf").read("3D/3dmodel.model").decode()
     assert f'unit="{unit or "millimeter"}"' in model
     assert read_mesh(tmp_path / "again.3mf").metadata.get("units") == units
+
+
+def test_obj_of_several_materials_polygons_and_negative_indices(tmp_path):
+    """The faces of an OBJ of several ``usemtl`` are read from its ``f`` lines (trimesh's reader gives the vertices and
+    materials, one mesh per material): quads, larger polygons and negative indices as trimesh's reader reads them, in
+    the file's order, each with its chunk's colour (a material the ``.mtl`` lacks, and faces before any ``usemtl``,
+    trimesh's default)."""
+    (tmp_path / "m.mtl").write_text("newmtl red\nKd 1 0 0\nnewmtl blue\nKd 0 0 1\n")
+    vertices = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0.5, 2, 0], [5, 5, 5]]
+    text = ("mtllib m.mtl\n" + "".join(f"v {x:g} {y:g} {z:g}\n" for x, y, z in vertices) + "f 1 2 3\nusemtl red\n"
+            "f 1 2 3 4\nusemtl blue\nf -6 -5 -4 -2 -3\nusemtl nowhere\nf 2 3 4\nusemtl red\n\tf 1  3\t4 # x\n")
+    (tmp_path / "p.obj").write_text(text)
+    mesh = read_mesh(tmp_path / "p.obj")
+    # by hand: a quad (a, b, c), (c, d, a); a pentagon a fan from its first corner; -k counts back from 6 v lines
+    expected = [[0, 1, 2], [0, 1, 2], [2, 3, 0], [0, 1, 2], [0, 2, 4], [0, 4, 3], [1, 2, 3], [0, 2, 3]]
+    assert np.array_equal(mesh.vertices, vertices) and np.array_equal(mesh.faces, expected)
+    grey, red, blue = [102, 102, 102, 255], [255, 0, 0, 255], [0, 0, 255, 255]
+    assert np.array_equal(mesh.visual.face_colors, [grey, red, red, blue, blue, blue, grey, red])
