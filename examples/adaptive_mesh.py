@@ -173,6 +173,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.colors != 0 and not 2 <= args.colors <= 256:
         parser.error(f"--colors must be 0 (full colour) or 2 to 256; got {args.colors}")
+    if args.colors != 0 and args.output.suffix.lower() != ".png":  # a palette picture is a PNG (save_image: .tif too)
+        parser.error(f"--output must end in .png with a palette (--colors {args.colors}; --colors 0 writes a .tif "
+                     f"too); got {str(args.output)!r}")
     if args.size < 2:  # 0 raised a ZeroDivisionError in the crop; below 2 is no grid
         parser.error(f"--size must be at least 2 nodes; got {args.size}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback

@@ -2817,17 +2817,24 @@ def _obj_trailing_comment(data: Any) -> bool:
     """Whether the OBJ text ``data`` (bytes or an mmap) has a comment after a statement of numbers on its line (``v 0
     0 0 # a``, ``f 1 2 3 # x``): each ``#`` found in turn, only its own line looked at (a ``#`` starting a line, after
     blanks, is a plain comment; one in a line of names is part of a name), then on from the next line."""
+    size = len(data)
     at = data.find(b"#")
     while at >= 0:
-        start = max(data.rfind(b"\n", 0, at), data.rfind(b"\r", 0, at)) + 1
+        # the searches kept within its line (a search for "\r" through an LF file ran to its end: 26,890 comment
+        # lines of a 45.6 MB file took 68 s)
+        newline = data.rfind(b"\n", 0, at)
+        start = max(newline, data.rfind(b"\r", newline + 1, at)) + 1
         words = bytes(data[start:at]).replace(b"\t", b" ").split(b" ")
         words = words[next((i for i, word in enumerate(words) if word), len(words)):]  # the blanks before it dropped
         if len(words) > 1 and words[0] in _OBJ_NUMBERS:  # a keyword, a blank, then the rest
             return True
-        ends = [end for end in (data.find(b"\n", at), data.find(b"\r", at)) if end >= 0]
-        if not ends:
+        end = data.find(b"\n", at)
+        end = size if end < 0 else end
+        carriage = data.find(b"\r", at, end)
+        end = end if carriage < 0 else carriage
+        if end >= size:
             return False
-        at = data.find(b"#", min(ends))
+        at = data.find(b"#", end)
     return False
 
 

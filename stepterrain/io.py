@@ -1886,12 +1886,12 @@ def _check_ascii_grid(file: Path, shape: tuple[int, int], driver: str, last_is_z
     - more values than the header's rows x columns: GDAL reads the first rows x columns in order and ignores the
       rest (a header declaring too few rows read the grid cut, and placed from its lower-left corner, too low; too
       few columns read every row shifted);
-    - a clean grid of another width: every data line (of those in the values' first MiB) holding the same count k,
-      neither a multiple nor a divisor of ncols, the lines of k making up all the values (past the first MiB: k
-      dividing their count): a wrong ncols with as many values as declared, rows and columns swapped. A row a
-      line, several whole rows a line, rows wrapped evenly over lines, the whole grid on one line read, and so
-      does a file wrapping its values at a fixed width across rows (ESRI's format needs no line break at a row's
-      end; GDAL reads the values in order): its last line is shorter;
+    - rows and columns swapped: every data line (of those in the values' first MiB) holding nrows values (not a
+      multiple nor a divisor of ncols), the lines of nrows making up all the values (past the first MiB: nrows
+      dividing their count), ncols lines of nrows. Other widths read: a row a line, several whole rows a line,
+      rows wrapped evenly over lines, the whole grid on one line, and a file wrapping its values at a fixed width
+      across rows (ESRI's format needs no line break at a row's end; GDAL reads the values in order), which no
+      count tells from a wrong ncols with as many values as declared;
     - fewer values than declared where the last cell read 0 (``last_is_zero``): GDAL refuses a file cut short
       ("File short"), but for the very last value, which it reads as 0 (the end of the file ends the last but one).
 
@@ -1954,18 +1954,18 @@ def _check_ascii_grid(file: Path, shape: tuple[int, int], driver: str, last_is_z
             space |= (data == 0) | (data == 26)  # and NUL padding or a DOS end-of-file mark (Ctrl-Z) after the values
             values += int(np.count_nonzero(space[:-1] > space[1:])) + (not joined and not space[0])
             joined = not space[-1]
-    # a clean grid of another width: every data line (of those looked at) holding k values, k neither a multiple nor
-    # a divisor of ncols (a row a line, whole rows a line, rows wrapped evenly over lines read), and the lines of k
-    # making up all the values; rows wrapped at a fixed width across rows end on a shorter line and read
+    # rows and columns swapped: every data line (of those looked at) holding nrows values, nrows neither a multiple
+    # nor a divisor of ncols, the lines making up all the values: ncols lines of nrows. Any other even width reads:
+    # values wrapped at a fixed width across rows (as GDAL reads them) cannot be told from a wrong ncols (r136: a
+    # 40 x 25 grid written 10 a line was refused)
     if len(counts) == 1:
         (k,) = counts
         held = sum(1 for line in lines if line.split()) * k
-        if k % ncols and ncols % k and (held == values if not cut else values % k == 0):
+        if k == nrows and k % ncols and ncols % k and (held == values if not cut else values % k == 0):
             rows = f"{values // k:,} lines of {k:,} values"
             raise DataFileError(
                 f"cannot read {str(file)!r}: expected {what} of rows of {ncols:,} values ({declares}); got {rows} "
-                f"each, a grid {k:,} values wide: the header's {cols_word} is wrong, or its {rows_word} and "
-                f"{cols_word} swapped (GDAL would read every row shifted)"
+                f"each: its {rows_word} and {cols_word} swapped? (GDAL would read every row shifted)"
             )
     if values > expected:
         whole = f" ({values // ncols:,} rows of {ncols:,})" if values % ncols == 0 else ""

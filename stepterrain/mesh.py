@@ -662,6 +662,9 @@ def _close_solid(vertices: Any, faces: Any, terrace_mask: Any, floor: float, dev
         raise InvalidInputError(f"vertices must be an (N, 3) array of x, y, z; got shape {vertices.shape}")
     if len(vertices) == 0:
         raise InvalidInputError("vertices: close_solid needs a surface to close; got no vertex")
+    if check and len(faces) == 0:  # (before the floor's check, which would judge vertices no face uses)
+        raise InvalidInputError("faces: close_solid skirts a surface's boundary down to the floor; got a surface of "
+                                "no faces")
     bad = int(np.count_nonzero(~np.isfinite(vertices)))
     if bad:  # NaN reached the solid's vertices, the base and its floor check without a word
         raise InvalidInputError(f"vertices must be finite; got {counted(bad, 'NaN or infinite coordinate')}")
@@ -715,19 +718,19 @@ def _close_solid(vertices: Any, faces: Any, terrace_mask: Any, floor: float, dev
     # wound clockwise seen from +z (a TIN's faces flipped): the skirts and base follow the surface's winding, so its
     # solid came out inside out (watertight and consistently wound, but its volume negative, its normals inward)
     if turn and _projected_area(vertices, edges) < 0.0:
+        # closed again from the given faces reversed: the fins and the walls' pairs are read from the step kernels'
+        # layout, which a stepped surface through trimesh's invert has reversed (its solid leaked); warned once it
+        # closed (a surface refused by the check after the turn got the warning first, then the refusal)
+        stacklevel = caller_stacklevel()
+        solid = _close_solid(given[0], np.ascontiguousarray(given[1][:, ::-1]), given[2], floor, device, turn=False,
+                             check=check)
         warnings.warn(f"faces: the surface is wound clockwise seen from +z (its normals point down; "
                       f"{counted(len(faces), 'face')}); close_solid closes it with every face reversed, so that the "
                       "solid faces outward (its volume positive, the surface's faces in it reversed)",
-                      stacklevel=caller_stacklevel())
-        # closed again from the given faces reversed: the fins and the walls' pairs are read from the step kernels'
-        # layout, which a stepped surface through trimesh's invert has reversed (its solid leaked)
-        return _close_solid(given[0], np.ascontiguousarray(given[1][:, ::-1]), given[2], floor, device, turn=False,
-                            check=check)
+                      stacklevel=stacklevel)
+        return solid
     if check:  # after the fins (walls back to back share their edges with the terraces beside them) and the turn (a
         # stepped surface reversed finds its fins only once turned back)
-        if len(faces) == 0:
-            raise InvalidInputError("faces: close_solid skirts a surface's boundary down to the floor; got a surface "
-                                    "of no faces")
         _check_surface(faces, len(vertices))
         if len(edges) == 0:
             raise InvalidInputError(f"faces: close_solid skirts a surface's boundary down to the floor; got a closed "

@@ -43,7 +43,7 @@ def test_header_declaring_fewer_columns_is_refused(tmp_path):
     """ncols 2 over rows of 3: GDAL read [[1, 2], [3, 4]] (the rows shifted); every line holds 3 values."""
     path = tmp_path / "dem.asc"
     path.write_text(_header(2, 2) + "1 2 3\n4 5 6\n")
-    pattern = r"dem\.asc.*rows of 2 values \(nrows 2, ncols 2.*got 2 lines of 3 values each, a grid 3 values wide"
+    pattern = r"dem\.asc.*2 x 2 = 4 values \(nrows 2, ncols 2.*got 6 values \(3 rows of 2\)"
     with pytest.raises(DataFileError, match=pattern):
         st.load_dem(path)
 
@@ -181,3 +181,18 @@ def test_indented_header_line_is_refused(tmp_path, zipped):
         path = tmp_path / "d.zip"
     with pytest.raises(DataFileError, match=r"dem\.asc.*header line 2 \('  nrows 2'\) starting with spaces"):
         st.load_dem(path)
+
+
+@pytest.mark.parametrize(("nrows", "ncols", "width"), [(40, 25, 10), (2, 6, 4)])
+def test_values_wrapped_evenly_at_a_width_dividing_their_count_read_as_gdal_reads_them(tmp_path, nrows, ncols, width):
+    """A 40 x 25 grid written 10 values a line (a Fortran layout: every line full) was refused as "a grid 10 values
+    wide" (r136), though GDAL reads it in order: only rows and columns swapped (ncols lines of nrows) is refused."""
+    rasterio = pytest.importorskip("rasterio")
+    values = np.arange(nrows * ncols, dtype=np.float64).reshape(nrows, ncols) + 1.0
+    flat = values.ravel()
+    path = tmp_path / "dem.asc"
+    path.write_text(_header(nrows, ncols) + "\n".join(" ".join(f"{v:g}" for v in flat[i:i + width])
+                                                       for i in range(0, len(flat), width)) + "\n")
+    with rasterio.open(path) as source:
+        assert np.array_equal(source.read(1), values)
+    assert np.array_equal(np.asarray(st.load_dem(path).heights), values)

@@ -179,3 +179,31 @@ def test_a_stepped_surface_on_its_thresholds_is_refused_exactly_where_its_solid_
         else:
             with pytest.raises(InvalidInputError, match="oriented manifold surface"):
                 close_solid(vertices, faces, terrace, floor)
+
+
+def test_a_surface_refused_after_the_clockwise_turn_gets_no_turn_warning_first():
+    # the check runs after the turn (a reversed stepped surface finds its fins only once turned back): a surface that
+    # read clockwise and was then refused got "close_solid closes it with every face reversed" before the refusal
+    # (r137); the warning now follows a solid actually closed
+    yy, xx = np.mgrid[0:6, 0:6]
+    vertices = np.column_stack([xx.ravel(), yy.ravel(), (xx + yy).ravel() + 5.0]).astype(float)
+    faces = np.array([[r * 6 + c, r * 6 + c + 1, (r + 1) * 6 + c + 1] for r in range(5) for c in range(5)]
+                     + [[r * 6 + c, (r + 1) * 6 + c + 1, (r + 1) * 6 + c] for r in range(5) for c in range(5)])
+    bad = faces.copy()
+    bad[1:] = bad[1:, ::-1]  # all but one flipped: clockwise overall, one face against its neighbours
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(InvalidInputError, match="oriented manifold surface"):
+            _close(vertices, bad, -1.0)
+    assert not caught, [str(w.message) for w in caught]
+    with pytest.warns(UserWarning, match="wound clockwise") as caught:  # a clockwise surface that closes: warned
+        solid = _close(vertices, np.ascontiguousarray(faces[:, ::-1]), -1.0)
+    assert caught[0].filename == __file__
+    assert trimesh.Trimesh(solid[0], solid[1], process=False).is_watertight
+
+
+def test_a_surface_of_no_faces_is_refused_before_its_floor_is_judged():
+    # the floor check judged vertices no face uses: "floor must lie below the lowest surface height 5.0" (r137)
+    vertices, faces = _tin(1, 10, z_offset=100.0)
+    with pytest.raises(InvalidInputError, match="got a surface of no faces"):
+        _close(vertices, faces[:0], 1000.0)
