@@ -646,7 +646,8 @@ def _check_surface(faces: NDArray[np.int64], n: int) -> None:
         raise InvalidInputError(f"faces must form an oriented manifold surface (each edge in at most two faces, wound "
                                 f"opposite ways); got {counted(len(np.unique(twice)), 'edge')} used twice the same way "
                                 f"(a face wound against its neighbour, a duplicate face or an edge of three or more "
-                                f"faces), the first ({a}, {b})")
+                                f"faces), the first ({a}, {b}); a stepped surface whose heights lie on its "
+                                f"thresholds makes such walls: stepped(..., solid=True) moves them off first")
 
 
 def _close_solid(vertices: Any, faces: Any, terrace_mask: Any, floor: float, device: wp.DeviceLike, turn: bool,

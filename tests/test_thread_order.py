@@ -197,7 +197,7 @@ def test_solid_hashed_buckets_do_not_depend_on_the_thread_order(one_thread_at_a_
 
     def make():
         fan = [np.asarray(a).tobytes() if isinstance(a, np.ndarray) else a
-               for a in mesh_module.close_solid(vertices, faces, terrace, -1.0, device="cpu")]
+               for a in mesh_module._close_solid(vertices, faces, terrace, -1.0, "cpu", turn=True)]  # fins: unchecked
         return fan, _mesh_bits(st.stepped(heights, interval=40.0, solid=True, device="cpu"))
 
     ordinary = make()
