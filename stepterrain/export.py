@@ -3519,12 +3519,21 @@ def _obj_materials_joined(file: Path, tidied: bytes | None) -> trimesh.Trimesh |
         return _obj_chunks_joined(file, tidied)
     names, chunks = read
     del loaded
+    return _obj_joined(file, vertices, faces, [by_name.get(name) for name in names] if materials else None,
+                       [len(chunk) for chunk in chunks], parts)
+
+
+def _obj_joined(file: Path, vertices: NDArray[Any], faces: NDArray[np.int64], materials: list[Any] | None,
+                counts: list[int], parts: list[trimesh.Trimesh]) -> trimesh.Trimesh:
+    """The joined OBJ mesh of :func:`_obj_materials_joined` and :func:`_obj_chunks_joined`: ``faces`` in chunks of
+    ``counts``, each chunk's faces coloured by its material (``materials``; None in it: trimesh's default colour),
+    or where the file has no materials (``materials`` None) the ``v`` lines' colours of the ``parts`` read, if
+    any; named after the file."""
     mesh = trimesh.Trimesh(vertices, faces, process=False)
-    if materials:
+    if materials is not None:
         default = np.asarray(trimesh.visual.color.DEFAULT_COLOR, dtype=np.uint8)
-        colours = [np.asarray(by_name[name].main_color, dtype=np.uint8) if name in by_name else default
-                   for name in names]
-        counts = [len(chunk) for chunk in chunks]
+        colours = [np.asarray(material.main_color, dtype=np.uint8) if material is not None else default
+                   for material in materials]
         mesh.visual = trimesh.visual.ColorVisuals(mesh, face_colors=np.repeat(np.asarray(colours), counts, axis=0))
     elif all(part.visual.kind == "vertex" for part in parts):
         mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=np.asarray(parts[0].visual.vertex_colors))
@@ -3546,19 +3555,9 @@ def _obj_chunks_joined(file: Path, tidied: bytes | None) -> trimesh.Trimesh | No
     if any(len(part.vertices) != len(vertices) for part in parts):  # each has every vertex, as maintain_order reads
         raise ValueError("the file's materials read with different vertices")
     faces = np.concatenate([np.asarray(part.faces, dtype=np.int64).reshape(-1, 3) for part in parts])
-    mesh = trimesh.Trimesh(vertices, faces, process=False)
     materials = [getattr(part.visual, "material", None) for part in parts]
-    if any(material is not None for material in materials):
-        default = np.asarray(trimesh.visual.color.DEFAULT_COLOR, dtype=np.uint8)
-        colours = [np.asarray(material.main_color, dtype=np.uint8) if material is not None else default
-                   for material in materials]
-        counts = [len(part.faces) for part in parts]
-        mesh.visual = trimesh.visual.ColorVisuals(mesh, face_colors=np.repeat(np.asarray(colours), counts, axis=0))
-    elif all(part.visual.kind == "vertex" for part in parts):
-        mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=np.asarray(parts[0].visual.vertex_colors))
-    name = _utf8_name(file.name)
-    mesh.metadata.update({"name": name, "node": name})
-    return mesh
+    return _obj_joined(file, vertices, faces, materials if any(m is not None for m in materials) else None,
+                       [len(part.faces) for part in parts], parts)
 
 
 #: an OFF file's keyword (Geomview's [ST][C][N][4][n]OFF): its groups say what each vertex line holds
