@@ -22,8 +22,15 @@ import numpy as np
 import trimesh
 
 import stepterrain as st
-from stepterrain.cli import add_dem_option, check_example_outputs, example_dem, usage_errors
-from stepterrain.export import atomic_path, save_image
+from stepterrain.cli import (
+    add_colors_option,
+    add_dem_option,
+    check_colors_option,
+    check_example_outputs,
+    example_dem,
+    save_example_picture,
+    usage_errors,
+)
 from stepterrain.globe import adaptive_mesh
 from stepterrain.render import render_mesh
 
@@ -77,21 +84,6 @@ def label(image: np.ndarray, text: str) -> np.ndarray:
     draw.rectangle([0, 0, right + 4, bottom + 2], fill=(255, 255, 255))
     draw.text(origin, text, fill=(0, 0, 0), font=font)
     return np.asarray(picture)
-
-
-def save_picture(image: np.ndarray, path: Path, colors: int) -> None:
-    """``image`` as a PNG at ``path``, atomically: in full colour where ``colors`` is 0, else with a palette of that
-    many colours. Full colour, the three 480 x 400 panels of docs/adaptive_mesh.png took 0.86 MB (their half-tone
-    edges make every pixel a little different); a 256-colour octree palette (Pillow's FASTOCTREE, no dithering)
-    takes about 0.26 MB, the height colours, the edges' shade and the insets' single triangles as they were."""
-    if colors == 0:
-        save_image(image, path)
-        return
-    from PIL import Image
-
-    picture = Image.fromarray(np.ascontiguousarray(image[..., :3])).quantize(colors, method=Image.Quantize.FASTOCTREE)
-    with atomic_path(path) as tmp:
-        picture.save(tmp, format="PNG", optimize=True)
 
 
 def render_panel(mesh, size: tuple[int, int], *, bounds: np.ndarray | None = None, supersample: int = 2,
@@ -168,14 +160,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--output", type=Path, default=Path("out/adaptive_mesh.png"), help="PNG to write")
     parser.add_argument("--panel", type=int, nargs=2, default=(480, 400), metavar=("W", "H"),
                         help="size of one panel in pixels (default 480 400)")
-    parser.add_argument("--colors", type=int, default=256,
-                        help="colours in the PNG's palette, 2 to 256 (default 256); 0: full colour")
+    add_colors_option(parser)
     args = parser.parse_args(argv)
-    if args.colors != 0 and not 2 <= args.colors <= 256:
-        parser.error(f"--colors must be 0 (full colour) or 2 to 256; got {args.colors}")
-    if args.colors != 0 and args.output.suffix.lower() != ".png":  # a palette picture is a PNG (save_image: .tif too)
-        parser.error(f"--output must end in .png with a palette (--colors {args.colors}; --colors 0 writes a .tif "
-                     f"too); got {str(args.output)!r}")
+    check_colors_option(parser, args.colors, args.output)
     if args.size < 2:  # 0 raised a ZeroDivisionError in the crop; below 2 is no grid
         parser.error(f"--size must be at least 2 nodes; got {args.size}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
@@ -192,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
         worst = true_error(mesh, terrain)
         image = add_zoom(render_panel(mesh, tuple(args.panel)), mesh, box, grid)
         panels.append(label(image, f"error <= {error:g} m: {len(mesh.faces):,} triangles, max {worst:.2f} m"))
-    save_picture(np.concatenate(panels, axis=1), args.output, args.colors)
+    save_example_picture(np.concatenate(panels, axis=1), args.output, args.colors)
     print(f"wrote {args.output}")
     return 0
 

@@ -31,9 +31,17 @@ import matplotlib
 import numpy as np
 
 import stepterrain as st
-from stepterrain.cli import add_dem_option, check_example_outputs, example_dem, nice_interval, usage_errors
-from stepterrain.export import atomic_path
-from stepterrain.render import render_textured_mesh, save_png
+from stepterrain.cli import (
+    add_colors_option,
+    add_dem_option,
+    check_colors_option,
+    check_example_outputs,
+    example_dem,
+    nice_interval,
+    save_example_picture,
+    usage_errors,
+)
+from stepterrain.render import render_textured_mesh
 from stepterrain.texture import (
     Pipeline,
     contour_layer,
@@ -96,21 +104,6 @@ def label(image: np.ndarray, text: str) -> np.ndarray:
     return np.asarray(picture)
 
 
-def save_picture(image: np.ndarray, path: Path, colors: int) -> None:
-    """``image`` as a PNG at ``path``, atomically: in full colour where ``colors`` is 0, else with a palette of that
-    many colours. Full colour, the 1600 x 600 picture of hillshaded texels took 1.02 MB (docs/texture.png); its
-    256-colour octree palette (Pillow's FASTOCTREE, no dithering: dithering's noise costs a third more bytes and
-    speckles the lens) takes about 0.32 MB, the shading and the slope colours as they were to the eye."""
-    if colors == 0:
-        save_png(image, path)
-        return
-    from PIL import Image
-
-    picture = Image.fromarray(np.ascontiguousarray(image[..., :3])).quantize(colors, method=Image.Quantize.FASTOCTREE)
-    with atomic_path(path) as tmp:
-        picture.save(tmp, format="PNG", optimize=True)
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default=None, help="Warp device: cpu, cuda, cuda:0 (default: Warp's)")
@@ -119,14 +112,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--output", type=Path, default=Path("out/textures.png"), help="PNG to write")
     parser.add_argument("--panel", type=int, nargs=2, default=(800, 600), metavar=("W", "H"),
                         help="size of one panel in pixels (default 800 600)")
-    parser.add_argument("--colors", type=int, default=256,
-                        help="colours in the PNG's palette, 2 to 256 (default 256); 0: full colour")
+    add_colors_option(parser)
     args = parser.parse_args(argv)
-    if args.colors != 0 and not 2 <= args.colors <= 256:
-        parser.error(f"--colors must be 0 (full colour) or 2 to 256; got {args.colors}")
-    if args.colors != 0 and args.output.suffix.lower() != ".png":  # a palette picture is a PNG (save_image: .tif too)
-        parser.error(f"--output must end in .png with a palette (--colors {args.colors}; --colors 0 writes a .tif "
-                     f"too); got {str(args.output)!r}")
+    check_colors_option(parser, args.colors, args.output)
     if args.size < 2:  # 0 raised a ZeroDivisionError in the crop; below 2 is no grid
         parser.error(f"--size must be at least 2 nodes; got {args.size}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
@@ -178,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
     view = render_textured_mesh(mesh, window_size=(width, height), z_scale=1.5, lighting=True)
     panel = label(panel, "the texture from above, north up")
     view = label(view, f"draped on the terrain stepped every {interval:g} m")
-    save_picture(np.concatenate([panel, view], axis=1), args.output, args.colors)
+    save_example_picture(np.concatenate([panel, view], axis=1), args.output, args.colors)
     print(f"wrote {args.output} ({terrain.shape[0]} x {terrain.shape[1]} nodes, {len(mesh.faces):,} faces, "
           f"{time.perf_counter() - start:.2f} s)", file=sys.stderr)
     return 0
