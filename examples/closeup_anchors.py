@@ -43,25 +43,55 @@ def closeups(terrain: st.Terrain, inactive: bool = False) -> list[CloseUp]:
 def draw_legend(image, title: str, entries):
     """``image`` with a legend along its top: ``title``, then each ``(name, colour)`` of ``entries`` left to right, a
     swatch of the colour (a hex string; None: no swatch) before the name; none on an image under 240 px high, where
-    the type would be too small to read."""
+    the type would be too small to read.
+
+    The type is a thirtieth of the height, made smaller (down to 12 px) until the widest entry fits the width, and
+    entries that do not fit on a row start the next one (an entry wider than the image breaks between its words).
+    Laid out in one row at a thirtieth of the height, the legend of docs/closeup.png took 1155 px: an image under
+    that wide (``--window 800 720``) cut it off mid-name."""
     if image.shape[0] < 240:
         return image
     import numpy as np
     from PIL import Image, ImageColor, ImageDraw, ImageFont
 
-    size = image.shape[0] // 30
+    height, width = image.shape[:2]
     picture = Image.fromarray(np.ascontiguousarray(image[..., :3]))
     draw = ImageDraw.Draw(picture)
-    font = ImageFont.load_default(size=size)
-    x, y = size, size // 2
-    draw.text((x, y), title, fill=(0, 0, 0), font=font)
-    x = draw.textbbox((x, y), title, font=font)[2] + size
-    for name, colour in entries:
+    items = [(title, None), *entries]
+
+    def extent(text, font):  # how far right of its x the text reaches
+        return draw.textbbox((0, 0), text, font=font)[2]
+
+    def swatch(size, colour):  # the room a swatch and its gap take before the name
+        return size + size // 3 if colour is not None else 0
+
+    size = height // 30
+    while True:  # a smaller type, down to 12 px, until the widest entry fits on a row
+        font = ImageFont.load_default(size=size)
+        widest = max(swatch(size, colour) + extent(name, font) for name, colour in items)
+        if widest <= width - 2 * size or size <= 12:
+            break
+        size -= 1
+    line = round(1.4 * size)
+    x, y, right = size, size // 2, width - size
+    for name, colour in items:
+        if x > size and x + swatch(size, colour) + extent(name, font) > right:  # not after the last: the next row
+            x, y = size, y + line
         if colour is not None:
             draw.rectangle([x, y + size // 8, x + size - 1, y + size + size // 8 - 1], fill=ImageColor.getrgb(colour))
-            x += size + size // 3
-        draw.text((x, y), name, fill=(0, 0, 0), font=font)
-        x = draw.textbbox((x, y), name, font=font)[2] + size
+            x += swatch(size, colour)
+        if x + extent(name, font) <= right:
+            draw.text((x, y), name, fill=(0, 0, 0), font=font)
+            x += extent(name, font) + size
+            continue
+        for k, word in enumerate(name.split()):  # wider than a row: on between its words
+            if k and x + extent(" " + word, font) > right:
+                x, y = size, y + line
+            elif k:
+                word = " " + word
+            draw.text((x, y), word, fill=(0, 0, 0), font=font)
+            x += extent(word, font)
+        x += size
     return np.asarray(picture)
 
 

@@ -225,3 +225,34 @@ def test_globe_labels_are_legible():
     small = example.label(np.full((48, 64, 3), 128, np.uint8), "far view")
     rows = np.nonzero((small != 128).any(axis=(1, 2)))[0]
     assert 0 < rows.max() < 20
+
+
+@pytest.mark.parametrize("width, height", [(640, 720), (800, 720), (1024, 720), (1280, 720), (1600, 900), (400, 300)])
+def test_closeup_mappings_legend_fits_the_window(width, height):
+    """The legend ran in one row in type a thirtieth of the height: 1155 px at 720 px high, cut off mid-name in a
+    window under that wide (``--window 800 720``). Its type shrinks to fit the widest entry and entries wrap onto
+    more rows: at any width every swatch is whole and every word inside the image, a margin clear on the right, and
+    the legend stays in the top band (the terrain's place below it untouched)."""
+    from PIL import ImageColor
+
+    import stepterrain as st
+
+    example = load_example("closeup_mappings")
+    closeups = example.closeups(st.sample_dem())
+    image = example.legend(np.full((height, width, 3), 255, np.uint8), closeups)
+    ink = (image != 255).any(axis=2)
+    rows, cols = np.nonzero(ink)
+    margin = min(height // 30, 12)
+    assert cols.min() >= margin and cols.max() < width - margin, (cols.min(), cols.max())
+    assert rows.max() < height // 6 and not ink[height // 6:].any()
+    def text_per_type(picture):  # the black text's pixels over the type's size squared (a swatch is one type high)
+        r, c = np.nonzero((picture == ImageColor.getrgb(example.STEPPED_COLOR)).all(axis=2))
+        return (picture.max(axis=2) < 100).sum() / (r.max() - r.min() + 1) ** 2
+
+    for colour in (example.STEPPED_COLOR, example.SLOPE_COLOR):  # each swatch a whole square, not cut at the edge
+        r, c = np.nonzero((image == ImageColor.getrgb(colour)).all(axis=2))
+        assert len(r) > 0 and len(r) == (r.max() - r.min() + 1) * (c.max() - c.min() + 1)
+        assert r.max() - r.min() == c.max() - c.min() >= min(height // 30, 12) - 1  # legible, 10 px and up
+    # every word drawn: as much text for its type as in one row of a window wide enough for it
+    wide = example.legend(np.full((height, 4000, 3), 255, np.uint8), closeups)
+    assert text_per_type(image) == pytest.approx(text_per_type(wide), rel=0.15)
