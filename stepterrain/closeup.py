@@ -3134,25 +3134,34 @@ def _check_gif_size(width: int, height: int, name: str) -> None:
                                 f"numbers); got {width}x{height}")
 
 
-def _shared_palette(frames: Sequence[NDArray[np.uint8]]) -> Any:
-    """A Pillow "P" image whose palette serves all the RGB ``frames``: their own colours, exactly, when they have 256
-    or fewer between them (frames already in one palette keep it), else Pillow's fast octree fitted to every other
-    pixel of every other row of every frame."""
+def _packed(frame: NDArray[np.uint8]) -> NDArray[np.uint32]:
+    """Each pixel's RGB as one 24-bit number."""
+    rgb = frame.astype(np.uint32)
+    return (rgb[..., 0] << 16) | (rgb[..., 1] << 8) | rgb[..., 2]
+
+
+def _shared_palette(frames: Sequence[NDArray[np.uint8]]) -> list[Any]:
+    """The RGB ``frames`` as Pillow "P" images in one palette: their own colours, exactly, when they have 256 or fewer
+    between them (frames already in one palette keep it), else Pillow's fast octree fitted to every other pixel of
+    every other row of every frame, each pixel its nearest colour, undithered (dithering speckles the still parts
+    differently in each frame)."""
     from PIL import Image
 
     seen: NDArray[np.uint32] = np.empty(0, np.uint32)
-    for frame in frames:  # the colours as 24-bit numbers, until there are too many for a palette
-        packed = (frame[..., 0].astype(np.uint32) << 16) | (frame[..., 1].astype(np.uint32) << 8) | frame[..., 2]
-        seen = np.union1d(seen, np.unique(packed))
+    for frame in frames:  # the colours until there are too many for a palette
+        seen = np.union1d(seen, _packed(frame))
         if len(seen) > 256:
-            break
-    if len(seen) <= 256:
-        rgb = np.stack([(seen >> 16) & 255, (seen >> 8) & 255, seen & 255], axis=1).astype(np.uint8)
-        picture = Image.new("P", (1, 1))
-        picture.putpalette(np.concatenate([rgb, np.repeat(rgb[-1:], 256 - len(rgb), axis=0)]).tobytes())
-        return picture
-    sample = np.concatenate([f[::2, ::2] for f in frames], axis=0)
-    return Image.fromarray(np.ascontiguousarray(sample)).quantize(256, method=Image.Quantize.FASTOCTREE)
+            sample = np.concatenate([f[::2, ::2] for f in frames], axis=0)
+            palette = Image.fromarray(np.ascontiguousarray(sample)).quantize(256, method=Image.Quantize.FASTOCTREE)
+            return [Image.fromarray(f).quantize(palette=palette, dither=Image.Dither.NONE) for f in frames]
+    rgb = np.stack([(seen >> 16) & 255, (seen >> 8) & 255, seen & 255], axis=1).astype(np.uint8)
+    pictures = []
+    for frame in frames:  # Pillow's quantize(palette=) finds a near colour, not always the same one
+        index = np.searchsorted(seen, _packed(frame)).astype(np.uint8)
+        picture = Image.frombytes("P", (index.shape[1], index.shape[0]), index.tobytes())
+        picture.putpalette(rgb.tobytes())
+        pictures.append(picture)
+    return pictures
 
 
 def _write_gif(frames: Sequence[NDArray[np.uint8]], tmp: Path, fps: float, shared: bool = False) -> None:
@@ -3164,8 +3173,7 @@ def _write_gif(frames: Sequence[NDArray[np.uint8]], tmp: Path, fps: float, share
 
     delays = _gif_delays(len(frames), fps)
     if shared and frames[0].shape[2] == 3:  # opaque frames (RGBA ones hold transparency: Pillow's palettes)
-        palette = _shared_palette(frames)
-        pictures = [Image.fromarray(frame).quantize(palette=palette, dither=Image.Dither.NONE) for frame in frames]
+        pictures = _shared_palette(frames)
     else:
         pictures = [Image.fromarray(frame) for frame in frames]
     more = {"save_all": True, "append_images": pictures[1:]} if len(pictures) > 1 else {}
