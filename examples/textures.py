@@ -163,7 +163,9 @@ def run(args: argparse.Namespace) -> int:
     panel = np.full((height, width, 3), 255, np.uint8)
     y0, x0 = band + (room - picture.height) // 2, (width - picture.width) // 2
     panel[y0: y0 + picture.height, x0: x0 + picture.width] = np.asarray(picture)
-    view = render_textured_mesh(mesh, window_size=(width, height), z_scale=1.5, lighting=True)
+    # relief: the terraces and walls lit, a level face in the texture's own colour (lit fully, its hillshade was shaded
+    # twice: the draped view darker than the texture beside it)
+    view = render_textured_mesh(mesh, window_size=(width, height), z_scale=1.5, lighting="relief")
     panel = label(panel, "the texture from above, north up")
     view = label(view, f"draped on the terrain stepped every {interval:g} m")
     save_example_picture(np.concatenate([panel, view], axis=1), args.output, args.colors)

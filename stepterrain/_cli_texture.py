@@ -54,8 +54,9 @@ examples:
       reprojects exactly onto its degrees): it lies exactly over the DEM in QGIS or ArcGIS
   stepterrain texture --shadows --occlusion 0.5 --azimuth 270 --altitude 20 -o low_sun.png
   stepterrain texture --shadows -o tex.png --mesh out/steps.glb --interval 100 --png out/steps.png
-      the texture draped on the stepped terrain (100 m steps), GLB with the image embedded, and a render, lit as
-      steps --png lights its own so the terraces read (--lighting off: the texture's shading alone)
+      the texture draped on the stepped terrain (100 m steps), GLB with the image embedded, and a render, lit so
+      the terraces read, a level face in the texture's own colour (--lighting relief; off: the texture's shading
+      alone; on: as steps --png lights its own, the hillshade shaded twice)
   stepterrain texture --shadows --interval 100 --png out/steps.png
       the render alone: no -o, no texture file (--mesh alone likewise writes only the draped mesh)
   stepterrain texture --shadows --png out/map.png --camera top
@@ -181,13 +182,15 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--z-scale", type=_real, default=None, metavar="S",
                    help="vertical exaggeration of the render only, with --png (default 2)")
     _add_camera(p, "the render of the draped mesh, with --png")
-    p.add_argument("--lighting", choices=("auto", "on", "off"), default=None,
+    p.add_argument("--lighting", choices=("auto", "on", "off", "relief"), default=None,
                    help="light the render's mesh, with --png, as steps --png lights its render (key light from the "
-                        "north-west, fill from the camera): on, off (the texture as it is, its own shading alone), or "
-                        "auto (default): on for the stepped terrain (--interval: the hillshade shades the DEM's "
-                        "slopes, not its terraces and walls) and for --hillshade none without --image (no shading in "
-                        "the texture), off for the heightfield under a hillshade or an orthophoto, which would be "
-                        "shaded twice")
+                        "north-west, fill from the camera): on, off (the texture as it is, its own shading alone), "
+                        "relief (the same lights, a level face in the texture's own colour: the relief the texture's "
+                        "shading does not show), or auto (default): relief for the stepped terrain (--interval) under "
+                        "a hillshade, shadows or occlusion (they shade the DEM's slopes, not its terraces and walls; "
+                        "on, they were shaded twice, darker), on for it without them and for --hillshade none "
+                        "without --image (no shading in the texture), off for the heightfield under a hillshade or an "
+                        "orthophoto, which would be shaded twice")
     p.set_defaults(run=_run_texture)
 
 
@@ -394,16 +397,21 @@ def _texture_colours(draped: Any) -> Any:
     return out
 
 
-def _render_lit(args: argparse.Namespace) -> bool:
-    """Whether ``--png`` lights the draped mesh (render_textured_mesh's ``lighting``): ``--lighting on``/``off``, or
-    for ``auto`` whether the texture lacks the shading of the surface shown. A hillshade shades the DEM's continuous
-    slopes (paper 004 §7: a topographic texture carries its shading), so lighting the heightfield under it shaded it
-    twice; on the stepped terrain (``--interval``) the flat terraces and their walls bore the slopes' hillshade, unlit,
-    and read as one smooth surface: the steps showed only at the silhouette. ``--hillshade none`` without ``--image``
-    leaves the colours unshaded; an orthophoto keeps its own light."""
+def _render_lit(args: argparse.Namespace) -> bool | str:
+    """How ``--png`` lights the draped mesh (render_textured_mesh's ``lighting``): ``--lighting on``/``off``/``relief``,
+    or for ``auto`` what the texture lacks of the shading of the surface shown. A hillshade shades the DEM's
+    continuous slopes (paper 004 §7: a topographic texture carries its shading), so lighting the heightfield under it
+    shaded it twice; on the stepped terrain (``--interval``) the flat terraces and their walls bore the slopes'
+    hillshade, unlit, and read as one smooth surface: the steps showed only at the silhouette. Lit fully, that
+    hillshade was shaded twice all the same (terraces at 0.87 of the texture, walls facing the camera 0.55): "relief"
+    lights the steps with a level face in the texture's own colour. ``--hillshade none`` without ``--image`` leaves
+    the colours unshaded; an orthophoto keeps its own light."""
     if args.lighting != "auto":
-        return args.lighting == "on"
-    return args.interval is not None or (args.method == "none" and args.image is None)
+        return {"on": True, "off": False, "relief": "relief"}[args.lighting]
+    if args.interval is not None:
+        shaded = args.method != "none" or args.shadows or args.occlusion > 0
+        return "relief" if shaded else True
+    return args.method == "none" and args.image is None
 
 
 #: The material of the --mesh drape (its name names a textured OBJ's image: ``<stem>_terrain_texture.png``).

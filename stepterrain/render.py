@@ -46,6 +46,10 @@ _FILL_INTENSITY = 0.45
 _FILL_ELEVATION = math.radians(30.0)
 _AMBIENT = 0.2
 _DIFFUSE = 0.9
+#: The ambient of ``render_textured_mesh(lighting="relief")``: what the key and fill lights leave to make a level face
+#: 1, its texture's own colour (the fill's azimuth follows the camera; a level face sees its elevation alone).
+_RELIEF_AMBIENT = 1.0 - _DIFFUSE * (_KEY_INTENSITY * math.sin(KEY_LIGHT_ELEVATION)
+                                    + _FILL_INTENSITY * math.sin(_FILL_ELEVATION))
 
 #: The fixed oblique view: camera azimuth (clockwise from north, radians; 180° = looking from the south
 #: towards the north) and elevation above the horizon.
@@ -1263,7 +1267,7 @@ def render_textured_mesh(
     z_scale: float = 1.0,
     camera: CameraLike = "oblique",
     background: str | tuple[float, float, float] = "white",
-    lighting: bool = True,
+    lighting: bool | Literal["relief"] = True,
     anti_aliasing: bool = False,
     bounds: ArrayLike | None = None,
     view_angle: float = _VIEW_ANGLE,
@@ -1277,8 +1281,14 @@ def render_textured_mesh(
     texture, in linear light, as glTF defines the base colour.
     ``lighting=False`` shows the texture unlit (a
     topographic texture already carries its shading, paper 004 §7); True (the default) adds the key and fill
-    lights. ``z_scale`` defaults to 1, true proportions. The CLI's ``texture --png`` defaults differ: ``--z-scale 2``
-    and ``--lighting auto`` (lit only on the stepped terrain, or with ``--hillshade none`` and no ``--image``).
+    lights. ``"relief"`` lights the relief the texture's shading does not show (the terraces and walls of a stepped
+    terrain under a hillshade of the continuous DEM): the same lights, with the ambient raised so that a level face
+    shows the texture's own colour (:data:`_RELIEF_AMBIENT`) and faces turned from the light darker. Lit fully, a
+    hillshade was shaded twice: its terraces at 0.87 of their colour and walls facing the camera at 0.55 (the
+    draped view of docs/texture.png darker than the texture beside it). ``z_scale`` defaults to 1, true
+    proportions. The CLI's ``texture --png`` defaults differ: ``--z-scale 2`` and ``--lighting auto`` (relief on the
+    stepped terrain under a hillshade, lit on it without one, lit with ``--hillshade none`` and no ``--image``,
+    unlit otherwise).
 
     A texture with some alpha below 255 (an alpha band, or a PNG's transparent colour) blends with what lies behind
     it, in depth order (depth peeling), as the mesh's GLB shows it; a material's glTF ``alphaMode`` is followed when
@@ -1302,7 +1312,10 @@ def render_textured_mesh(
     if source is None:
         raise InvalidInputError("mesh has no texture: expected TextureVisuals with one UV per vertex and an image "
                                 "(see stepterrain.texture.drape)")
-    lighting = check_flag(lighting, "lighting")
+    relief = isinstance(lighting, str) and lighting == "relief"
+    if not relief and not isinstance(lighting, (bool, np.bool_)):
+        raise InvalidInputError(f"lighting must be True, False or 'relief'; got {lighting!r}")
+    lighting = relief or bool(lighting)
     anti_aliasing = check_flag(anti_aliasing, "anti_aliasing")
     view_angle = _check_view_angle(view_angle)
     width, height, _vertices, local, finite, box, position = _frame_mesh(mesh, window_size, z_scale, bounds, camera,
@@ -1321,8 +1334,8 @@ def render_textured_mesh(
     _check_background(pv, background)
     poly = _polydata(pv, local, mesh.faces)
     mesh_kwargs = dict(texture=_texture(pv, poly, uv, picture, clamp=_clamped(source[2])), smooth_shading=False,
-                       ambient=_AMBIENT if lighting else 1.0, diffuse=_DIFFUSE if lighting else 0.0, specular=0.0,
-                       lighting=lighting)
+                       ambient=(_RELIEF_AMBIENT if relief else _AMBIENT) if lighting else 1.0,
+                       diffuse=_DIFFUSE if lighting else 0.0, specular=0.0, lighting=lighting)
     return _shoot(pv, poly, mesh_kwargs, local=local, faces=mesh.faces, finite=finite, box=box,
                   position=position, size=(width, height), background=background, anti_aliasing=anti_aliasing,
                   lighting=lighting, translucent=translucent, view_angle=view_angle)

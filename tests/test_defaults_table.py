@@ -234,11 +234,16 @@ def test_the_descriptive_cli_defaults_in_the_table(dem, tmp_path, capsys, monkey
     np.testing.assert_allclose(closeup.offset, (0.0, 0.0, lift))
     assert "max(0.2 × the extent's longer side, 0.3 × its north-south depth)" in rows["closeup", "CloseUp(offset=)"][4]
 
-    # texture --lighting auto: unlit on the hillshaded heightfield (True in Python), lit on the stepped terrain
+    # texture --lighting auto: unlit on the hillshaded heightfield (True in Python), relief on the stepped terrain
+    # under the hillshade (lit fully, shaded twice), lit on it without one
     shot = cli_texture(dem, tmp_path, capsys, monkeypatch, "--png", tmp_path / "t.png")
     assert shot["render_textured_mesh"][1]["lighting"] is False
     stepped_shot = cli_texture(dem, tmp_path, capsys, monkeypatch, "--png", tmp_path / "t.png", "--interval", "2")
-    assert stepped_shot["render_textured_mesh"][1]["lighting"] is True
+    assert stepped_shot["render_textured_mesh"][1]["lighting"] == "relief"
+    assert '`"relief"` on the stepped terrain' in rows["texture", "render_textured_mesh(lighting=)"][4]
+    plain_shot = cli_texture(dem, tmp_path, capsys, monkeypatch, "--png", tmp_path / "t.png", "--interval", "2",
+                             "--hillshade", "none")
+    assert plain_shot["render_textured_mesh"][1]["lighting"] is True
     assert first_code(rows["texture", "render_textured_mesh(lighting=)"][4]) == '"auto"'
 
     # globe --eye: 30N 10E, three radii up

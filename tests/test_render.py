@@ -505,7 +505,7 @@ def test_textured_render_refuses_uvs_of_the_wrong_shape():
         render.render_textured_mesh(mesh, window_size=(64, 48))
 
 
-@pytest.mark.parametrize(("kwargs", "match"), [({"lighting": "no"}, "lighting must be True or False"),
+@pytest.mark.parametrize(("kwargs", "match"), [({"lighting": "no"}, "lighting must be True, False or .relief."),
                                                ({"anti_aliasing": "no"}, "anti_aliasing must be True or False")])
 def test_textured_render_flags_must_be_bools(kwargs, match):
     # lighting='no' is true to Python: the texture was lit by the key and fill lights

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import math
 import warnings
 from pathlib import Path
 
@@ -1870,3 +1871,47 @@ def test_frame_mesh_with_bounds_finds_the_drawn_box_once(monkeypatch, camera):
         assert np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True)
     span = np.nanmax(after[3][after[4]], axis=0) - np.nanmin(after[3][after[4]], axis=0)
     np.testing.assert_array_equal(span, [9.0 - 5.0, 7.0 - 1.0, 2.5 * (10.0 - 2.0)])
+
+
+def _grey_drape(mesh: trimesh.Trimesh, grey: int) -> trimesh.Trimesh:
+    """``mesh`` with a texture of one grey, its UVs spread over the mesh's xy extent."""
+    xy = mesh.vertices[:, :2]
+    uv = (xy - xy.min(axis=0)) / np.ptp(xy, axis=0)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=uv, image=Image.new("RGB", (8, 8), (grey, grey, grey)))
+    return mesh
+
+
+@needs_render
+def test_relief_lighting_keeps_a_level_face_in_its_texture_colour():
+    """docs/texture.png's draped view was darker than the texture beside it (0.76 of its mean brightness): the
+    texture carries a hillshade, and lighting=True shaded it again, a level terrace at 0.87 of its colour (ambient
+    0.2 + diffuse 0.9 x the key and fill lights' 0.74 on a level face) and walls facing the camera at 0.55.
+    ``lighting="relief"`` takes the same lights with the ambient raised so that a level face is its texture's
+    colour: the steps still read (walls apart from terraces), no darker overall."""
+    grey = 180
+    level = _grey_drape(trimesh.Trimesh([[0, 0, 0], [10, 0, 0], [10, 10, 0], [0, 10, 0]], [[0, 1, 2], [0, 2, 3]],
+                                        process=False), grey)
+    shots = {lighting: render.render_textured_mesh(level, window_size=(64, 48), lighting=lighting)
+             for lighting in (True, "relief", False)}
+    seen = (shots[False] != 255).any(axis=2)
+    assert seen.mean() > 0.3
+    assert np.abs(shots["relief"][seen].astype(int) - grey).max() <= 1  # the texture's colour, as unlit
+    assert np.abs(shots[True][seen].astype(int) - round(0.866 * grey)).max() <= 2  # lit: darker
+
+    x, y = np.meshgrid(np.arange(12.0), np.arange(12.0))
+    steps = _grey_drape(st.stepped(st.heightfield_mesh(np.floor(x / 3) + np.floor(y / 4)), interval=1.0), grey)
+    view = (math.radians(200), math.radians(35))
+    relief = render.render_textured_mesh(steps, window_size=(96, 72), lighting="relief", camera=view)
+    lit = render.render_textured_mesh(steps, window_size=(96, 72), lighting=True, camera=view)
+    mesh = (relief != 255).any(axis=2)
+    levels = np.unique(relief[mesh].mean(axis=1).round())
+    assert grey in levels and len(levels) >= 3  # terraces in the texture's grey, walls in other greys
+    assert relief[mesh].mean() > lit[mesh].mean() + 0.1 * grey
+    assert (relief[mesh].astype(int) >= lit[mesh].astype(int)).all()  # every face lighter than lit fully
+
+
+@pytest.mark.parametrize("lighting", ["on", "flat", 1, None])
+def test_render_textured_mesh_refuses_a_lighting_it_does_not_know(lighting):
+    level = _grey_drape(trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [1, 1, 0]], [[0, 1, 2]], process=False), 100)
+    with pytest.raises(InvalidInputError, match=r"lighting must be True, False or 'relief'; got "):
+        render.render_textured_mesh(level, window_size=(16, 16), lighting=lighting)
