@@ -3454,34 +3454,72 @@ def _obj_faces_kind(file: Path) -> str:
             return "vertices" if one else "materials"
 
 
+#: the bytes an OBJ line's words are separated by (bytes.split's white space), as a table over the 256 byte values
+_OBJ_BLANK = np.isin(np.arange(256), np.frombuffer(b" \t\r\n\x0b\x0c", dtype=np.uint8))
+#: 10 ** k for the 18 places of a decimal int64 (a table: NumPy's power of an array took twice the read's other steps)
+_POWERS_OF_TEN = 10 ** np.arange(18, dtype=np.int64)
+
+
 def _obj_chunk_faces(data: bytes) -> tuple[list[bytes | None], list[NDArray[np.int64]]] | None:
     """The OBJ text ``data``'s faces of vertex indices only, per ``usemtl`` chunk in the file's order: each chunk's
     material name (None before the first ``usemtl``) and its triangles as 0-based indices into the file's ``v``
     lines (a negative index counted back from the ``v`` lines before it; a quad split as trimesh's reader splits it,
-    (a, b, c) and (c, d, a), a larger polygon as a fan from its first corner). None where a face does not read so."""
+    (a, b, c) and (c, d, a), a larger polygon as a fan from its first corner; a face of fewer than 3 corners
+    skipped). None where a face does not read so. Vectorised over the text's bytes (a Python loop over its lines
+    took 1.3 s of a 2.2 s read of 90,000 vertices in two materials): the lines found by their newlines, each face
+    line's words by the blanks before them, the numbers read by NumPy at once."""
+    text = np.frombuffer(data, dtype=np.uint8)
+    size = len(text)
+    newlines = np.flatnonzero(text == ord("\n"))
+    starts = np.concatenate(([0], newlines + 1))
+    ends = np.append(newlines, size)  # each line's newline (or the text's end)
+    padded = np.concatenate((text, np.zeros(8, np.uint8)))
+
+    def starting(keyword: bytes) -> NDArray[np.bool_]:
+        found = np.ones(len(starts), dtype=bool)
+        for k, byte in enumerate(keyword):
+            found &= padded[starts + k] == byte
+        return found
+
+    vertex, face, usemtl = starting(b"v "), starting(b"f "), starting(b"usemtl ")
     names: list[bytes | None] = [None]
-    chunks: list[list[list[int]]] = [[]]
-    seen = 0
-    try:
-        for line in data.splitlines():
-            if line.startswith(b"v "):
-                seen += 1
-            elif line.startswith(b"f "):
-                corners = [int(word) for word in line.split()[1:]]
-                corners = [c - 1 if c > 0 else seen + c for c in corners]
-                if len(corners) < 3:
-                    continue
-                if len(corners) == 4:
-                    triangles = [corners[:3], [corners[2], corners[3], corners[0]]]
-                else:
-                    triangles = [[corners[0], corners[i], corners[i + 1]] for i in range(1, len(corners) - 1)]
-                chunks[-1].extend(triangles)
-            elif line.startswith(b"usemtl "):
-                names.append(line[7:].strip())
-                chunks.append([])
-    except ValueError:
-        return None
-    return names, [np.asarray(chunk, dtype=np.int64).reshape(-1, 3) for chunk in chunks]
+    names += [bytes(data[start + 7 : end]).strip() for start, end in zip(starts[usemtl], ends[usemtl], strict=True)]
+    seen = np.cumsum(vertex) - vertex  # the v lines before each line
+    chunk = np.cumsum(usemtl)  # each line's usemtl chunk
+    # the face lines' words: the bytes after "f " up to and with the newline (a blank between lines)
+    marks = np.zeros(size + 2, dtype=np.int8)
+    marks[starts[face] + 2] += 1
+    marks[ends[face] + 1] -= 1
+    blank = _OBJ_BLANK[text]
+    where = np.flatnonzero(np.cumsum(marks[:size], dtype=np.int8).view(bool) & ~blank)  # the words' bytes
+    byte = text[where].astype(np.int64)
+    heads = np.flatnonzero(blank[where - 1])  # each word's first byte, in where (a word starts after a blank)
+    lengths = np.diff(np.append(heads, len(where)))
+    signs = np.isin(byte[heads], (ord("-"), ord("+")))
+    digit = byte - ord("0")
+    digit[heads[signs]] = 0  # a sign is allowed as a word's first byte only
+    if (digit < 0).any() or (digit > 9).any() or (lengths - signs < 1).any() or (lengths - signs > 18).any():
+        return None  # not a plain integer (trimesh's reader decides; an int64 holds 18 digits)
+    places = np.repeat(heads + lengths, lengths) - 1 - np.arange(len(where))  # each digit's place from its word's end
+    corners = np.add.reduceat(digit * _POWERS_OF_TEN[places], heads) if len(heads) else np.zeros(0, np.int64)
+    corners[byte[heads] == ord("-")] *= -1
+    line = np.searchsorted(starts, where[heads], side="right") - 1
+    corners = np.where(corners > 0, corners - 1, seen[line] + corners)
+    lines = np.flatnonzero(face)
+    counts = np.bincount(line, minlength=len(starts))[lines]
+    offsets = np.cumsum(counts) - counts
+    keep = counts >= 3
+    lines, counts, offsets = lines[keep], counts[keep], offsets[keep]
+    triangles = counts - 2
+    owner = np.repeat(np.arange(len(lines)), triangles)
+    j = np.arange(len(owner)) - np.repeat(np.cumsum(triangles) - triangles, triangles)
+    at = offsets[owner]
+    picks = np.column_stack([at, at + j + 1, at + j + 2])  # a fan from the first corner
+    second = (counts[owner] == 4) & (j == 1)  # a quad's second triangle: (c, d, a)
+    picks[second] = np.column_stack([at[second] + 2, at[second] + 3, at[second]])
+    faces = corners[picks].reshape(-1, 3)
+    bounds = np.searchsorted(chunk[lines][owner], np.arange(1, len(names)))
+    return names, np.split(faces, bounds)
 
 
 def _obj_materials_joined(file: Path, tidied: bytes | None) -> trimesh.Trimesh | None:
