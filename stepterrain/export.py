@@ -2666,11 +2666,13 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             color = _color_attribute(scene)
             loaded = scene.to_mesh()
         else:  # an OBJ of faces of vertex indices only keeps the vertices no face names (_obj_faces_kind)
+            source = None  # an OBJ's text with newlines for its line ends, where one is a carriage return alone
             if file.suffix.lower() == ".obj":
-                _check_obj_indices(file)
-            kind = _obj_faces_kind(file) if file.suffix.lower() == ".obj" else None
+                source = _obj_newlines(file)
+                _check_obj_indices(file, source)
+            kind = _obj_faces_kind(file, source) if file.suffix.lower() == ".obj" else None
             order = {"maintain_order": True} if kind == "vertices" else {}
-            tidied = _obj_tidied(file) if file.suffix.lower() == ".obj" else None
+            tidied = _obj_tidied(file, source) if file.suffix.lower() == ".obj" else None
             try:
                 loaded = None  # several usemtl, faces of vertex indices only: one vertex per v line still
                 if kind == "materials":
@@ -2696,7 +2698,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             _check_format(file)
         if isinstance(loaded, trimesh.Trimesh) and np.asarray(loaded.vertices).shape[1:] != (3,):
             # an OBJ's "v 0 1": trimesh's reader clipped every vertex to its shortest
-            short = _short_obj_vertex(file) if file.suffix.lower() == ".obj" else ""
+            short = _short_obj_vertex(file, source) if file.suffix.lower() == ".obj" else ""
             raise ValueError(f"a vertex has fewer than 3 coordinates{short}: every vertex needs x, y and z; read as "
                              f"{np.asarray(loaded.vertices).shape[1:]} per vertex")
         if isinstance(loaded, trimesh.Trimesh):  # a PLY's or glTF's indices as stored
@@ -2712,7 +2714,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             _ply_attributes(loaded, booleans)
             loaded.metadata.update(metadata)
         if file.suffix.lower() == ".obj" and isinstance(loaded, trimesh.Trimesh):
-            loaded.metadata.update(_obj_metadata(file))
+            loaded.metadata.update(_obj_metadata(file, source))
         if file.suffix.lower() == ".off" and isinstance(loaded, trimesh.Trimesh):
             colours = _off_vertex_colors(file, len(loaded.vertices))
             if colours is not None:
@@ -2838,7 +2840,90 @@ def _obj_trailing_comment(data: Any) -> bool:
     return False
 
 
-def _obj_tidied(file: Path) -> bytes | None:
+#: a carriage return that ends a line alone (not CRLF's)
+_OBJ_LONE_CR = re.compile(rb"\r(?!\n)")
+
+
+def _obj_newlines(file: Path) -> bytes | None:
+    """The OBJ ``file``'s text with each line's end a newline, where a line ends in a carriage return alone (classic
+    Mac OS's line ends, or such a line in another file), else None (its lines end in newlines, or CRLF, which trimesh's
+    reader reads). trimesh's reader splits lines at newlines only: a file of CR line ends was one line, read as an
+    empty mesh (or refused with NumPy's "could not be read to its end"), and this module's scans look for newlines
+    too. Decided by byte searches of the file mapped (a file without a carriage return is searched once)."""
+    import mmap
+
+    with open(file, "rb") as stream:
+        if os.fstat(stream.fileno()).st_size == 0:
+            return None
+        with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as mapped:
+            if mapped.find(b"\r") < 0 or _OBJ_LONE_CR.search(mapped) is None:  # type: ignore[call-overload]
+                return None
+            return b"\n".join(mapped[:].splitlines()) + b"\n"
+
+
+@contextlib.contextmanager
+def _obj_mapped(file: Path, source: bytes | None) -> Iterator[Any]:
+    """The OBJ ``file``'s bytes to scan: ``source`` where given (:func:`_obj_newlines`), else the file mapped, not read
+    (None for an empty file)."""
+    import mmap
+
+    if source is not None:
+        yield source
+        return
+    with open(file, "rb") as stream:
+        if os.fstat(stream.fileno()).st_size == 0:
+            yield None
+            return
+        with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as mapped:
+            yield mapped
+
+
+#: an OBJ face line (of a text whose statements start their lines) holding a minus: a relative index
+_OBJ_RELATIVE_FACE = re.compile(rb"^f [^\n#]*-", re.MULTILINE)
+
+
+def _obj_relative_after_vertices(data: Any) -> bool:
+    """Whether the OBJ text ``data`` (bytes or an mmap; its statements start their lines, as :func:`_obj_tidied`
+    leaves them) has a face of a relative (negative) index and a ``v``, ``vt`` or ``vn`` line after its first face:
+    there the index counts back from the lines before the face, not from the file's end. Byte searches; the face
+    lines searched for a minus only in such a file."""
+    first = 0 if data[:2] == b"f " else data.find(b"\nf ")
+    if first < 0 or data.find(b"\nv", first) < 0:
+        return False
+    return _OBJ_RELATIVE_FACE.search(data, first) is not None  # type: ignore[call-overload,no-any-return]
+
+
+def _obj_absolute_indices(data: bytes) -> bytes:
+    """The OBJ text ``data`` (its statements starting their lines) with each face's relative indices (``f -3 -2 -1``,
+    ``f -3/-3/-1 ...``: -1 is the last ``v``, ``vt`` or ``vn`` line before the face, by the OBJ specification) as the
+    1-based indices they name. trimesh's reader counted them back from the file's end: two objects each of ``v v v
+    f -3 -2 -1`` read as the second triangle twice. A ValueError names a line whose index counts back past the
+    file's start. A Python loop over the lines, for the files :func:`_obj_relative_after_vertices` finds only."""
+    counts = {b"v": 0, b"vt": 0, b"vn": 0}
+    lines = data.splitlines()
+    for number, line in enumerate(lines):
+        words = line.split()
+        if not words:
+            continue
+        if words[0] in counts:
+            counts[words[0]] += 1
+        elif words[0] == b"f" and b"-" in line:
+            for w, word in enumerate(words[1:], 1):
+                parts = word.split(b"/")
+                for k, (part, kind) in enumerate(zip(parts, (b"v", b"vt", b"vn"), strict=False)):
+                    if part.startswith(b"-") and part[1:].isdigit():
+                        index = counts[kind] + 1 + int(part)
+                        if index < 1:
+                            raise ValueError(f"line {number + 1}, {line.decode('utf-8', 'replace').strip()!r}, names "
+                                             f"{kind.decode()} {part.decode()}, and {counts[kind]} {kind.decode()} "
+                                             "lines come before it: a negative index counts back from them")
+                        parts[k] = str(index).encode("ascii")
+                words[w] = b"/".join(parts)
+            lines[number] = b" ".join(words)
+    return b"\n".join(lines) + b"\n"
+
+
+def _obj_tidied(file: Path, source: bytes | None = None) -> bytes | None:
     """The OBJ ``file``'s text with each line's blanks around it dropped and its tabs made spaces, where a line starts
     with blanks or holds a tab (as the OBJ format allows: its words are separated by white space), and the comment
     after a statement of numbers (``v``, ``vt``, ``vn``, ``vp``, ``f``, ``l``, ``p``, ``s``: ``v 0 0 0 # a``, ``f 1
@@ -2848,19 +2933,18 @@ def _obj_tidied(file: Path) -> bytes | None:
     data". A ``#`` in a line of names (``mtllib``, ``usemtl``, ``o``, ``g``) is kept as part of the name: the OBJ
     specification describes comments as lines starting with ``#``, and tools write names holding one
     (``Material#1``), which trimesh's reader keeps. Decided by byte searches of the file mapped, not read (a large
-    OBJ, as :func:`save_mesh` writes it, needs no tidying); read only to be tidied."""
-    import mmap
-
-    with open(file, "rb") as stream:
-        if os.fstat(stream.fileno()).st_size == 0:
+    OBJ, as :func:`save_mesh` writes it, needs no tidying); read only to be tidied. ``source``: the file's text with
+    newline line ends (:func:`_obj_newlines`), tidied so always. A face's relative indices where ``v`` lines follow
+    faces are made absolute too (:func:`_obj_absolute_indices`)."""
+    with _obj_mapped(file, source) as mapped:
+        if mapped is None:
             return None
-        with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as mapped:
-            loose = (mapped[:1] in (b" ", b"\t") or mapped.find(b"\t") >= 0
-                     or any(mapped.find(pair) >= 0 for pair in (b"\n ", b"\r ")))
-            comments = _obj_trailing_comment(mapped)
-            if not comments and not loose:
-                return None
-            data = mapped[:]
+        loose = (mapped[:1] in (b" ", b"\t") or mapped.find(b"\t") >= 0
+                 or any(mapped.find(pair) >= 0 for pair in (b"\n ", b"\r ")))
+        comments = _obj_trailing_comment(mapped)
+        if source is None and not comments and not loose:
+            return _obj_absolute_indices(mapped[:]) if _obj_relative_after_vertices(mapped) else None
+        data = mapped[:]
 
     def tidy(line: bytes) -> bytes:
         line = line.strip(b" \t").replace(b"\t", b" ")
@@ -2868,7 +2952,8 @@ def _obj_tidied(file: Path) -> bytes | None:
             line = line.split(b"#", 1)[0].rstrip(b" ")
         return line
 
-    return b"\n".join(tidy(line) for line in data.splitlines()) + b"\n"
+    tidied = b"\n".join(tidy(line) for line in data.splitlines()) + b"\n"
+    return _obj_absolute_indices(tidied) if _obj_relative_after_vertices(tidied) else tidied
 
 
 def _trimesh_read(load: Callable[..., Any], file: Path, data: bytes | None = None, **kwargs: Any) -> Any:
@@ -3381,49 +3466,47 @@ _OBJ_SHORT_VERTEX = re.compile(rb"^[ \t]*v[ \t]+(?:[^ \t\r\n#]+[ \t]+)?[^ \t\r\n
                                re.MULTILINE)
 
 
-def _check_obj_indices(file: Path) -> None:
+def _check_obj_indices(file: Path, source: bytes | None = None) -> None:
     """Raise a ValueError where a face of the OBJ ``file`` names index 0, which names nothing (OBJ counts from 1, and
     back from -1): trimesh's reader took it as the first vertex and shifted none of the others, so ``f 0 1 2`` read as
-    the degenerate face (0, 0, 1) without a word. Scanned without reading the file into memory."""
-    import mmap
-
-    with open(file, "rb") as stream:
-        if os.fstat(stream.fileno()).st_size == 0:
+    the degenerate face (0, 0, 1) without a word. Scanned without reading the file into memory (``source``: its text
+    with newline line ends, :func:`_obj_newlines`, scanned instead)."""
+    with _obj_mapped(file, source) as data:
+        if data is None:
             return
-        with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as data:
-            # from the first face: the vertices mostly come first, and their zeros are not looked at
-            at = 0 if data[:1] == b"f" else data.find(b"\nf")
-            while at >= 0:
-                found = _OBJ_ZERO.search(data, at)  # type: ignore[call-overload]
-                if found is None:
-                    return
-                start = data.rfind(b"\n", 0, found.start()) + 1
-                end = data.find(b"\n", found.end())
-                offset = found.start() - start
-                del found
-                text = data[start:end if end >= 0 else len(data)]
-                comment = text.find(b"#")  # f 1 2 3 # 0 apples: a zero in its comment names nothing
-                if text.lstrip()[:2] in (b"f ", b"f\t") and not 0 <= comment < offset:
-                    line = data[:start].count(b"\n") + 1  # a copy, on the way to the error only
-                    break
-                at = end
-            else:
+        # from the first face: the vertices mostly come first, and their zeros are not looked at
+        at = 0 if data[:1] == b"f" else data.find(b"\nf")
+        while at >= 0:
+            found = _OBJ_ZERO.search(data, at)  # type: ignore[call-overload]
+            if found is None:
                 return
+            start = data.rfind(b"\n", 0, found.start()) + 1
+            end = data.find(b"\n", found.end())
+            offset = found.start() - start
+            del found
+            text = data[start:end if end >= 0 else len(data)]
+            comment = text.find(b"#")  # f 1 2 3 # 0 apples: a zero in its comment names nothing
+            if text.lstrip()[:2] in (b"f ", b"f\t") and not 0 <= comment < offset:
+                line = data[:start].count(b"\n") + 1  # a copy, on the way to the error only
+                break
+            at = end
+        else:
+            return
     raise ValueError(f"line {line}, {text.decode('utf-8', 'replace').strip()!r}, names index 0, which names nothing: "
                      "an OBJ's indices count from 1 (or back from -1)")
 
 
-def _short_obj_vertex(file: Path) -> str:
-    """The first ``v`` line of the OBJ ``file`` with fewer than three coordinates, as ``" (line N, 'v 0 1')"``, or
-    ``""``."""
-    with open(file, "rb") as stream:
+def _short_obj_vertex(file: Path, source: bytes | None = None) -> str:
+    """The first ``v`` line of the OBJ ``file`` (or of ``source``, its text with newline line ends:
+    :func:`_obj_newlines`) with fewer than three coordinates, as ``" (line N, 'v 0 1')"``, or ``""``."""
+    with open(file, "rb") if source is None else io.BytesIO(source) as stream:
         for number, row in enumerate(stream, 1):
             if _OBJ_SHORT_VERTEX.match(row.rstrip(b"\n")):
                 return f" (line {number}, {row.decode('utf-8', 'replace').strip()!r})"
     return ""
 
 
-def _obj_faces_kind(file: Path) -> str:
+def _obj_faces_kind(file: Path, source: bytes | None = None) -> str:
     """How the OBJ ``file``'s faces are read, from one scan of it (mapped, not read into memory): ``"texture"`` where a
     face names a texture or normal index (``f 1/1 2/2 3/3``, ``f 1//1 ...``), or the file is empty (trimesh's
     reader, by default); else ``"vertices"`` where it has at most one ``usemtl``, before any face: what
@@ -3432,26 +3515,24 @@ def _obj_faces_kind(file: Path) -> str:
     ``maintain_order=True`` (by default it drops the vertices no face names, so ``stepterrain info`` counted fewer
     than were written, and a mesh read back was renumbered); with texture or normal indices that option takes one UV
     per vertex (a vertex on a UV seam got the median of its UVs) and lost the texture of a file with unused vertices,
-    and with several ``usemtl`` it repeated every vertex in each material's mesh."""
-    import mmap
-
-    with open(file, "rb") as stream:
-        if os.fstat(stream.fileno()).st_size == 0:
+    and with several ``usemtl`` it repeated every vertex in each material's mesh. ``source``: the file's text with
+    newline line ends (:func:`_obj_newlines`), scanned instead."""
+    with _obj_mapped(file, source) as data:  # no match object outlives it
+        if data is None:
             return "texture"
-        with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as data:  # no match object outlives it
-            if data.find(b"/") >= 0 and _OBJ_FACE_WITH_SLASH.search(data) is not None:  # type: ignore[call-overload]
-                return "texture"
-            if data.find(b"usemtl") < 0:
-                return "vertices"
-            first = _OBJ_USEMTL.search(data)  # type: ignore[call-overload]
-            if first is None:
-                return "vertices"
-            start, end = first.span()
-            del first
-            # one material, for every face: not a second usemtl, nor faces before this one (a group of their own)
-            one = (_OBJ_USEMTL.search(data, end) is None  # type: ignore[call-overload]
-                   and _OBJ_FACE.search(data, 0, start) is None)  # type: ignore[call-overload]
-            return "vertices" if one else "materials"
+        if data.find(b"/") >= 0 and _OBJ_FACE_WITH_SLASH.search(data) is not None:  # type: ignore[call-overload]
+            return "texture"
+        if data.find(b"usemtl") < 0:
+            return "vertices"
+        first = _OBJ_USEMTL.search(data)  # type: ignore[call-overload]
+        if first is None:
+            return "vertices"
+        start, end = first.span()
+        del first
+        # one material, for every face: not a second usemtl, nor faces before this one (a group of their own)
+        one = (_OBJ_USEMTL.search(data, end) is None  # type: ignore[call-overload]
+               and _OBJ_FACE.search(data, 0, start) is None)  # type: ignore[call-overload]
+        return "vertices" if one else "materials"
 
 
 #: the bytes an OBJ line's words are separated by (bytes.split's white space), as a table over the 256 byte values
@@ -4082,12 +4163,13 @@ def _metadata_from_pieces(pieces: Iterable[bytes]) -> dict[str, Any]:
     return value if isinstance(value, dict) else {}
 
 
-def _obj_metadata(file: Path) -> dict[str, Any]:
+def _obj_metadata(file: Path, source: bytes | None = None) -> dict[str, Any]:
     """The metadata :func:`save_mesh` wrote in the OBJ ``file``'s ``# stepterrain-metadata <piece>`` comments
-    (:func:`_metadata_pieces`), read from the comments and blank lines it starts with; {} without any."""
+    (:func:`_metadata_pieces`), read from the comments and blank lines it starts with; {} without any. ``source``:
+    the file's text with newline line ends (:func:`_obj_newlines`), read instead."""
     pieces: list[bytes] = []
     start = _OBJ_METADATA.encode("ascii")
-    with open(file, "rb") as stream:
+    with open(file, "rb") if source is None else io.BytesIO(source) as stream:
         while stream.tell() < _PLY_HEADER_LIMIT:
             line = stream.readline(1 << 20)
             if line.startswith(start):

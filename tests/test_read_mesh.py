@@ -493,3 +493,65 @@ def test_obj_chunk_faces_vectorised_and_as_a_reference_reads():
     assert _obj_chunk_faces(b"v 0 0 0\nf 1 2.5 3\n") is None  # not integers: trimesh's reader decides
     small, large = _python_calls(_obj_chunk_faces, text(50)), _python_calls(_obj_chunk_faces, text(5000))
     assert large < small + 50, (small, large)
+
+
+@pytest.mark.parametrize("form", ["vertices", "materials", "texture"])
+def test_obj_relative_indices_count_back_from_the_lines_before_the_face(tmp_path, form):
+    """An OBJ's negative index counts back from the ``v`` (``vt``, ``vn``) lines before its face (-1: the last one
+    defined so far, by the OBJ specification); trimesh's reader counted back from the file's end, so two objects each
+    of ``v v v f -3 -2 -1`` read as the second triangle twice ([[3, 4, 5], [3, 4, 5]]). One of faces of vertex
+    indices, one of several ``usemtl`` and one of UVs each read as the same file of positive indices does; an index
+    counting back past the file's start is refused by line."""
+    (tmp_path / "m.mtl").write_text("newmtl red\nKd 1 0 0\nnewmtl blue\nKd 0 0 1\n")
+    blocks = []
+    for k, material in enumerate(["red", "blue"]):
+        lines = [f"v {5 * k + x} {y} 0" for x, y in [(0, 0), (1, 0), (0, 1)]]
+        if form == "texture":
+            lines += [f"vt {u} {k}" for u in (0, 0.5, 1)]
+        if form == "materials":
+            lines.append(f"usemtl {material}")
+        corners = [str(-i) if form != "texture" else f"{-i}/{-i}" for i in (3, 2, 1)]
+        absolute = [str(3 * k + i) if form != "texture" else f"{3 * k + i}/{3 * k + i}" for i in (1, 2, 3)]
+        blocks.append((lines, corners, absolute))
+    head = "mtllib m.mtl\n" if form == "materials" else ""
+    relative = head + "".join("\n".join([*lines, "f " + " ".join(c)]) + "\n" for lines, c, _ in blocks)
+    plain = head + "".join("\n".join([*lines, "f " + " ".join(a)]) + "\n" for lines, _, a in blocks)
+    (tmp_path / "relative.obj").write_text(relative)
+    (tmp_path / "plain.obj").write_text(plain)
+    mesh, reference = read_mesh(tmp_path / "relative.obj"), read_mesh(tmp_path / "plain.obj")
+    assert np.array_equal(reference.faces, [[0, 1, 2], [3, 4, 5]])  # the reference itself
+    assert np.array_equal(mesh.vertices, reference.vertices) and np.array_equal(mesh.faces, reference.faces)
+    if form == "materials":
+        assert np.array_equal(mesh.visual.face_colors, [[255, 0, 0, 255], [0, 0, 255, 255]])
+    if form == "texture":
+        assert np.array_equal(mesh.visual.uv, reference.visual.uv)
+        assert np.array_equal(mesh.visual.uv[:, 1], [0, 0, 0, 1, 1, 1])
+    (tmp_path / "past.obj").write_text("v 0 0 0\nv 1 0 0\nf 1 2 2\nv 0 1 0\nf -4 -2 -1\n")
+    with pytest.raises(DataFileError, match=r"line 5, 'f -4 -2 -1', names v -4, and 3 v lines come before it"):
+        read_mesh(tmp_path / "past.obj")
+
+
+def test_obj_of_carriage_return_line_ends_reads_as_with_newlines(tmp_path):
+    """An OBJ whose lines end in a carriage return alone (classic Mac OS) was one line to trimesh's reader: one of
+    several materials read as an empty mesh, one of a single mesh was refused with NumPy's "could not be read to its
+    end". Each reads as the same file with newlines does (vertices, faces, material colours, metadata), and its
+    index 0 is refused by line as there."""
+    (tmp_path / "m.mtl").write_text("newmtl red\nKd 1 0 0\nnewmtl blue\nKd 0 0 1\n")
+    texts = {"materials": "# stepterrain-metadata {\"a\":1}\nmtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\n"
+                          "usemtl red\nf 1 2 3\nusemtl blue\nf 2 4 3\n",
+             "single": "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 7 7 7\nf 1 2 3\n",
+             "texture": "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\n"}
+    for name, text in texts.items():
+        (tmp_path / f"{name}.obj").write_text(text)
+        (tmp_path / f"{name}-cr.obj").write_bytes(text.replace("\n", "\r").encode())
+        mesh, reference = read_mesh(tmp_path / f"{name}-cr.obj"), read_mesh(tmp_path / f"{name}.obj")
+        assert len(reference.faces) > 0  # the reference itself
+        assert np.array_equal(mesh.vertices, reference.vertices) and np.array_equal(mesh.faces, reference.faces)
+        assert mesh.visual.kind == reference.visual.kind
+    assert np.array_equal(mesh.visual.uv, reference.visual.uv)
+    materials = read_mesh(tmp_path / "materials-cr.obj")
+    assert np.array_equal(materials.visual.face_colors, [[255, 0, 0, 255], [0, 0, 255, 255]])
+    assert materials.metadata["a"] == 1
+    (tmp_path / "zero.obj").write_bytes(b"v 0 0 0\rv 1 0 0\rv 0 1 0\rf 0 1 2\r")
+    with pytest.raises(DataFileError, match="line 4, 'f 0 1 2', names index 0"):
+        read_mesh(tmp_path / "zero.obj")
