@@ -3685,10 +3685,11 @@ _OFF_KEYWORD = re.compile(r"(ST)?(C)?(N)?(4)?(n)?OFF")
 
 def _off_keyword(file: Path) -> str | None:
     """The first word of the OFF ``file`` (its keyword, ``OFF``, ``COFF``, ...), comments and blank lines before it
-    skipped, read line by line: not the whole file."""
+    skipped, read line by line: not the whole file. A UTF-8 byte-order mark before it is skipped (it was read as part
+    of the keyword, so a COFF written with one lost its colours; trimesh's reader skips it)."""
     with open(file, "rb") as stream:
-        for raw in stream:
-            words = raw.split(b"#", 1)[0].split(maxsplit=1)
+        for number, raw in enumerate(stream):
+            words = raw.removeprefix(b"\xef\xbb\xbf" if number == 0 else b"").split(b"#", 1)[0].split(maxsplit=1)
             if words:
                 return words[0].decode("utf-8", "replace")
     return None
@@ -3710,9 +3711,10 @@ def _off_vertex_colors(file: Path, count: int) -> NDArray[np.uint8] | None:
         return None
     if keyword.group(4) or keyword.group(5):
         raise ValueError(f"an OFF of {head!r}, whose vertices have other than 3 coordinates, is not read")
-    text = file.read_bytes().decode("utf-8", "replace")
-    lines = [line.split("#", 1)[0].split() for line in text.splitlines()]
-    lines = [line for line in lines if line]
+    text = file.read_bytes().decode("utf-8", "replace").removeprefix("\ufeff")  # a byte-order mark, as the keyword's
+    numbered = [(number, line.split("#", 1)[0].split()) for number, line in enumerate(text.splitlines(), 1)]
+    numbered = [(number, line) for number, line in numbered if line]
+    lines = [line for _, line in numbered]
     rest = lines[0][1:] or (lines[1] if len(lines) > 1 else [])
     first = 1 if lines[0][1:] else 2
     rows = lines[first : first + count]
@@ -3725,7 +3727,19 @@ def _off_vertex_colors(file: Path, count: int) -> NDArray[np.uint8] | None:
                       stacklevel=caller_stacklevel())
         return None
     words = [row[skip : len(row) - tail] for row in rows]
-    values = np.array(words, dtype=np.float64)
+    try:
+        values = np.array(words, dtype=np.float64)
+    except ValueError:  # NumPy's "could not convert string to float: 'red'", which named no line
+        for (number, row), colour in zip(numbered[first : first + count], words, strict=True):
+            for word in colour:
+                try:
+                    float(word)
+                except ValueError:
+                    raise ValueError(
+                        f"line {number}, {' '.join(row)!r}: its colour {word!r} is not a number; a {head} vertex line "
+                        f"holds {skip} numbers (x y z{' nx ny nz' if skip > 3 else ''}), then an RGB or RGBA colour as "
+                        f"integers 0..255 or floats 0..1{', then s t' if tail else ''}") from None
+        raise
     floats = any(any(c in word for c in ".eE") for row in words for word in row)
     if floats:
         if not np.all((values >= 0) & (values <= 1)):

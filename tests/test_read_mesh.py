@@ -555,3 +555,21 @@ def test_obj_of_carriage_return_line_ends_reads_as_with_newlines(tmp_path):
     (tmp_path / "zero.obj").write_bytes(b"v 0 0 0\rv 1 0 0\rv 0 1 0\rf 0 1 2\r")
     with pytest.raises(DataFileError, match="line 4, 'f 0 1 2', names index 0"):
         read_mesh(tmp_path / "zero.obj")
+
+
+def test_off_byte_order_mark_keeps_colours_and_a_word_colour_is_named(tmp_path):
+    """A COFF written with a UTF-8 byte-order mark lost its colours (its keyword read as '\\ufeffCOFF', no OFF keyword;
+    trimesh's reader read the mesh): they come back as without it. A colour that is no number was refused with NumPy's
+    bare "could not convert string to float: 'red'": the error names the file, the line and what a vertex line holds."""
+    body = "COFF\n# c\n3 1 0\n0 0 0 255 0 0 255\n1 0 0 0 255 0 128\n0 1 0 0 0 255 255\n3 0 1 2\n"
+    (tmp_path / "plain.off").write_text(body)
+    (tmp_path / "bom.off").write_bytes(b"\xef\xbb\xbf" + body.encode())
+    mesh, reference = read_mesh(tmp_path / "bom.off"), read_mesh(tmp_path / "plain.off")
+    assert np.array_equal(reference.visual.vertex_colors, [[255, 0, 0, 255], [0, 255, 0, 128], [0, 0, 255, 255]])
+    assert np.array_equal(mesh.vertices, reference.vertices) and np.array_equal(mesh.faces, reference.faces)
+    assert np.array_equal(mesh.visual.vertex_colors, reference.visual.vertex_colors)
+    (tmp_path / "word.off").write_text(body.replace("0 255 0 128", "0 red 0 128"))
+    expected = (r"word\.off.*line 5, '1 0 0 0 red 0 128': its colour 'red' is not a number; a COFF vertex line "
+                r"holds 3 numbers \(x y z\), then an RGB or RGBA")
+    with pytest.raises(DataFileError, match=expected):
+        read_mesh(tmp_path / "word.off")
