@@ -2882,13 +2882,23 @@ def _obj_mapped(file: Path, source: bytes | None) -> Iterator[Any]:
 _OBJ_RELATIVE_FACE = re.compile(rb"^f [^\n#]*-", re.MULTILINE)
 
 
+def _obj_line_starting(data: Any, letter: bytes, start: int = 0) -> int:
+    """Where the first line from ``start`` of the OBJ text ``data`` (bytes or an mmap) that starts with ``letter``
+    begins, or -1: searched for the one byte (a search for a newline and the letter stopped at every line, twice as
+    slow as the file's other scans), each find not at a line's start passed over."""
+    at = data.find(letter, start)
+    while at > 0 and data[at - 1 : at] != b"\n":
+        at = data.find(letter, at + 1)
+    return at  # type: ignore[no-any-return]
+
+
 def _obj_relative_after_vertices(data: Any) -> bool:
     """Whether the OBJ text ``data`` (bytes or an mmap; its statements start their lines, as :func:`_obj_tidied`
     leaves them) has a face of a relative (negative) index and a ``v``, ``vt`` or ``vn`` line after its first face:
     there the index counts back from the lines before the face, not from the file's end. Byte searches; the face
     lines searched for a minus only in such a file."""
-    first = 0 if data[:2] == b"f " else data.find(b"\nf ")
-    if first < 0 or data.find(b"\nv", first) < 0:
+    first = _obj_line_starting(data, b"f")
+    if first < 0 or _obj_line_starting(data, b"v", first) < 0:
         return False
     return _OBJ_RELATIVE_FACE.search(data, first) is not None  # type: ignore[call-overload,no-any-return]
 
