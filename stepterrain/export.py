@@ -2615,7 +2615,12 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     separated by tabs reads as with single spaces (trimesh's reader skipped such lines: it came back empty, or as
     its first vertex alone), and a comment after a statement of numbers (``v 0 0 0 # a``, ``f 1 2 3 # x``) is dropped
     (trimesh's reader refused the file; a ``#`` in a name, ``usemtl Material#1``, stays in it: :func:`_obj_tidied`).
-    A COFF's vertex colours (trimesh's reader dropped them) come back as vertex colours, written as integers bytes
+    A face's negative index counts back from the ``v`` (``vt``, ``vn``) lines before it, as the OBJ specification
+    says (trimesh's reader counted back from the file's end: two objects of ``v v v f -3 -2 -1`` read as the second
+    triangle twice; :func:`_obj_absolute_indices`), and an OBJ whose lines end in a carriage return alone reads as
+    one with newlines (trimesh's reader read it as one line: an empty mesh; :func:`_obj_newlines`).
+    A COFF's vertex colours (trimesh's reader dropped them; a UTF-8 byte-order mark before its keyword skipped, and a
+    colour that is no number refused by line) come back as vertex colours, written as integers bytes
     and with a decimal point floats 0..1; integers of 0 and 1 only, which read either way, and vertex lines without
     a colour each or of colours of different lengths are dropped with a warning, the mesh read without them
     (:func:`_off_vertex_colors`). A PLY's triangle strips (a ``tristrips`` element and no ``face`` one, as the
