@@ -2617,8 +2617,9 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     (trimesh's reader refused the file; a ``#`` in a name, ``usemtl Material#1``, stays in it: :func:`_obj_tidied`).
     A face's negative index counts back from the ``v`` (``vt``, ``vn``) lines before it, as the OBJ specification
     says (trimesh's reader counted back from the file's end: two objects of ``v v v f -3 -2 -1`` read as the second
-    triangle twice; :func:`_obj_absolute_indices`), and an OBJ whose lines end in a carriage return alone reads as
-    one with newlines (trimesh's reader read it as one line: an empty mesh; :func:`_obj_newlines`).
+    triangle twice; :func:`_obj_absolute_indices`), and an OBJ whose lines end in a carriage return alone, or which
+    starts with a UTF-8 byte-order mark, reads as one with newlines and without it (trimesh's reader read the first
+    as one line, an empty mesh, and dropped the second's first vertex; :func:`_obj_newlines`).
     A COFF's vertex colours (trimesh's reader dropped them; a UTF-8 byte-order mark before its keyword skipped, and a
     colour that is no number refused by line) come back as vertex colours, written as integers bytes
     and with a decimal point floats 0..1; integers of 0 and 1 only, which read either way, and vertex lines without
@@ -2851,19 +2852,22 @@ _OBJ_LONE_CR = re.compile(rb"\r(?!\n)")
 
 def _obj_newlines(file: Path) -> bytes | None:
     """The OBJ ``file``'s text with each line's end a newline, where a line ends in a carriage return alone (classic
-    Mac OS's line ends, or such a line in another file), else None (its lines end in newlines, or CRLF, which trimesh's
-    reader reads). trimesh's reader splits lines at newlines only: a file of CR line ends was one line, read as an
-    empty mesh (or refused with NumPy's "could not be read to its end"), and this module's scans look for newlines
-    too. Decided by byte searches of the file mapped (a file without a carriage return is searched once)."""
+    Mac OS's line ends, or such a line in another file), and without the UTF-8 byte-order mark it starts with, if
+    any; else None (its lines end in newlines, or CRLF, which trimesh's reader reads). trimesh's reader splits lines
+    at newlines only: a file of CR line ends was one line, read as an empty mesh (or refused with NumPy's "could not
+    be read to its end"), and this module's scans look for newlines too; a byte-order mark made the first line no
+    statement (``v 0 0 0`` dropped: its faces named vertices one further on, or none). Decided by byte searches of
+    the file mapped (a file without a carriage return is searched once)."""
     import mmap
 
     with open(file, "rb") as stream:
         if os.fstat(stream.fileno()).st_size == 0:
             return None
         with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as mapped:
-            if mapped.find(b"\r") < 0 or _OBJ_LONE_CR.search(mapped) is None:  # type: ignore[call-overload]
+            mark = mapped[:3] == b"\xef\xbb\xbf"
+            if not mark and (mapped.find(b"\r") < 0 or _OBJ_LONE_CR.search(mapped) is None):  # type: ignore[call-overload]
                 return None
-            return b"\n".join(mapped[:].splitlines()) + b"\n"
+            return b"\n".join(mapped[3 if mark else 0 :].splitlines()) + b"\n"
 
 
 @contextlib.contextmanager

@@ -573,3 +573,15 @@ def test_off_byte_order_mark_keeps_colours_and_a_word_colour_is_named(tmp_path):
                 r"holds 3 numbers \(x y z\), then an RGB or RGBA")
     with pytest.raises(DataFileError, match=expected):
         read_mesh(tmp_path / "word.off")
+
+
+def test_obj_byte_order_mark_reads_as_without(tmp_path):
+    """An OBJ written with a UTF-8 byte-order mark before its first ``v`` line lost that vertex (trimesh's reader took
+    the line for no statement): its faces named the vertices one further on without a word (here (1, 0, 0), (0, 1,
+    0), (5, 5, 5)), or one past the end (an IndexError). It reads as without the mark."""
+    text = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 5 5 5\nf 1 2 3\n"
+    (tmp_path / "plain.obj").write_bytes(text)
+    (tmp_path / "mark.obj").write_bytes(b"\xef\xbb\xbf" + text)
+    mesh, reference = read_mesh(tmp_path / "mark.obj"), read_mesh(tmp_path / "plain.obj")
+    assert np.array_equal(reference.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0], [5, 5, 5]])  # the reference itself
+    assert np.array_equal(mesh.vertices, reference.vertices) and np.array_equal(mesh.faces, [[0, 1, 2]])
