@@ -2912,34 +2912,75 @@ def _obj_relative_after_vertices(data: Any) -> bool:
     return _OBJ_RELATIVE_FACE.search(data, first) is not None  # type: ignore[call-overload,no-any-return]
 
 
+#: how far :func:`_obj_absolute_indices` looks from a minus for its field's digits, and back for its word's start
+_OBJ_FIELD_REACH = 40
+
+
+def _obj_lines_starting(padded: NDArray[np.uint8], starts: NDArray[np.int64], keyword: bytes) -> NDArray[np.bool_]:
+    """Which of the lines at ``starts`` of an OBJ text (``padded``: its bytes and at least ``len(keyword)`` zeros)
+    start with ``keyword``."""
+    found = np.ones(len(starts), dtype=bool)
+    for k, byte in enumerate(keyword):
+        found &= padded[starts + k] == byte
+    return found
+
+
 def _obj_absolute_indices(data: bytes) -> bytes:
     """The OBJ text ``data`` (its statements starting their lines) with each face's relative indices (``f -3 -2 -1``,
     ``f -3/-3/-1 ...``: -1 is the last ``v``, ``vt`` or ``vn`` line before the face, by the OBJ specification) as the
     1-based indices they name. trimesh's reader counted them back from the file's end: two objects each of ``v v v
     f -3 -2 -1`` read as the second triangle twice. A ValueError names a line whose index counts back past the
-    file's start. A Python loop over the lines, for the files :func:`_obj_relative_after_vertices` finds only."""
-    counts = {b"v": 0, b"vt": 0, b"vn": 0}
-    lines = data.splitlines()
-    for number, line in enumerate(lines):
-        words = line.split()
-        if not words:
-            continue
-        if words[0] in counts:
-            counts[words[0]] += 1
-        elif words[0] == b"f" and b"-" in line:
-            for w, word in enumerate(words[1:], 1):
-                parts = word.split(b"/")
-                for k, (part, kind) in enumerate(zip(parts, (b"v", b"vt", b"vn"), strict=False)):
-                    if part.startswith(b"-") and part[1:].isdigit():
-                        index = counts[kind] + 1 + int(part)
-                        if index < 1:
-                            raise ValueError(f"line {number + 1}, {line.decode('utf-8', 'replace').strip()!r}, names "
-                                             f"{kind.decode()} {part.decode()}, and {counts[kind]} {kind.decode()} "
-                                             "lines come before it: a negative index counts back from them")
-                        parts[k] = str(index).encode("ascii")
-                words[w] = b"/".join(parts)
-            lines[number] = b" ".join(words)
-    return b"\n".join(lines) + b"\n"
+    file's start. Vectorised over the text's bytes (a Python loop over its lines took 3 s for 168,200 faces): each
+    minus of a face line that starts a field (after a blank or slash) and is followed by digits to the field's end
+    is a relative index, its field (v, vt or vn) counted by the slashes before it in its word; the text is the same
+    but for those fields."""
+    text = np.frombuffer(data, dtype=np.uint8)
+    size = len(text)
+    newlines = np.flatnonzero(text == ord("\n"))
+    starts = np.concatenate(([0], newlines + 1))
+    padded = np.concatenate((text, np.zeros(_OBJ_FIELD_REACH + 2, np.uint8)))  # zeros: no digit, no blank
+    kinds = [_obj_lines_starting(padded, starts, keyword) for keyword in (b"v ", b"vt ", b"vn ", b"f ")]
+    seen = np.stack([np.cumsum(kind) for kind in kinds[:3]])  # the v, vt, vn lines up to each line
+    minus = np.flatnonzero(text == ord("-"))
+    line = np.searchsorted(starts, minus, side="right") - 1
+    minus, line = minus[kinds[3][line]], line[kinds[3][line]]  # in face lines
+    reach = np.arange(1, _OBJ_FIELD_REACH + 1)
+    windows = np.lib.stride_tricks.sliding_window_view(padded, _OBJ_FIELD_REACH)
+    after = windows[minus + 1]  # the bytes after each minus
+    number = (after >= ord("0")) & (after <= ord("9"))
+    digits = np.argmin(number, axis=1)  # its digits (a zero byte ends them)
+    end = after[np.arange(len(minus)), digits]
+    before = np.concatenate((np.zeros(1, np.uint8), text))[minus]  # the byte before it
+    back = np.lib.stride_tricks.sliding_window_view(np.concatenate((np.zeros(_OBJ_FIELD_REACH, np.uint8), text)),
+                                                    _OBJ_FIELD_REACH)[minus][:, ::-1]  # the bytes before it, back
+    blank = _OBJ_BLANK[back]
+    word = np.argmax(blank, axis=1)  # the bytes back to the blank before its word
+    own = ((digits > 0) & (digits <= 18) & (_OBJ_BLANK[end] | (end == ord("/")) | (minus + 1 + digits >= size))
+           & (_OBJ_BLANK[before] | (before == ord("/"))) & blank.any(axis=1))  # -3, not 1-2 or -3x
+    slot = np.sum((back == ord("/")) & (reach - 1 < word[:, None]), axis=1)  # 0: v, 1: vt, 2: vn
+    own &= slot < 3
+    minus, line, digits, slot, after = minus[own], line[own], digits[own], slot[own], after[own]
+    if not len(minus):
+        return data
+    value = np.zeros(len(minus), dtype=np.int64)
+    for k in range(18):  # the fields' k-th digits, where they have one
+        value = np.where(k < digits, value * 10 + after[:, k] - ord("0"), value)
+    index = seen[slot, line] + 1 - value
+    if (index < 1).any():
+        bad = int(np.argmax(index < 1))
+        number, kind = int(line[bad]), ("v", "vt", "vn")[int(slot[bad])]
+        row = data[starts[number] : (newlines[number] if number < len(newlines) else size)]
+        raise ValueError(f"line {number + 1}, {row.decode('utf-8', 'replace').strip()!r}, names {kind} -{value[bad]}, "
+                         f"and {seen[slot[bad], number]} {kind} lines come before it: a negative index counts back "
+                         "from them")
+    width = np.searchsorted(_POWERS_OF_TEN, index, side="right")  # the digits of each index
+    owner = np.repeat(np.arange(len(index)), width)
+    place = np.repeat(width, width) - 1 - (np.arange(len(owner)) - np.repeat(np.cumsum(width) - width, width))
+    written = (index[owner] // _POWERS_OF_TEN[place] % 10 + ord("0")).astype(np.uint8)
+    removed = np.repeat(minus, 1 + digits) + (np.arange(int(np.sum(1 + digits)))
+                                             - np.repeat(np.cumsum(1 + digits) - 1 - digits, 1 + digits))
+    at = np.repeat(minus - (np.cumsum(1 + digits) - 1 - digits), width)  # each field's place once they are removed
+    return np.insert(np.delete(text, removed), at, written).tobytes()  # type: ignore[no-any-return]
 
 
 def _obj_tidied(file: Path, source: bytes | None = None) -> bytes | None:
@@ -3575,13 +3616,7 @@ def _obj_chunk_faces(data: bytes) -> tuple[list[bytes | None], list[NDArray[np.i
     ends = np.append(newlines, size)  # each line's newline (or the text's end)
     padded = np.concatenate((text, np.zeros(8, np.uint8)))
 
-    def starting(keyword: bytes) -> NDArray[np.bool_]:
-        found = np.ones(len(starts), dtype=bool)
-        for k, byte in enumerate(keyword):
-            found &= padded[starts + k] == byte
-        return found
-
-    vertex, face, usemtl = starting(b"v "), starting(b"f "), starting(b"usemtl ")
+    vertex, face, usemtl = (_obj_lines_starting(padded, starts, keyword) for keyword in (b"v ", b"f ", b"usemtl "))
     names: list[bytes | None] = [None]
     names += [bytes(data[start + 7 : end]).strip() for start, end in zip(starts[usemtl], ends[usemtl], strict=True)]
     seen = np.cumsum(vertex) - vertex  # the v lines before each line
