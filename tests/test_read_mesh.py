@@ -591,8 +591,8 @@ def test_obj_byte_order_mark_reads_as_without(tmp_path):
 def test_obj_absolute_indices_vectorised_and_as_a_reference_counts():
     """The relative indices of an OBJ whose ``v`` lines follow faces are made absolute by NumPy over its bytes (a
     Python loop over its lines took 3 s for 168,200 faces): as many calls for 5,000 faces as for 50 (the loop made
-    several a line), and each
-    index as a line-by-line count of the ``v``, ``vt`` and ``vn`` lines before it reads it (1-2 and -3x left)."""
+    several a line), and each index as a line-by-line count of the ``v``, ``vt`` and ``vn`` lines before it reads it
+    (1-2 and -3x left as they are)."""
     from stepterrain.export import _obj_absolute_indices
 
     rng = np.random.default_rng(11)
