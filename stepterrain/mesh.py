@@ -703,18 +703,19 @@ def close_solid(
     The base vertices follow the surface's order: one per column (the surface vertices that share it), in the order
     of each column's smallest surface vertex.
 
-    A foreign surface (a TIN read from a file) must be an oriented manifold with a boundary, else its solid would
-    leak or be wound inconsistently without a word: a face with a repeated vertex, an edge run the same way by two
-    faces (a face wound against its neighbour, a duplicate face, an edge of three or more faces) and a closed mesh
-    (no boundary edge: a solid already) are refused, by an InvalidInputError naming them (a sort of the directed
-    edges, O(F log F); :func:`~stepterrain.stepped.stepped` closes its own surfaces without it). So are, where some
-    faces face up and some down (each face's signed projected area, beyond its float32 rounding: 0.05 s per
-    million faces; the pieces then found by a sort of the edges), a closed piece beside open ones (a box beside a
-    TIN: its faces would be flattened onto the base twice over) and an overhang, a piece with faces facing against
-    the rest of it (it folds over itself: its solid would intersect itself), named by how many faces fold and the
-    first one's x, y. Holes, vertices no face uses, unmerged vertices (one copy per face) and several pieces are
-    closed as they are. Not detected: projections that overlap with no face turned over (two pieces one above the
-    other, a spiral ramp), whose solids intersect themselves too; the surface must be a height field's.
+    A foreign surface (a TIN read from a file) must be an oriented manifold with a boundary, else its solid would leak
+    or be wound inconsistently without a word: a face with a repeated vertex, an edge run the same way by two faces (a
+    face wound against its neighbour, a duplicate face, an edge of three or more faces) and a closed mesh (no boundary
+    edge: a solid already) are refused, by an InvalidInputError naming them (a sort of the directed edges, O(F log F);
+    :func:`~stepterrain.stepped.stepped` closes its own surfaces without it). So are, where some faces face up and some
+    down (each face's signed projected area, beyond its float32 rounding: 0.05-0.1 s per million faces; only then the
+    pieces, by a sort of the edges: about 1.5 s per million faces), a closed piece beside open ones (a box beside a TIN:
+    its faces would be flattened onto the base twice over) and an overhang, a piece with faces facing against the rest
+    of it (it folds over itself: its solid would intersect itself), named by how many faces fold and the first one's x,
+    y. Holes, vertices no face uses, unmerged vertices (one copy per face) and several pieces are closed as they are.
+    Not detected: projections that overlap with no face turned over (two pieces one above the other, a spiral ramp),
+    whose solids intersect themselves too, and an overhang of an unmerged surface (each face a piece of its own, turned
+    alone); the surface must be a height field's.
     """
     return _close_solid(vertices, faces, terrace_mask, floor, device, turn=True, check=True)
 
@@ -745,10 +746,11 @@ def _check_surface(faces: NDArray[np.int64], n: int) -> None:
 def _close_solid(vertices: Any, faces: Any, terrace_mask: Any, floor: float, device: wp.DeviceLike, turn: bool,
                  check: bool = False
                  ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.bool_], int, NDArray[np.int64]]:
-    """:func:`close_solid`; ``turn``: a clockwise surface is closed again with its faces reversed (once);
-    ``check``: the surface (a foreign one) is refused where it is no oriented manifold with a boundary
-    (:func:`_check_surface`; :func:`~stepterrain.stepped.stepped` passes its own surfaces, manifold by construction
-    once moved off the thresholds, unchecked)."""
+    """:func:`close_solid`; ``turn``: a clockwise surface is closed again with its faces reversed (once); ``check``: the
+    surface (a foreign one) is refused where it is no oriented manifold with a boundary (:func:`_check_surface`), has a
+    closed piece beside open ones or folds over itself, and its pieces facing down are turned each
+    (:func:`_orient_pieces`, with ``turn``; :func:`~stepterrain.stepped.stepped` passes its own surfaces, manifold by
+    construction once moved off the thresholds, unchecked)."""
     vertices = real_numbers(vertices, "vertices", "an (N, 3) array of x, y, z")
     faces = _face_indices(faces, len(vertices) if vertices.ndim else None)
     if vertices.ndim != 2 or vertices.shape[1] != 3:  # the kernels read them as flat rows of three

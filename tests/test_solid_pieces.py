@@ -27,6 +27,7 @@ from hypothesis import strategies as hs
 from stepterrain.errors import InvalidInputError
 from stepterrain.mesh import close_solid
 from tests.test_solid_foreign import _prism_volume, _tin
+from tests.test_solid_kernels import _surface
 
 
 def _close(vertices, faces, floor):
@@ -175,3 +176,25 @@ def test_pieces_that_touch_at_a_vertex_only_are_turned_each():
     mesh = trimesh.Trimesh(solid_vertices, solid_faces, process=False)
     assert mesh.is_watertight and mesh.is_winding_consistent
     assert mesh.volume == pytest.approx(_prism_volume(both, np.vstack([faces, second]), 0.0), rel=1e-5)
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=hs.integers(0, 2**31 - 1), rows=hs.integers(3, 8), cols=hs.integers(2, 5), which=hs.sampled_from([0, 1]))
+def test_a_stepped_surface_with_one_island_reversed_closes_as_the_surface_itself(seed, rows, cols, which):
+    """Two islands of a stepped surface (a nodata column between them), one reversed (its faces, walls included):
+    closed bit for bit as the surface as stepped (the reversed island turned back, the wall pairs read as the step
+    kernels emit them), with the warning."""
+    rng = np.random.default_rng(seed)
+    heights = rng.normal(0.0, 3.0, (rows, 2 * cols + 1)).cumsum(0).cumsum(1).astype(np.float32)
+    heights[:, cols] = np.nan
+    vertices, faces, terrace, floor = _surface(heights, interval=1.0)
+    island = np.all(vertices[faces][:, :, 0] > vertices[:, 0].min() + cols - 0.5, axis=1)
+    part = island if which else ~island
+    if not island.any() or island.all() or not np.any(terrace & part):
+        return
+    given_faces = faces.copy()
+    given_faces[part] = given_faces[part][:, ::-1]
+    want = close_solid(vertices, faces, terrace, floor)
+    with pytest.warns(UserWarning, match=r"1 piece of the surface's 2"):
+        got = close_solid(vertices, given_faces, terrace, floor)
+    assert all(np.array_equal(a, b) for a, b in zip(got, want, strict=True))
