@@ -561,21 +561,27 @@ def _face_areas(vertices: NDArray[np.float64], faces: NDArray[np.int64]) -> tupl
     there, e.g. a sliver a stepped surface's float32 crossings turned over). Vertical faces (walls) give 0."""
     x = np.ascontiguousarray(vertices[:, 0])  # columns gathered contiguous: 0.05 s per million faces, not 0.2 s
     y = np.ascontiguousarray(vertices[:, 1])
-    extent = max(float(np.ptp(x)), float(np.ptp(y))) if len(x) else 0.0
-    a, b, c = (np.ascontiguousarray(faces[:, k]) for k in range(3))
-    ax, ay = x[a], y[a]
-    bx, by, cx, cy = x[b], y[b], x[c], y[c]
-    bx -= ax
-    by -= ay
-    cx -= ax
-    cy -= ay
-    area = bx * cy
-    area -= by * cx
-    margin = np.abs(bx)
-    margin += np.abs(by)
-    margin += np.abs(cx)
-    margin += np.abs(cy)
-    margin *= 2.0**-20 * extent
+    scale = 2.0**-20 * (max(float(np.ptp(x)), float(np.ptp(y))) if len(x) else 0.0)
+    area = np.empty(len(faces))
+    margin = np.empty(len(faces))
+    step = 1 << 20  # by blocks of faces: a dozen temporaries of a block, not of the whole mesh (2.6 GB at 30 M faces)
+    for start in range(0, len(faces), step):
+        block = slice(start, start + step)
+        a, b, c = (np.ascontiguousarray(faces[block, k]) for k in range(3))
+        ax, ay = x[a], y[a]
+        bx, by, cx, cy = x[b], y[b], x[c], y[c]
+        bx -= ax
+        by -= ay
+        cx -= ax
+        cy -= ay
+        np.multiply(bx, cy, out=area[block])
+        area[block] -= by * cx
+        out = margin[block]
+        np.abs(bx, out=out)
+        out += np.abs(by)
+        out += np.abs(cx)
+        out += np.abs(cy)
+        out *= scale
     return area, margin
 
 
