@@ -623,11 +623,10 @@ def _orient_pieces(vertices: NDArray[np.float64], faces: NDArray[np.int64], area
     if not open_piece.all():
         closed = np.flatnonzero(~open_piece)
         face = int(np.argmax(~open_piece[label]))
+        in_closed = counted(int(np.count_nonzero(~open_piece[label])), 'face')
         return (f"faces: close_solid skirts a surface's boundary down to the floor; got "
-                f"{counted(len(closed), 'closed piece')} (no boundary edge: a solid already) beside "
-                f"{counted(int(open_piece.sum()), 'open one')}, "
-                f"{counted(int(np.count_nonzero(~open_piece[label])), 'face')} in all, {where(face)}; close or drop "
-                f"it first")
+                f"{counted(len(closed), 'closed piece')} ({in_closed}, no boundary edge: a solid already; "
+                f"{where(face)}) beside {counted(int(open_piece.sum()), 'open one')}: close the open pieces without it")
     up = np.bincount(label, weights=area, minlength=count) >= 0.0
     against = np.where(up[label], area < -margin, area > margin)
     if against.any():

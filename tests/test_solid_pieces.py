@@ -97,9 +97,9 @@ def test_a_closed_piece_beside_an_open_one_is_refused():
         both = np.vstack([vertices, box_vertices]), np.vstack([faces, np.asarray(closed.faces) + len(vertices)])
         for flip in (False, True):  # beside an open piece facing up, or down (turned alone, it still faces down)
             surface = both[1][:, ::-1] if flip else both[1]
-            message = (rf"faces: close_solid skirts a surface's boundary down to the floor; got 1 closed piece \(no "
-                       rf"boundary edge: a solid already\) beside 1 open one, {len(closed.faces)} faces in all, the "
-                       rf"first face {len(faces)} at x, y = ")
+            message = (rf"faces: close_solid skirts a surface's boundary down to the floor; got 1 closed piece "
+                       rf"\({len(closed.faces)} faces, no boundary edge: a solid already; the first face "
+                       rf"{len(faces)} at x, y = \S+, \S+\) beside 1 open one: close the open pieces without it")
             with pytest.raises(InvalidInputError, match=message):
                 _close(both[0], surface, 0.0)
     # two closed pieces and nothing open: a closed mesh, refused as before
