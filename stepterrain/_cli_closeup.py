@@ -107,7 +107,7 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--shape", choices=("circle", "rectangle", "rounded"), default="circle",
                    help="ROI shape from the library (default circle)")
     p.add_argument("--edge", type=_real, default=None, metavar="W",
-                   help="soft edge width in world units (default: a fifth of the radius)")
+                   help="soft edge width in world units, at most the ROI radius (default: a fifth of the radius)")
     p.add_argument("--scale", type=_floats(None, "s or sx,sy,sz"), action="append", metavar="s",
                    help="close-up scale: s or sx,sy,sz (default 1.5)")
     p.add_argument("--offset", type=_floats(3, "dx,dy,dz"), action="append", metavar="dx,dy,dz",
@@ -151,9 +151,12 @@ def add_parser(commands: Any) -> None:
                    help="write a spinning animation (beside -o or --png, or alone: the animation only)")
     p.add_argument("--spin", type=_spin, default=None, metavar="TURNS/S",
                    help="spin speed of the animation in turns per second, negative the other way, at most half a "
-                        "turn a frame: |TURNS/S| <= --fps / 2 (default 0.25)")
-    p.add_argument("--frames", type=_whole, default=None, metavar="N", help="animation frames (default 24)")
-    p.add_argument("--fps", type=_real, default=None, metavar="FPS", help="animation frame rate (default 12)")
+                        "turn a frame: |TURNS/S| <= --fps / 2 (default 0.25); with --gif only (the still render "
+                        "and the scene mesh show the close-ups before any spin)")
+    p.add_argument("--frames", type=_whole, default=None, metavar="N",
+                   help="animation frames (default 24); with --gif only")
+    p.add_argument("--fps", type=_real, default=None, metavar="FPS",
+                   help="animation frame rate (default 12); with --gif only")
     _add_camera(p, "the render and the animation (a .png --output, --png or --gif), framing the overview and "
                    "the close-ups")
     p.set_defaults(run=_run_closeup)
