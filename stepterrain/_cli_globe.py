@@ -178,7 +178,8 @@ def add_parser(commands: Any) -> None:
                    help="no view dependence: refine by the geometric error alone (--error in metres)")
     p.add_argument("--bounds", choices=("cone", "sphere"), default=None,
                    help="bounding shapes the distance and clip metrics measure: cone frustums (default) or "
-                        "spheres; with the camera")
+                        "spheres; with the camera and the distance or clip metric only (refused with --no-camera or "
+                        "--metrics geometric)")
     p.add_argument("--metrics", default=None, metavar="a,b,c",
                    help="metrics multiplied together (default geometric,distance,clip; with --no-camera geometric: "
                         "distance and clip need the camera)")

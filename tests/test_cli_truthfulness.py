@@ -31,6 +31,7 @@ def option_help(command: str, option: str) -> str:
     ("globe", "--view-angle", ["clip metric refines and culls", "--png render's: refused without either"]),
     ("globe", "--size", ["with --png", "clip metric's view", "refused without either"]),
     ("globe", "--error", ["with the distance metric", "else everywhere"]),  # it said "at the eye's altitude" always
+    ("globe", "--bounds", ["with the camera and the distance or clip metric only"]),
     ("globe", "--texture", ["refused with an .stl -o and no --png"]),
     # closeup refuses them with a mesh --output that cannot hold what they change and no render
     ("closeup", "--anchor", ["vertex alpha of a .glb, .gltf, .ply or .3mf", "refused with an .obj or .stl --output "
