@@ -151,8 +151,9 @@ def add_parser(commands: Any) -> None:
                    help="write a spinning animation (beside -o or --png, or alone: the animation only)")
     p.add_argument("--spin", type=_spin, default=None, metavar="TURNS/S",
                    help="spin speed of the animation in turns per second, negative the other way, at most half a "
-                        "turn a frame: |TURNS/S| <= --fps / 2 (default 0.25); with --gif only (the still render "
-                        "and the scene mesh show the close-ups before any spin)")
+                        "turn a frame: |TURNS/S| <= --fps / 2 (default 0.25); with --gif only, of 2 --frames or "
+                        "more (the still render, the scene mesh and the first frame show the close-ups before any "
+                        "spin)")
     p.add_argument("--frames", type=_whole, default=None, metavar="N",
                    help="animation frames (default 24); with --gif only")
     p.add_argument("--fps", type=_real, default=None, metavar="FPS",
@@ -260,7 +261,12 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         _check_fps(args.fps, anim.suffix.lower(), "--fps")
         if anim.suffix.lower() == ".mp4":  # refused here, not after rendering every frame
             _check_mp4_size(*args.size, "--size")
-    if anim is not None and abs(args.spin) > args.fps / 2:
+    if anim is not None and args.frames == 1 and "--spin" in unanimated:
+        # one frame, at time 0, before any turn: `--frames 1 --spin 0.5` wrote the animation `--frames 1` writes
+        raise InvalidInputError(f"--spin turns the close-ups from frame to frame; --frames 1 renders one, at time 0 "
+                                f"(before any turn): give --frames 2 or more, or leave --spin out; got --spin "
+                                f"{args.spin:g}")
+    if anim is not None and args.frames > 1 and abs(args.spin) > args.fps / 2:
         # a faster spin turns more than half a turn between frames: the animation shows it aliased (turning slower,
         # or backwards; at --fps turns per second it stands still), and 1e308 made every frame the same
         if "--spin" not in unanimated:  # the default spin at a slow --fps: not a --spin the user typed

@@ -41,7 +41,7 @@ def option_help(command: str, option: str) -> str:
     ("closeup", "--output", ["--anchor is refused with it unless --png or --gif",
                              "--colormap, --color, --scalars and --anchor are refused with it"]),
     ("closeup", "--edge", ["at most the ROI radius"]),
-    ("closeup", "--spin", ["with --gif only"]),
+    ("closeup", "--spin", ["with --gif only, of 2 --frames or more"]),
     ("closeup", "--frames", ["with --gif only"]),
     ("closeup", "--fps", ["with --gif only"]),
     ("steps", "--colormap", ["an .stl -o holds no colours: a colormap is refused there without --png"]),
@@ -157,3 +157,29 @@ def test_closeup_anchor_with_an_obj_output_alone_is_refused(tmp_path, capsys, pr
     assert objs["opaque"][0] == objs[preset][0]  # what --anchor changes, an OBJ drops
     if preset == "hidden":
         assert (objs["hidden"][1] < objs["opaque"][1]).any()
+
+
+def test_closeup_spin_with_one_frame_is_refused(tmp_path, capsys):
+    """``closeup --gif a.gif --frames 1 --spin 0.5`` wrote the animation of ``--frames 1``: its one frame is at time 0,
+    before any turn (animate_closeups: frame i at time i / fps). Refused by name now, before the DEM is read; and with
+    one frame the default spin is no longer refused as turning too fast for a slow --fps (``--frames 1 --fps 0.1``
+    was told "the default --spin 0.25 turns more than half a turn a frame", of a spin that never turns)."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.add.outer(np.linspace(0.0, 40.0, 24), np.linspace(0.0, 30.0, 28)).astype(np.float32))
+    gif = tmp_path / "a.gif"
+    code, _, err = run(capsys, "-q", "closeup", dem, "--gif", gif, "--frames", "1", "--spin", "0.5")
+    assert code == 2
+    assert err == ("stepterrain closeup: error: --spin turns the close-ups from frame to frame; --frames 1 renders "
+                   "one, at time 0 (before any turn): give --frames 2 or more, or leave --spin out; got --spin 0.5\n")
+    assert list(tmp_path.iterdir()) == [dem]
+
+
+@needs_render
+def test_closeup_one_frame_at_a_slow_fps_is_no_aliased_spin(tmp_path, capsys):
+    """The run ``--frames 1 --fps 0.1`` now makes: one still frame."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.add.outer(np.linspace(0.0, 40.0, 24), np.linspace(0.0, 30.0, 28)).astype(np.float32))
+    gif = tmp_path / "a.gif"
+    code, _, err = run(capsys, "-q", "closeup", dem, "--gif", gif, "--frames", "1", "--fps", "0.1", "--size", "96x72")
+    assert code == 0, err
+    assert gif.exists()
