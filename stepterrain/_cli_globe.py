@@ -453,10 +453,11 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     # names another body (Mars, the Moon: its radius, once the INPUT is read)
     radius = args.radius if args.radius is not None else _EARTH_RADIUS
     lat_deg, lon_deg = args.eye[:2] if args.eye is not None else (30.0, 10.0)
-    # the eye places the camera and the --png render: with --no-camera, no --png and no --eye (refused below as
-    # unused) nothing looks from it, and the default one, 3 radii up, was refused past the camera's bound (--radius
-    # 1e35 --no-camera, a radius the library takes)
-    eye_used = not args.no_camera or png is not None or args.eye is not None
+    # the eye places the camera and the --png render: with --no-camera or the geometric metric alone, no --png and no
+    # --eye (refused below as unused) nothing looks from it, and the default one, 3 radii up, was refused past the
+    # camera's bound (--radius 1e35 --no-camera, a radius the library takes; --metrics geometric --radius 1e30 until
+    # session 46)
+    eye_used = shaped or png is not None or args.eye is not None
     if not (-90.0 <= lat_deg <= 90.0):
         raise InvalidInputError(f"--eye latitude must lie in [-90, 90]; got {lat_deg}")
     if not (-360.0 <= lon_deg <= 360.0):  # look_from's bound, which named the library's 'longitude'
@@ -557,7 +558,10 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
                                     f"altitude is metres above the sphere of {sphere}): {exc}") from None
     shapes = f"{bounds}s, " if shaped else ""
     progress.stage("mesh", f"refining: error {args.error:g}, {shapes}metrics {','.join(metrics)}")
-    mesh = globe.mesh(error=args.error, camera=None if args.no_camera else camera, bounds=bounds,
+    # the camera only where a metric reads it (shaped): with the geometric metric alone it refined nothing, yet the
+    # mesh recorded its eye (metadata "eye"), and a glTF was stored relative to that eye, not to the mesh's centre
+    # (1 m of float32 rounding off on the globe of `--metrics geometric`, another file with --png than without)
+    mesh = globe.mesh(error=args.error, camera=camera if shaped else None, bounds=bounds,
                       metrics=metrics, cull=not args.no_cull)
     progress.done(f"{_counted(len(mesh.faces), 'triangle')}, {_counted(len(mesh.vertices), 'vertex', 'vertices')}")
     if len(mesh.faces) == 0 and camera is not None:  # an eye above the terrain looking down sees it: the --tilt

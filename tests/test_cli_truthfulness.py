@@ -183,3 +183,28 @@ def test_closeup_one_frame_at_a_slow_fps_is_no_aliased_spin(tmp_path, capsys):
     code, _, err = run(capsys, "-q", "closeup", dem, "--gif", gif, "--frames", "1", "--fps", "0.1", "--size", "96x72")
     assert code == 0, err
     assert gif.exists()
+
+
+def test_the_geometric_metric_alone_places_no_camera(tmp_path, capsys):
+    """With the geometric metric alone nothing looks from the eye without --png, yet the run placed the default one:
+    ``--metrics geometric --radius 1e30`` was refused as putting that eye (3 radii up) past the camera's bound, which
+    ``--no-camera --radius 1e30`` takes; and the mesh recorded the eye (metadata "eye"), a glTF stored relative to it
+    rather than to the mesh's centre (vertices 1 m apart from --no-camera's same mesh). Now the mesh is that of
+    --no-camera, metadata and glTF alike."""
+    grid = tmp_path / "g.npz"
+    np.savez(grid, elevation=np.add.outer(np.linspace(0.0, 900.0, 18), np.linspace(0.0, 500.0, 36)),
+             lat=np.linspace(85.0, -85.0, 18), lon=np.linspace(-175.0, 175.0, 36))
+    base = ["-q", "globe", grid, "--face-size", "9", "--device", "cpu"]
+    code, _, err = run(capsys, *base, "--metrics", "geometric", "--radius", "1e30", "-o", tmp_path / "far.ply")
+    assert code == 0, err
+    meshes = {}
+    for name, options in (("geometric", ["--metrics", "geometric"]), ("no-camera", ["--no-camera"])):
+        out = tmp_path / name / "g.glb"
+        out.parent.mkdir()
+        code, _, err = run(capsys, *base, *options, "-o", out)
+        assert code == 0, err
+        meshes[name] = st.export.read_mesh(out)
+    assert "eye" not in meshes["geometric"].metadata
+    assert np.array_equal(meshes["geometric"].faces, meshes["no-camera"].faces)
+    assert np.array_equal(meshes["geometric"].vertices, meshes["no-camera"].vertices)
+    assert meshes["geometric"].metadata == meshes["no-camera"].metadata
