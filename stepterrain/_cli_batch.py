@@ -150,7 +150,8 @@ def add_parser(commands: Any) -> None:
                    help="blend in [0, 1]: 0 = original surface, 1 = fully stepped (default 1)")
     p.add_argument("--colormap", default=None, metavar="NAME",
                    help="matplotlib colormap for level colors, or 'none' (default terrain, land part, as steps; "
-                        "none for --format .stl, which holds no colours); tiles, frames and the files of a folder "
+                        "none for --format .stl, which holds no colours: a colormap is refused there); tiles, "
+                        "frames and the files of a folder "
                         "share their levels, so a height has one colour in all of them (a folder's files are read "
                         "once more first, for their common height range, recorded for reruns)")
     p.add_argument("--solid", action="store_true", help="watertight solids (for .stl/.3mf printing)")

@@ -107,7 +107,7 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--shape", choices=("circle", "rectangle", "rounded"), default="circle",
                    help="ROI shape from the library (default circle)")
     p.add_argument("--edge", type=_real, default=None, metavar="W",
-                   help="soft edge width in world units (default: a fifth of the radius)")
+                   help="soft edge width in world units, at most the ROI radius (default: a fifth of the radius)")
     p.add_argument("--scale", type=_floats(None, "s or sx,sy,sz"), action="append", metavar="s",
                    help="close-up scale: s or sx,sy,sz (default 1.5)")
     p.add_argument("--offset", type=_floats(3, "dx,dy,dz"), action="append", metavar="dx,dy,dz",
@@ -121,21 +121,26 @@ def add_parser(commands: Any) -> None:
                    help="the close-up shows the stepped terrain at this interval (a mapping of its own: multi-pass "
                         "forward rendering, MPFR); 0: continuous")
     p.add_argument("--anchor", default=None, metavar="PRESET",
-                   help="anchor transparency: opaque, linear, inverse, ends, hidden (default linear)")
+                   help="anchor transparency: opaque, linear, inverse, ends, hidden (default linear); in the renders "
+                        "(a .png --output, --png, --gif) and the vertex alpha of a .glb, .gltf, .ply or .3mf "
+                        "--output: refused with an .obj or .stl --output alone, which hold no alpha")
     p.add_argument("--billboard", action="store_true",
                    help="overview-independent close-ups: orthographic, seen from above; in the renders (a .png "
                         "--output, --png, --gif) only, not in a scene mesh --output")
     p.add_argument("--scalars", choices=("height", "slope", "aspect", "none"), default=None,
-                   help="overview data mapping (default height)")
+                   help="overview data mapping (default height): its colours, in the renders and a mesh --output's "
+                        "vertex colours: refused with an .stl --output alone, which holds no colours")
     p.add_argument("--colormap", default=None, metavar="NAME",
-                   help="matplotlib colormap of the overview and the stepped close-ups (default terrain)")
+                   help="matplotlib colormap of the overview and the stepped close-ups (default terrain): refused "
+                        "with --scalars none and no --stepped close-up, which leave it nothing to colour")
     p.add_argument("--z-scale", type=_real, default=None, metavar="S",
                    help="vertical exaggeration of the render and the animation (default 2)")
     _add_device(p)
     p.add_argument("-o", "--output", type=_path, metavar="OUT",
                    help="the rendered image (.png), or the scene as a mesh by extension: " + " ".join(MESH_EXTENSIONS)
                    + " (overview, close-ups and anchors with vertex colors, the anchors' transparency in their "
-                     "alpha; .obj holds RGB only, the anchors opaque; .stl holds no colors: --colormap and --color are "
+                     "alpha; .obj holds RGB only, the anchors opaque: --anchor is refused with it unless --png or "
+                     "--gif renders them; .stl holds no colors: --colormap, --color, --scalars and --anchor are "
                      "refused with it unless --png or --gif renders them); optional with --png or --gif")
     p.add_argument("--png", type=_path, metavar="OUT.png",
                    help="write the render here: beside a mesh --output, or alone without -o (a render-only run, as "
@@ -146,9 +151,13 @@ def add_parser(commands: Any) -> None:
                    help="write a spinning animation (beside -o or --png, or alone: the animation only)")
     p.add_argument("--spin", type=_spin, default=None, metavar="TURNS/S",
                    help="spin speed of the animation in turns per second, negative the other way, at most half a "
-                        "turn a frame: |TURNS/S| <= --fps / 2 (default 0.25)")
-    p.add_argument("--frames", type=_whole, default=None, metavar="N", help="animation frames (default 24)")
-    p.add_argument("--fps", type=_real, default=None, metavar="FPS", help="animation frame rate (default 12)")
+                        "turn a frame: |TURNS/S| <= --fps / 2 (default 0.25); with --gif only, of 2 --frames or "
+                        "more (the still render, the scene mesh and the first frame show the close-ups before any "
+                        "spin)")
+    p.add_argument("--frames", type=_whole, default=None, metavar="N",
+                   help="animation frames (default 24); with --gif only")
+    p.add_argument("--fps", type=_real, default=None, metavar="FPS",
+                   help="animation frame rate (default 12); with --gif only")
     _add_camera(p, "the render and the animation (a .png --output, --png or --gif), framing the overview and "
                    "the close-ups")
     p.set_defaults(run=_run_closeup)
@@ -220,6 +229,14 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
             raise InvalidInputError(f"an .stl --output holds no colours: got {' and '.join(given)} (colouring the "
                                     f"scene and its renders) with --output {args.output!r} and no --png or --gif; "
                                     "write .glb, .ply or .3mf for colours, or leave them out")
+    if (mesh_out is not None and mesh_out.suffix.lower() == ".obj" and picture is None and anim is None
+            and args.anchor is not None):
+        # an OBJ's `v x y z r g b` lines hold no alpha, the anchors' opacity: `-o scene.obj --anchor hidden` wrote the
+        # file every other preset writes (byte for byte) and said nothing
+        raise InvalidInputError(f"an .obj --output holds RGB only, the anchors opaque: got --anchor {args.anchor} (the "
+                                f"anchors' opacity, in the vertex alpha of the other formats and in the renders) "
+                                f"with --output {args.output!r} and no --png or --gif; write .glb, .ply or .3mf for "
+                                "the anchors' opacity, or leave --anchor out")
     if anim is not None and anim.suffix.lower() == ".mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
         raise MissingDependencyError("MP4 output needs imageio-ffmpeg: pip install 'stepterrain[video]'")
     render_options = _given(args, {"z_scale": 2.0, "size": (1280, 720), "camera": "oblique"})
@@ -244,7 +261,12 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         _check_fps(args.fps, anim.suffix.lower(), "--fps")
         if anim.suffix.lower() == ".mp4":  # refused here, not after rendering every frame
             _check_mp4_size(*args.size, "--size")
-    if anim is not None and abs(args.spin) > args.fps / 2:
+    if anim is not None and args.frames == 1 and "--spin" in unanimated:
+        # one frame, at time 0, before any turn: `--frames 1 --spin 0.5` wrote the animation `--frames 1` writes
+        raise InvalidInputError(f"--spin turns the close-ups from frame to frame; --frames 1 renders one, at time 0 "
+                                f"(before any turn): give --frames 2 or more, or leave --spin out; got --spin "
+                                f"{args.spin:g}")
+    if anim is not None and args.frames > 1 and abs(args.spin) > args.fps / 2:
         # a faster spin turns more than half a turn between frames: the animation shows it aliased (turning slower,
         # or backwards; at --fps turns per second it stands still), and 1e308 made every frame the same
         if "--spin" not in unanimated:  # the default spin at a slow --fps: not a --spin the user typed

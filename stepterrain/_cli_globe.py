@@ -155,25 +155,31 @@ def add_parser(commands: Any) -> None:
                         "names when it is not the earth (Mars: IAU_2015:49900, a GEOGCS of Mars 2000; the Moon: "
                         "IAU_2015:30100); else the earth's, 6371000)")
     p.add_argument("--error", type=_real, default=500.0, metavar="E",
-                   help="metres of error tolerated at the eye's altitude (grows with distance squared); "
-                        "0 = full resolution where visible (default 500)")
+                   help="metres of error tolerated: at the eye's altitude with the distance metric (growing with "
+                        "distance squared), else everywhere (the geometric error alone); 0 = full resolution where "
+                        "visible (default 500)")
     p.add_argument("--eye", type=_floats(3, "lat,lon,altitude (degrees, degrees, metres)"),
                    default=None, metavar="LAT,LON,ALT",
                    help="eye position: latitude, longitude (degrees) and altitude (metres above the sphere, and "
                         "above the terrain there: negative over land or sea floor below it, such as the Dead Sea); "
-                        "default 30,10,3R, R the --radius (the whole globe in view)")
+                        "default 30,10,3R, R the --radius (the whole globe in view); read by the distance and clip "
+                        "metrics and the --png render: refused without one of them (--no-camera, or --metrics "
+                        "geometric alone, and no --png)")
     p.add_argument("--tilt", type=_real, default=None, metavar="DEG",
-                   help="tilt of the view from straight down, in [0, 90) degrees (default 0)")
+                   help="tilt of the view from straight down, in [0, 90) degrees (default 0); the view of the clip "
+                        "metric and the --png render: refused without either")
     p.add_argument("--heading", type=_real, default=None, metavar="DEG",
-                   help="direction of the tilt, degrees clockwise from north; whole turns are taken off (default 0)")
+                   help="direction of the tilt, degrees clockwise from north; whole turns are taken off (default "
+                        "0); the view of the clip metric and the --png render: refused without either")
     p.add_argument("--view-angle", type=_real, default=None, metavar="DEG",
-                   help="vertical field of view of the eye in [1e-08, 179] degrees (default 30): the view the mesh "
-                        "is refined and culled for, and the --png render's")
+                   help="vertical field of view of the eye in [1e-08, 179] degrees (default 30): the view the clip "
+                        "metric refines and culls the mesh for, and the --png render's: refused without either")
     p.add_argument("--no-camera", action="store_true",
                    help="no view dependence: refine by the geometric error alone (--error in metres)")
     p.add_argument("--bounds", choices=("cone", "sphere"), default=None,
                    help="bounding shapes the distance and clip metrics measure: cone frustums (default) or "
-                        "spheres; with the camera")
+                        "spheres; with the camera and the distance or clip metric only (refused with --no-camera or "
+                        "--metrics geometric)")
     p.add_argument("--metrics", default=None, metavar="a,b,c",
                    help="metrics multiplied together (default geometric,distance,clip; with --no-camera geometric: "
                         "distance and clip need the camera)")
@@ -184,7 +190,8 @@ def add_parser(commands: Any) -> None:
                         "file georeferenced from 0 to 360 is shifted, one regional or projected refused) draped by "
                         "latitude and longitude: "
                         "embedded as the mesh's texture in .glb/.gltf/.obj and drawn as a texture in the --png "
-                        "render, as vertex colours in .ply/.3mf; default: colours by elevation")
+                        "render, as vertex colours in .ply/.3mf (an .stl holds no colours: refused with an .stl -o "
+                        "and no --png); default: colours by elevation")
     _add_device(p)
     p.add_argument("-o", "--output", type=_path, metavar="OUT",
                    help="mesh file; format by extension: " + " ".join(MESH_EXTENSIONS)
@@ -192,7 +199,8 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--png", type=_path, metavar="OUT.png",
                    help="write an off-screen render from the eye (beside the mesh, or alone without -o)")
     p.add_argument("--size", type=_window, default=None, metavar="WxH",
-                   help="render size, and the view's aspect with the camera (default 1280x800)")
+                   help="render size with --png, and the aspect of the clip metric's view (default 1280x800): "
+                        "refused without either")
     p.set_defaults(run=_run_globe)
 
 
@@ -445,10 +453,11 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     # names another body (Mars, the Moon: its radius, once the INPUT is read)
     radius = args.radius if args.radius is not None else _EARTH_RADIUS
     lat_deg, lon_deg = args.eye[:2] if args.eye is not None else (30.0, 10.0)
-    # the eye places the camera and the --png render: with --no-camera, no --png and no --eye (refused below as
-    # unused) nothing looks from it, and the default one, 3 radii up, was refused past the camera's bound (--radius
-    # 1e35 --no-camera, a radius the library takes)
-    eye_used = not args.no_camera or png is not None or args.eye is not None
+    # the eye places the camera and the --png render: with --no-camera or the geometric metric alone, no --png and no
+    # --eye (refused below as unused) nothing looks from it, and the default one, 3 radii up, was refused past the
+    # camera's bound (--radius 1e35 --no-camera, a radius the library takes; --metrics geometric --radius 1e30 until
+    # session 46)
+    eye_used = shaped or png is not None or args.eye is not None
     if not (-90.0 <= lat_deg <= 90.0):
         raise InvalidInputError(f"--eye latitude must lie in [-90, 90]; got {lat_deg}")
     if not (-360.0 <= lon_deg <= 360.0):  # look_from's bound, which named the library's 'longitude'
@@ -489,10 +498,24 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
                        "error alone)", "with --no-camera and no --png")
     elif "clip" not in metrics and png is None:
         # the view's direction, angle and aspect make the clip metric's (and the culling's) planes alone; the
-        # geometric and distance metrics read the eye's position: `--metrics geometric,distance --tilt 30` wrote the
-        # mesh that run writes without --tilt, and said nothing
-        _refuse_unused([o for o in unused if o != "--eye"], "the clip metric or a --png render (the geometric and "
-                       "distance metrics read only the --eye position)", f"with --metrics {args.metrics} and no --png")
+        # distance metric reads the eye's position alone: `--metrics geometric,distance --tilt 30` wrote the mesh
+        # that run writes without --tilt, and said nothing. The geometric metric reads nothing of the view (each
+        # node's own error, kernels/bounds.py refine_node): `--metrics geometric --eye 46,9,400000` wrote the mesh
+        # of `--metrics geometric`, and the message of the others said the geometric metric read the eye
+        got = f"with --metrics {args.metrics} and no --png"
+        if "distance" in metrics:
+            _refuse_unused([o for o in unused if o != "--eye"], "the clip metric or a --png render (the distance "
+                           "metric reads only the --eye position)", got)
+        elif unused:  # the geometric metric alone
+            view = [o for o in unused if o != "--eye"]
+            parts = ["--eye applies only with the distance or clip metric or a --png render"] * ("--eye" in unused)
+            if view:
+                names = " and ".join([", ".join(view[:-1]), view[-1]] if len(view) > 1 else view)
+                parts.append(f"{names} {'apply' if len(view) > 1 else 'applies'} only with the clip metric or a "
+                             "--png render")
+            them = "it" if len(unused) == 1 else "them"
+            raise InvalidInputError(f"{'; '.join(parts)} (the geometric metric measures each node's own error, "
+                                    f"nothing of the view); got {them} {got}")
     if png is not None:
         render.require_offscreen()
     # the image before the work: a missing, unreadable or non-image --texture failed after the globe was built
@@ -535,7 +558,10 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
                                     f"altitude is metres above the sphere of {sphere}): {exc}") from None
     shapes = f"{bounds}s, " if shaped else ""
     progress.stage("mesh", f"refining: error {args.error:g}, {shapes}metrics {','.join(metrics)}")
-    mesh = globe.mesh(error=args.error, camera=None if args.no_camera else camera, bounds=bounds,
+    # the camera only where a metric reads it (shaped): with the geometric metric alone it refined nothing, yet the
+    # mesh recorded its eye (metadata "eye"), and a glTF was stored relative to that eye, not to the mesh's centre
+    # (1 m of float32 rounding off on the globe of `--metrics geometric`, another file with --png than without)
+    mesh = globe.mesh(error=args.error, camera=camera if shaped else None, bounds=bounds,
                       metrics=metrics, cull=not args.no_cull)
     progress.done(f"{_counted(len(mesh.faces), 'triangle')}, {_counted(len(mesh.vertices), 'vertex', 'vertices')}")
     if len(mesh.faces) == 0 and camera is not None:  # an eye above the terrain looking down sees it: the --tilt
@@ -591,7 +617,8 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
             metadata["radius"] = radius
         if shaped:  # the bounding shapes the distance and clip metrics measured
             metadata["bounds"] = bounds
-        if not args.no_camera:  # the eye the mesh was refined for (with --no-camera it only places a --png)
+        if shaped:  # the eye the mesh was refined for (with --no-camera or the geometric metric alone it only places
+            # a --png: the default eye was recorded for `--metrics geometric`, which reads nothing of it)
             metadata["eye_lat_lon_alt"] = [lat_deg, lon_deg, altitude]
         mesh.metadata.pop("node_entry", None)
         # a view's glTF stored relative to the eye its mesh records (metadata["eye"]), as save_mesh's default takes

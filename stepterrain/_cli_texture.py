@@ -104,12 +104,14 @@ def add_parser(commands: Any) -> None:
                         "--occlusion still darken")
     p.add_argument("--azimuth", type=_real, default=None, metavar="DEG",
                    help="light azimuth, degrees clockwise from north (default 315); multidirectional shades by its "
-                        "four fixed lights, so there it aims --shadows only")
+                        "four fixed lights and --hillshade none by none, so there it aims --shadows only (refused "
+                        "without them)")
     p.add_argument("--altitude", type=_real, default=None, metavar="DEG",
-                   help="light altitude above the horizon in [0, 90] degrees (default 45); igor ignores it, so "
-                        "there it aims --shadows only")
+                   help="light altitude above the horizon in [0, 90] degrees (default 45); igor and --hillshade "
+                        "none ignore it, so there it aims --shadows only (refused without them)")
     p.add_argument("--z-factor", type=_real, default=None, metavar="Z",
-                   help="vertical exaggeration of the shading (default 1)")
+                   help="vertical exaggeration of the shading (default 1); with --hillshade none only with --shadows, "
+                        "--occlusion or --normals, which use the relief")
     p.add_argument("--shadows", action="store_true",
                    help="self-shadowing by the full-resolution terrain (default off; the library's topographic_layer "
                         "casts them by default, shadows=True)")

@@ -746,9 +746,11 @@ def _add_steps(commands: Any) -> None:
                    help="blend in [0, 1]: 0 = original surface, 1 = fully stepped (default 1)")
     lens = p.add_mutually_exclusive_group()
     lens.add_argument("--lens", type=_floats(3, "x,y,r"), metavar="x,y,r",
-                      help="circular lens in world coordinates: original terrain inside, steps outside")
+                      help="circular lens in world coordinates: original terrain inside, steps outside (--gamma's; "
+                           "with --gamma 0 the terrain is original everywhere: refused)")
     lens.add_argument("--lens-relative", type=_floats(3, "fx,fy,fr"), metavar="fx,fy,fr",
-                      help="lens centre as fractions of the extent, radius as a fraction of its shorter side")
+                      help="lens centre as fractions of the extent, radius as a fraction of its shorter side (as "
+                           "--lens: refused with --gamma 0)")
     p.add_argument("--lens-edge", type=_real, metavar="W", help="width of the lens' soft edge (default r/4)")
     p.add_argument("--solid", action="store_true",
                    help="close into a watertight solid (side skirts and a base)")
@@ -756,13 +758,15 @@ def _add_steps(commands: Any) -> None:
                    help="base height of --solid (default one --interval below the lowest isovalue or surface "
                         "point, whichever is lower; with --levels a tenth of their span, at least 0.1, below it)")
     p.add_argument("--colormap", default=None, metavar="NAME",
-                   help="matplotlib colormap for the level colors, or 'none' (default terrain, land part)")
+                   help="matplotlib colormap for the level colors, or 'none' (default terrain, land part); an .stl -o "
+                        "holds no colours: a colormap is refused there without --png")
     _add_device(p)
     p.add_argument("-o", "--output", type=_path, metavar="OUT",
                    help="mesh file; format by extension: " + " ".join(MESH_EXTENSIONS)
                         + " (optional with --png: a render-only run writes no mesh)")
     p.add_argument("--print-size", type=_real, default=None, metavar="MM",
-                   help="scale the mesh file for a 3D print: its longer horizontal side MM long (millimetres, as "
+                   help="scale the mesh file (-o, required) for a 3D print: its longer horizontal side MM long "
+                        "(millimetres, as "
                         "slicers read .stl and .3mf), its lowest corner at 0,0,0 (the base of --solid on z = 0); "
                         "the mesh is no longer georeferenced (its metadata 'print' maps it back); with --solid "
                         "(a surface alone is no printable solid: a warning says so)")
@@ -1455,6 +1459,18 @@ _PYTHON_ONLY = (_STL_OPEN_LOCAL, _STL_ROUNDING_LOCAL)
 #: closeup's ``closeups[k]: ROI box ...``: the k-th ROI (counted from 1), given by --roi or --roi-relative.
 _CLOSEUP_INDEX = re.compile(r"^closeups\[(\d+)\]: (?=ROI box)")
 
+#: closeup's ``closeups[k]`` in mid-message (closeup._check_framed's "because closeups[0] (offset (0.0, 0.0, 1e9)) is
+#: drawn ..."), with the offset it names when it does: the k-th close-up (counted from 1) and its --offset.
+_CLOSEUP_NAMED = re.compile(r"closeups\[(\d+)\](?: \(offset \(([^()]*)\)\))?")
+
+
+def _closeup_named(match: re.Match[str]) -> str:
+    """A :data:`_CLOSEUP_NAMED` match in the CLI's terms: ``close-up 1``, ``close-up 1 (--offset 0,0,1e+09)``."""
+    named = f"close-up {int(match.group(1)) + 1}"
+    if match.group(2) is None:
+        return named
+    return f"{named} (--offset {','.join(f'{float(v):g}' for v in match.group(2).split(','))})"
+
 #: A library argument named anywhere in a message, as a whole word: ``name=`` (``needs interval= or levels=``,
 #: ``got interval=5``) or a snake_case name (``use a smaller face_size``). A plain word is not taken for an argument
 #: in mid-sentence ("gives 2000 levels"); quoted text, paths and ``name[k]`` are left as they are.
@@ -1513,6 +1529,8 @@ def _as_option(message: str, sub: argparse.ArgumentParser | None) -> str:
     text = _leading_as_option(message, sub, command)
     for phrase, spelled in _OPTION_PHRASES.get(command, {}).items():
         text = text.replace(phrase, spelled)
+    if command == "closeup":  # the library's closeups[k] anywhere else: a Python argument no option names
+        text = _CLOSEUP_NAMED.sub(_closeup_named, text)
     if text.startswith("--device must be one of "):  # the library's device=None is the option left out here
         text = text.replace(" (or None); got", ", or left out for Warp's default; got", 1)
     return text

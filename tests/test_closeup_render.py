@@ -360,10 +360,11 @@ def test_cli_closeup_a_huge_spin_is_no_overflow(dem, tmp_path, capsys):
     """The spin's repetitions ceil(|spin| * frames / fps) overflowed to inf: an OverflowError traceback, exit 1
     (without --gif too, where --spin is refused now: it does nothing there). A spin of more than half a turn a frame
     is refused now, before any work (1e308 made every frame after the first the same); the largest one taken makes
-    the animation."""
+    the animation. (Two frames: --spin with --frames 1, one frame at time 0 before any turn, is refused as doing
+    nothing, see test_cli_truthfulness.py.)"""
     out, gif = tmp_path / "scene.ply", tmp_path / "spin.gif"
     argv = ["-q", "closeup", str(dem), "--roi-relative", "0.5,0.5,0.2", "-o", str(out), "--gif", str(gif),
-            "--frames", "1", "--size", "160x120", "--device", "cpu"]
+            "--frames", "2", "--size", "160x120", "--device", "cpu"]
     assert cli.main([*argv, "--spin", "1e308"]) == 2
     err = capsys.readouterr().err
     assert "--spin must be at most half a turn a frame" in err and "Traceback" not in err, err
