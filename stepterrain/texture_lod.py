@@ -2461,13 +2461,18 @@ def render_with_textures(
         # a leaf is not split: one coarser than its depth is a single cell (both its sides <= 1 cell), no node between
         split = {n for node, sides in zip(cut, seams, strict=True) for n in sides
                  if n is not None and n.children and node.depth - n.depth > 1}
-        for node, sides in zip(cut, seams, strict=True):  # γ of e(N) + the seam error: the coarser neighbour splits
+        checks = []  # γ of e(N) + the seam error, measured together: over γ_user, the coarser neighbour splits
+        for node, sides in zip(cut, seams, strict=True):
             seam = max((node._seam_error(k) for k, n in enumerate(sides) if n is not None), default=0.0)
             if seam > 0.0 and (node, seam) not in within:
-                if _geometric_error_in(node, camera, visits[node].view, node.error + seam) > gamma_user:
-                    split.update(n for n in sides if n is not None and n.children)
-                else:  # (a patch stays drawn over passes, its coarser neighbours too: measured once)
-                    within.add((node, seam))
+                checks.append((node, sides, seam))
+        for (node, sides, seam), gamma in zip(checks, _geometric_errors_in(
+                camera, [visits[node].view for node, _, _ in checks],  # type: ignore[union-attr]
+                [node.error + seam for node, _, seam in checks]), strict=True):
+            if gamma > gamma_user:
+                split.update(n for n in sides if n is not None and n.children)
+            else:  # (a patch stays drawn over passes, its coarser neighbours too: measured once)
+                within.add((node, seam))
         split -= forced
         if not split:
             break
