@@ -214,9 +214,14 @@ class Camera:
 
     def box_visible(self, box: NDArray[np.float64]) -> bool:
         """Whether the axis-aligned box [(min), (max)] may intersect the view frustum (conservative)."""
-        box = _box(box)
+        return bool(self._boxes_visible(_box(box)[None])[0])
+
+    @cached_property
+    def _cull_planes(self) -> list[tuple[NDArray[np.float64], float]]:
+        """:meth:`box_visible`'s six planes, (inward unit normal, offset): a box is out of view where its corner
+        farthest along one plane's normal lies below the offset. Computed once per camera (they were computed anew for
+        every box: a fifth of a texture LOD render)."""
         forward, right, up = self.frame()
-        eye = np.asarray(self.eye, dtype=np.float64)
         tan_y = math.tan(self.fov / 2.0)
         tan_x = tan_y * self.aspect
         planes = [(forward, self.near), (-forward, -self.far)]
@@ -225,12 +230,18 @@ class Camera:
             for sign in (1.0, -1.0):
                 normal = forward * tan - sign * axis
                 planes.append((normal / np.linalg.norm(normal), 0.0))
-        lo, hi = box
-        for normal, offset in planes:
+        return planes
+
+    def _boxes_visible(self, boxes: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """:meth:`box_visible` of (K, 2, 3) float64 boxes (checked) at once: (K,) bool, each as one box's test (the
+        same dot product per box and plane)."""
+        eye = np.asarray(self.eye, dtype=np.float64)
+        lo, hi = boxes[:, 0], boxes[:, 1]
+        visible = np.ones(len(boxes), dtype=bool)
+        for normal, offset in self._cull_planes:
             corner = np.where(normal >= 0, hi, lo)  # the box corner farthest along the plane normal
-            if (corner - eye) @ normal < offset:
-                return False
-        return True
+            visible &= ~(np.matmul((corner - eye)[:, None, :], normal)[:, 0] < offset)
+        return visible
 
     def nearest_point(self, box: NDArray[np.float64]) -> NDArray[np.float64]:
         """The point of the box nearest to the camera position (the position itself when inside)."""
@@ -263,43 +274,86 @@ class Camera:
         (the corners are the feasible points where three planes meet, among the nearest point's candidates); with
         ``corners=False`` the corners come back empty and a box whose own nearest point is in view solves nothing."""
         box = _box(box)
-        eye = np.asarray(self.eye, dtype=np.float64)
-        # the box's faces as half-spaces n . x + a <= 0: -x + xmin <= 0, ..., x - xmax <= 0, ...
-        faces = np.c_[np.r_[-np.eye(3), np.eye(3)], np.r_[box[0], -box[1]]]
-        planes = np.concatenate([self._frustum[0], faces])
-        normals, offsets = planes[:, :3], planes[:, 3]
-        scale = max(1.0, float(np.abs(eye).max()), float(np.abs(box).max()))
-        nearest = np.clip(eye, box[0], box[1])  # the box's nearest point: the answer where it is in view
-        with np.errstate(over="ignore", invalid="ignore"):
-            inside = bool(((normals @ nearest + offsets) <= 1e-9 * scale).all())
-        if inside and not corners:
-            return nearest, np.empty((0, 3))
-        # the corners: where three independent planes meet (the eye's projection onto their intersection, a point)
+        nearest, seen, points, feasible = self._visible_parts(box[None], corners)
+        found = points[0][feasible[0]] if corners else np.empty((0, 3))
+        return (nearest[0] if seen[0] else None), found
+
+    @cached_property
+    def _plane_solver(self) -> tuple[NDArray[np.float64], tuple[NDArray[np.float64], NDArray[np.intp]], list[
+            tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.intp], NDArray[np.float64]]]]:
+        """What :meth:`visible_part` solves that does not depend on the box, once per camera: the 12 planes' normals
+        (the frustum's six, then the box's faces -x, -y, -z, x, y, z: the same for every box, only their offsets
+        differ), the regular sets of three planes (their matrices and indices) and, for the eye's projections onto one
+        or two planes, the regular sets' normals, Gram matrices, indices and normals · eye. Every box took the 220
+        determinants and the Gram matrices anew (of the same matrices: the same values)."""
+        planes = np.zeros((12, 4))
+        planes[:6] = self._frustum[0]
+        planes[6:, :3] = np.r_[-np.eye(3), np.eye(3)]
+        normals = planes[:, :3]  # (a view with the strides of the one visible_part took per box)
+        normals.flags.writeable = False
         n = normals[_PLANE_SETS[2]]  # (220, 3, 3)
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # parallel planes: a singular matrix
             regular = np.abs(np.linalg.det(n)) > 1e-6  # the Gram matrix's determinant above 1e-12, as below
-            candidates = [np.linalg.solve(n[regular], -offsets[_PLANE_SETS[2][regular]][..., None])[..., 0]]
-        for combos in _PLANE_SETS[:2] if not inside else ():
-            n = normals[combos]  # (m, k, 3)
-            gram = n @ n.transpose(0, 2, 1)
+        eye = np.asarray(self.eye, dtype=np.float64)
+        projections = []
+        for combos in _PLANE_SETS[:2]:
+            m = normals[combos]  # (m, k, 3)
+            gram = m @ m.transpose(0, 2, 1)
             with np.errstate(divide="ignore", invalid="ignore"):  # parallel planes: a singular Gram matrix
-                regular = np.abs(np.linalg.det(gram)) > 1e-12
-            if not regular.any():
-                continue
-            n, gram = n[regular], gram[regular]
-            rhs = n @ eye + offsets[combos[regular]]  # (m, k)
-            lam = np.linalg.solve(gram, rhs[..., None])[..., 0]
-            candidates.append(eye - np.einsum("mk,mkd->md", lam, n))
-        points = np.concatenate(candidates)
+                independent = np.abs(np.linalg.det(gram)) > 1e-12
+            if independent.any():
+                m = m[independent]
+                projections.append((m, gram[independent], combos[independent], m @ eye))
+        return normals, (n[regular], _PLANE_SETS[2][regular]), projections
+
+    def _visible_parts(self, boxes: NDArray[np.float64], corners: bool = True) -> tuple[
+            NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64], NDArray[np.bool_]]:
+        """:meth:`visible_part` of (K, 2, 3) float64 boxes (checked) at once, each box's numbers as its own call's
+        (the same solves, products and sums per box): the nearest points in view (K, 3), whether there is one (K,),
+        and the candidate corners (K, R, 3) with which are corners of box ∩ frustum (K, R) (none where ``corners``
+        is False)."""
+        normals, (n3, sets3), projections = self._plane_solver
+        eye = np.asarray(self.eye, dtype=np.float64)
+        count = len(boxes)
+        # the box's faces as half-spaces n . x + a <= 0: -x + xmin <= 0, ..., x - xmax <= 0, ...
+        offsets = np.empty((count, 12))
+        offsets[:, :6] = self._frustum[0][:, 3]
+        offsets[:, 6:9] = boxes[:, 0]
+        offsets[:, 9:] = -boxes[:, 1]
+        scale = np.maximum(max(1.0, float(np.abs(eye).max())), np.abs(boxes).max(axis=(1, 2)))
+        tolerance = 1e-9 * scale
+        nearest = np.clip(eye, boxes[:, 0], boxes[:, 1])  # the box's nearest point: the answer where it is in view
         with np.errstate(over="ignore", invalid="ignore"):
-            feasible = ((points @ normals.T + offsets) <= 1e-9 * scale).all(axis=1)
-        found = points[:len(candidates[0])][feasible[:len(candidates[0])]] if corners else np.empty((0, 3))
-        if inside:
-            return nearest, found
-        if not feasible.any():
-            return None, found
-        points = points[feasible]
-        return points[np.argmin(((points - eye) ** 2).sum(axis=1))], found
+            inside = ((np.matmul(normals, nearest[:, :, None])[..., 0] + offsets) <= tolerance[:, None]).all(axis=1)
+        seen = inside.copy()
+        points = np.zeros((count, len(sets3), 3))
+        feasible = np.zeros((count, len(sets3)), dtype=bool)
+        # the corners: where three independent planes meet (the eye's projection onto their intersection, a point)
+        for group in (np.flatnonzero(inside) if corners else np.empty(0, np.intp), np.flatnonzero(~inside)):
+            if not len(group):
+                continue
+            rhs = -offsets[group][:, sets3]  # (g, R, 3)
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                candidates = [np.linalg.solve(n3, rhs[..., None])[..., 0]]
+            if not inside[group[0]]:  # the nearest point: also the eye's projections onto one and two planes
+                for n, gram, combos, n_eye in projections:
+                    lam = np.linalg.solve(gram, (n_eye + offsets[group][:, combos])[..., None])[..., 0]  # (g, m, k)
+                    k = n.shape[1]
+                    moved = np.einsum("mk,mkd->md", lam.reshape(-1, k), np.broadcast_to(n, (len(group), *n.shape))
+                                      .reshape(-1, k, 3))
+                    candidates.append(eye - moved.reshape(len(group), -1, 3))
+            found = np.concatenate(candidates, axis=1)
+            with np.errstate(over="ignore", invalid="ignore"):
+                ok = ((found @ normals.T + offsets[group][:, None]) <= tolerance[group][:, None, None]).all(axis=2)
+            points[group] = found[:, :len(sets3)]
+            feasible[group] = ok[:, :len(sets3)]
+            if not inside[group[0]]:  # the feasible candidate nearest to the eye, the first of equals
+                with np.errstate(over="ignore", invalid="ignore"):  # (far infeasible points: not compared)
+                    distance = np.where(ok, ((found - eye) ** 2).sum(axis=2), np.inf)
+                first = np.argmax(ok & (distance == distance.min(axis=1)[:, None]), axis=1)
+                seen[group] = ok.any(axis=1)
+                nearest[group] = np.where(seen[group][:, None], found[np.arange(len(group)), first], nearest[group])
+        return nearest, seen, points, feasible
 
     def segment_pixels(self, a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
         """Screen length in pixels of the segment a-b (inf when it reaches behind the near plane)."""

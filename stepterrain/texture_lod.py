@@ -41,7 +41,7 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from ._device import host_copy, launch, resolve_device
-from .camera import Camera
+from .camera import Camera, _box
 from .errors import DataFileError, InvalidInputError, OutputTooLargeError, caller_stacklevel, counted
 from .io import (
     _ROTATION_TOLERANCE,
@@ -2091,15 +2091,35 @@ def _in_view(camera: Camera, box: NDArray[np.float64]) -> _InView:
     camera stands for both, as before. The box's own nearest point had been taken for p, outside the view wherever
     the eye is over the terrain: straight below the eye, where the vertical segment of γ lies along the eye's ray,
     so γ(root) was 0 pixels and any view from above the highest peak drew the root alone."""
-    corners = np.ascontiguousarray(box, dtype=np.float64)
-    nearest, points = camera.visible_part(corners)
-    if nearest is None or not len(points):
-        nearest = camera.nearest_point(corners)
-        points = nearest[None]
+    return _in_views(camera, _box(np.ascontiguousarray(box, dtype=np.float64))[None])[0]
+
+
+def _in_views(camera: Camera, boxes: NDArray[np.float64]) -> list[_InView]:
+    """:func:`_in_view` of (K, 2, 3) float64 boxes (checked) at once (:meth:`Camera._visible_parts`), each box's
+    numbers as its own call's: the boxes of a like number of corners in view projected together. The texture LOD's
+    render called it patch by patch, 60-70 % of its time in NumPy's per-call costs."""
+    nearest, seen, points, feasible = camera._visible_parts(boxes)
+    counts = feasible.sum(axis=1)
+    fallback = ~seen | (counts == 0)
+    clipped = np.clip(np.asarray(camera.eye, dtype=np.float64), boxes[:, 0], boxes[:, 1])  # nearest_point
+    counts[fallback] = 0  # a group of its own: the box's nearest point stands for both
+    eye = np.asarray(camera.eye, dtype=np.float64)
     axes = camera._frustum[1]
-    rel = (points - np.asarray(camera.eye, dtype=np.float64)) @ axes.T  # (k, 3): depth, right, up
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # a point behind the eye: inf, refined later
-        return _InView(float(rel[:, 0].min()), rel[:, 1] / rel[:, 0], rel[:, 2] / rel[:, 0], axes, nearest)
+    views: list[_InView] = [None] * len(boxes)  # type: ignore[list-item]
+    for count in np.unique(counts):
+        group = np.flatnonzero(counts == count)
+        if count:
+            corners = points[group][feasible[group]].reshape(len(group), count, 3)
+            near = nearest[group]
+        else:
+            near = clipped[group]
+            corners = near[:, None]
+        rel = (corners - eye) @ axes.T  # (g, k, 3): depth, right, up
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # a point behind the eye: inf, refined
+            depth, s, t = rel[..., 0].min(axis=1), rel[..., 1] / rel[..., 0], rel[..., 2] / rel[..., 0]
+        for j, k in enumerate(group.tolist()):
+            views[k] = _InView(float(depth[j]), s[j], t[j], axes, near[j])
+    return views
 
 
 def _bounded_segment(camera: Camera, view: _InView, vector: NDArray[np.float64]) -> float:
@@ -2115,27 +2135,51 @@ def _bounded_segment(camera: Camera, view: _InView, vector: NDArray[np.float64])
     bound is reached where one corner is both the nearest in depth and the farthest off the axis (a patch at a map
     view's corner); elsewhere it exceeds the largest by the spread of the two over the patch's view, small for the
     patches a fine tolerance draws."""
-    v_f, v_r, v_u = view.axes @ vector
-    half = abs(float(v_f)) / 2.0
-    d = view.depth
-    if not d - half >= camera.near:  # the nearest corner's segment reaches behind the near plane (or the eye)
-        return math.inf
+    return _bounded_segments(camera, [view], np.asarray(vector, dtype=np.float64).reshape(1, 3))[0]
+
+
+def _bounded_segments(camera: Camera, views: Sequence[_InView], vectors: NDArray[np.float64]) -> list[float]:
+    """:func:`_bounded_segment` of each view with the row of (K, 3) ``vectors`` of its index, at once (the views of
+    a like number of corners together), each as its own call's numbers."""
+    v = np.matmul(camera._frustum[1], vectors[:, :, None])[..., 0]  # (K, 3): along forward, right, up
+    v_f, v_r, v_u = v[:, 0], v[:, 1], v[:, 2]
+    half = np.abs(v_f) / 2.0
+    d = np.array([view.depth for view in views], dtype=np.float64)
+    counts = np.array([len(view.s) for view in views])
+    spread = np.empty(len(views))
     with np.errstate(over="ignore", invalid="ignore"):  # a magnification near float64's limit: inf pixels, refine
-        spread = float(np.hypot(v_r - view.s * v_f, v_u - view.t * v_f).max())
-        return float(camera.focal_pixels * spread * d / ((d - half) * (d + half)))
+        for count in np.unique(counts).tolist():
+            group = np.flatnonzero(counts == count)
+            s = np.array([views[k].s for k in group.tolist()]).reshape(len(group), count)
+            t = np.array([views[k].t for k in group.tolist()]).reshape(len(group), count)
+            f = v_f[group, None]
+            spread[group] = np.hypot(v_r[group, None] - s * f, v_u[group, None] - t * f).max(axis=1)
+        value = camera.focal_pixels * spread * d / ((d - half) * (d + half))
+    value[~(d - half >= camera.near)] = math.inf  # the nearest corner's segment reaches behind the near plane (or eye)
+    return value.tolist()
 
 
 def _geometric_error_in(patch: GeometryPatch, camera: Camera, view: _InView, error: float | None = None) -> float:
     """γ(N) of a patch with children (:func:`visual_geometric_error`) over its :func:`_in_view` ``view`` (of
     ``error`` in place of e(N) where given)."""
-    error = patch.error if error is None else error
-    vertical = _bounded_segment(camera, view, np.array([0.0, 0.0, error]))
-    offset = view.nearest - np.asarray(camera.eye, dtype=np.float64)
-    depth = float(offset @ view.axes[0])
-    if not depth > 0.0:  # p behind the eye (a box out of view, or around the eye): refine, as segment_pixels does
-        return math.inf
-    with np.errstate(over="ignore", divide="ignore"):  # a huge error, or depth² underflowing to 0: inf
-        return max(vertical, float(camera.focal_pixels * error * np.linalg.norm(offset) / depth ** 2))
+    return _geometric_errors_in(camera, [view], [patch.error if error is None else error])[0]
+
+
+def _geometric_errors_in(camera: Camera, views: Sequence[_InView], errors: Sequence[float]) -> list[float]:
+    """:func:`_geometric_error_in` of each view with the error of its index (e(N), or that and a seam error), at once,
+    each as its own call's numbers."""
+    vertical = _bounded_segments(camera, views, np.array([[0.0, 0.0, error] for error in errors]).reshape(-1, 3))
+    offset = np.array([view.nearest for view in views]).reshape(-1, 3) - np.asarray(camera.eye, dtype=np.float64)
+    depths = np.matmul(offset[:, None, :], camera._frustum[1][0])[:, 0]
+    norms = np.sqrt(np.matmul(offset[:, None, :], offset[:, :, None])[:, 0, 0])  # as np.linalg.norm: √(x · x)
+    out = []
+    for error, segment, depth, norm in zip(errors, vertical, depths.tolist(), norms, strict=True):
+        if not depth > 0.0:  # p behind the eye (a box out of view, or around the eye): refine, as segment_pixels does
+            out.append(math.inf)
+            continue
+        with np.errstate(over="ignore", divide="ignore"):  # a huge error, or depth² underflowing to 0: inf
+            out.append(max(segment, float(camera.focal_pixels * error * norm / depth ** 2)))
+    return out
 
 
 def texel_pixels(geometry: GeometryPatch, texture: TexturePatch, camera: Camera) -> float:
@@ -2149,9 +2193,18 @@ def texel_pixels(geometry: GeometryPatch, texture: TexturePatch, camera: Camera)
 
 def _texel_pixels_in(texture: TexturePatch, camera: Camera, view: _InView) -> float:
     """:func:`texel_pixels` over the geometry patch's :func:`_in_view` ``view``."""
-    w, h = texture.texel_size
-    return max(_bounded_segment(camera, view, np.array([w, 0.0, 0.0])),
-               _bounded_segment(camera, view, np.array([0.0, h, 0.0])))
+    return _texels_pixels_in(camera, [texture], [view])[0]
+
+
+def _texels_pixels_in(camera: Camera, textures: Sequence[TexturePatch], views: Sequence[_InView]) -> list[float]:
+    """:func:`_texel_pixels_in` of each texture patch over the view of its index, at once, each as its own call's
+    numbers."""
+    rows = []
+    for texture in textures:
+        w, h = texture.texel_size
+        rows += [[w, 0.0, 0.0], [0.0, h, 0.0]]
+    segments = _bounded_segments(camera, [view for view in views for _ in (0, 1)], np.array(rows).reshape(-1, 3))
+    return [max(segments[k], segments[k + 1]) for k in range(0, len(segments), 2)]
 
 
 def visual_texture_error(geometry: GeometryPatch, texture: TexturePatch, camera: Camera) -> float:
@@ -2164,7 +2217,17 @@ def visual_texture_error(geometry: GeometryPatch, texture: TexturePatch, camera:
 
 def _texture_error_in(texture: TexturePatch, camera: Camera, view: _InView) -> float:
     """:func:`visual_texture_error` over the geometry patch's :func:`_in_view` ``view``."""
-    return 0.0 if texture.is_leaf else _texel_pixels_in(texture, camera, view)
+    return _texture_errors_in(camera, [texture], [view])[0]
+
+
+def _texture_errors_in(camera: Camera, textures: Sequence[TexturePatch], views: Sequence[_InView]) -> list[float]:
+    """:func:`_texture_error_in` of each texture patch over the view of its index, at once."""
+    inner = [k for k, texture in enumerate(textures) if not texture.is_leaf]
+    out = [0.0] * len(textures)
+    for k, value in zip(inner, _texels_pixels_in(camera, [textures[k] for k in inner], [views[k] for k in inner]),
+                        strict=True):
+        out[k] = value
+    return out
 
 
 # ---------------------------------------------------------------------------------------------- loading
@@ -2398,24 +2461,26 @@ def render_with_textures(
         # a leaf is not split: one coarser than its depth is a single cell (both its sides <= 1 cell), no node between
         split = {n for node, sides in zip(cut, seams, strict=True) for n in sides
                  if n is not None and n.children and node.depth - n.depth > 1}
-        for node, sides in zip(cut, seams, strict=True):  # γ of e(N) + the seam error: the coarser neighbour splits
+        checks = []  # γ of e(N) + the seam error, measured together: over γ_user, the coarser neighbour splits
+        for node, sides in zip(cut, seams, strict=True):
             seam = max((node._seam_error(k) for k, n in enumerate(sides) if n is not None), default=0.0)
             if seam > 0.0 and (node, seam) not in within:
-                if _geometric_error_in(node, camera, visits[node].view, node.error + seam) > gamma_user:
-                    split.update(n for n in sides if n is not None and n.children)
-                else:  # (a patch stays drawn over passes, its coarser neighbours too: measured once)
-                    within.add((node, seam))
+                checks.append((node, sides, seam))
+        for (node, sides, seam), gamma in zip(checks, _geometric_errors_in(
+                camera, [visits[node].view for node, _, _ in checks],  # type: ignore[union-attr]
+                [node.error + seam for node, _, seam in checks]), strict=True):
+            if gamma > gamma_user:
+                split.update(n for n in sides if n is not None and n.children)
+            else:  # (a patch stays drawn over passes, its coarser neighbours too: measured once)
+                within.add((node, seam))
         split -= forced
         if not split:
             break
         forced |= split
     finer = _finer_neighbours(cut, seams)
-    out = []
-    for node, sides, across in zip(cut, seams, finer, strict=True):  # the final cut's textures (loads requested)
-        visit = visits[node]
-        chosen, lighting = _textures(visit[3], visit[0], flags, camera, tau_user, cache)
-        out.append(DrawItem(node, chosen, lighting, sides, across))
-    return out
+    textures = _textures(cut, visits, flags, camera, tau_user, cache)  # the final cut's (loads requested)
+    return [DrawItem(node, chosen, lighting, sides, across)
+            for node, (chosen, lighting), sides, across in zip(cut, textures, seams, finer, strict=True)]
 
 
 def _finer_neighbours(cut: list[GeometryPatch], seams: list[tuple[GeometryPatch | None, ...]]) -> list[
@@ -2488,54 +2553,99 @@ def _traverse(root: GeometryPatch, layers: list[TexturePatch], camera: Camera, g
               forced: set[GeometryPatch], visits: dict[GeometryPatch, _Visit | None]) -> list[GeometryPatch]:
     """One pass of :func:`render_with_textures`' traversal, splitting the patches of ``forced`` too: the drawn
     patches in traversal order. ``visits``: per patch visited, None where culled, else its :class:`_Visit`, filled in
-    as they are first visited (a pass after the first computes nothing for the patches seen before)."""
+    as they are first visited (a pass after the first computes nothing for the patches seen before). The patches to
+    visit are found level by level, each level's new ones culled and put in view together (:func:`_visit`), then
+    walked depth first as before."""
+    level: list[tuple[GeometryPatch, list[TexturePatch | None] | None]] = [(root, list(layers))]
+    while level:  # (current None: visited in an earlier pass)
+        _visit([(node, current) for node, current in level if current is not None and node not in visits], camera,
+               visits)
+        below: list[tuple[GeometryPatch, list[TexturePatch | None] | None]] = []
+        for node, _ in level:
+            seen = visits[node]
+            if seen is not None and _refined(node, seen, forced, gamma_user, tau_user):
+                below.extend((child, None if child in visits else [m.child_for(child) if m is not None else None
+                                                                   for m in seen.textures])
+                             for child in node.children)  # a child visited in an earlier pass has its textures already
+        level = below
     out: list[GeometryPatch] = []
-    stack: list[tuple[GeometryPatch, list[TexturePatch | None] | None]] = [(root, list(layers))]
+    stack = [root]
     while stack:  # depth-first over patches (a few thousand at most), never over cells
-        node, current = stack.pop()
-        if node not in visits:  # (current None: visited in an earlier pass)
-            if camera.box_visible(node.box):
-                view = _in_view(camera, node.box)  # γ's and every τ's of this patch
-                if node.is_leaf:
-                    visits[node] = _Visit(view, 0.0, 0.0, current)
-                else:
-                    tau = max((_texture_error_in(m, camera, view) for m in current if m is not None), default=0.0)
-                    visits[node] = _Visit(view, _geometric_error_in(node, camera, view), tau, current)
-            else:
-                visits[node] = None
+        node = stack.pop()
         seen = visits[node]
         if seen is None:
             continue
-        current = seen.textures
-        if not node.is_leaf and (node in forced or seen.gamma > gamma_user or seen.tau > tau_user):
-            children = [(child, None if child in visits else [m.child_for(child) if m is not None else None
-                                                              for m in current])
-                        for child in node.children]  # a child visited in an earlier pass has its textures already
-            stack.extend(reversed(children))
+        if _refined(node, seen, forced, gamma_user, tau_user):
+            stack.extend(reversed(node.children))
             continue
         out.append(node)
     return out
 
 
-def _textures(current: list[TexturePatch | None], view: _InView, flags: tuple[bool, ...], camera: Camera,
-              tau_user: float, cache: TextureCache | None) -> tuple[tuple[TexturePatch | None, ...], tuple[bool, ...]]:
-    """A drawn patch's texture patch per layer, reduced from its own ``current`` (§4: to the parent while τ of the
-    parent stays within ``tau_user``, then while not loaded, requesting it), and whether hybrid shading lights it."""
-    chosen: list[TexturePatch | None] = []
-    lighting: list[bool] = []
-    for k, m in enumerate(current):
-        if m is None:
-            chosen.append(None)
-            lighting.append(flags[k])
-            continue
-        while m.parent is not None and _texture_error_in(m.parent, camera, view) <= tau_user:
-            m = m.parent  # reduction of texture data
-        while m is not None and cache is not None and not cache.is_loaded(m):
-            cache.request(m)  # non-blocking; the parent stands in meanwhile
-            m = m.parent
-        chosen.append(m)
-        lighting.append(flags[k] and (m is None or (m.is_leaf and _texel_pixels_in(m, camera, view) > tau_user)))
-    return tuple(chosen), tuple(lighting)
+def _refined(node: GeometryPatch, seen: _Visit, forced: set[GeometryPatch], gamma_user: float,
+             tau_user: float) -> bool:
+    """Whether :func:`_traverse` splits a visible patch: not a leaf, and forced or over a tolerance."""
+    return not node.is_leaf and (node in forced or seen.gamma > gamma_user or seen.tau > tau_user)
+
+
+def _visit(new: list[tuple[GeometryPatch, list[TexturePatch | None]]], camera: Camera,
+           visits: dict[GeometryPatch, _Visit | None]) -> None:
+    """Fills ``visits`` for patches first visited, each with its texture patches per layer: culled together
+    (:meth:`Camera._boxes_visible`), the visible ones put in view together (:func:`_in_views`), their γ(N) and
+    τ(N, S) measured together (:func:`_geometric_errors_in`, :func:`_texture_errors_in`)."""
+    if not new:
+        return
+    boxes = np.array([node.box for node, _ in new], dtype=np.float64).reshape(len(new), 2, 3)
+    visible = camera._boxes_visible(boxes)
+    views = iter(_in_views(camera, boxes[visible]) if visible.any() else ())
+    inner = []  # (node, textures, view) of the visible patches with children
+    for (node, current), shown in zip(new, visible.tolist(), strict=True):
+        if not shown:
+            visits[node] = None
+        elif node.is_leaf:
+            visits[node] = _Visit(next(views), 0.0, 0.0, current)
+        else:
+            inner.append((node, current, next(views)))  # γ's and every τ's of this patch
+    gammas = _geometric_errors_in(camera, [view for _, _, view in inner], [node.error for node, _, _ in inner])
+    pairs = [(m, view) for _, current, view in inner for m in current if m is not None]
+    taus = iter(_texture_errors_in(camera, [m for m, _ in pairs], [view for _, view in pairs]))
+    for (node, current, view), gamma in zip(inner, gammas, strict=True):
+        visits[node] = _Visit(view, gamma, max((next(taus) for m in current if m is not None), default=0.0), current)
+
+
+def _textures(cut: list[GeometryPatch], visits: dict[GeometryPatch, _Visit | None], flags: tuple[bool, ...],
+              camera: Camera, tau_user: float, cache: TextureCache | None) -> list[
+        tuple[tuple[TexturePatch | None, ...], tuple[bool, ...]]]:
+    """Per drawn patch, its texture patch per layer, reduced from its visit's (§4: to the parent while τ of the parent
+    stays within ``tau_user``, then while not loaded, requesting it), and whether hybrid shading lights it. The τ of
+    every patch's parents are measured together, a generation at a time (the same ones as patch by patch); the cache is
+    asked patch by patch, layer by layer, in the cut's order."""
+    views = [visits[node].view for node in cut]  # type: ignore[union-attr]
+    chosen = [list(visits[node].textures) for node in cut]  # type: ignore[union-attr]
+    pending = [(i, k) for i, current in enumerate(chosen) for k, m in enumerate(current)
+               if m is not None and m.parent is not None]
+    while pending:  # reduction of texture data
+        parents = [chosen[i][k].parent for i, k in pending]
+        errors = _texture_errors_in(camera, parents, [views[i] for i, _ in pending])  # type: ignore[arg-type]
+        reduced = []
+        for (i, k), parent, error in zip(pending, parents, errors, strict=True):
+            if error <= tau_user:
+                chosen[i][k] = parent
+                if parent.parent is not None:  # type: ignore[union-attr]
+                    reduced.append((i, k))
+        pending = reduced
+    for current in chosen:
+        for k, m in enumerate(current):
+            while m is not None and cache is not None and not cache.is_loaded(m):
+                cache.request(m)  # non-blocking; the parent stands in meanwhile
+                m = m.parent
+            current[k] = m
+    leaves = [(i, k) for i, current in enumerate(chosen) for k, m in enumerate(current)
+              if flags[k] and m is not None and m.is_leaf]
+    over = {key: texel > tau_user for key, texel in zip(leaves, _texels_pixels_in(
+        camera, [chosen[i][k] for i, k in leaves], [views[i] for i, _ in leaves]), strict=True)}  # type: ignore[misc]
+    return [(tuple(current), tuple(flags[k] and (m is None or over.get((i, k), False)) for k, m in enumerate(current)))
+            for i, current in enumerate(chosen)]
 
 
 def _threshold(value: Any, name: str) -> float:

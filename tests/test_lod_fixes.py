@@ -2016,3 +2016,45 @@ def test_the_balanced_traversal_looks_each_patchs_textures_up_once_and_asks_the_
     assert len(looked_up) == len(set(looked_up))
     assert len(asked) == 2 * len(items)
     assert all(m is not None for item in items for m in item.textures)
+
+
+@pytest.mark.parametrize("eye, target", [((-100.0, 100.0, 150.0), (200.0, -300.0, -20.0)),  # beyond a corner
+                                         ((300.0, -400.0, 60.0), (500.0, -700.0, -20.0)),  # inside the patches
+                                         ((380.0, -500.0, 600.0), (380.0, -499.0, 0.0))])  # a map view
+def test_patches_put_in_view_together_get_each_ones_own_numbers(eye, target):
+    """render_with_textures culls each level's patches, puts them in view and measures their γ and τ in one call
+    each (h340: the per-patch calls were 60-70 % of a render); each patch's numbers must be those of its own call
+    (byte for byte: the cut's decisions compare them with the tolerances), whatever boxes share the batch."""
+    from stepterrain.texture_lod import (
+        _bounded_segment,
+        _bounded_segments,
+        _geometric_error_in,
+        _geometric_errors_in,
+        _in_view,
+        _in_views,
+    )
+
+    yy, xx = np.mgrid[0:101, 0:77]
+    heights = 40 * np.sin(xx / 9.0) * np.cos(yy / 13.0) + np.random.default_rng(3).normal(0, 0.5, xx.shape)
+    heights[40:44, 30:33] = np.nan
+    patches = PatchQuadtree(as_terrain(heights, spacing=(10.0, -10.0)), leaf_size=4).patches()
+    camera = Camera(eye, target, viewport=(640, 480), fov=math.radians(50), near=5.0)
+    boxes = np.array([p.box for p in patches])
+    visible = camera._boxes_visible(boxes)
+    assert visible.tolist() == [camera.box_visible(box) for box in boxes] and 0 < visible.sum() < len(boxes)
+    views = _in_views(camera, boxes[::-1])[::-1]  # another order: other neighbours in each batch
+    counts = {len(view.s) for view in views}
+    assert len(counts) > 3  # boxes of several corner counts, batched by count
+    for patch, view in zip(patches, views, strict=True):
+        alone = _in_view(camera, patch.box)
+        assert view.depth == alone.depth or (math.isnan(view.depth) and math.isnan(alone.depth))
+        for a, b in ((view.s, alone.s), (view.t, alone.t), (view.nearest, alone.nearest)):
+            assert a.tobytes() == b.tobytes()
+    vectors = np.array([[0.0, 0.0, 3.7], [12.5, 0.0, 0.0], [0.0, 7.25, 0.0]])[np.arange(len(views)) % 3]
+    together = _bounded_segments(camera, views, vectors)
+    assert np.array_equal(together, [_bounded_segment(camera, v, w) for v, w in zip(views, vectors, strict=True)],
+                          equal_nan=True)
+    gammas = _geometric_errors_in(camera, views, [p.error + 0.5 for p in patches])
+    assert np.array_equal(gammas, [_geometric_error_in(p, camera, v, p.error + 0.5)
+                                   for p, v in zip(patches, views, strict=True)], equal_nan=True)
+    assert len(set(gammas)) > len(patches) // 2
