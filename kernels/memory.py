@@ -18,7 +18,8 @@ hillshade and contour rows of ``kernels/texture.py`` (2-D, below).
 Overloads: one per element type these kernels use (Warp resolves ``load``/``store`` by argument types).
 
 ``stream(a, i, v)`` (vec3d, vec3l, int32) is a streaming store for a big output written in one sweep, on the CPU;
-see the comment above its definition for when it pays and what its launches must do.
+``stream_large(a, i, v)`` streams only into a destination of at least STREAM_MIN_BYTES and stores plainly into a
+smaller one; see the comments above their definitions for when they pay and what their launches must do.
 """
 
 from __future__ import annotations
@@ -168,6 +169,40 @@ __builtin_nontemporal_store(v, &a.data[i]);
 
 @wp.func_native(_NT1)
 def stream(a: wp.array[wp.int32], i: wp.int32, v: wp.int32): ...  # pragma: no cover  # noqa: F811
+
+
+# stream_large: stream() for a destination of at least STREAM_MIN_BYTES, a plain store (into the caches) for a
+# smaller one; the size is the whole destination array's, so a pass stores each output one way. For the passes
+# that write several outputs at once (the stepped emit kernels: faces, face levels, face walls and vertices, in
+# step). On the AMD EPYC (Zen 4) of session 46 streaming the 512² re-step's emit outputs (faces 22-25 MB, blended
+# vertices 11 MB, face levels 4 MB) slowed emit_grid: fastest of 200 replays on one core, eight rounds alternating,
+# 6.3-7.0 ms streamed, 5.5-6.1 ms stored plainly; the whole re-step (CPU time, fastest of 50) 9.8-11.2 -> 9.2-10.3
+# ms. Session 37's Intel Xeon found plain stores at that size within noise. A pass writing one output in a sweep
+# gains from streaming there even at that size (the γ blend of 512², blend_vertices: 1.0-1.07 ms streamed, 1.24-1.32
+# ms stored plainly), so it keeps stream(); so do count_grid's prefixes (within noise either way). Outputs from 32 MiB
+# (2048²'s faces: 313 MB) stream as before, where the Xeon measured what streaming saves (the EPYC stored even those
+# a little faster plainly: emit_grid at 2048² 77-87 against 90-93 ms).
+STREAM_MIN_BYTES = 32 << 20
+
+
+def _large_only(streaming: str) -> str:
+    """The native body of stream_large from stream()'s: a plain store below STREAM_MIN_BYTES on the CPU."""
+    body = streaming.split("#else\n", 1)[1].rsplit("#endif", 1)[0]
+    return (
+        "#if defined(__CUDA_ARCH__)\na.data[i] = v;\n#else\n"
+        f"if ((long long)a.shape[0] * (long long)sizeof(a.data[0]) < {STREAM_MIN_BYTES}LL) {{\n    a.data[i] = v;\n"
+        f"}} else {{\n{body}}}\n#endif\n"
+    )
+
+
+# fmt: off
+@wp.func_native(_large_only(_NT3))
+def stream_large(a: wp.array[wp.vec3d], i: wp.int32, v: wp.vec3d): ...  # pragma: no cover - native code
+@wp.func_native(_large_only(_NT3L))
+def stream_large(a: wp.array[vec3l], i: wp.int32, v: vec3l): ...  # pragma: no cover  # noqa: F811
+@wp.func_native(_large_only(_NT1))
+def stream_large(a: wp.array[wp.int32], i: wp.int32, v: wp.int32): ...  # pragma: no cover  # noqa: F811
+# fmt: on
 
 
 @wp.func_native("""

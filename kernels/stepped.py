@@ -40,7 +40,7 @@ from typing import Any
 
 import warp as wp
 
-from .memory import load, store, stream, vec3l
+from .memory import load, store, stream, stream_large, vec3l
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3, "fuse_fp": False})  # see kernels/__init__
 
@@ -148,7 +148,7 @@ def put_vertex(
             store(points_out, slot, p)
         if direct.steps != 0:
             store(step_heights_out, slot, step_height)
-        stream(direct.vertices, slot, blended(p, step_height, direct.gamma, direct.origin))
+        stream_large(direct.vertices, slot, blended(p, step_height, direct.gamma, direct.origin))
 
 
 @wp.func
@@ -292,8 +292,8 @@ def write_face(
     face_walls_out: wp.array[wp.uint8],
 ):
     if write != 0:
-        stream(faces_out, slot, vec3l(wp.int64(a), wp.int64(b), wp.int64(c)))
-        stream(face_levels_out, slot, level)
+        stream_large(faces_out, slot, vec3l(wp.int64(a), wp.int64(b), wp.int64(c)))
+        stream_large(face_levels_out, slot, level)
         store(face_walls_out, slot, wp.uint8(wall))
 
 
@@ -1149,13 +1149,13 @@ def emit_grid(
                 v10 = wp.int64(offset_at(offsets, 4 * (n + cols)))
                 v11 = wp.int64(offset_at(offsets, 4 * (n + cols + 1)))
                 if hf.flip != 0:
-                    stream(faces_out, face_base, vec3l(v00, v11, v01))
-                    stream(faces_out, face_base + 1, vec3l(v00, v10, v11))
+                    stream_large(faces_out, face_base, vec3l(v00, v11, v01))
+                    stream_large(faces_out, face_base + 1, vec3l(v00, v10, v11))
                 else:
-                    stream(faces_out, face_base, vec3l(v00, v01, v11))
-                    stream(faces_out, face_base + 1, vec3l(v00, v11, v10))
-                stream(face_levels_out, face_base, flat)
-                stream(face_levels_out, face_base + 1, flat)
+                    stream_large(faces_out, face_base, vec3l(v00, v01, v11))
+                    stream_large(faces_out, face_base + 1, vec3l(v00, v11, v10))
+                stream_large(face_levels_out, face_base, flat)
+                stream_large(face_levels_out, face_base + 1, flat)
                 store(face_walls_out, face_base, wp.uint8(0))
                 store(face_walls_out, face_base + 1, wp.uint8(0))
                 face_base += 2

@@ -10,8 +10,9 @@ import tempfile
 import textwrap
 
 import numpy as np
+import pytest
 import warp as wp
-from stepterrain.kernels.memory import drain_streams, load, store, stream, vec3l
+from stepterrain.kernels.memory import STREAM_MIN_BYTES, drain_streams, load, store, stream, stream_large, vec3l
 
 from stepterrain import _device
 
@@ -50,9 +51,27 @@ def _stream_copies(
     stream(ints_out, i, load(ints, i))
 
 
-def test_streamed_values_keep_every_bit(device):
-    """stream() of vec3d (through its bits), vec3l and int32 writes exactly what it is given: signed zeros, NaN
-    payloads, infinities, subnormals, int64 beyond 2^53 and negative values."""
+@wp.kernel
+def _stream_large_copies(
+    doubles: wp.array[wp.vec3d],
+    longs: wp.array[vec3l],
+    ints: wp.array[wp.int32],
+    doubles_out: wp.array[wp.vec3d],
+    longs_out: wp.array[vec3l],
+    ints_out: wp.array[wp.int32],
+):
+    i = wp.tid()
+    stream_large(doubles_out, i, load(doubles, i))
+    stream_large(longs_out, i, vec3l(longs[i][0], longs[i][1], longs[i][2]))
+    stream_large(ints_out, i, load(ints, i))
+
+
+@pytest.mark.parametrize(("kernel", "destination"), [(_stream_copies, "small"), (_stream_large_copies, "small"),
+                                                     (_stream_large_copies, "large")])  # fmt: skip
+def test_streamed_values_keep_every_bit(device, kernel, destination):
+    """stream() and stream_large() of vec3d (through its bits), vec3l and int32 write exactly what they are given:
+    signed zeros, NaN payloads, infinities, subnormals, int64 beyond 2^53 and negative values; stream_large into a
+    destination below STREAM_MIN_BYTES (stored plainly on the CPU) and into one of at least that size (streamed)."""
     rng = np.random.default_rng(5)
     n = 4099
     doubles = rng.normal(size=(n, 3)) * 10.0 ** rng.integers(-300, 300, (n, 3))
@@ -61,14 +80,18 @@ def test_streamed_values_keep_every_bit(device):
     longs = rng.integers(-(2**62), 2**62, (n, 3), dtype=np.int64)
     longs[0] = [2**53 + 1, -(2**63), 2**63 - 1]
     ints = rng.integers(-(2**31), 2**31, n, dtype=np.int64).astype(np.int32)
-    outs = [wp.zeros(n, dtype=t, device=device) for t in (wp.vec3d, vec3l, wp.int32)]
-    wp.launch(_stream_copies, dim=n, inputs=[wp.array(doubles, dtype=wp.vec3d, device=device),
+    sizes = [n] * 3
+    if destination == "large":  # only the first n elements are written
+        sizes = [max(n, -(-STREAM_MIN_BYTES // item)) for item in (24, 24, 4)]
+    outs = [wp.zeros(m, dtype=t, device=device) for m, t in zip(sizes, (wp.vec3d, vec3l, wp.int32), strict=True)]
+    assert (min(outs[k].capacity for k in range(3)) >= STREAM_MIN_BYTES) == (destination == "large")
+    wp.launch(kernel, dim=n, inputs=[wp.array(doubles, dtype=wp.vec3d, device=device),
               wp.array(longs, dtype=vec3l, device=device), wp.array(ints, device=device)], outputs=outs,
               device=device)  # fmt: skip
     wp.launch(drain_streams, dim=1, device=device)
-    np.testing.assert_array_equal(outs[0].numpy().view(np.int64), doubles.view(np.int64))
-    np.testing.assert_array_equal(outs[1].numpy(), longs)
-    np.testing.assert_array_equal(outs[2].numpy(), ints)
+    np.testing.assert_array_equal(outs[0].numpy()[:n].view(np.int64), doubles.view(np.int64))
+    np.testing.assert_array_equal(outs[1].numpy()[:n], longs)
+    np.testing.assert_array_equal(outs[2].numpy()[:n], ints)
 
 
 def test_load_and_store_match_numpy(device):
