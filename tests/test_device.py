@@ -72,3 +72,42 @@ def test_split_cpu_launch_loads_only_the_variant_that_runs():
         _device.set_cpu_threads(previous)
     np.testing.assert_array_equal(out.numpy(), np.arange(n))
     assert {block_dim for _context, block_dim in _write_index.module.execs} == {_device.CPU_LAUNCH_BLOCK_DIM}
+
+
+@wp.kernel
+def _add_value(thread_offset: wp.int32, value: wp.int32, values: wp.array[wp.int32]):
+    t = wp.tid() + thread_offset
+    values[t] = values[t] + value
+
+
+def test_replayed_cpu_launch_takes_each_calls_arguments_and_keeps_none():
+    """CPU launches replay this thread's recorded wp.Launch of the kernel (_device._cpu_launch): each call runs with
+    its own dimension, scalars and arrays, and the recording keeps no argument alive (an output lent from the pool
+    went back to it only when the next launch of that kernel replaced it: every re-step took fresh memory)."""
+    import gc
+    import weakref
+
+    cpu = wp.get_device("cpu")
+    for n, value in ((7, 3), (5, 10), (9, -2)):
+        host = np.arange(n, dtype=np.int32)
+        out = wp.array(host, dtype=wp.int32, device=cpu, copy=False)
+        _device.launch(_add_value, n, [value], [out], cpu)
+        np.testing.assert_array_equal(host, np.arange(n) + value)
+        gone = weakref.ref(out)
+        del out
+        gc.collect()
+        assert gone() is None
+    with pytest.raises(RuntimeError, match="arguments"):  # wp.launch's own refusal of a wrong argument count
+        _device.launch(_add_value, 3, [], [wp.zeros(3, dtype=wp.int32, device=cpu)], cpu)
+
+
+def test_cpu_launch_under_a_tape_is_recorded_by_it():
+    """With a wp.Tape recording, a launch goes through wp.launch, which records it (a replay would not)."""
+    cpu = wp.get_device("cpu")
+    out = wp.zeros(4, dtype=wp.int32, device=cpu)
+    _device.launch(_add_value, 4, [1], [out], cpu)  # recorded for replay
+    tape = wp.Tape()
+    with tape:
+        _device.launch(_add_value, 4, [1], [out], cpu)
+    assert [launch[0] for launch in tape.launches] == [_add_value]
+    np.testing.assert_array_equal(out.numpy(), [2, 2, 2, 2])
