@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import struct
 import warnings
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, replace
@@ -462,6 +463,32 @@ def isovalues(
         raise InvalidInputError(f"interval must be a positive finite number; got {interval!r}")
     if not np.isfinite(base):
         raise InvalidInputError(f"base must be finite; got {base!r}")
+    # what follows depends on these four floats alone: a re-step going back and forth between a few intervals takes
+    # its isovalues from _UNIFORM (a copy: the caller may write to it), keyed by their bits (-0.0 is not 0.0); a call
+    # that raises is not kept, so it raises again
+    key = _UNIFORM_KEY.pack(lo, hi, step, base)
+    known = _UNIFORM.get(key)
+    if known is not None:
+        return known.copy()
+    values = _uniform_isovalues(lo, hi, step, base)
+    if values.size <= _UNIFORM_SIZE:
+        if len(_UNIFORM) >= _UNIFORM_KEPT:
+            _UNIFORM.clear()
+        _UNIFORM[key] = values.copy()
+    return values
+
+
+#: The isovalues of :func:`isovalues`' ``interval`` by (lo, hi, interval, base) bits: at most _UNIFORM_KEPT
+#: results of at most _UNIFORM_SIZE levels (a 512² re-step computed them again in 0.03 ms hot, 0.15-0.19 ms as the
+#: first call after a gc.collect())
+_UNIFORM: dict[bytes, NDArray[np.float32]] = {}
+_UNIFORM_KEY = struct.Struct("<4d")
+_UNIFORM_KEPT = 16
+_UNIFORM_SIZE = 4096
+
+
+def _uniform_isovalues(lo: float, hi: float, step: float, base: float) -> NDArray[np.float32]:
+    """:func:`isovalues` of ``interval=step`` with ``base`` over the heights [lo, hi], the checked floats."""
     k0f, k1f = (lo - base) / step, (hi - base) / step
     if not (math.isfinite(k0f) and math.isfinite(k1f)):  # a subnormal interval (1e-320), or base far from the heights
         raise InvalidInputError(

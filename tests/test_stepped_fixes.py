@@ -49,6 +49,22 @@ def test_isovalue_memo_is_built_from_the_float32_values_it_is_keyed_by():
     np.testing.assert_array_equal(again.faces, mesh.faces)
 
 
+def test_uniform_isovalues_memo_hands_out_copies_and_keeps_refusals():
+    """isovalues(interval=...) keeps its results by (lo, hi, interval, base) bits (a re-step going back and forth
+    between intervals): every call gets its own array, equal to a fresh computation (writing to one changed the next
+    call's isovalues when the memo handed out its own), and a refusal is refused again."""
+    stepped_module._UNIFORM.clear()
+    first = st.isovalues((3.0, 21.0), interval=10.0)
+    first[:] = -1.0
+    again = st.isovalues((3.0, 21.0), interval=10.0)
+    assert again.dtype == np.float32 and again.tolist() == [0.0, 10.0, 20.0, 30.0]
+    again[0] = 5.0
+    assert st.isovalues((3.0, 21.0), interval=10.0).tolist() == [0.0, 10.0, 20.0, 30.0]
+    for _ in range(2):
+        with pytest.raises(st.InvalidInputError, match="too small"):
+            st.isovalues((1e7, 1e7 + 4), interval=0.5)
+
+
 @pytest.mark.parametrize("bad", [np.inf, -np.inf, 1e300], ids=["inf", "-inf", "beyond-float32"])
 def test_series_stack_refuses_a_bad_frame_before_the_first_frame(bad):
     """stepped_series' docstring: a frame with bad heights is refused naming frames[k], for a (T, H, W) stack
