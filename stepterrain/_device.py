@@ -424,9 +424,20 @@ def no_elements(dtype: Any, device: wp.Device) -> wp.array:
 
 
 def release_scratch() -> None:
-    """Free this thread's scratch arrays (see :func:`scratch`)."""
+    """Free this thread's scratch arrays (see :func:`scratch`) and the kernel structs kept with them
+    (:func:`thread_structs`)."""
     _pools.arrays = {}
     _pools.views = {}
+    _pools.structs = {}
+
+
+def thread_structs() -> dict[Any, Any]:
+    """This thread's kernel argument structs kept between calls, by the caller's key (a struct refers to this thread's
+    scratch arrays, so it is this thread's; :func:`release_scratch` drops them with the arrays)."""
+    structs = getattr(_pools, "structs", None)
+    if structs is None:
+        structs = _pools.structs = {}
+    return structs
 
 
 def read_int32(array: wp.array, index: int) -> int:

@@ -1736,3 +1736,30 @@ def test_a_stacks_colors_that_do_not_fit_are_refused_before_its_first_frame_is_s
     assert str(got.value) == str(before.value)
     with pytest.raises(AssertionError, match="stepped before"):  # colors that fit go on to the passes
         next(st.stepped_series(stack, interval=4.0, colors=np.zeros((3, 3)), device="cpu"))
+
+
+def test_kept_grid_struct_serves_only_its_own_terrain_and_lets_it_go():
+    """stepped keeps the last grid struct a thread built (the terrain's heights, the thread's levels scratch) for a
+    re-step of the same terrain: another terrain of the same shape gets its own heights, and a dropped terrain's
+    heights are not kept alive by it."""
+    import gc
+    import weakref
+
+    from stepterrain import _device
+
+    rng = np.random.default_rng(3)
+    a = st.Terrain.from_heights((rng.random((40, 50)) * 30).astype(np.float32))
+    b = st.Terrain.from_heights((rng.random((40, 50)) * 30).astype(np.float32))
+    expected = []
+    for t in (a, b):
+        _device.release_scratch()
+        expected.append(st.stepped(t, interval=4.0))
+    _device.release_scratch()
+    for t, mesh in zip((a, b, a, a, b), (expected[0], expected[1], expected[0], expected[0], expected[1]), strict=True):
+        again = st.stepped(t, interval=4.0)
+        np.testing.assert_array_equal(again.vertices, mesh.vertices)
+        np.testing.assert_array_equal(again.faces, mesh.faces)
+    heights = weakref.ref(b.heights.base if b.heights.base is not None else b.heights)
+    del b, t, again, mesh, expected
+    gc.collect()
+    assert heights() is None
