@@ -505,52 +505,9 @@ def _submit(count: int, calls: list[tuple[Any, ...]]) -> list[Future]:
 
 
 def _launch_range(kernel: Any, dim: int, inputs: list, outputs: list, device: wp.Device, fence: bool) -> None:
-    if device.is_cpu:
-        _cpu_launch(kernel, dim, [*inputs, *outputs], device)
-        if fence:  # on the thread that ran the range: its streaming stores, ordered before anyone reads them
-            _cpu_launch(memory_kernels.drain_streams, 1, [], device)
-        return
     wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=device)
-
-
-def _cpu_launch(kernel: Any, dim: int, args: list, device: wp.Device) -> None:
-    """``wp.launch(kernel, dim=dim, inputs=args, device=device)`` on the CPU, replaying this thread's recorded
-    ``wp.Launch`` of ``kernel`` with the new dimension and arguments (``set_dim``, ``set_params``: the same
-    conversions and checks of each argument) when it still runs the module ``wp.launch`` would load now.
-
-    ``wp.launch`` spends most of its ~7 microseconds (hot; 50-100 cold, as between a re-step's kernels, whose
-    outputs evict the caches) resolving the device, block size, module and kernel hooks again; a 512² re-step
-    launches six times. Anything unusual takes ``wp.launch`` itself: a ``wp.Tape`` recording, printed launches,
-    a wrong argument count (its error), a reloaded module (a changed ``wp.config.mode``)."""
-    recorded = getattr(_pools, "launches", None)
-    if recorded is None:
-        recorded = _pools.launches = {}
-    replay = recorded.get(kernel)
-    plain = not kernel.is_generic and len(args) == len(kernel.adj.args) and not _launch_hooks_active()
-    if not plain:
-        wp.launch(kernel, dim=dim, inputs=args, device=device)
-        return
-    if replay is None or replay.device is not device \
-            or kernel.module.load(device, CPU_LAUNCH_BLOCK_DIM) is not replay.module_exec:
-        replay = wp.launch(kernel, dim=dim, inputs=args, device=device, record_cmd=True)
-        if replay is None:  # nothing to run (a module that did not load): as wp.launch
-            return
-        recorded[kernel] = replay
-    else:
-        replay.set_dim(dim)
-        replay.fwd_args = [None] * len(args)
-    try:
-        replay.set_params(args)
-        replay.launch()
-    finally:  # the arguments (outputs lent from the pool, a terrain's heights) are not kept alive: only pointers stay
-        replay.fwd_args = None
-
-
-def _launch_hooks_active() -> bool:
-    """Whether ``wp.launch`` would do more than run the kernel: record it on an active ``wp.Tape`` or print it."""
-    runtime = getattr(getattr(wp, "_src", None), "context", None)
-    runtime = getattr(runtime, "runtime", None)
-    return runtime is None or getattr(runtime, "tape", None) is not None or bool(wp.config.print_launches)
+    if fence:  # on the thread that ran the range: its streaming stores, ordered before anyone reads them
+        wp.launch(memory_kernels.drain_streams, dim=1, device=device)
 
 
 def _preload(kernel: Any, device: wp.Device) -> None:
