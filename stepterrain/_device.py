@@ -127,6 +127,8 @@ def resolve_device(device: wp.DeviceLike = None, *arrays: Any) -> wp.Device:
         The device name is unknown or not present, or the inputs live on different devices.
     """
     init_warp()
+    if not arrays and type(device) is wp.Device:  # a device Warp made (the common call): what wp.get_device returns
+        return device
     data_devices = {str(a.device) for a in arrays if isinstance(a, wp.array)}
     if len(data_devices) > 1:
         raise DeviceError(f"inputs live on different devices: {sorted(data_devices)}; move them to one device")
@@ -422,9 +424,20 @@ def no_elements(dtype: Any, device: wp.Device) -> wp.array:
 
 
 def release_scratch() -> None:
-    """Free this thread's scratch arrays (see :func:`scratch`)."""
+    """Free this thread's scratch arrays (see :func:`scratch`) and the kernel structs kept with them
+    (:func:`thread_structs`)."""
     _pools.arrays = {}
     _pools.views = {}
+    _pools.structs = {}
+
+
+def thread_structs() -> dict[Any, Any]:
+    """This thread's kernel argument structs kept between calls, by the caller's key (a struct refers to this thread's
+    scratch arrays, so it is this thread's; :func:`release_scratch` drops them with the arrays)."""
+    structs = getattr(_pools, "structs", None)
+    if structs is None:
+        structs = _pools.structs = {}
+    return structs
 
 
 def read_int32(array: wp.array, index: int) -> int:

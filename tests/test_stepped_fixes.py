@@ -49,6 +49,22 @@ def test_isovalue_memo_is_built_from_the_float32_values_it_is_keyed_by():
     np.testing.assert_array_equal(again.faces, mesh.faces)
 
 
+def test_uniform_isovalues_memo_hands_out_copies_and_keeps_refusals():
+    """isovalues(interval=...) keeps its results by (lo, hi, interval, base) bits (a re-step going back and forth
+    between intervals): every call gets its own array, equal to a fresh computation (writing to one changed the next
+    call's isovalues when the memo handed out its own), and a refusal is refused again."""
+    stepped_module._UNIFORM.clear()
+    first = st.isovalues((3.0, 21.0), interval=10.0)
+    first[:] = -1.0
+    again = st.isovalues((3.0, 21.0), interval=10.0)
+    assert again.dtype == np.float32 and again.tolist() == [0.0, 10.0, 20.0, 30.0]
+    again[0] = 5.0
+    assert st.isovalues((3.0, 21.0), interval=10.0).tolist() == [0.0, 10.0, 20.0, 30.0]
+    for _ in range(2):
+        with pytest.raises(st.InvalidInputError, match="too small"):
+            st.isovalues((1e7, 1e7 + 4), interval=0.5)
+
+
 @pytest.mark.parametrize("bad", [np.inf, -np.inf, 1e300], ids=["inf", "-inf", "beyond-float32"])
 def test_series_stack_refuses_a_bad_frame_before_the_first_frame(bad):
     """stepped_series' docstring: a frame with bad heights is refused naming frames[k], for a (T, H, W) stack
@@ -1720,3 +1736,30 @@ def test_a_stacks_colors_that_do_not_fit_are_refused_before_its_first_frame_is_s
     assert str(got.value) == str(before.value)
     with pytest.raises(AssertionError, match="stepped before"):  # colors that fit go on to the passes
         next(st.stepped_series(stack, interval=4.0, colors=np.zeros((3, 3)), device="cpu"))
+
+
+def test_kept_grid_struct_serves_only_its_own_terrain_and_lets_it_go():
+    """stepped keeps the last grid struct a thread built (the terrain's heights, the thread's levels scratch) for a
+    re-step of the same terrain: another terrain of the same shape gets its own heights, and a dropped terrain's
+    heights are not kept alive by it."""
+    import gc
+    import weakref
+
+    from stepterrain import _device
+
+    rng = np.random.default_rng(3)
+    a = st.Terrain.from_heights((rng.random((40, 50)) * 30).astype(np.float32))
+    b = st.Terrain.from_heights((rng.random((40, 50)) * 30).astype(np.float32))
+    expected = []
+    for t in (a, b):
+        _device.release_scratch()
+        expected.append(st.stepped(t, interval=4.0))
+    _device.release_scratch()
+    for t, mesh in zip((a, b, a, a, b), (expected[0], expected[1], expected[0], expected[0], expected[1]), strict=True):
+        again = st.stepped(t, interval=4.0)
+        np.testing.assert_array_equal(again.vertices, mesh.vertices)
+        np.testing.assert_array_equal(again.faces, mesh.faces)
+    heights = weakref.ref(b.heights.base if b.heights.base is not None else b.heights)
+    del b, t, again, mesh, expected
+    gc.collect()
+    assert heights() is None
