@@ -1287,8 +1287,8 @@ def render_textured_mesh(
     hillshade was shaded twice: its terraces at 0.87 of their colour and walls facing the camera at 0.55 (the
     draped view of docs/texture.png darker than the texture beside it). ``z_scale`` defaults to 1, true
     proportions. The CLI's ``texture --png`` defaults differ: ``--z-scale 2`` and ``--lighting auto`` (relief on the
-    stepped terrain under a hillshade, lit on it without one, lit with ``--hillshade none`` and no ``--image``,
-    unlit otherwise).
+    stepped terrain under a hillshade, ``--shadows`` or ``--occlusion``, lit on it without them, lit on the
+    heightfield with ``--hillshade none`` and no ``--image``, unlit otherwise).
 
     A texture with some alpha below 255 (an alpha band, or a PNG's transparent colour) blends with what lies behind
     it, in depth order (depth peeling), as the mesh's GLB shows it; a material's glTF ``alphaMode`` is followed when
