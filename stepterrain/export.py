@@ -3558,12 +3558,15 @@ def _obj_zero_in_block(text: NDArray[np.uint8]) -> int:
     """Where in ``text`` (whole lines of an OBJ, the last ending in a newline) the blank or slash before the first
     index 0 of a face line is (as :func:`_check_obj_indices` looks for it), or -1."""
     zeros = np.flatnonzero(text[1:] == ord("0")) + 1
-    zeros = zeros[_OBJ_ZERO_BEFORE[text[zeros - 1]]]  # a number's first zero: after a blank or a slash
+    signs = (text[zeros - 1] == ord("-")) | (text[zeros - 1] == ord("+"))  # -0, +0: index 0 too
+    before = zeros - 1 - signs
+    first = (before >= 0) & _OBJ_ZERO_BEFORE[text[np.maximum(before, 0)]]  # a number's first zero: after a blank or /
+    zeros, before = zeros[first], before[first]
     if len(zeros):
-        zeros = zeros[~_OBJ_ZERO_AFTER[text[_obj_run_ends(text, zeros, _OBJ_ZERO_DIGIT)]]]  # 0, 00: not 10, 0.5
+        kept = ~_OBJ_ZERO_AFTER[text[_obj_run_ends(text, zeros, _OBJ_ZERO_DIGIT)]]  # 0, 00: not 10, 0.5
+        zeros, before = zeros[kept], before[kept]
     if not len(zeros):
         return -1
-    before = zeros - 1
     newlines = np.flatnonzero(text == ord("\n"))
     starts = np.concatenate(([0], newlines + 1))[np.searchsorted(newlines, before)]  # each one's line
     first = _obj_run_ends(text, starts, _OBJ_LINE_BLANK)  # its line's first byte that is no blank
@@ -3576,19 +3579,35 @@ def _obj_zero_in_block(text: NDArray[np.uint8]) -> int:
     return int(before[found[0]]) if len(found) else -1
 
 
+def _obj_first_face_line(data: Any) -> int:
+    """Where the first line of the OBJ text ``data`` (bytes or an mmap) whose first byte but blanks is ``f`` begins, or
+    -1: each ``f`` found in turn (a byte search), only its own line looked at, then on from the next line."""
+    at = data.find(b"f")
+    while at >= 0:
+        start = data.rfind(b"\n", 0, at) + 1
+        if not bytes(data[start:at]).strip():
+            return start  # type: ignore[no-any-return]
+        end = data.find(b"\n", at)
+        at = -1 if end < 0 else data.find(b"f", end)
+    return -1
+
+
 def _check_obj_indices(file: Path, source: bytes | None = None) -> None:
     """Raise a ValueError where a face of the OBJ ``file`` names index 0, which names nothing (OBJ counts from 1, and
     back from -1): trimesh's reader took it as the first vertex and shifted none of the others, so ``f 0 1 2`` read as
     the degenerate face (0, 0, 1) without a word. Scanned without reading the file into memory (``source``: its text
-    with newline line ends, :func:`_obj_newlines`, scanned instead), from its first face on: the vertices mostly
-    come first, and their zeros are not looked at. By NumPy over blocks of whole lines (a regular expression's
-    search, then a Python loop over the zero coordinates of the ``v`` lines after a face, took 0.4 s of a 47 MB
-    OBJ's read, and 0.63 s for one of 168,000 faces before its vertices)."""
+    with newline line ends, :func:`_obj_newlines`, scanned instead), from its first face on (an indented one too,
+    which the scan from the first line starting with ``f`` passed over: `` f 0 1 2`` read as (0, 0, 1)): the
+    vertices mostly come first, and their zeros are not looked at. A signed zero, ``-0`` or ``+0``, is index 0 too
+    (it read as the first vertex, or where ``v`` lines follow faces as the one after the face:
+    :func:`_obj_absolute_indices`). By NumPy over blocks of whole lines (a regular expression's search, then a
+    Python loop over the zero coordinates of the ``v`` lines after a face, took 0.4 s of a 47 MB OBJ's read, and
+    0.63 s for one of 168,000 faces before its vertices)."""
     with _obj_mapped(file, source) as data:
         if data is None:
             return
-        at = 0 if data[:1] == b"f" else data.find(b"\nf") + 1
-        if at == 0 and data[:1] != b"f":  # no line starts with f
+        at = _obj_first_face_line(data)
+        if at < 0:
             return
         size = len(data)
         while at < size:

@@ -628,20 +628,16 @@ def test_obj_absolute_indices_vectorised_and_as_a_reference_counts():
 
 def _index_zero_line(data: bytes) -> int | None:
     """The line number of the first face line of the OBJ text ``data`` naming an index 0 (``0``, ``00``: not ``10``,
-    ``0.5``, ``0e1``; after a blank or a slash, before any ``#`` of its line), from its first line starting with
-    ``f`` on, by a Python loop over its lines: a reference for :func:`_check_obj_indices`."""
-    lines = data.split(b"\n")
-    first = next((k for k, line in enumerate(lines) if line[:1] == b"f"), None)
-    if first is None:
-        return None
-    for k in range(first, len(lines)):
-        line = lines[k]
+    ``0.5``, ``0e1``; signed, ``-0``, or not; after a blank or a slash, before any ``#`` of its line), by a Python
+    loop over its lines: a reference for :func:`_check_obj_indices`."""
+    for k, line in enumerate(data.split(b"\n")):
         if line.lstrip()[:2] not in (b"f ", b"f\t"):
             continue
         for at in range(1, len(line)):
-            if line[at - 1 : at] in (b" ", b"\t", b"/") and line[at : at + 1] == b"0":
-                rest = line[at:].lstrip(b"0")
-                if b"#" not in line[: at - 1] and rest[:1] not in [bytes([c]) for c in b"0123456789.eE"]:
+            if line[at - 1 : at] in (b" ", b"\t", b"/"):
+                rest = line[at + (line[at : at + 1] in (b"-", b"+")) :]
+                if (rest[:1] == b"0" and b"#" not in line[: at - 1]
+                        and rest.lstrip(b"0")[:1] not in [bytes([c]) for c in b"0123456789.eE"]):
                     return k + 1
     return None
 
@@ -658,7 +654,7 @@ def test_obj_index_zero_check_vectorised_and_as_a_reference_refuses(tmp_path, mo
     rng = np.random.default_rng(5)
     words = [b"f", b"f ", b"f\t", b" f ", b"\t" * 10 + b"f ", b"v ", b"vt ", b"#", b"0", b"00", b"0" * 20, b"0.5",
              b"0e1", b"10", b"1", b"/", b" ", b"\t", b"\r\n", b"\n", b"\n", b"-1", b"x", b"0x", b"\r", b"g a-0 ",
-             b"usemtl m#0 "]
+             b"usemtl m#0 ", b"-0", b"+0", b"-", b"+"]
     path = tmp_path / "a.obj"
     refused = 0
     for _ in range(1500):
@@ -683,3 +679,20 @@ def test_obj_index_zero_check_vectorised_and_as_a_reference_refuses(tmp_path, mo
     small = _python_calls(export._check_obj_indices, path)
     path.write_bytes(after(4000))
     assert _python_calls(export._check_obj_indices, path) < small + 50
+
+
+@pytest.mark.parametrize(("text", "line"), [
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\n f 0 1 2\n", "line 4, 'f 0 1 2'"),  # indented, and no face at a line's start
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\n  f 0 1 2\nf 1 2 3\n", "line 4, 'f 0 1 2'"),  # indented, before such a face
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf -0 2 3\n", "line 4, 'f -0 2 3'"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/+0 2/1 3/1\n", "line 5, 'f 1/\\+0 2/1 3/1'"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nv 5 5 5\nv 6 5 5\nv 5 6 5\nf -0 -2 -3\nv 9 9 9\n", "line 8, 'f -0 -2 -3'"),
+])
+def test_obj_index_zero_signed_or_indented_refused(tmp_path, text, line):
+    """An indented face before the first line starting with ``f`` was not looked at (`` f 0 1 2`` read as the
+    degenerate (0, 0, 1)), and ``-0`` or ``+0`` was no index 0: read as the first vertex, or where ``v`` lines follow
+    faces as the one after its face (``f -0 -2 -3`` above as (9 9 9), (6 5 5), (5 5 5))."""
+    path = tmp_path / "zero.obj"
+    path.write_text(text)
+    with pytest.raises(DataFileError, match=rf"zero\.obj.*{line}, names index 0"):
+        read_mesh(path)
