@@ -2867,7 +2867,12 @@ def _obj_newlines(file: Path) -> bytes | None:
             mark = mapped[:3] == b"\xef\xbb\xbf"
             if not mark and (mapped.find(b"\r") < 0 or _OBJ_LONE_CR.search(mapped) is None):  # type: ignore[call-overload]
                 return None
-            return b"\n".join(mapped[3 if mark else 0 :].splitlines()) + b"\n"
+            # replaced, not split into lines and joined: a list of lines took 9 times the file's size (346 MB for
+            # 39 MB) and 0.4-0.8 s, 5-15 times as long
+            text = mapped[3 if mark else 0 :]
+            if text.find(b"\r") >= 0:
+                text = text.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+            return text if text.endswith(b"\n") else text + b"\n"  # type: ignore[no-any-return]
 
 
 @contextlib.contextmanager

@@ -696,3 +696,32 @@ def test_obj_index_zero_signed_or_indented_refused(tmp_path, text, line):
     path.write_text(text)
     with pytest.raises(DataFileError, match=rf"zero\.obj.*{line}, names index 0"):
         read_mesh(path)
+
+
+def test_obj_newlines_replaced_as_lines_joined_without_a_list_of_lines(tmp_path):
+    """An OBJ of carriage-return line ends (or a byte-order mark) is read with newlines for them, as its lines split
+    and joined by newlines (CR, LF and CRLF each a line's end; a newline after the last line), without a list of
+    its lines: that took 9 times the file's size."""
+    import tracemalloc
+
+    from stepterrain.export import _obj_newlines
+
+    rng = np.random.default_rng(3)
+    pieces = [b"v 0 0 0", b"f 1 2 3", b"\r", b"\n", b"\r\n", b"\r\r", b"\n\r", b" ", b"#"]
+    path = tmp_path / "a.obj"
+    for _ in range(400):
+        text = b"".join(pieces[k] for k in rng.integers(0, len(pieces), int(rng.integers(0, 12))))
+        for data in (text, b"\xef\xbb\xbf" + text):
+            path.write_bytes(data)
+            lone = data.replace(b"\r\n", b"").find(b"\r") >= 0
+            expected = b"\n".join(data.removeprefix(b"\xef\xbb\xbf").splitlines()) + b"\n"
+            assert _obj_newlines(path) == (expected if lone or data[:1] == b"\xef" else None), data
+    data = b"v 0 0 0\r" * 250_000
+    path.write_bytes(data)
+    tracemalloc.start()
+    try:
+        _obj_newlines(path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 4 * len(data), (peak, len(data))
