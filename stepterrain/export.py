@@ -2938,14 +2938,35 @@ def _obj_absolute_indices(data: bytes) -> bytes:
     file's start. Vectorised over the text's bytes (a Python loop over its lines took 3 s for 168,200 faces): each
     minus of a face line that starts a field (after a blank or slash) and is followed by digits to the field's end
     is a relative index, its field (v, vt or vn) counted by the slashes before it in its word; the text is the same
-    but for those fields."""
+    but for those fields. In blocks of whole lines (:data:`_OBJ_INDEX_BLOCK`): the arrays of the whole text took 56
+    times its size (292 MB for 5 MB of one-face objects), a text of 500 MB would have taken 28 GB."""
+    pieces, seen, lines, at, size = [], np.zeros(3, dtype=np.int64), 0, 0, len(data)
+    while at < size:
+        end = data.find(b"\n", min(at + _OBJ_INDEX_BLOCK, size - 1))
+        end = size if end < 0 else end + 1
+        block = data[at:end]
+        piece, seen = _obj_absolute_block(block, seen, lines)
+        pieces.append(piece)
+        lines += block.count(b"\n")
+        at = end
+    return b"".join(pieces) if len(pieces) != 1 else pieces[0]
+
+
+#: how many bytes of an OBJ's lines :func:`_obj_absolute_indices` rewrites at once
+_OBJ_INDEX_BLOCK = 1 << 20
+
+
+def _obj_absolute_block(data: bytes, before: NDArray[np.int64], lines: int) -> tuple[bytes, NDArray[np.int64]]:
+    """:func:`_obj_absolute_indices` of ``data``, whole lines of an OBJ text after ``lines`` lines holding ``before``
+    ``v``, ``vt`` and ``vn`` lines: the lines rewritten, and the ``v``, ``vt`` and ``vn`` lines up to their end."""
+
     text = np.frombuffer(data, dtype=np.uint8)
     size = len(text)
     newlines = np.flatnonzero(text == ord("\n"))
     starts = np.concatenate(([0], newlines + 1))
     padded = np.concatenate((text, np.zeros(_OBJ_FIELD_REACH + 2, np.uint8)))  # zeros: no digit, no blank
     kinds = [_obj_lines_starting(padded, starts, keyword) for keyword in (b"v ", b"vt ", b"vn ", b"f ")]
-    seen = np.stack([np.cumsum(kind) for kind in kinds[:3]])  # the v, vt, vn lines up to each line
+    seen = np.stack([np.cumsum(kind) for kind in kinds[:3]]) + before[:, None]  # the v, vt, vn lines up to each
     minus = np.flatnonzero(text == ord("-"))
     line = np.searchsorted(starts, minus, side="right") - 1
     minus, line = minus[kinds[3][line]], line[kinds[3][line]]  # in face lines
@@ -2966,7 +2987,7 @@ def _obj_absolute_indices(data: bytes) -> bytes:
     own &= slot < 3
     minus, line, digits, slot, after = minus[own], line[own], digits[own], slot[own], after[own]
     if not len(minus):
-        return data
+        return data, seen[:, -1]
     value = np.zeros(len(minus), dtype=np.int64)
     for k in range(18):  # the fields' k-th digits, where they have one
         value = np.where(k < digits, value * 10 + after[:, k] - ord("0"), value)
@@ -2975,7 +2996,8 @@ def _obj_absolute_indices(data: bytes) -> bytes:
         bad = int(np.argmax(index < 1))
         number, kind = int(line[bad]), ("v", "vt", "vn")[int(slot[bad])]
         row = data[starts[number] : (newlines[number] if number < len(newlines) else size)]
-        raise ValueError(f"line {number + 1}, {row.decode('utf-8', 'replace').strip()!r}, names {kind} -{value[bad]}, "
+        raise ValueError(f"line {lines + number + 1}, {row.decode('utf-8', 'replace').strip()!r}, names {kind} "
+                         f"-{value[bad]}, "
                          f"and {seen[slot[bad], number]} {kind} lines come before it: a negative index counts back "
                          "from them")
     width = np.searchsorted(_POWERS_OF_TEN, index, side="right")  # the digits of each index
@@ -2985,7 +3007,7 @@ def _obj_absolute_indices(data: bytes) -> bytes:
     removed = np.repeat(minus, 1 + digits) + (np.arange(int(np.sum(1 + digits)))
                                              - np.repeat(np.cumsum(1 + digits) - 1 - digits, 1 + digits))
     at = np.repeat(minus - (np.cumsum(1 + digits) - 1 - digits), width)  # each field's place once they are removed
-    return np.insert(np.delete(text, removed), at, written).tobytes()  # type: ignore[no-any-return]
+    return np.insert(np.delete(text, removed), at, written).tobytes(), seen[:, -1]
 
 
 def _obj_tidied(file: Path, source: bytes | None = None) -> bytes | None:
