@@ -3712,7 +3712,30 @@ def _obj_chunk_faces(data: bytes) -> tuple[list[bytes | None], list[NDArray[np.i
     (a, b, c) and (c, d, a), a larger polygon as a fan from its first corner; a face of fewer than 3 corners
     skipped). None where a face does not read so. Vectorised over the text's bytes (a Python loop over its lines
     took 1.3 s of a 2.2 s read of 90,000 vertices in two materials): the lines found by their newlines, each face
-    line's words by the blanks before them, the numbers read by NumPy at once."""
+    line's words by the blanks before them, the numbers read by NumPy at once, in blocks of whole lines
+    (:data:`_OBJ_INDEX_BLOCK`: the arrays of the whole text took 28 times its size, 285 MB for 10 MB)."""
+    names: list[bytes | None] = [None]
+    faces, owners, seen, at, size = [], [], 0, 0, len(data)
+    while at < size:
+        end = data.find(b"\n", min(at + _OBJ_INDEX_BLOCK, size - 1))
+        end = size if end < 0 else end + 1
+        read = _obj_chunk_block(data[at:end], seen, len(names) - 1)
+        if read is None:
+            return None
+        names += read[0]
+        faces.append(read[1])
+        owners.append(read[2])
+        seen, at = read[3], end
+    joined = np.concatenate(faces) if faces else np.zeros((0, 3), dtype=np.int64)
+    bounds = np.searchsorted(np.concatenate(owners) if owners else np.zeros(0, np.int64), np.arange(1, len(names)))
+    return names, np.split(joined, bounds)
+
+
+def _obj_chunk_block(data: bytes, before: int, chunks: int) -> tuple[list[bytes | None], NDArray[np.int64],
+                                                                      NDArray[np.int64], int] | None:
+    """:func:`_obj_chunk_faces` of ``data``, whole lines of an OBJ text after ``before`` ``v`` lines and ``chunks``
+    ``usemtl`` lines: its ``usemtl`` names, its triangles, each one's chunk, and the ``v`` lines up to its end; None
+    where a face does not read so."""
     text = np.frombuffer(data, dtype=np.uint8)
     size = len(text)
     newlines = np.flatnonzero(text == ord("\n"))
@@ -3721,10 +3744,10 @@ def _obj_chunk_faces(data: bytes) -> tuple[list[bytes | None], list[NDArray[np.i
     padded = np.concatenate((text, np.zeros(8, np.uint8)))
 
     vertex, face, usemtl = (_obj_lines_starting(padded, starts, keyword) for keyword in (b"v ", b"f ", b"usemtl "))
-    names: list[bytes | None] = [None]
-    names += [bytes(data[start + 7 : end]).strip() for start, end in zip(starts[usemtl], ends[usemtl], strict=True)]
-    seen = np.cumsum(vertex) - vertex  # the v lines before each line
-    chunk = np.cumsum(usemtl)  # each line's usemtl chunk
+    names: list[bytes | None] = [bytes(data[start + 7 : end]).strip()
+                                 for start, end in zip(starts[usemtl], ends[usemtl], strict=True)]
+    seen = np.cumsum(vertex) - vertex + before  # the v lines before each line
+    chunk = np.cumsum(usemtl) + chunks  # each line's usemtl chunk
     # the face lines' words: the bytes after "f " up to and with the newline (a blank between lines)
     marks = np.zeros(size + 2, dtype=np.int8)
     marks[starts[face] + 2] += 1
@@ -3756,9 +3779,7 @@ def _obj_chunk_faces(data: bytes) -> tuple[list[bytes | None], list[NDArray[np.i
     picks = np.column_stack([at, at + j + 1, at + j + 2])  # a fan from the first corner
     second = (counts[owner] == 4) & (j == 1)  # a quad's second triangle: (c, d, a)
     picks[second] = np.column_stack([at[second] + 2, at[second] + 3, at[second]])
-    faces = corners[picks].reshape(-1, 3)
-    bounds = np.searchsorted(chunk[lines][owner], np.arange(1, len(names)))
-    return names, np.split(faces, bounds)
+    return names, corners[picks].reshape(-1, 3), chunk[lines][owner], before + int(np.count_nonzero(vertex))
 
 
 def _obj_materials_joined(file: Path, tidied: bytes | None) -> trimesh.Trimesh | None:
