@@ -2867,7 +2867,12 @@ def _obj_newlines(file: Path) -> bytes | None:
             mark = mapped[:3] == b"\xef\xbb\xbf"
             if not mark and (mapped.find(b"\r") < 0 or _OBJ_LONE_CR.search(mapped) is None):  # type: ignore[call-overload]
                 return None
-            return b"\n".join(mapped[3 if mark else 0 :].splitlines()) + b"\n"
+            # replaced, not split into lines and joined: a list of lines took 9 times the file's size (346 MB for
+            # 39 MB) and 0.4-0.8 s, 5-15 times as long
+            text = mapped[3 if mark else 0 :]
+            if text.find(b"\r") >= 0:
+                text = text.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+            return text if text.endswith(b"\n") else text + b"\n"  # type: ignore[no-any-return]
 
 
 @contextlib.contextmanager
@@ -2933,14 +2938,35 @@ def _obj_absolute_indices(data: bytes) -> bytes:
     file's start. Vectorised over the text's bytes (a Python loop over its lines took 3 s for 168,200 faces): each
     minus of a face line that starts a field (after a blank or slash) and is followed by digits to the field's end
     is a relative index, its field (v, vt or vn) counted by the slashes before it in its word; the text is the same
-    but for those fields."""
+    but for those fields. In blocks of whole lines (:data:`_OBJ_INDEX_BLOCK`): the arrays of the whole text took 56
+    times its size (292 MB for 5 MB of one-face objects), a text of 500 MB would have taken 28 GB."""
+    pieces, seen, lines, at, size = [], np.zeros(3, dtype=np.int64), 0, 0, len(data)
+    while at < size:
+        end = data.find(b"\n", min(at + _OBJ_INDEX_BLOCK, size - 1))
+        end = size if end < 0 else end + 1
+        block = data[at:end]
+        piece, seen = _obj_absolute_block(block, seen, lines)
+        pieces.append(piece)
+        lines += block.count(b"\n")
+        at = end
+    return b"".join(pieces) if len(pieces) != 1 else pieces[0]
+
+
+#: how many bytes of an OBJ's lines :func:`_obj_absolute_indices` rewrites at once
+_OBJ_INDEX_BLOCK = 1 << 20
+
+
+def _obj_absolute_block(data: bytes, before: NDArray[np.int64], lines: int) -> tuple[bytes, NDArray[np.int64]]:
+    """:func:`_obj_absolute_indices` of ``data``, whole lines of an OBJ text after ``lines`` lines holding ``before``
+    ``v``, ``vt`` and ``vn`` lines: the lines rewritten, and the ``v``, ``vt`` and ``vn`` lines up to their end."""
+
     text = np.frombuffer(data, dtype=np.uint8)
     size = len(text)
     newlines = np.flatnonzero(text == ord("\n"))
     starts = np.concatenate(([0], newlines + 1))
     padded = np.concatenate((text, np.zeros(_OBJ_FIELD_REACH + 2, np.uint8)))  # zeros: no digit, no blank
     kinds = [_obj_lines_starting(padded, starts, keyword) for keyword in (b"v ", b"vt ", b"vn ", b"f ")]
-    seen = np.stack([np.cumsum(kind) for kind in kinds[:3]])  # the v, vt, vn lines up to each line
+    seen = np.stack([np.cumsum(kind) for kind in kinds[:3]]) + before[:, None]  # the v, vt, vn lines up to each
     minus = np.flatnonzero(text == ord("-"))
     line = np.searchsorted(starts, minus, side="right") - 1
     minus, line = minus[kinds[3][line]], line[kinds[3][line]]  # in face lines
@@ -2961,7 +2987,7 @@ def _obj_absolute_indices(data: bytes) -> bytes:
     own &= slot < 3
     minus, line, digits, slot, after = minus[own], line[own], digits[own], slot[own], after[own]
     if not len(minus):
-        return data
+        return data, seen[:, -1]
     value = np.zeros(len(minus), dtype=np.int64)
     for k in range(18):  # the fields' k-th digits, where they have one
         value = np.where(k < digits, value * 10 + after[:, k] - ord("0"), value)
@@ -2970,7 +2996,8 @@ def _obj_absolute_indices(data: bytes) -> bytes:
         bad = int(np.argmax(index < 1))
         number, kind = int(line[bad]), ("v", "vt", "vn")[int(slot[bad])]
         row = data[starts[number] : (newlines[number] if number < len(newlines) else size)]
-        raise ValueError(f"line {number + 1}, {row.decode('utf-8', 'replace').strip()!r}, names {kind} -{value[bad]}, "
+        raise ValueError(f"line {lines + number + 1}, {row.decode('utf-8', 'replace').strip()!r}, names {kind} "
+                         f"-{value[bad]}, "
                          f"and {seen[slot[bad], number]} {kind} lines come before it: a negative index counts back "
                          "from them")
     width = np.searchsorted(_POWERS_OF_TEN, index, side="right")  # the digits of each index
@@ -2980,7 +3007,7 @@ def _obj_absolute_indices(data: bytes) -> bytes:
     removed = np.repeat(minus, 1 + digits) + (np.arange(int(np.sum(1 + digits)))
                                              - np.repeat(np.cumsum(1 + digits) - 1 - digits, 1 + digits))
     at = np.repeat(minus - (np.cumsum(1 + digits) - 1 - digits), width)  # each field's place once they are removed
-    return np.insert(np.delete(text, removed), at, written).tobytes()  # type: ignore[no-any-return]
+    return np.insert(np.delete(text, removed), at, written).tobytes(), seen[:, -1]
 
 
 def _obj_tidied(file: Path, source: bytes | None = None) -> bytes | None:
@@ -2994,16 +3021,16 @@ def _obj_tidied(file: Path, source: bytes | None = None) -> bytes | None:
     specification describes comments as lines starting with ``#``, and tools write names holding one
     (``Material#1``), which trimesh's reader keeps. Decided by byte searches of the file mapped, not read (a large
     OBJ, as :func:`save_mesh` writes it, needs no tidying); read only to be tidied. ``source``: the file's text with
-    newline line ends (:func:`_obj_newlines`), tidied so always. A face's relative indices where ``v`` lines follow
-    faces are made absolute too (:func:`_obj_absolute_indices`)."""
+    newline line ends (:func:`_obj_newlines`), returned as it is where it needs no tidying. A face's relative
+    indices where ``v`` lines follow faces are made absolute too (:func:`_obj_absolute_indices`)."""
     with _obj_mapped(file, source) as mapped:
         if mapped is None:
             return None
         loose = (mapped[:1] in (b" ", b"\t") or mapped.find(b"\t") >= 0
                  or any(mapped.find(pair) >= 0 for pair in (b"\n ", b"\r ")))
         comments = _obj_trailing_comment(mapped)
-        if source is None and not comments and not loose:
-            return _obj_absolute_indices(mapped[:]) if _obj_relative_after_vertices(mapped) else None
+        if not comments and not loose:  # source as it is: tidied line by line, a 39 MB one took 0.4-0.7 s more
+            return _obj_absolute_indices(mapped[:]) if _obj_relative_after_vertices(mapped) else source
         data = mapped[:]
 
     def tidy(line: bytes) -> bytes:
@@ -3519,34 +3546,111 @@ def _gltf_color_0(file: Path, tree: Any = None) -> NDArray[np.float64] | None:
 _OBJ_FACE_WITH_SLASH = re.compile(rb"^[ \t]*f[ \t][^\n#]*/", re.MULTILINE)
 _OBJ_USEMTL = re.compile(rb"^[ \t]*usemtl[ \t]", re.MULTILINE)
 _OBJ_FACE = re.compile(rb"^[ \t]*f[ \t]", re.MULTILINE)
-#: an index 0 (of a vertex, UV or normal) on an OBJ line, which names none in a face: OBJ counts from 1, or back from -1
-_OBJ_ZERO = re.compile(rb"[ \t/]0+(?![0-9.eE])")
 #: an OBJ vertex of fewer than three coordinates
 _OBJ_SHORT_VERTEX = re.compile(rb"^[ \t]*v[ \t]+(?:[^ \t\r\n#]+[ \t]+)?[^ \t\r\n#]*[ \t]*(?:#[^\r\n]*)?\r?$",
                                re.MULTILINE)
+
+
+#: tables over the 256 byte values: the bytes before an index 0 of an OBJ face (a blank, or the slash before a texture
+#: or normal index), a zero, the bytes after an index's zeros that make it no index 0 (``10``, ``0.5``, ``0e1``), and
+#: the blanks bytes.strip() drops within a line (before its keyword)
+_OBJ_ZERO_BEFORE = np.isin(np.arange(256), np.frombuffer(b" \t/", dtype=np.uint8))
+_OBJ_ZERO_DIGIT = np.arange(256) == ord("0")
+_OBJ_ZERO_AFTER = np.isin(np.arange(256), np.frombuffer(b"0123456789.eE", dtype=np.uint8))
+_OBJ_LINE_BLANK = np.isin(np.arange(256), np.frombuffer(b" \t\r\x0b\x0c", dtype=np.uint8))
+#: how many bytes of an OBJ's lines :func:`_check_obj_indices` looks at at once (its arrays' memory bounded by it)
+_OBJ_ZERO_BLOCK = 1 << 24
+
+
+def _obj_run_ends(text: NDArray[np.uint8], at: NDArray[np.int64], table: NDArray[np.bool_]) -> NDArray[np.int64]:
+    """From each of the places ``at`` in ``text`` (which ends in a byte outside ``table``), the first place whose byte
+    is outside ``table``: stepped for all of them at once a few times (such runs are mostly a byte or two long), the
+    longer ones then searched one by one."""
+    at = at.copy()
+    going = np.flatnonzero(table[text[at]])
+    for _ in range(8):
+        if not len(going):
+            return at
+        at[going] += 1
+        going = going[table[text[at[going]]]]
+    if len(going):
+        outside = re.compile(b"[^" + b"".join(re.escape(bytes([int(b)])) for b in np.flatnonzero(table)) + b"]")
+        data = text.tobytes()
+        for k in going:
+            at[k] = outside.search(data, int(at[k])).start()  # type: ignore[union-attr]
+    return at
+
+
+def _obj_zero_in_block(text: NDArray[np.uint8]) -> int:
+    """Where in ``text`` (whole lines of an OBJ, the last ending in a newline) the blank or slash before the first
+    index 0 of a face line is (as :func:`_check_obj_indices` looks for it), or -1."""
+    zeros = np.flatnonzero(text[1:] == ord("0")) + 1
+    signs = (text[zeros - 1] == ord("-")) | (text[zeros - 1] == ord("+"))  # -0, +0: index 0 too
+    before = zeros - 1 - signs
+    first = (before >= 0) & _OBJ_ZERO_BEFORE[text[np.maximum(before, 0)]]  # a number's first zero: after a blank or /
+    zeros, before = zeros[first], before[first]
+    if len(zeros):
+        kept = ~_OBJ_ZERO_AFTER[text[_obj_run_ends(text, zeros, _OBJ_ZERO_DIGIT)]]  # 0, 00: not 10, 0.5
+        zeros, before = zeros[kept], before[kept]
+    if not len(zeros):
+        return -1
+    newlines = np.flatnonzero(text == ord("\n"))
+    starts = np.concatenate(([0], newlines + 1))[np.searchsorted(newlines, before)]  # each one's line
+    first = _obj_run_ends(text, starts, _OBJ_LINE_BLANK)  # its line's first byte that is no blank
+    after = text[np.minimum(first + 1, len(text) - 1)]  # (a first byte that is the last is a newline, no f)
+    face = (text[first] == ord("f")) & ((after == ord(" ")) | (after == ord("\t")))
+    hashes = np.flatnonzero(text == ord("#"))
+    last = np.searchsorted(hashes, before) - 1  # the last # before it (f 1 2 3 # 0 apples: a comment's zero)
+    commented = (last >= 0) & (hashes[np.maximum(last, 0)] >= starts) if len(hashes) else np.zeros(len(before), bool)
+    found = np.flatnonzero(face & ~commented)
+    return int(before[found[0]]) if len(found) else -1
+
+
+def _obj_first_face_line(data: Any) -> int:
+    """Where the first line of the OBJ text ``data`` (bytes or an mmap) whose first byte but blanks is ``f`` begins, or
+    -1: each ``f`` found in turn (a byte search), only its own line looked at, then on from the next line."""
+    at = data.find(b"f")
+    while at >= 0:
+        start = data.rfind(b"\n", 0, at) + 1
+        if not bytes(data[start:at]).strip():
+            return start  # type: ignore[no-any-return]
+        end = data.find(b"\n", at)
+        at = -1 if end < 0 else data.find(b"f", end)
+    return -1
 
 
 def _check_obj_indices(file: Path, source: bytes | None = None) -> None:
     """Raise a ValueError where a face of the OBJ ``file`` names index 0, which names nothing (OBJ counts from 1, and
     back from -1): trimesh's reader took it as the first vertex and shifted none of the others, so ``f 0 1 2`` read as
     the degenerate face (0, 0, 1) without a word. Scanned without reading the file into memory (``source``: its text
-    with newline line ends, :func:`_obj_newlines`, scanned instead)."""
+    with newline line ends, :func:`_obj_newlines`, scanned instead), from its first face on (an indented one too,
+    which the scan from the first line starting with ``f`` passed over: `` f 0 1 2`` read as (0, 0, 1)): the
+    vertices mostly come first, and their zeros are not looked at. A signed zero, ``-0`` or ``+0``, is index 0 too
+    (it read as the first vertex, or where ``v`` lines follow faces as the one after the face:
+    :func:`_obj_absolute_indices`). By NumPy over blocks of whole lines (a regular expression's search, then a
+    Python loop over the zero coordinates of the ``v`` lines after a face, took 0.4 s of a 47 MB OBJ's read, and
+    0.63 s for one of 168,000 faces before its vertices)."""
     with _obj_mapped(file, source) as data:
         if data is None:
             return
-        # from the first face: the vertices mostly come first, and their zeros are not looked at
-        at = 0 if data[:1] == b"f" else data.find(b"\nf")
-        while at >= 0:
-            found = _OBJ_ZERO.search(data, at)  # type: ignore[call-overload]
-            if found is None:
-                return
-            start = data.rfind(b"\n", 0, found.start()) + 1
-            end = data.find(b"\n", found.end())
-            offset = found.start() - start
-            del found
-            text = data[start:end if end >= 0 else len(data)]
-            comment = text.find(b"#")  # f 1 2 3 # 0 apples: a zero in its comment names nothing
-            if text.lstrip()[:2] in (b"f ", b"f\t") and not 0 <= comment < offset:
+        at = _obj_first_face_line(data)
+        if at < 0:
+            return
+        size = len(data)
+        while at < size:
+            end = data.find(b"\n", min(at + _OBJ_ZERO_BLOCK, size - 1))
+            end = size if end < 0 else end + 1
+            if data[end - 1 : end] == b"\n":  # the block looked at in place
+                view = np.frombuffer(data, dtype=np.uint8, count=end - at, offset=at)
+            else:  # the last line, and no newline after it
+                view = np.frombuffer(bytes(data[at:end]) + b"\n", dtype=np.uint8)
+            found = _obj_zero_in_block(view)
+            del view  # no view of the mapped file outlives it
+            if found >= 0:
+                found += at
+                start = data.rfind(b"\n", 0, found) + 1
+                stop = data.find(b"\n", found)
+                text = data[start : stop if stop >= 0 else size]
                 line = data[:start].count(b"\n") + 1  # a copy, on the way to the error only
                 break
             at = end
@@ -3608,7 +3712,30 @@ def _obj_chunk_faces(data: bytes) -> tuple[list[bytes | None], list[NDArray[np.i
     (a, b, c) and (c, d, a), a larger polygon as a fan from its first corner; a face of fewer than 3 corners
     skipped). None where a face does not read so. Vectorised over the text's bytes (a Python loop over its lines
     took 1.3 s of a 2.2 s read of 90,000 vertices in two materials): the lines found by their newlines, each face
-    line's words by the blanks before them, the numbers read by NumPy at once."""
+    line's words by the blanks before them, the numbers read by NumPy at once, in blocks of whole lines
+    (:data:`_OBJ_INDEX_BLOCK`: the arrays of the whole text took 28 times its size, 285 MB for 10 MB)."""
+    names: list[bytes | None] = [None]
+    faces, owners, seen, at, size = [], [], 0, 0, len(data)
+    while at < size:
+        end = data.find(b"\n", min(at + _OBJ_INDEX_BLOCK, size - 1))
+        end = size if end < 0 else end + 1
+        read = _obj_chunk_block(data[at:end], seen, len(names) - 1)
+        if read is None:
+            return None
+        names += read[0]
+        faces.append(read[1])
+        owners.append(read[2])
+        seen, at = read[3], end
+    joined = np.concatenate(faces) if faces else np.zeros((0, 3), dtype=np.int64)
+    bounds = np.searchsorted(np.concatenate(owners) if owners else np.zeros(0, np.int64), np.arange(1, len(names)))
+    return names, np.split(joined, bounds)
+
+
+def _obj_chunk_block(data: bytes, before: int, chunks: int) -> tuple[list[bytes | None], NDArray[np.int64],
+                                                                      NDArray[np.int64], int] | None:
+    """:func:`_obj_chunk_faces` of ``data``, whole lines of an OBJ text after ``before`` ``v`` lines and ``chunks``
+    ``usemtl`` lines: its ``usemtl`` names, its triangles, each one's chunk, and the ``v`` lines up to its end; None
+    where a face does not read so."""
     text = np.frombuffer(data, dtype=np.uint8)
     size = len(text)
     newlines = np.flatnonzero(text == ord("\n"))
@@ -3617,10 +3744,10 @@ def _obj_chunk_faces(data: bytes) -> tuple[list[bytes | None], list[NDArray[np.i
     padded = np.concatenate((text, np.zeros(8, np.uint8)))
 
     vertex, face, usemtl = (_obj_lines_starting(padded, starts, keyword) for keyword in (b"v ", b"f ", b"usemtl "))
-    names: list[bytes | None] = [None]
-    names += [bytes(data[start + 7 : end]).strip() for start, end in zip(starts[usemtl], ends[usemtl], strict=True)]
-    seen = np.cumsum(vertex) - vertex  # the v lines before each line
-    chunk = np.cumsum(usemtl)  # each line's usemtl chunk
+    names: list[bytes | None] = [bytes(data[start + 7 : end]).strip()
+                                 for start, end in zip(starts[usemtl], ends[usemtl], strict=True)]
+    seen = np.cumsum(vertex) - vertex + before  # the v lines before each line
+    chunk = np.cumsum(usemtl) + chunks  # each line's usemtl chunk
     # the face lines' words: the bytes after "f " up to and with the newline (a blank between lines)
     marks = np.zeros(size + 2, dtype=np.int8)
     marks[starts[face] + 2] += 1
@@ -3652,9 +3779,7 @@ def _obj_chunk_faces(data: bytes) -> tuple[list[bytes | None], list[NDArray[np.i
     picks = np.column_stack([at, at + j + 1, at + j + 2])  # a fan from the first corner
     second = (counts[owner] == 4) & (j == 1)  # a quad's second triangle: (c, d, a)
     picks[second] = np.column_stack([at[second] + 2, at[second] + 3, at[second]])
-    faces = corners[picks].reshape(-1, 3)
-    bounds = np.searchsorted(chunk[lines][owner], np.arange(1, len(names)))
-    return names, np.split(faces, bounds)
+    return names, corners[picks].reshape(-1, 3), chunk[lines][owner], before + int(np.count_nonzero(vertex))
 
 
 def _obj_materials_joined(file: Path, tidied: bytes | None) -> trimesh.Trimesh | None:
