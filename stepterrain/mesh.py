@@ -558,10 +558,20 @@ def _face_areas(vertices: NDArray[np.float64], faces: NDArray[np.int64]) -> tupl
     seen from +z, facing up), and the margin within which its sign is rounding's: 2^-20 times the surface's xy
     extent times the face's two edges from a (|Δx| + |Δy|), the change of the area by moves of the corners of a few
     float32 steps of the extent (an .stl or a .glb stores float32 positions: a face within it has no orientation
-    there, e.g. a sliver a stepped surface's float32 crossings turned over). Vertical faces (walls) give 0."""
+    there, e.g. a sliver a stepped surface's float32 crossings turned over). Where every x and y is a float32 value
+    (the surface came through float32), at least the change by moves of half a float32 step of the largest |x|, |y|
+    (u) each: u times the two edges plus 2 u^2; float32 steps grow with the coordinates, not the extent (0.25 at a
+    UTM northing of 4 000 000, where a 60 m surface's 2^-20 extent is 6e-5). Float64 input keeps the extent's margin
+    (its own steps are 2^-29 of float32's), so an overhang at UTM coordinates in float64 stays detected. Vertical
+    faces (walls) give 0."""
     x = np.ascontiguousarray(vertices[:, 0])  # columns gathered contiguous: 0.05 s per million faces, not 0.2 s
     y = np.ascontiguousarray(vertices[:, 1])
     scale = 2.0**-20 * (max(float(np.ptp(x)), float(np.ptp(y))) if len(x) else 0.0)
+    step32 = 0.0  # a float32 step of the largest |x|, |y| where the positions are float32 values, else 0
+    if len(x) and np.array_equal(x.astype(np.float32), x) and np.array_equal(y.astype(np.float32), y):
+        step32 = float(np.spacing(np.float32(max(float(np.abs(x).max()), float(np.abs(y).max())))))
+    scale = max(scale, step32)
+    floor32 = 2.0 * step32 * step32
     area = np.empty(len(faces))
     margin = np.empty(len(faces))
     step = 1 << 20  # by blocks of faces: a dozen temporaries of a block, not of the whole mesh (2.6 GB at 30 M faces)
@@ -582,6 +592,7 @@ def _face_areas(vertices: NDArray[np.float64], faces: NDArray[np.int64]) -> tupl
         out += np.abs(cx)
         out += np.abs(cy)
         out *= scale
+        out += floor32
     return area, margin
 
 

@@ -198,3 +198,51 @@ def test_a_stepped_surface_with_one_island_reversed_closes_as_the_surface_itself
     with pytest.warns(UserWarning, match=r"1 piece of the surface's 2"):
         got = close_solid(vertices, given_faces, terrace, floor)
     assert all(np.array_equal(a, b) for a, b in zip(got, want, strict=True))
+
+
+def test_a_stepped_surface_at_utm_coordinates_through_an_stl_closes_watertight(tmp_path):
+    """A stepped surface at a UTM origin written to .stl (float32 positions: steps of 0.25 at y = 4 000 000, where a
+    60 m surface's 2^-20 extent is 6e-5) and read back closes watertight with about the float64 surface's volume.
+    Before, its float32-rounded slivers counted as faces folding over (refused: 286 faces, an overhang)."""
+    from stepterrain import Terrain, stepped
+    from stepterrain.export import read_mesh, save_mesh
+
+    yy, xx = np.mgrid[0:60, 0:60]
+    heights = (30 * np.sin(xx / 5.0) * np.cos(yy / 7.0)
+               + np.random.default_rng(0).normal(0, 2, xx.shape)).astype(np.float32)
+    surface = stepped(Terrain.from_heights(heights, spacing=(1.0, 1.0), origin=(500000.0, 4000000.0)), interval=3.0,
+                      device="cpu")
+    vertices = np.asarray(surface.vertices)
+    floor = float(vertices[:, 2].min()) - 5.0
+    want = trimesh.Trimesh(*close_solid(vertices, np.asarray(surface.faces), ~surface.face_attributes["wall"],
+                                        floor)[:2], process=False).volume
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # .stl moves the vertices by up to 0.125: said so
+        save_mesh(surface, tmp_path / "utm.stl")
+    back = read_mesh(tmp_path / "utm.stl")
+    back_vertices = np.asarray(back.vertices)
+    assert np.array_equal(back_vertices.astype(np.float32), back_vertices)  # float32 positions
+    assert np.abs(back_vertices[:, :2]).max() > 4e6
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no turn warning either: every face faces up
+        solid_vertices, solid_faces, *_ = _close(back_vertices, np.asarray(back.faces), floor)
+    mesh = trimesh.Trimesh(solid_vertices, solid_faces, process=False)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    assert mesh.volume == pytest.approx(want, rel=1e-3)
+
+
+@pytest.mark.parametrize("origin", [(500000.3, 4000000.7), (500000.0, 4000000.0)])
+def test_a_surface_folded_over_itself_at_utm_coordinates_is_refused(origin):
+    """An overhang (a unit grid folded at column 4) at UTM coordinates is refused in float64 (the extent's margin:
+    its own rounding is 2^-29 of float32's) and on a float32 grid (integer metres: a float32 step of 0.25 at y =
+    4 000 000 is the margin's scale, and a unit face's twice-area 1 lies beyond its 0.25 x 3 + 2 x 0.25^2)."""
+    vertices, faces = _grid(6, 8)
+    x = vertices[:, 0].copy()
+    past = x > 4
+    vertices[past, 0] = 8 - x[past]
+    vertices[past, 2] += 10.0 + x[past]
+    vertices[:, :2] += origin
+    float32_grid = bool(np.array_equal(vertices[:, :2].astype(np.float32), vertices[:, :2]))
+    assert float32_grid == (origin == (500000.0, 4000000.0))
+    with pytest.raises(InvalidInputError, match=r"got 30 faces folding over .* in 1 piece"):
+        _close(vertices, faces, 0.0)
