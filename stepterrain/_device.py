@@ -428,15 +428,26 @@ def release_scratch() -> None:
     (:func:`thread_structs`)."""
     _pools.arrays = {}
     _pools.views = {}
-    _pools.structs = {}
+    _pools.structs = _Structs()
+
+
+class _Structs(dict[Any, Any]):
+    """A thread's kept kernel structs: a dict that a weak reference can name, so that a kept entry's weakref callback
+    (e.g. forgetting a dropped terrain's struct) refers to its dict weakly. Through a strong reference the dict, the
+    entry, its weakref and the callback formed a cycle: the struct and the scratch arrays it names (8.6 MiB of levels
+    for a 1500 x 1500 grid) outlived :func:`release_scratch` and the thread's exit until the cyclic gc ran."""
+
+    __slots__ = ("__weakref__",)
 
 
 def thread_structs() -> dict[Any, Any]:
     """This thread's kernel argument structs kept between calls, by the caller's key (a struct refers to this thread's
-    scratch arrays, so it is this thread's; :func:`release_scratch` drops them with the arrays)."""
+    scratch arrays, so it is this thread's; :func:`release_scratch` drops them with the arrays). Weakly referable: a
+    callback kept in it names it through ``weakref.ref`` (a strong reference would make a cycle that keeps it and
+    its arrays past :func:`release_scratch` and the thread's exit, until the cyclic gc runs)."""
     structs = getattr(_pools, "structs", None)
     if structs is None:
-        structs = _pools.structs = {}
+        structs = _pools.structs = _Structs()
     return structs
 
 

@@ -686,9 +686,15 @@ def _grid_struct(terrain: Terrain, device: wp.Device) -> stepped_kernels.HeightF
     hf.flip = 1 if terrain.spacing[0] * terrain.spacing[1] < 0 else 0
     hf.has_nodata = int(terrain.has_nodata)
 
-    def forget(ref: weakref.ref, structs: dict = structs, key: tuple = key) -> None:  # the terrain is gone: its
-        if structs.get(key, (None,))[0] is ref:  # heights are not kept alive by the struct
-            structs.pop(key, None)
+    # the terrain is gone: its heights are not kept alive by the struct. The callback names the dict weakly (a
+    # strong reference closed a cycle dict -> entry -> weakref -> callback -> dict, which kept the struct and its
+    # levels scratch past release_scratch() and the thread's exit until the cyclic gc ran)
+    owner = weakref.ref(structs)
+
+    def forget(ref: weakref.ref, owner: weakref.ref = owner, key: tuple = key) -> None:
+        kept = owner()
+        if kept is not None and kept.get(key, (None,))[0] is ref:
+            kept.pop(key, None)
 
     structs[key] = (weakref.ref(terrain, forget), hf)
     return hf
