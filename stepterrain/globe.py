@@ -1699,16 +1699,23 @@ class _Placement:
         edges meet, modulo ``width`` exact (a texture repeats in u): the georeferencing's column wrapped into
         one turn from column 0's centre; between the last column's centre and the first's a turn on (a gap, where
         the image spans less than 360°) the coordinate runs from the one to the other, as a sampler that repeats
-        the image blends them; where it spans more (a node-registered one), a longitude in both ends takes the
-        western column (the jump of the overlap lies at column 0's centre; a node-registered one's overlap, a whole
-        column, is dropped before: :attr:`closing`)."""
+        the image blends them; where it spans more by over a column, a longitude in both ends takes the image's
+        first columns from column 0's centre on and its last ones west of there (each blend between neighbours in
+        the image), the jump lying 5e-7 pixel west of column 0's centre: a pixel centre within a turn east of
+        column 0's (by over 1e-6 pixel; one within that is column 0's meridian again) takes its own column,
+        whatever the rounding of its longitude (the jump lay at column 0's centre itself: rounded a hair west,
+        column 0's centre took the other copy's blend, a 5-pixel image of 3.625 pixels a turn). A node-registered
+        image's overlap, a whole column, is dropped before: :attr:`closing`."""
         width = self.width
         period = 360.0 / self.sx  # pixels in a turn
         start = round((self.west + 180.0) / self.sx)  # its original column 0's in the turn's columns (shift mod W)
         q = (np.asarray(lon, dtype=np.float64) - self.west) / self.sx - 0.5  # from column 0's centre, in pixels
-        turns = np.floor(q / period)
-        q = q - turns * period  # within one turn of column 0's centre: [0, period)
         gap = period - (width - 1)  # pixels of longitude from the last column's centre to the first's a turn on
+        # the overlap's jump, a hair west of column 0's centre; where the image spans less, at that centre: the blend
+        # across the gap reaches column 0's centre there, so the coordinate is continuous either side
+        jump = -5e-7 if gap < 0 else 0.0
+        turns = np.floor((q - jump) / period)
+        q = q - turns * period  # within one turn of the jump: [jump, jump + period)
         if gap > 0:
             beyond = q > width - 1
             q = np.where(beyond, (width - 1) + (q - (width - 1)) / gap, q)

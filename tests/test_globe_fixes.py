@@ -2450,9 +2450,13 @@ def test_every_accepted_georeferencing_puts_each_pixel_centre_where_it_says(tmp_
     """Property: for global textures of random size whose georeferencing (a PAM file) starts anywhere round the
     globe, off whole columns, and spans up to 1.4 pixels more or less than 360 x 180 degrees (each accepted),
     drape_colors at each pixel's centre (its lat/lon from the geotransform) is that pixel's colour, and
-    drape_texture's UV of a vertex there is that pixel's centre in the embedded image. (A column whose centre the
-    image's other end covers again, where it spans more than 360 degrees, and a row beyond a pole are skipped.)"""
-    from hypothesis import given, settings
+    drape_texture's UV of a vertex there is that pixel's centre in the embedded image (its closing column dropped
+    where one lies exactly a turn east of column 0: 2 pixels a turn over 3 columns), mapped back to that column. (A
+    column whose centre the image's other end covers again, where it spans more than 360 degrees, and a row beyond a
+    pole are skipped.) Pinned: the jump where a 5-column image overlaps itself by 1.375 columns lay at column 0's
+    centre, which took the overlap's other copy (its longitude rounded a hair west); and a 3-column image of 2
+    pixels a turn, whose UVs the test read against the file's width, not the embedded image's."""
+    from hypothesis import example, given, settings
     from hypothesis import strategies as hst
     from PIL import Image
 
@@ -2461,6 +2465,9 @@ def test_every_accepted_georeferencing_puts_each_pixel_centre_where_it_says(tmp_
     @settings(max_examples=25, deadline=None, derandomize=True)
     @given(hst.integers(3, 40), hst.integers(3, 20), hst.integers(0, 39), hst.floats(-0.5, 0.5),
            hst.floats(-1.4, 1.4), hst.floats(-1.4, 1.4), hst.floats(-1.4, 1.4))
+    @example(3, 3, 0, 0.0, 1.0, 0.0, 0.0)  # a closing column: 2 columns embedded
+    @example(5, 3, 1, 0.015625, 1.375, 0.0, 0.0)  # column 0's centre at the overlap's jump
+    @example(17, 3, 1, 0.0, 1e-06, 0.0, 0.0)  # 1e-6 pixel from whole columns: read as plate carree from 180 W
     def check(width, height, start, offset, wide, tall, up):
         sx, sy = 360.0 / (width - wide), 180.0 / (height - tall)  # width - wide pixels in a turn
         west, north = -180.0 + ((start % width) + offset) * sx, 90.0 + up * sy
@@ -2483,16 +2490,59 @@ def test_every_accepted_georeferencing_puts_each_pixel_centre_where_it_says(tmp_
         mesh = trimesh.Trimesh(directions, np.arange(n - n % 3).reshape(-1, 3), process=False)
         draped = drape_texture(mesh, path)
         image = np.asarray(draped.visual.material.image.convert("RGB"))
+        embedded = image.shape[1]  # width - 1 where the last column repeats the first's meridian, else width
+        assert image.shape[0] == height and embedded in ((width - 1,) if abs(wide - 1.0) < 1e-9 else
+                                                         (width,) if abs(wide - 1.0) > 1e-6 else (width - 1, width))
+        # the embedded image: the file's first `embedded` columns, rolled by some whole number of them
+        rolls = [s for s in range(embedded) if (np.roll(pixels[:, :embedded], s, axis=1) == image).all()]
+        assert rolls, "the embedded image is not the file's columns rolled"
         uv = np.asarray(draped.visual.uv, dtype=np.float64)[: n - n % 3]
-        x, y = uv[:, 0] * width % width - 0.5, (1 - uv[:, 1]) * height - 0.5
-        np.testing.assert_allclose(x, np.round(x), atol=1e-6)
-        np.testing.assert_allclose(y, np.round(y), atol=1e-6)
-        texel = image[np.round(y).astype(int), np.round(x).astype(int) % width]
+        x, y = uv[:, 0] * embedded % embedded - 0.5, (1 - uv[:, 1]) * height - 0.5
+        # within float32's resolution of the UVs (a placement within width·2^-24 pixels of whole columns is read as
+        # plate carrée from 180 W, _Placement.whole_columns: a 17-column image 1e-6 pixel short of 17 a turn, its
+        # last column 1.03e-6 pixel off)
+        np.testing.assert_allclose(x, np.round(x), atol=embedded * 2.0**-22)
+        np.testing.assert_allclose(y, np.round(y), atol=height * 2.0**-22)
+        np.testing.assert_array_equal((np.round(x).astype(int) - rolls[0]) % embedded, col[: n - n % 3])
+        np.testing.assert_array_equal(np.round(y).astype(int), row[: n - n % 3])
+        texel = image[np.round(y).astype(int), np.round(x).astype(int) % embedded]
         np.testing.assert_array_equal(texel, pixels[row, col][: n - n % 3])
 
     import trimesh
 
     check()
+
+def test_an_image_overlapping_itself_jumps_just_west_of_column_0s_centre(tmp_path):
+    """A 5-column image of 3.625 columns a turn (it overlaps itself by 1.375 columns, west edge 1.015625 columns
+    east of 180 W): column 0's centre, a hair either side, is column 0's colour (it took the other copy's blend, the
+    overlap's jump lying at that centre, rounded a hair west); 0.3 pixel west of it the image's other end, between
+    the neighbours in the image that lie either side there (columns 3 and 4: 3.325 columns from column 0's centre
+    a turn on), as drape_texture's UVs."""
+    from PIL import Image
+
+    from stepterrain.globe import drape_colors, drape_texture
+
+    width, period = 5, 3.625
+    sx = 360.0 / period
+    west = -180.0 + 1.015625 * sx
+    pixels = (np.arange(width * 3 * 3).reshape(3, width, 3) * 17 % 251).astype(np.uint8)
+    path = tmp_path / "earth.png"
+    Image.fromarray(pixels).save(path)
+    (tmp_path / "earth.png.aux.xml").write_text(f"<PAMDataset><GeoTransform>{west!r}, {sx!r}, 0, 90.0, 0, -60.0"
+                                                "</GeoTransform></PAMDataset>")
+    centre = west + 0.5 * sx
+    lon = np.radians([centre - 1e-9, centre, centre + 1e-9, centre - 0.3 * sx])
+    directions = np.column_stack([np.cos(lon), np.sin(lon), np.zeros(4)])  # the equator: row 1's centre
+    got = drape_colors(directions * EARTH_RADIUS, path)[:, :3].astype(int)
+    np.testing.assert_array_equal(got[:3], np.repeat(pixels[1, :1], 3, axis=0))
+    blend = np.round(0.675 * pixels[1, 3].astype(float) + 0.325 * pixels[1, 4])
+    np.testing.assert_array_equal(got[3], blend)
+    import trimesh
+
+    draped = drape_texture(trimesh.Trimesh(directions[:3], [[0, 1, 2]], process=False), path)
+    x = np.asarray(draped.visual.uv, dtype=np.float64)[:, 0] * width % width - 0.5  # rolled by 1 column
+    np.testing.assert_allclose(x, [1.0, 1.0, 1.0], atol=1e-5)
+
 
 def test_drape_texture_checks_the_mesh_it_makes(monkeypatch):
     """drape_texture checked an image file's pixels but nothing of the mesh: its UVs, seam and pole copies and their
