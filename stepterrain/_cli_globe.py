@@ -31,6 +31,7 @@ from .cli import (
     _floats,
     _given,
     _mesh_and_png,
+    _option_list,
     _path,
     _real,
     _refuse_unused,
@@ -510,9 +511,8 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
             view = [o for o in unused if o != "--eye"]
             parts = ["--eye applies only with the distance or clip metric or a --png render"] * ("--eye" in unused)
             if view:
-                names = " and ".join([", ".join(view[:-1]), view[-1]] if len(view) > 1 else view)
-                parts.append(f"{names} {'apply' if len(view) > 1 else 'applies'} only with the clip metric or a "
-                             "--png render")
+                parts.append(f"{_option_list(view)} {'apply' if len(view) > 1 else 'applies'} only with the clip "
+                             "metric or a --png render")
             them = "it" if len(unused) == 1 else "them"
             raise InvalidInputError(f"{'; '.join(parts)} (the geometric metric measures each node's own error, "
                                     f"nothing of the view); got {them} {got}")

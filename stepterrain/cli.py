@@ -651,13 +651,17 @@ def _given(args: argparse.Namespace, defaults: dict[str, Any]) -> list[str]:
     return given
 
 
+def _option_list(options: Sequence[str]) -> str:
+    """``options`` (one or more) as a phrase: "--a", "--a and --b", "--a, --b and --c"."""
+    return " and ".join([", ".join(options[:-1]), options[-1]] if len(options) > 1 else options)
+
+
 def _refuse_unused(options: Sequence[str], needs: str, got: str) -> None:
     """Refuse the ``options`` given that do nothing in this run (none: nothing to refuse), naming them: "--a and --b
     apply only with ``needs``; got them ``got``"."""
     if options:
-        names = " and ".join([", ".join(options[:-1]), options[-1]] if len(options) > 1 else options)
         verb, them = ("applies", "it") if len(options) == 1 else ("apply", "them")
-        raise InvalidInputError(f"{names} {verb} only with {needs}; got {them} {got}")
+        raise InvalidInputError(f"{_option_list(options)} {verb} only with {needs}; got {them} {got}")
 
 
 def _check_size(size: tuple[int, int], *, renders: bool = True, layered: bool = False) -> None:
