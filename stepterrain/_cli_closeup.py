@@ -218,7 +218,9 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     if args.anchor is not None and args.anchor not in TRANSFER_PRESETS:  # the library's message offered an opacity
         # table, which no option takes
         raise InvalidInputError(f"--anchor must be one of {', '.join(TRANSFER_PRESETS)}; got {args.anchor!r}")
-    if mesh_out is not None and mesh_out.suffix.lower() == ".stl" and picture is None and anim is None:
+    # the scene mesh's format when it alone is written (no render shows what it cannot hold), else None
+    alone = mesh_out.suffix.lower() if mesh_out is not None and picture is None and anim is None else None
+    if alone == ".stl":
         # the colours went nowhere: an STL holds none and no render showed them (as steps --colormap with an .stl)
         # --anchor and --scalars likewise: the anchors' opacity, in the vertex alpha of the other formats, and the
         # overview's colours (`-o scene.stl --anchor hidden --scalars slope` wrote the file without them)
@@ -229,8 +231,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
             raise InvalidInputError(f"an .stl --output holds no colours: got {' and '.join(given)} (colouring the "
                                     f"scene and its renders) with --output {args.output!r} and no --png or --gif; "
                                     "write .glb, .ply or .3mf for colours, or leave them out")
-    if (mesh_out is not None and mesh_out.suffix.lower() == ".obj" and picture is None and anim is None
-            and args.anchor is not None):
+    if alone == ".obj" and args.anchor is not None:
         # an OBJ's `v x y z r g b` lines hold no alpha, the anchors' opacity: `-o scene.obj --anchor hidden` wrote the
         # file every other preset writes (byte for byte) and said nothing
         raise InvalidInputError(f"an .obj --output holds RGB only, the anchors opaque: got --anchor {args.anchor} (the "
