@@ -638,16 +638,17 @@ def _orient_pieces(vertices: NDArray[np.float64], faces: NDArray[np.int64], area
     open_piece[label[owner[single]]] = True
     if not open_piece.any():
         return None
+
     def where(face: int) -> str:  # the face and its centre in xy
         x, y = vertices[faces[face], :2].mean(axis=0)
         return f"the first face {face} at x, y = {x:.9g}, {y:.9g}"
 
     if not open_piece.all():
-        closed = np.flatnonzero(~open_piece)
-        face = int(np.argmax(~open_piece[label]))
-        in_closed = counted(int(np.count_nonzero(~open_piece[label])), 'face')
+        in_closed = ~open_piece[label]  # the faces of closed pieces
+        face = int(np.argmax(in_closed))
         return (f"faces: close_solid skirts a surface's boundary down to the floor; got "
-                f"{counted(len(closed), 'closed piece')} ({in_closed}, no boundary edge: a solid already; "
+                f"{counted(int(np.count_nonzero(~open_piece)), 'closed piece')} "
+                f"({counted(int(np.count_nonzero(in_closed)), 'face')}, no boundary edge: a solid already; "
                 f"{where(face)}) beside {counted(int(open_piece.sum()), 'open one')}: close the open pieces without it")
     up = np.bincount(label, weights=area, minlength=count) >= 0.0
     against = np.where(up[label], area < -margin, area > margin)

@@ -36,34 +36,28 @@ def _stream_rows(thread_offset: wp.int32, count: wp.int32, chunk: wp.int32, out:
         i += 1
 
 
-@wp.kernel
-def _stream_copies(
-    doubles: wp.array[wp.vec3d],
-    longs: wp.array[vec3l],
-    ints: wp.array[wp.int32],
-    doubles_out: wp.array[wp.vec3d],
-    longs_out: wp.array[vec3l],
-    ints_out: wp.array[wp.int32],
-):
-    i = wp.tid()
-    stream(doubles_out, i, load(doubles, i))
-    stream(longs_out, i, vec3l(longs[i][0], longs[i][1], longs[i][2]))
-    stream(ints_out, i, load(ints, i))
+def _copies(put):
+    """A kernel copying vec3d, vec3l and int32 rows with ``put`` (stream or stream_large)."""
+
+    @wp.kernel(module="unique")
+    def copies(
+        doubles: wp.array[wp.vec3d],
+        longs: wp.array[vec3l],
+        ints: wp.array[wp.int32],
+        doubles_out: wp.array[wp.vec3d],
+        longs_out: wp.array[vec3l],
+        ints_out: wp.array[wp.int32],
+    ):
+        i = wp.tid()
+        put(doubles_out, i, load(doubles, i))
+        put(longs_out, i, vec3l(longs[i][0], longs[i][1], longs[i][2]))
+        put(ints_out, i, load(ints, i))
+
+    return copies
 
 
-@wp.kernel
-def _stream_large_copies(
-    doubles: wp.array[wp.vec3d],
-    longs: wp.array[vec3l],
-    ints: wp.array[wp.int32],
-    doubles_out: wp.array[wp.vec3d],
-    longs_out: wp.array[vec3l],
-    ints_out: wp.array[wp.int32],
-):
-    i = wp.tid()
-    stream_large(doubles_out, i, load(doubles, i))
-    stream_large(longs_out, i, vec3l(longs[i][0], longs[i][1], longs[i][2]))
-    stream_large(ints_out, i, load(ints, i))
+_stream_copies = _copies(stream)
+_stream_large_copies = _copies(stream_large)
 
 
 @pytest.mark.parametrize(("kernel", "destination"), [(_stream_copies, "small"), (_stream_large_copies, "small"),

@@ -23,32 +23,12 @@ import pytest
 import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as hs
-from scipy.spatial import Delaunay
 
 from stepterrain import mesh as mesh_module
 from stepterrain.errors import InvalidInputError
 from stepterrain.mesh import close_solid
 from tests.test_solid_kernels import _surface
-
-
-def _tin(seed: int, n: int, offset=(0.0, 0.0), z_offset: float = 0.0):
-    """n random points, Delaunay-triangulated, faces counter-clockwise seen from +z."""
-    rng = np.random.default_rng(seed)
-    xy = np.unique(np.round(rng.uniform(0.0, 100.0, (n, 2)), 3), axis=0)
-    vertices = np.column_stack([xy + np.asarray(offset), rng.uniform(5.0, 40.0, len(xy)) + z_offset])
-    faces = Delaunay(xy).simplices.astype(np.int64)
-    a, b, c = (vertices[faces[:, k], :2] for k in range(3))
-    cw = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]) < 0
-    faces[cw] = faces[cw][:, ::-1]
-    return vertices, faces
-
-
-def _prism_volume(vertices, faces, floor):
-    """The NumPy integral of the surface's height above ``floor``: each face's projected area times its corners'
-    mean height above it."""
-    a, b, c = (np.asarray(vertices, np.float64)[faces[:, k]] for k in range(3))
-    area = 0.5 * np.abs((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
-    return float(np.sum(area * ((a[:, 2] + b[:, 2] + c[:, 2]) / 3.0 - floor)))
+from tests.test_solid_orientation import _prism_volume, _tin
 
 
 def _close(vertices, faces, floor):

@@ -26,11 +26,12 @@ import stepterrain as st
 from stepterrain.mesh import close_solid
 
 
-def _tin(seed: int, n: int):
-    """n random points with distinct xy, Delaunay-triangulated, faces counter-clockwise seen from +z."""
+def _tin(seed: int, n: int, offset=(0.0, 0.0), z_offset: float = 0.0):
+    """n random points with distinct xy, Delaunay-triangulated, faces counter-clockwise seen from +z; ``offset``
+    moves them in xy, ``z_offset`` in z."""
     rng = np.random.default_rng(seed)
     xy = np.unique(np.round(rng.uniform(0.0, 100.0, (n, 2)), 3), axis=0)
-    vertices = np.column_stack([xy, rng.uniform(5.0, 40.0, len(xy))])
+    vertices = np.column_stack([xy + np.asarray(offset), rng.uniform(5.0, 40.0, len(xy)) + z_offset])
     faces = Delaunay(xy).simplices.astype(np.int64)
     a, b, c = (vertices[faces[:, k], :2] for k in range(3))
     cw = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]) < 0
@@ -41,7 +42,7 @@ def _tin(seed: int, n: int):
 def _prism_volume(vertices, faces, floor):
     """The solid's volume as the NumPy sum of the prisms under the surface's faces: |projected area| times the mean
     height of the corners above the floor."""
-    a, b, c = (vertices[faces[:, k]] for k in range(3))
+    a, b, c = (np.asarray(vertices, np.float64)[faces[:, k]] for k in range(3))
     area = 0.5 * np.abs((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
     return float(np.sum(area * ((a[:, 2] + b[:, 2] + c[:, 2]) / 3.0 - floor)))
 

@@ -26,8 +26,8 @@ from hypothesis import strategies as hs
 
 from stepterrain.errors import InvalidInputError
 from stepterrain.mesh import close_solid
-from tests.test_solid_foreign import _prism_volume, _tin
 from tests.test_solid_kernels import _surface
+from tests.test_solid_orientation import _prism_volume, _tin
 
 
 def _close(vertices, faces, floor):
