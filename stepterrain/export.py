@@ -2930,6 +2930,17 @@ def _obj_lines_starting(padded: NDArray[np.uint8], starts: NDArray[np.int64], ke
     return found
 
 
+def _obj_line_blocks(data: Any, block: int, at: int = 0) -> Iterator[tuple[int, int]]:
+    """The spans (start, end) of the OBJ text ``data`` (bytes or an mmap) from ``at`` in blocks of whole lines: each
+    about ``block`` bytes, ended after the first newline past them (the last at the text's end)."""
+    size = len(data)
+    while at < size:
+        end = data.find(b"\n", min(at + block, size - 1))
+        end = size if end < 0 else end + 1
+        yield at, end
+        at = end
+
+
 def _obj_absolute_indices(data: bytes) -> bytes:
     """The OBJ text ``data`` (its statements starting their lines) with each face's relative indices (``f -3 -2 -1``,
     ``f -3/-3/-1 ...``: -1 is the last ``v``, ``vt`` or ``vn`` line before the face, by the OBJ specification) as the
@@ -2940,15 +2951,12 @@ def _obj_absolute_indices(data: bytes) -> bytes:
     is a relative index, its field (v, vt or vn) counted by the slashes before it in its word; the text is the same
     but for those fields. In blocks of whole lines (:data:`_OBJ_INDEX_BLOCK`): the arrays of the whole text took 56
     times its size (292 MB for 5 MB of one-face objects), a text of 500 MB would have taken 28 GB."""
-    pieces, seen, lines, at, size = [], np.zeros(3, dtype=np.int64), 0, 0, len(data)
-    while at < size:
-        end = data.find(b"\n", min(at + _OBJ_INDEX_BLOCK, size - 1))
-        end = size if end < 0 else end + 1
+    pieces, seen, lines = [], np.zeros(3, dtype=np.int64), 0
+    for at, end in _obj_line_blocks(data, _OBJ_INDEX_BLOCK):
         block = data[at:end]
         piece, seen = _obj_absolute_block(block, seen, lines)
         pieces.append(piece)
         lines += block.count(b"\n")
-        at = end
     return b"".join(pieces) if len(pieces) != 1 else pieces[0]
 
 
@@ -3633,13 +3641,11 @@ def _check_obj_indices(file: Path, source: bytes | None = None) -> None:
     with _obj_mapped(file, source) as data:
         if data is None:
             return
-        at = _obj_first_face_line(data)
-        if at < 0:
+        first = _obj_first_face_line(data)
+        if first < 0:
             return
         size = len(data)
-        while at < size:
-            end = data.find(b"\n", min(at + _OBJ_ZERO_BLOCK, size - 1))
-            end = size if end < 0 else end + 1
+        for at, end in _obj_line_blocks(data, _OBJ_ZERO_BLOCK, first):
             if data[end - 1 : end] == b"\n":  # the block looked at in place
                 view = np.frombuffer(data, dtype=np.uint8, count=end - at, offset=at)
             else:  # the last line, and no newline after it
@@ -3653,7 +3659,6 @@ def _check_obj_indices(file: Path, source: bytes | None = None) -> None:
                 text = data[start : stop if stop >= 0 else size]
                 line = data[:start].count(b"\n") + 1  # a copy, on the way to the error only
                 break
-            at = end
         else:
             return
     raise ValueError(f"line {line}, {text.decode('utf-8', 'replace').strip()!r}, names index 0, which names nothing: "
@@ -3715,17 +3720,15 @@ def _obj_chunk_faces(data: bytes) -> tuple[list[bytes | None], list[NDArray[np.i
     line's words by the blanks before them, the numbers read by NumPy at once, in blocks of whole lines
     (:data:`_OBJ_INDEX_BLOCK`: the arrays of the whole text took 28 times its size, 285 MB for 10 MB)."""
     names: list[bytes | None] = [None]
-    faces, owners, seen, at, size = [], [], 0, 0, len(data)
-    while at < size:
-        end = data.find(b"\n", min(at + _OBJ_INDEX_BLOCK, size - 1))
-        end = size if end < 0 else end + 1
+    faces, owners, seen = [], [], 0
+    for at, end in _obj_line_blocks(data, _OBJ_INDEX_BLOCK):
         read = _obj_chunk_block(data[at:end], seen, len(names) - 1)
         if read is None:
             return None
         names += read[0]
         faces.append(read[1])
         owners.append(read[2])
-        seen, at = read[3], end
+        seen = read[3]
     joined = np.concatenate(faces) if faces else np.zeros((0, 3), dtype=np.int64)
     bounds = np.searchsorted(np.concatenate(owners) if owners else np.zeros(0, np.int64), np.arange(1, len(names)))
     return names, np.split(joined, bounds)
