@@ -2858,21 +2858,18 @@ def _obj_newlines(file: Path) -> bytes | None:
     be read to its end"), and this module's scans look for newlines too; a byte-order mark made the first line no
     statement (``v 0 0 0`` dropped: its faces named vertices one further on, or none). Decided by byte searches of
     the file mapped (a file without a carriage return is searched once)."""
-    import mmap
-
-    with open(file, "rb") as stream:
-        if os.fstat(stream.fileno()).st_size == 0:
+    with _obj_mapped(file, None) as mapped:
+        if mapped is None:
             return None
-        with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as mapped:
-            mark = mapped[:3] == b"\xef\xbb\xbf"
-            if not mark and (mapped.find(b"\r") < 0 or _OBJ_LONE_CR.search(mapped) is None):  # type: ignore[call-overload]
-                return None
-            # replaced, not split into lines and joined: a list of lines took 9 times the file's size (346 MB for
-            # 39 MB) and 0.4-0.8 s, 5-15 times as long
-            text = mapped[3 if mark else 0 :]
-            if text.find(b"\r") >= 0:
-                text = text.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
-            return text if text.endswith(b"\n") else text + b"\n"  # type: ignore[no-any-return]
+        mark = mapped[:3] == b"\xef\xbb\xbf"
+        if not mark and (mapped.find(b"\r") < 0 or _OBJ_LONE_CR.search(mapped) is None):  # type: ignore[call-overload]
+            return None
+        # replaced, not split into lines and joined: a list of lines took 9 times the file's size (346 MB for
+        # 39 MB) and 0.4-0.8 s, 5-15 times as long
+        text = mapped[3 if mark else 0 :]
+        if text.find(b"\r") >= 0:
+            text = text.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+        return text if text.endswith(b"\n") else text + b"\n"  # type: ignore[no-any-return]
 
 
 @contextlib.contextmanager
