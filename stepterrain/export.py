@@ -3801,9 +3801,7 @@ def _obj_materials_joined(file: Path, tidied: bytes | None) -> trimesh.Trimesh |
     parts = [part for part in scene.geometry.values() if isinstance(part, trimesh.Trimesh)]
     if not parts:
         return None
-    vertices = np.asarray(parts[0].vertices)
-    if any(len(part.vertices) != len(vertices) for part in parts):  # each has every vertex, as maintain_order reads
-        raise ValueError("the file's materials read with different vertices")
+    vertices = _obj_parts_vertices(parts)
     read = _obj_chunk_faces(file.read_bytes() if tidied is None else tidied)
     loaded = np.concatenate([np.asarray(part.faces, dtype=np.int64).reshape(-1, 3) for part in parts])
     if read is not None:
@@ -3819,6 +3817,15 @@ def _obj_materials_joined(file: Path, tidied: bytes | None) -> trimesh.Trimesh |
     del loaded
     return _obj_joined(file, vertices, faces, [by_name.get(name) for name in names] if materials else None,
                        [len(chunk) for chunk in chunks], parts)
+
+
+def _obj_parts_vertices(parts: list[trimesh.Trimesh]) -> NDArray[Any]:
+    """The vertices of the OBJ meshes ``parts``, one per material or ``usemtl`` chunk, each of which has every vertex,
+    as trimesh's reader reads them with ``maintain_order``: the first's; a ValueError where their counts differ."""
+    vertices = np.asarray(parts[0].vertices)
+    if any(len(part.vertices) != len(vertices) for part in parts):
+        raise ValueError("the file's materials read with different vertices")
+    return vertices
 
 
 def _obj_joined(file: Path, vertices: NDArray[Any], faces: NDArray[np.int64], materials: list[Any] | None,
@@ -3849,9 +3856,7 @@ def _obj_chunks_joined(file: Path, tidied: bytes | None) -> trimesh.Trimesh | No
     parts = [part for part in reversed(list(scene.geometry.values())) if isinstance(part, trimesh.Trimesh)]
     if not parts:
         return None
-    vertices = np.asarray(parts[0].vertices)
-    if any(len(part.vertices) != len(vertices) for part in parts):  # each has every vertex, as maintain_order reads
-        raise ValueError("the file's materials read with different vertices")
+    vertices = _obj_parts_vertices(parts)
     faces = np.concatenate([np.asarray(part.faces, dtype=np.int64).reshape(-1, 3) for part in parts])
     materials = [getattr(part.visual, "material", None) for part in parts]
     return _obj_joined(file, vertices, faces, materials if any(m is not None for m in materials) else None,
