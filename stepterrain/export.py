@@ -2672,13 +2672,15 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             color = _color_attribute(scene)
             loaded = scene.to_mesh()
         else:  # an OBJ of faces of vertex indices only keeps the vertices no face names (_obj_faces_kind)
-            source = None  # an OBJ's text with newlines for its line ends, where one is a carriage return alone
+            source: bytes | None = None  # an OBJ's text with newlines for its line ends, where one is a CR alone
+            kind: str | None = None
+            tidied: bytes | None = None
             if file.suffix.lower() == ".obj":
                 source = _obj_newlines(file)
                 _check_obj_indices(file, source)
-            kind = _obj_faces_kind(file, source) if file.suffix.lower() == ".obj" else None
+                kind = _obj_faces_kind(file, source)
+                tidied = _obj_tidied(file, source)
             order = {"maintain_order": True} if kind == "vertices" else {}
-            tidied = _obj_tidied(file, source) if file.suffix.lower() == ".obj" else None
             try:
                 loaded = None  # several usemtl, faces of vertex indices only: one vertex per v line still
                 if kind == "materials":
