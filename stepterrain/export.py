@@ -2672,13 +2672,15 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             color = _color_attribute(scene)
             loaded = scene.to_mesh()
         else:  # an OBJ of faces of vertex indices only keeps the vertices no face names (_obj_faces_kind)
-            source = None  # an OBJ's text with newlines for its line ends, where one is a carriage return alone
+            source: bytes | None = None  # an OBJ's text with newlines for its line ends, where one is a CR alone
+            kind: str | None = None
+            tidied: bytes | None = None
             if file.suffix.lower() == ".obj":
                 source = _obj_newlines(file)
                 _check_obj_indices(file, source)
-            kind = _obj_faces_kind(file, source) if file.suffix.lower() == ".obj" else None
+                kind = _obj_faces_kind(file, source)
+                tidied = _obj_tidied(file, source)
             order = {"maintain_order": True} if kind == "vertices" else {}
-            tidied = _obj_tidied(file, source) if file.suffix.lower() == ".obj" else None
             try:
                 loaded = None  # several usemtl, faces of vertex indices only: one vertex per v line still
                 if kind == "materials":
@@ -2858,21 +2860,18 @@ def _obj_newlines(file: Path) -> bytes | None:
     be read to its end"), and this module's scans look for newlines too; a byte-order mark made the first line no
     statement (``v 0 0 0`` dropped: its faces named vertices one further on, or none). Decided by byte searches of
     the file mapped (a file without a carriage return is searched once)."""
-    import mmap
-
-    with open(file, "rb") as stream:
-        if os.fstat(stream.fileno()).st_size == 0:
+    with _obj_mapped(file, None) as mapped:
+        if mapped is None:
             return None
-        with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as mapped:
-            mark = mapped[:3] == b"\xef\xbb\xbf"
-            if not mark and (mapped.find(b"\r") < 0 or _OBJ_LONE_CR.search(mapped) is None):  # type: ignore[call-overload]
-                return None
-            # replaced, not split into lines and joined: a list of lines took 9 times the file's size (346 MB for
-            # 39 MB) and 0.4-0.8 s, 5-15 times as long
-            text = mapped[3 if mark else 0 :]
-            if text.find(b"\r") >= 0:
-                text = text.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
-            return text if text.endswith(b"\n") else text + b"\n"  # type: ignore[no-any-return]
+        mark = mapped[:3] == b"\xef\xbb\xbf"
+        if not mark and (mapped.find(b"\r") < 0 or _OBJ_LONE_CR.search(mapped) is None):  # type: ignore[call-overload]
+            return None
+        # replaced, not split into lines and joined: a list of lines took 9 times the file's size (346 MB for
+        # 39 MB) and 0.4-0.8 s, 5-15 times as long
+        text = mapped[3 if mark else 0 :]
+        if text.find(b"\r") >= 0:
+            text = text.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+        return text if text.endswith(b"\n") else text + b"\n"  # type: ignore[no-any-return]
 
 
 @contextlib.contextmanager
@@ -2930,6 +2929,17 @@ def _obj_lines_starting(padded: NDArray[np.uint8], starts: NDArray[np.int64], ke
     return found
 
 
+def _obj_line_blocks(data: Any, block: int, at: int = 0) -> Iterator[tuple[int, int]]:
+    """The spans (start, end) of the OBJ text ``data`` (bytes or an mmap) from ``at`` in blocks of whole lines: each
+    about ``block`` bytes, ended after the first newline past them (the last at the text's end)."""
+    size = len(data)
+    while at < size:
+        end = data.find(b"\n", min(at + block, size - 1))
+        end = size if end < 0 else end + 1
+        yield at, end
+        at = end
+
+
 def _obj_absolute_indices(data: bytes) -> bytes:
     """The OBJ text ``data`` (its statements starting their lines) with each face's relative indices (``f -3 -2 -1``,
     ``f -3/-3/-1 ...``: -1 is the last ``v``, ``vt`` or ``vn`` line before the face, by the OBJ specification) as the
@@ -2940,15 +2950,12 @@ def _obj_absolute_indices(data: bytes) -> bytes:
     is a relative index, its field (v, vt or vn) counted by the slashes before it in its word; the text is the same
     but for those fields. In blocks of whole lines (:data:`_OBJ_INDEX_BLOCK`): the arrays of the whole text took 56
     times its size (292 MB for 5 MB of one-face objects), a text of 500 MB would have taken 28 GB."""
-    pieces, seen, lines, at, size = [], np.zeros(3, dtype=np.int64), 0, 0, len(data)
-    while at < size:
-        end = data.find(b"\n", min(at + _OBJ_INDEX_BLOCK, size - 1))
-        end = size if end < 0 else end + 1
+    pieces, seen, lines = [], np.zeros(3, dtype=np.int64), 0
+    for at, end in _obj_line_blocks(data, _OBJ_INDEX_BLOCK):
         block = data[at:end]
         piece, seen = _obj_absolute_block(block, seen, lines)
         pieces.append(piece)
         lines += block.count(b"\n")
-        at = end
     return b"".join(pieces) if len(pieces) != 1 else pieces[0]
 
 
@@ -3633,13 +3640,11 @@ def _check_obj_indices(file: Path, source: bytes | None = None) -> None:
     with _obj_mapped(file, source) as data:
         if data is None:
             return
-        at = _obj_first_face_line(data)
-        if at < 0:
+        first = _obj_first_face_line(data)
+        if first < 0:
             return
         size = len(data)
-        while at < size:
-            end = data.find(b"\n", min(at + _OBJ_ZERO_BLOCK, size - 1))
-            end = size if end < 0 else end + 1
+        for at, end in _obj_line_blocks(data, _OBJ_ZERO_BLOCK, first):
             if data[end - 1 : end] == b"\n":  # the block looked at in place
                 view = np.frombuffer(data, dtype=np.uint8, count=end - at, offset=at)
             else:  # the last line, and no newline after it
@@ -3653,7 +3658,6 @@ def _check_obj_indices(file: Path, source: bytes | None = None) -> None:
                 text = data[start : stop if stop >= 0 else size]
                 line = data[:start].count(b"\n") + 1  # a copy, on the way to the error only
                 break
-            at = end
         else:
             return
     raise ValueError(f"line {line}, {text.decode('utf-8', 'replace').strip()!r}, names index 0, which names nothing: "
@@ -3715,17 +3719,15 @@ def _obj_chunk_faces(data: bytes) -> tuple[list[bytes | None], list[NDArray[np.i
     line's words by the blanks before them, the numbers read by NumPy at once, in blocks of whole lines
     (:data:`_OBJ_INDEX_BLOCK`: the arrays of the whole text took 28 times its size, 285 MB for 10 MB)."""
     names: list[bytes | None] = [None]
-    faces, owners, seen, at, size = [], [], 0, 0, len(data)
-    while at < size:
-        end = data.find(b"\n", min(at + _OBJ_INDEX_BLOCK, size - 1))
-        end = size if end < 0 else end + 1
+    faces, owners, seen = [], [], 0
+    for at, end in _obj_line_blocks(data, _OBJ_INDEX_BLOCK):
         read = _obj_chunk_block(data[at:end], seen, len(names) - 1)
         if read is None:
             return None
         names += read[0]
         faces.append(read[1])
         owners.append(read[2])
-        seen, at = read[3], end
+        seen = read[3]
     joined = np.concatenate(faces) if faces else np.zeros((0, 3), dtype=np.int64)
     bounds = np.searchsorted(np.concatenate(owners) if owners else np.zeros(0, np.int64), np.arange(1, len(names)))
     return names, np.split(joined, bounds)
@@ -3801,9 +3803,7 @@ def _obj_materials_joined(file: Path, tidied: bytes | None) -> trimesh.Trimesh |
     parts = [part for part in scene.geometry.values() if isinstance(part, trimesh.Trimesh)]
     if not parts:
         return None
-    vertices = np.asarray(parts[0].vertices)
-    if any(len(part.vertices) != len(vertices) for part in parts):  # each has every vertex, as maintain_order reads
-        raise ValueError("the file's materials read with different vertices")
+    vertices = _obj_parts_vertices(parts)
     read = _obj_chunk_faces(file.read_bytes() if tidied is None else tidied)
     loaded = np.concatenate([np.asarray(part.faces, dtype=np.int64).reshape(-1, 3) for part in parts])
     if read is not None:
@@ -3819,6 +3819,15 @@ def _obj_materials_joined(file: Path, tidied: bytes | None) -> trimesh.Trimesh |
     del loaded
     return _obj_joined(file, vertices, faces, [by_name.get(name) for name in names] if materials else None,
                        [len(chunk) for chunk in chunks], parts)
+
+
+def _obj_parts_vertices(parts: list[trimesh.Trimesh]) -> NDArray[Any]:
+    """The vertices of the OBJ meshes ``parts``, one per material or ``usemtl`` chunk, each of which has every vertex,
+    as trimesh's reader reads them with ``maintain_order``: the first's; a ValueError where their counts differ."""
+    vertices = np.asarray(parts[0].vertices)
+    if any(len(part.vertices) != len(vertices) for part in parts):
+        raise ValueError("the file's materials read with different vertices")
+    return vertices
 
 
 def _obj_joined(file: Path, vertices: NDArray[Any], faces: NDArray[np.int64], materials: list[Any] | None,
@@ -3849,9 +3858,7 @@ def _obj_chunks_joined(file: Path, tidied: bytes | None) -> trimesh.Trimesh | No
     parts = [part for part in reversed(list(scene.geometry.values())) if isinstance(part, trimesh.Trimesh)]
     if not parts:
         return None
-    vertices = np.asarray(parts[0].vertices)
-    if any(len(part.vertices) != len(vertices) for part in parts):  # each has every vertex, as maintain_order reads
-        raise ValueError("the file's materials read with different vertices")
+    vertices = _obj_parts_vertices(parts)
     faces = np.concatenate([np.asarray(part.faces, dtype=np.int64).reshape(-1, 3) for part in parts])
     materials = [getattr(part.visual, "material", None) for part in parts]
     return _obj_joined(file, vertices, faces, materials if any(m is not None for m in materials) else None,

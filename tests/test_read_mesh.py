@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import struct
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -698,12 +699,22 @@ def test_obj_index_zero_signed_or_indented_refused(tmp_path, text, line):
         read_mesh(path)
 
 
+def _traced_peak(call: Callable[..., object], *args: object) -> int:
+    """The peak of the memory tracemalloc traced while ``call(*args)`` ran."""
+    import tracemalloc
+
+    tracemalloc.start()
+    try:
+        call(*args)
+        return tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
 def test_obj_newlines_replaced_as_lines_joined_without_a_list_of_lines(tmp_path):
     """An OBJ of carriage-return line ends (or a byte-order mark) is read with newlines for them, as its lines split
     and joined by newlines (CR, LF and CRLF each a line's end; a newline after the last line), without a list of
     its lines: that took 9 times the file's size."""
-    import tracemalloc
-
     from stepterrain.export import _obj_newlines
 
     rng = np.random.default_rng(3)
@@ -718,12 +729,7 @@ def test_obj_newlines_replaced_as_lines_joined_without_a_list_of_lines(tmp_path)
             assert _obj_newlines(path) == (expected if lone or data[:1] == b"\xef" else None), data
     data = b"v 0 0 0\r" * 250_000
     path.write_bytes(data)
-    tracemalloc.start()
-    try:
-        _obj_newlines(path)
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
+    peak = _traced_peak(_obj_newlines, path)
     assert peak < 4 * len(data), (peak, len(data))
 
 
@@ -748,8 +754,6 @@ def test_obj_absolute_indices_in_blocks_of_lines(monkeypatch, block):
     size: 292 MB for 5 MB of one-face objects), each block counting on from the ``v``, ``vt``, ``vn`` lines and the
     lines before it: as a line-by-line reference reads them, a face counting back past the start refused by its line
     in the file, and 5 MB rewritten within 20 times its size."""
-    import tracemalloc
-
     import stepterrain.export as export
 
     monkeypatch.setattr(export, "_OBJ_INDEX_BLOCK", block, raising=False)
@@ -764,12 +768,7 @@ def test_obj_absolute_indices_in_blocks_of_lines(monkeypatch, block):
         export._obj_absolute_indices(data)
     if block == 1 << 20:
         data = b"v 1 2 3\nv 4 5 6\nv 7 8 9\nf -3 -2 -1\n" * 150_000
-        tracemalloc.start()
-        try:
-            export._obj_absolute_indices(data)
-            peak = tracemalloc.get_traced_memory()[1]
-        finally:
-            tracemalloc.stop()
+        peak = _traced_peak(export._obj_absolute_indices, data)
         assert peak < 20 * len(data), (peak, len(data))
 
 
@@ -799,8 +798,6 @@ def test_obj_chunk_faces_in_blocks_of_lines(monkeypatch, block):
     """The faces of an OBJ of several ``usemtl`` are read in blocks of whole lines (the arrays of the whole text took
     28 times its size: 285 MB for 10 MB), each counting on from the ``v`` lines and chunks before it: as a
     line-by-line reference reads them, and 10 MB read within 10 times its size."""
-    import tracemalloc
-
     import stepterrain.export as export
 
     monkeypatch.setattr(export, "_OBJ_INDEX_BLOCK", block, raising=False)
@@ -816,12 +813,7 @@ def test_obj_chunk_faces_in_blocks_of_lines(monkeypatch, block):
     if block == 1 << 20:
         data = (b"".join(b"v %d 0 0\n" % i for i in range(300_000)) + b"usemtl a\n"
                 + b"".join(b"f %d %d %d\n" % (i, i + 1, i + 2) for i in range(1, 300_000)) + b"usemtl b\nf 1 2 3\n")
-        tracemalloc.start()
-        try:
-            export._obj_chunk_faces(data)
-            peak = tracemalloc.get_traced_memory()[1]
-        finally:
-            tracemalloc.stop()
+        peak = _traced_peak(export._obj_chunk_faces, data)
         assert peak < 10 * len(data), (peak, len(data))
 
 
