@@ -2763,22 +2763,10 @@ def _checked_seams(item: DrawItem) -> tuple[GeometryPatch | None, ...]:
     for side, coarse in enumerate(seams):
         if coarse is None:
             continue
-        axis, along = ("rows", "columns") if side < 2 else ("columns", "rows")
-        line = (patch.rows + patch.cols)[side]
-        own = patch.cols if side < 2 else patch.rows
-        ends, start = "starting" if side % 2 else "ending", side % 2 == 0  # its line: the neighbour's last or first
-        if not isinstance(coarse, GeometryPatch):
-            got = type(coarse).__name__
-        elif _root_of(coarse) is not root:
-            got = "a patch of another quadtree"
-        else:
-            got = (f"a patch of depth {coarse.depth} over rows {coarse.rows[0]}-{coarse.rows[1]}, columns "
-                   f"{coarse.cols[0]}-{coarse.cols[1]}")
-            theirs = coarse.rows if side < 2 else coarse.cols
-            span = coarse.cols if side < 2 else coarse.rows
-            if coarse.depth < patch.depth and theirs[1 if start else 0] == line and span[0] <= own[0] \
-                    and own[1] <= span[1]:
-                continue
+        got = _not_across(patch, root, side, coarse, coarser=True)
+        if got is None:
+            continue
+        axis, along, line, own, ends = _side_terms(patch, side)
         raise InvalidInputError(f"item.seams[{side}] must be None or a coarser patch of the item's quadtree drawn "
                                 f"across its {_SIDES[side]} (depth < {patch.depth}, its {axis} {ends} at "
                                 f"{axis[:-1]} {line}, its {along} spanning {own[0]}-{own[1]}); got {got}")
@@ -2800,27 +2788,43 @@ def _checked_finer(item: DrawItem, seams: tuple[GeometryPatch | None, ...]) -> t
         if across and seams[side] is not None:
             raise InvalidInputError(f"item.finer[{side}] must be empty where item.seams[{side}] names a coarser patch "
                                     f"across its {_SIDES[side]}; got {counted(len(across), 'patch', 'patches')}")
-        axis, along = ("rows", "columns") if side < 2 else ("columns", "rows")
-        line = (patch.rows + patch.cols)[side]
-        own = patch.cols if side < 2 else patch.rows
-        ends, start = "ending" if side % 2 == 0 else "starting", side % 2 == 0  # its line: the neighbour's last/first
         for k, fine in enumerate(across):
-            if not isinstance(fine, GeometryPatch):
-                got = type(fine).__name__
-            elif _root_of(fine) is not root:
-                got = "a patch of another quadtree"
-            else:
-                got = (f"a patch of depth {fine.depth} over rows {fine.rows[0]}-{fine.rows[1]}, columns "
-                       f"{fine.cols[0]}-{fine.cols[1]}")
-                theirs = fine.rows if side < 2 else fine.cols
-                span = fine.cols if side < 2 else fine.rows
-                if fine.depth > patch.depth and theirs[1 if start else 0] == line and own[0] <= span[0] \
-                        and span[1] <= own[1]:
-                    continue
+            got = _not_across(patch, root, side, fine, coarser=False)
+            if got is None:
+                continue
+            axis, along, line, own, ends = _side_terms(patch, side)
             raise InvalidInputError(f"item.finer[{side}][{k}] must be a finer patch of the item's quadtree drawn "
                                     f"across its {_SIDES[side]} (depth > {patch.depth}, its {axis} {ends} at "
                                     f"{axis[:-1]} {line}, its {along} within {own[0]}-{own[1]}); got {got}")
     return tuple(tuple(across) for across in finer)
+
+
+def _side_terms(patch: GeometryPatch, side: int) -> tuple[str, str, int, tuple[int, int], str]:
+    """For :func:`_checked_seams`' and :func:`_checked_finer`'s messages, a side of ``patch``: the axis its line is
+    one of and the one along it, the line, the patch's span along it, and where a neighbour's lines end on it."""
+    axis, along = ("rows", "columns") if side < 2 else ("columns", "rows")
+    line = (patch.rows + patch.cols)[side]
+    own = patch.cols if side < 2 else patch.rows
+    return axis, along, line, own, "starting" if side % 2 else "ending"  # its line: the neighbour's last or first
+
+
+def _not_across(patch: GeometryPatch, root: GeometryPatch, side: int, other: object, coarser: bool) -> str | None:
+    """None where ``other`` is a patch of ``root``'s quadtree drawn across ``patch``'s side ``side`` (its last or
+    first row or column the side's line), coarser (its span along the side holding the side's) or, with ``coarser``
+    False, finer (its span within the side's); else what it is, for the error."""
+    if not isinstance(other, GeometryPatch):
+        return type(other).__name__
+    if _root_of(other) is not root:
+        return "a patch of another quadtree"
+    _, _, line, own, _ = _side_terms(patch, side)
+    theirs = other.rows if side < 2 else other.cols
+    span = other.cols if side < 2 else other.rows
+    if theirs[1 if side % 2 == 0 else 0] == line and (
+            other.depth < patch.depth and span[0] <= own[0] and own[1] <= span[1] if coarser
+            else other.depth > patch.depth and own[0] <= span[0] and span[1] <= own[1]):
+        return None
+    return (f"a patch of depth {other.depth} over rows {other.rows[0]}-{other.rows[1]}, columns "
+            f"{other.cols[0]}-{other.cols[1]}")
 
 
 def _split_border(terrain: Terrain, patch: GeometryPatch, side: int, finer: Sequence[GeometryPatch],
