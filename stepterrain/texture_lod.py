@@ -2215,13 +2215,9 @@ def visual_texture_error(geometry: GeometryPatch, texture: TexturePatch, camera:
     return texel_pixels(geometry, texture, camera)
 
 
-def _texture_error_in(texture: TexturePatch, camera: Camera, view: _InView) -> float:
-    """:func:`visual_texture_error` over the geometry patch's :func:`_in_view` ``view``."""
-    return _texture_errors_in(camera, [texture], [view])[0]
-
-
 def _texture_errors_in(camera: Camera, textures: Sequence[TexturePatch], views: Sequence[_InView]) -> list[float]:
-    """:func:`_texture_error_in` of each texture patch over the view of its index, at once."""
+    """:func:`visual_texture_error` of each texture patch over the geometry patch's :func:`_in_view` of its index,
+    at once."""
     inner = [k for k, texture in enumerate(textures) if not texture.is_leaf]
     out = [0.0] * len(textures)
     for k, value in zip(inner, _texels_pixels_in(camera, [textures[k] for k in inner], [views[k] for k in inner]),
