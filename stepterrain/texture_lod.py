@@ -2101,9 +2101,9 @@ def _in_views(camera: Camera, boxes: NDArray[np.float64]) -> list[_InView]:
     nearest, seen, points, feasible = camera._visible_parts(boxes)
     counts = feasible.sum(axis=1)
     fallback = ~seen | (counts == 0)
-    clipped = np.clip(np.asarray(camera.eye, dtype=np.float64), boxes[:, 0], boxes[:, 1])  # nearest_point
-    counts[fallback] = 0  # a group of its own: the box's nearest point stands for both
     eye = np.asarray(camera.eye, dtype=np.float64)
+    clipped = np.clip(eye, boxes[:, 0], boxes[:, 1])  # nearest_point
+    counts[fallback] = 0  # a group of its own: the box's nearest point stands for both
     axes = camera._frustum[1]
     views: list[_InView] = [None] * len(boxes)  # type: ignore[list-item]
     for count in np.unique(counts):
