@@ -2848,9 +2848,8 @@ def _split_border(terrain: Terrain, patch: GeometryPatch, side: int, finer: Sequ
     vertices = np.concatenate([vertices, extra])
     n_rows, n_cols = shape
     cells = n_cols - 1
-    new_faces = [faces]
     faces = faces.copy()
-    new_faces[0] = faces
+    new_faces = [faces]
     for k in range(len(own) - 1):
         inside = np.flatnonzero((at > own[k]) & (at < own[k + 1]))
         if not len(inside):
