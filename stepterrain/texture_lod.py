@@ -2494,18 +2494,16 @@ def _finer_neighbours(cut: list[GeometryPatch], seams: list[tuple[GeometryPatch 
 
 
 def _coarser_neighbours(patch: GeometryPatch, root: GeometryPatch, drawn: set[GeometryPatch],
-                        probes: dict[GeometryPatch, tuple[tuple[GeometryPatch, ...], ...]] | None = None) -> tuple[
+                        probes: dict[GeometryPatch, tuple[tuple[GeometryPatch, ...], ...]]) -> tuple[
         GeometryPatch | None, ...]:
     """Per side of ``patch`` (first row, last row, first column, last column), the patch of ``drawn`` across it
     when that one is coarser, else None: the drawn one among the patches coarser than ``patch`` holding the cell
     just outside the side's middle (:func:`_probe_paths`; ``drawn``, a cut, holds at most one of them). A coarser one
     spans the whole side (quadtree patches of one depth share their rows or columns). ``probes`` keeps the paths
     per patch over the balancing passes."""
-    paths = probes.get(patch) if probes is not None else None
+    paths = probes.get(patch)
     if paths is None:
-        paths = _probe_paths(patch, root)
-        if probes is not None:
-            probes[patch] = paths
+        paths = probes[patch] = _probe_paths(patch, root)
     return tuple(next((n for n in path if n in drawn), None) for path in paths)
 
 
