@@ -2173,11 +2173,11 @@ def _geometric_errors_in(camera: Camera, views: Sequence[_InView], errors: Seque
     depths = np.matmul(offset[:, None, :], camera._frustum[1][0])[:, 0]
     norms = np.sqrt(np.matmul(offset[:, None, :], offset[:, :, None])[:, 0, 0])  # as np.linalg.norm: √(x · x)
     out = []
-    for error, segment, depth, norm in zip(errors, vertical, depths.tolist(), norms, strict=True):
-        if not depth > 0.0:  # p behind the eye (a box out of view, or around the eye): refine, as segment_pixels does
-            out.append(math.inf)
-            continue
-        with np.errstate(over="ignore", divide="ignore"):  # a huge error, or depth² underflowing to 0: inf
+    with np.errstate(over="ignore", divide="ignore"):  # a huge error, or depth² underflowing to 0: inf
+        for error, segment, depth, norm in zip(errors, vertical, depths.tolist(), norms, strict=True):
+            if not depth > 0.0:  # p behind the eye (a box out of view, or around the eye): refine, as segment_pixels
+                out.append(math.inf)
+                continue
             out.append(max(segment, float(camera.focal_pixels * error * norm / depth ** 2)))
     return out
 
