@@ -2101,9 +2101,9 @@ def _in_views(camera: Camera, boxes: NDArray[np.float64]) -> list[_InView]:
     nearest, seen, points, feasible = camera._visible_parts(boxes)
     counts = feasible.sum(axis=1)
     fallback = ~seen | (counts == 0)
-    clipped = np.clip(np.asarray(camera.eye, dtype=np.float64), boxes[:, 0], boxes[:, 1])  # nearest_point
-    counts[fallback] = 0  # a group of its own: the box's nearest point stands for both
     eye = np.asarray(camera.eye, dtype=np.float64)
+    clipped = np.clip(eye, boxes[:, 0], boxes[:, 1])  # nearest_point
+    counts[fallback] = 0  # a group of its own: the box's nearest point stands for both
     axes = camera._frustum[1]
     views: list[_InView] = [None] * len(boxes)  # type: ignore[list-item]
     for count in np.unique(counts):
@@ -2173,11 +2173,11 @@ def _geometric_errors_in(camera: Camera, views: Sequence[_InView], errors: Seque
     depths = np.matmul(offset[:, None, :], camera._frustum[1][0])[:, 0]
     norms = np.sqrt(np.matmul(offset[:, None, :], offset[:, :, None])[:, 0, 0])  # as np.linalg.norm: √(x · x)
     out = []
-    for error, segment, depth, norm in zip(errors, vertical, depths.tolist(), norms, strict=True):
-        if not depth > 0.0:  # p behind the eye (a box out of view, or around the eye): refine, as segment_pixels does
-            out.append(math.inf)
-            continue
-        with np.errstate(over="ignore", divide="ignore"):  # a huge error, or depth² underflowing to 0: inf
+    with np.errstate(over="ignore", divide="ignore"):  # a huge error, or depth² underflowing to 0: inf
+        for error, segment, depth, norm in zip(errors, vertical, depths.tolist(), norms, strict=True):
+            if not depth > 0.0:  # p behind the eye (a box out of view, or around the eye): refine, as segment_pixels
+                out.append(math.inf)
+                continue
             out.append(max(segment, float(camera.focal_pixels * error * norm / depth ** 2)))
     return out
 
@@ -2215,13 +2215,9 @@ def visual_texture_error(geometry: GeometryPatch, texture: TexturePatch, camera:
     return texel_pixels(geometry, texture, camera)
 
 
-def _texture_error_in(texture: TexturePatch, camera: Camera, view: _InView) -> float:
-    """:func:`visual_texture_error` over the geometry patch's :func:`_in_view` ``view``."""
-    return _texture_errors_in(camera, [texture], [view])[0]
-
-
 def _texture_errors_in(camera: Camera, textures: Sequence[TexturePatch], views: Sequence[_InView]) -> list[float]:
-    """:func:`_texture_error_in` of each texture patch over the view of its index, at once."""
+    """:func:`visual_texture_error` of each texture patch over the geometry patch's :func:`_in_view` of its index,
+    at once."""
     inner = [k for k, texture in enumerate(textures) if not texture.is_leaf]
     out = [0.0] * len(textures)
     for k, value in zip(inner, _texels_pixels_in(camera, [textures[k] for k in inner], [views[k] for k in inner]),
@@ -2498,18 +2494,16 @@ def _finer_neighbours(cut: list[GeometryPatch], seams: list[tuple[GeometryPatch 
 
 
 def _coarser_neighbours(patch: GeometryPatch, root: GeometryPatch, drawn: set[GeometryPatch],
-                        probes: dict[GeometryPatch, tuple[tuple[GeometryPatch, ...], ...]] | None = None) -> tuple[
+                        probes: dict[GeometryPatch, tuple[tuple[GeometryPatch, ...], ...]]) -> tuple[
         GeometryPatch | None, ...]:
     """Per side of ``patch`` (first row, last row, first column, last column), the patch of ``drawn`` across it
     when that one is coarser, else None: the drawn one among the patches coarser than ``patch`` holding the cell
     just outside the side's middle (:func:`_probe_paths`; ``drawn``, a cut, holds at most one of them). A coarser one
     spans the whole side (quadtree patches of one depth share their rows or columns). ``probes`` keeps the paths
     per patch over the balancing passes."""
-    paths = probes.get(patch) if probes is not None else None
+    paths = probes.get(patch)
     if paths is None:
-        paths = _probe_paths(patch, root)
-        if probes is not None:
-            probes[patch] = paths
+        paths = probes[patch] = _probe_paths(patch, root)
     return tuple(next((n for n in path if n in drawn), None) for path in paths)
 
 
@@ -2763,22 +2757,10 @@ def _checked_seams(item: DrawItem) -> tuple[GeometryPatch | None, ...]:
     for side, coarse in enumerate(seams):
         if coarse is None:
             continue
-        axis, along = ("rows", "columns") if side < 2 else ("columns", "rows")
-        line = (patch.rows + patch.cols)[side]
-        own = patch.cols if side < 2 else patch.rows
-        ends, start = "starting" if side % 2 else "ending", side % 2 == 0  # its line: the neighbour's last or first
-        if not isinstance(coarse, GeometryPatch):
-            got = type(coarse).__name__
-        elif _root_of(coarse) is not root:
-            got = "a patch of another quadtree"
-        else:
-            got = (f"a patch of depth {coarse.depth} over rows {coarse.rows[0]}-{coarse.rows[1]}, columns "
-                   f"{coarse.cols[0]}-{coarse.cols[1]}")
-            theirs = coarse.rows if side < 2 else coarse.cols
-            span = coarse.cols if side < 2 else coarse.rows
-            if coarse.depth < patch.depth and theirs[1 if start else 0] == line and span[0] <= own[0] \
-                    and own[1] <= span[1]:
-                continue
+        got = _not_across(patch, root, side, coarse, coarser=True)
+        if got is None:
+            continue
+        axis, along, line, own, ends = _side_terms(patch, side)
         raise InvalidInputError(f"item.seams[{side}] must be None or a coarser patch of the item's quadtree drawn "
                                 f"across its {_SIDES[side]} (depth < {patch.depth}, its {axis} {ends} at "
                                 f"{axis[:-1]} {line}, its {along} spanning {own[0]}-{own[1]}); got {got}")
@@ -2800,27 +2782,43 @@ def _checked_finer(item: DrawItem, seams: tuple[GeometryPatch | None, ...]) -> t
         if across and seams[side] is not None:
             raise InvalidInputError(f"item.finer[{side}] must be empty where item.seams[{side}] names a coarser patch "
                                     f"across its {_SIDES[side]}; got {counted(len(across), 'patch', 'patches')}")
-        axis, along = ("rows", "columns") if side < 2 else ("columns", "rows")
-        line = (patch.rows + patch.cols)[side]
-        own = patch.cols if side < 2 else patch.rows
-        ends, start = "ending" if side % 2 == 0 else "starting", side % 2 == 0  # its line: the neighbour's last/first
         for k, fine in enumerate(across):
-            if not isinstance(fine, GeometryPatch):
-                got = type(fine).__name__
-            elif _root_of(fine) is not root:
-                got = "a patch of another quadtree"
-            else:
-                got = (f"a patch of depth {fine.depth} over rows {fine.rows[0]}-{fine.rows[1]}, columns "
-                       f"{fine.cols[0]}-{fine.cols[1]}")
-                theirs = fine.rows if side < 2 else fine.cols
-                span = fine.cols if side < 2 else fine.rows
-                if fine.depth > patch.depth and theirs[1 if start else 0] == line and own[0] <= span[0] \
-                        and span[1] <= own[1]:
-                    continue
+            got = _not_across(patch, root, side, fine, coarser=False)
+            if got is None:
+                continue
+            axis, along, line, own, ends = _side_terms(patch, side)
             raise InvalidInputError(f"item.finer[{side}][{k}] must be a finer patch of the item's quadtree drawn "
                                     f"across its {_SIDES[side]} (depth > {patch.depth}, its {axis} {ends} at "
                                     f"{axis[:-1]} {line}, its {along} within {own[0]}-{own[1]}); got {got}")
     return tuple(tuple(across) for across in finer)
+
+
+def _side_terms(patch: GeometryPatch, side: int) -> tuple[str, str, int, tuple[int, int], str]:
+    """For :func:`_checked_seams`' and :func:`_checked_finer`'s messages, a side of ``patch``: the axis its line is
+    one of and the one along it, the line, the patch's span along it, and where a neighbour's lines end on it."""
+    axis, along = ("rows", "columns") if side < 2 else ("columns", "rows")
+    line = (patch.rows + patch.cols)[side]
+    own = patch.cols if side < 2 else patch.rows
+    return axis, along, line, own, "starting" if side % 2 else "ending"  # its line: the neighbour's last or first
+
+
+def _not_across(patch: GeometryPatch, root: GeometryPatch, side: int, other: object, coarser: bool) -> str | None:
+    """None where ``other`` is a patch of ``root``'s quadtree drawn across ``patch``'s side ``side`` (its last or
+    first row or column the side's line), coarser (its span along the side holding the side's) or, with ``coarser``
+    False, finer (its span within the side's); else what it is, for the error."""
+    if not isinstance(other, GeometryPatch):
+        return type(other).__name__
+    if _root_of(other) is not root:
+        return "a patch of another quadtree"
+    _, _, line, own, _ = _side_terms(patch, side)
+    theirs = other.rows if side < 2 else other.cols
+    span = other.cols if side < 2 else other.rows
+    if theirs[1 if side % 2 == 0 else 0] == line and (
+            other.depth < patch.depth and span[0] <= own[0] and own[1] <= span[1] if coarser
+            else other.depth > patch.depth and own[0] <= span[0] and span[1] <= own[1]):
+        return None
+    return (f"a patch of depth {other.depth} over rows {other.rows[0]}-{other.rows[1]}, columns "
+            f"{other.cols[0]}-{other.cols[1]}")
 
 
 def _split_border(terrain: Terrain, patch: GeometryPatch, side: int, finer: Sequence[GeometryPatch],
@@ -2848,9 +2846,8 @@ def _split_border(terrain: Terrain, patch: GeometryPatch, side: int, finer: Sequ
     vertices = np.concatenate([vertices, extra])
     n_rows, n_cols = shape
     cells = n_cols - 1
-    new_faces = [faces]
     faces = faces.copy()
-    new_faces[0] = faces
+    new_faces = [faces]
     for k in range(len(own) - 1):
         inside = np.flatnonzero((at > own[k]) & (at < own[k + 1]))
         if not len(inside):

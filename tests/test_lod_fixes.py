@@ -1703,20 +1703,26 @@ def _border_edges(meshes, terrain):
     return pieces, gap
 
 
-def _welded_edges(meshes, t):
-    """Per edge of ``meshes`` welded by exact vertex position (each mesh's faces' edges, undirected), how many faces
-    use it, and which of them lie on the grid's outline (both ends on its first or last row, or first or last
-    column; from the vertices' grid nodes)."""
+def _weld(meshes):
+    """``meshes`` welded by exact vertex position: the distinct positions, the edges of the faces (undirected, as
+    pairs of position indices, each once) and how many faces use each."""
     vertices = np.concatenate([m.vertices for m in meshes])
     offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
     faces = np.concatenate([np.asarray(m.faces) + o for m, o in zip(meshes, offsets, strict=True)])
-    _, weld = np.unique(vertices, axis=0, return_inverse=True)
+    positions, weld = np.unique(vertices, axis=0, return_inverse=True)
     faces = weld.reshape(-1)[faces]
     edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
-    unique, counts = np.unique(edges, axis=0, return_counts=True)
-    node = np.zeros((weld.max() + 1, 2), dtype=int)
-    node[weld.reshape(-1), 0] = np.rint((vertices[:, 1] - t.origin[1]) / t.spacing[1])
-    node[weld.reshape(-1), 1] = np.rint((vertices[:, 0] - t.origin[0]) / t.spacing[0])
+    edges, counts = np.unique(edges, axis=0, return_counts=True)
+    return positions, edges, counts
+
+
+def _welded_edges(meshes, t):
+    """Per edge of ``meshes`` welded by exact vertex position (:func:`_weld`), how many faces use it, and which of
+    them lie on the grid's outline (both ends on its first or last row, or first or last column; from the vertices'
+    grid nodes)."""
+    positions, unique, counts = _weld(meshes)
+    node = np.column_stack([np.rint((positions[:, 1] - t.origin[1]) / t.spacing[1]),
+                            np.rint((positions[:, 0] - t.origin[0]) / t.spacing[0])]).astype(int)
     rows, cols = t.heights.shape
     a, b = node[unique[:, 0]], node[unique[:, 1]]
     outline = (((a[:, 0] == b[:, 0]) & np.isin(a[:, 0], (0, rows - 1)))
@@ -1950,14 +1956,7 @@ def test_a_corner_cell_with_finer_patches_on_two_sides_is_split_on_both(spacing)
                             viewport=(640, 480))
             items = render_with_textures(quadtree.root, [tree.root], camera, gamma_user=2.0, tau_user=1e9)
             views += sum(any(across) for item in items for across in item.finer) > 0
-            meshes = [paint_with_textures(item) for item in items]
-            vertices = np.concatenate([m.vertices for m in meshes])
-            offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
-            faces = np.concatenate([np.asarray(m.faces) + o for m, o in zip(meshes, offsets, strict=True)])
-            unique, weld = np.unique(vertices, axis=0, return_inverse=True)
-            faces = weld.reshape(-1)[faces]
-            edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
-            edges, counts = np.unique(edges, axis=0, return_counts=True)
+            unique, edges, counts = _weld([paint_with_textures(item) for item in items])
             assert (counts <= 2).all()
             col = np.rint((unique[:, 0] - t.origin[0]) / t.spacing[0]).astype(int)
             row = np.rint((unique[:, 1] - t.origin[1]) / t.spacing[1]).astype(int)
