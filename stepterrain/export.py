@@ -2617,9 +2617,13 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     (trimesh's reader refused the file; a ``#`` in a name, ``usemtl Material#1``, stays in it: :func:`_obj_tidied`).
     A face's negative index counts back from the ``v`` (``vt``, ``vn``) lines before it, as the OBJ specification
     says (trimesh's reader counted back from the file's end: two objects of ``v v v f -3 -2 -1`` read as the second
-    triangle twice; :func:`_obj_absolute_indices`), and an OBJ whose lines end in a carriage return alone, or which
-    starts with a UTF-8 byte-order mark, reads as one with newlines and without it (trimesh's reader read the first
-    as one line, an empty mesh, and dropped the second's first vertex; :func:`_obj_newlines`).
+    triangle twice; :func:`_obj_absolute_indices`), however many digits it is written with (``-0003``; one of more
+    than 18 was left to trimesh's reader; one counting back past the file's start is refused naming its line), and
+    ``l`` and ``p`` lines (polylines, points) are not read, whatever their indices' signs, as trimesh's reader skips
+    them (the vertices they name are kept where every ``v`` line is). An OBJ whose lines end in a carriage return
+    alone, or which starts with a UTF-8 byte-order mark, reads as one with newlines and without it (trimesh's reader
+    read the first as one line, an empty mesh, and dropped the second's first vertex; :func:`_obj_newlines`), also
+    one of vertices only (points), tidied as the others are.
     A COFF's vertex colours (trimesh's reader dropped them; a UTF-8 byte-order mark before its keyword skipped, and a
     colour that is no number refused by line) come back as vertex colours, written as integers bytes
     and with a decimal point floats 0..1; integers of 0 and 1 only, which read either way, and vertex lines without
@@ -2661,6 +2665,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                 return own
         gltf = file.suffix.lower() in (".glb", ".gltf")
         color, tree, scene = None, None, None
+        tidied: bytes | None = None  # an OBJ's text as trimesh's reader is to read it (_obj_tidied), if not its own
         if gltf:  # trimesh.load(force="mesh") is load_scene().to_mesh(), which drops COLOR_0 beside a material
             tree = _check_dense_gltf(file)  # its JSON, read once
             stored_z_up = _stored_z_up(tree)
@@ -2674,7 +2679,6 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         else:  # an OBJ of faces of vertex indices only keeps the vertices no face names (_obj_faces_kind)
             source: bytes | None = None  # an OBJ's text with newlines for its line ends, where one is a CR alone
             kind: str | None = None
-            tidied: bytes | None = None
             if file.suffix.lower() == ".obj":
                 source = _obj_newlines(file)
                 _check_obj_indices(file, source)
@@ -2687,13 +2691,17 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                     loaded = _obj_materials_joined(file, tidied)
                 if loaded is None:
                     loaded = _trimesh_read(trimesh.load, file, tidied, force="mesh", process=False, **order)
+            except IndexError:
+                if file.suffix.lower() == ".obj":  # a relative index past the file's start, said by its line
+                    _obj_relative_past_start(file, tidied if tidied is not None else source)
+                raise
             except ValueError as exc:
                 mixed = _ply_binary_mixed_lists(file) if file.suffix.lower() == ".ply" else None
                 if mixed is None:
                     raise
                 raise ValueError(mixed) from exc
         if isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices) == 0:
-            loaded = _read_points(file, scene) or loaded
+            loaded = _read_points(file, scene, tidied) or loaded
             if file.suffix.lower() == ".ply" and len(loaded.faces) == 0:  # trimesh's reader skips triangle strips
                 strips = _ply_tristrips(loaded)
                 if strips is not None:
@@ -2898,11 +2906,22 @@ _OBJ_RELATIVE_FACE = re.compile(rb"^f [^\n#]*-", re.MULTILINE)
 def _obj_line_starting(data: Any, letter: bytes, start: int = 0) -> int:
     """Where the first line from ``start`` of the OBJ text ``data`` (bytes or an mmap) that starts with ``letter``
     begins, or -1: searched for the one byte (a search for a newline and the letter stopped at every line, twice as
-    slow as the file's other scans), each find not at a line's start passed over."""
+    slow as the file's other scans), each find not at a line's start passed over, up to :data:`_OBJ_PASSED_OVER`
+    of them; then searched for the newline and the letter (a Python step per find took 1.1 s of a 58 MB file of a
+    comment line before each vertex, each comment's ``f`` and ``v`` passed over in turn)."""
     at = data.find(letter, start)
-    while at > 0 and data[at - 1 : at] != b"\n":
+    for _ in range(_OBJ_PASSED_OVER):
+        if at <= 0 or data[at - 1 : at] == b"\n":
+            return at  # type: ignore[no-any-return]
         at = data.find(letter, at + 1)
-    return at  # type: ignore[no-any-return]
+    if at <= 0 or data[at - 1 : at] == b"\n":
+        return at  # type: ignore[no-any-return]
+    at = data.find(b"\n" + letter, at)
+    return at + 1 if at >= 0 else -1  # type: ignore[no-any-return]
+
+
+#: how many finds of a letter not at a line's start :func:`_obj_line_starting` passes over one by one
+_OBJ_PASSED_OVER = 64
 
 
 def _obj_relative_after_vertices(data: Any) -> bool:
@@ -2918,6 +2937,8 @@ def _obj_relative_after_vertices(data: Any) -> bool:
 
 #: how far :func:`_obj_absolute_indices` looks from a minus for its field's digits, and back for its word's start
 _OBJ_FIELD_REACH = 40
+#: a run of decimal digits (of a field longer than :data:`_OBJ_FIELD_REACH`)
+_OBJ_DIGITS = re.compile(rb"[0-9]*")
 
 
 def _obj_lines_starting(padded: NDArray[np.uint8], starts: NDArray[np.int64], keyword: bytes) -> NDArray[np.bool_]:
@@ -2959,6 +2980,23 @@ def _obj_absolute_indices(data: bytes) -> bytes:
     return b"".join(pieces) if len(pieces) != 1 else pieces[0]
 
 
+def _obj_relative_past_start(file: Path, data: bytes | None) -> None:
+    """Raise :func:`_obj_absolute_indices`' ValueError, naming the line, where a face of the OBJ ``file`` (or of
+    ``data``, its text tidied: :func:`_obj_tidied`) has a relative index counting back past the file's start; else
+    nothing. For trimesh's IndexError, which named no line ("index -4 is out of bounds for axis 0 with size 3", or
+    for a relative index of more than 18 digits "index 9223372036854775806 ..."), where no ``v`` line follows a face
+    (else the text was made absolute before trimesh's reader, and the index refused then). Blocks of whole lines
+    looked at in turn, the text not rewritten."""
+    with _obj_mapped(file, data) as text:
+        if text is None:
+            return
+        seen, lines = np.zeros(3, dtype=np.int64), 0
+        for at, end in _obj_line_blocks(text, _OBJ_INDEX_BLOCK):
+            block = text[at:end]
+            seen = _obj_absolute_block(block, seen, lines)[1]
+            lines += block.count(b"\n")
+
+
 #: how many bytes of an OBJ's lines :func:`_obj_absolute_indices` rewrites at once
 _OBJ_INDEX_BLOCK = 1 << 20
 
@@ -2981,32 +3019,45 @@ def _obj_absolute_block(data: bytes, before: NDArray[np.int64], lines: int) -> t
     windows = np.lib.stride_tricks.sliding_window_view(padded, _OBJ_FIELD_REACH)
     after = windows[minus + 1]  # the bytes after each minus
     number = (after >= ord("0")) & (after <= ord("9"))
+    long = number.all(axis=1)  # more digits than the window holds: its end not seen
     digits = np.argmin(number, axis=1)  # its digits (a zero byte ends them)
     end = after[np.arange(len(minus)), digits]
+    for k in np.flatnonzero(long):  # such a field's digits counted one by one (few, if any)
+        run = _OBJ_DIGITS.match(data, int(minus[k]) + 1).end()  # type: ignore[union-attr]
+        digits[k], end[k] = run - int(minus[k]) - 1, data[run] if run < size else ord(" ")
     before = np.concatenate((np.zeros(1, np.uint8), text))[minus]  # the byte before it
     back = np.lib.stride_tricks.sliding_window_view(np.concatenate((np.zeros(_OBJ_FIELD_REACH, np.uint8), text)),
                                                     _OBJ_FIELD_REACH)[minus][:, ::-1]  # the bytes before it, back
     blank = _OBJ_BLANK[back]
     word = np.argmax(blank, axis=1)  # the bytes back to the blank before its word
-    own = ((digits > 0) & (digits <= 18) & (_OBJ_BLANK[end] | (end == ord("/")) | (minus + 1 + digits >= size))
+    own = ((digits > 0) & (_OBJ_BLANK[end] | (end == ord("/")) | (minus + 1 + digits >= size))
            & (_OBJ_BLANK[before] | (before == ord("/"))) & blank.any(axis=1))  # -3, not 1-2 or -3x
     slot = np.sum((back == ord("/")) & (reach - 1 < word[:, None]), axis=1)  # 0: v, 1: vt, 2: vn
     own &= slot < 3
-    minus, line, digits, slot, after = minus[own], line[own], digits[own], slot[own], after[own]
+    minus, line, digits, slot, after, long = minus[own], line[own], digits[own], slot[own], after[own], long[own]
     if not len(minus):
         return data, seen[:, -1]
+    # its leading zeros (-0003 is -3) and its value, where its other digits are at most an int64's 18 places (more
+    # count back past any file's start: such an index was left as written, trimesh's reader counting it back from
+    # the file's end, or overflowing)
+    zeros = np.minimum(np.argmin(after == ord("0"), axis=1), digits)
+    past = digits - zeros > 18
+    for k in np.flatnonzero(long):
+        past[k] = len(data[int(minus[k]) + 1 : int(minus[k]) + 1 + int(digits[k])].lstrip(b"0")) > 18
     value = np.zeros(len(minus), dtype=np.int64)
-    for k in range(18):  # the fields' k-th digits, where they have one
-        value = np.where(k < digits, value * 10 + after[:, k] - ord("0"), value)
-    index = seen[slot, line] + 1 - value
+    for k in range(int(np.max(np.where(past | long, 0, digits)))):  # the fields' k-th digits, where they have one
+        value = np.where((k < digits) & ~past, value * 10 + after[:, k] - ord("0"), value)
+    for k in np.flatnonzero(long & ~past):
+        value[k] = int(data[int(minus[k]) + 1 : int(minus[k]) + 1 + int(digits[k])])
+    index = np.where(past, 0, seen[slot, line] + 1 - value)
     if (index < 1).any():
         bad = int(np.argmax(index < 1))
         number, kind = int(line[bad]), ("v", "vt", "vn")[int(slot[bad])]
         row = data[starts[number] : (newlines[number] if number < len(newlines) else size)]
+        field = f"-{value[bad]}" if not past[bad] else data[minus[bad] : minus[bad] + 1 + digits[bad]].decode()
         raise ValueError(f"line {lines + number + 1}, {row.decode('utf-8', 'replace').strip()!r}, names {kind} "
-                         f"-{value[bad]}, "
-                         f"and {seen[slot[bad], number]} {kind} lines come before it: a negative index counts back "
-                         "from them")
+                         f"{field}, and {seen[slot[bad], number]} {kind} lines come before it: a negative index "
+                         "counts back from them")
     width = np.searchsorted(_POWERS_OF_TEN, index, side="right")  # the digits of each index
     owner = np.repeat(np.arange(len(index)), width)
     place = np.repeat(width, width) - 1 - (np.arange(len(owner)) - np.repeat(np.cumsum(width) - width, width))
@@ -3038,16 +3089,74 @@ def _obj_tidied(file: Path, source: bytes | None = None) -> bytes | None:
         comments = _obj_trailing_comment(mapped)
         if not comments and not loose:  # source as it is: tidied line by line, a 39 MB one took 0.4-0.7 s more
             return _obj_absolute_indices(mapped[:]) if _obj_relative_after_vertices(mapped) else source
-        data = mapped[:]
-
-    def tidy(line: bytes) -> bytes:
-        line = line.strip(b" \t").replace(b"\t", b" ")
-        if comments and line.split(b" ", 1)[0] in _OBJ_NUMBERS:
-            line = line.split(b"#", 1)[0].rstrip(b" ")
-        return line
-
-    tidied = b"\n".join(tidy(line) for line in data.splitlines()) + b"\n"
+        # in blocks of whole lines, each by byte replacements and regular expressions: a list of the text's lines
+        # took 9 times its size (354 MB for 40 MB) and a Python call per line
+        pieces = [_obj_tidied_block(mapped[at:end], comments)
+                  for at, end in _obj_line_blocks(mapped, _OBJ_INDEX_BLOCK)]
+    tidied = b"".join(pieces) if len(pieces) != 1 else pieces[0]
+    del pieces
     return _obj_absolute_indices(tidied) if _obj_relative_after_vertices(tidied) else tidied
+
+
+def _obj_tidied_block(data: bytes, comments: bool) -> bytes:
+    """:func:`_obj_tidied` of ``data``, whole lines of an OBJ text: its lines (ended by CR, LF or CRLF) each ended by
+    a newline, their tabs made spaces and the blanks around them dropped, and with ``comments`` the comment after a
+    statement of numbers dropped with the blanks before it, as ``line.strip(b" \\t").replace(b"\\t", b" ")``, then
+    ``line.split(b"#", 1)[0].rstrip(b" ")`` where the line's first word is in :data:`_OBJ_NUMBERS`, did line by line
+    (bytes.splitlines). By NumPy over the bytes, each line's first and last byte that is no blank stepped to from its
+    ends (a regular expression's substitution took 115 ms a MB for the blanks, 137 for the comments)."""
+    text = data.replace(b"\r\n", b"\n").replace(b"\r", b"\n").replace(b"\t", b" ")
+    if not text.endswith(b"\n"):  # a newline after the last line, as after the others
+        text += b"\n"
+    array = np.frombuffer(text, dtype=np.uint8)
+    size = len(array)
+    newlines = np.flatnonzero(array == ord("\n"))
+    starts, ends = np.concatenate(([0], newlines[:-1] + 1)), newlines
+    first = _obj_run_ends(array, starts, _OBJ_SPACE)  # each line's first byte that is no blank (or its newline)
+    last = _obj_blank_run_starts(text, array, ends, first)  # where the blanks before its newline start
+    if comments:
+        hashes = np.flatnonzero(array == ord("#"))
+        line = np.searchsorted(newlines, hashes)
+        firsts = np.ones(len(line), dtype=bool)
+        firsts[1:] = line[1:] != line[:-1]
+        hashes, line = hashes[firsts], line[firsts]  # each line's first #
+        at = first[line]
+        padded = np.concatenate((array, np.zeros(3, np.uint8)))
+        one = np.isin(padded[at], np.frombuffer(b"vflps", np.uint8)) & (padded[at + 1] == ord(" "))
+        two = ((padded[at] == ord("v")) & np.isin(padded[at + 1], np.frombuffer(b"tnp", np.uint8))
+               & (padded[at + 2] == ord(" ")))
+        numbers = one | two  # a statement of numbers (_OBJ_NUMBERS) before the #: a keyword holds none
+        hashes, line = hashes[numbers], line[numbers]
+        last[line] = _obj_blank_run_starts(text, array, hashes, first[line])  # the comment, the blanks before it
+    # the spans dropped, [starts, first) and [last, ends) of each line, apart (first <= last): +1 where one starts,
+    # -1 where it stops, each set of places distinct
+    marks = np.zeros(size + 1, dtype=np.int8)
+    marks[starts] += 1
+    marks[first] -= 1
+    marks[last] += 1
+    marks[ends] -= 1
+    return array[np.cumsum(marks[:size], dtype=np.int8) == 0].tobytes()  # type: ignore[no-any-return]
+
+
+#: the blank :func:`_obj_tidied_block` drops around a line (its tabs made spaces), as a table over the 256 byte values
+_OBJ_SPACE = np.arange(256) == ord(" ")
+
+
+def _obj_blank_run_starts(text: bytes, array: NDArray[np.uint8], at: NDArray[np.int64],
+                          floor: NDArray[np.int64]) -> NDArray[np.int64]:
+    """For each place ``at`` in the bytes ``array`` (``text``), where the run of spaces just before it starts, not
+    before ``floor``: stepped back for all at once a few times (such runs are mostly a byte or two long), the longer
+    ones then found one by one (bytes.rstrip)."""
+    at = at.copy()
+    going = np.flatnonzero((at > floor) & (array[np.maximum(at - 1, 0)] == ord(" ")))
+    for _ in range(8):
+        if not len(going):
+            return at
+        at[going] -= 1
+        going = going[(at[going] > floor[going]) & (array[np.maximum(at[going] - 1, 0)] == ord(" "))]
+    for k in going:
+        at[k] = int(floor[k]) + len(text[int(floor[k]) : int(at[k])].rstrip(b" "))
+    return at
 
 
 def _trimesh_read(load: Callable[..., Any], file: Path, data: bytes | None = None, **kwargs: Any) -> Any:
@@ -3989,10 +4098,12 @@ def _check_format(file: Path) -> None:
                                      "statement (v, vt, vn, f, o, g, usemtl, ...); is it of another format?")
 
 
-def _read_points(file: Path, scene: trimesh.Scene | None = None) -> trimesh.Trimesh | None:
+def _read_points(file: Path, scene: trimesh.Scene | None = None, data: bytes | None = None) -> trimesh.Trimesh | None:
     """The point clouds of ``file`` (in world coordinates, with their colours) as one mesh without faces; None without
-    any. ``scene``: a glTF's, as :func:`read_mesh` loaded it (and turned z-up), not loaded again."""
-    loaded = scene if scene is not None else _trimesh_read(trimesh.load, file, process=False)
+    any. ``scene``: a glTF's, as :func:`read_mesh` loaded it (and turned z-up), not loaded again; ``data``: an OBJ's
+    text tidied (:func:`_obj_tidied`), read instead of the file (an OBJ of vertices only read from the file lost
+    its first vertex to a byte-order mark, or was refused for it or for a comment after a vertex)."""
+    loaded = scene if scene is not None else _trimesh_read(trimesh.load, file, data, process=False)
     parts = loaded.dump() if isinstance(loaded, trimesh.Scene) else [loaded]
     clouds = [part for part in parts if isinstance(part, trimesh.PointCloud) and len(part.vertices)]
     if not clouds:
