@@ -602,7 +602,8 @@ def _face_areas(vertices: NDArray[np.float64], faces: NDArray[np.int64]) -> tupl
     return area, margin
 
 
-#: Faces whose candidate points :func:`_overlaps` tests at once (about a dozen a face: some 100 MB of temporaries).
+#: Faces whose candidate points :func:`_overlaps` tests at once (about 4 cells a face, 4 OVERLAP_BLOCK (face, cell)
+#: pairs a block: some 100 MB of temporaries).
 OVERLAP_BLOCK = 1 << 16
 #: The barycentric weights of the point inside each face that :func:`_overlaps` tests: off the centre and off the
 #: lines through a grid cell's corners and halves, where a face of a grid folded over itself has its centre.
@@ -663,8 +664,9 @@ def _overlaps(vertices: NDArray[np.float64], faces: NDArray[np.int64], edges: ND
     x0, y0 = float(px.min()), float(py.min())
     width, height = float(px.max()) - x0, float(py.max()) - y0
     size = np.maximum(high_x - low_x, high_y - low_y)[:: max(1, len(solid) // 100_000)]  # a sample's median
-    cell = max(float(np.median(size)),
-               float(np.sqrt(width * height / (4.0 * len(px)))))
+    # at most ~4 cells a point, and at most 8 a point along the longer side where the points lie on a line
+    cell = max(float(np.median(size)), float(np.sqrt(width * height / (4.0 * len(px)))),
+               max(width, height) / (8.0 * len(px) + 1024.0)) or 1.0
     nx, ny = int(width / cell) + 1, int(height / cell) + 1
 
     def column(v: NDArray[np.float64], origin: float, count: int) -> NDArray[np.int64]:
@@ -684,8 +686,12 @@ def _overlaps(vertices: NDArray[np.float64], faces: NDArray[np.int64], edges: ND
         ends = np.cumsum(counts)
         return np.arange(int(ends[-1]) if len(ends) else 0) - np.repeat(ends - counts, counts)
 
-    for start in range(0, len(solid), OVERLAP_BLOCK):
-        k = np.arange(start, min(start + OVERLAP_BLOCK, len(solid)))
+    # by blocks of about OVERLAP_BLOCK x 4 (face, cell) pairs: a few faces far wider than a cell (a TIN's big
+    # triangles beside its small ones) fill a block of their own
+    reach = np.cumsum((ix1 - ix0 + 1) * (iy1 - iy0 + 1))
+    bounds = np.unique(np.searchsorted(reach, np.arange(0, int(reach[-1]), 4 * OVERLAP_BLOCK), "right"))
+    for start, stop in zip(bounds, [*bounds[1:], len(solid)], strict=True):
+        k = np.arange(start, stop)
         wide = ix1[k] - ix0[k] + 1
         cells = wide * (iy1[k] - iy0[k] + 1)
         face = np.repeat(k, cells)
@@ -721,10 +727,10 @@ def _overlaps(vertices: NDArray[np.float64], faces: NDArray[np.int64], edges: ND
     cx, cy = vertices[faces[first], :2].mean(axis=0)
     number = int(numbering[first]) if numbering is not None else first
     return (f"faces must project one-to-one onto the xy plane (a height field's surface: one face over each point "
-            f"of the ground); got {counted(int(over.sum()), 'face')} overlapping others in xy (parts of the surface "
-            f"one above the other, with no face turned over: e.g. pieces stacked, a spiral ramp, or an unmerged "
-            f"surface folded over itself), the first face {number} at x, y = {cx:.9g}, {cy:.9g}: its solid would "
-            f"intersect itself")
+            f"of the ground); got {counted(int(over.sum()), 'face')} overlapping others in xy (counted where a "
+            f"boundary of the surface lies over or under them: parts of it one above the other with no face turned "
+            f"over, e.g. pieces stacked, a spiral ramp, or an unmerged surface folded over itself), the first face "
+            f"{number} at x, y = {cx:.9g}, {cy:.9g}: its solid would intersect itself")
 
 
 def _orient_pieces(vertices: NDArray[np.float64], faces: NDArray[np.int64], area: NDArray[np.float64],

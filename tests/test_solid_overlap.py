@@ -14,6 +14,7 @@ Gaps found (helper h351, session 47), one failing test each:
 
 from __future__ import annotations
 
+import re
 import warnings
 
 import numpy as np
@@ -204,3 +205,42 @@ def test_stepped_surfaces_read_back_close_without_error(tmp_path, suffix, origin
     mesh = trimesh.Trimesh(solid_vertices, solid_faces, process=False)
     assert mesh.is_winding_consistent
     assert mesh.volume == pytest.approx(want, rel=1e-3)
+
+
+def test_the_overlap_pass_gives_the_same_answer_by_blocks_of_any_size(monkeypatch):
+    """_overlaps by blocks of a few (face, cell) pairs, a face far wider than the cells among small ones (a TIN's
+    big triangle beside a fine grid, and over it): None beside, and over it the message of one block."""
+    from stepterrain import mesh as mesh_module
+
+    fine, fine_faces = _grid(30, 30)
+    big = np.array([[-60.0, -10.0, 3.0], [-10.0, -10.0, 3.0], [-35.0, 40.0, 3.0]])
+    beside = np.vstack([fine, big]), np.vstack([fine_faces, [[900, 901, 902]]])
+    over = np.vstack([fine, big + [50.0, 0.0, 20.0]]), beside[1]
+    want = []
+    for block in (1 << 16, 1, 7):
+        monkeypatch.setattr(mesh_module, "OVERLAP_BLOCK", block)
+        got = [mesh_module._overlaps(v, f, mesh_module.boundary_edges(f)) for v, f in (beside, over)]
+        assert got[0] is None and got[1] is not None
+        assert re.search(OVERLAP, got[1])
+        want.append(got[1])
+    assert want[0] == want[1] == want[2]
+
+
+def test_the_overlap_message_names_a_given_face_where_fins_went_first():
+    """A stepped surface with a fin, and after its faces two grids stacked beside it: the first face named is the
+    given faces' (their numbers before the fin's walls went), at its centre's x, y."""
+    h = np.zeros((5, 7), np.float32)
+    h[:, 3] = 1.0
+    vertices, faces, terrace, _ = _surface(h, levels=[0.0, 2.0], nudged=False)
+    assert not close_solid(vertices, faces, terrace, -1.0)[2].all()  # the fin is there, and removed
+    grid, grid_faces = _grid(3, 3)
+    grid = grid + [vertices[:, 0].max() + 5.0, 0.0, 0.0]
+    both = (np.vstack([vertices, grid, grid + [0.0, 0.0, 20.0]]),
+            np.vstack([faces, grid_faces + len(vertices), grid_faces + len(vertices) + len(grid)]))
+    mask = np.concatenate([terrace, np.ones(2 * len(grid_faces), bool)])
+    with pytest.raises(InvalidInputError, match=OVERLAP) as raised:
+        close_solid(*both, mask, -1.0)
+    face = int(re.search(r"the first face (\d+)", str(raised.value)).group(1))
+    x, y = (float(v) for v in re.search(r"at x, y = (\S+), (\S+):", str(raised.value)).groups())
+    assert face >= len(faces)  # a face of the grids
+    assert (x, y) == pytest.approx(tuple(both[0][both[1][face], :2].mean(axis=0)), abs=1e-7)
