@@ -623,7 +623,7 @@ def _overlaps(vertices: NDArray[np.float64], faces: NDArray[np.int64], edges: ND
     boundary's projection: a boundary vertex lies in it (inside a face of the other part), or the boundary runs over
     the other part's boundary (stacked copies: the inner points of the faces beside it lie inside the other's
     faces), or two boundary edges only cross (not found: no surface seen so far). The candidates are the points in
-    the cells of a uniform grid (cells about a median face across, or wider, at most ~4 a point) that each face's
+    the cells of a uniform grid (cells about a median face across, or wider: at most ~1 a point) that each face's
     bounding box covers. ``numbering``: the faces' numbers in the message (the given faces' before the fins went),
     else their indices."""
     x = np.ascontiguousarray(vertices[:, 0])
@@ -664,8 +664,8 @@ def _overlaps(vertices: NDArray[np.float64], faces: NDArray[np.int64], edges: ND
     x0, y0 = float(px.min()), float(py.min())
     width, height = float(px.max()) - x0, float(py.max()) - y0
     size = np.maximum(high_x - low_x, high_y - low_y)[:: max(1, len(solid) // 100_000)]  # a sample's median
-    # at most ~4 cells a point, and at most 8 a point along the longer side where the points lie on a line
-    cell = max(float(np.median(size)), float(np.sqrt(width * height / (4.0 * len(px)))),
+    # at most ~1 cell a point, and at most 8 a point along the longer side where the points lie on a line
+    cell = max(float(np.median(size)), float(np.sqrt(width * height / len(px))),
                max(width, height) / (8.0 * len(px) + 1024.0)) or 1.0
     nx, ny = int(width / cell) + 1, int(height / cell) + 1
 
@@ -881,7 +881,7 @@ def close_solid(
     ramp, an unmerged surface folded over itself: each face a piece of its own, turned up alone), whose solids would
     intersect themselves too: found where a vertex of the boundary, or a point inside a face beside it, lies strictly
     inside another face's projection (beyond the float32 margin above; :func:`_overlaps`, a grid of cells over those
-    points: about 0.35 s per million faces, on every foreign surface), named by how many faces overlap and the
+    points: about 0.4 s per million faces, on every foreign surface), named by how many faces overlap and the
     first one's x, y. Holes, vertices no face uses, unmerged vertices (one copy per face: not merged, each face closed
     as its own prism) and several pieces side by side are closed as they are. Not detected: two faces whose
     projections only cross, neither holding a boundary vertex nor the other's inner point (no surface seen so far).
