@@ -614,15 +614,17 @@ def _overlaps(vertices: NDArray[np.float64], faces: NDArray[np.int64], edges: ND
               numbering: NDArray[np.int64] | None = None) -> str | None:
     """The refusal's message where parts of a surface lie one above the other in xy though no face is turned over
     (two pieces stacked, a spiral ramp, an unmerged surface whose folded faces were each turned up alone), else
-    None. A height field's faces cover each point of the ground once: no vertex of its boundary (``edges``) and no
-    inner point (:data:`INNER_POINT`) of a face beside the boundary lies strictly inside another face's projection.
+    None. A height field's faces cover each point of the ground once: no vertex or edge midpoint of its boundary
+    (``edges``) and no inner point (:data:`INNER_POINT`) of a face beside the boundary lies strictly inside another
+    face's projection.
     Strictly: beyond :func:`_face_areas`' margin on each of the face's three edges (the edge's and the point's
     |Δx| + |Δy| from the edge's start, times its scale; a point on an edge or a corner, a wall's foot, a
     float32-rounded crossing is inside none), and only faces with an orientation beyond their margin hold points
     (walls and slivers cover nothing). Where the surface's parts overlap, the ground covered twice is bounded by the
     boundary's projection: a boundary vertex lies in it (inside a face of the other part), or the boundary runs over
     the other part's boundary (stacked copies: the inner points of the faces beside it lie inside the other's
-    faces), or two boundary edges only cross (not found: no surface seen so far). The candidates are the points in
+    faces), or two boundary edges only cross (found where a midpoint lies past the crossing, e.g. two thin strips
+    crossing like a plus sign; not found otherwise). The candidates are the points in
     the cells of a uniform grid (cells about a median face across, or wider: at most ~1 a point) that each face's
     bounding box covers. ``numbering``: the faces' numbers in the message (the given faces' before the fins went),
     else their indices."""
@@ -654,9 +656,12 @@ def _overlaps(vertices: NDArray[np.float64], faces: NDArray[np.int64], edges: ND
     del rim, columns
     # the boundary's vertices, then a point inside each face beside the boundary, off its centre (a centre lies on
     # the diagonal of a grid cell split the other way: an unmerged grid folded over itself hid there)
-    px = np.concatenate([x[points], sum(w * c[inner] for w, c in zip(INNER_POINT, corners_x, strict=True))])
-    py = np.concatenate([y[points], sum(w * c[inner] for w, c in zip(INNER_POINT, corners_y, strict=True))])
-    owner = np.concatenate([np.full(n_points, -1), inner])  # per point, the face it is the inner point of
+    # (and the boundary edges' midpoints: two thin strips crossing like a plus sign hold no corner of the other)
+    px = np.concatenate([x[points], 0.5 * (x[edges[:, 0]] + x[edges[:, 1]]),
+                         sum(w * c[inner] for w, c in zip(INNER_POINT, corners_x, strict=True))])
+    py = np.concatenate([y[points], 0.5 * (y[edges[:, 0]] + y[edges[:, 1]]),
+                         sum(w * c[inner] for w, c in zip(INNER_POINT, corners_y, strict=True))])
+    owner = np.concatenate([np.full(n_points + len(edges), -1), inner])  # per point, the face it is the inner point of
     low_x = np.minimum(np.minimum(corners_x[0], corners_x[1]), corners_x[2])
     high_x = np.maximum(np.maximum(corners_x[0], corners_x[1]), corners_x[2])
     low_y = np.minimum(np.minimum(corners_y[0], corners_y[1]), corners_y[2])

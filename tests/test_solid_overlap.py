@@ -76,6 +76,22 @@ def test_two_pieces_one_above_the_other_are_refused():
     assert mesh.volume == pytest.approx(_prism_volume(beside, both[1], 0.0), rel=1e-9)
 
 
+def test_two_thin_strips_crossing_like_a_plus_sign_are_refused():
+    """Two strips of two faces each, one 10 m over the other, crossing in their middles: no corner and no inner
+    point of either lies inside the other, but their long boundary edges' midpoints do."""
+    along = np.array([[0.0, 0.0, 1.0], [10.0, 0.0, 1.0], [10.0, 1.0, 1.0], [0.0, 1.0, 1.0]])
+    across = np.array([[4.6, -6.0, 11.0], [5.4, -6.0, 11.0], [5.4, 4.0, 11.0], [4.6, 4.0, 11.0]])
+    quad = np.array([[0, 1, 2], [0, 2, 3]])
+    vertices, faces = np.vstack([along, across]), np.vstack([quad, quad + 4])
+    with pytest.raises(InvalidInputError, match=OVERLAP):
+        _close(vertices, faces)
+    # apart (the second moved past the first's end): closed
+    apart = np.vstack([along, across + [6.0, 0.0, 0.0]])
+    solid_vertices, solid_faces, *_ = _close(apart, faces)
+    mesh = trimesh.Trimesh(solid_vertices, solid_faces, process=False)
+    assert mesh.is_watertight and mesh.volume == pytest.approx(_prism_volume(apart, faces, 0.0), rel=1e-9)
+
+
 @pytest.mark.parametrize("turns, refused", [(0.9, False), (1.5, True), (2.0, True)])
 def test_a_spiral_ramp_is_refused_once_it_winds_over_itself(turns, refused):
     vertices, faces = _spiral(turns)
