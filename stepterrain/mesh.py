@@ -627,7 +627,9 @@ def _overlaps(vertices: NDArray[np.float64], faces: NDArray[np.int64], edges: ND
     crossing like a plus sign; not found otherwise). The candidates are the points in
     the cells of a uniform grid (cells about a median face across, or wider: at most ~1 a point) that each face's
     bounding box covers. ``numbering``: the faces' numbers in the message (the given faces' before the fins went),
-    else their indices."""
+    else their indices. Measured on the sample DEM's height field (1.54 M faces, 2 busy cores): 0.45-0.6 s, a
+    peak of about 175 bytes a face beside its arguments; an unmerged surface (every vertex on the boundary, every
+    face beside it) of as many faces: 3.6-5.3 s, 420 bytes a face."""
     x = np.ascontiguousarray(vertices[:, 0])
     y = np.ascontiguousarray(vertices[:, 1])
     scale, floor32 = _rounding_scale(x, y)
