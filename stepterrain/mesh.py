@@ -886,12 +886,13 @@ def close_solid(
     of it (it folds over itself: its solid would intersect itself), named by how many faces fold and the first one's x,
     y. So are, last, parts of the surface one above the other with no face turned over (two pieces stacked, a spiral
     ramp, an unmerged surface folded over itself: each face a piece of its own, turned up alone), whose solids would
-    intersect themselves too: found where a vertex of the boundary, or a point inside a face beside it, lies strictly
-    inside another face's projection (beyond the float32 margin above; :func:`_overlaps`, a grid of cells over those
-    points: about 0.4 s per million faces, on every foreign surface), named by how many faces overlap and the
-    first one's x, y. Holes, vertices no face uses, unmerged vertices (one copy per face: not merged, each face closed
-    as its own prism) and several pieces side by side are closed as they are. Not detected: two faces whose
-    projections only cross, neither holding a boundary vertex nor the other's inner point (no surface seen so far).
+    intersect themselves too: found where a vertex or edge midpoint of the boundary, or a point inside a face beside
+    it, lies strictly inside another face's projection (beyond the float32 margin above; :func:`_overlaps`, a grid
+    of cells over those points: about 0.4 s per million faces, on every foreign surface), named by how many faces
+    overlap and the first one's x, y. Holes, vertices no face uses, unmerged vertices (one copy per face: not merged,
+    each face closed as its own prism) and several pieces side by side are closed as they are. Not detected: two
+    parts whose boundaries only cross, no boundary vertex, boundary edge midpoint or inner point of a face beside a
+    boundary inside the other (no surface seen so far).
     """
     return _close_solid(vertices, faces, terrace_mask, floor, device, turn=True, check=True)
 

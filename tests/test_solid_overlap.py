@@ -8,6 +8,8 @@ Gaps found (helper h351, session 47), one failing test each:
 * An unmerged surface (a vertex copy per face, as an .stl read without merging) folded over itself: each face is a
   piece of its own, so each folded face was turned up alone and the fold closed silently (a self-intersecting
   solid). Refused now by the same overlap test (close_solid does not merge: it closes each face's prism as given).
+* Two thin strips crossing like a plus sign, one 10 m over the other: neither holds a corner or an inner point of
+  the other; found by the midpoints of their boundary edges.
 * A fin (two walls back to back) beside an overhang: refused with the manifold error (the fins, edges run twice the
   same way, were judged before their removal) instead of the overhang's message. The overhang's message now.
 """
