@@ -1649,3 +1649,26 @@ def test_node_levels_count_the_thresholds_at_or_below(device, n_thresholds, unif
                    outputs=[levels], device=dev)  # fmt: skip
     expected = np.where(np.isnan(heights), 0, np.searchsorted(thresholds, heights, side="right"))
     np.testing.assert_array_equal(levels.numpy(), expected)
+
+
+@pytest.mark.parametrize("dy", [30.0, -30.0])
+def test_flat_runs_come_out_as_the_generic_grid_pass_writes_them(device, dy):
+    """emit_grid writes runs of plain nodes with flat cells in one native loop on the CPU (the default output:
+    blended vertices, no sources); step_arrays with sources takes the generic path, which the reference tests
+    check. Plateaus wide enough for runs across the 64-node chunks and up to the row ends, some exactly on a
+    threshold (twins and peaks, which end a run), both windings: the same faces, levels, walls and vertex bits."""
+    rows, cols = np.mgrid[0:90, 0:150].astype(np.float64)
+    smooth = 40.0 * np.sin(rows / 17.0) * np.cos(cols / 23.0) + 0.3 * cols
+    heights = np.floor(smooth / 5.0) * 5.0  # plateaus, every other one on a threshold (t_i = 5 + 10 i)
+    heights[::7, ::11] += 0.25  # lone bumps inside plateaus
+    values = np.arange(-60.0, 120.0, 10.0, dtype=np.float32)
+    t = st.Terrain.from_heights(heights, spacing=(30.0, dy), origin=(394000.0, 3798000.0))
+    mesh = st.stepped(t, levels=values, device=device)
+    dev = resolve_device(device)
+    generic = step_arrays(t, values, device=dev, want_sources=True)
+    np.testing.assert_array_equal(mesh.faces, generic.faces)
+    np.testing.assert_array_equal(mesh.face_attributes["level"], generic.face_levels)
+    np.testing.assert_array_equal(mesh.face_attributes["wall"], generic.face_walls)
+    np.testing.assert_array_equal(mesh.vertices.view(np.int64), blend(t, generic, 1.0, device=dev).view(np.int64))
+    flat = (heights[:-1, :-1] == heights[1:, 1:]) & (heights[:-1, :-1] == heights[:-1, 1:])
+    assert (flat & (heights[:-1, :-1] == heights[1:, :-1])).mean() > 0.5  # the runs are there to take
