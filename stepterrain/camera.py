@@ -334,6 +334,9 @@ class Camera:
         once per camera, a set with one box face once per distinct offset of that face (told apart by its bits, so
         0.0 and -0.0 stay apart). Every box solved all ~150 anew, over half of them the same as another box's."""
         _, (n3, sets3), _ = self._plane_solver
+        if len(offsets) < _SHARED_SOLVES_FROM:  # a few boxes: sorting out the repeats costs more than they do
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                return np.linalg.solve(n3, -offsets[:, sets3][..., None])[..., 0]
         free, solved, single, rest = self._shared_sets
         out = np.empty((len(offsets), len(sets3), 3))
         out[:, free] = solved
@@ -411,6 +414,8 @@ class Camera:
 
 #: boxes per slice of :meth:`Camera._visible_parts`' feasibility test (their (R, 12) sums stay in cache)
 _FEASIBLE_BOXES = 64
+#: :meth:`Camera._corner_solves` solves each box's sets itself below this many boxes (the same numbers either way)
+_SHARED_SOLVES_FROM = 16
 # every set of one, two and three of the 12 planes (6 of the frustum, 6 of the box): the nearest point's active sets
 _PLANE_SETS = [np.array(list(itertools.combinations(range(12), k)), dtype=np.intp) for k in (1, 2, 3)]
 

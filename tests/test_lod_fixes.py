@@ -2076,7 +2076,7 @@ def test_corner_solves_shared_between_boxes_are_each_box_own_solve(seed):
     boxes = np.stack([lo, hi], axis=1)
     _, (n3, sets3), _ = camera._plane_solver
     assert len(camera._shared_sets[0]) and camera._shared_sets[2] and len(camera._shared_sets[3])
-    for part in (boxes, boxes[:1]):
+    for part in (boxes, boxes[:20], boxes[:3]):  # shared solves, and a few boxes solving their own
         offsets = np.empty((len(part), 12))
         offsets[:, :6] = camera._frustum[0][:, 3]
         offsets[:, 6:9], offsets[:, 9:] = part[:, 0], -part[:, 1]
