@@ -306,6 +306,52 @@ class Camera:
                 projections.append((m, gram[independent], combos[independent], m @ eye))
         return normals, (n[regular], _PLANE_SETS[2][regular]), projections
 
+    @cached_property
+    def _shared_sets(self) -> tuple[NDArray[np.intp], NDArray[np.float64], list[tuple[int, NDArray[np.intp],
+                                                                                        NDArray[np.float64]]],
+                                    NDArray[np.intp]]:
+        """The regular sets of three planes (:meth:`_plane_solver`) by what their right-hand sides hold, once per
+        camera: those of three frustum planes (indices, and their solutions: the same for every box), those of two
+        frustum planes and one box face, per face (its offset column, the indices, the frustum planes' side of their
+        right-hand sides), and the others (two or three box faces: indices)."""
+        _, (n3, sets3), _ = self._plane_solver
+        offsets = self._frustum[0][:, 3]
+        faces = (sets3 >= 6).sum(axis=1)  # sets3's rows ascend: a set's box faces come last
+        free = np.flatnonzero(faces == 0)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            solved = np.linalg.solve(n3[free], -offsets[sets3[free]][..., None])[..., 0]
+        single = []
+        for column in range(6, 12):
+            rows = np.flatnonzero((faces == 1) & (sets3[:, 2] == column))
+            if len(rows):
+                single.append((column, rows, -offsets[sets3[rows, :2]]))
+        return free, solved, single, np.flatnonzero(faces > 1)
+
+    def _corner_solves(self, offsets: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Where the regular sets of three planes meet, per box of (g, 12) plane ``offsets``: (g, R, 3), each what
+        ``np.linalg.solve`` gives for its matrix and right-hand side (LAPACK's solve per matrix, a function of the
+        two alone), solved once per distinct right-hand side (:meth:`_shared_sets`): a set of three frustum planes
+        once per camera, a set with one box face once per distinct offset of that face (told apart by its bits, so
+        0.0 and -0.0 stay apart). Every box solved all ~150 anew, over half of them the same as another box's."""
+        _, (n3, sets3), _ = self._plane_solver
+        if len(offsets) < _SHARED_SOLVES_FROM:  # a few boxes: sorting out the repeats costs more than they do
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                return np.linalg.solve(n3, -offsets[:, sets3][..., None])[..., 0]
+        free, solved, single, rest = self._shared_sets
+        out = np.empty((len(offsets), len(sets3), 3))
+        out[:, free] = solved
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            for column, rows, frustum in single:
+                values = offsets[:, column]
+                _, first, back = np.unique(values.view(np.int64), return_index=True, return_inverse=True)
+                rhs = np.empty((len(first), len(rows), 3))
+                rhs[:, :, :2] = frustum
+                rhs[:, :, 2] = -values[first][:, None]
+                out[:, rows] = np.linalg.solve(n3[rows], rhs[..., None])[..., 0][back.reshape(-1)]
+            if len(rest):
+                out[:, rest] = np.linalg.solve(n3[rest], -offsets[:, sets3[rest]][..., None])[..., 0]
+        return out
+
     def _visible_parts(self, boxes: NDArray[np.float64], corners: bool = True) -> tuple[
             NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64], NDArray[np.bool_]]:
         """:meth:`visible_part` of (K, 2, 3) float64 boxes (checked) at once, each box's numbers as its own call's
@@ -332,9 +378,7 @@ class Camera:
         for group in (np.flatnonzero(inside) if corners else np.empty(0, np.intp), np.flatnonzero(~inside)):
             if not len(group):
                 continue
-            rhs = -offsets[group][:, sets3]  # (g, R, 3)
-            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-                candidates = [np.linalg.solve(n3, rhs[..., None])[..., 0]]
+            candidates = [self._corner_solves(offsets[group])]
             if not inside[group[0]]:  # the nearest point: also the eye's projections onto one and two planes
                 for n, gram, combos, n_eye in projections:
                     lam = np.linalg.solve(gram, (n_eye + offsets[group][:, combos])[..., None])[..., 0]  # (g, m, k)
@@ -343,8 +387,12 @@ class Camera:
                                       .reshape(-1, k, 3))
                     candidates.append(eye - moved.reshape(len(group), -1, 3))
             found = np.concatenate(candidates, axis=1)
+            ok = np.empty(found.shape[:2], dtype=bool)
             with np.errstate(over="ignore", invalid="ignore"):
-                ok = ((found @ normals.T + offsets[group][:, None]) <= tolerance[group][:, None, None]).all(axis=2)
+                for at in range(0, len(group), _FEASIBLE_BOXES):  # boxes a slice at a time: the (g, R, 12) sums
+                    part = slice(at, at + _FEASIBLE_BOXES)  # stayed in cache (each box's product is its own gemm)
+                    ok[part] = ((found[part] @ normals.T + offsets[group[part]][:, None])
+                                <= tolerance[group[part]][:, None, None]).all(axis=2)
             points[group] = found[:, :len(sets3)]
             feasible[group] = ok[:, :len(sets3)]
             if not inside[group[0]]:  # the feasible candidate nearest to the eye, the first of equals
@@ -364,6 +412,10 @@ class Camera:
             return float(np.linalg.norm(px[0] - px[1]))
 
 
+#: boxes per slice of :meth:`Camera._visible_parts`' feasibility test (their (R, 12) sums stay in cache)
+_FEASIBLE_BOXES = 64
+#: :meth:`Camera._corner_solves` solves each box's sets itself below this many boxes (the same numbers either way)
+_SHARED_SOLVES_FROM = 16
 # every set of one, two and three of the 12 planes (6 of the frustum, 6 of the box): the nearest point's active sets
 _PLANE_SETS = [np.array(list(itertools.combinations(range(12), k)), dtype=np.intp) for k in (1, 2, 3)]
 

@@ -2504,7 +2504,8 @@ def _coarser_neighbours(patch: GeometryPatch, root: GeometryPatch, drawn: set[Ge
     paths = probes.get(patch)
     if paths is None:
         paths = probes[patch] = _probe_paths(patch, root)
-    return tuple(next((n for n in path if n in drawn), None) for path in paths)
+    # most sides have none drawn: told by one C-level pass over the path (a generator per side before)
+    return tuple(None if drawn.isdisjoint(path) else next(n for n in path if n in drawn) for path in paths)
 
 
 def _probe_paths(patch: GeometryPatch, root: GeometryPatch) -> tuple[tuple[GeometryPatch, ...], ...]:

@@ -2057,3 +2057,31 @@ def test_patches_put_in_view_together_get_each_ones_own_numbers(eye, target):
     assert np.array_equal(gammas, [_geometric_error_in(p, camera, v, p.error + 0.5)
                                    for p, v in zip(patches, views, strict=True)], equal_nan=True)
     assert len(set(gammas)) > len(patches) // 2
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_corner_solves_shared_between_boxes_are_each_box_own_solve(seed):
+    """Camera._visible_parts solves the regular sets of three planes once per distinct right-hand side (a set of
+    three frustum planes once per camera, a set with one box face once per distinct offset of that face), not ~150
+    per box: every corner is byte for byte the box's own ``np.linalg.solve``, including boxes that share faces,
+    faces at 0.0 and at -0.0 (told apart: their solves may differ in the sign of a zero) and a lone box."""
+    rng = np.random.default_rng(seed)
+    eye = rng.normal(0.0, 50.0, 3)
+    camera = Camera(eye, eye + rng.normal(0.0, 1.0, 3), viewport=(800, 600), fov=rng.uniform(0.5, 1.8))
+    lo = np.round(rng.normal(0.0, 40.0, (300, 3)) / 10.0) * 10.0  # few distinct faces: shared by many boxes
+    hi = lo + np.round(rng.uniform(0.0, 30.0, (300, 3)) / 10.0) * 10.0
+    zero = np.flatnonzero(lo[:, 0] == 0.0)
+    lo[zero[::2], 0] = -0.0
+    hi[hi == 0.0] = -0.0
+    boxes = np.stack([lo, hi], axis=1)
+    _, (n3, sets3), _ = camera._plane_solver
+    assert len(camera._shared_sets[0]) and camera._shared_sets[2] and len(camera._shared_sets[3])
+    for part in (boxes, boxes[:20], boxes[:3]):  # shared solves, and a few boxes solving their own
+        offsets = np.empty((len(part), 12))
+        offsets[:, :6] = camera._frustum[0][:, 3]
+        offsets[:, 6:9], offsets[:, 9:] = part[:, 0], -part[:, 1]
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            own = np.linalg.solve(n3, -offsets[:, sets3][..., None])[..., 0]
+        assert camera._corner_solves(offsets).tobytes() == own.tobytes()
+    zeros = boxes[:, 0, 0][boxes[:, 0, 0] == 0.0]
+    assert np.signbit(zeros).any() and not np.signbit(zeros).all()  # both zeros among the shared faces
