@@ -1614,6 +1614,17 @@ def picture_uint8(picture: Any, what: str, *, alpha: bool = False) -> NDArray[np
     """
     mode = picture.mode
     if mode in ("I", "F") or mode.startswith("I;16"):
+        # a TIFF of signed integer samples (SampleFormat 2: an int16 DEM, which Pillow opens as mode I) is elevation
+        # or other data, not a picture: its heights were scaled by 1/257, a nearly black drape, and accepted only
+        # while no value was negative; refused as rasterio's read of such a TIFF refuses it (int16)
+        tags = getattr(picture, "tag_v2", None)
+        sample_format = tags.get(339) if tags is not None else None
+        if mode != "F" and sample_format is not None and 2 in np.atleast_1d(sample_format).tolist():
+            bits = tags.get(258) if tags is not None else None
+            depth = f"{int(np.atleast_1d(bits)[0])}-bit " if bits is not None else ""
+            raise InvalidInputError(f"{what} must be an 8-bit or 16-bit image of unsigned samples; got a TIFF of "
+                                    f"signed {depth}integers (SampleFormat 2), such as a DEM's heights, not a "
+                                    "picture: convert it to 8 bits first (`gdal_translate -ot Byte -scale ...`)")
         gray = np.asarray(picture)
         if mode == "F" or (gray.size and (gray.min() < 0 or gray.max() > 65535)):
             low, high = (float(gray.min()), float(gray.max())) if gray.size else (0.0, 0.0)
