@@ -76,8 +76,8 @@ examples:
       the embedded Big Tujunga DEM: size, spacing, extent, CRS, height range and unit, nodata count and fraction
   stepterrain info dem.tif --json
   stepterrain info out/terrain.glb
-      a mesh: vertices, faces, bounds, watertightness, vertex or face colours, the metadata stepterrain wrote
-      (and, for a .ply, how many levels its faces lie on and how many are walls)
+      a mesh: vertices, faces, bounds, watertightness, vertex or face colours, a texture image's size, the metadata
+      stepterrain wrote (and, for a .ply, how many levels its faces lie on and how many are walls)
 """
 
 _MAIN_EPILOG = """\
@@ -1329,6 +1329,19 @@ def _fmt(value: Any) -> str:
 _FMT_ITEMS = 8
 
 
+def _texture_size(mesh: Any) -> list[int] | None:
+    """The (width, height) of the texture image a mesh read by ``read_mesh`` carries (an OBJ's material image, a
+    glTF's base colour texture), None when it has none."""
+    if mesh.visual.kind != "texture":
+        return None
+    material = getattr(mesh.visual, "material", None)
+    for name in ("image", "baseColorTexture"):
+        image = getattr(material, name, None)
+        if image is not None and hasattr(image, "size"):
+            return [int(image.size[0]), int(image.size[1])]
+    return None
+
+
 def _mesh_summary(path: Path) -> dict[str, Any]:
     import trimesh
 
@@ -1363,6 +1376,9 @@ def _mesh_summary(path: Path) -> dict[str, Any]:
         "winding_consistent": bool(mesh.is_winding_consistent),
         "vertex_colors": bool(mesh.visual.kind == "vertex"),
         "face_colors": bool(mesh.visual.kind == "face"),  # PLY and 3MF keep them (glTF: vertex means)
+        # the texture image's (width, height), None without one: a textured GLB, glTF or OBJ (texture --mesh, globe
+        # --texture) read "vertex_colors False, face_colors False", as if it had no colour at all
+        "texture": _texture_size(mesh),
     }
     # stepped's face attributes, which a .ply keeps: the levels its faces lie on (a solid's skirts and base, -1, are
     # none) and its walls

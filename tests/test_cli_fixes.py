@@ -674,6 +674,35 @@ def test_info_reports_the_face_colours_ply_and_3mf_keep(ext, tmp_path, capsys):
     assert json.loads(out)["face_colors"] is False
 
 
+@pytest.mark.parametrize("ext", [".glb", ".gltf", ".obj"])
+def test_info_reports_the_texture_a_mesh_carries(ext, tmp_path, capsys):
+    """A textured mesh (texture --mesh, globe --texture: GLB, glTF and OBJ embed or write the image) was described as
+    "vertex_colors False, face_colors False" and nothing more, as if it had no colour at all; info gives the texture
+    image's (width, height) now, None for a mesh without one."""
+    import json
+
+    import trimesh
+    from PIL import Image
+
+    from stepterrain.export import save_mesh
+
+    mesh = trimesh.creation.box()
+    image = Image.fromarray(np.random.default_rng(3).integers(0, 256, (6, 10, 3), dtype=np.uint8))
+    uv = np.random.default_rng(4).random((len(mesh.vertices), 2))
+    mesh.visual = trimesh.visual.TextureVisuals(uv=uv, image=image)
+    save_mesh(mesh, tmp_path / f"textured{ext}")
+    save_mesh(trimesh.creation.box(), tmp_path / f"plain{ext}")
+    code, out, err = run(capsys, "info", tmp_path / f"textured{ext}", "--json")
+    assert code == 0, err
+    summary = json.loads(out)
+    assert summary["texture"] == [10, 6] and summary["vertex_colors"] is False, summary
+    code, out, err = run(capsys, "info", tmp_path / f"textured{ext}")
+    assert code == 0 and re.search(r"^texture +\(10, 6\)$", out, re.M), out
+    code, out, err = run(capsys, "info", tmp_path / f"plain{ext}", "--json")
+    assert code == 0, err
+    assert json.loads(out)["texture"] is None
+
+
 def test_globe_help_states_the_tilt_range_it_checks(capsys):
     """globe --tilt refuses values outside [0, 90) ("--tilt must lie in [0, 90) degrees"), but its help said only
     "tilt of the view from straight down, degrees": the limit was found by trial."""
