@@ -40,7 +40,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from ._compaction import SMALLER_HINT, budget_hint, get_memory_budget, set_memory_budget
+from ._compaction import SMALLER_HINT, WHOLE_RASTER_HINT, budget_hint, get_memory_budget, set_memory_budget
 from ._files import refuse_folder_name
 from .errors import DataFileError, InvalidInputError, StepTerrainError, counted
 from .export import _STL_OPEN_LOCAL, _STL_ROUNDING_LOCAL, MESH_EXTENSIONS, _special_file_kind, probe_writable
@@ -1465,7 +1465,11 @@ _OPTION_PHRASES = {
               ": spacing applies to DEM files": ": --spacing applies to DEM files",
               "render no overview": "leave --png out",  # batch._check_overview's hint
               "a larger max_items= or --tile": "a larger --tile"},  # overview_image's partial mosaic
-    "globe": {"raise the error": "raise --error", "--radius + exaggeration": "--radius + --exaggeration"},
+    "globe": {"raise the error": "raise --error", "--radius + exaggeration": "--radius + --exaggeration",
+              # load_dem's refusal of a raster over the budget: globe has no --crop, and meshes the whole globe
+              WHOLE_RASTER_HINT: "coarsen it first (gdal_translate -outsize; the globe needs the whole grid)"},
+    # the same refusal: info has no --crop either (steps, closeup and texture --crop read only the window)
+    "info": {WHOLE_RASTER_HINT: "coarsen it first (gdal_translate -outsize)"},
     # a rotated, south-up or east-to-west GeoTIFF --image (texture_lod's refusal names image_layer's argument)
     "texture": {"pass extent=(xmin, xmax, ymin, ymax)": "give --image-extent xmin,xmax,ymin,ymax",
                 # image_layer's warning of an image over a sliver of the terrain

@@ -29,7 +29,7 @@ from typing import Any, BinaryIO, Literal, NamedTuple, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from ._compaction import check_budget
+from ._compaction import WHOLE_RASTER_HINT, check_budget
 from ._files import URL_FILE_SYSTEMS, GdalPath, _restored, as_path, gdal_path, local_archive, require_regular_file
 from ._warning_filters import FILTERS
 from .errors import (
@@ -1768,8 +1768,7 @@ def _load_geotiff(
                                         "-outsize)")
             else:
                 _check_read_budget(file, shape, np.dtype(dataset.dtypes[band - 1]),
-                                   hint="crop or coarsen it first (crop= (the CLI's --crop) reads only the crop's "
-                                        "window; gdal_translate -outsize coarsens)")
+                                   hint=WHOLE_RASTER_HINT)
             # block by block: GDAL's one big read of a raw raster (.bil, .flt) cut short filled the missing rows with
             # zeros without an error (heights of 0 m); its block reads fail there, as a GeoTIFF's do
             with rasterio.Env(GDAL_ONE_BIG_READ="NO"):

@@ -2556,6 +2556,29 @@ def test_info_spacing_prints_the_coordinates_steps_crop_takes(tmp_path, capsys):
     assert code == 2 and "--spacing applies to a DEM file with no georeferencing" in err, err
 
 
+def test_info_and_globe_over_the_memory_budget_point_at_no_crop_they_lack(tmp_path, capsys):
+    """A raster over the memory budget told info and globe, which have no --crop, to "crop or coarsen it first
+    (crop= (the CLI's --crop) reads only the crop's window; ...)": a Python argument and an option neither command
+    takes (and a globe needs the whole grid). They advise coarsening alone now; steps keeps its --crop advice."""
+    rasterio = pytest.importorskip("rasterio")
+    from .conftest import shared_file
+
+    tif = shared_file("big_tujunga_srtm_30m_utm11n.tif")  # 643 x 1197 int16: 1.5 MB
+    code, _, err = run(capsys, "-q", "--memory-budget", "1MB", "info", tif)
+    assert code == 2, err
+    assert "over the memory budget" in err and "coarsen it first (gdal_translate -outsize), or raise the budget" in err
+    assert "crop" not in err.split("over the memory budget")[1], err
+    world = np.add.outer(np.arange(180), np.arange(360)).astype(np.int16)
+    with rasterio.open(tmp_path / "world.tif", "w", driver="GTiff", width=360, height=180, count=1, dtype="int16",
+                       crs="EPSG:4326", transform=rasterio.transform.from_origin(-180, 90, 1, 1)) as dst:
+        dst.write(world, 1)
+    code, _, err = run(capsys, "-q", "--memory-budget", "100kB", "globe", tmp_path / "world.tif", "--face-size", "9",
+                       "-o", tmp_path / "g.glb")
+    assert code == 2, err
+    assert "coarsen it first (gdal_translate -outsize; the globe needs the whole grid)" in err, err
+    assert "crop" not in err.split("over the memory budget")[1] and not (tmp_path / "g.glb").exists(), err
+
+
 def test_steps_over_the_memory_budget_names_options_not_python(tmp_path, capsys):
     """Two budget refusals of steps spoke Python to a command-line user: a GeoTIFF over the budget said "crop or
     coarsen it first (load_dem's --crop, --crop on the command line, reads only the crop's window", the library's
