@@ -2485,8 +2485,13 @@ def _check_declared_size(handle: Any, size: int, file: Path, what: str) -> tuple
             f"cannot read {str(file)!r}: {what} declares shape {tuple(shape)} of {dtype} ({declared:,} bytes) but "
             f"the file holds {max(size - start, 0):,} bytes after its header (truncated or corrupt)"
         )
-    _check_read_budget(file, tuple(shape), dtype, what)
+    _check_read_budget(file, tuple(shape), dtype, what, hint=_ARRAY_HINT)
     return header
+
+
+#: What makes an .npy or .npz over the memory budget smaller: GDAL (the default hint's gdal_translate) reads neither.
+_ARRAY_HINT = ("crop or coarsen it first in NumPy (heights[r0:r1, c0:c1] or heights[::n, ::n]; an .npy's "
+               "np.load(path, mmap_mode='r') reads only that part) and save it again")
 
 
 def _check_read_budget(file: Path, shape: tuple[int, ...], dtype: np.dtype, what: str = "the raster",

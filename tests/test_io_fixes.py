@@ -2497,3 +2497,27 @@ def test_a_signed_16_bit_tiff_is_refused_as_an_image_not_scaled_to_black(tmp_pat
     with Image.open(tmp_path / "u16.tif") as picture:
         got = picture_uint8(picture, "u16")
     np.testing.assert_array_equal(got, np.repeat(np.round(ramp / 257.0).astype(np.uint8)[..., None], 3, axis=2))
+
+
+@pytest.mark.parametrize("ext", [".npy", ".npz"])
+def test_an_array_over_the_memory_budget_is_not_told_to_use_gdal(tmp_path, capsys, ext):
+    """An .npy or .npz over the memory budget was told to "crop or coarsen it first (gdal_translate -srcwin or
+    -outsize)", advice for a GDAL raster: GDAL reads neither, and `stepterrain info global_relief.npz --memory-budget
+    1MB` said so too. The advice is NumPy's now (a slice, saved again); a GeoTIFF keeps gdal_translate's."""
+    import stepterrain as st
+    from stepterrain.errors import OutputTooLargeError
+
+    from .conftest import run_cli
+
+    relief = np.load(SHARED_DATA / "global_relief_1deg.npz")["elevation"]  # (180, 360) int16: 259,200 bytes kept
+    path = tmp_path / f"relief{ext}"
+    np.save(path, relief) if ext == ".npy" else np.savez(path, elevation=relief)
+    previous = st.set_memory_budget(100_000)
+    try:
+        with pytest.raises(OutputTooLargeError, match=r"180 x 360 cells of int16\) would need 0.2 MiB, .*; crop "
+                                                      r"or coarsen it first in NumPy \(heights\[r0:r1, c0:c1\]"):
+            load_dem(path)
+    finally:
+        st.set_memory_budget(previous)
+    code, _, err = run_cli(capsys, "-q", "--memory-budget", "100kB", "info", path)
+    assert code == 2 and "first in NumPy" in err and "gdal_translate" not in err, err
