@@ -66,6 +66,11 @@ MAX_INT32 = (1 << 31) - 1
 #: What makes a stepped output smaller: the default hint of :func:`check_budget`.
 SMALLER_HINT = "crop or coarsen the input (Terrain.crop, Terrain.coarsen; --crop, --coarsen) or coarsen the isovalues"
 
+#: What makes a raster read whole (no crop) smaller: the hint of load_dem's refusal of one over the budget. The
+#: commands without a --crop (info, globe) replace it (cli._OPTION_PHRASES): they pointed at an option they lack.
+WHOLE_RASTER_HINT = ("crop or coarsen it first (crop= (the CLI's --crop) reads only the crop's window; gdal_translate "
+                     "-outsize coarsens)")
+
 
 def budget_value(nbytes: object, name: str = "memory_budget") -> int:
     """``nbytes`` checked as a memory budget: a positive int of bytes (an :class:`InvalidInputError` naming

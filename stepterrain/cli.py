@@ -40,7 +40,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from ._compaction import SMALLER_HINT, budget_hint, get_memory_budget, set_memory_budget
+from ._compaction import SMALLER_HINT, WHOLE_RASTER_HINT, budget_hint, get_memory_budget, set_memory_budget
 from ._files import refuse_folder_name
 from .errors import DataFileError, InvalidInputError, StepTerrainError, counted
 from .export import _STL_OPEN_LOCAL, _STL_ROUNDING_LOCAL, MESH_EXTENSIONS, _special_file_kind, probe_writable
@@ -76,8 +76,8 @@ examples:
       the embedded Big Tujunga DEM: size, spacing, extent, CRS, height range and unit, nodata count and fraction
   stepterrain info dem.tif --json
   stepterrain info out/terrain.glb
-      a mesh: vertices, faces, bounds, watertightness, vertex or face colours, the metadata stepterrain wrote
-      (and, for a .ply, how many levels its faces lie on and how many are walls)
+      a mesh: vertices, faces, bounds, watertightness, vertex or face colours, a texture image's size, the metadata
+      stepterrain wrote (and, for a .ply, how many levels its faces lie on and how many are walls)
 """
 
 _MAIN_EPILOG = """\
@@ -1329,6 +1329,19 @@ def _fmt(value: Any) -> str:
 _FMT_ITEMS = 8
 
 
+def _texture_size(mesh: Any) -> list[int] | None:
+    """The (width, height) of the texture image a mesh read by ``read_mesh`` carries (an OBJ's material image, a
+    glTF's base colour texture), None when it has none."""
+    if mesh.visual.kind != "texture":
+        return None
+    material = getattr(mesh.visual, "material", None)
+    for name in ("image", "baseColorTexture"):
+        image = getattr(material, name, None)
+        if image is not None and hasattr(image, "size"):
+            return [int(image.size[0]), int(image.size[1])]
+    return None
+
+
 def _mesh_summary(path: Path) -> dict[str, Any]:
     import trimesh
 
@@ -1363,6 +1376,9 @@ def _mesh_summary(path: Path) -> dict[str, Any]:
         "winding_consistent": bool(mesh.is_winding_consistent),
         "vertex_colors": bool(mesh.visual.kind == "vertex"),
         "face_colors": bool(mesh.visual.kind == "face"),  # PLY and 3MF keep them (glTF: vertex means)
+        # the texture image's (width, height), None without one: a textured GLB, glTF or OBJ (texture --mesh, globe
+        # --texture) read "vertex_colors False, face_colors False", as if it had no colour at all
+        "texture": _texture_size(mesh),
     }
     # stepped's face attributes, which a .ply keeps: the levels its faces lie on (a solid's skirts and base, -1, are
     # none) and its walls
@@ -1449,7 +1465,11 @@ _OPTION_PHRASES = {
               ": spacing applies to DEM files": ": --spacing applies to DEM files",
               "render no overview": "leave --png out",  # batch._check_overview's hint
               "a larger max_items= or --tile": "a larger --tile"},  # overview_image's partial mosaic
-    "globe": {"raise the error": "raise --error", "--radius + exaggeration": "--radius + --exaggeration"},
+    "globe": {"raise the error": "raise --error", "--radius + exaggeration": "--radius + --exaggeration",
+              # load_dem's refusal of a raster over the budget: globe has no --crop, and meshes the whole globe
+              WHOLE_RASTER_HINT: "coarsen it first (gdal_translate -outsize; the globe needs the whole grid)"},
+    # the same refusal: info has no --crop either (steps, closeup and texture --crop read only the window)
+    "info": {WHOLE_RASTER_HINT: "coarsen it first (gdal_translate -outsize)"},
     # a rotated, south-up or east-to-west GeoTIFF --image (texture_lod's refusal names image_layer's argument)
     "texture": {"pass extent=(xmin, xmax, ymin, ymax)": "give --image-extent xmin,xmax,ymin,ymax",
                 # image_layer's warning of an image over a sliver of the terrain

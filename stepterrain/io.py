@@ -29,7 +29,7 @@ from typing import Any, BinaryIO, Literal, NamedTuple, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from ._compaction import check_budget
+from ._compaction import WHOLE_RASTER_HINT, check_budget
 from ._files import URL_FILE_SYSTEMS, GdalPath, _restored, as_path, gdal_path, local_archive, require_regular_file
 from ._warning_filters import FILTERS
 from .errors import (
@@ -1614,6 +1614,17 @@ def picture_uint8(picture: Any, what: str, *, alpha: bool = False) -> NDArray[np
     """
     mode = picture.mode
     if mode in ("I", "F") or mode.startswith("I;16"):
+        # a TIFF of signed integer samples (SampleFormat 2: an int16 DEM, which Pillow opens as mode I) is elevation
+        # or other data, not a picture: its heights were scaled by 1/257, a nearly black drape, and accepted only
+        # while no value was negative; refused as rasterio's read of such a TIFF refuses it (int16)
+        tags = getattr(picture, "tag_v2", None)
+        sample_format = tags.get(339) if tags is not None else None
+        if mode != "F" and sample_format is not None and 2 in np.atleast_1d(sample_format).tolist():
+            bits = tags.get(258) if tags is not None else None
+            depth = f"{int(np.atleast_1d(bits)[0])}-bit " if bits is not None else ""
+            raise InvalidInputError(f"{what} must be an 8-bit or 16-bit image of unsigned samples; got a TIFF of "
+                                    f"signed {depth}integers (SampleFormat 2), such as a DEM's heights, not a "
+                                    "picture: convert it to 8 bits first (`gdal_translate -ot Byte -scale ...`)")
         gray = np.asarray(picture)
         if mode == "F" or (gray.size and (gray.min() < 0 or gray.max() > 65535)):
             low, high = (float(gray.min()), float(gray.max())) if gray.size else (0.0, 0.0)
@@ -1757,8 +1768,7 @@ def _load_geotiff(
                                         "-outsize)")
             else:
                 _check_read_budget(file, shape, np.dtype(dataset.dtypes[band - 1]),
-                                   hint="crop or coarsen it first (crop= (the CLI's --crop) reads only the crop's "
-                                        "window; gdal_translate -outsize coarsens)")
+                                   hint=WHOLE_RASTER_HINT)
             # block by block: GDAL's one big read of a raw raster (.bil, .flt) cut short filled the missing rows with
             # zeros without an error (heights of 0 m); its block reads fail there, as a GeoTIFF's do
             with rasterio.Env(GDAL_ONE_BIG_READ="NO"):
@@ -2475,8 +2485,13 @@ def _check_declared_size(handle: Any, size: int, file: Path, what: str) -> tuple
             f"cannot read {str(file)!r}: {what} declares shape {tuple(shape)} of {dtype} ({declared:,} bytes) but "
             f"the file holds {max(size - start, 0):,} bytes after its header (truncated or corrupt)"
         )
-    _check_read_budget(file, tuple(shape), dtype, what)
+    _check_read_budget(file, tuple(shape), dtype, what, hint=_ARRAY_HINT)
     return header
+
+
+#: What makes an .npy or .npz over the memory budget smaller: GDAL (the default hint's gdal_translate) reads neither.
+_ARRAY_HINT = ("crop or coarsen it first in NumPy (heights[r0:r1, c0:c1] or heights[::n, ::n]; an .npy's "
+               "np.load(path, mmap_mode='r') reads only that part) and save it again")
 
 
 def _check_read_budget(file: Path, shape: tuple[int, ...], dtype: np.dtype, what: str = "the raster",

@@ -674,6 +674,35 @@ def test_info_reports_the_face_colours_ply_and_3mf_keep(ext, tmp_path, capsys):
     assert json.loads(out)["face_colors"] is False
 
 
+@pytest.mark.parametrize("ext", [".glb", ".gltf", ".obj"])
+def test_info_reports_the_texture_a_mesh_carries(ext, tmp_path, capsys):
+    """A textured mesh (texture --mesh, globe --texture: GLB, glTF and OBJ embed or write the image) was described as
+    "vertex_colors False, face_colors False" and nothing more, as if it had no colour at all; info gives the texture
+    image's (width, height) now, None for a mesh without one."""
+    import json
+
+    import trimesh
+    from PIL import Image
+
+    from stepterrain.export import save_mesh
+
+    mesh = trimesh.creation.box()
+    image = Image.fromarray(np.random.default_rng(3).integers(0, 256, (6, 10, 3), dtype=np.uint8))
+    uv = np.random.default_rng(4).random((len(mesh.vertices), 2))
+    mesh.visual = trimesh.visual.TextureVisuals(uv=uv, image=image)
+    save_mesh(mesh, tmp_path / f"textured{ext}")
+    save_mesh(trimesh.creation.box(), tmp_path / f"plain{ext}")
+    code, out, err = run(capsys, "info", tmp_path / f"textured{ext}", "--json")
+    assert code == 0, err
+    summary = json.loads(out)
+    assert summary["texture"] == [10, 6] and summary["vertex_colors"] is False, summary
+    code, out, err = run(capsys, "info", tmp_path / f"textured{ext}")
+    assert code == 0 and re.search(r"^texture +\(10, 6\)$", out, re.M), out
+    code, out, err = run(capsys, "info", tmp_path / f"plain{ext}", "--json")
+    assert code == 0, err
+    assert json.loads(out)["texture"] is None
+
+
 def test_globe_help_states_the_tilt_range_it_checks(capsys):
     """globe --tilt refuses values outside [0, 90) ("--tilt must lie in [0, 90) degrees"), but its help said only
     "tilt of the view from straight down, degrees": the limit was found by trial."""
@@ -2525,6 +2554,29 @@ def test_info_spacing_prints_the_coordinates_steps_crop_takes(tmp_path, capsys):
 
     code, _, err = run(capsys, "info", write_unit_tif(tmp_path / "utm.tif", "m"), "--spacing", "30")
     assert code == 2 and "--spacing applies to a DEM file with no georeferencing" in err, err
+
+
+def test_info_and_globe_over_the_memory_budget_point_at_no_crop_they_lack(tmp_path, capsys):
+    """A raster over the memory budget told info and globe, which have no --crop, to "crop or coarsen it first
+    (crop= (the CLI's --crop) reads only the crop's window; ...)": a Python argument and an option neither command
+    takes (and a globe needs the whole grid). They advise coarsening alone now; steps keeps its --crop advice."""
+    rasterio = pytest.importorskip("rasterio")
+    from .conftest import shared_file
+
+    tif = shared_file("big_tujunga_srtm_30m_utm11n.tif")  # 643 x 1197 int16: 1.5 MB
+    code, _, err = run(capsys, "-q", "--memory-budget", "1MB", "info", tif)
+    assert code == 2, err
+    assert "over the memory budget" in err and "coarsen it first (gdal_translate -outsize), or raise the budget" in err
+    assert "crop" not in err.split("over the memory budget")[1], err
+    world = np.add.outer(np.arange(180), np.arange(360)).astype(np.int16)
+    with rasterio.open(tmp_path / "world.tif", "w", driver="GTiff", width=360, height=180, count=1, dtype="int16",
+                       crs="EPSG:4326", transform=rasterio.transform.from_origin(-180, 90, 1, 1)) as dst:
+        dst.write(world, 1)
+    code, _, err = run(capsys, "-q", "--memory-budget", "100kB", "globe", tmp_path / "world.tif", "--face-size", "9",
+                       "-o", tmp_path / "g.glb")
+    assert code == 2, err
+    assert "coarsen it first (gdal_translate -outsize; the globe needs the whole grid)" in err, err
+    assert "crop" not in err.split("over the memory budget")[1] and not (tmp_path / "g.glb").exists(), err
 
 
 def test_steps_over_the_memory_budget_names_options_not_python(tmp_path, capsys):

@@ -2465,3 +2465,59 @@ def test_a_one_bit_pngs_transparent_colour_is_read_as_alpha(tmp_path):
     np.testing.assert_array_equal(got, expected)
     np.testing.assert_array_equal(got[..., 3], np.where(bits, 255, 0))
     np.testing.assert_array_equal(globe._texture_pixels(tmp_path / "mask.png"), expected)
+
+
+def test_a_signed_16_bit_tiff_is_refused_as_an_image_not_scaled_to_black(tmp_path):
+    """A DEM GeoTIFF (int16, SampleFormat 2) given as a picture, `stepterrain texture dem.tif --image dem.tif` or
+    `globe --texture relief.tif`, was read by Pillow as mode I and scaled by 1/257 as a 16-bit image: Big Tujunga's
+    315-2295 m became grey levels 1-9, a silently black drape; a DEM with one negative height was refused instead.
+    Signed samples are refused whatever their values now, as rasterio's read of such a TIFF refuses int16; unsigned
+    16-bit TIFFs are still read by their full range."""
+    rasterio = pytest.importorskip("rasterio")
+    from stepterrain import globe
+    from stepterrain.errors import InvalidInputError
+    from stepterrain.io import picture_uint8
+
+    with rasterio.open(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.tif") as src:
+        heights = src.read(1, window=rasterio.windows.Window(0, 0, 40, 30))
+    assert heights.dtype == np.int16 and heights.min() > 0  # every value non-negative: was accepted
+    profile = dict(driver="GTiff", width=40, height=30, count=1, crs="EPSG:4326",
+                   transform=rasterio.transform.from_origin(-180, 90, 9, 6))
+    with rasterio.open(tmp_path / "dem.tif", "w", dtype="int16", **profile) as dst:
+        dst.write(heights, 1)
+    ramp = np.round(np.linspace(0, 65535, 1200)).astype(np.uint16).reshape(30, 40)
+    with rasterio.open(tmp_path / "u16.tif", "w", dtype="uint16", **profile) as dst:
+        dst.write(ramp, 1)
+    with Image.open(tmp_path / "dem.tif") as picture, pytest.raises(
+            InvalidInputError, match=r"dem must be an 8-bit or 16-bit image of unsigned samples; got a TIFF of signed "
+                                     r"16-bit integers \(SampleFormat 2\)"):
+        picture_uint8(picture, "dem")
+    with pytest.raises(InvalidInputError, match=r"texture .*dem\.tif' must be an 8-bit or 16-bit image of unsigned"):
+        globe._texture_pixels(tmp_path / "dem.tif")
+    with Image.open(tmp_path / "u16.tif") as picture:
+        got = picture_uint8(picture, "u16")
+    np.testing.assert_array_equal(got, np.repeat(np.round(ramp / 257.0).astype(np.uint8)[..., None], 3, axis=2))
+
+
+@pytest.mark.parametrize("ext", [".npy", ".npz"])
+def test_an_array_over_the_memory_budget_is_not_told_to_use_gdal(tmp_path, capsys, ext):
+    """An .npy or .npz over the memory budget was told to "crop or coarsen it first (gdal_translate -srcwin or
+    -outsize)", advice for a GDAL raster: GDAL reads neither, and `stepterrain info global_relief.npz --memory-budget
+    1MB` said so too. The advice is NumPy's now (a slice, saved again); a GeoTIFF keeps gdal_translate's."""
+    import stepterrain as st
+    from stepterrain.errors import OutputTooLargeError
+
+    from .conftest import run_cli
+
+    relief = np.load(SHARED_DATA / "global_relief_1deg.npz")["elevation"]  # (180, 360) int16: 259,200 bytes kept
+    path = tmp_path / f"relief{ext}"
+    np.save(path, relief) if ext == ".npy" else np.savez(path, elevation=relief)
+    previous = st.set_memory_budget(100_000)
+    try:
+        with pytest.raises(OutputTooLargeError, match=r"180 x 360 cells of int16\) would need 0.2 MiB, .*; crop "
+                                                      r"or coarsen it first in NumPy \(heights\[r0:r1, c0:c1\]"):
+            load_dem(path)
+    finally:
+        st.set_memory_budget(previous)
+    code, _, err = run_cli(capsys, "-q", "--memory-budget", "100kB", "info", path)
+    assert code == 2 and "first in NumPy" in err and "gdal_translate" not in err, err
