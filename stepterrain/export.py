@@ -2638,8 +2638,10 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         ``path`` is not a str or path-like (or holds a NUL character).
     DataFileError
         The file does not exist, is not a regular file, or cannot be read as a mesh: the reader's error (trimesh's,
-        whatever its kind: an IndexError for an OBJ face naming a missing vertex, a KeyError for a PLY without x) is
-        in the message and is the ``__cause__``. An ``.stl`` must be one (a binary STL's length as its header
+        whatever its kind: a KeyError for a PLY without x) is in the message and is the ``__cause__``; an OBJ face
+        naming a vertex past the file's ``v`` lines (trimesh's IndexError, without a line) is said by its line, index
+        and how many ``v`` lines the file has (:func:`_obj_index_past_end`). An ``.stl`` must be one (a binary
+        STL's length as its header
         counts, an ASCII one's ``solid`` ... ``endsolid``), and an ``.obj`` that trimesh reads as no vertices an empty
         one (OBJ statements and comments only), and a ``.ply`` must hold the rows its header declares: an STL or
         ASCII PLY cut short, or a file of another format under the extension, is refused, and so is a face naming a
@@ -2692,8 +2694,9 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                 if loaded is None:
                     loaded = _trimesh_read(trimesh.load, file, tidied, force="mesh", process=False, **order)
             except IndexError:
-                if file.suffix.lower() == ".obj":  # a relative index past the file's start, said by its line
-                    _obj_relative_past_start(file, tidied if tidied is not None else source)
+                if file.suffix.lower() == ".obj":  # a relative index past the file's start, or one past its end,
+                    _obj_relative_past_start(file, tidied if tidied is not None else source)  # said by its line
+                    _obj_index_past_end(file, tidied if tidied is not None else source, source)
                 raise
             except ValueError as exc:
                 mixed = _ply_binary_mixed_lists(file) if file.suffix.lower() == ".ply" else None
@@ -3004,6 +3007,79 @@ def _obj_relative_past_start(file: Path, data: bytes | None) -> None:
             block = text[at:end]
             seen = _obj_absolute_block(block, seen, lines)[1]
             lines += block.count(b"\n")
+
+
+def _obj_index_past_end(file: Path, data: bytes | None, source: bytes | None = None) -> None:
+    """Raise a ValueError naming the line, the index and how many ``v`` (``vt``, ``vn``) lines the file has, where a
+    face of the OBJ ``file`` (or of ``data``, its text tidied: :func:`_obj_tidied`, whose lines are the file's) names
+    a positive index past them; else nothing. For trimesh's IndexError, which named no line ("index 6 is out of
+    bounds for axis 0 with size 3", or for an index of more than 18 digits "index 9223372036854775806 ..."). Run
+    only after trimesh's reader failed: the ``v``, ``vt`` and ``vn`` lines counted, then the face lines read one by
+    one in blocks of whole lines. The line shown is the file's own (``source``: its text with newline line ends,
+    :func:`_obj_newlines`), not the tidied one."""
+    with _obj_mapped(file, data) as text:
+        if text is None:
+            return
+        counts = {kind: 0 for kind in (b"v", b"vt", b"vn")}
+        for at, end in _obj_line_blocks(text, _OBJ_INDEX_BLOCK):
+            block = text[at:end]
+            for kind in counts:
+                counts[kind] += block.count(b"\n" + kind + b" ") + block.startswith(kind + b" ")
+        hit = _obj_first_past_end(text, counts)
+    if hit is None:
+        return
+    number, found = hit
+    row = _obj_line(file, source, number)  # the line as the file writes it (relative indices, blanks, comments)
+    kind, field = found
+    count = counts[kind]
+    shown = field if len(field) <= 40 else field[:40] + "..."
+    raise ValueError(f"line {number}, {row.decode('utf-8', 'replace').strip()!r}, names {kind.decode()} {shown}, and "
+                     f"the file has {count} {kind.decode()} line{'s' if count != 1 else ''}: an OBJ's indices count "
+                     "from 1 to them")
+
+
+def _obj_first_past_end(text: Any, counts: Mapping[bytes, int]) -> tuple[int, tuple[bytes, str]] | None:
+    """The line number (from 1) and :func:`_obj_face_past_end` of the first face line of the OBJ text ``text`` (its
+    statements starting their lines) naming an index past ``counts``, else None; blocks of whole lines in turn."""
+    lines = 0
+    for at, end in _obj_line_blocks(text, _OBJ_INDEX_BLOCK):
+        block = text[at:end]
+        if block.find(b"f ") >= 0:
+            for number, row in enumerate(block.split(b"\n"), lines + 1):
+                found = _obj_face_past_end(row, counts) if row.startswith(b"f ") else None
+                if found is not None:
+                    return number, found
+        lines += block.count(b"\n")
+    return None
+
+
+def _obj_line(file: Path, source: bytes | None, number: int) -> bytes:
+    """Line ``number`` (from 1) of the OBJ ``file`` (or of ``source``, its text with newline line ends), for an
+    error's message."""
+    with _obj_mapped(file, source) as text:
+        lines = 0
+        for at, end in _obj_line_blocks(text, _OBJ_INDEX_BLOCK):
+            block = text[at:end]
+            count = block.count(b"\n")
+            if number <= lines + count or end == len(text):  # its lines, and one without a newline at the end
+                return bytes(block.split(b"\n")[number - 1 - lines])
+            lines += count
+    return b""
+
+
+def _obj_face_past_end(row: bytes, counts: Mapping[bytes, int]) -> tuple[bytes, str] | None:
+    """The slot (``b"v"``, ``b"vt"``, ``b"vn"``) and field of the first positive index of the face line ``row`` past
+    ``counts`` lines of its kind, else None."""
+    for word in row.split()[1:]:
+        for kind, field in zip((b"v", b"vt", b"vn"), word.split(b"/")[:3], strict=False):
+            if field[:1].isdigit() or (field[:1] == b"+" and field[1:2].isdigit()):
+                try:
+                    value = int(field)
+                except ValueError:
+                    continue
+                if value > counts[kind]:
+                    return kind, field.decode("ascii", "replace")
+    return None
 
 
 #: how many bytes of an OBJ's lines :func:`_obj_absolute_indices` rewrites at once
