@@ -2698,7 +2698,11 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                     _obj_relative_past_start(file, tidied if tidied is not None else source)  # said by its line
                     _obj_index_past_end(file, tidied if tidied is not None else source, source)
                 raise
-            except ValueError as exc:
+            except (ValueError, OverflowError) as exc:
+                if file.suffix.lower() == ".off":  # trimesh's error named no line
+                    problem = _off_problem(file)
+                    if problem is not None:
+                        raise ValueError(problem) from exc
                 mixed = _ply_binary_mixed_lists(file) if file.suffix.lower() == ".ply" else None
                 if mixed is None:
                     raise
@@ -2735,6 +2739,10 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         if file.suffix.lower() == ".obj" and isinstance(loaded, trimesh.Trimesh):
             loaded.metadata.update(_obj_metadata(file, source))
         if file.suffix.lower() == ".off" and isinstance(loaded, trimesh.Trimesh):
+            counts = _off_counts(file)  # a file cut short read as the faces it has, without a word
+            if counts is not None and len(loaded.faces) < counts[1]:
+                raise ValueError(_off_problem(file) or f"its counts declare {counts[1]} faces, and "
+                                 f"{len(loaded.faces)} triangles were read")
             colours = _off_vertex_colors(file, len(loaded.vertices))
             if colours is not None:
                 loaded.visual = trimesh.visual.ColorVisuals(loaded, vertex_colors=colours)
@@ -4072,6 +4080,81 @@ def _off_keyword(file: Path) -> str | None:
             words = raw.removeprefix(b"\xef\xbb\xbf" if number == 0 else b"").split(b"#", 1)[0].split(maxsplit=1)
             if words:
                 return words[0].decode("utf-8", "replace")
+    return None
+
+
+def _off_counts(file: Path) -> tuple[int, int] | None:
+    """The counts of vertices and faces the OFF ``file``'s header declares (on its keyword's line or the next,
+    comments and blank lines skipped), read line by line, or None where they cannot be read."""
+    words: list[bytes] = []
+    with open(file, "rb") as stream:
+        for raw in stream:
+            words += raw.removeprefix(b"\xef\xbb\xbf").split(b"#", 1)[0].split()
+            if len(words) >= 3:
+                try:
+                    return int(words[1]), int(words[2])
+                except ValueError:
+                    return None
+            if len(words) > 1:
+                return None
+    return None
+
+
+def _off_problem(file: Path) -> str | None:
+    """What is wrong with the OFF ``file`` as trimesh's reader reads it (comments after ``#`` and blank lines skipped,
+    the keyword, the counts ``V F [E]`` on its line or the next, ``V`` vertex lines of at least x y z, then ``F`` face
+    lines of a count ``n`` and ``n`` vertex indices from 0 to ``V - 1``), naming the line and what was expected, or
+    None. trimesh's reader refused such a file without a line ("invalid literal for int()", "cannot reshape array of
+    size 12 into shape (5,3)", "Python int too large to convert to C long", "a face index outside the range of its
+    vertices"), or read it without a word: a face line of fewer indices than its count, and a file of fewer face
+    lines than its counts declare (cut short), read as the faces it has."""
+    text = file.read_bytes().decode("utf-8", "replace").removeprefix("\ufeff")
+    numbered = [(number, line) for number, line in enumerate(text.splitlines(), 1) if line.split("#", 1)[0].split()]
+    if not numbered:
+        return None  # trimesh's own error (no keyword) stands
+    words = numbered[0][1].split("#", 1)[0].split()
+    at = 1
+    if len(words) == 1:
+        if len(numbered) < 2:
+            return f"its keyword {words[0]!r} is not followed by the counts of vertices and faces ('V F E')"
+        number, line = numbered[1]
+        words, at = [words[0], *line.split("#", 1)[0].split()], 2
+    else:
+        number, line = numbered[0]
+    try:
+        vertices, faces = (int(word) for word in words[1:3])
+    except ValueError:
+        vertices = faces = -1
+    if len(words) < 3 or vertices < 0 or faces < 0:
+        return (f"line {number}, {line.strip()!r}: expected the counts of vertices and faces ('V F E', integers of "
+                "at least 0)")
+    if len(numbered) - at < vertices + faces:
+        return (f"its counts declare {counted(vertices, 'vertex', 'vertices')} and "
+                f"{counted(faces, 'face', 'faces')}, a line each, and the file has "
+                f"{len(numbered) - at} lines after them: is it cut short?")
+    rows = numbered[at : at + vertices]
+    for number, line in rows:
+        values = line.split("#", 1)[0].split()
+        try:
+            [float(value) for value in values[:3]]
+        except ValueError:
+            values = []
+        if len(values) < 3:
+            return f"line {number}, {line.strip()!r}: a vertex line needs 3 numbers, x y z"
+    rows = numbered[at + vertices : at + vertices + faces]
+    for number, line in rows:
+        values = line.split("#", 1)[0].split()
+        try:
+            indices = [int(value) for value in values[: int(values[0]) + 1]] if values[0].isdigit() else []
+        except ValueError:
+            indices = []
+        if len(indices) < 4 or len(indices) != indices[0] + 1:
+            return (f"line {number}, {line.strip()!r}: a face line needs its count n (at least 3) and n vertex "
+                    "indices, integers")
+        bad = [index for index in indices[1:] if not 0 <= index < vertices]
+        if bad:
+            return (f"line {number}, {line.strip()!r}, names vertex {bad[0]}, and the file has {vertices} vertices: "
+                    f"an OFF's indices count from 0 to {vertices - 1}")
     return None
 
 
