@@ -4129,8 +4129,7 @@ def _off_problem(file: Path) -> str | None:
         return (f"line {number}, {line.strip()!r}: expected the counts of vertices and faces ('V F E', integers of "
                 "at least 0)")
     if len(numbered) - at < vertices + faces:
-        return (f"its counts declare {counted(vertices, 'vertex', 'vertices')} and "
-                f"{counted(faces, 'face', 'faces')}, a line each, and the file has "
+        return (f"its counts declare {counted(vertices, 'vertex', 'vertices')} and {counted(faces, 'face', 'faces')}, a line each, and the file has "
                 f"{len(numbered) - at} lines after them: is it cut short?")
     rows = numbered[at : at + vertices]
     for number, line in rows:

@@ -1,11 +1,15 @@
-"""read_mesh of small hand-made bad OFF files: each refused as a DataFileError naming the file, the line and what
-is wrong (trimesh's reader refused them without a line, with NumPy's or Python's words, or read them without a
-word), and a valid one read as before."""
+"""read_mesh of small hand-made bad OFF and GLB files: each refused as a DataFileError naming the file, the line
+(OFF) or the accessor (GLB) and what is wrong (trimesh's reader refused them without a line, with NumPy's or Python's words, or
+read them without a word), and a valid one read as before."""
 
 from __future__ import annotations
 
+import json
+import struct
+
 import numpy as np
 import pytest
+import trimesh
 
 from stepterrain.errors import DataFileError
 from stepterrain.export import read_mesh
@@ -45,3 +49,65 @@ def test_valid_off_reads(tmp_path, text):
     mesh = read_mesh(tmp_path / "ok.off")
     assert len(mesh.vertices) == int(text.split()[1 if text.startswith("OFF ") else 1])
     assert np.asarray(mesh.faces).max() < len(mesh.vertices)
+
+
+def _glb(tree: dict, chunk: bytes) -> bytes:
+    """A GLB of the JSON ``tree`` and the binary ``chunk`` (its header included), as glTF 2.0 §4.4 lays it out."""
+    text = json.dumps(tree).encode()
+    text += b" " * (-len(text) % 4)
+    body = struct.pack("<II", len(text), 0x4E4F534A) + text + chunk
+    return struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body
+
+
+def _triangle_glb() -> tuple[dict, bytes]:
+    """The JSON and binary chunk of one triangle's GLB, as trimesh writes it (accessor 0 its indices, 1 its
+    positions)."""
+    data = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], process=False).export(file_type="glb")
+    length = struct.unpack_from("<I", data, 12)[0]
+    return json.loads(data[20 : 20 + length]), data[20 + length :]
+
+
+@pytest.mark.parametrize(
+    ("change", "expected"),
+    [
+        (lambda t: t["accessors"][1].update(count=1000), r"POSITION names accessor 1 of 1,000 VEC3 elements from "
+                                                          r"byte 0 of bufferView 1, whose 36 bytes hold 3 of them"),
+        (lambda t: t["accessors"][0].update(byteOffset=10000), r"indices names accessor 0 of 3 SCALAR elements from "
+                                                               r"byte 10,000 of bufferView 0, whose 12 bytes hold 0"),
+        (lambda t: t["meshes"][0]["primitives"][0]["attributes"].update(POSITION=99),
+         r"POSITION names accessor 99, and the file has 2 accessor"),
+        (lambda t: t["accessors"][0].update(bufferView=99), r"indices names accessor 0, whose bufferView is 99, and "
+                                                            r"the file has 2 bufferView"),
+        (lambda t: t["accessors"][1].pop("type"), r"POSITION names accessor 1, whose type None and componentType "
+                                                  r"5126 are not glTF 2\.0's"),
+        (lambda t: t["accessors"][0].update(componentType=5126), r"indices names accessor 0 of SCALAR 5126: indices "
+                                                                 r"are SCALAR unsigned"),
+    ],
+)
+def test_bad_glb_accessor_refused(tmp_path, change, expected):
+    """An accessor past the file's, of no glTF type, past its bufferView's bytes or naming a bufferView the file
+    lacks, and indices of floats are refused naming the file, the primitive's attribute and the accessor, not with
+    trimesh's IndexError "list index out of range", KeyError 'type' or "cannot reshape array of size 9 into shape
+    (1000,3)", and float indices not read as their bits' integers without a word."""
+    tree, chunk = _triangle_glb()
+    change(tree)
+    (tmp_path / "bad.glb").write_bytes(_glb(tree, chunk))
+    with pytest.raises(DataFileError, match=rf"'{tmp_path / 'bad.glb'}' as a mesh: ValueError: a glTF primitive's "
+                                            rf"{expected}"):
+        read_mesh(tmp_path / "bad.glb")
+
+
+def test_glb_index_past_the_vertices_refused(tmp_path):
+    """A stored index past the vertices is refused naming the face and the vertex count."""
+    tree, chunk = _triangle_glb()
+    chunk = bytearray(chunk)
+    chunk[8 + 8 : 8 + 12] = struct.pack("<I", 7)  # the third index of the first bufferView
+    (tmp_path / "bad.glb").write_bytes(_glb(tree, bytes(chunk)))
+    with pytest.raises(DataFileError, match=r"face 0 names vertex 7, and the file has 3 vertices"):
+        read_mesh(tmp_path / "bad.glb")
+
+
+def test_valid_glb_reads(tmp_path):
+    """The triangle's GLB as built here reads as its triangle (the accessor checks pass a valid file)."""
+    (tmp_path / "ok.glb").write_bytes(_glb(*_triangle_glb()))
+    assert read_mesh(tmp_path / "ok.glb").faces.tolist() == [[0, 1, 2]]
