@@ -3586,6 +3586,10 @@ def _check_dense_gltf(file: Path) -> dict[str, Any] | None:
                     raise ValueError("a glTF primitive is a TRIANGLE_FAN (mode 6), which trimesh's reader skips (the "
                                      "file read without that surface, or as no scene): write it as triangles (mode 4)")
                 attributes = primitive.get("attributes") or {}
+                for name, index in [*attributes.items(), ("indices", primitive.get("indices"))]:
+                    problem = _gltf_accessor_problem(tree, name, index)  # trimesh: IndexError, KeyError, reshape
+                    if problem is not None:
+                        raise ValueError(problem)
                 used = [("POSITION", attributes.get("POSITION")), ("indices", primitive.get("indices"))]
                 for name, index in used:
                     if isinstance(index, int) and 0 <= index < len(accessors) and accessors[index].get("sparse"):
@@ -3604,6 +3608,49 @@ def _check_dense_gltf(file: Path) -> dict[str, Any] | None:
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, struct.error, AttributeError, TypeError):
         return None
     return tree if isinstance(tree, dict) else None
+
+
+#: glTF 2.0 §3.6.2.2: the bytes of an accessor's component types, and the components of its element types
+_GLTF_COMPONENT_BYTES = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5125: 4, 5126: 4}
+_GLTF_TYPE_COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+
+
+def _gltf_accessor_problem(tree: Mapping[str, Any], name: str, index: Any) -> str | None:
+    """What is wrong with the accessor ``index`` a primitive of the glTF ``tree`` (its JSON) takes as its ``name``
+    (an attribute, or ``"indices"``), else None (also for an accessor of no buffer view, or a sparse one, which the
+    caller sees to): an index past the accessors, no ``type`` or ``componentType`` of glTF 2.0's, indices not of
+    unsigned integers (trimesh's reader read float indices' bits as integers, without a word), a bufferView past the
+    file's, or elements past their bufferView's bytes. trimesh's reader said these with IndexError "list index out
+    of range", KeyError 'type' or NumPy's "cannot reshape array of size 9 into shape (1000,3)"."""
+    if index is None and name == "indices":
+        return None
+    accessors, views = tree.get("accessors") or [], tree.get("bufferViews") or []
+    said = f"a glTF primitive's {name} names accessor {index!r}"
+    if type(index) is not int or not 0 <= index < len(accessors) or not isinstance(accessors[index], dict):
+        return f"{said}, and the file has {len(accessors)} accessor(s) (glTF 2.0 §3.6.2)"
+    accessor = accessors[index]
+    kind, component = accessor.get("type"), accessor.get("componentType")
+    if kind not in _GLTF_TYPE_COMPONENTS or component not in _GLTF_COMPONENT_BYTES:
+        return (f"{said}, whose type {kind!r} and componentType {component!r} are not glTF 2.0's (§3.6.2.2: "
+                f"{', '.join(_GLTF_TYPE_COMPONENTS)}; {', '.join(map(str, _GLTF_COMPONENT_BYTES))})")
+    if name == "indices" and (kind != "SCALAR" or component not in (5121, 5123, 5125)):
+        return (f"{said} of {kind} {component}: indices are SCALAR unsigned bytes, shorts or ints (5121, 5123, "
+                "5125; glTF 2.0 §3.7.2.1)")
+    view = accessor.get("bufferView")
+    if view is None or accessor.get("sparse"):
+        return None
+    if type(view) is not int or not 0 <= view < len(views) or not isinstance(views[view], dict):
+        return f"{said}, whose bufferView is {view!r}, and the file has {len(views)} bufferView(s)"
+    count, offset = accessor.get("count"), accessor.get("byteOffset", 0)
+    size = _GLTF_COMPONENT_BYTES[component] * _GLTF_TYPE_COMPONENTS[kind]
+    stride, length = views[view].get("byteStride") or size, views[view].get("byteLength")
+    if not all(type(value) is int for value in (count, offset, stride, length)):
+        return None  # trimesh's reader says so
+    if count > 0 and offset + stride * (count - 1) + size > length:
+        return (f"{said} of {count:,} {kind} elements from byte {offset:,} of bufferView {view}, whose "
+                f"{length:,} bytes hold {max(0, (length - offset - size) // stride + 1):,} of them: the file is "
+                "cut short or not valid (glTF 2.0 §3.6.2.4)")
+    return None
 
 
 #: glTF 2.0 §3.7.2.1: a primitive's mode 6, triangles sharing its first vertex, which trimesh's reader skips.
@@ -4129,7 +4176,8 @@ def _off_problem(file: Path) -> str | None:
         return (f"line {number}, {line.strip()!r}: expected the counts of vertices and faces ('V F E', integers of "
                 "at least 0)")
     if len(numbered) - at < vertices + faces:
-        return (f"its counts declare {counted(vertices, 'vertex', 'vertices')} and {counted(faces, 'face', 'faces')}, a line each, and the file has "
+        return (f"its counts declare {counted(vertices, 'vertex', 'vertices')} and "
+                f"{counted(faces, 'face', 'faces')}, a line each, and the file has "
                 f"{len(numbered) - at} lines after them: is it cut short?")
     rows = numbered[at : at + vertices]
     for number, line in rows:

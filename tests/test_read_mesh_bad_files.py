@@ -1,6 +1,6 @@
 """read_mesh of small hand-made bad OFF and GLB files: each refused as a DataFileError naming the file, the line
-(OFF) or the accessor (GLB) and what is wrong (trimesh's reader refused them without a line, with NumPy's or Python's words, or
-read them without a word), and a valid one read as before."""
+(OFF) or the accessor (GLB) and what is wrong (trimesh's reader refused them without a line, with NumPy's or
+Python's words, or read them without a word), and a valid one read as before."""
 
 from __future__ import annotations
 
