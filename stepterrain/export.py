@@ -4339,6 +4339,16 @@ _3MF_CORE = "{http://schemas.microsoft.com/3dmanufacturing/core/2015/02}"
 _3MF_MATERIAL = "{http://schemas.microsoft.com/3dmanufacturing/material/2015/02}"
 
 
+def _3mf_element_problem(kind: str, number: int, attributes: Mapping[str, str], expected: str,
+                         exc: Exception) -> str:
+    """A 3MF ``<kind>`` element's (``triangle``, ``vertex``; ``number`` from 0, in its object's order) error: its
+    attributes as written, what was expected of them, and what was wrong (``exc``: a missing attribute's KeyError,
+    ``int()``'s or ``float()``'s ValueError, an index's OverflowError)."""
+    written = " ".join(f'{key}="{value}"' for key, value in attributes.items())
+    why = f"no {exc.args[0]!r}" if isinstance(exc, KeyError) else str(exc)
+    return f"3MF {kind} {number} (<{kind} {written}/>): expected {expected}; {why}"
+
+
 def _read_3mf(file: Path) -> trimesh.Trimesh | None:
     """The 3MF ``file`` read by stepterrain itself when its model is one mesh object built once without a transform
     (as :func:`save_mesh` writes it): vertices, triangles and the colours of its ``m:colorgroup`` (each triangle's
@@ -4392,13 +4402,21 @@ def _read_3mf(file: Path) -> trimesh.Trimesh | None:
                     continue
                 if tag == _3MF_CORE + "triangle":
                     a = element.attrib
-                    pid = pid_ids.setdefault(a["pid"], len(pid_ids)) if "pid" in a else default_pid
-                    p1 = int(a.get("p1", default_index))
-                    rows.extend((int(a["v1"]), int(a["v2"]), int(a["v3"]), pid, p1, int(a.get("p2", p1)),
-                                 int(a.get("p3", p1))))  # fmt: skip
+                    try:  # a KeyError 'v3', int()'s "invalid literal", OverflowError "int too big", of no element
+                        pid = pid_ids.setdefault(a["pid"], len(pid_ids)) if "pid" in a else default_pid
+                        p1 = int(a.get("p1", default_index))
+                        rows.extend((int(a["v1"]), int(a["v2"]), int(a["v3"]), pid, p1, int(a.get("p2", p1)),
+                                     int(a.get("p3", p1))))  # fmt: skip
+                    except (KeyError, ValueError, OverflowError) as exc:
+                        raise ValueError(_3mf_element_problem("triangle", len(rows) // 7, a, "v1, v2 and v3 integers "
+                                         "(vertex indices from 0; p1, p2, p3 too, where given)", exc)) from exc
                 elif tag == _3MF_CORE + "vertex":
                     a = element.attrib
-                    points.extend((float(a["x"]), float(a["y"]), float(a["z"])))
+                    try:
+                        points.extend((float(a["x"]), float(a["y"]), float(a["z"])))
+                    except (KeyError, ValueError) as exc:
+                        raise ValueError(_3mf_element_problem("vertex", len(points) // 3, a, "x, y and z numbers",
+                                                              exc)) from exc
                 elif tag == _3MF_MATERIAL + "color" and group is not None:
                     group.append(_3mf_rgba(element.get("color", "")))
                 elif tag == _3MF_MATERIAL + "colorgroup":

@@ -1,11 +1,12 @@
-"""read_mesh of small hand-made bad OFF and GLB files: each refused as a DataFileError naming the file, the line
-(OFF) or the accessor (GLB) and what is wrong (trimesh's reader refused them without a line, with NumPy's or
-Python's words, or read them without a word), and a valid one read as before."""
+"""read_mesh of small hand-made bad OFF, GLB and 3MF files: each refused as a DataFileError naming the file,
+the line (OFF), the accessor (GLB) or element (3MF) and what is wrong (trimesh's reader refused them without a
+line, with NumPy's or Python's words, or read them without a word), and a valid one read as before."""
 
 from __future__ import annotations
 
 import json
 import struct
+import zipfile
 
 import numpy as np
 import pytest
@@ -111,3 +112,28 @@ def test_valid_glb_reads(tmp_path):
     """The triangle's GLB as built here reads as its triangle (the accessor checks pass a valid file)."""
     (tmp_path / "ok.glb").write_bytes(_glb(*_triangle_glb()))
     assert read_mesh(tmp_path / "ok.glb").faces.tolist() == [[0, 1, 2]]
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "expected"),
+    [
+        ('v3="2"', 'v3="99999999999999999999"', r'3MF triangle 0 \(<triangle v1="0" v2="1" v3="9{20}"/>\): expected '
+                                                r"v1, v2 and v3 integers .*int too big"),
+        ('v3="2"', 'v3="x"', r"3MF triangle 0 .*v3=\"x\".*: expected v1, v2 and v3 integers .*invalid literal"),
+        (' v3="2"', "", r"3MF triangle 0 \(<triangle v1=\"0\" v2=\"1\"/>\): expected v1, v2 and v3 .*; no 'v3'"),
+        ('v3="2"', 'v3="7"', r"face 0 names vertex 7, and the file has 3 vertices"),
+    ],
+)
+def test_bad_3mf_triangle_refused(tmp_path, old, new, expected):
+    """A 3MF triangle of an index overflowing an int64, no integer or missing is refused naming the file, the
+    triangle as written and what was expected, not with Python's OverflowError, ValueError or KeyError 'v3' alone;
+    one past the vertices naming the face and the vertex count."""
+    from stepterrain.export import save_mesh
+
+    save_mesh(trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], process=False), tmp_path / "ok.3mf")
+    with zipfile.ZipFile(tmp_path / "ok.3mf") as source, zipfile.ZipFile(tmp_path / "bad.3mf", "w") as target:
+        for name in source.namelist():
+            data = source.read(name)
+            target.writestr(name, data.replace(old.encode(), new.encode(), 1) if name.endswith(".model") else data)
+    with pytest.raises(DataFileError, match=rf"'{tmp_path / 'bad.3mf'}' as a mesh: ValueError: {expected}"):
+        read_mesh(tmp_path / "bad.3mf")
