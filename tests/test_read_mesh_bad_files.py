@@ -5,6 +5,7 @@ line, with NumPy's or Python's words, or read them without a word), and a valid 
 from __future__ import annotations
 
 import json
+import re
 import struct
 import zipfile
 
@@ -137,3 +138,27 @@ def test_bad_3mf_triangle_refused(tmp_path, old, new, expected):
             target.writestr(name, data.replace(old.encode(), new.encode(), 1) if name.endswith(".model") else data)
     with pytest.raises(DataFileError, match=rf"'{tmp_path / 'bad.3mf'}' as a mesh: ValueError: {expected}"):
         read_mesh(tmp_path / "bad.3mf")
+
+
+@pytest.mark.parametrize(
+    ("name", "data", "expected"),
+    [
+        ("past.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99999999999999999999\n",
+         r"line 4, 'f 1 2 9{20}', names v 9{20}, and the file has 3 v lines"),
+        ("past.glb", None, r"a glTF primitive's POSITION names accessor 1 of 1,000 VEC3 elements"),
+    ],
+)
+def test_info_says_a_bad_mesh_file_in_one_line(tmp_path, capsys, name, data, expected):
+    """``stepterrain info`` of a bad mesh file exits with status 2 and one line naming the file and what is wrong,
+    without a traceback (trimesh's "index 9223372036854775806 is out of bounds" or NumPy's reshape before)."""
+    from .conftest import run_cli
+
+    if data is None:
+        tree, chunk = _triangle_glb()
+        tree["accessors"][1]["count"] = 1000
+        data = _glb(tree, chunk)
+    (tmp_path / name).write_bytes(data)
+    code, out, err = run_cli(capsys, "info", tmp_path / name)
+    assert code == 2 and out == ""
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert re.search(rf"stepterrain info: error: cannot read '.*{name}' as a mesh: ValueError: {expected}", err), err
