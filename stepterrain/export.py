@@ -2671,7 +2671,13 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         if gltf:  # trimesh.load(force="mesh") is load_scene().to_mesh(), which drops COLOR_0 beside a material
             tree = _check_dense_gltf(file)  # its JSON, read once
             stored_z_up = _stored_z_up(tree)
-            scene = _trimesh_read(trimesh.load_scene, file, process=False)
+            try:
+                scene = _trimesh_read(trimesh.load_scene, file, process=False)
+            except AssertionError as exc:  # trimesh's bare "AssertionError: " for a buffer shorter than it declares
+                problem = _gltf_buffer_problem(file, tree)
+                if problem is None:
+                    raise
+                raise ValueError(problem) from exc
             _check_finite_positions(scene)  # before the turn, which spread a NaN over the vertex's coordinates
             y_up = not (_faces_along_z(scene) if stored_z_up is None else stored_z_up)
             if y_up:  # glTF's world is y-up (§3.4); ours z-up. Exact for save_mesh's files: their turn undone
@@ -3608,6 +3614,43 @@ def _check_dense_gltf(file: Path) -> dict[str, Any] | None:
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, struct.error, AttributeError, TypeError):
         return None
     return tree if isinstance(tree, dict) else None
+
+
+def _gltf_buffer_problem(file: Path, tree: Mapping[str, Any] | None) -> str | None:
+    """Which buffer of the glTF ``file`` (``tree``: its JSON) holds fewer bytes than its ``byteLength`` declares (a
+    GLB's BIN chunk, a data URI's or a file beside it), said with both counts, else None. trimesh's reader said
+    such a file with a bare "AssertionError: ". Run only after trimesh's reader failed."""
+    import base64
+    import urllib.parse
+
+    if not isinstance(tree, Mapping):
+        return None
+    for number, buffer in enumerate(tree.get("buffers") or []):
+        declared = buffer.get("byteLength") if isinstance(buffer, Mapping) else None
+        if type(declared) is not int:
+            continue
+        uri = buffer.get("uri")
+        if uri is None and number == 0 and file.suffix.lower() == ".glb":
+            data = file.read_bytes()
+            at = 20 + struct.unpack_from("<I", data, 12)[0] if len(data) >= 20 else len(data)
+            held, where = (struct.unpack_from("<I", data, at)[0] if len(data) >= at + 8 else 0), "the GLB's BIN chunk"
+            held = min(held, max(0, len(data) - at - 8))
+        elif isinstance(uri, str) and uri.startswith("data:"):
+            try:
+                held, where = len(base64.b64decode(uri.split(",", 1)[1])), "its data URI"
+            except (ValueError, IndexError):
+                continue
+        elif isinstance(uri, str):
+            side = file.parent / urllib.parse.unquote(uri)
+            if not side.is_file():
+                continue
+            held, where = side.stat().st_size, f"its file {str(side)!r}"
+        else:
+            continue
+        if held < declared:
+            return (f"glTF buffer {number} declares {declared:,} bytes (byteLength), and {where} holds {held:,}: the "
+                    "file is cut short or not valid (glTF 2.0 §3.6.1)")
+    return None
 
 
 #: glTF 2.0 §3.6.2.2: the bytes of an accessor's component types, and the components of its element types

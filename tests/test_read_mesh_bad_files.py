@@ -4,6 +4,7 @@ line, with NumPy's or Python's words, or read them without a word), and a valid 
 
 from __future__ import annotations
 
+import base64
 import json
 import re
 import struct
@@ -162,3 +163,27 @@ def test_info_says_a_bad_mesh_file_in_one_line(tmp_path, capsys, name, data, exp
     assert code == 2 and out == ""
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
     assert re.search(rf"stepterrain info: error: cannot read '.*{name}' as a mesh: ValueError: {expected}", err), err
+
+
+@pytest.mark.parametrize("where", ["chunk", "file", "data"])
+def test_gltf_buffer_shorter_than_declared_refused(tmp_path, where):
+    """A buffer holding fewer bytes than its ``byteLength`` (a GLB's BIN chunk, a .gltf's side file or data URI cut
+    short) is refused naming the buffer and both counts, not with trimesh's bare "AssertionError: "."""
+    tree, chunk = _triangle_glb()
+    payload = chunk[8 : 8 + struct.unpack_from("<I", chunk)[0]][:20]
+    if where == "chunk":
+        name, data = "bad.glb", _glb(tree, struct.pack("<II", 20, 0x004E4942) + payload)
+        held = "the GLB's BIN chunk holds 20"
+    else:
+        if where == "file":
+            (tmp_path / "bad.bin").write_bytes(payload)
+            tree["buffers"][0]["uri"] = "bad.bin"
+            held = r"its file '.*bad\.bin' holds 20"
+        else:
+            tree["buffers"][0]["uri"] = "data:application/octet-stream;base64," + base64.b64encode(payload).decode()
+            held = "its data URI holds 20"
+        name, data = "bad.gltf", json.dumps(tree).encode()
+    (tmp_path / name).write_bytes(data)
+    with pytest.raises(DataFileError, match=rf"'.*{name}' as a mesh: ValueError: glTF buffer 0 declares 48 bytes "
+                                            rf"\(byteLength\), and {held}: the file is cut short"):
+        read_mesh(tmp_path / name)
