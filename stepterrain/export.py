@@ -2656,7 +2656,14 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         bufferView past its buffer are said so, and a glTF position that is NaN or infinite is refused, naming the
         vertex as stored (the glTF validator refuses such a file; turned z-up, a NaN coordinate spread over the
         vertex's three, where the other formats' readers keep it where it stands). A PLY's quads and polygons come
-        back as triangles (trimesh's ``triangulate_quads``), each with its polygon's face properties.
+        back as triangles (trimesh's ``triangulate_quads``), each with its polygon's face properties. So are,
+        each named (trimesh's reader said them with a bare IndexError, KeyError, AssertionError or NumPy's words, or
+        not at all): an OFF's face line of an index out of range, overflowing or no integer, a bad counts line and
+        an OFF of fewer lines than its counts declare, by line (:func:`_off_problem`); a glTF accessor past the
+        file's, of no glTF type, past its bufferView's bytes or naming a missing bufferView, float indices, and a
+        buffer holding fewer bytes than its ``byteLength`` (:func:`_gltf_accessor_problem`,
+        :func:`_gltf_buffer_problem`); a 3MF triangle or vertex of an attribute missing, no number or overflowing,
+        as written.
     """
     file = _target(path, output=False)
     require_regular_file(file, "mesh file", "mesh file")
