@@ -2638,8 +2638,10 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         ``path`` is not a str or path-like (or holds a NUL character).
     DataFileError
         The file does not exist, is not a regular file, or cannot be read as a mesh: the reader's error (trimesh's,
-        whatever its kind: an IndexError for an OBJ face naming a missing vertex, a KeyError for a PLY without x) is
-        in the message and is the ``__cause__``. An ``.stl`` must be one (a binary STL's length as its header
+        whatever its kind: a KeyError for a PLY without x) is in the message and is the ``__cause__``; an OBJ face
+        naming a vertex past the file's ``v`` lines (trimesh's IndexError, without a line) is said by its line, index
+        and how many ``v`` lines the file has (:func:`_obj_index_past_end`). An ``.stl`` must be one (a binary
+        STL's length as its header
         counts, an ASCII one's ``solid`` ... ``endsolid``), and an ``.obj`` that trimesh reads as no vertices an empty
         one (OBJ statements and comments only), and a ``.ply`` must hold the rows its header declares: an STL or
         ASCII PLY cut short, or a file of another format under the extension, is refused, and so is a face naming a
@@ -2654,7 +2656,14 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         bufferView past its buffer are said so, and a glTF position that is NaN or infinite is refused, naming the
         vertex as stored (the glTF validator refuses such a file; turned z-up, a NaN coordinate spread over the
         vertex's three, where the other formats' readers keep it where it stands). A PLY's quads and polygons come
-        back as triangles (trimesh's ``triangulate_quads``), each with its polygon's face properties.
+        back as triangles (trimesh's ``triangulate_quads``), each with its polygon's face properties. So are,
+        each named (trimesh's reader said them with a bare IndexError, KeyError, AssertionError or NumPy's words, or
+        not at all): an OFF's face line of an index out of range, overflowing or no integer, a bad counts line and
+        an OFF of fewer lines than its counts declare, by line (:func:`_off_problem`); a glTF accessor past the
+        file's, of no glTF type, past its bufferView's bytes or naming a missing bufferView, float indices, and a
+        buffer holding fewer bytes than its ``byteLength`` (:func:`_gltf_accessor_problem`,
+        :func:`_gltf_buffer_problem`); a 3MF triangle or vertex of an attribute missing, no number or overflowing,
+        as written.
     """
     file = _target(path, output=False)
     require_regular_file(file, "mesh file", "mesh file")
@@ -2669,7 +2678,13 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         if gltf:  # trimesh.load(force="mesh") is load_scene().to_mesh(), which drops COLOR_0 beside a material
             tree = _check_dense_gltf(file)  # its JSON, read once
             stored_z_up = _stored_z_up(tree)
-            scene = _trimesh_read(trimesh.load_scene, file, process=False)
+            try:
+                scene = _trimesh_read(trimesh.load_scene, file, process=False)
+            except AssertionError as exc:  # trimesh's bare "AssertionError: " for a buffer shorter than it declares
+                problem = _gltf_buffer_problem(file, tree)
+                if problem is None:
+                    raise
+                raise ValueError(problem) from exc
             _check_finite_positions(scene)  # before the turn, which spread a NaN over the vertex's coordinates
             y_up = not (_faces_along_z(scene) if stored_z_up is None else stored_z_up)
             if y_up:  # glTF's world is y-up (§3.4); ours z-up. Exact for save_mesh's files: their turn undone
@@ -2692,10 +2707,15 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                 if loaded is None:
                     loaded = _trimesh_read(trimesh.load, file, tidied, force="mesh", process=False, **order)
             except IndexError:
-                if file.suffix.lower() == ".obj":  # a relative index past the file's start, said by its line
-                    _obj_relative_past_start(file, tidied if tidied is not None else source)
+                if file.suffix.lower() == ".obj":  # a relative index past the file's start, or one past its end,
+                    _obj_relative_past_start(file, tidied if tidied is not None else source)  # said by its line
+                    _obj_index_past_end(file, tidied if tidied is not None else source, source)
                 raise
-            except ValueError as exc:
+            except (ValueError, OverflowError) as exc:
+                if file.suffix.lower() == ".off":  # trimesh's error named no line
+                    problem = _off_problem(file)
+                    if problem is not None:
+                        raise ValueError(problem) from exc
                 mixed = _ply_binary_mixed_lists(file) if file.suffix.lower() == ".ply" else None
                 if mixed is None:
                     raise
@@ -2732,6 +2752,10 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         if file.suffix.lower() == ".obj" and isinstance(loaded, trimesh.Trimesh):
             loaded.metadata.update(_obj_metadata(file, source))
         if file.suffix.lower() == ".off" and isinstance(loaded, trimesh.Trimesh):
+            counts = _off_counts(file)  # a file cut short read as the faces it has, without a word
+            if counts is not None and len(loaded.faces) < counts[1]:
+                raise ValueError(_off_problem(file) or f"its counts declare {counts[1]} faces, and "
+                                 f"{len(loaded.faces)} triangles were read")
             colours = _off_vertex_colors(file, len(loaded.vertices))
             if colours is not None:
                 loaded.visual = trimesh.visual.ColorVisuals(loaded, vertex_colors=colours)
@@ -3004,6 +3028,79 @@ def _obj_relative_past_start(file: Path, data: bytes | None) -> None:
             block = text[at:end]
             seen = _obj_absolute_block(block, seen, lines)[1]
             lines += block.count(b"\n")
+
+
+def _obj_index_past_end(file: Path, data: bytes | None, source: bytes | None = None) -> None:
+    """Raise a ValueError naming the line, the index and how many ``v`` (``vt``, ``vn``) lines the file has, where a
+    face of the OBJ ``file`` (or of ``data``, its text tidied: :func:`_obj_tidied`, whose lines are the file's) names
+    a positive index past them; else nothing. For trimesh's IndexError, which named no line ("index 6 is out of
+    bounds for axis 0 with size 3", or for an index of more than 18 digits "index 9223372036854775806 ..."). Run
+    only after trimesh's reader failed: the ``v``, ``vt`` and ``vn`` lines counted, then the face lines read one by
+    one in blocks of whole lines. The line shown is the file's own (``source``: its text with newline line ends,
+    :func:`_obj_newlines`), not the tidied one."""
+    with _obj_mapped(file, data) as text:
+        if text is None:
+            return
+        counts = {kind: 0 for kind in (b"v", b"vt", b"vn")}
+        for at, end in _obj_line_blocks(text, _OBJ_INDEX_BLOCK):
+            block = text[at:end]
+            for kind in counts:
+                counts[kind] += block.count(b"\n" + kind + b" ") + block.startswith(kind + b" ")
+        hit = _obj_first_past_end(text, counts)
+    if hit is None:
+        return
+    number, found = hit
+    row = _obj_line(file, source, number)  # the line as the file writes it (relative indices, blanks, comments)
+    kind, field = found
+    count = counts[kind]
+    shown = field if len(field) <= 40 else field[:40] + "..."
+    raise ValueError(f"line {number}, {row.decode('utf-8', 'replace').strip()!r}, names {kind.decode()} {shown}, and "
+                     f"the file has {count} {kind.decode()} line{'s' if count != 1 else ''}: an OBJ's indices count "
+                     "from 1 to them")
+
+
+def _obj_first_past_end(text: Any, counts: Mapping[bytes, int]) -> tuple[int, tuple[bytes, str]] | None:
+    """The line number (from 1) and :func:`_obj_face_past_end` of the first face line of the OBJ text ``text`` (its
+    statements starting their lines) naming an index past ``counts``, else None; blocks of whole lines in turn."""
+    lines = 0
+    for at, end in _obj_line_blocks(text, _OBJ_INDEX_BLOCK):
+        block = text[at:end]
+        if block.find(b"f ") >= 0:
+            for number, row in enumerate(block.split(b"\n"), lines + 1):
+                found = _obj_face_past_end(row, counts) if row.startswith(b"f ") else None
+                if found is not None:
+                    return number, found
+        lines += block.count(b"\n")
+    return None
+
+
+def _obj_line(file: Path, source: bytes | None, number: int) -> bytes:
+    """Line ``number`` (from 1) of the OBJ ``file`` (or of ``source``, its text with newline line ends), for an
+    error's message."""
+    with _obj_mapped(file, source) as text:
+        lines = 0
+        for at, end in _obj_line_blocks(text, _OBJ_INDEX_BLOCK):
+            block = text[at:end]
+            count = block.count(b"\n")
+            if number <= lines + count or end == len(text):  # its lines, and one without a newline at the end
+                return bytes(block.split(b"\n")[number - 1 - lines])
+            lines += count
+    return b""
+
+
+def _obj_face_past_end(row: bytes, counts: Mapping[bytes, int]) -> tuple[bytes, str] | None:
+    """The slot (``b"v"``, ``b"vt"``, ``b"vn"``) and field of the first positive index of the face line ``row`` past
+    ``counts`` lines of its kind, else None."""
+    for word in row.split()[1:]:
+        for kind, field in zip((b"v", b"vt", b"vn"), word.split(b"/")[:3], strict=False):
+            if field[:1].isdigit() or (field[:1] == b"+" and field[1:2].isdigit()):
+                try:
+                    value = int(field)
+                except ValueError:
+                    continue
+                if value > counts[kind]:
+                    return kind, field.decode("ascii", "replace")
+    return None
 
 
 #: how many bytes of an OBJ's lines :func:`_obj_absolute_indices` rewrites at once
@@ -3502,6 +3599,10 @@ def _check_dense_gltf(file: Path) -> dict[str, Any] | None:
                     raise ValueError("a glTF primitive is a TRIANGLE_FAN (mode 6), which trimesh's reader skips (the "
                                      "file read without that surface, or as no scene): write it as triangles (mode 4)")
                 attributes = primitive.get("attributes") or {}
+                for name, index in [*attributes.items(), ("indices", primitive.get("indices"))]:
+                    problem = _gltf_accessor_problem(tree, name, index)  # trimesh: IndexError, KeyError, reshape
+                    if problem is not None:
+                        raise ValueError(problem)
                 used = [("POSITION", attributes.get("POSITION")), ("indices", primitive.get("indices"))]
                 for name, index in used:
                     if isinstance(index, int) and 0 <= index < len(accessors) and accessors[index].get("sparse"):
@@ -3520,6 +3621,86 @@ def _check_dense_gltf(file: Path) -> dict[str, Any] | None:
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, struct.error, AttributeError, TypeError):
         return None
     return tree if isinstance(tree, dict) else None
+
+
+def _gltf_buffer_problem(file: Path, tree: Mapping[str, Any] | None) -> str | None:
+    """Which buffer of the glTF ``file`` (``tree``: its JSON) holds fewer bytes than its ``byteLength`` declares (a
+    GLB's BIN chunk, a data URI's or a file beside it), said with both counts, else None. trimesh's reader said
+    such a file with a bare "AssertionError: ". Run only after trimesh's reader failed."""
+    import base64
+    import urllib.parse
+
+    if not isinstance(tree, Mapping):
+        return None
+    for number, buffer in enumerate(tree.get("buffers") or []):
+        declared = buffer.get("byteLength") if isinstance(buffer, Mapping) else None
+        if type(declared) is not int:
+            continue
+        uri = buffer.get("uri")
+        if uri is None and number == 0 and file.suffix.lower() == ".glb":
+            data = file.read_bytes()
+            at = 20 + struct.unpack_from("<I", data, 12)[0] if len(data) >= 20 else len(data)
+            held, where = (struct.unpack_from("<I", data, at)[0] if len(data) >= at + 8 else 0), "the GLB's BIN chunk"
+            held = min(held, max(0, len(data) - at - 8))
+        elif isinstance(uri, str) and uri.startswith("data:"):
+            try:
+                held, where = len(base64.b64decode(uri.split(",", 1)[1])), "its data URI"
+            except (ValueError, IndexError):
+                continue
+        elif isinstance(uri, str):
+            side = file.parent / urllib.parse.unquote(uri)
+            if not side.is_file():
+                continue
+            held, where = side.stat().st_size, f"its file {str(side)!r}"
+        else:
+            continue
+        if held < declared:
+            return (f"glTF buffer {number} declares {declared:,} bytes (byteLength), and {where} holds {held:,}: the "
+                    "file is cut short or not valid (glTF 2.0 §3.6.1)")
+    return None
+
+
+#: glTF 2.0 §3.6.2.2: the bytes of an accessor's component types, and the components of its element types
+_GLTF_COMPONENT_BYTES = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5125: 4, 5126: 4}
+_GLTF_TYPE_COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+
+
+def _gltf_accessor_problem(tree: Mapping[str, Any], name: str, index: Any) -> str | None:
+    """What is wrong with the accessor ``index`` a primitive of the glTF ``tree`` (its JSON) takes as its ``name``
+    (an attribute, or ``"indices"``), else None (also for an accessor of no buffer view, or a sparse one, which the
+    caller sees to): an index past the accessors, no ``type`` or ``componentType`` of glTF 2.0's, indices not of
+    unsigned integers (trimesh's reader read float indices' bits as integers, without a word), a bufferView past the
+    file's, or elements past their bufferView's bytes. trimesh's reader said these with IndexError "list index out
+    of range", KeyError 'type' or NumPy's "cannot reshape array of size 9 into shape (1000,3)"."""
+    if index is None and name == "indices":
+        return None
+    accessors, views = tree.get("accessors") or [], tree.get("bufferViews") or []
+    said = f"a glTF primitive's {name} names accessor {index!r}"
+    if type(index) is not int or not 0 <= index < len(accessors) or not isinstance(accessors[index], dict):
+        return f"{said}, and the file has {len(accessors)} accessor(s) (glTF 2.0 §3.6.2)"
+    accessor = accessors[index]
+    kind, component = accessor.get("type"), accessor.get("componentType")
+    if kind not in _GLTF_TYPE_COMPONENTS or component not in _GLTF_COMPONENT_BYTES:
+        return (f"{said}, whose type {kind!r} and componentType {component!r} are not glTF 2.0's (§3.6.2.2: "
+                f"{', '.join(_GLTF_TYPE_COMPONENTS)}; {', '.join(map(str, _GLTF_COMPONENT_BYTES))})")
+    if name == "indices" and (kind != "SCALAR" or component not in (5121, 5123, 5125)):
+        return (f"{said} of {kind} {component}: indices are SCALAR unsigned bytes, shorts or ints (5121, 5123, "
+                "5125; glTF 2.0 §3.7.2.1)")
+    view = accessor.get("bufferView")
+    if view is None or accessor.get("sparse"):
+        return None
+    if type(view) is not int or not 0 <= view < len(views) or not isinstance(views[view], dict):
+        return f"{said}, whose bufferView is {view!r}, and the file has {len(views)} bufferView(s)"
+    count, offset = accessor.get("count"), accessor.get("byteOffset", 0)
+    size = _GLTF_COMPONENT_BYTES[component] * _GLTF_TYPE_COMPONENTS[kind]
+    stride, length = views[view].get("byteStride") or size, views[view].get("byteLength")
+    if not all(type(value) is int for value in (count, offset, stride, length)):
+        return None  # trimesh's reader says so
+    if count > 0 and offset + stride * (count - 1) + size > length:
+        return (f"{said} of {count:,} {kind} elements from byte {offset:,} of bufferView {view}, whose "
+                f"{length:,} bytes hold {max(0, (length - offset - size) // stride + 1):,} of them: the file is "
+                "cut short or not valid (glTF 2.0 §3.6.2.4)")
+    return None
 
 
 #: glTF 2.0 §3.7.2.1: a primitive's mode 6, triangles sharing its first vertex, which trimesh's reader skips.
@@ -3999,6 +4180,81 @@ def _off_keyword(file: Path) -> str | None:
     return None
 
 
+def _off_counts(file: Path) -> tuple[int, int] | None:
+    """The counts of vertices and faces the OFF ``file``'s header declares (on its keyword's line or the next,
+    comments and blank lines skipped), read line by line, or None where they cannot be read."""
+    words: list[bytes] = []
+    with open(file, "rb") as stream:
+        for raw in stream:
+            words += raw.removeprefix(b"\xef\xbb\xbf").split(b"#", 1)[0].split()
+            if len(words) >= 3:
+                try:
+                    return int(words[1]), int(words[2])
+                except ValueError:
+                    return None
+            if len(words) > 1:
+                return None
+    return None
+
+
+def _off_problem(file: Path) -> str | None:
+    """What is wrong with the OFF ``file`` as trimesh's reader reads it (comments after ``#`` and blank lines skipped,
+    the keyword, the counts ``V F [E]`` on its line or the next, ``V`` vertex lines of at least x y z, then ``F`` face
+    lines of a count ``n`` and ``n`` vertex indices from 0 to ``V - 1``), naming the line and what was expected, or
+    None. trimesh's reader refused such a file without a line ("invalid literal for int()", "cannot reshape array of
+    size 12 into shape (5,3)", "Python int too large to convert to C long", "a face index outside the range of its
+    vertices"), or read it without a word: a face line of fewer indices than its count, and a file of fewer face
+    lines than its counts declare (cut short), read as the faces it has."""
+    text = file.read_bytes().decode("utf-8", "replace").removeprefix("\ufeff")
+    numbered = [(number, line) for number, line in enumerate(text.splitlines(), 1) if line.split("#", 1)[0].split()]
+    if not numbered:
+        return None  # trimesh's own error (no keyword) stands
+    words = numbered[0][1].split("#", 1)[0].split()
+    at = 1
+    if len(words) == 1:
+        if len(numbered) < 2:
+            return f"its keyword {words[0]!r} is not followed by the counts of vertices and faces ('V F E')"
+        number, line = numbered[1]
+        words, at = [words[0], *line.split("#", 1)[0].split()], 2
+    else:
+        number, line = numbered[0]
+    try:
+        vertices, faces = (int(word) for word in words[1:3])
+    except ValueError:
+        vertices = faces = -1
+    if len(words) < 3 or vertices < 0 or faces < 0:
+        return (f"line {number}, {line.strip()!r}: expected the counts of vertices and faces ('V F E', integers of "
+                "at least 0)")
+    if len(numbered) - at < vertices + faces:
+        return (f"its counts declare {counted(vertices, 'vertex', 'vertices')} and "
+                f"{counted(faces, 'face', 'faces')}, a line each, and the file has "
+                f"{len(numbered) - at} lines after them: is it cut short?")
+    rows = numbered[at : at + vertices]
+    for number, line in rows:
+        values = line.split("#", 1)[0].split()
+        try:
+            [float(value) for value in values[:3]]
+        except ValueError:
+            values = []
+        if len(values) < 3:
+            return f"line {number}, {line.strip()!r}: a vertex line needs 3 numbers, x y z"
+    rows = numbered[at + vertices : at + vertices + faces]
+    for number, line in rows:
+        values = line.split("#", 1)[0].split()
+        try:
+            indices = [int(value) for value in values[: int(values[0]) + 1]] if values[0].isdigit() else []
+        except ValueError:
+            indices = []
+        if len(indices) < 4 or len(indices) != indices[0] + 1:
+            return (f"line {number}, {line.strip()!r}: a face line needs its count n (at least 3) and n vertex "
+                    "indices, integers")
+        bad = [index for index in indices[1:] if not 0 <= index < vertices]
+        if bad:
+            return (f"line {number}, {line.strip()!r}, names vertex {bad[0]}, and the file has {vertices} vertices: "
+                    f"an OFF's indices count from 0 to {vertices - 1}")
+    return None
+
+
 def _off_vertex_colors(file: Path, count: int) -> NDArray[np.uint8] | None:
     """The vertex colours of the OFF ``file`` (``count`` vertices, as trimesh's reader read them) as RGBA bytes, or
     None where its keyword has no ``C`` (``COFF``, ``CNOFF``, ...): trimesh's reader reads the coordinates alone (the
@@ -4133,6 +4389,16 @@ _3MF_CORE = "{http://schemas.microsoft.com/3dmanufacturing/core/2015/02}"
 _3MF_MATERIAL = "{http://schemas.microsoft.com/3dmanufacturing/material/2015/02}"
 
 
+def _3mf_element_problem(kind: str, number: int, attributes: Mapping[str, str], expected: str,
+                         exc: Exception) -> str:
+    """A 3MF ``<kind>`` element's (``triangle``, ``vertex``; ``number`` from 0, in its object's order) error: its
+    attributes as written, what was expected of them, and what was wrong (``exc``: a missing attribute's KeyError,
+    ``int()``'s or ``float()``'s ValueError, an index's OverflowError)."""
+    written = " ".join(f'{key}="{value}"' for key, value in attributes.items())
+    why = f"no {exc.args[0]!r}" if isinstance(exc, KeyError) else str(exc)
+    return f"3MF {kind} {number} (<{kind} {written}/>): expected {expected}; {why}"
+
+
 def _read_3mf(file: Path) -> trimesh.Trimesh | None:
     """The 3MF ``file`` read by stepterrain itself when its model is one mesh object built once without a transform
     (as :func:`save_mesh` writes it): vertices, triangles and the colours of its ``m:colorgroup`` (each triangle's
@@ -4186,13 +4452,21 @@ def _read_3mf(file: Path) -> trimesh.Trimesh | None:
                     continue
                 if tag == _3MF_CORE + "triangle":
                     a = element.attrib
-                    pid = pid_ids.setdefault(a["pid"], len(pid_ids)) if "pid" in a else default_pid
-                    p1 = int(a.get("p1", default_index))
-                    rows.extend((int(a["v1"]), int(a["v2"]), int(a["v3"]), pid, p1, int(a.get("p2", p1)),
-                                 int(a.get("p3", p1))))  # fmt: skip
+                    try:  # a KeyError 'v3', int()'s "invalid literal", OverflowError "int too big", of no element
+                        pid = pid_ids.setdefault(a["pid"], len(pid_ids)) if "pid" in a else default_pid
+                        p1 = int(a.get("p1", default_index))
+                        rows.extend((int(a["v1"]), int(a["v2"]), int(a["v3"]), pid, p1, int(a.get("p2", p1)),
+                                     int(a.get("p3", p1))))  # fmt: skip
+                    except (KeyError, ValueError, OverflowError) as exc:
+                        raise ValueError(_3mf_element_problem("triangle", len(rows) // 7, a, "v1, v2 and v3 integers "
+                                         "(vertex indices from 0; p1, p2, p3 too, where given)", exc)) from exc
                 elif tag == _3MF_CORE + "vertex":
                     a = element.attrib
-                    points.extend((float(a["x"]), float(a["y"]), float(a["z"])))
+                    try:
+                        points.extend((float(a["x"]), float(a["y"]), float(a["z"])))
+                    except (KeyError, ValueError) as exc:
+                        raise ValueError(_3mf_element_problem("vertex", len(points) // 3, a, "x, y and z numbers",
+                                                              exc)) from exc
                 elif tag == _3MF_MATERIAL + "color" and group is not None:
                     group.append(_3mf_rgba(element.get("color", "")))
                 elif tag == _3MF_MATERIAL + "colorgroup":

@@ -501,7 +501,7 @@ def test_metadata_that_holds_itself_is_refused_or_written_as_text(tmp_path):
 @pytest.mark.parametrize(
     "name, content, kind",
     [
-        ("face.obj", b"v 1 2\nf 1 2 3\n", "IndexError"),
+        ("face.obj", b"v 1 2\nf 1 2 3\n", "ValueError: line 2, 'f 1 2 3', names v 2, and the file has 1 v line:"),
         ("columns.ply", b"ply\nformat ascii 1.0\nelement vertex 99999999999\nend_header\n", "KeyError"),
         ("empty.glb", b"", "ValueError: not a GLB: an empty file$"),
         ("notes.txt", b"hello", "NotImplementedError"),
@@ -607,7 +607,7 @@ def test_info_on_an_unreadable_mesh_prints_one_line(tmp_path, capsys):
     assert (
         len(err) == 1
         and err[0].startswith("stepterrain info: error: cannot read")
-        and "as a mesh: IndexError" in err[0]
+        and "as a mesh: ValueError: line 2, 'f 1 2 3', names v 2, and the file has 1 v line" in err[0]
     )
 
 

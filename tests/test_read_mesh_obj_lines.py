@@ -4,6 +4,7 @@ tabs, indents and trailing comments in blocks of lines; the search for a line st
 
 from __future__ import annotations
 
+import re
 import sys
 from collections.abc import Callable
 
@@ -295,3 +296,52 @@ def test_obj_trailing_comment_search_not_a_step_per_comment_line():
     few, many = _python_calls(export._obj_trailing_comment, text(50)), _python_calls(export._obj_trailing_comment,
                                                                                    text(5000))
     assert many < few + 50, (few, many)
+
+
+@pytest.mark.parametrize(
+    ("face", "shown", "kind", "count"),
+    [
+        ("f 1 2 7", "7", "v", 3),
+        ("f 1 2 4", "4", "v", 3),
+        ("f 1 2 99999999999999999999", "99999999999999999999", "v", 3),
+        ("f 1 2 " + "9" * 60, "9" * 40 + r"\.\.\.", "v", 3),
+        ("f 1/1 2/1 9/1", "9", "v", 3),
+        ("f\t1  2 +8   # past", r"\+8", "v", 3),
+    ],
+)
+@pytest.mark.parametrize("layout", ["plain", "crlf", "materials", "after", "blocks"])
+def test_obj_index_past_the_end_refused_by_line(tmp_path, monkeypatch, face, shown, kind, count, layout):
+    """A face's positive index past the file's ``v`` lines (of any number of digits) is refused naming its line as
+    the file writes it, the index and how many ``v`` lines the file has: trimesh's reader refused it as "index 6 is
+    out of bounds for axis 0 with size 3" (or, of more than 18 digits, "index 9223372036854775806 ..."), naming no
+    line; so for a file of CRLF line ends, of several materials (read by stepterrain's own joiner), of ``v`` lines
+    after its faces (its relative indices made absolute before trimesh's reader), and read in blocks of lines."""
+    lines = ["v 0 0 0", "v 1 0 0", "v 0 1 0", "vt 0 0", "f 1 2 3", face]
+    if layout == "blocks":  # lines counted and searched in blocks of a line or two
+        monkeypatch.setattr(export, "_OBJ_INDEX_BLOCK", 4)
+    if layout == "materials":
+        lines[4:4] = ["usemtl a"]
+        lines[-1:-1] = ["usemtl b"]
+    if layout == "after":
+        lines[4] = "f -3 -2 -1"
+        lines.append("v 1 1 1")
+        count += 1
+    number = lines.index(face) + 1
+    end = "\r\n" if layout == "crlf" else "\n"
+    (tmp_path / "past.obj").write_bytes((end.join(lines) + end).encode())
+    if layout == "after" and shown == "4":  # the v line after the faces is the 4th: named, read
+        assert read_mesh(tmp_path / "past.obj").faces.tolist() == [[0, 1, 2], [0, 1, 3]]
+        return
+    written = re.escape(repr(face.strip())[1:-1]) if len(face) < 40 else re.escape(face[:20]) + ".*"
+    with pytest.raises(DataFileError, match=rf"line {number}, '{written}', names {kind} {shown}, and the file has "
+                                            rf"{count} {kind} lines"):
+        read_mesh(tmp_path / "past.obj")
+
+
+def test_obj_index_within_reads():
+    """The check of indices past the end finds nothing in a face whose indices are all within the file's lines,
+    of every slot, nor in fields that are no integer (trimesh's error then stands)."""
+    counts = {b"v": 3, b"vt": 1, b"vn": 2}
+    assert export._obj_face_past_end(b"f 1/1/2 2//1 3/1/1 -1 x 2.5", counts) is None
+    assert export._obj_face_past_end(b"f 1/2/1 2 3", counts) == (b"vt", "2")
+    assert export._obj_face_past_end(b"f 1//1 2//3 3//1", counts) == (b"vn", "3")
