@@ -849,6 +849,107 @@ def grid_edge_count(hf: HeightField, iso: Isovalues, i: wp.int32, j: wp.int32, k
     return edge_vertex_count(a, b, hf.heights, hf.levels, iso)
 
 
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+return wp::vec_t<3, wp::int32>(0, 0, 0);
+#else
+typedef int i16 __attribute__((ext_vector_type(16)));
+typedef float f16 __attribute__((ext_vector_type(16)));
+const int* L = levels.data;
+const float* H = heights.data;
+const float* T = thresholds.data;
+int* out = local.data;
+const bool aligned = (((unsigned long long)out) & 63) == 0;
+const i16 pattern = (i16){0, 1, 1, 1, 1, 2, 2, 2, 2, 3, 3, 3, 3, 4, 4, 4};
+const i16 lane = (i16){0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15};
+int m = start;
+int v = vertices;
+int f = 0;
+while (m < limit) {
+    const int l = L[m];
+    if (aligned && (m & 3) == 0 && m + 16 <= limit) {
+        // sixteen nodes at once: the prefix of them that are flat (their right, down and diagonal neighbours on
+        // their level, which is then one level for all of them) and not on the threshold below that level
+        const float below = l > 0 ? T[l - 1] : __builtin_nanf("");
+        const i16 lv = (i16)(l);
+        i16 a, r, d, g;
+        f16 h;
+        __builtin_memcpy(&a, L + m, sizeof(a));
+        __builtin_memcpy(&r, L + m + 1, sizeof(r));
+        __builtin_memcpy(&d, L + m + cols, sizeof(d));
+        __builtin_memcpy(&g, L + m + cols + 1, sizeof(g));
+        __builtin_memcpy(&h, H + m, sizeof(h));
+        const i16 flat = (a == lv) & (r == lv) & (d == lv) & (g == lv) & (h != (f16)(below));
+        const int k = __builtin_reduce_min(flat != 0 ? (i16)(16) : lane);
+        const i16 base = pattern + (i16)(v);
+        const int groups = k >> 2;
+        for (int q = 0; q < groups; ++q) {
+            __builtin_nontemporal_store(base + (i16)(4 * q), (i16*)(out + 4 * m + 16 * q));
+        }
+        for (int e = groups * 4; e < k; ++e) {
+            const int w = v + e;
+            int* o = out + 4 * (m + e);
+            __builtin_nontemporal_store(w, o);
+            __builtin_nontemporal_store(w + 1, o + 1);
+            __builtin_nontemporal_store(w + 1, o + 2);
+            __builtin_nontemporal_store(w + 1, o + 3);
+        }
+        m += k;
+        v += k;
+        f += 2 * k;
+        if (k == 16 || m >= limit) {
+            continue;
+        }
+    }
+    // one node: when none of its cell's corners is on the threshold below its level, its vertices are the node,
+    // two per threshold each owned edge crosses, and its cell's faces closed-form (count_grid's own counts);
+    // otherwise count_grid's loop counts this node
+    const int n = m;
+    const int c = L[n];
+    const int c01 = L[n + 1];
+    const int c10 = L[n + cols];
+    const int c11 = L[n + cols + 1];
+    const bool on00 = c > 0 && H[n] == T[c - 1];
+    const bool on01 = c01 > 0 && H[n + 1] == T[c01 - 1];
+    const bool on10 = c10 > 0 && H[n + cols] == T[c10 - 1];
+    const bool on11 = c11 > 0 && H[n + cols + 1] == T[c11 - 1];
+    if (on00 | on01 | on10 | on11) {
+        break;
+    }
+    const int right = 2 * (c01 > c ? c01 - c : c - c01);
+    const int down = 2 * (c10 > c ? c10 - c : c - c10);
+    const int diagonal = 2 * (c11 > c ? c11 - c : c - c11);
+    const int upper_lo = c < c01 ? (c < c11 ? c : c11) : (c01 < c11 ? c01 : c11);
+    const int upper_hi = c > c01 ? (c > c11 ? c : c11) : (c01 > c11 ? c01 : c11);
+    const int lower_lo = c < c10 ? (c < c11 ? c : c11) : (c10 < c11 ? c10 : c11);
+    const int lower_hi = c > c10 ? (c > c11 ? c : c11) : (c10 > c11 ? c10 : c11);
+    int* o = out + 4 * n;
+    __builtin_nontemporal_store(v, o);
+    __builtin_nontemporal_store(v + 1, o + 1);
+    __builtin_nontemporal_store(v + 1 + right, o + 2);
+    __builtin_nontemporal_store(v + 1 + right + down, o + 3);
+    v += 1 + right + down + diagonal;
+    f += 2 + 4 * (upper_hi - upper_lo) + 4 * (lower_hi - lower_lo);
+    ++m;
+}
+return wp::vec_t<3, wp::int32>(m - start, v - vertices, f);
+#endif
+""")
+def count_plain_nodes(
+    levels: wp.array[wp.int32], heights: wp.array[wp.float32], thresholds: wp.array[wp.float32],
+    local: wp.array[wp.int32], start: wp.int32, limit: wp.int32, cols: wp.int32, vertices: wp.int32,
+) -> wp.vec3i:  # pragma: no cover - native code
+    """On the CPU, for :func:`count_grid` on a grid without nodata: the nodes from ``start`` (before ``limit``,
+    which keeps every node's right and down neighbours in the grid) up to the first whose cell has a corner on
+    the threshold below its level. Each such node owns one vertex and two per threshold each of its three edges
+    crosses, and its cell's two triangles 1 + 4 (highest - lowest level) faces each (:func:`closed_form_faces`
+    without a corner on a threshold); runs of flat nodes (all four on one level: 84 % of 2048²'s cells with 20
+    steps) go sixteen at a time. Streams the nodes' four chunk-local prefixes (``vertices`` at ``start``) and
+    returns (nodes taken, their vertices, their faces): (0, 0, 0) when ``start`` is not such a node, always on
+    CUDA (count_grid's own loop counts every node there)."""
+    ...
+
+
 @wp.kernel
 def count_grid(
     thread_offset: wp.int32,
@@ -884,6 +985,16 @@ def count_grid(
         j = ij[1]
         has_right = j + 1 < hf.cols
         has_down = i + 1 < hf.rows
+        if hf.has_nodata == 0 and has_down:
+            # the nodes up to one with a corner on a threshold at once, where native code does it
+            run = count_plain_nodes(hf.levels, hf.heights, iso.thresholds, local_out, n,
+                                    wp.min(end, n + hf.cols - 1 - j), hf.cols, vertices)  # fmt: skip
+            if run[0] > 0:
+                vertices += run[1]
+                faces_sum += run[2]
+                n += run[0]
+                ij = wp.vec2i(i, j + run[0])
+                continue
         if hf.has_nodata == 0:
             # every node and edge is used: plain nodes and edges within one level are counted here, without
             # the calls (Warp passes their struct arguments by value)

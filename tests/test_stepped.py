@@ -158,6 +158,20 @@ def test_integer_heights_on_thresholds_match_reference(heights, interval):
     compare_with_reference(h, values, "cpu")
 
 
+
+@pytest.mark.parametrize("seed", range(12))
+def test_wide_plateaus_with_nodes_on_thresholds_match_reference(seed):
+    """Rows long enough for count_grid's native runs of sixteen flat nodes (kernels/stepped.py, count_plain_nodes)
+    over plateaus on a threshold (3 at interval 2) or off one, with a few nodes stepping up or down: a flat node
+    on its threshold (a twin or a peak) and a cell with a corner on one must leave the run to the Warp loop."""
+    rng = np.random.default_rng(seed)
+    rows, cols = int(rng.integers(3, 7)), int(rng.integers(20, 71))
+    h = np.full((rows, cols), float(rng.choice([2.0, 3.0, 4.0])), np.float32)
+    bumps = rng.random((rows, cols)) < 0.05
+    h[bumps] = rng.integers(-1, 7, int(bumps.sum())).astype(np.float32)
+    values = isovalues((float(h.min()), float(h.max())), interval=2.0, base=0.0)
+    compare_with_reference(h, values, "cpu")
+
 @given(
     heights=arrays(
         np.float32,
