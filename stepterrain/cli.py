@@ -204,7 +204,7 @@ def check_example_outputs(outputs: dict[str, str | os.PathLike[str] | None],
 def add_colors_option(parser: argparse.ArgumentParser) -> None:
     """For scripts' own argparse mains (examples/): ``--colors N``, the palette of the PNG they write (default 256;
     0: full colour), checked by :func:`check_colors_option` and used by :func:`save_example_picture`."""
-    parser.add_argument("--colors", type=int, default=256,
+    parser.add_argument("--colors", type=_whole, default=256,
                         help="colours in the PNG's palette, 2 to 256 (default 256); 0: full colour")
 
 
@@ -248,8 +248,9 @@ def _untyped(text: str) -> bool:
 
 
 def _typed(convert: Callable[[str], Any], what: str) -> Callable[[str], Any]:
-    """An option type as argparse's ``type=float`` / ``type=int`` (its message kept for other bad text), the number
-    in ASCII digits, without underscores."""
+    """An option type as argparse's ``type=float`` / ``type=int``, the number in ASCII digits, without underscores;
+    other bad text is refused in the house style, "expected {what}; got 'abc'" (argparse names the option before it:
+    its stock "invalid float value: 'abc'" said neither what was expected nor, for '200,0', why it was no number)."""
 
     def number(text: str) -> Any:
         if _untyped(text):
@@ -257,7 +258,8 @@ def _typed(convert: Callable[[str], Any], what: str) -> Callable[[str], Any]:
         try:
             return convert(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"invalid {convert.__name__} value: {text!r}") from None
+            hint = " (one value, with a decimal point: a comma is no part of a number)" if "," in text else ""
+            raise argparse.ArgumentTypeError(f"expected {what}; got {text!r}{hint}") from None
 
     return number
 
