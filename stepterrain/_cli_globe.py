@@ -383,6 +383,19 @@ def _check_globe_numbers(args: argparse.Namespace) -> None:
         raise InvalidInputError(f"--heading must be a finite number; got {args.heading!r}")
 
 
+def _not_global(path: str, lat: np.ndarray, lon: np.ndarray) -> str:
+    """Why the grid of INPUT ``path`` (its node ``lat`` and ``lon`` in degrees) is no globe: what globe needs and what
+    the file covers. Globe.from_latlon said "lon must cover 360 degrees (W · step = 360)", naming a Python argument a
+    user of ``stepterrain globe front_range.tif`` never gave, and not the file."""
+    lat64, lon64 = np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64)
+    step = float(np.abs(lon64[-1] - lon64[0]) / (len(lon64) - 1)) if len(lon64) > 1 else 0.0
+    return (f"INPUT {path!r} is no global grid: globe meshes a lat/lon grid covering 360 degrees of longitude with "
+            f"rows reaching both poles; the file covers {len(lon64) * step:.6g} degrees of longitude "
+            f"({lon64.min():.6g} to {lon64.max():.6g}) and latitudes {lat64.min():.6g} to {lat64.max():.6g} (cell "
+            f"centres, {len(lat64)} x {len(lon64)} cells): mesh a regional DEM with stepterrain steps, texture or "
+            "closeup")
+
+
 def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     from . import export, render
     from .globe import (
@@ -542,8 +555,13 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         altitude = eye_altitude(radius, sphere)
 
     progress.stage("build", f"resampling onto 6 x {args.face_size}^2 nodes{on} and building the hierarchy")
-    globe = Globe.from_latlon(elevation, lat, lon, face_size=args.face_size, radius=radius,
-                              exaggeration=args.exaggeration, device=args.device)
+    try:
+        globe = Globe.from_latlon(elevation, lat, lon, face_size=args.face_size, radius=radius,
+                                  exaggeration=args.exaggeration, device=args.device)
+    except InvalidInputError as exc:
+        if args.input is not None and str(exc).startswith(("lon must cover 360", "lat must reach within one step")):
+            raise InvalidInputError(_not_global(args.input, lat, lon)) from None
+        raise
     progress.done(f"on {globe.device},")
 
     aspect = args.size[0] / args.size[1]
