@@ -48,6 +48,7 @@ from .io import (
     _npz_text,
     _vertical_unit,
     _virtual_refusal,
+    _warn_unit_override,
     _warn_void_values,
     dem_path,
     equals_nodata,
@@ -144,8 +145,9 @@ def add_parser(commands: Any) -> None:
                         "Mars's or the Moon's degrees, meshed on that body's sphere; nodata refused as well); "
                         "default: the embedded ETOPO 2022 20'")
     _add_height_unit(p, help="the INPUT heights' length unit (m, ft, US survey foot, km, cm, ...), for a file that "
-                             "names none or one not known (an .npz 'units', a raster band's unit); heights become "
-                             "metres (default: the unit the file names, else as stored)")
+                             "names none or one not known (an .npz 'units', a raster band's unit); it overrides a "
+                             "unit the file names (with a warning where that unit is known and another length); "
+                             "heights become metres (default: the unit the file names, else as stored)")
     _add_nodata(p, "the INPUT", "the globe refuses such cells as it refuses the file's own nodata: fill "
                                   "them first")
     p.add_argument("--face-size", type=_whole, default=257, metavar="N",
@@ -278,6 +280,8 @@ def _load_grid(path: str, height_unit: str | None = None, nodata: Sequence[float
     # --height-unit overrides the file's unit, as load_dem's height_unit does (an unknown one was refused with a
     # pointer to a --height-unit the globe lacked)
     crs = _npz_text(texts, "crs", file)
+    if elevation.dtype.kind in "iuf":
+        _warn_unit_override(file, height_unit, _npz_text(texts, "units", file), "its 'units'")
     unit, _, factor = _vertical_unit(height_unit or _npz_text(texts, "units", file), crs)
     if unit is not None and elevation.dtype.kind in "iuf":  # (other dtypes: Globe.from_latlon names them)
         named_by = "--height-unit" if height_unit else "its 'units'" if "units" in texts else f"its CRS {crs}"

@@ -342,11 +342,13 @@ def _height_unit(text: str) -> str:
 
 
 def _add_height_unit(p: argparse.ArgumentParser, help: str | None = None) -> None:
-    """``--height-unit``: load_dem's ``height_unit`` for an INPUT file that names no unit or one it does not know."""
+    """``--height-unit``: load_dem's ``height_unit`` for an INPUT file that names no unit or one it does not know; it
+    overrides a unit the file names, which load_dem warns of where that unit is known and gives other metres."""
     p.add_argument("--height-unit", type=_height_unit, default=None, metavar="UNIT",
                    help=help or "the INPUT heights' length unit (m, ft, US survey foot, km, cm, ...), for a file that "
-                                "names none or one not known; heights become metres (default: the unit the file names, "
-                                "else as stored)")
+                                "names none or one not known; it overrides a unit the file names (with a warning where "
+                                "that unit is known and another length); heights become metres (default: the unit the "
+                                "file names, else as stored)")
 
 
 def _add_band(p: argparse.ArgumentParser) -> None:
@@ -801,7 +803,8 @@ def _add_info(commands: Any) -> None:
                    help=INPUT_HELP + ", or a mesh file (.glb .gltf .obj .ply .stl .3mf, local); default: the embedded "
                                      "DEM")
     _add_height_unit(p, help="a DEM's heights' length unit (m, ft, US survey foot, km, ...), for a file that names "
-                              "none or one not known; not for a mesh")
+                              "none or one not known; it overrides a unit the file names (with a warning where that "
+                              "unit is known and another length); not for a mesh")
     _add_band(p)
     _add_height_encoding(p)
     _add_nodata(p, "a DEM (or the embedded one)", "not for a mesh")

@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
+
+import stepterrain as st
 
 from .conftest import run_cli as run
 from .test_cli_fixes import _UNTYPED_NUMBERS
@@ -48,3 +52,58 @@ def test_globe_of_a_regional_grid_names_the_file_and_what_it_covers(lat, lon, co
     assert covers in line and f"latitudes {lat.min():.6g} to {lat.max():.6g}" in line, line
     assert "lon must" not in line and "lat must" not in line, line
     assert not (tmp_path / "g.ply").exists()
+
+
+def _npz_with_units(path, units):
+    arrays = {"elevation": np.arange(12, dtype=np.float32).reshape(3, 4) + 100.0}
+    if units is not None:
+        arrays["units"] = np.array(units)
+    np.savez(path, **arrays)
+    return path
+
+
+def _geotiff_with_unit(path, unit):
+    import rasterio
+    from rasterio.transform import from_origin
+
+    with rasterio.open(path, "w", driver="GTiff", height=3, width=4, count=1, dtype="float32", crs="EPSG:32611",
+                       transform=from_origin(500000.0, 4000000.0, 30.0, 30.0)) as dst:
+        dst.write(np.arange(12, dtype=np.float32).reshape(1, 3, 4) + 100.0)
+        if unit is not None:
+            dst.units = (unit,)
+    return path
+
+
+@pytest.mark.parametrize("make", [_npz_with_units, _geotiff_with_unit])
+def test_height_unit_overriding_a_declared_unit_is_warned(make, tmp_path):
+    """--height-unit's help said it was "for a file that names none or one not known", yet it silently overrode a
+    unit the file declares (`stepterrain info front_range.npz --height-unit ft` read metres as feet). The override
+    stays (load_dem's documented height_unit) and is warned of, naming the file's unit; the heights are those the
+    given unit makes, as before."""
+    src = make(tmp_path / ("dem.npz" if make is _npz_with_units else "dem.tif"), "m")
+    stored = st.load_dem(src).heights
+    with pytest.warns(UserWarning, match=r"height_unit='ft' overrides the unit the file declares \(.*'m'\): its "
+                                         r"heights are read in ft \(0\.3048 m each\), not in m \(1 m each\)"):
+        terrain = st.load_dem(src, height_unit="ft")
+    np.testing.assert_allclose(terrain.heights, stored * np.float32(0.3048), rtol=1e-6)
+
+
+@pytest.mark.parametrize("make", [_npz_with_units, _geotiff_with_unit])
+@pytest.mark.parametrize(("declared", "given"), [(None, "ft"), ("ft", "ft"), ("metre", "m"), ("m", "m")])
+def test_height_unit_is_silent_where_it_overrides_nothing(make, declared, given, tmp_path):
+    """No warning where the file names no unit, or one of the same length as --height-unit's."""
+    src = make(tmp_path / ("dem.npz" if make is _npz_with_units else "dem.tif"), declared)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        st.load_dem(src, height_unit=given)
+
+
+def test_info_height_unit_over_a_declared_unit_warns_naming_the_option(tmp_path, capsys):
+    """The CLI's line names --height-unit, the file and both units; the help says it overrides a declared unit."""
+    src = _npz_with_units(tmp_path / "dem.npz", "m")
+    code, stdout, err = run(capsys, "info", src, "--height-unit", "ft")
+    assert code == 0, err
+    assert ("stepterrain info: warning: dem.npz: --height-unit 'ft' overrides the unit the file declares (its "
+            "'units': 'm')") in err, err
+    code, stdout, err = run(capsys, "info", "--help")
+    assert "overrides a unit the file names" in " ".join(stdout.split())
