@@ -1164,8 +1164,13 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     gamma_text = "lens" if isinstance(gamma, st.Lens) else f"{args.gamma:g}"
     progress.stage("step", f"stepping on {device}: {_counted(len(values), 'level')} ({values[0]:g} to {values[-1]:g}), "
                            f"gamma {gamma_text}")
-    mesh = st.stepped(terrain, interval=interval, levels=args.levels, base=base, gamma=gamma,
-                      colors=colors, solid=args.solid, floor=args.floor, device=device)
+    try:
+        mesh = st.stepped(terrain, interval=interval, levels=args.levels, base=base, gamma=gamma,
+                          colors=colors, solid=args.solid, floor=args.floor, device=device)
+    except st.OutputTooLargeError as exc:
+        if png is not None:
+            _render_too(exc, args.size)
+        raise
     progress.done(f"{_counted(len(mesh.faces), 'face')}, {_counted(len(mesh.vertices), 'vertex', 'vertices')}")
     if len(mesh.faces) == 0:
         warnings.warn("the mesh is empty: no triangle of the input has three finite heights", stacklevel=1)
@@ -1225,6 +1230,26 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
 
 #: What makes the mesh of a ``steps --png`` render smaller (a smaller --size does not: the mesh's copies weigh most).
 _STEPS_RENDER_HINT = "give a larger --interval, --coarsen N or a --crop, or leave --png out"
+
+
+def _render_too(exc: Exception, size: tuple[int, int]) -> None:
+    """Raise ``exc``, a refusal of a mesh over the budget (:func:`~stepterrain._compaction.check_budget`'s, which
+    carries the mesh's (vertices, faces)), again advising the budget its --png render needs too, where that is more
+    than the mesh's: ``--memory-budget 20MB steps dem.tif -o m.glb --png p.png`` was told "at least 30MiB" for the
+    mesh, and at 30MiB the render of it was refused, "at least 50MiB" (a budget per try, each too small). Returns
+    where the render needs no more than the mesh, or the error carries no mesh (the caller raises it as it is)."""
+    from ._compaction import _budget_figure, _size_text
+    from .render import _render_bytes
+
+    nbytes, mesh = getattr(exc, "nbytes", None), getattr(exc, "mesh", None)
+    figure = None if nbytes is None else _budget_figure(nbytes)
+    if mesh is None or not figure or not str(exc).endswith(figure):
+        return
+    render = _render_bytes(size[0], size[1], vertices=mesh[0], faces=mesh[1])  # as the --png check counts it
+    if render <= nbytes:
+        return
+    raise type(exc)(f"{str(exc)[:-len(figure)]}{_budget_figure(render)} (its --png render, {size[0]}x{size[1]}, "
+                    f"needs {_size_text(render)} for a mesh of at least {mesh[1]:,} faces)") from None
 
 
 def _surface_size(terrain: Any) -> tuple[int, int]:

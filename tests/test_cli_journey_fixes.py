@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import warnings
 
 import numpy as np
@@ -9,6 +10,7 @@ import pytest
 
 import stepterrain as st
 
+from .conftest import needs_render
 from .conftest import run_cli as run
 from .test_cli_fixes import _UNTYPED_NUMBERS
 
@@ -107,3 +109,50 @@ def test_info_height_unit_over_a_declared_unit_warns_naming_the_option(tmp_path,
             "'units': 'm')") in err, err
     code, stdout, err = run(capsys, "info", "--help")
     assert "overrides a unit the file names" in " ".join(stdout.split())
+
+
+def _wavy_dem(path):
+    y, x = np.mgrid[0:60, 0:80]
+    np.savez(path, elevation=(200 * np.sin(x / 7.0) * np.cos(y / 9.0) + 300).astype(np.float32))
+    return path
+
+
+_ADVICE = re.compile(r"raise the budget \(--memory-budget SIZE\) to at least (\d+[KMG]iB)")
+
+
+def test_mesh_over_the_budget_with_png_advises_a_budget_the_render_fits(tmp_path, capsys):
+    """`--memory-budget 20MB steps dem --png p.png` advised "at least 30MiB" for the mesh, and at 30MiB the render of
+    that mesh was refused ("at least 50MiB"). With --png the mesh's refusal names a budget the render of it fits
+    too (and both figures); without --png it names the mesh's alone, as before."""
+    src = _wavy_dem(tmp_path / "dem.npz")
+    argv = ["steps", src, "--interval", "5", "-o", tmp_path / "m.glb"]
+    code, _, err = run(capsys, "-q", "--memory-budget", "1100KiB", *argv)
+    assert code == 2 and "the stepped mesh (73,858 vertices, 146,018 faces) would need 7.7 MiB" in err, err
+    assert _ADVICE.search(err).group(1) == "8MiB", err
+    code, _, err = run(capsys, "-q", "--memory-budget", "1100KiB", *argv, "--png", tmp_path / "p.png",
+                       "--size", "64x48")
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert "the stepped mesh (73,858 vertices, 146,018 faces) would need 7.7 MiB" in err, err
+    assert "(its --png render, 64x48, needs 13.6 MiB for a mesh of at least 146,018 faces)" in err, err
+    # the render's own check, at the budget advised, passes (8MiB did not: "would need 13.6 MiB")
+    advised = st.cli._byte_size(_ADVICE.search(err).group(1))
+    mesh = st.stepped(st.load_dem(src), interval=5.0)
+    st.set_memory_budget(advised)
+    try:
+        st.render._check_render_budget(64, 48, mesh=(len(mesh.vertices), len(mesh.faces)))
+    finally:
+        st.set_memory_budget(16 * 1024**3)
+    assert not (tmp_path / "m.glb").exists() and not (tmp_path / "p.png").exists()
+
+
+@needs_render
+def test_the_budget_advised_for_a_mesh_with_png_runs_to_the_end(tmp_path, capsys):
+    """The budget the refusal advises is one the whole run (mesh, write and render) fits: rerun with it, it writes
+    both files."""
+    src = _wavy_dem(tmp_path / "dem.npz")
+    argv = ["steps", src, "--interval", "5", "-o", tmp_path / "m.glb", "--png", tmp_path / "p.png", "--size", "64x48"]
+    code, _, err = run(capsys, "-q", "--memory-budget", "1100KiB", *argv)
+    assert code == 2, err
+    code, _, err = run(capsys, "-q", "--memory-budget", _ADVICE.search(err).group(1), *argv)
+    assert code == 0, err
+    assert (tmp_path / "m.glb").stat().st_size > 0 and (tmp_path / "p.png").stat().st_size > 0
