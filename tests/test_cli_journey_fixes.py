@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import stepterrain as st
+from stepterrain.export import read_mesh
 
 from .conftest import needs_render
 from .conftest import run_cli as run
@@ -156,3 +157,53 @@ def test_the_budget_advised_for_a_mesh_with_png_runs_to_the_end(tmp_path, capsys
     code, _, err = run(capsys, "-q", "--memory-budget", _ADVICE.search(err).group(1), *argv)
     assert code == 0, err
     assert (tmp_path / "m.glb").stat().st_size > 0 and (tmp_path / "p.png").stat().st_size > 0
+
+
+def _stepterrain_obj(path):
+    from stepterrain.export import save_mesh
+
+    y, x = np.mgrid[0:20, 0:24]
+    save_mesh(st.stepped((40 * np.sin(x / 4.0) * np.cos(y / 5.0)).astype(np.float32), interval=10.0), path)
+    return path
+
+
+@pytest.mark.parametrize("fraction", [0.2, 0.5, 0.9, 0.999])
+def test_a_stepterrain_obj_cut_short_is_refused_not_read_as_its_first_vertices(fraction, tmp_path, capsys):
+    """A stepterrain OBJ cut to 50 kB read (read_mesh, `stepterrain info`) as its first 627 vertices and no face,
+    without a word. stepterrain's writer ends every line with a newline: one that ends mid-line is refused."""
+    whole = _stepterrain_obj(tmp_path / "whole.obj").read_bytes()
+    assert whole.endswith(b"\n") and len(read_mesh(tmp_path / "whole.obj").faces) > 0
+    end = int(len(whole) * fraction)
+    while whole[end - 1:end] == b"\n":  # mid-line
+        end += 1
+    cut = tmp_path / "cut.obj"
+    cut.write_bytes(whole[:end])
+    cut_short = (r"cut\.obj.*the file is cut short: it ends mid-line .*no newline at its end\) and stepterrain's "
+                 r"OBJ writer ends every line with a newline")
+    with pytest.raises(st.DataFileError, match=cut_short):
+        read_mesh(cut)
+    code, stdout, err = run(capsys, "info", cut)
+    assert code == 2 and "cut short" in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_obj_files_without_a_final_newline_or_faces_still_read(tmp_path):
+    """Legitimate files are read as before: points written by save_mesh (v lines, no f line), a hand-written OBJ
+    whose last line has no newline; a foreign OBJ ending in a face of fewer than 3 corners, mid-line, is cut short."""
+    import trimesh
+
+    from stepterrain.export import save_mesh
+
+    points = tmp_path / "points.obj"
+    save_mesh(trimesh.Trimesh(vertices=np.arange(12.0).reshape(4, 3), faces=np.empty((0, 3), int), process=False),
+              points)
+    mesh = read_mesh(points)
+    assert len(mesh.vertices) == 4 and len(mesh.faces) == 0
+    hand = tmp_path / "hand.obj"
+    hand.write_bytes(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3")
+    mesh = read_mesh(hand)
+    assert len(mesh.vertices) == 3 and mesh.faces.tolist() == [[0, 1, 2]]
+    hand.write_bytes(b"v 0 0 0\nv 1 0 0\nv 0 1 0")
+    assert len(read_mesh(hand).vertices) == 3
+    hand.write_bytes(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 3")
+    with pytest.raises(st.DataFileError, match=r"cut short: it ends mid-line \('f 1 3'.*a face of 2 corners"):
+        read_mesh(hand)
