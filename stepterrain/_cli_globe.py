@@ -48,6 +48,7 @@ from .io import (
     _npz_text,
     _vertical_unit,
     _virtual_refusal,
+    _warn_unit_override,
     _warn_void_values,
     dem_path,
     equals_nodata,
@@ -144,8 +145,9 @@ def add_parser(commands: Any) -> None:
                         "Mars's or the Moon's degrees, meshed on that body's sphere; nodata refused as well); "
                         "default: the embedded ETOPO 2022 20'")
     _add_height_unit(p, help="the INPUT heights' length unit (m, ft, US survey foot, km, cm, ...), for a file that "
-                             "names none or one not known (an .npz 'units', a raster band's unit); heights become "
-                             "metres (default: the unit the file names, else as stored)")
+                             "names none or one not known (an .npz 'units', a raster band's unit); it overrides a "
+                             "unit the file names (with a warning where that unit is known and another length); "
+                             "heights become metres (default: the unit the file names, else as stored)")
     _add_nodata(p, "the INPUT", "the globe refuses such cells as it refuses the file's own nodata: fill "
                                   "them first")
     p.add_argument("--face-size", type=_whole, default=257, metavar="N",
@@ -278,6 +280,8 @@ def _load_grid(path: str, height_unit: str | None = None, nodata: Sequence[float
     # --height-unit overrides the file's unit, as load_dem's height_unit does (an unknown one was refused with a
     # pointer to a --height-unit the globe lacked)
     crs = _npz_text(texts, "crs", file)
+    if elevation.dtype.kind in "iuf":
+        _warn_unit_override(file, height_unit, _npz_text(texts, "units", file), "its 'units'")
     unit, _, factor = _vertical_unit(height_unit or _npz_text(texts, "units", file), crs)
     if unit is not None and elevation.dtype.kind in "iuf":  # (other dtypes: Globe.from_latlon names them)
         named_by = "--height-unit" if height_unit else "its 'units'" if "units" in texts else f"its CRS {crs}"
@@ -381,6 +385,19 @@ def _check_globe_numbers(args: argparse.Namespace) -> None:
         raise InvalidInputError(f"--{exc}") from None
     if args.heading is not None and not math.isfinite(args.heading):  # look_from's, once the globe was built
         raise InvalidInputError(f"--heading must be a finite number; got {args.heading!r}")
+
+
+def _not_global(path: str, lat: np.ndarray, lon: np.ndarray) -> str:
+    """Why the grid of INPUT ``path`` (its node ``lat`` and ``lon`` in degrees) is no globe: what globe needs and what
+    the file covers. Globe.from_latlon said "lon must cover 360 degrees (W · step = 360)", naming a Python argument a
+    user of ``stepterrain globe front_range.tif`` never gave, and not the file."""
+    lat64, lon64 = np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64)
+    step = float(np.abs(lon64[-1] - lon64[0]) / (len(lon64) - 1)) if len(lon64) > 1 else 0.0
+    return (f"INPUT {path!r} is no global grid: globe meshes a lat/lon grid covering 360 degrees of longitude with "
+            f"rows reaching both poles; the file covers {len(lon64) * step:.6g} degrees of longitude "
+            f"({lon64.min():.6g} to {lon64.max():.6g}) and latitudes {lat64.min():.6g} to {lat64.max():.6g} (cell "
+            f"centres, {len(lat64)} x {len(lon64)} cells): mesh a regional DEM with stepterrain steps, texture or "
+            "closeup")
 
 
 def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
@@ -542,8 +559,13 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         altitude = eye_altitude(radius, sphere)
 
     progress.stage("build", f"resampling onto 6 x {args.face_size}^2 nodes{on} and building the hierarchy")
-    globe = Globe.from_latlon(elevation, lat, lon, face_size=args.face_size, radius=radius,
-                              exaggeration=args.exaggeration, device=args.device)
+    try:
+        globe = Globe.from_latlon(elevation, lat, lon, face_size=args.face_size, radius=radius,
+                                  exaggeration=args.exaggeration, device=args.device)
+    except InvalidInputError as exc:
+        if args.input is not None and str(exc).startswith(("lon must cover 360", "lat must reach within one step")):
+            raise InvalidInputError(_not_global(args.input, lat, lon)) from None
+        raise
     progress.done(f"on {globe.device},")
 
     aspect = args.size[0] / args.size[1]

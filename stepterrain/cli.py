@@ -204,7 +204,7 @@ def check_example_outputs(outputs: dict[str, str | os.PathLike[str] | None],
 def add_colors_option(parser: argparse.ArgumentParser) -> None:
     """For scripts' own argparse mains (examples/): ``--colors N``, the palette of the PNG they write (default 256;
     0: full colour), checked by :func:`check_colors_option` and used by :func:`save_example_picture`."""
-    parser.add_argument("--colors", type=int, default=256,
+    parser.add_argument("--colors", type=_whole, default=256,
                         help="colours in the PNG's palette, 2 to 256 (default 256); 0: full colour")
 
 
@@ -248,8 +248,9 @@ def _untyped(text: str) -> bool:
 
 
 def _typed(convert: Callable[[str], Any], what: str) -> Callable[[str], Any]:
-    """An option type as argparse's ``type=float`` / ``type=int`` (its message kept for other bad text), the number
-    in ASCII digits, without underscores."""
+    """An option type as argparse's ``type=float`` / ``type=int``, the number in ASCII digits, without underscores;
+    other bad text is refused in the house style, "expected {what}; got 'abc'" (argparse names the option before it:
+    its stock "invalid float value: 'abc'" said neither what was expected nor, for '200,0', why it was no number)."""
 
     def number(text: str) -> Any:
         if _untyped(text):
@@ -257,7 +258,8 @@ def _typed(convert: Callable[[str], Any], what: str) -> Callable[[str], Any]:
         try:
             return convert(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"invalid {convert.__name__} value: {text!r}") from None
+            hint = " (one value, with a decimal point: a comma is no part of a number)" if "," in text else ""
+            raise argparse.ArgumentTypeError(f"expected {what}; got {text!r}{hint}") from None
 
     return number
 
@@ -340,11 +342,13 @@ def _height_unit(text: str) -> str:
 
 
 def _add_height_unit(p: argparse.ArgumentParser, help: str | None = None) -> None:
-    """``--height-unit``: load_dem's ``height_unit`` for an INPUT file that names no unit or one it does not know."""
+    """``--height-unit``: load_dem's ``height_unit`` for an INPUT file that names no unit or one it does not know; it
+    overrides a unit the file names, which load_dem warns of where that unit is known and gives other metres."""
     p.add_argument("--height-unit", type=_height_unit, default=None, metavar="UNIT",
                    help=help or "the INPUT heights' length unit (m, ft, US survey foot, km, cm, ...), for a file that "
-                                "names none or one not known; heights become metres (default: the unit the file names, "
-                                "else as stored)")
+                                "names none or one not known; it overrides a unit the file names (with a warning where "
+                                "that unit is known and another length); heights become metres (default: the unit the "
+                                "file names, else as stored)")
 
 
 def _add_band(p: argparse.ArgumentParser) -> None:
@@ -799,7 +803,8 @@ def _add_info(commands: Any) -> None:
                    help=INPUT_HELP + ", or a mesh file (.glb .gltf .obj .ply .stl .3mf, local); default: the embedded "
                                      "DEM")
     _add_height_unit(p, help="a DEM's heights' length unit (m, ft, US survey foot, km, ...), for a file that names "
-                              "none or one not known; not for a mesh")
+                              "none or one not known; it overrides a unit the file names (with a warning where that "
+                              "unit is known and another length); not for a mesh")
     _add_band(p)
     _add_height_encoding(p)
     _add_nodata(p, "a DEM (or the embedded one)", "not for a mesh")
@@ -1159,8 +1164,13 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     gamma_text = "lens" if isinstance(gamma, st.Lens) else f"{args.gamma:g}"
     progress.stage("step", f"stepping on {device}: {_counted(len(values), 'level')} ({values[0]:g} to {values[-1]:g}), "
                            f"gamma {gamma_text}")
-    mesh = st.stepped(terrain, interval=interval, levels=args.levels, base=base, gamma=gamma,
-                      colors=colors, solid=args.solid, floor=args.floor, device=device)
+    try:
+        mesh = st.stepped(terrain, interval=interval, levels=args.levels, base=base, gamma=gamma,
+                          colors=colors, solid=args.solid, floor=args.floor, device=device)
+    except st.OutputTooLargeError as exc:
+        if png is not None:
+            _render_too(exc, args.size)
+        raise
     progress.done(f"{_counted(len(mesh.faces), 'face')}, {_counted(len(mesh.vertices), 'vertex', 'vertices')}")
     if len(mesh.faces) == 0:
         warnings.warn("the mesh is empty: no triangle of the input has three finite heights", stacklevel=1)
@@ -1220,6 +1230,26 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
 
 #: What makes the mesh of a ``steps --png`` render smaller (a smaller --size does not: the mesh's copies weigh most).
 _STEPS_RENDER_HINT = "give a larger --interval, --coarsen N or a --crop, or leave --png out"
+
+
+def _render_too(exc: Exception, size: tuple[int, int]) -> None:
+    """Raise ``exc``, a refusal of a mesh over the budget (:func:`~stepterrain._compaction.check_budget`'s, which
+    carries the mesh's (vertices, faces)), again advising the budget its --png render needs too, where that is more
+    than the mesh's: ``--memory-budget 20MB steps dem.tif -o m.glb --png p.png`` was told "at least 30MiB" for the
+    mesh, and at 30MiB the render of it was refused, "at least 50MiB" (a budget per try, each too small). Returns
+    where the render needs no more than the mesh, or the error carries no mesh (the caller raises it as it is)."""
+    from ._compaction import _budget_figure, _size_text
+    from .render import _render_bytes
+
+    nbytes, mesh = getattr(exc, "nbytes", None), getattr(exc, "mesh", None)
+    figure = None if nbytes is None else _budget_figure(nbytes)
+    if mesh is None or not figure or not str(exc).endswith(figure):
+        return
+    render = _render_bytes(size[0], size[1], vertices=mesh[0], faces=mesh[1])  # as the --png check counts it
+    if render <= nbytes:
+        return
+    raise type(exc)(f"{str(exc)[:-len(figure)]}{_budget_figure(render)} (its --png render, {size[0]}x{size[1]}, "
+                    f"needs {_size_text(render)} for a mesh of at least {mesh[1]:,} faces)") from None
 
 
 def _surface_size(terrain: Any) -> tuple[int, int]:

@@ -2643,7 +2643,9 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         and how many ``v`` lines the file has (:func:`_obj_index_past_end`). An ``.stl`` must be one (a binary
         STL's length as its header
         counts, an ASCII one's ``solid`` ... ``endsolid``), and an ``.obj`` that trimesh reads as no vertices an empty
-        one (OBJ statements and comments only), and a ``.ply`` must hold the rows its header declares: an STL or
+        one (OBJ statements and comments only), an ``.obj`` :func:`save_mesh` wrote must end with a newline (one
+        ending mid-line was cut short), as must any ``.obj`` whose last line is a face of fewer than 3 corners
+        (:func:`_check_obj_cut_short`), and a ``.ply`` must hold the rows its header declares: an STL or
         ASCII PLY cut short, or a file of another format under the extension, is refused, and so is a face naming a
         vertex the file does not have (a PLY's or glTF's index as stored), and so are a ``.glb`` that is empty, not a
         GLB, shorter than its header counts or whose header counts fewer bytes than its headers and JSON chunk
@@ -2695,6 +2697,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             source: bytes | None = None  # an OBJ's text with newlines for its line ends, where one is a CR alone
             kind: str | None = None
             if file.suffix.lower() == ".obj":
+                _check_obj_cut_short(file)
                 source = _obj_newlines(file)
                 _check_obj_indices(file, source)
                 kind = _obj_faces_kind(file, source)
@@ -2853,6 +2856,30 @@ def _ply_binary_mixed_lists(file: Path, rows: int = 65536) -> str | None:
 
 #: The OBJ statements of numbers only (and ``s off``), whose ``#`` can only start a comment
 _OBJ_NUMBERS = frozenset({b"v", b"vt", b"vn", b"vp", b"f", b"l", b"p", b"s"})
+
+
+def _check_obj_cut_short(file: Path) -> None:
+    """A ValueError where the OBJ ``file`` was cut short mid-line: one :func:`save_mesh` wrote (its first line
+    ``# written by stepterrain``), which ends every line with a newline, not ending in one; or any OBJ whose last line,
+    without a newline after it, is a face of fewer than 3 corners. A stepterrain OBJ cut to 50 kB (a copy or download
+    interrupted) read as its first 627 vertices and no face, without a word. A file of ``v`` lines and no ``f`` line
+    is still read (points), as is a hand-written file whose last line has no newline."""
+    with open(file, "rb") as stream:
+        head = stream.read(64)
+        stream.seek(0, os.SEEK_END)
+        size = stream.tell()
+        stream.seek(max(size - 4096, 0))
+        tail = stream.read()
+    if not tail or tail.endswith((b"\n", b"\r")):
+        return
+    last = tail.rsplit(b"\n", 1)[-1].rsplit(b"\r", 1)[-1]
+    words = last.split()
+    ours = head.removeprefix(b"\xef\xbb\xbf").startswith(b"# written by stepterrain\n")
+    if ours or (words[:1] == [b"f"] and len(words) < 4):
+        why = ("stepterrain's OBJ writer ends every line with a newline" if ours else
+               f"its last line is a face of {len(words) - 1} corner{'s' * (len(words) != 2)}, where a face needs 3")
+        raise ValueError(f"the file is cut short: it ends mid-line ({last[:60].decode('utf-8', 'replace')!r}, "
+                         f"{size:,} bytes in all, no newline at its end) and {why}; copy or write it again")
 
 
 def _obj_trailing_comment(data: Any) -> bool:

@@ -1025,6 +1025,7 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
                     f"got {metres[0]!r} and {metres[1]!r}"
                 )
         named_by = "height_unit" if height_unit else "its 'units'" if "units" in arrays else f"its CRS {crs}"
+        _warn_unit_override(file, height_unit, _npz_text(arrays, "units", file), "its 'units'")
         unit, crs, factor = _vertical_unit(height_unit or _npz_text(arrays, "units", file), crs)
         heights, height_unit = _heights_in_metres(heights, unit, file, named_by, factor)
         return _georeferenced(
@@ -1042,6 +1043,7 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
         )
     if key is not None:  # the heights' unit applies without a transform too: 'units' = "ft" was ignored here
         named_by = "height_unit" if height_unit else "its 'units'"
+        _warn_unit_override(file, height_unit, _npz_text(arrays, "units", file), "its 'units'")
         heights, unit = _heights_in_metres(
             _elevation(arrays[key], file, repr(key), nodata, npz_missing(arrays, key, file)),
             height_unit or _npz_text(arrays, "units", file), file,
@@ -1750,6 +1752,7 @@ def _load_geotiff(
             named_by = (
                 "height_unit" if height_unit else f"band {band}'s unit" if file_unit else f"the vertical unit of {crs}"
             )
+            _warn_unit_override(file, height_unit, file_unit, f"band {band}'s unit")
             unit, crs, factor = _vertical_unit(height_unit or file_unit, crs)
             if crop is not None:  # the whole grid placed from the header, then only the crop's window read
                 # the unit as _heights_in_metres returns it: the Terrain's height_unit
@@ -3749,6 +3752,24 @@ def _unit_factor(unit: str | None) -> float | None:
     """Metres per ``unit`` for a known height unit (:data:`_HEIGHT_UNITS`, any case, blanks and dots around it
     ignored), else None."""
     return _HEIGHT_UNITS.get(unit.strip(" \t.").lower()) if unit else None
+
+
+def _warn_unit_override(file: Path, height_unit: str | None, declared: str | None, where: str) -> None:
+    """Warn when ``height_unit`` (load_dem's) overrides a known unit the file declares (``declared``, named by
+    ``where``: "its 'units'", "band 1's unit") that gives other metres: ``stepterrain info dem.npz --height-unit ft``
+    read heights the file declares metres as feet without a word, where --height-unit's help said it was for a file
+    naming no unit or one not known. Silent where the file names none, one not known, or one of the same length."""
+    if height_unit is None or not declared or not declared.strip():
+        return
+    own, given = _unit_factor(declared), _unit_factor(height_unit)
+    if own is None or own == given:
+        return
+    warnings.warn(
+        f"{file.name}: height_unit={height_unit!r} overrides the unit the file declares ({where}: "
+        f"{declared.strip()!r}): its heights are read in {height_unit} ({given:.10g} m each), not in "
+        f"{declared.strip()} ({own:.10g} m each)",
+        stacklevel=caller_stacklevel(),
+    )
 
 
 def _heights_in_metres(

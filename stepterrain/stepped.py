@@ -847,13 +847,13 @@ def step_arrays(
     surface_bytes = vertex_count * vertex_bytes + face_count * face_bytes
     if solid_boundary is None:
         check_budget(surface_bytes, f"the stepped mesh ({vertex_count:,} vertices, {face_count:,} faces)",
-                     memory_budget, hint=budget_hint)
+                     memory_budget, hint=budget_hint, mesh=(vertex_count, face_count))
     else:
         check_budget(
             surface_bytes + solid_bytes(vertex_count, face_count, solid_boundary),
             f"the stepped solid (a surface of {vertex_count:,} vertices and {face_count:,} faces, up to "
             f"{solid_boundary:,} boundary edges for its skirt, and its base)",
-            memory_budget, hint=budget_hint,
+            memory_budget, hint=budget_hint, mesh=(vertex_count, face_count),  # the fewest the solid has
         )
     face_sources = None
     if want_face_sources:
