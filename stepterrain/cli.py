@@ -76,8 +76,8 @@ examples:
       the embedded Big Tujunga DEM: size, spacing, extent, CRS, height range and unit, nodata count and fraction
   stepterrain info dem.tif --json
   stepterrain info out/terrain.glb
-      a mesh: vertices, faces, bounds, watertightness, vertex or face colours, a texture image's size, the metadata
-      stepterrain wrote (and, for a .ply, how many levels its faces lie on and how many are walls)
+      a mesh: vertices, faces, bounds, watertightness, vertex or face colours, a texture image's size, the
+      metadata that stepterrain wrote (and, for a .ply, how many levels its faces lie on and how many are walls)
 """
 
 _MAIN_EPILOG = """\
