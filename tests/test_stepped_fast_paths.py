@@ -41,7 +41,7 @@ def plateau_grids(draw):
         values = np.unique(np.asarray(raw, np.float32))
         assume(len(values) >= 2)
     thresholds = thresholds_of(values)
-    assume(np.all(np.diff(thresholds) > 0))
+    assume(np.all(thresholds > values[:-1]))  # levels more than one float32 step apart (stepped refuses others)
     rng = np.random.default_rng(draw(st_.integers(0, 2**32 - 1)))
     between = rng.uniform(values[0] - 1.0, values[-1] + 1.0, len(values)).astype(np.float32)
     pool = np.concatenate([thresholds, np.nextafter(thresholds, np.float32(np.inf)),
