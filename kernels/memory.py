@@ -173,34 +173,63 @@ def stream(a: wp.array[wp.int32], i: wp.int32, v: wp.int32): ...  # pragma: no c
 
 # stream_large: stream() for a destination of at least STREAM_MIN_BYTES, a plain store (into the caches) for a
 # smaller one; the size is the whole destination array's, so a pass stores each output one way. For the passes
-# that write several outputs at once (the stepped emit kernels: faces, face levels, face walls and vertices, in
-# step). On the AMD EPYC (Zen 4) of session 46 streaming the 512² re-step's emit outputs (faces 22-25 MB, blended
-# vertices 11 MB, face levels 4 MB) slowed emit_grid: fastest of 200 replays on one core, eight rounds alternating,
-# 6.3-7.0 ms streamed, 5.5-6.1 ms stored plainly; the whole re-step (CPU time, fastest of 50) 9.8-11.2 -> 9.2-10.3
-# ms. Session 37's Intel Xeon found plain stores at that size within noise. A pass writing one output in a sweep
-# gains from streaming there even at that size (the γ blend of 512², blend_vertices: 1.0-1.07 ms streamed, 1.24-1.32
-# ms stored plainly), so it keeps stream(); so do count_grid's prefixes (within noise either way). Outputs from 32 MiB
-# (2048²'s faces: 313 MB) stream as before, where the Xeon measured what streaming saves (the EPYC stored even those
-# a little faster plainly: emit_grid at 2048² 77-87 against 90-93 ms).
+# that write several outputs at once: the stepped emit kernels stream_large their blended vertices. On the AMD EPYC
+# (Zen 4) of session 46 streaming the 512² re-step's emit outputs (faces 22-25 MB, blended vertices 11 MB, face
+# levels 4 MB) slowed emit_grid: fastest of 200 replays on one core, eight rounds alternating, 6.3-7.0 ms streamed,
+# 5.5-6.1 ms stored plainly; the whole re-step (CPU time, fastest of 50) 9.8-11.2 -> 9.2-10.3 ms. Session 37's Intel
+# Xeon found plain stores at that size within noise. A pass writing one output in a sweep gains from streaming there
+# even at that size (the γ blend of 512², blend_vertices: 1.0-1.07 ms streamed, 1.24-1.32 ms stored plainly), so it
+# keeps stream(); so do count_grid's prefixes (within noise either way). Vertices from 32 MiB (2048²'s: 157 MB)
+# stream. The stepped faces and face levels are stored plainly (store()) at every size: until session 47 they
+# called stream_large, which clang compiled to plain stores (below), and once it really streamed them emit_grid at
+# 2048² (20 steps) took 69-75 ms instead of 62-64 on session 47's EPYC (fastest of 20 replays on one core,
+# alternating rounds; faces streamed alone 61-67 against 60-66, within noise; face levels alone 67-69).
 STREAM_MIN_BYTES = 32 << 20
 
 
+# The streaming branch of stream_large: a streaming store clang cannot merge with the plain store of the other
+# branch. With __builtin_nontemporal_store alone, the vec3l and int32 stores of both branches (same address, same
+# type; the value differing or not) were sunk into one store after the branch, which keeps only the metadata both
+# had: a plain store at every size (objdump of session 47's build: no movnti for faces or face levels in emit_grid
+# or emit_tin_faces). So each streaming store sits between two empty asm statements that read and write the
+# stored location: no instruction, but the branches no longer begin or end alike (SimplifyCFG hoists the stores
+# that begin both branches, sinks those that end them, InstCombine merges the last ones) and nothing may move the
+# store past them (MergedLoadStoreMotion). With the barrier after each store only, the first of a vec3l's three was
+# hoisted out of the branch, a plain store beside two streamed ones in each line: emit_grid at 2048² took 2.1 s
+# instead of 65 ms. (The store cannot be a movnti in inline asm: Warp's CPU compiler has no x86 asm parser.) The
+# vec3d stores differ in type from the plain branch's (bits, see _NT3) and need no barrier.
+_NT_INT = """
+auto streamed = [](auto* dst, auto value) {  // one streaming store of a 4- or 8-byte integer (movnti on x86-64)
+    __asm__ __volatile__("" : "+m"(*dst));
+    __builtin_nontemporal_store(value, dst);
+    __asm__ __volatile__("" : "+m"(*dst));
+};
+"""
+
+_NT3L_LARGE = (
+    _NT_INT
+    + "long long* dst = reinterpret_cast<long long*>(&a.data[i][0]);\n"
+    + "streamed(dst, (long long)v[0]);\nstreamed(dst + 1, (long long)v[1]);\nstreamed(dst + 2, (long long)v[2]);\n"
+)
+_NT1_LARGE = _NT_INT + "streamed(&a.data[i], v);\n"
+
+
 def _large_only(streaming: str) -> str:
-    """The native body of stream_large from stream()'s: a plain store below STREAM_MIN_BYTES on the CPU."""
-    body = streaming.split("#else\n", 1)[1].rsplit("#endif", 1)[0]
+    """The native body of stream_large from a streaming store's C: a plain store below STREAM_MIN_BYTES on the
+    CPU, ``streaming`` from it, a plain store on CUDA."""
     return (
         "#if defined(__CUDA_ARCH__)\na.data[i] = v;\n#else\n"
         f"if ((long long)a.shape[0] * (long long)sizeof(a.data[0]) < {STREAM_MIN_BYTES}LL) {{\n    a.data[i] = v;\n"
-        f"}} else {{\n{body}}}\n#endif\n"
+        f"}} else {{\n{streaming}}}\n#endif\n"
     )
 
 
 # fmt: off
-@wp.func_native(_large_only(_NT3))
+@wp.func_native(_large_only(_NT3.split("#else\n", 1)[1].rsplit("#endif", 1)[0]))
 def stream_large(a: wp.array[wp.vec3d], i: wp.int32, v: wp.vec3d): ...  # pragma: no cover - native code
-@wp.func_native(_large_only(_NT3L))
+@wp.func_native(_large_only(_NT3L_LARGE))
 def stream_large(a: wp.array[vec3l], i: wp.int32, v: vec3l): ...  # pragma: no cover  # noqa: F811
-@wp.func_native(_large_only(_NT1))
+@wp.func_native(_large_only(_NT1_LARGE))
 def stream_large(a: wp.array[wp.int32], i: wp.int32, v: wp.int32): ...  # pragma: no cover  # noqa: F811
 # fmt: on
 

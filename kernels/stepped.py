@@ -292,8 +292,8 @@ def write_face(
     face_walls_out: wp.array[wp.uint8],
 ):
     if write != 0:
-        stream_large(faces_out, slot, vec3l(wp.int64(a), wp.int64(b), wp.int64(c)))
-        stream_large(face_levels_out, slot, level)
+        store(faces_out, slot, vec3l(wp.int64(a), wp.int64(b), wp.int64(c)))
+        store(face_levels_out, slot, level)
         store(face_walls_out, slot, wp.uint8(wall))
 
 
@@ -1220,9 +1220,9 @@ long long* fdst = reinterpret_cast<long long*>(&faces_out.data[face_base][0]);
 int* ldst = face_levels_out.data + face_base;
 // The same kinds of store as emit_grid's compiled generic path, whose lines these share at a run's ends: the
 // vertices streamed from the size at which stream_large streams, the faces and face levels stored plainly at every
-// size (clang merges stream_large's two identical stores, plain and streaming, into one plain store). One loop per
-// kind of vertex store: a run-time choice inside the loop was merged the same way, and plain vertex stores into
-// lines the generic path streams into took emit_grid at 2048^2 from 80 to 180 ms.
+// size (store(); memory.py's stream_large says what streaming them cost). One loop per kind of vertex store: a
+// run-time choice inside the loop was merged by clang into one plain store, and plain vertex stores into lines the
+// generic path streams into took emit_grid at 2048^2 from 80 to 180 ms.
 auto walk = [&](auto streamed) {
     for (int q = 0; q < k; ++q) {
         below += 4;
@@ -1386,13 +1386,13 @@ def emit_grid(
                     v10 = wp.int64(offset_at(offsets, 4 * (n + cols)))
                     v11 = wp.int64(offset_at(offsets, 4 * (n + cols + 1)))
                     if hf.flip != 0:
-                        stream_large(faces_out, face_base, vec3l(v00, v11, v01))
-                        stream_large(faces_out, face_base + 1, vec3l(v00, v10, v11))
+                        store(faces_out, face_base, vec3l(v00, v11, v01))
+                        store(faces_out, face_base + 1, vec3l(v00, v10, v11))
                     else:
-                        stream_large(faces_out, face_base, vec3l(v00, v01, v11))
-                        stream_large(faces_out, face_base + 1, vec3l(v00, v11, v10))
-                    stream_large(face_levels_out, face_base, flat)
-                    stream_large(face_levels_out, face_base + 1, flat)
+                        store(faces_out, face_base, vec3l(v00, v01, v11))
+                        store(faces_out, face_base + 1, vec3l(v00, v11, v10))
+                    store(face_levels_out, face_base, flat)
+                    store(face_levels_out, face_base + 1, flat)
                     store(face_walls_out, face_base, wp.uint8(0))
                     store(face_walls_out, face_base + 1, wp.uint8(0))
                     face_base += 2

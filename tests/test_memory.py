@@ -3,7 +3,11 @@ their indices (and finds none out of range in the stepped kernels), streaming st
 
 from __future__ import annotations
 
+import glob
 import os
+import platform
+import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -86,6 +90,27 @@ def test_streamed_values_keep_every_bit(device, kernel, destination):
     np.testing.assert_array_equal(outs[0].numpy()[:n].view(np.int64), doubles.view(np.int64))
     np.testing.assert_array_equal(outs[1].numpy()[:n], longs)
     np.testing.assert_array_equal(outs[2].numpy()[:n], ints)
+
+
+@pytest.mark.skipif(platform.machine() not in ("x86_64", "AMD64") or shutil.which("objdump") is None,
+                    reason="reads x86-64 machine code with objdump")
+def test_stream_large_compiles_to_streaming_stores():
+    """The CPU build of a kernel putting a vec3d, a vec3l and an int32 with stream_large holds a streaming store
+    (movnti, or AMD's movntsd for a double) for each of their seven 8- and 4-byte parts. clang used to merge the
+    vec3l's and the int32's stores with the plain stores of stream_large's other branch into plain stores, leaving
+    the three of the vec3d's bits."""
+    module = _stream_large_copies.module
+    wp.load_module(module, device="cpu")
+    (build,) = [e for e in module.execs.values() if e is not None]
+    folder = f"wp_{module.name}_{build.module_hash.hex()[:7]}*"
+    objects = glob.glob(os.path.join(wp.config.kernel_cache_dir, folder, "*.o"))
+    assert objects, "the module's object file is not in the kernel cache"
+    code = subprocess.run(["objdump", "-d", "--no-show-raw-insn", objects[0]], capture_output=True, text=True,
+                          check=True).stdout  # fmt: skip
+    functions = re.split(r"\n(?=[0-9a-f]+ <)", code)
+    forward = [part for part in functions if re.match(r"[0-9a-f]+ <\w*copies_\w*_cpu_forward>", part)]
+    assert len(forward) == 1
+    assert len(re.findall(r"\tmovnt(?:i|sd)\s", forward[0])) >= 7
 
 
 def test_load_and_store_match_numpy(device):
