@@ -1283,6 +1283,265 @@ def emit_flat_run(
     ...
 
 
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+return wp::vec_t<2, wp::int32>(0, 0);
+#else
+if (hf.has_nodata != 0 || want_sources != 0 || direct.vertices.shape[0] == 0 || direct.points != 0 ||
+    direct.steps != 0 || i + 1 >= hf.rows) {
+    return wp::vec_t<2, wp::int32>(0, 0);
+}
+const int cols = hf.cols;
+int stop = n + (cols - 1 - j);  // the last column has no cell
+if (end < stop) {
+    stop = end;
+}
+const int* lev = hf.levels.data;
+const float* hts = hf.heights.data;
+const float* T = iso.thresholds.data;
+const float* V = iso.values.data;
+const int* local = offsets.local.data;
+const int* bases = offsets.bases.data;
+const int shift = offsets.shift;
+const float dx = hf.spacing[0];
+const float dy = hf.spacing[1];
+const float g = direct.gamma;
+const float g1 = 1.0f - g;
+const double ox = direct.origin[0];
+const double oy = direct.origin[1];
+const double oz = direct.origin[2];
+const long long zero = (long long)(direct.vertices.ndim - 1);
+double* verts = &direct.vertices.data[0][0];
+long long* F = reinterpret_cast<long long*>(&faces_out.data[0][0]);
+int* FL = face_levels_out.data;
+unsigned char* FW = reinterpret_cast<unsigned char*>(face_walls_out.data);
+const float yi = (float)i * dy;
+const float yb = (float)(i + 1) * dy;
+int m = n;
+int f = face_base;
+// One body per kind of vertex store, as in emit_flat_run: the vertices streamed (their bits) from the size at
+// which stream_large streams, plainly below it; faces, face levels and wall flags stored plainly, as emit_grid's
+// compiled generic path stores them.
+auto body = [&](auto streamed) __attribute__((always_inline)) {
+    auto put = [&](int slot, float x, float y, float z, float step) __attribute__((always_inline)) {
+        const float zz = g1 * z + g * step;
+        const double parts[3] = {(double)x + ox, (double)y + oy, (double)zz + oz};
+        long long* dst = reinterpret_cast<long long*>(verts + 3 * (long long)slot);
+        if constexpr (decltype(streamed)::on()) {
+            long long bits[3];
+            __builtin_memcpy(bits, parts, sizeof(bits));
+            __builtin_nontemporal_store(bits[0] + zero, dst);
+            __builtin_nontemporal_store(bits[1] + zero, dst + 1);
+            __builtin_nontemporal_store(bits[2] + zero, dst + 2);
+        } else {
+            __builtin_memcpy(dst, parts, sizeof(parts));
+        }
+    };
+    auto face = [&](long long a, long long b, long long c, int level, int wall) __attribute__((always_inline)) {
+        const long long t3[3] = {a, b, c};
+        __builtin_memcpy(F + 3 * (long long)f, t3, sizeof(t3));
+        FL[f] = level;
+        FW[f] = (unsigned char)wall;
+        ++f;
+    };
+    // emit_edge_vertices of an edge whose upper end is off its threshold: two vertices per crossed threshold
+    auto edge = [&](int slot, int la, int lb, float ha, float hb, float xa, float ya, float xb,
+                    float yb2) __attribute__((always_inline)) {
+        if (la == lb) {
+            return;
+        }
+        int llo = la, lhi = lb;
+        float hlo = ha, hhi = hb, xlo = xa, ylo = ya, xhi = xb, yhi = yb2;
+        if (la > lb) {
+            llo = lb; lhi = la; hlo = hb; hhi = ha; xlo = xb; ylo = yb2; xhi = xa; yhi = ya;
+        }
+        for (int q = llo; q < lhi; ++q) {
+            const float t = T[q];
+            const float beta = (t - hlo) / (hhi - hlo);
+            const float x = xlo + beta * (xhi - xlo);
+            const float y = ylo + beta * (yhi - ylo);
+            put(slot, x, y, t, V[q]);
+            put(slot + 1, x, y, t, V[q + 1]);
+            slot += 2;
+        }
+    };
+    // step_triangle's walk for a triangle without a corner on a crossed threshold (no crossing aliased to a corner)
+    auto tri = [&](int l0, int l1, int l2, long long v0, long long v1, long long v2, int x0, int x1,
+                   int x2) __attribute__((always_inline)) {
+        const int lmin = l0 < l1 ? (l0 < l2 ? l0 : l2) : (l1 < l2 ? l1 : l2);
+        const int lmax = l0 > l1 ? (l0 > l2 ? l0 : l2) : (l1 > l2 ? l1 : l2);
+        if (lmin == lmax) {
+            face(v0, v1, v2, lmin, 0);
+            return;
+        }
+        if (lmax == lmin + 1) {
+            // one threshold crossed: single_crossing's faces, by selects (the walk's branches mispredict)
+            const int u0 = l0 - lmin, u1 = l1 - lmin, u2 = l2 - lmin;
+            const int m = u0 == u2 ? 1 : (u0 == u1 ? 2 : 0);
+            const int lone = m == 0 ? u0 : (m == 1 ? u1 : u2);
+            const long long vm = m == 0 ? v0 : (m == 1 ? v1 : v2);
+            const long long x_out = m == 0 ? x0 : (m == 1 ? x1 : x2);
+            const long long x_in = m == 0 ? x2 : (m == 1 ? x0 : x1);
+            const long long t_out = x_out + lone, t_in = x_in + lone;
+            const long long ta = m == 0 ? vm : t_in, tb = m == 0 ? t_out : vm, tc = m == 0 ? t_in : t_out;
+            const long long q_out = x_out + (1 - lone), q_in = x_in + (1 - lone);
+            const long long qa = m == 0 ? q_out : v0;
+            const long long qb = m == 1 ? q_in : v1;
+            const long long qc = m == 0 ? v2 : (m == 1 ? q_out : q_in);
+            const long long qd = m == 0 ? q_in : (m == 1 ? v2 : q_out);
+            const long long ub = lone == 1 ? x_in : x_out, vb = lone == 1 ? x_out : x_in;
+            // lone corner below: (triangle, wall, wall, quad, quad); above: (quad, quad, wall, wall, triangle)
+            const bool up = lone != 0;
+            face(up ? qa : ta, up ? qb : tb, up ? qc : tc, lmin, 0);
+            face(up ? qa : ub + 1, up ? qc : vb + 1, up ? qd : vb, lmin, up ? 0 : 1);
+            face(up ? ub + 1 : ub + 1, up ? vb + 1 : vb, up ? vb : ub, lmin, 1);
+            face(up ? ub + 1 : qa, up ? vb : qb, up ? ub : qc, up ? lmin : lmax, up ? 1 : 0);
+            face(up ? ta : qa, up ? tb : qc, up ? tc : qd, lmax, 0);
+            return;
+        }
+        for (int k = lmin; k <= lmax; ++k) {
+            long long first = -1, prev = -1;
+            int count = 0;
+            auto push = [&](long long v) __attribute__((always_inline)) {
+                if (count == 0) {
+                    first = v;
+                    prev = v;
+                    count = 1;
+                    return;
+                }
+                if (v == prev || v == first) {
+                    return;
+                }
+                if (count >= 2) {
+                    face(first, prev, v, k, 0);
+                }
+                prev = v;
+                ++count;
+            };
+            auto walk = [&](int la, int lb, long long corner, int x) __attribute__((always_inline)) {
+                if (la == k) {
+                    push(corner);
+                }
+                if (la < lb) {
+                    if (la <= k - 1 && k - 1 < lb) {
+                        push(x + 2 * (k - 1 - la) + 1);
+                    }
+                    if (la <= k && k < lb) {
+                        push(x + 2 * (k - la));
+                    }
+                }
+                if (la > lb) {
+                    if (lb <= k && k < la) {
+                        push(x + 2 * (k - lb));
+                    }
+                    if (lb <= k - 1 && k - 1 < la) {
+                        push(x + 2 * (k - 1 - lb) + 1);
+                    }
+                }
+            };
+            walk(l0, l1, v0, x0);
+            walk(l1, l2, v1, x1);
+            walk(l2, l0, v2, x2);
+            if (k < lmax) {
+                long long ut = -1, ub = -1, vt = -1, vb = -1;
+                auto end_of = [&](int la, int lb, int x) __attribute__((always_inline)) {
+                    if (la <= k && k < lb) {
+                        ut = x + 2 * (k - la) + 1;
+                        ub = x + 2 * (k - la);
+                    }
+                    if (lb <= k && k < la) {
+                        vt = x + 2 * (k - lb) + 1;
+                        vb = x + 2 * (k - lb);
+                    }
+                };
+                end_of(l0, l1, x0);
+                end_of(l1, l2, x1);
+                end_of(l2, l0, x2);
+                if (ut != vt) {
+                    face(ut, vt, vb, k, 1);
+                    face(ut, vb, ub, k, 1);
+                }
+            }
+        }
+    };
+    while (m < stop) {
+        const int c00 = lev[m];
+        const int c01 = lev[m + 1];
+        const int c10 = lev[m + cols];
+        const int c11 = lev[m + cols + 1];
+        const float h00 = hts[m];
+        const float h01 = hts[m + 1];
+        const float h10 = hts[m + cols];
+        const float h11 = hts[m + cols + 1];
+        const bool on00 = c00 > 0 && h00 == T[c00 - 1];
+        const bool on01 = c01 > 0 && h01 == T[c01 - 1];
+        const bool on10 = c10 > 0 && h10 == T[c10 - 1];
+        const bool on11 = c11 > 0 && h11 == T[c11 - 1];
+        if (on00 | on01 | on10 | on11) {
+            break;
+        }
+        if (m > n && c01 == c00 && c10 == c00 && c11 == c00) {
+            break;  // a flat cell: emit_flat_run's
+        }
+        const int s = 4 * m;
+        const int s0 = base + local[s];
+        const int s1 = base + local[s + 1];
+        const int s2 = base + local[s + 2];
+        const int s3 = base + local[s + 3];
+        const int jm = j + (m - n);
+        const float x0 = (float)jm * dx;
+        const float x1 = (float)(jm + 1) * dx;
+        put(s0, x0, yi, h00, V[c00]);
+        edge(s1, c00, c01, h00, h01, x0, yi, x1, yi);
+        edge(s2, c00, c10, h00, h10, x0, yi, x0, yb);
+        edge(s3, c00, c11, h00, h11, x0, yi, x1, yb);
+        const int r = 4 * (m + 1);
+        const int d = 4 * (m + cols);
+        const int dr = d + 4;
+        const long long v00 = s0;
+        const long long v01 = bases[r >> shift] + local[r];
+        const long long v10 = bases[d >> shift] + local[d];
+        const long long v11 = bases[dr >> shift] + local[dr];
+        const int v_right = bases[(r + 2) >> shift] + local[r + 2];
+        const int h_bottom = bases[(d + 1) >> shift] + local[d + 1];
+        if (hf.flip != 0) {
+            tri(c00, c11, c01, v00, v11, v01, s3, v_right, s1);
+            tri(c00, c10, c11, v00, v10, v11, s2, h_bottom, s3);
+        } else {
+            tri(c00, c01, c11, v00, v01, v11, s1, v_right, s3);
+            tri(c00, c11, c10, v00, v11, v10, s3, h_bottom, s2);
+        }
+        ++m;
+    }
+};
+struct streamed_t {
+    static constexpr bool on() { return true; }
+};
+struct plain_t {
+    static constexpr bool on() { return false; }
+};
+if ((long long)direct.vertices.shape[0] * 24LL >= STREAM_MIN_BYTES) {
+    body(streamed_t{});
+} else {
+    body(plain_t{});
+}
+return wp::vec_t<2, wp::int32>(m - n, f - face_base);
+#endif
+""".replace("STREAM_MIN_BYTES", f"{STREAM_MIN_BYTES}LL"))
+def emit_plain_cells(
+    hf: HeightField, iso: Isovalues, offsets: Offsets, direct: DirectBlend, want_sources: wp.int32,
+    faces_out: wp.array[vec3l], face_levels_out: wp.array[wp.int32], face_walls_out: wp.array[wp.uint8],
+    n: wp.int32, end: wp.int32, i: wp.int32, j: wp.int32, base: wp.int32, face_base: wp.int32,
+) -> wp.vec2i:  # pragma: no cover - native code
+    """On the CPU, for the default output of a grid without nodata (as :func:`emit_flat_run`): emit_grid's nodes n,
+    n+1, ... of row i (from column j, before ``end``) while none of a node's cell corners sits on the threshold
+    below its level (stopping at a flat cell after the first node, which emit_flat_run takes), as emit_grid
+    would write them: the node's vertex, the wall bottom/top pairs of its right, down and diagonal edges, then
+    its cell's faces by step_triangle's walk (no crossing aliased to a corner, so each crossing is its edge's
+    own pair); return (nodes taken, faces written), (0, 0) on CUDA or otherwise."""
+    ...
+
+
 @wp.kernel
 def emit_grid(
     thread_offset: wp.int32,
@@ -1315,7 +1574,10 @@ def emit_grid(
     On the CPU the default output (blended vertices, no sources, no nodata) takes runs of plain nodes with flat
     cells in one native loop (:func:`emit_flat_run`): 84 % of a real DEM's cells are flat, in runs of about ten along
     a row. Fastest of 100 replays on one core of session 47's AMD EPYC: 512² (25 steps) 6.1-6.4 -> 5.6-5.9 ms,
-    2048² (20 steps) 77-81 -> 66 ms."""
+    2048² (20 steps) 77-81 -> 66 ms. The plain nodes between those runs (no corner of the cell on a threshold: the
+    node's vertex, its edges' crossing pairs, its cell's terraces and walls) go native too
+    (:func:`emit_plain_cells`), one crossed threshold by selects (the walk's branches mispredict: a first native
+    walk was 20 % slower than the generic path)."""
     t = wp.tid() + thread_offset
     n = t * chunk
     end = wp.min(n + chunk, count)
@@ -1329,6 +1591,14 @@ def emit_grid(
             n += run
             face_base += 2 * run
             ij = wp.vec2i(ij[0], ij[1] + run)
+        if n < end:
+            plain = emit_plain_cells(hf, iso, offsets, direct, want_sources, faces_out, face_levels_out,
+                                     face_walls_out, n, end, ij[0], ij[1], base, face_base)  # fmt: skip
+            if plain[0] > 0:
+                n += plain[0]
+                face_base += plain[1]
+                ij = wp.vec2i(ij[0], ij[1] + plain[0])
+                continue
         if n < end:
             cols = hf.cols
             i = ij[0]
