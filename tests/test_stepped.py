@@ -1686,34 +1686,3 @@ def test_flat_runs_come_out_as_the_generic_grid_pass_writes_them(device, dy):
     np.testing.assert_array_equal(mesh.vertices.view(np.int64), blend(t, generic, 1.0, device=dev).view(np.int64))
     flat = (heights[:-1, :-1] == heights[1:, 1:]) & (heights[:-1, :-1] == heights[:-1, 1:])
     assert (flat & (heights[:-1, :-1] == heights[1:, :-1])).mean() > 0.5  # the runs are there to take
-
-
-@pytest.mark.parametrize(("dy", "gamma"), [(30.0, 1.0), (-30.0, 0.35), (25.0, 0.0)])
-def test_crossing_cells_come_out_as_the_generic_grid_pass_writes_them(device, dy, gamma):
-    """emit_grid writes plain nodes whose cells cross thresholds (no corner on one) in native code on the CPU (the
-    default output); step_arrays with sources takes the generic path, which the reference tests check. Rough
-    terrain (cells crossing one threshold, several, in either direction, flat cells between), some nodes exactly
-    on a threshold (which the native path leaves to the generic one), rows across the 64-node chunks, both
-    windings, γ != 1: the same faces, levels, walls and vertex bits."""
-    rng = np.random.default_rng(357)
-    rows, cols = np.mgrid[0:70, 0:150].astype(np.float64)
-    smooth = 40.0 * np.sin(rows / 9.0) * np.cos(cols / 13.0) + 0.3 * cols
-    heights = smooth + rng.normal(0.0, 6.0, smooth.shape)
-    heights[rng.random(heights.shape) < 0.3] = smooth.min()  # steep pits: cells crossing many thresholds
-    values = np.arange(-60.0, 120.0, 10.0, dtype=np.float32)
-    on = rng.random(heights.shape) < 0.02
-    heights[on] = np.clip(np.round(heights[on] / 10.0) * 10.0 + 5.0, -55.0, 105.0)  # on thresholds t_i = 5 + 10 i
-    heights[30:40, 20:90] = 12.5  # a plateau: flat runs between the crossing cells
-    t = st.Terrain.from_heights(heights, spacing=(30.0, dy), origin=(394000.0, 3798000.0))
-    mesh = st.stepped(t, levels=values, gamma=gamma, device=device)
-    dev = resolve_device(device)
-    generic = step_arrays(t, values, device=dev, want_sources=True)
-    np.testing.assert_array_equal(mesh.faces, generic.faces)
-    np.testing.assert_array_equal(mesh.face_attributes["level"], generic.face_levels)
-    np.testing.assert_array_equal(mesh.face_attributes["wall"], generic.face_walls)
-    np.testing.assert_array_equal(mesh.vertices.view(np.int64), blend(t, generic, gamma, device=dev).view(np.int64))
-    level = np.searchsorted(thresholds_of(values), heights.astype(np.float32), side="right")
-    spread = np.maximum.reduce([level[:-1, :-1], level[1:, :-1], level[:-1, 1:], level[1:, 1:]]) - np.minimum.reduce(
-        [level[:-1, :-1], level[1:, :-1], level[:-1, 1:], level[1:, 1:]])  # fmt: skip
-    assert (spread == 1).mean() > 0.1 and (spread > 2).mean() > 0.1 and (spread == 0).mean() > 0.05
-    assert np.isin(heights.astype(np.float32), thresholds_of(values)).sum() > 50
