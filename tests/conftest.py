@@ -81,6 +81,18 @@ def trimeshes_left_by(call) -> int:
         gc.enable()
 
 
+def traced_peak(call, *args) -> int:
+    """The peak of the memory tracemalloc traced while ``call(*args)`` ran."""
+    import tracemalloc
+
+    tracemalloc.start()
+    try:
+        call(*args)
+        return tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
 def budget_counts(monkeypatch, module) -> list[int]:
     """The byte counts ``module``'s calls of ``check_budget`` check from now on (each still checked), in a list the
     caller reads after the call under test."""

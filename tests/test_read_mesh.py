@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import json
 import struct
-from collections.abc import Callable
 
 import numpy as np
 import pytest
 
 from stepterrain.errors import DataFileError
 from stepterrain.export import read_mesh
+
+from .conftest import traced_peak
 
 #: a y-up ramp (heights along +y), two triangles
 _RAMP = np.array([[0, 0, 0], [1, 0, 0], [1, 0.5, -1], [0, 0.5, -1]], np.float32)
@@ -699,18 +700,6 @@ def test_obj_index_zero_signed_or_indented_refused(tmp_path, text, line):
         read_mesh(path)
 
 
-def _traced_peak(call: Callable[..., object], *args: object) -> int:
-    """The peak of the memory tracemalloc traced while ``call(*args)`` ran."""
-    import tracemalloc
-
-    tracemalloc.start()
-    try:
-        call(*args)
-        return tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
-
-
 def test_obj_newlines_replaced_as_lines_joined_without_a_list_of_lines(tmp_path):
     """An OBJ of carriage-return line ends (or a byte-order mark) is read with newlines for them, as its lines split
     and joined by newlines (CR, LF and CRLF each a line's end; a newline after the last line), without a list of
@@ -729,7 +718,7 @@ def test_obj_newlines_replaced_as_lines_joined_without_a_list_of_lines(tmp_path)
             assert _obj_newlines(path) == (expected if lone or data[:1] == b"\xef" else None), data
     data = b"v 0 0 0\r" * 250_000
     path.write_bytes(data)
-    peak = _traced_peak(_obj_newlines, path)
+    peak = traced_peak(_obj_newlines, path)
     assert peak < 4 * len(data), (peak, len(data))
 
 
@@ -768,7 +757,7 @@ def test_obj_absolute_indices_in_blocks_of_lines(monkeypatch, block):
         export._obj_absolute_indices(data)
     if block == 1 << 20:
         data = b"v 1 2 3\nv 4 5 6\nv 7 8 9\nf -3 -2 -1\n" * 150_000
-        peak = _traced_peak(export._obj_absolute_indices, data)
+        peak = traced_peak(export._obj_absolute_indices, data)
         assert peak < 20 * len(data), (peak, len(data))
 
 
@@ -813,7 +802,7 @@ def test_obj_chunk_faces_in_blocks_of_lines(monkeypatch, block):
     if block == 1 << 20:
         data = (b"".join(b"v %d 0 0\n" % i for i in range(300_000)) + b"usemtl a\n"
                 + b"".join(b"f %d %d %d\n" % (i, i + 1, i + 2) for i in range(1, 300_000)) + b"usemtl b\nf 1 2 3\n")
-        peak = _traced_peak(export._obj_chunk_faces, data)
+        peak = traced_peak(export._obj_chunk_faces, data)
         assert peak < 10 * len(data), (peak, len(data))
 
 

@@ -17,6 +17,8 @@ from stepterrain import export
 from stepterrain.errors import DataFileError
 from stepterrain.export import read_mesh
 
+from .conftest import traced_peak
+
 _NUMBERS = (b"v", b"vt", b"vn", b"vp", b"f", b"l", b"p", b"s")
 
 
@@ -68,18 +70,6 @@ def _python_calls(function: Callable[..., object], *args: object) -> int:
     finally:
         sys.setprofile(None)
     return calls
-
-
-def _traced_peak(call: Callable[..., object], *args: object) -> int:
-    """The peak of the memory tracemalloc traced while ``call(*args)`` ran."""
-    import tracemalloc
-
-    tracemalloc.start()
-    try:
-        call(*args)
-        return tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
 
 
 @st.composite
@@ -237,7 +227,7 @@ def test_obj_tidied_in_blocks_of_lines(tmp_path, monkeypatch, block):
         data = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n" + b"\tv\t0.125 1.5 2.25\n v 1 0.5 2\n v 0 1 3\nf 3 1 2 # a\n" * (
             8_000_000 // 59)
         path.write_bytes(data)
-        peak = _traced_peak(export._obj_tidied, path, None)
+        peak = traced_peak(export._obj_tidied, path, None)
         assert peak < 3 * len(data), (peak, len(data))
         vertices, faces = _reference(data)
         mesh = read_mesh(path)
