@@ -81,6 +81,25 @@ def trimeshes_left_by(call) -> int:
         gc.enable()
 
 
+def python_calls(function, *args) -> int:
+    """How many functions ``function(*args)`` calls: Python's (list comprehensions and generator expressions
+    included) and built-in ones (``bytes.find``, NumPy's)."""
+    import sys
+
+    calls = 0
+
+    def count(frame, event, arg):  # noqa: ANN001, ANN202 - sys.setprofile's signature
+        nonlocal calls
+        calls += event in ("call", "c_call")
+
+    sys.setprofile(count)
+    try:
+        function(*args)
+    finally:
+        sys.setprofile(None)
+    return calls
+
+
 def traced_peak(call, *args) -> int:
     """The peak of the memory tracemalloc traced while ``call(*args)`` ran."""
     import tracemalloc

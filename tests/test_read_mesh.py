@@ -12,7 +12,7 @@ import pytest
 from stepterrain.errors import DataFileError
 from stepterrain.export import read_mesh
 
-from .conftest import traced_peak
+from .conftest import python_calls, traced_peak
 
 #: a y-up ramp (heights along +y), two triangles
 _RAMP = np.array([[0, 0, 0], [1, 0, 0], [1, 0.5, -1], [0, 0.5, -1]], np.float32)
@@ -432,25 +432,6 @@ def test_obj_of_several_materials_polygons_and_negative_indices(tmp_path):
     assert np.array_equal(mesh.visual.face_colors, [grey, red, red, blue, blue, blue, grey, red])
 
 
-def _python_calls(function, *args) -> int:
-    """How many functions ``function(*args)`` calls: Python's (list comprehensions and generator expressions
-    included) and built-in ones (``bytes.split``, NumPy's)."""
-    import sys
-
-    calls = 0
-
-    def count(frame, event, arg):
-        nonlocal calls
-        calls += event in ("call", "c_call")
-
-    sys.setprofile(count)
-    try:
-        function(*args)
-    finally:
-        sys.setprofile(None)
-    return calls
-
-
 def test_obj_chunk_faces_vectorised_and_as_a_reference_reads():
     """The faces of an OBJ of several ``usemtl`` were read by a Python loop over its lines (90,000 vertices in two
     materials: 0.39 -> 0.90 s a read): they are read by NumPy over the text's bytes, as many calls for 5,000 faces as
@@ -494,7 +475,7 @@ def test_obj_chunk_faces_vectorised_and_as_a_reference_reads():
         assert names == expected_names
         assert len(chunks) == len(expected) and all(np.array_equal(a, b) for a, b in zip(chunks, expected, strict=True))
     assert _obj_chunk_faces(b"v 0 0 0\nf 1 2.5 3\n") is None  # not integers: trimesh's reader decides
-    small, large = _python_calls(_obj_chunk_faces, text(50)), _python_calls(_obj_chunk_faces, text(5000))
+    small, large = python_calls(_obj_chunk_faces, text(50)), python_calls(_obj_chunk_faces, text(5000))
     assert large < small + 50, (small, large)
 
 
@@ -623,8 +604,8 @@ def test_obj_absolute_indices_vectorised_and_as_a_reference_counts():
     for faces in (1, 40, 300):
         data, expected = text(faces)
         assert [line.split() for line in _obj_absolute_indices(data).splitlines()] == expected
-    small = _python_calls(_obj_absolute_indices, text(50)[0])
-    large = _python_calls(_obj_absolute_indices, text(5000)[0])
+    small = python_calls(_obj_absolute_indices, text(50)[0])
+    large = python_calls(_obj_absolute_indices, text(5000)[0])
     assert large < small + 50, (small, large)
 
 
@@ -678,9 +659,9 @@ def test_obj_index_zero_check_vectorised_and_as_a_reference_refuses(tmp_path, mo
 
     monkeypatch.undo()  # blocks of the size the reader looks at
     path.write_bytes(after(40))
-    small = _python_calls(export._check_obj_indices, path)
+    small = python_calls(export._check_obj_indices, path)
     path.write_bytes(after(4000))
-    assert _python_calls(export._check_obj_indices, path) < small + 50
+    assert python_calls(export._check_obj_indices, path) < small + 50
 
 
 @pytest.mark.parametrize(("text", "line"), [
@@ -820,7 +801,7 @@ def test_obj_of_carriage_returns_or_a_byte_order_mark_not_tidied_line_by_line(tm
     for count in (50, 5000):
         path = tmp_path / f"cr{count}.obj"
         path.write_bytes(text(count, b"\r"))
-        calls.append(_python_calls(_obj_tidied, path, _obj_newlines(path)))
+        calls.append(python_calls(_obj_tidied, path, _obj_newlines(path)))
     assert calls[1] < calls[0] + 50, calls
     for data in (text(3, b"\r"), b"\xef\xbb\xbf" + text(3, b"\n"), b"\xef\xbb\xbf" + text(3, b"\r\n")):
         path, plain = tmp_path / "odd.obj", tmp_path / "plain.obj"

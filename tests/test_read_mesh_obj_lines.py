@@ -5,8 +5,6 @@ tabs, indents and trailing comments in blocks of lines; the search for a line st
 from __future__ import annotations
 
 import re
-import sys
-from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -17,7 +15,7 @@ from stepterrain import export
 from stepterrain.errors import DataFileError
 from stepterrain.export import read_mesh
 
-from .conftest import traced_peak
+from .conftest import python_calls, traced_peak
 
 _NUMBERS = (b"v", b"vt", b"vn", b"vp", b"f", b"l", b"p", b"s")
 
@@ -54,22 +52,6 @@ def _triangles(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """The triangles' corner positions, sorted by row (an order-free comparison of meshes)."""
     corners = np.asarray(vertices, dtype=np.float64)[np.asarray(faces, dtype=np.int64)].reshape(-1, 9)
     return corners[np.lexsort(corners.T[::-1])] if len(corners) else corners
-
-
-def _python_calls(function: Callable[..., object], *args: object) -> int:
-    """How many functions ``function(*args)`` calls, Python's and built-in ones (``bytes.find``)."""
-    calls = 0
-
-    def count(frame, event, arg):  # noqa: ANN001, ANN202 - sys.setprofile's signature
-        nonlocal calls
-        calls += event in ("call", "c_call")
-
-    sys.setprofile(count)
-    try:
-        function(*args)
-    finally:
-        sys.setprofile(None)
-    return calls
 
 
 @st.composite
@@ -248,8 +230,8 @@ def test_obj_line_starting_passes_over_a_bounded_number_of_letters():
         assert export._obj_line_starting(data, b"o") == -1
     assert export._obj_line_starting(b"f 1 2 3\n", b"f") == 0
     assert export._obj_line_starting(b"if\nff", b"f", 1) == 3
-    few = _python_calls(export._obj_line_starting, b"# of faces\n" * 10 + b"f 1 2 3\n", b"f")
-    many = _python_calls(export._obj_line_starting, b"# of faces\n" * 10_000 + b"f 1 2 3\n", b"f")
+    few = python_calls(export._obj_line_starting, b"# of faces\n" * 10 + b"f 1 2 3\n", b"f")
+    many = python_calls(export._obj_line_starting, b"# of faces\n" * 10_000 + b"f 1 2 3\n", b"f")
     assert many < few + 80, (few, many)
 
 
@@ -283,7 +265,7 @@ def test_obj_trailing_comment_search_not_a_step_per_comment_line():
 
     assert export._obj_trailing_comment(text(5000))
     assert not export._obj_trailing_comment(text(5000)[:-4] + b"\n")
-    few, many = _python_calls(export._obj_trailing_comment, text(50)), _python_calls(export._obj_trailing_comment,
+    few, many = python_calls(export._obj_trailing_comment, text(50)), python_calls(export._obj_trailing_comment,
                                                                                    text(5000))
     assert many < few + 50, (few, many)
 

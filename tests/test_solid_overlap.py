@@ -39,6 +39,12 @@ def _close(vertices, faces, floor=0.0):
     return close_solid(vertices, faces, np.ones(len(faces), bool), floor)
 
 
+def _closed(vertices, faces, floor=0.0) -> trimesh.Trimesh:
+    """The solid :func:`_close` makes, as a mesh."""
+    solid_vertices, solid_faces, *_ = _close(vertices, faces, floor)
+    return trimesh.Trimesh(solid_vertices, solid_faces, process=False)
+
+
 def _unmerged(vertices, faces):
     """A vertex copy per face corner (an .stl read without merging)."""
     return np.asarray(vertices)[faces.reshape(-1)], np.arange(3 * len(faces)).reshape(-1, 3)
@@ -72,8 +78,7 @@ def test_two_pieces_one_above_the_other_are_refused():
         _close(inside, np.vstack([faces, small_faces + len(vertices)]))
     # side by side (sharing no ground, touching along x = 5): closed, with the prisms' volume
     beside = np.vstack([vertices, vertices + [5.0, 0.0, 20.0]])
-    solid_vertices, solid_faces, *_ = _close(beside, both[1])
-    mesh = trimesh.Trimesh(solid_vertices, solid_faces, process=False)
+    mesh = _closed(beside, both[1])
     assert mesh.is_winding_consistent
     assert mesh.volume == pytest.approx(_prism_volume(beside, both[1], 0.0), rel=1e-9)
 
@@ -89,8 +94,7 @@ def test_two_thin_strips_crossing_like_a_plus_sign_are_refused():
         _close(vertices, faces)
     # apart (the second moved past the first's end): closed
     apart = np.vstack([along, across + [6.0, 0.0, 0.0]])
-    solid_vertices, solid_faces, *_ = _close(apart, faces)
-    mesh = trimesh.Trimesh(solid_vertices, solid_faces, process=False)
+    mesh = _closed(apart, faces)
     assert mesh.is_watertight and mesh.volume == pytest.approx(_prism_volume(apart, faces, 0.0), rel=1e-9)
 
 
@@ -101,8 +105,7 @@ def test_a_spiral_ramp_is_refused_once_it_winds_over_itself(turns, refused):
         with pytest.raises(InvalidInputError, match=OVERLAP):
             _close(vertices, faces)
         return
-    solid_vertices, solid_faces, *_ = _close(vertices, faces)
-    mesh = trimesh.Trimesh(solid_vertices, solid_faces, process=False)
+    mesh = _closed(vertices, faces)
     assert mesh.is_watertight and mesh.is_winding_consistent
     assert mesh.volume == pytest.approx(_prism_volume(vertices, faces, 0.0), rel=1e-9)
 
@@ -126,8 +129,7 @@ def test_an_unmerged_surface_folded_over_itself_is_refused(flip):
 
 def test_an_unmerged_height_field_closes_as_its_faces_prisms():
     vertices, faces = _tin(3, 80)
-    solid_vertices, solid_faces, *_ = _close(*_unmerged(vertices, faces))
-    mesh = trimesh.Trimesh(solid_vertices, solid_faces, process=False)
+    mesh = _closed(*_unmerged(vertices, faces))
     assert mesh.is_watertight and mesh.is_winding_consistent
     assert mesh.volume == pytest.approx(_prism_volume(vertices, faces, 0.0), rel=1e-9)
 
@@ -164,8 +166,7 @@ def test_two_tins_are_refused_exactly_where_they_overlap(seed, dx, dy):
         with pytest.raises(InvalidInputError, match=OVERLAP):
             _close(vertices, faces)
         return
-    solid_vertices, solid_faces, *_ = _close(vertices, faces)
-    mesh = trimesh.Trimesh(solid_vertices, solid_faces, process=False)
+    mesh = _closed(vertices, faces)
     assert mesh.volume == pytest.approx(_prism_volume(vertices, faces, 0.0), rel=1e-9)
 
 
@@ -219,8 +220,7 @@ def test_stepped_surfaces_read_back_close_without_error(tmp_path, suffix, origin
             return
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        solid_vertices, solid_faces, *_ = _close(np.asarray(back.vertices), np.asarray(back.faces), floor)
-    mesh = trimesh.Trimesh(solid_vertices, solid_faces, process=False)
+        mesh = _closed(np.asarray(back.vertices), np.asarray(back.faces), floor)
     assert mesh.is_winding_consistent
     assert mesh.volume == pytest.approx(want, rel=1e-3)
 

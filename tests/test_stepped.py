@@ -1665,6 +1665,19 @@ def test_node_levels_count_the_thresholds_at_or_below(device, n_thresholds, unif
     np.testing.assert_array_equal(levels.numpy(), expected)
 
 
+def assert_stepped_as_the_generic_pass(t, values, gamma, device):
+    """``stepped`` (its default output, which the CPU's native fast paths write) gives the faces, face levels,
+    walls and vertex bits of the generic pass (``step_arrays`` with sources, then ``blend``); returns the mesh."""
+    mesh = st.stepped(t, levels=values, gamma=gamma, device=device)
+    dev = resolve_device(device)
+    generic = step_arrays(t, values, device=dev, want_sources=True)
+    np.testing.assert_array_equal(mesh.faces, generic.faces)
+    np.testing.assert_array_equal(mesh.face_attributes["level"], generic.face_levels)
+    np.testing.assert_array_equal(mesh.face_attributes["wall"], generic.face_walls)
+    np.testing.assert_array_equal(mesh.vertices.view(np.int64), blend(t, generic, gamma, device=dev).view(np.int64))
+    return mesh
+
+
 @pytest.mark.parametrize("dy", [30.0, -30.0])
 def test_flat_runs_come_out_as_the_generic_grid_pass_writes_them(device, dy):
     """emit_grid writes runs of plain nodes with flat cells in one native loop on the CPU (the default output:
@@ -1677,12 +1690,6 @@ def test_flat_runs_come_out_as_the_generic_grid_pass_writes_them(device, dy):
     heights[::7, ::11] += 0.25  # lone bumps inside plateaus
     values = np.arange(-60.0, 120.0, 10.0, dtype=np.float32)
     t = st.Terrain.from_heights(heights, spacing=(30.0, dy), origin=(394000.0, 3798000.0))
-    mesh = st.stepped(t, levels=values, device=device)
-    dev = resolve_device(device)
-    generic = step_arrays(t, values, device=dev, want_sources=True)
-    np.testing.assert_array_equal(mesh.faces, generic.faces)
-    np.testing.assert_array_equal(mesh.face_attributes["level"], generic.face_levels)
-    np.testing.assert_array_equal(mesh.face_attributes["wall"], generic.face_walls)
-    np.testing.assert_array_equal(mesh.vertices.view(np.int64), blend(t, generic, 1.0, device=dev).view(np.int64))
+    assert_stepped_as_the_generic_pass(t, values, 1.0, device)
     flat = (heights[:-1, :-1] == heights[1:, 1:]) & (heights[:-1, :-1] == heights[:-1, 1:])
     assert (flat & (heights[:-1, :-1] == heights[1:, :-1])).mean() > 0.5  # the runs are there to take

@@ -18,11 +18,10 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st_
 
 import stepterrain as st
-from stepterrain._device import CPU_CHUNK, resolve_device, set_cpu_threads
-from stepterrain.stepped import blend, step_arrays
+from stepterrain._device import CPU_CHUNK, set_cpu_threads
 
 from .reference import grid_tin, step_reference, thresholds_of
-from .test_stepped import _compare_terrain_with_reference
+from .test_stepped import _compare_terrain_with_reference, assert_stepped_as_the_generic_pass
 
 # widths around one and two chunks (runs end at, cross and stop short of chunk ends) and narrow ones
 WIDTHS = [2, 3, 17, 33, CPU_CHUNK - 1, CPU_CHUNK, CPU_CHUNK + 1, CPU_CHUNK + 2, CPU_CHUNK + 3, 2 * CPU_CHUNK + 1,
@@ -77,14 +76,7 @@ def test_native_runs_write_what_the_generic_path_writes(grid, dy, gamma):
     face levels, walls and vertex bits, both windings (dy < 0: hf.flip), γ where (1 - γ) h + γ α rounds."""
     heights, values = grid
     t = st.Terrain.from_heights(heights, spacing=(30.0, dy), origin=(394000.5, 3798000.25))
-    mesh = st.stepped(t, levels=values, gamma=gamma, device="cpu")
-    dev = resolve_device("cpu")
-    generic = step_arrays(t, values, device=dev, want_sources=True)
-    np.testing.assert_array_equal(mesh.faces, generic.faces)
-    np.testing.assert_array_equal(mesh.face_attributes["level"], generic.face_levels)
-    np.testing.assert_array_equal(mesh.face_attributes["wall"], generic.face_walls)
-    expected = blend(t, generic, gamma, device=dev)
-    np.testing.assert_array_equal(mesh.vertices.view(np.int64), expected.view(np.int64))
+    assert_stepped_as_the_generic_pass(t, values, gamma, "cpu")
 
 
 @settings(max_examples=60, deadline=None)
@@ -122,18 +114,11 @@ def test_threaded_re_steps_write_what_the_generic_path_writes(threads):
     heights = (np.floor(smooth / 2.5) * 2.5).astype(np.float32)  # plateaus, every other one on a threshold
     heights[::9, ::13] += np.float32(0.25)
     t = st.Terrain.from_heights(heights, spacing=(30.0, -30.0), origin=(394000.0, 3798000.0))
-    dev = resolve_device("cpu")
     previous = set_cpu_threads(threads)
     try:
         for values, gamma in ((np.arange(-60.0, 120.0, 5.0, dtype=np.float32), 0.3),
                               (np.arange(-65.0, 120.0, 10.0, dtype=np.float32), 1.0)):
-            mesh = st.stepped(t, levels=values, gamma=gamma, device="cpu")
-            generic = step_arrays(t, values, device=dev, want_sources=True)
-            np.testing.assert_array_equal(mesh.faces, generic.faces)
-            np.testing.assert_array_equal(mesh.face_attributes["level"], generic.face_levels)
-            np.testing.assert_array_equal(mesh.face_attributes["wall"], generic.face_walls)
-            expected = blend(t, generic, gamma, device=dev)
-            np.testing.assert_array_equal(mesh.vertices.view(np.int64), expected.view(np.int64))
+            mesh = assert_stepped_as_the_generic_pass(t, values, gamma, "cpu")
         ref = step_reference(*grid_tin(heights, t.spacing), values)
         assert (len(mesh.vertices), len(mesh.faces)) == (len(ref.points), len(ref.faces))
     finally:
