@@ -2910,10 +2910,16 @@ def _obj_trailing_comment_in(text: NDArray[np.uint8]) -> bool:
     starts = np.concatenate(([-1], breaks))[np.searchsorted(breaks, hashes)] + 1  # each # line's start
     padded = np.concatenate((text, np.zeros(3, np.uint8)))
     first = _obj_run_ends(padded, starts, _OBJ_SPACE_TAB)  # its first byte that is no blank: the # at the latest
-    one = np.isin(padded[first], np.frombuffer(b"vflps", np.uint8)) & _OBJ_SPACE_TAB[padded[first + 1]]
-    two = ((padded[first] == ord("v")) & np.isin(padded[first + 1], np.frombuffer(b"tnp", np.uint8))
-           & _OBJ_SPACE_TAB[padded[first + 2]])
-    return bool((one | two).any())  # a keyword holds no #: the blank after it comes before the #
+    return bool(_obj_numbers_keyword(padded, first).any())  # a keyword holds no #: the blank after it comes first
+
+
+def _obj_numbers_keyword(padded: NDArray[np.uint8], at: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """Whether a keyword of :data:`_OBJ_NUMBERS` and a blank (space or tab) start at each of the places ``at`` of the
+    OBJ text ``padded`` (its bytes, then 3 zeros)."""
+    one = np.isin(padded[at], np.frombuffer(b"vflps", np.uint8)) & _OBJ_SPACE_TAB[padded[at + 1]]
+    two = ((padded[at] == ord("v")) & np.isin(padded[at + 1], np.frombuffer(b"tnp", np.uint8))
+           & _OBJ_SPACE_TAB[padded[at + 2]])
+    return one | two  # type: ignore[no-any-return]
 
 
 #: a carriage return that ends a line alone (not CRLF's)
@@ -3255,10 +3261,7 @@ def _obj_tidied_block(data: bytes, comments: bool) -> bytes:
         hashes, line = hashes[firsts], line[firsts]  # each line's first #
         at = first[line]
         padded = np.concatenate((array, np.zeros(3, np.uint8)))
-        one = np.isin(padded[at], np.frombuffer(b"vflps", np.uint8)) & (padded[at + 1] == ord(" "))
-        two = ((padded[at] == ord("v")) & np.isin(padded[at + 1], np.frombuffer(b"tnp", np.uint8))
-               & (padded[at + 2] == ord(" ")))
-        numbers = one | two  # a statement of numbers (_OBJ_NUMBERS) before the #: a keyword holds none
+        numbers = _obj_numbers_keyword(padded, at)  # a statement of numbers before the #: a keyword holds none
         hashes, line = hashes[numbers], line[numbers]
         last[line] = _obj_blank_run_starts(text, array, hashes, first[line])  # the comment, the blanks before it
     # the spans dropped, [starts, first) and [last, ends) of each line, apart (first <= last): +1 where one starts,
