@@ -292,6 +292,15 @@ def _latlon_axes(lat: ArrayLike, lon: ArrayLike, shape: tuple[int, int]) -> tupl
     return lat, lon, *roundings
 
 
+def _not_global(message: str) -> InvalidInputError:
+    """:meth:`Globe.from_latlon`'s refusal of a grid that is no globe (its longitudes short of a turn, or its rows
+    short of a pole), marked ``not_global``: the command line names its INPUT file's coverage instead (it matched
+    the message's words before)."""
+    error = InvalidInputError(message)
+    error.not_global = True
+    return error
+
+
 def _regular_step(axis: NDArray[np.float64], name: str, rounding: float = 0.0) -> float:
     """The mean step of a strictly monotone, regular axis. ``rounding`` (see :func:`_latlon_axes`): each value
     lies within half of it of its exact position, so each step within one of the exact step."""
@@ -510,11 +519,11 @@ class Globe:
         if np.abs(lat).max() > 90.0 + 1e-9:
             raise InvalidInputError(f"lat must lie in [-90, 90] degrees; got {lat[0]:.9g} to {lat[-1]:.9g}")
         if abs(len(lon) * dlon - 360.0) > 1e-6 * 360:
-            raise InvalidInputError(f"lon must cover 360 degrees (W · step = 360); got {len(lon)} x {dlon:.9g} = "
-                                    f"{len(lon) * dlon:.9g} degrees")
+            raise _not_global(f"lon must cover 360 degrees (W · step = 360); got {len(lon)} x {dlon:.9g} = "
+                              f"{len(lon) * dlon:.9g} degrees")
         if lat[0] < 90.0 - dlat - 1e-9 or lat[-1] > -90.0 + dlat + 1e-9:
-            raise InvalidInputError(f"lat must reach within one step ({dlat:.9g}°) of both poles; got "
-                                    f"{lat[0]:.9g} to {lat[-1]:.9g}")
+            raise _not_global(f"lat must reach within one step ({dlat:.9g}°) of both poles; got "
+                              f"{lat[0]:.9g} to {lat[-1]:.9g}")
         for row, pole in ((0, 90.0), (-1, -90.0)):
             # a row on a pole is one point: its value is the row's mean (the pole value below, as documented), not
             # the row sampled at the node's longitude (a pole row of 170 to 180 m put lon 0's 180 m at the pole)
