@@ -18,8 +18,9 @@ hillshade and contour rows of ``kernels/texture.py`` (2-D, below).
 Overloads: one per element type these kernels use (Warp resolves ``load``/``store`` by argument types).
 
 ``stream(a, i, v)`` (vec3d, vec3l, int32) is a streaming store for a big output written in one sweep, on the CPU;
-``stream_large(a, i, v)`` streams only into a destination of at least STREAM_MIN_BYTES and stores plainly into a
-smaller one; see the comments above their definitions for when they pay and what their launches must do.
+``stream_large(a, i, v)`` (vec3d; vec3l and int32 for tests only) streams only into a destination of at least
+STREAM_MIN_BYTES and stores plainly into a smaller one; see the comments above their definitions for when they pay
+and what their launches must do.
 """
 
 from __future__ import annotations
@@ -224,6 +225,8 @@ def _large_only(streaming: str) -> str:
     )
 
 
+# The vec3l and int32 overloads serve no kernel since the stepped faces and face levels went to store(); they are
+# kept with tests/test_memory.py's checks (exact bits; a streaming store for each part) for a pass that wants them.
 # fmt: off
 @wp.func_native(_large_only(_NT3.split("#else\n", 1)[1].rsplit("#endif", 1)[0]))
 def stream_large(a: wp.array[wp.vec3d], i: wp.int32, v: wp.vec3d): ...  # pragma: no cover - native code

@@ -1329,78 +1329,79 @@ def emit_grid(
             n += run
             face_base += 2 * run
             ij = wp.vec2i(ij[0], ij[1] + run)
-        if n < end:
-            cols = hf.cols
-            i = ij[0]
-            j = ij[1]
-            p = grid_point(hf, i, j, n)
-            level = load(hf.levels, n)
-            s0 = base + load(offsets.local, 4 * n)
-            s1 = base + load(offsets.local, 4 * n + 1)
-            s2 = base + load(offsets.local, 4 * n + 2)
-            s3 = base + load(offsets.local, 4 * n + 3)
-            s4 = load(offsets.bases, t + 1)  # the slot after this node's last: the next node's, or the next chunk's
-            if n + 1 < end:
-                s4 = base + load(offsets.local, 4 * n + 4)
-            slots = wp.vec4i(s1, s2, s3, s4)  # (edge starts, then the end)
-            first = s0
-            owned = s1 - s0
-            if owned == 1 and on_threshold(p[2], level, iso.thresholds) == 0:
-                # a plain node, the common case: written here without the call
-                put_vertex(first, p, load(iso.values, level), points_out, step_heights_out, direct)
-                if want_sources != 0:
-                    store(sources_out, first, wp.vec2i(n, n))
-                    store(betas_out, first, 0.0)
-            elif owned > 0:
-                twin = wp.int32(0)
-                peak = wp.int32(0)
-                if owned == 2:
-                    twin = 1
-                else:
-                    peak = grid_node_count(hf, iso, n)[1]
-                emit_node_vertices(
-                    n, p, level, twin, peak, first, iso, want_sources, direct,
-                    points_out, step_heights_out, sources_out, betas_out,
+        if n >= end:  # the run took the chunk's last nodes
+            break
+        cols = hf.cols
+        i = ij[0]
+        j = ij[1]
+        p = grid_point(hf, i, j, n)
+        level = load(hf.levels, n)
+        s0 = base + load(offsets.local, 4 * n)
+        s1 = base + load(offsets.local, 4 * n + 1)
+        s2 = base + load(offsets.local, 4 * n + 2)
+        s3 = base + load(offsets.local, 4 * n + 3)
+        s4 = load(offsets.bases, t + 1)  # the slot after this node's last: the next node's, or the next chunk's
+        if n + 1 < end:
+            s4 = base + load(offsets.local, 4 * n + 4)
+        slots = wp.vec4i(s1, s2, s3, s4)  # (edge starts, then the end)
+        first = s0
+        owned = s1 - s0
+        if owned == 1 and on_threshold(p[2], level, iso.thresholds) == 0:
+            # a plain node, the common case: written here without the call
+            put_vertex(first, p, load(iso.values, level), points_out, step_heights_out, direct)
+            if want_sources != 0:
+                store(sources_out, first, wp.vec2i(n, n))
+                store(betas_out, first, 0.0)
+        elif owned > 0:
+            twin = wp.int32(0)
+            peak = wp.int32(0)
+            if owned == 2:
+                twin = 1
+            else:
+                peak = grid_node_count(hf, iso, n)[1]
+            emit_node_vertices(
+                n, p, level, twin, peak, first, iso, want_sources, direct,
+                points_out, step_heights_out, sources_out, betas_out,
+            )  # fmt: skip
+        for kind in range(1, 4):
+            start = slots[kind - 1]
+            if slots[kind] != start:
+                bi = i
+                bj = j + 1
+                if kind == 2:
+                    bi = i + 1
+                    bj = j
+                if kind == 3:
+                    bi = i + 1
+                b = bi * cols + bj
+                emit_edge_vertices(
+                    n, b, p, grid_point(hf, bi, bj, b), wp.vec2i(n, b), start, hf.heights, hf.levels, iso,
+                    want_sources, direct, points_out, step_heights_out, sources_out, betas_out,
                 )  # fmt: skip
-            for kind in range(1, 4):
-                start = slots[kind - 1]
-                if slots[kind] != start:
-                    bi = i
-                    bj = j + 1
-                    if kind == 2:
-                        bi = i + 1
-                        bj = j
-                    if kind == 3:
-                        bi = i + 1
-                    b = bi * cols + bj
-                    emit_edge_vertices(
-                        n, b, p, grid_point(hf, bi, bj, b), wp.vec2i(n, b), start, hf.heights, hf.levels, iso,
-                        want_sources, direct, points_out, step_heights_out, sources_out, betas_out,
-                    )  # fmt: skip
-            if i + 1 < hf.rows and j + 1 < cols:
-                flat = grid_flat_cell(hf, n)
-                if flat >= 0:
-                    # the common case, without the call: (n00, n01, n11) and (n00, n11, n10), lifted to their level
-                    v00 = wp.int64(s0)
-                    v01 = wp.int64(s4)
-                    v10 = wp.int64(offset_at(offsets, 4 * (n + cols)))
-                    v11 = wp.int64(offset_at(offsets, 4 * (n + cols + 1)))
-                    if hf.flip != 0:
-                        store(faces_out, face_base, vec3l(v00, v11, v01))
-                        store(faces_out, face_base + 1, vec3l(v00, v10, v11))
-                    else:
-                        store(faces_out, face_base, vec3l(v00, v01, v11))
-                        store(faces_out, face_base + 1, vec3l(v00, v11, v10))
-                    store(face_levels_out, face_base, flat)
-                    store(face_levels_out, face_base + 1, flat)
-                    store(face_walls_out, face_base, wp.uint8(0))
-                    store(face_walls_out, face_base + 1, wp.uint8(0))
-                    face_base += 2
+        if i + 1 < hf.rows and j + 1 < cols:
+            flat = grid_flat_cell(hf, n)
+            if flat >= 0:
+                # the common case, without the call: (n00, n01, n11) and (n00, n11, n10), lifted to their level
+                v00 = wp.int64(s0)
+                v01 = wp.int64(s4)
+                v10 = wp.int64(offset_at(offsets, 4 * (n + cols)))
+                v11 = wp.int64(offset_at(offsets, 4 * (n + cols + 1)))
+                if hf.flip != 0:
+                    store(faces_out, face_base, vec3l(v00, v11, v01))
+                    store(faces_out, face_base + 1, vec3l(v00, v10, v11))
                 else:
-                    face_base += grid_cell_faces(hf, iso, offsets, i, j, 1, face_base, faces_out, face_levels_out,
-                                                 face_walls_out)  # fmt: skip
-            n += 1
-            ij = next_node(ij, cols)
+                    store(faces_out, face_base, vec3l(v00, v01, v11))
+                    store(faces_out, face_base + 1, vec3l(v00, v11, v10))
+                store(face_levels_out, face_base, flat)
+                store(face_levels_out, face_base + 1, flat)
+                store(face_walls_out, face_base, wp.uint8(0))
+                store(face_walls_out, face_base + 1, wp.uint8(0))
+                face_base += 2
+            else:
+                face_base += grid_cell_faces(hf, iso, offsets, i, j, 1, face_base, faces_out, face_levels_out,
+                                             face_walls_out)  # fmt: skip
+        n += 1
+        ij = next_node(ij, cols)
 
 
 # ---------------------------------------------------------------------------------------------------------
