@@ -16,7 +16,9 @@ import sys
 import tempfile
 import threading
 import weakref
+from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -429,6 +431,28 @@ def release_scratch() -> None:
     _pools.arrays = {}
     _pools.views = {}
     _pools.structs = _Structs()
+
+
+@contextmanager
+def scratch_aside() -> Iterator[None]:
+    """Run a block with an empty scratch pool and kept structs of its own on this thread, the caller's put back after.
+
+    For a caller's code run while this thread's scratch arrays hold a pass's results (:func:`scratch`: valid until
+    the next request of the same name): a γ callable that itself steps a terrain (or drapes, or meshes a globe)
+    requested the same names, and overwrote the points, step heights and sources the call that called it read after
+    it returned (wrong vertices and colours, silently)."""
+    names = ("arrays", "views", "structs")
+    saved = {name: getattr(_pools, name, None) for name in names}
+    release_scratch()
+    try:
+        yield
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                if hasattr(_pools, name):
+                    delattr(_pools, name)
+            else:
+                setattr(_pools, name, value)
 
 
 class _Structs(dict[Any, Any]):

@@ -47,6 +47,7 @@ from ._device import (
     recycled_empty,
     resolve_device,
     scratch,
+    scratch_aside,
     thread_structs,
     to_device,
     to_numpy,
@@ -1019,7 +1020,8 @@ def blend(
         original[:, 0] += terrain.local_origin[0]
         original[:, 1] += terrain.local_origin[1]
         try:
-            result = gamma(original)
+            with scratch_aside():  # the passes' scratch arrays, read below and by _assemble, stay this call's
+                result = gamma(original)
         except Exception as exc:  # the caller's error, named as gamma's: it surfaced from deep inside stepped()
             raise InvalidInputError(
                 f"gamma, a callable of the (V, 3) output vertex positions, raised {type(exc).__name__}: {exc}"

@@ -1,0 +1,49 @@
+"""Bugs found by a hunt over stepped's less-travelled options (γ callables, TIN visuals, lenses, series, solids), one
+test each."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+import stepterrain as st
+
+
+def _half(points: np.ndarray) -> np.ndarray:
+    return np.full(len(points), 0.5)
+
+
+def _tin_with_colours(heights: np.ndarray, seed: int) -> trimesh.Trimesh:
+    tin = st.heightfield_mesh(heights)
+    rng = np.random.default_rng(seed)
+    tin.visual = trimesh.visual.ColorVisuals(tin, vertex_colors=rng.integers(0, 256, (len(tin.vertices), 4),
+                                                                             dtype=np.uint8))
+    return tin
+
+
+@pytest.mark.parametrize("case", ["grid colours", "tin colours", "solid"])
+def test_a_gamma_callable_that_steps_another_terrain_leaves_the_calling_steps_alone(case):
+    """The passes' points, step heights, sources and βs are this thread's scratch arrays, which blend() and _assemble
+    read after the γ callable returned: a callable that stepped another terrain itself (a γ from another surface's
+    steps) overwrote them where its arrays fit in theirs, so the outer mesh got the inner one's heights, colours or a
+    solid's positions. Each result must equal the one of a callable giving the same γ without stepping anything."""
+    rng = np.random.default_rng(0)
+    heights = rng.uniform(0.0, 10.0, (20, 20))
+    other = rng.uniform(0.0, 100.0, (9, 8))  # smaller: its passes fit in, and overwrote, the arrays of the outer
+    other_tin = _tin_with_colours(other, 1)
+
+    def stepping(points: np.ndarray) -> np.ndarray:
+        st.stepped(other, interval=3.0, gamma=0.3)
+        st.stepped(other_tin, interval=2.0)
+        st.stepped(other, interval=7.0, colors="terrain", solid=True)
+        return _half(points)
+
+    terrain = _tin_with_colours(heights, 2) if case == "tin colours" else heights
+    options = {"interval": 1.0, "colors": "terrain" if case == "grid colours" else None, "solid": case == "solid"}
+    want = st.stepped(terrain, gamma=_half, **options)
+    got = st.stepped(terrain, gamma=stepping, **options)
+    np.testing.assert_array_equal(got.vertices, want.vertices)
+    np.testing.assert_array_equal(got.faces, want.faces)
+    if case != "solid":
+        np.testing.assert_array_equal(got.visual.vertex_colors, want.visual.vertex_colors)
