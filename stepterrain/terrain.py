@@ -769,7 +769,10 @@ class Terrain:
         crs, named = (_metadata_text(mesh, key) for key in ("crs", "source"))
         source = named if source is None else source
         visual = mesh.visual if mesh.visual.defined else None
-        key = hash(mesh)
+        # the visual's data too (trimesh hashes a visual's arrays, as it does the mesh's): its vertex colours or UVs
+        # decide which coinciding points are welded, and the visual object stays the same when they are set anew
+        # (mesh.visual.vertex_colors = ...): a seam they opened later was stepped welded, with the old colours' weld
+        key = (hash(mesh), None if visual is None else hash(visual))
         cached = getattr(mesh, "_stepterrain_terrain", None)
         # the CRS and source as given, not the TIN's (degrees or feet made metres name the metres' CRS)
         given = (visual, source, crs, height_unit)

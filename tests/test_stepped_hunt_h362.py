@@ -47,3 +47,47 @@ def test_a_gamma_callable_that_steps_another_terrain_leaves_the_calling_steps_al
     np.testing.assert_array_equal(got.faces, want.faces)
     if case != "solid":
         np.testing.assert_array_equal(got.visual.vertex_colors, want.visual.vertex_colors)
+
+
+@pytest.mark.parametrize("visual", ["vertex colours", "uv"])
+@pytest.mark.parametrize("how", ["assigned", "in place"])
+def test_a_tin_whose_colours_change_after_a_step_is_welded_by_its_new_colours(visual, how):
+    """Coinciding points are welded only where their vertex colours (or UVs) agree, and the TIN built from a mesh was
+    cached on it while its vertices, faces and visual object stayed the same: colours set anew on the same visual
+    (``mesh.visual.vertex_colors = ...``, or changed in place) that open a seam were stepped with the old weld, the
+    seam's points one vertex taking its first copy's colour. The result must equal that of a fresh mesh."""
+    from scipy.spatial import Delaunay
+
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(0.0, 100.0, (30, 2))
+    faces = Delaunay(xy).simplices
+    points = np.column_stack([xy, rng.uniform(0.0, 9.0, 30)])
+    points = np.vstack([points, points[faces[0]]])  # face 0 on copies of its corners, welded while colours agree
+    faces[0] = [30, 31, 32]
+
+    def visual_of(mesh: trimesh.Trimesh, seam: float):
+        if visual == "uv":
+            uv = np.zeros((33, 2))
+            uv[30:] = seam
+            return trimesh.visual.TextureVisuals(uv=uv)
+        colours = np.tile(np.uint8([255, 0, 0, 255]), (33, 1))
+        colours[30:, 1] = int(seam * 255)
+        return trimesh.visual.ColorVisuals(mesh, vertex_colors=colours)
+
+    mesh = trimesh.Trimesh(points.copy(), faces, process=False)
+    mesh.visual = visual_of(mesh, 0.0)
+    before = st.stepped(mesh, interval=1.0)
+    changed = visual_of(mesh, 1.0)
+    attribute = "uv" if visual == "uv" else "vertex_colors"
+    if how == "assigned":
+        setattr(mesh.visual, attribute, getattr(changed, attribute))
+    else:
+        getattr(mesh.visual, attribute)[30:] = getattr(changed, attribute)[30:]
+    got = st.stepped(mesh, interval=1.0)
+    fresh = trimesh.Trimesh(points.copy(), faces, process=False)
+    fresh.visual = visual_of(fresh, 1.0)
+    want = st.stepped(fresh, interval=1.0)
+    assert len(want.vertices) > len(before.vertices)  # the seam kept apart
+    np.testing.assert_array_equal(got.vertices, want.vertices)
+    np.testing.assert_array_equal(got.faces, want.faces)
+    np.testing.assert_array_equal(getattr(got.visual, attribute), getattr(want.visual, attribute))
