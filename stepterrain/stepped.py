@@ -603,7 +603,13 @@ class StepArrays:
 
 
 def thresholds_of(values: NDArray[np.float32]) -> NDArray[np.float32]:
-    """t_i = (α_i + α_i+1) / 2, computed in float64 and rounded once to float32."""
+    """t_i = (α_i + α_i+1) / 2, computed in float64 and rounded once to float32. ``values``: the isovalues, an array
+    (as :func:`isovalues` gives them) or a sequence of numbers, taken as float32 as the kernels take levels."""
+    if not isinstance(values, np.ndarray):  # a list raised AttributeError ('list' object has no attribute 'astype')
+        numbers = real_numbers(values, "values", "a 1-D sequence of isovalues")
+        if numbers.ndim != 1:
+            raise InvalidInputError(f"values must be a 1-D sequence of isovalues; got shape {numbers.shape}")
+        values = numbers.astype(np.float32)
     v64 = values.astype(np.float64)
     return ((v64[:-1] + v64[1:]) * 0.5).astype(np.float32)
 

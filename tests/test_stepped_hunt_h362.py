@@ -91,3 +91,16 @@ def test_a_tin_whose_colours_change_after_a_step_is_welded_by_its_new_colours(vi
     np.testing.assert_array_equal(got.vertices, want.vertices)
     np.testing.assert_array_equal(got.faces, want.faces)
     np.testing.assert_array_equal(getattr(got.visual, attribute), getattr(want.visual, attribute))
+
+
+def test_thresholds_of_takes_a_list_of_isovalues_and_names_bad_ones():
+    """``st.stepped.thresholds_of`` (named public in the README and docs/texture.md) did ``values.astype``: a list of
+    isovalues raised AttributeError ('list' object has no attribute 'astype'). A sequence is taken as float32, as the
+    kernels take levels; what is no 1-D sequence of numbers is an InvalidInputError naming ``values``."""
+    thresholds_of = st.stepped.thresholds_of
+    np.testing.assert_array_equal(thresholds_of([1, 2, 4]), np.float32([1.5, 3.0]))
+    np.testing.assert_array_equal(thresholds_of((0.1, 0.2)), thresholds_of(np.float32([0.1, 0.2])))
+    for bad, said in (("ab", "got dtype <U2"), ([[1, 2]], r"got shape \(1, 2\)"), ([True, 2], "got a bool"),
+                      (None, "got dtype object")):
+        with pytest.raises(st.InvalidInputError, match=rf"^values must be a 1-D sequence of isovalues.*{said}"):
+            thresholds_of(bad)
