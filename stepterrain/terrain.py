@@ -634,6 +634,10 @@ class Terrain:
         set_field(self, "height_unit", optional_text(self.height_unit, "height_unit", "the unit the heights were read "
                                                      "in, e.g. 'ft'"))
         set_field(self, "_device_cache", {})
+        if self.visual is not None and not isinstance(self.visual, trimesh.visual.base.Visuals):
+            # any object was taken and ignored: a grid's or TIN's steps came out without the colours meant
+            raise InvalidInputError(f"visual must be a trimesh visual (trimesh.visual.ColorVisuals or TextureVisuals) "
+                                    f"or None; got {_described(self.visual)}")
         if self.kind == "grid":
             extra = [name for name in ("points", "faces", "edges", "face_edges", "point_used", "face_index")
                      if getattr(self, name) is not None]

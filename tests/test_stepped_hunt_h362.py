@@ -104,3 +104,16 @@ def test_thresholds_of_takes_a_list_of_isovalues_and_names_bad_ones():
                       (None, "got dtype object")):
         with pytest.raises(st.InvalidInputError, match=rf"^values must be a 1-D sequence of isovalues.*{said}"):
             thresholds_of(bad)
+
+
+@pytest.mark.parametrize("kind", ["grid", "tin"])
+@pytest.mark.parametrize("visual", ["red", 5, np.zeros((4, 4))])
+def test_a_terrain_built_directly_refuses_a_visual_that_is_no_trimesh_visual(kind, visual):
+    """``Terrain(..., visual=...)`` took any object and ignored it: the steps came out without the colours meant,
+    unsaid. It is an InvalidInputError naming ``visual``, what it takes and what it got."""
+    fields = ({"heights": np.zeros((3, 3))} if kind == "grid" else
+              {"heights": None, "points": np.array([[0, 0, 0], [1, 0, 1], [1, 1, 2], [0, 1, 3]], float),
+               "faces": np.array([[0, 1, 2], [0, 2, 3]])})
+    with pytest.raises(st.InvalidInputError, match=r"^visual must be a trimesh visual \(trimesh.visual.ColorVisuals or "
+                                                   r"TextureVisuals\) or None; got "):
+        st.Terrain(kind=kind, visual=visual, **fields)
