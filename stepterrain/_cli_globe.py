@@ -563,7 +563,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         globe = Globe.from_latlon(elevation, lat, lon, face_size=args.face_size, radius=radius,
                                   exaggeration=args.exaggeration, device=args.device)
     except InvalidInputError as exc:
-        if args.input is not None and getattr(exc, "not_global", False):
+        if args.input is not None and exc.not_global:
             raise InvalidInputError(_not_global(args.input, lat, lon)) from None
         raise
     progress.done(f"on {globe.device},")

@@ -84,16 +84,14 @@ def check_budget(nbytes: int, what: str, budget: int | None = None, *,
                  hint: str = SMALLER_HINT, mesh: tuple[int, int] | None = None) -> None:
     """Raise :class:`OutputTooLargeError` when ``nbytes`` exceeds the budget, naming the size; ``budget`` (a
     caller's ``memory_budget=``) is checked first, ``hint`` says what would make the output smaller. The error
-    carries ``nbytes`` and ``mesh``, the (vertices, faces) of the mesh refused (None for other outputs): the command
-    line's advice for a run that renders that mesh too names the budget both need (cli's steps with --png)."""
+    carries ``nbytes`` and ``mesh`` (its declared attributes), the (vertices, faces) of the mesh refused (None for
+    other outputs): the command line's advice for a run that renders that mesh too names the budget both need
+    (cli's steps with --png)."""
     limit = _memory_budget if budget is None else budget_value(budget)
     if nbytes > limit:
-        error = OutputTooLargeError(
+        raise OutputTooLargeError(
             f"{what} would need {_size_text(nbytes)}, over the memory budget of {_size_text(limit)}; {hint}, or "
-            f"{_budget_hint}{_budget_figure(nbytes)}"
-        )
-        error.nbytes, error.mesh = int(nbytes), mesh
-        raise error
+            f"{_budget_hint}{_budget_figure(nbytes)}", nbytes=nbytes, mesh=mesh)
 
 
 def _budget_figure(nbytes: int) -> str:

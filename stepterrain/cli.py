@@ -42,7 +42,7 @@ import numpy as np
 
 from ._compaction import SMALLER_HINT, WHOLE_RASTER_HINT, budget_hint, get_memory_budget, set_memory_budget
 from ._files import refuse_folder_name
-from .errors import DataFileError, InvalidInputError, StepTerrainError, counted
+from .errors import DataFileError, InvalidInputError, OutputTooLargeError, StepTerrainError, counted
 from .export import _STL_OPEN_LOCAL, _STL_ROUNDING_LOCAL, MESH_EXTENSIONS, _special_file_kind, probe_writable
 from .stepped import TARGET_STEPS, _default_isovalues, colormap, colormap_samples, nice_interval
 from .terrain import FLOAT32_MAX, Terrain, finite_number
@@ -1232,7 +1232,7 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
 _STEPS_RENDER_HINT = "give a larger --interval, --coarsen N or a --crop, or leave --png out"
 
 
-def _render_too(exc: Exception, size: tuple[int, int]) -> None:
+def _render_too(exc: OutputTooLargeError, size: tuple[int, int]) -> None:
     """Raise ``exc``, a refusal of a mesh over the budget (:func:`~stepterrain._compaction.check_budget`'s, which
     carries the mesh's (vertices, faces)), again advising the budget its --png render needs too, where that is more
     than the mesh's: ``--memory-budget 20MB steps dem.tif -o m.glb --png p.png`` was told "at least 30MiB" for the
@@ -1241,7 +1241,7 @@ def _render_too(exc: Exception, size: tuple[int, int]) -> None:
     from ._compaction import _budget_figure, _size_text
     from .render import _render_bytes
 
-    nbytes, mesh = getattr(exc, "nbytes", None), getattr(exc, "mesh", None)
+    nbytes, mesh = exc.nbytes, exc.mesh
     figure = None if nbytes is None else _budget_figure(nbytes)
     if mesh is None or not figure or not str(exc).endswith(figure):
         return
@@ -1249,7 +1249,8 @@ def _render_too(exc: Exception, size: tuple[int, int]) -> None:
     if render <= nbytes:
         return
     raise type(exc)(f"{str(exc)[:-len(figure)]}{_budget_figure(render)} (its --png render, {size[0]}x{size[1]}, "
-                    f"needs {_size_text(render)} for a mesh of at least {mesh[1]:,} faces)") from None
+                    f"needs {_size_text(render)} for a mesh of at least {mesh[1]:,} faces)",
+                    nbytes=nbytes, mesh=mesh) from None
 
 
 def _surface_size(terrain: Any) -> tuple[int, int]:

@@ -27,7 +27,22 @@ class StepTerrainError(Exception):
 
 
 class InvalidInputError(StepTerrainError, ValueError):
-    """An argument has the wrong shape, dtype, range or order (named in the message)."""
+    """An argument has the wrong shape, dtype, range or order (named in the message).
+
+    Attributes
+    ----------
+    not_global : bool
+        True on :meth:`~stepterrain.globe.Globe.from_latlon`'s refusal of a grid that is no globe (its longitudes
+        short of a turn, or its rows short of a pole), for which the command line names its INPUT file's coverage
+        instead; False (the default) on every other refusal. Set with the keyword: ``InvalidInputError(message,
+        not_global=True)``.
+    """
+
+    not_global: bool = False
+
+    def __init__(self, *args: object, not_global: bool = False) -> None:
+        super().__init__(*args)
+        self.not_global = bool(not_global)
 
 
 class DeviceError(StepTerrainError, RuntimeError):
@@ -39,7 +54,28 @@ class MissingDependencyError(StepTerrainError, ImportError):
 
 
 class OutputTooLargeError(StepTerrainError, MemoryError):
-    """The predicted output (known after the count pass) exceeds the configured memory budget."""
+    """The predicted output (known after the count pass) exceeds the configured memory budget.
+
+    Attributes
+    ----------
+    nbytes : int or None
+        The bytes the refused output would need, where the refusal is the memory budget's
+        (:func:`~stepterrain._compaction.check_budget`'s); None (the default) for other refusals (an int32 index
+        limit, a cache's budget).
+    mesh : tuple of int or None
+        The (vertices, faces) of the mesh refused, where the output refused is a mesh of known size: the command
+        line's advice for a run that renders that mesh too names the budget both need; None (the default) otherwise.
+
+    Both are set with keywords: ``OutputTooLargeError(message, nbytes=..., mesh=(vertices, faces))``.
+    """
+
+    nbytes: int | None = None
+    mesh: tuple[int, int] | None = None
+
+    def __init__(self, *args: object, nbytes: int | None = None, mesh: tuple[int, int] | None = None) -> None:
+        super().__init__(*args)
+        self.nbytes = None if nbytes is None else int(nbytes)
+        self.mesh = None if mesh is None else (int(mesh[0]), int(mesh[1]))
 
 
 class DataFileError(StepTerrainError, OSError):

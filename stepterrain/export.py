@@ -2640,7 +2640,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         The file does not exist, is not a regular file, or cannot be read as a mesh: the reader's error (trimesh's,
         whatever its kind: a KeyError for a PLY without x) is in the message and is the ``__cause__``; an OBJ face
         naming a vertex past the file's ``v`` lines (trimesh's IndexError, without a line) is said by its line, index
-        and how many ``v`` lines the file has (:func:`_obj_index_past_end`). An ``.stl`` must be one (a binary
+        and how many ``v`` lines the file has (:func:`_obj_index_out_of_range`). An ``.stl`` must be one (a binary
         STL's length as its header
         counts, an ASCII one's ``solid`` ... ``endsolid``), and an ``.obj`` that trimesh reads as no vertices an empty
         one (OBJ statements and comments only), an ``.obj`` :func:`save_mesh` wrote must end with a newline (one
@@ -2711,8 +2711,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                     loaded = _trimesh_read(trimesh.load, file, tidied, force="mesh", process=False, **order)
             except IndexError:
                 if file.suffix.lower() == ".obj":  # a relative index past the file's start, or one past its end,
-                    _obj_relative_past_start(file, tidied if tidied is not None else source)  # said by its line
-                    _obj_index_past_end(file, tidied if tidied is not None else source, source)
+                    # said by its line
+                    _obj_index_out_of_range(file, tidied if tidied is not None else source, source)
                 raise
             except (ValueError, OverflowError) as exc:
                 if file.suffix.lower() == ".off":  # trimesh's error named no line
@@ -3037,48 +3037,41 @@ def _obj_absolute_indices(data: bytes) -> bytes:
     is a relative index, its field (v, vt or vn) counted by the slashes before it in its word; the text is the same
     but for those fields. In blocks of whole lines (:data:`_OBJ_INDEX_BLOCK`): the arrays of the whole text took 56
     times its size (292 MB for 5 MB of one-face objects), a text of 500 MB would have taken 28 GB."""
-    pieces, seen, lines = [], np.zeros(3, dtype=np.int64), 0
-    for at, end in _obj_line_blocks(data, _OBJ_INDEX_BLOCK):
-        block = data[at:end]
-        piece, seen = _obj_absolute_block(block, seen, lines)
-        pieces.append(piece)
-        lines += block.count(b"\n")
+    pieces = [piece for piece, _ in _obj_absolute_pieces(data)]
     return b"".join(pieces) if len(pieces) != 1 else pieces[0]
 
 
-def _obj_relative_past_start(file: Path, data: bytes | None) -> None:
-    """Raise :func:`_obj_absolute_indices`' ValueError, naming the line, where a face of the OBJ ``file`` (or of
-    ``data``, its text tidied: :func:`_obj_tidied`) has a relative index counting back past the file's start; else
-    nothing. For trimesh's IndexError, which named no line ("index -4 is out of bounds for axis 0 with size 3", or
-    for a relative index of more than 18 digits "index 9223372036854775806 ..."), where no ``v`` line follows a face
-    (else the text was made absolute before trimesh's reader, and the index refused then). Blocks of whole lines
-    looked at in turn, the text not rewritten."""
+def _obj_absolute_pieces(data: Any) -> Iterator[tuple[bytes, NDArray[np.int64]]]:
+    """:func:`_obj_absolute_indices` of the OBJ text ``data`` (bytes or an mmap) block by block of whole lines
+    (:data:`_OBJ_INDEX_BLOCK`), in turn: each block rewritten, and the ``v``, ``vt`` and ``vn`` lines up to its
+    end."""
+    seen, lines = np.zeros(3, dtype=np.int64), 0
+    for at, end in _obj_line_blocks(data, _OBJ_INDEX_BLOCK):
+        block = data[at:end]
+        piece, seen = _obj_absolute_block(block, seen, lines)
+        yield piece, seen
+        lines += block.count(b"\n")
+
+
+def _obj_index_out_of_range(file: Path, data: bytes | None, source: bytes | None = None) -> None:
+    """Raise a ValueError naming the line where a face of the OBJ ``file`` (or of ``data``, its text tidied:
+    :func:`_obj_tidied`, whose lines are the file's) names an index out of range; else nothing. For trimesh's
+    IndexError, which named no line ("index -4 is out of bounds for axis 0 with size 3", "index 6 is out of bounds
+    ...", or for an index of more than 18 digits "index 9223372036854775806 ..."); run only after trimesh's reader
+    failed. First a relative index counting back past the file's start (:func:`_obj_absolute_indices`' ValueError),
+    where no ``v`` line follows a face (else the text was made absolute before trimesh's reader, and the index
+    refused then): its blocks of whole lines looked at in turn, the text not rewritten, which counts the ``v``,
+    ``vt`` and ``vn`` lines too. Then a positive index past those lines, naming the index and how many the file has:
+    the face lines read one by one in blocks of whole lines, up to the first. The line shown for that is the file's
+    own (``source``: its text with newline line ends, :func:`_obj_newlines`), not the tidied one. (Two functions
+    before, each mapping the text, the second counting the ``v`` lines again.)"""
     with _obj_mapped(file, data) as text:
         if text is None:
             return
-        seen, lines = np.zeros(3, dtype=np.int64), 0
-        for at, end in _obj_line_blocks(text, _OBJ_INDEX_BLOCK):
-            block = text[at:end]
-            seen = _obj_absolute_block(block, seen, lines)[1]
-            lines += block.count(b"\n")
-
-
-def _obj_index_past_end(file: Path, data: bytes | None, source: bytes | None = None) -> None:
-    """Raise a ValueError naming the line, the index and how many ``v`` (``vt``, ``vn``) lines the file has, where a
-    face of the OBJ ``file`` (or of ``data``, its text tidied: :func:`_obj_tidied`, whose lines are the file's) names
-    a positive index past them; else nothing. For trimesh's IndexError, which named no line ("index 6 is out of
-    bounds for axis 0 with size 3", or for an index of more than 18 digits "index 9223372036854775806 ..."). Run
-    only after trimesh's reader failed: the ``v``, ``vt`` and ``vn`` lines counted, then the face lines read one by
-    one in blocks of whole lines. The line shown is the file's own (``source``: its text with newline line ends,
-    :func:`_obj_newlines`), not the tidied one."""
-    with _obj_mapped(file, data) as text:
-        if text is None:
-            return
-        counts = {kind: 0 for kind in (b"v", b"vt", b"vn")}
-        for at, end in _obj_line_blocks(text, _OBJ_INDEX_BLOCK):
-            block = text[at:end]
-            for kind in counts:
-                counts[kind] += block.count(b"\n" + kind + b" ") + block.startswith(kind + b" ")
+        seen = np.zeros(3, dtype=np.int64)
+        for piece in _obj_absolute_pieces(text):  # each block's rewritten text dropped as it comes
+            seen = piece[1]
+        counts = {kind: int(count) for kind, count in zip((b"v", b"vt", b"vn"), seen, strict=True)}
         hit = _obj_first_past_end(text, counts)
     if hit is None:
         return

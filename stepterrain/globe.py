@@ -296,9 +296,7 @@ def _not_global(message: str) -> InvalidInputError:
     """:meth:`Globe.from_latlon`'s refusal of a grid that is no globe (its longitudes short of a turn, or its rows
     short of a pole), marked ``not_global``: the command line names its INPUT file's coverage instead (it matched
     the message's words before)."""
-    error = InvalidInputError(message)
-    error.not_global = True
-    return error
+    return InvalidInputError(message, not_global=True)
 
 
 def _regular_step(axis: NDArray[np.float64], name: str, rounding: float = 0.0) -> float:

@@ -563,8 +563,37 @@ def _rounding_scale(x: NDArray[np.float64], y: NDArray[np.float64]) -> tuple[flo
     return max(scale, step32), 2.0 * step32 * step32
 
 
-def _face_areas(vertices: NDArray[np.float64], faces: NDArray[np.int64]) -> tuple[NDArray[np.float64],
-                                                                                 NDArray[np.float64]]:
+def _rounding_frame(vertices: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64], float, float]:
+    """The x and y columns of ``vertices`` gathered contiguous (0.05 s per million faces, not 0.2 s, for the gathers
+    by face that follow) and their :func:`_rounding_scale`: what :func:`_face_areas` and :func:`_overlaps` share."""
+    x = np.ascontiguousarray(vertices[:, 0])
+    y = np.ascontiguousarray(vertices[:, 1])
+    return x, y, *_rounding_scale(x, y)
+
+
+#: Faces :func:`_face_areas` and :func:`_overlaps` gather the corners of at once: a dozen temporaries of a block, not
+#: of the whole mesh (2.6 GB at 30 M faces).
+AREA_BLOCK = 1 << 20
+
+
+def _block_areas(bx: NDArray[np.float64], by: NDArray[np.float64], cx: NDArray[np.float64],
+                 cy: NDArray[np.float64], scale: float, floor32: float, area: NDArray[np.float64],
+                 margin: NDArray[np.float64]) -> None:
+    """:func:`_face_areas` of a block of faces from their edges b - a, c - a (``bx``, ``by``, ``cx``, ``cy``), written
+    into ``area`` and ``margin``."""
+    np.multiply(bx, cy, out=area)
+    area -= by * cx
+    np.abs(bx, out=margin)
+    margin += np.abs(by)
+    margin += np.abs(cx)
+    margin += np.abs(cy)
+    margin *= scale
+    margin += floor32
+
+
+def _face_areas(vertices: NDArray[np.float64], faces: NDArray[np.int64],
+                frame: tuple[NDArray[np.float64], NDArray[np.float64], float, float] | None = None
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Per face twice its signed projected area on the xy plane, (b - a) × (c - a) (positive: counter-clockwise
     seen from +z, facing up), and the margin within which its sign is rounding's: 2^-20 times the surface's xy
     extent times the face's two edges from a (|Δx| + |Δy|), the change of the area by moves of the corners of a few
@@ -574,15 +603,12 @@ def _face_areas(vertices: NDArray[np.float64], faces: NDArray[np.int64]) -> tupl
     (u) each: u times the two edges plus 2 u^2; float32 steps grow with the coordinates, not the extent (0.25 at a
     UTM northing of 4 000 000, where a 60 m surface's 2^-20 extent is 6e-5). Float64 input keeps the extent's margin
     (its own steps are 2^-29 of float32's), so an overhang at UTM coordinates in float64 stays detected. Vertical
-    faces (walls) give 0."""
-    x = np.ascontiguousarray(vertices[:, 0])  # columns gathered contiguous: 0.05 s per million faces, not 0.2 s
-    y = np.ascontiguousarray(vertices[:, 1])
-    scale, floor32 = _rounding_scale(x, y)
+    faces (walls) give 0. ``frame``: :func:`_rounding_frame` of ``vertices`` where the caller has it."""
+    x, y, scale, floor32 = _rounding_frame(vertices) if frame is None else frame
     area = np.empty(len(faces))
     margin = np.empty(len(faces))
-    step = 1 << 20  # by blocks of faces: a dozen temporaries of a block, not of the whole mesh (2.6 GB at 30 M faces)
-    for start in range(0, len(faces), step):
-        block = slice(start, start + step)
+    for start in range(0, len(faces), AREA_BLOCK):  # by blocks of faces
+        block = slice(start, start + AREA_BLOCK)
         a, b, c = (np.ascontiguousarray(faces[block, k]) for k in range(3))
         ax, ay = x[a], y[a]
         bx, by, cx, cy = x[b], y[b], x[c], y[c]
@@ -590,15 +616,7 @@ def _face_areas(vertices: NDArray[np.float64], faces: NDArray[np.int64]) -> tupl
         by -= ay
         cx -= ax
         cy -= ay
-        np.multiply(bx, cy, out=area[block])
-        area[block] -= by * cx
-        out = margin[block]
-        np.abs(bx, out=out)
-        out += np.abs(by)
-        out += np.abs(cx)
-        out += np.abs(cy)
-        out *= scale
-        out += floor32
+        _block_areas(bx, by, cx, cy, scale, floor32, area[block], margin[block])
     return area, margin
 
 
@@ -611,7 +629,8 @@ INNER_POINT = np.array([0.45, 0.33, 0.22])
 
 
 def _overlaps(vertices: NDArray[np.float64], faces: NDArray[np.int64], edges: NDArray[np.int64],
-              numbering: NDArray[np.int64] | None = None) -> str | None:
+              numbering: NDArray[np.int64] | None = None,
+              areas: list[tuple[NDArray[np.float64], NDArray[np.float64]]] | None = None) -> str | None:
     """The refusal's message where parts of a surface lie one above the other in xy though no face is turned over
     (two pieces stacked, a spiral ramp, an unmerged surface whose folded faces were each turned up alone), else
     None. A height field's faces cover each point of the ground once: no vertex or edge midpoint of its boundary
@@ -627,35 +646,68 @@ def _overlaps(vertices: NDArray[np.float64], faces: NDArray[np.int64], edges: ND
     crossing like a plus sign; not found otherwise). The candidates are the points in
     the cells of a uniform grid (cells about a median face across, or wider: at most ~1 a point) that each face's
     bounding box covers. ``numbering``: the faces' numbers in the message (the given faces' before the fins went),
-    else their indices. Measured on the sample DEM's height field (1.54 M faces, 2 busy cores): 0.45-0.6 s, a
-    peak of about 175 bytes a face beside its arguments; an unmerged surface (every vertex on the boundary, every
-    face beside it) of as many faces: 3.6-5.3 s, 420 bytes a face."""
-    x = np.ascontiguousarray(vertices[:, 0])
-    y = np.ascontiguousarray(vertices[:, 1])
-    scale, floor32 = _rounding_scale(x, y)
-    area, margin = _face_areas(vertices, faces)
-    solid = np.flatnonzero(np.abs(area) > margin)
-    if len(solid) < 2:
-        return None
-    if len(solid) == len(faces):
-        sign = np.sign(area)
-        picked = faces
-    else:
-        sign = np.sign(area[solid])
-        picked = faces[solid]
-    del area, margin
-    # columns gathered contiguous, boxes by pairwise minima and maxima: (F, 3) reductions along rows took 3 times
-    # as long
-    columns = [np.ascontiguousarray(picked[:, e]) for e in range(3)]
-    del picked
-    corners_x = [x[c] for c in columns]
-    corners_y = [y[c] for c in columns]
+    else their indices. ``areas``: [:func:`_face_areas` of these vertices and faces] where the caller has them,
+    handed over (popped: freed here once used), else they are computed here from the corners. Each face's corners
+    are gathered once, by blocks of faces, and its bounding boxes and cells computed by blocks where they are used
+    (they were held for every face, 64 bytes a face). Measured on the sample DEM's height field (1.54 M faces, 2
+    busy cores): 0.2-0.5 s (0.23 s of CPU time, as before), a peak of about 90 bytes a face beside its arguments,
+    its own face areas included (175 before); an unmerged surface (every vertex on the boundary, every face beside
+    it) of as many faces: 4-6 s of CPU time (as before), 480 bytes a face (560 before)."""
+    x, y, scale, floor32 = _rounding_frame(vertices)
     rim = np.zeros(len(vertices), bool)  # the boundary's vertices
     rim[edges.reshape(-1)] = True
+
+    def gather(pick: NDArray[np.int64] | None) -> tuple[list[NDArray[np.float64]], list[NDArray[np.float64]],
+                                                         NDArray[np.bool_]]:
+        """The x and y of the corners of faces ``pick`` (None: all), each corner's contiguous (an (F, 3) gather and
+        reductions along its rows took 3 times as long), and whether each face lies beside the boundary; by blocks
+        of faces (a few MB of temporaries)."""
+        n = len(faces) if pick is None else len(pick)
+        corners_x, corners_y = [np.empty(n) for _ in range(3)], [np.empty(n) for _ in range(3)]
+        beside = np.empty(n, bool)
+        for start in range(0, n, step):
+            block = slice(start, start + step)
+            rows = faces[block] if pick is None else faces[pick[block]]
+            for e in range(3):
+                corner = np.ascontiguousarray(rows[:, e])
+                np.take(x, corner, out=corners_x[e][block])
+                np.take(y, corner, out=corners_y[e][block])
+                if e == 0:
+                    np.take(rim, corner, out=beside[block])
+                else:
+                    beside[block] |= rim[corner]
+        return corners_x, corners_y, beside
+
+    step = 4 * OVERLAP_BLOCK  # faces a block in the passes over every face
+    areas_given = bool(areas)
+    if areas_given:
+        area, margin = areas.pop()
+    else:  # from the corners gathered once, as _face_areas computes them
+        corners_x, corners_y, beside = gather(None)
+        area, margin = np.empty(len(faces)), np.empty(len(faces))
+        for start in range(0, len(faces), step):
+            block = slice(start, start + step)
+            ax, ay = corners_x[0][block], corners_y[0][block]
+            _block_areas(corners_x[1][block] - ax, corners_y[1][block] - ay, corners_x[2][block] - ax,
+                         corners_y[2][block] - ay, scale, floor32, area[block], margin[block])
+    solid: NDArray[np.int64] | None = np.flatnonzero(np.abs(area) > margin)
+    n_solid = len(solid)
+    if n_solid < 2:
+        return None
+    if n_solid == len(faces):
+        solid = None  # every face: indices of their own
+    # the faces' orientations as ±1 in a byte (a float64 ±1 before: the test's products are the same)
+    sign = np.sign(area if solid is None else area[solid]).astype(np.int8)
+    del area, margin
+    if areas_given:
+        corners_x, corners_y, beside = gather(solid)
+    elif solid is not None:  # only faces with an orientation hold points
+        corners_x, corners_y = [c[solid] for c in corners_x], [c[solid] for c in corners_y]
+        beside = beside[solid]
+    inner = np.flatnonzero(beside)  # the faces beside the boundary
+    del beside
     points = np.flatnonzero(rim)
     n_points = len(points)
-    inner = np.flatnonzero(rim[columns[0]] | rim[columns[1]] | rim[columns[2]])  # the faces beside the boundary
-    del rim, columns
     # the boundary's vertices, then a point inside each face beside the boundary, off its centre (a centre lies on
     # the diagonal of a grid cell split the other way: an unmerged grid folded over itself hid there)
     # (and the boundary edges' midpoints: two thin strips crossing like a plus sign hold no corner of the other)
@@ -664,29 +716,39 @@ def _overlaps(vertices: NDArray[np.float64], faces: NDArray[np.int64], edges: ND
     py = np.concatenate([y[points], 0.5 * (y[edges[:, 0]] + y[edges[:, 1]]),
                          sum(w * c[inner] for w, c in zip(INNER_POINT, corners_y, strict=True))])
     owner = np.concatenate([np.full(n_points + len(edges), -1), inner])  # per point, the face it is the inner point of
-    low_x = np.minimum(np.minimum(corners_x[0], corners_x[1]), corners_x[2])
-    high_x = np.maximum(np.maximum(corners_x[0], corners_x[1]), corners_x[2])
-    low_y = np.minimum(np.minimum(corners_y[0], corners_y[1]), corners_y[2])
-    high_y = np.maximum(np.maximum(corners_y[0], corners_y[1]), corners_y[2])
+    del inner
+
+    def box(k: slice) -> tuple[NDArray[np.float64], ...]:
+        """The xy bounding boxes (low x, high x, low y, high y) of faces ``k``, by pairwise minima and maxima."""
+        xs, ys = [c[k] for c in corners_x], [c[k] for c in corners_y]
+        return (np.minimum(np.minimum(xs[0], xs[1]), xs[2]), np.maximum(np.maximum(xs[0], xs[1]), xs[2]),
+                np.minimum(np.minimum(ys[0], ys[1]), ys[2]), np.maximum(np.maximum(ys[0], ys[1]), ys[2]))
+
     x0, y0 = float(px.min()), float(py.min())
     width, height = float(px.max()) - x0, float(py.max()) - y0
-    size = np.maximum(high_x - low_x, high_y - low_y)[:: max(1, len(solid) // 100_000)]  # a sample's median
+    low_x, high_x, low_y, high_y = box(slice(None, None, max(1, n_solid // 100_000)))  # a sample's
+    size = np.maximum(high_x - low_x, high_y - low_y)
     # at most ~1 cell a point, and at most 8 a point along the longer side where the points lie on a line
     cell = max(float(np.median(size)), float(np.sqrt(width * height / len(px))),
                max(width, height) / (8.0 * len(px) + 1024.0)) or 1.0
+    del size
     nx, ny = int(width / cell) + 1, int(height / cell) + 1
 
     def column(v: NDArray[np.float64], origin: float, count: int) -> NDArray[np.int64]:
         # monotonic: a box holds its points; a face's box may reach past the points' (clipped)
         return np.clip(np.floor((v - origin) / cell), 0, count - 1).astype(np.int64)
 
+    def cells_of(k: slice) -> tuple[NDArray[np.float64], ...]:
+        """Faces ``k``'s boxes, and the first and last cell columns and rows each covers."""
+        low_x, high_x, low_y, high_y = box(k)
+        return (low_x, high_x, low_y, high_y, column(low_x, x0, nx), column(high_x, x0, nx),
+                column(low_y, y0, ny), column(high_y, y0, ny))
+
     key = column(py, y0, ny) * nx + column(px, x0, nx)
     order = np.argsort(key, kind="stable")
     starts = np.zeros(nx * ny + 1, np.int64)
     np.cumsum(np.bincount(key, minlength=nx * ny), out=starts[1:])
     del key
-    ix0, ix1 = column(low_x, x0, nx), column(high_x, x0, nx)
-    iy0, iy1 = column(low_y, y0, ny), column(high_y, y0, ny)
     over = np.zeros(len(faces), bool)
 
     def runs(counts: NDArray[np.int64]) -> NDArray[np.int64]:  # 0 .. c - 1 for each count c, concatenated
@@ -695,28 +757,34 @@ def _overlaps(vertices: NDArray[np.float64], faces: NDArray[np.int64], edges: ND
 
     # by blocks of about OVERLAP_BLOCK x 4 (face, cell) pairs: a few faces far wider than a cell (a TIN's big
     # triangles beside its small ones) fill a block of their own
-    reach = np.cumsum((ix1 - ix0 + 1) * (iy1 - iy0 + 1))
+    reach = np.empty(n_solid, np.int64)  # the cells each face's box covers, summed
+    for start in range(0, n_solid, step):
+        ix0, ix1, iy0, iy1 = cells_of(slice(start, start + step))[4:]
+        np.multiply(ix1 - ix0 + 1, iy1 - iy0 + 1, out=reach[start:start + step])
+    np.cumsum(reach, out=reach)
     bounds = np.unique(np.searchsorted(reach, np.arange(0, int(reach[-1]), 4 * OVERLAP_BLOCK), "right"))
-    for start, stop in zip(bounds, [*bounds[1:], len(solid)], strict=True):
-        k = np.arange(start, stop)
-        wide = ix1[k] - ix0[k] + 1
-        cells = wide * (iy1[k] - iy0[k] + 1)
-        face = np.repeat(k, cells)
+    del reach
+    for start, stop in zip(bounds, [*bounds[1:], n_solid], strict=True):
+        low_x, high_x, low_y, high_y, ix0, ix1, iy0, iy1 = cells_of(slice(start, stop))
+        wide = ix1 - ix0 + 1
+        cells = wide * (iy1 - iy0 + 1)
+        local = np.repeat(np.arange(stop - start), cells)  # the faces by their place in the block
         j = runs(cells)
-        w = wide.repeat(cells)
-        c = (iy0[face] + j // w) * nx + ix0[face] + j % w
+        w = wide[local]
+        c = (iy0[local] + j // w) * nx + ix0[local] + j % w
         del j, w
         counts = starts[c + 1] - starts[c]
-        face = np.repeat(face, counts)
+        local = np.repeat(local, counts)
         point = order[np.repeat(starts[c], counts) + runs(counts)]
         del c, counts
         # first within the face's box, strictly (a point strictly inside is), and not its own inner point: about a
         # dozen candidates a face come down to one or two
         qx, qy = px[point], py[point]
-        near = (qx > low_x[face]) & (qx < high_x[face]) & (qy > low_y[face]) & (qy < high_y[face])
+        near = (qx > low_x[local]) & (qx < high_x[local]) & (qy > low_y[local]) & (qy < high_y[local])
+        face = local + start
         near &= owner[point] != face
         face, point, qx, qy = face[near], point[near], qx[near], qy[near]
-        del near
+        del near, local
         inside = np.ones(len(face), bool)
         for e in range(3):
             ax, ay = corners_x[e][face], corners_y[e][face]
@@ -725,9 +793,11 @@ def _overlaps(vertices: NDArray[np.float64], faces: NDArray[np.int64], edges: ND
             turn = (bx * dy - by * dx) * sign[face]
             inside &= turn > scale * (np.abs(bx) + np.abs(by) + np.abs(dx) + np.abs(dy)) + floor32
         if inside.any():
-            over[solid[face[inside]]] = True
+            hit = face[inside]
             within = owner[point[inside]]
-            over[solid[within[within >= 0]]] = True
+            within = within[within >= 0]
+            over[hit if solid is None else solid[hit]] = True
+            over[within if solid is None else solid[within]] = True
     if not over.any():
         return None
     first = int(np.argmax(over))
@@ -954,6 +1024,7 @@ def _close_solid(vertices: Any, faces: Any, terrace_mask: Any, floor: float, dev
         raise InvalidInputError(f"terrace_mask must be a bool array of one flag per face ({len(faces)}); got "
                                 f"{terrace_mask.dtype} of shape {terrace_mask.shape}")
     given = vertices, faces, terrace_mask  # a clockwise surface is closed again from them, its faces reversed
+    areas: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []  # _face_areas(*given[:2]) for _overlaps
     kept = np.ones(len(faces), bool)
     source = np.arange(len(vertices))
     walls = np.flatnonzero(~terrace_mask)
@@ -991,6 +1062,9 @@ def _close_solid(vertices: Any, faces: Any, terrace_mask: Any, floor: float, dev
         # (turned, each), a closed piece beside open ones or an overhang (refused). stepped()'s faces never face
         # down (its walls are vertical: 0), so it skips this (and a stepped surface reversed faces down throughout)
         area, margin = _face_areas(given[0], given[1])
+        if kept.all():  # the faces _overlaps checks (its vertices too: a fin's removal dropped vertices, whose
+            # extent the margins scale with): handed over, not computed twice (0.1-0.2 s per million faces)
+            areas = [(area, margin)]
         if np.any(area < -margin) and np.any(area > margin):
             pieces = _orient_pieces(given[0], given[1], area, margin)
             if isinstance(pieces, str):  # faces wound against their neighbours (a piece facing both ways too) are
@@ -1028,7 +1102,8 @@ def _close_solid(vertices: Any, faces: Any, terrace_mask: Any, floor: float, dev
         if len(edges) == 0:
             raise InvalidInputError(f"faces: close_solid skirts a surface's boundary down to the floor; got a closed "
                                     f"mesh ({counted(len(faces), 'face')}, no boundary edge): a solid already")
-        overlap = _overlaps(vertices, faces, edges, None if kept.all() else np.flatnonzero(kept))
+        overlap = _overlaps(vertices, faces, edges, None if kept.all() else np.flatnonzero(kept), areas)
+        del areas
         if overlap is not None:
             raise InvalidInputError(overlap)
     vertices, faces, fan, copied = _split_pinches(vertices, faces, edges, terrace_mask)

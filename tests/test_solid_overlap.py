@@ -262,3 +262,59 @@ def test_the_overlap_message_names_a_given_face_where_fins_went_first():
     x, y = (float(v) for v in re.search(r"at x, y = (\S+), (\S+):", str(raised.value)).groups())
     assert face >= len(faces)  # a face of the grids
     assert (x, y) == pytest.approx(tuple(both[0][both[1][face], :2].mean(axis=0)), abs=1e-7)
+
+
+def test_close_solid_computes_the_face_areas_once_and_hands_them_to_the_overlap_pass(monkeypatch):
+    """close_solid's check computed each face's projected area twice, in its orientation check and again in the
+    overlap pass: once now, handed over. The overlap pass's answer is the same with the areas handed over or
+    computed by itself (from the corners it gathers), with walls among the faces (no orientation, no points held)."""
+    from stepterrain import mesh as mesh_module
+
+    calls = []
+    face_areas = mesh_module._face_areas
+    monkeypatch.setattr(mesh_module, "_face_areas", lambda *args: calls.append(len(args[1])) or face_areas(*args))
+    h = np.zeros((5, 7), np.float32)
+    h[:, 3:] = 1.0  # a step: walls, no fin
+    vertices, faces, terrace, _ = _surface(h, levels=[0.0, 2.0], nudged=False)
+    assert not terrace.all() and close_solid(vertices, faces, terrace, -1.0)[2].all()
+    assert calls == [len(faces)]
+    grid, grid_faces = _grid(3, 3)
+    grid = grid + [vertices[:, 0].max() + 5.0, 0.0, 0.0]
+    for lift in (20.0, None):  # stacked (refused), and beside each other
+        second = grid + ([0.0, 0.0, lift] if lift else [20.0, 0.0, 0.0])
+        both = (np.vstack([vertices, grid, second]),
+                np.vstack([faces, grid_faces + len(vertices), grid_faces + len(vertices) + len(grid)]))
+        mask = np.concatenate([terrace, np.ones(2 * len(grid_faces), bool)])
+        calls.clear()
+        if lift:
+            with pytest.raises(InvalidInputError, match=OVERLAP) as raised:
+                close_solid(*both, mask, -1.0)
+        else:
+            close_solid(*both, mask, -1.0)
+        assert calls == [len(both[1])]
+        edges = mesh_module.boundary_edges(both[1])
+        handed = [face_areas(*both)]
+        got = mesh_module._overlaps(*both, edges, None, handed)
+        assert handed == [] and got == mesh_module._overlaps(*both, edges)
+        assert got == (str(raised.value) if lift else None)
+
+
+def test_the_overlap_pass_holds_under_110_bytes_a_face(monkeypatch):
+    """_overlaps held every face's corners, float64 signs, boxes and cells (about 164 bytes a face with small
+    blocks, 175 on the sample DEM's height field): its boxes and cells by blocks now, its signs in a byte, about 85
+    bytes a face, its own face areas included. Numpy's allocations, traced (small blocks: their temporaries do not
+    count)."""
+    import tracemalloc
+
+    from stepterrain import mesh as mesh_module
+
+    monkeypatch.setattr(mesh_module, "OVERLAP_BLOCK", 1 << 12)
+    vertices, faces = _grid(400, 400)
+    edges = mesh_module.boundary_edges(faces)
+    tracemalloc.start()
+    try:
+        assert mesh_module._overlaps(vertices, faces, edges) is None
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 110 * len(faces), peak / len(faces)
