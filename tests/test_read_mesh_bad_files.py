@@ -147,11 +147,14 @@ def test_bad_3mf_triangle_refused(tmp_path, old, new, expected):
         ("past.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99999999999999999999\n",
          r"line 4, 'f 1 2 9{20}', names v 9{20}, and the file has 3 v lines"),
         ("past.glb", None, r"a glTF primitive's POSITION names accessor 1 of 1,000 VEC3 elements"),
+        ("uv.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/2 3/1\n",
+         r"line 5, 'f 1/1 2/2 3/1', names vt 2, and the file has 1 vt line:"),
     ],
 )
 def test_info_says_a_bad_mesh_file_in_one_line(tmp_path, capsys, name, data, expected):
     """``stepterrain info`` of a bad mesh file exits with status 2 and one line naming the file and what is wrong,
-    without a traceback (trimesh's "index 9223372036854775806 is out of bounds" or NumPy's reshape before)."""
+    without a traceback (trimesh's "index 9223372036854775806 is out of bounds" or NumPy's reshape before; of a face's
+    texture index past the vt lines, the mesh described without its UVs)."""
     from .conftest import run_cli
 
     if data is None:
