@@ -27,6 +27,8 @@ _HEAD = "OFF\n3 {faces} 0\n0 0 0\n1 0 0\n0 1 0\n"
         (_HEAD.format(faces=1) + "3 0 1 -1\n", r"line 6, '3 0 1 -1', names vertex -1, and the file has 3"),
         (_HEAD.format(faces=1) + "3 0 1 99999999999999999999\n", r"line 6, .*names vertex 9{20}, and"),
         (_HEAD.format(faces=1) + "3 0 1 2.5\n", r"line 6, '3 0 1 2\.5': a face line needs its count n"),
+        (_HEAD.format(faces=2) + "3 0 1\n3 0 1 2\n", r"line 6, '3 0 1': a face line needs its count n"),
+        (_HEAD.format(faces=1) + "3 0 1\n2\n", r"line 6, '3 0 1': a face line needs its count n"),
         (_HEAD.format(faces=2) + "3 0 1 2\n", r"its counts declare 3 vertices and 2 faces, .*4 lines after them: is"),
         (_HEAD.format(faces=2) + "3 0 1 2\n\n# more\n", r"its counts declare 3 vertices and 2 faces, .*4 lines after"),
         ("OFF\n5 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n", r"its counts declare 5 vertices and 1 face, .*4 lines"),
@@ -52,6 +54,22 @@ def test_valid_off_reads(tmp_path, text):
     mesh = read_mesh(tmp_path / "ok.off")
     assert len(mesh.vertices) == int(text.split()[1 if text.startswith("OFF ") else 1])
     assert np.asarray(mesh.faces).max() < len(mesh.vertices)
+
+
+@pytest.mark.parametrize("mark", [b"", b"\xef\xbb\xbf"])
+@pytest.mark.parametrize("end", [b"\r", b"\r\n"])
+def test_off_of_cr_line_ends_reads_as_of_newlines(tmp_path, mark, end):
+    """An OFF (and a COFF, its colours) of CR or CRLF line ends, with a byte-order mark or not, reads as the same file
+    of newlines: its vertices, faces and vertex colours."""
+    for body in (b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n",
+                 b"COFF\n3 1 0\n0 0 0 255 0 0 255\n1 0 0 0 255 0 128\n0 1 0 0 0 255 255\n3 0 1 2\n"):
+        (tmp_path / "lf.off").write_bytes(body)
+        (tmp_path / "cr.off").write_bytes(mark + body.replace(b"\n", end))
+        mesh, reference = read_mesh(tmp_path / "cr.off"), read_mesh(tmp_path / "lf.off")
+        assert np.array_equal(mesh.vertices, reference.vertices) and np.array_equal(mesh.faces, [[0, 1, 2]])
+        assert mesh.visual.kind == reference.visual.kind
+        if body.startswith(b"COFF"):
+            assert np.array_equal(mesh.visual.vertex_colors, [[255, 0, 0, 255], [0, 255, 0, 128], [0, 0, 255, 255]])
 
 
 def _glb(tree: dict, chunk: bytes) -> bytes:
