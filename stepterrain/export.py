@@ -2670,7 +2670,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         file's, of no glTF type, past its bufferView's bytes or naming a missing bufferView, float indices, and a
         buffer holding fewer bytes than its ``byteLength`` (:func:`_gltf_accessor_problem`,
         :func:`_gltf_buffer_problem`), and a ``.gltf`` whose buffer file is not beside it, naming the buffer and the
-        path looked for (trimesh's reader: "FileNotFoundError: model.bin"; :func:`_gltf_missing_buffer`); a 3MF
+        path looked for (trimesh's reader: "FileNotFoundError: model.bin"; :func:`_gltf_missing_buffer`; a missing
+        texture image is warned of, the mesh read without it: :func:`_warn_gltf_missing_images`); a 3MF
         triangle or vertex of an attribute missing, no number or overflowing,
         as written.
     """
@@ -2784,6 +2785,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             _srgb_vertex_colors(loaded, color)
             _gltf_sampler_wrap(loaded, tree)
             loaded.metadata.update(_gltf_extras_name(tree))
+            _warn_gltf_missing_images(file, tree)
     except Exception as exc:  # noqa: BLE001 - trimesh and the XML reader raise many kinds for a bad file
         raise DataFileError(f"cannot read {str(file)!r} as a mesh: {type(exc).__name__}: {exc}") from exc
     return loaded  # type: ignore[no-any-return]
@@ -3848,10 +3850,30 @@ def _gltf_missing_buffer(file: Path, tree: Mapping[str, Any] | None) -> str | No
         if not isinstance(uri, str) or uri.startswith("data:"):
             continue
         side = file.parent / urllib.parse.unquote(uri)
-        if not side.is_file():
+        if not side.is_file() and not (file.parent / uri).is_file():  # (trimesh's reader looks for the uri as written)
             return (f"glTF buffer {number} (of {len(buffers)}) is the file {uri!r}, and {str(side)!r} does not exist: "
                     "a .gltf's buffers lie beside it (copy the .bin files with it, or write a .glb, which holds them)")
     return None
+
+
+def _warn_gltf_missing_images(file: Path, tree: Mapping[str, Any] | None) -> None:
+    """Warn, naming each, where an image of the glTF ``file`` (``tree``: its JSON) is a file (its ``uri``, relative to
+    the glTF's folder) that is not there: trimesh's reader read the mesh without that texture, without a word (the
+    geometry is whole: the mesh is read, untextured there)."""
+    import urllib.parse
+
+    images = tree.get("images") if isinstance(tree, Mapping) else None
+    missing = []
+    for number, image in enumerate(images if isinstance(images, list) else []):
+        uri = image.get("uri") if isinstance(image, Mapping) else None
+        if isinstance(uri, str) and not uri.startswith("data:"):
+            side = file.parent / urllib.parse.unquote(uri)
+            if not side.is_file() and not (file.parent / uri).is_file():
+                missing.append(f"image {number}, {uri!r} ({str(side)!r})")
+    if missing:
+        warnings.warn(f"{str(file)!r}: the glTF's {'; '.join(missing)} {'is' if len(missing) == 1 else 'are'} not "
+                      "there: the mesh is read without that texture (copy the image files with the .gltf, or write "
+                      "a .glb, which holds them)", stacklevel=caller_stacklevel())
 
 
 #: glTF 2.0 §3.6.2.2: the bytes of an accessor's component types, and the components of its element types

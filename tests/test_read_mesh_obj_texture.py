@@ -191,3 +191,25 @@ def test_gltf_buffer_file_missing_names_it(tmp_path):
         read_mesh(tmp_path / "model.gltf")
     (tmp_path / names[0]).write_bytes(files[names[0]])
     assert len(read_mesh(tmp_path / "model.gltf").faces) == 1
+
+
+def test_gltf_image_file_missing_warned(tmp_path):
+    """A .gltf whose texture image file is not beside it reads untextured there with a warning naming the image, its
+    uri and the path looked for (trimesh's reader read it without the texture, without a word); with it, textured
+    and no warning."""
+    import warnings
+
+    mesh = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], process=False)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=[[0, 0], [1, 0], [0, 1]], image=Image.new("RGB", (4, 4), "red"))
+    tree = json.loads(trimesh.exchange.gltf.export_gltf(trimesh.Scene(mesh), embed_buffers=True)["model.gltf"])
+    tree["images"] = [{"uri": "tex.png"}]
+    (tmp_path / "model.gltf").write_text(json.dumps(tree))
+    with pytest.warns(UserWarning, match=r"model\.gltf': the glTF's image 0, 'tex\.png' \('.*tex\.png'\) is not "
+                                         r"there: the mesh is read without that texture"):
+        read = read_mesh(tmp_path / "model.gltf")
+    assert len(read.faces) == 1 and getattr(read.visual.material, "baseColorTexture", None) is None
+    Image.new("RGB", (4, 4), "red").save(tmp_path / "tex.png")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read = read_mesh(tmp_path / "model.gltf")
+    assert read.visual.material.baseColorTexture is not None
