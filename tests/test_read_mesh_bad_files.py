@@ -27,6 +27,8 @@ _HEAD = "OFF\n3 {faces} 0\n0 0 0\n1 0 0\n0 1 0\n"
         (_HEAD.format(faces=1) + "3 0 1 -1\n", r"line 6, '3 0 1 -1', names vertex -1, and the file has 3"),
         (_HEAD.format(faces=1) + "3 0 1 99999999999999999999\n", r"line 6, .*names vertex 9{20}, and"),
         (_HEAD.format(faces=1) + "3 0 1 2.5\n", r"line 6, '3 0 1 2\.5': a face line needs its count n"),
+        (_HEAD.format(faces=2) + "3 0 1\n3 0 1 2\n", r"line 6, '3 0 1': a face line needs its count n"),
+        (_HEAD.format(faces=1) + "3 0 1\n2\n", r"line 6, '3 0 1': a face line needs its count n"),
         (_HEAD.format(faces=2) + "3 0 1 2\n", r"its counts declare 3 vertices and 2 faces, .*4 lines after them: is"),
         (_HEAD.format(faces=2) + "3 0 1 2\n\n# more\n", r"its counts declare 3 vertices and 2 faces, .*4 lines after"),
         ("OFF\n5 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n", r"its counts declare 5 vertices and 1 face, .*4 lines"),
@@ -52,6 +54,22 @@ def test_valid_off_reads(tmp_path, text):
     mesh = read_mesh(tmp_path / "ok.off")
     assert len(mesh.vertices) == int(text.split()[1 if text.startswith("OFF ") else 1])
     assert np.asarray(mesh.faces).max() < len(mesh.vertices)
+
+
+@pytest.mark.parametrize("mark", [b"", b"\xef\xbb\xbf"])
+@pytest.mark.parametrize("end", [b"\r", b"\r\n"])
+def test_off_of_cr_line_ends_reads_as_of_newlines(tmp_path, mark, end):
+    """An OFF (and a COFF, its colours) of CR or CRLF line ends, with a byte-order mark or not, reads as the same file
+    of newlines: its vertices, faces and vertex colours."""
+    for body in (b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n",
+                 b"COFF\n3 1 0\n0 0 0 255 0 0 255\n1 0 0 0 255 0 128\n0 1 0 0 0 255 255\n3 0 1 2\n"):
+        (tmp_path / "lf.off").write_bytes(body)
+        (tmp_path / "cr.off").write_bytes(mark + body.replace(b"\n", end))
+        mesh, reference = read_mesh(tmp_path / "cr.off"), read_mesh(tmp_path / "lf.off")
+        assert np.array_equal(mesh.vertices, reference.vertices) and np.array_equal(mesh.faces, [[0, 1, 2]])
+        assert mesh.visual.kind == reference.visual.kind
+        if body.startswith(b"COFF"):
+            assert np.array_equal(mesh.visual.vertex_colors, [[255, 0, 0, 255], [0, 255, 0, 128], [0, 0, 255, 255]])
 
 
 def _glb(tree: dict, chunk: bytes) -> bytes:
@@ -147,11 +165,14 @@ def test_bad_3mf_triangle_refused(tmp_path, old, new, expected):
         ("past.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99999999999999999999\n",
          r"line 4, 'f 1 2 9{20}', names v 9{20}, and the file has 3 v lines"),
         ("past.glb", None, r"a glTF primitive's POSITION names accessor 1 of 1,000 VEC3 elements"),
+        ("uv.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/2 3/1\n",
+         r"line 5, 'f 1/1 2/2 3/1', names vt 2, and the file has 1 vt line:"),
     ],
 )
 def test_info_says_a_bad_mesh_file_in_one_line(tmp_path, capsys, name, data, expected):
     """``stepterrain info`` of a bad mesh file exits with status 2 and one line naming the file and what is wrong,
-    without a traceback (trimesh's "index 9223372036854775806 is out of bounds" or NumPy's reshape before)."""
+    without a traceback (trimesh's "index 9223372036854775806 is out of bounds" or NumPy's reshape before; of a face's
+    texture index past the vt lines, the mesh described without its UVs)."""
     from .conftest import run_cli
 
     if data is None:
