@@ -1,0 +1,84 @@
+"""Export and render hunt (h363): each test failed before its fix."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from stepterrain.errors import InvalidInputError
+from stepterrain.export import read_mesh, save_mesh
+
+
+def _box_with_levels() -> trimesh.Trimesh:
+    mesh = trimesh.creation.box()
+    mesh.face_attributes["level"] = np.arange(12, dtype=np.int32)
+    mesh.face_attributes["wall"] = np.arange(12) % 2 == 0
+    return mesh
+
+
+def test_a_ply_face_attribute_of_the_wrong_length_is_refused_not_dropped(tmp_path):
+    # setting mesh.faces keeps trimesh's face_attributes as they were: the .ply was written without 'level', and
+    # read back without it, without a word (save_mesh kept only attributes of one value per face)
+    mesh = _box_with_levels()
+    mesh.faces = mesh.faces[:5]
+    out = tmp_path / "cut.ply"
+    with pytest.raises(InvalidInputError) as info:
+        save_mesh(mesh, out)
+    message = str(info.value)
+    assert "face_attributes['level']" in message and "(5)" in message and "got 12" in message, message
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+    # cut down with update_faces (which cuts the attributes too), it is written and read back whole
+    mesh = _box_with_levels()
+    mesh.update_faces(np.arange(5))
+    back = read_mesh(save_mesh(mesh, out))
+    np.testing.assert_array_equal(back.face_attributes["level"], np.arange(5))
+    np.testing.assert_array_equal(back.face_attributes["wall"], np.arange(5) % 2 == 0)
+
+
+def test_a_ply_vertex_attribute_of_a_single_value_is_refused(tmp_path):
+    mesh = trimesh.creation.box()
+    mesh.vertex_attributes["height"] = np.float64(3.0)
+    with pytest.raises(InvalidInputError, match=r"vertex_attributes\['height'\].*one value per vertex \(8\).*single"):
+        save_mesh(mesh, tmp_path / "box.ply")
+
+
+def test_a_ply_attribute_the_format_cannot_hold_is_left_out_with_a_warning(tmp_path):
+    # text (or objects, complex numbers) was dropped without a word
+    mesh = _box_with_levels()
+    mesh.face_attributes["name"] = np.array(["terrace"] * 12)
+    with pytest.warns(UserWarning, match=r"left out face_attributes\['name'\]"):
+        back = read_mesh(save_mesh(mesh, tmp_path / "box.ply"))
+    assert set(back.face_attributes) == {"level", "wall"}
+    np.testing.assert_array_equal(back.face_attributes["level"], np.arange(12))
+
+
+def test_other_formats_do_not_check_the_attributes_they_drop(tmp_path):
+    mesh = _box_with_levels()
+    mesh.faces = mesh.faces[:5]
+    for ext in (".glb", ".obj", ".stl", ".3mf"):
+        assert len(read_mesh(save_mesh(mesh, tmp_path / f"cut{ext}")).faces) == 5
+
+
+def test_a_3mf_of_vertex_colours_with_an_unused_vertex_reads_back_its_vertex_colours(tmp_path):
+    # a vertex no triangle names has no colour in the file; read_mesh then gave every face its first corner's colour
+    # (face colours), the vertex colours of all the others lost, though each vertex's corners had one colour
+    rng = np.random.default_rng(3)
+    box = trimesh.creation.box()
+    vertices = np.vstack([box.vertices, [[5.0, 5.0, 5.0]]])  # vertex 8: in no face
+    mesh = trimesh.Trimesh(vertices, box.faces, process=False)
+    colours = rng.integers(0, 256, (9, 4), dtype=np.uint8)
+    colours[:, 3] = 255
+    mesh.visual.vertex_colors = colours
+    back = read_mesh(save_mesh(mesh, tmp_path / "print.3mf"))
+    assert back.visual.kind == "vertex"
+    np.testing.assert_array_equal(back.vertices, vertices)
+    np.testing.assert_array_equal(back.visual.vertex_colors[:8], colours[:8])
+    assert back.visual.vertex_colors[8, 3] == 255  # opaque: written again, no glTF of it turns BLEND
+    # a vertex whose corners have several colours still makes face colours (written as face colours)
+    mesh = trimesh.Trimesh(box.vertices, box.faces, process=False)
+    face_colours = rng.integers(0, 256, (12, 4), dtype=np.uint8)
+    mesh.visual.face_colors = face_colours
+    back = read_mesh(save_mesh(mesh, tmp_path / "faces.3mf"))
+    assert back.visual.kind == "face"
+    np.testing.assert_array_equal(back.visual.face_colors, face_colours)
