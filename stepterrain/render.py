@@ -541,8 +541,10 @@ def render_mesh(
     ------
     InvalidInputError
         Bad window size, z_scale, camera, scalars, cmap or view_angle, an empty mesh, one whose faces all have no
-        area (it renders blank), an infinite vertex (NaN ones are left out), or a textured mesh's bad UVs or texture
-        image (as :func:`render_textured_mesh`).
+        area (it renders blank), ``bounds`` whose fitted camera sees none of the mesh (given in other coordinates),
+        a mesh shown less than a pixel wide or tall within its ``bounds`` or by an explicit camera (it renders
+        blank), an infinite vertex (NaN ones are left out), or a textured mesh's bad UVs or texture image (as
+        :func:`render_textured_mesh`).
     OutputTooLargeError
         The render's framebuffers and image (about 48 bytes per pixel, 80 with ``anti_aliasing``, 288 with it and
         translucent colours, which take SSAA with depth peeling), with a textured mesh's texture (16 bytes per
@@ -741,8 +743,18 @@ def _frame_mesh(
     if fitted:  # a fitted camera: it frames the box's larger side
         _check_visible(corners, position, (width, height), box, z_scale, view_angle, camera,
                        "the mesh" if bounds is None else "bounds")
+        if bounds is not None:  # the box is seen; the mesh within it (or not) too?
+            _check_mesh_in_bounds(drawn_box, position, (width, height), view_angle, centre, z_scale, lo, hi)
     else:
         _check_in_view(drawn_box, position, width / height, view_angle, centre, z_scale, camera)
+        pixels = _box_pixels(drawn_box, position, (width, height), view_angle)
+        if pixels is not None and min(pixels) < 1.0:  # seen, but too far off (or too thin) to cover a pixel
+            raise InvalidInputError(
+                f"camera [(eye), (focal point), (view up)] shows the mesh at most {pixels[0]:.2g} x {pixels[1]:.2g} "
+                f"pixels, too small to see (it would render blank): its faces span "
+                f"{' x '.join(f'{v:.3g}' for v in (drawn_box[1] - drawn_box[0]).tolist())} (z times "
+                f"z_scale={z_scale:g}) and the eye is {float(np.linalg.norm(position[0])):.3g} from the centre of the "
+                f"framed box; move the eye nearer or give a larger window_size; got {camera!r}")
     if bounds is None and fitted:  # the camera the render takes: fitted to the vertices drawn themselves, not their
         # box (an explicit position is the one above, as given)
         drawn = local if finite.all() else local[finite]
@@ -824,6 +836,41 @@ def _check_in_view(drawn: NDArray[np.float64], position: Any, aspect: float, vie
         f"camera [(eye), (focal point), (view up)] sees none of the mesh (it would render blank): the position is "
         f"taken in the mesh's coordinates less the centre of the framed box, {tuple(float(v) for v in centre)}, z "
         f"times z_scale={z_scale:g}{hint}; got {camera!r}")
+
+
+def _check_mesh_in_bounds(drawn: NDArray[np.float64], position: Any, size: tuple[int, int], view_angle: float,
+                          centre: NDArray[np.float64], z_scale: float, lo: NDArray[np.float64],
+                          hi: NDArray[np.float64]) -> None:
+    """An InvalidInputError when the camera ``position`` fitted to ``bounds`` (``lo``, ``hi``) sees none of the box
+    ``drawn`` (2, 3) of the vertices drawn (recentred on ``centre``, z times ``z_scale``), or shows all of it less
+    than a pixel wide or tall: bounds given in other coordinates than the mesh's (local ones for a mesh in UTM metres),
+    or far larger than it, rendered blank without a word, where an explicit camera that sees none of the mesh is
+    refused (:func:`_check_in_view`) and so is a mesh that renders under a pixel without bounds
+    (:func:`_check_visible`). Conservative: the box's projection is at least the mesh's."""
+    scale = np.array([1.0, 1.0, z_scale])
+    mesh_box = _fmt_box(drawn[0] / scale + centre, drawn[1] / scale + centre)
+    if _misses_view(drawn, position, size[0] / size[1], view_angle):
+        raise InvalidInputError(
+            f"bounds {_fmt_box(lo, hi)} frame none of the mesh, whose faces span {mesh_box}: the camera fitted to "
+            "them sees none of it (it would render blank); give bounds around the mesh, in its own coordinates")
+    pixels = _box_pixels(drawn, position, size, view_angle)
+    if pixels is not None and min(pixels) < 1.0:
+        px, py = pixels
+        raise InvalidInputError(
+            f"the mesh, whose faces span {mesh_box}, would render at most {px:.2g} x {py:.2g} pixels within bounds "
+            f"{_fmt_box(lo, hi)} (with z_scale={z_scale:g}), too small to see (it would render blank); give bounds "
+            "nearer the mesh's size or a larger window_size")
+
+
+def _box_pixels(box: NDArray[np.float64], position: Any, size: tuple[int, int],
+                view_angle: float) -> tuple[float, float] | None:
+    """Width and height in pixels of the corners of ``box`` (2, 3) seen from the pyvista camera ``position``
+    (:func:`_pixel_extent`: at least those of what the box holds), or None when a corner lies at or behind the eye
+    (part of the box may then fill the view)."""
+    corners = _box_corners(box)
+    if (_eye_frame(corners, position)[1] <= 0).any():
+        return None
+    return _pixel_extent(corners, position, size, view_angle)
 
 
 def _pixel_extent(points: NDArray[np.float64], position: Any, size: tuple[int, int],

@@ -82,3 +82,41 @@ def test_a_3mf_of_vertex_colours_with_an_unused_vertex_reads_back_its_vertex_col
     back = read_mesh(save_mesh(mesh, tmp_path / "faces.3mf"))
     assert back.visual.kind == "face"
     np.testing.assert_array_equal(back.visual.face_colors, face_colours)
+
+
+def test_bounds_that_miss_the_mesh_are_refused_not_rendered_blank():
+    # a fitted camera frames the bounds; one given in other coordinates than the mesh's (local ones for a mesh in UTM
+    # metres) saw none of it, and the render came back blank without a word
+    from stepterrain.render import render_mesh
+
+    box = trimesh.creation.box()
+    box.vertices += [500_000.0, 5_000_000.0, 1_000.0]
+    with pytest.raises(InvalidInputError, match=r"bounds \[0, 0, 0\] - \[10, 10, 10\] frame none of the mesh, whose "
+                                                r"faces span \[500000, 5e\+06, 999.5\].*sees none of it"):
+        render_mesh(box, window_size=(64, 48), bounds=[[0, 0, 0], [10, 10, 10]])
+
+
+def test_a_mesh_under_a_pixel_within_its_bounds_is_refused():
+    from stepterrain.render import render_mesh
+
+    with pytest.raises(InvalidInputError, match=r"would render at most 0.000\d+ x 0.000\d+ pixels within bounds"):
+        render_mesh(trimesh.creation.box(), window_size=(64, 48), bounds=[[-1e5] * 3, [1e5] * 3])
+
+
+def test_an_explicit_camera_too_far_to_show_the_mesh_is_refused():
+    from stepterrain.render import render_mesh
+
+    with pytest.raises(InvalidInputError, match=r"shows the mesh at most .* pixels, too small to see .* 1 x 1 x 1"):
+        render_mesh(trimesh.creation.box(), window_size=(64, 48), camera=[(1e7, 1e7, 1e7), (0, 0, 0), (0, 0, 1)])
+
+
+def test_bounds_around_the_mesh_and_a_camera_inside_it_still_render():
+    from stepterrain.render import offscreen_available, render_mesh
+
+    if not offscreen_available()[0]:
+        pytest.skip(offscreen_available()[1])
+    box = trimesh.creation.box()
+    seen = (render_mesh(box, window_size=(64, 48), bounds=[[-2] * 3, [2] * 3]) != 255).any(axis=2).mean()
+    assert 0.01 < seen < 0.9
+    inside = render_mesh(box, window_size=(64, 48), camera=[(0, 0, 0), (1, 0, 0), (0, 0, 1)])
+    assert (inside != 255).any(axis=2).all()
