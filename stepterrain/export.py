@@ -993,6 +993,12 @@ def _shared_bounds(shared_bounds: ArrayLike | None) -> Bounds:
     if shared_bounds is None:
         return None
     corners = _finite_argument(shared_bounds, "shared_bounds", (2, 3), "finite (2, 3) corners (lowest, highest)")
+    above = np.flatnonzero(corners[0] > corners[1])
+    if above.size:  # corners swapped, or a (3, 2) array transposed: taken as given, a box of no meaning
+        axis = "xyz"[int(above[0])]
+        raise InvalidInputError(f"shared_bounds must be finite (2, 3) corners (lowest, highest), the lowest no higher "
+                                f"than the highest; got {axis} from {corners[0, above[0]]:g} to "
+                                f"{corners[1, above[0]]:g} in {shared_bounds!r:.200}")
     return corners[0], corners[1]
 
 

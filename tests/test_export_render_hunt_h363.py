@@ -120,3 +120,14 @@ def test_bounds_around_the_mesh_and_a_camera_inside_it_still_render():
     assert 0.01 < seen < 0.9
     inside = render_mesh(box, window_size=(64, 48), camera=[(0, 0, 0), (1, 0, 0), (0, 0, 1)])
     assert (inside != 255).any(axis=2).all()
+
+
+def test_shared_bounds_with_the_corners_swapped_are_refused(tmp_path):
+    # (highest, lowest), or a transposed (3, 2) box read as (2, 3), was taken as given
+    mesh = trimesh.creation.box()
+    with pytest.raises(InvalidInputError, match=r"shared_bounds .*lowest no higher than the highest; got x from 1 to "
+                                                r"-1 in \[\[1, 1, 1\], \[-1, -1, -1\]\]"):
+        save_mesh(mesh, tmp_path / "tile.glb", shared_bounds=[[1, 1, 1], [-1, -1, -1]])
+    assert list(tmp_path.iterdir()) == []
+    back = read_mesh(save_mesh(mesh, tmp_path / "tile.glb", shared_bounds=[[-1, -1, -1], [1, 1, 1]]))
+    np.testing.assert_allclose(back.vertices, mesh.vertices, atol=1e-6)
