@@ -511,7 +511,12 @@ def _new_temporary(folder: Path, name: str, reserve: int = 0) -> Path:
             fd = os.open(tmp, _TEMPORARY_FLAGS, 0o666)
         except FileExistsError:
             continue
-        os.close(fd)
+        try:
+            os.close(fd)
+        except OSError:  # (a network file system's deferred error): the empty file made here is not left behind
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+            raise
         return tmp
     raise FileExistsError(errno.EEXIST, "no free temporary file name", str(folder))
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from stepterrain.errors import InvalidInputError
+from stepterrain.errors import DataFileError, InvalidInputError
 from stepterrain.export import read_mesh, save_mesh
 
 
@@ -131,3 +131,27 @@ def test_shared_bounds_with_the_corners_swapped_are_refused(tmp_path):
     assert list(tmp_path.iterdir()) == []
     back = read_mesh(save_mesh(mesh, tmp_path / "tile.glb", shared_bounds=[[-1, -1, -1], [1, 1, 1]]))
     np.testing.assert_allclose(back.vertices, mesh.vertices, atol=1e-6)
+
+
+def test_a_temporary_file_whose_close_fails_is_not_left_behind(tmp_path, monkeypatch):
+    # os.close's error (EIO, a network file system's deferred one) went out of _new_temporary with the empty
+    # temporary file it had just made left in the output folder
+    import errno
+    import os
+
+    real_close, failed = os.close, []
+
+    def close(fd):
+        real_close(fd)
+        if not failed:
+            failed.append(fd)
+            raise OSError(errno.EIO, "Input/output error")
+
+    out = tmp_path / "terrain.ply"
+    out.write_bytes(b"an earlier mesh")
+    monkeypatch.setattr(os, "close", close)
+    with pytest.raises(DataFileError, match="Input/output error"):
+        save_mesh(trimesh.creation.box(), out)
+    monkeypatch.undo()
+    assert failed and sorted(p.name for p in tmp_path.iterdir()) == ["terrain.ply"]
+    assert out.read_bytes() == b"an earlier mesh"
