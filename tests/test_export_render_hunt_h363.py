@@ -155,3 +155,21 @@ def test_a_temporary_file_whose_close_fails_is_not_left_behind(tmp_path, monkeyp
     monkeypatch.undo()
     assert failed and sorted(p.name for p in tmp_path.iterdir()) == ["terrain.ply"]
     assert out.read_bytes() == b"an earlier mesh"
+
+
+def test_a_mesh_of_slivers_a_fitted_camera_shows_thinner_than_a_pixel_is_refused():
+    # a triangle 1e6 long and 1 wide, seen oblique: its box is 60 x 4 pixels (passing the too-thin check), its area
+    # in space 5e5 (passing the no-area check), and it covers 0.0014 of a pixel: rendered blank, without a word
+    from stepterrain.render import offscreen_available, render_mesh
+
+    sliver = trimesh.Trimesh([[0, 0, 0], [1e6, 0, 0], [0, 1, 0]], [[0, 1, 2]], process=False)
+    with pytest.raises(InvalidInputError, match=r"faces would cover 0.0014 pixels in all .* 64x48 window: they are "
+                                                r"slivers, too thin to see"):
+        render_mesh(sliver, window_size=(64, 48))
+    # a strip of a DEM (2 x 3000 nodes) a few pixels tall covers pixels: still rendered
+    import stepterrain as st
+
+    strip = st.stepped(np.zeros((2, 3000), np.float32), interval=10.0)
+    if not offscreen_available()[0]:
+        pytest.skip(offscreen_available()[1])
+    assert (render_mesh(strip, window_size=(320, 200)) != 255).any(axis=2).sum() > 5
