@@ -3377,7 +3377,8 @@ def overview_image(
             picture = render.render_mesh(mesh, window_size=(max(w, 8), max(h, 8)), z_scale=z_scale,
                                          camera=camera)[..., :3]
         except InvalidInputError as exc:  # one item too thin to see in its cell (a strip of a file seen from above)
-            if "too thin to see" not in str(exc):  # lost the whole sheet, after the run, for one cell
+            if "too thin to see" not in str(exc) and "too small to see" not in str(exc):  # (an explicit camera's)
+                # lost the whole sheet, after the run, for one cell
                 raise
             thin.append((Path(paths[k]).name, w, h, exc))
             continue

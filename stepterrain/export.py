@@ -511,7 +511,12 @@ def _new_temporary(folder: Path, name: str, reserve: int = 0) -> Path:
             fd = os.open(tmp, _TEMPORARY_FLAGS, 0o666)
         except FileExistsError:
             continue
-        os.close(fd)
+        try:
+            os.close(fd)
+        except OSError:  # (a network file system's deferred error): the empty file made here is not left behind
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+            raise
         return tmp
     raise FileExistsError(errno.EEXIST, "no free temporary file name", str(folder))
 
@@ -563,8 +568,8 @@ def save_mesh(
         (e.g. ``level``, ``wall`` of :func:`~stepterrain.stepped`) and ``vertex_attributes`` (numeric (N,) or (N, k)
         arrays) are kept by ``.ply`` only, as properties of its face and vertex elements (a bool as uchar 0/1, named
         in a header comment so that :func:`read_mesh` gives it back as bool; a 64-bit integer as int or uint when
-        it fits 32 bits, else as double, with a warning when that rounds values beyond 2**53); glTF, OBJ, STL and
-        3MF drop them.
+        it fits 32 bits, else as double, with a warning when that rounds values beyond 2**53; one of the wrong length
+        is refused, one that is no numbers, text say, left out with a warning); glTF, OBJ, STL and 3MF drop them.
         Vertex colours (RGBA bytes) are kept by ``.glb``/``.gltf``, ``.ply`` and ``.3mf``, by ``.obj`` without their
         alpha (its ``v x y z r g b`` lines hold RGB), and dropped by ``.stl``. Face colours are kept by ``.ply``
         (the face element's red, green, blue, alpha) and ``.3mf`` (each triangle's colour); ``.glb``/``.gltf`` and
@@ -626,7 +631,9 @@ def save_mesh(
         ``mesh`` is not a ``trimesh.Trimesh``, has non-finite vertices or faces indexing outside them, has
         coordinates beyond float32 for a format that stores float32 (STL; glTF relative to its centre or
         ``origin``), ``shared_bounds`` are not finite (2, 3) corners or ``origin`` not 3 finite numbers, would make
-        a ``.glb`` over 4 GiB (its lengths are 32-bit; the message names the formats that hold it), the
+        a ``.glb`` over 4 GiB (its lengths are 32-bit; the message names the formats that hold it), has for
+        ``.ply`` a numeric ``face_attributes`` or ``vertex_attributes`` array not of one value (or row) per face or
+        vertex (trimesh keeps them as they were when ``mesh.faces`` is set), the
         extension is unknown (the message lists the supported ones), has vertices but no faces for ``.stl`` or
         ``.3mf`` (which hold triangles only), or ``metadata`` holds a value that is not
         JSON (a set, bytes, an object; the message names its key) or a key that is not a string, or a texture
@@ -752,6 +759,8 @@ def save_mesh(
     check_face_indices(mesh.faces, len(vertices), "mesh faces")
     if ext in _TEXTURED:
         _check_uv(mesh, ext, target)
+    if ext == ".ply":  # the format that keeps them: one of the wrong length was left out without a word
+        _check_ply_attributes(mesh, target)
     if len(mesh.faces) == 0 and len(vertices) and ext in _TRIANGLES_ONLY:
         raise InvalidInputError(
             f"cannot write {str(target)!r}: mesh has {counted(len(vertices), 'vertex', 'vertices')} but no faces, and "
@@ -989,6 +998,12 @@ def _shared_bounds(shared_bounds: ArrayLike | None) -> Bounds:
     if shared_bounds is None:
         return None
     corners = _finite_argument(shared_bounds, "shared_bounds", (2, 3), "finite (2, 3) corners (lowest, highest)")
+    above = np.flatnonzero(corners[0] > corners[1])
+    if above.size:  # corners swapped, or a (3, 2) array transposed: taken as given, a box of no meaning
+        axis = "xyz"[int(above[0])]
+        raise InvalidInputError(f"shared_bounds must be finite (2, 3) corners (lowest, highest), the lowest no higher "
+                                f"than the highest; got {axis} from {corners[0, above[0]]:g} to "
+                                f"{corners[1, above[0]]:g} in {shared_bounds!r:.200}")
     return corners[0], corners[1]
 
 
@@ -4611,7 +4626,8 @@ def _read_3mf(file: Path) -> trimesh.Trimesh | None:
     """The 3MF ``file`` read by stepterrain itself when its model is one mesh object built once without a transform
     (as :func:`save_mesh` writes it): vertices, triangles and the colours of its ``m:colorgroup`` (each triangle's
     corner colours p1, p2, p3 into the group its pid, or its object's, names; trimesh's reader ignores them) as
-    vertex colours, or face colours where one vertex has corners of several colours. Streamed (iterparse, elements
+    vertex colours (a vertex no triangle names, which has none in the file, trimesh's default opaque grey), or face
+    colours where one vertex has corners of several colours. Streamed (iterparse, elements
     cleared as read, numbers in compact arrays): trimesh's reader holds the whole XML tree, 9.8 GB for the embedded
     DEM's 4.3 M-face solid. The model's ``stepterrain:metadata`` element (:func:`_write_3mf`) becomes the mesh's
     metadata, and its ``unit`` its ``metadata["units"]`` (``"meters"`` for ``meter``, :data:`_3MF_UNIT_NAMES`) where
@@ -4707,11 +4723,12 @@ def _read_3mf(file: Path) -> trimesh.Trimesh | None:
     if len(palette) == 0 or corners.min() < 0 or corners.max() >= len(palette):
         return mesh
     corner_colors = palette[corners.reshape(-1)]
-    vertex_colors = np.zeros((len(mesh.vertices), 4), np.uint8)
+    # a vertex no triangle names has no colour in the file: trimesh's default (opaque grey), as it gives a mesh
+    # without colours. Such a vertex made the whole mesh's colours face colours (each face its first corner's), the
+    # vertex colours written lost, although every vertex with corners had one colour
+    vertex_colors = np.tile(np.asarray(trimesh.visual.color.DEFAULT_COLOR, np.uint8), (len(mesh.vertices), 1))
     vertex_colors[faces.reshape(-1)] = corner_colors
-    referenced = np.zeros(len(mesh.vertices), bool)
-    referenced[faces.reshape(-1)] = True
-    if referenced.all() and np.array_equal(vertex_colors[faces.reshape(-1)], corner_colors):
+    if np.array_equal(vertex_colors[faces.reshape(-1)], corner_colors):
         mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=vertex_colors)
     else:  # a vertex with corners of several colours: each face takes its first corner's
         mesh.visual = trimesh.visual.ColorVisuals(mesh, face_colors=corner_colors[::3])
@@ -4807,6 +4824,36 @@ def _texture_copy(original: Any) -> Any:
             if isinstance(image, Image.Image) and image.format == "JPEG":
                 setattr(mine, slot, image)
     return copied
+
+
+def _check_ply_attributes(mesh: trimesh.Trimesh, target: Path) -> None:
+    """Before a ``.ply`` is written (the format that keeps ``face_attributes`` and ``vertex_attributes``): an
+    InvalidInputError for a numeric attribute that is not one value (or row) per face or vertex, and a warning naming
+    the attributes PLY cannot hold (text, objects, complex numbers, arrays of more than two dimensions), which are
+    left out. :func:`_attributes` dropped both without a word: ``mesh.faces = mesh.faces[keep]`` keeps trimesh's
+    ``face_attributes`` as they were, and a stepped mesh so cut down was written without its ``level`` and ``wall``,
+    read back without them."""
+    dropped = []
+    for element, attributes, count in (("face", mesh.face_attributes, len(mesh.faces)),
+                                       ("vertex", mesh.vertex_attributes, len(mesh.vertices))):  # fmt: skip
+        for name, values in attributes.items():
+            try:
+                array = np.asarray(values)
+            except (ValueError, TypeError):  # a ragged list
+                array = np.empty(0, dtype=object)
+            if array.dtype.kind not in "biuf" or array.ndim > 2:
+                dropped.append(f"{element}_attributes[{name!r}] ({array.dtype}, shape {array.shape})")
+                continue
+            if array.ndim == 0 or len(array) != count:
+                got = "a single value" if array.ndim == 0 else f"{len(array)} (shape {array.shape})"
+                raise InvalidInputError(
+                    f"cannot write {str(target)!r}: mesh.{element}_attributes[{name!r}] must hold one value per "
+                    f"{element} ({count}), as .ply stores it; got {got}: give it one per {element}, or remove it "
+                    f"(del mesh.{element}_attributes[{name!r}]; setting mesh.faces keeps the old ones, "
+                    "mesh.update_faces cuts them too)")
+    if dropped:
+        warnings.warn(f"{str(target)!r}: .ply stores numeric attributes of one value (or row) per face or vertex; "
+                      f"left out {', '.join(dropped)}", stacklevel=caller_stacklevel())
 
 
 def _attributes(attributes: Mapping[str, Any], count: int) -> dict[str, NDArray[Any]]:

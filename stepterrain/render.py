@@ -541,8 +541,11 @@ def render_mesh(
     ------
     InvalidInputError
         Bad window size, z_scale, camera, scalars, cmap or view_angle, an empty mesh, one whose faces all have no
-        area (it renders blank), an infinite vertex (NaN ones are left out), or a textured mesh's bad UVs or texture
-        image (as :func:`render_textured_mesh`).
+        area (it renders blank) or whose faces, slivers, cover less than a pixel in all from the fitted camera,
+        ``bounds`` whose fitted camera sees none of the mesh (given in other coordinates),
+        a mesh shown less than a pixel wide or tall within its ``bounds`` or by an explicit camera (it renders
+        blank), an infinite vertex (NaN ones are left out), or a textured mesh's bad UVs or texture image (as
+        :func:`render_textured_mesh`).
     OutputTooLargeError
         The render's framebuffers and image (about 48 bytes per pixel, 80 with ``anti_aliasing``, 288 with it and
         translucent colours, which take SSAA with depth peeling), with a textured mesh's texture (16 bytes per
@@ -717,6 +720,7 @@ def _frame_mesh(
     if not finite.any():
         raise InvalidInputError("mesh has no finite vertex used by a face")
     fitted = _fitted_camera(camera)  # a name or (azimuth, elevation), not an explicit position
+    thin = False  # seen a few pixels across by a camera fitted to its vertices (see _check_covers_a_pixel)
     if bounds is None:
         lo, hi = vertices[finite].min(axis=0), vertices[finite].max(axis=0)
     else:
@@ -741,8 +745,18 @@ def _frame_mesh(
     if fitted:  # a fitted camera: it frames the box's larger side
         _check_visible(corners, position, (width, height), box, z_scale, view_angle, camera,
                        "the mesh" if bounds is None else "bounds")
+        if bounds is not None:  # the box is seen; the mesh within it (or not) too?
+            _check_mesh_in_bounds(drawn_box, position, (width, height), view_angle, centre, z_scale, lo, hi)
     else:
         _check_in_view(drawn_box, position, width / height, view_angle, centre, z_scale, camera)
+        pixels = _box_pixels(drawn_box, position, (width, height), view_angle)
+        if pixels is not None and min(pixels) < 1.0:  # seen, but too far off (or too thin) to cover a pixel
+            raise InvalidInputError(
+                f"camera [(eye), (focal point), (view up)] shows the mesh at most {pixels[0]:.2g} x {pixels[1]:.2g} "
+                f"pixels, too small to see (it would render blank): its faces span "
+                f"{' x '.join(f'{v:.3g}' for v in (drawn_box[1] - drawn_box[0]).tolist())} (z times "
+                f"z_scale={z_scale:g}) and the eye is {float(np.linalg.norm(position[0])):.3g} from the centre of the "
+                f"framed box; move the eye nearer or give a larger window_size; got {camera!r}")
     if bounds is None and fitted:  # the camera the render takes: fitted to the vertices drawn themselves, not their
         # box (an explicit position is the one above, as given)
         drawn = local if finite.all() else local[finite]
@@ -750,12 +764,54 @@ def _frame_mesh(
         # the surface within its box may show thinner than the box: the embedded DEM seen 11° up in an 8 x 500
         # window spans 0.94 pixels (its box 1.5) and rendered blank, without a word. The extent of a strided
         # subset is at most the whole's: the whole is projected only when that one is under a pixel
-        if min(_pixel_extent(drawn[::max(1, len(drawn) // 100_000)], position, (width, height), view_angle)) < 1.0:
+        thinnest = min(_pixel_extent(drawn[::max(1, len(drawn) // 100_000)], position, (width, height), view_angle))
+        if thinnest < 1.0:
             _check_visible(drawn, position, (width, height), box, z_scale, view_angle, camera, "the mesh")
+        thin = thinnest < _THIN_PIXELS  # a few pixels across: its faces may still cover none (slivers), below
     # last: the checks above name what they find first. The drawn box is at hand: its span is free, where a pass over
     # the vertices took 50 ms a million vertices (0.17 s for a 3.4M-vertex stepped mesh)
     _check_some_area(local, mesh.faces, finite, z_scale, drawn_box[1] - drawn_box[0])
+    if thin:  # faces of some area in space (a degenerate mesh is named so, above), but do they cover a pixel?
+        _check_covers_a_pixel(local, mesh.faces, position, (width, height), view_angle)
     return width, height, vertices, local, finite, box, position
+
+
+#: A mesh drawn fewer pixels across than this (one way) by a fitted camera has the area its faces cover checked
+#: (:func:`_check_covers_a_pixel`); a wider one covers pixels wherever its faces have some area.
+_THIN_PIXELS = 32.0
+
+
+def _check_covers_a_pixel(local: NDArray[np.float64], faces: ArrayLike, position: Any, size: tuple[int, int],
+                          view_angle: float) -> None:
+    """An InvalidInputError when the faces drawn (corners finite) of a mesh seen thin by the fitted camera
+    ``position`` cover less than one pixel in all, projected: slivers (a triangle 1e6 long and 1 wide, seen oblique)
+    rendered blank without a word, their box a few pixels wide passing :func:`_check_visible` and their area in
+    space passing :func:`_check_some_area`. Chunked, stopping at a pixel covered; a face at or behind the eye stops it
+    too (its projection is not bounded)."""
+    eye, focal, up = (np.asarray(v, dtype=np.float64) for v in position)
+    forward = (focal - eye) / np.linalg.norm(focal - eye)
+    right, true_up = _screen_axes(forward, up)
+    tan_v = math.tan(math.radians(view_angle) / 2.0)
+    width, height = size
+    scale_x, scale_y = width / (2.0 * tan_v * width / height), height / (2.0 * tan_v)
+    faces = np.asarray(faces)
+    covered = 0.0
+    for start in range(0, len(faces), _AREA_CHUNK):
+        rel = local[faces[start:start + _AREA_CHUNK]] - eye  # (n, 3 corners, 3)
+        drawn = np.isfinite(rel).all(axis=(1, 2))
+        rel = rel[drawn]
+        depth = rel @ forward
+        if (depth <= 0).any():
+            return
+        x, y = (rel @ right) / depth * scale_x, (rel @ true_up) / depth * scale_y
+        covered += 0.5 * float(np.abs((x[:, 1] - x[:, 0]) * (y[:, 2] - y[:, 0])
+                                      - (x[:, 2] - x[:, 0]) * (y[:, 1] - y[:, 0])).sum())
+        if covered >= 1.0:
+            return
+    raise InvalidInputError(
+        f"the mesh's faces would cover {covered:.2g} pixels in all from a camera fitted to it, in a "
+        f"{width}x{height} window: they are slivers, too thin to see (it would render blank); look from another "
+        "direction (camera) or give a larger window_size")
 
 
 #: Faces checked at a time by :func:`_check_some_area` (it stops at the first chunk with a face of some area).
@@ -824,6 +880,41 @@ def _check_in_view(drawn: NDArray[np.float64], position: Any, aspect: float, vie
         f"camera [(eye), (focal point), (view up)] sees none of the mesh (it would render blank): the position is "
         f"taken in the mesh's coordinates less the centre of the framed box, {tuple(float(v) for v in centre)}, z "
         f"times z_scale={z_scale:g}{hint}; got {camera!r}")
+
+
+def _check_mesh_in_bounds(drawn: NDArray[np.float64], position: Any, size: tuple[int, int], view_angle: float,
+                          centre: NDArray[np.float64], z_scale: float, lo: NDArray[np.float64],
+                          hi: NDArray[np.float64]) -> None:
+    """An InvalidInputError when the camera ``position`` fitted to ``bounds`` (``lo``, ``hi``) sees none of the box
+    ``drawn`` (2, 3) of the vertices drawn (recentred on ``centre``, z times ``z_scale``), or shows all of it less
+    than a pixel wide or tall: bounds given in other coordinates than the mesh's (local ones for a mesh in UTM metres),
+    or far larger than it, rendered blank without a word, where an explicit camera that sees none of the mesh is
+    refused (:func:`_check_in_view`) and so is a mesh that renders under a pixel without bounds
+    (:func:`_check_visible`). Conservative: the box's projection is at least the mesh's."""
+    scale = np.array([1.0, 1.0, z_scale])
+    mesh_box = _fmt_box(drawn[0] / scale + centre, drawn[1] / scale + centre)
+    if _misses_view(drawn, position, size[0] / size[1], view_angle):
+        raise InvalidInputError(
+            f"bounds {_fmt_box(lo, hi)} frame none of the mesh, whose faces span {mesh_box}: the camera fitted to "
+            "them sees none of it (it would render blank); give bounds around the mesh, in its own coordinates")
+    pixels = _box_pixels(drawn, position, size, view_angle)
+    if pixels is not None and min(pixels) < 1.0:
+        px, py = pixels
+        raise InvalidInputError(
+            f"the mesh, whose faces span {mesh_box}, would render at most {px:.2g} x {py:.2g} pixels within bounds "
+            f"{_fmt_box(lo, hi)} (with z_scale={z_scale:g}), too small to see (it would render blank); give bounds "
+            "nearer the mesh's size or a larger window_size")
+
+
+def _box_pixels(box: NDArray[np.float64], position: Any, size: tuple[int, int],
+                view_angle: float) -> tuple[float, float] | None:
+    """Width and height in pixels of the corners of ``box`` (2, 3) seen from the pyvista camera ``position``
+    (:func:`_pixel_extent`: at least those of what the box holds), or None when a corner lies at or behind the eye
+    (part of the box may then fill the view)."""
+    corners = _box_corners(box)
+    if (_eye_frame(corners, position)[1] <= 0).any():
+        return None
+    return _pixel_extent(corners, position, size, view_angle)
 
 
 def _pixel_extent(points: NDArray[np.float64], position: Any, size: tuple[int, int],
