@@ -1,7 +1,7 @@
 """The native CPU fast paths of kernels/stepped.py against the generic Warp path and the NumPy reference.
 
 On the CPU, count_grid counts the nodes whose cell has no corner on a threshold in native code
-(``count_plain_nodes``: flat runs sixteen at a time, other cells closed-form), and emit_grid writes runs of
+(``count_plain_nodes``: sixteen nodes at a time by the closed form, flat or not), and emit_grid writes runs of
 plain nodes with flat cells in one native loop (``emit_flat_run``, the default output only: blended vertices,
 no sources). ``step_arrays(want_sources=True)`` emits through the generic Warp path, and the independent
 reference (tests/reference.py) checks what both count. The grids are rows of plateaus wider than a 64-node
