@@ -239,15 +239,15 @@ def load_dem(
         names the encodings); with it a greyscale or 16-bit-per-channel PNG, or a file that is no local PNG, is.
     nodata : float or sequence of floats, optional
         Value(s) marking missing cells besides the file's own nodata value and mask, which still apply (the CLI's
-        ``--nodata``): for a file whose nodata value was lost or never declared (``nodata=-9999``, or
-        ``nodata=(-9999, -32768)``), as ``gdal_edit.py -a_nodata`` would declare it, without editing the file.
-        Compared, as GDAL compares a nodata value, with the values as stored: a GeoTIFF band's before its scale and
-        offset, exactly, in the band's own dtype (a float32 band's cells with the float32 rounding of the value, an
-        integer band's with the value itself: 0.5 marks no cell of one); a PNG's grey values as Pillow reads them
-        (0-255, 0-65535), an RGB terrain tile's decoded heights (Terrarium's void, black, is -32768). Its cells are
+        ``--nodata``): for a file whose nodata value was lost or never declared (``nodata=-9999``, or ``nodata=(-9999,
+        -32768)``), as ``gdal_edit.py -a_nodata`` would declare it, without editing the file. Compared, as GDAL compares
+        a nodata value, with the values as stored: a GeoTIFF band's before its scale and offset, exactly, in the band's
+        own dtype (a float32 band's cells with the float32 rounding of the value, an integer band's with the value
+        itself: 0.5 or -99999 marks no cell of an int16 one, and a warning says so); a PNG's grey values as Pillow reads
+        them (0-255, 0-65535), an RGB terrain tile's decoded heights (Terrarium's void, black, is -32768). Its cells are
         NaN and no warning of an undeclared nodata (see Warns) names that value; a value that no cell holds changes
-        nothing. NaN and ±inf are accepted and change nothing (non-finite cells are nodata anyway). Not a real
-        number (a string, a bool) is refused.
+        nothing. NaN and ±inf are accepted and change nothing (non-finite cells are nodata anyway). Not a real number (a
+        string, a bool) is refused.
 
     Returns
     -------
@@ -2247,14 +2247,44 @@ def given_nodata(
 ) -> NDArray[np.bool_] | None:
     """``hits`` (None: no cell) with the cells of ``array`` equal to one of ``given`` (:func:`load_dem`'s ``nodata``,
     compared as :func:`equals_nodata` compares a file's) marked too; non-finite values are passed over (NaN matches
-    no cell, and an inf cell is nodata anyway). In place where ``hits`` is an array."""
+    no cell, and an inf cell is nodata anyway). In place where ``hits`` is an array. A finite value that no cell of
+    ``array``'s dtype can hold (a fraction or a value beyond an integer dtype's range, a value beyond a float dtype's)
+    is warned of (:func:`_warn_unheld_nodata`): it marks no cell, which ``--nodata 3.5`` or ``--nodata -99999`` on an
+    int16 or uint16 GeoTIFF or PNG did silently."""
     for value in given:
         if not math.isfinite(value):
             continue
+        _warn_unheld_nodata(array.dtype, value)
         with np.errstate(over="ignore"):  # a value beyond the dtype (1e40 in float32) is inf there: no finite cell
             hit = equals_nodata(array, value)
         hits = hit if hits is None else np.logical_or(hits, hit, out=hits if hits.flags.writeable else None)
     return hits
+
+
+def _warn_unheld_nodata(dtype: np.dtype[Any], value: float) -> None:
+    """Warn, at the caller of :func:`load_dem`, when ``value`` (one of its ``nodata``, finite) is no value of ``dtype``
+    (the values as stored: :func:`equals_nodata` compares it with none of them): a fraction or beyond the range of
+    an integer dtype, beyond the largest finite value of a float one (inf there). Its cells were read as heights
+    without a word, ``--nodata -99999`` on an int16 DEM whose voids are -32768 masking nothing."""
+    if dtype.kind in "iu":
+        info = np.iinfo(dtype)
+        if value.is_integer() and info.min <= value <= info.max:
+            return
+        held = f"whole numbers {info.min} to {info.max}"
+    elif dtype.kind == "f":
+        top = float(np.finfo(dtype).max)
+        if -top <= value <= top:
+            return
+        held = f"magnitudes up to {top:.8g}"
+    else:
+        return
+    text = repr(value)[:-2] if repr(value).endswith(".0") else repr(value)  # -99999, 3.5, 1e+40
+    warnings.warn(
+        f"nodata={text} is no value of the file's {dtype} cells as stored ({held}): it marks no cell; give "
+        f"the value its missing cells hold (`stepterrain info` shows the height range, `gdalinfo -stats` the stored "
+        f"values)",
+        stacklevel=caller_stacklevel(),
+    )
 
 
 def _missing_beyond_gdal_mask(
