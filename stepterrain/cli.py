@@ -100,16 +100,39 @@ _NEGATIVE_NUMBER = re.compile(r"^-(\.?\d|(inf|infinity|nan)$)", re.IGNORECASE)
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse that raises instead of exiting, so :func:`main` returns the status to in-process callers, and
-    takes negative numbers in any float notation (and lists starting with one) as values: every subcommand's
-    parser is one (``parser_class``)."""
+    """argparse that raises instead of exiting, so :func:`main` returns the status to in-process callers, takes
+    negative numbers in any float notation (and lists starting with one) as values, and refuses an option that takes
+    one value given twice with different values (:meth:`_get_values`): every subcommand's parser is one
+    (``parser_class``)."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self._negative_number_matcher = _NEGATIVE_NUMBER
+        self._given_values: dict[argparse.Action, Any] = {}
 
     def error(self, message: str) -> None:  # type: ignore[override]
         raise _UsageError(f"{self.prog}: error: {message}")
+
+    def parse_known_args(self, args: Any = None, namespace: Any = None) -> Any:  # type: ignore[override]
+        self._given_values = {}  # the values of this parse's options so far (a subcommand's parser parses its own)
+        return super().parse_known_args(args, namespace)
+
+    def _get_values(self, action: argparse.Action, arg_strings: list[str]) -> Any:
+        """argparse's, and a store option (``--interval 10``, ``-o a.glb``: one value, kept) given a second time with
+        another value refused, naming it and both values as typed: argparse kept the last silently, so ``-o a.glb -o
+        b.glb`` wrote b.glb alone and ``--interval 10 ... --interval 20`` stepped at 20. The same value again
+        (``--interval 10 --interval 10.0``) is no conflict; the options meant to repeat (``--nodata``, closeup's
+        ``--roi``, ``--scale``, ...: append, extend) and flags (``-q``) are not checked. ``--memory-budget`` before
+        and after the subcommand (two parsers) is checked in :func:`_main`."""
+        values = super()._get_values(action, arg_strings)
+        if type(action) is argparse._StoreAction and action.option_strings:
+            typed = " ".join(arg_strings)
+            if action in self._given_values and self._given_values[action][0] != values:
+                raise argparse.ArgumentError(
+                    action, f"given twice ({self._given_values[action][1]!r}, then {typed!r}); it takes one value: "
+                            f"give it once")
+            self._given_values[action] = (values, typed)
+        return values
 
 
 class Progress:
@@ -705,7 +728,7 @@ def build_parser() -> argparse.ArgumentParser:
         sub.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
                          help="no progress lines on stderr")
         sub.add_argument("--memory-budget", type=_byte_size, default=argparse.SUPPRESS, metavar="SIZE",
-                         help=_MEMORY_BUDGET_HELP)
+                         dest="memory_budget_after", help=_MEMORY_BUDGET_HELP)  # see _main: given on both sides
     return parser
 
 
@@ -1664,6 +1687,13 @@ def _main(argv: Sequence[str] | None) -> int:
     if getattr(args, "run", None) is None:
         parser.print_help(sys.stderr)
         return EXIT_USAGE
+    after = getattr(args, "memory_budget_after", None)  # --memory-budget after the subcommand (its parser's)
+    if after is not None:
+        if args.memory_budget not in (None, after):  # the subcommand's replaced the command's silently
+            print(f"stepterrain: error: argument --memory-budget: given twice ({args.memory_budget} bytes before "
+                  f"{args.command}, then {after} bytes after it); it takes one value: give it once", file=sys.stderr)
+            return EXIT_USAGE
+        args.memory_budget = after
     progress = Progress(quiet=args.quiet)
     previous_budget = get_memory_budget()
     previous_hint = budget_hint(_CLI_BUDGET_HINT)  # refusals in this process name the option

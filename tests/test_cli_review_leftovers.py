@@ -1,0 +1,85 @@
+"""Command-line leftovers of earlier reviews, each as a demanding GIS user meets it: an option given twice, the 3MF
+unit of every export path, a compound CRS's vertical unit, the over-budget advice of a solid's render, and the
+close-up framing error's wording."""
+
+from __future__ import annotations
+
+import argparse
+
+import pytest
+
+from stepterrain import cli
+
+from .conftest import run_cli as run
+
+
+# ------------------------------------------------------------------------------------------ an option given twice
+@pytest.mark.parametrize("argv, option, typed", [
+    (["steps", "--interval", "10", "--interval", "20", "-o", "{tmp}/a.glb"], "--interval", "('10', then '20')"),
+    (["steps", "-o", "{tmp}/a.glb", "-o", "{tmp}/b.glb"], "-o/--output", "('{tmp}/a.glb', then '{tmp}/b.glb')"),
+    (["steps", "-o", "{tmp}/a.glb", "--output={tmp}/b.glb"], "-o/--output", "('{tmp}/a.glb', then '{tmp}/b.glb')"),
+    (["steps", "--inter", "10", "--interval", "20", "-o", "{tmp}/a.glb"], "--interval", "('10', then '20')"),
+    (["steps", "--camera", "top", "--camera", "10,20", "--png", "{tmp}/a.png"], "--camera", "('top', then '10,20')"),
+    (["info", "--band", "1", "--band", "2"], "--band", "('1', then '2')"),
+    (["globe", "x.npz", "--face-size", "8", "--face-size", "16", "-o", "{tmp}/g.glb"], "--face-size",
+     "('8', then '16')"),
+    (["closeup", "--roi-relative", "0.5,0.5,0.2", "--size", "64x48", "--size", "80x60", "-o", "{tmp}/c.png"],
+     "--size", "('64x48', then '80x60')"),
+    (["texture", "--texel-size", "30", "--texel-size", "60", "-o", "{tmp}/t.glb"], "--texel-size",
+     "('30', then '60')"),
+    (["batch", "tiles", "--interval", "5", "--interval", "6", "-o", "{tmp}/out"], "--interval", "('5', then '6')"),
+])
+def test_an_option_given_twice_with_other_values_is_refused_naming_it(tmp_path, capsys, argv, option, typed):
+    """argparse kept the last of ``--interval 10 --interval 20`` and of ``-o a.glb -o b.glb`` silently: the run
+    stepped at 20 and wrote b.glb alone, the user's first value (or first output) dropped. Now the option given twice
+    with two values is a usage error naming it and both values as typed, before any work; nothing is written."""
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    code, out, err = run(capsys, *argv)
+    assert code == 2 and out == "", err
+    assert f"error: argument {option}: given twice {typed.replace('{tmp}', str(tmp_path))}; it takes one value: " \
+           "give it once" in err, err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_option_given_twice_with_one_value_and_the_repeating_options_still_work(tmp_path, capsys):
+    """The same value twice is no conflict (a script's defaults then the user's, alike); the options meant to repeat
+    (--nodata: extend; closeup's --roi, --scale, --stepped: append) and flags (-q) take every value given."""
+    parser = cli.build_parser()
+    args = parser.parse_args(["steps", "--interval", "10", "--interval", "10.0", "-q", "-q",
+                              "--nodata", "-9999", "--nodata", "-32768,5"])
+    assert args.interval == 10.0 and args.quiet is True and args.nodata == [-9999.0, -32768.0, 5.0]
+    args = parser.parse_args(["closeup", "--roi-relative", "0.3,0.3,0.1", "--roi-relative", "0.7,0.7,0.1",
+                              "--scale", "2", "--scale", "3", "--stepped", "50", "--stepped", "100"])
+    assert len(args.roi_relative) == 2 and args.scale == [(2.0,), (3.0,)] and args.stepped == [50.0, 100.0]
+    # each parse starts afresh: a parser used twice does not take the first parse's value for a repeat
+    assert parser.parse_args(["steps", "--interval", "20"]).interval == 20.0
+    code, out, err = run(capsys, "steps", "--interval", "100", "--interval", "100", "--png", tmp_path / "a.png",
+                         "--size", "64x48", "-q")
+    assert code == 0 and (tmp_path / "a.png").is_file(), err
+
+
+def test_every_subcommand_parser_refuses_a_repeat():
+    """The check lives in the one parser class every subcommand's parser is (a new subcommand has it too)."""
+    parser = cli.build_parser()
+    (action,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    for name, sub in action.choices.items():
+        assert isinstance(sub, cli._Parser), name
+        stores = [a for a in sub._actions if type(a) is argparse._StoreAction and a.option_strings]
+        assert stores, name
+
+
+def test_memory_budget_before_and_after_the_subcommand_must_agree(tmp_path, capsys):
+    """--memory-budget is an option of the command and of each subcommand (two parsers): the one after the
+    subcommand replaced the one before silently. Two budgets are refused now; one, or the same on both sides, runs."""
+    png = tmp_path / "a.png"
+    code, out, err = run(capsys, "--memory-budget", "1GB", "steps", "--memory-budget", "2GB", "--png", png)
+    assert code == 2 and not png.exists()
+    assert ("stepterrain: error: argument --memory-budget: given twice (1000000000 bytes before steps, then "
+            "2000000000 bytes after it); it takes one value: give it once") in err, err
+    for argv in (["--memory-budget", "1GB", "steps", "--memory-budget", "1000MB"], ["steps", "--memory-budget", "1kB"],
+                 ["--memory-budget", "1kB", "steps"]):
+        code, out, err = run(capsys, *argv, "--png", png, "--size", "64x48", "-q")
+        budget = "1,000,000,000 bytes" if "1GB" in argv else "1,000 bytes"
+        assert (code == 0) == (budget != "1,000 bytes"), (argv, err)
+        if code:  # the budget given applies, before or after the subcommand
+            assert "over the memory budget of 1,000 bytes" in err, err
