@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 
+import numpy as np
 import pytest
 
 from stepterrain import cli
@@ -83,3 +84,55 @@ def test_memory_budget_before_and_after_the_subcommand_must_agree(tmp_path, caps
         assert (code == 0) == (budget != "1,000 bytes"), (argv, err)
         if code:  # the budget given applies, before or after the subcommand
             assert "over the memory budget of 1,000 bytes" in err, err
+
+
+# ------------------------------------------------------------------------------------------ the 3MF unit of every path
+def _model_unit(path) -> str:
+    """The ``unit`` a 3MF's model declares (millimetre when absent, as the 3MF core spec says)."""
+    import re
+    import zipfile
+
+    with zipfile.ZipFile(path) as archive:
+        head = archive.read("3D/3dmodel.model")[:400].decode()
+    found = re.search(r'<model [^>]*unit="([a-z]+)"', head)
+    return found.group(1) if found else "millimeter"
+
+
+def test_3mf_declares_the_unit_of_the_coordinates_on_every_path(tmp_path, capsys):
+    """A stepped terrain is in metres (UTM metres here, 35.9 x 19.3 km). Written straight to .3mf (`steps --solid -o
+    x.3mf`, save_mesh of stepped's mesh) it declared millimetres, 35.9 m wide in a slicer or CAD tool, while the same
+    mesh saved as .glb (glTF's metres), read back and saved as .3mf declared metres: one mesh, two sizes by path. Now
+    every path declares what the coordinates are: stepterrain's own meshes metres, scale_for_print's (--print-size)
+    millimetres, a foreign unitless mesh (an STL's) millimetres, 3MF's default; read back and saved again, the same."""
+    import trimesh
+
+    import stepterrain as st
+    from stepterrain.export import read_mesh, save_mesh
+
+    dem = st.sample_dem().coarsen(8)
+    code, _, err = run(capsys, "steps", "--interval", "200", "--solid", "--coarsen", "8", "-o", tmp_path / "s.3mf",
+                       "-q")
+    assert code == 0, err
+    assert _model_unit(tmp_path / "s.3mf") == "meter"
+    width = np.ptp(read_mesh(tmp_path / "s.3mf").vertices[:, 0])
+    assert 35_000 < width < 36_000  # metres: 35.9 km, as the DEM
+    code, _, err = run(capsys, "steps", "--interval", "200", "--solid", "--coarsen", "8", "--print-size", "150", "-o",
+                       tmp_path / "p.3mf", "-q")
+    assert code == 0 and _model_unit(tmp_path / "p.3mf") == "millimeter", err
+    assert np.isclose(np.ptp(read_mesh(tmp_path / "p.3mf").vertices[:, 0]), 150.0)
+    mesh = st.stepped(dem, interval=200.0, solid=True, device="cpu")
+    assert _model_unit(save_mesh(mesh, tmp_path / "lib.3mf")) == "meter"
+    for ext in (".glb", ".ply", ".obj", ".3mf"):  # read back from stepterrain's own files, saved as .3mf again
+        back = read_mesh(save_mesh(mesh, tmp_path / f"m{ext}"))
+        assert _model_unit(save_mesh(back, tmp_path / f"again{ext}.3mf")) == "meter", ext
+    printed = st.export.scale_for_print(mesh, 150.0)
+    assert _model_unit(save_mesh(read_mesh(save_mesh(printed, tmp_path / "p.ply")), tmp_path / "p2.3mf")) == \
+        "millimeter"
+    # a foreign mesh with no unit: 3MF's default, millimetres (an STL's unit by convention), also read from an STL
+    foreign = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+    assert _model_unit(save_mesh(foreign, tmp_path / "f.3mf")) == "millimeter"
+    foreign.export(tmp_path / "f.stl")
+    assert _model_unit(save_mesh(read_mesh(tmp_path / "f.stl"), tmp_path / "f2.3mf")) == "millimeter"
+    # a stepterrain 3MF read back keeps its unit, whichever it declares
+    assert _model_unit(save_mesh(read_mesh(tmp_path / "p.3mf"), tmp_path / "p3.3mf")) == "millimeter"
+    assert _model_unit(save_mesh(read_mesh(tmp_path / "s.3mf"), tmp_path / "s3.3mf")) == "meter"
