@@ -1508,6 +1508,8 @@ _OPTION_PHRASES = {
     "closeup": {**_LOOK_FROM,
                 # closeup._check_framed's, of a close-up moved absurdly far: no option of closeup gives bounds
                 "move it nearer, or frame what to see with bounds": "move it nearer: give it a smaller --offset",
+                "move it nearer or scale it less, or frame what to see with bounds":
+                    "move it nearer or scale it less: give it a smaller --offset or --scale",
                 # closeup.STEPPED_CLOSEUP_HINT, of a --stepped close-up over the budget
                 "step the close-up at a larger interval (CloseUp.stepped) or give it a smaller ROI, or crop or coarsen "
                 "the terrain (Terrain.crop, Terrain.coarsen)": "step the close-up at a larger interval (--stepped) or "

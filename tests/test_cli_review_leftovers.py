@@ -136,3 +136,23 @@ def test_3mf_declares_the_unit_of_the_coordinates_on_every_path(tmp_path, capsys
     # a stepterrain 3MF read back keeps its unit, whichever it declares
     assert _model_unit(save_mesh(read_mesh(tmp_path / "p.3mf"), tmp_path / "p3.3mf")) == "millimeter"
     assert _model_unit(save_mesh(read_mesh(tmp_path / "s.3mf"), tmp_path / "s3.3mf")) == "meter"
+
+
+# ------------------------------------------------------------------------------------------ the close-up framing error
+@pytest.mark.parametrize("given, cause, advice", [
+    (["--offset", "0,0,1e9"], "close-up 1 (--offset 0,0,1e+09) is drawn 1e+09 from the terrain's centre",
+     "; move it nearer: give it a smaller --offset\n"),
+    (["--scale", "1e6"], "close-up 1 (--offset 0,0,7176) is drawn 1.74e+09 from the terrain's centre, scaled "
+     "1e+06,1e+06,1e+06", "; move it nearer or scale it less: give it a smaller --offset or --scale\n"),
+])
+def test_closeup_framing_error_names_the_close_up_and_the_option_to_change(tmp_path, capsys, given, cause, advice):
+    """The framing refusal names the close-up as the user counts them and its --offset (never the library's
+    ``closeups[0]``); a close-up blown up by --scale 1e6 at the default offset was told "give it a smaller --offset",
+    the one option that was not the cause: it names the scale and --scale now."""
+    code, out, err = run(capsys, "closeup", "--roi-relative", "0.5,0.5,0.1", *given, "--size", "128x128", "-o",
+                         tmp_path / "x.png", "-q")
+    assert code == 2 and "closeups[" not in err and "bounds" not in err, err
+    assert err.startswith("stepterrain closeup: error: the camera fitted to the overview and its close-ups would "
+                          "show the overview ("), err
+    assert cause in err and err.endswith(advice), err
+    assert list(tmp_path.iterdir()) == []
