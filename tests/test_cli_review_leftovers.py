@@ -156,3 +156,66 @@ def test_closeup_framing_error_names_the_close_up_and_the_option_to_change(tmp_p
                           "show the overview ("), err
     assert cause in err and err.endswith(advice), err
     assert list(tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------------------------------------ a compound CRS's units
+def _compound_tif(path, crs: str, transform, band_unit: str | None = None):
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.crs import CRS
+
+    z = (np.arange(40 * 50).reshape(40, 50) % 300 + 1000).astype(np.float32)
+    with rasterio.open(path, "w", driver="GTiff", width=50, height=40, count=1, dtype="float32",
+                       crs=CRS.from_user_input(crs), transform=transform) as dataset:
+        dataset.write(z, 1)
+        if band_unit is not None:
+            dataset.set_band_unit(1, band_unit)
+    return path, z
+
+
+def test_compound_crs_horizontal_and_vertical_units_are_read(tmp_path, capsys):
+    """A GeoTIFF in a compound CRS (horizontal + vertical): its horizontal unit places the grid, its vertical unit
+    (GDAL names the band's unit after it) scales the heights to metres. WGS 84 / UTM 33N + EGM96 height (metres) is
+    kept whole and named EPSG:32633+5773 (its WKT, a thousand characters, was the CRS `info` printed); + NAVD88
+    height (ftUS) gives heights x 0.3048006 and the horizontal CRS alone (the vertical part no longer describes
+    metres); NAD83 / California zone 3 (ftUS) + NAVD88 (ftUS) converts both."""
+    import json
+
+    from rasterio.transform import Affine
+
+    ftus = 1200 / 3937
+    cases = [("EPSG:32633+5773", Affine(30, 0, 500000, 0, -30, 5000000), "EPSG:32633+5773", 30.0, 1.0, "metre"),
+             ("EPSG:32633+6360", Affine(30, 0, 500000, 0, -30, 5000000), "EPSG:32633", 30.0, ftus, "US survey foot"),
+             ("EPSG:2227+6360", Affine(100, 0, 6000000, 0, -100, 2000000), None, 100 * ftus, ftus, "US survey foot")]
+    for k, (crs, transform, kept, spacing, factor, unit) in enumerate(cases):
+        path, z = _compound_tif(tmp_path / f"c{k}.tif", crs, transform)
+        code, out, err = run(capsys, "info", path, "--json")
+        assert code == 0 and "warning" not in err, (crs, err)
+        info = json.loads(out)
+        if kept is not None:
+            assert info["crs"] == kept, (crs, info["crs"])
+        assert info["height_unit_read"] == unit and info["height_unit"] == "m", (crs, info)
+        assert np.allclose(np.abs(info["spacing"]), spacing, rtol=1e-9), (crs, info["spacing"])
+        assert np.allclose(info["height_range"], [z.min() * factor, z.max() * factor], rtol=1e-6), (crs, info)
+
+
+def test_a_band_unit_that_contradicts_the_compound_crs_vertical_unit_is_warned_of(tmp_path, capsys):
+    """A band unit of metres in a GeoTIFF whose CRS's vertical part is NAVD88 height (ftUS): the file contradicts
+    itself, and the band's unit was used (as GDAL reads it) without a word, heights 3.28 times what the CRS makes
+    them. Now a warning names both units, the CRS and the --height-unit that reads the CRS's; a foot against a US
+    survey foot (2 ppm apart) is no contradiction."""
+    import json
+
+    from rasterio.transform import Affine
+
+    path, z = _compound_tif(tmp_path / "c.tif", "EPSG:32633+6360", Affine(30, 0, 500000, 0, -30, 5000000), "metre")
+    code, out, err = run(capsys, "info", path, "--json")
+    assert code == 0 and json.loads(out)["height_range"] == [float(z.min()), float(z.max())]
+    assert ("stepterrain info: warning: c.tif: band 1's unit 'metre' is not the vertical unit of its CRS, "
+            "'US survey foot' (EPSG:32633+6360): heights read in metre, as GDAL reads them (3.28083 times what the "
+            "CRS's unit makes them); if they are in US survey foot, pass --height-unit 'US survey foot'") in err, err
+    code, out, err = run(capsys, "info", path, "--json", "--height-unit", "US survey foot")
+    assert code == 0 and "is not the vertical unit" not in err
+    assert np.isclose(json.loads(out)["height_range"][0], z.min() * 1200 / 3937)
+    path, z = _compound_tif(tmp_path / "f.tif", "EPSG:32633+6360", Affine(30, 0, 500000, 0, -30, 5000000), "ft")
+    code, out, err = run(capsys, "info", path, "--json")
+    assert code == 0 and "warning" not in err, err
