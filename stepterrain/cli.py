@@ -1168,8 +1168,15 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
                           "radius", stacklevel=1)
 
     if png is not None:  # the render's copies of the mesh, at least the DEM's surface: before stepping
-        render._check_render_budget(args.size[0], args.size[1], "--size", mesh=_surface_size(terrain),
-                                    mesh_hint=_STEPS_RENDER_HINT, at_least=True)
+        try:
+            render._check_render_budget(args.size[0], args.size[1], "--size", mesh=_surface_size(terrain),
+                                        mesh_hint=_STEPS_RENDER_HINT, at_least=True)
+        except st.OutputTooLargeError as exc:
+            if args.solid:  # the budget the whole run needs, not the surface's render alone
+                _solid_too(exc, args.size, lambda budget: st.stepped(
+                    terrain, interval=interval, levels=args.levels, base=base, gamma=gamma, colors=colors,
+                    solid=True, floor=args.floor, device=args.device, memory_budget=budget))
+            raise
 
     # kernels: compile (first run on this machine) or load from Warp's cache
     from ._device import resolve_device
@@ -1273,6 +1280,35 @@ def _render_too(exc: Exception, size: tuple[int, int]) -> None:
         return
     raise type(exc)(f"{str(exc)[:-len(figure)]}{_budget_figure(render)} (its --png render, {size[0]}x{size[1]}, "
                     f"needs {_size_text(render)} for a mesh of at least {mesh[1]:,} faces)") from None
+
+
+def _solid_too(exc: Exception, size: tuple[int, int], count: Callable[[int], Any]) -> None:
+    """Raise ``exc``, the --png render of a --solid run refused before stepping (its figure from the DEM's surface,
+    the fewest faces the mesh can have), again advising the budget the whole run needs: the stepped solid's own (its
+    count pass run by ``count``, the stepping under a budget of one byte, which refuses before allocating) or its
+    render's with the most faces the solid has, whichever is more. ``steps --solid --png`` was told 200MiB for the
+    render of the surface, then 500MiB for the solid: a budget per try, each too small. Returns where the count
+    gives no figure (the caller raises ``exc`` as it is)."""
+    from ._compaction import _budget_figure, _size_text
+    from .render import _render_bytes
+
+    nbytes = getattr(exc, "nbytes", None)
+    figure = None if nbytes is None else _budget_figure(nbytes)
+    if not figure or not str(exc).endswith(figure):
+        return
+    try:
+        count(1)
+    except StepTerrainError as refused:
+        solid, mesh = getattr(refused, "nbytes", None), getattr(refused, "mesh", None)
+    else:  # pragma: no cover - a budget of one byte holds no solid
+        return
+    if solid is None or mesh is None:
+        return
+    render = _render_bytes(size[0], size[1], vertices=mesh[0], faces=mesh[1])
+    need = max(int(nbytes), int(solid), render)
+    raise type(exc)(f"{str(exc)[:-len(figure)]}{_budget_figure(need)} (the whole run: the stepped solid needs "
+                    f"{_size_text(int(solid))} and its --png render, {size[0]}x{size[1]}, up to "
+                    f"{_size_text(render)})") from None
 
 
 def _surface_size(terrain: Any) -> tuple[int, int]:

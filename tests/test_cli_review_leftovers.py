@@ -219,3 +219,20 @@ def test_a_band_unit_that_contradicts_the_compound_crs_vertical_unit_is_warned_o
     path, z = _compound_tif(tmp_path / "f.tif", "EPSG:32633+6360", Affine(30, 0, 500000, 0, -30, 5000000), "ft")
     code, out, err = run(capsys, "info", path, "--json")
     assert code == 0 and "warning" not in err, err
+
+
+# ------------------------------------------------------------------------------------------ over-budget advice
+def test_solid_png_over_budget_advice_is_a_budget_the_run_passes_at(tmp_path, capsys):
+    """`steps --solid --png` over the memory budget was told the budget of the render of the DEM's surface (70MiB
+    here), checked before stepping; at that budget the solid itself was refused (300MiB): a budget per try, each too
+    small. The advice is now the whole run's, the stepped solid's (its count pass) or its render's with the most faces
+    the solid has, whichever is more: followed, the run passes."""
+    import re
+
+    argv = ["steps", "--solid", "--interval", "20", "--coarsen", "3", "--png", tmp_path / "s.png", "-q"]
+    code, out, err = run(capsys, *argv, "--memory-budget", "60MiB")
+    assert code == 2 and not (tmp_path / "s.png").exists(), err
+    assert "(the whole run: the stepped solid needs " in err, err
+    advice = re.search(r"raise the budget \(--memory-budget SIZE\) to at least (\d+MiB)", err).group(1)
+    code, out, err = run(capsys, *argv, "--memory-budget", advice)
+    assert code == 0 and (tmp_path / "s.png").is_file(), (advice, err)
