@@ -100,16 +100,39 @@ _NEGATIVE_NUMBER = re.compile(r"^-(\.?\d|(inf|infinity|nan)$)", re.IGNORECASE)
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse that raises instead of exiting, so :func:`main` returns the status to in-process callers, and
-    takes negative numbers in any float notation (and lists starting with one) as values: every subcommand's
-    parser is one (``parser_class``)."""
+    """argparse that raises instead of exiting, so :func:`main` returns the status to in-process callers, takes
+    negative numbers in any float notation (and lists starting with one) as values, and refuses an option that takes
+    one value given twice with different values (:meth:`_get_values`): every subcommand's parser is one
+    (``parser_class``)."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self._negative_number_matcher = _NEGATIVE_NUMBER
+        self._given_values: dict[argparse.Action, Any] = {}
 
     def error(self, message: str) -> None:  # type: ignore[override]
         raise _UsageError(f"{self.prog}: error: {message}")
+
+    def parse_known_args(self, args: Any = None, namespace: Any = None) -> Any:  # type: ignore[override]
+        self._given_values = {}  # the values of this parse's options so far (a subcommand's parser parses its own)
+        return super().parse_known_args(args, namespace)
+
+    def _get_values(self, action: argparse.Action, arg_strings: list[str]) -> Any:
+        """argparse's, and a store option (``--interval 10``, ``-o a.glb``: one value, kept) given a second time with
+        another value refused, naming it and both values as typed: argparse kept the last silently, so ``-o a.glb -o
+        b.glb`` wrote b.glb alone and ``--interval 10 ... --interval 20`` stepped at 20. The same value again
+        (``--interval 10 --interval 10.0``) is no conflict; the options meant to repeat (``--nodata``, closeup's
+        ``--roi``, ``--scale``, ...: append, extend) and flags (``-q``) are not checked. ``--memory-budget`` before
+        and after the subcommand (two parsers) is checked in :func:`_main`."""
+        values = super()._get_values(action, arg_strings)
+        if type(action) is argparse._StoreAction and action.option_strings:
+            typed = " ".join(arg_strings)
+            if action in self._given_values and self._given_values[action][0] != values:
+                raise argparse.ArgumentError(
+                    action, f"given twice ({self._given_values[action][1]!r}, then {typed!r}); it takes one value: "
+                            f"give it once")
+            self._given_values[action] = (values, typed)
+        return values
 
 
 class Progress:
@@ -705,7 +728,7 @@ def build_parser() -> argparse.ArgumentParser:
         sub.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
                          help="no progress lines on stderr")
         sub.add_argument("--memory-budget", type=_byte_size, default=argparse.SUPPRESS, metavar="SIZE",
-                         help=_MEMORY_BUDGET_HELP)
+                         dest="memory_budget_after", help=_MEMORY_BUDGET_HELP)  # see _main: given on both sides
     return parser
 
 
@@ -1145,8 +1168,15 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
                           "radius", stacklevel=1)
 
     if png is not None:  # the render's copies of the mesh, at least the DEM's surface: before stepping
-        render._check_render_budget(args.size[0], args.size[1], "--size", mesh=_surface_size(terrain),
-                                    mesh_hint=_STEPS_RENDER_HINT, at_least=True)
+        try:
+            render._check_render_budget(args.size[0], args.size[1], "--size", mesh=_surface_size(terrain),
+                                        mesh_hint=_STEPS_RENDER_HINT, at_least=True)
+        except st.OutputTooLargeError as exc:
+            if args.solid:  # the budget the whole run needs, not the surface's render alone
+                _solid_too(exc, args.size, lambda budget: st.stepped(
+                    terrain, interval=interval, levels=args.levels, base=base, gamma=gamma, colors=colors,
+                    solid=True, floor=args.floor, device=args.device, memory_budget=budget))
+            raise
 
     # kernels: compile (first run on this machine) or load from Warp's cache
     from ._device import resolve_device
@@ -1251,6 +1281,35 @@ def _render_too(exc: OutputTooLargeError, size: tuple[int, int]) -> None:
     raise type(exc)(f"{str(exc)[:-len(figure)]}{_budget_figure(render)} (its --png render, {size[0]}x{size[1]}, "
                     f"needs {_size_text(render)} for a mesh of at least {mesh[1]:,} faces)",
                     nbytes=nbytes, mesh=mesh) from None
+
+
+def _solid_too(exc: Exception, size: tuple[int, int], count: Callable[[int], Any]) -> None:
+    """Raise ``exc``, the --png render of a --solid run refused before stepping (its figure from the DEM's surface,
+    the fewest faces the mesh can have), again advising the budget the whole run needs: the stepped solid's own (its
+    count pass run by ``count``, the stepping under a budget of one byte, which refuses before allocating) or its
+    render's with the most faces the solid has, whichever is more. ``steps --solid --png`` was told 200MiB for the
+    render of the surface, then 500MiB for the solid: a budget per try, each too small. Returns where the count
+    gives no figure (the caller raises ``exc`` as it is)."""
+    from ._compaction import _budget_figure, _size_text
+    from .render import _render_bytes
+
+    nbytes = getattr(exc, "nbytes", None)
+    figure = None if nbytes is None else _budget_figure(nbytes)
+    if not figure or not str(exc).endswith(figure):
+        return
+    try:
+        count(1)
+    except StepTerrainError as refused:
+        solid, mesh = getattr(refused, "nbytes", None), getattr(refused, "mesh", None)
+    else:  # pragma: no cover - a budget of one byte holds no solid
+        return
+    if solid is None or mesh is None:
+        return
+    render = _render_bytes(size[0], size[1], vertices=mesh[0], faces=mesh[1])
+    need = max(int(nbytes), int(solid), render)
+    raise type(exc)(f"{str(exc)[:-len(figure)]}{_budget_figure(need)} (the whole run: the stepped solid needs "
+                    f"{_size_text(int(solid))} and its --png render, {size[0]}x{size[1]}, up to "
+                    f"{_size_text(render)})") from None
 
 
 def _surface_size(terrain: Any) -> tuple[int, int]:
@@ -1486,6 +1545,8 @@ _OPTION_PHRASES = {
     "closeup": {**_LOOK_FROM,
                 # closeup._check_framed's, of a close-up moved absurdly far: no option of closeup gives bounds
                 "move it nearer, or frame what to see with bounds": "move it nearer: give it a smaller --offset",
+                "move it nearer or scale it less, or frame what to see with bounds":
+                    "move it nearer or scale it less: give it a smaller --offset or --scale",
                 # closeup.STEPPED_CLOSEUP_HINT, of a --stepped close-up over the budget
                 "step the close-up at a larger interval (CloseUp.stepped) or give it a smaller ROI, or crop or coarsen "
                 "the terrain (Terrain.crop, Terrain.coarsen)": "step the close-up at a larger interval (--stepped) or "
@@ -1665,6 +1726,13 @@ def _main(argv: Sequence[str] | None) -> int:
     if getattr(args, "run", None) is None:
         parser.print_help(sys.stderr)
         return EXIT_USAGE
+    after = getattr(args, "memory_budget_after", None)  # --memory-budget after the subcommand (its parser's)
+    if after is not None:
+        if args.memory_budget not in (None, after):  # the subcommand's replaced the command's silently
+            print(f"stepterrain: error: argument --memory-budget: given twice ({args.memory_budget} bytes before "
+                  f"{args.command}, then {after} bytes after it); it takes one value: give it once", file=sys.stderr)
+            return EXIT_USAGE
+        args.memory_budget = after
     progress = Progress(quiet=args.quiet)
     previous_budget = get_memory_budget()
     previous_hint = budget_hint(_CLI_BUDGET_HINT)  # refusals in this process name the option

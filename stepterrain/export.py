@@ -584,9 +584,12 @@ def save_mesh(
         triangle with two corners on one float32 position, of no area, is left out: the walls of zero height of a
         solid at γ = 0, which a reader merging corners by position would fold onto their neighbours' edges),
         ``.3mf`` (exact coordinates, in the unit it declares: the one ``metadata["units"]`` names, a globe's
-        metres, scale_for_print's millimetres, else millimetres: a terrain in metres is scaled for a print in the
-        slicer; vertex or face colours as a colour group: a colour 3D print keeps its tints;
-        a triangle naming one vertex twice, of no area, is left out, as 3MF requires).
+        metres, scale_for_print's millimetres; else metres for a mesh stepterrain made, whose coordinates are metres
+        (its metadata's ``generator``, ``crs`` or ``source`` shows it: a stepped terrain, a close-up), as the same
+        mesh read back from a .glb declares them; else millimetres, 3MF's default, for a foreign unitless mesh (an
+        STL's); a print's millimetres come from scale_for_print (``steps --print-size``); vertex or face colours as
+        a colour group: a colour 3D print keeps its tints; a triangle naming one vertex twice, of no area, is left
+        out, as 3MF requires).
     metadata : mapping, optional
         Merged over ``mesh.metadata`` and stored in the glTF mesh ``extras`` and, as JSON, in a ``.ply``'s header
         (``comment stepterrain-metadata {...}`` lines; see Notes), at the top of an ``.obj`` (``# stepterrain-metadata
@@ -2509,17 +2512,34 @@ _3MF_UNIT_NAMES = {"micron": "microns", "millimeter": "millimeters", "centimeter
 
 
 def _3mf_unit(metadata: Mapping[str, Any]) -> str:
-    """The 3MF ``unit`` of a mesh whose ``metadata["units"]`` names one (case-insensitive: a globe's "meters",
-    scale_for_print's "millimeters", trimesh's of a mesh it read), else millimetre (3MF's default: a terrain in
-    metres is scaled for a print in the slicer, or by :func:`scale_for_print`). Every 3MF said millimetre: a globe,
-    in metres, came out 1000 times too small."""
+    """The 3MF ``unit`` of a mesh: the one its ``metadata["units"]`` names (case-insensitive: a globe's "meters",
+    scale_for_print's "millimeters", trimesh's of a mesh it read: a glTF's metres), else metre for a mesh of
+    stepterrain's world coordinates, which are metres (:func:`_in_world_metres`: a stepped terrain, a close-up, a
+    draped mesh, one read back from a file stepterrain wrote), else millimetre (3MF's default, and the unit slicers
+    read a unitless file in: a foreign STL or OBJ). Every 3MF said millimetre: a globe, in metres, came out 1000 times
+    too small; and a stepped terrain written straight to .3mf declared millimetres while the same mesh saved as .glb,
+    read back and saved as .3mf declared metres."""
     units = metadata.get("units")
-    return _3MF_UNITS.get(units.strip().lower(), "millimeter") if isinstance(units, str) else "millimeter"
+    if isinstance(units, str) and units.strip().lower() in _3MF_UNITS:
+        return _3MF_UNITS[units.strip().lower()]
+    return "meter" if _in_world_metres(metadata) else "millimeter"
+
+
+def _in_world_metres(metadata: Mapping[str, Any]) -> bool:
+    """Whether a mesh's ``metadata`` shows it in stepterrain's world coordinates, metres (a projected DEM's, a
+    geographic one's local metres, a .npy's at its spacing in metres): stepterrain made it (its ``generator``,
+    ``stepterrain.stepped``, ``stepterrain steps``, ...) or from a Terrain (its ``crs`` or ``source``, as
+    :func:`~stepterrain.stepped` and :func:`~stepterrain.closeup` record them). A foreign mesh's read metadata holds
+    none of them."""
+    generator = metadata.get("generator")
+    return (isinstance(generator, str) and generator.startswith("stepterrain")) or "crs" in metadata or (
+        "source" in metadata)
 
 
 def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
     """3MF core + materials: one mesh object, coordinates as written by ``repr`` (exact), in the unit its metadata's
-    ``units`` names (:func:`_3mf_unit`; millimetres without one), and vertex colours as a ``m:colorgroup`` with each
+    ``units`` names (:func:`_3mf_unit`; without one, metres for stepterrain's own meshes, millimetres for a foreign
+    one), and vertex colours as a ``m:colorgroup`` with each
     triangle's corners' colours (p1, p2, p3; trimesh's writer dropped them), or face colours as each triangle's p1.
     Written by us, streamed into the zip: no lxml or networkx needed. A triangle naming one vertex twice (no area:
     trimesh's loader makes one of a sliver when it merges vertices) is left out: 3MF's v1, v2 and v3 MUST be distinct

@@ -239,15 +239,15 @@ def load_dem(
         names the encodings); with it a greyscale or 16-bit-per-channel PNG, or a file that is no local PNG, is.
     nodata : float or sequence of floats, optional
         Value(s) marking missing cells besides the file's own nodata value and mask, which still apply (the CLI's
-        ``--nodata``): for a file whose nodata value was lost or never declared (``nodata=-9999``, or
-        ``nodata=(-9999, -32768)``), as ``gdal_edit.py -a_nodata`` would declare it, without editing the file.
-        Compared, as GDAL compares a nodata value, with the values as stored: a GeoTIFF band's before its scale and
-        offset, exactly, in the band's own dtype (a float32 band's cells with the float32 rounding of the value, an
-        integer band's with the value itself: 0.5 marks no cell of one); a PNG's grey values as Pillow reads them
-        (0-255, 0-65535), an RGB terrain tile's decoded heights (Terrarium's void, black, is -32768). Its cells are
+        ``--nodata``): for a file whose nodata value was lost or never declared (``nodata=-9999``, or ``nodata=(-9999,
+        -32768)``), as ``gdal_edit.py -a_nodata`` would declare it, without editing the file. Compared, as GDAL compares
+        a nodata value, with the values as stored: a GeoTIFF band's before its scale and offset, exactly, in the band's
+        own dtype (a float32 band's cells with the float32 rounding of the value, an integer band's with the value
+        itself: 0.5 or -99999 marks no cell of an int16 one, and a warning says so); a PNG's grey values as Pillow reads
+        them (0-255, 0-65535), an RGB terrain tile's decoded heights (Terrarium's void, black, is -32768). Its cells are
         NaN and no warning of an undeclared nodata (see Warns) names that value; a value that no cell holds changes
-        nothing. NaN and ±inf are accepted and change nothing (non-finite cells are nodata anyway). Not a real
-        number (a string, a bool) is refused.
+        nothing. NaN and ±inf are accepted and change nothing (non-finite cells are nodata anyway). Not a real number (a
+        string, a bool) is refused.
 
     Returns
     -------
@@ -325,6 +325,10 @@ def load_dem(
         given: an .npz's ``crs="4326"``) whose coordinates look like degrees (nodes within x -180 to 360 and y -90 to
         90, heights spanning more than 100 times its width and height: read as metres, an SRTM tile was a needle
         centimetres wide), naming the CRS to give it.
+        Also a GeoTIFF band's unit that is not the vertical unit of its compound CRS (metres in a file of
+        EPSG:32633+6360, NAVD88 height in US survey feet): read in the band's unit, as GDAL reads it, the warning naming
+        the ``height_unit`` that reads the CRS's; and a ``nodata`` value no cell of the file's dtype can hold (3.5 or
+        -99999 in int16, 1e40 in float32), which marks no cell.
 
     Raises
     ------
@@ -1753,6 +1757,8 @@ def _load_geotiff(
                 "height_unit" if height_unit else f"band {band}'s unit" if file_unit else f"the vertical unit of {crs}"
             )
             _warn_unit_override(file, height_unit, file_unit, f"band {band}'s unit")
+            if not height_unit:
+                _warn_unit_against_vertical(file, file_unit, crs, f"band {band}'s unit")
             unit, crs, factor = _vertical_unit(height_unit or file_unit, crs)
             if crop is not None:  # the whole grid placed from the header, then only the crop's window read
                 # the unit as _heights_in_metres returns it: the Terrain's height_unit
@@ -2247,14 +2253,44 @@ def given_nodata(
 ) -> NDArray[np.bool_] | None:
     """``hits`` (None: no cell) with the cells of ``array`` equal to one of ``given`` (:func:`load_dem`'s ``nodata``,
     compared as :func:`equals_nodata` compares a file's) marked too; non-finite values are passed over (NaN matches
-    no cell, and an inf cell is nodata anyway). In place where ``hits`` is an array."""
+    no cell, and an inf cell is nodata anyway). In place where ``hits`` is an array. A finite value that no cell of
+    ``array``'s dtype can hold (a fraction or a value beyond an integer dtype's range, a value beyond a float dtype's)
+    is warned of (:func:`_warn_unheld_nodata`): it marks no cell, which ``--nodata 3.5`` or ``--nodata -99999`` on an
+    int16 or uint16 GeoTIFF or PNG did silently."""
     for value in given:
         if not math.isfinite(value):
             continue
+        _warn_unheld_nodata(array.dtype, value)
         with np.errstate(over="ignore"):  # a value beyond the dtype (1e40 in float32) is inf there: no finite cell
             hit = equals_nodata(array, value)
         hits = hit if hits is None else np.logical_or(hits, hit, out=hits if hits.flags.writeable else None)
     return hits
+
+
+def _warn_unheld_nodata(dtype: np.dtype[Any], value: float) -> None:
+    """Warn, at the caller of :func:`load_dem`, when ``value`` (one of its ``nodata``, finite) is no value of ``dtype``
+    (the values as stored: :func:`equals_nodata` compares it with none of them): a fraction or beyond the range of
+    an integer dtype, beyond the largest finite value of a float one (inf there). Its cells were read as heights
+    without a word, ``--nodata -99999`` on an int16 DEM whose voids are -32768 masking nothing."""
+    if dtype.kind in "iu":
+        info = np.iinfo(dtype)
+        if value.is_integer() and info.min <= value <= info.max:
+            return
+        held = f"whole numbers {info.min} to {info.max}"
+    elif dtype.kind == "f":
+        top = float(np.finfo(dtype).max)
+        if -top <= value <= top:
+            return
+        held = f"magnitudes up to {top:.8g}"
+    else:
+        return
+    text = repr(value)[:-2] if repr(value).endswith(".0") else repr(value)  # -99999, 3.5, 1e+40
+    warnings.warn(
+        f"nodata={text} is no value of the file's {dtype} cells as stored ({held}): it marks no cell; give "
+        f"the value its missing cells hold (`stepterrain info` shows the height range, `gdalinfo -stats` the stored "
+        f"values)",
+        stacklevel=caller_stacklevel(),
+    )
 
 
 def _missing_beyond_gdal_mask(
@@ -3696,6 +3732,26 @@ def _compound_heights(crs: str | None) -> tuple[str, float | None, str | None] |
     return name, factor if math.isfinite(factor) and factor > 0 else None, horizontal_crs
 
 
+def _warn_unit_against_vertical(file: Path, unit: str | None, crs: str | None, named_by: str) -> None:
+    """Warn, at the caller of :func:`load_dem`, when the file's own height ``unit`` (``named_by``: "band 1's unit")
+    and the vertical unit of its compound CRS ``crs`` are both known lengths that differ (by more than 1e-5: a
+    US survey foot is a foot): the file's own is used, as GDAL reads it, and the heights are 3.28 times off if the
+    CRS is right. A band unit of metres in a GeoTIFF of NAVD88 height (ftUS) was read as metres without a word."""
+    compound = _compound_heights(crs) if unit and unit.strip() and crs else None
+    if compound is None:
+        return
+    name, stated, _ = compound
+    own, vertical = _unit_factor(unit), _unit_factor(name) or stated
+    if own is None or vertical is None or abs(own / vertical - 1.0) <= 1e-5:
+        return
+    warnings.warn(
+        f"{file.name}: {named_by} {unit!r} is not the vertical unit of its CRS, {name!r} ({crs}): heights read in "
+        f"{unit}, as GDAL reads them ({own / vertical:.6g} times what the CRS's unit makes them); if they are in "
+        f"{name}, pass height_unit={name!r}",
+        stacklevel=caller_stacklevel(),
+    )
+
+
 def _vertical_unit(unit: str | None, crs: str | None) -> tuple[str | None, str | None, float | None]:
     """The heights' unit (the file's own, else a compound CRS's vertical unit), the CRS to keep and, when the unit
     is the compound CRS's and not one of :data:`_HEIGHT_UNITS` (British foot, Clarke's foot, ...), the metres per
@@ -3795,9 +3851,29 @@ def _heights_in_metres(
 
 
 def _crs_string(crs_obj: Any) -> str | None:
+    """``crs_obj`` (rasterio's CRS) as a CRS string: ``EPSG:n`` where it is one EPSG CRS, ``EPSG:h+v`` where it is a
+    compound CRS of two (:func:`_compound_epsg`: a GeoTIFF of WGS 84 / UTM 33N + EGM96 height gave its WKT, a
+    thousand characters in `info` and in a message), else its WKT or PROJ string."""
     if crs_obj is None:
         return None
     epsg = crs_obj.to_epsg()
     if epsg is not None:
         return f"EPSG:{epsg}"
-    return crs_obj.to_string() or None
+    return _compound_epsg(crs_obj) or crs_obj.to_string() or None
+
+
+def _compound_epsg(crs_obj: Any) -> str | None:
+    """``EPSG:h+v`` for a compound CRS whose horizontal and vertical parts are EPSG CRSs and which that string reads
+    back as (GDAL's ``EPSG:32633+5773``), else None."""
+    try:
+        wkt = crs_obj.to_wkt()
+        if not wkt.lstrip().startswith(("COMPD_CS[", "COMPOUNDCRS[")):
+            return None
+        parts = (_wkt_block(wkt, ("PROJCS", "PROJCRS", "GEOGCS", "GEOGCRS")), _wkt_block(wkt, ("VERT_CS", "VERTCRS")))
+        codes = [type(crs_obj).from_wkt(part).to_epsg() if part else None for part in parts]
+        if None in codes:
+            return None
+        text = f"EPSG:{codes[0]}+{codes[1]}"
+        return text if type(crs_obj).from_user_input(text) == crs_obj else None
+    except Exception:  # noqa: BLE001 - a part GDAL cannot read alone: the WKT as it is
+        return None

@@ -860,7 +860,10 @@ def step_arrays(
             surface_bytes + solid_bytes(vertex_count, face_count, solid_boundary),
             f"the stepped solid (a surface of {vertex_count:,} vertices and {face_count:,} faces, up to "
             f"{solid_boundary:,} boundary edges for its skirt, and its base)",
-            memory_budget, hint=budget_hint, mesh=(vertex_count, face_count),  # the fewest the solid has
+            # the most the closed solid has (solid_bytes' counts): a --png render's advice from the surface's counts
+            # alone was too low for the solid (steps --solid --png refused again after its budget was raised)
+            memory_budget, hint=budget_hint, mesh=(2 * (vertex_count + solid_boundary),
+                                                   2 * face_count + 3 * solid_boundary),
         )
     face_sources = None
     if want_face_sources:

@@ -229,8 +229,12 @@ def test_the_format_table_holds_on_round_trips(tmp_path):
             import zipfile
 
             assert "in the unit its metadata's `units` names" in coords and "else declared millimetres" in coords
-            for units, unit in ((None, "millimeter"), ("meters", "meter"), ("millimeters", "millimeter")):
-                copy = mesh.copy()
+            assert "else metres for a mesh stepterrain made" in coords
+            foreign = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)  # no metadata: a foreign mesh's
+            for units, unit, what in ((None, "meter", mesh), ("meters", "meter", mesh),
+                                      ("millimeters", "millimeter", mesh), (None, "millimeter", foreign),
+                                      ("meters", "meter", foreign)):
+                copy = what.copy()
                 copy.metadata.pop("units", None)
                 if units is not None:
                     copy.metadata["units"] = units

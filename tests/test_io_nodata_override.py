@@ -102,8 +102,9 @@ def test_geotiff_nodata_is_compared_before_the_band_scale_in_the_bands_dtype(tmp
     stored = load_dem(path, nodata=VOID)
     np.testing.assert_array_equal(np.isnan(stored.heights), voids)
     np.testing.assert_allclose(stored.heights[~voids], real[~voids], rtol=1e-6)
-    with pytest.warns(UserWarning, match="marks voids"):  # the scaled value marks nothing
-        assert not np.isnan(load_dem(path, nodata=VOID * 0.1).heights).any()
+    with pytest.warns(UserWarning, match="marks voids"):  # the scaled value marks nothing, and says so
+        with pytest.warns(UserWarning, match=r"nodata=-999.9000000000001 is no value of the file's int16 cells"):
+            assert not np.isnan(load_dem(path, nodata=VOID * 0.1).heights).any()
     # a float32 band: the float32 rounding of the value (1e20 is 1.00000002e+20 there), as GDAL compares it
     f = np.where(voids, np.float32(1e20), real).astype(np.float32)
     path = _geotiff(tmp_path / "fill.tif", f)
@@ -112,7 +113,8 @@ def test_geotiff_nodata_is_compared_before_the_band_scale_in_the_bands_dtype(tmp
     np.testing.assert_array_equal(np.isnan(terrain.heights), voids)
     # an integer band: a value it cannot hold marks no cell
     with pytest.warns(UserWarning, match="marks voids"):
-        assert not np.isnan(load_dem(tmp_path / "scaled.tif", nodata=VOID + 0.5).heights).any()
+        with pytest.warns(UserWarning, match="nodata=-9998.5 is no value of the file's int16 cells"):
+            assert not np.isnan(load_dem(tmp_path / "scaled.tif", nodata=VOID + 0.5).heights).any()
 
 
 def test_float64_lowest_value_refusal_is_lifted_by_nodata(tmp_path):
@@ -398,3 +400,46 @@ def test_nodata_help_says_whose_cells_it_marks_besides_their_own_nodata(capsys, 
     text = " ".join(out.split())
     assert f"value(s) marking missing cells of {subject} besides its own nodata value and mask," in text
     assert note in text.split("--nodata V[,V...]")[-1]  # the subcommand's own word on them kept
+
+
+@pytest.mark.parametrize("dtype, value, held", [
+    ("uint16", 3.5, "whole numbers 0 to 65535"), ("int16", -99999.0, "whole numbers -32768 to 32767"),
+    ("uint16", -1.0, "whole numbers 0 to 65535"), ("float32", 1e40, "magnitudes up to 3.4028235e+38"),
+])
+def test_a_nodata_no_cell_of_the_dtype_can_hold_is_warned_of(tmp_path, dtype, value, held):
+    """nodata=3.5 or -99999 on an integer GeoTIFF (1e40 on a float32 one) marks no cell, as GDAL compares it (in the
+    band's dtype), and said nothing: the voids the user meant stayed heights. Now a warning names the value, the dtype
+    and what it holds; a value the dtype holds (and NaN/inf, which mark nothing by design) warns of nothing."""
+    z = np.where(_voids((32, 40)), 3, 100 + np.arange(32 * 40).reshape(32, 40) % 50).astype(dtype)
+    path = _geotiff(tmp_path / "dem.tif", z)
+    with pytest.warns(UserWarning, match="is no value of") as caught:
+        terrain = load_dem(path, nodata=value)
+    told = [str(w.message) for w in caught if "is no value of" in str(w.message)]
+    text = repr(value)[:-2] if repr(value).endswith(".0") else repr(value)
+    assert told == [f"nodata={text} is no value of the file's {dtype} cells as stored ({held}): it marks no cell; "
+                    "give the value its missing cells hold (`stepterrain info` shows the height range, "
+                    "`gdalinfo -stats` the stored values)"]
+    assert not np.isnan(terrain.heights).any()
+    for fine, marked in ((3, z == 3), (float("nan"), False), (float("inf"), False), ((3, 100), (z == 3) | (z == 100))):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            heights = load_dem(path, nodata=fine).heights
+        np.testing.assert_array_equal(np.isnan(heights), np.broadcast_to(marked, z.shape))
+
+
+def test_cli_nodata_no_cell_can_hold_is_warned_of_as_the_option(tmp_path, capsys):
+    """--nodata 3.5 (-99999) on a uint16 GeoTIFF or PNG: the warning names --nodata, the value and the dtype; of a list,
+    the value no cell can hold alone, the other applied."""
+    from PIL import Image
+
+    z = np.where(_voids((32, 40)), 3, 100 + np.arange(32 * 40).reshape(32, 40) % 50).astype(np.uint16)
+    Image.fromarray(z).save(tmp_path / "dem.png")
+    for path in (_geotiff(tmp_path / "dem.tif", z), tmp_path / "dem.png"):
+        code, out, err = run(capsys, "info", path, "--json", "--nodata", "3.5")
+        assert code == 0 and json.loads(out)["nodata_count"] == 0, err
+        assert "stepterrain info: warning: --nodata 3.5 is no value of the file's uint16 cells" in err, err
+        code, out, err = run(capsys, "info", path, "--json", "--nodata", "-99999,3")
+        assert code == 0 and json.loads(out)["nodata_count"] == int((z == 3).sum()), err
+        assert "warning: --nodata -99999 is no value of the file's uint16 cells" in err and "--nodata 3 " not in err
+        code, out, err = run(capsys, "info", path, "--json", "--nodata", "3")
+        assert code == 0 and "warning" not in err, err

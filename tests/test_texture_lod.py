@@ -891,7 +891,7 @@ def test_texture_tree_takes_an_image_in_the_horizontal_crs_of_a_compound_crs_dem
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         terrain = st.load_dem(tmp_path / "dem.tif")
-    assert "NAVD88" in terrain.crs
+    assert terrain.crs == "EPSG:32611+5703"  # the compound CRS kept, named by its two EPSG codes (was its WKT)
     for name, crs in (("utm.tif", "EPSG:32611"), ("utm12.tif", "EPSG:32612")):
         with rasterio.open(tmp_path / name, "w", driver="GTiff", height=16, width=16, count=3, dtype="uint8", crs=crs,
                            transform=Affine(60.0, 0.0, 380000.0, 0.0, -60.0, 3800000.0), photometric="RGB") as out:
