@@ -2207,7 +2207,11 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
     horizontal = math.cos(hd) * north + math.sin(hd) * east
     forward = -math.cos(tl) * outward + math.sin(tl) * horizontal
     up = math.cos(tl) * horizontal + math.sin(tl) * outward
-    target = eye + forward * max(altitude, 1.0)
+    # the target a step along the view: at least 2^-20 of the eye's distance from the centre, so that target - eye
+    # keeps the direction to ~2^-32 rad in float64 (a step of the altitude or 1 m rounded away against a large
+    # radius: 10 m above a sphere of 1e17 m the view turned 0.17 rad off its tilt and heading, and 1 m above
+    # one of 1e20 m the target was the eye, refused as a Camera's)
+    target = eye + forward * max(altitude, 1.0, (radius + altitude) * 2.0**-20)
     distance = radius + altitude  # of the eye from the centre: every surface point lies within distance + top
     # the near plane at a thousandth of the eye's clearance above the sphere of max_radius (no surface point lies
     # closer), at least min(1 m, 1e-6 · radius): a fixed 1 m floor clipped the whole ground under the eye of a
