@@ -238,3 +238,30 @@ def test_look_from_keeps_its_view_direction_over_a_large_sphere(radius, altitude
     forward /= np.linalg.norm(forward)
     assert np.arctan2(np.linalg.norm(np.cross(forward, wanted)), forward @ wanted) < 1e-9
     assert np.allclose(camera.eye, (radius + altitude) * outward, rtol=1e-15, atol=0)
+
+
+def test_the_view_metrics_alone_without_a_camera_are_refused():
+    """Without a camera the distance and clip metrics are dropped; metrics of them alone left nothing to steer the
+    refinement (μ = 1): Globe.mesh gave the whole sphere below error 1 and its 12 root triangles from error 1 up (the
+    planar mesh its 2), whatever the heights, without a word. Refused, naming the metrics and what they need; with
+    'geometric' beside them, a user metric or metrics=() (none, as documented) the mesh is made as before."""
+    from stepterrain.errors import InvalidInputError
+    from stepterrain.globe import adaptive_mesh
+
+    lat = np.linspace(89.5, -89.5, 18)
+    lon = np.linspace(-175.0, 175.0, 36)
+    z = np.add.outer(np.sin(np.radians(lat)) * 3000.0, np.cos(np.radians(lon)) * 2000.0)
+    globe = Globe.from_latlon(z, lat, lon, face_size=9, device="cpu")
+    heights = np.add.outer(np.arange(9.0), np.arange(9.0)) ** 2
+    for metrics, named in [(("distance",), "metric 'distance' needs"), (["clip"], "metric 'clip' needs"),
+                           (("clip", "distance"), "metrics 'distance' and 'clip' need")]:
+        with pytest.raises(InvalidInputError, match=f"^the {named} a camera .* no camera: give a camera, add "
+                                                    "'geometric', or metrics=\\(\\) for none$"):
+            globe.mesh(error=100.0, metrics=metrics)
+        with pytest.raises(InvalidInputError, match=f"^the {named} a camera"):
+            adaptive_mesh(heights, error=1.0, metrics=metrics, device="cpu")
+    geometric = globe.mesh(error=1e5, metrics=("geometric",))  # the chords' sag: e of some 100 km at face size 9
+    assert len(globe.mesh(error=1e5, metrics=("geometric", "distance", "clip")).faces) == len(geometric.faces)
+    assert len(globe.mesh(error=1e5, metrics=("distance", lambda p, r: np.ones(len(p)))).faces) == 12
+    assert len(globe.mesh(error=0.5, metrics=()).faces) == 12 * 8**2
+    assert 12 < len(geometric.faces) < 12 * 8**2
