@@ -269,6 +269,12 @@ def _load_grid(path: str, height_unit: str | None = None, nodata: Sequence[float
         if hits is not None and hits.any():
             missing = hits if missing is None else hits | missing
             marked_by.insert(0, f"--nodata {','.join(f'{v:g}' for v in nodata_given)}")
+    if elevation.dtype.kind == "f":  # NaN and ±inf: nodata as load_dem reads them (Globe.from_latlon's refusal said
+        # "elevation has 1 NaN or infinite value", naming no INPUT, as a raster's nodata once did)
+        void = ~np.isfinite(elevation)
+        if void.any():
+            missing = void if missing is None else void | missing
+            marked_by.append("NaN or infinite")
     if missing is not None and missing.any():
         row, col = np.argwhere(missing)[0]
         cells = _counted(int(missing.sum()), "nodata cell")

@@ -191,6 +191,19 @@ def _exaggeration_value(exaggeration: Any, name: str = "exaggeration") -> float:
     return exaggeration
 
 
+def _check_view_metrics(names: set[str], users: list[UserMetric], camera: Camera | None) -> None:
+    """Without a camera the distance and clip metrics are dropped (they measure its eye and view): metrics naming
+    only them left nothing to steer the refinement, μ = 1 everywhere, and the mesh came out whole below error 1 and
+    as the root triangles from it up, without a word. Refused; the default (all three) keeps the geometric metric
+    without a camera, and ``metrics=()`` still asks for none."""
+    if camera is None and names and not names & {"geometric"} and not users:
+        given = " and ".join(repr(name) for name in METRICS if name in names)
+        which = f"metrics {given} need" if len(names) > 1 else f"metric {given} needs"
+        raise InvalidInputError(f"the {which} a camera (its eye and view; without one nothing would steer the "
+                                f"refinement); got metrics of {given} alone and no camera: give a camera, add "
+                                "'geometric', or metrics=() for none")
+
+
 def _check_distance_scale(value: Any, camera: Camera | None, names: set[str]) -> None:
     """``distance_scale`` is ℓ of the distance metric alone: given without a camera or without that metric it changed
     nothing (the mesh came out the same whatever it was), so it is refused, as ``floor`` without ``solid=True``."""
@@ -661,7 +674,7 @@ class Globe:
         ------
         InvalidInputError
             Negative error, unknown bounds or metric names, a camera inside the planet (at or below the terrain
-            surface in its direction, e.g. inside a mountain).
+            surface in its direction, e.g. inside a mountain), metrics of 'distance' or 'clip' alone without a camera.
         OutputTooLargeError
             A refinement level or the mesh would exceed the memory budget, or the int32 counts of the kernels
             (a level of over 1,073,741,822 triangles, a mesh of 2^31 - 2 faces) whatever the budget.
@@ -682,6 +695,7 @@ class Globe:
             if not isinstance(camera, Camera):
                 raise InvalidInputError(f"camera must be a stepterrain.globe.Camera; got {type(camera).__name__}")
             self._check_eye(camera.eye)
+        _check_view_metrics(names, users, camera)
         _check_distance_scale(distance_scale, camera, names)
         if distance_scale is None:
             altitude = np.linalg.norm(camera.eye) - self.radius if camera is not None else 0.0
@@ -1454,7 +1468,8 @@ def adaptive_mesh(
     InvalidInputError
         Not a real (H, W) array with H, W >= 2 (or a TIN Terrain), NaN, infinite or masked heights, bad spacing, an
         origin so far from zero for the spacing that float64 cannot keep the nodes apart, spacing or origin with a
-        Terrain, negative error, a camera eye at or below the terrain surface.
+        Terrain, negative error, a camera eye at or below the terrain surface, metrics of 'distance' or 'clip' alone
+        without a camera.
 
     Examples
     --------
@@ -1521,6 +1536,7 @@ def adaptive_mesh(
         camera = dataclasses.replace(camera, eye=tuple(np.subtract(camera.eye, (ox, oy, 0.0))),
                                      target=tuple(np.subtract(camera.target, (ox, oy, 0.0))))
     device = resolve_device(device)
+    _check_view_metrics(names, users, camera)
     _check_distance_scale(distance_scale, camera, names)  # before the grid's passes, as Globe.mesh checks it
     if distance_scale is None:
         above = camera.eye[2] - highest if camera is not None else 0.0
@@ -2207,7 +2223,11 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
     horizontal = math.cos(hd) * north + math.sin(hd) * east
     forward = -math.cos(tl) * outward + math.sin(tl) * horizontal
     up = math.cos(tl) * horizontal + math.sin(tl) * outward
-    target = eye + forward * max(altitude, 1.0)
+    # the target a step along the view: at least 2^-20 of the eye's distance from the centre, so that target - eye
+    # keeps the direction to ~2^-32 rad in float64 (a step of the altitude or 1 m rounded away against a large
+    # radius: 10 m above a sphere of 1e17 m the view turned 0.17 rad off its tilt and heading, and 1 m above
+    # one of 1e20 m the target was the eye, refused as a Camera's)
+    target = eye + forward * max(altitude, 1.0, (radius + altitude) * 2.0**-20)
     distance = radius + altitude  # of the eye from the centre: every surface point lies within distance + top
     # the near plane at a thousandth of the eye's clearance above the sphere of max_radius (no surface point lies
     # closer), at least min(1 m, 1e-6 · radius): a fixed 1 m floor clipped the whole ground under the eye of a

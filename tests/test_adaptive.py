@@ -196,7 +196,7 @@ def test_padded_input_is_cut_back_whatever_the_metrics(monkeypatch, node_pass):
     z = np.arange(15, dtype=np.float32).reshape(3, 5)
     away = Camera(eye=(-100.0, -100.0, 50.0), target=(-200.0, -200.0, 0.0))  # sees none of the grid
     for options in ({"camera": away, "cull": False}, {"metrics": ("geometric", lambda p, r: np.zeros(len(p)))},
-                    {"metrics": ()}, {"metrics": ("distance",)}):
+                    {"metrics": ()}, {"metrics": ("distance",), "camera": away}):  # (distance alone needs the camera)
         mesh = adaptive_mesh(z, error=2.0, **options)
         assert_crack_free_rectangle(mesh, 3, 5)
         assert mesh.metadata["node_index"][:, 0].max() == 2, options

@@ -289,6 +289,29 @@ def test_the_cli_refuses_the_masked_cells_and_the_scale_of_a_global_npz_as_load_
     assert main(argv) == 0 and out.exists()
 
 
+def test_the_cli_names_the_npz_input_of_nan_or_infinite_heights(tmp_path, capsys):
+    """A global .npz's NaN (or ±inf) heights, nodata as load_dem reads them, were refused by Globe.from_latlon's
+    "elevation has 1 NaN or infinite value", naming no INPUT (a raster's NaN nodata names it since a session ago):
+    they are counted with the other nodata cells of the file now, naming the file and what marks them."""
+    from stepterrain.cli import main
+
+    grid, out = tmp_path / "grid.npz", tmp_path / "g.ply"
+    argv = ["globe", str(grid), "--face-size", "9", "--no-camera", "-o", str(out), "--device", "cpu"]
+    for void in (np.nan, -np.inf):
+        elevation = np.zeros((180, 360), np.float32)
+        elevation[3, 7] = void
+        np.savez(grid, elevation=elevation, lat=LAT1, lon=LON1)
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert f"error: {str(grid)!r}: 'elevation' has 1 nodata cell (NaN or infinite; first at row 3, column 7); " \
+               "the globe needs a height everywhere" in err, err
+        elevation[100, 200] = -9999
+        np.savez(grid, elevation=elevation, lat=LAT1, lon=LON1, nodata=np.float32(-9999))
+        assert main(argv) == 2
+        assert "has 2 nodata cells (nodata -9999, NaN or infinite; first at row 3, column 7)" in capsys.readouterr().err
+    assert not out.exists()
+
+
 def test_a_finite_height_beyond_float32_is_named_as_such():
     """A finite float64 height of 1e39 overflowed to inf in the float32 cast (with numpy's RuntimeWarning) and was
     reported as one of the 'NaN or infinite values' to fill, for the globe and the planar mesh alike."""

@@ -217,3 +217,51 @@ def test_the_globe_example_frames_its_clipped_close_views_whole():
     ground = np.asarray(close.eye) / np.linalg.norm(close.eye)
     under = np.argmin(np.linalg.norm(points / np.linalg.norm(points, axis=1, keepdims=True) - ground, axis=1))
     assert y[under] < 0  # the vertex nearest the close eye's ground lies in the lower half
+
+
+@pytest.mark.parametrize("radius, altitude", [(EARTH_RADIUS, 1.0), (1e15, 10.0), (1e17, 10.0), (1e20, 1.0)])
+def test_look_from_keeps_its_view_direction_over_a_large_sphere(radius, altitude):
+    """look_from put the target max(altitude, 1 m) along the view from the eye: against a large radius that step
+    rounded away in float64, 10 m above a sphere of 1e17 m the view turned 0.17 rad off the tilt and heading asked
+    for (0.003 rad at 1e15), and 1 m above one of 1e20 m the target was the eye, refused as "Camera eye and target
+    must differ" naming no argument of look_from. The view direction is the one asked for, to float64's precision
+    of the direction (checked against the east / north / up frame written out here)."""
+    from stepterrain.globe import look_from
+
+    lat, lon, tilt, heading = np.radians([46.0, 9.0, 60.0, 30.0])
+    outward = np.array([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)])
+    east = np.array([-np.sin(lon), np.cos(lon), 0.0])
+    north = np.cross(outward, east)
+    wanted = -np.cos(tilt) * outward + np.sin(tilt) * (np.cos(heading) * north + np.sin(heading) * east)
+    camera = look_from(46.0, 9.0, altitude, tilt=60.0, heading=30.0, radius=radius)
+    forward = np.subtract(camera.target, camera.eye)
+    forward /= np.linalg.norm(forward)
+    assert np.arctan2(np.linalg.norm(np.cross(forward, wanted)), forward @ wanted) < 1e-9
+    assert np.allclose(camera.eye, (radius + altitude) * outward, rtol=1e-15, atol=0)
+
+
+def test_the_view_metrics_alone_without_a_camera_are_refused():
+    """Without a camera the distance and clip metrics are dropped; metrics of them alone left nothing to steer the
+    refinement (μ = 1): Globe.mesh gave the whole sphere below error 1 and its 12 root triangles from error 1 up (the
+    planar mesh its 2), whatever the heights, without a word. Refused, naming the metrics and what they need; with
+    'geometric' beside them, a user metric or metrics=() (none, as documented) the mesh is made as before."""
+    from stepterrain.errors import InvalidInputError
+    from stepterrain.globe import adaptive_mesh
+
+    lat = np.linspace(89.5, -89.5, 18)
+    lon = np.linspace(-175.0, 175.0, 36)
+    z = np.add.outer(np.sin(np.radians(lat)) * 3000.0, np.cos(np.radians(lon)) * 2000.0)
+    globe = Globe.from_latlon(z, lat, lon, face_size=9, device="cpu")
+    heights = np.add.outer(np.arange(9.0), np.arange(9.0)) ** 2
+    for metrics, named in [(("distance",), "metric 'distance' needs"), (["clip"], "metric 'clip' needs"),
+                           (("clip", "distance"), "metrics 'distance' and 'clip' need")]:
+        with pytest.raises(InvalidInputError, match=f"^the {named} a camera .* no camera: give a camera, add "
+                                                    "'geometric', or metrics=\\(\\) for none$"):
+            globe.mesh(error=100.0, metrics=metrics)
+        with pytest.raises(InvalidInputError, match=f"^the {named} a camera"):
+            adaptive_mesh(heights, error=1.0, metrics=metrics, device="cpu")
+    geometric = globe.mesh(error=1e5, metrics=("geometric",))  # the chords' sag: e of some 100 km at face size 9
+    assert len(globe.mesh(error=1e5, metrics=("geometric", "distance", "clip")).faces) == len(geometric.faces)
+    assert len(globe.mesh(error=1e5, metrics=("distance", lambda p, r: np.ones(len(p)))).faces) == 12
+    assert len(globe.mesh(error=0.5, metrics=()).faces) == 12 * 8**2
+    assert 12 < len(geometric.faces) < 12 * 8**2
