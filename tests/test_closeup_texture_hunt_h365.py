@@ -1,0 +1,30 @@
+"""Bug hunt h365 on close-ups and texture layers: each test failed before its fix."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stepterrain.texture import TextureLayer, adjust
+
+rng = np.random.default_rng(365)
+
+
+@pytest.mark.parametrize("split, position", [("left", 0.5), ("right", 0.5), ("left", 0.3), ("right", 0.8)])
+def test_adjust_split_on_a_mirrored_texture_is_by_world_x(device, split, position):
+    """adjust's split counted "left" in image columns: on a texture whose matrix mirrors x (column 0 in the east)
+    split="left" kept the east side. The same picture given mirrored (image flipped, matrix flipped) must split
+    alike, and "left" keeps the pixels whose centres lie west of xmin + position * width."""
+    image = rng.random((3, 5, 3)).astype(np.float32)
+    extent = (10.0, 15.0, 0.0, 3.0)
+    plain = TextureLayer("thematic", image, extent)
+    # world -> texel: column = 14.5 - x (texel centres at integers), row = 2.5 - y as plain's
+    mirror = np.array([[-1.0, 0.0, 14.5], [0.0, -1.0, 2.5], [0.0, 0.0, 1.0]])
+    mirrored = TextureLayer("thematic", image[:, ::-1].copy(), extent, matrix=mirror)
+    a = adjust(plain, split=split, split_position=position, device=device).rgba()
+    b = adjust(mirrored, split=split, split_position=position, device=device).rgba()
+    np.testing.assert_array_equal(b[:, ::-1], a)  # b's columns run east to west
+    centres = 10.0 + np.arange(5) + 0.5  # world x of plain's columns
+    west = centres < 10.0 + position * 5.0
+    kept = west if split == "left" else ~west
+    np.testing.assert_array_equal(a[..., 3], np.broadcast_to(kept, (3, 5)).astype(np.float32))
