@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from stepterrain.errors import InvalidInputError
 from stepterrain.texture import TextureLayer, adjust
+from stepterrain.texture_lod import pyramid_shapes
 
 rng = np.random.default_rng(365)
 
@@ -28,3 +30,16 @@ def test_adjust_split_on_a_mirrored_texture_is_by_world_x(device, split, positio
     west = centres < 10.0 + position * 5.0
     kept = west if split == "left" else ~west
     np.testing.assert_array_equal(a[..., 3], np.broadcast_to(kept, (3, 5)).astype(np.float32))
+
+
+@pytest.mark.parametrize("height, width, name, got", [(0, 5, "height", "0"), (4, -1, "width", "-1"),
+                                                       (2.5, 3, "height", "2.5"), (3, True, "width", "True")])
+def test_pyramid_shapes_refuses_sizes_that_never_reach_one(height, width, name, got):
+    """pyramid_shapes(0, 5) halved 0 to 0 for ever, its list growing until memory ran out; 2.5 was cut to 2."""
+    with pytest.raises(InvalidInputError, match=rf"^{name} must be a whole number of pixels >= 1; got {got}$"):
+        pyramid_shapes(height, width)
+
+
+def test_pyramid_shapes_of_whole_sizes():
+    assert pyramid_shapes(np.int64(5), 8) == [(5, 8), (3, 4), (2, 2), (1, 1)]
+    assert pyramid_shapes(1, 1) == [(1, 1)]
