@@ -5,9 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from stepterrain import cli
+from stepterrain.closeup import ROI, CloseUp, render_closeups
 from stepterrain.errors import InvalidInputError
 from stepterrain.texture import TextureLayer, adjust
 from stepterrain.texture_lod import pyramid_shapes
+
+from .conftest import needs_render
 
 rng = np.random.default_rng(365)
 
@@ -43,3 +47,33 @@ def test_pyramid_shapes_refuses_sizes_that_never_reach_one(height, width, name, 
 def test_pyramid_shapes_of_whole_sizes():
     assert pyramid_shapes(np.int64(5), 8) == [(5, 8), (3, 4), (2, 2), (1, 1)]
     assert pyramid_shapes(1, 1) == [(1, 1)]
+
+
+@needs_render
+def test_a_closeup_framed_too_large_by_its_scale_is_told_to_scale_down():
+    """_check_framed blamed the offset of whatever close-up reached farthest: a close-up scaled 1e6 times with an
+    offset of 0 was told to "move it nearer" (the CLI: "give it a smaller --offset"), which changes nothing. It now
+    names the scale when the close-up's own size, not its offset, takes it that far; an absurd offset still names
+    the offset."""
+    heights = np.add.outer(np.linspace(0.0, 4.0, 24), np.linspace(0.0, 3.0, 28)).astype(np.float32)
+    roi = ROI.circle((14.0, 12.0), 4.0)
+    with pytest.raises(InvalidInputError, match=r"because closeups\[0\] \(scale \(1000000\.0, 1000000\.0, "
+                                                r"1000000\.0\)\) is drawn .* across, reaching .*; scale it down, or "
+                                                r"frame what to see with bounds$"):
+        render_closeups(heights, [CloseUp(roi, scale=1e6)], window_size=(96, 72), device="cpu")
+    with pytest.raises(InvalidInputError, match=r"because closeups\[0\] \(offset \(0\.0, 0\.0, 1000000000\.0\)\) "
+                                                r"is drawn .*; move it nearer, or frame what to see with bounds$"):
+        render_closeups(heights, [CloseUp(roi, offset=(0, 0, 1e9))], window_size=(96, 72), device="cpu")
+
+
+def test_closeup_scale_named_in_the_clis_terms():
+    """The scale's refusal read as the CLI's: the close-up's number, its --scale and the advice to give a smaller one
+    (the library's "(scale (1000000.0, ...))" and "frame what to see with bounds" name no option)."""
+    message = ("the camera fitted to the overview and its close-ups would show the overview (0.0011 px) under a pixel: "
+               "the framed box x [0, 1], y [0, 1], z [0, 1e+07] is that large because closeups[0] (scale (1000000.0, "
+               "1000000.0, 1000000.0)) is drawn 6.7e+06 across, reaching 1e+07 from the terrain's centre; scale it "
+               "down, or frame what to see with bounds")
+    text = cli._as_option(message, cli._subcommand(cli.build_parser(), "closeup"))
+    assert "closeups[" not in text and "bounds" not in text, text
+    assert "because close-up 1 (--scale 1e+06,1e+06,1e+06) is drawn" in text, text
+    assert text.endswith("scale it down: give it a smaller --scale"), text
