@@ -1975,6 +1975,9 @@ class Pipeline:
         return self._then("add", other, tuple(weights))
 
     def modulate(self, *others: Any) -> Pipeline:
+        if not others:  # refused only at apply(), as "modulate needs at least two layers" of a pipeline given one
+            raise InvalidInputError("Pipeline.modulate needs at least one layer to modulate the current one by; got "
+                                    "none")
         return self._then("modulate", *others)
 
     def adjust(self, **params: Any) -> Pipeline:

@@ -8,7 +8,7 @@ import pytest
 from stepterrain import cli
 from stepterrain.closeup import ROI, CloseUp, render_closeups
 from stepterrain.errors import InvalidInputError
-from stepterrain.texture import TextureLayer, adjust
+from stepterrain.texture import Pipeline, TextureLayer, adjust
 from stepterrain.texture_lod import pyramid_shapes
 
 from .conftest import needs_render
@@ -77,3 +77,14 @@ def test_closeup_scale_named_in_the_clis_terms():
     assert "closeups[" not in text and "bounds" not in text, text
     assert "because close-up 1 (--scale 1e+06,1e+06,1e+06) is drawn" in text, text
     assert text.endswith("scale it down: give it a smaller --scale"), text
+
+
+def test_pipeline_modulate_without_a_layer_is_refused_when_built():
+    """Pipeline().modulate() was taken, and apply() then failed with modulate's "needs at least two layers", of a
+    pipeline that supplies the current layer itself."""
+    with pytest.raises(InvalidInputError, match=r"^Pipeline.modulate needs at least one layer to modulate the "
+                                                r"current one by; got none$"):
+        Pipeline().modulate()
+    base = TextureLayer("thematic", np.full((1, 1, 3), 0.5), (0, 1, 0, 1))
+    out = Pipeline().modulate(np.full((1, 1), 0.5)).apply(base, device="cpu").rgba()
+    assert out[0, 0].tolist() == [0.25, 0.25, 0.25, 1.0]
