@@ -1272,7 +1272,10 @@ def adjust_layer(
     rgb = wp.vec3(wp.clamp(rgb[0], 0.0, 1.0), wp.clamp(rgb[1], 0.0, 1.0), wp.clamp(rgb[2], 0.0, 1.0))
     alpha = x[3] * adjustment.alpha
     if adjustment.split_side != 0:
-        u = (float(j) + 0.5) / float(frame.cols)
+        west = j  # columns counted from the west: a mirrored texture (pixel width < 0) has column 0 in the east
+        if frame.pixel[0] < 0.0:
+            west = frame.cols - 1 - j
+        u = (float(west) + 0.5) / float(frame.cols)
         if adjustment.split_side < 0 and u >= adjustment.split_position:
             alpha = 0.0
         if adjustment.split_side > 0 and u < adjustment.split_position:

@@ -103,7 +103,8 @@ def add_parser(commands: Any) -> None:
                    help="a close-up's ROI: centre and radius (half size) in world units; repeat for more (default, "
                         "without --roi or --roi-relative: one at the DEM's centre, radius 0.12 of its shorter side)")
     p.add_argument("--roi-relative", type=_floats(3, "fx,fy,fr"), action=_RoiAction, metavar="fx,fy,fr",
-                   help="ROI centre as fractions of the extent, radius as a fraction of its shorter side")
+                   help="ROI centre as fractions of the extent from its south-west corner (0,0; 1,1 the north-east, "
+                        "whichever way the DEM's rows run), radius as a fraction of its shorter side")
     p.add_argument("--shape", choices=("circle", "rectangle", "rounded"), default="circle",
                    help="ROI shape from the library (default circle)")
     p.add_argument("--edge", type=_real, default=None, metavar="W",

@@ -1545,8 +1545,7 @@ _OPTION_PHRASES = {
     "closeup": {**_LOOK_FROM,
                 # closeup._check_framed's, of a close-up moved absurdly far: no option of closeup gives bounds
                 "move it nearer, or frame what to see with bounds": "move it nearer: give it a smaller --offset",
-                "move it nearer or scale it less, or frame what to see with bounds":
-                    "move it nearer or scale it less: give it a smaller --offset or --scale",
+                "scale it down, or frame what to see with bounds": "scale it down: give it a smaller --scale",
                 # closeup.STEPPED_CLOSEUP_HINT, of a --stepped close-up over the budget
                 "step the close-up at a larger interval (CloseUp.stepped) or give it a smaller ROI, or crop or coarsen "
                 "the terrain (Terrain.crop, Terrain.coarsen)": "step the close-up at a larger interval (--stepped) or "
@@ -1576,16 +1575,18 @@ _PYTHON_ONLY = (_STL_OPEN_LOCAL, _STL_ROUNDING_LOCAL)
 _CLOSEUP_INDEX = re.compile(r"^closeups\[(\d+)\]: (?=ROI box)")
 
 #: closeup's ``closeups[k]`` in mid-message (closeup._check_framed's "because closeups[0] (offset (0.0, 0.0, 1e9)) is
-#: drawn ..."), with the offset it names when it does: the k-th close-up (counted from 1) and its --offset.
-_CLOSEUP_NAMED = re.compile(r"closeups\[(\d+)\](?: \(offset \(([^()]*)\)\))?")
+#: drawn ..."), with the offset or scale it names when it does: the k-th close-up (counted from 1) and its --offset
+#: or --scale.
+_CLOSEUP_NAMED = re.compile(r"closeups\[(\d+)\](?: \((offset|scale) \(([^()]*)\)\))?")
 
 
 def _closeup_named(match: re.Match[str]) -> str:
-    """A :data:`_CLOSEUP_NAMED` match in the CLI's terms: ``close-up 1``, ``close-up 1 (--offset 0,0,1e+09)``."""
+    """A :data:`_CLOSEUP_NAMED` match in the CLI's terms: ``close-up 1``, ``close-up 1 (--offset 0,0,1e+09)``,
+    ``close-up 1 (--scale 1e+06,1e+06,1e+06)``."""
     named = f"close-up {int(match.group(1)) + 1}"
     if match.group(2) is None:
         return named
-    return f"{named} (--offset {','.join(f'{float(v):g}' for v in match.group(2).split(','))})"
+    return f"{named} (--{match.group(2)} {','.join(f'{float(v):g}' for v in match.group(3).split(','))})"
 
 #: A library argument named anywhere in a message, as a whole word: ``name=`` (``needs interval= or levels=``,
 #: ``got interval=5``) or a snake_case name (``use a smaller face_size``). A plain word is not taken for an argument

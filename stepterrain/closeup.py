@@ -2722,17 +2722,20 @@ def _check_framed(t: Terrain, items: Sequence[CloseUp], drawn: dict[int, Any], b
              for k in range(len(items))]
     far = int(np.argmax(reach))
     lo, hi = box
-    # its content reaches that far by its offset or by its scale (scale=1e6 about a ROI at the default offset: the
-    # advice named the offset alone, which was not what to change)
-    scale = np.broadcast_to(np.asarray(items[far].scale, np.float64), (3,))
-    scaled = bool(np.abs(np.asarray(items[far].offset, np.float64)).max() < 0.5 * reach[far])  # not its offset
+    framed = (f"the camera fitted to the overview and its close-ups would show {' and '.join(small)} under a pixel: "
+              f"the framed box x [{lo[0]:.6g}, {hi[0]:.6g}], y [{lo[1]:.6g}, {hi[1]:.6g}], z [{lo[2]:.6g}, "
+              f"{hi[2]:.6g}] is that large because closeups[{far}]")
+    if float(np.abs(items[far].offset).max()) < reach[far] / 2:
+        # its own size, not where it was moved, reaches that far: a scale of 1e6 with a small offset was told to
+        # "move it nearer" (the CLI: "give it a smaller --offset", of an offset of 6.9 m)
+        content = np.asarray(drawn[far], np.float64)
+        across = float((content[1] - content[0]).max())
+        raise InvalidInputError(f"{framed} (scale {tuple(float(v) for v in items[far].scale)}) is drawn "
+                                f"{across:.3g} across, reaching {reach[far]:.3g} from the terrain's centre; scale it "
+                                "down, or frame what to see with bounds")
     raise InvalidInputError(
-        f"the camera fitted to the overview and its close-ups would show {' and '.join(small)} under a pixel: the "
-        f"framed box x [{lo[0]:.6g}, {hi[0]:.6g}], y [{lo[1]:.6g}, {hi[1]:.6g}], z [{lo[2]:.6g}, {hi[2]:.6g}] is "
-        f"that large because closeups[{far}] (offset {tuple(float(v) for v in items[far].offset)}) is drawn "
-        f"{reach[far]:.3g} from the terrain's centre"
-        + (f", scaled {','.join(f'{v:g}' for v in scale)}; move it nearer or scale it less" if scaled else
-           "; move it nearer") + ", or frame what to see with bounds")
+        f"{framed} (offset {tuple(float(v) for v in items[far].offset)}) is drawn {reach[far]:.3g} from the "
+        "terrain's centre; move it nearer, or frame what to see with bounds")
 
 
 def _check_scalars(scalars: Any, name: str = "scalars") -> None:

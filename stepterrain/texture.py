@@ -1861,7 +1861,8 @@ def adjust(
     layer's colour, brightness ``c · b``, contrast ``0.5 + (c − 0.5) · k``, hue rotation by ``hue`` radians in
     YIQ, saturation ``mix(luma, c, s)`` with luma weights (0.2125, 0.7154, 0.0721), the result clamped to [0, 1]
     (as Cesium's framebuffer clamps it), then alpha × ``alpha``; ``split`` keeps the layer only left ("left") or
-    right ("right") of the vertical line at ``split_position`` (a fraction of the width); ``cutout`` =
+    right ("right") of the vertical line at ``split_position`` (a fraction of the width from the west edge, "left" the
+    west side, for a mirrored texture matrix too); ``cutout`` =
     (xmin, xmax, ymin, ymax) world rectangle where the layer is transparent. Defaults (1, 1, 1, 0, 1, 1) leave
     the layer unchanged, as in Cesium. Cesium's ``czm_hue`` writes the YIQ matrices row by row into GLSL's
     column-major ``mat3``; here the textbook YIQ matrices are applied (hue 0 is the identity in both, and a
@@ -1974,6 +1975,9 @@ class Pipeline:
         return self._then("add", other, tuple(weights))
 
     def modulate(self, *others: Any) -> Pipeline:
+        if not others:  # refused only at apply(), as "modulate needs at least two layers" of a pipeline given one
+            raise InvalidInputError("Pipeline.modulate needs at least one layer to modulate the current one by; got "
+                                    "none")
         return self._then("modulate", *others)
 
     def adjust(self, **params: Any) -> Pipeline:

@@ -98,8 +98,17 @@ def pyramid_shapes(height: int, width: int) -> list[tuple[int, int]]:
     --------
     >>> pyramid_shapes(5, 8)
     [(5, 8), (3, 4), (2, 2), (1, 1)]
+
+    ``height`` and ``width`` must be whole numbers >= 1 (an InvalidInputError naming the argument): a size of 0 or
+    less halved to 0 for ever (never reaching 1 x 1, the list grew until memory ran out), and 2.5 was cut to 2.
     """
-    shapes = [(int(height), int(width))]
+    sizes = []
+    for value, name in ((height, "height"), (width, "width")):
+        whole = isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+        if not whole or value < 1:
+            raise InvalidInputError(f"{name} must be a whole number of pixels >= 1; got {value!r}")
+        sizes.append(int(value))
+    shapes = [(sizes[0], sizes[1])]
     while shapes[-1] != (1, 1):
         h, w = shapes[-1]
         shapes.append(((h + 1) // 2, (w + 1) // 2))

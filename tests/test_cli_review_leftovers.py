@@ -142,8 +142,8 @@ def test_3mf_declares_the_unit_of_the_coordinates_on_every_path(tmp_path, capsys
 @pytest.mark.parametrize("given, cause, advice", [
     (["--offset", "0,0,1e9"], "close-up 1 (--offset 0,0,1e+09) is drawn 1e+09 from the terrain's centre",
      "; move it nearer: give it a smaller --offset\n"),
-    (["--scale", "1e6"], "close-up 1 (--offset 0,0,7176) is drawn 1.74e+09 from the terrain's centre, scaled "
-     "1e+06,1e+06,1e+06", "; move it nearer or scale it less: give it a smaller --offset or --scale\n"),
+    (["--scale", "1e6"], "close-up 1 (--scale 1e+06,1e+06,1e+06) is drawn 3.48e+09 across, reaching 1.74e+09 from "
+     "the terrain's centre", "; scale it down: give it a smaller --scale\n"),
 ])
 def test_closeup_framing_error_names_the_close_up_and_the_option_to_change(tmp_path, capsys, given, cause, advice):
     """The framing refusal names the close-up as the user counts them and its --offset (never the library's
