@@ -603,8 +603,9 @@ class StepArrays:
 
 
 def thresholds_of(values: NDArray[np.float32]) -> NDArray[np.float32]:
-    """t_i = (α_i + α_i+1) / 2, computed in float64 and rounded once to float32. ``values``: the isovalues, an array
-    (as :func:`isovalues` gives them) or a sequence of numbers, taken as float32 as the kernels take levels."""
+    """t_i = (α_i + α_i+1) / 2, computed in float64 and rounded once to float32. ``values``: the isovalues, a float32
+    array (as :func:`isovalues` gives them; an array of another dtype is read as it is) or a sequence of numbers,
+    taken as float32 as the kernels take levels."""
     if not isinstance(values, np.ndarray):  # a list raised AttributeError ('list' object has no attribute 'astype')
         numbers = real_numbers(values, "values", "a 1-D sequence of isovalues")
         if numbers.ndim != 1:
@@ -860,10 +861,9 @@ def step_arrays(
             surface_bytes + solid_bytes(vertex_count, face_count, solid_boundary),
             f"the stepped solid (a surface of {vertex_count:,} vertices and {face_count:,} faces, up to "
             f"{solid_boundary:,} boundary edges for its skirt, and its base)",
-            # the most the closed solid has (solid_bytes' counts): a --png render's advice from the surface's counts
-            # alone was too low for the solid (steps --solid --png refused again after its budget was raised)
-            memory_budget, hint=budget_hint, mesh=(2 * (vertex_count + solid_boundary),
-                                                   2 * face_count + 3 * solid_boundary),
+            # the most the closed solid has: a --png render's advice from the surface's counts alone was too low for
+            # the solid (steps --solid --png refused again after its budget was raised)
+            memory_budget, hint=budget_hint, mesh=_solid_counts(vertex_count, face_count, solid_boundary),
         )
     face_sources = None
     if want_face_sources:
@@ -955,16 +955,23 @@ def solid_boundary_edges(t: Terrain, values: NDArray[np.float32]) -> int:
     return total
 
 
+def _solid_counts(vertex_count: int, face_count: int, boundary_edges: int) -> tuple[int, int]:
+    """The most (vertices, faces) :func:`~stepterrain.mesh.close_solid` gives a stepped surface of ``vertex_count``
+    vertices and ``face_count`` faces with at most ``boundary_edges`` boundary edges: its copy of the surface, at
+    most one copy of a vertex per boundary edge at a pinch and one base vertex per vertex; a base face per terrace
+    and at most 3 skirt faces per boundary edge."""
+    v, f, b = int(vertex_count), int(face_count), int(boundary_edges)
+    return 2 * (v + b), f + (f + 3 * b)
+
+
 def solid_bytes(vertex_count: int, face_count: int, boundary_edges: int) -> int:
     """At most the bytes :func:`~stepterrain.mesh.close_solid` and :func:`stepped`'s assembly allocate to close a
     stepped surface of ``vertex_count`` vertices and ``face_count`` faces with at most ``boundary_edges`` boundary
-    edges (:func:`solid_boundary_edges`) into a solid, beyond the surface's own arrays: the closed mesh (its copy of
-    the surface, at most one copy of a vertex per boundary edge at a pinch, one base vertex per vertex, a base face
-    per terrace and at most 3 skirt faces per boundary edge) with its levels, walls and visual, and the work arrays
-    of building it."""
-    v, f, b = int(vertex_count), int(face_count), int(boundary_edges)
-    vertices = 2 * (v + b)
-    faces = f + (f + 3 * b)
+    edges (:func:`solid_boundary_edges`) into a solid, beyond the surface's own arrays: the closed mesh (its most
+    vertices and faces, :func:`_solid_counts`) with its levels, walls and visual, and the work arrays of building
+    it."""
+    v, f = int(vertex_count), int(face_count)
+    vertices, faces = _solid_counts(v, f, boundary_edges)
     work = _SOLID_WORK_FACE_BYTES * f + _SOLID_WORK_VERTEX_BYTES * v + (_SOLID_WORK_FIXED if f else 0)
     return vertices * _SOLID_VERTEX_BYTES + faces * _SOLID_FACE_BYTES + work
 
