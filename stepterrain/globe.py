@@ -196,7 +196,7 @@ def _check_view_metrics(names: set[str], users: list[UserMetric], camera: Camera
     only them left nothing to steer the refinement, μ = 1 everywhere, and the mesh came out whole below error 1 and
     as the root triangles from it up, without a word. Refused; the default (all three) keeps the geometric metric
     without a camera, and ``metrics=()`` still asks for none."""
-    if camera is None and names and not names & {"geometric"} and not users:
+    if camera is None and names and "geometric" not in names and not users:
         given = " and ".join(repr(name) for name in METRICS if name in names)
         which = f"metrics {given} need" if len(names) > 1 else f"metric {given} needs"
         raise InvalidInputError(f"the {which} a camera (its eye and view; without one nothing would steer the "
