@@ -571,8 +571,8 @@ def _rounding_frame(vertices: NDArray[np.float64]) -> tuple[NDArray[np.float64],
     return x, y, *_rounding_scale(x, y)
 
 
-#: Faces :func:`_face_areas` and :func:`_overlaps` gather the corners of at once: a dozen temporaries of a block, not
-#: of the whole mesh (2.6 GB at 30 M faces).
+#: Faces :func:`_face_areas` gathers the corners of at once: a dozen temporaries of a block, not of the whole mesh
+#: (2.6 GB at 30 M faces). (:func:`_overlaps` gathers by blocks of 4 :data:`OVERLAP_BLOCK` faces.)
 AREA_BLOCK = 1 << 20
 
 
@@ -591,9 +591,8 @@ def _block_areas(bx: NDArray[np.float64], by: NDArray[np.float64], cx: NDArray[n
     margin += floor32
 
 
-def _face_areas(vertices: NDArray[np.float64], faces: NDArray[np.int64],
-                frame: tuple[NDArray[np.float64], NDArray[np.float64], float, float] | None = None
-                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def _face_areas(vertices: NDArray[np.float64], faces: NDArray[np.int64]) -> tuple[NDArray[np.float64],
+                                                                                 NDArray[np.float64]]:
     """Per face twice its signed projected area on the xy plane, (b - a) × (c - a) (positive: counter-clockwise
     seen from +z, facing up), and the margin within which its sign is rounding's: 2^-20 times the surface's xy
     extent times the face's two edges from a (|Δx| + |Δy|), the change of the area by moves of the corners of a few
@@ -603,8 +602,8 @@ def _face_areas(vertices: NDArray[np.float64], faces: NDArray[np.int64],
     (u) each: u times the two edges plus 2 u^2; float32 steps grow with the coordinates, not the extent (0.25 at a
     UTM northing of 4 000 000, where a 60 m surface's 2^-20 extent is 6e-5). Float64 input keeps the extent's margin
     (its own steps are 2^-29 of float32's), so an overhang at UTM coordinates in float64 stays detected. Vertical
-    faces (walls) give 0. ``frame``: :func:`_rounding_frame` of ``vertices`` where the caller has it."""
-    x, y, scale, floor32 = _rounding_frame(vertices) if frame is None else frame
+    faces (walls) give 0."""
+    x, y, scale, floor32 = _rounding_frame(vertices)
     area = np.empty(len(faces))
     margin = np.empty(len(faces))
     for start in range(0, len(faces), AREA_BLOCK):  # by blocks of faces
@@ -1088,6 +1087,7 @@ def _close_solid(vertices: Any, faces: Any, terrace_mask: Any, floor: float, dev
         # closed again from the given faces reversed: the fins and the walls' pairs are read from the step kernels'
         # layout, which a stepped surface through trimesh's invert has reversed (its solid leaked); warned once it
         # closed (a surface refused by the check after the turn got the warning first, then the refusal)
+        areas.clear()  # the given faces' areas, of no use to the reversed faces' closing (16 bytes a face held)
         stacklevel = caller_stacklevel()
         solid = _close_solid(given[0], np.ascontiguousarray(given[1][:, ::-1]), given[2], floor, device, turn=False,
                              check=check)
