@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import sys
+from typing import Any
 
 __all__ = [
     "StepTerrainError",
@@ -24,6 +25,16 @@ __all__ = [
 
 class StepTerrainError(Exception):
     """Base class of every error stepterrain raises on purpose."""
+
+
+def _reduced(error: BaseException) -> tuple[Any, ...]:
+    """``__reduce__`` of an error class whose ``__init__`` takes keywords: pickled as ``type(error)(*args)`` and the
+    instance's attributes, as BaseException pickles, but said by the class. tblib (which dask.distributed installs to
+    send errors between processes) takes a class whose ``__init__`` is its own and whose ``__reduce__`` is
+    BaseException's for one whose arguments cannot be trusted and rebuilds it by ``__new__`` alone, which a
+    MemoryError subclass refuses ("MemoryError.__new__(OutputTooLargeError) is not safe"): a dask worker's
+    OutputTooLargeError came back as that TypeError."""
+    return type(error), error.args, error.__dict__ or None
 
 
 class InvalidInputError(StepTerrainError, ValueError):
@@ -43,6 +54,8 @@ class InvalidInputError(StepTerrainError, ValueError):
     def __init__(self, *args: object, not_global: bool = False) -> None:
         super().__init__(*args)
         self.not_global = bool(not_global)
+
+    __reduce__ = _reduced
 
 
 class DeviceError(StepTerrainError, RuntimeError):
@@ -76,6 +89,8 @@ class OutputTooLargeError(StepTerrainError, MemoryError):
         super().__init__(*args)
         self.nbytes = None if nbytes is None else int(nbytes)
         self.mesh = None if mesh is None else (int(mesh[0]), int(mesh[1]))
+
+    __reduce__ = _reduced
 
 
 class DataFileError(StepTerrainError, OSError):

@@ -83,3 +83,21 @@ def test_no_global_grid_refusals_are_marked_and_others_are_not():
     with pytest.raises(InvalidInputError, match="lat must be strictly monotone") as refused:
         Globe.from_latlon(z, np.r_[lat[:90], lat[:90]], lon, face_size=9)
     assert refused.value.not_global is False
+
+
+def test_a_pickle_through_tblib_as_dask_sends_errors_keeps_them():
+    """dask.distributed installs tblib's pickling of every exception class (``tblib.pickling_support.install()`` on
+    importing distributed.utils), which rebuilt a class with an ``__init__`` of its own by ``__new__`` alone: an
+    OutputTooLargeError (a MemoryError) could not be unpickled ("MemoryError.__new__(OutputTooLargeError) is not
+    safe"), a batch worker's budget refusal lost. Each class says its own ``__reduce__`` now."""
+    pickling_support = pytest.importorskip("tblib.pickling_support")
+    errors = (OutputTooLargeError("m", nbytes=5, mesh=(1, 2)), OutputTooLargeError("plain"),
+              InvalidInputError("lon must cover 360 degrees", not_global=True), InvalidInputError("x"))
+    pickling_support.install(*errors)
+    for error in errors:
+        try:
+            raise error from ValueError("the cause")
+        except type(error) as raised:
+            copy = pickle.loads(pickle.dumps(raised))
+        assert type(copy) is type(error) and copy.args == error.args and vars(copy) == vars(error)
+        assert isinstance(copy.__cause__, ValueError) and copy.__traceback__ is not None
