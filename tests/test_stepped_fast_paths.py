@@ -123,3 +123,28 @@ def test_threaded_re_steps_write_what_the_generic_path_writes(threads):
         assert (len(mesh.vertices), len(mesh.faces)) == (len(ref.points), len(ref.faces))
     finally:
         set_cpu_threads(previous)
+
+
+@pytest.mark.parametrize("span", [4, 12])  # within the eight levels of the per-threshold test, and beyond it
+@pytest.mark.parametrize("end", ["lowest", "highest"])
+def test_a_node_on_the_threshold_at_either_end_of_a_blocks_levels_matches_the_reference(span, end):
+    """count_plain_nodes' sixteen-node test compares the two rows' heights with the thresholds from the one below
+    their lowest level to the one below their highest (a per-lane lookup beyond eight levels): one node, in either
+    row at lane 0, 7 or 15 of a block or just past it (the last lane's right neighbour), on the threshold below the
+    block's lowest level (T[0] where that is level 1) or its highest, among nodes off every threshold. Rows a level
+    lower above and below: a node on the threshold of the lowest level around it counts as a plain one (no twin),
+    so only a lower neighbour outside the block's two rows tells a missed one."""
+    values = np.arange(40, dtype=np.float32)  # thresholds k + 0.5: a height k lies on level k, k - 0.5 on its threshold
+    lo = 5 if span == 4 else 1
+    cols = 34  # a row's nodes 0..32 go sixteen at a time from 0 and 16
+    j = np.arange(cols)
+    base = np.stack([np.full(cols, lo - 1), lo + (3 * j) % (span + 1), lo + (3 * j + 2) % (span + 1),
+                     np.full(cols, lo - 1)]).astype(np.float32)
+    level = lo if end == "lowest" else lo + span
+    for row in (1, 2):
+        for col in (0, 7, 15, 16):
+            heights = base.copy()
+            heights[row, col] = level - 0.5
+            t = st.Terrain.from_heights(heights)
+            assert np.searchsorted(thresholds_of(values), heights, side="right")[row, col] == level
+            _compare_terrain_with_reference(t, *grid_tin(heights, (1.0, 1.0)), values, "cpu")
