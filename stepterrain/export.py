@@ -4857,10 +4857,10 @@ def _check_ply_attributes(mesh: trimesh.Trimesh, target: Path) -> None:
     for element, attributes, count in (("face", mesh.face_attributes, len(mesh.faces)),
                                        ("vertex", mesh.vertex_attributes, len(mesh.vertices))):  # fmt: skip
         for name, values in attributes.items():
-            try:
-                array = np.asarray(values)
-            except (ValueError, TypeError):  # a ragged list
-                array = np.empty(0, dtype=object)
+            array = _attribute_array(values)
+            if array is None:
+                dropped.append(f"{element}_attributes[{name!r}] (a {type(values).__name__} of no array shape: ragged)")
+                continue
             if array.dtype.kind not in "biuf" or array.ndim > 2:
                 dropped.append(f"{element}_attributes[{name!r}] ({array.dtype}, shape {array.shape})")
                 continue
@@ -4877,14 +4877,25 @@ def _check_ply_attributes(mesh: trimesh.Trimesh, target: Path) -> None:
 
 
 def _attributes(attributes: Mapping[str, Any], count: int) -> dict[str, NDArray[Any]]:
-    """Keep per-element numeric (N,) or (N, k) arrays of the right length; drop anything else."""
+    """Keep per-element numeric (N,) or (N, k) arrays of the right length; drop anything else (a ragged list too:
+    NumPy's ValueError for it went out of :func:`save_mesh` in every format, for .ply after the warning that it was
+    left out)."""
     kept: dict[str, NDArray[Any]] = {}
     for name, values in attributes.items():
-        array = np.asarray(values)
-        if array.ndim not in (1, 2) or len(array) != count or array.dtype.kind not in "biuf":
+        array = _attribute_array(values)
+        if array is None or array.ndim not in (1, 2) or len(array) != count or array.dtype.kind not in "biuf":
             continue
         kept[str(name)] = array
     return kept
+
+
+def _attribute_array(values: Any) -> NDArray[Any] | None:
+    """``values`` of a mesh's ``face_attributes`` or ``vertex_attributes`` as an array; None where NumPy cannot make
+    one (a ragged list: its ValueError)."""
+    try:
+        return np.asarray(values)
+    except (ValueError, TypeError):
+        return None
 
 
 def _ply_compatible(array: NDArray[Any]) -> NDArray[Any]:
