@@ -788,19 +788,15 @@ def _check_covers_a_pixel(local: NDArray[np.float64], faces: ArrayLike, position
     rendered blank without a word, their box a few pixels wide passing :func:`_check_visible` and their area in
     space passing :func:`_check_some_area`. Chunked, stopping at a pixel covered; a face at or behind the eye stops it
     too (its projection is not bounded)."""
-    eye, focal, up = (np.asarray(v, dtype=np.float64) for v in position)
-    forward = (focal - eye) / np.linalg.norm(focal - eye)
-    right, true_up = _screen_axes(forward, up)
     tan_v = math.tan(math.radians(view_angle) / 2.0)
     width, height = size
     scale_x, scale_y = width / (2.0 * tan_v * width / height), height / (2.0 * tan_v)
     faces = np.asarray(faces)
     covered = 0.0
     for start in range(0, len(faces), _AREA_CHUNK):
-        rel = local[faces[start:start + _AREA_CHUNK]] - eye  # (n, 3 corners, 3)
+        rel, depth, right, true_up = _eye_frame(local[faces[start:start + _AREA_CHUNK]], position)  # (n, 3 corners)
         drawn = np.isfinite(rel).all(axis=(1, 2))
-        rel = rel[drawn]
-        depth = rel @ forward
+        rel, depth = rel[drawn], depth[drawn]
         if (depth <= 0).any():
             return
         x, y = (rel @ right) / depth * scale_x, (rel @ true_up) / depth * scale_y
