@@ -503,8 +503,8 @@ def render_mesh(
         looks straight down, north (+y) up and east (+x) to the right. All are fitted to the bounds. An explicit
         pyvista camera position is used as given, in the mesh's coordinates minus the centre of ``bounds`` (else of
         the box of the vertices drawn), z times ``z_scale`` (the render recentres the mesh to keep UTM-sized
-        coordinates precise); one that sees none of the mesh (given in the mesh's own coordinates, or looking away)
-        is refused, as it rendered blank.
+        coordinates precise); one that sees none of the mesh (given in the mesh's own coordinates, or looking away),
+        or shows it less than a pixel wide or tall (too far off), is refused, as it rendered blank.
     background : color
         Any pyvista color: a name, '#rrggbb', (r, g, b) floats in [0, 1] or whole numbers in 0-255 (whole numbers
         all 0 or 1, such as (1, 0, 0), are refused as ambiguous, as are whole numbers other than 0 beside floats,
@@ -527,7 +527,9 @@ def render_mesh(
     bounds : (2, 3) array_like, optional
         A world-space box [(xmin, ymin, zmin), (xmax, ymax, zmax)] to frame instead of the mesh itself: the
         same box for every frame of an animation keeps the camera still. A fitted camera needs a box of some size
-        (a single point is refused); an explicit camera position takes only its centre.
+        (a single point is refused) around the mesh: one that frames none of it, or shows it less than a pixel wide
+        or tall (a box in other coordinates than the mesh's, or far larger), is refused, as it rendered blank; an
+        explicit camera position takes only its centre.
     view_angle : float
         The camera's vertical field of view in degrees, in [1e-8, 179] (VTK's range; default 30); the horizontal
         one follows from the window's aspect. A fitted camera frames the bounds with it.
