@@ -3311,7 +3311,8 @@ def overview_image(
     renders the outputs together in world coordinates, each
     tile tinted a little differently so the seams show; otherwise up to 16 items are rendered side by side, in
     cells sharing the window (an empty item's, a frame or file of nodata only, stays blank; so does, with a warning,
-    one too thin to see in its cell, unless no item is drawn: then render_mesh's refusal is raised). The picture is
+    one too thin to see in its cell, or an explicit camera shows it under a pixel there, unless no item is drawn:
+    then render_mesh's refusal is raised). The picture is
     ``window_size`` (H = its height, W = its width) either way.
     At most ``max_items`` outputs are read (the first, in item order: a mosaic of more tiles shows only part of the
     raster, with a warning saying so), after the window is checked against the memory budget (an

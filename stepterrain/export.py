@@ -3869,34 +3869,40 @@ def _gltf_missing_buffer(file: Path, tree: Mapping[str, Any] | None) -> str | No
     that is not there, said with the path looked for and the buffers' count, else None. trimesh's reader said such a
     file with "FileNotFoundError: model.bin" (the buffer's name alone: which folder, and that it is a buffer the
     glTF names, unsaid). Run only after trimesh's reader failed."""
-    import urllib.parse
-
     buffers = tree.get("buffers") if isinstance(tree, Mapping) else None
     for number, buffer in enumerate(buffers if isinstance(buffers, list) else []):
-        uri = buffer.get("uri") if isinstance(buffer, Mapping) else None
-        if not isinstance(uri, str) or uri.startswith("data:"):
-            continue
-        side = file.parent / urllib.parse.unquote(uri)
-        if not side.is_file() and not (file.parent / uri).is_file():  # (trimesh's reader looks for the uri as written)
+        missing = _gltf_file_missing(file, buffer)
+        if missing is not None:
+            uri, side = missing
             return (f"glTF buffer {number} (of {len(buffers)}) is the file {uri!r}, and {str(side)!r} does not exist: "
                     "a .gltf's buffers lie beside it (copy the .bin files with it, or write a .glb, which holds them)")
     return None
+
+
+def _gltf_file_missing(file: Path, entry: Any) -> tuple[str, Path] | None:
+    """(its ``uri``, the path looked for) where the glTF buffer or image ``entry`` of the glTF ``file`` names a file
+    (its ``uri``, percent-encoded, relative to the glTF's folder; not a ``data:`` URI) that is not there, else None."""
+    import urllib.parse
+
+    uri = entry.get("uri") if isinstance(entry, Mapping) else None
+    if not isinstance(uri, str) or uri.startswith("data:"):
+        return None
+    side = file.parent / urllib.parse.unquote(uri)
+    if side.is_file() or (file.parent / uri).is_file():  # (trimesh's reader looks for the uri as written)
+        return None
+    return uri, side
 
 
 def _warn_gltf_missing_images(file: Path, tree: Mapping[str, Any] | None) -> None:
     """Warn, naming each, where an image of the glTF ``file`` (``tree``: its JSON) is a file (its ``uri``, relative to
     the glTF's folder) that is not there: trimesh's reader read the mesh without that texture, without a word (the
     geometry is whole: the mesh is read, untextured there)."""
-    import urllib.parse
-
     images = tree.get("images") if isinstance(tree, Mapping) else None
     missing = []
     for number, image in enumerate(images if isinstance(images, list) else []):
-        uri = image.get("uri") if isinstance(image, Mapping) else None
-        if isinstance(uri, str) and not uri.startswith("data:"):
-            side = file.parent / urllib.parse.unquote(uri)
-            if not side.is_file() and not (file.parent / uri).is_file():
-                missing.append(f"image {number}, {uri!r} ({str(side)!r})")
+        found = _gltf_file_missing(file, image)
+        if found is not None:
+            missing.append(f"image {number}, {found[0]!r} ({str(found[1])!r})")
     if missing:
         warnings.warn(f"{str(file)!r}: the glTF's {'; '.join(missing)} {'is' if len(missing) == 1 else 'are'} not "
                       "there: the mesh is read without that texture (copy the image files with the .gltf, or write "
@@ -4857,10 +4863,10 @@ def _check_ply_attributes(mesh: trimesh.Trimesh, target: Path) -> None:
     for element, attributes, count in (("face", mesh.face_attributes, len(mesh.faces)),
                                        ("vertex", mesh.vertex_attributes, len(mesh.vertices))):  # fmt: skip
         for name, values in attributes.items():
-            try:
-                array = np.asarray(values)
-            except (ValueError, TypeError):  # a ragged list
-                array = np.empty(0, dtype=object)
+            array = _attribute_array(values)
+            if array is None:
+                dropped.append(f"{element}_attributes[{name!r}] (a {type(values).__name__} of no array shape: ragged)")
+                continue
             if array.dtype.kind not in "biuf" or array.ndim > 2:
                 dropped.append(f"{element}_attributes[{name!r}] ({array.dtype}, shape {array.shape})")
                 continue
@@ -4877,14 +4883,25 @@ def _check_ply_attributes(mesh: trimesh.Trimesh, target: Path) -> None:
 
 
 def _attributes(attributes: Mapping[str, Any], count: int) -> dict[str, NDArray[Any]]:
-    """Keep per-element numeric (N,) or (N, k) arrays of the right length; drop anything else."""
+    """Keep per-element numeric (N,) or (N, k) arrays of the right length; drop anything else (a ragged list too:
+    NumPy's ValueError for it went out of :func:`save_mesh` in every format, for .ply after the warning that it was
+    left out)."""
     kept: dict[str, NDArray[Any]] = {}
     for name, values in attributes.items():
-        array = np.asarray(values)
-        if array.ndim not in (1, 2) or len(array) != count or array.dtype.kind not in "biuf":
+        array = _attribute_array(values)
+        if array is None or array.ndim not in (1, 2) or len(array) != count or array.dtype.kind not in "biuf":
             continue
         kept[str(name)] = array
     return kept
+
+
+def _attribute_array(values: Any) -> NDArray[Any] | None:
+    """``values`` of a mesh's ``face_attributes`` or ``vertex_attributes`` as an array; None where NumPy cannot make
+    one (a ragged list: its ValueError)."""
+    try:
+        return np.asarray(values)
+    except (ValueError, TypeError):
+        return None
 
 
 def _ply_compatible(array: NDArray[Any]) -> NDArray[Any]:

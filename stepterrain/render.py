@@ -503,8 +503,8 @@ def render_mesh(
         looks straight down, north (+y) up and east (+x) to the right. All are fitted to the bounds. An explicit
         pyvista camera position is used as given, in the mesh's coordinates minus the centre of ``bounds`` (else of
         the box of the vertices drawn), z times ``z_scale`` (the render recentres the mesh to keep UTM-sized
-        coordinates precise); one that sees none of the mesh (given in the mesh's own coordinates, or looking away)
-        is refused, as it rendered blank.
+        coordinates precise); one that sees none of the mesh (given in the mesh's own coordinates, or looking away),
+        or shows it less than a pixel wide or tall (too far off), is refused, as it rendered blank.
     background : color
         Any pyvista color: a name, '#rrggbb', (r, g, b) floats in [0, 1] or whole numbers in 0-255 (whole numbers
         all 0 or 1, such as (1, 0, 0), are refused as ambiguous, as are whole numbers other than 0 beside floats,
@@ -527,7 +527,9 @@ def render_mesh(
     bounds : (2, 3) array_like, optional
         A world-space box [(xmin, ymin, zmin), (xmax, ymax, zmax)] to frame instead of the mesh itself: the
         same box for every frame of an animation keeps the camera still. A fitted camera needs a box of some size
-        (a single point is refused); an explicit camera position takes only its centre.
+        (a single point is refused) around the mesh: one that frames none of it, or shows it less than a pixel wide
+        or tall (a box in other coordinates than the mesh's, or far larger), is refused, as it rendered blank; an
+        explicit camera position takes only its centre.
     view_angle : float
         The camera's vertical field of view in degrees, in [1e-8, 179] (VTK's range; default 30); the horizontal
         one follows from the window's aspect. A fitted camera frames the bounds with it.
@@ -788,19 +790,15 @@ def _check_covers_a_pixel(local: NDArray[np.float64], faces: ArrayLike, position
     rendered blank without a word, their box a few pixels wide passing :func:`_check_visible` and their area in
     space passing :func:`_check_some_area`. Chunked, stopping at a pixel covered; a face at or behind the eye stops it
     too (its projection is not bounded)."""
-    eye, focal, up = (np.asarray(v, dtype=np.float64) for v in position)
-    forward = (focal - eye) / np.linalg.norm(focal - eye)
-    right, true_up = _screen_axes(forward, up)
     tan_v = math.tan(math.radians(view_angle) / 2.0)
     width, height = size
     scale_x, scale_y = width / (2.0 * tan_v * width / height), height / (2.0 * tan_v)
     faces = np.asarray(faces)
     covered = 0.0
     for start in range(0, len(faces), _AREA_CHUNK):
-        rel = local[faces[start:start + _AREA_CHUNK]] - eye  # (n, 3 corners, 3)
+        rel, depth, right, true_up = _eye_frame(local[faces[start:start + _AREA_CHUNK]], position)  # (n, 3 corners)
         drawn = np.isfinite(rel).all(axis=(1, 2))
-        rel = rel[drawn]
-        depth = rel @ forward
+        rel, depth = rel[drawn], depth[drawn]
         if (depth <= 0).any():
             return
         x, y = (rel @ right) / depth * scale_x, (rel @ true_up) / depth * scale_y
