@@ -1543,7 +1543,8 @@ _SMALLER_OPTIONS = "crop or coarsen the DEM (--crop, --coarsen) or give a larger
 _OPTION_PHRASES = {
     "steps": {"bring base closer": "bring --base closer", **_LOOK_FROM, SMALLER_HINT: _SMALLER_OPTIONS},
     "closeup": {**_LOOK_FROM,
-                # closeup._check_framed's, of a close-up moved absurdly far: no option of closeup gives bounds
+                # closeup._check_framed's, of a close-up moved absurdly far or scaled absurdly large: no option of
+                # closeup gives bounds
                 "move it nearer, or frame what to see with bounds": "move it nearer: give it a smaller --offset",
                 "scale it down, or frame what to see with bounds": "scale it down: give it a smaller --scale",
                 # closeup.STEPPED_CLOSEUP_HINT, of a --stepped close-up over the budget

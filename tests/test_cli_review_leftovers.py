@@ -148,7 +148,7 @@ def test_3mf_declares_the_unit_of_the_coordinates_on_every_path(tmp_path, capsys
 def test_closeup_framing_error_names_the_close_up_and_the_option_to_change(tmp_path, capsys, given, cause, advice):
     """The framing refusal names the close-up as the user counts them and its --offset (never the library's
     ``closeups[0]``); a close-up blown up by --scale 1e6 at the default offset was told "give it a smaller --offset",
-    the one option that was not the cause: it names the scale and --scale now."""
+    the one option that was not the cause: it names its --scale, its drawn size and "a smaller --scale" now."""
     code, out, err = run(capsys, "closeup", "--roi-relative", "0.5,0.5,0.1", *given, "--size", "128x128", "-o",
                          tmp_path / "x.png", "-q")
     assert code == 2 and "closeups[" not in err and "bounds" not in err, err
