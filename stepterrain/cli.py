@@ -1283,7 +1283,7 @@ def _render_too(exc: OutputTooLargeError, size: tuple[int, int]) -> None:
                     nbytes=nbytes, mesh=mesh) from None
 
 
-def _solid_too(exc: Exception, size: tuple[int, int], count: Callable[[int], Any]) -> None:
+def _solid_too(exc: OutputTooLargeError, size: tuple[int, int], count: Callable[[int], Any]) -> None:
     """Raise ``exc``, the --png render of a --solid run refused before stepping (its figure from the DEM's surface,
     the fewest faces the mesh can have), again advising the budget the whole run needs: the stepped solid's own (its
     count pass run by ``count``, the stepping under a budget of one byte, which refuses before allocating) or its
@@ -1293,23 +1293,25 @@ def _solid_too(exc: Exception, size: tuple[int, int], count: Callable[[int], Any
     from ._compaction import _budget_figure, _size_text
     from .render import _render_bytes
 
-    nbytes = getattr(exc, "nbytes", None)
+    nbytes = exc.nbytes
     figure = None if nbytes is None else _budget_figure(nbytes)
     if not figure or not str(exc).endswith(figure):
         return
     try:
         count(1)
-    except StepTerrainError as refused:
-        solid, mesh = getattr(refused, "nbytes", None), getattr(refused, "mesh", None)
+    except OutputTooLargeError as refused:
+        solid, mesh = refused.nbytes, refused.mesh
+    except StepTerrainError:  # refused before its budget was counted: no figure
+        return
     else:  # pragma: no cover - a budget of one byte holds no solid
         return
     if solid is None or mesh is None:
         return
     render = _render_bytes(size[0], size[1], vertices=mesh[0], faces=mesh[1])
-    need = max(int(nbytes), int(solid), render)
+    need = max(nbytes, solid, render)
     raise type(exc)(f"{str(exc)[:-len(figure)]}{_budget_figure(need)} (the whole run: the stepped solid needs "
-                    f"{_size_text(int(solid))} and its --png render, {size[0]}x{size[1]}, up to "
-                    f"{_size_text(render)})") from None
+                    f"{_size_text(solid)} and its --png render, {size[0]}x{size[1]}, up to {_size_text(render)})",
+                    nbytes=nbytes, mesh=exc.mesh) from None
 
 
 def _surface_size(terrain: Any) -> tuple[int, int]:
