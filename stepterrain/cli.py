@@ -121,18 +121,24 @@ class _Parser(argparse.ArgumentParser):
         """argparse's, and a store option (``--interval 10``, ``-o a.glb``: one value, kept) given a second time with
         another value refused, naming it and both values as typed: argparse kept the last silently, so ``-o a.glb -o
         b.glb`` wrote b.glb alone and ``--interval 10 ... --interval 20`` stepped at 20. The same value again
-        (``--interval 10 --interval 10.0``) is no conflict; the options meant to repeat (``--nodata``, closeup's
-        ``--roi``, ``--scale``, ...: append, extend) and flags (``-q``) are not checked. ``--memory-budget`` before
-        and after the subcommand (two parsers) is checked in :func:`_main`."""
+        (``--interval 10 --interval 10.0``, ``nan`` twice: :func:`_same_value`) is no conflict; the options meant to
+        repeat (``--nodata``, closeup's ``--roi``, ``--scale``, ...: append, extend) and flags (``-q``) are not
+        checked. ``--memory-budget`` before and after the subcommand (two parsers) is checked in :func:`_main`."""
         values = super()._get_values(action, arg_strings)
         if type(action) is argparse._StoreAction and action.option_strings:
             typed = " ".join(arg_strings)
-            if action in self._given_values and self._given_values[action][0] != values:
+            if action in self._given_values and not _same_value(self._given_values[action][0], values):
                 raise argparse.ArgumentError(
                     action, f"given twice ({self._given_values[action][1]!r}, then {typed!r}); it takes one value: "
                             f"give it once")
             self._given_values[action] = (values, typed)
         return values
+
+
+def _same_value(first: Any, second: Any) -> bool:
+    """Whether two values of one option (:meth:`_Parser._get_values`) are the same: equal, or alike in their repr
+    where they are not (NaN, as a number or in a tuple of them, is not equal to itself)."""
+    return bool(first == second) or repr(first) == repr(second)
 
 
 class Progress:

@@ -59,6 +59,20 @@ def test_an_option_given_twice_with_one_value_and_the_repeating_options_still_wo
     assert code == 0 and (tmp_path / "a.png").is_file(), err
 
 
+def test_nan_given_twice_is_one_value_not_a_repeat(tmp_path, capsys):
+    """NaN is not equal to itself: ``--interval nan --interval nan`` was refused as "given twice ('nan', then 'nan')",
+    two values said to differ that are one, in place of what the option says of the value itself (given once)."""
+    parser = cli.build_parser()
+    args = parser.parse_args(["steps", "--interval", "nan", "--interval", "NaN", "--base", "nan", "--base", "nan"])
+    assert np.isnan(args.interval) and np.isnan(args.base)
+    with pytest.raises(cli._UsageError, match=r"given twice \('nan', then '1'\)"):
+        parser.parse_args(["steps", "--interval", "nan", "--interval", "1"])
+    once = run(capsys, "steps", "--interval", "nan", "-o", tmp_path / "a.glb")
+    twice = run(capsys, "steps", "--interval", "nan", "--interval", "nan", "-o", tmp_path / "a.glb")
+    assert twice == once and once[0] == 2 and "given twice" not in once[2], once
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_every_subcommand_parser_refuses_a_repeat():
     """The check lives in the one parser class every subcommand's parser is (a new subcommand has it too)."""
     parser = cli.build_parser()
