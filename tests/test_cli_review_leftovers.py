@@ -250,3 +250,23 @@ def test_solid_png_over_budget_advice_is_a_budget_the_run_passes_at(tmp_path, ca
     advice = re.search(r"raise the budget \(--memory-budget SIZE\) to at least (\d+MiB)", err).group(1)
     code, out, err = run(capsys, *argv, "--memory-budget", advice)
     assert code == 0 and (tmp_path / "s.png").is_file(), (advice, err)
+
+
+# ------------------------------------------------------------------------------------------ a globe's nodata cells
+def test_globe_nodata_refusal_names_only_what_marks_a_cell(tmp_path, capsys):
+    """The globe's refusal of an .npz's nodata cells names what marks them: of one NaN cell in a file that also
+    declares nodata -9999 (no cell holds it) or an all-False mask, it said "(nodata -9999, NaN or infinite; ...)" and
+    "('mask', NaN or infinite; ...)", naming a value and a mask that marked nothing. What does mark a cell is named."""
+    lat, lon = np.linspace(89.5, -89.5, 180), np.linspace(-179.5, 179.5, 360)
+    grid, out = tmp_path / "grid.npz", tmp_path / "g.ply"
+    elevation = np.zeros((180, 360), np.float32)
+    elevation[3, 7] = np.nan
+    mask = np.zeros(elevation.shape, bool)
+    cases = (({"nodata": np.float32(-9999)}, "1 nodata cell (NaN or infinite; first at row 3, column 7)"),
+             ({"mask": mask}, "1 nodata cell (NaN or infinite; first at row 3, column 7)"),
+             ({"nodata": np.float32(0)}, "64,800 nodata cells (nodata 0, NaN or infinite; first at row 0, column 0)"))
+    for beside, told in cases:
+        np.savez(grid, elevation=elevation, lat=lat, lon=lon, **beside)
+        code, _, err = run(capsys, "globe", grid, "--face-size", "9", "--no-camera", "-o", out, "--device", "cpu")
+        assert code == 2 and f"'elevation' has {told}; the globe needs a height everywhere" in err, err
+    assert not out.exists()
