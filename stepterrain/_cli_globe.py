@@ -257,13 +257,17 @@ def _load_grid(path: str, height_unit: str | None = None, nodata: Sequence[float
     refuse_npz_scaling(beside, "elevation", file)
     # the cells a boolean mask or valid marks (as io.load_dem reads them) were meshed as their stored values
     missing = npz_missing({"elevation": elevation, **beside}, "elevation", file)
-    marked_by = [" or ".join(repr(key) for key in ("mask", "valid") if key in beside)] if missing is not None else []
+    # the refusal names what marks a cell: a mask, nodata value or --nodata that marks none was named beside the NaN
+    # cells that were missing ("(nodata -9999, NaN or infinite; ...)" of one NaN cell)
+    marked_by = [" or ".join(repr(key) for key in ("mask", "valid") if key in beside)] if (
+        missing is not None and missing.any()) else []
     if nodata is not None and elevation.dtype.kind in "iuf":  # (other dtypes: Globe.from_latlon names them)
         # the nodata cells (as io.load_dem finds them) were meshed as heights: a -32768 m pit per missing cell
         with np.errstate(over="ignore"):  # a nodata beyond the dtype: no cell
             hits = equals_nodata(elevation, nodata)
         missing = hits if missing is None else hits | missing
-        marked_by.insert(0, f"nodata {nodata:g}")
+        if hits.any():
+            marked_by.insert(0, f"nodata {nodata:g}")
     if nodata_given and elevation.dtype.kind in "iuf":  # --nodata, compared as the file's own nodata is
         hits = given_nodata(elevation, nodata_given)
         if hits is not None and hits.any():

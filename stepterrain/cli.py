@@ -121,18 +121,24 @@ class _Parser(argparse.ArgumentParser):
         """argparse's, and a store option (``--interval 10``, ``-o a.glb``: one value, kept) given a second time with
         another value refused, naming it and both values as typed: argparse kept the last silently, so ``-o a.glb -o
         b.glb`` wrote b.glb alone and ``--interval 10 ... --interval 20`` stepped at 20. The same value again
-        (``--interval 10 --interval 10.0``) is no conflict; the options meant to repeat (``--nodata``, closeup's
-        ``--roi``, ``--scale``, ...: append, extend) and flags (``-q``) are not checked. ``--memory-budget`` before
-        and after the subcommand (two parsers) is checked in :func:`_main`."""
+        (``--interval 10 --interval 10.0``, ``nan`` twice: :func:`_same_value`) is no conflict; the options meant to
+        repeat (``--nodata``, closeup's ``--roi``, ``--scale``, ...: append, extend) and flags (``-q``) are not
+        checked. ``--memory-budget`` before and after the subcommand (two parsers) is checked in :func:`_main`."""
         values = super()._get_values(action, arg_strings)
         if type(action) is argparse._StoreAction and action.option_strings:
             typed = " ".join(arg_strings)
-            if action in self._given_values and self._given_values[action][0] != values:
+            if action in self._given_values and not _same_value(self._given_values[action][0], values):
                 raise argparse.ArgumentError(
                     action, f"given twice ({self._given_values[action][1]!r}, then {typed!r}); it takes one value: "
                             f"give it once")
             self._given_values[action] = (values, typed)
         return values
+
+
+def _same_value(first: Any, second: Any) -> bool:
+    """Whether two values of one option (:meth:`_Parser._get_values`) are the same: equal, or alike in their repr
+    where they are not (NaN, as a number or in a tuple of them, is not equal to itself)."""
+    return bool(first == second) or repr(first) == repr(second)
 
 
 class Progress:
@@ -1283,7 +1289,7 @@ def _render_too(exc: OutputTooLargeError, size: tuple[int, int]) -> None:
                     nbytes=nbytes, mesh=mesh) from None
 
 
-def _solid_too(exc: Exception, size: tuple[int, int], count: Callable[[int], Any]) -> None:
+def _solid_too(exc: OutputTooLargeError, size: tuple[int, int], count: Callable[[int], Any]) -> None:
     """Raise ``exc``, the --png render of a --solid run refused before stepping (its figure from the DEM's surface,
     the fewest faces the mesh can have), again advising the budget the whole run needs: the stepped solid's own (its
     count pass run by ``count``, the stepping under a budget of one byte, which refuses before allocating) or its
@@ -1293,23 +1299,25 @@ def _solid_too(exc: Exception, size: tuple[int, int], count: Callable[[int], Any
     from ._compaction import _budget_figure, _size_text
     from .render import _render_bytes
 
-    nbytes = getattr(exc, "nbytes", None)
+    nbytes = exc.nbytes
     figure = None if nbytes is None else _budget_figure(nbytes)
     if not figure or not str(exc).endswith(figure):
         return
     try:
         count(1)
-    except StepTerrainError as refused:
-        solid, mesh = getattr(refused, "nbytes", None), getattr(refused, "mesh", None)
+    except OutputTooLargeError as refused:
+        solid, mesh = refused.nbytes, refused.mesh
+    except StepTerrainError:  # refused before its budget was counted: no figure
+        return
     else:  # pragma: no cover - a budget of one byte holds no solid
         return
     if solid is None or mesh is None:
         return
     render = _render_bytes(size[0], size[1], vertices=mesh[0], faces=mesh[1])
-    need = max(int(nbytes), int(solid), render)
+    need = max(nbytes, solid, render)
     raise type(exc)(f"{str(exc)[:-len(figure)]}{_budget_figure(need)} (the whole run: the stepped solid needs "
-                    f"{_size_text(int(solid))} and its --png render, {size[0]}x{size[1]}, up to "
-                    f"{_size_text(render)})") from None
+                    f"{_size_text(solid)} and its --png render, {size[0]}x{size[1]}, up to {_size_text(render)})",
+                    nbytes=nbytes, mesh=exc.mesh) from None
 
 
 def _surface_size(terrain: Any) -> tuple[int, int]:
@@ -1543,7 +1551,8 @@ _SMALLER_OPTIONS = "crop or coarsen the DEM (--crop, --coarsen) or give a larger
 _OPTION_PHRASES = {
     "steps": {"bring base closer": "bring --base closer", **_LOOK_FROM, SMALLER_HINT: _SMALLER_OPTIONS},
     "closeup": {**_LOOK_FROM,
-                # closeup._check_framed's, of a close-up moved absurdly far: no option of closeup gives bounds
+                # closeup._check_framed's, of a close-up moved absurdly far or scaled absurdly large: no option of
+                # closeup gives bounds
                 "move it nearer, or frame what to see with bounds": "move it nearer: give it a smaller --offset",
                 "scale it down, or frame what to see with bounds": "scale it down: give it a smaller --scale",
                 # closeup.STEPPED_CLOSEUP_HINT, of a --stepped close-up over the budget

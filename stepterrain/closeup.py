@@ -2691,10 +2691,11 @@ def _check_framed(t: Terrain, items: Sequence[CloseUp], drawn: dict[int, Any], b
     from an 80 m terrain) widened the box until the overview and the close-up both came out under a pixel, and the
     image was blank without a word (the fitted camera's own check looks at the whole box, which is wide enough). As
     that check refuses a box too thin to see, this refuses a frame that loses the terrain; the close-up contents
-    (``drawn``: their bounds where drawn) under a pixel are named with it. A tiny close-up over a visible overview
-    (scale 1e-3) is the caller's choice and drawn as before; with ``bounds`` (or an explicit camera position) the
-    framing is the caller's, and what falls outside it or under a pixel is not drawn, as before. Sizes are those
-    of the parts' bounding boxes, an upper bound of what they cover."""
+    (``drawn``: their bounds where drawn) under a pixel are named with it, and the close-up that reaches farthest
+    with its offset, or with its scale where its own size (scale 1e6), not its offset, takes it that far. A tiny
+    close-up over a visible overview (scale 1e-3) is the caller's choice and drawn as before; with ``bounds`` (or an
+    explicit camera position) the framing is the caller's, and what falls outside it or under a pixel is not drawn,
+    as before. Sizes are those of the parts' bounding boxes, an upper bound of what they cover."""
     from .render import _box_corners, _camera_position, _pixel_extent
 
     xmin, xmax, ymin, ymax = t.extent
@@ -2727,7 +2728,7 @@ def _check_framed(t: Terrain, items: Sequence[CloseUp], drawn: dict[int, Any], b
               f"{hi[2]:.6g}] is that large because closeups[{far}]")
     if float(np.abs(items[far].offset).max()) < reach[far] / 2:
         # its own size, not where it was moved, reaches that far: a scale of 1e6 with a small offset was told to
-        # "move it nearer" (the CLI: "give it a smaller --offset", of an offset of 6.9 m)
+        # "move it nearer" (the CLI: "give it a smaller --offset", of the offset it was given)
         content = np.asarray(drawn[far], np.float64)
         across = float((content[1] - content[0]).max())
         raise InvalidInputError(f"{framed} (scale {tuple(float(v) for v in items[far].scale)}) is drawn "

@@ -1975,7 +1975,8 @@ class Pipeline:
         return self._then("add", other, tuple(weights))
 
     def modulate(self, *others: Any) -> Pipeline:
-        if not others:  # refused only at apply(), as "modulate needs at least two layers" of a pipeline given one
+        if not others:  # was refused only at apply(), as "modulate needs at least two layers" of a pipeline that
+            # supplies the current one
             raise InvalidInputError("Pipeline.modulate needs at least one layer to modulate the current one by; got "
                                     "none")
         return self._then("modulate", *others)

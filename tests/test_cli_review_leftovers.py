@@ -59,6 +59,20 @@ def test_an_option_given_twice_with_one_value_and_the_repeating_options_still_wo
     assert code == 0 and (tmp_path / "a.png").is_file(), err
 
 
+def test_nan_given_twice_is_one_value_not_a_repeat(tmp_path, capsys):
+    """NaN is not equal to itself: ``--interval nan --interval nan`` was refused as "given twice ('nan', then 'nan')",
+    two values said to differ that are one, in place of what the option says of the value itself (given once)."""
+    parser = cli.build_parser()
+    args = parser.parse_args(["steps", "--interval", "nan", "--interval", "NaN", "--base", "nan", "--base", "nan"])
+    assert np.isnan(args.interval) and np.isnan(args.base)
+    with pytest.raises(cli._UsageError, match=r"given twice \('nan', then '1'\)"):
+        parser.parse_args(["steps", "--interval", "nan", "--interval", "1"])
+    once = run(capsys, "steps", "--interval", "nan", "-o", tmp_path / "a.glb")
+    twice = run(capsys, "steps", "--interval", "nan", "--interval", "nan", "-o", tmp_path / "a.glb")
+    assert twice == once and once[0] == 2 and "given twice" not in once[2], once
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_every_subcommand_parser_refuses_a_repeat():
     """The check lives in the one parser class every subcommand's parser is (a new subcommand has it too)."""
     parser = cli.build_parser()
@@ -148,7 +162,7 @@ def test_3mf_declares_the_unit_of_the_coordinates_on_every_path(tmp_path, capsys
 def test_closeup_framing_error_names_the_close_up_and_the_option_to_change(tmp_path, capsys, given, cause, advice):
     """The framing refusal names the close-up as the user counts them and its --offset (never the library's
     ``closeups[0]``); a close-up blown up by --scale 1e6 at the default offset was told "give it a smaller --offset",
-    the one option that was not the cause: it names the scale and --scale now."""
+    the one option that was not the cause: it names its --scale, its drawn size and "a smaller --scale" now."""
     code, out, err = run(capsys, "closeup", "--roi-relative", "0.5,0.5,0.1", *given, "--size", "128x128", "-o",
                          tmp_path / "x.png", "-q")
     assert code == 2 and "closeups[" not in err and "bounds" not in err, err
@@ -236,3 +250,23 @@ def test_solid_png_over_budget_advice_is_a_budget_the_run_passes_at(tmp_path, ca
     advice = re.search(r"raise the budget \(--memory-budget SIZE\) to at least (\d+MiB)", err).group(1)
     code, out, err = run(capsys, *argv, "--memory-budget", advice)
     assert code == 0 and (tmp_path / "s.png").is_file(), (advice, err)
+
+
+# ------------------------------------------------------------------------------------------ a globe's nodata cells
+def test_globe_nodata_refusal_names_only_what_marks_a_cell(tmp_path, capsys):
+    """The globe's refusal of an .npz's nodata cells names what marks them: of one NaN cell in a file that also
+    declares nodata -9999 (no cell holds it) or an all-False mask, it said "(nodata -9999, NaN or infinite; ...)" and
+    "('mask', NaN or infinite; ...)", naming a value and a mask that marked nothing. What does mark a cell is named."""
+    lat, lon = np.linspace(89.5, -89.5, 180), np.linspace(-179.5, 179.5, 360)
+    grid, out = tmp_path / "grid.npz", tmp_path / "g.ply"
+    elevation = np.zeros((180, 360), np.float32)
+    elevation[3, 7] = np.nan
+    mask = np.zeros(elevation.shape, bool)
+    cases = (({"nodata": np.float32(-9999)}, "1 nodata cell (NaN or infinite; first at row 3, column 7)"),
+             ({"mask": mask}, "1 nodata cell (NaN or infinite; first at row 3, column 7)"),
+             ({"nodata": np.float32(0)}, "64,800 nodata cells (nodata 0, NaN or infinite; first at row 0, column 0)"))
+    for beside, told in cases:
+        np.savez(grid, elevation=elevation, lat=lat, lon=lon, **beside)
+        code, _, err = run(capsys, "globe", grid, "--face-size", "9", "--no-camera", "-o", out, "--device", "cpu")
+        assert code == 2 and f"'elevation' has {told}; the globe needs a height everywhere" in err, err
+    assert not out.exists()
