@@ -658,8 +658,9 @@ class Globe:
             has a border where the view ends; without culling it stays closed).
         per_face : bool
             Return six meshes, one per cube face, each with UV texture coordinates of its face (§5.3) and the
-            whole mesh's bounds as ``metadata["shared_bounds"]`` (:func:`~stepterrain.export.save_mesh` stores the
-            six files alike by them: the seams stay welded).
+            whole mesh's bounds as ``metadata["shared_bounds"]`` and its own vertex and face counts and bounds as
+            ``metadata["whole_part"]`` (:func:`~stepterrain.export.save_mesh` stores the six files alike by them,
+            culled ones too: the seams stay welded).
 
         Returns
         -------
@@ -1374,10 +1375,13 @@ def _split_faces(mesh: trimesh.Trimesh, n: int, cells: int) -> list[trimesh.Trim
     the whole mesh's ``face_attributes`` and metadata, ``node_entry`` cut to its own vertices, and the whole mesh's
     bounds as ``metadata["shared_bounds"]``: :func:`~stepterrain.export.save_mesh` stores the six alike by them, so
     that a seam vertex's copies in two files are stored identically (each glTF about its own centre rounded them
-    apart, by up to 0.25 m on the Earth: cracks along the cube edges). The UVs come with a plain matte material, the
-    whole mesh's as save_mesh writes it (white, metallic 0, roughness 1), and no image: trimesh's placeholder (a grey
-    2 x 2 texture, filled in for UVs given alone) was embedded in the files and drawn by the renders, the faces dark
-    grey where the whole mesh is white."""
+    apart, by up to 0.25 m on the Earth: cracks along the cube edges). Each records itself as made, its vertex and
+    face counts and bounds, as ``metadata["whole_part"]``: save_mesh stores a part so recorded by the shared bounds
+    (and the eye they hold) however little of its face culling left, and a piece cut from it, or one moved or scaled
+    (trimesh copies the metadata), by its own bounds where the shared ones would round it coarser. The UVs come
+    with a plain matte material, the whole mesh's as save_mesh writes it (white, metallic 0, roughness 1), and no
+    image: trimesh's placeholder (a grey 2 x 2 texture, filled in for UVs given alone) was embedded in the files and
+    drawn by the renders, the faces dark grey where the whole mesh is white."""
     out = []
     cube_face = np.asarray(mesh.face_attributes["cube_face"])
     entry = np.asarray(mesh.metadata["node_entry"], dtype=np.int64)
@@ -1396,6 +1400,10 @@ def _split_faces(mesh: trimesh.Trimesh, n: int, cells: int) -> list[trimesh.Trim
         uv = np.column_stack([(x + cells) / (2.0 * cells), (y + cells) / (2.0 * cells)])
         visual = trimesh.visual.TextureVisuals(uv=uv, material=trimesh.visual.material.PBRMaterial(**material))
         metadata = {**mesh.metadata, "node_entry": entry[used].astype(np.int32), "cube_face": f, **shared}
+        if len(used):  # the part as made: save_mesh keeps the shared frame for it, however small culling left it
+            part = vertices[used]
+            metadata["whole_part"] = {"vertices": len(used), "faces": len(faces),
+                                      "bounds": [part.min(axis=0).tolist(), part.max(axis=0).tolist()]}
         out.append(trimesh.Trimesh(mesh.vertices[used], local.reshape(-1, 3), process=False, visual=visual,
                                    metadata=metadata, face_attributes={"cube_face": cube_face[cube_face == f]}))
     return out

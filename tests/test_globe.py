@@ -839,6 +839,8 @@ def test_per_face_meshes_carry_the_documented_attributes(small_globe):
             part.faces)
         assert part.metadata["levels"] == whole.metadata["levels"]
         assert part.metadata["face_size"] == small_globe.face_size
+        assert part.metadata["whole_part"] == {"vertices": len(part.vertices), "faces": len(part.faces), "bounds": [
+            part.vertices.min(axis=0).tolist(), part.vertices.max(axis=0).tolist()]}  # save_mesh: the set's frame
 
 
 def test_cpu_and_cuda_agree(device):

@@ -1759,6 +1759,42 @@ def test_the_six_per_face_meshes_written_one_by_one_keep_their_seams_welded(tmp_
         <= rounding
 
 
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+@pytest.mark.parametrize("view", [(0.0, 45.0, 3.0e6, 30.0), (0.0, 45.0, 3.0e7, 8.0)])
+def test_the_culled_per_face_meshes_written_one_by_one_keep_their_seams_welded(tmp_path, ext, view):
+    """A view culls the faces it does not see, leaving some per-face meshes a few triangles of their face. save_mesh
+    stored those by their own bounds (the shared ones reach more than twice as far: the rule for a piece cut from a
+    part), the others by the shared bounds, or about the eye they hold: the copies of a seam vertex read back up to
+    0.5 m apart from an eye 3,000 km up (8 triangles about their own centre, 934 about the eye), 6 cm from one 30,000 km
+    up (the eye beyond the bounds, a culled face about its own centre). Each part records its counts and bounds as
+    made (metadata["whole_part"]) and keeps the shared frame whatever culling left of it."""
+    from stepterrain.export import read_mesh, save_mesh
+
+    globe = Globe.sample(face_size=33, device="cpu")
+    latitude, longitude, altitude, fov = view
+    camera = look_from(latitude, longitude, altitude, fov=math.radians(fov))
+    parts = globe.mesh(error=300.0, camera=camera, per_face=True)
+    full = globe.mesh(error=300.0, camera=camera, per_face=True, cull=False)
+    culled = [k for k, part in enumerate(parts) if 0 < len(part.faces) < len(full[k].faces)]
+    assert culled  # culling left some face part of its triangles
+    back = [read_mesh(save_mesh(part, tmp_path / f"face{k}{ext}")) for k, part in enumerate(parts)]
+    seams = 0
+    for a in range(6):
+        index = {tuple(v): i for i, v in enumerate(parts[a].vertices)}
+        for b in range(a + 1, 6):
+            pairs = np.array([(index[tuple(v)], j) for j, v in enumerate(parts[b].vertices) if tuple(v) in index])
+            if len(pairs) and (a in culled or b in culled):
+                seams += len(pairs)
+            if len(pairs):
+                np.testing.assert_array_equal(back[a].vertices[pairs[:, 0]], back[b].vertices[pairs[:, 1]],
+                                              err_msg=f"faces {a} and {b}")
+    assert seams > 0  # a seam of a culled face is checked
+    whole = globe.mesh(error=300.0, camera=camera)  # each part as finely as the whole view in one file
+    rounding = np.abs(read_mesh(save_mesh(whole, tmp_path / f"whole{ext}")).vertices - whole.vertices).max()
+    assert max(np.abs(read.vertices - part.vertices).max() for part, read in zip(parts, back, strict=True)
+               if len(part.vertices)) <= rounding
+
+
 def test_the_per_face_meshes_carry_their_uvs_without_a_made_up_texture(tmp_path):
     """Globe.mesh(per_face=True) gave each face TextureVisuals(uv=uv) without an image, so trimesh filled in its
     placeholder material: a 2 x 2 grey (100, 100, 100) image. The GLB embedded it as the base colour texture and the
