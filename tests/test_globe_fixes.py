@@ -1729,6 +1729,17 @@ def test_the_up_a_camera_refusal_suggests_is_taken(target):
     Camera(eye=(0.0, 0.0, 0.0), target=target, up=tuple(float(k) for k in suggested.groups()))
 
 
+def _seam_pairs(parts):
+    """(a, b, pairs) for each two per-face meshes a < b sharing vertices: pairs[:, 0] indexes a's copies of the
+    shared vertices, pairs[:, 1] b's (the same float64 positions)."""
+    for a in range(len(parts)):
+        index = {tuple(v): i for i, v in enumerate(parts[a].vertices)}
+        for b in range(a + 1, len(parts)):
+            pairs = np.array([(index[tuple(v)], j) for j, v in enumerate(parts[b].vertices) if tuple(v) in index])
+            if len(pairs):
+                yield a, b, pairs
+
+
 @pytest.mark.parametrize("ext", [".glb", ".gltf"])
 @pytest.mark.parametrize("view", [None, (30.0, 10.0, 2.0e7)])
 def test_the_six_per_face_meshes_written_one_by_one_keep_their_seams_welded(tmp_path, ext, view):
@@ -1744,13 +1755,9 @@ def test_the_six_per_face_meshes_written_one_by_one_keep_their_seams_welded(tmp_
     parts = globe.mesh(error=100.0, camera=camera, per_face=True, cull=False)
     back = [read_mesh(save_mesh(part, tmp_path / f"face{k}{ext}")) for k, part in enumerate(parts)]
     seams = 0
-    for a in range(6):
-        index = {tuple(v): i for i, v in enumerate(parts[a].vertices)}
-        for b in range(a + 1, 6):
-            pairs = np.array([(index[tuple(v)], j) for j, v in enumerate(parts[b].vertices) if tuple(v) in index])
-            if len(pairs):
-                seams += len(pairs)
-                np.testing.assert_array_equal(back[a].vertices[pairs[:, 0]], back[b].vertices[pairs[:, 1]])
+    for a, b, pairs in _seam_pairs(parts):
+        seams += len(pairs)
+        np.testing.assert_array_equal(back[a].vertices[pairs[:, 0]], back[b].vertices[pairs[:, 1]])
     assert seams > 100  # every cube edge is some face pair's seam
     # each face as finely as the whole mesh in one file (float32 about its centre, or about a camera's eye)
     whole = globe.mesh(error=100.0, camera=camera, cull=False)
@@ -1779,15 +1786,11 @@ def test_the_culled_per_face_meshes_written_one_by_one_keep_their_seams_welded(t
     assert culled  # culling left some face part of its triangles
     back = [read_mesh(save_mesh(part, tmp_path / f"face{k}{ext}")) for k, part in enumerate(parts)]
     seams = 0
-    for a in range(6):
-        index = {tuple(v): i for i, v in enumerate(parts[a].vertices)}
-        for b in range(a + 1, 6):
-            pairs = np.array([(index[tuple(v)], j) for j, v in enumerate(parts[b].vertices) if tuple(v) in index])
-            if len(pairs) and (a in culled or b in culled):
-                seams += len(pairs)
-            if len(pairs):
-                np.testing.assert_array_equal(back[a].vertices[pairs[:, 0]], back[b].vertices[pairs[:, 1]],
-                                              err_msg=f"faces {a} and {b}")
+    for a, b, pairs in _seam_pairs(parts):
+        if a in culled or b in culled:
+            seams += len(pairs)
+        np.testing.assert_array_equal(back[a].vertices[pairs[:, 0]], back[b].vertices[pairs[:, 1]],
+                                      err_msg=f"faces {a} and {b}")
     assert seams > 0  # a seam of a culled face is checked
     whole = globe.mesh(error=300.0, camera=camera)  # each part as finely as the whole view in one file
     rounding = np.abs(read_mesh(save_mesh(whole, tmp_path / f"whole{ext}")).vertices - whole.vertices).max()
