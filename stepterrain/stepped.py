@@ -603,10 +603,12 @@ class StepArrays:
 
 
 def thresholds_of(values: NDArray[np.float32]) -> NDArray[np.float32]:
-    """t_i = (α_i + α_i+1) / 2, computed in float64 and rounded once to float32. ``values``: the isovalues, a float32
-    array (as :func:`isovalues` gives them; an array of another dtype is read as it is) or a sequence of numbers,
-    taken as float32 as the kernels take levels."""
-    if not isinstance(values, np.ndarray):  # a list raised AttributeError ('list' object has no attribute 'astype')
+    """t_i = (α_i + α_i+1) / 2, computed in float64 and rounded once to float32: the thresholds :func:`stepped`
+    steps at. ``values``: the isovalues, a float32 array (as :func:`isovalues` gives them) or a sequence or array of
+    other real numbers, taken as float32 first as the kernels take levels (a float64 array was averaged as it was, and
+    its thresholds could lie one float32 step off the kernels')."""
+    # a list raised AttributeError ('list' object has no attribute 'astype')
+    if not (isinstance(values, np.ndarray) and values.dtype == np.float32):
         numbers = real_numbers(values, "values", "a 1-D sequence of isovalues")
         if numbers.ndim != 1:
             raise InvalidInputError(f"values must be a 1-D sequence of isovalues; got shape {numbers.shape}")
