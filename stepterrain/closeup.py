@@ -45,6 +45,7 @@ from .errors import (
     OutputTooLargeError,
     caller_stacklevel,
     counted,
+    plain_repr,
 )
 from .io import degrees_hint
 from .kernels import closeup as closeup_kernels
@@ -123,7 +124,7 @@ def _finite(value: Any, name: str) -> float:
     try:
         return finite_number(value, name)
     except InvalidInputError:
-        raise InvalidInputError(f"{name} must be a finite number; got {value!r}") from None
+        raise InvalidInputError(f"{name} must be a finite number; got {plain_repr(value)}") from None
 
 
 def _numbers(value: Any) -> NDArray[np.float64]:
@@ -163,7 +164,7 @@ def _outline_level(value: Any, name: str) -> float:
     naming ``name``; :meth:`ROI.outline` and :class:`AnchorStyle` take the same levels."""
     level = number_or_nan(value)
     if not 0 < level < 1:
-        raise InvalidInputError(f"{name} must be a number in (0, 1); got {value!r}")
+        raise InvalidInputError(f"{name} must be a number in (0, 1); got {plain_repr(value)}")
     return level
 
 
@@ -171,7 +172,7 @@ def _seconds(time: Any) -> float:
     """An animation time in seconds: any number but NaN (inf: every spin has ended)."""
     t = number_or_nan(time)
     if math.isnan(t):
-        raise InvalidInputError(f"time must be a number of seconds (not NaN); got {time!r}")
+        raise InvalidInputError(f"time must be a number of seconds (not NaN); got {plain_repr(time)}")
     return t
 
 
@@ -202,7 +203,7 @@ def _mask_grid(resolution: int) -> tuple[int, int]:
     a 10000 x 100 rectangle got 3 rows (its rim and centre), so m was a tent, 0.2 at 10 m inside its long edge
     instead of 1, and its outline ran at half its width."""
     if isinstance(resolution, (bool, np.bool_)) or not isinstance(resolution, (int, np.integer)):
-        raise InvalidInputError(f"mask resolution must be a whole number of texels; got {resolution!r}")
+        raise InvalidInputError(f"mask resolution must be a whole number of texels; got {plain_repr(resolution)}")
     resolution = int(resolution)
     if not 3 <= resolution <= _MAX_MASK_RESOLUTION:
         raise InvalidInputError(f"mask resolution must lie in [3, {_MAX_MASK_RESOLUTION}] texels per side; got "
@@ -436,7 +437,7 @@ class ROI:
         t = as_terrain(terrain)
         values = np.asarray(isovalues(t.height_range, interval=interval, levels=levels, base=base), np.float32)
         if isinstance(level, (bool, np.bool_)) or not isinstance(level, (int, np.integer)):
-            raise InvalidInputError(f"level must be a whole isovalue index; got {level!r}")
+            raise InvalidInputError(f"level must be a whole isovalue index; got {plain_repr(level)}")
         level = int(level)
         if not 0 <= level < len(values):
             raise InvalidInputError(f"level must index the {counted(len(values), 'isovalue')} (0..{len(values) - 1}); "
@@ -2875,7 +2876,7 @@ def animate_closeups(
     t = as_terrain(terrain)
     items = _check_closeups(closeups)
     if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 1:
-        raise InvalidInputError(f"frames must be a positive int; got {frames!r}")
+        raise InvalidInputError(f"frames must be a positive int; got {plain_repr(frames)}")
     fps = finite_number(fps, "fps", positive=True)
     width, height = _window(window_size)
     check_budget(int(frames) * width * height * 3, f"{int(frames)} frames of {width} x {height} pixels",

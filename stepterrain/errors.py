@@ -120,6 +120,15 @@ def caller_stacklevel() -> int:
     return level
 
 
+def plain_repr(value: Any) -> str:
+    """``repr(value)`` for a message, a NumPy number or bool as the plain one it holds: ``{value!r}`` wrote
+    ``np.int64(0)`` and ``np.float64(-1.0)`` (NumPy 2's scalar repr) where a size or interval came from an array."""
+    numpy = sys.modules.get("numpy")
+    if numpy is not None and isinstance(value, (numpy.number, numpy.bool_)):
+        return str(value)
+    return repr(value)
+
+
 def counted(count: int, noun: str, plural: str | None = None, *, grouped: bool = False) -> str:
     """``count`` and ``noun`` for a message: "1 item", "2 items", "1 NaN or infinite value" (``plural`` where adding
     an s is wrong: "vertex", "vertices"); ``grouped``: the count with thousands separators ("1,024 vertices", as

@@ -51,7 +51,7 @@ from ._device import (
     to_numpy,
 )
 from .camera import _MAX_COORDINATE, Camera
-from .errors import DataFileError, InvalidInputError, OutputTooLargeError, counted
+from .errors import DataFileError, InvalidInputError, OutputTooLargeError, counted, plain_repr
 from .io import _check_read_budget, _pam_root, _prj_beside, picture_uint8, world_file
 from .kernels import bounds as bounds_kernels
 from .kernels import compaction as compaction_kernels
@@ -127,7 +127,7 @@ UserMetric = Callable[[NDArray[np.float64], NDArray[np.float64]], ArrayLike]
 # ------------------------------------------------------------------------------------------ validation
 def _face_cells(face_size: Any, name: str = "face_size") -> int:
     if isinstance(face_size, bool) or not isinstance(face_size, (int, np.integer)):
-        raise InvalidInputError(f"{name} must be an int 2^k + 1 (e.g. 257, 1025); got {face_size!r}")
+        raise InvalidInputError(f"{name} must be an int 2^k + 1 (e.g. 257, 1025); got {plain_repr(face_size)}")
     cells = int(face_size) - 1
     if cells < 2 or cells & (cells - 1):
         raise InvalidInputError(f"{name} must be 2^k + 1 with k >= 1 (3, 5, 9, ..., 1025); got {face_size}")
@@ -142,9 +142,9 @@ def _number(value: Any, name: str, kind: str, ok: Callable[[float], bool], unit:
     try:
         v = as_number(value)
     except (TypeError, ValueError):
-        raise InvalidInputError(f"{name} must be a {kind}number{unit}; got {value!r}") from None
+        raise InvalidInputError(f"{name} must be a {kind}number{unit}; got {plain_repr(value)}") from None
     if not (math.isfinite(v) and ok(v)):
-        raise InvalidInputError(f"{name} must be a {kind}finite number{unit}; got {value!r}")
+        raise InvalidInputError(f"{name} must be a {kind}finite number{unit}; got {plain_repr(value)}")
     return v
 
 
@@ -2207,7 +2207,7 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
         raise InvalidInputError(f"longitude must lie in [-360, 360] degrees; got {longitude:g}")
     for name, value in (("altitude", altitude), ("tilt", tilt), ("heading", heading)):
         if not math.isfinite(number_or_nan(value)):
-            raise InvalidInputError(f"{name} must be a finite number; got {value!r}")
+            raise InvalidInputError(f"{name} must be a finite number; got {plain_repr(value)}")
     altitude, tilt, heading = float(altitude), float(tilt), float(heading)
     if not -90.0 <= tilt <= 90.0:  # 1e308 degrees gave a view of no meaning; past 90 the view looks up, off the globe
         raise InvalidInputError(f"tilt must lie in [-90, 90] degrees from straight down; got {tilt:g}")

@@ -52,7 +52,7 @@ from ._device import (
     to_device,
     to_numpy,
 )
-from .errors import InvalidInputError, OutputTooLargeError, caller_stacklevel, counted
+from .errors import InvalidInputError, OutputTooLargeError, caller_stacklevel, counted, plain_repr
 from .kernels import stepped as stepped_kernels
 from .mesh import float32_floor_clash, reclaim_dropped, track
 from .terrain import (
@@ -226,7 +226,7 @@ def circular_lens(
     # 3 at least: a 2 x 2 mask has its samples only at the corners of the lens's square, all beyond the lens's reach
     # (:func:`_lens_box`), so it was `outside` everywhere: a lens on the terrain that changed nothing, unsaid
     if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 3:
-        raise InvalidInputError(f"lens resolution must be an int >= 3; got {resolution!r}")
+        raise InvalidInputError(f"lens resolution must be an int >= 3; got {plain_repr(resolution)}")
     check_budget(LENS_TEXEL_BYTES * int(resolution) ** 2, f"a lens mask of resolution {int(resolution)}",
                  hint="lower the lens resolution")
     n = int(resolution)
@@ -294,7 +294,7 @@ def nice_interval(height_range: tuple[float, float], target: int = TARGET_STEPS)
     ``target`` that is not a positive number, is an :class:`InvalidInputError`.
     """
     if isinstance(target, (bool, np.bool_)):  # True was taken as 1 step
-        raise InvalidInputError(f"target must be a positive number of steps; got {target!r}")
+        raise InvalidInputError(f"target must be a positive number of steps; got {plain_repr(target)}")
     target = finite_number(target, "target", positive=True)
     try:
         lo, hi = (as_number(v) for v in height_range)
@@ -463,9 +463,9 @@ def isovalues(
     except (TypeError, ValueError) as exc:
         raise InvalidInputError(f"interval and base must be numbers; got interval={interval!r}, base={base!r}") from exc
     if not np.isfinite(step) or step <= 0:
-        raise InvalidInputError(f"interval must be a positive finite number; got {interval!r}")
+        raise InvalidInputError(f"interval must be a positive finite number; got {plain_repr(interval)}")
     if not np.isfinite(base):
-        raise InvalidInputError(f"base must be finite; got {base!r}")
+        raise InvalidInputError(f"base must be finite; got {plain_repr(base)}")
     # what follows depends on these four floats alone: a re-step going back and forth between a few intervals takes
     # its isovalues from _UNIFORM (a copy: the caller may write to it), keyed by their bits (-0.0 is not 0.0); a call
     # that raises is not kept, so it raises again

@@ -24,7 +24,7 @@ import trimesh
 from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import check_budget
-from .errors import InvalidInputError, counted
+from .errors import InvalidInputError, counted, plain_repr
 
 __all__ = ["Terrain", "heightfield_mesh", "as_terrain"]
 
@@ -278,9 +278,9 @@ def finite_number(value: Any, name: str, *, positive: bool = False, lo: float | 
     except _TooLarge as exc:  # its 400 digits would say less
         raise InvalidInputError(f"{name} must be finite; got {exc}") from None
     except (TypeError, ValueError):
-        raise InvalidInputError(f"{name} must be a number; got {value!r}") from None
+        raise InvalidInputError(f"{name} must be a number; got {plain_repr(value)}") from None
     if not math.isfinite(number):
-        raise InvalidInputError(f"{name} must be finite; got {value!r}")
+        raise InvalidInputError(f"{name} must be finite; got {plain_repr(value)}")
     if positive and number <= 0:
         raise InvalidInputError(f"{name} must be positive; got {number}")
     if (lo is not None and number < lo) or (hi is not None and number > hi):

@@ -32,7 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import check_budget, count_buffer, exclusive_offsets
 from ._device import MIN_THREAD_ELEMENTS, host_copy, launch, recycled_empty, resolve_device, scratch
-from .errors import InvalidInputError, caller_stacklevel, counted
+from .errors import InvalidInputError, caller_stacklevel, counted, plain_repr
 from .kernels import texture as texture_kernels
 from .mesh import mesh_argument
 from .stepped import LENS_TEXEL_BYTES, given_levels, one_of_interval_or_levels
@@ -1393,9 +1393,10 @@ def contour_layer(
     index_rgba = (*(0.7 * c for c in rgba[:3]), rgba[3]) if index_color is None else \
         _contour_colour(index_color, "index_color")
     if isinstance(index_every, (bool, np.bool_)) or not isinstance(index_every, (int, np.integer)) or index_every < 0:
-        raise InvalidInputError(f"index_every must be a whole number >= 0 (0: no index lines); got {index_every!r}")
+        raise InvalidInputError(
+            f"index_every must be a whole number >= 0 (0: no index lines); got {plain_repr(index_every)}")
     if index_every > np.iinfo(np.int32).max:
-        raise InvalidInputError(f"index_every must be below 2**31; got {index_every!r}")
+        raise InvalidInputError(f"index_every must be below 2**31; got {plain_repr(index_every)}")
     if values.size == 0 and abs(base) > interval * 2.0**29:
         # the same levels and index lines from a base a whole number of periods (interval, times index_every with
         # index lines) nearer 0: the kernel's (h - base) / interval lost the heights' fraction of an interval to a
@@ -2028,7 +2029,7 @@ def _lens_args(center: ArrayLike, radius: float, resolution: int, edge: float) -
     c = real_vector(center, "center", "a finite (x, y)", 2)
     radius = _finite(radius, "radius", positive=True)
     if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 4:
-        raise InvalidInputError(f"resolution must be an int >= 4; got {resolution!r}")
+        raise InvalidInputError(f"resolution must be an int >= 4; got {plain_repr(resolution)}")
     if resolution > _MAX_LENS_RESOLUTION:  # the budget check's message overflowed float64 (10**400)
         raise InvalidInputError(f"resolution must be at most {_MAX_LENS_RESOLUTION} texels a side; got an int of "
                                 f"{int(resolution).bit_length()} bits")

@@ -42,7 +42,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._device import host_copy, launch, resolve_device
 from .camera import Camera, _box
-from .errors import DataFileError, InvalidInputError, OutputTooLargeError, caller_stacklevel, counted
+from .errors import DataFileError, InvalidInputError, OutputTooLargeError, caller_stacklevel, counted, plain_repr
 from .io import (
     _ROTATION_TOLERANCE,
     _check_read_budget,
@@ -106,7 +106,7 @@ def pyramid_shapes(height: int, width: int) -> list[tuple[int, int]]:
     for value, name in ((height, "height"), (width, "width")):
         whole = isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
         if not whole or value < 1:
-            raise InvalidInputError(f"{name} must be a whole number of pixels >= 1; got {value!r}")
+            raise InvalidInputError(f"{name} must be a whole number of pixels >= 1; got {plain_repr(value)}")
         sizes.append(int(value))
     shapes = [(sizes[0], sizes[1])]
     while shapes[-1] != (1, 1):
@@ -733,7 +733,7 @@ class ImagePyramid:
             height, width, channels = tiff.shape
         extent, crs, placed_by_file = _placement(image, extent, crs, georeferencing, (height, width))
         if isinstance(band_bytes, bool) or not isinstance(band_bytes, (int, np.integer)) or band_bytes < 1:
-            raise InvalidInputError(f"band_bytes must be a positive int; got {band_bytes!r}")
+            raise InvalidInputError(f"band_bytes must be a positive int; got {plain_repr(band_bytes)}")
         band_bytes = int(band_bytes)  # a NumPy integer too (as a level, a lens' resolution): refused before
         anisotropic = check_flag(anisotropic, "anisotropic")
         given = _storage_folder(storage)
@@ -1278,7 +1278,7 @@ class PatchQuadtree:
         if t.kind != "grid":
             raise InvalidInputError("PatchQuadtree needs a regular heightfield")
         if isinstance(leaf_size, bool) or not isinstance(leaf_size, (int, np.integer)) or leaf_size < 2:
-            raise InvalidInputError(f"leaf_size must be an int >= 2; got {leaf_size!r}")
+            raise InvalidInputError(f"leaf_size must be an int >= 2; got {plain_repr(leaf_size)}")
         leaf_size = int(leaf_size)  # a NumPy integer too (as a level, a lens' resolution): refused before
         self.terrain = t
         rows, cols = t.heights.shape
@@ -1665,7 +1665,7 @@ class TextureTree:
             raise InvalidInputError(f"quadtree must be a PatchQuadtree; got {type(quadtree).__name__}")
         if (isinstance(max_texture_size, bool) or not isinstance(max_texture_size, (int, np.integer))
                 or max_texture_size < 1):
-            raise InvalidInputError(f"max_texture_size must be a positive int; got {max_texture_size!r}")
+            raise InvalidInputError(f"max_texture_size must be a positive int; got {plain_repr(max_texture_size)}")
         max_texture_size = int(max_texture_size)  # a NumPy integer too (as a level, a lens' resolution): refused before
         pyramid = _placed(pyramid, quadtree.terrain)
         self.pyramid = pyramid
@@ -2254,9 +2254,9 @@ class TextureCache:
                  workers: int = 1) -> None:
         # a NumPy integer too (as a pyramid level, a lens' resolution): refused before
         if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1:
-            raise InvalidInputError(f"budget must be a positive int of bytes; got {budget!r}")
+            raise InvalidInputError(f"budget must be a positive int of bytes; got {plain_repr(budget)}")
         if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
-            raise InvalidInputError(f"workers must be a positive int of threads; got {workers!r}")
+            raise InvalidInputError(f"workers must be a positive int of threads; got {plain_repr(workers)}")
         budget, workers = int(budget), int(workers)
         if loader is not None and not callable(loader):
             raise InvalidInputError(f"loader must be a function of a TexturePatch; got {type(loader).__name__}")
@@ -2656,9 +2656,9 @@ def _threshold(value: Any, name: str) -> float:
     try:
         number = as_number(value)
     except (TypeError, ValueError):
-        raise InvalidInputError(f"{name} must be a number of pixels; got {value!r}") from None
+        raise InvalidInputError(f"{name} must be a number of pixels; got {plain_repr(value)}") from None
     if not math.isfinite(number) or number < 0:
-        raise InvalidInputError(f"{name} must be a finite number of pixels >= 0; got {value!r}")
+        raise InvalidInputError(f"{name} must be a finite number of pixels >= 0; got {plain_repr(value)}")
     return number
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 import stepterrain as st
 from stepterrain.stepped import _isovalue_struct
@@ -21,3 +22,27 @@ def test_thresholds_of_float64_levels_are_the_thresholds_stepped_uses():
         got = thresholds_of(given)
         assert got.dtype == np.float32
         np.testing.assert_array_equal(got.view(np.uint32), kernels.view(np.uint32))
+
+
+def test_numpy_scalars_show_as_plain_numbers_in_messages():
+    """Sizes and intervals taken from arrays are NumPy scalars: ``{value!r}`` wrote them as ``np.int64(0)`` and
+    ``np.float64(-1.0)`` (NumPy 2's repr). Messages show the number; a plain Python value is shown as before."""
+    from stepterrain.errors import InvalidInputError
+    from stepterrain.texture_lod import pyramid_shapes
+
+    cases = (
+        (lambda: pyramid_shapes(np.int64(0), 5), "height must be a whole number of pixels >= 1; got 0"),
+        (lambda: pyramid_shapes(np.float64(2.5), 5), "height must be a whole number of pixels >= 1; got 2.5"),
+        (lambda: pyramid_shapes(0, 5), "height must be a whole number of pixels >= 1; got 0"),
+        (lambda: st.isovalues((0.0, 1.0), interval=np.float64(-1.0)),
+         "interval must be a positive finite number; got -1.0"),
+        (lambda: st.isovalues((0.0, 1.0), interval=np.float32("nan")),
+         "interval must be a positive finite number; got nan"),
+    )
+    for call, message in cases:
+        with pytest.raises(InvalidInputError) as caught:
+            call()
+        assert str(caught.value) == message
+    from stepterrain.errors import plain_repr
+
+    assert plain_repr("2") == "'2'" and plain_repr(np.str_("a")) == repr(np.str_("a")) and plain_repr([1]) == "[1]"
