@@ -28,7 +28,10 @@ def refuse_folder_name(path: str, name: str) -> None:
     """Raise InvalidInputError, naming the argument ``name``, when the output file name ``path`` ends the way only a
     folder's does: in a folder separator (``x.glb/``) or in ``.`` or ``..`` (``x.glb/.``). pathlib drops a trailing
     separator and a ``.`` (``Path("x.glb/") == Path("x.glb")``), so a writer given ``x.glb/``, meant as a folder,
-    wrote a file named ``x.glb``."""
+    wrote a file named ``x.glb``. An empty ``path`` is refused too: ``Path("")`` is ``Path(".")``, and the message
+    was "cannot write '.'", naming a folder no one gave."""
+    if path == "":
+        raise InvalidInputError(f"{name} is empty (''); expected a file name")
     separators = tuple(sep for sep in (os.sep, os.altsep) if sep)
     split = re.compile("|".join(map(re.escape, separators)))
     last = split.split(path)[-1]

@@ -751,7 +751,8 @@ def save_mesh(
     if bounds is not None and not (np.isfinite(bounds[0]).all() and np.isfinite(bounds[1]).all()):
         bad = np.flatnonzero(~np.isfinite(vertices).all(axis=1))  # on the error path only: the bounds said so
         raise InvalidInputError(
-            f"mesh vertices must be finite to be written; got {bad.size} of {len(vertices)} vertices with NaN or inf "
+            f"mesh vertices must be finite to be written; got {bad.size} of "
+            f"{counted(len(vertices), 'vertex', 'vertices')} with NaN or inf "
             f"(vertex {bad[0]} at {np.asarray(vertices[bad[0]], dtype=np.float64).tolist()})"
         )
     writer = _WRITERS.get(ext)
@@ -874,12 +875,12 @@ def _scaled_for_print(mesh: trimesh.Trimesh, size: Any, z_scale: Any, *, copy: b
     z_scale = finite_number(z_scale, names[1], positive=True)
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     if len(mesh.faces) == 0:
-        raise InvalidInputError(f"mesh must have faces to be scaled for a print; got {len(vertices)} vertices and no "
-                                "faces")
+        raise InvalidInputError(f"mesh must have faces to be scaled for a print; got "
+                                f"{counted(len(vertices), 'vertex', 'vertices')} and no faces")
     if not np.isfinite(vertices).all():
         bad = int((~np.isfinite(vertices).all(axis=1)).sum())
         raise InvalidInputError(f"mesh vertices must be finite to be scaled for a print; got {bad} of "
-                                f"{len(vertices)} vertices with NaN or inf")
+                                f"{counted(len(vertices), 'vertex', 'vertices')} with NaN or inf")
     faces = np.asarray(mesh.faces)
     check_face_indices(faces, len(vertices), "mesh faces")  # the message save_mesh gives, naming the first bad face
     # the bounds of the vertices the faces use, as trimesh's bounds and a slicer see the model: a stray vertex (a
@@ -2838,8 +2839,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         if file.suffix.lower() == ".off" and isinstance(loaded, trimesh.Trimesh):
             counts = _off_counts(file)  # a file cut short read as the faces it has, without a word
             if counts is not None and len(loaded.faces) < counts[1]:
-                raise ValueError(_off_problem(file) or f"its counts declare {counts[1]} faces, and "
-                                 f"{len(loaded.faces)} triangles were read")
+                raise ValueError(_off_problem(file) or f"its counts declare {counted(counts[1], 'face')}, and "
+                                 f"{counted(len(loaded.faces), 'triangle')} were read")
             colours = _off_vertex_colors(file, len(loaded.vertices))
             if colours is not None:
                 loaded.visual = trimesh.visual.ColorVisuals(loaded, vertex_colors=colours)
@@ -4528,7 +4529,8 @@ def _off_problem(file: Path) -> str | None:
                     "indices, integers")
         bad = [index for index in indices[1:] if not 0 <= index < vertices]
         if bad:
-            return (f"line {number}, {line.strip()!r}, names vertex {bad[0]}, and the file has {vertices} vertices: "
+            return (f"line {number}, {line.strip()!r}, names vertex {bad[0]}, and the file has "
+                    f"{counted(vertices, 'vertex', 'vertices')}: "
                     f"an OFF's indices count from 0 to {vertices - 1}")
     return None
 

@@ -420,8 +420,8 @@ def _face_indices(faces: Any, n_vertices: int | None = None) -> NDArray[np.int64
     if array.size and array.dtype.kind in "fu" and array.max() >= 2.0**63:  # int64's cast wrapped them round to
         at = tuple(int(k) for k in np.unravel_index(int(np.argmax(array)), array.shape))  # -2^63, named as such
         if n_vertices is not None:
-            raise InvalidInputError(f"faces must index the {n_vertices} vertices (0 .. {n_vertices - 1}); got "
-                                    f"{array[at]} at {at}")
+            raise InvalidInputError(f"faces must index the {counted(n_vertices, 'vertex', 'vertices')} "
+                                    f"(0 .. {n_vertices - 1}); got {array[at]} at {at}")
         raise OutputTooLargeError(f"faces: the kernels index vertices up to {MAX_INT32 - 3:,} with int32; got "
                                   f"{array[at]} at {at}")
     if array.size == 0 and array.ndim == 1:  # an empty list: no faces, as the docstring says (not shape (0,))
@@ -1016,8 +1016,8 @@ def _close_solid(vertices: Any, faces: Any, terrace_mask: Any, floor: float, dev
     device = _device_of(device)
     flat, low, high = _narrow_faces(faces, device)
     if low < 0 or high >= len(vertices):  # (0, 0) without faces
-        raise InvalidInputError(f"faces must index the {len(vertices)} vertices (0 .. {len(vertices) - 1}); got "
-                                f"indices {low} .. {high}")
+        raise InvalidInputError(f"faces must index the {counted(len(vertices), 'vertex', 'vertices')} "
+                                f"(0 .. {len(vertices) - 1}); got indices {low} .. {high}")
     terrace_mask = np.asarray(terrace_mask)
     if terrace_mask.dtype != np.bool_ or terrace_mask.shape != (len(faces),):  # the kernels read one byte a face
         raise InvalidInputError(f"terrace_mask must be a bool array of one flag per face ({len(faces)}); got "

@@ -46,3 +46,31 @@ def test_numpy_scalars_show_as_plain_numbers_in_messages():
     from stepterrain.errors import plain_repr
 
     assert plain_repr("2") == "'2'" and plain_repr(np.str_("a")) == repr(np.str_("a")) and plain_repr([1]) == "[1]"
+
+
+def test_counts_of_one_vertex_are_singular():
+    """Messages said "got 1 vertices and no faces" and "of 1 vertices with NaN or inf"."""
+    import trimesh
+
+    from stepterrain.errors import InvalidInputError
+    from stepterrain.export import scale_for_print
+
+    point = trimesh.Trimesh(vertices=np.zeros((1, 3)), faces=np.zeros((0, 3), dtype=np.int64), process=False)
+    with pytest.raises(InvalidInputError, match=r"; got 1 vertex and no faces$"):
+        scale_for_print(point, 100.0)
+    pair = trimesh.Trimesh(vertices=np.zeros((2, 3)), faces=np.zeros((0, 3), dtype=np.int64), process=False)
+    with pytest.raises(InvalidInputError, match=r"; got 2 vertices and no faces$"):
+        scale_for_print(pair, 100.0)
+
+
+def test_an_empty_output_path_is_named_empty(tmp_path, monkeypatch):
+    """``Path("")`` is ``Path(".")``: save_mesh(mesh, "") said "cannot write '.'" (a folder no one named)."""
+    from stepterrain.errors import InvalidInputError
+    from stepterrain.export import save_mesh
+
+    monkeypatch.chdir(tmp_path)
+    mesh = st.stepped(np.arange(9.0).reshape(3, 3), interval=1.0)
+    with pytest.raises(InvalidInputError) as caught:
+        save_mesh(mesh, "")
+    assert str(caught.value) == "path is empty (''); expected a file name"
+    assert list(tmp_path.iterdir()) == []
