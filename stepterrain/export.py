@@ -2735,7 +2735,9 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         buffer holding fewer bytes than its ``byteLength`` (:func:`_gltf_accessor_problem`,
         :func:`_gltf_buffer_problem`), and a ``.gltf`` whose buffer file is not beside it, naming the buffer and the
         path looked for (trimesh's reader: "FileNotFoundError: model.bin"; :func:`_gltf_missing_buffer`; a missing
-        texture image is warned of, the mesh read without it: :func:`_warn_gltf_missing_images`); a 3MF
+        texture image is warned of, the mesh read without it: :func:`_warn_gltf_missing_images`; a percent-encoded
+        uri, ``a%20b.bin``, names the file ``a b.bin``, as glTF's are: trimesh's reader looked for ``a%20b.bin``,
+        :class:`_UriResolver`); a 3MF
         triangle or vertex of an attribute missing, no number or overflowing,
         as written.
     """
@@ -2753,7 +2755,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             tree = _check_dense_gltf(file)  # its JSON, read once
             stored_z_up = _stored_z_up(tree)
             try:
-                scene = _trimesh_read(trimesh.load_scene, file, process=False)
+                scene = _trimesh_read(trimesh.load_scene, file, process=False, resolver=_UriResolver(str(file)))
             except AssertionError as exc:  # trimesh's bare "AssertionError: " for a buffer shorter than it declares
                 problem = _gltf_buffer_problem(file, tree)
                 if problem is None:
@@ -3498,6 +3500,25 @@ def _obj_blank_run_starts(text: bytes, array: NDArray[np.uint8], at: NDArray[np.
     return at
 
 
+class _UriResolver(trimesh.resolvers.FilePathResolver):
+    """trimesh's resolver of a glTF's side files (its buffers' and images' ``uri``), which un-escapes a uri first:
+    glTF 2.0 §3.3's uris are percent-encoded (``"a%20b.png"`` names the file ``a b.png``); trimesh's looked for the
+    uri as written, so a buffer so named was refused ("FileNotFoundError: a%20b.bin", the file beside it) and a
+    texture so named read untextured without a word. A uri as written is looked for next (a file named ``a%20b.png``,
+    as some writers name it)."""
+
+    def get(self, name: str) -> bytes:
+        import urllib.parse
+
+        plain = urllib.parse.unquote(name)
+        if plain != name:
+            try:
+                return super().get(plain)  # type: ignore[no-any-return]
+            except FileNotFoundError:
+                pass
+        return super().get(name)  # type: ignore[no-any-return]
+
+
 def _trimesh_read(load: Callable[..., Any], file: Path, data: bytes | None = None, **kwargs: Any) -> Any:
     """``load(file, **kwargs)`` (``trimesh.load`` or ``trimesh.load_scene``), also for a ``file`` whose name is no
     UTF-8 (a Latin-1 ``h\\xf6he.ply`` on a UTF-8 system, which Python names ``'h\\udcf6he.ply'``): trimesh names the
@@ -3506,11 +3527,11 @@ def _trimesh_read(load: Callable[..., Any], file: Path, data: bytes | None = Non
     files (an OBJ's material and textures, a glTF's buffers) found beside it as before, and named as its name reads
     with the undecodable bytes as U+FFFD (``metadata["name"]``, which every writer can store). ``data``: the file's
     contents to read instead of the file's own (an OBJ tidied, :func:`_obj_tidied`), its side files and name still
-    those of ``file``."""
+    those of ``file``. A ``resolver`` in ``kwargs`` (:class:`_UriResolver`) finds the side files of either."""
     name = _utf8_name(file.name)
     if name == file.name and data is None:
         return load(file, **kwargs)
-    resolver = trimesh.resolvers.FilePathResolver(str(file))  # the folder, for side files
+    resolver = kwargs.pop("resolver", None) or trimesh.resolvers.FilePathResolver(str(file))  # the folder
     resolver.file_name = name  # an OBJ's geometry is named by it
     # typed as trimesh types a path: an h\xf6he.tar.gz is a "tar.gz" (its last suffix, "gz", trimesh does not read)
     file_type = trimesh.util.split_extension(file.name, special=["tar.gz", "tar.bz2"]).lower()
