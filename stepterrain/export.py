@@ -4652,8 +4652,8 @@ def _off_line_words(data: bytes) -> NDArray[np.int64]:
         space |= last_hash > last_end
     starts = ~space  # each word's first byte
     starts[1:] &= space[:-1]
-    words = np.cumsum(starts, dtype=np.int32 if raw.size < 2**31 else np.int64)  # the words begun by each byte
-    return np.diff(np.concatenate([[0], words[ends], words[-1:]]))
+    at = np.flatnonzero(starts)
+    return np.diff(np.concatenate([[0], np.searchsorted(at, np.flatnonzero(ends)), [len(at)]]))  # words per line
 
 
 #: the bytes an OFF's words are separated by (Python's ``bytes.split``'s)
