@@ -2693,7 +2693,10 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     colour that is no number refused by line) come back as vertex colours, written as integers bytes
     and with a decimal point floats 0..1; integers of 0 and 1 only, which read either way, and vertex lines without
     a colour each or of colours of different lengths are dropped with a warning, the mesh read without them
-    (:func:`_off_vertex_colors`). A PLY's triangle strips (a ``tristrips`` element and no ``face`` one, as the
+    (:func:`_off_vertex_colors`). An OFF's face colours (after a face line's indices; trimesh's reader dropped them)
+    come back as face colours by the same rules, a polygon's on each of its triangles, face lines some with a colour
+    and some without dropped with a warning (:func:`_off_face_colors`; a COFF's vertex colours are kept over them,
+    with a warning). A PLY's triangle strips (a ``tristrips`` element and no ``face`` one, as the
     Stanford scanning tools and VCG write them; trimesh's reader skipped them, a mesh of vertices only) come back as
     their triangles, in the strips' winding, a stitch naming a vertex twice dropped.
 
@@ -2736,7 +2739,9 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         buffer holding fewer bytes than its ``byteLength`` (:func:`_gltf_accessor_problem`,
         :func:`_gltf_buffer_problem`), and a ``.gltf`` whose buffer file is not beside it, naming the buffer and the
         path looked for (trimesh's reader: "FileNotFoundError: model.bin"; :func:`_gltf_missing_buffer`; a missing
-        texture image is warned of, the mesh read without it: :func:`_warn_gltf_missing_images`); a 3MF
+        texture image is warned of, the mesh read without it: :func:`_warn_gltf_missing_images`; a percent-encoded
+        uri, ``a%20b.bin``, names the file ``a b.bin``, as glTF's are: trimesh's reader looked for ``a%20b.bin``,
+        :class:`_UriResolver`); a 3MF
         triangle or vertex of an attribute missing, no number or overflowing,
         as written.
     """
@@ -2754,7 +2759,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             tree = _check_dense_gltf(file)  # its JSON, read once
             stored_z_up = _stored_z_up(tree)
             try:
-                scene = _trimesh_read(trimesh.load_scene, file, process=False)
+                scene = _trimesh_read(trimesh.load_scene, file, process=False, resolver=_UriResolver(str(file)))
             except AssertionError as exc:  # trimesh's bare "AssertionError: " for a buffer shorter than it declares
                 problem = _gltf_buffer_problem(file, tree)
                 if problem is None:
@@ -2844,6 +2849,12 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             colours = _off_vertex_colors(file, len(loaded.vertices))
             if colours is not None:
                 loaded.visual = trimesh.visual.ColorVisuals(loaded, vertex_colors=colours)
+            shades = _off_face_colors(file, *counts, len(loaded.faces)) if counts is not None else None
+            if shades is not None and colours is not None:
+                warnings.warn(f"{str(file)!r}: an OFF of vertex and face colours: its face colours are dropped, the "
+                              "mesh read with its vertex colours", stacklevel=caller_stacklevel())
+            elif shades is not None:
+                loaded.visual = trimesh.visual.ColorVisuals(loaded, face_colors=shades)
         if gltf and isinstance(loaded, trimesh.Trimesh):
             if color is None and len(loaded.faces) == 0:  # points: trimesh rounds COLOR_0 to bytes, the file's
                 color = _gltf_color_0(file, tree)
@@ -3499,6 +3510,25 @@ def _obj_blank_run_starts(text: bytes, array: NDArray[np.uint8], at: NDArray[np.
     return at
 
 
+class _UriResolver(trimesh.resolvers.FilePathResolver):
+    """trimesh's resolver of a glTF's side files (its buffers' and images' ``uri``), which un-escapes a uri first:
+    glTF 2.0 §3.3's uris are percent-encoded (``"a%20b.png"`` names the file ``a b.png``); trimesh's looked for the
+    uri as written, so a buffer so named was refused ("FileNotFoundError: a%20b.bin", the file beside it) and a
+    texture so named read untextured without a word. A uri as written is looked for next (a file named ``a%20b.png``,
+    as some writers name it)."""
+
+    def get(self, name: str) -> bytes:
+        import urllib.parse
+
+        plain = urllib.parse.unquote(name)
+        if plain != name:
+            try:
+                return super().get(plain)  # type: ignore[no-any-return]
+            except FileNotFoundError:
+                pass
+        return super().get(name)  # type: ignore[no-any-return]
+
+
 def _trimesh_read(load: Callable[..., Any], file: Path, data: bytes | None = None, **kwargs: Any) -> Any:
     """``load(file, **kwargs)`` (``trimesh.load`` or ``trimesh.load_scene``), also for a ``file`` whose name is no
     UTF-8 (a Latin-1 ``h\\xf6he.ply`` on a UTF-8 system, which Python names ``'h\\udcf6he.ply'``): trimesh names the
@@ -3507,11 +3537,11 @@ def _trimesh_read(load: Callable[..., Any], file: Path, data: bytes | None = Non
     files (an OBJ's material and textures, a glTF's buffers) found beside it as before, and named as its name reads
     with the undecodable bytes as U+FFFD (``metadata["name"]``, which every writer can store). ``data``: the file's
     contents to read instead of the file's own (an OBJ tidied, :func:`_obj_tidied`), its side files and name still
-    those of ``file``."""
+    those of ``file``. A ``resolver`` in ``kwargs`` (:class:`_UriResolver`) finds the side files of either."""
     name = _utf8_name(file.name)
     if name == file.name and data is None:
         return load(file, **kwargs)
-    resolver = trimesh.resolvers.FilePathResolver(str(file))  # the folder, for side files
+    resolver = kwargs.pop("resolver", None) or trimesh.resolvers.FilePathResolver(str(file))  # the folder
     resolver.file_name = name  # an OBJ's geometry is named by it
     # typed as trimesh types a path: an h\xf6he.tar.gz is a "tar.gz" (its last suffix, "gz", trimesh does not read)
     file_type = trimesh.util.split_extension(file.name, special=["tar.gz", "tar.bz2"]).lower()
@@ -4580,15 +4610,24 @@ def _off_vertex_colors(file: Path, count: int) -> NDArray[np.uint8] | None:
                         f"holds {skip} numbers (x y z{' nx ny nz' if skip > 3 else ''}), then an RGB or RGBA colour as "
                         f"integers 0..255 or floats 0..1{', then s t' if tail else ''}") from None
         raise
+    return _off_colour_bytes(file, head, "vertex", words, values)
+
+
+def _off_colour_bytes(file: Path, head: str, kind: str, words: list[list[str]],
+                      values: NDArray[np.float64]) -> NDArray[np.uint8] | None:
+    """An OFF ``file``'s (keyword ``head``) ``kind`` ("vertex", "face") colours, ``words`` as written and ``values``
+    their numbers (a row each, RGB or RGBA), as RGBA bytes by :func:`_off_vertex_colors`' rules: floats 0..1 where
+    any is written with a decimal point or exponent, else bytes 0..255; None, with a warning, for integers of 0 and 1
+    only. A ValueError for a float outside 0..1 or an integer outside 0..255."""
     floats = any(any(c in word for c in ".eE") for row in words for word in row)
     if floats:
         if not np.all((values >= 0) & (values <= 1)):
-            raise ValueError(f"a {head} file's vertex colours written as floats are not all in 0..1")
+            raise ValueError(f"a {head} file's {kind} colours written as floats are not all in 0..1")
         values = np.round(values * 255)
     elif not np.all((values >= 0) & (values <= 255)):
-        raise ValueError(f"a {head} file's vertex colours written as integers are not all in 0..255")
+        raise ValueError(f"a {head} file's {kind} colours written as integers are not all in 0..255")
     elif values.size and values.max() <= 1 and values.max() > 0:
-        warnings.warn(f"{str(file)!r}: a {head} file's vertex colours are integers of 0 and 1 only: floats from 0 "
+        warnings.warn(f"{str(file)!r}: a {head} file's {kind} colours are integers of 0 and 1 only: floats from 0 "
                       "to 1 or bytes from 0 to 255? They are dropped, the mesh read without them; write them as 0.0 "
                       "and 1.0, or as 0 and 255", stacklevel=caller_stacklevel())
         return None
@@ -4596,6 +4635,88 @@ def _off_vertex_colors(file: Path, count: int) -> NDArray[np.uint8] | None:
     if colours.shape[1] == 3:
         colours = np.column_stack([colours, np.full(len(colours), 255, np.uint8)])
     return colours
+
+
+def _off_line_words(data: bytes) -> NDArray[np.int64]:
+    """The count of words on each line of an OFF file's ``data`` (its lines as ``bytes.splitlines`` splits them:
+    LF, CRLF or CR; a comment from ``#`` to the line's end skipped), counted by NumPy, without a loop over the lines."""
+    raw = np.frombuffer(data, np.uint8)
+    if raw.size == 0:
+        return np.zeros(1, np.int64)
+    ends = raw == 10
+    ends[:-1] |= (raw[:-1] == 13) & (raw[1:] != 10)  # a CR alone ends a line; of a CRLF, the LF
+    ends[-1] |= raw[-1] == 13
+    space = _SPACE_BYTES[raw]
+    if b"#" in data:  # from a # to its line's end: as spaces
+        at = np.arange(raw.size)
+        last_hash = np.maximum.accumulate(np.where(raw == 35, at, -1))
+        last_end = np.maximum.accumulate(np.where(ends, at, -1))
+        space |= last_hash > last_end
+    starts = ~space  # each word's first byte
+    starts[1:] &= space[:-1]
+    at = np.flatnonzero(starts)
+    return np.diff(np.concatenate([[0], np.searchsorted(at, np.flatnonzero(ends)), [len(at)]]))  # words per line
+
+
+#: the bytes an OFF's words are separated by (Python's ``bytes.split``'s)
+_SPACE_BYTES = np.zeros(256, bool)
+_SPACE_BYTES[list(b" \t\r\n\x0b\x0c")] = True
+
+
+def _off_face_colors(file: Path, vertices: int, faces: int, triangles: int) -> NDArray[np.uint8] | None:
+    """The face colours of the OFF ``file`` (``vertices`` and ``faces`` as its counts declare, read by trimesh's
+    reader as ``triangles`` triangles) as RGBA bytes, one per triangle, or None where its face lines hold no more than
+    a count and its indices (trimesh's reader dropped the rest of a line): each face line, ``n i1 .. in``, then RGB or
+    RGBA, as integers bytes, or with a decimal point floats 0..1 (:func:`_off_colour_bytes`, the vertex colours'
+    rules). Face lines some with a colour and some without, or of colours of different lengths (Geomview's colour map
+    index, one number), are dropped with a warning, as the vertex colours are. The words on each line are counted by
+    NumPy first: a file of faces without colours is not split line by line again. A polygon's colour is its triangles'
+    (trimesh's reader's order: triangles, then quads' halves, then polygons' fans)."""
+    data = file.read_bytes().removeprefix(b"\xef\xbb\xbf")
+    counts = _off_line_words(data)
+    counts = counts[counts > 0]
+    first = 1 if len(counts) and counts[0] > 1 else 2  # the counts on the keyword's line or the next
+    rows = counts[first + vertices : first + vertices + faces]
+    if len(rows) != faces or int(rows.sum()) == 3 * faces + triangles:  # n + 1 words per face, n - 2 triangles
+        return None
+    text = data.decode("utf-8", "replace")
+    numbered = [(number, line.split("#", 1)[0].split()) for number, line in enumerate(text.splitlines(), 1)]
+    numbered = [(number, line) for number, line in numbered if line]
+    lines = numbered[first + vertices : first + vertices + faces]
+    try:
+        sizes = np.array([int(line[0]) for _, line in lines], np.int64)
+    except ValueError:
+        return None  # trimesh's reader refused it
+    words = [line[size + 1 :] for size, (_, line) in zip(sizes.tolist(), lines, strict=True)]
+    widths = {len(row) for row in words}
+    head = _off_keyword(file) or "OFF"
+    if len(widths) != 1 or widths.pop() not in (3, 4) or np.any(sizes < 3):
+        warnings.warn(f"{str(file)!r}: a {head} file's face lines hold {sorted({len(row) for row in words})} "
+                      "numbers after their indices, where none or an RGB or RGBA colour on each were expected: its "
+                      "face colours are dropped, the mesh read without them", stacklevel=caller_stacklevel())
+        return None
+    try:
+        values = np.array(words, dtype=np.float64)
+    except ValueError:
+        for (number, line), colour in zip(lines, words, strict=True):
+            for word in colour:
+                try:
+                    float(word)
+                except ValueError:
+                    raise ValueError(
+                        f"line {number}, {' '.join(line)!r}: its colour {word!r} is not a number; a {head} face line "
+                        "holds its count n, n vertex indices, then an RGB or RGBA colour as integers 0..255 or floats "
+                        "0..1") from None
+        raise
+    colours = _off_colour_bytes(file, head, "face", words, values)
+    if colours is None:
+        return None
+    order = np.arange(faces)  # trimesh's triangulate_quads: triangles, quads' first and second halves, fans
+    quads, fans = order[sizes == 4], order[sizes > 4]
+    source = np.concatenate([order[sizes == 3], quads, quads, np.repeat(fans, sizes[fans] - 2)])
+    if len(source) != triangles:
+        return None
+    return colours[source]
 
 
 #: the statements of Wavefront OBJ (and of its curves and surfaces), which an OBJ's lines start with

@@ -810,3 +810,45 @@ def test_obj_of_carriage_returns_or_a_byte_order_mark_not_tidied_line_by_line(tm
         mesh, expected = read_mesh(path), read_mesh(plain)
         np.testing.assert_array_equal(mesh.vertices[mesh.faces], expected.vertices[expected.faces])
         assert len(mesh.faces) == 3
+
+
+@pytest.mark.parametrize("form", ["bytes", "floats", "quad"])
+def test_off_face_colours_read(tmp_path, form):
+    """An OFF's face colours (RGB or RGBA after a face line's indices: bytes as integers, floats 0..1 with a decimal
+    point, as a COFF's vertex colours) were dropped by trimesh's reader without a word; a quad's colour is both its
+    triangles' (in trimesh's order: triangles first, then the quads' first halves, then their second ones)."""
+    head = "OFF\n# c\n5 3 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n2 2 0\n"
+    if form == "floats":  # RGBA
+        written = np.array([[255, 0, 0, 255], [0, 128, 0, 51], [0, 0, 255, 255]])
+        rows = ["3 0 1 2 1.0 0.0 0.0 1", "3 1 4 2 0.0 0.5 0.0 0.2", "3 2 3 0 0 0 1.0 1.0"]
+    else:  # RGB
+        written = np.array([[255, 0, 0, 255], [0, 128, 0, 255], [0, 0, 255, 255]])
+        rows = ["3 0 1 2 255 0 0", "3 1 4 2 0 128 0", f"{'4 2 3 0 4' if form == 'quad' else '3 2 3 0'} 0 0 255"]
+    (tmp_path / "f.off").write_text(head + "\n".join(rows) + "\n")
+    mesh = read_mesh(tmp_path / "f.off")
+    assert mesh.visual.kind == "face"
+    triangles = {(0, 1, 2): 0, (1, 4, 2): 1, (2, 3, 0): 2, (0, 4, 2): 2} if form == "quad" else None
+    expected = written[[triangles[tuple(face)] for face in mesh.faces.tolist()]] if triangles else written
+    assert len(mesh.faces) == (4 if form == "quad" else 3)
+    np.testing.assert_array_equal(mesh.visual.face_colors, expected)
+
+
+@pytest.mark.parametrize("rows", ["3 0 1 2 255 0 0\n3 1 3 2", "3 0 1 2 255 0 0\n3 1 3 2 0 255 0 9 9",
+                                  "3 0 1 2 7\n3 1 3 2 8"])
+def test_off_face_colours_uneven_dropped(tmp_path, rows):
+    """Face lines some with a colour and some without, of colours of different lengths or of a colour map index
+    (one number) are read without face colours, with a warning naming the words found (as a COFF's vertex colours)."""
+    (tmp_path / "u.off").write_text(f"OFF\n4 2 0\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n{rows}\n")
+    with pytest.warns(UserWarning, match=r"face lines hold \[.*\] numbers after their indices.*face colours are "
+                                         "dropped"):
+        mesh = read_mesh(tmp_path / "u.off")
+    assert mesh.visual.kind is None and len(mesh.faces) == 2
+
+
+def test_off_vertex_and_face_colours_keep_vertex_ones(tmp_path):
+    """A COFF of vertex colours and face colours reads with its vertex colours, warning that the face ones are
+    dropped (a mesh holds one kind)."""
+    (tmp_path / "b.off").write_text("COFF\n3 1 0\n0 0 0 255 0 0\n1 0 0 0 255 0\n0 1 0 0 0 255\n3 0 1 2 9 9 9\n")
+    with pytest.warns(UserWarning, match="vertex and face colours: its face colours are dropped"):
+        mesh = read_mesh(tmp_path / "b.off")
+    np.testing.assert_array_equal(mesh.visual.vertex_colors[:, :3], [[255, 0, 0], [0, 255, 0], [0, 0, 255]])

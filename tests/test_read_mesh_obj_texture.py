@@ -213,3 +213,35 @@ def test_gltf_image_file_missing_warned(tmp_path):
         warnings.simplefilter("error")
         read = read_mesh(tmp_path / "model.gltf")
     assert read.visual.material.baseColorTexture is not None
+
+
+def test_gltf_percent_escaped_uris_found(tmp_path):
+    """A .gltf's buffer and image uris are percent-encoded (glTF 2.0 §3.3): ``a%20b0.bin`` and ``a%20b.png`` name the
+    files ``a b0.bin`` and ``a b.png`` beside it, read as such (trimesh's reader looked for the uri as written: the
+    buffer refused with "FileNotFoundError: a%20b0.bin", the texture dropped without a word); the same file named
+    as written (``a%20b.png``) is still found."""
+    import base64
+    import warnings
+
+    mesh = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], process=False)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=[[0, 0], [1, 0], [0, 1]], image=Image.new("RGB", (4, 4), "red"))
+    tree = json.loads(trimesh.exchange.gltf.export_gltf(trimesh.Scene(mesh), embed_buffers=True)["model.gltf"])
+    for number, buffer in enumerate(tree["buffers"]):
+        (tmp_path / f"a b{number}.bin").write_bytes(base64.b64decode(buffer["uri"].split(",", 1)[1]))
+        buffer["uri"] = f"a%20b{number}.bin"
+    tree["images"] = [{"uri": "a%20b.png"}]
+    (tmp_path / "model.gltf").write_text(json.dumps(tree))
+    Image.new("RGB", (4, 4), (0, 255, 0)).save(tmp_path / "a b.png")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read = read_mesh(tmp_path / "model.gltf")
+    np.testing.assert_array_equal(read.faces, [[0, 1, 2]])
+    assert np.asarray(read.visual.material.baseColorTexture.convert("RGB"))[0, 0].tolist() == [0, 255, 0]
+    (tmp_path / "a b.png").rename(tmp_path / "a%20b.png")  # named as written
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read = read_mesh(tmp_path / "model.gltf")
+    assert read.visual.material.baseColorTexture is not None
+    (tmp_path / "a%20b.png").unlink()
+    with pytest.warns(UserWarning, match=r"image 0, 'a%20b\.png' \('.*a b\.png'\) is not there"):
+        assert len(read_mesh(tmp_path / "model.gltf").faces) == 1
