@@ -979,10 +979,7 @@ while (m < limit) {
             const i16 taken = lane < (i16)(k);
             v += __builtin_reduce_add(taken ? own : z);
             f += __builtin_reduce_add(taken ? faces : z);
-            m += k;
-            if (m >= limit) {
-                continue;
-            }
+            m += k;  // below limit still (k < 16, m + 16 <= limit): node m, the first not taken, goes to the code below
         }
     }
     // one node: when none of its cell's corners is on the threshold below its level, its vertices are the node,
