@@ -290,9 +290,10 @@ def _load_grid(path: str, height_unit: str | None = None, nodata: Sequence[float
     # --height-unit overrides the file's unit, as load_dem's height_unit does (an unknown one was refused with a
     # pointer to a --height-unit the globe lacked)
     crs = _npz_text(texts, "crs", file)
+    declared = _npz_text(texts, "units", file)
     if elevation.dtype.kind in "iuf":
-        _warn_unit_override(file, height_unit, _npz_text(texts, "units", file), "its 'units'")
-    unit, _, factor = _vertical_unit(height_unit or _npz_text(texts, "units", file), crs)
+        _warn_unit_override(file, height_unit, declared, "its 'units'")
+    unit, _, factor = _vertical_unit(height_unit or declared, crs)
     if unit is not None and elevation.dtype.kind in "iuf":  # (other dtypes: Globe.from_latlon names them)
         named_by = "--height-unit" if height_unit else "its 'units'" if "units" in texts else f"its CRS {crs}"
         elevation, _ = _heights_in_metres(elevation, unit, file, named_by, factor)

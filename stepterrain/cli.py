@@ -1274,19 +1274,17 @@ def _render_too(exc: OutputTooLargeError, size: tuple[int, int]) -> None:
     than the mesh's: ``--memory-budget 20MB steps dem.tif -o m.glb --png p.png`` was told "at least 30MiB" for the
     mesh, and at 30MiB the render of it was refused, "at least 50MiB" (a budget per try, each too small). Returns
     where the render needs no more than the mesh, or the error carries no mesh (the caller raises it as it is)."""
-    from ._compaction import _budget_figure, _size_text
+    from ._compaction import _size_text
     from .render import _render_bytes
 
-    nbytes, mesh = exc.nbytes, exc.mesh
-    figure = None if nbytes is None else _budget_figure(nbytes)
-    if mesh is None or not figure or not str(exc).endswith(figure):
+    nbytes, mesh, figure = exc.nbytes, exc.mesh, _budget_advice(exc)
+    if mesh is None or figure is None:
         return
     render = _render_bytes(size[0], size[1], vertices=mesh[0], faces=mesh[1])  # as the --png check counts it
     if render <= nbytes:
         return
-    raise type(exc)(f"{str(exc)[:-len(figure)]}{_budget_figure(render)} (its --png render, {size[0]}x{size[1]}, "
-                    f"needs {_size_text(render)} for a mesh of at least {mesh[1]:,} faces)",
-                    nbytes=nbytes, mesh=mesh) from None
+    raise _advised_again(exc, figure, render, f"its --png render, {size[0]}x{size[1]}, needs {_size_text(render)} "
+                                              f"for a mesh of at least {mesh[1]:,} faces") from None
 
 
 def _solid_too(exc: OutputTooLargeError, size: tuple[int, int], count: Callable[[int], Any]) -> None:
@@ -1296,12 +1294,11 @@ def _solid_too(exc: OutputTooLargeError, size: tuple[int, int], count: Callable[
     render's with the most faces the solid has, whichever is more. ``steps --solid --png`` was told 200MiB for the
     render of the surface, then 500MiB for the solid: a budget per try, each too small. Returns where the count
     gives no figure (the caller raises ``exc`` as it is)."""
-    from ._compaction import _budget_figure, _size_text
+    from ._compaction import _size_text
     from .render import _render_bytes
 
-    nbytes = exc.nbytes
-    figure = None if nbytes is None else _budget_figure(nbytes)
-    if not figure or not str(exc).endswith(figure):
+    nbytes, figure = exc.nbytes, _budget_advice(exc)
+    if figure is None:
         return
     try:
         count(1)
@@ -1315,9 +1312,26 @@ def _solid_too(exc: OutputTooLargeError, size: tuple[int, int], count: Callable[
         return
     render = _render_bytes(size[0], size[1], vertices=mesh[0], faces=mesh[1])
     need = max(nbytes, solid, render)
-    raise type(exc)(f"{str(exc)[:-len(figure)]}{_budget_figure(need)} (the whole run: the stepped solid needs "
-                    f"{_size_text(solid)} and its --png render, {size[0]}x{size[1]}, up to {_size_text(render)})",
-                    nbytes=nbytes, mesh=exc.mesh) from None
+    raise _advised_again(exc, figure, need, f"the whole run: the stepped solid needs {_size_text(solid)} and its "
+                                            f"--png render, {size[0]}x{size[1]}, up to {_size_text(render)}") from None
+
+
+def _budget_advice(exc: OutputTooLargeError) -> str | None:
+    """The budget advice (" to at least 30MiB", :func:`~stepterrain._compaction._budget_figure` of its ``nbytes``)
+    that ``exc``'s message ends in, None where it ends otherwise (or the error carries no size): :func:`_render_too`
+    and :func:`_solid_too` advise again only a message they can rewrite."""
+    from ._compaction import _budget_figure
+
+    figure = None if exc.nbytes is None else _budget_figure(exc.nbytes)
+    return figure if figure and str(exc).endswith(figure) else None
+
+
+def _advised_again(exc: OutputTooLargeError, figure: str, need: int, why: str) -> OutputTooLargeError:
+    """``exc``, its message ending in ``figure`` (:func:`_budget_advice`), advising a budget of ``need`` bytes
+    instead, ``why`` in brackets after it; the same ``nbytes`` and ``mesh``."""
+    from ._compaction import _budget_figure
+
+    return type(exc)(f"{str(exc)[:-len(figure)]}{_budget_figure(need)} ({why})", nbytes=exc.nbytes, mesh=exc.mesh)
 
 
 def _surface_size(terrain: Any) -> tuple[int, int]:

@@ -1029,8 +1029,9 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
                     f"got {metres[0]!r} and {metres[1]!r}"
                 )
         named_by = "height_unit" if height_unit else "its 'units'" if "units" in arrays else f"its CRS {crs}"
-        _warn_unit_override(file, height_unit, _npz_text(arrays, "units", file), "its 'units'")
-        unit, crs, factor = _vertical_unit(height_unit or _npz_text(arrays, "units", file), crs)
+        declared = _npz_text(arrays, "units", file)
+        _warn_unit_override(file, height_unit, declared, "its 'units'")
+        unit, crs, factor = _vertical_unit(height_unit or declared, crs)
         heights, height_unit = _heights_in_metres(heights, unit, file, named_by, factor)
         return _georeferenced(
             file, heights, transform, crs, geographic=geographic, metres=metres, height_unit=height_unit,
@@ -1047,10 +1048,11 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
         )
     if key is not None:  # the heights' unit applies without a transform too: 'units' = "ft" was ignored here
         named_by = "height_unit" if height_unit else "its 'units'"
-        _warn_unit_override(file, height_unit, _npz_text(arrays, "units", file), "its 'units'")
+        declared = _npz_text(arrays, "units", file)
+        _warn_unit_override(file, height_unit, declared, "its 'units'")
         heights, unit = _heights_in_metres(
             _elevation(arrays[key], file, repr(key), nodata, npz_missing(arrays, key, file)),
-            height_unit or _npz_text(arrays, "units", file), file,
+            height_unit or declared, file,
             named_by,
         )
         return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None, height_unit=unit)
