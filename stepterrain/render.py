@@ -889,17 +889,19 @@ def _check_mesh_in_bounds(drawn: NDArray[np.float64], position: Any, size: tuple
     or far larger than it, rendered blank without a word, where an explicit camera that sees none of the mesh is
     refused (:func:`_check_in_view`) and so is a mesh that renders under a pixel without bounds
     (:func:`_check_visible`). Conservative: the box's projection is at least the mesh's."""
-    scale = np.array([1.0, 1.0, z_scale])
-    mesh_box = _fmt_box(drawn[0] / scale + centre, drawn[1] / scale + centre)
+    def mesh_box() -> str:  # in world coordinates, for a refusal (not formatted on every render)
+        scale = np.array([1.0, 1.0, z_scale])
+        return _fmt_box(drawn[0] / scale + centre, drawn[1] / scale + centre)
+
     if _misses_view(drawn, position, size[0] / size[1], view_angle):
         raise InvalidInputError(
-            f"bounds {_fmt_box(lo, hi)} frame none of the mesh, whose faces span {mesh_box}: the camera fitted to "
+            f"bounds {_fmt_box(lo, hi)} frame none of the mesh, whose faces span {mesh_box()}: the camera fitted to "
             "them sees none of it (it would render blank); give bounds around the mesh, in its own coordinates")
     pixels = _box_pixels(drawn, position, size, view_angle)
     if pixels is not None and min(pixels) < 1.0:
         px, py = pixels
         raise InvalidInputError(
-            f"the mesh, whose faces span {mesh_box}, would render at most {px:.2g} x {py:.2g} pixels within bounds "
+            f"the mesh, whose faces span {mesh_box()}, would render at most {px:.2g} x {py:.2g} pixels within bounds "
             f"{_fmt_box(lo, hi)} (with z_scale={z_scale:g}), too small to see (it would render blank); give bounds "
             "nearer the mesh's size or a larger window_size")
 
