@@ -790,9 +790,8 @@ def _check_covers_a_pixel(local: NDArray[np.float64], faces: ArrayLike, position
     rendered blank without a word, their box a few pixels wide passing :func:`_check_visible` and their area in
     space passing :func:`_check_some_area`. Chunked, stopping at a pixel covered; a face at or behind the eye stops it
     too (its projection is not bounded)."""
-    tan_v = math.tan(math.radians(view_angle) / 2.0)
     width, height = size
-    scale_x, scale_y = width / (2.0 * tan_v * width / height), height / (2.0 * tan_v)
+    scale = height / (2.0 * math.tan(math.radians(view_angle) / 2.0))  # pixels per unit of the image plane, both ways
     faces = np.asarray(faces)
     covered = 0.0
     for start in range(0, len(faces), _AREA_CHUNK):
@@ -801,7 +800,7 @@ def _check_covers_a_pixel(local: NDArray[np.float64], faces: ArrayLike, position
         rel, depth = rel[drawn], depth[drawn]
         if (depth <= 0).any():
             return
-        x, y = (rel @ right) / depth * scale_x, (rel @ true_up) / depth * scale_y
+        x, y = (rel @ right) / depth * scale, (rel @ true_up) / depth * scale
         covered += 0.5 * float(np.abs((x[:, 1] - x[:, 0]) * (y[:, 2] - y[:, 0])
                                       - (x[:, 2] - x[:, 0]) * (y[:, 1] - y[:, 0])).sum())
         if covered >= 1.0:
