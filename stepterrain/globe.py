@@ -1392,20 +1392,22 @@ def _split_faces(mesh: trimesh.Trimesh, n: int, cells: int) -> list[trimesh.Trim
     # packed into a texture atlas with transparent padding and grey texels (its colour for an unset base colour; a set
     # one, white, made save_mesh's OBJ keep trimesh's specular Ks 0.4 instead of the matte 0)
     material = {"name": "globe", "metallicFactor": 0.0, "roughnessFactor": 1.0, "doubleSided": True}
+    all_faces = np.asarray(mesh.faces)
     for f, frame in enumerate(cube_kernels.FACE_FRAMES):
-        faces = np.asarray(mesh.faces)[cube_face == f]
+        on = cube_face == f
+        faces = all_faces[on]
         used, local = np.unique(faces.reshape(-1), return_inverse=True)
         x = points[used] @ _axis(frame[0])
         y = points[used] @ _axis(frame[1])
         uv = np.column_stack([(x + cells) / (2.0 * cells), (y + cells) / (2.0 * cells)])
         visual = trimesh.visual.TextureVisuals(uv=uv, material=trimesh.visual.material.PBRMaterial(**material))
         metadata = {**mesh.metadata, "node_entry": entry[used].astype(np.int32), "cube_face": f, **shared}
+        part = vertices[used]
         if len(used):  # the part as made: save_mesh keeps the shared frame for it, however small culling left it
-            part = vertices[used]
             metadata["whole_part"] = {"vertices": len(used), "faces": len(faces),
                                       "bounds": [part.min(axis=0).tolist(), part.max(axis=0).tolist()]}
-        out.append(trimesh.Trimesh(mesh.vertices[used], local.reshape(-1, 3), process=False, visual=visual,
-                                   metadata=metadata, face_attributes={"cube_face": cube_face[cube_face == f]}))
+        out.append(trimesh.Trimesh(part, local.reshape(-1, 3), process=False, visual=visual,
+                                   metadata=metadata, face_attributes={"cube_face": cube_face[on]}))
     return out
 
 

@@ -790,9 +790,8 @@ def _check_covers_a_pixel(local: NDArray[np.float64], faces: ArrayLike, position
     rendered blank without a word, their box a few pixels wide passing :func:`_check_visible` and their area in
     space passing :func:`_check_some_area`. Chunked, stopping at a pixel covered; a face at or behind the eye stops it
     too (its projection is not bounded)."""
-    tan_v = math.tan(math.radians(view_angle) / 2.0)
     width, height = size
-    scale_x, scale_y = width / (2.0 * tan_v * width / height), height / (2.0 * tan_v)
+    scale = height / (2.0 * math.tan(math.radians(view_angle) / 2.0))  # pixels per unit of the image plane, both ways
     faces = np.asarray(faces)
     covered = 0.0
     for start in range(0, len(faces), _AREA_CHUNK):
@@ -801,7 +800,7 @@ def _check_covers_a_pixel(local: NDArray[np.float64], faces: ArrayLike, position
         rel, depth = rel[drawn], depth[drawn]
         if (depth <= 0).any():
             return
-        x, y = (rel @ right) / depth * scale_x, (rel @ true_up) / depth * scale_y
+        x, y = (rel @ right) / depth * scale, (rel @ true_up) / depth * scale
         covered += 0.5 * float(np.abs((x[:, 1] - x[:, 0]) * (y[:, 2] - y[:, 0])
                                       - (x[:, 2] - x[:, 0]) * (y[:, 1] - y[:, 0])).sum())
         if covered >= 1.0:
@@ -889,17 +888,19 @@ def _check_mesh_in_bounds(drawn: NDArray[np.float64], position: Any, size: tuple
     or far larger than it, rendered blank without a word, where an explicit camera that sees none of the mesh is
     refused (:func:`_check_in_view`) and so is a mesh that renders under a pixel without bounds
     (:func:`_check_visible`). Conservative: the box's projection is at least the mesh's."""
-    scale = np.array([1.0, 1.0, z_scale])
-    mesh_box = _fmt_box(drawn[0] / scale + centre, drawn[1] / scale + centre)
+    def mesh_box() -> str:  # in world coordinates, for a refusal (not formatted on every render)
+        scale = np.array([1.0, 1.0, z_scale])
+        return _fmt_box(drawn[0] / scale + centre, drawn[1] / scale + centre)
+
     if _misses_view(drawn, position, size[0] / size[1], view_angle):
         raise InvalidInputError(
-            f"bounds {_fmt_box(lo, hi)} frame none of the mesh, whose faces span {mesh_box}: the camera fitted to "
+            f"bounds {_fmt_box(lo, hi)} frame none of the mesh, whose faces span {mesh_box()}: the camera fitted to "
             "them sees none of it (it would render blank); give bounds around the mesh, in its own coordinates")
     pixels = _box_pixels(drawn, position, size, view_angle)
     if pixels is not None and min(pixels) < 1.0:
         px, py = pixels
         raise InvalidInputError(
-            f"the mesh, whose faces span {mesh_box}, would render at most {px:.2g} x {py:.2g} pixels within bounds "
+            f"the mesh, whose faces span {mesh_box()}, would render at most {px:.2g} x {py:.2g} pixels within bounds "
             f"{_fmt_box(lo, hi)} (with z_scale={z_scale:g}), too small to see (it would render blank); give bounds "
             "nearer the mesh's size or a larger window_size")
 

@@ -53,7 +53,6 @@ def test_a_ply_attribute_the_format_cannot_hold_is_left_out_with_a_warning(tmp_p
     np.testing.assert_array_equal(back.face_attributes["level"], np.arange(12))
 
 
-
 def test_a_ragged_attribute_is_left_out_not_a_numpy_error(tmp_path):
     # a ragged list (no array NumPy makes) was warned of as left out of a .ply, then NumPy's ValueError "setting an
     # array element with a sequence" went out of save_mesh (of every format) from the copy it writes
@@ -68,6 +67,7 @@ def test_a_ragged_attribute_is_left_out_not_a_numpy_error(tmp_path):
             np.testing.assert_array_equal(back.face_attributes["level"], np.arange(12))
         else:
             assert len(read_mesh(save_mesh(mesh, out)).faces) == 12
+
 
 def test_other_formats_do_not_check_the_attributes_they_drop(tmp_path):
     mesh = _box_with_levels()
