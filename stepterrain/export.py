@@ -4688,10 +4688,10 @@ def _off_face_colors(file: Path, vertices: int, faces: int, triangles: int) -> N
     except ValueError:
         return None  # trimesh's reader refused it
     words = [line[size + 1 :] for size, (_, line) in zip(sizes.tolist(), lines, strict=True)]
-    widths = {len(row) for row in words}
+    widths = sorted({len(row) for row in words})
     head = _off_keyword(file) or "OFF"
-    if len(widths) != 1 or widths.pop() not in (3, 4) or np.any(sizes < 3):
-        warnings.warn(f"{str(file)!r}: a {head} file's face lines hold {sorted({len(row) for row in words})} "
+    if widths not in ([3], [4]) or np.any(sizes < 3):
+        warnings.warn(f"{str(file)!r}: a {head} file's face lines hold {widths} "
                       "numbers after their indices, where none or an RGB or RGBA colour on each were expected: its "
                       "face colours are dropped, the mesh read without them", stacklevel=caller_stacklevel())
         return None
