@@ -4597,20 +4597,29 @@ def _off_vertex_colors(file: Path, count: int) -> NDArray[np.uint8] | None:
                       stacklevel=caller_stacklevel())
         return None
     words = [row[skip : len(row) - tail] for row in rows]
+    values = _off_colour_values(
+        numbered[first : first + count], words,
+        lambda: f"a {head} vertex line holds {skip} numbers (x y z{' nx ny nz' if skip > 3 else ''}), then an RGB or "
+                f"RGBA colour as integers 0..255 or floats 0..1{', then s t' if tail else ''}")
+    return _off_colour_bytes(file, head, "vertex", words, values)
+
+
+def _off_colour_values(lines: list[tuple[int, list[str]]], words: list[list[str]],
+                       holds: Callable[[], str]) -> NDArray[np.float64]:
+    """The colours ``words`` (a row each) of an OFF's vertex or face ``lines`` (their numbers and words) as numbers;
+    where one is no number, a ValueError naming its line, then what such a line holds (``holds()``, made only then):
+    NumPy's "could not convert string to float: 'red'" named no line."""
     try:
-        values = np.array(words, dtype=np.float64)
-    except ValueError:  # NumPy's "could not convert string to float: 'red'", which named no line
-        for (number, row), colour in zip(numbered[first : first + count], words, strict=True):
+        return np.array(words, dtype=np.float64)
+    except ValueError:
+        for (number, line), colour in zip(lines, words, strict=True):
             for word in colour:
                 try:
                     float(word)
                 except ValueError:
-                    raise ValueError(
-                        f"line {number}, {' '.join(row)!r}: its colour {word!r} is not a number; a {head} vertex line "
-                        f"holds {skip} numbers (x y z{' nx ny nz' if skip > 3 else ''}), then an RGB or RGBA colour as "
-                        f"integers 0..255 or floats 0..1{', then s t' if tail else ''}") from None
+                    raise ValueError(f"line {number}, {' '.join(line)!r}: its colour {word!r} is not a number; "
+                                     f"{holds()}") from None
         raise
-    return _off_colour_bytes(file, head, "vertex", words, values)
 
 
 def _off_colour_bytes(file: Path, head: str, kind: str, words: list[list[str]],
@@ -4695,19 +4704,8 @@ def _off_face_colors(file: Path, vertices: int, faces: int, triangles: int) -> N
                       "numbers after their indices, where none or an RGB or RGBA colour on each were expected: its "
                       "face colours are dropped, the mesh read without them", stacklevel=caller_stacklevel())
         return None
-    try:
-        values = np.array(words, dtype=np.float64)
-    except ValueError:
-        for (number, line), colour in zip(lines, words, strict=True):
-            for word in colour:
-                try:
-                    float(word)
-                except ValueError:
-                    raise ValueError(
-                        f"line {number}, {' '.join(line)!r}: its colour {word!r} is not a number; a {head} face line "
-                        "holds its count n, n vertex indices, then an RGB or RGBA colour as integers 0..255 or floats "
-                        "0..1") from None
-        raise
+    values = _off_colour_values(lines, words, lambda: f"a {head} face line holds its count n, n vertex indices, then "
+                                                      "an RGB or RGBA colour as integers 0..255 or floats 0..1")
     colours = _off_colour_bytes(file, head, "face", words, values)
     if colours is None:
         return None
