@@ -1035,6 +1035,12 @@ def _origin_argument(origin: ArrayLike | None) -> NDArray[np.float64] | None:
     return np.floor(_finite_argument(origin, "origin", (3,), "3 finite numbers (x, y, z)")) + 0.0  # no -0 in JSON
 
 
+def _metadata_value(recorded: Any, given: Mapping[str, Any], key: str) -> Any:
+    """The ``key`` of the ``metadata`` given to :func:`save_mesh` (``given``) where it holds one, else of the mesh's own
+    (``recorded``, when a mapping), else None."""
+    return given[key] if key in given else recorded.get(key) if isinstance(recorded, Mapping) else None
+
+
 def _recorded_bounds(recorded: Any, given: Mapping[str, Any], bounds: Bounds) -> Bounds:
     """The default ``shared_bounds`` of :func:`save_mesh`: those a mesh of a set records (``metadata["shared_bounds"]``,
     as :meth:`~stepterrain.globe.Globe.mesh` records them on its six ``per_face`` meshes; ``metadata`` given to
@@ -1042,8 +1048,7 @@ def _recorded_bounds(recorded: Any, given: Mapping[str, Any], bounds: Bounds) ->
     (a mesh moved or scaled since: its own bounds decide). Each cube face's glTF stored its float32 positions about
     its own centre, so the copies of a seam vertex in two files rounded apart (0.25 m on the Earth): cracks along
     the cube edges where the six files met in a viewer."""
-    value = given["shared_bounds"] if "shared_bounds" in given else \
-        recorded.get("shared_bounds") if isinstance(recorded, Mapping) else None
+    value = _metadata_value(recorded, given, "shared_bounds")
     if value is None or bounds is None:
         return None
     try:  # as save_mesh's shared_bounds are read, but bounds it cannot take are left, not refused
@@ -1064,8 +1069,7 @@ def _whole_part(recorded: Any, given: Mapping[str, Any], mesh: trimesh.Trimesh, 
     larger ones kept the shared frame (or the eye it holds), and the copies of a seam vertex read back 0.44 m apart.
     A piece cut from it (``submesh``: trimesh copies the metadata), or one moved or scaled, records counts or bounds
     it no longer has: False."""
-    value = given["whole_part"] if "whole_part" in given else \
-        recorded.get("whole_part") if isinstance(recorded, Mapping) else None
+    value = _metadata_value(recorded, given, "whole_part")
     if not isinstance(value, Mapping) or bounds is None:
         return False
     counts = value.get("vertices"), value.get("faces")
@@ -1103,7 +1107,7 @@ def _recorded_eye(recorded: Any, given: Mapping[str, Any], bounds: Bounds) -> ND
     is 3 finite numbers lying within one diagonal of ``bounds`` (the mesh's, or the shared bounds it records: the
     same decision for every mesh of the set). Farther (a mesh scaled or moved since, its
     eye stale), its float32 positions would round worse than about the bounds' centre: None, the centre kept."""
-    eye = given["eye"] if "eye" in given else recorded.get("eye") if isinstance(recorded, Mapping) else None
+    eye = _metadata_value(recorded, given, "eye")
     if eye is None or bounds is None:
         return None
     try:  # as save_mesh's origin is read, but an eye it cannot take is left, not refused
