@@ -1035,6 +1035,12 @@ def _origin_argument(origin: ArrayLike | None) -> NDArray[np.float64] | None:
     return np.floor(_finite_argument(origin, "origin", (3,), "3 finite numbers (x, y, z)")) + 0.0  # no -0 in JSON
 
 
+def _metadata_value(recorded: Any, given: Mapping[str, Any], key: str) -> Any:
+    """The ``key`` of the ``metadata`` given to :func:`save_mesh` (``given``) where it holds one, else of the mesh's own
+    (``recorded``, when a mapping), else None."""
+    return given[key] if key in given else recorded.get(key) if isinstance(recorded, Mapping) else None
+
+
 def _recorded_bounds(recorded: Any, given: Mapping[str, Any], bounds: Bounds) -> Bounds:
     """The default ``shared_bounds`` of :func:`save_mesh`: those a mesh of a set records (``metadata["shared_bounds"]``,
     as :meth:`~stepterrain.globe.Globe.mesh` records them on its six ``per_face`` meshes; ``metadata`` given to
@@ -1042,8 +1048,7 @@ def _recorded_bounds(recorded: Any, given: Mapping[str, Any], bounds: Bounds) ->
     (a mesh moved or scaled since: its own bounds decide). Each cube face's glTF stored its float32 positions about
     its own centre, so the copies of a seam vertex in two files rounded apart (0.25 m on the Earth): cracks along
     the cube edges where the six files met in a viewer."""
-    value = given["shared_bounds"] if "shared_bounds" in given else \
-        recorded.get("shared_bounds") if isinstance(recorded, Mapping) else None
+    value = _metadata_value(recorded, given, "shared_bounds")
     if value is None or bounds is None:
         return None
     try:  # as save_mesh's shared_bounds are read, but bounds it cannot take are left, not refused
@@ -1064,8 +1069,7 @@ def _whole_part(recorded: Any, given: Mapping[str, Any], mesh: trimesh.Trimesh, 
     larger ones kept the shared frame (or the eye it holds), and the copies of a seam vertex read back 0.44 m apart.
     A piece cut from it (``submesh``: trimesh copies the metadata), or one moved or scaled, records counts or bounds
     it no longer has: False."""
-    value = given["whole_part"] if "whole_part" in given else \
-        recorded.get("whole_part") if isinstance(recorded, Mapping) else None
+    value = _metadata_value(recorded, given, "whole_part")
     if not isinstance(value, Mapping) or bounds is None:
         return False
     counts = value.get("vertices"), value.get("faces")
@@ -1103,7 +1107,7 @@ def _recorded_eye(recorded: Any, given: Mapping[str, Any], bounds: Bounds) -> ND
     is 3 finite numbers lying within one diagonal of ``bounds`` (the mesh's, or the shared bounds it records: the
     same decision for every mesh of the set). Farther (a mesh scaled or moved since, its
     eye stale), its float32 positions would round worse than about the bounds' centre: None, the centre kept."""
-    eye = given["eye"] if "eye" in given else recorded.get("eye") if isinstance(recorded, Mapping) else None
+    eye = _metadata_value(recorded, given, "eye")
     if eye is None or bounds is None:
         return None
     try:  # as save_mesh's origin is read, but an eye it cannot take is left, not refused
@@ -4597,20 +4601,29 @@ def _off_vertex_colors(file: Path, count: int) -> NDArray[np.uint8] | None:
                       stacklevel=caller_stacklevel())
         return None
     words = [row[skip : len(row) - tail] for row in rows]
+    values = _off_colour_values(
+        numbered[first : first + count], words,
+        lambda: f"a {head} vertex line holds {skip} numbers (x y z{' nx ny nz' if skip > 3 else ''}), then an RGB or "
+                f"RGBA colour as integers 0..255 or floats 0..1{', then s t' if tail else ''}")
+    return _off_colour_bytes(file, head, "vertex", words, values)
+
+
+def _off_colour_values(lines: list[tuple[int, list[str]]], words: list[list[str]],
+                       holds: Callable[[], str]) -> NDArray[np.float64]:
+    """The colours ``words`` (a row each) of an OFF's vertex or face ``lines`` (their numbers and words) as numbers;
+    where one is no number, a ValueError naming its line, then what such a line holds (``holds()``, made only then):
+    NumPy's "could not convert string to float: 'red'" named no line."""
     try:
-        values = np.array(words, dtype=np.float64)
-    except ValueError:  # NumPy's "could not convert string to float: 'red'", which named no line
-        for (number, row), colour in zip(numbered[first : first + count], words, strict=True):
+        return np.array(words, dtype=np.float64)
+    except ValueError:
+        for (number, line), colour in zip(lines, words, strict=True):
             for word in colour:
                 try:
                     float(word)
                 except ValueError:
-                    raise ValueError(
-                        f"line {number}, {' '.join(row)!r}: its colour {word!r} is not a number; a {head} vertex line "
-                        f"holds {skip} numbers (x y z{' nx ny nz' if skip > 3 else ''}), then an RGB or RGBA colour as "
-                        f"integers 0..255 or floats 0..1{', then s t' if tail else ''}") from None
+                    raise ValueError(f"line {number}, {' '.join(line)!r}: its colour {word!r} is not a number; "
+                                     f"{holds()}") from None
         raise
-    return _off_colour_bytes(file, head, "vertex", words, values)
 
 
 def _off_colour_bytes(file: Path, head: str, kind: str, words: list[list[str]],
@@ -4688,26 +4701,15 @@ def _off_face_colors(file: Path, vertices: int, faces: int, triangles: int) -> N
     except ValueError:
         return None  # trimesh's reader refused it
     words = [line[size + 1 :] for size, (_, line) in zip(sizes.tolist(), lines, strict=True)]
-    widths = {len(row) for row in words}
+    widths = sorted({len(row) for row in words})
     head = _off_keyword(file) or "OFF"
-    if len(widths) != 1 or widths.pop() not in (3, 4) or np.any(sizes < 3):
-        warnings.warn(f"{str(file)!r}: a {head} file's face lines hold {sorted({len(row) for row in words})} "
+    if widths not in ([3], [4]) or np.any(sizes < 3):
+        warnings.warn(f"{str(file)!r}: a {head} file's face lines hold {widths} "
                       "numbers after their indices, where none or an RGB or RGBA colour on each were expected: its "
                       "face colours are dropped, the mesh read without them", stacklevel=caller_stacklevel())
         return None
-    try:
-        values = np.array(words, dtype=np.float64)
-    except ValueError:
-        for (number, line), colour in zip(lines, words, strict=True):
-            for word in colour:
-                try:
-                    float(word)
-                except ValueError:
-                    raise ValueError(
-                        f"line {number}, {' '.join(line)!r}: its colour {word!r} is not a number; a {head} face line "
-                        "holds its count n, n vertex indices, then an RGB or RGBA colour as integers 0..255 or floats "
-                        "0..1") from None
-        raise
+    values = _off_colour_values(lines, words, lambda: f"a {head} face line holds its count n, n vertex indices, then "
+                                                      "an RGB or RGBA colour as integers 0..255 or floats 0..1")
     colours = _off_colour_bytes(file, head, "face", words, values)
     if colours is None:
         return None
