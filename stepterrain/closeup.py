@@ -778,7 +778,10 @@ class CloseUp:
         "twilight" for its height, slope or aspect ``scalars``, the render's or scene's for its ``stepped`` levels.
     texture : (h, w, 3|4) uint8 image, optional
         An aerial image over the terrain's extent (row 0 at the north, i.e. the upper y) draped over the
-        close-up instead (MPFR with a surface texture, §IV.B); sampled bilinearly per vertex. Kept as a
+        close-up instead (MPFR with a surface texture, §IV.B); sampled bilinearly per vertex. Its outer pixel
+        edges lie on :func:`~stepterrain.texture.terrain_extent` (a grid's node extent plus half a cell, a TIN's
+        point extent), as :func:`~stepterrain.texture.terrain_layer` places an image: an image of one pixel a node
+        has each pixel centred on its node. Kept as a
         read-only copy of its RGB channels: changing the caller's array afterwards does not change the close-up.
     """
 
@@ -2244,11 +2247,23 @@ def _texture_rgb(terrain: Terrain, image: NDArray[np.uint8], xy: NDArray[np.floa
                  under: NDArray[np.uint8] | None = None) -> NDArray[np.uint8]:
     """Bilinear samples of an image spread over the terrain's extent (row 0 at the upper y) at world xy. An (h, w, 4)
     image is sampled premultiplied and laid over ``under`` (V, 3) (None: the plain tan of an uncoloured mesh) by its
-    alpha: its transparent texels show what lies under them."""
-    xmin, xmax, ymin, ymax = terrain.extent
+    alpha: its transparent texels show what lies under them.
+
+    The image's outer pixel EDGES lie on :func:`~stepterrain.texture.terrain_extent` (a grid's node extent plus half
+    a cell; a TIN's point extent), as :func:`~stepterrain.texture.terrain_layer` and
+    :class:`~stepterrain.texture_lod.ImagePyramid` place an image: pixel (i, j)'s centre at x = xmin + (j + ½)·width
+    / w; an image of one pixel a node puts each pixel's centre on its node. Beyond the outer pixel centres the edge
+    pixels hold (clamp to edge). The first and last pixel centres sat on the corner nodes: a quarter of a cell off
+    near the edges at two pixels a node."""
+    if terrain.kind == "grid":
+        from .texture import terrain_extent
+
+        xmin, xmax, ymin, ymax = terrain_extent(terrain)
+    else:
+        xmin, xmax, ymin, ymax = terrain.extent
     h, w = image.shape[:2]
-    fx = np.clip((xy[:, 0] - xmin) / max(xmax - xmin, 1e-12), 0, 1) * (w - 1)
-    fy = np.clip((ymax - xy[:, 1]) / max(ymax - ymin, 1e-12), 0, 1) * (h - 1)
+    fx = np.clip((xy[:, 0] - xmin) / max(xmax - xmin, 1e-12) * w - 0.5, 0, w - 1)
+    fy = np.clip((ymax - xy[:, 1]) / max(ymax - ymin, 1e-12) * h - 0.5, 0, h - 1)
     j0 = np.minimum(np.floor(fx).astype(np.int64), w - 2)
     i0 = np.minimum(np.floor(fy).astype(np.int64), h - 2)
     tx, ty = (fx - j0)[:, None], (fy - i0)[:, None]
@@ -2454,9 +2469,10 @@ def render_closeups(
         height along an axis shows in ``cmap``'s "bad" color, and so does the aspect of flat ground (no downhill
         direction).
     texture : (h, w, 3|4) uint8, optional
-        An aerial image over the terrain's extent (row 0 at the upper y) draped over the overview instead. Its alpha,
-        where below 255, lays it over the overview's own mapping (``scalars`` through ``cmap``, or the plain tan):
-        transparent texels (nodata, outside the image's footprint) show that mapping, not their RGB.
+        An aerial image over the terrain's extent (row 0 at the upper y; its outer pixel edges on
+        :func:`~stepterrain.texture.terrain_extent`, as a close-up's ``texture``) draped over the overview instead.
+        Its alpha, where below 255, lays it over the overview's own mapping (``scalars`` through ``cmap``, or the
+        plain tan): transparent texels (nodata, outside the image's footprint) show that mapping, not their RGB.
     time : float
         Animation time (spinning close-ups).
     renderer : stepterrain.render.LayeredRenderer, optional

@@ -1032,11 +1032,12 @@ def test_property_a_fence_cut_by_the_terrains_edge_is_closed(mask, fx, fy, w, h,
 
 def _whole_image_texture_rgb(image, xy, extent, below):
     """_texture_rgb's colours as they were computed before session 30, from the whole ``image`` in float32 (RGBA
-    premultiplied, laid over ``below``, (n, 3)): the reference of the two tests below."""
+    premultiplied, laid over ``below``, (n, 3)): the reference of the two tests below. ``extent``: the image's outer
+    pixel edges (session 49: terrain_extent, as terrain_layer places an image)."""
     xmin, xmax, ymin, ymax = extent
     h, w = image.shape[:2]
-    fx = np.clip((xy[:, 0] - xmin) / (xmax - xmin), 0, 1) * (w - 1)
-    fy = np.clip((ymax - xy[:, 1]) / (ymax - ymin), 0, 1) * (h - 1)
+    fx = np.clip((xy[:, 0] - xmin) / (xmax - xmin) * w - 0.5, 0, w - 1)
+    fy = np.clip((ymax - xy[:, 1]) / (ymax - ymin) * h - 0.5, 0, h - 1)
     j0 = np.minimum(np.floor(fx).astype(np.int64), w - 2)
     i0 = np.minimum(np.floor(fy).astype(np.int64), h - 2)
     tx, ty = (fx - j0)[:, None], (fy - i0)[:, None]
@@ -1059,6 +1060,7 @@ def test_texture_colours_convert_only_the_texels_they_sample():
     from stepterrain import Terrain
     from stepterrain.closeup import _texture_rgb
     from stepterrain.render import _DEFAULT_COLOR
+    from stepterrain.texture import terrain_extent
 
     calls = []
 
@@ -1078,7 +1080,7 @@ def test_texture_colours_convert_only_the_texels_they_sample():
 
     def whole_image(image, below=None):  # the formula as it was, over the whole image
         below = (below if below is not None else np.float32(255.0) * np.asarray(_DEFAULT_COLOR, np.float32))
-        return _whole_image_texture_rgb(image, xy, t.extent, below)
+        return _whole_image_texture_rgb(image, xy, terrain_extent(t), below)
 
     for image, below in ((rgba, None), (rgba, under), (np.ascontiguousarray(rgba[..., :3]), None)):
         calls.clear()
@@ -1097,6 +1099,7 @@ def test_an_overview_texture_is_sampled_at_its_vertices_without_a_float_copy_of_
 
     from stepterrain.closeup import _texture_rgb
     from stepterrain.terrain import Terrain
+    from stepterrain.texture import terrain_extent
 
     t = Terrain.from_heights(np.zeros((20, 30), np.float32), spacing=(10.0, -10.0))
     xmin, xmax, ymin, ymax = t.extent
@@ -1106,7 +1109,7 @@ def test_an_overview_texture_is_sampled_at_its_vertices_without_a_float_copy_of_
     under = rng.integers(0, 256, (500, 3), dtype=np.uint8)
 
     def whole_image_floats(image, under):  # the former sampling, from the whole image in float32
-        return _whole_image_texture_rgb(image, xy, t.extent, under)
+        return _whole_image_texture_rgb(image, xy, terrain_extent(t), under)
 
     for shape in ((7, 9, 3), (7, 9, 4), (2, 2, 4), (1000, 1000, 4)):
         image = rng.integers(0, 256, shape, dtype=np.uint8)
