@@ -80,15 +80,17 @@ def test_texture_pixel_edges_lie_on_the_terrain_extent(spacing, kx, ky):
         np.testing.assert_array_equal(got[len(inside):len(inside) + len(nodes)], np.column_stack([rows, cols]))
 
 
-def test_one_pixel_a_node_texture_matches_terrain_layer():
+@pytest.mark.parametrize("spacing", [(30.0, -20.0), (30.0, 20.0), (-7.5, 40.0), (-5.0, -5.0)])
+def test_one_pixel_a_node_texture_matches_terrain_layer(spacing):
     """At one pixel a node the close-up's texture and terrain_layer's layer of the same picture agree at every
     node: texture_uv (where drape samples a layer) and the close-up's sampling read the same pixel."""
     from stepterrain.texture import terrain_layer, texture_uv
 
-    t = grid((30.0, -20.0))
+    t = grid(spacing)
     H, W = t.heights.shape
     north_up = coded_image(H, W)
     grid_order = north_up[::-1] if t.spacing[1] > 0 else north_up  # terrain_layer takes pixel (i, j) = node (i, j)
+    grid_order = grid_order[:, ::-1] if t.spacing[0] < 0 else grid_order
     layer = terrain_layer(t, grid_order, "thematic")
     xy = np.asarray(t.mesh().vertices, np.float64)[:, :2]
     uv = texture_uv(np.column_stack([xy, np.zeros(len(xy))]), layer)
