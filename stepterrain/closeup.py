@@ -2254,7 +2254,7 @@ def _texture_rgb(terrain: Terrain, image: NDArray[np.uint8], xy: NDArray[np.floa
     :class:`~stepterrain.texture_lod.ImagePyramid` place an image: pixel (i, j)'s centre at x = xmin + (j + ½)·width
     / w; an image of one pixel a node puts each pixel's centre on its node. Beyond the outer pixel centres the edge
     pixels hold (clamp to edge). The first and last pixel centres sat on the corner nodes: a quarter of a cell off
-    near the edges at two pixels a node."""
+    near the edges at two pixels a node, 0.85 of a cell at 0.37."""
     if terrain.kind == "grid":
         from .texture import terrain_extent
 
