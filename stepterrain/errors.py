@@ -45,15 +45,23 @@ class InvalidInputError(StepTerrainError, ValueError):
     not_global : bool
         True on :meth:`~stepterrain.globe.Globe.from_latlon`'s refusal of a grid that is no globe (its longitudes
         short of a turn, or its rows short of a pole), for which the command line names its INPUT file's coverage
-        instead; False (the default) on every other refusal. Set with the keyword: ``InvalidInputError(message,
-        not_global=True)``.
+        instead; False (the default) on every other refusal.
+    too_small_to_see : bool
+        True on :func:`~stepterrain.render.render_mesh`'s refusal of a mesh it would show under a pixel (its box
+        less than a pixel wide or tall from the camera, or its faces slivers covering less than a pixel in all: too
+        small or too thin to see, it would render blank), for which :func:`~stepterrain.batch.overview_image` leaves
+        that item's cell of a contact sheet blank instead; False (the default) on every other refusal.
+
+    Both are set with keywords: ``InvalidInputError(message, not_global=True)``.
     """
 
     not_global: bool = False
+    too_small_to_see: bool = False
 
-    def __init__(self, *args: object, not_global: bool = False) -> None:
+    def __init__(self, *args: object, not_global: bool = False, too_small_to_see: bool = False) -> None:
         super().__init__(*args)
         self.not_global = bool(not_global)
+        self.too_small_to_see = bool(too_small_to_see)
 
     __reduce__ = _reduced
 
