@@ -1317,18 +1317,18 @@ def _solid_too(exc: OutputTooLargeError, size: tuple[int, int], count: Callable[
 
 
 def _budget_advice(exc: OutputTooLargeError) -> str | None:
-    """The budget advice (" to at least 30MiB", :func:`~stepterrain._compaction._budget_figure` of its ``nbytes``)
-    that ``exc``'s message ends in, None where it ends otherwise (or the error carries no size): :func:`_render_too`
-    and :func:`_solid_too` advise again only a message they can rewrite."""
-    from ._compaction import _budget_figure
-
-    figure = None if exc.nbytes is None else _budget_figure(exc.nbytes)
-    return figure if figure and str(exc).endswith(figure) else None
+    """The budget advice (" to at least 30MiB") that ``exc``'s message ends in, as the error declares it (its
+    ``advice``, with its ``nbytes``), None where it declares none: :func:`_render_too` and :func:`_solid_too` advise
+    again only a message they can rewrite (it matched the message's end against a figure of ``nbytes`` before)."""
+    if exc.nbytes is None or not exc.advice:
+        return None
+    return exc.advice
 
 
 def _advised_again(exc: OutputTooLargeError, figure: str, need: int, why: str) -> OutputTooLargeError:
     """``exc``, its message ending in ``figure`` (:func:`_budget_advice`), advising a budget of ``need`` bytes
-    instead, ``why`` in brackets after it; the same ``nbytes`` and ``mesh``."""
+    instead, ``why`` in brackets after it; the same ``nbytes`` and ``mesh``, and no ``advice`` (the message ends in
+    the bracket: it is not advised again)."""
     from ._compaction import _budget_figure
 
     return type(exc)(f"{str(exc)[:-len(figure)]}{_budget_figure(need)} ({why})", nbytes=exc.nbytes, mesh=exc.mesh)

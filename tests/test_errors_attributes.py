@@ -70,6 +70,39 @@ def test_the_cli_render_advice_keeps_the_attributes():
         _render_too(refused.value, (640, 480))
     assert advised.value is not refused.value and "its --png render, 640x480" in str(advised.value)
     assert advised.value.nbytes == 1024**2 and advised.value.mesh == (70000, 140000)
+    assert advised.value.advice is None  # it ends in the bracket: not advised a second time
+    assert _render_too(advised.value, (640, 480)) is None
+
+
+def test_the_budget_refusal_declares_the_advice_its_message_ends_in():
+    """The command line's re-advice (a --png render needing more than the mesh) found the figure to replace by
+    matching the message's end against a figure of ``nbytes``; the refusal declares it now, as ``advice``."""
+    with pytest.raises(OutputTooLargeError) as refused:
+        check_budget(5 * 1024**2, "the stepped mesh", 1024**2, mesh=(100, 200))
+    assert refused.value.advice == " to at least 5MiB" and str(refused.value).endswith(" to at least 5MiB")
+    copy = pickle.loads(pickle.dumps(refused.value))
+    assert copy.advice == " to at least 5MiB" and vars(copy) == vars(refused.value)
+    with pytest.raises(OutputTooLargeError) as beyond:  # a need past 1024 TiB: no figure advised
+        check_budget(2 * 1024**5, "the stepped mesh", 1024**2)
+    assert beyond.value.advice is None and beyond.value.nbytes == 2 * 1024**5
+    assert OutputTooLargeError.advice is None and OutputTooLargeError("m", nbytes=5).advice is None
+
+
+def test_the_cli_advises_again_by_the_declared_advice_not_by_the_words():
+    """An OutputTooLargeError whose message merely ends in a budget figure of its ``nbytes`` (made elsewhere, not the
+    budget's refusal) was rewritten as if it were one; one that declares its advice is rewritten, the rest of its
+    message kept."""
+    from stepterrain.cli import _render_too
+
+    lookalike = OutputTooLargeError("the cache holds 1 MiB; raise it to at least 1MiB", nbytes=1024**2,
+                                    mesh=(70000, 140000))
+    assert _render_too(lookalike, (640, 480)) is None  # not the budget's refusal: raised as it is by the caller
+    declared = OutputTooLargeError("the stepped mesh is big; say so to at least 1MiB", nbytes=1024**2,
+                                   mesh=(70000, 140000), advice=" to at least 1MiB")
+    with pytest.raises(OutputTooLargeError) as advised:
+        _render_too(declared, (640, 480))
+    assert re.fullmatch(r"the stepped mesh is big; say so to at least \d+MiB \(its --png render, 640x480, needs "
+                        r"[\d.]+ MiB for a mesh of at least 140,000 faces\)", str(advised.value)), str(advised.value)
 
 
 def test_no_global_grid_refusals_are_marked_and_others_are_not():
@@ -91,7 +124,8 @@ def test_a_pickle_through_tblib_as_dask_sends_errors_keeps_them():
     OutputTooLargeError (a MemoryError) could not be unpickled ("MemoryError.__new__(OutputTooLargeError) is not
     safe"), a batch worker's budget refusal lost. Each class says its own ``__reduce__`` now."""
     pickling_support = pytest.importorskip("tblib.pickling_support")
-    errors = (OutputTooLargeError("m", nbytes=5, mesh=(1, 2)), OutputTooLargeError("plain"),
+    errors = (OutputTooLargeError("m to at least 1KiB", nbytes=5, mesh=(1, 2), advice=" to at least 1KiB"),
+              OutputTooLargeError("plain"),
               InvalidInputError("lon must cover 360 degrees", not_global=True), InvalidInputError("x"))
     pickling_support.install(*errors)
     for error in errors:
