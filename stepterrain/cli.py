@@ -135,6 +135,15 @@ class _Parser(argparse.ArgumentParser):
         return values
 
 
+def _as_typed(parser: argparse.ArgumentParser | None, dest: str, value: Any) -> str:
+    """The text the option of ``parser`` stored in ``dest`` was given as in its last parse, quoted as
+    :meth:`_Parser._get_values` quotes it ('1GB'); ``value``, as it was stored, where the parser kept no text."""
+    for action, (_, typed) in getattr(parser, "_given_values", {}).items():
+        if action.dest == dest:
+            return repr(typed)
+    return repr(value)
+
+
 def _same_value(first: Any, second: Any) -> bool:
     """Whether two values of one option (:meth:`_Parser._get_values`) are the same: equal, or alike in their repr
     where they are not (NaN, as a number or in a tuple of them, is not equal to itself)."""
@@ -1753,8 +1762,11 @@ def _main(argv: Sequence[str] | None) -> int:
     after = getattr(args, "memory_budget_after", None)  # --memory-budget after the subcommand (its parser's)
     if after is not None:
         if args.memory_budget not in (None, after):  # the subcommand's replaced the command's silently
-            print(f"stepterrain: error: argument --memory-budget: given twice ({args.memory_budget} bytes before "
-                  f"{args.command}, then {after} bytes after it); it takes one value: give it once", file=sys.stderr)
+            # as typed, as the option given twice to one parser is named (it said "1000000000 bytes" for 1GB)
+            before = _as_typed(parser, "memory_budget", args.memory_budget)
+            after_text = _as_typed(_subcommand(parser, args.command), "memory_budget_after", after)
+            print(f"stepterrain: error: argument --memory-budget: given twice ({before} before {args.command}, then "
+                  f"{after_text} after it); it takes one value: give it once", file=sys.stderr)
             return EXIT_USAGE
         args.memory_budget = after
     progress = Progress(quiet=args.quiet)
