@@ -51,8 +51,7 @@ from .io import (
     _warn_unit_override,
     _warn_void_values,
     dem_path,
-    equals_nodata,
-    given_nodata,
+    missing_cells,
     npz_missing,
     npz_nodata,
     open_npz,
@@ -255,24 +254,18 @@ def _load_grid(path: str, height_unit: str | None = None, nodata: Sequence[float
     if elevation.ndim != 2:  # the progress line reads its shape before Globe.from_latlon checks it
         raise InvalidInputError(f"{path!r}: 'elevation' must be a 2-D (H, W) array; got shape {elevation.shape}")
     refuse_npz_scaling(beside, "elevation", file)
-    # the cells a boolean mask or valid marks (as io.load_dem reads them) were meshed as their stored values
-    missing = npz_missing({"elevation": elevation, **beside}, "elevation", file)
+    # the cells missing as io.load_dem finds them (its own rules, shared): the file's nodata (meshed as heights before,
+    # a -32768 m pit per cell), --nodata compared as the file's own nodata is, a boolean mask or valid (meshed as
+    # their stored values); other dtypes than real ones: Globe.from_latlon names them
+    marks: list[str] = []
+    missing = missing_cells(elevation, nodata, nodata_given,
+                            npz_missing({"elevation": elevation, **beside}, "elevation", file), marked_by=marks)
     # the refusal names what marks a cell: a mask, nodata value or --nodata that marks none was named beside the NaN
     # cells that were missing ("(nodata -9999, NaN or infinite; ...)" of one NaN cell)
-    marked_by = [" or ".join(repr(key) for key in ("mask", "valid") if key in beside)] if (
-        missing is not None and missing.any()) else []
-    if nodata is not None and elevation.dtype.kind in "iuf":  # (other dtypes: Globe.from_latlon names them)
-        # the nodata cells (as io.load_dem finds them) were meshed as heights: a -32768 m pit per missing cell
-        with np.errstate(over="ignore"):  # a nodata beyond the dtype: no cell
-            hits = equals_nodata(elevation, nodata)
-        missing = hits if missing is None else hits | missing
-        if hits.any():
-            marked_by.insert(0, f"nodata {nodata:g}")
-    if nodata_given and elevation.dtype.kind in "iuf":  # --nodata, compared as the file's own nodata is
-        hits = given_nodata(elevation, nodata_given)
-        if hits is not None and hits.any():
-            missing = hits if missing is None else hits | missing
-            marked_by.insert(0, f"--nodata {','.join(f'{v:g}' for v in nodata_given)}")
+    names = {"given": lambda: f"--nodata {','.join(f'{v:g}' for v in nodata_given)}",
+             "nodata": lambda: f"nodata {nodata:g}",
+             "mask": lambda: " or ".join(repr(key) for key in ("mask", "valid") if key in beside)}
+    marked_by = [names[mark]() for mark in ("given", "nodata", "mask") if mark in marks]
     if elevation.dtype.kind == "f":  # NaN and ±inf: nodata as load_dem reads them (Globe.from_latlon's refusal said
         # "elevation has 1 NaN or infinite value", naming no INPUT, as a raster's nodata once did)
         void = ~np.isfinite(elevation)

@@ -84,14 +84,15 @@ def check_budget(nbytes: int, what: str, budget: int | None = None, *,
                  hint: str = SMALLER_HINT, mesh: tuple[int, int] | None = None) -> None:
     """Raise :class:`OutputTooLargeError` when ``nbytes`` exceeds the budget, naming the size; ``budget`` (a
     caller's ``memory_budget=``) is checked first, ``hint`` says what would make the output smaller. The error
-    carries ``nbytes`` and ``mesh`` (its declared attributes), the (vertices, faces) of the mesh refused (None for
-    other outputs): the command line's advice for a run that renders that mesh too names the budget both need
-    (cli's steps with --png)."""
+    carries ``nbytes``, ``advice`` (the figure its message ends in) and ``mesh`` (its declared attributes), the
+    (vertices, faces) of the mesh refused (None for other outputs): the command line's advice for a run that
+    renders that mesh too names the budget both need in place of that figure (cli's steps with --png)."""
     limit = _memory_budget if budget is None else budget_value(budget)
     if nbytes > limit:
+        figure = _budget_figure(nbytes)
         raise OutputTooLargeError(
             f"{what} would need {_size_text(nbytes)}, over the memory budget of {_size_text(limit)}; {hint}, or "
-            f"{_budget_hint}{_budget_figure(nbytes)}", nbytes=nbytes, mesh=mesh)
+            f"{_budget_hint}{figure}", nbytes=nbytes, mesh=mesh, advice=figure or None)
 
 
 def _budget_figure(nbytes: int) -> str:

@@ -3378,8 +3378,9 @@ def overview_image(
             picture = render.render_mesh(mesh, window_size=(max(w, 8), max(h, 8)), z_scale=z_scale,
                                          camera=camera)[..., :3]
         except InvalidInputError as exc:  # one item too thin to see in its cell (a strip of a file seen from above)
-            if "too thin to see" not in str(exc) and "too small to see" not in str(exc):  # (an explicit camera's)
-                # lost the whole sheet, after the run, for one cell
+            # (or an explicit camera's too small) lost the whole sheet, after the run, for one cell; told by the
+            # error's flag, not by words of its message
+            if not exc.too_small_to_see:
                 raise
             thin.append((Path(paths[k]).name, w, h, exc))
             continue

@@ -135,6 +135,15 @@ class _Parser(argparse.ArgumentParser):
         return values
 
 
+def _as_typed(parser: argparse.ArgumentParser | None, dest: str, value: Any) -> str:
+    """The text the option of ``parser`` stored in ``dest`` was given as in its last parse, quoted as
+    :meth:`_Parser._get_values` quotes it ('1GB'); ``value``, as it was stored, where the parser kept no text."""
+    for action, (_, typed) in getattr(parser, "_given_values", {}).items():
+        if action.dest == dest:
+            return repr(typed)
+    return repr(value)
+
+
 def _same_value(first: Any, second: Any) -> bool:
     """Whether two values of one option (:meth:`_Parser._get_values`) are the same: equal, or alike in their repr
     where they are not (NaN, as a number or in a tuple of them, is not equal to itself)."""
@@ -1317,18 +1326,18 @@ def _solid_too(exc: OutputTooLargeError, size: tuple[int, int], count: Callable[
 
 
 def _budget_advice(exc: OutputTooLargeError) -> str | None:
-    """The budget advice (" to at least 30MiB", :func:`~stepterrain._compaction._budget_figure` of its ``nbytes``)
-    that ``exc``'s message ends in, None where it ends otherwise (or the error carries no size): :func:`_render_too`
-    and :func:`_solid_too` advise again only a message they can rewrite."""
-    from ._compaction import _budget_figure
-
-    figure = None if exc.nbytes is None else _budget_figure(exc.nbytes)
-    return figure if figure and str(exc).endswith(figure) else None
+    """The budget advice (" to at least 30MiB") that ``exc``'s message ends in, as the error declares it (its
+    ``advice``, with its ``nbytes``), None where it declares none: :func:`_render_too` and :func:`_solid_too` advise
+    again only a message they can rewrite (it matched the message's end against a figure of ``nbytes`` before)."""
+    if exc.nbytes is None or not exc.advice:
+        return None
+    return exc.advice
 
 
 def _advised_again(exc: OutputTooLargeError, figure: str, need: int, why: str) -> OutputTooLargeError:
     """``exc``, its message ending in ``figure`` (:func:`_budget_advice`), advising a budget of ``need`` bytes
-    instead, ``why`` in brackets after it; the same ``nbytes`` and ``mesh``."""
+    instead, ``why`` in brackets after it; the same ``nbytes`` and ``mesh``, and no ``advice`` (the message ends in
+    the bracket: it is not advised again)."""
     from ._compaction import _budget_figure
 
     return type(exc)(f"{str(exc)[:-len(figure)]}{_budget_figure(need)} ({why})", nbytes=exc.nbytes, mesh=exc.mesh)
@@ -1753,8 +1762,11 @@ def _main(argv: Sequence[str] | None) -> int:
     after = getattr(args, "memory_budget_after", None)  # --memory-budget after the subcommand (its parser's)
     if after is not None:
         if args.memory_budget not in (None, after):  # the subcommand's replaced the command's silently
-            print(f"stepterrain: error: argument --memory-budget: given twice ({args.memory_budget} bytes before "
-                  f"{args.command}, then {after} bytes after it); it takes one value: give it once", file=sys.stderr)
+            # as typed, as the option given twice to one parser is named (it said "1000000000 bytes" for 1GB)
+            before = _as_typed(parser, "memory_budget", args.memory_budget)
+            after_text = _as_typed(_subcommand(parser, args.command), "memory_budget_after", after)
+            print(f"stepterrain: error: argument --memory-budget: given twice ({before} before {args.command}, then "
+                  f"{after_text} after it); it takes one value: give it once", file=sys.stderr)
             return EXIT_USAGE
         args.memory_budget = after
     progress = Progress(quiet=args.quiet)

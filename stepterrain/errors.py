@@ -45,15 +45,23 @@ class InvalidInputError(StepTerrainError, ValueError):
     not_global : bool
         True on :meth:`~stepterrain.globe.Globe.from_latlon`'s refusal of a grid that is no globe (its longitudes
         short of a turn, or its rows short of a pole), for which the command line names its INPUT file's coverage
-        instead; False (the default) on every other refusal. Set with the keyword: ``InvalidInputError(message,
-        not_global=True)``.
+        instead; False (the default) on every other refusal.
+    too_small_to_see : bool
+        True on :func:`~stepterrain.render.render_mesh`'s refusal of a mesh it would show under a pixel (its box
+        less than a pixel wide or tall from the camera, or its faces slivers covering less than a pixel in all: too
+        small or too thin to see, it would render blank), for which :func:`~stepterrain.batch.overview_image` leaves
+        that item's cell of a contact sheet blank instead; False (the default) on every other refusal.
+
+    Both are set with keywords: ``InvalidInputError(message, not_global=True)``.
     """
 
     not_global: bool = False
+    too_small_to_see: bool = False
 
-    def __init__(self, *args: object, not_global: bool = False) -> None:
+    def __init__(self, *args: object, not_global: bool = False, too_small_to_see: bool = False) -> None:
         super().__init__(*args)
         self.not_global = bool(not_global)
+        self.too_small_to_see = bool(too_small_to_see)
 
     __reduce__ = _reduced
 
@@ -78,17 +86,25 @@ class OutputTooLargeError(StepTerrainError, MemoryError):
     mesh : tuple of int or None
         The (vertices, faces) of the mesh refused, where the output refused is a mesh of known size: the command
         line's advice for a run that renders that mesh too names the budget both need; None (the default) otherwise.
+    advice : str or None
+        The words the message ends in that advise a budget (" to at least 30MiB", after the hint "raise the budget
+        (...)"), where it ends in them (the memory budget's refusal, for a need up to 1024 TiB); None (the default)
+        where it ends otherwise. The command line's advice for a run that renders the mesh too replaces them, the
+        rest of the message kept (it matched the message's end against a figure of ``nbytes`` before).
 
-    Both are set with keywords: ``OutputTooLargeError(message, nbytes=..., mesh=(vertices, faces))``.
+    Each is set with its keyword: ``OutputTooLargeError(message, nbytes=..., mesh=(vertices, faces), advice=...)``.
     """
 
     nbytes: int | None = None
     mesh: tuple[int, int] | None = None
+    advice: str | None = None
 
-    def __init__(self, *args: object, nbytes: int | None = None, mesh: tuple[int, int] | None = None) -> None:
+    def __init__(self, *args: object, nbytes: int | None = None, mesh: tuple[int, int] | None = None,
+                 advice: str | None = None) -> None:
         super().__init__(*args)
         self.nbytes = None if nbytes is None else int(nbytes)
         self.mesh = None if mesh is None else (int(mesh[0]), int(mesh[1]))
+        self.advice = None if not advice else str(advice)
 
     __reduce__ = _reduced
 

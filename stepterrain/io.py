@@ -2892,6 +2892,39 @@ def _undeclared_sentinel(
             f"{'it' if count == 1 else 'them'}; if they are voids, declare it ({_declare_nodata(file, text)})")
 
 
+def missing_cells(
+    array: NDArray[Any], nodata: float | None = None, given: Sequence[float] = (),
+    missing: NDArray[np.bool_] | None = None, *, marked_by: list[str] | None = None,
+) -> NDArray[np.bool_] | None:
+    """The cells of ``array`` missing as :func:`load_dem` reads them, besides its non-finite values: equal to the
+    file's ``nodata`` (compared in the array's own dtype, :func:`equals_nodata`: one beyond the dtype marks no finite
+    cell), to one of the caller's ``given`` values (:func:`given_nodata`, which warns of one no cell can hold), or
+    True in ``missing`` (an .npz ``mask``/``valid``, :func:`npz_missing`, of ``array``'s shape). None where none of
+    the three is given; values are compared in a real dtype only (another marks no cell by value). ``marked_by``: a
+    list to which the names of those that mark some cell are added, ``"nodata"``, ``"given"``, ``"mask"`` in that
+    order (the globe's refusal names them). :func:`nodata_as_nan` and the globe command's .npz INPUT (which refuses
+    missing cells, naming what marks them) decide alike by it: the globe had its own copy of these rules."""
+    hits = None
+    if array.dtype.kind in "iuf":
+        if nodata is not None:
+            with np.errstate(over="ignore"):  # beyond the dtype (1e40, -99999 in float16) it is inf: no finite cell
+                hits = equals_nodata(array, nodata)
+            if marked_by is not None and hits.any():
+                marked_by.append("nodata")
+        if marked_by is None:
+            hits = given_nodata(array, given, hits)
+        else:  # apart, to tell whether they mark a cell
+            own = given_nodata(array, given)
+            if own is not None and own.any():
+                marked_by.append("given")
+                hits = own if hits is None else np.logical_or(hits, own, out=hits)
+    if missing is not None:
+        if marked_by is not None and missing.any():
+            marked_by.append("mask")
+        hits = missing.copy() if hits is None else np.logical_or(hits, missing, out=hits)
+    return hits
+
+
 def nodata_as_nan(
     array: NDArray[Any], file: Path, what: str, nodata: float | None = None,
     missing: NDArray[np.bool_] | None = None, *, warn_voids: bool = True, stored: _Stored | None = None,
@@ -2907,13 +2940,7 @@ def nodata_as_nan(
     which a refusal of values beyond float32 names them as stored (:func:`_undeclared_sentinel`). ``given``: the
     caller's nodata values (:func:`load_dem`'s ``nodata``), compared as ``nodata`` is, missing too (no warning nor
     refusal names them)."""
-    hits = None
-    if nodata is not None:
-        with np.errstate(over="ignore"):  # a nodata beyond the dtype (1e40, -99999 in float16) is inf: no finite cell
-            hits = equals_nodata(array, nodata)
-    hits = given_nodata(array, given, hits)
-    if missing is not None:
-        hits = missing.copy() if hits is None else np.logical_or(hits, missing, out=hits)
+    hits = missing_cells(array, nodata, given, missing)
     if warn_voids:
         _warn_void_values(file, array, hits, what)
     if array.dtype.kind == "f" and array.dtype.itemsize > 4:  # finite in float64, inf in float32: not nodata

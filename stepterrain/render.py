@@ -758,7 +758,7 @@ def _frame_mesh(
                 f"pixels, too small to see (it would render blank): its faces span "
                 f"{' x '.join(f'{v:.3g}' for v in (drawn_box[1] - drawn_box[0]).tolist())} (z times "
                 f"z_scale={z_scale:g}) and the eye is {float(np.linalg.norm(position[0])):.3g} from the centre of the "
-                f"framed box; move the eye nearer or give a larger window_size; got {camera!r}")
+                f"framed box; move the eye nearer or give a larger window_size; got {camera!r}", too_small_to_see=True)
     if bounds is None and fitted:  # the camera the render takes: fitted to the vertices drawn themselves, not their
         # box (an explicit position is the one above, as given)
         drawn = local if finite.all() else local[finite]
@@ -808,7 +808,7 @@ def _check_covers_a_pixel(local: NDArray[np.float64], faces: ArrayLike, position
     raise InvalidInputError(
         f"the mesh's faces would cover {covered:.2g} pixels in all from a camera fitted to it, in a "
         f"{width}x{height} window: they are slivers, too thin to see (it would render blank); look from another "
-        "direction (camera) or give a larger window_size")
+        "direction (camera) or give a larger window_size", too_small_to_see=True)
 
 
 #: Faces checked at a time by :func:`_check_some_area` (it stops at the first chunk with a face of some area).
@@ -902,7 +902,7 @@ def _check_mesh_in_bounds(drawn: NDArray[np.float64], position: Any, size: tuple
         raise InvalidInputError(
             f"the mesh, whose faces span {mesh_box()}, would render at most {px:.2g} x {py:.2g} pixels within bounds "
             f"{_fmt_box(lo, hi)} (with z_scale={z_scale:g}), too small to see (it would render blank); give bounds "
-            "nearer the mesh's size or a larger window_size")
+            "nearer the mesh's size or a larger window_size", too_small_to_see=True)
 
 
 def _box_pixels(box: NDArray[np.float64], position: Any, size: tuple[int, int],
@@ -973,8 +973,7 @@ def _check_visible(corners: NDArray[np.float64], position: Any, size: tuple[int,
                     "camera either: look from another direction (camera) or give a larger window_size")
     raise InvalidInputError(
         f"{what} would render {px:.2g} x {py:.2g} pixels: it spans {dx:.3g} x {dy:.3g} across and {dz:.3g} tall "
-        f"(with z_scale={z_scale:g}), too thin to see from a camera fitted to it{hint}"
-    )
+        f"(with z_scale={z_scale:g}), too thin to see from a camera fitted to it{hint}", too_small_to_see=True)
 
 
 _BOX = "[(xmin, ymin, zmin), (xmax, ymax, zmax)] with max >= min"

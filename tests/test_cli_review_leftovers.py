@@ -89,8 +89,8 @@ def test_memory_budget_before_and_after_the_subcommand_must_agree(tmp_path, caps
     png = tmp_path / "a.png"
     code, out, err = run(capsys, "--memory-budget", "1GB", "steps", "--memory-budget", "2GB", "--png", png)
     assert code == 2 and not png.exists()
-    assert ("stepterrain: error: argument --memory-budget: given twice (1000000000 bytes before steps, then "
-            "2000000000 bytes after it); it takes one value: give it once") in err, err
+    assert ("stepterrain: error: argument --memory-budget: given twice ('1GB' before steps, then '2GB' after it); it "
+            "takes one value: give it once") in err, err
     for argv in (["--memory-budget", "1GB", "steps", "--memory-budget", "1000MB"], ["steps", "--memory-budget", "1kB"],
                  ["--memory-budget", "1kB", "steps"]):
         code, out, err = run(capsys, *argv, "--png", png, "--size", "64x48", "-q")
@@ -98,6 +98,22 @@ def test_memory_budget_before_and_after_the_subcommand_must_agree(tmp_path, caps
         assert (code == 0) == (budget != "1,000 bytes"), (argv, err)
         if code:  # the budget given applies, before or after the subcommand
             assert "over the memory budget of 1,000 bytes" in err, err
+
+
+def test_memory_budget_given_twice_is_named_as_typed(tmp_path, capsys):
+    """The refusal of two --memory-budget values showed them as bytes ("8589934592 bytes before steps, then 500000000
+    bytes after it"), no figure the user typed; it quotes each as typed now, as an option given twice to one parser
+    is named."""
+    png = tmp_path / "a.png"
+    code, out, err = run(capsys, "--memory-budget=8GiB", "steps", "--memory-budget", "1.5 GiB", "--png", png)
+    assert code == 2 and out == "" and not png.exists()
+    assert ("stepterrain: error: argument --memory-budget: given twice ('8GiB' before steps, then '1.5 GiB' after "
+            "it); it takes one value: give it once") in err, err
+    assert "bytes" not in err, err
+    code, out, err = run(capsys, "--memory-budget", "500MB", "globe", "--memory-budget", "17179869184", "-o",
+                         tmp_path / "g.glb")
+    assert code == 2 and "given twice ('500MB' before globe, then '17179869184' after it)" in err, err
+    assert list(tmp_path.iterdir()) == []
 
 
 # ------------------------------------------------------------------------------------------ the 3MF unit of every path
