@@ -20,8 +20,9 @@ Conventions (shared with ``stepterrain.stepped`` and ``tests/reference.py``):
 
 * Every kernel takes ``thread_offset, count, chunk`` first: thread t handles the elements
   [(t + thread_offset)·chunk, … + chunk) ∩ [0, count) (``stepterrain._device.launch_chunked``: chunk is 64 on
-  the CPU, where Warp copies a kernel's arguments for every thread, and 1 on CUDA), so the CPU launcher can
-  also split one pass over several cores.
+  the CPU, where Warp copies a kernel's arguments for every thread, 256 for the grid passes quantize_levels,
+  count_grid, count_deferred_grid_faces and emit_grid (``GRID_CHUNK_FACTOR``), and 1 on CUDA), so the CPU launcher
+  can also split one pass over several cores.
 * level(h) = the number of thresholds t_i <= h: a height exactly on a threshold belongs to the upper level.
 * The crossings of an edge are stored lowest threshold first, two vertices each (wall bottom at α_j, wall
   top at α_j+1). When the upper endpoint lies exactly on its highest crossed threshold, that crossing's top
@@ -92,7 +93,7 @@ class Offsets:
     """A grid's vertex offsets, kept in two levels: slot s's first output vertex is ``local[s] + bases[s >> shift]``.
 
     count_grid writes each slot's exclusive prefix within its chunk of nodes (``local``) and each chunk's total as
-    it counts, so only the chunk totals are scanned into ``bases`` (one int per 64 nodes on the CPU, instead of a
+    it counts, so only the chunk totals are scanned into ``bases`` (one int per 256 nodes on the CPU, instead of a
     scan over four ints per node: 12 ms of 180 at 2048²). A chunk holds 2^shift slots (CPU_CHUNK is a power of
     two; on CUDA a chunk is one node). :func:`offset_at` reads these or plain offsets (a TIN's). Measured in
     RESULTS.md "Session 20" (2048²/20: median 180 -> 175 ms, about 100 MB less scratch)."""
