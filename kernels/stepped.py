@@ -20,8 +20,9 @@ Conventions (shared with ``stepterrain.stepped`` and ``tests/reference.py``):
 
 * Every kernel takes ``thread_offset, count, chunk`` first: thread t handles the elements
   [(t + thread_offset)·chunk, … + chunk) ∩ [0, count) (``stepterrain._device.launch_chunked``: chunk is 64 on
-  the CPU, where Warp copies a kernel's arguments for every thread, and 1 on CUDA), so the CPU launcher can
-  also split one pass over several cores.
+  the CPU, where Warp copies a kernel's arguments for every thread, 256 for the grid passes quantize_levels,
+  count_grid, count_deferred_grid_faces and emit_grid (``GRID_CHUNK_FACTOR``), and 1 on CUDA), so the CPU launcher
+  can also split one pass over several cores.
 * level(h) = the number of thresholds t_i <= h: a height exactly on a threshold belongs to the upper level.
 * The crossings of an edge are stored lowest threshold first, two vertices each (wall bottom at α_j, wall
   top at α_j+1). When the upper endpoint lies exactly on its highest crossed threshold, that crossing's top
@@ -92,7 +93,7 @@ class Offsets:
     """A grid's vertex offsets, kept in two levels: slot s's first output vertex is ``local[s] + bases[s >> shift]``.
 
     count_grid writes each slot's exclusive prefix within its chunk of nodes (``local``) and each chunk's total as
-    it counts, so only the chunk totals are scanned into ``bases`` (one int per 64 nodes on the CPU, instead of a
+    it counts, so only the chunk totals are scanned into ``bases`` (one int per 256 nodes on the CPU, instead of a
     scan over four ints per node: 12 ms of 180 at 2048²). A chunk holds 2^shift slots (CPU_CHUNK is a power of
     two; on CUDA a chunk is one node). :func:`offset_at` reads these or plain offsets (a TIN's). Measured in
     RESULTS.md "Session 20" (2048²/20: median 180 -> 175 ms, about 100 MB less scratch)."""
@@ -1309,8 +1310,14 @@ int* ldst = face_levels_out.data + face_base;
 // vertices streamed from the size at which stream_large streams, the faces and face levels stored plainly at every
 // size (store(); memory.py's stream_large says what streaming them cost). One loop per kind of vertex store: a
 // run-time choice inside the loop was merged by clang into one plain store, and plain vertex stores into lines the
-// generic path streams into took emit_grid at 2048^2 from 80 to 180 ms.
-auto walk = [&](auto streamed) {
+// generic path streams into took emit_grid at 2048^2 from 80 to 180 ms. The winding (hf.flip) is a compile-time
+// choice as well, and each node's two faces go out as one 32-byte and one 16-byte store, its two face levels as one
+// 8-byte store (six 8-byte and two 4-byte stores before, with a test of hf.flip a node: emit_grid at 2048^2 about
+// 2 ms faster, RESULTS.md "Session 49").
+typedef long long i64x4 __attribute__((ext_vector_type(4), aligned(8)));
+typedef long long i64x2 __attribute__((ext_vector_type(2), aligned(8)));
+const long long level2 = (long long)(((unsigned long long)(unsigned)level << 32) | (unsigned)level);
+auto walk = [&](auto streamed, auto flipped) {  // on_t or off_t each
     for (int q = 0; q < k; ++q) {
         below += 4;
         const long long v11 = (long long)(bases[below >> shift] + local[below]);
@@ -1326,16 +1333,14 @@ auto walk = [&](auto streamed) {
         } else {
             __builtin_memcpy(vdst, parts, sizeof(parts));
         }
-        long long f[6] = {v00, v01, v11, v00, v11, v10};
-        if (hf.flip != 0) {
-            f[1] = v11;
-            f[2] = v01;
-            f[4] = v10;
-            f[5] = v11;
+        if constexpr (decltype(flipped)::on()) {
+            *reinterpret_cast<i64x4*>(fdst) = (i64x4){v00, v11, v01, v00};
+            *reinterpret_cast<i64x2*>(fdst + 4) = (i64x2){v10, v11};
+        } else {
+            *reinterpret_cast<i64x4*>(fdst) = (i64x4){v00, v01, v11, v00};
+            *reinterpret_cast<i64x2*>(fdst + 4) = (i64x2){v11, v10};
         }
-        __builtin_memcpy(fdst, f, sizeof(f));
-        ldst[0] = level;
-        ldst[1] = level;
+        __builtin_memcpy(ldst, &level2, sizeof(level2));
         vdst += 3;
         fdst += 6;
         ldst += 2;
@@ -1343,16 +1348,22 @@ auto walk = [&](auto streamed) {
         v10 = v11;
     }
 };
-struct streamed_t {
+struct on_t {
     static constexpr bool on() { return true; }
 };
-struct plain_t {
+struct off_t {
     static constexpr bool on() { return false; }
 };
 if ((long long)direct.vertices.shape[0] * 24LL >= STREAM_MIN_BYTES) {
-    walk(streamed_t{});
+    if (hf.flip != 0) {
+        walk(on_t{}, on_t{});
+    } else {
+        walk(on_t{}, off_t{});
+    }
+} else if (hf.flip != 0) {
+    walk(off_t{}, on_t{});
 } else {
-    walk(plain_t{});
+    walk(off_t{}, off_t{});
 }
 __builtin_memset(face_walls_out.data + face_base, 0, 2 * (size_t)k);
 return k;

@@ -38,6 +38,10 @@ MIN_THREAD_ELEMENTS = 1 << 15  # below this many elements per thread a launch st
 #: often ~1 kB) for every thread, so on the CPU each thread runs a chunk of elements; on CUDA every element
 #: is its own thread.
 CPU_CHUNK = 64
+#: The chunk of the stepped grid passes (quantize, count, emit) on the CPU, in CPU_CHUNKs: Warp copies emit_grid's
+#: ~1 kB of arguments for each of its threads, whose nodes go fast (native runs), so they take 256 nodes a thread
+#: (2048², 20 steps: whole calls about 2 ms of 78 faster, RESULTS.md "Session 49").
+GRID_CHUNK_FACTOR = 4
 #: Warp launches CPU kernels with this block_dim (its default there); the module variant to pre-load.
 CPU_LAUNCH_BLOCK_DIM = 1
 _initialised = False
@@ -616,27 +620,30 @@ def launch_each(kernel: Any, tasks: list[tuple[list, list]], device: wp.Device) 
         future.result()
 
 
-def _chunk(device: wp.Device) -> int:
-    """Elements per thread of :func:`launch_chunked` on ``device``."""
-    return CPU_CHUNK if device.is_cpu else 1
+def _chunk(device: wp.Device, scale: int = 1) -> int:
+    """Elements per thread of :func:`launch_chunked` on ``device``: ``scale`` CPU chunks on the CPU."""
+    return CPU_CHUNK * scale if device.is_cpu else 1
 
 
-def chunk_shift(device: wp.Device) -> int:
-    """log2 of the chunk :func:`launch_chunked` gives each thread on ``device``: the stepped grid passes find a
-    slot's chunk by a shift (kernels/stepped.py, Offsets), so :data:`CPU_CHUNK` must be a power of two."""
-    chunk = _chunk(device)
+def chunk_shift(device: wp.Device, scale: int = 1) -> int:
+    """log2 of the chunk :func:`launch_chunked` gives each thread on ``device`` (``scale`` as there): the stepped
+    grid passes find a slot's chunk by a shift (kernels/stepped.py, Offsets), so :data:`CPU_CHUNK` must be a power
+    of two."""
+    chunk = _chunk(device, scale)
     if chunk <= 0 or chunk & (chunk - 1):
-        raise ValueError(f"stepterrain._device.CPU_CHUNK must be a power of two; got {chunk}")
+        raise ValueError(f"stepterrain._device.CPU_CHUNK must be a power of two; got {CPU_CHUNK}")
     return chunk.bit_length() - 1
 
 
-def chunked_threads(n: int, device: wp.Device) -> int:
-    """Threads :func:`launch_chunked` runs over ``n`` elements: thread t has chunk t (per-thread outputs)."""
-    return -(-n // _chunk(device))
+def chunked_threads(n: int, device: wp.Device, scale: int = 1) -> int:
+    """Threads :func:`launch_chunked` runs over ``n`` elements (``scale`` as there): thread t has chunk t
+    (per-thread outputs)."""
+    return -(-n // _chunk(device, scale))
 
 
 def launch_chunked(kernel: Any, n: int, inputs: list, outputs: list, device: wp.Device, *,
-                   min_elements: int = MIN_THREAD_ELEMENTS, fence: bool = False, atomics: bool = False) -> None:
+                   min_elements: int = MIN_THREAD_ELEMENTS, fence: bool = False, atomics: bool = False,
+                   scale: int = 1) -> None:
     """:func:`launch` of a chunked kernel over ``n`` elements.
 
     A chunked kernel takes ``thread_offset, count, chunk`` first; thread t handles the elements
@@ -646,10 +653,12 @@ def launch_chunked(kernel: Any, n: int, inputs: list, outputs: list, device: wp.
     ``atomics``: the kernel updates shared elements with Warp's atomics (``wp.atomic_add``, ``atomic_max``), which
     are atomic on CUDA but plain read-modify-writes on the CPU: there it runs as one range (ranges launched at
     once on several threads lost updates: counts too small, and the slots scanned from them written past their end).
+    ``scale``: each thread takes ``scale`` CPU chunks (the stepped grid passes, :data:`GRID_CHUNK_FACTOR`); one
+    element a thread on CUDA all the same.
     """
-    chunk = _chunk(device)
+    chunk = _chunk(device, scale)
     if atomics and device.is_cpu:
         min_elements = max(min_elements, n + chunk)
-    launch(kernel, chunked_threads(n, device), [n, chunk, *inputs], outputs, device,
+    launch(kernel, chunked_threads(n, device, scale), [n, chunk, *inputs], outputs, device,
            min_dim=max(1, min_elements // chunk), fence=fence)
 

@@ -38,6 +38,7 @@ from ._callable_module import make_module_callable
 from ._compaction import MAX_INT32 as _MAX_INT32
 from ._compaction import SMALLER_HINT, budget_value, check_budget, count_buffer, exclusive_offsets
 from ._device import (
+    GRID_CHUNK_FACTOR,
     chunk_shift,
     chunked_threads,
     empty_shared,
@@ -779,6 +780,7 @@ def step_arrays(
     grid = terrain.kind == "grid"
     topo: Any = _grid_struct(terrain, device) if grid else _tin_struct(terrain, device)
     n_nodes = terrain.heights.size
+    scale = GRID_CHUNK_FACTOR if grid else 1  # the grid passes' chunk (count_grid's Offsets take its shift)
     # vertex quantization (§3.2): every node's level
     launch_chunked(
         stepped_kernels.quantize_levels,
@@ -786,6 +788,7 @@ def step_arrays(
         inputs=[topo.heights, iso],
         outputs=[topo.levels],
         device=device,
+        scale=scale,
     )
     empty_faces = no_elements(stepped_kernels.vec3l, device)
     empty_levels = no_elements(wp.int32, device)
@@ -801,15 +804,16 @@ def step_arrays(
                 f"a grid of {topo.rows} x {topo.cols} nodes needs {n_slots:,} int32 vertex slots (4 a node), more "
                 f"than the {_MAX_INT32:,} one call can index; {smaller}"
             )
-        n_chunks = chunked_threads(n_nodes, device)
+        n_chunks = chunked_threads(n_nodes, device, scale)
         local = scratch("stepped.vertices.local", n_slots, wp.int32, device, streamed=True)
         totals = count_buffer("stepped.vertices", n_chunks, device)
         face_totals = count_buffer("stepped.faces", n_chunks, device)
         deferred = scratch("stepped.deferred", n_chunks, wp.int32, device)
         launch_chunked(stepped_kernels.count_grid, n=n_nodes, inputs=[topo, iso],
-                       outputs=[local, totals, face_totals, deferred], device=device, fence=True)  # streams local
+                       outputs=[local, totals, face_totals, deferred], device=device, fence=True,
+                       scale=scale)  # fmt: skip  # streams local
         bases, vertex_count = exclusive_offsets(totals, "stepped.vertices")
-        offsets = _offsets_struct(local, bases, chunk_shift(device) + 2, device)  # 4 slots a node
+        offsets = _offsets_struct(local, bases, chunk_shift(device, scale) + 2, device)  # 4 slots a node
         _check_vertex_total(totals, n_nodes, n_slots, len(values), hint)
         launch_chunked(
             stepped_kernels.count_deferred_grid_faces,
@@ -817,6 +821,7 @@ def step_arrays(
             inputs=[topo, iso, offsets, deferred, empty_faces, empty_levels, empty_walls],
             outputs=[face_totals],
             device=device,
+            scale=scale,
         )
         face_counts = face_totals
         face_offsets, face_count = exclusive_offsets(face_totals, "stepped.faces")
@@ -893,7 +898,7 @@ def step_arrays(
     if grid:  # both emit passes in one walk over the count's chunks of nodes
         launch_chunked(stepped_kernels.emit_grid, n=n_nodes, inputs=[topo, iso, offsets, face_offsets,
                        int(want_sources), direct], outputs=vertex_outputs + face_outputs, device=device,
-                       fence=True)  # fmt: skip
+                       fence=True, scale=scale)  # fmt: skip
     else:
         launch_chunked(stepped_kernels.emit_tin_vertices, n=n_slots, inputs=[topo, iso, offsets, twins,
                        int(want_sources), direct], outputs=vertex_outputs, device=device,

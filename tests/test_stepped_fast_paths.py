@@ -4,10 +4,10 @@ On the CPU, count_grid counts the nodes whose cell has no corner on a threshold 
 (``count_plain_nodes``: sixteen nodes at a time by the closed form, flat or not), and emit_grid writes runs of
 plain nodes with flat cells in one native loop (``emit_flat_run``, the default output only: blended vertices,
 no sources). ``step_arrays(want_sources=True)`` emits through the generic Warp path, and the independent
-reference (tests/reference.py) checks what both count. The grids are rows of plateaus wider than a 64-node
-chunk (``CPU_CHUNK``), so runs cross chunk ends and reach row ends, with heights on the thresholds, a float32
-ulp either side of them, on the levels themselves and beyond the end levels; levels uniform or irregular,
-up to past the 64 thresholds of the vector quantization.
+reference (tests/reference.py) checks what both count. The grids are rows of plateaus wider than the grid
+passes' 256-node chunk (``CPU_CHUNK`` · ``GRID_CHUNK_FACTOR``), so runs cross chunk ends and reach row ends, with
+heights on the thresholds, a float32 ulp either side of them, on the levels themselves and beyond the end levels;
+levels uniform or irregular, up to past the 64 thresholds of the vector quantization.
 """
 
 from __future__ import annotations
@@ -18,14 +18,14 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st_
 
 import stepterrain as st
-from stepterrain._device import CPU_CHUNK, set_cpu_threads
+from stepterrain._device import CPU_CHUNK, GRID_CHUNK_FACTOR, set_cpu_threads
 
 from .reference import grid_tin, step_reference, thresholds_of
 from .test_stepped import _compare_terrain_with_reference, assert_stepped_as_the_generic_pass
 
-# widths around one and two chunks (runs end at, cross and stop short of chunk ends) and narrow ones
-WIDTHS = [2, 3, 17, 33, CPU_CHUNK - 1, CPU_CHUNK, CPU_CHUNK + 1, CPU_CHUNK + 2, CPU_CHUNK + 3, 2 * CPU_CHUNK + 1,
-          2 * CPU_CHUNK + 2, 200]
+# widths around one and two chunks of the grid passes (runs end at, cross and stop short of chunk ends) and narrow ones
+CHUNK = CPU_CHUNK * GRID_CHUNK_FACTOR
+WIDTHS = [2, 3, 17, 33, CHUNK - 1, CHUNK, CHUNK + 1, CHUNK + 2, CHUNK + 3, 2 * CHUNK + 1, 2 * CHUNK + 2, 200]
 
 
 @st_.composite
@@ -48,7 +48,7 @@ def plateau_grids(draw):
                            [values[0] - np.float32(1.0), values[-1] + np.float32(1.0)]]).astype(np.float32)
     rows = draw(st_.integers(2, 6))
     cols = draw(st_.sampled_from(WIDTHS))
-    run = draw(st_.integers(1, 3 * CPU_CHUNK))  # plateau length along a row
+    run = draw(st_.integers(1, 3 * CHUNK))  # plateau length along a row
     tall = draw(st_.integers(1, 3))  # and down the grid: cells flat down it too, nodes below a lower plateau
     noise = draw(st_.sampled_from([0.0, 0.01, 0.1]))
     pieces = rng.choice(pool, size=(rows // tall + 1, cols // run + 1))
