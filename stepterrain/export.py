@@ -2717,8 +2717,9 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         word: :func:`_check_obj_texture_indices`). An ``.stl`` must be one (a binary
         STL's length as its header
         counts, an ASCII one's ``solid`` ... ``endsolid``), and an ``.obj`` that trimesh reads as no vertices an empty
-        one (OBJ statements and comments only), an ``.obj`` :func:`save_mesh` wrote must end with a newline (one
-        ending mid-line was cut short), as must any ``.obj`` whose last line is a face of fewer than 3 corners
+        one (OBJ statements and comments only), an ``.obj`` :func:`save_mesh` wrote (or a copy of it of CRLF
+        or CR line ends) must end with a newline (one ending mid-line was cut short), as must any ``.obj`` whose
+        last line is a face of fewer than 3 corners
         (:func:`_check_obj_cut_short`), and a textured ``.obj`` :func:`save_mesh` wrote read as no faces must have a
         ``vt`` line for each ``v`` line (one cut at a line's end among them: :func:`_check_obj_textured_cut`; a cut
         among its faces leaves a whole-looking file, read as the faces before it), and a ``.ply`` must hold the rows
@@ -2956,6 +2957,13 @@ def _ply_binary_mixed_lists(file: Path, rows: int = 65536) -> str | None:
 _OBJ_NUMBERS = frozenset({b"v", b"vt", b"vn", b"vp", b"f", b"l", b"p", b"s"})
 
 
+def _obj_ours(head: bytes) -> bool:
+    """Whether an OBJ whose first bytes are ``head`` is one :func:`save_mesh` wrote: its first line ``# written by
+    stepterrain`` (after a UTF-8 byte-order mark, if any), ended by LF, CRLF or CR (a copy whose line ends were
+    turned to CRLF, by a Windows tool or git's autocrlf, was taken for a foreign file, and its cut went unsaid)."""
+    return head.removeprefix(b"\xef\xbb\xbf").startswith((b"# written by stepterrain\n", b"# written by stepterrain\r"))
+
+
 def _check_obj_cut_short(file: Path) -> None:
     """A ValueError where the OBJ ``file`` was cut short mid-line: one :func:`save_mesh` wrote (its first line
     ``# written by stepterrain``), which ends every line with a newline, not ending in one; or any OBJ whose last line,
@@ -2972,7 +2980,7 @@ def _check_obj_cut_short(file: Path) -> None:
         return
     last = tail.rsplit(b"\n", 1)[-1].rsplit(b"\r", 1)[-1]
     words = last.split()
-    ours = head.removeprefix(b"\xef\xbb\xbf").startswith(b"# written by stepterrain\n")
+    ours = _obj_ours(head)
     if ours or (words[:1] == [b"f"] and len(words) < 4):
         why = ("stepterrain's OBJ writer ends every line with a newline" if ours else
                f"its last line is a face of {len(words) - 1} corner{'s' * (len(words) != 2)}, where a face needs 3")
@@ -2989,7 +2997,7 @@ def _check_obj_textured_cut(file: Path, source: bytes | None = None) -> None:
     cut mid-line). A cut among its faces, or any cut of an untextured one, leaves a file no different from a whole
     one of fewer faces (or of points), and is read as such. Run only for a file read as no faces."""
     with _obj_mapped(file, source) as text:
-        if text is None or not text[:64].removeprefix(b"\xef\xbb\xbf").startswith(b"# written by stepterrain\n"):
+        if text is None or not _obj_ours(text[:64]):
             return
         first = text.find(b"\nv ")
         if first < 0 or text.find(b"\nusemtl ", 0, first) < 0:

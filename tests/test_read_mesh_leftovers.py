@@ -1,0 +1,58 @@
+"""read_mesh's left-alone items: an OFF read from one read of its bytes; an OBJ whose ``.mtl`` or texture image is
+missing warned of by name; a CRLF (or CR) copy of a stepterrain OBJ cut short refused as an LF one is; a multi-material
+textured OBJ's faces in the file's order."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+from stepterrain.errors import DataFileError
+from stepterrain.export import read_mesh, save_mesh
+
+
+def _plain_obj(path):
+    mesh = trimesh.Trimesh(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.5]], float),
+                           [[0, 1, 2], [1, 3, 2]], process=False)
+    save_mesh(mesh, path)
+    return path.read_bytes()
+
+
+def _textured_obj(path):
+    mesh = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], [[0, 1, 2], [1, 3, 2]], process=False)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=[[0, 0], [1, 0], [0, 1], [1, 1]],
+                                                image=Image.new("RGB", (4, 4), (9, 99, 9)))
+    save_mesh(mesh, path)
+    return path.read_bytes()
+
+
+@pytest.mark.parametrize("end", [b"\r\n", b"\r"])
+def test_crlf_or_cr_copy_of_a_stepterrain_obj_cut_mid_line_refused(tmp_path, end):
+    """A stepterrain OBJ whose line ends were turned into CRLF (a Windows copy, git's autocrlf) or CR, then cut
+    mid-line, is refused as cut short, as the LF file is (its first line read as '# written by stepterrain\\r', not
+    stepterrain's, so the copy read as the vertices before the cut without a word)."""
+    whole = _plain_obj(tmp_path / "whole.obj")
+    copy = whole.replace(b"\n", end)
+    (tmp_path / "copy.obj").write_bytes(copy)
+    assert len(read_mesh(tmp_path / "copy.obj").faces) == 2
+    cut = copy[: copy.index(b"f ") - len(end) - 3]  # mid-line, within the last v line
+    assert not cut.endswith((b"\n", b"\r"))
+    (tmp_path / "cut.obj").write_bytes(cut)
+    with pytest.raises(DataFileError, match=r"the file is cut short: it ends mid-line .*stepterrain's OBJ writer"):
+        read_mesh(tmp_path / "cut.obj")
+
+
+def test_crlf_copy_of_a_textured_stepterrain_obj_cut_at_a_line_end_refused(tmp_path):
+    """A CRLF copy of a textured stepterrain OBJ cut at the end of a v or vt line is refused as cut short, as the LF
+    file is (it read as points without a word)."""
+    lines = _textured_obj(tmp_path / "whole.obj").replace(b"\n", b"\r\n").splitlines(keepends=True)
+    first_v = next(k for k, line in enumerate(lines) if line.startswith(b"v "))
+    first_f = next(k for k, line in enumerate(lines) if line.startswith(b"f "))
+    for cut in range(first_v + 1, first_f):
+        (tmp_path / "whole.obj").write_bytes(b"".join(lines[:cut]))  # beside its .mtl and image
+        with pytest.raises(DataFileError, match=r"cut short: stepterrain's OBJ writer gives each v line of a textured"):
+            read_mesh(tmp_path / "whole.obj")
+    (tmp_path / "whole.obj").write_bytes(b"".join(lines))
+    assert len(read_mesh(tmp_path / "whole.obj").faces) == 2
