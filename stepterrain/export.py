@@ -2760,6 +2760,9 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         gltf = file.suffix.lower() in (".glb", ".gltf")
         color, tree, scene = None, None, None
         tidied: bytes | None = None  # an OBJ's text as trimesh's reader is to read it (_obj_tidied), if not its own
+        # an OFF's bytes, read once: trimesh's reader and the header, colour and problem scans take them (the file was
+        # opened five times, and read whole three times for a COFF)
+        off = file.read_bytes() if file.suffix.lower() == ".off" else None
         if gltf:  # trimesh.load(force="mesh") is load_scene().to_mesh(), which drops COLOR_0 beside a material
             tree = _check_dense_gltf(file)  # its JSON, read once
             stored_z_up = _stored_z_up(tree)
@@ -2798,15 +2801,16 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                 if kind == "materials":
                     loaded = _obj_materials_joined(file, tidied)
                 if loaded is None:
-                    loaded = _trimesh_read(trimesh.load, file, tidied, force="mesh", process=False, **order)
+                    loaded = _trimesh_read(trimesh.load, file, tidied if off is None else off, force="mesh",
+                                           process=False, **order)
             except IndexError:
                 if file.suffix.lower() == ".obj":  # a relative index past the file's start, or one past its end,
                     # said by its line
                     _obj_index_out_of_range(file, tidied if tidied is not None else source, source)
                 raise
             except (ValueError, OverflowError) as exc:
-                if file.suffix.lower() == ".off":  # trimesh's error named no line
-                    problem = _off_problem(file)
+                if off is not None:  # an OFF: trimesh's error named no line
+                    problem = _off_problem(off)
                     if problem is not None:
                         raise ValueError(problem) from exc
                 mixed = _ply_binary_mixed_lists(file) if file.suffix.lower() == ".ply" else None
@@ -2814,7 +2818,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                     raise
                 raise ValueError(mixed) from exc
         if isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices) == 0:
-            loaded = _read_points(file, scene, tidied) or loaded
+            loaded = _read_points(file, scene, tidied if off is None else off) or loaded
             if file.suffix.lower() == ".ply" and len(loaded.faces) == 0:  # trimesh's reader skips triangle strips
                 strips = _ply_tristrips(loaded)
                 if strips is not None:
@@ -2846,15 +2850,15 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             if len(loaded.faces) == 0:  # a textured stepterrain OBJ cut short among its v or vt lines
                 _check_obj_textured_cut(file, source)
             loaded.metadata.update(_obj_metadata(file, source))
-        if file.suffix.lower() == ".off" and isinstance(loaded, trimesh.Trimesh):
-            counts = _off_counts(file)  # a file cut short read as the faces it has, without a word
+        if off is not None and isinstance(loaded, trimesh.Trimesh):
+            counts = _off_counts(off)  # a file cut short read as the faces it has, without a word
             if counts is not None and len(loaded.faces) < counts[1]:
-                raise ValueError(_off_problem(file) or f"its counts declare {counted(counts[1], 'face')}, and "
+                raise ValueError(_off_problem(off) or f"its counts declare {counted(counts[1], 'face')}, and "
                                  f"{counted(len(loaded.faces), 'triangle')} were read")
-            colours = _off_vertex_colors(file, len(loaded.vertices))
+            colours = _off_vertex_colors(file, off, len(loaded.vertices))
             if colours is not None:
                 loaded.visual = trimesh.visual.ColorVisuals(loaded, vertex_colors=colours)
-            shades = _off_face_colors(file, *counts, len(loaded.faces)) if counts is not None else None
+            shades = _off_face_colors(file, off, *counts, len(loaded.faces)) if counts is not None else None
             if shades is not None and colours is not None:
                 warnings.warn(f"{str(file)!r}: an OFF of vertex and face colours: its face colours are dropped, the "
                               "mesh read with its vertex colours", stacklevel=caller_stacklevel())
@@ -3548,8 +3552,9 @@ def _trimesh_read(load: Callable[..., Any], file: Path, data: bytes | None = Non
     codec can't encode character '\\udcf6' ... surrogates not allowed"). It is read from the open file then, its side
     files (an OBJ's material and textures, a glTF's buffers) found beside it as before, and named as its name reads
     with the undecodable bytes as U+FFFD (``metadata["name"]``, which every writer can store). ``data``: the file's
-    contents to read instead of the file's own (an OBJ tidied, :func:`_obj_tidied`), its side files and name still
-    those of ``file``. A ``resolver`` in ``kwargs`` (:class:`_UriResolver`) finds the side files of either."""
+    contents to read instead of the file's own (an OBJ tidied, :func:`_obj_tidied`; an OFF's bytes, read once), its side
+    files and name still those of ``file``. A ``resolver`` in ``kwargs`` (:class:`_UriResolver`) finds the side files of
+    either."""
     name = _utf8_name(file.name)
     if name == file.name and data is None:
         return load(file, **kwargs)
@@ -3560,7 +3565,8 @@ def _trimesh_read(load: Callable[..., Any], file: Path, data: bytes | None = Non
     with (file.open("rb") if data is None else io.BytesIO(data)) as stream:
         loaded = load(stream, file_type=file_type, resolver=resolver, **kwargs)
     # named after the files in it, as for a plain name; a tidied OBJ of a plain name is named as its file is read
-    if file_type in trimesh.exchange.load.compressed_loaders or name == file.name:
+    # (trimesh's OBJ reader names it by the resolver's file_name; its OFF reader, read from bytes, "geometry_0")
+    if file_type in trimesh.exchange.load.compressed_loaders or (name == file.name and file_type == "obj"):
         return loaded
     for item in [loaded, *getattr(loaded, "geometry", {}).values()]:
         metadata = getattr(item, "metadata", None)
@@ -4489,44 +4495,53 @@ def _obj_chunks_joined(file: Path, tidied: bytes | None) -> trimesh.Trimesh | No
 _OFF_KEYWORD = re.compile(r"(ST)?(C)?(N)?(4)?(n)?OFF")
 
 
-def _off_keyword(file: Path) -> str | None:
-    """The first word of the OFF ``file`` (its keyword, ``OFF``, ``COFF``, ...), comments and blank lines before it
-    skipped, read line by line: not the whole file. A UTF-8 byte-order mark before it is skipped (it was read as part
-    of the keyword, so a COFF written with one lost its colours; trimesh's reader skips it)."""
-    with open(file, "rb") as stream:
-        for number, raw in enumerate(stream):
-            words = raw.removeprefix(b"\xef\xbb\xbf" if number == 0 else b"").split(b"#", 1)[0].split(maxsplit=1)
-            if words:
-                return words[0].decode("utf-8", "replace")
+def _off_head_lines(data: bytes) -> Iterator[bytes]:
+    """The lines of an OFF file's bytes ``data`` one by one, each to its newline, as iterating over the open file
+    gave them (its header is read so: only its first lines are taken, not the whole file split)."""
+    at = 0
+    while at < len(data):
+        end = data.find(b"\n", at)
+        end = len(data) if end < 0 else end + 1
+        yield data[at:end]
+        at = end
+
+
+def _off_keyword(data: bytes) -> str | None:
+    """The first word of an OFF file's bytes ``data`` (its keyword, ``OFF``, ``COFF``, ...), comments and blank lines
+    before it skipped, read line by line: not the whole file. A UTF-8 byte-order mark before it is skipped (it was
+    read as part of the keyword, so a COFF written with one lost its colours; trimesh's reader skips it)."""
+    for number, raw in enumerate(_off_head_lines(data)):
+        words = raw.removeprefix(b"\xef\xbb\xbf" if number == 0 else b"").split(b"#", 1)[0].split(maxsplit=1)
+        if words:
+            return words[0].decode("utf-8", "replace")
     return None
 
 
-def _off_counts(file: Path) -> tuple[int, int] | None:
-    """The counts of vertices and faces the OFF ``file``'s header declares (on its keyword's line or the next,
-    comments and blank lines skipped), read line by line, or None where they cannot be read."""
+def _off_counts(data: bytes) -> tuple[int, int] | None:
+    """The counts of vertices and faces an OFF file's header declares (``data``: its bytes; on its keyword's line or
+    the next, comments and blank lines skipped), read line by line, or None where they cannot be read."""
     words: list[bytes] = []
-    with open(file, "rb") as stream:
-        for raw in stream:
-            words += raw.removeprefix(b"\xef\xbb\xbf").split(b"#", 1)[0].split()
-            if len(words) >= 3:
-                try:
-                    return int(words[1]), int(words[2])
-                except ValueError:
-                    return None
-            if len(words) > 1:
+    for raw in _off_head_lines(data):
+        words += raw.removeprefix(b"\xef\xbb\xbf").split(b"#", 1)[0].split()
+        if len(words) >= 3:
+            try:
+                return int(words[1]), int(words[2])
+            except ValueError:
                 return None
+        if len(words) > 1:
+            return None
     return None
 
 
-def _off_problem(file: Path) -> str | None:
-    """What is wrong with the OFF ``file`` as trimesh's reader reads it (comments after ``#`` and blank lines skipped,
-    the keyword, the counts ``V F [E]`` on its line or the next, ``V`` vertex lines of at least x y z, then ``F`` face
-    lines of a count ``n`` and ``n`` vertex indices from 0 to ``V - 1``), naming the line and what was expected, or
-    None. trimesh's reader refused such a file without a line ("invalid literal for int()", "cannot reshape array of
-    size 12 into shape (5,3)", "Python int too large to convert to C long", "a face index outside the range of its
-    vertices"), or read it without a word: a face line of fewer indices than its count, and a file of fewer face
+def _off_problem(data: bytes) -> str | None:
+    """What is wrong with an OFF file (``data``: its bytes) as trimesh's reader reads it (comments after ``#`` and blank
+    lines skipped, the keyword, the counts ``V F [E]`` on its line or the next, ``V`` vertex lines of at least x y z,
+    then ``F`` face lines of a count ``n`` and ``n`` vertex indices from 0 to ``V - 1``), naming the line and what was
+    expected, or None. trimesh's reader refused such a file without a line ("invalid literal for int()", "cannot reshape
+    array of size 12 into shape (5,3)", "Python int too large to convert to C long", "a face index outside the range of
+    its vertices"), or read it without a word: a face line of fewer indices than its count, and a file of fewer face
     lines than its counts declare (cut short), read as the faces it has."""
-    text = file.read_bytes().decode("utf-8", "replace").removeprefix("\ufeff")
+    text = data.decode("utf-8", "replace").removeprefix("\ufeff")
     numbered = [(number, line) for number, line in enumerate(text.splitlines(), 1) if line.split("#", 1)[0].split()]
     if not numbered:
         return None  # trimesh's own error (no keyword) stands
@@ -4577,23 +4592,23 @@ def _off_problem(file: Path) -> str | None:
     return None
 
 
-def _off_vertex_colors(file: Path, count: int) -> NDArray[np.uint8] | None:
-    """The vertex colours of the OFF ``file`` (``count`` vertices, as trimesh's reader read them) as RGBA bytes, or
-    None where its keyword has no ``C`` (``COFF``, ``CNOFF``, ...): trimesh's reader reads the coordinates alone (the
-    keyword read first, the file only for a ``C``). Each vertex line holds x y z, then nx ny nz with an ``N``, then
-    the colour, RGB or RGBA, then s t with an ``ST``. Written with a decimal point or exponent anywhere, the colours
-    are floats from 0 to 1 (Geomview's); written as integers, bytes from 0 to 255 (MeshLab's). Where they cannot be
-    read so without guessing, a warning says why and None (the mesh without colours, as trimesh's reader reads it):
-    a vertex without a colour or of colours of different lengths (Geomview's colour map index, one number), or
-    integers of 0 and 1 only (0 1 0 is green as floats and nearly black as bytes). A ValueError for a float outside
-    0..1 or an integer outside 0..255."""
-    head = _off_keyword(file)
+def _off_vertex_colors(file: Path, data: bytes, count: int) -> NDArray[np.uint8] | None:
+    """The vertex colours of the OFF ``file`` (``data``: its bytes; ``count`` vertices, as trimesh's reader read them)
+    as RGBA bytes, or None where its keyword has no ``C`` (``COFF``, ``CNOFF``, ...): trimesh's reader reads the
+    coordinates alone (the keyword read first, the file only for a ``C``). Each vertex line holds x y z, then nx ny nz
+    with an ``N``, then the colour, RGB or RGBA, then s t with an ``ST``. Written with a decimal point or exponent
+    anywhere, the colours are floats from 0 to 1 (Geomview's); written as integers, bytes from 0 to 255 (MeshLab's).
+    Where they cannot be read so without guessing, a warning says why and None (the mesh without colours, as trimesh's
+    reader reads it): a vertex without a colour or of colours of different lengths (Geomview's colour map index, one
+    number), or integers of 0 and 1 only (0 1 0 is green as floats and nearly black as bytes). A ValueError for a float
+    outside 0..1 or an integer outside 0..255."""
+    head = _off_keyword(data)
     keyword = _OFF_KEYWORD.fullmatch(head) if head is not None else None
     if keyword is None or keyword.group(2) is None:
         return None
     if keyword.group(4) or keyword.group(5):
         raise ValueError(f"an OFF of {head!r}, whose vertices have other than 3 coordinates, is not read")
-    text = file.read_bytes().decode("utf-8", "replace").removeprefix("\ufeff")  # a byte-order mark, as the keyword's
+    text = data.decode("utf-8", "replace").removeprefix("\ufeff")  # a byte-order mark, as the keyword's
     numbered = [(number, line.split("#", 1)[0].split()) for number, line in enumerate(text.splitlines(), 1)]
     numbered = [(number, line) for number, line in numbered if line]
     lines = [line for _, line in numbered]
@@ -4684,16 +4699,17 @@ _SPACE_BYTES = np.zeros(256, bool)
 _SPACE_BYTES[list(b" \t\r\n\x0b\x0c")] = True
 
 
-def _off_face_colors(file: Path, vertices: int, faces: int, triangles: int) -> NDArray[np.uint8] | None:
-    """The face colours of the OFF ``file`` (``vertices`` and ``faces`` as its counts declare, read by trimesh's
-    reader as ``triangles`` triangles) as RGBA bytes, one per triangle, or None where its face lines hold no more than
-    a count and its indices (trimesh's reader dropped the rest of a line): each face line, ``n i1 .. in``, then RGB or
-    RGBA, as integers bytes, or with a decimal point floats 0..1 (:func:`_off_colour_bytes`, the vertex colours'
-    rules). Face lines some with a colour and some without, or of colours of different lengths (Geomview's colour map
-    index, one number), are dropped with a warning, as the vertex colours are. The words on each line are counted by
-    NumPy first: a file of faces without colours is not split line by line again. A polygon's colour is its triangles'
-    (trimesh's reader's order: triangles, then quads' halves, then polygons' fans)."""
-    data = file.read_bytes().removeprefix(b"\xef\xbb\xbf")
+def _off_face_colors(file: Path, data: bytes, vertices: int, faces: int,
+                     triangles: int) -> NDArray[np.uint8] | None:
+    """The face colours of the OFF ``file`` (``data``: its bytes; ``vertices`` and ``faces`` as its counts declare, read
+    by trimesh's reader as ``triangles`` triangles) as RGBA bytes, one per triangle, or None where its face lines hold
+    no more than a count and its indices (trimesh's reader dropped the rest of a line): each face line, ``n i1 .. in``,
+    then RGB or RGBA, as integers bytes, or with a decimal point floats 0..1 (:func:`_off_colour_bytes`, the vertex
+    colours' rules). Face lines some with a colour and some without, or of colours of different lengths (Geomview's
+    colour map index, one number), are dropped with a warning, as the vertex colours are. The words on each line are
+    counted by NumPy first: a file of faces without colours is not split line by line again. A polygon's colour is its
+    triangles' (trimesh's reader's order: triangles, then quads' halves, then polygons' fans)."""
+    data = data.removeprefix(b"\xef\xbb\xbf")
     counts = _off_line_words(data)
     counts = counts[counts > 0]
     first = 1 if len(counts) and counts[0] > 1 else 2  # the counts on the keyword's line or the next
@@ -4710,7 +4726,7 @@ def _off_face_colors(file: Path, vertices: int, faces: int, triangles: int) -> N
         return None  # trimesh's reader refused it
     words = [line[size + 1 :] for size, (_, line) in zip(sizes.tolist(), lines, strict=True)]
     widths = sorted({len(row) for row in words})
-    head = _off_keyword(file) or "OFF"
+    head = _off_keyword(data) or "OFF"
     if widths not in ([3], [4]) or np.any(sizes < 3):
         warnings.warn(f"{str(file)!r}: a {head} file's face lines hold {widths} "
                       "numbers after their indices, where none or an RGB or RGBA colour on each were expected: its "

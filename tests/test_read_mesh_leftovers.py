@@ -56,3 +56,55 @@ def test_crlf_copy_of_a_textured_stepterrain_obj_cut_at_a_line_end_refused(tmp_p
             read_mesh(tmp_path / "whole.obj")
     (tmp_path / "whole.obj").write_bytes(b"".join(lines))
     assert len(read_mesh(tmp_path / "whole.obj").faces) == 2
+
+
+_COFF = "COFF\n4 2 0\n0 0 0 255 0 0\n1 0 0 0 255 0\n0 1 0 0 0 255\n1 1 1 9 9 9\n3 0 1 2\n3 1 3 2\n"
+_OFF_FACE_COLOURS = "OFF\n4 2 0\n0 0 0\n1 0 0\n0 1 0\n1 1 1\n3 0 1 2 255 0 0\n3 1 3 2 0 0 255\n"
+
+
+_OFF_BOM = "\ufeffOFF # a\n\n4 2\n0 0 0\n1 0 0\n0 1 0\n1 1 1\n3 0 1 2\n3 1 3 2\n"
+
+
+@pytest.mark.parametrize("text", [_COFF, _OFF_FACE_COLOURS, _OFF_BOM])
+def test_off_file_opened_once(tmp_path, monkeypatch, text):
+    """An OFF is opened and read once, its bytes kept: trimesh's reader, the header's keyword and counts, the vertex
+    and face colour scans read them (the file was opened 5 times, and read whole 2 to 3 times), and the mesh comes
+    back as before: named after its file, with its colours."""
+    import builtins
+    import io
+
+    path = tmp_path / "mesh.off"
+    path.write_text(text, encoding="utf-8", newline="")
+    opened = []
+    real = io.open
+
+    def counting(file, *args, **kwargs):
+        if str(file) == str(path) or (hasattr(file, "__fspath__") and str(file.__fspath__()) == str(path)):
+            opened.append(args[:1] or kwargs.get("mode"))
+        return real(file, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "open", counting)
+    monkeypatch.setattr(io, "open", counting)
+    mesh = read_mesh(path)
+    monkeypatch.undo()
+    assert len(opened) == 1, opened
+    assert mesh.faces.tolist() == [[0, 1, 2], [1, 3, 2]] and len(mesh.vertices) == 4
+    assert mesh.metadata.get("name") == "mesh.off"
+    if text is _COFF:
+        assert mesh.visual.kind == "vertex"
+        assert mesh.visual.vertex_colors[:, :3].tolist() == [[255, 0, 0], [0, 255, 0], [0, 0, 255], [9, 9, 9]]
+    elif text is _OFF_FACE_COLOURS:
+        assert mesh.visual.kind == "face"
+        assert mesh.visual.face_colors[:, :3].tolist() == [[255, 0, 0], [0, 0, 255]]
+
+
+def test_off_problems_still_said_by_line(tmp_path):
+    """An OFF's bad face line and a cut-short OFF, read from its bytes kept, are still said by line and count."""
+    path = tmp_path / "bad.off"
+    path.write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n")
+    with pytest.raises(DataFileError, match=r"line 6, '3 0 1 7', names vertex 7, and the file has 3 vertices"):
+        read_mesh(path)
+    path.write_text("OFF\n3 2 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+    with pytest.raises(DataFileError, match=r"its counts declare 3 vertices and 2 faces, a line each, and the file "
+                                            r"has 4 lines after them: is it cut short\?"):
+        read_mesh(path)
