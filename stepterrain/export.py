@@ -2692,7 +2692,10 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     them (the vertices they name are kept where every ``v`` line is). An OBJ whose lines end in a carriage return
     alone, or which starts with a UTF-8 byte-order mark, reads as one with newlines and without it (trimesh's reader
     read the first as one line, an empty mesh, and dropped the second's first vertex; :func:`_obj_newlines`), also
-    one of vertices only (points), tidied as the others are.
+    one of vertices only (points), tidied as the others are. An OBJ whose material library (``mtllib``) or one of
+    whose materials' texture images (``map_Kd``) is not where it names it is read without it, with a warning naming
+    the file and the path looked for (trimesh's reader said so at debug level only:
+    :func:`_warn_obj_missing_side_files`).
     A COFF's vertex colours (trimesh's reader dropped them; a UTF-8 byte-order mark before its keyword skipped, and a
     colour that is no number refused by line) come back as vertex colours, written as integers bytes
     and with a decimal point floats 0..1; integers of 0 and 1 only, which read either way, and vertex lines without
@@ -2752,6 +2755,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     """
     file = _target(path, output=False)
     require_regular_file(file, "mesh file", "mesh file")
+    missing: list[tuple[str, Path, bool]] = []  # an OBJ's side files trimesh's reader did not find (_ObjSideFiles)
+    noting = _OBJ_MISSING.set(missing)
     try:
         if file.suffix.lower() == ".3mf" and zipfile.is_zipfile(file):
             own = _read_3mf(file)
@@ -2850,6 +2855,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             if len(loaded.faces) == 0:  # a textured stepterrain OBJ cut short among its v or vt lines
                 _check_obj_textured_cut(file, source)
             loaded.metadata.update(_obj_metadata(file, source))
+            _warn_obj_missing_side_files(file, missing)
         if off is not None and isinstance(loaded, trimesh.Trimesh):
             counts = _off_counts(off)  # a file cut short read as the faces it has, without a word
             if counts is not None and len(loaded.faces) < counts[1]:
@@ -2873,6 +2879,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             _warn_gltf_missing_images(file, tree)
     except Exception as exc:  # noqa: BLE001 - trimesh and the XML reader raise many kinds for a bad file
         raise DataFileError(f"cannot read {str(file)!r} as a mesh: {type(exc).__name__}: {exc}") from exc
+    finally:
+        _OBJ_MISSING.reset(noting)
     return loaded  # type: ignore[no-any-return]
 
 
@@ -3545,6 +3553,48 @@ class _UriResolver(trimesh.resolvers.FilePathResolver):
         return super().get(name)  # type: ignore[no-any-return]
 
 
+#: the side files (``(name, path looked for, asked first)``) trimesh's reader did not find while :func:`read_mesh`
+#: reads an OBJ (:class:`_ObjSideFiles`), or None outside it
+_OBJ_MISSING: contextvars.ContextVar[list[tuple[str, Path, bool]] | None] = contextvars.ContextVar(
+    "stepterrain_obj_missing", default=None)
+
+
+class _ObjSideFiles(trimesh.resolvers.FilePathResolver):
+    """trimesh's resolver of an OBJ's side files (its ``mtllib``, then its materials' ``map_Kd`` images), which notes
+    in :data:`_OBJ_MISSING` each one it does not find: trimesh's reader read the mesh without its materials, or a
+    material without its texture, saying so at debug level only (:func:`_warn_obj_missing_side_files` warns)."""
+
+    def __init__(self, source: str) -> None:
+        super().__init__(source)
+        self.asked = 0
+
+    def get(self, name: str) -> bytes:
+        self.asked += 1
+        try:
+            return super().get(name)  # type: ignore[no-any-return]
+        except (FileNotFoundError, ValueError):  # not there, or outside the OBJ's folder, where trimesh looks not
+            missing = _OBJ_MISSING.get()
+            if missing is not None:
+                missing.append((name.strip(), Path(self.parent) / name.strip(), self.asked == 1))
+            raise
+
+
+def _warn_obj_missing_side_files(file: Path, missing: list[tuple[str, Path, bool]]) -> None:
+    """Warn, naming each and the path looked for, where the OBJ ``file``'s material library (``mtllib``) or a texture
+    image of its materials (``map_Kd``) was not found (``missing``, as :class:`_ObjSideFiles` noted them, once each):
+    trimesh's reader read the mesh without its materials or that texture, without a word, as
+    :func:`_warn_gltf_missing_images` warns of a glTF's."""
+    for name, side, library in dict.fromkeys(missing):
+        if library:
+            warnings.warn(f"{str(file)!r}: the OBJ's material library {name!r} (mtllib, {str(side)!r}) is not there: "
+                          "the mesh is read without its materials (copy the .mtl and its images with the .obj)",
+                          stacklevel=caller_stacklevel())
+        else:
+            warnings.warn(f"{str(file)!r}: the OBJ's texture image {name!r} (map_Kd, {str(side)!r}) is not there: "
+                          "the mesh is read without that texture (copy the image files with the .obj and its .mtl)",
+                          stacklevel=caller_stacklevel())
+
+
 def _trimesh_read(load: Callable[..., Any], file: Path, data: bytes | None = None, **kwargs: Any) -> Any:
     """``load(file, **kwargs)`` (``trimesh.load`` or ``trimesh.load_scene``), also for a ``file`` whose name is no
     UTF-8 (a Latin-1 ``h\\xf6he.ply`` on a UTF-8 system, which Python names ``'h\\udcf6he.ply'``): trimesh names the
@@ -3556,6 +3606,8 @@ def _trimesh_read(load: Callable[..., Any], file: Path, data: bytes | None = Non
     files and name still those of ``file``. A ``resolver`` in ``kwargs`` (:class:`_UriResolver`) finds the side files of
     either."""
     name = _utf8_name(file.name)
+    if file.suffix.lower() == ".obj" and kwargs.get("resolver") is None:  # its missing side files noted
+        kwargs["resolver"] = _ObjSideFiles(str(file))
     if name == file.name and data is None:
         return load(file, **kwargs)
     resolver = kwargs.pop("resolver", None) or trimesh.resolvers.FilePathResolver(str(file))  # the folder

@@ -108,3 +108,53 @@ def test_off_problems_still_said_by_line(tmp_path):
     with pytest.raises(DataFileError, match=r"its counts declare 3 vertices and 2 faces, a line each, and the file "
                                             r"has 4 lines after them: is it cut short\?"):
         read_mesh(path)
+
+
+def _not_there_warnings(record):
+    return [str(w.message) for w in record if "is not there" in str(w.message)]
+
+
+def test_obj_whose_mtl_or_texture_image_is_missing_warns_naming_it(tmp_path):
+    """A textured OBJ whose ``.mtl`` (its ``mtllib``) or whose material's texture image (``map_Kd``) is not beside it
+    was read untextured without a word (trimesh's reader logs it at debug level): each is warned of by name and the
+    path looked for, the mesh read without it, as a .gltf's missing image is; a whole OBJ reads without a warning."""
+    import warnings
+
+    _textured_obj(tmp_path / "t.obj")
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        whole = read_mesh(tmp_path / "t.obj")
+    assert whole.visual.kind == "texture" and not _not_there_warnings(record)
+    (tmp_path / "t_material_0.png").unlink()
+    with pytest.warns(UserWarning, match=r"'.*t\.obj': the OBJ's texture image 't_material_0\.png' \(map_Kd, "
+                                         r"'.*t_material_0\.png'\) is not there: the mesh is read without that "
+                                         r"texture") as record:
+        mesh = read_mesh(tmp_path / "t.obj")
+    assert len(_not_there_warnings(record)) == 1
+    assert len(mesh.faces) == 2 and mesh.visual.material.image is None  # its UVs kept, the image not
+    (tmp_path / "t.mtl").unlink()
+    with pytest.warns(UserWarning, match=r"'.*t\.obj': the OBJ's material library 't\.mtl' \(mtllib, '.*t\.mtl'\) "
+                                         r"is not there: the mesh is read without its materials") as record:
+        mesh = read_mesh(tmp_path / "t.obj")
+    assert len(_not_there_warnings(record)) == 1
+    np.testing.assert_array_equal(mesh.faces, whole.faces)
+
+
+def test_obj_of_several_materials_whose_mtl_is_missing_warns(tmp_path):
+    """An OBJ of several materials (read as one mesh, a colour per face) whose ``.mtl`` is missing is warned of once,
+    its faces read with trimesh's default colour."""
+    text = ("mtllib colours.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nusemtl red\nf 1 2 3\nusemtl blue\nf 2 4 3\n")
+    (tmp_path / "two.obj").write_text(text)
+    (tmp_path / "colours.mtl").write_text("newmtl red\nKd 1 0 0\nnewmtl blue\nKd 0 0 1\n")
+    import warnings
+
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        assert read_mesh(tmp_path / "two.obj").visual.face_colors[:, :3].tolist() == [[255, 0, 0], [0, 0, 255]]
+    assert not _not_there_warnings(record)
+    (tmp_path / "colours.mtl").unlink()
+    with pytest.warns(UserWarning, match=r"material library 'colours\.mtl' \(mtllib, '.*colours\.mtl'\) is not "
+                                         r"there") as record:
+        mesh = read_mesh(tmp_path / "two.obj")
+    assert len(_not_there_warnings(record)) == 1
+    assert mesh.faces.tolist() == [[0, 1, 2], [1, 3, 2]]
