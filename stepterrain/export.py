@@ -2680,7 +2680,12 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     were written), also one of several materials (``usemtl``): its faces in the file's order, each with its
     material's colour as its face colour (:func:`_obj_materials_joined`; trimesh's reader repeated each vertex in
     each material it is a corner in, open along the seams); one with texture or normal indices comes back with the
-    vertices its faces name, one per distinct (v, vt, vn) corner. An OBJ whose lines are indented or whose words are
+    vertices its faces name, one per distinct (v, vt, vn) corner, and, of several materials, its textures packed into
+    one image (trimesh's) and its faces in the file's order where each is a triangle (trimesh's reader gave them
+    material by material: :func:`_obj_textured_in_file_order`); where one is a polygon (a quad), material by material
+    still, as trimesh's reader gives them: how it orders a material's polygons' triangles depends on the mix of its
+    faces (of quads only, every quad's first half, then every second half; mixed, face by face), which is not
+    followed here. An OBJ whose lines are indented or whose words are
     separated by tabs reads as with single spaces (trimesh's reader skipped such lines: it came back empty, or as
     its first vertex alone), and a comment after a statement of numbers (``v 0 0 0 # a``, ``f 1 2 3 # x``) is dropped
     (trimesh's reader refused the file; a ``#`` in a name, ``usemtl Material#1``, stays in it: :func:`_obj_tidied`).
@@ -2805,6 +2810,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                 loaded = None  # several usemtl, faces of vertex indices only: one vertex per v line still
                 if kind == "materials":
                     loaded = _obj_materials_joined(file, tidied)
+                elif kind == "texture":  # several materials: the faces in the file's order
+                    loaded = _obj_textured_in_file_order(file, tidied, source)
                 if loaded is None:
                     loaded = _trimesh_read(trimesh.load, file, tidied if off is None else off, force="mesh",
                                            process=False, **order)
@@ -4460,6 +4467,70 @@ def _obj_chunk_block(data: bytes, before: int, chunks: int) -> tuple[list[bytes 
     second = (counts[owner] == 4) & (j == 1)  # a quad's second triangle: (c, d, a)
     picks[second] = np.column_stack([at[second] + 2, at[second] + 3, at[second]])
     return names, corners[picks].reshape(-1, 3), chunk[lines][owner], before + int(np.count_nonzero(vertex))
+
+
+def _obj_triangle_materials(data: Any) -> list[bytes | None] | None:
+    """The ``usemtl`` name of each face line of the OBJ text ``data`` (bytes or an mmap; statements starting their
+    lines), in the file's order (None before the first ``usemtl``), where every face is a triangle (3 corners, no
+    comment) and it names two materials or more; else None. By NumPy over blocks of whole lines, after a count of its
+    ``usemtl`` lines (a file of one, as :func:`save_mesh` writes a textured mesh, is not scanned)."""
+    if _obj_count_lines(data, b"usemtl ") < 2:
+        return None
+    names: list[bytes | None] = [None]
+    owners = []
+    for at, end in _obj_line_blocks(data, _OBJ_INDEX_BLOCK):
+        block = bytes(data[at:end])
+        text = np.frombuffer(block, dtype=np.uint8)
+        newlines = np.flatnonzero(text == ord("\n"))
+        starts = np.concatenate(([0], newlines + 1))
+        ends = np.append(newlines, len(text))
+        padded = np.concatenate((text, np.zeros(8, np.uint8)))
+        face, usemtl = (_obj_lines_starting(padded, starts, keyword) for keyword in (b"f ", b"usemtl "))
+        chunk = np.cumsum(usemtl) + len(names) - 1  # each line's usemtl chunk
+        names += [block[start + 7 : stop].strip() for start, stop in zip(starts[usemtl], ends[usemtl], strict=True)]
+        blank = _OBJ_BLANK[text]
+        heads = np.flatnonzero(~blank & np.concatenate(([True], blank[:-1])))  # each word's first byte
+        words = np.bincount(np.searchsorted(starts, heads, side="right") - 1, minlength=len(starts))
+        if (words[face] != 4).any() or (b"#" in block and (text[heads] == ord("#")).any()):
+            return None  # a polygon (trimesh's reader orders its triangles apart) or a comment
+        owners.append(chunk[face])
+    owner = np.concatenate(owners) if owners else np.zeros(0, np.int64)
+    if len(set(names[1:])) < 2:
+        return None
+    return [names[k] for k in owner.tolist()]
+
+
+def _obj_textured_in_file_order(file: Path, data: bytes | None, source: bytes | None) -> trimesh.Trimesh | None:
+    """The textured OBJ ``file`` (``data``: its text tidied, :func:`_obj_tidied`, if it is; ``source``: its text with
+    newline line ends, :func:`_obj_newlines`, if made) of several materials, read as trimesh's reader reads it
+    (``force="mesh"``: one mesh per material, joined, its textures packed into one image), with its faces in the
+    file's order, where every face is a triangle: trimesh's reader gave them material by material (a face index of
+    the file named another face). Each material's mesh holds its faces in the file's order, so each face's place in
+    the file is its material's faces' (``usemtl`` chunk by chunk) in turn; the order is kept as read where a material
+    name, or a material's count of faces, is not the file's. None for another OBJ (one material, polygons): read as
+    before."""
+    with _obj_mapped(file, data if data is not None else source) as text:
+        owners = _obj_triangle_materials(text) if text is not None else None
+    if owners is None:
+        return None
+    scene = _trimesh_read(trimesh.load_scene, file, data, process=False)
+    parts = [part for part in scene.dump() if isinstance(part, trimesh.Trimesh)]  # Scene.to_mesh()'s
+    mesh = trimesh.util.concatenate(parts)
+    name = _utf8_name(file.name)
+    if name != file.name:  # named as _trimesh_read names the joined mesh of trimesh.load
+        mesh.metadata.update({key: name for key in ("name", "node") if key in mesh.metadata})
+    names = [getattr(getattr(part.visual, "material", None), "name", None) for part in parts]
+    if None in names or len(set(names)) != len(names) or sum(len(part.faces) for part in parts) != len(owners):
+        return mesh  # type: ignore[no-any-return]
+    where: dict[bytes | None, list[int]] = {}
+    for place, name in enumerate(owners):
+        where.setdefault(name, []).append(place)
+    places = [where.get(str(name).encode("utf-8", "surrogateescape"), []) for name in names]
+    if any(len(found) != len(part.faces) for found, part in zip(places, parts, strict=True)):
+        return mesh  # type: ignore[no-any-return]
+    order = np.argsort(np.concatenate([np.asarray(found, np.int64) for found in places]), kind="stable")
+    mesh.faces = np.asarray(mesh.faces)[order]
+    return mesh  # type: ignore[no-any-return]
 
 
 def _obj_materials_joined(file: Path, tidied: bytes | None) -> trimesh.Trimesh | None:

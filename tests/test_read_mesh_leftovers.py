@@ -158,3 +158,46 @@ def test_obj_of_several_materials_whose_mtl_is_missing_warns(tmp_path):
         mesh = read_mesh(tmp_path / "two.obj")
     assert len(_not_there_warnings(record)) == 1
     assert mesh.faces.tolist() == [[0, 1, 2], [1, 3, 2]]
+
+
+def _two_textures(folder, faces):
+    Image.new("RGB", (4, 4), (255, 0, 0)).save(folder / "red.png")
+    Image.new("RGB", (4, 4), (0, 0, 255)).save(folder / "blue.png")
+    (folder / "m.mtl").write_text("newmtl A\nKd 1 1 1\nmap_Kd red.png\nnewmtl B\nKd 1 1 1\nmap_Kd blue.png\n")
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [2, 0, 0], [2, 1, 0]], float)
+    uvs = np.array([[0, 0], [1, 0], [0, 1], [1, 1]], float)
+    text = "mtllib m.mtl\n" + "".join(f"v {x} {y} {z}\n" for x, y, z in vertices)
+    text += "".join(f"vt {u} {v}\n" for u, v in uvs) + faces
+    (folder / "m.obj").write_text(text)
+    return vertices
+
+
+def test_textured_obj_of_several_materials_reads_its_faces_in_the_file_order(tmp_path):
+    """A textured OBJ of two materials, their usemtl chunks interleaved, came back with its faces material by
+    material (trimesh's reader: A's, then B's), so face k of the mesh was not the file's face k. Its triangles now come
+    back in the file's order, each with its corners' positions, and the same vertices, UVs and packed texture."""
+    faces = ("usemtl B\nf 1/1 2/2 3/3\nusemtl A\nf 2/2 4/4 3/3\nusemtl B\nf 2/1 5/2 4/3\nusemtl A\nf 5/2 6/4 4/3\n"
+             "f 1/1 5/2 6/3\n")
+    vertices = _two_textures(tmp_path, faces)
+    mesh = read_mesh(tmp_path / "m.obj")
+    written = np.array([[int(word.split("/")[0]) - 1 for word in line.split()[1:]]
+                        for line in faces.splitlines() if line.startswith("f ")])
+    assert mesh.visual.kind == "texture" and len(mesh.faces) == len(written)
+    np.testing.assert_array_equal(mesh.vertices[mesh.faces], vertices[written])
+    loaded = trimesh.load(tmp_path / "m.obj", force="mesh", process=False)  # trimesh's reader, material by material
+    np.testing.assert_array_equal(mesh.vertices, loaded.vertices)
+    np.testing.assert_array_equal(mesh.visual.uv, loaded.visual.uv)
+    assert sorted(map(tuple, mesh.faces.tolist())) == sorted(map(tuple, loaded.faces.tolist()))
+    assert not np.array_equal(mesh.faces, loaded.faces)
+
+
+def test_textured_obj_of_several_materials_with_a_quad_reads_as_trimesh_orders_it(tmp_path):
+    """Where a face is a polygon, trimesh's reader orders a material's triangles by the mix of its faces (of quads
+    only: every first half, then every second half): the faces come back as trimesh's reader gives them, material
+    by material (the read_mesh docstring says so)."""
+    faces = "usemtl B\nf 1/1 2/2 3/3\nusemtl A\nf 1/1 2/2 4/4 3/3\nf 2/2 5/2 6/4 4/3\nusemtl B\nf 2/1 5/2 4/3\n"
+    _two_textures(tmp_path, faces)
+    mesh = read_mesh(tmp_path / "m.obj")
+    loaded = trimesh.load(tmp_path / "m.obj", force="mesh", process=False)
+    np.testing.assert_array_equal(mesh.faces, loaded.faces)
+    assert len(mesh.faces) == 6
