@@ -2680,7 +2680,12 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     were written), also one of several materials (``usemtl``): its faces in the file's order, each with its
     material's colour as its face colour (:func:`_obj_materials_joined`; trimesh's reader repeated each vertex in
     each material it is a corner in, open along the seams); one with texture or normal indices comes back with the
-    vertices its faces name, one per distinct (v, vt, vn) corner. An OBJ whose lines are indented or whose words are
+    vertices its faces name, one per distinct (v, vt, vn) corner, and, of several materials, its textures packed into
+    one image (trimesh's) and its faces in the file's order where each is a triangle (trimesh's reader gave them
+    material by material: :func:`_obj_textured_in_file_order`); where one is a polygon (a quad), material by material
+    still, as trimesh's reader gives them: how it orders a material's polygons' triangles depends on the mix of its
+    faces (of quads only, every quad's first half, then every second half; mixed, face by face), which is not
+    followed here. An OBJ whose lines are indented or whose words are
     separated by tabs reads as with single spaces (trimesh's reader skipped such lines: it came back empty, or as
     its first vertex alone), and a comment after a statement of numbers (``v 0 0 0 # a``, ``f 1 2 3 # x``) is dropped
     (trimesh's reader refused the file; a ``#`` in a name, ``usemtl Material#1``, stays in it: :func:`_obj_tidied`).
@@ -2692,7 +2697,10 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     them (the vertices they name are kept where every ``v`` line is). An OBJ whose lines end in a carriage return
     alone, or which starts with a UTF-8 byte-order mark, reads as one with newlines and without it (trimesh's reader
     read the first as one line, an empty mesh, and dropped the second's first vertex; :func:`_obj_newlines`), also
-    one of vertices only (points), tidied as the others are.
+    one of vertices only (points), tidied as the others are. An OBJ whose material library (``mtllib``) or one of
+    whose materials' texture images (``map_Kd``) is not where it names it is read without it, with a warning naming
+    the file and the path looked for (trimesh's reader said so at debug level only:
+    :func:`_warn_obj_missing_side_files`).
     A COFF's vertex colours (trimesh's reader dropped them; a UTF-8 byte-order mark before its keyword skipped, and a
     colour that is no number refused by line) come back as vertex colours, written as integers bytes
     and with a decimal point floats 0..1; integers of 0 and 1 only, which read either way, and vertex lines without
@@ -2717,8 +2725,9 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         word: :func:`_check_obj_texture_indices`). An ``.stl`` must be one (a binary
         STL's length as its header
         counts, an ASCII one's ``solid`` ... ``endsolid``), and an ``.obj`` that trimesh reads as no vertices an empty
-        one (OBJ statements and comments only), an ``.obj`` :func:`save_mesh` wrote must end with a newline (one
-        ending mid-line was cut short), as must any ``.obj`` whose last line is a face of fewer than 3 corners
+        one (OBJ statements and comments only), an ``.obj`` :func:`save_mesh` wrote (or a copy of it of CRLF
+        or CR line ends) must end with a newline (one ending mid-line was cut short), as must any ``.obj`` whose
+        last line is a face of fewer than 3 corners
         (:func:`_check_obj_cut_short`), and a textured ``.obj`` :func:`save_mesh` wrote read as no faces must have a
         ``vt`` line for each ``v`` line (one cut at a line's end among them: :func:`_check_obj_textured_cut`; a cut
         among its faces leaves a whole-looking file, read as the faces before it), and a ``.ply`` must hold the rows
@@ -2751,6 +2760,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     """
     file = _target(path, output=False)
     require_regular_file(file, "mesh file", "mesh file")
+    missing: list[tuple[str, Path, bool]] = []  # an OBJ's side files trimesh's reader did not find (_ObjSideFiles)
+    noting = _OBJ_MISSING.set(missing)
     try:
         if file.suffix.lower() == ".3mf" and zipfile.is_zipfile(file):
             own = _read_3mf(file)
@@ -2759,6 +2770,9 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         gltf = file.suffix.lower() in (".glb", ".gltf")
         color, tree, scene = None, None, None
         tidied: bytes | None = None  # an OBJ's text as trimesh's reader is to read it (_obj_tidied), if not its own
+        # an OFF's bytes, read once: trimesh's reader and the header, colour and problem scans take them (the file was
+        # opened five times, and read whole three times for a COFF)
+        off = file.read_bytes() if file.suffix.lower() == ".off" else None
         if gltf:  # trimesh.load(force="mesh") is load_scene().to_mesh(), which drops COLOR_0 beside a material
             tree = _check_dense_gltf(file)  # its JSON, read once
             stored_z_up = _stored_z_up(tree)
@@ -2796,16 +2810,19 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                 loaded = None  # several usemtl, faces of vertex indices only: one vertex per v line still
                 if kind == "materials":
                     loaded = _obj_materials_joined(file, tidied)
+                elif kind == "texture":  # several materials: the faces in the file's order
+                    loaded = _obj_textured_in_file_order(file, tidied, source)
                 if loaded is None:
-                    loaded = _trimesh_read(trimesh.load, file, tidied, force="mesh", process=False, **order)
+                    loaded = _trimesh_read(trimesh.load, file, tidied if off is None else off, force="mesh",
+                                           process=False, **order)
             except IndexError:
                 if file.suffix.lower() == ".obj":  # a relative index past the file's start, or one past its end,
                     # said by its line
                     _obj_index_out_of_range(file, tidied if tidied is not None else source, source)
                 raise
             except (ValueError, OverflowError) as exc:
-                if file.suffix.lower() == ".off":  # trimesh's error named no line
-                    problem = _off_problem(file)
+                if off is not None:  # an OFF: trimesh's error named no line
+                    problem = _off_problem(off)
                     if problem is not None:
                         raise ValueError(problem) from exc
                 mixed = _ply_binary_mixed_lists(file) if file.suffix.lower() == ".ply" else None
@@ -2813,7 +2830,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                     raise
                 raise ValueError(mixed) from exc
         if isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices) == 0:
-            loaded = _read_points(file, scene, tidied) or loaded
+            loaded = _read_points(file, scene, tidied if off is None else off) or loaded
             if file.suffix.lower() == ".ply" and len(loaded.faces) == 0:  # trimesh's reader skips triangle strips
                 strips = _ply_tristrips(loaded)
                 if strips is not None:
@@ -2845,15 +2862,16 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             if len(loaded.faces) == 0:  # a textured stepterrain OBJ cut short among its v or vt lines
                 _check_obj_textured_cut(file, source)
             loaded.metadata.update(_obj_metadata(file, source))
-        if file.suffix.lower() == ".off" and isinstance(loaded, trimesh.Trimesh):
-            counts = _off_counts(file)  # a file cut short read as the faces it has, without a word
+            _warn_obj_missing_side_files(file, missing)
+        if off is not None and isinstance(loaded, trimesh.Trimesh):
+            counts = _off_counts(off)  # a file cut short read as the faces it has, without a word
             if counts is not None and len(loaded.faces) < counts[1]:
-                raise ValueError(_off_problem(file) or f"its counts declare {counted(counts[1], 'face')}, and "
+                raise ValueError(_off_problem(off) or f"its counts declare {counted(counts[1], 'face')}, and "
                                  f"{counted(len(loaded.faces), 'triangle')} were read")
-            colours = _off_vertex_colors(file, len(loaded.vertices))
+            colours = _off_vertex_colors(file, off, len(loaded.vertices))
             if colours is not None:
                 loaded.visual = trimesh.visual.ColorVisuals(loaded, vertex_colors=colours)
-            shades = _off_face_colors(file, *counts, len(loaded.faces)) if counts is not None else None
+            shades = _off_face_colors(file, off, *counts, len(loaded.faces)) if counts is not None else None
             if shades is not None and colours is not None:
                 warnings.warn(f"{str(file)!r}: an OFF of vertex and face colours: its face colours are dropped, the "
                               "mesh read with its vertex colours", stacklevel=caller_stacklevel())
@@ -2868,6 +2886,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             _warn_gltf_missing_images(file, tree)
     except Exception as exc:  # noqa: BLE001 - trimesh and the XML reader raise many kinds for a bad file
         raise DataFileError(f"cannot read {str(file)!r} as a mesh: {type(exc).__name__}: {exc}") from exc
+    finally:
+        _OBJ_MISSING.reset(noting)
     return loaded  # type: ignore[no-any-return]
 
 
@@ -2956,6 +2976,13 @@ def _ply_binary_mixed_lists(file: Path, rows: int = 65536) -> str | None:
 _OBJ_NUMBERS = frozenset({b"v", b"vt", b"vn", b"vp", b"f", b"l", b"p", b"s"})
 
 
+def _obj_ours(head: bytes) -> bool:
+    """Whether an OBJ whose first bytes are ``head`` is one :func:`save_mesh` wrote: its first line ``# written by
+    stepterrain`` (after a UTF-8 byte-order mark, if any), ended by LF, CRLF or CR (a copy whose line ends were
+    turned to CRLF, by a Windows tool or git's autocrlf, was taken for a foreign file, and its cut went unsaid)."""
+    return head.removeprefix(b"\xef\xbb\xbf").startswith((b"# written by stepterrain\n", b"# written by stepterrain\r"))
+
+
 def _check_obj_cut_short(file: Path) -> None:
     """A ValueError where the OBJ ``file`` was cut short mid-line: one :func:`save_mesh` wrote (its first line
     ``# written by stepterrain``), which ends every line with a newline, not ending in one; or any OBJ whose last line,
@@ -2972,7 +2999,7 @@ def _check_obj_cut_short(file: Path) -> None:
         return
     last = tail.rsplit(b"\n", 1)[-1].rsplit(b"\r", 1)[-1]
     words = last.split()
-    ours = head.removeprefix(b"\xef\xbb\xbf").startswith(b"# written by stepterrain\n")
+    ours = _obj_ours(head)
     if ours or (words[:1] == [b"f"] and len(words) < 4):
         why = ("stepterrain's OBJ writer ends every line with a newline" if ours else
                f"its last line is a face of {len(words) - 1} corner{'s' * (len(words) != 2)}, where a face needs 3")
@@ -2989,7 +3016,7 @@ def _check_obj_textured_cut(file: Path, source: bytes | None = None) -> None:
     cut mid-line). A cut among its faces, or any cut of an untextured one, leaves a file no different from a whole
     one of fewer faces (or of points), and is read as such. Run only for a file read as no faces."""
     with _obj_mapped(file, source) as text:
-        if text is None or not text[:64].removeprefix(b"\xef\xbb\xbf").startswith(b"# written by stepterrain\n"):
+        if text is None or not _obj_ours(text[:64]):
             return
         first = text.find(b"\nv ")
         if first < 0 or text.find(b"\nusemtl ", 0, first) < 0:
@@ -3533,6 +3560,48 @@ class _UriResolver(trimesh.resolvers.FilePathResolver):
         return super().get(name)  # type: ignore[no-any-return]
 
 
+#: the side files (``(name, path looked for, asked first)``) trimesh's reader did not find while :func:`read_mesh`
+#: reads an OBJ (:class:`_ObjSideFiles`), or None outside it
+_OBJ_MISSING: contextvars.ContextVar[list[tuple[str, Path, bool]] | None] = contextvars.ContextVar(
+    "stepterrain_obj_missing", default=None)
+
+
+class _ObjSideFiles(trimesh.resolvers.FilePathResolver):
+    """trimesh's resolver of an OBJ's side files (its ``mtllib``, then its materials' ``map_Kd`` images), which notes
+    in :data:`_OBJ_MISSING` each one it does not find: trimesh's reader read the mesh without its materials, or a
+    material without its texture, saying so at debug level only (:func:`_warn_obj_missing_side_files` warns)."""
+
+    def __init__(self, source: str) -> None:
+        super().__init__(source)
+        self.asked = 0
+
+    def get(self, name: str) -> bytes:
+        self.asked += 1
+        try:
+            return super().get(name)  # type: ignore[no-any-return]
+        except (FileNotFoundError, ValueError):  # not there, or outside the OBJ's folder, where trimesh looks not
+            missing = _OBJ_MISSING.get()
+            if missing is not None:
+                missing.append((name.strip(), Path(self.parent) / name.strip(), self.asked == 1))
+            raise
+
+
+def _warn_obj_missing_side_files(file: Path, missing: list[tuple[str, Path, bool]]) -> None:
+    """Warn, naming each and the path looked for, where the OBJ ``file``'s material library (``mtllib``) or a texture
+    image of its materials (``map_Kd``) was not found (``missing``, as :class:`_ObjSideFiles` noted them, once each):
+    trimesh's reader read the mesh without its materials or that texture, without a word, as
+    :func:`_warn_gltf_missing_images` warns of a glTF's."""
+    for name, side, library in dict.fromkeys(missing):
+        if library:
+            warnings.warn(f"{str(file)!r}: the OBJ's material library {name!r} (mtllib, {str(side)!r}) is not there: "
+                          "the mesh is read without its materials (copy the .mtl and its images with the .obj)",
+                          stacklevel=caller_stacklevel())
+        else:
+            warnings.warn(f"{str(file)!r}: the OBJ's texture image {name!r} (map_Kd, {str(side)!r}) is not there: "
+                          "the mesh is read without that texture (copy the image files with the .obj and its .mtl)",
+                          stacklevel=caller_stacklevel())
+
+
 def _trimesh_read(load: Callable[..., Any], file: Path, data: bytes | None = None, **kwargs: Any) -> Any:
     """``load(file, **kwargs)`` (``trimesh.load`` or ``trimesh.load_scene``), also for a ``file`` whose name is no
     UTF-8 (a Latin-1 ``h\\xf6he.ply`` on a UTF-8 system, which Python names ``'h\\udcf6he.ply'``): trimesh names the
@@ -3540,9 +3609,12 @@ def _trimesh_read(load: Callable[..., Any], file: Path, data: bytes | None = Non
     codec can't encode character '\\udcf6' ... surrogates not allowed"). It is read from the open file then, its side
     files (an OBJ's material and textures, a glTF's buffers) found beside it as before, and named as its name reads
     with the undecodable bytes as U+FFFD (``metadata["name"]``, which every writer can store). ``data``: the file's
-    contents to read instead of the file's own (an OBJ tidied, :func:`_obj_tidied`), its side files and name still
-    those of ``file``. A ``resolver`` in ``kwargs`` (:class:`_UriResolver`) finds the side files of either."""
+    contents to read instead of the file's own (an OBJ tidied, :func:`_obj_tidied`; an OFF's bytes, read once), its side
+    files and name still those of ``file``. A ``resolver`` in ``kwargs`` (:class:`_UriResolver`) finds the side files of
+    either."""
     name = _utf8_name(file.name)
+    if file.suffix.lower() == ".obj" and kwargs.get("resolver") is None:  # its missing side files noted
+        kwargs["resolver"] = _ObjSideFiles(str(file))
     if name == file.name and data is None:
         return load(file, **kwargs)
     resolver = kwargs.pop("resolver", None) or trimesh.resolvers.FilePathResolver(str(file))  # the folder
@@ -3552,7 +3624,8 @@ def _trimesh_read(load: Callable[..., Any], file: Path, data: bytes | None = Non
     with (file.open("rb") if data is None else io.BytesIO(data)) as stream:
         loaded = load(stream, file_type=file_type, resolver=resolver, **kwargs)
     # named after the files in it, as for a plain name; a tidied OBJ of a plain name is named as its file is read
-    if file_type in trimesh.exchange.load.compressed_loaders or name == file.name:
+    # (trimesh's OBJ reader names it by the resolver's file_name; its OFF reader, read from bytes, "geometry_0")
+    if file_type in trimesh.exchange.load.compressed_loaders or (name == file.name and file_type == "obj"):
         return loaded
     for item in [loaded, *getattr(loaded, "geometry", {}).values()]:
         metadata = getattr(item, "metadata", None)
@@ -4396,6 +4469,70 @@ def _obj_chunk_block(data: bytes, before: int, chunks: int) -> tuple[list[bytes 
     return names, corners[picks].reshape(-1, 3), chunk[lines][owner], before + int(np.count_nonzero(vertex))
 
 
+def _obj_triangle_materials(data: Any) -> list[bytes | None] | None:
+    """The ``usemtl`` name of each face line of the OBJ text ``data`` (bytes or an mmap; statements starting their
+    lines), in the file's order (None before the first ``usemtl``), where every face is a triangle (3 corners, no
+    comment) and it names two materials or more; else None. By NumPy over blocks of whole lines, after a count of its
+    ``usemtl`` lines (a file of one, as :func:`save_mesh` writes a textured mesh, is not scanned)."""
+    if _obj_count_lines(data, b"usemtl ") < 2:
+        return None
+    names: list[bytes | None] = [None]
+    owners = []
+    for at, end in _obj_line_blocks(data, _OBJ_INDEX_BLOCK):
+        block = bytes(data[at:end])
+        text = np.frombuffer(block, dtype=np.uint8)
+        newlines = np.flatnonzero(text == ord("\n"))
+        starts = np.concatenate(([0], newlines + 1))
+        ends = np.append(newlines, len(text))
+        padded = np.concatenate((text, np.zeros(8, np.uint8)))
+        face, usemtl = (_obj_lines_starting(padded, starts, keyword) for keyword in (b"f ", b"usemtl "))
+        chunk = np.cumsum(usemtl) + len(names) - 1  # each line's usemtl chunk
+        names += [block[start + 7 : stop].strip() for start, stop in zip(starts[usemtl], ends[usemtl], strict=True)]
+        blank = _OBJ_BLANK[text]
+        heads = np.flatnonzero(~blank & np.concatenate(([True], blank[:-1])))  # each word's first byte
+        words = np.bincount(np.searchsorted(starts, heads, side="right") - 1, minlength=len(starts))
+        if (words[face] != 4).any() or (b"#" in block and (text[heads] == ord("#")).any()):
+            return None  # a polygon (trimesh's reader orders its triangles apart) or a comment
+        owners.append(chunk[face])
+    owner = np.concatenate(owners) if owners else np.zeros(0, np.int64)
+    if len(set(names[1:])) < 2:
+        return None
+    return [names[k] for k in owner.tolist()]
+
+
+def _obj_textured_in_file_order(file: Path, data: bytes | None, source: bytes | None) -> trimesh.Trimesh | None:
+    """The textured OBJ ``file`` (``data``: its text tidied, :func:`_obj_tidied`, if it is; ``source``: its text with
+    newline line ends, :func:`_obj_newlines`, if made) of several materials, read as trimesh's reader reads it
+    (``force="mesh"``: one mesh per material, joined, its textures packed into one image), with its faces in the
+    file's order, where every face is a triangle: trimesh's reader gave them material by material (a face index of
+    the file named another face). Each material's mesh holds its faces in the file's order, so each face's place in
+    the file is its material's faces' (``usemtl`` chunk by chunk) in turn; the order is kept as read where a material
+    name, or a material's count of faces, is not the file's. None for another OBJ (one material, polygons): read as
+    before."""
+    with _obj_mapped(file, data if data is not None else source) as text:
+        owners = _obj_triangle_materials(text) if text is not None else None
+    if owners is None:
+        return None
+    scene = _trimesh_read(trimesh.load_scene, file, data, process=False)
+    parts = [part for part in scene.dump() if isinstance(part, trimesh.Trimesh)]  # Scene.to_mesh()'s
+    mesh = trimesh.util.concatenate(parts)
+    name = _utf8_name(file.name)
+    if name != file.name:  # named as _trimesh_read names the joined mesh of trimesh.load
+        mesh.metadata.update({key: name for key in ("name", "node") if key in mesh.metadata})
+    names = [getattr(getattr(part.visual, "material", None), "name", None) for part in parts]
+    if None in names or len(set(names)) != len(names) or sum(len(part.faces) for part in parts) != len(owners):
+        return mesh  # type: ignore[no-any-return]
+    where: dict[bytes | None, list[int]] = {}
+    for place, name in enumerate(owners):
+        where.setdefault(name, []).append(place)
+    places = [where.get(str(name).encode("utf-8", "surrogateescape"), []) for name in names]
+    if any(len(found) != len(part.faces) for found, part in zip(places, parts, strict=True)):
+        return mesh  # type: ignore[no-any-return]
+    order = np.argsort(np.concatenate([np.asarray(found, np.int64) for found in places]), kind="stable")
+    mesh.faces = np.asarray(mesh.faces)[order]
+    return mesh  # type: ignore[no-any-return]
+
+
 def _obj_materials_joined(file: Path, tidied: bytes | None) -> trimesh.Trimesh | None:
     """The OBJ ``file`` whose faces name vertex indices only but which :func:`_obj_faces_kind` does not
     read in one piece (several ``usemtl``, or faces before its one) as one mesh of the file's vertices, one per ``v``
@@ -4481,44 +4618,53 @@ def _obj_chunks_joined(file: Path, tidied: bytes | None) -> trimesh.Trimesh | No
 _OFF_KEYWORD = re.compile(r"(ST)?(C)?(N)?(4)?(n)?OFF")
 
 
-def _off_keyword(file: Path) -> str | None:
-    """The first word of the OFF ``file`` (its keyword, ``OFF``, ``COFF``, ...), comments and blank lines before it
-    skipped, read line by line: not the whole file. A UTF-8 byte-order mark before it is skipped (it was read as part
-    of the keyword, so a COFF written with one lost its colours; trimesh's reader skips it)."""
-    with open(file, "rb") as stream:
-        for number, raw in enumerate(stream):
-            words = raw.removeprefix(b"\xef\xbb\xbf" if number == 0 else b"").split(b"#", 1)[0].split(maxsplit=1)
-            if words:
-                return words[0].decode("utf-8", "replace")
+def _off_head_lines(data: bytes) -> Iterator[bytes]:
+    """The lines of an OFF file's bytes ``data`` one by one, each to its newline, as iterating over the open file
+    gave them (its header is read so: only its first lines are taken, not the whole file split)."""
+    at = 0
+    while at < len(data):
+        end = data.find(b"\n", at)
+        end = len(data) if end < 0 else end + 1
+        yield data[at:end]
+        at = end
+
+
+def _off_keyword(data: bytes) -> str | None:
+    """The first word of an OFF file's bytes ``data`` (its keyword, ``OFF``, ``COFF``, ...), comments and blank lines
+    before it skipped, read line by line: not the whole file. A UTF-8 byte-order mark before it is skipped (it was
+    read as part of the keyword, so a COFF written with one lost its colours; trimesh's reader skips it)."""
+    for number, raw in enumerate(_off_head_lines(data)):
+        words = raw.removeprefix(b"\xef\xbb\xbf" if number == 0 else b"").split(b"#", 1)[0].split(maxsplit=1)
+        if words:
+            return words[0].decode("utf-8", "replace")
     return None
 
 
-def _off_counts(file: Path) -> tuple[int, int] | None:
-    """The counts of vertices and faces the OFF ``file``'s header declares (on its keyword's line or the next,
-    comments and blank lines skipped), read line by line, or None where they cannot be read."""
+def _off_counts(data: bytes) -> tuple[int, int] | None:
+    """The counts of vertices and faces an OFF file's header declares (``data``: its bytes; on its keyword's line or
+    the next, comments and blank lines skipped), read line by line, or None where they cannot be read."""
     words: list[bytes] = []
-    with open(file, "rb") as stream:
-        for raw in stream:
-            words += raw.removeprefix(b"\xef\xbb\xbf").split(b"#", 1)[0].split()
-            if len(words) >= 3:
-                try:
-                    return int(words[1]), int(words[2])
-                except ValueError:
-                    return None
-            if len(words) > 1:
+    for raw in _off_head_lines(data):
+        words += raw.removeprefix(b"\xef\xbb\xbf").split(b"#", 1)[0].split()
+        if len(words) >= 3:
+            try:
+                return int(words[1]), int(words[2])
+            except ValueError:
                 return None
+        if len(words) > 1:
+            return None
     return None
 
 
-def _off_problem(file: Path) -> str | None:
-    """What is wrong with the OFF ``file`` as trimesh's reader reads it (comments after ``#`` and blank lines skipped,
-    the keyword, the counts ``V F [E]`` on its line or the next, ``V`` vertex lines of at least x y z, then ``F`` face
-    lines of a count ``n`` and ``n`` vertex indices from 0 to ``V - 1``), naming the line and what was expected, or
-    None. trimesh's reader refused such a file without a line ("invalid literal for int()", "cannot reshape array of
-    size 12 into shape (5,3)", "Python int too large to convert to C long", "a face index outside the range of its
-    vertices"), or read it without a word: a face line of fewer indices than its count, and a file of fewer face
+def _off_problem(data: bytes) -> str | None:
+    """What is wrong with an OFF file (``data``: its bytes) as trimesh's reader reads it (comments after ``#`` and blank
+    lines skipped, the keyword, the counts ``V F [E]`` on its line or the next, ``V`` vertex lines of at least x y z,
+    then ``F`` face lines of a count ``n`` and ``n`` vertex indices from 0 to ``V - 1``), naming the line and what was
+    expected, or None. trimesh's reader refused such a file without a line ("invalid literal for int()", "cannot reshape
+    array of size 12 into shape (5,3)", "Python int too large to convert to C long", "a face index outside the range of
+    its vertices"), or read it without a word: a face line of fewer indices than its count, and a file of fewer face
     lines than its counts declare (cut short), read as the faces it has."""
-    text = file.read_bytes().decode("utf-8", "replace").removeprefix("\ufeff")
+    text = data.decode("utf-8", "replace").removeprefix("\ufeff")
     numbered = [(number, line) for number, line in enumerate(text.splitlines(), 1) if line.split("#", 1)[0].split()]
     if not numbered:
         return None  # trimesh's own error (no keyword) stands
@@ -4569,23 +4715,23 @@ def _off_problem(file: Path) -> str | None:
     return None
 
 
-def _off_vertex_colors(file: Path, count: int) -> NDArray[np.uint8] | None:
-    """The vertex colours of the OFF ``file`` (``count`` vertices, as trimesh's reader read them) as RGBA bytes, or
-    None where its keyword has no ``C`` (``COFF``, ``CNOFF``, ...): trimesh's reader reads the coordinates alone (the
-    keyword read first, the file only for a ``C``). Each vertex line holds x y z, then nx ny nz with an ``N``, then
-    the colour, RGB or RGBA, then s t with an ``ST``. Written with a decimal point or exponent anywhere, the colours
-    are floats from 0 to 1 (Geomview's); written as integers, bytes from 0 to 255 (MeshLab's). Where they cannot be
-    read so without guessing, a warning says why and None (the mesh without colours, as trimesh's reader reads it):
-    a vertex without a colour or of colours of different lengths (Geomview's colour map index, one number), or
-    integers of 0 and 1 only (0 1 0 is green as floats and nearly black as bytes). A ValueError for a float outside
-    0..1 or an integer outside 0..255."""
-    head = _off_keyword(file)
+def _off_vertex_colors(file: Path, data: bytes, count: int) -> NDArray[np.uint8] | None:
+    """The vertex colours of the OFF ``file`` (``data``: its bytes; ``count`` vertices, as trimesh's reader read them)
+    as RGBA bytes, or None where its keyword has no ``C`` (``COFF``, ``CNOFF``, ...): trimesh's reader reads the
+    coordinates alone (the keyword read first, the file only for a ``C``). Each vertex line holds x y z, then nx ny nz
+    with an ``N``, then the colour, RGB or RGBA, then s t with an ``ST``. Written with a decimal point or exponent
+    anywhere, the colours are floats from 0 to 1 (Geomview's); written as integers, bytes from 0 to 255 (MeshLab's).
+    Where they cannot be read so without guessing, a warning says why and None (the mesh without colours, as trimesh's
+    reader reads it): a vertex without a colour or of colours of different lengths (Geomview's colour map index, one
+    number), or integers of 0 and 1 only (0 1 0 is green as floats and nearly black as bytes). A ValueError for a float
+    outside 0..1 or an integer outside 0..255."""
+    head = _off_keyword(data)
     keyword = _OFF_KEYWORD.fullmatch(head) if head is not None else None
     if keyword is None or keyword.group(2) is None:
         return None
     if keyword.group(4) or keyword.group(5):
         raise ValueError(f"an OFF of {head!r}, whose vertices have other than 3 coordinates, is not read")
-    text = file.read_bytes().decode("utf-8", "replace").removeprefix("\ufeff")  # a byte-order mark, as the keyword's
+    text = data.decode("utf-8", "replace").removeprefix("\ufeff")  # a byte-order mark, as the keyword's
     numbered = [(number, line.split("#", 1)[0].split()) for number, line in enumerate(text.splitlines(), 1)]
     numbered = [(number, line) for number, line in numbered if line]
     lines = [line for _, line in numbered]
@@ -4676,16 +4822,17 @@ _SPACE_BYTES = np.zeros(256, bool)
 _SPACE_BYTES[list(b" \t\r\n\x0b\x0c")] = True
 
 
-def _off_face_colors(file: Path, vertices: int, faces: int, triangles: int) -> NDArray[np.uint8] | None:
-    """The face colours of the OFF ``file`` (``vertices`` and ``faces`` as its counts declare, read by trimesh's
-    reader as ``triangles`` triangles) as RGBA bytes, one per triangle, or None where its face lines hold no more than
-    a count and its indices (trimesh's reader dropped the rest of a line): each face line, ``n i1 .. in``, then RGB or
-    RGBA, as integers bytes, or with a decimal point floats 0..1 (:func:`_off_colour_bytes`, the vertex colours'
-    rules). Face lines some with a colour and some without, or of colours of different lengths (Geomview's colour map
-    index, one number), are dropped with a warning, as the vertex colours are. The words on each line are counted by
-    NumPy first: a file of faces without colours is not split line by line again. A polygon's colour is its triangles'
-    (trimesh's reader's order: triangles, then quads' halves, then polygons' fans)."""
-    data = file.read_bytes().removeprefix(b"\xef\xbb\xbf")
+def _off_face_colors(file: Path, data: bytes, vertices: int, faces: int,
+                     triangles: int) -> NDArray[np.uint8] | None:
+    """The face colours of the OFF ``file`` (``data``: its bytes; ``vertices`` and ``faces`` as its counts declare, read
+    by trimesh's reader as ``triangles`` triangles) as RGBA bytes, one per triangle, or None where its face lines hold
+    no more than a count and its indices (trimesh's reader dropped the rest of a line): each face line, ``n i1 .. in``,
+    then RGB or RGBA, as integers bytes, or with a decimal point floats 0..1 (:func:`_off_colour_bytes`, the vertex
+    colours' rules). Face lines some with a colour and some without, or of colours of different lengths (Geomview's
+    colour map index, one number), are dropped with a warning, as the vertex colours are. The words on each line are
+    counted by NumPy first: a file of faces without colours is not split line by line again. A polygon's colour is its
+    triangles' (trimesh's reader's order: triangles, then quads' halves, then polygons' fans)."""
+    data = data.removeprefix(b"\xef\xbb\xbf")
     counts = _off_line_words(data)
     counts = counts[counts > 0]
     first = 1 if len(counts) and counts[0] > 1 else 2  # the counts on the keyword's line or the next
@@ -4702,7 +4849,7 @@ def _off_face_colors(file: Path, vertices: int, faces: int, triangles: int) -> N
         return None  # trimesh's reader refused it
     words = [line[size + 1 :] for size, (_, line) in zip(sizes.tolist(), lines, strict=True)]
     widths = sorted({len(row) for row in words})
-    head = _off_keyword(file) or "OFF"
+    head = _off_keyword(data) or "OFF"
     if widths not in ([3], [4]) or np.any(sizes < 3):
         warnings.warn(f"{str(file)!r}: a {head} file's face lines hold {widths} "
                       "numbers after their indices, where none or an RGB or RGBA colour on each were expected: its "
