@@ -420,6 +420,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         _drape_texture,
         _radius_value,
         _texture_image,
+        _unresolved_altitude,
         elevation_colors,
         load_global_relief,
         look_from,
@@ -511,6 +512,11 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
             default = "" if args.eye is not None else f" (the default --eye, 3 x {sphere})"
             raise InvalidInputError(f"{where} must keep the eye within {_MAX_COORDINATE:g} m of the centre; got "
                                     f"{sphere} {radius:g} + altitude {altitude:g} m{default}")
+        unresolved = _unresolved_altitude(radius, altitude) if eye_used else ""
+        if unresolved:  # the library's words name its 'altitude' and 'radius'; it was refused as an eye inside the
+            # planet, |eye| and the surface both the radius (--radius 1e20 --eye 0,0,1000)
+            raise InvalidInputError(f"--eye altitude must be resolved against {sphere} in float64 (|altitude| "
+                                    f"at least {unresolved}); got altitude {altitude:g} m, {sphere} {radius:g} m")
         return altitude
 
     # before the work, on the earth's sphere without --radius: an INPUT of a smaller body (Mars, the Moon) is checked

@@ -404,10 +404,15 @@ class Globe:
             surface = self.radius + self._height_under(np.asarray(eye, dtype=np.float64) / distance)
         if distance <= max(surface, 0.0):
             d = _printed_apart(distance, surface)
+            spacing = math.ulp(max(distance, surface))
+            # 1 km above a sphere of 1e20 m (look_from's altitude) rounded onto it: "|eye| = 1e20 m, the surface
+            # there 1e20 m ... terrain +0.0 m; raise the eye" said nothing of why, nor by how much
+            coarse = (f" by at least float64's spacing of numbers at this distance, {spacing:g} m (an eye closer "
+                      "above the surface rounds onto it)") if spacing >= 1.0 and surface - distance < spacing else ""
             raise InvalidInputError(f"camera eye {eye} lies inside the planet, below the terrain surface in its "
                                     f"direction: |eye| = {distance:.{d}f} m, the surface there {surface:.{d}f} m from "
                                     f"the centre (radius {self.radius:.{d}f} m, terrain {surface - self.radius:+.{d}f} "
-                                    "m); raise the eye")
+                                    f"m); raise the eye{coarse}")
 
     def _height_under(self, direction: NDArray[np.float64]) -> float:
         """The exaggerated terrain height at a unit ``direction``: the nodes of the grid cell around it, interpolated
@@ -2245,6 +2250,28 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
     near = max((distance - top) * 1e-3, min(1.0, radius * 1e-6))
     return Camera(eye=tuple(eye), target=tuple(target), up=tuple(up), fov=fov, aspect=aspect,
                   near=near, far=distance + max(distance, top) + radius)
+
+
+def _unresolved_altitude(radius: float, altitude: float) -> str:
+    """"" unless a non-zero ``altitude`` (metres above the sphere of ``radius``) rounds away in float64, the eye's
+    distance ``radius + altitude`` the radius itself: 1 km above a sphere of 1e20 m, where float64's numbers lie
+    16384 m apart (an eye on the sphere, below any terrain there: refused as "inside the planet", |eye| and the
+    surface both 1e20 m). Then a usable range for a refusal's words: "{spacing} m at this radius, or a radius below
+    {bound} m for this altitude" (either keeps at least half of the altitude)."""
+    spacing = math.ulp(radius)
+    if altitude == 0.0 or radius + altitude != radius:
+        return ""
+    bound = 2.0 ** (math.floor(math.log2(abs(altitude))) + 53)  # every radius below it: spacing <= |altitude|
+    return f"{_shown(spacing, 1):g} m at this radius, or a radius below {_shown(bound, -1):g} m for this altitude"
+
+
+def _shown(value: float, way: int) -> float:
+    """``value`` to the 6 digits ``:g`` prints, rounded up (``way`` 1) or down (-1): a bound a message names holds as
+    printed (2^62 printed 4.61169e18, yet a radius of 4.6116899e18 is not below it)."""
+    shown = float(f"{value:.6g}")
+    if (shown - value) * way < 0:
+        shown += way * 10.0 ** (math.floor(math.log10(shown)) - 5)
+    return shown
 
 
 def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int, int] | None = None,
