@@ -1931,9 +1931,14 @@ def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trim
     whole image (one off whole columns, where the image's own ends meet, spans up to a column and a half more: the
     longitudes both ends cover, or one column blending its ends); a corner
     at a pole gets a copy per face with the mean u of the face's other corners (the pole vertex itself serves the
-    first such face, as does any vertex whose every face takes a copy: every vertex is a face's corner). The copies
-    sit exactly on the original positions, so the surface stays crack-free; the mesh's vertices keep their indices,
-    and faces, their order and ``face_attributes`` are unchanged. The material's ``wrap`` is ("REPEAT",
+    first such face, as does any vertex whose every face takes a copy: every vertex is a face's corner). A face the
+    polar axis crosses elsewhere than at a corner (the coarsest mesh's: a cube face left as its two root triangles,
+    their shared diagonal through the pole) is split there, a pole vertex as on every finer mesh: on an edge, in two
+    (every face beside the edge), inside, in three; the first piece keeps the face's index, the others follow all
+    faces, with its ``face_attributes`` (the two root triangles each side of a pole spanned 180 degrees of longitude,
+    a u span of 0.5). The copies sit exactly on the original positions, so the surface stays crack-free; the mesh's
+    vertices keep their indices, and faces, their order and ``face_attributes`` are unchanged but for such splits
+    (``metadata["levels"]`` counts the faces as made). The material's ``wrap`` is ("REPEAT",
     "CLAMP_TO_EDGE"): GLB/glTF exports give the texture a sampler that repeats the image in u (longitude) and clamps
     it in v, and renders sample it so, so that no pole's colour blends with the other pole's in the mipmaps.
 
@@ -1987,7 +1992,15 @@ def _drape_texture(mesh: trimesh.Trimesh, pixels: NDArray[np.uint8], picture: An
         raise InvalidInputError(f"mesh vertices must be finite to drape a texture; got vertex {bad[0]} at "
                                 f"{vertices[bad[0]].tolist()}")
     horizontal = np.hypot(vertices[:, 0], vertices[:, 1])
+    # relative to the vertex's height along the axis: within 1e-9 (an absolute length for |z| < 1) the ring round
+    # each pole of a globe of radius 1e-8 became poles, and every vertex of one of radius 1e-12 (every u 0)
+    pole = horizontal <= 1e-9 * np.abs(vertices[:, 2])
     lon = np.degrees(np.arctan2(vertices[:, 1], vertices[:, 0]))
+    split = _split_at_poles(vertices, faces, pole, lon)
+    if split is not None:  # a face the polar axis crosses (the coarsest mesh's), split at its pole
+        vertices, faces, source, pole = split
+        horizontal = np.hypot(vertices[:, 0], vertices[:, 1])
+        lon = np.degrees(np.arctan2(vertices[:, 1], vertices[:, 0]))
     lat = np.degrees(np.arctan2(vertices[:, 2], horizontal))
     u = (lon + 180.0) / 360.0  # the seam's (the antimeridian's) u, whatever the texture's
     v = (lat + 90.0) / 180.0
@@ -1998,9 +2011,6 @@ def _drape_texture(mesh: trimesh.Trimesh, pixels: NDArray[np.uint8], picture: An
     texture_u = u if placement is None or placement.whole_columns else placement.columns(lon) / width
     if placement is not None and not placement.whole_rows:  # clamped: a pole beyond the image's edge takes its row
         v = np.clip(1.0 - placement.rows(lat) / height, 0.0, 1.0)
-    # relative to the vertex's height along the axis: within 1e-9 (an absolute length for |z| < 1) the ring round
-    # each pole of a globe of radius 1e-8 became poles, and every vertex of one of radius 1e-12 (every u 0)
-    pole = horizontal <= 1e-9 * np.abs(vertices[:, 2])
     corner_u = u[faces]
     corner_pole = pole[faces]
     # the antimeridian: a face whose non-pole corners span more than half the image wraps around
@@ -2045,7 +2055,8 @@ def _drape_texture(mesh: trimesh.Trimesh, pixels: NDArray[np.uint8], picture: An
         new_faces = index[new_faces]
         sources, uv = sources[kept], uv[kept]
     out = trimesh.Trimesh(vertices[sources], new_faces, process=False, metadata=dict(mesh.metadata),
-                          face_attributes={k: np.asarray(a) for k, a in mesh.face_attributes.items()})  # fmt: skip
+                          face_attributes={k: np.asarray(a)[source] if split is not None else np.asarray(a)
+                                           for k, a in mesh.face_attributes.items()})  # fmt: skip
     out.metadata.pop("node_entry", None)  # vertex -> node entry does not hold for the copies
     out.visual = trimesh.visual.TextureVisuals(uv=uv, image=picture if picture is not None else Image.fromarray(pixels))
     # the image wraps around in longitude, not from pole to pole: glTF's default sampler (REPEAT both ways) blended
@@ -2053,6 +2064,66 @@ def _drape_texture(mesh: trimesh.Trimesh, pixels: NDArray[np.uint8], picture: An
     # a dark spot at its white south pole (the GLB's sampler and the render clamp v)
     out.visual.material.wrap = ("REPEAT", "CLAMP_TO_EDGE")
     return out
+
+
+def _split_at_poles(vertices: NDArray[np.float64], faces: NDArray[np.int64], pole: NDArray[np.bool_],
+                    lon: NDArray[np.float64]
+                    ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64], NDArray[np.bool_]] | None:
+    """``vertices``, ``faces`` and the ``pole`` flags with each face that the polar axis crosses, not at a corner, split
+    at the point where it does: one on an edge (every face beside that edge too) in two, one inside in three. The
+    coarsest globe mesh leaves a cube face as its two root triangles, whose shared diagonal runs through the pole:
+    each spans 180 degrees of longitude, and the drape's UVs, linear over a face, gave it a u span of 0.5 (the texture
+    smeared across half the map, 90 degrees off along the diagonal) where a pole vertex, as on every finer mesh, takes
+    the mean u of each face's other corners. The new points lie on the faces (on the edge, or in the face's plane) and
+    are poles; the first piece of a face keeps its index, the others follow all faces in order. Returns the vertices
+    (new points after the old ones), the faces, each face's original index and the pole flags; None where no face
+    is split. Only faces whose corners' longitudes (``lon``, degrees) span 180 degrees or more, none a pole, are
+    looked at (a face round the axis spans more, one with the axis on an edge 180): a few, at the antimeridian."""
+    n, count = len(vertices), len(faces)
+    corner_lon = lon[faces]
+    around = np.flatnonzero((np.ptp(corner_lon, axis=1) >= 180.0 - 1e-9) & ~pole[faces].any(axis=1))
+    del corner_lon
+    corners = vertices[faces[around]]
+    x, y = corners[..., 0], corners[..., 1]
+    edge = x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y  # edge k (corner k to k + 1) against the axis
+    area = edge.sum(axis=1)  # twice the face's area seen along the axis, signed
+    with np.errstate(divide="ignore", invalid="ignore"):
+        weight = edge / area[:, None]  # 0 on the edge's line, 1 at the corner opposite it
+    scale = np.abs(corners[..., :2]).max(axis=(1, 2), initial=0.0)
+    on = weight <= 1e-9
+    # on two edges' lines: at a corner, which is the pole itself
+    crossed = (np.abs(area) > 1e-12 * scale**2) & (weight >= -1e-9).all(axis=1) & (on.sum(axis=1) <= 1)
+    if not crossed.any():
+        return None
+    points: list[NDArray[np.float64]] = []
+    source = [np.arange(count)]
+    faces = faces.copy()  # the mesh's own array, where it is int64
+    inside = ~on.any(axis=1) & crossed
+    if inside.any():  # in three at the point: the corners weighted by the edges opposite them
+        p = n + np.arange(int(inside.sum()))
+        points.append(np.einsum("fk,fkc->fc", np.roll(weight[inside], -1, axis=1), corners[inside]))
+        rows = around[inside]
+        a, b, c = faces[rows].T
+        faces[rows] = np.column_stack([a, b, p])
+        faces = np.concatenate([faces, np.column_stack([b, c, p]), np.column_stack([c, a, p])])
+        source += [rows, rows]
+    source = np.concatenate(source)
+    rows, cols = np.nonzero(crossed[:, None] & on)
+    ends = faces[around[rows][:, None], np.column_stack([cols, (cols + 1) % 3])]
+    for a, b in np.unique(np.sort(ends, axis=1), axis=0):  # each edge the axis crosses, once, and the faces beside it
+        start, step = vertices[a], vertices[b] - vertices[a]
+        t = -float(start[:2] @ step[:2]) / float(step[:2] @ step[:2])
+        points.append((start + t * step)[None])
+        p = n + sum(len(q) for q in points) - 1
+        for f in np.flatnonzero((faces == a).any(axis=1) & (faces == b).any(axis=1)):
+            k = next(k for k in range(3) if {faces[f, k], faces[f, (k + 1) % 3]} == {a, b})
+            first, second, third = faces[f, k], faces[f, (k + 1) % 3], faces[f, (k + 2) % 3]
+            faces[f] = first, p, third
+            faces = np.concatenate([faces, [[p, second, third]]])
+            source = np.concatenate([source, source[f : f + 1]])
+    added = np.concatenate(points)
+    return (np.concatenate([vertices, added]), faces, source,
+            np.concatenate([pole, np.ones(len(added), dtype=bool)]))
 
 
 def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint8]:

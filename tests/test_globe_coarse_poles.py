@@ -47,3 +47,93 @@ def test_the_cli_refuses_an_eye_altitude_below_float64_s_resolution_naming_radiu
     assert main(["-q", "globe", "--face-size", "9", "--radius", "1e20", "--eye", "0,0,1e6", "-o", str(out),
                  "--device", "cpu"]) == 0
     assert out.exists()
+
+
+def _longitude_off(textured, fraction=0.2, samples=8):
+    """Per face, the u span of its corners, and the largest difference in degrees between the longitude the UVs give
+    (u linear over the face) and the true one (atan2 of the point), at points of a barycentric grid lying at least
+    ``fraction`` of their distance from the centre off the polar axis (at a pole every longitude is right)."""
+    w = np.array([(i, j, samples - i - j) for i in range(samples + 1) for j in range(samples + 1 - i)]) / samples
+    corners = textured.vertices[textured.faces]
+    u = textured.visual.uv[textured.faces][..., 0]
+    points = np.einsum("sk,fkc->fsc", w, corners)
+    lon = np.degrees(np.arctan2(points[..., 1], points[..., 0]))
+    off = np.abs((lon - (np.einsum("sk,fk->fs", w, u) * 360.0 - 180.0) + 180.0) % 360.0 - 180.0)
+    far = np.hypot(points[..., 0], points[..., 1]) >= fraction * np.linalg.norm(points, axis=-1)
+    return np.ptp(u, axis=1), np.where(far, off, 0.0).max(axis=1)
+
+
+def _same_surface(textured, mesh):
+    """The textured mesh covers the same surface as ``mesh``: the same area, closed where it is (its copies welded
+    by position), and every vertex on one of ``mesh``'s faces (a split face's new corner on it)."""
+    import trimesh
+
+    assert textured.area == pytest.approx(mesh.area, rel=1e-12)
+    if mesh.is_watertight:
+        welded = trimesh.Trimesh(textured.vertices, textured.faces, process=False)
+        welded.merge_vertices()
+        assert welded.is_watertight
+    known = {tuple(v) for v in mesh.vertices}
+    corners = mesh.vertices[mesh.faces]
+    for point in (v for v in textured.vertices if tuple(v) not in known):  # a split's new corner: on a face
+        edge1, edge2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+        normal = np.cross(edge1, edge2)
+        rel = point - corners[:, 0]
+        height = np.abs(np.einsum("fc,fc->f", rel, normal)) / np.linalg.norm(normal, axis=1)
+        b1 = np.einsum("fc,fc->f", np.cross(rel, edge2), normal) / np.einsum("fc,fc->f", normal, normal)
+        b2 = np.einsum("fc,fc->f", np.cross(edge1, rel), normal) / np.einsum("fc,fc->f", normal, normal)
+        within = (b1 >= -1e-9) & (b2 >= -1e-9) & (b1 + b2 <= 1 + 1e-9)
+        assert (within & (height <= 1e-9 * np.linalg.norm(point))).any()
+
+
+def test_the_coarsest_globe_drape_splits_its_pole_diagonals_and_no_face_spans_half_the_map():
+    """At error 1e9 a globe mesh is its 12 root triangles, two a cube face; the ±z faces' shared diagonal runs
+    through each pole, so four triangles spanned 180 degrees of longitude, and drape_texture's UVs (linear over a
+    face) gave each a u span of 0.5: the texture smeared across half the map, 67.5 degrees off the true longitude
+    away from the pole. Every finer mesh has the pole as a vertex, whose u each face takes as the mean of its
+    other corners' (a span of at most 0.125). The drape now splits a face the polar axis crosses at the point
+    where it does (here the diagonal's, both faces beside it), a pole vertex like the finer meshes': at every level
+    no face spans over a quarter of the map, and the UVs give each point's longitude within 45 degrees away from the
+    poles (an independent atan2 of sampled points), over the same surface."""
+    from stepterrain.globe import drape_texture
+
+    globe = Globe.sample(face_size=9, device="cpu")
+    camera = look_from(0.0, 0.0, 2.0e7)
+    meshes = [globe.mesh(error=e) for e in (1e9, 3e5, 1e5, 0.0)]
+    meshes += [globe.mesh(error=1e6, camera=camera, cull=False), *globe.mesh(error=1e9, per_face=True)]
+    assert len(meshes[0].faces) == 12
+    for mesh in meshes:
+        before = mesh.faces.copy()
+        textured = drape_texture(mesh, np.zeros((4, 8, 3), np.uint8))
+        np.testing.assert_array_equal(mesh.faces, before)  # the mesh draped is left as it was
+        span, off = _longitude_off(textured)
+        assert span.max() <= 0.25 + 1e-12 and off.max() <= 45.0
+        _same_surface(textured, mesh)
+        np.testing.assert_array_equal(textured.vertices[textured.faces[: len(mesh.faces)]][:, 0],
+                                      mesh.vertices[mesh.faces][:, 0])  # each face's first piece keeps its index
+        cube_face = mesh.face_attributes["cube_face"]
+        np.testing.assert_array_equal(textured.face_attributes["cube_face"][: len(mesh.faces)], cube_face)
+    coarse = drape_texture(meshes[0], np.zeros((4, 8, 3), np.uint8))
+    assert len(coarse.faces) == 16  # the two diagonals through the poles split, each face beside them in two
+    assert np.bincount(coarse.face_attributes["cube_face"]).tolist() == [4, 2, 2, 2, 2, 4]
+
+
+def test_a_face_the_polar_axis_pierces_is_split_in_three_at_the_pole():
+    """A mesh of any shape: an icosahedron turned so that no vertex lies on the polar axis, which pierces two faces
+    inside. Each spanned 360 degrees of longitude around the pole (a u span of 0.67); each is split in three at the
+    point where the axis meets it, a pole vertex (the faces beside it keep theirs)."""
+    import trimesh
+    from scipy.spatial.transform import Rotation
+
+    from stepterrain.globe import drape_texture
+
+    mesh = trimesh.creation.icosahedron()
+    mesh.apply_transform(np.block([[Rotation.from_euler("xyz", [0.3, 0.2, 0.1]).as_matrix(), np.zeros((3, 1))],
+                                   [np.zeros((1, 3)), np.ones((1, 1))]]))
+    mesh.apply_scale(6.4e6)
+    assert np.hypot(*mesh.vertices[:, :2].T).min() > 1e5  # no vertex near the axis
+    textured = drape_texture(mesh, np.zeros((4, 8, 3), np.uint8))
+    assert len(textured.faces) == len(mesh.faces) + 4
+    span, off = _longitude_off(textured, fraction=0.5)
+    assert span.max() <= 0.4 and off.max() <= 45.0
+    _same_surface(textured, mesh)
