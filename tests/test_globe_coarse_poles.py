@@ -137,3 +137,40 @@ def test_a_face_the_polar_axis_pierces_is_split_in_three_at_the_pole():
     span, off = _longitude_off(textured, fraction=0.5)
     assert span.max() <= 0.4 and off.max() <= 45.0
     _same_surface(textured, mesh)
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+@pytest.mark.parametrize("view", [(30.0, 120.0, 1.0e7, 30.0), (44.0, 45.0, 3.0e7, 8.0)])
+def test_per_face_parts_read_back_and_saved_again_keep_their_seams_welded(tmp_path, ext, view):
+    """A per-face part records its counts and bounds as made (metadata["whole_part"]), and save_mesh keeps the set's
+    frame for it however culled it is. Read back from its glTF (the record kept in its extras) its bounds are those
+    float32 positions give, not the recorded ones: saved again it took the rule of a piece cut from a part, a culled
+    part stored about its own centre, the others about the eye or the shared bounds, and the copies of a seam vertex
+    came apart by up to 0.25 m on the Earth. A part whose bounds are exactly those its recorded ones read back as is
+    a member as made: saved again, every part's positions read back as the first time, and the seams stay welded."""
+    import math
+
+    from stepterrain.export import read_mesh, save_mesh
+
+    from .test_globe_fixes import _seam_pairs
+
+    globe = Globe.sample(face_size=33, device="cpu")
+    latitude, longitude, altitude, fov = view
+    parts = globe.mesh(error=300.0, camera=look_from(latitude, longitude, altitude, fov=math.radians(fov)),
+                       per_face=True)
+    back = [read_mesh(save_mesh(part, tmp_path / f"face{k}{ext}")) for k, part in enumerate(parts)]
+    again = [read_mesh(save_mesh(part, tmp_path / f"again{k}{ext}")) for k, part in enumerate(back)]
+    for first, second in zip(back, again, strict=True):
+        np.testing.assert_array_equal(second.vertices, first.vertices)
+    seams = 0
+    for a, b, pairs in _seam_pairs(parts):
+        seams += len(pairs)
+        np.testing.assert_array_equal(again[a].vertices[pairs[:, 0]], again[b].vertices[pairs[:, 1]],
+                                      err_msg=f"faces {a} and {b}")
+    assert seams > 0
+    moved = back[1].copy()  # moved since: its own frame, as before
+    moved.apply_translation([0.5, 0.0, 0.0])
+    from stepterrain.export import _as_made
+
+    assert _as_made(moved.metadata, {}, moved, (moved.vertices.min(axis=0), moved.vertices.max(axis=0))) is None
+    assert _as_made(back[1].metadata, {}, back[1], (back[1].vertices.min(axis=0), back[1].vertices.max(axis=0)))
