@@ -2091,8 +2091,11 @@ def _split_at_poles(vertices: NDArray[np.float64], faces: NDArray[np.int64], pol
         weight = edge / area[:, None]  # 0 on the edge's line, 1 at the corner opposite it
     scale = np.abs(corners[..., :2]).max(axis=(1, 2), initial=0.0)
     on = weight <= 1e-9
-    # on two edges' lines: at a corner, which is the pole itself
+    # on two edges' lines: at a corner, which is the pole itself; at the centre (a face through it): no pole
     crossed = (np.abs(area) > 1e-12 * scale**2) & (weight >= -1e-9).all(axis=1) & (on.sum(axis=1) <= 1)
+    with np.errstate(invalid="ignore"):
+        height = np.einsum("fk,fk->f", np.roll(weight, -1, axis=1), corners[..., 2])  # where the axis meets it
+    crossed &= np.abs(height) > 1e-9 * scale
     if not crossed.any():
         return None
     points: list[NDArray[np.float64]] = []

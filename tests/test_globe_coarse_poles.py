@@ -137,6 +137,8 @@ def test_a_face_the_polar_axis_pierces_is_split_in_three_at_the_pole():
     span, off = _longitude_off(textured, fraction=0.5)
     assert span.max() <= 0.4 and off.max() <= 45.0
     _same_surface(textured, mesh)
+    flat = trimesh.Trimesh([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [0.0, 1.0, 0.0]], [[0, 1, 2]], process=False)
+    assert len(drape_texture(flat, np.zeros((4, 8, 3), np.uint8)).faces) == 1  # the axis meets it at the centre
 
 
 @pytest.mark.parametrize("ext", [".glb", ".gltf"])
