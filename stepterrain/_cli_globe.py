@@ -512,11 +512,6 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
             default = "" if args.eye is not None else f" (the default --eye, 3 x {sphere})"
             raise InvalidInputError(f"{where} must keep the eye within {_MAX_COORDINATE:g} m of the centre; got "
                                     f"{sphere} {radius:g} + altitude {altitude:g} m{default}")
-        unresolved = _unresolved_altitude(radius, altitude) if eye_used else ""
-        if unresolved:  # the library's words name its 'altitude' and 'radius'; it was refused as an eye inside the
-            # planet, |eye| and the surface both the radius (--radius 1e20 --eye 0,0,1000)
-            raise InvalidInputError(f"--eye altitude must be resolved against {sphere} in float64 (|altitude| "
-                                    f"at least {unresolved}); got altitude {altitude:g} m, {sphere} {radius:g} m")
         return altitude
 
     # before the work, on the earth's sphere without --radius: an INPUT of a smaller body (Mars, the Moon) is checked
@@ -593,6 +588,12 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         try:
             globe._check_eye(camera.eye)
         except InvalidInputError as exc:
+            unresolved = _unresolved_altitude(radius, altitude)
+            if unresolved:  # was "lies inside the planet ... |eye| = 1e20 m, the surface 1e20 m, terrain +0.0 m"
+                # (--radius 1e20 --eye 0,0,1000); over terrain below the sphere such an eye is taken, as before
+                raise InvalidInputError(f"--eye altitude must be resolved against {sphere} in float64 (|altitude| at "
+                                        f"least {unresolved}); got altitude {altitude:g} m, {sphere} {radius:g} m: "
+                                        "the eye rounded onto the sphere, below the terrain there") from None
             raise InvalidInputError(f"--eye {lat_deg:g},{lon_deg:g},{altitude:g} lies below the terrain there (the "
                                     f"altitude is metres above the sphere of {sphere}): {exc}") from None
     shapes = f"{bounds}s, " if shaped else ""

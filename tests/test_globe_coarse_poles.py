@@ -37,14 +37,21 @@ def test_an_eye_rounded_onto_a_huge_sphere_is_refused_saying_by_how_much_to_rais
 
 
 def test_the_cli_refuses_an_eye_altitude_below_float64_s_resolution_naming_radius(tmp_path, capsys):
+    """globe --radius 1e20 --eye 0,0,1000: the eye rounded onto the sphere and was refused in the library's words
+    (|eye| and the surface both 1e20 m, "terrain +0.0 m"). It names --radius and the usable range now; where such an
+    eye still lies above the terrain (over an ocean floor below the sphere) it is taken, as before."""
     out = tmp_path / "g.glb"
     assert main(["-q", "globe", "--face-size", "9", "--radius", "1e20", "--eye", "0,0,1000", "-o", str(out)]) == 2
     assert capsys.readouterr().err == (
         "stepterrain globe: error: --eye altitude must be resolved against --radius in float64 (|altitude| at least "
         "16384 m at this radius, or a radius below 4.61168e+18 m for this altitude); got altitude 1000 m, --radius "
-        "1e+20 m\n")
+        "1e+20 m: the eye rounded onto the sphere, below the terrain there\n")
     assert not out.exists()
     assert main(["-q", "globe", "--face-size", "9", "--radius", "1e20", "--eye", "0,0,1e6", "-o", str(out),
+                 "--device", "cpu"]) == 0
+    assert out.exists()
+    out.unlink()  # over the ocean, 4 km below the sphere, an eye rounded onto it is above the terrain: taken
+    assert main(["-q", "globe", "--face-size", "9", "--radius", "1e16", "--eye", "0,0,1", "-o", str(out),
                  "--device", "cpu"]) == 0
     assert out.exists()
 
