@@ -2081,7 +2081,8 @@ def _split_at_poles(vertices: NDArray[np.float64], faces: NDArray[np.int64], pol
     looked at (a face round the axis spans more, one with the axis on an edge 180): a few, at the antimeridian."""
     n, count = len(vertices), len(faces)
     corner_lon = lon[faces]
-    around = np.flatnonzero((np.ptp(corner_lon, axis=1) >= 180.0 - 1e-9) & ~pole[faces].any(axis=1))
+    # (less a margin: a corner's longitude rounds, and the axis may pass within the tolerance below outside an edge)
+    around = np.flatnonzero((np.ptp(corner_lon, axis=1) >= 180.0 - 1e-6) & ~pole[faces].any(axis=1))
     del corner_lon
     corners = vertices[faces[around]]
     x, y = corners[..., 0], corners[..., 1]

@@ -123,6 +123,10 @@ def test_the_coarsest_globe_drape_splits_its_pole_diagonals_and_no_face_spans_ha
     coarse = drape_texture(meshes[0], np.zeros((4, 8, 3), np.uint8))
     assert len(coarse.faces) == 16  # the two diagonals through the poles split, each face beside them in two
     assert np.bincount(coarse.face_attributes["cube_face"]).tolist() == [4, 2, 2, 2, 2, 4]
+    nudged = meshes[0].copy()  # the axis a micrometre off the diagonal: the same split, on the edge
+    nudged.vertices[nudged.faces[0, 0]] += [1e-6, 0.0, 0.0]
+    textured = drape_texture(nudged, np.zeros((4, 8, 3), np.uint8))
+    assert len(textured.faces) == 16 and _longitude_off(textured)[0].max() <= 0.25 + 1e-12
 
 
 def test_a_face_the_polar_axis_pierces_is_split_in_three_at_the_pole():
