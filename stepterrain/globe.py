@@ -1938,7 +1938,9 @@ def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trim
     faces, with its ``face_attributes`` (the two root triangles each side of a pole spanned 180 degrees of longitude,
     a u span of 0.5). The copies sit exactly on the original positions, so the surface stays crack-free; the mesh's
     vertices keep their indices, and faces, their order and ``face_attributes`` are unchanged but for such splits
-    (``metadata["levels"]`` counts the faces as made). The material's ``wrap`` is ("REPEAT",
+    (``metadata["levels"]`` counts the faces as made; a ``per_face`` part's ``metadata["whole_part"]`` its new
+    counts, so that :func:`~stepterrain.export.save_mesh` stores the six draped parts alike, seams welded). The
+    material's ``wrap`` is ("REPEAT",
     "CLAMP_TO_EDGE"): GLB/glTF exports give the texture a sampler that repeats the image in u (longitude) and clamps
     it in v, and renders sample it so, so that no pole's colour blends with the other pole's in the mipmaps.
 
@@ -2058,6 +2060,12 @@ def _drape_texture(mesh: trimesh.Trimesh, pixels: NDArray[np.uint8], picture: An
                           face_attributes={k: np.asarray(a)[source] if split is not None else np.asarray(a)
                                            for k, a in mesh.face_attributes.items()})  # fmt: skip
     out.metadata.pop("node_entry", None)  # vertex -> node entry does not hold for the copies
+    made = out.metadata.get("whole_part")
+    if isinstance(made, dict) and (made.get("vertices"), made.get("faces")) == (len(mesh.vertices), len(mesh.faces)):
+        # a per-face part as made (Globe.mesh), draped: its copies and split points lie within its bounds, and
+        # save_mesh keeps the set's frame for it by its new counts (by the old ones, a culled part draped was stored
+        # about its own centre, the others about the eye: the seams came apart by up to 0.69 m)
+        out.metadata["whole_part"] = {**made, "vertices": len(out.vertices), "faces": len(out.faces)}
     out.visual = trimesh.visual.TextureVisuals(uv=uv, image=picture if picture is not None else Image.fromarray(pixels))
     # the image wraps around in longitude, not from pole to pole: glTF's default sampler (REPEAT both ways) blended
     # each pole's texels with the other pole's in the mipmaps, a grey diamond at the north pole of the Blue Marble and

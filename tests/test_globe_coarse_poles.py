@@ -187,3 +187,39 @@ def test_per_face_parts_read_back_and_saved_again_keep_their_seams_welded(tmp_pa
 
     assert _as_made(moved.metadata, {}, moved, (moved.vertices.min(axis=0), moved.vertices.max(axis=0))) is None
     assert _as_made(back[1].metadata, {}, back[1], (back[1].vertices.min(axis=0), back[1].vertices.max(axis=0)))
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+@pytest.mark.parametrize("view", [(30.0, 0.0, 1.0e7, 8.0), (44.0, 45.0, 1.0e7, 8.0)])
+def test_per_face_parts_draped_and_saved_one_by_one_keep_their_seams_welded(tmp_path, ext, view):
+    """A texture per face (paper 003 §5.3): each per-face part draped, then saved. drape_texture adds vertices (the
+    seam's and poles' copies), so a part no longer had the counts it records as made (metadata["whole_part"]) and
+    save_mesh took the rule of a piece cut from a part: a culled part stored about its own centre, the others about
+    the eye, and the copies of a seam vertex read back up to 0.69 m apart (3 of 72 views at face size 33). The drape
+    records a part's new counts (its bounds are the part's: every copy and split point lies within them)."""
+    import math
+
+    from stepterrain.export import read_mesh, save_mesh
+    from stepterrain.globe import drape_texture
+
+    from .test_globe_fixes import _seam_pairs
+
+    globe = Globe.sample(face_size=33, device="cpu")
+    latitude, longitude, altitude, fov = view
+    parts = globe.mesh(error=300.0, camera=look_from(latitude, longitude, altitude, fov=math.radians(fov)),
+                       per_face=True)
+    image = np.random.default_rng(0).integers(0, 255, (8, 16, 3)).astype(np.uint8)
+    draped = [drape_texture(part, image) if len(part.faces) else part for part in parts]
+    for part, textured in zip(parts, draped, strict=True):
+        if len(part.faces):
+            assert textured.metadata["whole_part"] == {"vertices": len(textured.vertices),
+                                                       "faces": len(textured.faces),
+                                                       "bounds": part.metadata["whole_part"]["bounds"]}
+            assert part.metadata["whole_part"]["vertices"] == len(part.vertices)  # the part's own record kept
+    back = [read_mesh(save_mesh(part, tmp_path / f"face{k}{ext}")) for k, part in enumerate(draped)]
+    seams = 0
+    for a, b, pairs in _seam_pairs(draped):
+        seams += len(pairs)
+        np.testing.assert_array_equal(back[a].vertices[pairs[:, 0]], back[b].vertices[pairs[:, 1]],
+                                      err_msg=f"faces {a} and {b}")
+    assert seams > 0
