@@ -413,6 +413,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         _drape_texture,
         _radius_value,
         _texture_image,
+        _unresolved_altitude,
         elevation_colors,
         load_global_relief,
         look_from,
@@ -580,6 +581,12 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         try:
             globe._check_eye(camera.eye)
         except InvalidInputError as exc:
+            unresolved = _unresolved_altitude(radius, altitude)
+            if unresolved:  # was "lies inside the planet ... |eye| = 1e20 m, the surface 1e20 m, terrain +0.0 m"
+                # (--radius 1e20 --eye 0,0,1000); over terrain below the sphere such an eye is taken, as before
+                raise InvalidInputError(f"--eye altitude must be resolved against {sphere} in float64 (|altitude| at "
+                                        f"least {unresolved}); got altitude {altitude:g} m, {sphere} {radius:g} m: "
+                                        "the eye rounded onto the sphere, below the terrain there") from None
             raise InvalidInputError(f"--eye {lat_deg:g},{lon_deg:g},{altitude:g} lies below the terrain there (the "
                                     f"altitude is metres above the sphere of {sphere}): {exc}") from None
     shapes = f"{bounds}s, " if shaped else ""

@@ -612,7 +612,8 @@ def save_mesh(
         from such a mesh, ``submesh``, which stored about the whole globe's centre rounded 25 to 1000 times worse),
         or it is the member as made, its vertex and face counts and bounds those it records
         (``metadata["whole_part"]``, which Globe.mesh sets on each of its six: one a view culled to a few triangles
-        keeps the set's frame, and its seams stay welded).
+        keeps the set's frame, and its seams stay welded), its bounds exactly as its glTF reads them back too (saved
+        again, it is stored as the first time).
     origin : (3,) array_like, optional
         The point (x, y, z) a ``.glb``/``.gltf`` stores its float32 positions relative to, floored to whole units:
         the node translation, in place of the one ``shared_bounds`` or the mesh's bounds give (the floor of their
@@ -774,8 +775,10 @@ def save_mesh(
             f"{ext} stores triangles only (the points would be lost); write .ply, .obj, .glb or .gltf to keep them"
         )
     # how coordinates are stored: a set's shared bounds (given, or recorded by the mesh), or the mesh's own
-    recorded = None if shared_bounds is not None else _recorded_bounds(mesh.metadata, extras, bounds)
-    if recorded is not None and not _whole_part(mesh.metadata, extras, mesh, bounds):  # a culled member keeps it
+    made = None if shared_bounds is not None else _as_made(mesh.metadata, extras, mesh, bounds)
+    recorded = None if shared_bounds is not None else \
+        _recorded_bounds(mesh.metadata, extras, made if made is not None else bounds)  # as made: read back, rounded
+    if recorded is not None and made is None:  # a culled member keeps it
         recorded = _no_coarser(recorded, bounds)  # not a piece cut from a member
     frame = _shared_bounds(shared_bounds) or recorded or bounds
     anchor = _origin_argument(origin) if origin is not None or shared_bounds is not None else \
@@ -1060,27 +1063,50 @@ def _recorded_bounds(recorded: Any, given: Mapping[str, Any], bounds: Bounds) ->
     return lo, hi
 
 
-def _whole_part(recorded: Any, given: Mapping[str, Any], mesh: trimesh.Trimesh, bounds: Bounds) -> bool:
-    """Whether ``mesh`` is a member of a set as it was made: its vertex and face counts and its bounds those it records
-    (``metadata["whole_part"]``, ``{"vertices": V, "faces": F, "bounds": [lo, hi]}``, as
+def _as_made(recorded: Any, given: Mapping[str, Any], mesh: trimesh.Trimesh, bounds: Bounds) -> Bounds:
+    """The bounds ``mesh`` records as a member of a set as it was made, when it is one: its vertex and face counts and
+    its bounds those it records (``metadata["whole_part"]``, ``{"vertices": V, "faces": F, "bounds": [lo, hi]}``, as
     :meth:`~stepterrain.globe.Globe.mesh` records them on its ``per_face`` meshes; ``metadata`` given to save_mesh
-    over the mesh's own). Such a mesh keeps its recorded shared bounds however much smaller it is than they are
-    (:func:`_no_coarser` is not asked): a part culled to a few triangles was stored about its own centre while the
-    larger ones kept the shared frame (or the eye it holds), and the copies of a seam vertex read back 0.44 m apart.
-    A piece cut from it (``submesh``: trimesh copies the metadata), or one moved or scaled, records counts or bounds
-    it no longer has: False."""
+    over the mesh's own), or its bounds those a glTF stored by the set's frame reads back (:func:`_read_back`). Such a
+    mesh keeps its recorded shared bounds however much smaller it is than they are (:func:`_no_coarser` is not
+    asked): a part culled to a few triangles was stored about its own centre while the larger ones kept the shared
+    frame (or the eye it holds), and the copies of a seam vertex read back 0.44 m apart. A piece cut from it
+    (``submesh``: trimesh copies the metadata), or one moved or scaled, records counts or bounds it no longer has:
+    None."""
     value = _metadata_value(recorded, given, "whole_part")
     if not isinstance(value, Mapping) or bounds is None:
-        return False
+        return None
     counts = value.get("vertices"), value.get("faces")
     if not all(isinstance(c, (int, np.integer)) and not isinstance(c, bool) for c in counts) or \
             counts != (len(mesh.vertices), len(mesh.faces)):
-        return False
+        return None
     try:  # as save_mesh's shared_bounds are read, but bounds it cannot take are left, not refused
         own = _shared_bounds(value.get("bounds"))
     except InvalidInputError:
+        return None
+    if own is None:
+        return None
+    if (own[0] == bounds[0]).all() and (own[1] == bounds[1]).all() or _read_back(recorded, given, own, bounds):
+        return own
+    return None
+
+
+def _read_back(recorded: Any, given: Mapping[str, Any], own: Bounds, bounds: Bounds) -> bool:
+    """Whether ``bounds`` are a set member's bounds as made, ``own``, as a glTF save_mesh wrote it by the set's frame
+    reads them back: relative to the node translation it took (the eye the mesh records, else the floor of the
+    recorded shared bounds' centre), the float32 values of ``own``, exactly. A per-face part read back from its
+    .glb was stored again by its own bounds, no longer its recorded ones (rounded): a culled part about its own
+    centre, the others about the eye, and the copies of a seam vertex came apart by up to 0.25 m."""
+    shared = _recorded_bounds(recorded, given, own)
+    if shared is None:
         return False
-    return own is not None and bool((own[0] == bounds[0]).all() and (own[1] == bounds[1]).all())
+    eye = _recorded_eye(recorded, given, shared)
+    offset = eye if eye is not None else _local_origin(shared)
+    for made, got in zip(own, bounds, strict=True):
+        stored = (got - offset).astype(np.float32)
+        if not ((stored == (made - offset).astype(np.float32)).all() and (stored + offset == got).all()):
+            return False
+    return True
 
 
 def _no_coarser(recorded: Bounds, bounds: Bounds) -> Bounds:
@@ -1089,7 +1115,7 @@ def _no_coarser(recorded: Bounds, bounds: Bounds) -> Bounds:
     as relative to its own: float32 then rounds them at most one binary order coarser. Else None, its own bounds
     decide. A whole cube face reaches about sqrt(2) times farther from the globe's centre than from its own, so the
     six per-face meshes all keep the shared frame (one culled to a part of its face by a view is not asked: it records
-    itself as made, :func:`_whole_part`); a piece cut from one (``submesh``, ``update_faces``: trimesh
+    itself as made, :func:`_as_made`); a piece cut from one (``submesh``, ``update_faces``: trimesh
     copies the metadata), or one shrunk about its own centre, lies within the recorded bounds yet rounded about the
     globe's centre: 0.19 m instead of 7.5 mm for a 320 km triangle of a face, 0.25 m instead of 0.24 mm for a 9 km
     mesh."""

@@ -404,10 +404,15 @@ class Globe:
             surface = self.radius + self._height_under(np.asarray(eye, dtype=np.float64) / distance)
         if distance <= max(surface, 0.0):
             d = _printed_apart(distance, surface)
+            spacing = math.ulp(max(distance, surface))
+            # 1 km above a sphere of 1e20 m (look_from's altitude) rounded onto it: "|eye| = 1e20 m, the surface
+            # there 1e20 m ... terrain +0.0 m; raise the eye" said nothing of why, nor by how much
+            coarse = (f" by at least float64's spacing of numbers at this distance, {spacing:g} m (an eye closer "
+                      "above the surface rounds onto it)") if spacing >= 1.0 and surface - distance < spacing else ""
             raise InvalidInputError(f"camera eye {eye} lies inside the planet, below the terrain surface in its "
                                     f"direction: |eye| = {distance:.{d}f} m, the surface there {surface:.{d}f} m from "
                                     f"the centre (radius {self.radius:.{d}f} m, terrain {surface - self.radius:+.{d}f} "
-                                    "m); raise the eye")
+                                    f"m); raise the eye{coarse}")
 
     def _height_under(self, direction: NDArray[np.float64]) -> float:
         """The exaggerated terrain height at a unit ``direction``: the nodes of the grid cell around it, interpolated
@@ -1926,9 +1931,16 @@ def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trim
     whole image (one off whole columns, where the image's own ends meet, spans up to a column and a half more: the
     longitudes both ends cover, or one column blending its ends); a corner
     at a pole gets a copy per face with the mean u of the face's other corners (the pole vertex itself serves the
-    first such face, as does any vertex whose every face takes a copy: every vertex is a face's corner). The copies
-    sit exactly on the original positions, so the surface stays crack-free; the mesh's vertices keep their indices,
-    and faces, their order and ``face_attributes`` are unchanged. The material's ``wrap`` is ("REPEAT",
+    first such face, as does any vertex whose every face takes a copy: every vertex is a face's corner). A face the
+    polar axis crosses elsewhere than at a corner (the coarsest mesh's: a cube face left as its two root triangles,
+    their shared diagonal through the pole) is split there, a pole vertex as on every finer mesh: on an edge, in two
+    (every face beside the edge), inside, in three; the first piece keeps the face's index, the others follow all
+    faces, with its ``face_attributes`` (the two root triangles each side of a pole spanned 180 degrees of longitude,
+    a u span of 0.5). The copies sit exactly on the original positions, so the surface stays crack-free; the mesh's
+    vertices keep their indices, and faces, their order and ``face_attributes`` are unchanged but for such splits
+    (``metadata["levels"]`` counts the faces as made; a ``per_face`` part's ``metadata["whole_part"]`` its new
+    counts, so that :func:`~stepterrain.export.save_mesh` stores the six draped parts alike, seams welded). The
+    material's ``wrap`` is ("REPEAT",
     "CLAMP_TO_EDGE"): GLB/glTF exports give the texture a sampler that repeats the image in u (longitude) and clamps
     it in v, and renders sample it so, so that no pole's colour blends with the other pole's in the mipmaps.
 
@@ -1982,7 +1994,15 @@ def _drape_texture(mesh: trimesh.Trimesh, pixels: NDArray[np.uint8], picture: An
         raise InvalidInputError(f"mesh vertices must be finite to drape a texture; got vertex {bad[0]} at "
                                 f"{vertices[bad[0]].tolist()}")
     horizontal = np.hypot(vertices[:, 0], vertices[:, 1])
+    # relative to the vertex's height along the axis: within 1e-9 (an absolute length for |z| < 1) the ring round
+    # each pole of a globe of radius 1e-8 became poles, and every vertex of one of radius 1e-12 (every u 0)
+    pole = horizontal <= 1e-9 * np.abs(vertices[:, 2])
     lon = np.degrees(np.arctan2(vertices[:, 1], vertices[:, 0]))
+    split = _split_at_poles(vertices, faces, pole, lon)
+    if split is not None:  # a face the polar axis crosses (the coarsest mesh's), split at its pole
+        vertices, faces, source, pole = split
+        horizontal = np.hypot(vertices[:, 0], vertices[:, 1])
+        lon = np.degrees(np.arctan2(vertices[:, 1], vertices[:, 0]))
     lat = np.degrees(np.arctan2(vertices[:, 2], horizontal))
     u = (lon + 180.0) / 360.0  # the seam's (the antimeridian's) u, whatever the texture's
     v = (lat + 90.0) / 180.0
@@ -1993,9 +2013,6 @@ def _drape_texture(mesh: trimesh.Trimesh, pixels: NDArray[np.uint8], picture: An
     texture_u = u if placement is None or placement.whole_columns else placement.columns(lon) / width
     if placement is not None and not placement.whole_rows:  # clamped: a pole beyond the image's edge takes its row
         v = np.clip(1.0 - placement.rows(lat) / height, 0.0, 1.0)
-    # relative to the vertex's height along the axis: within 1e-9 (an absolute length for |z| < 1) the ring round
-    # each pole of a globe of radius 1e-8 became poles, and every vertex of one of radius 1e-12 (every u 0)
-    pole = horizontal <= 1e-9 * np.abs(vertices[:, 2])
     corner_u = u[faces]
     corner_pole = pole[faces]
     # the antimeridian: a face whose non-pole corners span more than half the image wraps around
@@ -2040,14 +2057,85 @@ def _drape_texture(mesh: trimesh.Trimesh, pixels: NDArray[np.uint8], picture: An
         new_faces = index[new_faces]
         sources, uv = sources[kept], uv[kept]
     out = trimesh.Trimesh(vertices[sources], new_faces, process=False, metadata=dict(mesh.metadata),
-                          face_attributes={k: np.asarray(a) for k, a in mesh.face_attributes.items()})  # fmt: skip
+                          face_attributes={k: np.asarray(a)[source] if split is not None else np.asarray(a)
+                                           for k, a in mesh.face_attributes.items()})  # fmt: skip
     out.metadata.pop("node_entry", None)  # vertex -> node entry does not hold for the copies
+    made = out.metadata.get("whole_part")
+    if isinstance(made, dict) and (made.get("vertices"), made.get("faces")) == (len(mesh.vertices), len(mesh.faces)):
+        # a per-face part as made (Globe.mesh), draped: its copies and split points lie within its bounds, and
+        # save_mesh keeps the set's frame for it by its new counts (by the old ones, a culled part draped was stored
+        # about its own centre, the others about the eye: the seams came apart by up to 0.69 m)
+        out.metadata["whole_part"] = {**made, "vertices": len(out.vertices), "faces": len(out.faces)}
     out.visual = trimesh.visual.TextureVisuals(uv=uv, image=picture if picture is not None else Image.fromarray(pixels))
     # the image wraps around in longitude, not from pole to pole: glTF's default sampler (REPEAT both ways) blended
     # each pole's texels with the other pole's in the mipmaps, a grey diamond at the north pole of the Blue Marble and
     # a dark spot at its white south pole (the GLB's sampler and the render clamp v)
     out.visual.material.wrap = ("REPEAT", "CLAMP_TO_EDGE")
     return out
+
+
+def _split_at_poles(vertices: NDArray[np.float64], faces: NDArray[np.int64], pole: NDArray[np.bool_],
+                    lon: NDArray[np.float64]
+                    ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64], NDArray[np.bool_]] | None:
+    """``vertices``, ``faces`` and the ``pole`` flags with each face that the polar axis crosses, not at a corner, split
+    at the point where it does: one on an edge (every face beside that edge too) in two, one inside in three. The
+    coarsest globe mesh leaves a cube face as its two root triangles, whose shared diagonal runs through the pole:
+    each spans 180 degrees of longitude, and the drape's UVs, linear over a face, gave it a u span of 0.5 (the texture
+    smeared across half the map, 90 degrees off along the diagonal) where a pole vertex, as on every finer mesh, takes
+    the mean u of each face's other corners. The new points lie on the faces (on the edge, or in the face's plane) and
+    are poles; the first piece of a face keeps its index, the others follow all faces in order. Returns the vertices
+    (new points after the old ones), the faces, each face's original index and the pole flags; None where no face
+    is split. Only faces whose corners' longitudes (``lon``, degrees) span 180 degrees or more, none a pole, are
+    looked at (a face round the axis spans more, one with the axis on an edge 180): a few, at the antimeridian."""
+    n, count = len(vertices), len(faces)
+    corner_lon = lon[faces]
+    # (less a margin: a corner's longitude rounds, and the axis may pass within the tolerance below outside an edge)
+    around = np.flatnonzero((np.ptp(corner_lon, axis=1) >= 180.0 - 1e-6) & ~pole[faces].any(axis=1))
+    del corner_lon
+    corners = vertices[faces[around]]
+    x, y = corners[..., 0], corners[..., 1]
+    edge = x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y  # edge k (corner k to k + 1) against the axis
+    area = edge.sum(axis=1)  # twice the face's area seen along the axis, signed
+    with np.errstate(divide="ignore", invalid="ignore"):
+        weight = edge / area[:, None]  # 0 on the edge's line, 1 at the corner opposite it
+    scale = np.abs(corners[..., :2]).max(axis=(1, 2), initial=0.0)
+    on = weight <= 1e-9
+    # on two edges' lines: at a corner, which is the pole itself; at the centre (a face through it): no pole
+    crossed = (np.abs(area) > 1e-12 * scale**2) & (weight >= -1e-9).all(axis=1) & (on.sum(axis=1) <= 1)
+    with np.errstate(invalid="ignore"):
+        height = np.einsum("fk,fk->f", np.roll(weight, -1, axis=1), corners[..., 2])  # where the axis meets it
+    crossed &= np.abs(height) > 1e-9 * scale
+    if not crossed.any():
+        return None
+    points: list[NDArray[np.float64]] = []
+    source = [np.arange(count)]
+    faces = faces.copy()  # the mesh's own array, where it is int64
+    inside = ~on.any(axis=1) & crossed
+    if inside.any():  # in three at the point: the corners weighted by the edges opposite them
+        p = n + np.arange(int(inside.sum()))
+        points.append(np.einsum("fk,fkc->fc", np.roll(weight[inside], -1, axis=1), corners[inside]))
+        rows = around[inside]
+        a, b, c = faces[rows].T
+        faces[rows] = np.column_stack([a, b, p])
+        faces = np.concatenate([faces, np.column_stack([b, c, p]), np.column_stack([c, a, p])])
+        source += [rows, rows]
+    source = np.concatenate(source)
+    rows, cols = np.nonzero(crossed[:, None] & on)
+    ends = faces[around[rows][:, None], np.column_stack([cols, (cols + 1) % 3])]
+    for a, b in np.unique(np.sort(ends, axis=1), axis=0):  # each edge the axis crosses, once, and the faces beside it
+        start, step = vertices[a], vertices[b] - vertices[a]
+        t = -float(start[:2] @ step[:2]) / float(step[:2] @ step[:2])
+        points.append((start + t * step)[None])
+        p = n + sum(len(q) for q in points) - 1
+        for f in np.flatnonzero((faces == a).any(axis=1) & (faces == b).any(axis=1)):
+            k = next(k for k in range(3) if {faces[f, k], faces[f, (k + 1) % 3]} == {a, b})
+            first, second, third = faces[f, k], faces[f, (k + 1) % 3], faces[f, (k + 2) % 3]
+            faces[f] = first, p, third
+            faces = np.concatenate([faces, [[p, second, third]]])
+            source = np.concatenate([source, source[f : f + 1]])
+    added = np.concatenate(points)
+    return (np.concatenate([vertices, added]), faces, source,
+            np.concatenate([pole, np.ones(len(added), dtype=bool)]))
 
 
 def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint8]:
@@ -2245,6 +2333,28 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
     near = max((distance - top) * 1e-3, min(1.0, radius * 1e-6))
     return Camera(eye=tuple(eye), target=tuple(target), up=tuple(up), fov=fov, aspect=aspect,
                   near=near, far=distance + max(distance, top) + radius)
+
+
+def _unresolved_altitude(radius: float, altitude: float) -> str:
+    """"" unless a non-zero ``altitude`` (metres above the sphere of ``radius``) rounds away in float64, the eye's
+    distance ``radius + altitude`` the radius itself: 1 km above a sphere of 1e20 m, where float64's numbers lie
+    16384 m apart (an eye on the sphere, below any terrain there: refused as "inside the planet", |eye| and the
+    surface both 1e20 m). Then a usable range for a refusal's words: "{spacing} m at this radius, or a radius below
+    {bound} m for this altitude" (either keeps at least half of the altitude)."""
+    spacing = math.ulp(radius)
+    if altitude == 0.0 or radius + altitude != radius:
+        return ""
+    bound = 2.0 ** (math.floor(math.log2(abs(altitude))) + 53)  # every radius below it: spacing <= |altitude|
+    return f"{_shown(spacing, 1):g} m at this radius, or a radius below {_shown(bound, -1):g} m for this altitude"
+
+
+def _shown(value: float, way: int) -> float:
+    """``value`` to the 6 digits ``:g`` prints, rounded up (``way`` 1) or down (-1): a bound a message names holds as
+    printed (2^62 printed 4.61169e18, yet a radius of 4.6116899e18 is not below it)."""
+    shown = float(f"{value:.6g}")
+    if (shown - value) * way < 0:
+        shown += way * 10.0 ** (math.floor(math.log10(shown)) - 5)
+    return shown
 
 
 def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int, int] | None = None,
