@@ -38,16 +38,25 @@ def test_entry_point_registers_the_accessor_lazily():
     """``import stepterrain`` leaves pyvista (VTK) alone; a pyvista user gets ``grid.stepterrain`` without
     importing stepterrain, through the ``pyvista.accessors`` entry point (fresh interpreters: no module cached)."""
     quiet = "import sys; import stepterrain; print('pyvista' in sys.modules, 'vtkmodules' in sys.modules)"
-    out = subprocess.run([sys.executable, "-c", quiet], capture_output=True, text=True, check=True).stdout.split()
-    assert out == ["False", "False"]
     use = (
         "import sys, numpy as np, pyvista as pv\n"
         "assert 'stepterrain' not in sys.modules\n"
         "g = pv.ImageData(dimensions=(5, 4, 1)); g['elevation'] = np.arange(20.0)\n"
         "print(g.stepterrain.stepped(interval=4.0, device='cpu').n_cells > 0)"
     )
-    out = subprocess.run([sys.executable, "-c", use], capture_output=True, text=True, check=True).stdout.split()
-    assert out[-1:] == ["True"]
+    started = [subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+               for code in (quiet, use)]  # both at once: each imports the project
+    try:
+        outputs = [p.communicate(timeout=300) for p in started]
+    finally:
+        for p in started:
+            if p.poll() is None:
+                p.kill()
+                p.communicate()
+    for p, (_, err) in zip(started, outputs, strict=True):
+        assert p.returncode == 0, err
+    assert outputs[0][0].split() == ["False", "False"]
+    assert outputs[1][0].split()[-1:] == ["True"]
 
 
 def test_image_data_steps_like_the_api(device):

@@ -108,16 +108,36 @@ def test_run_globe_gives_pymartini_as_many_runs_as_ours(monkeypatch):
     assert any("pymartini `Martini(33)`" in line for line in lines)
 
 
-def test_pytest_benchmarks_collects_the_bench_modules_only():
+_COLLECT = [sys.executable, "-m", "pytest", "benchmarks", "-k", "small", "--collect-only", "-q"]
+
+
+@pytest.fixture(scope="module")
+def benchmark_collections():
+    """``pytest benchmarks -k small --collect-only -q`` as is and with ``--ignore=benchmarks/bench_texture.py``, run
+    at once in two interpreters (each imports the project: one after the other took twice the time on two cores):
+    their CompletedProcesses by the options added."""
+    import subprocess
+
+    extras = ((), ("--ignore=benchmarks/bench_texture.py",))
+    started = [subprocess.Popen([*_COLLECT, *extra], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True) for extra in extras]  # fmt: skip
+    try:
+        outputs = [p.communicate(timeout=300) for p in started]  # then their exit statuses are set
+    finally:
+        for p in started:
+            if p.poll() is None:
+                p.kill()
+                p.communicate()
+    return {extra: subprocess.CompletedProcess(p.args, p.returncode, *out)
+            for extra, p, out in zip(extras, started, outputs, strict=True)}
+
+
+def test_pytest_benchmarks_collects_the_bench_modules_only(benchmark_collections):
     """benchmarks/README.md's ``pytest benchmarks -k small --benchmark-enable`` failed at collection:
     ``--doctest-modules`` (the project's addopts) imported every script of the folder, and ``globe_ab.py`` parsed
     pytest's ``sys.argv`` as its own (``int('small')``) at import, after pinning the process to one core where it got
     that far. benchmarks/conftest.py now lets pytest collect ``bench_*.py`` only."""
-    import subprocess
-    import sys
-
-    proc = subprocess.run([sys.executable, "-m", "pytest", "benchmarks", "-k", "small", "--collect-only", "-q"],
-                          cwd=ROOT, capture_output=True, text=True, timeout=300, check=False)
+    proc = benchmark_collections[()]
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     collected = [line for line in proc.stdout.splitlines() if "::" in line]
     assert collected and all(line.startswith(("benchmarks/bench_stepped.py::", "benchmarks/bench_texture.py::"))
@@ -125,16 +145,11 @@ def test_pytest_benchmarks_collects_the_bench_modules_only():
     assert any("small-257" in line for line in collected)
 
 
-def test_pytest_benchmarks_still_honours_ignore():
+def test_pytest_benchmarks_still_honours_ignore(benchmark_collections):
     """benchmarks/conftest.py answered False ("collect it") for ``bench_*.py``, and pytest takes the first answer of
     ``pytest_ignore_collect``: ``pytest benchmarks --ignore=benchmarks/bench_texture.py`` (or ``--ignore-glob``)
     collected bench_texture.py all the same. It now answers only for the scripts it leaves out."""
-    import subprocess
-    import sys
-
-    proc = subprocess.run([sys.executable, "-m", "pytest", "benchmarks", "-k", "small", "--collect-only", "-q",
-                           "--ignore=benchmarks/bench_texture.py"],
-                          cwd=ROOT, capture_output=True, text=True, timeout=300, check=False)
+    proc = benchmark_collections[("--ignore=benchmarks/bench_texture.py",)]
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     collected = [line for line in proc.stdout.splitlines() if "::" in line]
     assert collected and all(line.startswith("benchmarks/bench_stepped.py::") for line in collected), collected

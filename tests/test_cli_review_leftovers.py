@@ -139,14 +139,14 @@ def test_3mf_declares_the_unit_of_the_coordinates_on_every_path(tmp_path, capsys
     import stepterrain as st
     from stepterrain.export import read_mesh, save_mesh
 
-    dem = st.sample_dem().coarsen(8)
-    code, _, err = run(capsys, "steps", "--interval", "200", "--solid", "--coarsen", "8", "-o", tmp_path / "s.3mf",
+    dem = st.sample_dem().coarsen(16)  # a 40 x 74 grid: the units, not the sizes, differ by path
+    code, _, err = run(capsys, "steps", "--interval", "200", "--solid", "--coarsen", "16", "-o", tmp_path / "s.3mf",
                        "-q")
     assert code == 0, err
     assert _model_unit(tmp_path / "s.3mf") == "meter"
     width = np.ptp(read_mesh(tmp_path / "s.3mf").vertices[:, 0])
     assert 35_000 < width < 36_000  # metres: 35.9 km, as the DEM
-    code, _, err = run(capsys, "steps", "--interval", "200", "--solid", "--coarsen", "8", "--print-size", "150", "-o",
+    code, _, err = run(capsys, "steps", "--interval", "200", "--solid", "--coarsen", "16", "--print-size", "150", "-o",
                        tmp_path / "p.3mf", "-q")
     assert code == 0 and _model_unit(tmp_path / "p.3mf") == "millimeter", err
     assert np.isclose(np.ptp(read_mesh(tmp_path / "p.3mf").vertices[:, 0]), 150.0)

@@ -177,14 +177,39 @@ def test_to_device_makes_strided_warp_arrays_contiguous():
     assert _device.to_device(base, wp.float32, wp.get_device("cpu")) is base
 
 
-def _run(code: str, *args: str, debug: bool = True) -> subprocess.CompletedProcess:
-    """Run ``code`` in a fresh interpreter, Warp in debug mode (kernels compiled with their assertions) or not."""
+def _script(folder: str, code: str, debug: bool) -> str:
+    """``code`` written to a script in ``folder`` (a file: Warp reads a kernel's source from it), Warp in debug mode
+    (kernels compiled with their assertions) or not."""
     prelude = "import warp as wp\nwp.config.quiet = True\n" + ("wp.config.mode = 'debug'\n" if debug else "")
+    script = os.path.join(folder, f"script_{'debug' if debug else 'release'}.py")
+    with open(script, "w") as f:
+        f.write(prelude + textwrap.dedent(code))
+    return script
+
+
+def _run(code: str, *args: str, debug: bool = True) -> subprocess.CompletedProcess:
+    """Run ``code`` in a fresh interpreter, Warp in debug mode or not."""
     with tempfile.TemporaryDirectory() as tmp:
-        script = os.path.join(tmp, "script.py")  # a file: Warp reads a kernel's source from it
-        with open(script, "w") as f:
-            f.write(prelude + textwrap.dedent(code))
-        return subprocess.run([sys.executable, script, *args], capture_output=True, text=True, timeout=600)
+        return subprocess.run([sys.executable, _script(tmp, code, debug), *args], capture_output=True, text=True,
+                              timeout=600)
+
+
+def _run_debug_and_release(code: str, debug_out: str, release_out: str, *args: str):
+    """``_run(code, debug_out, *args)`` and ``_run(code, release_out, *args, debug=False)`` in two interpreters at
+    once (one after the other, each waited on, took twice the time on two cores): their CompletedProcesses."""
+    with tempfile.TemporaryDirectory() as tmp:
+        started = [subprocess.Popen([sys.executable, _script(tmp, code, debug), out, *args], stdout=subprocess.PIPE,
+                                    stderr=subprocess.PIPE, text=True)
+                   for debug, out in ((True, debug_out), (False, release_out))]
+        try:
+            outputs = [p.communicate(timeout=600) for p in started]  # read as they run: no pipe fills up
+            return tuple(subprocess.CompletedProcess(p.args, p.returncode, *out)
+                         for p, out in zip(started, outputs, strict=True))
+        finally:
+            for p in started:
+                if p.poll() is None:
+                    p.kill()
+                    p.communicate()
 
 
 def test_debug_mode_catches_an_index_out_of_range():
@@ -229,9 +254,8 @@ def test_stepped_kernels_stay_in_range_in_debug_mode():
     """
     with tempfile.TemporaryDirectory() as tmp:
         debug_out, release_out = os.path.join(tmp, "debug.npz"), os.path.join(tmp, "release.npz")
-        debug = _run(code, debug_out)
+        debug, release = _run_debug_and_release(code, debug_out, release_out)
         assert debug.returncode == 0 and "Assertion failed" not in debug.stderr, debug.stderr[-2000:]
-        release = _run(code, release_out, debug=False)
         assert release.returncode == 0, release.stderr[-2000:]
         with np.load(debug_out) as d, np.load(release_out) as r:
             assert d.files == r.files
@@ -277,9 +301,8 @@ def test_globe_kernels_stay_in_range_in_debug_mode():
         heights = os.path.join(tmp, "dem.npy")
         np.save(heights, dem[:65, :65])
         debug_out, release_out = os.path.join(tmp, "debug.npz"), os.path.join(tmp, "release.npz")
-        debug = _run(code, debug_out, str(relief), heights)
+        debug, release = _run_debug_and_release(code, debug_out, release_out, str(relief), heights)
         assert debug.returncode == 0 and "Assertion failed" not in debug.stderr, debug.stderr[-2000:]
-        release = _run(code, release_out, str(relief), heights, debug=False)
         assert release.returncode == 0, release.stderr[-2000:]
         with np.load(debug_out) as d, np.load(release_out) as r:
             assert d.files == r.files
@@ -316,9 +339,8 @@ def test_texture_kernels_stay_in_range_in_debug_mode():
         heights = os.path.join(tmp, "dem.npy")
         np.save(heights, np.tile(dem[:96, :96], (1, 12)))  # 96 x 1152: more than 16 lines each way
         debug_out, release_out = os.path.join(tmp, "debug.npz"), os.path.join(tmp, "release.npz")
-        debug = _run(code, debug_out, heights)
+        debug, release = _run_debug_and_release(code, debug_out, release_out, heights)
         assert debug.returncode == 0 and "Assertion failed" not in debug.stderr, debug.stderr[-2000:]
-        release = _run(code, release_out, heights, debug=False)
         assert release.returncode == 0, release.stderr[-2000:]
         with np.load(debug_out) as d, np.load(release_out) as r:
             assert d.files == r.files

@@ -75,6 +75,28 @@ def _close_recording_columns(vertices, faces, terrace, floor):
     return result, seen.get("call")
 
 
+def _lexical_rank(key):
+    """Each row's rank among the distinct rows of the columns ``key`` (uint64 arrays) in lexical order: what
+    ``np.unique(np.column_stack(key), axis=0, return_inverse=True)[1]`` gives, through one lexsort and a scan for the
+    rows that differ from the one before (np.unique's row sort of the sample DEM's 2 million columns took 1 s)."""
+    order = np.lexsort(key[::-1])  # lexsort's primary key is its last
+    ranked = [k[order] for k in key]
+    starts = np.zeros(len(order), bool)
+    starts[1:] = np.logical_or.reduce([k[1:] != k[:-1] for k in ranked])
+    rank = np.empty(len(order), np.int64)
+    rank[order] = np.cumsum(starts)
+    return rank
+
+
+def test_lexical_rank_is_np_uniques_inverse():
+    rng = np.random.default_rng(5)
+    key = [rng.integers(0, 4, 500).astype(np.uint64), rng.integers(0, 3, 500).astype(np.uint64),
+           rng.integers(0, 2**64 - 1, 500, dtype=np.uint64, endpoint=True) % np.uint64(5) << np.uint64(61)]
+    for columns in (key[:1], key[:2], key):
+        want = np.unique(np.column_stack(columns), axis=0, return_inverse=True)[1].reshape(-1)
+        np.testing.assert_array_equal(_lexical_rank(columns), want)
+
+
 def _assert_same(vertices, faces, terrace, floor):
     """close_solid and the reference give the same solid up to the order of the base vertices, or the same error;
     returns the result.
@@ -107,8 +129,7 @@ def _assert_same(vertices, faces, terrace, floor):
     v, fan, pair, column = call
     assert np.array_equal(_bits(v), _bits(gv[:n]))
     key = [_bits(v[:, 0]), _bits(v[:, 1])] + ([_bits(fan)] if fan is not None else []) + [pair.astype(np.uint64)]
-    _, old = np.unique(np.column_stack(key), axis=0, return_inverse=True)  # the reference's: the key's lexical rank
-    old = old.reshape(-1)
+    old = _lexical_rank(key)  # the reference's numbering: the key's lexical rank
     count = int(old.max()) + 1
     assert column.min() == 0 and column.max() == count - 1
     perm = np.full(count, -1, np.int64)
