@@ -1286,14 +1286,14 @@ def _render_too(exc: OutputTooLargeError, size: tuple[int, int]) -> None:
     from ._compaction import _size_text
     from .render import _render_bytes
 
-    nbytes, mesh, figure = exc.nbytes, exc.mesh, _budget_advice(exc)
-    if mesh is None or figure is None:
+    nbytes, mesh = exc.nbytes, exc.mesh
+    if mesh is None or not _advisable(exc):
         return
     render = _render_bytes(size[0], size[1], vertices=mesh[0], faces=mesh[1])  # as the --png check counts it
     if render <= nbytes:
         return
-    raise _advised_again(exc, figure, render, f"its --png render, {size[0]}x{size[1]}, needs {_size_text(render)} "
-                                              f"for a mesh of at least {mesh[1]:,} faces") from None
+    raise _advised_again(exc, render, f"its --png render, {size[0]}x{size[1]}, needs {_size_text(render)} "
+                                      f"for a mesh of at least {mesh[1]:,} faces") from None
 
 
 def _solid_too(exc: OutputTooLargeError, size: tuple[int, int], count: Callable[[int], Any]) -> None:
@@ -1306,8 +1306,8 @@ def _solid_too(exc: OutputTooLargeError, size: tuple[int, int], count: Callable[
     from ._compaction import _size_text
     from .render import _render_bytes
 
-    nbytes, figure = exc.nbytes, _budget_advice(exc)
-    if figure is None:
+    nbytes = exc.nbytes
+    if not _advisable(exc):
         return
     try:
         count(1)
@@ -1321,26 +1321,25 @@ def _solid_too(exc: OutputTooLargeError, size: tuple[int, int], count: Callable[
         return
     render = _render_bytes(size[0], size[1], vertices=mesh[0], faces=mesh[1])
     need = max(nbytes, solid, render)
-    raise _advised_again(exc, figure, need, f"the whole run: the stepped solid needs {_size_text(solid)} and its "
-                                            f"--png render, {size[0]}x{size[1]}, up to {_size_text(render)}") from None
+    raise _advised_again(exc, need, f"the whole run: the stepped solid needs {_size_text(solid)} and its "
+                                    f"--png render, {size[0]}x{size[1]}, up to {_size_text(render)}") from None
 
 
-def _budget_advice(exc: OutputTooLargeError) -> str | None:
-    """The budget advice (" to at least 30MiB") that ``exc``'s message ends in, as the error declares it (its
-    ``advice``, with its ``nbytes``), None where it declares none: :func:`_render_too` and :func:`_solid_too` advise
-    again only a message they can rewrite (it matched the message's end against a figure of ``nbytes`` before)."""
-    if exc.nbytes is None or not exc.advice:
-        return None
-    return exc.advice
+def _advisable(exc: OutputTooLargeError) -> bool:
+    """Whether ``exc`` declares the budget advice its message ends in (its ``advice``, " to at least 30MiB", with its
+    ``nbytes``): :func:`_render_too` and :func:`_solid_too` advise again only a message they can rewrite (it matched
+    the message's end against a figure of ``nbytes`` before)."""
+    return exc.nbytes is not None and bool(exc.advice)
 
 
-def _advised_again(exc: OutputTooLargeError, figure: str, need: int, why: str) -> OutputTooLargeError:
-    """``exc``, its message ending in ``figure`` (:func:`_budget_advice`), advising a budget of ``need`` bytes
-    instead, ``why`` in brackets after it; the same ``nbytes`` and ``mesh``, and no ``advice`` (the message ends in
-    the bracket: it is not advised again)."""
+def _advised_again(exc: OutputTooLargeError, need: int, why: str) -> OutputTooLargeError:
+    """``exc`` (:func:`_advisable`), its message's ``advice`` replaced by one of a budget of ``need`` bytes, ``why``
+    in brackets after it; the same ``nbytes`` and ``mesh``, and no ``advice`` (the message ends in the bracket: it is
+    not advised again)."""
     from ._compaction import _budget_figure
 
-    return type(exc)(f"{str(exc)[:-len(figure)]}{_budget_figure(need)} ({why})", nbytes=exc.nbytes, mesh=exc.mesh)
+    return type(exc)(f"{str(exc).removesuffix(exc.advice or '')}{_budget_figure(need)} ({why})", nbytes=exc.nbytes,
+                     mesh=exc.mesh)
 
 
 def _surface_size(terrain: Any) -> tuple[int, int]:
