@@ -59,7 +59,7 @@ def test_texture_pixel_edges_lie_on_the_terrain_extent(spacing, kx, ky):
     """A texture= image of (ky·H, kx·W) pixels over a grid of H x W nodes: its pixel edges lie on terrain_extent
     (the node extent plus half a cell), as terrain_layer and ImagePyramid place an image. The close-up path put its
     first and last pixel centres on the corner nodes instead: 1/4 cell off near the edges at 2 pixels a node (a
-    sample at node 0 read pixel 0, not between pixels 0 and 1), 0.3 cell at 0.37."""
+    sample at node 0 read pixel 0, not between pixels 0 and 1), 0.8 cell at 0.37 (0.82 on this 9 x 12 grid)."""
     t = grid(spacing)
     H, W = t.heights.shape
     h, w = max(2, round(ky * H)), max(2, round(kx * W))
