@@ -1100,8 +1100,7 @@ def _read_back(recorded: Any, given: Mapping[str, Any], own: Bounds, bounds: Bou
     shared = _recorded_bounds(recorded, given, own)
     if shared is None:
         return False
-    eye = _recorded_eye(recorded, given, shared)
-    offset = eye if eye is not None else _local_origin(shared)
+    offset = _gltf_offset(shared, _recorded_eye(recorded, given, shared))
     for made, got in zip(own, bounds, strict=True):
         stored = (got - offset).astype(np.float32)
         if not ((stored == (made - offset).astype(np.float32)).all() and (stored + offset == got).all()):
