@@ -4643,22 +4643,11 @@ def _obj_chunks_joined(file: Path, tidied: bytes | None) -> trimesh.Trimesh | No
 _OFF_KEYWORD = re.compile(r"(ST)?(C)?(N)?(4)?(n)?OFF")
 
 
-def _off_head_lines(data: bytes) -> Iterator[bytes]:
-    """The lines of an OFF file's bytes ``data`` one by one, each to its newline, as iterating over the open file
-    gave them (its header is read so: only its first lines are taken, not the whole file split)."""
-    at = 0
-    while at < len(data):
-        end = data.find(b"\n", at)
-        end = len(data) if end < 0 else end + 1
-        yield data[at:end]
-        at = end
-
-
 def _off_keyword(data: bytes) -> str | None:
     """The first word of an OFF file's bytes ``data`` (its keyword, ``OFF``, ``COFF``, ...), comments and blank lines
     before it skipped, read line by line: not the whole file. A UTF-8 byte-order mark before it is skipped (it was
     read as part of the keyword, so a COFF written with one lost its colours; trimesh's reader skips it)."""
-    for number, raw in enumerate(_off_head_lines(data)):
+    for number, raw in enumerate(io.BytesIO(data)):
         words = raw.removeprefix(b"\xef\xbb\xbf" if number == 0 else b"").split(b"#", 1)[0].split(maxsplit=1)
         if words:
             return words[0].decode("utf-8", "replace")
@@ -4669,7 +4658,7 @@ def _off_counts(data: bytes) -> tuple[int, int] | None:
     """The counts of vertices and faces an OFF file's header declares (``data``: its bytes; on its keyword's line or
     the next, comments and blank lines skipped), read line by line, or None where they cannot be read."""
     words: list[bytes] = []
-    for raw in _off_head_lines(data):
+    for raw in io.BytesIO(data):
         words += raw.removeprefix(b"\xef\xbb\xbf").split(b"#", 1)[0].split()
         if len(words) >= 3:
             try:
