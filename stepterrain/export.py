@@ -4443,21 +4443,32 @@ def _obj_chunk_faces(data: bytes) -> tuple[list[bytes | None], list[NDArray[np.i
     return names, np.split(joined, bounds)
 
 
+def _obj_block_lines(data: bytes) -> tuple[NDArray[np.uint8], NDArray[np.int64], NDArray[np.int64], NDArray[np.uint8]]:
+    """The lines of ``data``, whole lines of an OBJ text, for NumPy scans: its bytes, each line's start and its
+    newline (or the text's end), and its bytes padded with 8 zeros (for :func:`_obj_lines_starting`)."""
+    text = np.frombuffer(data, dtype=np.uint8)
+    newlines = np.flatnonzero(text == ord("\n"))
+    starts = np.concatenate(([0], newlines + 1))
+    ends = np.append(newlines, len(text))
+    return text, starts, ends, np.concatenate((text, np.zeros(8, np.uint8)))
+
+
+def _obj_usemtl_names(data: bytes, starts: NDArray[np.int64], ends: NDArray[np.int64],
+                      usemtl: NDArray[np.bool_]) -> list[bytes | None]:
+    """The material names of the ``usemtl`` lines (``usemtl``: which of the lines at ``starts`` to ``ends`` of
+    ``data`` are), in order."""
+    return [data[start + 7 : end].strip() for start, end in zip(starts[usemtl], ends[usemtl], strict=True)]
+
+
 def _obj_chunk_block(data: bytes, before: int, chunks: int) -> tuple[list[bytes | None], NDArray[np.int64],
                                                                       NDArray[np.int64], int] | None:
     """:func:`_obj_chunk_faces` of ``data``, whole lines of an OBJ text after ``before`` ``v`` lines and ``chunks``
     ``usemtl`` lines: its ``usemtl`` names, its triangles, each one's chunk, and the ``v`` lines up to its end; None
     where a face does not read so."""
-    text = np.frombuffer(data, dtype=np.uint8)
+    text, starts, ends, padded = _obj_block_lines(data)
     size = len(text)
-    newlines = np.flatnonzero(text == ord("\n"))
-    starts = np.concatenate(([0], newlines + 1))
-    ends = np.append(newlines, size)  # each line's newline (or the text's end)
-    padded = np.concatenate((text, np.zeros(8, np.uint8)))
-
     vertex, face, usemtl = (_obj_lines_starting(padded, starts, keyword) for keyword in (b"v ", b"f ", b"usemtl "))
-    names: list[bytes | None] = [bytes(data[start + 7 : end]).strip()
-                                 for start, end in zip(starts[usemtl], ends[usemtl], strict=True)]
+    names = _obj_usemtl_names(data, starts, ends, usemtl)
     seen = np.cumsum(vertex) - vertex + before  # the v lines before each line
     chunk = np.cumsum(usemtl) + chunks  # each line's usemtl chunk
     # the face lines' words: the bytes after "f " up to and with the newline (a blank between lines)
@@ -4505,14 +4516,10 @@ def _obj_triangle_materials(data: Any) -> list[bytes | None] | None:
     owners = []
     for at, end in _obj_line_blocks(data, _OBJ_INDEX_BLOCK):
         block = bytes(data[at:end])
-        text = np.frombuffer(block, dtype=np.uint8)
-        newlines = np.flatnonzero(text == ord("\n"))
-        starts = np.concatenate(([0], newlines + 1))
-        ends = np.append(newlines, len(text))
-        padded = np.concatenate((text, np.zeros(8, np.uint8)))
+        text, starts, ends, padded = _obj_block_lines(block)
         face, usemtl = (_obj_lines_starting(padded, starts, keyword) for keyword in (b"f ", b"usemtl "))
         chunk = np.cumsum(usemtl) + len(names) - 1  # each line's usemtl chunk
-        names += [block[start + 7 : stop].strip() for start, stop in zip(starts[usemtl], ends[usemtl], strict=True)]
+        names += _obj_usemtl_names(block, starts, ends, usemtl)
         blank = _OBJ_BLANK[text]
         heads = np.flatnonzero(~blank & np.concatenate(([True], blank[:-1])))  # each word's first byte
         words = np.bincount(np.searchsorted(starts, heads, side="right") - 1, minlength=len(starts))
