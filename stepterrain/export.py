@@ -1100,8 +1100,7 @@ def _read_back(recorded: Any, given: Mapping[str, Any], own: Bounds, bounds: Bou
     shared = _recorded_bounds(recorded, given, own)
     if shared is None:
         return False
-    eye = _recorded_eye(recorded, given, shared)
-    offset = eye if eye is not None else _local_origin(shared)
+    offset = _gltf_offset(shared, _recorded_eye(recorded, given, shared))
     for made, got in zip(own, bounds, strict=True):
         stored = (got - offset).astype(np.float32)
         if not ((stored == (made - offset).astype(np.float32)).all() and (stored + offset == got).all()):
@@ -4444,21 +4443,32 @@ def _obj_chunk_faces(data: bytes) -> tuple[list[bytes | None], list[NDArray[np.i
     return names, np.split(joined, bounds)
 
 
+def _obj_block_lines(data: bytes) -> tuple[NDArray[np.uint8], NDArray[np.int64], NDArray[np.int64], NDArray[np.uint8]]:
+    """The lines of ``data``, whole lines of an OBJ text, for NumPy scans: its bytes, each line's start and its
+    newline (or the text's end), and its bytes padded with 8 zeros (for :func:`_obj_lines_starting`)."""
+    text = np.frombuffer(data, dtype=np.uint8)
+    newlines = np.flatnonzero(text == ord("\n"))
+    starts = np.concatenate(([0], newlines + 1))
+    ends = np.append(newlines, len(text))
+    return text, starts, ends, np.concatenate((text, np.zeros(8, np.uint8)))
+
+
+def _obj_usemtl_names(data: bytes, starts: NDArray[np.int64], ends: NDArray[np.int64],
+                      usemtl: NDArray[np.bool_]) -> list[bytes | None]:
+    """The material names of the ``usemtl`` lines (``usemtl``: which of the lines at ``starts`` to ``ends`` of
+    ``data`` are), in order."""
+    return [data[start + 7 : end].strip() for start, end in zip(starts[usemtl], ends[usemtl], strict=True)]
+
+
 def _obj_chunk_block(data: bytes, before: int, chunks: int) -> tuple[list[bytes | None], NDArray[np.int64],
                                                                       NDArray[np.int64], int] | None:
     """:func:`_obj_chunk_faces` of ``data``, whole lines of an OBJ text after ``before`` ``v`` lines and ``chunks``
     ``usemtl`` lines: its ``usemtl`` names, its triangles, each one's chunk, and the ``v`` lines up to its end; None
     where a face does not read so."""
-    text = np.frombuffer(data, dtype=np.uint8)
+    text, starts, ends, padded = _obj_block_lines(data)
     size = len(text)
-    newlines = np.flatnonzero(text == ord("\n"))
-    starts = np.concatenate(([0], newlines + 1))
-    ends = np.append(newlines, size)  # each line's newline (or the text's end)
-    padded = np.concatenate((text, np.zeros(8, np.uint8)))
-
     vertex, face, usemtl = (_obj_lines_starting(padded, starts, keyword) for keyword in (b"v ", b"f ", b"usemtl "))
-    names: list[bytes | None] = [bytes(data[start + 7 : end]).strip()
-                                 for start, end in zip(starts[usemtl], ends[usemtl], strict=True)]
+    names = _obj_usemtl_names(data, starts, ends, usemtl)
     seen = np.cumsum(vertex) - vertex + before  # the v lines before each line
     chunk = np.cumsum(usemtl) + chunks  # each line's usemtl chunk
     # the face lines' words: the bytes after "f " up to and with the newline (a blank between lines)
@@ -4506,14 +4516,10 @@ def _obj_triangle_materials(data: Any) -> list[bytes | None] | None:
     owners = []
     for at, end in _obj_line_blocks(data, _OBJ_INDEX_BLOCK):
         block = bytes(data[at:end])
-        text = np.frombuffer(block, dtype=np.uint8)
-        newlines = np.flatnonzero(text == ord("\n"))
-        starts = np.concatenate(([0], newlines + 1))
-        ends = np.append(newlines, len(text))
-        padded = np.concatenate((text, np.zeros(8, np.uint8)))
+        text, starts, ends, padded = _obj_block_lines(block)
         face, usemtl = (_obj_lines_starting(padded, starts, keyword) for keyword in (b"f ", b"usemtl "))
         chunk = np.cumsum(usemtl) + len(names) - 1  # each line's usemtl chunk
-        names += [block[start + 7 : stop].strip() for start, stop in zip(starts[usemtl], ends[usemtl], strict=True)]
+        names += _obj_usemtl_names(block, starts, ends, usemtl)
         blank = _OBJ_BLANK[text]
         heads = np.flatnonzero(~blank & np.concatenate(([True], blank[:-1])))  # each word's first byte
         words = np.bincount(np.searchsorted(starts, heads, side="right") - 1, minlength=len(starts))
@@ -4644,22 +4650,11 @@ def _obj_chunks_joined(file: Path, tidied: bytes | None) -> trimesh.Trimesh | No
 _OFF_KEYWORD = re.compile(r"(ST)?(C)?(N)?(4)?(n)?OFF")
 
 
-def _off_head_lines(data: bytes) -> Iterator[bytes]:
-    """The lines of an OFF file's bytes ``data`` one by one, each to its newline, as iterating over the open file
-    gave them (its header is read so: only its first lines are taken, not the whole file split)."""
-    at = 0
-    while at < len(data):
-        end = data.find(b"\n", at)
-        end = len(data) if end < 0 else end + 1
-        yield data[at:end]
-        at = end
-
-
 def _off_keyword(data: bytes) -> str | None:
     """The first word of an OFF file's bytes ``data`` (its keyword, ``OFF``, ``COFF``, ...), comments and blank lines
     before it skipped, read line by line: not the whole file. A UTF-8 byte-order mark before it is skipped (it was
     read as part of the keyword, so a COFF written with one lost its colours; trimesh's reader skips it)."""
-    for number, raw in enumerate(_off_head_lines(data)):
+    for number, raw in enumerate(io.BytesIO(data)):
         words = raw.removeprefix(b"\xef\xbb\xbf" if number == 0 else b"").split(b"#", 1)[0].split(maxsplit=1)
         if words:
             return words[0].decode("utf-8", "replace")
@@ -4670,7 +4665,7 @@ def _off_counts(data: bytes) -> tuple[int, int] | None:
     """The counts of vertices and faces an OFF file's header declares (``data``: its bytes; on its keyword's line or
     the next, comments and blank lines skipped), read line by line, or None where they cannot be read."""
     words: list[bytes] = []
-    for raw in _off_head_lines(data):
+    for raw in io.BytesIO(data):
         words += raw.removeprefix(b"\xef\xbb\xbf").split(b"#", 1)[0].split()
         if len(words) >= 3:
             try:

@@ -4,6 +4,10 @@ textured OBJ's faces in the file's order."""
 
 from __future__ import annotations
 
+import builtins
+import io
+import warnings
+
 import numpy as np
 import pytest
 import trimesh
@@ -60,8 +64,6 @@ def test_crlf_copy_of_a_textured_stepterrain_obj_cut_at_a_line_end_refused(tmp_p
 
 _COFF = "COFF\n4 2 0\n0 0 0 255 0 0\n1 0 0 0 255 0\n0 1 0 0 0 255\n1 1 1 9 9 9\n3 0 1 2\n3 1 3 2\n"
 _OFF_FACE_COLOURS = "OFF\n4 2 0\n0 0 0\n1 0 0\n0 1 0\n1 1 1\n3 0 1 2 255 0 0\n3 1 3 2 0 0 255\n"
-
-
 _OFF_BOM = "\ufeffOFF # a\n\n4 2\n0 0 0\n1 0 0\n0 1 0\n1 1 1\n3 0 1 2\n3 1 3 2\n"
 
 
@@ -70,9 +72,6 @@ def test_off_file_opened_once(tmp_path, monkeypatch, text):
     """An OFF is opened and read once, its bytes kept: trimesh's reader, the header's keyword and counts, the vertex
     and face colour scans read them (the file was opened 5 times, and read whole 2 to 3 times), and the mesh comes
     back as before: named after its file, with its colours."""
-    import builtins
-    import io
-
     path = tmp_path / "mesh.off"
     path.write_text(text, encoding="utf-8", newline="")
     opened = []
@@ -118,8 +117,6 @@ def test_obj_whose_mtl_or_texture_image_is_missing_warns_naming_it(tmp_path):
     """A textured OBJ whose ``.mtl`` (its ``mtllib``) or whose material's texture image (``map_Kd``) is not beside it
     was read untextured without a word (trimesh's reader logs it at debug level): each is warned of by name and the
     path looked for, the mesh read without it, as a .gltf's missing image is; a whole OBJ reads without a warning."""
-    import warnings
-
     _textured_obj(tmp_path / "t.obj")
     with warnings.catch_warnings(record=True) as record:
         warnings.simplefilter("always")
@@ -146,8 +143,6 @@ def test_obj_of_several_materials_whose_mtl_is_missing_warns(tmp_path):
     text = ("mtllib colours.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nusemtl red\nf 1 2 3\nusemtl blue\nf 2 4 3\n")
     (tmp_path / "two.obj").write_text(text)
     (tmp_path / "colours.mtl").write_text("newmtl red\nKd 1 0 0\nnewmtl blue\nKd 0 0 1\n")
-    import warnings
-
     with warnings.catch_warnings(record=True) as record:
         warnings.simplefilter("always")
         assert read_mesh(tmp_path / "two.obj").visual.face_colors[:, :3].tolist() == [[255, 0, 0], [0, 0, 255]]
