@@ -2088,10 +2088,14 @@ def _split_at_poles(vertices: NDArray[np.float64], faces: NDArray[np.int64], pol
     is split. Only faces whose corners' longitudes (``lon``, degrees) span 180 degrees or more, none a pole, are
     looked at (a face round the axis spans more, one with the axis on an edge 180): a few, at the antimeridian."""
     n, count = len(vertices), len(faces)
-    corner_lon = lon[faces]
+    # corner by corner (every drape pays this: np.ptp and .any along an axis of 3 took 18 ms of a 82 ms drape of
+    # 196 608 faces, elementwise 2 ms)
+    lon0, lon1, lon2 = lon[faces[:, 0]], lon[faces[:, 1]], lon[faces[:, 2]]
+    span = np.maximum(np.maximum(lon0, lon1), lon2) - np.minimum(np.minimum(lon0, lon1), lon2)
+    del lon0, lon1, lon2
     # (less a margin: a corner's longitude rounds, and the axis may pass within the tolerance below outside an edge)
-    around = np.flatnonzero((np.ptp(corner_lon, axis=1) >= 180.0 - 1e-6) & ~pole[faces].any(axis=1))
-    del corner_lon
+    around = np.flatnonzero((span >= 180.0 - 1e-6) & ~(pole[faces[:, 0]] | pole[faces[:, 1]] | pole[faces[:, 2]]))
+    del span
     corners = vertices[faces[around]]
     x, y = corners[..., 0], corners[..., 1]
     edge = x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y  # edge k (corner k to k + 1) against the axis

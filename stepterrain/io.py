@@ -2911,13 +2911,11 @@ def missing_cells(
                 hits = equals_nodata(array, nodata)
             if marked_by is not None and hits.any():
                 marked_by.append("nodata")
-        if marked_by is None:
-            hits = given_nodata(array, given, hits)
-        else:  # apart, to tell whether they mark a cell
-            own = given_nodata(array, given)
-            if own is not None and own.any():
+        own = given_nodata(array, given)  # apart, to tell whether they mark a cell (no more arrays than in place)
+        if own is not None:
+            if marked_by is not None and own.any():
                 marked_by.append("given")
-                hits = own if hits is None else np.logical_or(hits, own, out=hits)
+            hits = own if hits is None else np.logical_or(hits, own, out=hits)
     if missing is not None:
         if marked_by is not None and missing.any():
             marked_by.append("mask")

@@ -3,6 +3,7 @@ at a huge radius, and per-face parts saved again after reading them back."""
 
 from __future__ import annotations
 
+import math
 import re
 
 import numpy as np
@@ -152,6 +153,28 @@ def test_a_face_the_polar_axis_pierces_is_split_in_three_at_the_pole():
     assert len(drape_texture(flat, np.zeros((4, 8, 3), np.uint8)).faces) == 1  # the axis meets it at the centre
 
 
+def _per_face_parts(view):
+    """The per-face parts of a face-size-33 sample globe at error 300 m, culled to ``view`` (latitude, longitude,
+    altitude and field of view in degrees)."""
+    globe = Globe.sample(face_size=33, device="cpu")
+    latitude, longitude, altitude, fov = view
+    return globe.mesh(error=300.0, camera=look_from(latitude, longitude, altitude, fov=math.radians(fov)),
+                      per_face=True)
+
+
+def _assert_seams_welded(parts, back):
+    """The copies of every seam vertex of ``parts`` (as :func:`_seam_pairs` of ``parts`` pairs them) are identical in
+    ``back`` (the parts saved and read back), and some seam is checked."""
+    from .test_globe_fixes import _seam_pairs
+
+    seams = 0
+    for a, b, pairs in _seam_pairs(parts):
+        seams += len(pairs)
+        np.testing.assert_array_equal(back[a].vertices[pairs[:, 0]], back[b].vertices[pairs[:, 1]],
+                                      err_msg=f"faces {a} and {b}")
+    assert seams > 0
+
+
 @pytest.mark.parametrize("ext", [".glb", ".gltf"])
 @pytest.mark.parametrize("view", [(30.0, 120.0, 1.0e7, 30.0), (44.0, 45.0, 3.0e7, 8.0)])
 def test_per_face_parts_read_back_and_saved_again_keep_their_seams_welded(tmp_path, ext, view):
@@ -161,26 +184,14 @@ def test_per_face_parts_read_back_and_saved_again_keep_their_seams_welded(tmp_pa
     part stored about its own centre, the others about the eye or the shared bounds, and the copies of a seam vertex
     came apart by up to 0.25 m on the Earth. A part whose bounds are exactly those its recorded ones read back as is
     a member as made: saved again, every part's positions read back as the first time, and the seams stay welded."""
-    import math
-
     from stepterrain.export import read_mesh, save_mesh
 
-    from .test_globe_fixes import _seam_pairs
-
-    globe = Globe.sample(face_size=33, device="cpu")
-    latitude, longitude, altitude, fov = view
-    parts = globe.mesh(error=300.0, camera=look_from(latitude, longitude, altitude, fov=math.radians(fov)),
-                       per_face=True)
+    parts = _per_face_parts(view)
     back = [read_mesh(save_mesh(part, tmp_path / f"face{k}{ext}")) for k, part in enumerate(parts)]
     again = [read_mesh(save_mesh(part, tmp_path / f"again{k}{ext}")) for k, part in enumerate(back)]
     for first, second in zip(back, again, strict=True):
         np.testing.assert_array_equal(second.vertices, first.vertices)
-    seams = 0
-    for a, b, pairs in _seam_pairs(parts):
-        seams += len(pairs)
-        np.testing.assert_array_equal(again[a].vertices[pairs[:, 0]], again[b].vertices[pairs[:, 1]],
-                                      err_msg=f"faces {a} and {b}")
-    assert seams > 0
+    _assert_seams_welded(parts, again)
     moved = back[1].copy()  # moved since: its own frame, as before
     moved.apply_translation([0.5, 0.0, 0.0])
     from stepterrain.export import _as_made
@@ -197,17 +208,10 @@ def test_per_face_parts_draped_and_saved_one_by_one_keep_their_seams_welded(tmp_
     save_mesh took the rule of a piece cut from a part: a culled part stored about its own centre, the others about
     the eye, and the copies of a seam vertex read back up to 0.69 m apart (3 of 72 views at face size 33). The drape
     records a part's new counts (its bounds are the part's: every copy and split point lies within them)."""
-    import math
-
     from stepterrain.export import read_mesh, save_mesh
     from stepterrain.globe import drape_texture
 
-    from .test_globe_fixes import _seam_pairs
-
-    globe = Globe.sample(face_size=33, device="cpu")
-    latitude, longitude, altitude, fov = view
-    parts = globe.mesh(error=300.0, camera=look_from(latitude, longitude, altitude, fov=math.radians(fov)),
-                       per_face=True)
+    parts = _per_face_parts(view)
     image = np.random.default_rng(0).integers(0, 255, (8, 16, 3)).astype(np.uint8)
     draped = [drape_texture(part, image) if len(part.faces) else part for part in parts]
     for part, textured in zip(parts, draped, strict=True):
@@ -217,9 +221,4 @@ def test_per_face_parts_draped_and_saved_one_by_one_keep_their_seams_welded(tmp_
                                                        "bounds": part.metadata["whole_part"]["bounds"]}
             assert part.metadata["whole_part"]["vertices"] == len(part.vertices)  # the part's own record kept
     back = [read_mesh(save_mesh(part, tmp_path / f"face{k}{ext}")) for k, part in enumerate(draped)]
-    seams = 0
-    for a, b, pairs in _seam_pairs(draped):
-        seams += len(pairs)
-        np.testing.assert_array_equal(back[a].vertices[pairs[:, 0]], back[b].vertices[pairs[:, 1]],
-                                      err_msg=f"faces {a} and {b}")
-    assert seams > 0
+    _assert_seams_welded(draped, back)
